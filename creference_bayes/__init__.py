@@ -1,0 +1,36 @@
+"""creference_bayes: 3D location of a target object from rough crowd annotations on one photo.
+
+The C-Reference method (Song et al., CSCW 2020) as a Bayesian estimator: the paper's cost is a
+negative log-posterior over (x, y, z, yaw, focal length); its MAP seeds an emcee ensemble.
+
+Quick start::
+
+    import creference_bayes as cb
+    result = cb.estimate("scene.json", seed=0)
+    print(result.to_dict()["map"])
+"""
+
+__version__ = "0.1.0"
+
+from .metrics import (location_percentage_error, percentage_error, range_percentage_error,
+                      range_precision)
+from .optimize import MapEstimate
+from .pipeline import estimate
+from .result import Result
+from .scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
+
+__all__ = [
+    "__version__",
+    "estimate",
+    "load_scene",
+    "parse_scene",
+    "Scene",
+    "SceneError",
+    "SceneWarning",
+    "Result",
+    "MapEstimate",
+    "percentage_error",
+    "range_percentage_error",
+    "location_percentage_error",
+    "range_precision",
+]

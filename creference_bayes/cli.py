@@ -1,0 +1,168 @@
+"""The ``creference`` command.
+
+Sub-commands register themselves: each module named in :data:`_COMMAND_MODULES` has a
+``register(subparsers)`` that adds its parser and sets ``func`` (a callable taking the parsed
+arguments and returning an exit status). Invalid input exits with status 2 and a one-line message
+on standard error, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .scene import SceneError, SceneWarning
+
+__all__ = ["main", "example_scene_path", "format_table"]
+
+#: Modules that add sub-commands besides ``estimate`` and ``demo``.
+_COMMAND_MODULES: list[str] = []
+
+EXIT_INVALID = 2
+
+
+class UsageError(Exception):
+    """A problem with what the user asked for; reported in one line with exit status 2."""
+
+
+def example_scene_path() -> Path:
+    """Path of the example scene shipped with the package."""
+    return Path(str(resources.files("creference_bayes") / "data" / "example_scene.json"))
+
+
+def format_table(result, truth=None) -> str:
+    """A plain-text table of a :class:`~creference_bayes.result.Result`."""
+    from .model import PARAM_NAMES, PARAM_UNITS
+
+    d = result.to_dict()
+    post = d.get("posterior")
+    cols = ["parameter", "unit", "MAP"]
+    if post:
+        cols += ["mean", "sd", f"HDI {post['hdi']['prob']:.0%}"]
+    if truth is not None:
+        cols.append("truth")
+    names = list(PARAM_NAMES) + (["distance_m"] if post else [])
+    units = list(PARAM_UNITS) + (["m"] if post else [])
+    rows = []
+    for name, unit in zip(names, units):
+        row = [name, unit, _fmt(d["map"].get(name, np.hypot(d["map"]["x"], d["map"]["z"])))]
+        if post:
+            lo, hi = post["hdi"][name]
+            row += [_fmt(post["mean"][name]), _fmt(post["sd"][name]), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+        if truth is not None:
+            row.append(_fmt(truth.get(name)) if truth.get(name) is not None else "")
+        rows.append(row)
+    widths = [max(len(str(r[i])) for r in rows + [cols]) for i in range(len(cols))]
+    line = "  ".join(c.ljust(w) for c, w in zip(cols, widths))
+    out = [line, "  ".join("-" * w for w in widths)]
+    out += ["  ".join(str(c).ljust(w) for c, w in zip(r, widths)) for r in rows]
+    return "\n".join(out)
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return ""
+    x = float(x)
+    return f"{x:.4g}" if abs(x) < 1e4 else f"{x:.0f}"
+
+
+def _truth_dict(scene):
+    gt = scene.ground_truth
+    if gt is None:
+        return None
+    t = {"x": gt.location_m[0], "y": gt.location_m[1], "z": gt.location_m[2],
+         "yaw": gt.yaw_rad, "focal_length_px": gt.focal_length_px,
+         "distance_m": float(np.hypot(gt.location_m[0], gt.location_m[2]))}
+    return t
+
+
+def _run_estimate(args) -> int:
+    from .pipeline import estimate
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    for w in scene.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    result = estimate(scene, preset=args.preset, seed=args.seed,
+                      use_references=not args.no_references)
+    _report(result, scene, args)
+    return 0
+
+
+def _report(result, scene, args) -> None:
+    if not args.quiet:
+        print(f"target {result.target!r}  model {result.model}  preset {result.preset}  "
+              f"handedness {result.map.handedness:+d}  MAP in {result.map.seconds:.2f} s")
+        print(format_table(result, _truth_dict(scene)))
+        if result.evaluation is not None:
+            print(f"location error (Eq. 3): {result.evaluation.location_pct_error:.2f} %")
+        for w in result.warnings:
+            print(f"note: {w}")
+    if args.out:
+        result.to_json(args.out)
+        if not args.quiet:
+            print(f"wrote {args.out}")
+
+
+def _run_demo(args) -> int:
+    args.scene = str(example_scene_path())
+    if not args.quiet:
+        print(f"example scene: {args.scene}")
+    return _run_estimate(args)
+
+
+def _add_estimate_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
+    p.add_argument("--preset", default="default", choices=["default", "paper", "paper-controlled"],
+                   help="optimiser preset (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="creference",
+        description="3D location of a target object from crowd annotations on one photo (C-Reference).")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    p = sub.add_parser("estimate", help="estimate the target of a scene file")
+    p.add_argument("scene", metavar="SCENE.json")
+    _add_estimate_options(p)
+    p.set_defaults(func=_run_estimate)
+    p = sub.add_parser("demo", help="estimate the example scene shipped with the package")
+    _add_estimate_options(p)
+    p.set_defaults(func=_run_demo)
+    for name in _COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)  # reported through scene.warnings
+            return int(args.func(args) or 0)
+    except (SceneError, UsageError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_INVALID
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""Parameter space and the paper's model: the cost over (x, y, z, yaw, µ) for one handedness.
+
+A *model* is what the optimiser and the sampler see: a vectorised ``cost(params)`` over full
+parameter vectors of shape (n, 5), the box :class:`Bounds`, and which parameters are free (µ is
+fixed when the scene gives the focal length). Other models (the metrology likelihood) provide the
+same attributes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .cost import PAPER_SIGMA_PX, SoftConstraints, soft_constraint_cost, target_cost
+from .geometry import Camera, dimension_corners
+
+__all__ = ["PARAM_NAMES", "PARAM_UNITS", "Bounds", "PaperModel", "wrap_angle"]
+
+#: Order of the parameter vector.
+PARAM_NAMES = ("x", "y", "z", "yaw", "focal_length_px")
+PARAM_UNITS = ("m", "m", "m", "rad", "px")
+YAW = 3
+FOCAL = 4
+
+
+def wrap_angle(theta):
+    """Wrap radians to [−π, π)."""
+    return (np.asarray(theta) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Box bounds on (x, y, z, yaw, µ): metres, metres, metres, radians, pixels.
+
+    The posterior's prior is uniform inside them (yaw is circular and is never bounded there).
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def __post_init__(self):
+        lo, hi = np.asarray(self.lower, float), np.asarray(self.upper, float)
+        if lo.shape != (5,) or hi.shape != (5,):
+            raise ValueError(f"Bounds: expected 5 lower and 5 upper values, got {lo.shape} and {hi.shape}")
+        bad = np.flatnonzero(~(lo <= hi))
+        if bad.size:
+            i = bad[0]
+            raise ValueError(f"Bounds.{PARAM_NAMES[i]}: lower {lo[i]!r} > upper {hi[i]!r}")
+        object.__setattr__(self, "lower", lo)
+        object.__setattr__(self, "upper", hi)
+
+    @classmethod
+    def paper_controlled(cls) -> "Bounds":
+        """The controlled study's bounds (paper §6.1)."""
+        return cls(np.array([-10, -10, 1, -np.pi, 100.0]), np.array([10, 10, 100, np.pi, 2000.0]))
+
+    @classmethod
+    def paper_system(cls) -> "Bounds":
+        """The system study's bounds (paper §7.1)."""
+        return cls(np.array([-10, -5, 1, -np.pi, 100.0]), np.array([10, 5, 50, np.pi, 3000.0]))
+
+    @classmethod
+    def default(cls, image_width: int, image_height: int) -> "Bounds":
+        """Wide bounds for any scene: |x| ≤ 500 m, |y| ≤ 50 m, 0.1 ≤ z ≤ 1000 m, µ within
+        0.1–10 × the image's larger side (fields of view from about 6° to 170°)."""
+        m = float(max(image_width, image_height))
+        return cls(np.array([-500, -50, 0.1, -np.pi, 0.1 * m]), np.array([500, 50, 1000, np.pi, 10 * m]))
+
+    def with_fixed(self, index: int, value: float) -> "Bounds":
+        lo, hi = self.lower.copy(), self.upper.copy()
+        lo[index] = hi[index] = value
+        return Bounds(lo, hi)
+
+    def contains(self, params: np.ndarray) -> np.ndarray:
+        """(n,) bool: inside the bounds, yaw ignored (circular)."""
+        p = np.atleast_2d(params)
+        keep = np.ones(5, bool)
+        keep[YAW] = False
+        return np.all((p[:, keep] >= self.lower[keep]) & (p[:, keep] <= self.upper[keep]), axis=1)
+
+
+@dataclass
+class PaperModel:
+    """The paper's cost′ (Eq. 5 plus Eq. 10–11) for one handedness of the dimension lines.
+
+    Parameters
+    ----------
+    camera : Camera
+    observed : (4, 2) corners t1..t4 in pixels (the per-corner median of the annotations)
+    dimensions : (length, width, height) of the target, metres
+    handedness : +1 or −1 (see :func:`~.geometry.dimension_corners`)
+    bounds : Bounds; µ is fixed when ``camera.focal_length_px`` is known
+    sigma : σ of Eq. 5, pixels
+    constraints : soft constraints from the references, or None
+    """
+
+    camera: Camera
+    observed: np.ndarray
+    dimensions: tuple[float, float, float]
+    handedness: int
+    bounds: Bounds
+    sigma: float = PAPER_SIGMA_PX
+    constraints: SoftConstraints | None = None
+    name: str = field(default="paper", init=False)
+
+    def __post_init__(self):
+        self.obj_corners = dimension_corners(*self.dimensions, self.handedness)
+        if self.camera.focal_length_px is not None:
+            self.bounds = self.bounds.with_fixed(FOCAL, self.camera.focal_length_px)
+        self.free = self.bounds.lower < self.bounds.upper
+
+    @classmethod
+    def from_scene(cls, scene, handedness: int, *, bounds: Bounds | None = None,
+                   sigma: float = PAPER_SIGMA_PX, constraints: SoftConstraints | None = None,
+                   camera: Camera | None = None) -> "PaperModel":
+        t = scene.target
+        return cls(camera=camera or Camera.from_scene(scene), observed=t.median_corners,
+                   dimensions=(t.length, t.width, t.height), handedness=handedness,
+                   bounds=bounds or Bounds.default(scene.image_width, scene.image_height),
+                   sigma=sigma, constraints=constraints)
+
+    def cost(self, params: np.ndarray) -> np.ndarray:
+        """cost′ for (n, 5) parameter vectors, shape (n,)."""
+        params = np.atleast_2d(np.asarray(params, float))
+        return (target_cost(params, self.observed, self.obj_corners, self.camera, self.sigma)
+                + soft_constraint_cost(params, self.constraints))
+
+    # -- free/fixed parameter handling shared by optimiser and sampler -------------------------
+    @property
+    def fixed_values(self) -> np.ndarray:
+        """(5,) the full vector's values where not free (µ when known); NaN elsewhere."""
+        return np.where(self.free, np.nan, self.bounds.lower)
+
+    def expand(self, free_params: np.ndarray) -> np.ndarray:
+        """(n, n_free) free parameters → (n, 5) full vectors."""
+        free_params = np.atleast_2d(free_params)
+        full = np.tile(self.bounds.lower, (len(free_params), 1))
+        full[:, self.free] = free_params
+        return full

@@ -1,0 +1,505 @@
+"""Scene dataclasses and the ``creference-scene/1`` loader (../shared/docs/formats.md).
+
+Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
+(``references[2].unit: unknown unit 'furlong'``). Unknown keys are not errors: they are kept in
+:attr:`Scene.warnings` and emitted as :class:`SceneWarning`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .units import UNITS_TO_M
+
+__all__ = [
+    "SCENE_FORMAT",
+    "SceneError",
+    "SceneWarning",
+    "DimensionLine",
+    "Target",
+    "Reference",
+    "GroundTruth",
+    "Scene",
+    "load_scene",
+    "parse_scene",
+    "scene_to_dict",
+]
+
+SCENE_FORMAT = "creference-scene/1"
+MEASURES = ("length", "width", "distance")
+MODES = ("direct", "relative")
+#: Image points may lie outside the image by at most this fraction of its size on each side.
+IMAGE_MARGIN = 0.5
+#: Segments shorter than this (pixels) count as zero-length.
+MIN_SEGMENT_PX = 1e-6
+
+
+class SceneError(ValueError):
+    """An invalid scene. ``path`` is the offending key path, e.g. ``references[2].unit``."""
+
+    def __init__(self, path: str, problem: str):
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}" if path else problem)
+
+
+class SceneWarning(UserWarning):
+    """Something in a scene was ignored or assumed (unknown keys, for example)."""
+
+
+@dataclass(frozen=True)
+class DimensionLine:
+    """One annotation of the target: ``corners`` (4, 2) pixels t1..t4 (formats.md)."""
+
+    corners: np.ndarray
+    worker: str | None = None
+    seconds: float | None = None
+
+
+@dataclass(frozen=True)
+class Target:
+    """The target box: sizes in metres and one or more dimension-line annotations."""
+
+    id: str
+    length: float
+    width: float
+    height: float
+    dimension_lines: tuple[DimensionLine, ...]
+
+    @property
+    def corners(self) -> np.ndarray:
+        """All annotations' corners, shape (n_annotation, 4, 2), pixels."""
+        return np.stack([d.corners for d in self.dimension_lines])
+
+    @property
+    def median_corners(self) -> np.ndarray:
+        """Per-corner median over the annotations (paper §7.1.1), shape (4, 2), pixels."""
+        return np.median(self.corners, axis=0)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A worker's rough measurement of another object, with the segment drawn for it.
+
+    ``low`` and ``high`` are the stated value or range, converted to metres for direct
+    measurements and kept as ratios to the target's length or width for relative ones.
+    """
+
+    index: int
+    measure: str
+    mode: str
+    low: float
+    high: float
+    line: np.ndarray
+    is_range: bool
+    unit: str | None = None
+    object: str | None = None
+    worker: str | None = None
+    confidence: float | None = None
+    seconds: float | None = None
+
+    def length_bounds_m(self, target: Target) -> tuple[float, float]:
+        """The real length of ``line`` implied by the annotation, in metres: (low, high)."""
+        if self.mode == "direct":
+            return self.low, self.high
+        base = target.length if self.measure == "length" else target.width
+        return self.low * base, self.high * base
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """Evaluation-only truth: bottom-centre location (m, gravity-aligned frame), yaw (rad), µ (px)."""
+
+    location_m: np.ndarray
+    yaw_rad: float | None = None
+    focal_length_px: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated ``creference-scene/1`` scene. Pixel coordinates: u right, v down, origin top-left."""
+
+    image_width: int
+    image_height: int
+    target: Target
+    principal_point: np.ndarray
+    focal_length_px: float | None = None
+    horizon: np.ndarray | None = None
+    references: tuple[Reference, ...] = ()
+    ground_truth: GroundTruth | None = None
+    image_path: Path | None = None
+    source: Path | None = None
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.image_width, self.image_height
+
+
+# ----------------------------------------------------------------------------------------------
+# validation helpers
+
+
+def _type_name(value: Any) -> str:
+    return "null" if value is None else type(value).__name__
+
+
+def _get(obj: dict, key: str, path: str, required: bool = True) -> Any:
+    if key not in obj:
+        if required:
+            raise SceneError(_join(path, key), "missing required key")
+        return None
+    return obj[key]
+
+
+def _join(path: str, key: str | int) -> str:
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return f"{path}.{key}" if path else key
+
+
+def _dict(value: Any, path: str) -> dict:
+    if not isinstance(value, dict):
+        raise SceneError(path, f"expected an object, got {_type_name(value)} {value!r}")
+    return value
+
+
+def _list(value: Any, path: str) -> list:
+    if not isinstance(value, list):
+        raise SceneError(path, f"expected a list, got {_type_name(value)} {value!r}")
+    return value
+
+
+def _number(value: Any, path: str, *, positive: bool = False, nonneg: bool = False,
+            lo: float | None = None, hi: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(path, f"expected a number, got {_type_name(value)} {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise SceneError(path, f"expected a finite number, got {value!r}")
+    if positive and x <= 0:
+        raise SceneError(path, f"expected a positive number, got {value!r}")
+    if nonneg and x < 0:
+        raise SceneError(path, f"expected a number >= 0, got {value!r}")
+    if lo is not None and x < lo or hi is not None and x > hi:
+        raise SceneError(path, f"expected a number in [{lo}, {hi}], got {value!r}")
+    return x
+
+
+def _string(value: Any, path: str, *, optional: bool = True) -> str | None:
+    if value is None and optional:
+        return None
+    if not isinstance(value, str):
+        raise SceneError(path, f"expected a string, got {_type_name(value)} {value!r}")
+    return value
+
+
+def _points(value: Any, path: str, n: int) -> np.ndarray:
+    pts = _list(value, path)
+    if len(pts) != n:
+        raise SceneError(path, f"expected {n} points, got {len(pts)}")
+    out = np.empty((n, 2))
+    for i, p in enumerate(pts):
+        p = _list(p, _join(path, i))
+        if len(p) != 2:
+            raise SceneError(_join(path, i), f"expected a point [u, v], got {p!r}")
+        out[i] = [_number(c, _join(_join(path, i), j)) for j, c in enumerate(p)]
+    return out
+
+
+def _check_inside(pts: np.ndarray, path: str, width: int, height: int) -> None:
+    mx, my = IMAGE_MARGIN * width, IMAGE_MARGIN * height
+    for i, (u, v) in enumerate(pts):
+        if not (-mx <= u <= width + mx and -my <= v <= height + my):
+            raise SceneError(_join(path, i),
+                             f"point [{u:g}, {v:g}] is far outside the {width}x{height} image")
+
+
+def _check_segment(a: np.ndarray, b: np.ndarray, path: str) -> None:
+    if np.hypot(*(b - a)) < MIN_SEGMENT_PX:
+        raise SceneError(path, f"zero-length line from [{a[0]:g}, {a[1]:g}] to [{b[0]:g}, {b[1]:g}]")
+
+
+def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> None:
+    for key in obj:
+        if key not in known:
+            sink.append(f"{_join(path, key)}: unknown key ignored")
+
+
+# ----------------------------------------------------------------------------------------------
+# parsing
+
+
+def _parse_dimension_line(obj: Any, path: str, w: int, h: int, sink: list[str]) -> DimensionLine:
+    obj = _dict(obj, path)
+    _warn_unknown(obj, {"worker", "corners", "seconds"}, path, sink)
+    corners = _points(_get(obj, "corners", path), _join(path, "corners"), 4)
+    _check_inside(corners, _join(path, "corners"), w, h)
+    for k, name in ((1, "length"), (2, "width"), (3, "height")):
+        _check_segment(corners[0], corners[k], f"{_join(path, 'corners')} ({name} line)")
+    seconds = obj.get("seconds")
+    return DimensionLine(
+        corners=corners,
+        worker=_string(obj.get("worker"), _join(path, "worker")),
+        seconds=None if seconds is None else _number(seconds, _join(path, "seconds"), nonneg=True),
+    )
+
+
+def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
+    obj = _dict(obj, path)
+    _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, path, sink)
+    dims_path = _join(path, "dimensions_m")
+    dims = _dict(_get(obj, "dimensions_m", path), dims_path)
+    _warn_unknown(dims, {"length", "width", "height"}, dims_path, sink)
+    size = {k: _number(_get(dims, k, dims_path), _join(dims_path, k), positive=True)
+            for k in ("length", "width", "height")}
+    lines_path = _join(path, "dimension_lines")
+    lines = _list(_get(obj, "dimension_lines", path), lines_path)
+    if not lines:
+        raise SceneError(lines_path, "expected at least one annotation, got []")
+    ident = obj.get("id", "target")
+    return Target(
+        id=_string(ident, _join(path, "id"), optional=False),
+        dimension_lines=tuple(_parse_dimension_line(d, _join(lines_path, i), w, h, sink)
+                              for i, d in enumerate(lines)),
+        **size,
+    )
+
+
+_REFERENCE_KEYS = {"worker", "object", "measure", "mode", "value", "range", "unit", "line",
+                   "confidence", "seconds"}
+
+
+def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
+                     sink: list[str]) -> Reference:
+    obj = _dict(obj, path)
+    _warn_unknown(obj, _REFERENCE_KEYS, path, sink)
+    measure = _get(obj, "measure", path)
+    if measure not in MEASURES:
+        raise SceneError(_join(path, "measure"), f"unknown measure {measure!r} (expected one of {list(MEASURES)})")
+    mode = _get(obj, "mode", path)
+    if mode not in MODES:
+        raise SceneError(_join(path, "mode"), f"unknown mode {mode!r} (expected one of {list(MODES)})")
+    if measure == "distance" and mode == "relative":
+        raise SceneError(_join(path, "mode"), "relative distance is not a valid format (paper §4.1.3)")
+
+    has_value, has_range = "value" in obj, "range" in obj
+    if has_value == has_range:
+        raise SceneError(path, "expected exactly one of 'value' or 'range'")
+    if has_value:
+        low = high = _number(obj["value"], _join(path, "value"), positive=True)
+    else:
+        rpath = _join(path, "range")
+        rng = _list(obj["range"], rpath)
+        if len(rng) != 2:
+            raise SceneError(rpath, f"expected [low, high], got {rng!r}")
+        low = _number(rng[0], _join(rpath, 0), positive=True)
+        high = _number(rng[1], _join(rpath, 1), positive=True)
+        if low > high:
+            raise SceneError(rpath, f"low {rng[0]!r} > high {rng[1]!r}")
+
+    unit = obj.get("unit")
+    if mode == "direct":
+        if unit not in UNITS_TO_M:
+            if unit is None:
+                raise SceneError(_join(path, "unit"), "missing required key for a direct measurement")
+            raise SceneError(_join(path, "unit"), f"unknown unit {unit!r} (expected one of {sorted(UNITS_TO_M)})")
+        low, high = low * UNITS_TO_M[unit], high * UNITS_TO_M[unit]
+    elif unit is not None:
+        raise SceneError(_join(path, "unit"), f"a relative measurement takes no unit, got {unit!r}")
+
+    line = _points(_get(obj, "line", path), _join(path, "line"), 2)
+    _check_inside(line, _join(path, "line"), w, h)
+    _check_segment(line[0], line[1], _join(path, "line"))
+    conf = obj.get("confidence")
+    secs = obj.get("seconds")
+    return Reference(
+        index=index, measure=measure, mode=mode, low=low, high=high, line=line,
+        is_range=has_range, unit=unit,
+        object=_string(obj.get("object"), _join(path, "object")),
+        worker=_string(obj.get("worker"), _join(path, "worker")),
+        confidence=None if conf is None else _number(conf, _join(path, "confidence"), lo=0.0, hi=1.0),
+        seconds=None if secs is None else _number(secs, _join(path, "seconds"), nonneg=True),
+    )
+
+
+def _parse_ground_truth(obj: Any, path: str) -> GroundTruth:
+    obj = _dict(obj, path)
+    loc = _list(_get(obj, "location_m", path), _join(path, "location_m"))
+    if len(loc) != 3:
+        raise SceneError(_join(path, "location_m"), f"expected [x, y, z], got {loc!r}")
+    location = np.array([_number(c, _join(_join(path, "location_m"), i)) for i, c in enumerate(loc)])
+    if location[2] <= 0:
+        raise SceneError(_join(path, "location_m"), f"z must be > 0 (in front of the camera), got {loc[2]!r}")
+    yaw = obj.get("yaw_rad")
+    focal = obj.get("focal_length_px")
+    extra = {k: v for k, v in obj.items() if k not in {"location_m", "yaw_rad", "focal_length_px"}}
+    return GroundTruth(
+        location_m=location,
+        yaw_rad=None if yaw is None else _number(yaw, _join(path, "yaw_rad")),
+        focal_length_px=None if focal is None else _number(focal, _join(path, "focal_length_px"), positive=True),
+        extra=extra,
+    )
+
+
+def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
+    """Validate a decoded scene (a dict) and return a :class:`Scene`.
+
+    Parameters
+    ----------
+    data : dict
+        The decoded JSON.
+    source : path, optional
+        The file it came from; ``image.path`` is resolved relative to it.
+
+    Raises
+    ------
+    SceneError
+        On the first invalid key, naming its path and value.
+    """
+    sink: list[str] = []
+    data = _dict(data, "(scene)")
+    fmt = _get(data, "format", "")
+    if fmt != SCENE_FORMAT:
+        raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {fmt!r}")
+    _warn_unknown(data, {"format", "image", "camera", "horizon", "target", "references",
+                         "ground_truth"}, "", sink)
+
+    image = _dict(_get(data, "image", ""), "image")
+    _warn_unknown(image, {"width", "height", "path"}, "image", sink)
+    width_f = _number(_get(image, "width", "image"), "image.width", positive=True)
+    height_f = _number(_get(image, "height", "image"), "image.height", positive=True)
+    if width_f != int(width_f) or height_f != int(height_f):
+        raise SceneError("image", f"width and height must be whole pixels, got {width_f!r} x {height_f!r}")
+    w, h = int(width_f), int(height_f)
+    img_path = _string(image.get("path"), "image.path")
+    source = Path(source) if source is not None else None
+    image_path = None
+    if img_path is not None:
+        image_path = Path(img_path)
+        if not image_path.is_absolute() and source is not None:
+            image_path = source.parent / image_path
+
+    camera = _dict(data.get("camera") or {}, "camera")
+    _warn_unknown(camera, {"principal_point", "focal_length_px"}, "camera", sink)
+    pp = camera.get("principal_point")
+    if pp is None:
+        principal = np.array([w / 2.0, h / 2.0])
+    else:
+        principal = _points([pp], "camera.principal_point", 1)[0]
+        if not (0 <= principal[0] <= w and 0 <= principal[1] <= h):
+            raise SceneError("camera.principal_point", f"{pp!r} lies outside the {w}x{h} image")
+    focal = camera.get("focal_length_px")
+    focal = None if focal is None else _number(focal, "camera.focal_length_px", positive=True)
+
+    horizon = data.get("horizon")
+    if horizon is not None:
+        horizon = _points(horizon, "horizon", 2)
+        _check_segment(horizon[0], horizon[1], "horizon")
+        if abs(horizon[1, 0] - horizon[0, 0]) < abs(horizon[1, 1] - horizon[0, 1]):
+            raise SceneError("horizon", f"a horizon steeper than 45 degrees is not supported, got {horizon.tolist()!r}")
+
+    target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
+    refs = _list(data.get("references", []), "references")
+    references = tuple(_parse_reference(r, i, _join("references", i), w, h, sink)
+                       for i, r in enumerate(refs))
+    gt = data.get("ground_truth")
+    ground_truth = None if gt is None else _parse_ground_truth(gt, "ground_truth")
+
+    for message in sink:
+        warnings.warn(message, SceneWarning, stacklevel=2)
+    return Scene(image_width=w, image_height=h, target=target, principal_point=principal,
+                 focal_length_px=focal, horizon=horizon, references=references,
+                 ground_truth=ground_truth, image_path=image_path, source=source,
+                 warnings=tuple(sink))
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and validate a ``creference-scene/1`` JSON file.
+
+    Raises
+    ------
+    SceneError
+        If the file is not valid JSON or not a valid scene; the message names the key path.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
+    path = Path(path)
+    text = path.read_text()
+    try:
+        data = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise SceneError("(file)", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except _ConstantError as exc:
+        raise SceneError("(file)", f"non-standard JSON constant {exc.args[0]}") from None
+    return parse_scene(data, source=path)
+
+
+class _ConstantError(Exception):
+    pass
+
+
+def _reject_constant(name: str) -> Any:
+    raise _ConstantError(name)
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """Serialise a :class:`Scene` back to a ``creference-scene/1`` dict (round-trips :func:`parse_scene`)."""
+    t = scene.target
+    out: dict[str, Any] = {
+        "format": SCENE_FORMAT,
+        "image": {"width": scene.image_width, "height": scene.image_height},
+        "camera": {"principal_point": scene.principal_point.tolist(),
+                   "focal_length_px": scene.focal_length_px},
+        "target": {
+            "id": t.id,
+            "dimensions_m": {"length": t.length, "width": t.width, "height": t.height},
+            "dimension_lines": [
+                {k: v for k, v in (("worker", d.worker), ("corners", d.corners.tolist()),
+                                   ("seconds", d.seconds)) if v is not None}
+                for d in t.dimension_lines
+            ],
+        },
+    }
+    if scene.image_path is not None:
+        out["image"]["path"] = str(scene.image_path)
+    if scene.horizon is not None:
+        out["horizon"] = scene.horizon.tolist()
+    if scene.references:
+        out["references"] = [_reference_to_dict(r) for r in scene.references]
+    if scene.ground_truth is not None:
+        g = scene.ground_truth
+        gt: dict[str, Any] = {"location_m": g.location_m.tolist()}
+        if g.yaw_rad is not None:
+            gt["yaw_rad"] = g.yaw_rad
+        if g.focal_length_px is not None:
+            gt["focal_length_px"] = g.focal_length_px
+        gt.update(g.extra)
+        out["ground_truth"] = gt
+    return out
+
+
+def _reference_to_dict(r: Reference) -> dict:
+    scale = UNITS_TO_M[r.unit] if r.mode == "direct" else 1.0
+    d: dict[str, Any] = {"measure": r.measure, "mode": r.mode}
+    if r.is_range:
+        d["range"] = [r.low / scale, r.high / scale]
+    else:
+        d["value"] = r.low / scale
+    if r.unit is not None:
+        d["unit"] = r.unit
+    d["line"] = r.line.tolist()
+    for key in ("object", "worker", "confidence", "seconds"):
+        value = getattr(r, key)
+        if value is not None:
+            d[key] = value
+    return d

@@ -1,0 +1,21 @@
+import warnings
+
+import matplotlib
+import numpy as np
+import pytest
+
+matplotlib.use("Agg")
+
+
+@pytest.fixture
+def make_scene():
+    """Factory for validated synthetic scenes: make_scene(seed, **simulate_scene kwargs)."""
+    from creference_bayes.scene import parse_scene
+    from creference_bayes.simulate import simulate_scene
+
+    def _make(seed=0, **kwargs):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return parse_scene(simulate_scene(np.random.default_rng(seed), **kwargs))
+
+    return _make
