@@ -9,6 +9,7 @@ on standard error, without a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import sys
 import warnings
@@ -23,7 +24,7 @@ from .scene import SceneError, SceneWarning
 __all__ = ["main", "example_scene_path", "format_table"]
 
 #: Modules that add sub-commands besides ``estimate`` and ``demo``.
-_COMMAND_MODULES: list[str] = []
+_COMMAND_MODULES: list[str] = ["creference_bayes.bench", "creference_bayes.cli_plot"]
 
 EXIT_INVALID = 2
 
@@ -90,10 +91,42 @@ def _run_estimate(args) -> int:
     scene = load_scene(args.scene)
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    result = estimate(scene, preset=args.preset, seed=args.seed,
-                      use_references=not args.no_references)
+    _check_posterior_options(args)
+    result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model,
+                      use_references=not args.no_references, posterior=not args.no_posterior,
+                      temperature=args.temperature, hdi_prob=args.hdi_prob,
+                      sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
+                      progress=not args.quiet and sys.stderr.isatty())
+    if args.netcdf and result.inference_data is None:
+        print(f"warning: no posterior, so {args.netcdf} was not written", file=sys.stderr)
+    elif args.netcdf:
+        result.inference_data.to_netcdf(args.netcdf)
+        result = dataclasses.replace(result, extra={**result.extra, "netcdf": str(args.netcdf)})
     _report(result, scene, args)
     return 0
+
+
+def _check_posterior_options(args) -> None:
+    """The posterior options' values, checked before any work is done."""
+    if args.no_posterior and args.netcdf:
+        raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
+    if not 0.0 < args.hdi_prob < 1.0:
+        raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
+    if args.temperature is not None and not (np.isfinite(args.temperature) and args.temperature > 0):
+        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature!r}")
+    if args.min_ess is not None and not args.min_ess >= 1:
+        raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
+
+
+def _posterior_line(result) -> str:
+    g = result.diagnostics
+    ess = [v for v in g.ess_bulk.values() if v is not None]
+    rhat = [v for v in g.r_hat.values() if v is not None]
+    state = "converged" if g.converged else "NOT converged"
+    return (f"posterior: {g.n_walkers} walkers in {g.n_ensembles} ensembles, {g.n_steps} steps "
+            f"(+{g.warmup_steps} warm-up), {state}; R-hat ≤ {max(rhat, default=float('nan')):.3f}, "
+            f"bulk ESS ≥ {min(ess, default=float('nan')):.0f}; {g.seconds:.2f} s; "
+            f"T = {result.posterior.temperature:g}")
 
 
 def _report(result, scene, args) -> None:
@@ -101,8 +134,23 @@ def _report(result, scene, args) -> None:
         print(f"target {result.target!r}  model {result.model}  preset {result.preset}  "
               f"handedness {result.map.handedness:+d}  MAP in {result.map.seconds:.2f} s")
         print(format_table(result, _truth_dict(scene)))
+        if result.diagnostics is not None:
+            print(_posterior_line(result))
+        refs = result.references
+        if refs is not None and hasattr(refs, "pairs_used"):
+            if not refs.enabled:
+                print(f"references: {refs.n_references} ignored (--no-references)")
+            else:
+                why = ", ".join(f"{k} {n}" for k, n in refs.skipped_reasons.items())
+                print(f"references: {refs.n_references}, pairs used {refs.pairs_used}, "
+                      f"skipped {refs.pairs_skipped}" + (f" ({why})" if why else ""))
         if result.evaluation is not None:
             print(f"location error (Eq. 3): {result.evaluation.location_pct_error:.2f} %")
+            ev = result.evaluation
+            if ev.posterior_location_pct_error is not None:
+                inside = [k for k, v in (ev.in_hdi or {}).items() if v]
+                print(f"posterior-mean location error: {ev.posterior_location_pct_error:.2f} %; "
+                      f"truth inside the HDI for: {', '.join(inside) or 'none'}")
         for w in result.warnings:
             print(f"note: {w}")
     if args.out:
@@ -122,9 +170,21 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
     p.add_argument("--preset", default="default", choices=["default", "paper", "paper-controlled"],
                    help="optimiser preset (default: %(default)s)")
+    p.add_argument("--model", default="paper", choices=["paper", "metrology"],
+                   help="likelihood model: the paper's cost or the measurement-likelihood "
+                        "extension (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    g = p.add_argument_group("posterior")
+    g.add_argument("--no-posterior", action="store_true", help="the MAP only: do not sample the posterior")
+    g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
+                   help="probability of the credible intervals (default: %(default)s)")
+    g.add_argument("--temperature", type=float, default=None, metavar="T",
+                   help="temperature of the posterior, log p = -cost/T + log prior (default: 1)")
+    g.add_argument("--min-ess", type=float, default=None, metavar="N",
+                   help="bulk effective sample size to reach (default: 1000)")
+    g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -158,6 +218,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INVALID
     except FileNotFoundError as exc:
         print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_INVALID
+    except OSError as exc:  # a directory, no permission, …: the user's input, not a bug
+        print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_INVALID
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

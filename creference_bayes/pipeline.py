@@ -6,11 +6,13 @@ Data flow (one way): scene → camera/horizon → references → model per hande
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from pathlib import Path
 
 import numpy as np
 
-from .geometry import HANDEDNESS, Camera
+from .geometry import HANDEDNESS, Camera, horizon_line
 from .metrics import location_percentage_error
 from .model import PaperModel
 from .optimize import optimize_map, preset_bounds
@@ -19,11 +21,12 @@ from .scene import Scene, load_scene
 
 __all__ = ["MODELS", "estimate", "build_models"]
 
-MODELS = ("paper",)
+MODELS = ("paper", "metrology")
 
 
 def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
-                 camera: Camera | None = None, constraints=None, **options) -> list:
+                 camera: Camera | None = None, constraints=None, use_references: bool = True,
+                 **options) -> list:
     """One model per handedness for ``scene``.
 
     Parameters
@@ -32,11 +35,19 @@ def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
     preset : optimiser preset; it decides the bounds
     camera : the camera (defaults to the scene's; pass one with an estimated horizon)
     constraints : soft constraints from the references (paper model), or None
-    options : model settings (``sigma`` for the paper model)
+    use_references : whether the metrology model uses the scene's references (the paper model
+        uses ``constraints`` instead)
+    options : model settings (``sigma`` for the paper model; ``target_sigma``, ``target_dof``,
+        ``ref_scale``, ``ref_dof`` for the metrology model)
     """
     if model not in MODELS:
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
     bounds = preset_bounds(preset, scene.image_width, scene.image_height)
+    if model == "metrology":
+        from .model_metrology import MetrologyModel
+
+        return [MetrologyModel.from_scene(scene, h, bounds=bounds, camera=camera,
+                                          use_references=use_references, **options) for h in HANDEDNESS]
     unknown = set(options) - {"sigma"}
     if unknown:
         raise ValueError(f"model options: unknown option(s) {sorted(unknown)} for model {model!r}")
@@ -45,7 +56,9 @@ def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
 
 
 def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str = "paper",
-             use_references: bool = True, seed=None, **options) -> Result:
+             use_references: bool = True, seed=None, posterior: bool = True,
+             temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
+             progress: bool = False, **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -55,6 +68,13 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     model : the likelihood model
     use_references : use the scene's reference annotations when it has any
     seed : int or Generator; the same seed gives the same result
+    posterior : sample the posterior after the MAP (method.md §7)
+    temperature : T of log p = −cost′/T + log prior (default
+        :data:`~creference_bayes.posterior.DEFAULT_TEMPERATURE`)
+    hdi_prob : probability of the reported highest-density intervals
+    sampling : sampler settings (:class:`~creference_bayes.sampling.SamplerSettings` fields,
+        e.g. ``{"min_ess": 2000}``); unknown keys are rejected
+    progress : show the sampler's progress bar on standard error
 
     Returns
     -------
@@ -64,15 +84,112 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         scene = load_scene(scene)
     rng = np.random.default_rng(seed)
     warnings = list(scene.warnings)
-    camera = Camera.from_scene(scene)
-    if scene.horizon is None:
-        warnings.append("no horizon and no image: assumed a level camera (horizon through the principal point)")
-    models = build_models(scene, model=model, preset=preset, camera=camera, **options)
+    camera, notes, horizon_estimate = _camera_step(scene)
+    warnings += notes
+    references = None
+    if model == "paper":
+        references = _references_step(scene, camera, preset, use_references)
+    models = build_models(scene, model=model, preset=preset, camera=camera,
+                          constraints=None if references is None else references.constraints,
+                          use_references=use_references, **options)
     map_est = optimize_map(models, preset=preset, rng=rng)
     evaluation = None
     if scene.ground_truth is not None:
         evaluation = Evaluation(location_pct_error=float(
             location_percentage_error(map_est.params[:3], scene.ground_truth.location_m)))
+    post = diag = idata = None
+    if posterior:
+        post, diag, idata, notes = _posterior_step(
+            models, map_est, scene, rng, temperature=temperature, hdi_prob=hdi_prob,
+            sampling=sampling, progress=progress)
+        warnings += notes
+        if evaluation is not None and post is not None:
+            from .summary import evaluate_posterior
+
+            err, inside = evaluate_posterior(post, scene.ground_truth, list(diag.r_hat))
+            evaluation = dataclasses.replace(evaluation, posterior_location_pct_error=err,
+                                             in_hdi=inside)
     return Result(target=scene.target.id, model=model, preset=preset, map=map_est,
                   scene=scene.source.name if scene.source else None, evaluation=evaluation,
-                  warnings=tuple(warnings))
+                  warnings=tuple(warnings), posterior=post, diagnostics=diag,
+                  inference_data=idata, references=references,
+                  extra={} if horizon_estimate is None else {"horizon_estimate": horizon_estimate.to_dict()})
+
+
+def _camera_step(scene: Scene):
+    """The camera, with the horizon estimated from the image when the scene gives none.
+
+    Returns the camera, notes for the result's warnings and the horizon estimate (or None).
+    """
+    camera = Camera.from_scene(scene)
+    if scene.horizon is not None:
+        return camera, [], None
+    level = "assumed a level camera (horizon through the principal point)"
+    if scene.image_path is None:
+        return camera, [f"no horizon and no image: {level}"], None
+    from .horizon import estimate_horizon  # OpenCV, only when needed
+
+    try:
+        est = estimate_horizon(scene.image_path, principal_point=scene.principal_point,
+                               scene_size=scene.image_size)
+    except (OSError, ValueError) as exc:
+        return camera, [f"no horizon, and image.path {str(scene.image_path)!r} could not be used "
+                        f"({exc}): {level}"], None
+    if not est:
+        return camera, [f"no horizon, and none found in the image ({est.reason}): {level}"], est
+    camera = dataclasses.replace(camera, horizon=horizon_line(est.points))
+    return camera, [f"no horizon given: estimated from the image ({est.method} segments, "
+                    f"{len(est.vanishing_points)} vanishing points, confidence {est.confidence:.2f})"], est
+
+
+def _references_step(scene: Scene, camera: Camera, preset: str, use_references: bool):
+    """Pairs of references → soft constraints (paper model), as a :class:`ReferenceReport`."""
+    from .metrology import ReferenceReport, aggregate_references
+
+    if not use_references:
+        return ReferenceReport(len(scene.references), enabled=False)
+    bounds = preset_bounds(preset, scene.image_width, scene.image_height)
+    return aggregate_references(scene, camera, focal_range_px=(bounds.lower[4], bounds.upper[4]))
+
+
+def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampling, progress):
+    """Sample the posterior of the MAP's handedness from the MAP, and summarise it.
+
+    Returns the :class:`~.result.PosteriorSummary`, the :class:`~.result.Diagnostics` (whose
+    ``seconds`` cover the whole step), the InferenceData and notes for the result's warnings.
+    """
+    from .posterior import DEFAULT_TEMPERATURE, LogPosterior, laplace_scales
+    from .sampling import SamplerSettings, SamplingError, sample
+    from .summary import posterior_arrays, summarise, to_inference_data
+
+    t0 = time.perf_counter()
+    settings = SamplerSettings.from_options(sampling)
+    model = next(m for m in models if m.handedness == map_est.handedness)
+    if temperature is None:  # a model may bring its own (metrology: a proper likelihood, T = 1)
+        temperature = getattr(model, "default_temperature", DEFAULT_TEMPERATURE)
+    log_post = LogPosterior(model, temperature)
+    center = map_est.params[model.free]
+    laplace = laplace_scales(log_post, center)
+    try:
+        chains = sample(log_post, center, laplace.cov, settings=settings, rng=rng,
+                        log_mask=model.bounds.lower[model.free] > 0, progress=progress)
+    except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
+        return None, None, None, [f"posterior not sampled: {exc}"]
+    fixed, free = model.bounds.lower, model.free
+    arrays = posterior_arrays(chains, fixed, free)
+    post, diag = summarise(chains, fixed, free, hdi_prob=hdi_prob, min_ess=settings.min_ess,
+                           tau_multiple=settings.tau_multiple, handedness=map_est.handedness,
+                           temperature=temperature, arrays=arrays)
+    idata = to_inference_data(chains, fixed, free, scene=scene, attrs={
+        "model": model.name, "handedness": map_est.handedness, "temperature": temperature,
+        "hdi_prob": hdi_prob})
+    notes = []
+    if not diag.converged:
+        notes.append("posterior not converged: " + "; ".join(diag.warnings))
+    other = [v["cost"] for k, v in map_est.info.items()
+             if k.startswith("handedness_") and k != f"handedness_{map_est.handedness:+d}"]
+    if other and min(other) - map_est.cost < 2.0 * temperature:
+        notes.append(f"the other handedness of the dimension lines fits almost as well (cost "
+                     f"{min(other) - map_est.cost:+.2f}); the posterior is conditioned on "
+                     f"handedness {map_est.handedness:+d}")
+    return post, dataclasses.replace(diag, seconds=time.perf_counter() - t0), idata, notes

@@ -11,7 +11,7 @@ import numpy as np
 
 from .optimize import MapEstimate
 
-__all__ = ["RESULT_FORMAT", "Evaluation", "Result", "load_result_dict"]
+__all__ = ["RESULT_FORMAT", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
 
 RESULT_FORMAT = "creference-result/1"
 
@@ -38,6 +38,96 @@ class Evaluation:
         return d
 
 
+def _finite_or_none(v):
+    """JSON-safe number: NaN and ±inf become None."""
+    if v is None:
+        return None
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+@dataclass(frozen=True)
+class PosteriorSummary:
+    """Summary of the posterior draws (formats.md ``posterior``).
+
+    Attributes
+    ----------
+    mean, median, sd : per quantity (x, y, z m; yaw rad; focal_length_px px; distance_m m).
+        Yaw's mean is the circular mean in [−π, π) and its sd the circular sd √(−2 ln R̄).
+    hdi : per quantity, the highest-density interval [low, high] at ``hdi_prob``; yaw's is an arc
+        around its circular mean whose ends may lie outside [−π, π)
+    hdi_prob : probability of the intervals
+    handedness : the dimension-line handedness the posterior is conditioned on (the MAP's)
+    temperature : T of log p = −cost′/T + log prior
+    n_draws : draws summarised (all ensembles, after burn-in and thinning)
+    draws : a few draws per ensemble (``chain`` index and one list per quantity), for plots
+    """
+
+    mean: dict[str, float]
+    median: dict[str, float]
+    sd: dict[str, float]
+    hdi: dict[str, tuple[float, float]]
+    hdi_prob: float
+    handedness: int
+    temperature: float
+    n_draws: int
+    draws: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict:
+        d = {key: {k: _finite_or_none(v) for k, v in getattr(self, key).items()}
+             for key in ("mean", "median", "sd")}
+        d["hdi"] = {"prob": self.hdi_prob,
+                    **{k: [_finite_or_none(lo), _finite_or_none(hi)] for k, (lo, hi) in self.hdi.items()}}
+        d.update({"handedness": self.handedness, "temperature": self.temperature,
+                  "n_draws": self.n_draws})
+        if self.draws:
+            d["draws"] = self.draws
+        return d
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """Convergence diagnostics of the sampler (formats.md ``diagnostics``).
+
+    Attributes
+    ----------
+    n_walkers : walkers in all ensembles together;  n_ensembles : independent ensembles
+    n_steps : main-phase steps per walker;  burn_in, thin : steps discarded, thinning kept
+    warmup_steps : steps of the (discarded) adaptive warm-up before the main phase
+    autocorr_time : integrated autocorrelation time per sampled quantity, steps
+    ess_bulk, ess_tail : effective sample sizes (arviz, rank-normalised), per quantity
+    r_hat : rank-normalised split R-hat across ensembles, per quantity
+    acceptance_fraction : mean over walkers
+    converged : chain ≥ 50 τ after burn-in, every R-hat ≤ 1.01, every bulk ESS ≥ the minimum
+    warnings : the reasons when not converged, and anything else worth knowing
+    seconds : wall time of the sampling
+    """
+
+    n_walkers: int
+    n_ensembles: int
+    n_steps: int
+    burn_in: int
+    thin: int
+    warmup_steps: int
+    autocorr_time: dict[str, float]
+    ess_bulk: dict[str, float | None]
+    ess_tail: dict[str, float | None]
+    r_hat: dict[str, float | None]
+    acceptance_fraction: float
+    converged: bool
+    warnings: tuple[str, ...] = ()
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        d: dict[str, Any] = {k: getattr(self, k) for k in (
+            "n_walkers", "n_ensembles", "n_steps", "burn_in", "thin", "warmup_steps")}
+        for key in ("autocorr_time", "ess_bulk", "ess_tail", "r_hat"):
+            d[key] = {k: _finite_or_none(v) for k, v in getattr(self, key).items()}
+        d.update({"acceptance_fraction": _finite_or_none(self.acceptance_fraction),
+                  "converged": bool(self.converged), "warnings": list(self.warnings)})
+        return d
+
+
 @dataclass(frozen=True)
 class Result:
     """Everything estimated for one target.
@@ -49,8 +139,8 @@ class Result:
     preset : the optimiser preset
     map : the MAP estimate
     scene : the scene file's name, if it came from a file
-    posterior : posterior summary (mean, median, sd, hdi dicts), or None when not sampled
-    diagnostics : sampler diagnostics (a dict matching formats.md), or None
+    posterior : :class:`PosteriorSummary`, or None when not sampled
+    diagnostics : :class:`Diagnostics` of the sampler, or None
     references : reference aggregation report with ``pairs_used``/``pairs_skipped``, or None
     evaluation : comparison with ground truth, or None
     warnings : what the user should know (assumed level camera, not converged, …)
@@ -68,6 +158,8 @@ class Result:
     evaluation: Evaluation | None = None
     warnings: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+    #: the full posterior as an ``arviz.InferenceData`` (not in the JSON; see ``--netcdf``)
+    inference_data: Any = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         """The ``creference-result/1`` document."""
@@ -84,6 +176,8 @@ class Result:
             d["evaluation"] = _plain(self.evaluation.to_dict())
         d["warnings"] = list(self.warnings)
         d["timing_s"] = {"map": self.map.seconds}
+        if self.diagnostics is not None and hasattr(self.diagnostics, "seconds"):
+            d["timing_s"]["posterior"] = self.diagnostics.seconds
         d.update(_plain(self.extra))
         return d
 

@@ -1,8 +1,16 @@
 """Scene dataclasses and the ``creference-scene/1`` loader (../shared/docs/formats.md).
 
 Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
-(``references[2].unit: unknown unit 'furlong'``). Unknown keys are not errors: they are kept in
-:attr:`Scene.warnings` and emitted as :class:`SceneWarning`.
+and names the value (``references[2].unit: unknown unit 'furlong' …``); nothing else escapes
+:func:`parse_scene` (a property test mutates valid scenes to check it). Unknown keys are not
+errors: they are kept in :attr:`Scene.warnings` and emitted as :class:`SceneWarning`.
+
+Optional keys may also be ``null`` (``camera``, ``horizon``, ``references``, ``ground_truth``,
+``camera.principal_point``, ``camera.focal_length_px``), meaning absent. Limits beyond
+formats.md: image sides at most :data:`MAX_IMAGE_SIDE` pixels; annotated points within
+:data:`IMAGE_MARGIN` image sizes of the image; horizon points within :data:`HORIZON_MARGIN`
+image sizes and the horizon no steeper than 45°; the known ground-truth extras
+(``camera_height_m``, ``pitch_rad``, ``roll_rad``, ``handedness``) are checked when present.
 """
 
 from __future__ import annotations
@@ -37,6 +45,13 @@ MEASURES = ("length", "width", "distance")
 MODES = ("direct", "relative")
 #: Image points may lie outside the image by at most this fraction of its size on each side.
 IMAGE_MARGIN = 0.5
+#: The two horizon points may lie outside the image by at most this many image sizes: a camera
+#: pitched steeply down sees its horizon far above the image, but not at 10⁶ pixels.
+HORIZON_MARGIN = 20.0
+#: Longest ``repr`` of an offending value quoted in an error message.
+MAX_REPR = 60
+#: Largest image side accepted, pixels (gigapixel panoramas stay below it).
+MAX_IMAGE_SIDE = 1_000_000
 #: Segments shorter than this (pixels) count as zero-length.
 MIN_SEGMENT_PX = 1e-6
 
@@ -46,8 +61,8 @@ class SceneError(ValueError):
 
     def __init__(self, path: str, problem: str):
         self.path = path
-        self.problem = problem
-        super().__init__(f"{path}: {problem}" if path else problem)
+        self.problem = " ".join(str(problem).split())  # always one line
+        super().__init__(f"{path}: {self.problem}" if path else self.problem)
 
 
 class SceneWarning(UserWarning):
@@ -104,6 +119,8 @@ class Reference:
     worker: str | None = None
     confidence: float | None = None
     seconds: float | None = None
+    #: (low, high) exactly as written in the file: in ``unit`` (direct) or as a ratio (relative).
+    stated: tuple[float, float] | None = None
 
     def length_bounds_m(self, target: Target) -> tuple[float, float]:
         """The real length of ``line`` implied by the annotation, in metres: (low, high)."""
@@ -153,6 +170,16 @@ def _type_name(value: Any) -> str:
     return "null" if value is None else type(value).__name__
 
 
+def _short(value: Any) -> str:
+    """``repr(value)``, cut to :data:`MAX_REPR` characters (a message stays one short line)."""
+    text = repr(value)
+    return text if len(text) <= MAX_REPR else text[:MAX_REPR - 3] + "..."
+
+
+def _got(value: Any) -> str:
+    return f"got {_type_name(value)} {_short(value)}"
+
+
 def _get(obj: dict, key: str, path: str, required: bool = True) -> Any:
     if key not in obj:
         if required:
@@ -161,37 +188,41 @@ def _get(obj: dict, key: str, path: str, required: bool = True) -> Any:
     return obj[key]
 
 
-def _join(path: str, key: str | int) -> str:
-    if isinstance(key, int):
+def _join(path: str, key: Any) -> str:
+    if isinstance(key, int) and not isinstance(key, bool):
         return f"{path}[{key}]"
+    key = key if isinstance(key, str) and key.isprintable() and key else _short(key)
     return f"{path}.{key}" if path else key
 
 
 def _dict(value: Any, path: str) -> dict:
     if not isinstance(value, dict):
-        raise SceneError(path, f"expected an object, got {_type_name(value)} {value!r}")
+        raise SceneError(path, f"expected an object, {_got(value)}")
     return value
 
 
 def _list(value: Any, path: str) -> list:
     if not isinstance(value, list):
-        raise SceneError(path, f"expected a list, got {_type_name(value)} {value!r}")
+        raise SceneError(path, f"expected a list, {_got(value)}")
     return value
 
 
 def _number(value: Any, path: str, *, positive: bool = False, nonneg: bool = False,
             lo: float | None = None, hi: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(path, f"expected a number, got {_type_name(value)} {value!r}")
-    x = float(value)
+        raise SceneError(path, f"expected a number, {_got(value)}")
+    try:
+        x = float(value)
+    except OverflowError:  # an integer too large for a float
+        x = math.inf
     if not math.isfinite(x):
-        raise SceneError(path, f"expected a finite number, got {value!r}")
+        raise SceneError(path, f"expected a finite number, got {_short(value)}")
     if positive and x <= 0:
-        raise SceneError(path, f"expected a positive number, got {value!r}")
+        raise SceneError(path, f"expected a positive number, got {_short(value)}")
     if nonneg and x < 0:
-        raise SceneError(path, f"expected a number >= 0, got {value!r}")
+        raise SceneError(path, f"expected a number >= 0, got {_short(value)}")
     if lo is not None and x < lo or hi is not None and x > hi:
-        raise SceneError(path, f"expected a number in [{lo}, {hi}], got {value!r}")
+        raise SceneError(path, f"expected a number in [{lo}, {hi}], got {_short(value)}")
     return x
 
 
@@ -199,34 +230,36 @@ def _string(value: Any, path: str, *, optional: bool = True) -> str | None:
     if value is None and optional:
         return None
     if not isinstance(value, str):
-        raise SceneError(path, f"expected a string, got {_type_name(value)} {value!r}")
+        raise SceneError(path, f"expected a string, {_got(value)}")
     return value
+
+
+def _point(value: Any, path: str) -> np.ndarray:
+    p = _list(value, path)
+    if len(p) != 2:
+        raise SceneError(path, f"expected a point [u, v], got {_short(p)}")
+    return np.array([_number(c, _join(path, j)) for j, c in enumerate(p)])
 
 
 def _points(value: Any, path: str, n: int) -> np.ndarray:
     pts = _list(value, path)
     if len(pts) != n:
-        raise SceneError(path, f"expected {n} points, got {len(pts)}")
-    out = np.empty((n, 2))
-    for i, p in enumerate(pts):
-        p = _list(p, _join(path, i))
-        if len(p) != 2:
-            raise SceneError(_join(path, i), f"expected a point [u, v], got {p!r}")
-        out[i] = [_number(c, _join(_join(path, i), j)) for j, c in enumerate(p)]
-    return out
+        raise SceneError(path, f"expected {n} points, got {len(pts)}: {_short(pts)}")
+    return np.array([_point(p, _join(path, i)) for i, p in enumerate(pts)])
 
 
-def _check_inside(pts: np.ndarray, path: str, width: int, height: int) -> None:
-    mx, my = IMAGE_MARGIN * width, IMAGE_MARGIN * height
+def _check_inside(pts: np.ndarray, path: str, width: int, height: int,
+                  margin: float = IMAGE_MARGIN) -> None:
+    mx, my = margin * width, margin * height
     for i, (u, v) in enumerate(pts):
         if not (-mx <= u <= width + mx and -my <= v <= height + my):
             raise SceneError(_join(path, i),
                              f"point [{u:g}, {v:g}] is far outside the {width}x{height} image")
 
 
-def _check_segment(a: np.ndarray, b: np.ndarray, path: str) -> None:
+def _check_segment(a: np.ndarray, b: np.ndarray, path: str, what: str = "line") -> None:
     if np.hypot(*(b - a)) < MIN_SEGMENT_PX:
-        raise SceneError(path, f"zero-length line from [{a[0]:g}, {a[1]:g}] to [{b[0]:g}, {b[1]:g}]")
+        raise SceneError(path, f"zero-length {what} from [{a[0]:g}, {a[1]:g}] to [{b[0]:g}, {b[1]:g}]")
 
 
 def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> None:
@@ -242,10 +275,11 @@ def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> Non
 def _parse_dimension_line(obj: Any, path: str, w: int, h: int, sink: list[str]) -> DimensionLine:
     obj = _dict(obj, path)
     _warn_unknown(obj, {"worker", "corners", "seconds"}, path, sink)
-    corners = _points(_get(obj, "corners", path), _join(path, "corners"), 4)
-    _check_inside(corners, _join(path, "corners"), w, h)
+    cpath = _join(path, "corners")
+    corners = _points(_get(obj, "corners", path), cpath, 4)
+    _check_inside(corners, cpath, w, h)
     for k, name in ((1, "length"), (2, "width"), (3, "height")):
-        _check_segment(corners[0], corners[k], f"{_join(path, 'corners')} ({name} line)")
+        _check_segment(corners[0], corners[k], cpath, f"{name} line")
     seconds = obj.get("seconds")
     return DimensionLine(
         corners=corners,
@@ -284,38 +318,45 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     obj = _dict(obj, path)
     _warn_unknown(obj, _REFERENCE_KEYS, path, sink)
     measure = _get(obj, "measure", path)
-    if measure not in MEASURES:
-        raise SceneError(_join(path, "measure"), f"unknown measure {measure!r} (expected one of {list(MEASURES)})")
+    if not isinstance(measure, str) or measure not in MEASURES:
+        raise SceneError(_join(path, "measure"),
+                         f"unknown measure {_short(measure)} (expected one of {list(MEASURES)})")
     mode = _get(obj, "mode", path)
-    if mode not in MODES:
-        raise SceneError(_join(path, "mode"), f"unknown mode {mode!r} (expected one of {list(MODES)})")
+    if not isinstance(mode, str) or mode not in MODES:
+        raise SceneError(_join(path, "mode"), f"unknown mode {_short(mode)} (expected one of {list(MODES)})")
     if measure == "distance" and mode == "relative":
-        raise SceneError(_join(path, "mode"), "relative distance is not a valid format (paper §4.1.3)")
+        raise SceneError(_join(path, "mode"),
+                         "'relative' is not valid for measure 'distance' (paper §4.1.3)")
 
     has_value, has_range = "value" in obj, "range" in obj
-    if has_value == has_range:
-        raise SceneError(path, "expected exactly one of 'value' or 'range'")
+    if has_value and has_range:
+        raise SceneError(path, f"both 'value' {_short(obj['value'])} and 'range' "
+                               f"{_short(obj['range'])} given (expected exactly one)")
+    if not (has_value or has_range):
+        raise SceneError(path, "missing required key 'value' or 'range'")
     if has_value:
         low = high = _number(obj["value"], _join(path, "value"), positive=True)
     else:
         rpath = _join(path, "range")
         rng = _list(obj["range"], rpath)
         if len(rng) != 2:
-            raise SceneError(rpath, f"expected [low, high], got {rng!r}")
+            raise SceneError(rpath, f"expected [low, high], got {_short(rng)}")
         low = _number(rng[0], _join(rpath, 0), positive=True)
         high = _number(rng[1], _join(rpath, 1), positive=True)
         if low > high:
-            raise SceneError(rpath, f"low {rng[0]!r} > high {rng[1]!r}")
+            raise SceneError(rpath, f"low {_short(rng[0])} > high {_short(rng[1])}")
+    stated = (low, high)
 
     unit = obj.get("unit")
+    upath = _join(path, "unit")
     if mode == "direct":
-        if unit not in UNITS_TO_M:
-            if unit is None:
-                raise SceneError(_join(path, "unit"), "missing required key for a direct measurement")
-            raise SceneError(_join(path, "unit"), f"unknown unit {unit!r} (expected one of {sorted(UNITS_TO_M)})")
+        if "unit" not in obj:
+            raise SceneError(upath, "missing required key (a direct measurement needs a unit)")
+        if not isinstance(unit, str) or unit not in UNITS_TO_M:
+            raise SceneError(upath, f"unknown unit {_short(unit)} (expected one of {sorted(UNITS_TO_M)})")
         low, high = low * UNITS_TO_M[unit], high * UNITS_TO_M[unit]
     elif unit is not None:
-        raise SceneError(_join(path, "unit"), f"a relative measurement takes no unit, got {unit!r}")
+        raise SceneError(upath, f"a relative measurement takes no unit, got {_short(unit)}")
 
     line = _points(_get(obj, "line", path), _join(path, "line"), 2)
     _check_inside(line, _join(path, "line"), w, h)
@@ -324,7 +365,7 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     secs = obj.get("seconds")
     return Reference(
         index=index, measure=measure, mode=mode, low=low, high=high, line=line,
-        is_range=has_range, unit=unit,
+        is_range=has_range, unit=unit, stated=stated,
         object=_string(obj.get("object"), _join(path, "object")),
         worker=_string(obj.get("worker"), _join(path, "worker")),
         confidence=None if conf is None else _number(conf, _join(path, "confidence"), lo=0.0, hi=1.0),
@@ -332,17 +373,29 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     )
 
 
+#: Extra ground-truth keys that the simulator writes and the benchmark reads: validated when
+#: present (other extra keys are kept as they are).
+_GT_EXTRA_NUMBERS = {"camera_height_m": {"positive": True}, "pitch_rad": {}, "roll_rad": {}}
+
+
 def _parse_ground_truth(obj: Any, path: str) -> GroundTruth:
     obj = _dict(obj, path)
-    loc = _list(_get(obj, "location_m", path), _join(path, "location_m"))
+    lpath = _join(path, "location_m")
+    loc = _list(_get(obj, "location_m", path), lpath)
     if len(loc) != 3:
-        raise SceneError(_join(path, "location_m"), f"expected [x, y, z], got {loc!r}")
-    location = np.array([_number(c, _join(_join(path, "location_m"), i)) for i, c in enumerate(loc)])
+        raise SceneError(lpath, f"expected [x, y, z], got {_short(loc)}")
+    location = np.array([_number(c, _join(lpath, i)) for i, c in enumerate(loc)])
     if location[2] <= 0:
-        raise SceneError(_join(path, "location_m"), f"z must be > 0 (in front of the camera), got {loc[2]!r}")
+        raise SceneError(_join(lpath, 2), f"z must be > 0 (in front of the camera), got {_short(loc[2])}")
     yaw = obj.get("yaw_rad")
     focal = obj.get("focal_length_px")
     extra = {k: v for k, v in obj.items() if k not in {"location_m", "yaw_rad", "focal_length_px"}}
+    for key, kind in _GT_EXTRA_NUMBERS.items():
+        if extra.get(key) is not None:
+            _number(extra[key], _join(path, key), **kind)
+    if extra.get("handedness") is not None and (
+            isinstance(extra["handedness"], bool) or extra["handedness"] not in (1, -1)):
+        raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(extra['handedness'])}")
     return GroundTruth(
         location_m=location,
         yaw_rad=None if yaw is None else _number(yaw, _join(path, "yaw_rad")),
@@ -370,7 +423,7 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     data = _dict(data, "(scene)")
     fmt = _get(data, "format", "")
     if fmt != SCENE_FORMAT:
-        raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {fmt!r}")
+        raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {_short(fmt)}")
     _warn_unknown(data, {"format", "image", "camera", "horizon", "target", "references",
                          "ground_truth"}, "", sink)
 
@@ -378,8 +431,11 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
     width_f = _number(_get(image, "width", "image"), "image.width", positive=True)
     height_f = _number(_get(image, "height", "image"), "image.height", positive=True)
-    if width_f != int(width_f) or height_f != int(height_f):
-        raise SceneError("image", f"width and height must be whole pixels, got {width_f!r} x {height_f!r}")
+    for key, value in (("width", width_f), ("height", height_f)):
+        if value != int(value):
+            raise SceneError(f"image.{key}", f"expected whole pixels, got {value!r}")
+        if value > MAX_IMAGE_SIDE:
+            raise SceneError(f"image.{key}", f"expected at most {MAX_IMAGE_SIDE} pixels, got {value:g}")
     w, h = int(width_f), int(height_f)
     img_path = _string(image.get("path"), "image.path")
     source = Path(source) if source is not None else None
@@ -389,27 +445,32 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
         if not image_path.is_absolute() and source is not None:
             image_path = source.parent / image_path
 
-    camera = _dict(data.get("camera") or {}, "camera")
+    camera = data.get("camera")
+    camera = {} if camera is None else _dict(camera, "camera")
     _warn_unknown(camera, {"principal_point", "focal_length_px"}, "camera", sink)
     pp = camera.get("principal_point")
     if pp is None:
         principal = np.array([w / 2.0, h / 2.0])
     else:
-        principal = _points([pp], "camera.principal_point", 1)[0]
+        principal = _point(pp, "camera.principal_point")
         if not (0 <= principal[0] <= w and 0 <= principal[1] <= h):
-            raise SceneError("camera.principal_point", f"{pp!r} lies outside the {w}x{h} image")
+            raise SceneError("camera.principal_point",
+                             f"[{principal[0]:g}, {principal[1]:g}] lies outside the {w}x{h} image")
     focal = camera.get("focal_length_px")
     focal = None if focal is None else _number(focal, "camera.focal_length_px", positive=True)
 
     horizon = data.get("horizon")
     if horizon is not None:
         horizon = _points(horizon, "horizon", 2)
+        _check_inside(horizon, "horizon", w, h, margin=HORIZON_MARGIN)
         _check_segment(horizon[0], horizon[1], "horizon")
         if abs(horizon[1, 0] - horizon[0, 0]) < abs(horizon[1, 1] - horizon[0, 1]):
-            raise SceneError("horizon", f"a horizon steeper than 45 degrees is not supported, got {horizon.tolist()!r}")
+            raise SceneError("horizon", "a horizon steeper than 45 degrees is not supported, got "
+                                        f"{_short(horizon.round(2).tolist())}")
 
     target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
-    refs = _list(data.get("references", []), "references")
+    refs = data.get("references")
+    refs = [] if refs is None else _list(refs, "references")
     references = tuple(_parse_reference(r, i, _join("references", i), w, h, sink)
                        for i, r in enumerate(refs))
     gt = data.get("ground_truth")
@@ -434,13 +495,17 @@ def load_scene(path: str | Path) -> Scene:
         If ``path`` does not exist.
     """
     path = Path(path)
-    text = path.read_text()
+    raw = path.read_bytes()
     try:
-        data = json.loads(text, parse_constant=_reject_constant)
+        data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
+    except UnicodeDecodeError as exc:
+        raise SceneError("(file)", f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
     except json.JSONDecodeError as exc:
         raise SceneError("(file)", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
     except _ConstantError as exc:
-        raise SceneError("(file)", f"non-standard JSON constant {exc.args[0]}") from None
+        raise SceneError("(file)", f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
+    except RecursionError:
+        raise SceneError("(file)", "JSON nested too deeply") from None
     return parse_scene(data, source=path)
 
 
@@ -471,7 +536,7 @@ def scene_to_dict(scene: Scene) -> dict:
         },
     }
     if scene.image_path is not None:
-        out["image"]["path"] = str(scene.image_path)
+        out["image"]["path"] = _relative_image_path(scene)
     if scene.horizon is not None:
         out["horizon"] = scene.horizon.tolist()
     if scene.references:
@@ -488,13 +553,27 @@ def scene_to_dict(scene: Scene) -> dict:
     return out
 
 
+def _relative_image_path(scene: Scene) -> str:
+    """``image.path`` as the file gave it: relative to the scene file's folder when possible."""
+    if scene.source is not None:
+        try:
+            return str(scene.image_path.relative_to(scene.source.parent))
+        except ValueError:
+            pass
+    return str(scene.image_path)
+
+
 def _reference_to_dict(r: Reference) -> dict:
-    scale = UNITS_TO_M[r.unit] if r.mode == "direct" else 1.0
+    if r.stated is not None:
+        low, high = r.stated
+    else:
+        scale = UNITS_TO_M[r.unit] if r.mode == "direct" else 1.0
+        low, high = r.low / scale, r.high / scale
     d: dict[str, Any] = {"measure": r.measure, "mode": r.mode}
     if r.is_range:
-        d["range"] = [r.low / scale, r.high / scale]
+        d["range"] = [low, high]
     else:
-        d["value"] = r.low / scale
+        d["value"] = low
     if r.unit is not None:
         d["unit"] = r.unit
     d["line"] = r.line.tolist()

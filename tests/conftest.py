@@ -1,4 +1,8 @@
+import os
 import warnings
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy: tiny matrices, threads only cost
 
 import matplotlib
 import numpy as np

@@ -1,0 +1,466 @@
+"""The benchmark (benchmark.md): the paper's method, a peer, our models and the Cramér–Rao bound,
+side by side on the same simulated scenes in one process.
+
+``creference bench [--quick|--full] [--out DIR] [--seed S]`` prints Markdown tables and writes
+``bench.json``, ``bench.md`` and PNG figures to DIR; ``creference simulate OUTDIR --n N --seed S``
+writes ``creference-scene/1`` files.
+
+What runs on every scene (13 target annotations and 5 references are simulated; estimators get
+the first 5 annotations, as in the paper's §7.1, and the first k references):
+
+- ``paper``: the paper's method as published (preset ``paper``: basin hopping with random
+  restarts, σ = 100, its bounds, per-corner median, pairwise sigmoid bounds), with 5 references;
+  in ``--quick`` with fewer restarts, labelled so;
+- ``p4pf``: PoseLib's P4Pf with least-squares refinement on the target corners (:mod:`.peers`);
+- ``ours-paper`` and ``ours-metrology``: the package's MAP (preset ``default``) of each model with
+  k = 0…5 references, and its posterior (mean, credible regions, ranks of the truth) for the
+  configured k;
+- ``crb-target`` and ``crb-refs``: the Cramér–Rao bound with target annotations only, and with
+  the 5 references as the metrology model sees them (:mod:`.crb`).
+
+Plus: the same-human-time comparison (10 target annotations against 5 + 5 references, the paper's
+Analysis 2), every pair of references alone (skipped against used pairs, Fig. 11), and for the
+paper model's posterior a temperature sweep (coverage against T).
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .geometry import Camera
+from .metrics import location_percentage_error
+from .model import wrap_angle
+from .scene import Scene, parse_scene
+from .simulate import SETTINGS, TIERS, simulate_scene
+
+__all__ = ["BenchConfig", "CONFIGS", "TASK_SECONDS", "bench_scenes", "run_bench", "summarise",
+           "markdown_report", "write_scenes", "register"]
+
+BENCH_FORMAT = "creference-bench/1"
+#: The paper's mean task times (§7.2.2), seconds: one target annotation, one reference annotation.
+TASK_SECONDS = {"target": 183.5, "reference": 64.4}
+#: Parameters whose coverage and ranks are reported (yaw circular; distance = √(x² + z²)).
+COVERAGE_PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
+CREDIBLE_LEVELS = (0.5, 0.9)
+MODELS = ("paper", "metrology")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """How much of the benchmark runs.
+
+    Attributes
+    ----------
+    name : ``quick`` or ``full``
+    scenes : ((tier, setting, count), …) scenes simulated per tier and setting
+    ref_counts : numbers of references for the MAP of our models (Fig. 10)
+    posterior_ref_counts : numbers of references for which our posteriors are sampled
+    paper_restarts : basin-hopping restarts of the ``paper`` preset (None: the paper's 200)
+    paper_baseline : also run the ``paper`` preset on 10 target annotations without references
+    pair_scenes : scenes per tier on which every reference pair is run alone (Fig. 11)
+    paper_posterior_grid : ((σ px, T), …) of the paper model's posterior in the calibration sweep
+    sweep_scenes : scenes per tier in that sweep
+    sampler : emcee settings for the bench (:class:`~.sampling.SamplerSettings` options)
+    n_target, n_target_baseline : target annotations the estimators get (5) and the baseline (10)
+    """
+
+    name: str
+    scenes: tuple[tuple[str, str, int], ...]
+    ref_counts: tuple[int, ...] = (0, 1, 2, 3, 4, 5)
+    posterior_ref_counts: tuple[int, ...] = (0, 5)
+    paper_restarts: int | None = None
+    paper_baseline: bool = True
+    pair_scenes: int = 2
+    paper_posterior_grid: tuple[tuple[float, float], ...] = ()
+    sweep_scenes: int = 0
+    sampler: dict = field(default_factory=dict)
+    n_target: int = 5
+    n_target_baseline: int = 10
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _grid(counts: dict[str, tuple[int, int]]) -> tuple[tuple[str, str, int], ...]:
+    return tuple((t, s, n) for t, (ni, no) in counts.items() for s, n in (("indoor", ni), ("outdoor", no)) if n)
+
+
+CONFIGS = {
+    # CI-sized: 5 scenes, the paper preset with 8 restarts instead of 200 (labelled in the output)
+    "quick": BenchConfig(
+        name="quick", scenes=_grid({"none": (1, 0), "low": (1, 0), "medium": (0, 1), "high": (1, 1)}),
+        ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline=False,
+        pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}),
+    # the documented run (docs/benchmark_results.md)
+    "full": BenchConfig(
+        name="full", scenes=_grid({t: (4, 2) for t in TIERS}),
+        ref_counts=(0, 1, 2, 3, 4, 5), posterior_ref_counts=(0, 2, 5), paper_restarts=None,
+        paper_baseline=False, pair_scenes=3, sweep_scenes=6,
+        paper_posterior_grid=((100.0, 1.0), (100.0, 0.1), (2.0, 1.0), (2.0, 2.0), (2.0, 4.0)),
+        sampler={"min_ess": 400}),
+}
+
+
+# ------------------------------------------------------------------------------------------------
+# scenes
+
+
+def bench_scenes(config: BenchConfig, seed: int = 0) -> list[tuple[str, Scene]]:
+    """The bench's scenes, tier by tier, indoor and outdoor interleaved in proportion (so the
+    first few scenes of a tier mix both settings); deterministic for ``seed``; the references'
+    formats cycle so that every two scenes cover all ten once."""
+    tier_names, setting_names = list(TIERS), list(SETTINGS)
+    order = []
+    for tier, setting, n in config.scenes:
+        order += [(tier_names.index(tier), (i + 0.5) / n, setting_names.index(setting), i) for i in range(n)]
+    out = []
+    for k, (t, _, s, i) in enumerate(sorted(order)):
+        rng = np.random.default_rng([seed, t, s, i])
+        d = simulate_scene(rng, setting=setting_names[s], tier=tier_names[t], format_offset=5 * k)
+        out.append((f"{tier_names[t]}-{setting_names[s]}-{i:02d}", _parse(d)))
+    return out
+
+
+def _parse(d: dict) -> Scene:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return parse_scene(d)
+
+
+def variant(scene: Scene, n_target: int, references) -> Scene:
+    """``scene`` with its first ``n_target`` annotations and the given references (indices)."""
+    refs = tuple(scene.references[i] for i in references)
+    target = replace(scene.target, dimension_lines=scene.target.dimension_lines[:n_target])
+    return replace(scene, target=target, references=refs)
+
+
+def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str | None = None) -> list[Path]:
+    """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
+
+    ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); reference formats cycle
+    so that every ten references cover the ten formats once each.
+    """
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    tiers = list(TIERS) if tier == "all" else [tier]
+    paths = []
+    for i in range(n):
+        d = simulate_scene(np.random.default_rng([seed, i]), setting=setting, tier=tiers[i % len(tiers)],
+                           format_offset=5 * i)
+        p = outdir / f"scene_{i:04d}.json"
+        p.write_text(json.dumps(d, indent=1) + "\n")
+        paths.append(p)
+    return paths
+
+
+# ------------------------------------------------------------------------------------------------
+# estimators
+
+
+@contextmanager
+def _paper_restarts(n: int | None):
+    """Temporarily change the ``paper`` preset's restart count (the ``--quick`` bench only)."""
+    from . import optimize
+
+    if n is None:
+        yield
+        return
+    old = dict(optimize._PAPER_RESTARTS)
+    optimize._PAPER_RESTARTS["paper"] = n
+    try:
+        yield
+    finally:
+        optimize._PAPER_RESTARTS.clear()
+        optimize._PAPER_RESTARTS.update(old)
+
+
+def _estimate(scene: Scene, model: str, preset: str, seed, *, posterior: bool = False,
+              temperature: float | None = None, sampling: dict | None = None, **options):
+    """The package's own :func:`~.pipeline.estimate` (MAP, and the posterior when asked)."""
+    from .pipeline import estimate
+
+    return estimate(scene, preset=preset, model=model, seed=seed, posterior=posterior,
+                    temperature=temperature, sampling=sampling or None, **options)
+
+
+def _posterior_fields(result, truth: dict) -> dict:
+    from .summary import draws_from_inference_data
+
+    draws = {k: np.asarray(v).ravel() for k, v in draws_from_inference_data(result.inference_data).items()}
+    cover, ranks = calibration_of(draws, truth)
+    return dict(post_error=result.evaluation.posterior_location_pct_error,
+                post_seconds=result.diagnostics.seconds, converged=bool(result.diagnostics.converged),
+                temperature=result.posterior.temperature, coverage=cover, ranks=ranks)
+
+
+def _pairs_used(result) -> int | None:
+    """Reference pairs the result's model used (None when the pipeline reports none)."""
+    ref = result.references
+    if ref is None:
+        return None
+    return int(ref["pairs_used"] if isinstance(ref, dict) else ref.pairs_used)
+
+
+def _truth(scene: Scene) -> dict:
+    g = scene.ground_truth
+    x, y, z = g.location_m
+    return {"x": x, "y": y, "z": z, "yaw": g.yaw_rad, "focal_length_px": g.focal_length_px,
+            "distance_m": float(np.hypot(x, z))}
+
+
+def _hdi(values: np.ndarray, prob: float) -> tuple[float, float]:
+    """Shortest interval holding ``prob`` of the values."""
+    v = np.sort(values)
+    n = len(v)
+    k = max(1, int(np.ceil(prob * n)))
+    if k >= n:
+        return float(v[0]), float(v[-1])
+    widths = v[k - 1:] - v[:n - k + 1]
+    i = int(np.argmin(widths))
+    return float(v[i]), float(v[i + k - 1])
+
+
+def calibration_of(draws: dict, truth: dict) -> tuple[dict, dict]:
+    """Whether each true value lies in the 50 % and 90 % HDI, and its rank (fraction of draws
+    below it) — yaw measured as a wrapped offset from the posterior's circular mean.
+
+    Parameters
+    ----------
+    draws : name → (n,) posterior draws (x, y, z, yaw, focal_length_px, distance_m)
+    truth : name → true value
+    """
+    cover, ranks = {}, {}
+    for name, col in draws.items():
+        col = np.asarray(col, float)
+        t = truth.get(name)
+        if t is None:
+            continue
+        if name == "yaw":
+            centre = np.arctan2(np.mean(np.sin(col)), np.mean(np.cos(col)))
+            col, t = wrap_angle(col - centre), float(wrap_angle(t - centre))
+        if np.ptp(col) == 0:  # a fixed parameter
+            continue
+        cover[name] = {f"{int(100 * p)}": bool(lo <= t <= hi) for p in CREDIBLE_LEVELS
+                       for lo, hi in [_hdi(col, p)]}
+        ranks[name] = float(np.mean(col < t))
+    return cover, ranks
+
+
+def _err(params, scene) -> float:
+    return float(location_percentage_error(np.asarray(params)[:3], scene.ground_truth.location_m))
+
+
+def _record(sid, scene, estimator, **kw) -> dict:
+    g = scene.ground_truth.extra
+    return {"scene": sid, "tier": g["tier"], "setting": g["setting"], "estimator": estimator, **kw}
+
+
+def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperature: float,
+               pairs: bool, sweep: bool, say) -> list[dict]:
+    from .crb import cramer_rao_scene
+
+    recs = []
+    nt, n_refs = config.n_target, len(scene.references)
+    all_refs = tuple(range(n_refs))
+    truth = _truth(scene)
+
+    # the limit
+    for name, refs in (("crb-target", False), ("crb-refs", True)):
+        c = cramer_rao_scene(scene, n_annotations=nt, references=refs)
+        recs.append(_record(sid, scene, name, n_target=nt, n_refs=n_refs if refs else 0,
+                            error=c.median_pct, rmse=c.rmse_pct))
+    crb_t, crb_r = recs[0]["error"], recs[1]["error"]
+
+    # the paper's method
+    with _paper_restarts(config.paper_restarts):
+        runs = [(nt, all_refs)] + ([(config.n_target_baseline, ())] if config.paper_baseline else [])
+        for n_ann, refs in runs:
+            res = _estimate(variant(scene, n_ann, refs), "paper", "paper", seed)
+            recs.append(_record(sid, scene, "paper", model="paper", preset="paper", n_target=n_ann,
+                                n_refs=len(refs), error=res.evaluation.location_pct_error,
+                                seconds=res.map.seconds, restarts=config.paper_restarts or 200,
+                                pairs_used=_pairs_used(res)))
+    paper_seconds = recs[2]["seconds"]
+
+    # the peer
+    from .peers import estimate_p4pf, poselib_available
+
+    if poselib_available():
+        p = estimate_p4pf(variant(scene, nt, ()))
+        recs.append(_record(sid, scene, "p4pf", n_target=nt, n_refs=0, error=_err(p.params, scene),
+                            seconds=p.seconds, fallback=p.info["fallback"]))
+
+    # ours
+    for model in MODELS:
+        T = temperature if model == "paper" else None
+        runs = [(nt, k) for k in config.ref_counts] + [(config.n_target_baseline, 0)]
+        for n_ann, k in runs:
+            post = n_ann == nt and k in config.posterior_ref_counts
+            res = _estimate(variant(scene, n_ann, all_refs[:k]), model, "default", seed, posterior=post,
+                            temperature=T, sampling=config.sampler)
+            rec = _record(sid, scene, f"ours-{model}", model=model, preset="default", n_target=n_ann,
+                          n_refs=k, error=res.evaluation.location_pct_error, seconds=res.map.seconds,
+                          paper_seconds=paper_seconds, pairs_used=_pairs_used(res),
+                          handedness_ok=res.map.handedness == scene.ground_truth.extra["handedness"])
+            if post:
+                rec.update(_posterior_fields(res, truth))
+            recs.append(rec)
+
+    if pairs:  # Fig. 11: each pair of references alone
+        from .metrology import aggregate_references
+
+        for i, j in combinations(all_refs, 2):
+            v = variant(scene, nt, (i, j))
+            kinds = "+".join(sorted(scene.references[r].measure for r in (i, j)))
+            skipped = aggregate_references(v, Camera.from_scene(v)).pairs_used == 0
+            for model in MODELS:  # "skipped" is the paper aggregation's verdict, for both models
+                res = _estimate(v, model, "default", seed)
+                recs.append(_record(sid, scene, f"pair-{model}", model=model, n_target=nt, n_refs=2,
+                                    pair=kinds, error=res.evaluation.location_pct_error, skipped=bool(skipped)))
+
+    if sweep:  # the paper model's posterior for several (σ, T), with all references
+        v = variant(scene, nt, all_refs)
+        for sigma, T in config.paper_posterior_grid:
+            res = _estimate(v, "paper", "default", seed, posterior=True, temperature=T,
+                            sampling=config.sampler, sigma=sigma)
+            recs.append(_record(sid, scene, "sweep-paper", model="paper", n_target=nt, n_refs=n_refs,
+                                sigma=sigma, map_error=res.evaluation.location_pct_error,
+                                **_posterior_fields(res, truth)))
+    say(f"{sid}: paper {recs[2]['error']:.1f} %, crb {crb_t:.2f}/{crb_r:.2f} %")
+    return recs
+
+
+def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature: float | None = None,
+              progress=None) -> dict:
+    """Run the benchmark; returns the JSON-able document (records, summary, environment).
+
+    Parameters
+    ----------
+    config : a :class:`BenchConfig` or the name of one of :data:`CONFIGS`
+    seed : the seed of the scenes and of every estimator
+    temperature : the paper model's posterior temperature (default: the package's)
+    progress : callable taking a line of text, or None
+    """
+    if isinstance(config, str):
+        if config not in CONFIGS:
+            raise ValueError(f"config: expected one of {list(CONFIGS)}, got {config!r}")
+        config = CONFIGS[config]
+    say = progress or (lambda s: None)
+    t0, c0 = time.perf_counter(), time.process_time()
+    scenes = bench_scenes(config, seed)
+    seen: dict[str, int] = {}
+    records = []
+    for sid, scene in scenes:
+        tier = scene.ground_truth.extra["tier"]
+        seen[tier] = seen.get(tier, 0) + 1
+        records += _run_scene(sid, scene, config, seed, temperature,
+                              pairs=seen[tier] <= config.pair_scenes,
+                              sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
+                              say=say)
+    from .bench_report import summarise
+
+    doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),
+           "paper_temperature_override": temperature, "seconds": time.perf_counter() - t0,
+           "cpu_seconds": time.process_time() - c0,
+           "environment": {"python": sys.version.split()[0], "platform": platform.platform(),
+                           "numpy": np.__version__},
+           "records": records}
+    doc["summary"] = summarise(doc)
+    return doc
+
+
+# ------------------------------------------------------------------------------------------------
+# command line
+
+
+def _run_bench_command(args) -> int:
+    from .bench_report import markdown_report
+    from .cli import UsageError
+    from .peers import INSTALL_HINT, poselib_available
+
+    config = CONFIGS["full" if args.full else "quick"]
+    if args.paper_restarts is not None:
+        if args.paper_restarts < 1:
+            raise UsageError(f"--paper-restarts: expected an integer >= 1, got {args.paper_restarts}")
+        config = replace(config, paper_restarts=args.paper_restarts)
+    if args.temperature is not None and not args.temperature > 0:
+        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    if not poselib_available():
+        print(f"note: p4pf skipped ({INSTALL_HINT})", file=sys.stderr)
+    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=say)
+    report = markdown_report(doc)
+    if not poselib_available():
+        report += f"\n\np4pf skipped: {INSTALL_HINT}\n"
+    (out / "bench.json").write_text(json.dumps(doc, indent=1, allow_nan=False, default=_plain) + "\n")
+    (out / "bench.md").write_text(report + "\n")
+    paths = []
+    if not args.no_figures:
+        from .bench_figures import write_figures
+
+        paths = write_figures(doc, out)
+    if not args.quiet:
+        print(report)
+        print(f"\nwrote {out / 'bench.json'}, {out / 'bench.md'}" + "".join(f", {p}" for p in paths))
+    return 0
+
+
+def _plain(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+
+
+def _run_simulate_command(args) -> int:
+    from .cli import UsageError
+
+    if args.n < 1:
+        raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
+    paths = write_scenes(args.outdir, args.n, seed=args.seed, tier=args.tier, setting=args.setting)
+    if not args.quiet:
+        print(f"wrote {len(paths)} scenes to {args.outdir}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``bench`` and ``simulate`` to the ``creference`` command."""
+    p = subparsers.add_parser("bench", help="benchmark against the paper's method, P4Pf and the Cramér–Rao bound")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="CI-sized run (default; under two minutes)")
+    size.add_argument("--full", action="store_true", help="the documented run (about 25 minutes)")
+    p.add_argument("--out", default="bench_out", metavar="DIR", help="output directory (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of scenes and estimators (default: %(default)s)")
+    p.add_argument("--paper-restarts", type=int, default=None, metavar="N",
+                   help="override the paper preset's restarts (default: 200; 8 with --quick)")
+    p.add_argument("--temperature", type=float, default=None,
+                   help="posterior temperature of the paper model (default: the package's)")
+    p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=_run_bench_command)
+
+    p = subparsers.add_parser("simulate", help="write synthetic creference-scene/1 files with ground truth")
+    p.add_argument("outdir", metavar="OUTDIR")
+    p.add_argument("--n", type=int, required=True, help="number of scenes")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
+                   help="noise tier, or all to cycle through them (default: %(default)s)")
+    p.add_argument("--setting", default=None, choices=list(SETTINGS),
+                   help="indoor or outdoor (default: two thirds indoor)")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=_run_simulate_command)

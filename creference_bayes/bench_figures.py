@@ -1,0 +1,218 @@
+"""The benchmark's figures (matplotlib). Each function takes a bench document (or its summary)
+and returns a Figure; :func:`write_figures` saves them all as PNG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["error_by_tier", "error_vs_refs", "same_time", "pairs", "calibration", "sweep", "timing",
+           "write_figures"]
+
+TIERS = ("none", "low", "medium", "high")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def error_by_tier(doc: dict, fig=None):
+    """Median location error per tier and estimator (bars: interquartile range), log scale."""
+    from .bench_report import _sel, estimator_rows
+
+    plt = _plt()
+    fig = fig or plt.figure(figsize=(11, 5.5))
+    ax = fig.add_subplot(111)
+    rows = estimator_rows(doc)
+    width = 0.8 / len(rows)
+    cmap = plt.get_cmap("tab20")
+    for i, (label, sel, key) in enumerate(rows):
+        for j, t in enumerate(TIERS):
+            v = np.array([r.get(key) for r in _sel(doc["records"], tier=t, **sel) if r.get(key) is not None], float)
+            v = np.maximum(v[np.isfinite(v)], 1e-4)
+            if v.size == 0:
+                continue
+            q1, med, q3 = np.percentile(v, [25, 50, 75])
+            x = j - 0.4 + (i + 0.5) * width
+            ax.errorbar(x, med, yerr=[[med - q1], [q3 - med]], fmt="o", ms=4, color=cmap(i % 20),
+                        label=label if j == 0 or not ax.get_legend_handles_labels()[1].count(label) else None)
+    ax.set_xticks(range(len(TIERS)), [f"{t}" for t in TIERS])
+    ax.set_yscale("log")
+    ax.set_xlabel("noise tier")
+    ax.set_ylabel("location error, % (Eq. 3)")
+    ax.set_title("Location error by noise tier: median and interquartile range")
+    ax.grid(True, which="major", axis="y", alpha=0.3)
+    handles, labels = ax.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles))
+    ax.legend(uniq.values(), uniq.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
+def error_vs_refs(summary: dict, fig=None):
+    """Mean (solid) and median (dashed) error against the number of references (Fig. 10)."""
+    plt = _plt()
+    fig = fig or plt.figure(figsize=(11, 4.5))
+    cmap = plt.get_cmap("tab10")
+    for p, setting in enumerate(("indoor", "outdoor")):
+        ax = fig.add_subplot(1, 2, p + 1)
+        block = summary["vs_refs"].get(setting, {})
+        for i, (name, row) in enumerate(block.items()):
+            ks = sorted(int(k) for k in row)
+            mean = [row[k if k in row else str(k)]["mean"] for k in ks]
+            med = [row[k if k in row else str(k)]["median"] for k in ks]
+            style = dict(color=cmap(i), marker="o" if len(ks) > 1 else "s", ms=5)
+            ax.plot(ks, mean, "-", label=f"{name} (mean)", **style)
+            ax.plot(ks, med, "--", alpha=0.7, **style)
+        ax.set_yscale("log")
+        ax.set_xlabel("number of references")
+        ax.set_ylabel("location error, %")
+        ax.set_title(f"{setting}: mean (solid), median (dashed)")
+        ax.grid(True, alpha=0.3)
+        if p == 1:
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
+def same_time(summary: dict, fig=None):
+    """Analysis 2: 10 target annotations against 5 target + 5 references (mean and median)."""
+    plt = _plt()
+    fig = fig or plt.figure(figsize=(7.5, 4.2))
+    ax = fig.add_subplot(111)
+    st = summary["same_time"]
+    names = [k for k in st if k != "human_seconds"]
+    hs = st["human_seconds"]
+    x = np.arange(len(names))
+    for off, key, label in ((-0.2, "baseline", f"10 target ({hs['baseline']:.0f} s of work)"),
+                            (0.2, "c-reference", f"5 target + 5 refs ({hs['c-reference']:.0f} s)")):
+        means = [st[n][key]["mean"] for n in names]
+        meds = [st[n][key]["median"] for n in names]
+        ax.bar(x + off, means, 0.38, label=f"{label}: mean", alpha=0.8)
+        ax.scatter(x + off, meds, color="k", marker="_", s=300, zorder=3)
+    ax.set_xticks(x, names)
+    ax.set_yscale("log")
+    ax.set_ylabel("location error, % (bar: mean, line: median)")
+    ax.set_title("Same human time (paper Analysis 2)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def pairs(summary: dict, fig=None):
+    """Fig. 11: mean error with two references, skipped against used pairs, per pair type."""
+    plt = _plt()
+    blocks = summary["pairs"]
+    fig = fig or plt.figure(figsize=(11, 4.2))
+    for p, (model, block) in enumerate(blocks.items()):
+        ax = fig.add_subplot(1, len(blocks), p + 1)
+        kinds = list(block)
+        x = np.arange(len(kinds))
+        for off, g, c in ((-0.2, "skipped", "tab:red"), (0.2, "used", "tab:blue")):
+            vals = [block[k][g].get("mean", np.nan) for k in kinds]
+            ns = [block[k][g]["n"] for k in kinds]
+            ax.bar(x + off, vals, 0.38, color=c, alpha=0.8, label=g)
+            for xi, v, n in zip(x + off, vals, ns):
+                if n:
+                    ax.annotate(str(n), (xi, v), ha="center", va="bottom", fontsize=7)
+        ax.set_xticks(x, kinds, rotation=30, ha="right", fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("mean location error, %")
+        ax.set_title(f"ours-{model}, 2 references (n above bars)")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def calibration(summary: dict, fig=None):
+    """Coverage of the 50 % and 90 % HDIs per parameter, and rank histograms, per model."""
+    plt = _plt()
+    cal = summary["calibration"]
+    params = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
+    fig = fig or plt.figure(figsize=(13, 3.2 * len(cal)))
+    for m, (model, c) in enumerate(cal.items()):
+        ax = fig.add_subplot(len(cal), 1 + len(params), m * (1 + len(params)) + 1)
+        x = np.arange(len(params))
+        for off, lvl, col in ((-0.2, "50", "tab:orange"), (0.2, "90", "tab:blue")):
+            ax.bar(x + off, [c["all"].get(p, {}).get(lvl, np.nan) for p in params], 0.38, color=col, label=f"{lvl} %")
+            ax.axhline(int(lvl) / 100, color=col, ls="--", lw=1)
+        ax.set_xticks(x, ["x", "y", "z", "yaw", "µ", "d"], fontsize=8)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"ours-{model} (T={c['temperature']:g})\ncoverage", fontsize=9)
+        ax.legend(fontsize=7, loc="lower left")
+        for i, p in enumerate(params):
+            a = fig.add_subplot(len(cal), 1 + len(params), m * (1 + len(params)) + 2 + i)
+            h = np.asarray(c["ranks"].get(p, []), float)
+            if h.size:
+                a.bar(np.arange(h.size) + 0.5, h, 1.0, color="0.6", edgecolor="k", lw=0.5)
+                a.axhline(h.sum() / h.size, color="r", lw=1)
+            a.set_title(f"rank of true {p}", fontsize=8)
+            a.set_xticks([])
+            a.tick_params(labelsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def sweep(summary: dict, fig=None):
+    """Coverage of the ground distance's 50 % and 90 % HDIs for each (σ, T) of the paper model."""
+    plt = _plt()
+    sw = summary["sweep"]
+    fig = fig or plt.figure(figsize=(8, 4))
+    ax = fig.add_subplot(111)
+    keys = list(sw)
+    x = np.arange(len(keys))
+    for off, lvl, col in ((-0.2, "50", "tab:orange"), (0.2, "90", "tab:blue")):
+        ax.bar(x + off, [sw[k]["all"].get("distance_m", {}).get(lvl, np.nan) for k in keys], 0.38,
+               color=col, label=f"{lvl} % HDI")
+        ax.axhline(int(lvl) / 100, color=col, ls="--", lw=1)
+    ax.set_xticks(x, [k.replace(", ", "\n") for k in keys], fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("share of scenes with the true distance inside")
+    ax.set_title("Paper model posterior: coverage against σ (Eq. 5) and temperature T")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def timing(summary: dict, fig=None):
+    """Median time per target, and its ratio to the ``paper`` preset."""
+    plt = _plt()
+    t = summary["timing"]
+    fig = fig or plt.figure(figsize=(7.5, 3.8))
+    ax = fig.add_subplot(111)
+    names = list(t)
+    ax.barh(names, [t[n]["seconds"] for n in names], color="tab:gray")
+    for i, n in enumerate(names):
+        ax.annotate(f" ×{t[n]['ratio']:.3g}", (t[n]["seconds"], i), va="center", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("seconds per target (median); label: ratio to the paper preset")
+    ax.set_title("Time per target")
+    fig.tight_layout()
+    return fig
+
+
+def write_figures(doc: dict, outdir) -> list[Path]:
+    """Save every figure as ``bench_*.png`` in ``outdir``; returns the paths."""
+    plt = _plt()
+    outdir = Path(outdir)
+    s = doc["summary"]
+    figs = {"bench_error_by_tier.png": error_by_tier(doc), "bench_error_vs_refs.png": error_vs_refs(s),
+            "bench_same_time.png": same_time(s), "bench_timing.png": timing(s)}
+    if s["pairs"]:
+        figs["bench_pairs.png"] = pairs(s)
+    if s["calibration"]:
+        figs["bench_calibration.png"] = calibration(s)
+    if s["sweep"]:
+        figs["bench_sweep.png"] = sweep(s)
+    paths = []
+    for name, fig in figs.items():
+        fig.savefig(outdir / name, dpi=110)
+        plt.close(fig)
+        paths.append(outdir / name)
+    return paths

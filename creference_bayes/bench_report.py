@@ -1,0 +1,316 @@
+"""The benchmark's tables: summaries of :func:`~.bench.run_bench` records, and Markdown.
+
+Every table is computed from the records alone (``bench.json`` can be re-summarised later).
+Errors are the paper's Eq. 3 location percentage error; "posterior mean" is the location of the
+posterior mean; the CRB rows are the median ‖e‖ implied by the Cramér–Rao bound (:mod:`.crb`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["summarise", "markdown_report", "stats", "estimator_rows"]
+
+TIER_ORDER = ("none", "low", "medium", "high")
+TASK_SECONDS = {"target": 183.5, "reference": 64.4}
+PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
+N_RANK_BINS = 10
+
+
+def stats(values) -> dict:
+    """n, median, mean and 90th percentile of a list of errors (NaN-free)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if v.size == 0:
+        return {"n": 0}
+    return {"n": int(v.size), "median": float(np.median(v)), "mean": float(np.mean(v)),
+            "p90": float(np.percentile(v, 90))}
+
+
+def _sel(records, **want):
+    return [r for r in records if all(r.get(k) == v for k, v in want.items())]
+
+
+def estimator_rows(doc: dict) -> list[tuple[str, dict, str]]:
+    """(label, selector, error key) of every row of the error-by-tier table."""
+    cfg = doc["config"]
+    nt, nref = cfg["n_target"], max(cfg["ref_counts"])
+    restarts = cfg["paper_restarts"] or 200
+    label = f"paper (preset `paper`, {restarts} restarts{', REDUCED: quick' if restarts != 200 else ''}), {nref} refs"
+    rows = [(label, dict(estimator="paper", n_target=nt, n_refs=nref), "error"),
+            ("p4pf (PoseLib, LS-refined), 0 refs", dict(estimator="p4pf"), "error")]
+    for model in ("paper", "metrology"):
+        for k in sorted({0, nref} & set(cfg["ref_counts"])):
+            rows.append((f"ours-{model} MAP, {k} refs", dict(estimator=f"ours-{model}", n_target=nt, n_refs=k), "error"))
+        for k in sorted({0, nref} & set(cfg["posterior_ref_counts"])):
+            rows.append((f"ours-{model} posterior mean, {k} refs",
+                         dict(estimator=f"ours-{model}", n_target=nt, n_refs=k), "post_error"))
+    rows += [("Cramér–Rao bound, target only", dict(estimator="crb-target"), "error"),
+             (f"Cramér–Rao bound, + {nref} refs (metrology)", dict(estimator="crb-refs"), "error")]
+    return rows
+
+
+def _by_tier(doc) -> dict:
+    recs = doc["records"]
+    out = {}
+    for label, sel, key in estimator_rows(doc):
+        out[label] = {t: stats([r.get(key) for r in _sel(recs, tier=t, **sel)]) for t in TIER_ORDER}
+        out[label]["all"] = stats([r.get(key) for r in _sel(recs, **sel)])
+    return out
+
+
+def _vs_refs(doc) -> dict:
+    recs, nt = doc["records"], doc["config"]["n_target"]
+    out = {}
+    for setting in ("indoor", "outdoor", "all"):
+        s = {} if setting == "all" else {"setting": setting}
+        block = {}
+        for model in ("paper", "metrology"):
+            for key, kind in (("error", "MAP"), ("post_error", "posterior mean")):
+                row = {k: stats([r.get(key) for r in _sel(recs, estimator=f"ours-{model}", n_target=nt, n_refs=k, **s)])
+                       for k in range(6)}
+                row = {k: v for k, v in row.items() if v["n"]}
+                if row:
+                    block[f"ours-{model} {kind}"] = row
+        for name, sel in (("paper", dict(estimator="paper", n_target=nt)), ("p4pf", dict(estimator="p4pf"))):
+            row = {}
+            for r in _sel(recs, **sel, **s):
+                row.setdefault(r["n_refs"], []).append(r["error"])
+            if row:
+                block[name] = {k: stats(v) for k, v in sorted(row.items())}
+        out[setting] = block
+    return out
+
+
+def _same_time(doc) -> dict:
+    recs, cfg = doc["records"], doc["config"]
+    nt, nb = cfg["n_target"], cfg["n_target_baseline"]
+    out = {"human_seconds": {"baseline": nb * TASK_SECONDS["target"],
+                             "c-reference": nt * TASK_SECONDS["target"] + 5 * TASK_SECONDS["reference"]}}
+    for name in ("ours-paper", "ours-metrology", "paper"):
+        base = stats([r["error"] for r in _sel(recs, estimator=name, n_target=nb, n_refs=0)])
+        cref = stats([r["error"] for r in _sel(recs, estimator=name, n_target=nt, n_refs=5)])
+        if base["n"] and cref["n"]:
+            out[name] = {"baseline": base, "c-reference": cref,
+                         "mean_reduction_pct": 100 * (1 - cref["mean"] / base["mean"]),
+                         "median_reduction_pct": 100 * (1 - cref["median"] / base["median"])}
+    return out
+
+
+def _pairs(doc) -> dict:
+    out = {}
+    for model in ("paper", "metrology"):
+        recs = _sel(doc["records"], estimator=f"pair-{model}")
+        block = {}
+        for kind in sorted({r["pair"] for r in recs}):
+            block[kind] = {g: stats([r["error"] for r in recs if r["pair"] == kind and r["skipped"] == flag])
+                           for g, flag in (("skipped", True), ("used", False))}
+        block["all"] = {g: stats([r["error"] for r in recs if r["skipped"] == flag])
+                        for g, flag in (("skipped", True), ("used", False))}
+        if recs:
+            out[model] = block
+    return out
+
+
+def _coverage(recs) -> dict:
+    out = {}
+    for p in PARAMS:
+        cov = [r["coverage"][p] for r in recs if p in r.get("coverage", {})]
+        if cov:
+            out[p] = {"n": len(cov), "50": float(np.mean([c["50"] for c in cov])),
+                      "90": float(np.mean([c["90"] for c in cov]))}
+    return out
+
+
+def _ranks(recs) -> dict:
+    out = {}
+    for p in PARAMS:
+        u = [r["ranks"][p] for r in recs if p in r.get("ranks", {})]
+        if u:
+            out[p] = np.histogram(u, bins=N_RANK_BINS, range=(0, 1))[0].tolist()
+    return out
+
+
+def _calibration(doc) -> dict:
+    out = {}
+    for model in ("paper", "metrology"):
+        recs = [r for r in _sel(doc["records"], estimator=f"ours-{model}") if "coverage" in r]
+        if not recs:
+            continue
+        out[model] = {"temperature": recs[0]["temperature"], "all": _coverage(recs), "ranks": _ranks(recs),
+                      "by_tier": {t: _coverage(_sel(recs, tier=t)) for t in TIER_ORDER},
+                      "by_refs": {k: _coverage(_sel(recs, n_refs=k)) for k in sorted({r["n_refs"] for r in recs})},
+                      "converged": float(np.mean([r["converged"] for r in recs]))}
+    return out
+
+
+def _sweep(doc) -> dict:
+    recs = _sel(doc["records"], estimator="sweep-paper")
+    out = {}
+    for sigma, T in sorted({(r["sigma"], r["temperature"]) for r in recs}, key=lambda k: (-k[0], k[1])):
+        sub = _sel(recs, sigma=sigma, temperature=T)
+        out[f"sigma={sigma:g}, T={T:g}"] = {
+            "sigma": sigma, "temperature": T, "all": _coverage(sub),
+            "by_tier": {t: _coverage(_sel(sub, tier=t)) for t in TIER_ORDER},
+            "map_error": stats([r["map_error"] for r in sub]), "post_error": stats([r["post_error"] for r in sub]),
+            "post_seconds": float(np.median([r["post_seconds"] for r in sub]))}
+    return out
+
+
+def _timing(doc) -> dict:
+    recs, nt = doc["records"], doc["config"]["n_target"]
+    paper = {r["scene"]: r["seconds"] for r in _sel(recs, estimator="paper", n_target=nt)}
+    out = {"paper": {"seconds": float(np.median(list(paper.values()))), "ratio": 1.0}}
+
+    def add(name, rows, key):
+        secs = [sum(r.get(k, 0.0) for k in key) for r in rows]
+        ratios = [s / paper[r["scene"]] for s, r in zip(secs, rows) if r["scene"] in paper]
+        if secs:
+            out[name] = {"seconds": float(np.median(secs)), "ratio": float(np.median(ratios))}
+
+    add("p4pf", _sel(recs, estimator="p4pf"), ("seconds",))
+    for model in ("paper", "metrology"):
+        rows = _sel(recs, estimator=f"ours-{model}", n_target=nt, n_refs=5)
+        add(f"ours-{model} MAP", rows, ("seconds",))
+        add(f"ours-{model} MAP + posterior", [r for r in rows if "post_seconds" in r], ("seconds", "post_seconds"))
+    return out
+
+
+def _crb_ratio(doc) -> dict:
+    """Median over scenes of error / CRB (target-only bound for 0 refs, with refs otherwise)."""
+    recs, nt = doc["records"], doc["config"]["n_target"]
+    crb = {(r["scene"], r["estimator"]): r["error"] for r in recs if r["estimator"].startswith("crb")}
+    out = {}
+    for label, sel, key in estimator_rows(doc):
+        if label.startswith("Cramér"):
+            continue
+        block = {}
+        for t in TIER_ORDER[1:]:
+            ratios = []
+            for r in _sel(recs, tier=t, **sel):
+                bound = crb.get((r["scene"], "crb-refs" if r.get("n_refs") else "crb-target"))
+                if r.get(key) is not None and bound and np.isfinite(bound):
+                    ratios.append(r[key] / bound)
+            if ratios:
+                block[t] = float(np.median(ratios))
+        out[label] = block
+    return out
+
+
+def _default_choice(by_tier: dict) -> dict:
+    """Per tier, the model whose MAP with 5 references has the lower median error."""
+    out = {}
+    for t in TIER_ORDER:
+        cand = {m: by_tier.get(f"ours-{m} MAP, 5 refs", {}).get(t, {}).get("median") for m in ("paper", "metrology")}
+        cand = {m: v for m, v in cand.items() if v is not None}
+        if cand:
+            out[t] = min(cand, key=cand.get)
+    return out
+
+
+def summarise(doc: dict) -> dict:
+    by_tier = _by_tier(doc)
+    return {"by_tier": by_tier, "vs_refs": _vs_refs(doc), "same_time": _same_time(doc), "pairs": _pairs(doc),
+            "calibration": _calibration(doc), "sweep": _sweep(doc), "timing": _timing(doc),
+            "crb_ratio": _crb_ratio(doc), "better_model": _default_choice(by_tier)}
+
+
+# ------------------------------------------------------------------------------------------------
+# Markdown
+
+
+def _f(x, nd=1) -> str:
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "–"
+    return f"{x:.{nd}f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def markdown_report(doc: dict) -> str:
+    """All tables of a bench document as Markdown."""
+    s = doc.get("summary") or summarise(doc)
+    cfg = doc["config"]
+    out = [f"## Benchmark `{cfg['name']}` — seed {doc['seed']}, creference_bayes {doc['version']}, "
+           f"{len({r['scene'] for r in doc['records']})} scenes, {doc['seconds']:.0f} s "
+           f"({doc.get('cpu_seconds', float('nan')):.0f} s CPU)",
+           "", "Location error (paper Eq. 3, %) per noise tier: median / mean / p90 (n scenes).", ""]
+    rows = []
+    for label, block in s["by_tier"].items():
+        rows.append([label] + [(f"{_f(b['median'])} / {_f(b['mean'])} / {_f(b['p90'])} ({b['n']})" if b["n"] else "–")
+                               for b in (block[t] for t in TIER_ORDER)])
+    out += [_table(["estimator"] + list(TIER_ORDER), rows), ""]
+
+    out += ["Error / Cramér–Rao bound (median over scenes; bound with references for estimators that use them).", ""]
+    out += [_table(["estimator"] + list(TIER_ORDER[1:]),
+                   [[k] + [_f(v.get(t), 2) for t in TIER_ORDER[1:]] for k, v in s["crb_ratio"].items()]), ""]
+
+    out += [f"Better model per tier (median MAP error with 5 references): "
+            + ", ".join(f"{t}: **{m}**" for t, m in s["better_model"].items()), ""]
+
+    for setting in ("indoor", "outdoor"):
+        block = s["vs_refs"].get(setting, {})
+        if not block:
+            continue
+        out += [f"Error against the number of references, {setting} (mean / median %, Fig. 10).", ""]
+        rows = [[name] + [(f"{_f(row[k]['mean'])} / {_f(row[k]['median'])}" if k in row else "") for k in range(6)]
+                for name, row in block.items()]
+        out += [_table(["estimator"] + [str(k) for k in range(6)], rows), ""]
+
+    st = s["same_time"]
+    hs = st["human_seconds"]
+    out += [f"Same human time (Analysis 2): {cfg['n_target_baseline']} target annotations "
+            f"({hs['baseline']:.1f} s) against {cfg['n_target']} target + 5 reference annotations "
+            f"({hs['c-reference']:.1f} s; task times 183.5 s and 64.4 s).", ""]
+    rows = [[name, f"{_f(v['baseline']['mean'])} / {_f(v['baseline']['median'])}",
+             f"{_f(v['c-reference']['mean'])} / {_f(v['c-reference']['median'])}",
+             _f(v["mean_reduction_pct"]), _f(v["median_reduction_pct"])]
+            for name, v in st.items() if name != "human_seconds"]
+    out += [_table(["estimator", "10 target: mean / median %", "5 + 5 refs: mean / median %",
+                    "mean reduction %", "median reduction %"], rows), ""]
+
+    if s["pairs"]:
+        out += ["Skipped against used reference pairs (Fig. 11; two references alone; "
+                "\"skipped\" = the paper's pair solve has no valid solution). Mean / median % (n).", ""]
+        rows = []
+        for model, block in s["pairs"].items():
+            for kind, g in block.items():
+                rows.append([f"ours-{model}", kind] + [
+                    (f"{_f(g[k]['mean'])} / {_f(g[k]['median'])} ({g[k]['n']})" if g[k]["n"] else "–")
+                    for k in ("skipped", "used")])
+        out += [_table(["model", "pair", "skipped", "used"], rows), ""]
+
+    for model, c in s["calibration"].items():
+        out += [f"Calibration, ours-{model} (T = {c['temperature']:g}): share of scenes whose truth lies in "
+                f"the 50 % / 90 % HDI (converged runs: {100 * c['converged']:.0f} %).", ""]
+        rows = [["all"] + [f"{_f(100 * c['all'][p]['50'], 0)} / {_f(100 * c['all'][p]['90'], 0)}"
+                           if p in c["all"] else "–" for p in PARAMS]]
+        for t in TIER_ORDER:
+            b = c["by_tier"].get(t, {})
+            rows.append([t] + [f"{_f(100 * b[p]['50'], 0)} / {_f(100 * b[p]['90'], 0)}" if p in b else "–"
+                               for p in PARAMS])
+        out += [_table(["tier"] + list(PARAMS), rows), ""]
+
+    if s["sweep"]:
+        out += ["Calibration sweep of the paper model's posterior (σ of Eq. 5 and temperature T; 5 refs): "
+                "coverage 50 % / 90 % per parameter, and median MAP / posterior-mean error.", ""]
+        rows = []
+        for key, v in s["sweep"].items():
+            rows.append([key] + [f"{_f(100 * v['all'][p]['50'], 0)} / {_f(100 * v['all'][p]['90'], 0)}"
+                                 if p in v["all"] else "–" for p in PARAMS]
+                        + [f"{_f(v['map_error'].get('median'), 2)} / {_f(v['post_error'].get('median'), 2)}"])
+        out += [_table(["σ, T"] + list(PARAMS) + ["error MAP / mean %"], rows), ""]
+        out += ["Distance coverage 50 % / 90 % by tier in the sweep:", ""]
+        rows = [[key] + [f"{_f(100 * v['by_tier'][t]['distance_m']['50'], 0)} / "
+                         f"{_f(100 * v['by_tier'][t]['distance_m']['90'], 0)}"
+                         if "distance_m" in v["by_tier"].get(t, {}) else "–" for t in TIER_ORDER]
+                for key, v in s["sweep"].items()]
+        out += [_table(["σ, T"] + list(TIER_ORDER), rows), ""]
+
+    out += ["Time per target (median seconds; ratio to the `paper` preset on the same scene).", ""]
+    out += [_table(["estimator", "seconds", "ratio to paper"],
+                   [[k, _f(v["seconds"], 3), _f(v["ratio"], 4)] for k, v in s["timing"].items()]), ""]
+    return "\n".join(out)

@@ -1,0 +1,137 @@
+"""emcee moves that keep several ensembles independent inside one sampler, and an
+independence proposal (see :mod:`.sampling`).
+
+Walkers ``g·K … (g+1)·K − 1`` of the sampler form ensemble ``g``. The red-blue moves
+(:class:`GroupedDEMove`, :class:`GroupedStretchMove`) draw a walker's partners only from the
+other half of its own ensemble, and :class:`IndependenceMove` uses no partner at all, so the
+ensembles never exchange information while all walkers share one vectorised log-probability call.
+Acceptance is vectorised too (emcee's red-blue moves accept walker by walker in Python).
+"""
+
+from __future__ import annotations
+
+import emcee
+import numpy as np
+
+__all__ = ["GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
+
+
+def _log_prob(model, q: np.ndarray) -> np.ndarray:
+    """Vectorised log-probability of proposals ``q``, shape (n,).
+
+    Calls the wrapped function directly: emcee's ``compute_log_prob`` converts the result walker
+    by walker in Python (to look for blobs), which costs more than the vectorised cost itself.
+    The wrapped function (``sampling._InSpace``) already maps NaN and ±∞ to −∞.
+    """
+    return np.asarray(model.log_prob_fn(q), float)
+
+
+def _grouped_propose(move, model, state, n_groups: int):
+    """Red-blue update in which each walker's complement comes from its own ensemble.
+
+    Walkers ``g·K … (g+1)·K − 1`` form ensemble ``g``. Each ensemble is split at random into two
+    halves; each half is updated in turn against the other half of the same ensemble. All
+    ensembles' proposals go to the log-probability in one call.
+    """
+    nw, d = state.coords.shape
+    k = nw // n_groups
+    h = k // 2
+    order = np.argsort(model.random.rand(n_groups, k), axis=1) + (np.arange(n_groups) * k)[:, None]
+    accepted = np.zeros(nw, dtype=bool)
+    for first, second in ((order[:, :h], order[:, h:]), (order[:, h:], order[:, :h])):
+        q, factors = move.grouped_proposal(state.coords[first], state.coords[second], model.random)
+        idx = first.ravel()
+        q = q.reshape(-1, d)
+        new_lp = _log_prob(model, q)
+        acc = factors.ravel() + new_lp - state.log_prob[idx] > np.log(model.random.rand(len(idx)))
+        state.coords[idx[acc]] = q[acc]
+        state.log_prob[idx[acc]] = new_lp[acc]
+        accepted[idx[acc]] = True
+    return state, accepted
+
+
+class GroupedDEMove(emcee.moves.Move):
+    """Differential evolution (ter Braak 2006; emcee's ``DEMove``) within each ensemble.
+
+    Proposal x' = x + γ (x_a − x_b), with a ≠ b two walkers of the complementary half of the
+    walker's own ensemble and γ = γ₀ (1 + σ ε), γ₀ = 2.38 / √(2·ndim).
+    """
+
+    def __init__(self, n_groups: int, sigma: float = 1e-5, gamma0: float | None = None):
+        self.n_groups, self.sigma, self.gamma0 = int(n_groups), sigma, gamma0
+
+    def grouped_proposal(self, s, c, random):
+        g, ns, d = s.shape
+        nc = c.shape[1]
+        i1 = random.randint(nc, size=(g, ns))
+        i2 = (i1 + 1 + random.randint(nc - 1, size=(g, ns))) % nc
+        gi = np.arange(g)[:, None]
+        g0 = self.gamma0 if self.gamma0 is not None else 2.38 / np.sqrt(2.0 * d)
+        gamma = g0 * (1.0 + self.sigma * random.randn(g, ns, 1))
+        return s + gamma * (c[gi, i1] - c[gi, i2]), np.zeros((g, ns))
+
+    def propose(self, model, state):
+        return _grouped_propose(self, model, state, self.n_groups)
+
+
+class GroupedStretchMove(emcee.moves.Move):
+    """The Goodman & Weare stretch move (emcee's ``StretchMove``) within each ensemble."""
+
+    def __init__(self, n_groups: int, a: float = 2.0):
+        self.n_groups, self.a = int(n_groups), a
+
+    def grouped_proposal(self, s, c, random):
+        g, ns, d = s.shape
+        zz = ((self.a - 1.0) * random.rand(g, ns) + 1.0) ** 2 / self.a
+        j = random.randint(c.shape[1], size=(g, ns))
+        cj = c[np.arange(g)[:, None], j]
+        return cj - (cj - s) * zz[..., None], (d - 1.0) * np.log(zz)
+
+    def propose(self, model, state):
+        return _grouped_propose(self, model, state, self.n_groups)
+
+
+class IndependenceMove(emcee.moves.MHMove):
+    """Independence Metropolis–Hastings with a multivariate-t proposal.
+
+    Every walker proposes x' ~ t_ν(m, S S ᵀ) regardless of where it is; the Hastings factor is
+    log q(x) − log q(x'). It uses no other walker, so ensembles stay independent.
+
+    Parameters
+    ----------
+    mean : (ndim,)
+    chol : (ndim, ndim) lower-triangular S
+    df : ν
+    """
+
+    def __init__(self, mean: np.ndarray, chol: np.ndarray, df: float):
+        self.mean, self.chol, self.df = np.asarray(mean, float), np.asarray(chol, float), float(df)
+        self._inv = np.linalg.inv(self.chol)
+        self.proposed = self.accepted = 0
+        super().__init__(self._propose, ndim=len(self.mean))
+
+    @property
+    def acceptance(self) -> float:
+        """Share of this move's proposals accepted so far (NaN before any)."""
+        return self.accepted / self.proposed if self.proposed else float("nan")
+
+    def log_q(self, x: np.ndarray) -> np.ndarray:
+        z = (x - self.mean) @ self._inv.T
+        return -0.5 * (self.df + len(self.mean)) * np.log1p(np.sum(z * z, axis=1) / self.df)
+
+    def propose(self, model, state):
+        """As :meth:`emcee.moves.MHMove.propose`, with a vectorised log-probability call."""
+        q, factors = self._propose(state.coords, model.random)
+        new_lp = _log_prob(model, q)
+        accepted = np.log(model.random.rand(len(q))) < new_lp - state.log_prob + factors
+        state.coords[accepted] = q[accepted]
+        state.log_prob[accepted] = new_lp[accepted]
+        self.proposed += len(q)
+        self.accepted += int(accepted.sum())
+        return state, accepted
+
+    def _propose(self, x, random):
+        n, d = x.shape
+        w = random.chisquare(self.df, n) / self.df
+        y = self.mean + (random.randn(n, d) / np.sqrt(w)[:, None]) @ self.chol.T
+        return y, self.log_q(x) - self.log_q(y)

@@ -1,0 +1,344 @@
+"""Plots of an estimate (matplotlib): projected boxes, pair plot, rank plots, top view.
+
+Every function takes the result as a ``creference-result/1`` dict (:meth:`Result.to_dict` or a
+loaded file) and posterior draws as named (chain, draw) arrays (:func:`draws_from_result`), draws
+on the ``ax``/``fig`` it is given or on a new :class:`matplotlib.figure.Figure` (no pyplot state),
+and returns the figure.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Polygon, Rectangle, Wedge
+
+from .geometry import Camera, box_points, box_vertices
+from .model import PARAM_NAMES, PARAM_UNITS
+
+__all__ = ["draws_from_result", "plot_boxes", "plot_pairs", "plot_ranks", "plot_top_view"]
+
+_NAMES = PARAM_NAMES + ("distance_m",)
+_UNITS = dict(zip(_NAMES, PARAM_UNITS + ("m",)))
+_BOX_EDGES = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4),
+              (0, 4), (1, 5), (2, 6), (3, 7)]
+_MAP_COLOR, _POST_COLOR, _TRUTH_COLOR, _REF_COLOR = "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e"
+
+
+def draws_from_result(result: dict, idata=None) -> dict[str, np.ndarray] | None:
+    """Named (chain, draw) arrays: from an InferenceData when given, else from the draws kept in
+    the result's ``posterior.draws``; None when the result has no posterior."""
+    if idata is not None:
+        return {k: np.asarray(v) for k, v in idata.posterior.data_vars.items()}
+    draws = (result.get("posterior") or {}).get("draws")
+    if not draws:
+        return None
+    chain = np.asarray(draws["chain"])
+    n_chain = int(chain.max()) + 1
+    return {k: np.asarray(v, float).reshape(n_chain, -1) for k, v in draws.items() if k != "chain"}
+
+
+def _new_axes(ax, figsize):
+    if ax is not None:
+        return ax.figure, ax
+    fig = Figure(figsize=figsize, layout="constrained")
+    return fig, fig.add_subplot()
+
+
+def _truth(scene) -> dict | None:
+    gt = getattr(scene, "ground_truth", None)
+    if gt is None:
+        return None
+    x, y, z = gt.location_m
+    return {"x": x, "y": y, "z": z, "yaw": gt.yaw_rad, "focal_length_px": gt.focal_length_px,
+            "distance_m": float(np.hypot(x, z))}
+
+
+def _params(source: dict) -> np.ndarray:
+    return np.array([source[k] for k in PARAM_NAMES], float)
+
+
+def _project_boxes(scene, params: np.ndarray) -> np.ndarray:
+    """(n, 8, 2) pixels of the boxes at (n, 5) parameters; NaN where behind the camera."""
+    t = scene.target
+    camera = Camera.from_scene(scene)
+    pts = box_points(params, box_vertices(t.length, t.width, t.height))
+    uv, depth = camera.project(pts, params[:, 4])
+    uv[depth <= 0] = np.nan
+    return uv
+
+
+def plot_boxes(result: dict, scene, draws: dict | None = None, *, n_boxes: int = 60,
+               zoom: bool = True, ax=None, rng=0) -> Figure:
+    """The photo (or a blank canvas of its size) with the annotations, the MAP box and a spread
+    of boxes drawn from the posterior, projected with each draw's own focal length.
+
+    Parameters
+    ----------
+    result : ``creference-result/1`` dict
+    scene : the :class:`~creference_bayes.scene.Scene` (camera, target size, annotations)
+    draws : named (chain, draw) arrays, or None to draw the MAP only
+    n_boxes : posterior boxes to draw (chosen at random with ``rng``)
+    zoom : add an inset that zooms on the target (in the corner of the image farthest from it)
+    """
+    w, h = scene.image_width, scene.image_height
+    fig, ax = _new_axes(ax, (9, 9 * h / w + 0.6))
+    image = _load_image(scene)
+    if image is not None:
+        ax.imshow(image, extent=(0, w, h, 0))
+    else:
+        ax.add_patch(Rectangle((0, 0), w, h, facecolor="#f4f4f4", edgecolor="#999999"))
+    if scene.horizon is not None:
+        ax.plot(*np.asarray(scene.horizon).T, ls="--", color="#777777", lw=1, label="horizon")
+    boxes = np.zeros((0, 8, 2))
+    if draws is not None:
+        flat = np.column_stack([np.asarray(draws[k]).ravel() for k in PARAM_NAMES])
+        pick = np.random.default_rng(rng).choice(len(flat), size=min(n_boxes, len(flat)), replace=False)
+        boxes = _project_boxes(scene, flat[pick])
+        for box in boxes:
+            _draw_box(ax, box, color=_POST_COLOR, alpha=0.15, lw=0.8)
+        ax.plot([], [], color=_POST_COLOR, alpha=0.5, label=f"{len(pick)} posterior draws")
+    _draw_box(ax, _project_boxes(scene, _params(result["map"])[None])[0], color=_MAP_COLOR, lw=1.8,
+              label="MAP")
+    for i, c in enumerate(scene.target.corners):
+        ax.plot(*c[[1, 0, 2]].T, color="k", lw=0.6, alpha=0.5, label="annotations" if i == 0 else None)
+        ax.plot(*c[[0, 3]].T, color="k", lw=0.6, alpha=0.5)
+    m = scene.target.median_corners
+    ax.plot(*m[[1, 0, 2]].T, "k-", lw=1.5, label="median annotation")
+    ax.plot(*m[[0, 3]].T, "k-", lw=1.5)
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    if zoom:
+        _zoom_inset(ax, scene, result, boxes)
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(f"{result.get('target', '')}: MAP and posterior boxes")
+    ax.legend(loc="lower left", fontsize=8, framealpha=0.8)
+    return fig
+
+
+def _zoom_inset(ax, scene, result, boxes) -> None:
+    w, h = scene.image_width, scene.image_height
+    pts = np.vstack([scene.target.corners.reshape(-1, 2),
+                     _project_boxes(scene, _params(result["map"])[None])[0], boxes.reshape(-1, 2)])
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    lo, hi = np.maximum(pts.min(axis=0), 0), np.minimum(pts.max(axis=0), [w, h])
+    size = max(hi[0] - lo[0], (hi[1] - lo[1]) * w / h) * 1.15 + 1.0
+    c = (lo + hi) / 2
+    if size > 0.5 * w:
+        return
+    x0, y0 = c[0] - size / 2, c[1] - size * h / w / 2
+    # put the inset in the image corner farthest from the target
+    right, bottom = c[0] < w / 2, c[1] < h / 2
+    box = [0.56 if right else 0.02, 0.02 if bottom else 0.56, 0.42, 0.42]
+    inset = ax.inset_axes(box)
+    for artist in list(ax.lines):
+        inset.plot(*artist.get_data(), color=artist.get_color(), lw=artist.get_linewidth(),
+                   ls=artist.get_linestyle(), alpha=artist.get_alpha())
+    for image in ax.images:
+        inset.imshow(image.get_array(), extent=image.get_extent())
+    inset.set_xlim(x0, x0 + size)
+    inset.set_ylim(y0 + size * h / w, y0)
+    inset.set_xticks([])
+    inset.set_yticks([])
+    inset.set_facecolor("#f4f4f4")
+    ax.indicate_inset_zoom(inset, edgecolor="#444444")
+
+
+def _load_image(scene):
+    path = getattr(scene, "image_path", None)
+    if path is None or not path.exists():
+        return None
+    import matplotlib.image as mpimg
+
+    try:
+        return mpimg.imread(path)
+    except (OSError, ValueError, SyntaxError):
+        return None
+
+
+def _draw_box(ax, uv: np.ndarray, label=None, **style) -> None:
+    first = True
+    for a, b in _BOX_EDGES:
+        if np.all(np.isfinite(uv[[a, b]])):
+            ax.plot(*uv[[a, b]].T, label=label if first else None, **style)
+            first = False
+
+
+def plot_pairs(draws: dict, *, names=None, result: dict | None = None, truth: dict | None = None,
+               fig=None, max_points: int = 4000, rng=0) -> Figure:
+    """Pair plot: marginal histograms on the diagonal, draws below it, with the MAP and the truth.
+
+    Parameters
+    ----------
+    draws : named (chain, draw) arrays
+    names : quantities to show (default: those that vary among x, y, z, yaw, focal_length_px)
+    result : the result dict (for the MAP and the HDI); truth : true values, or None
+    """
+    if names is None:
+        names = [k for k in PARAM_NAMES if np.ptp(np.asarray(draws[k])) > 0]
+    n = len(names)
+    fig = fig or Figure(figsize=(2.1 * n + 0.5, 2.1 * n + 0.5), layout="constrained")
+    axes = fig.subplots(n, n, squeeze=False)
+    flat = {k: np.asarray(draws[k]).ravel() for k in names}
+    sel = np.random.default_rng(rng).permutation(len(flat[names[0]]))[:max_points]
+    mp = (result or {}).get("map", {})
+    hdi = ((result or {}).get("posterior") or {}).get("hdi", {})
+    for i, a in enumerate(names):
+        for j, b in enumerate(names):
+            ax = axes[i, j]
+            if j > i:
+                ax.set_visible(False)
+                continue
+            if i == j:
+                ax.hist(flat[a], bins=int(np.clip(np.sqrt(len(flat[a])), 10, 40)), color=_POST_COLOR,
+                        alpha=0.7)
+                if a in hdi:
+                    ax.axvspan(*hdi[a], color=_POST_COLOR, alpha=0.12)
+                _vline(ax, mp.get(a), _MAP_COLOR)
+                _vline(ax, (truth or {}).get(a), _TRUTH_COLOR)
+                ax.set_yticks([])
+            else:
+                ax.scatter(flat[b][sel], flat[a][sel], s=2, alpha=0.25, color=_POST_COLOR, lw=0)
+                if a in mp and b in mp:
+                    ax.plot(mp[b], mp[a], "x", color=_MAP_COLOR, ms=7, mew=2)
+                if truth and truth.get(a) is not None and truth.get(b) is not None:
+                    ax.plot(truth[b], truth[a], "*", color=_TRUTH_COLOR, ms=10)
+            if i == n - 1:
+                ax.set_xlabel(f"{b} ({_UNITS[b]})", fontsize=8)
+            else:
+                ax.set_xticklabels([])
+            if j == 0 and i > 0:
+                ax.set_ylabel(f"{a} ({_UNITS[a]})", fontsize=8)
+            elif j > 0:
+                ax.set_yticklabels([])
+            ax.tick_params(labelsize=7)
+    handles = [axes[0, 0].plot([], [], "x", color=_MAP_COLOR, label="MAP")[0]]
+    if truth:
+        handles.append(axes[0, 0].plot([], [], "*", color=_TRUTH_COLOR, label="truth")[0])
+    fig.legend(handles=handles, loc="upper right", fontsize=9)
+    fig.suptitle("posterior pair plot (shaded: HDI)")
+    return fig
+
+
+def _vline(ax, value, color) -> None:
+    if value is not None:
+        ax.axvline(value, color=color, lw=1.5)
+
+
+def plot_ranks(draws: dict, *, names=None, fig=None, bins: int | None = None) -> Figure:
+    """Rank plots: for each quantity, the histogram of each chain's (ensemble's) ranks among all
+    draws. Well-mixed independent chains give flat, overlapping histograms; a chain stuck apart
+    shows up as a slope or a hump (Vehtari et al. 2021). ``bins`` defaults to about 20 draws
+    per bin per chain, at most 20 bins."""
+    if names is None:
+        names = [k for k in _NAMES if k in draws and np.ptp(np.asarray(draws[k])) > 0]
+    n = len(names)
+    cols = min(3, n)
+    rows = -(-n // cols)
+    fig = fig or Figure(figsize=(4 * cols, 2.6 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    for ax, name in zip(axes, names):
+        x = np.asarray(draws[name])
+        n_chain, n_draw = x.shape
+        bins = bins or int(np.clip(n_draw // 20, 4, 20))
+        ranks = np.argsort(np.argsort(x.ravel(), kind="stable"), kind="stable").reshape(x.shape)
+        edges = np.linspace(0, x.size, bins + 1)
+        for c in range(n_chain):
+            counts, _ = np.histogram(ranks[c], bins=edges)
+            ax.stairs(counts, edges, baseline=None, label=f"ensemble {c}", lw=1.3)
+        expected = n_draw / bins
+        ax.axhline(expected, color="k", ls=":", lw=1)
+        ax.set_title(name, fontsize=10)
+        ax.set_xticks([])
+        ax.set_ylim(0, 2 * expected)
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    axes[0].legend(fontsize=7, loc="lower left", ncols=2)
+    fig.suptitle("rank plots per ensemble (dotted: uniform)")
+    return fig
+
+
+def _hdr_levels(x, z, prob, bins=60):
+    """Histogram of (x, z) and the density level enclosing ``prob`` of the draws."""
+    H, xe, ze = np.histogram2d(x, z, bins=bins)
+    from scipy.ndimage import gaussian_filter
+
+    H = gaussian_filter(H, 1.0)
+    flat = np.sort(H.ravel())[::-1]
+    cum = np.cumsum(flat) / flat.sum()
+    level = flat[min(np.searchsorted(cum, prob), len(flat) - 1)]
+    return H, xe, ze, level
+
+
+def plot_top_view(result: dict, draws: dict | None = None, *, scene=None, truth: dict | None = None,
+                  ax=None, max_points: int = 4000, rng=0) -> Figure:
+    """The ground plane seen from above (X right, Z forward from the camera's foot point): the
+    posterior cloud and its credible region (at the result's HDI probability), the MAP, the
+    truth, the camera and its field of view, and the bounds the reference pairs imply.
+
+    Reference bounds come from the result's ``references.pairs`` (x_bounds/z_bounds rectangles,
+    or distance_bounds rings when the constraints are on the ground distance); without them the
+    plot simply has none.
+    """
+    fig, ax = _new_axes(ax, (7.5, 7.5))
+    mp = result["map"]
+    prob = ((result.get("posterior") or {}).get("hdi") or {}).get("prob", 0.9)
+    pts = [np.array([[0.0, 0.0], [mp["x"], mp["z"]]])]
+    for pair in (result.get("references") or {}).get("pairs", []) or []:
+        if not pair.get("used", True):
+            continue
+        if "x_bounds" in pair and "z_bounds" in pair and (result["references"].get("on", "xz") == "xz"):
+            (x0, x1), (z0, z1) = pair["x_bounds"], pair["z_bounds"]
+            ax.add_patch(Rectangle((x0, z0), x1 - x0, z1 - z0, facecolor=_REF_COLOR, alpha=0.08,
+                                   edgecolor=_REF_COLOR, lw=0.8))
+            pts.append(np.array([[x0, z0], [x1, z1]]))
+        elif "distance_bounds" in pair:
+            d0, d1 = pair["distance_bounds"]
+            ax.add_patch(Wedge((0, 0), d1, 0, 180, width=d1 - d0, facecolor=_REF_COLOR, alpha=0.08,
+                               edgecolor=_REF_COLOR, lw=0.8))
+            pts.append(np.array([[-d1, 0.0], [d1, d1]]))
+    if len(pts) > 1:
+        ax.add_patch(Rectangle((np.nan, np.nan), 0, 0, facecolor=_REF_COLOR, alpha=0.3,
+                               label=f"bounds from {len(pts) - 1} reference pairs"))
+    if draws is not None:
+        x, z = np.asarray(draws["x"]).ravel(), np.asarray(draws["z"]).ravel()
+        sel = np.random.default_rng(rng).permutation(len(x))[:max_points]
+        ax.scatter(x[sel], z[sel], s=3, alpha=0.25, color=_POST_COLOR, lw=0, label="posterior draws")
+        H, xe, ze, level = _hdr_levels(x, z, prob)
+        ax.contour((xe[:-1] + xe[1:]) / 2, (ze[:-1] + ze[1:]) / 2, H.T, levels=[level],
+                   colors=[_POST_COLOR], linewidths=1.5)
+        ax.plot([], [], color=_POST_COLOR, lw=1.5, label=f"{prob:.0%} credible region")
+        pts.append(np.column_stack([np.quantile(x, [0.005, 0.995]), np.quantile(z, [0.005, 0.995])]))
+    ax.plot(mp["x"], mp["z"], "x", color=_MAP_COLOR, ms=10, mew=2.5, label="MAP")
+    truth = truth if truth is not None else _truth(scene)
+    if truth is not None:
+        ax.plot(truth["x"], truth["z"], "*", color=_TRUTH_COLOR, ms=14, label="truth")
+        pts.append(np.array([[truth["x"], truth["z"]]]))
+    pts = np.vstack(pts)
+    span = max(np.ptp(pts[:, 0]), np.ptp(pts[:, 1]), 1e-3)
+    lo, hi = pts.min(axis=0) - 0.08 * span, pts.max(axis=0) + 0.08 * span
+    _draw_camera(ax, mp, scene, 0.08 * span)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(min(lo[1], -0.05 * span), hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, right (m)")
+    ax.set_ylabel("z, forward (m)")
+    ax.set_title("top view of the ground plane")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8, framealpha=0.85)
+    return fig
+
+
+def _draw_camera(ax, mp: dict, scene, size: float) -> None:
+    """The camera's foot point and its horizontal field of view at the MAP focal length."""
+    if scene is not None:
+        cx = float(scene.principal_point[0])
+        left, right = -cx, scene.image_width - cx
+        f = mp["focal_length_px"]
+        far = 1e4
+        ax.plot([0, far * left / f], [0, far], color="#555555", lw=0.8, ls=":")
+        ax.plot([0, far * right / f], [0, far], color="#555555", lw=0.8, ls=":",
+                label="field of view (MAP µ, level)")
+    tri = np.array([[0, 0], [-0.6, -1.0], [0.6, -1.0]]) * size
+    ax.add_patch(Polygon(tri, closed=True, color="k", label="camera"))

@@ -1,0 +1,459 @@
+"""Sampling a log-posterior with emcee: several independent ensembles, seeded, run to convergence.
+
+The emcee adapter. It knows nothing of cameras or boxes: it samples any vectorised
+``log_prob((n, ndim)) → (n,)`` from a starting point and a covariance (the MAP and its Laplace
+approximation, :mod:`.posterior`).
+
+How it samples
+--------------
+* **Independent ensembles.** The walkers of one affine-invariant ensemble move using each other's
+  positions, so they are not independent chains and R-hat over them means little. The sampler runs
+  ``n_ensembles`` ensembles of ``n_walkers`` walkers each. To evaluate the log-probability of all
+  walkers of all ensembles in one vectorised call, they share one :class:`emcee.EnsembleSampler`
+  whose moves (:mod:`.moves`: grouped differential evolution and stretch) draw the complementary
+  walkers only from the walker's own ensemble; the ensembles never exchange information, so each is an
+  independent Markov chain and R-hat across them is meaningful. (They share one random stream;
+  disjoint draws from one stream are independent.)
+* **Start.** Each ensemble's walkers are drawn from N(centre, cov) with the ensemble's own
+  generator (spawned from ``rng``); points of log-probability −∞ are redrawn.
+* **Warm-up and reparametrisation.** The paper's cost makes thin, slightly curved ridges (the
+  |‖t‖ − ‖C‖| terms pin four combinations of the parameters to about a pixel, and depth trades
+  against focal length). Ensemble moves are affine-invariant, so they are slow on curved ridges
+  only. During warm-up (stages of 100, 100, 200, 400, … steps) the sampler fits a map to the
+  walkers (:class:`~.reparam.Coordinates`: log z and log µ, a whitening, then a triangular
+  polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
+  is 1; the density is corrected for the logarithms) and an independence proposal (a
+  multivariate t fitted in the straightened space), until a stage run in the map fitted before it
+  still looks whitened and the proposal is accepted often enough. Warm-up draws are discarded;
+  the map and the proposal are then frozen, so the main phase is an ordinary (non-adaptive)
+  Markov chain. If its first chunk shows a large τ, that chunk is turned into one more warm-up
+  stage (at most twice).
+* **Main phase.** A mixture of moves (emcee picks one per step): the independence proposal
+  (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps)
+  and the grouped differential-evolution and stretch moves (robust where the proposal fits
+  badly). It runs in chunks until the chain after burn-in is at
+  least ``tau_multiple`` (50) integrated autocorrelation times long, τ has settled (changed by
+  less than ``tau_tolerance`` since the previous check) and the estimated bulk ESS reaches
+  ``min_ess``, or ``max_steps`` is reached. Burn-in is 2·max τ and thinning ½·min τ
+  (emcee's advice).
+* **Seeding.** Everything random comes from ``rng``: the same seed gives identical draws.
+* **Robustness.** A log-probability that returns NaN or ±∞ is treated as −∞ (the state is
+  rejected); such values are counted in ``Chains.info["nonfinite"]``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field, fields
+
+import emcee
+import numpy as np
+
+from .autocorr import integrated_time
+from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
+from .reparam import Coordinates
+
+__all__ = ["SamplerSettings", "Chains", "SamplingError", "sample"]
+
+
+class SamplingError(RuntimeError):
+    """The sampler cannot start (for example, the starting point has zero density)."""
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Settings of :func:`sample`.
+
+    Attributes
+    ----------
+    n_ensembles : independent ensembles (chains for R-hat), ≥ 2
+    n_walkers : walkers per ensemble, even, ≥ max(8, 2·ndim)
+    min_ess : requested bulk effective sample size of every parameter
+    tau_multiple : the chain after burn-in must be at least this many autocorrelation times long
+    tau_tolerance : the largest τ must also have changed by less than this fraction since the
+        previous check (emcee's advice: a τ that is still growing means the tails are still being
+        found)
+    max_steps : cap on main-phase steps (the result then says it has not converged)
+    retune_tau, max_retunes : a first main-phase chunk with τ above ``retune_tau`` steps is
+        turned into one more warm-up stage, at most ``max_retunes`` times (:func:`_main_phase`)
+    chunk : steps between convergence checks (grows to the expected remaining length)
+    warmup : length of the first two warm-up stages; later stages double. The coordinates and
+        the proposal are refitted after each stage, until a stage run in the coordinates fitted
+        before it still looks whitened (:func:`_stable`), or ``max_warmup`` steps
+    max_warmup : cap on warm-up steps
+    adapt : fit the straightening map and the independence proposal during warm-up
+    independence_weight : probability that a main-phase step uses the independence proposal
+    min_independence_acceptance : warm-up goes on while that proposal is accepted less often (it
+        then does not yet cover the posterior)
+    proposal_df, proposal_scale : degrees of freedom and scale inflation of that proposal
+    """
+
+    n_ensembles: int = 4
+    n_walkers: int = 32
+    min_ess: float = 1000.0
+    tau_multiple: float = 50.0
+    tau_tolerance: float = 0.2
+    retune_tau: float = 20.0
+    max_retunes: int = 2
+    max_steps: int = 20000
+    chunk: int = 100
+    warmup: int = 100
+    max_warmup: int = 5000
+    adapt: bool = True
+    independence_weight: float = 0.8
+    min_independence_acceptance: float = 0.15
+    proposal_df: float = 6.0
+    proposal_scale: float = 1.2
+
+    def __post_init__(self):
+        checks = [
+            ("n_ensembles", self.n_ensembles >= 2, "an integer ≥ 2"),
+            ("n_walkers", self.n_walkers >= 8 and self.n_walkers % 2 == 0, "an even integer ≥ 8"),
+            ("min_ess", self.min_ess >= 0, "a number ≥ 0"),
+            ("tau_multiple", self.tau_multiple > 0, "a number > 0"),
+            ("tau_tolerance", self.tau_tolerance > 0, "a number > 0"),
+            ("retune_tau", self.retune_tau > 0, "a number > 0"),
+            ("max_retunes", self.max_retunes >= 0, "an integer ≥ 0"),
+            ("max_steps", self.max_steps >= 1, "an integer ≥ 1"),
+            ("chunk", self.chunk >= 10, "an integer ≥ 10"),
+            ("warmup", self.warmup >= 10, "an integer ≥ 10"),
+            ("max_warmup", self.max_warmup >= self.warmup, "an integer ≥ warmup"),
+            ("independence_weight", 0.0 <= self.independence_weight < 1.0, "a number in [0, 1)"),
+            ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0,
+             "a number in [0, 1)"),
+            ("proposal_df", self.proposal_df > 0, "a number > 0"),
+            ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+        ]
+        for name, ok, expected in checks:
+            if not ok:
+                raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_options(cls, options: dict | None) -> "SamplerSettings":
+        """Settings from a dict; unknown keys are rejected with a message naming them."""
+        options = dict(options or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
+        return cls(**options)
+
+
+@dataclass(frozen=True)
+class Chains:
+    """The main phase of a run.
+
+    Attributes
+    ----------
+    chain : (n_steps, n_ensembles, n_walkers, ndim) positions, in the parameters of ``log_prob``
+    log_prob : (n_steps, n_ensembles, n_walkers)
+    burn_in, thin : steps discarded at the start, and the thinning of what is kept
+    autocorr_time : (ndim,) integrated autocorrelation time, steps (after burn-in)
+    acceptance_fraction : (n_ensembles, n_walkers) over the main phase
+    warmup_steps : steps of the discarded warm-up
+    converged : the length and ESS criteria were met before ``max_steps``
+    seconds : wall time of the whole run
+    info : what happened (plain dict): reasons it stopped, non-finite values seen, moves, …
+    """
+
+    chain: np.ndarray
+    log_prob: np.ndarray
+    burn_in: int
+    thin: int
+    autocorr_time: np.ndarray
+    acceptance_fraction: np.ndarray
+    warmup_steps: int
+    converged: bool
+    seconds: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n_steps(self) -> int:
+        return self.chain.shape[0]
+
+    @property
+    def n_ensembles(self) -> int:
+        return self.chain.shape[1]
+
+    @property
+    def n_walkers(self) -> int:
+        """Walkers per ensemble."""
+        return self.chain.shape[2]
+
+    def kept(self, values: np.ndarray | None = None) -> np.ndarray:
+        """Post-burn-in, thinned steps: (n_kept, n_ensembles, n_walkers, ...)."""
+        v = self.chain if values is None else values
+        return v[self.burn_in::self.thin]
+
+    def draws(self, values: np.ndarray | None = None) -> np.ndarray:
+        """Kept draws per ensemble, walker-major: (n_ensembles, n_walkers · n_kept, ...).
+
+        Each walker's kept steps are contiguous, so the order along the draw axis is a
+        concatenation of walker chains (what autocorrelation-based ESS estimates expect).
+        """
+        k = self.kept(values)
+        k = np.moveaxis(k, 0, 2)  # (n_ens, n_walk, n_kept, ...)
+        return k.reshape(k.shape[0], k.shape[1] * k.shape[2], *k.shape[3:])
+
+
+# ------------------------------------------------------------------------------------------------
+# the driver
+
+
+class _SafeLogProb:
+    """Wraps a vectorised log-probability: NaN and ±∞ become −∞, and are counted."""
+
+    def __init__(self, log_prob):
+        self.log_prob = log_prob
+        self.nonfinite = 0
+        self.calls = 0
+        self.evaluations = 0
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        p = np.atleast_2d(p)
+        with np.errstate(all="ignore"):
+            lp = np.asarray(self.log_prob(p), float).reshape(len(p))
+        bad = ~np.isfinite(lp)
+        if bad.any():
+            self.nonfinite += int(np.sum(bad & ~np.isneginf(lp)))
+            lp = np.where(bad, -np.inf, lp)
+        self.calls += 1
+        self.evaluations += len(p)
+        return lp
+
+
+class _InSpace:
+    """log-probability in sampler coordinates: log p(p(u)) + log |∂p/∂u|."""
+
+    def __init__(self, safe: _SafeLogProb, coords: Coordinates):
+        self.safe, self.coords = safe, coords
+
+    def __call__(self, u):
+        q = self.coords.to_q(np.atleast_2d(u))
+        return self.safe(self.coords.q_to_p(q)) + self.coords.log_jacobian(q)
+
+
+def _initial_points(safe, center, cov, rngs, n_walkers, max_tries: int = 200) -> np.ndarray:
+    """(n_ens · n_walkers, d) starting points with finite log-probability, one generator each."""
+    L = np.linalg.cholesky(cov)
+    out = []
+    for g in rngs:
+        pts = center + g.standard_normal((n_walkers, len(center))) @ L.T
+        lp = safe(pts)
+        shrink = 1.0
+        for attempt in range(max_tries):
+            bad = ~np.isfinite(lp)
+            if not bad.any():
+                break
+            if attempt and attempt % 20 == 0:
+                shrink *= 0.5
+            pts[bad] = center + shrink * g.standard_normal((bad.sum(), len(center))) @ L.T
+            lp[bad] = safe(pts[bad])
+        else:
+            raise SamplingError(f"could not draw {n_walkers} starting points with finite "
+                                f"log-probability around the start in {max_tries} tries")
+        out.append(pts)
+    return np.vstack(out)
+
+
+def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
+    g = settings.n_ensembles
+    local = [(GroupedDEMove(g), 0.8), (GroupedStretchMove(g), 0.2)]
+    if proposal is None:
+        return local
+    w = settings.independence_weight
+    return [(proposal, w)] + [(m, (1.0 - w) * p) for m, p in local]
+
+
+def _fit_proposal(u: np.ndarray, settings: SamplerSettings) -> IndependenceMove | None:
+    if settings.independence_weight == 0.0:
+        return None
+    cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
+    try:
+        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _stable(u: np.ndarray) -> bool:
+    """Whether a stage's second half, in the coordinates fitted before it, still looks whitened."""
+    sd = u.std(axis=0)
+    return bool(np.all(np.abs(u.mean(axis=0)) < 0.3) and np.all((sd > 0.75) & (sd < 1.33)))
+
+
+def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.ndarray]:
+    """Burn-in (2·max τ, at most half the chain) and τ after it; chain (n, walkers, d).
+
+    τ is estimated after the previous check's burn-in (one FFT pass per check); on the first
+    check, from the whole chain and then again after the burn-in it implies.
+    """
+    n = chain.shape[0]
+    if n < 4:
+        return 0, integrated_time(chain) if n >= 2 else np.ones(chain.shape[2])
+    if burn_prev is None:
+        burn_prev = int(np.ceil(2.0 * np.max(integrated_time(chain))))
+    tau = integrated_time(chain[min(burn_prev, n // 2):])
+    return min(int(np.ceil(2.0 * np.max(tau))), n // 2), tau
+
+
+def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
+           log_mask=None, progress: bool = False) -> Chains:
+    """Sample ``log_prob`` with independent emcee ensembles until converged (module docstring).
+
+    Parameters
+    ----------
+    log_prob : callable, (n, ndim) → (n,) unnormalised log-density; NaN and ±∞ are taken as −∞
+    center : (ndim,) a point of high density (the MAP); must have a finite log-density
+    cov : (ndim, ndim) covariance of the starting cloud (a Laplace approximation); default
+        0.01² · I
+    settings : :class:`SamplerSettings`
+    rng : seed or ``numpy.random.Generator``
+    log_mask : (ndim,) bool, parameters that are always positive and are better sampled as
+        logarithms (:mod:`.reparam`); the density is corrected for it
+    progress : show a progress bar (tqdm) on standard error
+
+    Returns
+    -------
+    Chains
+
+    Raises
+    ------
+    SamplingError : when ``center`` has log-density −∞ or no finite starting points are found
+    """
+    t0 = time.perf_counter()
+    s = settings or SamplerSettings()
+    rng = np.random.default_rng(rng)
+    center = np.atleast_1d(np.asarray(center, float))
+    d = len(center)
+    if s.n_walkers < 2 * d:
+        raise ValueError(f"sampling.n_walkers: expected ≥ 2·ndim = {2 * d}, got {s.n_walkers}")
+    log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool).reshape(d)
+    if np.any(center[log_mask] <= 0):
+        raise ValueError("log_mask: a parameter sampled as a logarithm is not positive at the centre")
+    cov = np.eye(d) * 1e-4 if cov is None else np.asarray(cov, float).reshape(d, d)
+    safe = _SafeLogProb(log_prob)
+    if not np.isfinite(safe(center[None])[0]):
+        raise SamplingError("the starting point has log-probability −∞ (or NaN)")
+    pos = _initial_points(safe, center, cov, rng.spawn(s.n_ensembles), s.n_walkers)
+    rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+    info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
+                  "reparametrised": False}
+    with _progress_bar(progress, 3 * s.warmup + 10 * s.chunk) as bar:
+        coords = Coordinates.affine(center, cov, log_mask)
+        coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar)
+        sampler, chain, burn, tau = _main_phase(safe, coords, proposal, pos, rstate, s, info, bar,
+                                                log_mask)
+    n, g, k = chain.shape[0], s.n_ensembles, s.n_walkers
+    info.update({"nonfinite": safe.nonfinite, "log_prob_calls": safe.calls,
+                 "log_prob_evaluations": safe.evaluations,
+                 "moves": [type(m).__name__ for m in sampler._moves]})
+    with np.errstate(divide="ignore"):  # the sampler's log-density includes log |∂p/∂u|
+        lp = sampler.get_log_prob() - np.sum(np.log(chain[..., log_mask]), axis=-1)
+    return Chains(chain=chain.reshape(n, g, k, d), log_prob=lp.reshape(n, g, k), burn_in=burn,
+                  thin=max(1, int(0.5 * np.min(tau))), autocorr_time=tau,
+                  acceptance_fraction=sampler.acceptance_fraction.reshape(g, k),
+                  warmup_steps=sum(info["warmup_stages"]), converged=info["stopped"] == "converged",
+                  seconds=time.perf_counter() - t0, info=info)
+
+
+def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar):
+    """Run stages, refitting the coordinates and the proposal after each, until a stage run in
+    the coordinates fitted before it still looks whitened and the proposal is accepted often
+    enough (or ``max_warmup``). Returns the coordinates, proposal, positions and random state."""
+    d = pos.shape[1]
+    proposal, n_warm, stage, stable = None, 0, s.warmup, False
+    while not stable and n_warm < s.max_warmup:
+        stage = min(stage, s.max_warmup - n_warm)
+        sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, stage)
+        u = sampler.get_chain()
+        pos, rstate = coords.inverse(u[-1]), state.random_state
+        tail_u = u[stage // 2:].reshape(-1, d)
+        indep = proposal.acceptance if proposal is not None else float("nan")
+        stable = info["reparametrised"] and _stable(tail_u) and (
+            proposal is None or indep >= s.min_independence_acceptance)
+        n_warm += stage
+        info["warmup_stages"].append(stage)
+        info["warmup_acceptance"].append(float(np.mean(sampler.acceptance_fraction)))
+        info["warmup_independence_acceptance"].append(indep)
+        bar.update(stage)
+        if not s.adapt:
+            break
+        try:
+            tail_p = coords.inverse(tail_u)
+            coords = Coordinates.fit(tail_p, log_mask)
+            proposal = _fit_proposal(coords.forward(tail_p), s)
+            info["reparametrised"] = True
+        except np.linalg.LinAlgError:
+            break  # nothing to learn from a degenerate sample: go on as we are
+        if len(info["warmup_stages"]) >= 2:
+            stage *= 2
+    return coords, proposal, pos, rstate
+
+
+def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: dict, bar,
+                log_mask=None):
+    """Run in chunks until converged or ``max_steps``; returns the sampler, the chain in
+    parameters (n, walkers, d), the burn-in and τ.
+
+    If the first chunk shows τ above ``retune_tau`` (the warm-up had not yet seen the whole
+    posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
+    and the proposal are refitted to it and the main phase starts again (at most
+    ``max_retunes`` times; the discarded chunks count as warm-up).
+    """
+    nw, d = pos.shape
+    sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
+    chain = np.zeros((0, nw, d))
+    n, n_target, burn, tau, tau_prev = 0, s.chunk, None, np.full(d, np.nan), np.inf
+    info["stopped"], info["retunes"] = "max_steps", 0
+    while n < s.max_steps:
+        step = int(min(max(s.chunk, n_target - n), s.max_steps - n))
+        state = sampler.run_mcmc(state, step, skip_initial_state_check=True)
+        chain = np.concatenate([chain, coords.inverse(sampler.get_chain(discard=n))])
+        n += step
+        bar.update(step)
+        burn, tau = _burn_and_tau(chain, burn)
+        tau_max = float(np.max(tau))
+        if n == step and tau_max > s.retune_tau and info["retunes"] < s.max_retunes and s.adapt:
+            try:
+                tail = chain[n // 2:].reshape(-1, d)
+                coords = Coordinates.fit(tail, log_mask)
+                proposal = _fit_proposal(coords.forward(tail), s)
+            except np.linalg.LinAlgError:
+                pass
+            else:
+                info["retunes"] += 1
+                info["warmup_stages"].append(n)
+                sampler, state = _run(safe, coords, _moves(s, proposal), chain[-1], state.random_state, 0)
+                chain = np.zeros((0, nw, d))
+                n, n_target, burn, tau_prev = 0, s.chunk, None, np.inf
+                continue
+        ess_est = nw * (n - burn) / tau_max
+        steady = abs(tau_max - tau_prev) <= s.tau_tolerance * tau_max
+        tau_prev = tau_max
+        if n - burn >= s.tau_multiple * tau_max and ess_est >= s.min_ess and steady:
+            info["stopped"] = "converged"
+            break
+        # expected total: burn-in + max(50 τ, the steps the ESS needs), with a 10 % margin
+        need = 2.0 * tau_max + max(s.tau_multiple * tau_max, s.min_ess * tau_max / nw)
+        n_target = int(np.ceil(1.1 * need))
+        bar.total = sum(info["warmup_stages"]) + max(n_target, n + s.chunk)
+        bar.refresh()
+    return sampler, chain, burn, tau
+
+
+def _run(safe, coords, moves, pos, rstate, n_steps):
+    """A fresh EnsembleSampler in ``coords``, run ``n_steps`` from parameters ``pos``."""
+    nw, d = pos.shape
+    sampler = emcee.EnsembleSampler(nw, d, _InSpace(safe, coords), moves=moves, vectorize=True)
+    state = emcee.State(coords.forward(pos), random_state=rstate)
+    if n_steps:
+        state = sampler.run_mcmc(state, n_steps, skip_initial_state_check=True)
+    return sampler, state
+
+
+def _progress_bar(enabled: bool, total: int):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, file=sys.stderr, unit="step", leave=False,
+                desc="sampling", dynamic_ncols=True)

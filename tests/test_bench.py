@@ -1,0 +1,102 @@
+"""``creference bench --quick``: every estimator appears, the noise-free tier is solved, the tables,
+JSON and figures are written (the run takes about a minute on one core)."""
+
+import inspect
+import json
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from creference_bayes.bench import CONFIGS, bench_scenes, calibration_of
+from creference_bayes.cli import main
+from creference_bayes.pipeline import estimate
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    assert main(["bench", "--quick", "--out", str(out), "--quiet"]) == 0
+    return out, json.loads((out / "bench.json").read_text())
+
+
+def test_every_estimator_appears(quick):
+    _, doc = quick
+    recs = doc["records"]
+    names = {r["estimator"] for r in recs}
+    assert {"paper", "p4pf", "ours-paper", "ours-metrology", "crb-target", "crb-refs"} <= names
+    scenes = {r["scene"] for r in recs}
+    for name in ("paper", "p4pf", "ours-paper", "ours-metrology", "crb-target", "crb-refs"):
+        assert {r["scene"] for r in recs if r["estimator"] == name} == scenes, name
+    for model in ("paper", "metrology"):  # MAP with 0 and 5 references, and a posterior
+        rows = [r for r in recs if r["estimator"] == f"ours-{model}"]
+        assert {r["n_refs"] for r in rows} >= {0, 5}
+        assert any("coverage" in r and "post_error" in r for r in rows)
+    assert {r["tier"] for r in recs} == {"none", "low", "medium", "high"}
+    assert {r["setting"] for r in recs} == {"indoor", "outdoor"}
+    paper = [r for r in recs if r["estimator"] == "paper"]
+    assert all(r["restarts"] == CONFIGS["quick"].paper_restarts for r in paper)
+
+
+def test_noise_free_tier_is_solved(quick):
+    _, doc = quick
+    default_model = inspect.signature(estimate).parameters["model"].default
+    none = [r for r in doc["records"] if r["tier"] == "none"]
+    ours = [r for r in none if r["estimator"] == f"ours-{default_model}" and r["n_target"] == 5]
+    assert ours and all(r["error"] < 0.5 for r in ours)  # the package's default estimator
+    assert all(r["error"] < 1e-3 for r in none if r["estimator"] == "p4pf")
+    assert all(r["error"] == 0.0 for r in none if r["estimator"].startswith("crb"))
+
+
+def test_noisy_tiers_are_bounded_below_by_the_crb(quick):
+    """The bound is positive with noise and grows with the tier's noise."""
+    _, doc = quick
+    crb = {}
+    for r in doc["records"]:
+        if r["estimator"] == "crb-target":
+            crb.setdefault(r["tier"], []).append(r["error"])
+    assert all(v > 0 for t in ("low", "medium", "high") for v in crb[t])
+    assert np.median(crb["low"]) < np.median(crb["high"])
+
+
+def test_tables_and_figures_are_written(quick):
+    out, doc = quick
+    md = (out / "bench.md").read_text()
+    for heading in ("Location error", "Cramér–Rao", "Error against the number of references",
+                    "Same human time", "Calibration", "Time per target", "REDUCED"):
+        assert heading in md
+    assert "1835.0 s" in md and "1239.5 s" in md  # 10 × 183.5 s against 5 × 183.5 + 5 × 64.4 s
+    s = doc["summary"]
+    assert s["timing"]["paper"]["ratio"] == 1.0
+    for name in ("p4pf", "ours-paper MAP", "ours-metrology MAP + posterior"):
+        assert s["timing"][name]["ratio"] > 0
+    for model, c in s["calibration"].items():
+        n_post = sum(1 for r in doc["records"] if r["estimator"] == f"ours-{model}" and "coverage" in r)
+        assert sum(c["ranks"]["distance_m"]) == n_post
+        assert all(0 <= v[k] <= 1 for v in c["all"].values() for k in ("50", "90"))
+    for name in ("bench_error_by_tier", "bench_error_vs_refs", "bench_same_time", "bench_calibration",
+                 "bench_timing"):
+        data = (out / f"{name}.png").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    assert doc["seed"] == 0 and doc["format"] == "creference-bench/1"
+
+
+def test_scenes_are_deterministic_and_cover_the_formats_equally():
+    a = bench_scenes(CONFIGS["quick"], seed=3)
+    b = bench_scenes(CONFIGS["quick"], seed=3)
+    assert [s.target.corners.tolist() for _, s in a] == [s.target.corners.tolist() for _, s in b]
+    full = bench_scenes(CONFIGS["full"], seed=0)
+    counts = Counter((r.measure, r.mode, r.is_range) for _, s in full for r in s.references)
+    assert len(counts) == 10 and len(set(counts.values())) == 1
+
+
+def test_calibration_of_known_draws():
+    """A true value at the 30 % quantile of N(0, 1) draws is inside the 50 % and 90 % HDIs with
+    rank 0.3; one at the 99 % quantile is outside both."""
+    draws = {"x": np.random.default_rng(0).normal(size=200_000)}
+    cover, ranks = calibration_of(draws, {"x": -0.5244})
+    assert cover["x"] == {"50": True, "90": True} and ranks["x"] == pytest.approx(0.3, abs=0.005)
+    cover, ranks = calibration_of(draws, {"x": 2.326})
+    assert cover["x"] == {"50": False, "90": False} and ranks["x"] == pytest.approx(0.99, abs=0.002)
+    cover, _ = calibration_of(draws, {"x": 1.0})  # between the 50 % (±0.674) and 90 % (±1.645) ends
+    assert cover["x"] == {"50": False, "90": True}

@@ -1,0 +1,107 @@
+"""Plots (Agg): what they draw, and the ``creference plot`` command."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from creference_bayes import plotting
+from creference_bayes.cli import main
+from creference_bayes.pipeline import estimate
+
+
+@pytest.fixture(scope="module")
+def noise_free(tmp_path_factory):
+    """A noise-free scene written to disk, and its estimate (small posterior run)."""
+    import warnings
+
+    from creference_bayes.scene import load_scene
+    from creference_bayes.simulate import simulate_scene
+
+    path = tmp_path_factory.mktemp("scene") / "scene.json"
+    path.write_text(json.dumps(simulate_scene(np.random.default_rng(21), tier="none")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = load_scene(path)
+    result = estimate(scene, seed=0, sampling={"min_ess": 200, "tau_multiple": 20})
+    return path, scene, result
+
+
+def test_map_box_passes_through_the_annotated_corners(noise_free):
+    _, scene, result = noise_free
+    d = result.to_dict()
+    fig = plotting.plot_boxes(d, scene, plotting.draws_from_result(d), zoom=False)
+    assert isinstance(fig, Figure)
+    ax = fig.axes[0]
+    red = [ln for ln in ax.lines if ln.get_color() == plotting._MAP_COLOR]
+    assert len(red) == 12  # the box's edges
+    ends = np.vstack([np.column_stack(ln.get_data()) for ln in red])
+    for corner in scene.target.median_corners:
+        assert np.min(np.linalg.norm(ends - corner, axis=1)) < 1.0
+    blue = [ln for ln in ax.lines if ln.get_color() == plotting._POST_COLOR]
+    assert len(blue) >= 12 * 10
+
+
+def test_pair_and_rank_plots(noise_free):
+    _, _, result = noise_free
+    d = result.to_dict()
+    draws = plotting.draws_from_result(d)
+    assert draws["x"].shape[0] == result.diagnostics.n_ensembles
+    fig = plotting.plot_pairs(draws, result=d, truth={"x": 1.0, "z": 5.0})
+    visible = [a for a in fig.axes if a.get_visible()]
+    assert len(visible) == 5 * 6 // 2  # lower triangle of the five parameters
+    fig = plotting.plot_ranks(draws)
+    assert len([a for a in fig.axes if a.get_visible()]) == 6
+    # each ensemble's rank histogram sums to its number of draws
+    ax = fig.axes[0]
+    counts = [s.get_data().values.sum() for s in ax.patches]
+    assert counts == [draws["x"].shape[1]] * draws["x"].shape[0]
+
+
+def test_top_view_draws_reference_bounds_and_camera():
+    result = {"map": {"x": 1.0, "y": 1.5, "z": 6.0, "yaw": 0.2, "focal_length_px": 1500.0},
+              "references": {"on": "xz", "pairs": [
+                  {"used": True, "x_bounds": [0.5, 1.5], "z_bounds": [5.0, 7.0]},
+                  {"used": False, "reason": "parallel"},
+                  {"used": True, "x_bounds": [0.8, 1.2], "z_bounds": [5.5, 6.5]}]}}
+    rng = np.random.default_rng(0)
+    draws = {"x": rng.normal(1.0, 0.1, (4, 200)), "z": rng.normal(6.0, 0.3, (4, 200))}
+    fig = plotting.plot_top_view(result, draws, truth={"x": 1.1, "z": 6.2})
+    ax = fig.axes[0]
+    rects = [p for p in ax.patches if isinstance(p, Rectangle) and np.isfinite(p.get_x())]
+    assert sorted((r.get_x(), r.get_y()) for r in rects) == [(0.5, 5.0), (0.8, 5.5)]
+    lo, hi = ax.get_ylim()
+    assert lo < 0 < hi  # the camera (origin) is in view
+    fig.savefig(io.BytesIO(), format="png")
+
+
+def test_plot_command_writes_figures(noise_free, tmp_path):
+    scene_path, _, result = noise_free
+    out = tmp_path / "r.json"
+    result.to_json(out)
+    figs = tmp_path / "figs"
+    assert main(["plot", str(out), "--scene", str(scene_path), "--out", str(figs), "--quiet",
+                 "--dpi", "30"]) == 0
+    assert sorted(p.name for p in figs.iterdir()) == ["boxes.png", "pairs.png", "ranks.png", "top_view.png"]
+    assert all(p.stat().st_size > 3_000 for p in figs.iterdir())
+    # the scene is found next to the result when it is not given
+    from creference_bayes.cli_plot import _find_scene
+
+    (tmp_path / "scene.json").write_text(scene_path.read_text())
+    found = _find_scene(json.loads(out.read_text()), out, None)
+    assert found.source == tmp_path / "scene.json"
+
+
+def test_plot_command_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "something-else"}))
+    assert main(["plot", str(bad)]) == 2
+    assert "format" in capsys.readouterr().err
+    r = tmp_path / "r.json"
+    r.write_text(json.dumps({"format": "creference-result/1", "scene": "nowhere.json",
+                             "map": {"x": 0, "y": 1, "z": 5, "yaw": 0, "focal_length_px": 1000}}))
+    assert main(["plot", str(r)]) == 2
+    assert "nowhere.json" in capsys.readouterr().err

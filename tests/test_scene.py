@@ -1,0 +1,493 @@
+"""Loading and validating creference-scene/1 files (formats.md)."""
+
+import copy
+import json
+import math
+import re
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from creference_bayes.cli import example_scene_path
+from creference_bayes.scene import (Scene, SceneError, SceneWarning, load_scene, parse_scene,
+                                    scene_to_dict)
+from creference_bayes.simulate import simulate_scene
+
+#: "<key path>: <problem>" on one line; key paths are dotted keys with [i] indices, or "(scene)" /
+#: "(file)" for the document itself.
+MESSAGE = re.compile(r"^(?:\(scene\)|\(file\)|[a-z_]+(?:\[\d+\]|\.[a-z_]+)*): \S[^\n]*$")
+
+
+def _example() -> dict:
+    return json.loads(example_scene_path().read_text())
+
+
+def _parse(data, **kwargs) -> Scene:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        return parse_scene(data, **kwargs)
+
+
+def _error(data) -> SceneError:
+    with pytest.raises(SceneError) as info:
+        _parse(data)
+    return info.value
+
+
+# ------------------------------------------------------------------------------------------------
+# valid scenes
+
+
+def test_example_scene_loads():
+    scene = load_scene(example_scene_path())
+    raw = _example()
+    assert scene.image_size == (2880, 1800)
+    assert scene.target.id == raw["target"]["id"]
+    assert scene.target.corners.shape == (len(raw["target"]["dimension_lines"]), 4, 2)
+    assert len(scene.references) == len(raw["references"])
+    np.testing.assert_array_equal(scene.principal_point, raw["camera"]["principal_point"])
+    assert scene.focal_length_px is None
+    np.testing.assert_array_equal(scene.horizon, raw["horizon"])
+    np.testing.assert_array_equal(scene.ground_truth.location_m, raw["ground_truth"]["location_m"])
+    assert scene.ground_truth.extra["handedness"] in (1, -1)
+    assert scene.warnings == ()
+    assert scene.source == example_scene_path()
+
+
+def test_defaults_when_optional_keys_absent():
+    d = _example()
+    for key in ("camera", "horizon", "references", "ground_truth"):
+        del d[key]
+    scene = _parse(d)
+    np.testing.assert_array_equal(scene.principal_point, [1440.0, 900.0])  # image centre
+    assert scene.horizon is None and scene.focal_length_px is None
+    assert scene.references == () and scene.ground_truth is None
+
+
+def test_known_focal_length_is_kept():
+    d = _example()
+    d["camera"]["focal_length_px"] = 1650
+    assert _parse(d).focal_length_px == 1650.0
+
+
+@pytest.mark.parametrize("unit, metres_per_unit", [
+    ("m", 1.0), ("cm", 0.01), ("in", 0.0254), ("ft", 12 * 0.0254), ("yd", 36 * 0.0254)])
+def test_direct_values_are_converted_to_metres(unit, metres_per_unit):
+    d = _example()
+    d["references"][0] = {"measure": "length", "mode": "direct", "value": 80, "unit": unit,
+                          "line": [[400.0, 1290.0], [977.0, 1301.0]]}
+    d["references"][1] = {"measure": "distance", "mode": "direct", "range": [10, 15], "unit": unit,
+                          "line": [[2400.0, 1799.0], [2371.5, 1190.4]]}
+    scene = _parse(d)
+    r0, r1 = scene.references[:2]
+    assert (r0.low, r0.high, r0.is_range) == pytest.approx((80 * metres_per_unit,) * 2 + (False,), rel=1e-12)
+    assert (r1.low, r1.high, r1.is_range) == pytest.approx((10 * metres_per_unit, 15 * metres_per_unit, True),
+                                                           rel=1e-12)
+    assert r0.length_bounds_m(scene.target) == pytest.approx((80 * metres_per_unit,) * 2, rel=1e-12)
+
+
+def test_relative_measures_scale_with_the_target():
+    d = _example()
+    d["target"]["dimensions_m"] = {"length": 1.2, "width": 0.5, "height": 2.0}
+    d["references"][0] = {"measure": "length", "mode": "relative", "range": [0.5, 2.0],
+                          "line": [[400.0, 1290.0], [977.0, 1301.0]]}
+    d["references"][1] = {"measure": "width", "mode": "relative", "value": 3,
+                          "line": [[400.0, 1290.0], [977.0, 1301.0]]}
+    scene = _parse(d)
+    r0, r1 = scene.references[:2]
+    assert (r0.low, r0.high, r0.unit) == (0.5, 2.0, None)  # ratios are kept as ratios
+    assert r0.length_bounds_m(scene.target) == pytest.approx((0.6, 2.4))
+    assert r1.length_bounds_m(scene.target) == pytest.approx((1.5, 1.5))
+
+
+def test_median_corners_is_per_corner_median():
+    d = _example()
+    base = np.array([[1000.0, 1200.0], [1200.0, 1190.0], [950.0, 1150.0], [1000.0, 900.0]])
+    offsets = [0.0, 10.0, -4.0]  # per annotation, added to every coordinate
+    d["target"]["dimension_lines"] = [{"corners": (base + o).tolist()} for o in offsets]
+    d["target"]["dimension_lines"][2]["corners"][1] = [1300.0, 1000.0]  # one outlying corner
+    scene = _parse(d)
+    expected = base.copy()  # the median of offsets (0, 10, −4) is 0 ...
+    expected[1] = [1210.0, 1190.0]  # ... of (1200, 1210, 1300) 1210, of (1190, 1200, 1000) 1190
+    np.testing.assert_array_equal(scene.target.median_corners, expected)
+
+
+def test_unknown_keys_warn_with_their_names():
+    d = _example()
+    d["refrences"] = d.pop("references")
+    d["image"]["colour"] = "rgb"
+    d["references"] = []
+    d["target"]["dimension_lines"][0]["cornres"] = []
+    with pytest.warns(SceneWarning) as record:
+        scene = parse_scene(d)
+    messages = [str(w.message) for w in record]
+    assert "refrences: unknown key ignored" in messages
+    assert "image.colour: unknown key ignored" in messages
+    assert "target.dimension_lines[0].cornres: unknown key ignored" in messages
+    assert set(scene.warnings) == set(messages)
+    assert scene.references == ()  # the misspelled key really is ignored
+
+
+def test_ground_truth_may_carry_extra_keys():
+    d = _example()
+    d["ground_truth"]["notes"] = "measured with a tape"
+    scene = _parse(d)
+    assert scene.ground_truth.extra["notes"] == "measured with a tape"
+    assert scene.warnings == ()
+
+
+def test_scene_to_dict_round_trips():
+    for d in (_example(), simulate_scene(3, tier="high", n_target_annotations=3)):
+        d["camera"]["focal_length_px"] = 1500.0
+        d["image"]["path"] = "photo.png"
+        d["references"][0]["confidence"] = 0.6
+        scene = _parse(d)
+        out = scene_to_dict(scene)
+        json.dumps(out, allow_nan=False)  # plain JSON types only
+        assert out == d  # every key of these scenes survives unchanged, values exactly
+        again = scene_to_dict(_parse(out))
+        assert again == out
+
+
+def test_scene_to_dict_keeps_image_path_relative_to_the_file(tmp_path):
+    d = _example()
+    d["image"]["path"] = "img/photo.png"
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(d))
+    scene = load_scene(path)
+    assert scene.image_path == tmp_path / "img" / "photo.png"
+    assert scene_to_dict(scene)["image"]["path"] == "img/photo.png"
+
+
+# ------------------------------------------------------------------------------------------------
+# invalid files
+
+
+@pytest.mark.parametrize("constant", ["NaN", "Infinity", "-Infinity"])
+def test_json_nan_and_infinity_constants_are_rejected(tmp_path, constant):
+    text = json.dumps(_example()).replace('"focal_length_px": null', f'"focal_length_px": {constant}', 1)
+    assert constant in text
+    path = tmp_path / "scene.json"
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith("(file): non-standard JSON constant")
+    assert constant in str(info.value)
+
+
+@pytest.mark.parametrize("content, start", [
+    (b'{"format": "creference-scene/1",', "(file): not valid JSON"),
+    (b"\xff\xfe\x00garbage", "(file): not UTF-8 text"),
+    (b"[" * 100_000, "(file): "),
+])
+def test_broken_files_give_scene_errors(tmp_path, content, start):
+    path = tmp_path / "scene.json"
+    path.write_bytes(content)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(start)
+    assert MESSAGE.match(str(info.value))
+
+
+def test_missing_file_raises_file_not_found(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        load_scene(tmp_path / "nope.json")
+
+
+# ------------------------------------------------------------------------------------------------
+# invalid scenes: each message starts with the key path and names the value
+
+
+def _set(path, value):
+    def mutate(d):
+        *head, last = path
+        obj = d
+        for k in head:
+            obj = obj[k]
+        obj[last] = value(obj[last]) if callable(value) else value
+    return mutate
+
+
+def _delete(path):
+    def mutate(d):
+        *head, last = path
+        obj = d
+        for k in head:
+            obj = obj[k]
+        del obj[last]
+    return mutate
+
+
+def _ref2_furlong(d):
+    d["references"][2].update(mode="direct", unit="furlong")
+
+
+def _reversed_range(d):
+    d["references"][1]["range"] = [15, 10]
+
+
+def _relative_distance(d):
+    d["references"][1]["mode"] = "relative"
+    del d["references"][1]["unit"]
+
+
+def _both_value_and_range(d):
+    d["references"][0]["value"] = 3
+
+
+def _neither_value_nor_range(d):
+    del d["references"][0]["range"]
+
+
+def _zero_length_reference(d):
+    line = d["references"][3]["line"]
+    line[1] = list(line[0])
+
+
+def _zero_length_width_line(d):
+    c = d["target"]["dimension_lines"][1]["corners"]
+    c[2] = list(c[0])
+
+
+def _direct_without_unit(d):
+    del d["references"][0]["unit"]
+
+
+def _relative_with_unit(d):
+    d["references"][2]["unit"] = "m"
+
+
+INVALID = [
+    (_ref2_furlong, "references[2].unit: unknown unit 'furlong'"),
+    (_reversed_range, "references[1].range: low 15 > high 10"),
+    (_relative_distance, "references[1].mode: 'relative' is not valid for measure 'distance'"),
+    (_both_value_and_range, "references[0]: both 'value' 3 and 'range' [0.734, 0.9024] given"),
+    (_neither_value_nor_range, "references[0]: missing required key 'value' or 'range'"),
+    (_zero_length_reference, "references[3].line: zero-length line from [2246.16, 985.385]"),
+    (_zero_length_width_line, "target.dimension_lines[1].corners: zero-length width line from"),
+    (_direct_without_unit, "references[0].unit: missing required key"),
+    (_relative_with_unit, "references[2].unit: a relative measurement takes no unit, got 'm'"),
+    (_set(("references", 4, "measure"), "height"), "references[4].measure: unknown measure 'height'"),
+    (_set(("references", 4, "mode"), None), "references[4].mode: unknown mode None"),
+    (_set(("references", 0, "range", 0), -1), "references[0].range[0]: expected a positive number, got -1"),
+    (_set(("references", 2, "value"), 0), "references[2].value: expected a positive number, got 0"),
+    (_set(("references", 0, "confidence"), 1.5), "references[0].confidence: expected a number in [0.0, 1.0], got 1.5"),
+    (_set(("target", "dimensions_m", "height"), math.nan), "target.dimensions_m.height: expected a finite number, got nan"),
+    (_set(("references", 1, "line", 0, 1), math.inf), "references[1].line[0][1]: expected a finite number, got inf"),
+    (_set(("camera", "focal_length_px"), -math.inf), "camera.focal_length_px: expected a finite number, got -inf"),
+    (_set(("image", "width"), 10**400), "image.width: expected a finite number, got 1000000"),
+    (_set(("image", "width"), "2880"), "image.width: expected a number, got str '2880'"),
+    (_set(("image", "height"), True), "image.height: expected a number, got bool True"),
+    (_set(("image", "width"), 2880.5), "image.width: expected whole pixels, got 2880.5"),
+    (_set(("image", "width"), 10**7), "image.width: expected at most 1000000 pixels, got 1e+07"),
+    (_set(("target", "dimension_lines"), {}), "target.dimension_lines: expected a list, got dict {}"),
+    (_set(("target", "dimension_lines"), []), "target.dimension_lines: expected at least one annotation"),
+    (_set(("target", "dimension_lines", 0, "corners", 1), "a"), "target.dimension_lines[0].corners[1]: expected a list, got str 'a'"),
+    (_set(("target", "dimension_lines", 0, "corners", 1), [1.0, 2.0, 3.0]),
+     "target.dimension_lines[0].corners[1]: expected a point [u, v], got [1.0, 2.0, 3.0]"),
+    (_set(("target", "dimension_lines", 0, "corners"), lambda c: c[:3]),
+     "target.dimension_lines[0].corners: expected 4 points, got 3"),
+    (_set(("target", "dimension_lines", 0, "worker"), 17), "target.dimension_lines[0].worker: expected a string, got int 17"),
+    (_set(("target", "id"), None), "target.id: expected a string, got null None"),
+    (_set(("references",), {"a": 1}), "references: expected a list, got dict {'a': 1}"),
+    (_set(("references", 0), "sofa"), "references[0]: expected an object, got str 'sofa'"),
+    (_set(("camera",), [1, 2]), "camera: expected an object, got list [1, 2]"),
+    (_set(("camera", "principal_point"), [3000.0, 900.0]), "camera.principal_point: [3000, 900] lies outside the 2880x1800 image"),
+    (_set(("camera", "principal_point"), [1440.0, "900"]), "camera.principal_point[1]: expected a number, got str '900'"),
+    (_set(("target", "dimension_lines", 2, "corners", 3), [1e6, 5.0]),
+     "target.dimension_lines[2].corners[3]: point [1e+06, 5] is far outside the 2880x1800 image"),
+    (_set(("references", 0, "line", 1), [-2000.0, 900.0]), "references[0].line[1]: point [-2000, 900] is far outside"),
+    (_set(("horizon", 1), [0.0, 885.287959567601]), "horizon: zero-length line"),
+    (_set(("horizon", 1), [100.0, 5000.0]), "horizon: a horizon steeper than 45 degrees is not supported"),
+    (_set(("horizon", 0, 1), -1e9), "horizon[0]: point [0, -1e+09] is far outside the 2880x1800 image"),
+    (_set(("format",), "creference-scene/2"), "format: expected 'creference-scene/1', got 'creference-scene/2'"),
+    (_delete(("format",)), "format: missing required key"),
+    (_delete(("image",)), "image: missing required key"),
+    (_delete(("image", "width")), "image.width: missing required key"),
+    (_delete(("target",)), "target: missing required key"),
+    (_delete(("target", "dimensions_m")), "target.dimensions_m: missing required key"),
+    (_delete(("target", "dimensions_m", "width")), "target.dimensions_m.width: missing required key"),
+    (_delete(("target", "dimension_lines", 0, "corners")), "target.dimension_lines[0].corners: missing required key"),
+    (_delete(("references", 3, "line")), "references[3].line: missing required key"),
+    (_delete(("references", 3, "measure")), "references[3].measure: missing required key"),
+    (_delete(("ground_truth", "location_m")), "ground_truth.location_m: missing required key"),
+    (_set(("ground_truth", "location_m", 2), -1.0), "ground_truth.location_m[2]: z must be > 0 (in front of the camera), got -1.0"),
+    (_set(("ground_truth", "location_m"), [1.0, 2.0]), "ground_truth.location_m: expected [x, y, z], got [1.0, 2.0]"),
+    (_set(("ground_truth", "handedness"), 0), "ground_truth.handedness: expected 1 or -1, got int 0"),
+    (_set(("ground_truth", "camera_height_m"), math.nan), "ground_truth.camera_height_m: expected a finite number, got nan"),
+]
+
+
+@pytest.mark.parametrize("mutate, expected", INVALID, ids=[e.split(":")[0] + "-" + str(i) for i, (_, e) in enumerate(INVALID)])
+def test_invalid_scene_message(mutate, expected):
+    d = _example()
+    mutate(d)
+    exc = _error(d)
+    message = str(exc)
+    assert message.startswith(expected), message
+    assert MESSAGE.match(message), message
+    assert message == f"{exc.path}: {exc.problem}"
+
+
+def test_not_a_dict():
+    assert str(_error([1, 2])).startswith("(scene): expected an object, got list [1, 2]")
+
+
+def test_long_values_are_cut_in_messages():
+    d = _example()
+    d["references"][0]["unit"] = "x" * 10_000
+    message = str(_error(d))
+    assert message.startswith("references[0].unit: unknown unit 'xxx")
+    assert len(message) < 200
+
+
+def test_parse_does_not_modify_its_input():
+    d = _example()
+    before = copy.deepcopy(d)
+    _parse(d)
+    assert d == before
+
+
+# ------------------------------------------------------------------------------------------------
+# property test: mutated scenes give SceneError or a scene that is really valid
+
+
+def _bases() -> list[dict]:
+    one = simulate_scene(11, setting="outdoor", tier="medium", n_target_annotations=2, n_references=5)
+    one["camera"]["focal_length_px"] = 1800.0
+    two = _example()
+    two["target"]["dimension_lines"] = two["target"]["dimension_lines"][:3]
+    return [one, two]
+
+
+BASES = _bases()
+#: Ground-truth keys that are free-form (kept as they are, not validated).
+FREE_KEYS = {"setting", "tier", "target_object", "reference_lengths_m", "reference_lines_px",
+             "target_corners_px", "notes"}
+
+
+def _locations(obj, path=()):
+    """Every (path, value) in a decoded JSON document, containers included."""
+    yield path, obj
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else ()
+    for k, v in items:
+        yield from _locations(v, path + (k,))
+
+
+def _path_text(path) -> str:
+    out = ""
+    for k in path:
+        out += f"[{k}]" if isinstance(k, int) else (f".{k}" if out else k)
+    return out
+
+
+def _is_free(path) -> bool:
+    return len(path) >= 2 and path[0] == "ground_truth" and path[1] in FREE_KEYS
+
+
+ODD_VALUES = st.one_of(
+    st.none(), st.booleans(), st.integers(-10**30, 10**30), st.just(10**400),
+    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=6),
+    st.sampled_from(["m", "furlong", "length", "distance", "relative", "direct", "", "NaN"]),
+    st.lists(st.floats(-1e4, 1e4), max_size=3), st.builds(lambda: [[0.0, 0.0], [0.0, 0.0]]),
+    st.dictionaries(st.sampled_from(["a", "value", "range", "unit"]), st.integers(-3, 3), max_size=2),
+)
+
+MUTATIONS = ("delete", "replace", "nonfinite", "reverse", "collapse", "far", "scale", "unit", "measure")
+
+
+def _is_float(value) -> bool:
+    return isinstance(value, float) or isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2**53
+
+
+def _reference(d: dict, path: tuple) -> dict | None:
+    """The reference object that ``path`` points into, if it is still one."""
+    if len(path) < 2 or path[0] != "references" or not isinstance(d.get("references"), list):
+        return None
+    refs = d["references"]
+    ok = isinstance(path[1], int) and path[1] < len(refs) and isinstance(refs[path[1]], dict)
+    return refs[path[1]] if ok else None
+
+
+def _mutate(d: dict, data) -> tuple[str, tuple]:
+    locations = [p for p, _ in _locations(d) if p and not _is_free(p)]
+    path = data.draw(st.sampled_from(locations), label="path")
+    kind = data.draw(st.sampled_from(MUTATIONS), label="mutation")
+    *head, last = path
+    parent = d
+    for k in head:
+        parent = parent[k]
+    value = parent[last]
+    if kind == "delete":
+        del parent[last]
+    elif kind == "replace":
+        parent[last] = data.draw(ODD_VALUES, label="value")
+    elif kind == "nonfinite":
+        parent[last] = data.draw(st.sampled_from([math.nan, math.inf, -math.inf]), label="value")
+    elif kind == "reverse" and isinstance(value, list):
+        parent[last] = value[::-1]
+    elif kind == "collapse" and isinstance(value, list) and len(value) >= 2:
+        value[1] = copy.deepcopy(value[0])
+    elif kind == "far" and _is_float(value):
+        parent[last] = value + data.draw(st.sampled_from([-1e7, -5e3, 5e3, 1e7, 1e300]), label="offset")
+    elif kind == "scale" and _is_float(value):
+        parent[last] = value * data.draw(st.sampled_from([-1.0, 0.0, 1e-9, 1e9]), label="factor")
+    elif kind == "unit" and _reference(d, path) is not None:
+        _reference(d, path)["unit"] = data.draw(ODD_VALUES, label="unit")
+    elif kind == "measure" and _reference(d, path) is not None:
+        key = data.draw(st.sampled_from(["measure", "mode"]), label="key")
+        _reference(d, path)[key] = data.draw(
+            st.sampled_from(["length", "width", "distance", "direct", "relative", "height", None]), label="v")
+    return kind, path
+
+
+def _assert_really_valid(scene: Scene) -> None:
+    """What a scene that parse_scene accepted must satisfy (formats.md)."""
+    w, h = scene.image_size
+    assert 0 < w <= 10**6 and 0 < h <= 10**6
+    assert np.all(np.isfinite(scene.principal_point))
+    assert 0 <= scene.principal_point[0] <= w and 0 <= scene.principal_point[1] <= h
+    assert scene.focal_length_px is None or 0 < scene.focal_length_px < math.inf
+    t = scene.target
+    assert all(0 < x < math.inf for x in (t.length, t.width, t.height))
+    c = t.corners
+    assert c.shape[1:] == (4, 2) and np.all(np.isfinite(c))
+    assert np.all(np.abs(c - [w / 2, h / 2]) <= [w, h])
+    assert np.all(np.linalg.norm(c[:, 1:] - c[:, :1], axis=-1) > 0)
+    if scene.horizon is not None:
+        assert np.all(np.isfinite(scene.horizon)) and np.linalg.norm(np.diff(scene.horizon, axis=0)) > 0
+    for r in scene.references:
+        assert r.measure in ("length", "width", "distance") and r.mode in ("direct", "relative")
+        assert not (r.measure == "distance" and r.mode == "relative")
+        assert 0 < r.low <= r.high < math.inf
+        assert (r.unit is None) == (r.mode == "relative")
+        assert np.all(np.isfinite(r.line)) and np.linalg.norm(r.line[1] - r.line[0]) > 0
+        assert np.all(np.abs(r.line - [w / 2, h / 2]) <= [w, h])
+        assert r.confidence is None or 0 <= r.confidence <= 1
+    if scene.ground_truth is not None:
+        assert np.all(np.isfinite(scene.ground_truth.location_m)) and scene.ground_truth.location_m[2] > 0
+    json.dumps(scene_to_dict(scene), allow_nan=False)
+
+
+@settings(max_examples=400, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(base=st.sampled_from(range(len(BASES))), n=st.integers(1, 3), data=st.data())
+def test_mutated_scenes_raise_only_scene_errors(base, n, data):
+    d = copy.deepcopy(BASES[base])
+    done = [_mutate(d, data) for _ in range(n)]
+    try:
+        scene = _parse(d)
+    except SceneError as exc:
+        message = str(exc)
+        assert "\n" not in message
+        assert MESSAGE.match(message), message
+        assert message == f"{exc.path}: {exc.problem}"
+        if n == 1 and done[0][0] == "nonfinite":
+            # a non-finite number is reported at exactly its own key path
+            assert exc.path == _path_text(done[0][1]), (exc.path, done)
+        return
+    _assert_really_valid(scene)
+    assert not (n == 1 and done[0][0] == "nonfinite"), f"accepted a non-finite value at {done}"
