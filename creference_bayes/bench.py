@@ -19,8 +19,9 @@ the first 5 annotations, as in the paper's §7.1, and the first k references):
   the 5 references as the metrology model sees them (:mod:`.crb`).
 
 Plus: the same-human-time comparison (10 target annotations against 5 + 5 references, the paper's
-Analysis 2), every pair of references alone (skipped against used pairs, Fig. 11), and for the
-paper model's posterior a temperature sweep (coverage against T).
+Analysis 2, task times 183.5 s and 64.4 s), every pair of references alone (skipped against used
+pairs, Fig. 11), and a calibration sweep of the paper model's posterior over σ (Eq. 5) and the
+temperature T. Tables: :mod:`.bench_report`; figures: :mod:`.bench_figures`.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ import json
 import platform
 import sys
 import time
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from itertools import combinations
 from pathlib import Path
@@ -43,14 +43,10 @@ from .model import wrap_angle
 from .scene import Scene, parse_scene
 from .simulate import SETTINGS, TIERS, simulate_scene
 
-__all__ = ["BenchConfig", "CONFIGS", "TASK_SECONDS", "bench_scenes", "run_bench", "summarise",
-           "markdown_report", "write_scenes", "register"]
+__all__ = ["BenchConfig", "CONFIGS", "bench_scenes", "variant", "calibration_of", "run_bench",
+           "write_scenes", "register"]
 
 BENCH_FORMAT = "creference-bench/1"
-#: The paper's mean task times (§7.2.2), seconds: one target annotation, one reference annotation.
-TASK_SECONDS = {"target": 183.5, "reference": 64.4}
-#: Parameters whose coverage and ranks are reported (yaw circular; distance = √(x² + z²)).
-COVERAGE_PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
 CREDIBLE_LEVELS = (0.5, 0.9)
 MODELS = ("paper", "metrology")
 
@@ -66,7 +62,8 @@ class BenchConfig:
     ref_counts : numbers of references for the MAP of our models (Fig. 10)
     posterior_ref_counts : numbers of references for which our posteriors are sampled
     paper_restarts : basin-hopping restarts of the ``paper`` preset (None: the paper's 200)
-    paper_baseline : also run the ``paper`` preset on 10 target annotations without references
+    paper_baseline_scenes : scenes per tier on which the ``paper`` preset also runs on 10 target
+        annotations without references (Analysis 2)
     pair_scenes : scenes per tier on which every reference pair is run alone (Fig. 11)
     paper_posterior_grid : ((σ px, T), …) of the paper model's posterior in the calibration sweep
     sweep_scenes : scenes per tier in that sweep
@@ -79,7 +76,7 @@ class BenchConfig:
     ref_counts: tuple[int, ...] = (0, 1, 2, 3, 4, 5)
     posterior_ref_counts: tuple[int, ...] = (0, 5)
     paper_restarts: int | None = None
-    paper_baseline: bool = True
+    paper_baseline_scenes: int = 0
     pair_scenes: int = 2
     paper_posterior_grid: tuple[tuple[float, float], ...] = ()
     sweep_scenes: int = 0
@@ -99,14 +96,15 @@ CONFIGS = {
     # CI-sized: 5 scenes, the paper preset with 8 restarts instead of 200 (labelled in the output)
     "quick": BenchConfig(
         name="quick", scenes=_grid({"none": (1, 0), "low": (1, 0), "medium": (0, 1), "high": (1, 1)}),
-        ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline=False,
+        ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline_scenes=0,
         pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}),
     # the documented run (docs/benchmark_results.md)
     "full": BenchConfig(
-        name="full", scenes=_grid({t: (4, 2) for t in TIERS}),
+        name="full", scenes=_grid({t: (5, 3) for t in TIERS}),
         ref_counts=(0, 1, 2, 3, 4, 5), posterior_ref_counts=(0, 2, 5), paper_restarts=None,
-        paper_baseline=False, pair_scenes=3, sweep_scenes=6,
-        paper_posterior_grid=((100.0, 1.0), (100.0, 0.1), (2.0, 1.0), (2.0, 2.0), (2.0, 4.0)),
+        paper_baseline_scenes=2, pair_scenes=3, sweep_scenes=8,
+        paper_posterior_grid=((100.0, 1.0), (100.0, 0.1), (2.0, 1.0), (2.0, 2.0), (2.0, 3.0), (2.0, 4.0),
+                              (3.0, 3.0), (3.0, 4.0)),
         sampler={"min_ess": 400}),
 }
 
@@ -167,23 +165,6 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
 
 # ------------------------------------------------------------------------------------------------
 # estimators
-
-
-@contextmanager
-def _paper_restarts(n: int | None):
-    """Temporarily change the ``paper`` preset's restart count (the ``--quick`` bench only)."""
-    from . import optimize
-
-    if n is None:
-        yield
-        return
-    old = dict(optimize._PAPER_RESTARTS)
-    optimize._PAPER_RESTARTS["paper"] = n
-    try:
-        yield
-    finally:
-        optimize._PAPER_RESTARTS.clear()
-        optimize._PAPER_RESTARTS.update(old)
 
 
 def _estimate(scene: Scene, model: str, preset: str, seed, *, posterior: bool = False,
@@ -267,8 +248,8 @@ def _record(sid, scene, estimator, **kw) -> dict:
     return {"scene": sid, "tier": g["tier"], "setting": g["setting"], "estimator": estimator, **kw}
 
 
-def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperature: float,
-               pairs: bool, sweep: bool, say) -> list[dict]:
+def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperature: float | None,
+               pairs: bool, sweep: bool, baseline: bool, say) -> list[dict]:
     from .crb import cramer_rao_scene
 
     recs = []
@@ -284,14 +265,14 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
     crb_t, crb_r = recs[0]["error"], recs[1]["error"]
 
     # the paper's method
-    with _paper_restarts(config.paper_restarts):
-        runs = [(nt, all_refs)] + ([(config.n_target_baseline, ())] if config.paper_baseline else [])
-        for n_ann, refs in runs:
-            res = _estimate(variant(scene, n_ann, refs), "paper", "paper", seed)
-            recs.append(_record(sid, scene, "paper", model="paper", preset="paper", n_target=n_ann,
-                                n_refs=len(refs), error=res.evaluation.location_pct_error,
-                                seconds=res.map.seconds, restarts=config.paper_restarts or 200,
-                                pairs_used=_pairs_used(res)))
+    runs = [(nt, all_refs)] + ([(config.n_target_baseline, ())] if baseline else [])
+    for n_ann, refs in runs:
+        res = _estimate(variant(scene, n_ann, refs), "paper", "paper", seed,
+                        restarts=config.paper_restarts)
+        recs.append(_record(sid, scene, "paper", model="paper", preset="paper", n_target=n_ann,
+                            n_refs=len(refs), error=res.evaluation.location_pct_error,
+                            seconds=res.map.seconds, restarts=config.paper_restarts or 200,
+                            pairs_used=_pairs_used(res)))
     paper_seconds = recs[2]["seconds"]
 
     # the peer
@@ -368,7 +349,7 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
         records += _run_scene(sid, scene, config, seed, temperature,
                               pairs=seen[tier] <= config.pair_scenes,
                               sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
-                              say=say)
+                              baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
     from .bench_report import summarise
 
     doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),
@@ -406,7 +387,7 @@ def _run_bench_command(args) -> int:
     report = markdown_report(doc)
     if not poselib_available():
         report += f"\n\np4pf skipped: {INSTALL_HINT}\n"
-    (out / "bench.json").write_text(json.dumps(doc, indent=1, allow_nan=False, default=_plain) + "\n")
+    (out / "bench.json").write_text(json.dumps(_plain(doc), indent=1, allow_nan=False) + "\n")
     (out / "bench.md").write_text(report + "\n")
     paths = []
     if not args.no_figures:
@@ -420,11 +401,16 @@ def _run_bench_command(args) -> int:
 
 
 def _plain(o):
+    """JSON-able copy: numpy to Python, non-finite numbers (an infinite bound) to None."""
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in o]
     if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+        o = o.item()
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    return o
 
 
 def _run_simulate_command(args) -> int:

@@ -142,8 +142,13 @@ def _report(result, scene, args) -> None:
                 print(f"references: {refs.n_references} ignored (--no-references)")
             else:
                 why = ", ".join(f"{k} {n}" for k, n in refs.skipped_reasons.items())
-                print(f"references: {refs.n_references}, pairs used {refs.pairs_used}, "
-                      f"skipped {refs.pairs_skipped}" + (f" ({why})" if why else ""))
+                pairs = (f"pairs solvable {refs.pairs_used}, skipped {refs.pairs_skipped}"
+                         + (f" ({why})" if why else ""))
+                if refs.used_as == "likelihood":
+                    print(f"references: {refs.n_references}, {refs.in_likelihood} in the likelihood "
+                          f"(for comparison, the paper's pairwise aggregation: {pairs})")
+                else:
+                    print(f"references: {refs.n_references} as pairwise bounds, {pairs.replace('solvable', 'used')}")
         if result.evaluation is not None:
             print(f"location error (Eq. 3): {result.evaluation.location_pct_error:.2f} %")
             ev = result.evaluation
@@ -170,9 +175,10 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
     p.add_argument("--preset", default="default", choices=["default", "paper", "paper-controlled"],
                    help="optimiser preset (default: %(default)s)")
-    p.add_argument("--model", default="paper", choices=["paper", "metrology"],
-                   help="likelihood model: the paper's cost or the measurement-likelihood "
-                        "extension (default: %(default)s)")
+    p.add_argument("--model", default="metrology", choices=["paper", "metrology"],
+                   help="likelihood model: the measurement-likelihood extension or the paper's "
+                        "cost with pairwise soft constraints (default: %(default)s; see "
+                        "docs/benchmark_results.md)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")

@@ -201,6 +201,10 @@ class ReferenceReport:
     constraints : :class:`~creference_bayes.cost.SoftConstraints` of the used pairs, or None
     on : ``"xz"`` or ``"distance"`` (what the constraints penalise)
     enabled : False when references were turned off (``--no-references``)
+    used_as : how the model used them: ``"pairwise bounds"`` (the paper model's soft
+        constraints, built from the used pairs) or ``"likelihood"`` (the metrology model, which
+        uses every reference below the horizon directly; the pairs are then only reported)
+    in_likelihood : references that entered the metrology model's likelihood, or None
     """
 
     n_references: int
@@ -208,6 +212,8 @@ class ReferenceReport:
     constraints: SoftConstraints | None = None
     on: str = "xz"
     enabled: bool = True
+    used_as: str = "pairwise bounds"
+    in_likelihood: int | None = None
 
     @property
     def pairs_used(self) -> int:
@@ -225,7 +231,9 @@ class ReferenceReport:
     def to_dict(self) -> dict:
         return {"pairs_used": self.pairs_used, "pairs_skipped": self.pairs_skipped,
                 "skipped_reasons": self.skipped_reasons, "n_references": self.n_references,
-                "enabled": self.enabled, "on": self.on, "pairs": [p.to_dict() for p in self.pairs]}
+                "enabled": self.enabled, "on": self.on, "used_as": self.used_as,
+                **({} if self.in_likelihood is None else {"in_likelihood": self.in_likelihood}),
+                "pairs": [p.to_dict() for p in self.pairs]}
 
 
 def pair_conditioning(d1: np.ndarray, d2: np.ndarray) -> float:

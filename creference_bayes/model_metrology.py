@@ -16,6 +16,11 @@ noisy *measurement* of a function of the parameters, instead of one side of a pa
 Relative values (ratios to the target's length or width) are converted to metres with the target's
 known size, as everywhere else. The defaults s = :data:`REF_SCALE`, ν = :data:`REF_DOF` describe
 the paper's crowd workers (Table 2: median error ≈ 60 %, heavy right tail), not one noise tier.
+The drawn segment is itself noisy, and a segment far away (close to the horizon) turns a few pixels
+into a large length error, so each reference's scale is widened by its line noise:
+s_j² = s² + σ_line² Σ_k (∂ log ℓ_j / ∂p_k)² over its four endpoint coordinates p_k (forward
+differences of 0.5 px, recomputed for every (µ, h)), with σ_line = :data:`REF_LINE_FACTOR` × the
+target's corner scale σ (lines are drawn by the same crowd on the same photo) unless given.
 
 The target's annotations enter jointly rather than through a per-corner median: each corner of each
 annotation is a bivariate Student-t(:data:`TARGET_DOF`) observation of the projected corner, with a
@@ -43,11 +48,11 @@ from scipy.special import stdtr
 
 from .cost import BEHIND_CAMERA_PENALTY
 from .geometry import Camera, box_points, dimension_corners, project
-from .model import FOCAL, Bounds
+from .model import FOCAL, Bounds, FreeParameters
 
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
-    "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "DEFAULT_TEMPERATURE",
+    "REF_LINE_FACTOR", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "DEFAULT_TEMPERATURE",
     "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths",
 ]
 
@@ -60,6 +65,10 @@ DEFAULT_TARGET_SIGMA_PX = 5.0
 #: Scale s and degrees of freedom ν of a worker's error in log-length (see the module docstring).
 REF_SCALE = 0.75
 REF_DOF = 2.0
+#: Pixel noise of a reference's endpoints, as a multiple of the target's corner scale σ.
+REF_LINE_FACTOR = 2.0
+#: Endpoint step of the forward differences of log-length, pixels.
+_LINE_STEP_PX = 0.5
 #: Lowest camera height the model allows, metres.
 MIN_CAMERA_HEIGHT_M = 0.05
 #: Reference endpoints closer than this to the horizon (or above it) are unusable, pixels.
@@ -145,7 +154,7 @@ def ground_lengths(lines: np.ndarray, camera: Camera, focal: np.ndarray, height:
 
 
 @dataclass
-class MetrologyModel:
+class MetrologyModel(FreeParameters):
     """The measurement-likelihood model for one handedness of the dimension lines.
 
     Parameters
@@ -159,6 +168,7 @@ class MetrologyModel:
     references : the references to use (empty for target-only)
     target_sigma : corner scale, pixels; None to estimate it (:func:`estimate_target_sigma`)
     target_dof, ref_scale, ref_dof : see the module constants
+    ref_line_sigma : pixel noise of the references' endpoints (None: :data:`REF_LINE_FACTOR` × σ)
     """
 
     camera: Camera
@@ -171,6 +181,7 @@ class MetrologyModel:
     target_dof: float = TARGET_DOF
     ref_scale: float = REF_SCALE
     ref_dof: float = REF_DOF
+    ref_line_sigma: float | None = None
     name: str = field(default="metrology", init=False)
     #: The posterior's temperature for this model (the pipeline uses it when none is given).
     default_temperature: float = field(default=DEFAULT_TEMPERATURE, init=False)
@@ -190,6 +201,10 @@ class MetrologyModel:
             self.target_sigma = estimate_target_sigma(ann)
         elif not (np.isfinite(self.target_sigma) and self.target_sigma > 0):
             raise ValueError(f"target_sigma: expected a finite number > 0, got {self.target_sigma!r}")
+        if self.ref_line_sigma is None:
+            self.ref_line_sigma = REF_LINE_FACTOR * self.target_sigma
+        elif not (np.isfinite(self.ref_line_sigma) and self.ref_line_sigma >= 0):
+            raise ValueError(f"ref_line_sigma: expected a finite number >= 0, got {self.ref_line_sigma!r}")
         self.observed = np.median(ann, axis=0)
         self.obj_corners = dimension_corners(*self.dimensions, self.handedness)
         lo, hi = self.bounds.lower.copy(), self.bounds.upper.copy()
@@ -212,6 +227,8 @@ class MetrologyModel:
                 status[r.index] = "used"
         self.reference_status = status
         self._lines = np.array([r.line for r in usable]).reshape(-1, 2, 2)
+        steps = [np.zeros((2, 2))] + [np.eye(4)[k].reshape(2, 2) * _LINE_STEP_PX for k in range(4)]
+        self._lines_all = np.concatenate([self._lines + d for d in steps])  # (5m, 2, 2)
         self._log_low = np.log([r.low for r in usable])
         self._log_high = np.log([r.high for r in usable])
         self._is_range = np.array([r.is_range for r in usable], bool)
@@ -221,7 +238,7 @@ class MetrologyModel:
                    camera: Camera | None = None, use_references: bool = True,
                    **options) -> "MetrologyModel":
         """The model of ``scene`` for one handedness; ``options`` are the settings above."""
-        unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof"}
+        unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof", "ref_line_sigma"}
         if unknown:
             raise ValueError(f"metrology model: unknown option(s) {sorted(unknown)}")
         t = scene.target
@@ -245,10 +262,20 @@ class MetrologyModel:
         total = self._target_nll(projected) + BEHIND_CAMERA_PENALTY * np.sum(np.maximum(0.0, 1e-3 - depth), axis=-1)
         if len(self._lines):
             h = np.maximum(params[:, 1], MIN_CAMERA_HEIGHT_M)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                log_len = np.log(ground_lengths(self._lines, self.camera, mu, h, R))
-            total = total + self._reference_nll(log_len)
+            log_len, scale = self._log_lengths(mu, h, R)
+            total = total + self._reference_nll(log_len, scale)
         return total
+
+    def _log_lengths(self, mu, h, R) -> tuple[np.ndarray, np.ndarray]:
+        """(n, m) log real lengths of the usable references and their scales s_j."""
+        m = len(self._lines)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_all = np.log(ground_lengths(self._lines_all, self.camera, mu, h, R)).reshape(len(mu), 5, m)
+        log_len = log_all[:, 0]
+        if self.ref_line_sigma == 0:
+            return log_len, np.full_like(log_len, self.ref_scale)
+        grad2 = np.sum(((log_all[:, 1:] - log_len[:, None]) / _LINE_STEP_PX) ** 2, axis=1)
+        return log_len, np.sqrt(self.ref_scale**2 + self.ref_line_sigma**2 * grad2)
 
     def target_nll(self, params: np.ndarray) -> np.ndarray:
         """The target annotations' part of :meth:`cost`, shape (n,)."""
@@ -261,34 +288,24 @@ class MetrologyModel:
         nu = self.target_dof
         return 0.5 * (nu + 2.0) * np.sum(np.log1p(r2 / (nu * self.target_sigma**2)), axis=(1, 2))
 
-    def _reference_nll(self, log_len: np.ndarray) -> np.ndarray:
-        s, nu = self.ref_scale, self.ref_dof
+    def _reference_nll(self, log_len: np.ndarray, scale) -> np.ndarray:
+        """Reference terms for (n, m) log-lengths and scales s_j (array or scalar), shape (n,).
+        Singles: −log of the t density in log-length (its ν-only constant dropped); ranges: −log P."""
+        nu = self.ref_dof
+        s = np.broadcast_to(np.asarray(scale, float), log_len.shape)
         out = np.zeros(len(log_len))
         single = ~self._is_range
         if single.any():
-            z = (self._log_low[single] - log_len[:, single]) / s
-            out += 0.5 * (nu + 1.0) * np.sum(np.log1p(z**2 / nu), axis=1)
+            z = (self._log_low[single] - log_len[:, single]) / s[:, single]
+            out += np.sum(0.5 * (nu + 1.0) * np.log1p(z**2 / nu) + np.log(s[:, single]), axis=1)
         if self._is_range.any():
-            a = (self._log_low[self._is_range] - log_len[:, self._is_range]) / s
-            b = (self._log_high[self._is_range] - log_len[:, self._is_range]) / s
+            a = (self._log_low[self._is_range] - log_len[:, self._is_range]) / s[:, self._is_range]
+            b = (self._log_high[self._is_range] - log_len[:, self._is_range]) / s[:, self._is_range]
             flip = (a + b) > 0  # use the lower tail for accuracy: T(b) − T(a) = T(−a) − T(−b)
             lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
             p = stdtr(nu, hi) - stdtr(nu, lo)
             out -= np.sum(np.log(np.maximum(p, 1e-300)), axis=1)
         return np.where(np.isfinite(out), out, 1e300)
-
-    # -- free/fixed parameter handling (as PaperModel) --------------------------------------------
-    @property
-    def fixed_values(self) -> np.ndarray:
-        """(5,) the full vector's values where not free (µ when known); NaN elsewhere."""
-        return np.where(self.free, np.nan, self.bounds.lower)
-
-    def expand(self, free_params: np.ndarray) -> np.ndarray:
-        """(n, n_free) free parameters → (n, 5) full vectors."""
-        free_params = np.atleast_2d(free_params)
-        full = np.tile(self.bounds.lower, (len(free_params), 1))
-        full[:, self.free] = free_params
-        return full
 
 
 def _horizon_distance(camera: Camera, points: np.ndarray) -> np.ndarray:

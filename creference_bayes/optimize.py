@@ -99,7 +99,8 @@ class _Counter:
 
 
 def optimize_map(models: Sequence, preset: str = "default", rng=None,
-                 progress: Callable[[str], None] | None = None) -> MapEstimate:
+                 progress: Callable[[str], None] | None = None,
+                 restarts: int | None = None) -> MapEstimate:
     """Minimise the cost of each model (one per handedness) and keep the best.
 
     Parameters
@@ -108,8 +109,15 @@ def optimize_map(models: Sequence, preset: str = "default", rng=None,
         default preset ``camera``, ``observed`` and ``obj_corners``
     preset : one of :data:`PRESETS`
     rng : seed or ``numpy.random.Generator`` (only the ``paper`` presets draw random numbers)
+    restarts : total random restarts of the ``paper`` presets, split between the handednesses
+        (None: the paper's 200 or 100); must be None for the default preset
     """
     _check_preset(preset)
+    if restarts is not None:
+        if preset == "default":
+            raise ValueError("restarts: the default preset has no random restarts")
+        if isinstance(restarts, bool) or not isinstance(restarts, (int, np.integer)) or restarts < 1:
+            raise ValueError(f"restarts: expected an integer >= 1, got {restarts!r}")
     rng = np.random.default_rng(rng)
     t0 = time.perf_counter()
     best, info, n_eval = None, {}, 0
@@ -118,8 +126,8 @@ def optimize_map(models: Sequence, preset: str = "default", rng=None,
         if preset == "default":
             x, f, detail = _default(model, counter)
         else:
-            restarts = max(1, _PAPER_RESTARTS[preset] // len(models))
-            x, f, detail = _paper(model, counter, restarts, rng)
+            total = _PAPER_RESTARTS[preset] if restarts is None else restarts
+            x, f, detail = _paper(model, counter, max(1, total // len(models)), rng)
         n_eval += counter.n
         info[f"handedness_{model.handedness:+d}"] = {"cost": f, **detail}
         if best is None or f < best[1]:

@@ -71,8 +71,9 @@ def test_tables_and_figures_are_written(quick):
     for name in ("p4pf", "ours-paper MAP", "ours-metrology MAP + posterior"):
         assert s["timing"][name]["ratio"] > 0
     for model, c in s["calibration"].items():
-        n_post = sum(1 for r in doc["records"] if r["estimator"] == f"ours-{model}" and "coverage" in r)
-        assert sum(c["ranks"]["distance_m"]) == n_post
+        n_post = sum(1 for r in doc["records"]
+                     if r["estimator"] == f"ours-{model}" and "coverage" in r and r["tier"] != "none")
+        assert sum(c["ranks"]["distance_m"]) == n_post > 0  # pooled over the noisy tiers
         assert all(0 <= v[k] <= 1 for v in c["all"].values() for k in ("50", "90"))
     for name in ("bench_error_by_tier", "bench_error_vs_refs", "bench_same_time", "bench_calibration",
                  "bench_timing"):

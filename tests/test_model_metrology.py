@@ -58,18 +58,44 @@ def test_reference_terms_against_scipy_student_t():
     dist = stats.t(m.ref_dof, scale=m.ref_scale)
     for d in shifts:
         log_len = np.log(ell)[None] + d
-        got = m._reference_nll(log_len)[0]
+        got = m._reference_nll(log_len, m.ref_scale)[0]
         want = 0.0
         for r, li in zip(s.references, log_len[0]):
             lo, hi = r.length_bounds_m(s.target)
             if r.is_range:
                 want -= np.log(dist.cdf(np.log(hi) - li) - dist.cdf(np.log(lo) - li))
-            else:  # the density without its constant log(s) + log normaliser
-                want -= dist.logpdf(np.log(lo) - li) - dist.logpdf(0.0)
+            else:  # −log density, up to the constant −log t_ν(0) of the standard t
+                want -= dist.logpdf(np.log(lo) - li) - stats.t(m.ref_dof).logpdf(0.0)
         assert got == pytest.approx(want, rel=1e-9, abs=1e-9)
     # far in the tails the range term stays finite and keeps growing
-    far = m._reference_nll(np.log(ell)[None] + np.array([[8.0], [16.0]]))
+    far = m._reference_nll(np.log(ell)[None] + np.array([[8.0], [16.0]]), m.ref_scale)
     assert np.all(np.isfinite(far)) and far[1] > far[0]
+
+
+def test_line_noise_widens_far_references():
+    """s_j² = s² + σ_line² |∇ log ℓ_j|²: against an independent central difference of the
+    log-length over the endpoints, and larger for a segment nearer the horizon."""
+    s = _scene(4, tier="medium", setting="outdoor")
+    m = _model(s, ref_line_sigma=10.0)
+    p = _truth(s)
+    mu, h = p[None, 4], p[None, 1]
+    log_len, scale = m._log_lengths(mu, h, m.camera.rotation(mu))
+    from creference_bayes.model_metrology import ground_lengths
+
+    lines = m._lines
+    g2 = np.zeros(len(lines))
+    for k in range(4):
+        d = np.eye(4)[k].reshape(2, 2) * 1e-3
+        up = np.log(ground_lengths(lines + d, m.camera, mu, h)[0])
+        dn = np.log(ground_lengths(lines - d, m.camera, mu, h)[0])
+        g2 += ((up - dn) / 2e-3) ** 2
+    np.testing.assert_allclose(scale[0], np.sqrt(m.ref_scale**2 + 100.0 * g2), rtol=0.05)
+    assert np.all(scale >= m.ref_scale)
+    dist = np.min(lines.reshape(-1, 2, 2) @ m.camera.horizon[:2] + m.camera.horizon[2], axis=1)
+    assert scale[0, np.argmin(dist)] == scale[0].max()  # the segment nearest the horizon
+    flat = _model(s, ref_line_sigma=0.0)
+    np.testing.assert_allclose(flat._log_lengths(mu, h, m.camera.rotation(mu))[1], m.ref_scale)
+    assert _model(s).ref_line_sigma == pytest.approx(2.0 * _model(s).target_sigma)
 
 
 def test_estimated_corner_scale():
