@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .optimize import PRESETS
+from .pipeline import DEFAULT_MODEL, MODELS
 from .scene import SceneError, SceneWarning
 
 __all__ = ["main", "example_scene_path", "format_table"]
@@ -173,9 +175,9 @@ def _run_demo(args) -> int:
 
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
-    p.add_argument("--preset", default="default", choices=["default", "paper", "paper-controlled"],
+    p.add_argument("--preset", default="default", choices=PRESETS,
                    help="optimiser preset (default: %(default)s)")
-    p.add_argument("--model", default="metrology", choices=["paper", "metrology"],
+    p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
                    help="likelihood model: the measurement-likelihood extension or the paper's "
                         "cost with pairwise soft constraints (default: %(default)s; see "
                         "docs/benchmark_results.md)")
@@ -187,7 +189,9 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
                    help="probability of the credible intervals (default: %(default)s)")
     g.add_argument("--temperature", type=float, default=None, metavar="T",
-                   help="temperature of the posterior, log p = -cost/T + log prior (default: 1)")
+                   help="temperature of the posterior, log p = -cost/T + log prior (default: the "
+                        "model's: 1 for metrology and for the paper presets, 3 for the paper model "
+                        "with the default preset)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
                    help="bulk effective sample size to reach (default: 1000)")
     g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")

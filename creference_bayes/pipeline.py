@@ -80,8 +80,9 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     restarts : random restarts of the ``paper`` presets (None: the paper's count); the default
         preset has none
     posterior : sample the posterior after the MAP (method.md §7)
-    temperature : T of log p = −cost′/T + log prior (default
-        :data:`~creference_bayes.posterior.DEFAULT_TEMPERATURE`)
+    temperature : T of log p = −cost′/T + log prior (default: the model's own, 1 for the
+        metrology model and for the paper presets, :data:`~.model.CALIBRATED_TEMPERATURE` for the
+        paper model with the default preset)
     hdi_prob : probability of the reported highest-density intervals
     sampling : sampler settings (:class:`~creference_bayes.sampling.SamplerSettings` fields,
         e.g. ``{"min_ess": 2000}``); unknown keys are rejected
@@ -155,7 +156,11 @@ def _camera_step(scene: Scene):
 
 
 def _references_step(scene: Scene, camera: Camera, preset: str, use_references: bool):
-    """Pairs of references → soft constraints (paper model), as a :class:`ReferenceReport`."""
+    """Pairs of references → soft constraints, as a :class:`ReferenceReport`.
+
+    The paper model's cost uses the constraints; for the metrology model the pairs are only
+    reported (for comparison and for the top-view plot).
+    """
     from .metrology import ReferenceReport, aggregate_references
 
     if not use_references:
