@@ -48,6 +48,7 @@ from scipy.special import stdtr
 
 from .cost import BEHIND_CAMERA_PENALTY
 from .geometry import Camera, box_points, dimension_corners, project
+from .metrology import GroundFrame
 from .model import FOCAL, Bounds, FreeParameters
 
 __all__ = [
@@ -219,8 +220,9 @@ class MetrologyModel(FreeParameters):
 
     def _split_references(self) -> None:
         usable, status = [], {}
+        frame = GroundFrame.from_camera(self.camera)
         for r in self.references:
-            if _horizon_distance(self.camera, r.line).min() < MIN_HORIZON_PX:
+            if frame.distance(r.line).min() < MIN_HORIZON_PX:
                 status[r.index] = "endpoint_above_horizon"
             else:
                 usable.append(r)
@@ -307,10 +309,3 @@ class MetrologyModel(FreeParameters):
             out -= np.sum(np.log(np.maximum(p, 1e-300)), axis=1)
         return np.where(np.isfinite(out), out, 1e300)
 
-
-def _horizon_distance(camera: Camera, points: np.ndarray) -> np.ndarray:
-    """Signed distance (pixels) of (k, 2) points from the horizon, positive below it."""
-    pts = np.atleast_2d(np.asarray(points, float))
-    if camera.horizon is None:
-        return pts[:, 1] - camera.principal_point[1]
-    return pts @ camera.horizon[:2] + camera.horizon[2]

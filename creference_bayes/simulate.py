@@ -234,7 +234,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
             seg_uv, seg_3d = ouv[[a, b]], overts[[a, b]]
         else:  # distance: ground line from the image's bottom edge up to the object's nearest corner
             q_uv = ouv[near]
-            p_uv = _ground_point_at_bottom(R, f, pp, h, q_uv[0], h_img)
+            # the pixel on the bottom edge below it (it sees the ground, since pitch >= 0)
+            p_uv = np.array([max(float(q_uv[0]), 1.0), float(h_img - 1)])
             p_3d = _backproject(R, f, pp, h, p_uv)
             seg_uv, seg_3d = np.array([p_uv, q_uv]), np.array([p_3d, overts[near]])
         true_len = float(np.linalg.norm(seg_3d[1] - seg_3d[0]))
@@ -289,10 +290,8 @@ def _sig(x: float, digits: int = 4) -> float:
 
 
 def _backproject(R, f, pp, h, uv):
+    """Ground point (Y = h) seen at pixel ``uv`` by a camera with rotation R (a bare R, no horizon
+    line, so :meth:`~.geometry.Camera.backproject_to_ground` does not apply)."""
     d = np.array([(uv[0] - pp[0]) / f, (uv[1] - pp[1]) / f, 1.0]) @ R
     return d * (h / d[1])
 
-
-def _ground_point_at_bottom(R, f, pp, h, u, h_img):
-    """The pixel on the image's bottom edge below ``u`` (it sees the ground when pitch ≥ 0)."""
-    return np.array([float(np.clip(u, 1.0, None)), float(h_img - 1)])
