@@ -3,6 +3,18 @@
 The C-Reference method (Song et al., CSCW 2020) as a Bayesian estimator: the paper's cost is a
 negative log-posterior over (x, y, z, yaw, focal length); its MAP seeds an emcee ensemble.
 
+Layout (each folder uses only the folders below it)::
+
+    cli/         the ``creference`` command, one module per command group
+    workflows/   batch runs over a data set, advice on more annotations, confidence maps
+    bench/       simulator, benchmark, report, figures, peers (PoseLib), Cramér–Rao bound
+    pipeline.py  estimate(): one scene's target, from scene to Result (the wiring)
+    vision/      OpenCV horizon, matplotlib plots
+    inference/   optimiser presets, log-posterior, emcee adapter, arviz adapter
+    io/          scene and result files
+    models/      the paper model, the metrology model, their shared parameter space
+    core/        units, geometry, ground-plane metrology, costs, metrics (NumPy/SciPy only)
+
 Quick start::
 
     import creference_bayes as cb
@@ -20,12 +32,11 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
-from .metrics import (location_percentage_error, percentage_error, range_percentage_error,
-                      range_precision)
-from .optimize import MapEstimate
+from .core.metrics import (location_percentage_error, percentage_error, range_percentage_error,
+                           range_precision)
+from .io.result import MapEstimate, Result
+from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
 from .pipeline import estimate
-from .result import Result
-from .scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
 
 __all__ = [
     "__version__",

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import HANDEDNESS, Camera, horizon_line
-from .metrics import location_percentage_error
-from .model import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
-from .optimize import optimize_map, preset_bounds
-from .result import Evaluation, Result
-from .scene import Scene, load_scene
+from .core.geometry import HANDEDNESS, Camera, horizon_line
+from .core.metrics import location_percentage_error
+from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
+from .inference.optimize import optimize_map, preset_bounds
+from .io.result import Evaluation, Result
+from .io.scene import Scene, load_scene
 
 __all__ = ["MODELS", "estimate", "build_models"]
 
@@ -43,7 +43,7 @@ def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
     use_references : whether the metrology model uses the scene's references (the paper model
         uses ``constraints`` instead)
     options : model settings (``sigma`` for the paper model, default
-        :data:`~.model.CALIBRATED_SIGMA_PX` with the default preset and the paper's 100 px with the
+        :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the paper's 100 px with the
         paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``, ``ref_dof`` for the
         metrology model)
     """
@@ -51,7 +51,7 @@ def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
     bounds = preset_bounds(preset, scene.image_width, scene.image_height)
     if model == "metrology":
-        from .model_metrology import MetrologyModel
+        from .models.metrology import MetrologyModel
 
         return [MetrologyModel.from_scene(scene, h, bounds=bounds, camera=camera,
                                           use_references=use_references, **options) for h in HANDEDNESS]
@@ -81,7 +81,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         preset has none
     posterior : sample the posterior after the MAP (method.md §7)
     temperature : T of log p = −cost′/T + log prior (default: the model's own, 1 for the
-        metrology model and for the paper presets, :data:`~.model.CALIBRATED_TEMPERATURE` for the
+        metrology model and for the paper presets, :data:`~creference_bayes.models.paper.CALIBRATED_TEMPERATURE` for the
         paper model with the default preset)
     hdi_prob : probability of the reported highest-density intervals
     sampling : sampler settings (:class:`~creference_bayes.sampling.SamplerSettings` fields,
@@ -117,7 +117,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
             sampling=sampling, progress=progress)
         warnings += notes
         if evaluation is not None and post is not None:
-            from .summary import evaluate_posterior
+            from .inference.summary import evaluate_posterior
 
             err, inside = evaluate_posterior(post, scene.ground_truth, list(diag.r_hat))
             evaluation = dataclasses.replace(evaluation, posterior_location_pct_error=err,
@@ -140,7 +140,7 @@ def _camera_step(scene: Scene):
     level = "assumed a level camera (horizon through the principal point)"
     if scene.image_path is None:
         return camera, [f"no horizon and no image: {level}"], None
-    from .horizon import estimate_horizon  # OpenCV, only when needed
+    from .vision.horizon import estimate_horizon
 
     try:
         est = estimate_horizon(scene.image_path, principal_point=scene.principal_point,
@@ -161,7 +161,7 @@ def _references_step(scene: Scene, camera: Camera, preset: str, use_references: 
     The paper model's cost uses the constraints; for the metrology model the pairs are only
     reported (for comparison and for the top-view plot).
     """
-    from .metrology import ReferenceReport, aggregate_references
+    from .core.metrology import ReferenceReport, aggregate_references
 
     if not use_references:
         return ReferenceReport(len(scene.references), enabled=False)
@@ -172,12 +172,12 @@ def _references_step(scene: Scene, camera: Camera, preset: str, use_references: 
 def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampling, progress):
     """Sample the posterior of the MAP's handedness from the MAP, and summarise it.
 
-    Returns the :class:`~.result.PosteriorSummary`, the :class:`~.result.Diagnostics` (whose
+    Returns the :class:`~creference_bayes.io.result.PosteriorSummary`, the :class:`~creference_bayes.io.result.Diagnostics` (whose
     ``seconds`` cover the whole step), the InferenceData and notes for the result's warnings.
     """
-    from .posterior import DEFAULT_TEMPERATURE, LogPosterior, laplace_scales
-    from .sampling import SamplerSettings, SamplingError, sample
-    from .summary import posterior_arrays, summarise, to_inference_data
+    from .inference.posterior import DEFAULT_TEMPERATURE, LogPosterior, laplace_scales
+    from .inference.sampling import SamplerSettings, SamplingError, sample
+    from .inference.summary import posterior_arrays, summarise, to_inference_data
 
     t0 = time.perf_counter()
     settings = SamplerSettings.from_options(sampling)

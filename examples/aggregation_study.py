@@ -12,9 +12,9 @@ reference lines on the ground: line 1 a sofa's length, line 2 a table's length p
   ground truth", so both readings are run: ``uniform``, e ~ U(−m, m), and ``sign``, e = ±m with a
   random sign (exactly m % off, like the pixel noise's fixed amplitude);
 - the pair (1, 3) (well-conditioned) and the pair (1, 2) (parallel in 3D) are aggregated with
-  :func:`creference_bayes.metrology.pair_bounds` (single values, so the bounds are a point),
+  :func:`creference_bayes.core.metrology.pair_bounds` (single values, so the bounds are a point),
   without the skip rules except that a draw without a positive solution has no estimate (the
-  paper's figure); separately, :func:`~creference_bayes.metrology.assess_pair` applies the
+  paper's figure); separately, :func:`~creference_bayes.core.metrology.assess_pair` applies the
   package's skip rules, and the table gives the share of draws they keep and the error of those;
 - the error is |d̂ − d| / d × 100 with d = √(x² + z²) the target's ground distance (the paper's
   d_target), over the draws that have an estimate.
@@ -40,10 +40,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from creference_bayes.geometry import (Camera, box_points, dimension_corners, horizon_from_rotation,  # noqa: E402
-                                       horizon_line, project, rotation_from_pitch_roll)
-from creference_bayes.metrology import (MIN_CONDITIONING, GroundFrame, assess_pair,  # noqa: E402
-                                        pair_bounds, pair_conditioning, target_ground_point)
+from creference_bayes.core.geometry import (Camera, box_points, dimension_corners,
+                                            horizon_from_rotation, horizon_line, project,
+                                            rotation_from_pitch_roll)
+from creference_bayes.core.metrology import (MIN_CONDITIONING, GroundFrame, assess_pair,
+                                             pair_bounds, pair_conditioning, target_ground_point)
 
 PIXEL_NOISE = (0, 5, 10, 15, 20, 25, 30)
 MEASUREMENT_NOISE = (0.0, 0.1, 0.2, 0.3, 0.4)

@@ -1,7 +1,7 @@
 """Check the package's sampler against long plain-emcee runs on the same posteriors.
 
 For simulated scenes, sample the paper model's posterior (MAP handedness) with
-:func:`creference_bayes.sampling.sample` and with two long runs of emcee's own ``DEMove``
+:func:`creference_bayes.inference.sampling.sample` and with two long runs of emcee's own ``DEMove``
 (64 walkers, ``--steps`` steps, first quarter discarded), and print both means and sds and the
 z-score of the difference of the means (Monte Carlo errors from each run's autocorrelation time).
 Slow: about half a minute per scene and core.
@@ -19,15 +19,15 @@ import warnings
 import emcee
 import numpy as np
 
-from creference_bayes.geometry import Camera
-from creference_bayes.metrology import aggregate_references
-from creference_bayes.model import PARAM_NAMES
-from creference_bayes.optimize import optimize_map
+from creference_bayes.core.geometry import Camera
+from creference_bayes.core.metrology import aggregate_references
+from creference_bayes.models.params import PARAM_NAMES
+from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.pipeline import build_models
-from creference_bayes.posterior import LogPosterior, laplace_scales
-from creference_bayes.sampling import sample
-from creference_bayes.scene import parse_scene
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.inference.posterior import LogPosterior, laplace_scales
+from creference_bayes.inference.sampling import sample
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.simulate import simulate_scene
 
 
 def posterior(seed: int, tier: str, references: bool):

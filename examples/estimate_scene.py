@@ -3,7 +3,7 @@
 import sys
 
 import creference_bayes as cb
-from creference_bayes.cli import example_scene_path
+from creference_bayes.cli.main import example_scene_path
 
 path = sys.argv[1] if len(sys.argv) > 1 else example_scene_path()
 result = cb.estimate(path, seed=0)

@@ -22,11 +22,11 @@ import warnings
 
 import numpy as np
 
-from creference_bayes.metrics import location_percentage_error
-from creference_bayes.optimize import PRESETS, optimize_map
+from creference_bayes.core.metrics import location_percentage_error
+from creference_bayes.inference.optimize import PRESETS, optimize_map
 from creference_bayes.pipeline import build_models
-from creference_bayes.scene import parse_scene
-from creference_bayes.simulate import TIERS, simulate_scene
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.simulate import TIERS, simulate_scene
 
 
 def make_scene(seed: int, tier: str):

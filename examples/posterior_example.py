@@ -11,10 +11,10 @@ import matplotlib
 matplotlib.use("Agg")
 
 import creference_bayes as cb  # noqa: E402
-from creference_bayes import plotting  # noqa: E402
-from creference_bayes.cli import example_scene_path  # noqa: E402
-from creference_bayes.scene import load_scene  # noqa: E402
-from creference_bayes.summary import summary_table  # noqa: E402
+from creference_bayes.vision import plotting  # noqa: E402
+from creference_bayes.cli.main import example_scene_path
+from creference_bayes.io.scene import load_scene
+from creference_bayes.inference.summary import summary_table
 
 scene = load_scene(sys.argv[1] if len(sys.argv) > 1 else example_scene_path())
 out = Path(sys.argv[2] if len(sys.argv) > 2 else "posterior_example")

@@ -23,15 +23,15 @@ import time
 import numpy as np
 
 import creference_bayes as cb
-from creference_bayes.cli import example_scene_path
-from creference_bayes.geometry import Camera
-from creference_bayes.metrology import aggregate_references
-from creference_bayes.optimize import optimize_map, preset_bounds
+from creference_bayes.cli.main import example_scene_path
+from creference_bayes.core.geometry import Camera
+from creference_bayes.core.metrology import aggregate_references
+from creference_bayes.inference.optimize import optimize_map, preset_bounds
 from creference_bayes.pipeline import build_models
-from creference_bayes.posterior import LogPosterior, laplace_scales
-from creference_bayes.sampling import sample
-from creference_bayes.scene import load_scene
-from creference_bayes.summary import posterior_arrays, summarise, to_inference_data
+from creference_bayes.inference.posterior import LogPosterior, laplace_scales
+from creference_bayes.inference.sampling import sample
+from creference_bayes.io.scene import load_scene
+from creference_bayes.inference.summary import posterior_arrays, summarise, to_inference_data
 
 
 class _Clock:

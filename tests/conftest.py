@@ -14,8 +14,8 @@ matplotlib.use("Agg")
 @pytest.fixture
 def make_scene():
     """Factory for validated synthetic scenes: make_scene(seed, **simulate_scene kwargs)."""
-    from creference_bayes.scene import parse_scene
-    from creference_bayes.simulate import simulate_scene
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.bench.simulate import simulate_scene
 
     def _make(seed=0, **kwargs):
         with warnings.catch_warnings():

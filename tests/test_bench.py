@@ -8,8 +8,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from creference_bayes.bench import CONFIGS, bench_scenes, calibration_of
-from creference_bayes.cli import main
+from creference_bayes.bench.runner import CONFIGS, bench_scenes, calibration_of
+from creference_bayes.cli.main import main
 from creference_bayes.pipeline import estimate
 
 

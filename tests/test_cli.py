@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from creference_bayes.cli import example_scene_path, main
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.cli.main import example_scene_path, main
+from creference_bayes.bench.simulate import simulate_scene
 
 
 def _write(path: Path, data) -> Path:

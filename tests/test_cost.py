@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from creference_bayes.cost import (PAPER_CAP, PAPER_SHARPNESS, SoftConstraints, sigmoid_penalty,
-                                   soft_constraint_cost, target_cost)
-from creference_bayes.geometry import (Camera, box_points, dimension_corners, horizon_from_rotation,
-                                       horizon_line, rotation_from_pitch_roll)
+from creference_bayes.core.cost import (PAPER_CAP, PAPER_SHARPNESS, SoftConstraints,
+                                        sigmoid_penalty, soft_constraint_cost, target_cost)
+from creference_bayes.core.geometry import (Camera, box_points, dimension_corners,
+                                            horizon_from_rotation, horizon_line,
+                                            rotation_from_pitch_roll)
 
 SIGMA = 100.0
 PP = np.array([1530.0, 840.0])

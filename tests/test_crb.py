@@ -8,12 +8,12 @@ import pytest
 from scipy import integrate, stats
 from scipy.optimize import least_squares
 
-from creference_bayes.crb import (cramer_rao, cramer_rao_scene, log_length_gradient, line_log_sd,
-                                  measurement_log_sd, projection_jacobian)
-from creference_bayes.geometry import Camera, box_points, dimension_corners
-from creference_bayes.model_metrology import ground_lengths
-from creference_bayes.scene import parse_scene
-from creference_bayes.simulate import PAPER_NOISE, simulate_scene
+from creference_bayes.bench.crb import (cramer_rao, cramer_rao_scene, log_length_gradient,
+                                        line_log_sd, measurement_log_sd, projection_jacobian)
+from creference_bayes.core.geometry import Camera, box_points, dimension_corners
+from creference_bayes.models.metrology import ground_lengths
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.simulate import PAPER_NOISE, simulate_scene
 
 
 def _scene(seed, **kw):

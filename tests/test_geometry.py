@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from creference_bayes.geometry import (Camera, box_points, box_vertices, dimension_corners,
-                                       horizon_from_rotation, horizon_line, pitch_roll_from_horizon,
-                                       project, rotation_from_pitch_roll, yaw_matrix)
+from creference_bayes.core.geometry import (Camera, box_points, box_vertices, dimension_corners,
+                                            horizon_from_rotation, horizon_line,
+                                            pitch_roll_from_horizon, project,
+                                            rotation_from_pitch_roll, yaw_matrix)
 
 W_IMG, H_IMG = 2880, 1800
 

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from creference_bayes.geometry import (box_points, box_vertices, horizon_from_rotation, project,
-                                       rotation_from_pitch_roll)
-from creference_bayes.horizon import estimate_horizon, horizon_error, merge_collinear
+from creference_bayes.core.geometry import (box_points, box_vertices, horizon_from_rotation,
+                                            project, rotation_from_pitch_roll)
+from creference_bayes.vision.horizon import estimate_horizon, horizon_error, merge_collinear
 
 W, H = 960, 600
 FACES = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
@@ -161,7 +161,7 @@ def test_merge_collinear_joins_pieces_of_one_line_only():
 
 def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_scene):
     from creference_bayes.pipeline import estimate
-    from creference_bayes.scene import scene_to_dict
+    from creference_bayes.io.scene import scene_to_dict
 
     scene = make_scene(3, tier="none", image_size=(W, H))
     gt = scene.ground_truth.extra

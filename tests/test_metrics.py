@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from creference_bayes.metrics import (location_percentage_error, percentage_error,
-                                      range_percentage_error, range_precision)
+from creference_bayes.core.metrics import (location_percentage_error, percentage_error,
+                                           range_percentage_error, range_precision)
 
 
 def test_eq1_percentage_error():

@@ -6,15 +6,17 @@ import warnings
 import numpy as np
 import pytest
 
-from creference_bayes.cost import SoftConstraints
-from creference_bayes.geometry import (Camera, box_points, dimension_corners, horizon_from_rotation,
-                                       horizon_line, project, rotation_from_pitch_roll)
-from creference_bayes.metrology import (GroundFrame, SkipRules, aggregate_references, pair_bounds,
-                                        pixel_sensitivity, solve_pair, target_ground_point)
+from creference_bayes.core.cost import SoftConstraints
+from creference_bayes.core.geometry import (Camera, box_points, dimension_corners,
+                                            horizon_from_rotation, horizon_line, project,
+                                            rotation_from_pitch_roll)
+from creference_bayes.core.metrology import (GroundFrame, SkipRules, aggregate_references,
+                                             pair_bounds, pixel_sensitivity, solve_pair,
+                                             target_ground_point)
 
 #: the skip rules without the pixel-sensitivity rule (tests of exactness keep every stable pair)
 NO_SENSITIVITY = SkipRules(max_pixel_sensitivity=None)
-from creference_bayes.scene import parse_scene
+from creference_bayes.io.scene import parse_scene
 
 W, HT = 2880, 1800
 

@@ -9,15 +9,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.cli import main
-from creference_bayes.geometry import Camera
-from creference_bayes.model import Bounds
-from creference_bayes.model_metrology import (DEFAULT_TARGET_SIGMA_PX, MIN_CAMERA_HEIGHT_M, MIN_TARGET_SIGMA_PX,
-                                              MetrologyModel, ReferenceMeasurement, estimate_target_sigma)
-from creference_bayes.optimize import optimize_map
+from creference_bayes.cli.main import main
+from creference_bayes.core.geometry import Camera
+from creference_bayes.models.params import Bounds
+from creference_bayes.models.metrology import (DEFAULT_TARGET_SIGMA_PX, MIN_CAMERA_HEIGHT_M,
+                                               MIN_TARGET_SIGMA_PX, MetrologyModel,
+                                               ReferenceMeasurement, estimate_target_sigma)
+from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.pipeline import build_models, estimate
-from creference_bayes.scene import parse_scene, scene_to_dict
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.io.scene import parse_scene, scene_to_dict
+from creference_bayes.bench.simulate import simulate_scene
 
 
 def _scene(seed, n=5, **kw):
@@ -80,7 +81,7 @@ def test_line_noise_widens_far_references():
     p = _truth(s)
     mu, h = p[None, 4], p[None, 1]
     log_len, scale = m._log_lengths(mu, h, m.camera.rotation(mu))
-    from creference_bayes.model_metrology import ground_lengths
+    from creference_bayes.models.metrology import ground_lengths
 
     lines = m._lines
     g2 = np.zeros(len(lines))

@@ -5,13 +5,15 @@ import warnings
 import numpy as np
 import pytest
 
-from creference_bayes.geometry import Camera, box_points, dimension_corners
-from creference_bayes.metrics import location_percentage_error
-from creference_bayes.model import Bounds, PaperModel, wrap_angle
-from creference_bayes.optimize import _Counter, _paper, optimize_map, preset_bounds, theta_scan
+from creference_bayes.core.geometry import Camera, box_points, dimension_corners
+from creference_bayes.core.metrics import location_percentage_error
+from creference_bayes.models.params import Bounds, wrap_angle
+from creference_bayes.models.paper import PaperModel
+from creference_bayes.inference.optimize import (_Counter, _paper, optimize_map, preset_bounds,
+                                                 theta_scan)
 from creference_bayes.pipeline import build_models
-from creference_bayes.scene import parse_scene
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.simulate import simulate_scene
 
 
 def noise_free_scene(seed: int, setting: str, **kwargs):

@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from creference_bayes.geometry import Camera, dimension_corners
-from creference_bayes.model import wrap_angle
-from creference_bayes.scene import parse_scene
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.core.geometry import Camera, dimension_corners
+from creference_bayes.models.params import wrap_angle
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.simulate import simulate_scene
 
 pytest.importorskip("poselib")
-from creference_bayes.peers import INSTALL_HINT, estimate_p4pf  # noqa: E402
+from creference_bayes.bench.peers import INSTALL_HINT, estimate_p4pf
 
 
 def _scene(seed, n=5, **kw):
@@ -73,7 +73,7 @@ def test_fallback_when_p4pf_has_no_real_solution():
 
 def test_missing_poselib_says_what_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "poselib", None)  # import poselib now raises ImportError
-    from creference_bayes import peers
+    from creference_bayes.bench import peers
 
     assert not peers.poselib_available()
     with pytest.raises(ImportError, match=r"pip install creference-bayes\[peer\]"):

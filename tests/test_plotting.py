@@ -8,8 +8,8 @@ import pytest
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from creference_bayes import plotting
-from creference_bayes.cli import main
+from creference_bayes.vision import plotting
+from creference_bayes.cli.main import main
 from creference_bayes.pipeline import estimate
 
 
@@ -18,8 +18,8 @@ def noise_free(tmp_path_factory):
     """A noise-free scene written to disk, and its estimate (small posterior run)."""
     import warnings
 
-    from creference_bayes.scene import load_scene
-    from creference_bayes.simulate import simulate_scene
+    from creference_bayes.io.scene import load_scene
+    from creference_bayes.bench.simulate import simulate_scene
 
     path = tmp_path_factory.mktemp("scene") / "scene.json"
     path.write_text(json.dumps(simulate_scene(np.random.default_rng(21), tier="none")))
@@ -88,7 +88,7 @@ def test_plot_command_writes_figures(noise_free, tmp_path):
     assert sorted(p.name for p in figs.iterdir()) == ["boxes.png", "pairs.png", "ranks.png", "top_view.png"]
     assert all(p.stat().st_size > 3_000 for p in figs.iterdir())
     # the scene is found next to the result when it is not given
-    from creference_bayes.cli_plot import _find_scene
+    from creference_bayes.cli.plot import _find_scene
 
     (tmp_path / "scene.json").write_text(scene_path.read_text())
     found = _find_scene(json.loads(out.read_text()), out, None)

@@ -5,12 +5,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from creference_bayes.geometry import Camera
-from creference_bayes.metrology import aggregate_references
-from creference_bayes.model import Bounds, wrap_angle
-from creference_bayes.optimize import optimize_map
+from creference_bayes.core.geometry import Camera
+from creference_bayes.core.metrology import aggregate_references
+from creference_bayes.models.params import Bounds, wrap_angle
+from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.pipeline import build_models, estimate
-from creference_bayes.posterior import LogPosterior, laplace_scales
+from creference_bayes.inference.posterior import LogPosterior, laplace_scales
 
 
 @dataclass
@@ -109,8 +109,8 @@ def test_noise_free_posterior_concentrates_on_the_truth(make_scene):
     models = build_models(scene, camera=camera, constraints=report.constraints)
     m = optimize_map(models, rng=0)
     model = next(x for x in models if x.handedness == m.handedness)
-    from creference_bayes.sampling import sample
-    from creference_bayes.summary import evaluate_posterior, summarise
+    from creference_bayes.inference.sampling import sample
+    from creference_bayes.inference.summary import evaluate_posterior, summarise
 
     lp = LogPosterior(model)
     lap = laplace_scales(lp, m.params[model.free])

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.autocorr import integrated_time
-from creference_bayes.moves import GroupedDEMove, GroupedStretchMove
-from creference_bayes.sampling import SamplerSettings, SamplingError, sample
-from creference_bayes.summary import az
+from creference_bayes.inference.autocorr import integrated_time
+from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
+from creference_bayes.inference.sampling import SamplerSettings, SamplingError, sample
+from creference_bayes.inference.summary import az
 
 MEAN = np.array([1.0, -2.0, 0.5])
 COV = np.array([[1.0, 0.8, 0.1], [0.8, 2.0, -0.3], [0.1, -0.3, 0.25]])
@@ -154,7 +154,7 @@ def test_integrated_time_matches_emcee_and_ar1():
 def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
     """u ↔ p round-trips, and log |∂p/∂u| (central differences) is Σ log p over the log
     coordinates plus one constant: the shear adds no density term."""
-    from creference_bayes.reparam import Coordinates
+    from creference_bayes.inference.reparam import Coordinates
 
     rng = np.random.default_rng(6)
     x1 = rng.standard_normal(5000)

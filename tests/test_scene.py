@@ -11,10 +11,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from creference_bayes.cli import example_scene_path
-from creference_bayes.scene import (Scene, SceneError, SceneWarning, load_scene, parse_scene,
-                                    scene_to_dict)
-from creference_bayes.simulate import simulate_scene
+from creference_bayes.cli.main import example_scene_path
+from creference_bayes.io.scene import (Scene, SceneError, SceneWarning, load_scene, parse_scene,
+                                       scene_to_dict)
+from creference_bayes.bench.simulate import simulate_scene
 
 #: "<key path>: <problem>" on one line; key paths are dotted keys with [i] indices, or "(scene)" /
 #: "(file)" for the document itself.

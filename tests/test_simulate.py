@@ -8,11 +8,12 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from creference_bayes.cli import main
-from creference_bayes.geometry import Camera, box_points, dimension_corners
-from creference_bayes.metrics import range_precision
-from creference_bayes.scene import load_scene, parse_scene
-from creference_bayes.simulate import FORMATS, SETTINGS, TIERS, measurement_factor, simulate_scene
+from creference_bayes.cli.main import main
+from creference_bayes.core.geometry import Camera, box_points, dimension_corners
+from creference_bayes.core.metrics import range_precision
+from creference_bayes.io.scene import load_scene, parse_scene
+from creference_bayes.bench.simulate import (FORMATS, SETTINGS, TIERS, measurement_factor,
+                                             simulate_scene)
 
 
 def _scene(seed, **kw):

@@ -1,6 +1,6 @@
 import json
 
-from creference_bayes.cli import example_scene_path, main
+from creference_bayes.cli.main import example_scene_path, main
 
 
 def test_demo_writes_result(tmp_path, capsys):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.cli import main
-from creference_bayes.sampling import Chains
-from creference_bayes.summary import (az, in_hdi, posterior_arrays, summarise, summary_table,
-                                      to_inference_data)
+from creference_bayes.cli.main import main
+from creference_bayes.inference.sampling import Chains
+from creference_bayes.inference.summary import (az, in_hdi, posterior_arrays, summarise,
+                                                summary_table, to_inference_data)
 
 FREE = np.array([True, True, True, True, True])
 FIXED = np.zeros(5)

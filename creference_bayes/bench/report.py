@@ -1,4 +1,4 @@
-"""The benchmark's tables: summaries of :func:`~.bench.run_bench` records, and Markdown.
+"""The benchmark's tables: summaries of :func:`~.runner.run_bench` records, and Markdown.
 
 Every table is computed from the records alone (``bench.json`` can be re-summarised later).
 Errors are the paper's Eq. 3 location percentage error; "posterior mean" is the location of the

@@ -1,7 +1,7 @@
 """The peer solver: PoseLib's P4Pf (absolute pose with unknown focal length), a thin adapter.
 
 The target's dimension lines give four 2D–3D correspondences in the object frame (c1..c4 of
-:func:`~.geometry.dimension_corners`), exactly P4Pf's minimal problem. The peer:
+:func:`~creference_bayes.core.geometry.dimension_corners`), exactly P4Pf's minimal problem. The peer:
 
 1. solves P4Pf (PoseLib, Larsson et al.) on the per-corner median of the annotations and on each
    annotation alone, for both handednesses (every real solution is a hypothesis). Four points
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .geometry import HANDEDNESS, Camera, dimension_corners
-from .metrics import location_percentage_error
+from ..core.geometry import HANDEDNESS, Camera, dimension_corners
+from ..core.metrics import location_percentage_error
 
 __all__ = ["PeerEstimate", "estimate_p4pf", "poselib_available", "INSTALL_HINT"]
 

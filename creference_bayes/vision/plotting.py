@@ -12,8 +12,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle, Wedge
 
-from .geometry import Camera, box_points, box_vertices
-from .model import PARAM_NAMES, PARAM_UNITS
+from ..core.geometry import Camera, box_points, box_vertices
+from ..models.params import PARAM_NAMES, PARAM_UNITS
 
 __all__ = ["draws_from_result", "plot_boxes", "plot_pairs", "plot_ranks", "plot_top_view"]
 

@@ -19,8 +19,8 @@ import warnings as _warnings
 import numpy as np
 
 from .autocorr import integrated_time
-from .model import PARAM_NAMES, wrap_angle
-from .result import Diagnostics, PosteriorSummary
+from ..models.params import PARAM_NAMES, wrap_angle
+from ..io.result import Diagnostics, PosteriorSummary
 
 with _warnings.catch_warnings():
     _warnings.simplefilter("ignore", FutureWarning)  # arviz 0.23 announces its refactor on import
@@ -239,10 +239,10 @@ def evaluate_posterior(summary: PosteriorSummary, truth, names) -> tuple[float, 
     Parameters
     ----------
     summary : the posterior summary
-    truth : :class:`~.scene.GroundTruth`
+    truth : :class:`~creference_bayes.io.scene.GroundTruth`
     names : the sampled quantities to check (those with a true value are checked)
     """
-    from .metrics import location_percentage_error
+    from ..core.metrics import location_percentage_error
 
     loc = np.array([summary.mean[k] for k in ("x", "y", "z")])
     true_loc = np.asarray(truth.location_m, float)

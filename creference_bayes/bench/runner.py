@@ -1,9 +1,7 @@
 """The benchmark (benchmark.md): the paper's method, a peer, our models and the Cramér–Rao bound,
 side by side on the same simulated scenes in one process.
 
-``creference bench [--quick|--full] [--out DIR] [--seed S]`` prints Markdown tables and writes
-``bench.json``, ``bench.md`` and PNG figures to DIR; ``creference simulate OUTDIR --n N --seed S``
-writes ``creference-scene/1`` files.
+The command line (``creference bench``, ``creference simulate``) is :mod:`creference_bayes.cli.bench`.
 
 What runs on every scene (13 target annotations and 5 references are simulated; estimators get
 the first 5 annotations, as in the paper's §7.1, and the first k references):
@@ -21,7 +19,7 @@ the first 5 annotations, as in the paper's §7.1, and the first k references):
 Plus: the same-human-time comparison (10 target annotations against 5 + 5 references, the paper's
 Analysis 2, task times 183.5 s and 64.4 s), every pair of references alone (skipped against used
 pairs, Fig. 11), and a calibration sweep of the paper model's posterior over σ (Eq. 5) and the
-temperature T. Tables: :mod:`.bench_report`; figures: :mod:`.bench_figures`.
+temperature T. Tables: :mod:`.report`; figures: :mod:`.figures`.
 """
 
 from __future__ import annotations
@@ -36,15 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .geometry import Camera
-from .metrics import location_percentage_error
-from .model import wrap_angle
-from .scene import Scene, parse_scene
+from .. import __version__
+from ..core.geometry import Camera
+from ..core.metrics import location_percentage_error
+from ..models.params import wrap_angle
+from ..io.scene import Scene, parse_scene
 from .simulate import SETTINGS, TIERS, simulate_scene
 
 __all__ = ["BenchConfig", "CONFIGS", "bench_scenes", "variant", "calibration_of", "run_bench",
-           "write_scenes", "register"]
+           "write_scenes", "plain"]
 
 BENCH_FORMAT = "creference-bench/1"
 CREDIBLE_LEVELS = (0.5, 0.9)
@@ -67,7 +65,7 @@ class BenchConfig:
     pair_scenes : scenes per tier on which every reference pair is run alone (Fig. 11)
     paper_posterior_grid : ((σ px, T), …) of the paper model's posterior in the calibration sweep
     sweep_scenes : scenes per tier in that sweep
-    sampler : emcee settings for the bench (:class:`~.sampling.SamplerSettings` options)
+    sampler : emcee settings for the bench (:class:`~creference_bayes.inference.sampling.SamplerSettings` options)
     n_target, n_target_baseline : target annotations the estimators get (5) and the baseline (10)
     """
 
@@ -169,15 +167,15 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
 
 def _estimate(scene: Scene, model: str, preset: str, seed, *, posterior: bool = False,
               temperature: float | None = None, sampling: dict | None = None, **options):
-    """The package's own :func:`~.pipeline.estimate` (MAP, and the posterior when asked)."""
-    from .pipeline import estimate
+    """The package's own :func:`~creference_bayes.pipeline.estimate` (MAP, and the posterior when asked)."""
+    from ..pipeline import estimate
 
     return estimate(scene, preset=preset, model=model, seed=seed, posterior=posterior,
                     temperature=temperature, sampling=sampling or None, **options)
 
 
 def _posterior_fields(result, truth: dict) -> dict:
-    from .summary import draws_from_inference_data
+    from ..inference.summary import draws_from_inference_data
 
     draws = {k: np.asarray(v).ravel() for k, v in draws_from_inference_data(result.inference_data).items()}
     cover, ranks = calibration_of(draws, truth)
@@ -300,7 +298,7 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
             recs.append(rec)
 
     if pairs:  # Fig. 11: each pair of references alone
-        from .metrology import aggregate_references
+        from ..core.metrology import aggregate_references
 
         for i, j in combinations(all_refs, 2):
             v = variant(scene, nt, (i, j))
@@ -350,7 +348,7 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
                               pairs=seen[tier] <= config.pair_scenes,
                               sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
                               baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
-    from .bench_report import summarise
+    from .report import summarise
 
     doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),
            "paper_temperature_override": temperature, "seconds": time.perf_counter() - t0,
@@ -362,91 +360,14 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
     return doc
 
 
-# ------------------------------------------------------------------------------------------------
-# command line
-
-
-def _run_bench_command(args) -> int:
-    from .bench_report import markdown_report
-    from .cli import UsageError
-    from .peers import INSTALL_HINT, poselib_available
-
-    config = CONFIGS["full" if args.full else "quick"]
-    if args.paper_restarts is not None:
-        if args.paper_restarts < 1:
-            raise UsageError(f"--paper-restarts: expected an integer >= 1, got {args.paper_restarts}")
-        config = replace(config, paper_restarts=args.paper_restarts)
-    if args.temperature is not None and not args.temperature > 0:
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    if not poselib_available():
-        print(f"note: p4pf skipped ({INSTALL_HINT})", file=sys.stderr)
-    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=say)
-    report = markdown_report(doc)
-    if not poselib_available():
-        report += f"\n\np4pf skipped: {INSTALL_HINT}\n"
-    (out / "bench.json").write_text(json.dumps(_plain(doc), indent=1, allow_nan=False) + "\n")
-    (out / "bench.md").write_text(report + "\n")
-    paths = []
-    if not args.no_figures:
-        from .bench_figures import write_figures
-
-        paths = write_figures(doc, out)
-    if not args.quiet:
-        print(report)
-        print(f"\nwrote {out / 'bench.json'}, {out / 'bench.md'}" + "".join(f", {p}" for p in paths))
-    return 0
-
-
-def _plain(o):
+def plain(o):
     """JSON-able copy: numpy to Python, non-finite numbers (an infinite bound) to None."""
     if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
+        return {str(k): plain(v) for k, v in o.items()}
     if isinstance(o, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in o]
+        return [plain(v) for v in o]
     if isinstance(o, np.generic):
         o = o.item()
     if isinstance(o, float) and not np.isfinite(o):
         return None
     return o
-
-
-def _run_simulate_command(args) -> int:
-    from .cli import UsageError
-
-    if args.n < 1:
-        raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
-    paths = write_scenes(args.outdir, args.n, seed=args.seed, tier=args.tier, setting=args.setting)
-    if not args.quiet:
-        print(f"wrote {len(paths)} scenes to {args.outdir}")
-    return 0
-
-
-def register(subparsers) -> None:
-    """Add ``bench`` and ``simulate`` to the ``creference`` command."""
-    p = subparsers.add_parser("bench", help="benchmark against the paper's method, P4Pf and the Cramér–Rao bound")
-    size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="CI-sized run (default; under two minutes)")
-    size.add_argument("--full", action="store_true", help="the documented run (about 25 minutes)")
-    p.add_argument("--out", default="bench_out", metavar="DIR", help="output directory (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of scenes and estimators (default: %(default)s)")
-    p.add_argument("--paper-restarts", type=int, default=None, metavar="N",
-                   help="override the paper preset's restarts (default: 200; 8 with --quick)")
-    p.add_argument("--temperature", type=float, default=None,
-                   help="posterior temperature of the paper model (default: the package's)")
-    p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    p.set_defaults(func=_run_bench_command)
-
-    p = subparsers.add_parser("simulate", help="write synthetic creference-scene/1 files with ground truth")
-    p.add_argument("outdir", metavar="OUTDIR")
-    p.add_argument("--n", type=int, required=True, help="number of scenes")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
-    p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
-                   help="noise tier, or all to cycle through them (default: %(default)s)")
-    p.add_argument("--setting", default=None, choices=list(SETTINGS),
-                   help="indoor or outdoor (default: two thirds indoor)")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    p.set_defaults(func=_run_simulate_command)

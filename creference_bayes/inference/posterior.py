@@ -2,7 +2,7 @@
 
     log p(s, µ | annotations) = −cost′(s, µ) / T + log prior(s, µ)
 
-with the prior uniform inside the model's :class:`~.model.Bounds` (so log prior is 0 inside and
+with the prior uniform inside the model's :class:`~creference_bayes.models.params.Bounds` (so log prior is 0 inside and
 −∞ outside) and T a temperature. Yaw is circular: it is never bounded here (the cost depends on
 it through sin and cos only), so a sampler may move it freely and summaries wrap it. A known focal
 length fixes µ: the posterior is then over the model's free parameters only (``model.free``).
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import PARAM_NAMES, YAW
+from ..models.params import PARAM_NAMES, YAW
 
 __all__ = ["DEFAULT_TEMPERATURE", "LogPosterior", "Laplace", "laplace_scales"]
 
@@ -43,7 +43,7 @@ class LogPosterior:
     Parameters
     ----------
     model : a model with ``cost((n, 5)) → (n,)``, ``bounds``, ``free`` and ``expand`` (for
-        example :class:`~.model.PaperModel`)
+        example :class:`~creference_bayes.models.paper.PaperModel`)
     temperature : T > 0; larger T widens the posterior
 
     Calling it with an (n, n_free) array returns the (n,) log-densities (unnormalised).

@@ -1,48 +1,23 @@
-"""The ``creference`` command.
-
-Sub-commands register themselves: each module named in :data:`_COMMAND_MODULES` has a
-``register(subparsers)`` that adds its parser and sets ``func`` (a callable taking the parsed
-arguments and returning an exit status). Invalid input exits with status 2 and a one-line message
-on standard error, without a traceback.
-"""
+"""``creference estimate SCENE.json`` and ``creference demo``: one scene's target, a table, a result file."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import sys
-import warnings
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .optimize import PRESETS
-from .pipeline import DEFAULT_MODEL, MODELS
-from .scene import SceneError, SceneWarning
+from ..inference.optimize import PRESETS
+from ..pipeline import DEFAULT_MODEL, MODELS
+from .main import UsageError, example_scene_path
 
-__all__ = ["main", "example_scene_path", "format_table"]
-
-#: Modules that add sub-commands besides ``estimate`` and ``demo``.
-_COMMAND_MODULES: list[str] = ["creference_bayes.bench", "creference_bayes.cli_plot"]
-
-EXIT_INVALID = 2
-
-
-class UsageError(Exception):
-    """A problem with what the user asked for; reported in one line with exit status 2."""
-
-
-def example_scene_path() -> Path:
-    """Path of the example scene shipped with the package."""
-    return Path(str(resources.files("creference_bayes") / "data" / "example_scene.json"))
+__all__ = ["register", "format_table"]
 
 
 def format_table(result, truth=None) -> str:
     """A plain-text table of a :class:`~creference_bayes.result.Result`."""
-    from .model import PARAM_NAMES, PARAM_UNITS
+    from ..models.params import PARAM_NAMES, PARAM_UNITS
 
     d = result.to_dict()
     post = d.get("posterior")
@@ -87,8 +62,8 @@ def _truth_dict(scene):
 
 
 def _run_estimate(args) -> int:
-    from .pipeline import estimate
-    from .scene import load_scene
+    from ..io.scene import load_scene
+    from ..pipeline import estimate
 
     scene = load_scene(args.scene)
     for w in scene.warnings:
@@ -197,45 +172,12 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="creference",
-        description="3D location of a target object from crowd annotations on one photo (C-Reference).")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    p = sub.add_parser("estimate", help="estimate the target of a scene file")
+def register(subparsers) -> None:
+    """Add ``estimate`` and ``demo`` to the ``creference`` command."""
+    p = subparsers.add_parser("estimate", help="estimate the target of a scene file")
     p.add_argument("scene", metavar="SCENE.json")
     _add_estimate_options(p)
     p.set_defaults(func=_run_estimate)
-    p = sub.add_parser("demo", help="estimate the example scene shipped with the package")
+    p = subparsers.add_parser("demo", help="estimate the example scene shipped with the package")
     _add_estimate_options(p)
     p.set_defaults(func=_run_demo)
-    for name in _COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)  # reported through scene.warnings
-            return int(args.func(args) or 0)
-    except (SceneError, UsageError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INVALID
-    except FileNotFoundError as exc:
-        print(f"error: {exc.filename}: no such file", file=sys.stderr)
-        return EXIT_INVALID
-    except OSError as exc:  # a directory, no permission, …: the user's input, not a bug
-        print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_INVALID
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

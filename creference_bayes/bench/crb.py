@@ -6,7 +6,7 @@ covariance is at least F⁻¹, F the Fisher information of the annotations at th
 - target annotations: each of n annotations observes the four projected corners C_µ(x_s) with
   independent Gaussian noise σ_t per pixel coordinate, so F_t = (n / σ_t²) Σᵢ Jᵢᵀ Jᵢ, Jᵢ the
   (2, 5) Jacobian of corner i's projection (central differences; the projection is smooth);
-- references (the metrology model's view, :mod:`~.model_metrology`): each reference measures its
+- references (the metrology model's view, :mod:`~creference_bayes.models.metrology`): each reference measures its
   segment's real length ℓ_j(µ, h) = h·g_j(µ). A worker's log-error ε with log-sd σ_m and the
   endpoints' pixel noise σ_r (propagated to log ℓ_j to first order) give, for the linearised
   Gaussian model, F_r = Σ_j ∇log ℓ_j ∇log ℓ_jᵀ / (σ_m² + σ_line,j²). For the heavy-tailed
@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import Camera, box_points, dimension_corners
-from .model import FOCAL, PARAM_NAMES
-from .model_metrology import ground_lengths
+from ..core.geometry import Camera, box_points, dimension_corners
+from ..models.params import FOCAL, PARAM_NAMES
+from ..models.metrology import ground_lengths
 
 __all__ = ["CramerRao", "projection_jacobian", "log_length_gradient", "line_log_sd",
            "measurement_log_sd", "cramer_rao", "cramer_rao_scene"]

@@ -27,8 +27,8 @@ def register(subparsers) -> None:
 
 
 def _find_scene(result: dict, result_path: Path, explicit: str | None):
-    from .cli import UsageError
-    from .scene import load_scene
+    from .main import UsageError
+    from ..io.scene import load_scene
 
     if explicit:
         return load_scene(explicit)
@@ -48,9 +48,9 @@ def _run(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from . import plotting
-    from .cli import UsageError
-    from .result import load_result_dict
+    from ..vision import plotting
+    from .main import UsageError
+    from ..io.result import load_result_dict
 
     path = Path(args.result)
     try:
@@ -87,7 +87,7 @@ def _load_netcdf(result: dict, result_path: Path):
         return None
     for p in (Path(name), result_path.parent / Path(name).name):
         if p.is_file():
-            from .summary import az
+            from ..inference.summary import az
 
             return az.from_netcdf(p)
     return None

@@ -22,49 +22,21 @@ Presets
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import basinhopping, least_squares, minimize
 
-from .geometry import box_points, yaw_matrix
-from .model import FOCAL, PARAM_NAMES, YAW, Bounds, wrap_angle
+from ..core.geometry import box_points, yaw_matrix
+from ..io.result import MapEstimate
+from ..models.params import FOCAL, YAW, Bounds, wrap_angle
 
-__all__ = ["PRESETS", "MapEstimate", "optimize_map", "theta_scan", "preset_bounds"]
+__all__ = ["PRESETS", "optimize_map", "theta_scan", "preset_bounds"]
 
 PRESETS = ("default", "paper", "paper-controlled")
 _PAPER_RESTARTS = {"paper": 200, "paper-controlled": 100}
 #: Typical magnitude of each parameter, used to scale the optimiser's variables.
 _SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1000.0])
-
-
-@dataclass(frozen=True)
-class MapEstimate:
-    """The optimum of a model's cost.
-
-    Attributes
-    ----------
-    params : (5,) x, y, z (m), yaw (rad, wrapped to [−π, π)), focal length (px)
-    handedness : +1 or −1, the dimension-line handedness that fits best
-    cost : the model's cost at ``params``
-    preset : the optimiser preset used
-    seconds : wall time of the optimisation
-    n_evaluations : number of cost evaluations (vectorised batches count their rows)
-    info : what happened, per handedness (a plain dict)
-    """
-
-    params: np.ndarray
-    handedness: int
-    cost: float
-    preset: str
-    seconds: float
-    n_evaluations: int
-    info: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        """``{"x": …, "y": …, "z": …, "yaw": …, "focal_length_px": …}`` (formats.md ``map``)."""
-        return {k: float(v) for k, v in zip(PARAM_NAMES, self.params)}
 
 
 def preset_bounds(preset: str, image_width: int, image_height: int) -> Bounds:
@@ -308,6 +280,6 @@ def _refine(model, counter: _Counter, x0: np.ndarray) -> np.ndarray:
 
 
 def _reprojection(model, full: np.ndarray):
-    from .cost import reprojection_residuals
+    from ..core.cost import reprojection_residuals
 
     return reprojection_residuals(full, model.observed, model.obj_corners, model.camera)

@@ -9,11 +9,39 @@ from typing import Any
 
 import numpy as np
 
-from .optimize import MapEstimate
+from ..models.params import PARAM_NAMES
 
-__all__ = ["RESULT_FORMAT", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
+__all__ = ["RESULT_FORMAT", "MapEstimate", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
 
 RESULT_FORMAT = "creference-result/1"
+
+
+@dataclass(frozen=True)
+class MapEstimate:
+    """The optimum of a model's cost.
+
+    Attributes
+    ----------
+    params : (5,) x, y, z (m), yaw (rad, wrapped to [−π, π)), focal length (px)
+    handedness : +1 or −1, the dimension-line handedness that fits best
+    cost : the model's cost at ``params``
+    preset : the optimiser preset used
+    seconds : wall time of the optimisation
+    n_evaluations : number of cost evaluations (vectorised batches count their rows)
+    info : what happened, per handedness (a plain dict)
+    """
+
+    params: np.ndarray
+    handedness: int
+    cost: float
+    preset: str
+    seconds: float
+    n_evaluations: int
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """``{"x": …, "y": …, "z": …, "yaw": …, "focal_length_px": …}`` (formats.md ``map``)."""
+        return {k: float(v) for k, v in zip(PARAM_NAMES, self.params)}
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ def _plt():
 
 def error_by_tier(doc: dict, fig=None):
     """Median location error per tier and estimator (bars: interquartile range), log scale."""
-    from .bench_report import _sel, estimator_rows
+    from .report import _sel, estimator_rows
 
     plt = _plt()
     fig = fig or plt.figure(figsize=(11, 5.5))

@@ -46,10 +46,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import stdtr
 
-from .cost import BEHIND_CAMERA_PENALTY
-from .geometry import Camera, box_points, dimension_corners, project
-from .metrology import GroundFrame
-from .model import FOCAL, Bounds, FreeParameters
+from ..core.cost import BEHIND_CAMERA_PENALTY
+from ..core.geometry import Camera, box_points, dimension_corners, project
+from ..core.metrology import GroundFrame
+from .params import FOCAL, Bounds, FreeParameters
 
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .units import UNITS_TO_M
+from ..core.units import UNITS_TO_M
 
 __all__ = [
     "SCENE_FORMAT",

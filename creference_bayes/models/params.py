@@ -1,36 +1,23 @@
-"""Parameter space and the paper's model: the cost over (x, y, z, yaw, µ) for one handedness.
+"""The parameter space shared by the models: names, units, box bounds, free/fixed handling.
 
 A *model* is what the optimiser and the sampler see: a vectorised ``cost(params)`` over full
 parameter vectors of shape (n, 5), the box :class:`Bounds`, and which parameters are free (µ is
-fixed when the scene gives the focal length). Other models (the metrology likelihood) provide the
-same attributes.
+fixed when the scene gives the focal length).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .cost import PAPER_SIGMA_PX, SoftConstraints, soft_constraint_cost, target_cost
-from .geometry import Camera, dimension_corners
-
-__all__ = ["PARAM_NAMES", "PARAM_UNITS", "CALIBRATED_SIGMA_PX", "CALIBRATED_TEMPERATURE", "Bounds",
-           "FreeParameters", "PaperModel", "wrap_angle"]
+__all__ = ["PARAM_NAMES", "PARAM_UNITS", "YAW", "FOCAL", "Bounds", "FreeParameters", "wrap_angle"]
 
 #: Order of the parameter vector.
 PARAM_NAMES = ("x", "y", "z", "yaw", "focal_length_px")
 PARAM_UNITS = ("m", "m", "m", "rad", "px")
 YAW = 3
 FOCAL = 4
-
-#: σ (pixels) and temperature T of the paper model's posterior with the ``default`` preset.
-#: With the paper's σ = 100 px no temperature calibrates it (best: 62 % of true distances inside
-#: the 90 % region, at T = 1); σ = 2 px, T = 3 gives 79–92 % inside the 90 % regions and 54–58 %
-#: inside the 50 % ones, with the MAP's error unchanged (docs/benchmark_results.md, calibration
-#: sweep). The ``paper`` presets keep the paper's σ = 100 px and T = 1.
-CALIBRATED_SIGMA_PX = 2.0
-CALIBRATED_TEMPERATURE = 3.0
 
 
 def wrap_angle(theta):
@@ -109,52 +96,3 @@ class FreeParameters:
         full = np.tile(self.bounds.lower, (len(free_params), 1))
         full[:, self.free] = free_params
         return full
-
-
-@dataclass
-class PaperModel(FreeParameters):
-    """The paper's cost′ (Eq. 5 plus Eq. 10–11) for one handedness of the dimension lines.
-
-    Parameters
-    ----------
-    camera : Camera
-    observed : (4, 2) corners t1..t4 in pixels (the per-corner median of the annotations)
-    dimensions : (length, width, height) of the target, metres
-    handedness : +1 or −1 (see :func:`~.geometry.dimension_corners`)
-    bounds : Bounds; µ is fixed when ``camera.focal_length_px`` is known
-    sigma : σ of Eq. 5, pixels
-    constraints : soft constraints from the references, or None
-    default_temperature : the posterior's temperature when the caller gives none
-    """
-
-    camera: Camera
-    observed: np.ndarray
-    dimensions: tuple[float, float, float]
-    handedness: int
-    bounds: Bounds
-    sigma: float = PAPER_SIGMA_PX
-    constraints: SoftConstraints | None = None
-    default_temperature: float = 1.0
-    name: str = field(default="paper", init=False)
-
-    def __post_init__(self):
-        self.obj_corners = dimension_corners(*self.dimensions, self.handedness)
-        if self.camera.focal_length_px is not None:
-            self.bounds = self.bounds.with_fixed(FOCAL, self.camera.focal_length_px)
-        self.free = self.bounds.lower < self.bounds.upper
-
-    @classmethod
-    def from_scene(cls, scene, handedness: int, *, bounds: Bounds | None = None,
-                   sigma: float = PAPER_SIGMA_PX, constraints: SoftConstraints | None = None,
-                   camera: Camera | None = None, default_temperature: float = 1.0) -> "PaperModel":
-        t = scene.target
-        return cls(camera=camera or Camera.from_scene(scene), observed=t.median_corners,
-                   dimensions=(t.length, t.width, t.height), handedness=handedness,
-                   bounds=bounds or Bounds.default(scene.image_width, scene.image_height),
-                   sigma=sigma, constraints=constraints, default_temperature=default_temperature)
-
-    def cost(self, params: np.ndarray) -> np.ndarray:
-        """cost′ for (n, 5) parameter vectors, shape (n,)."""
-        params = np.atleast_2d(np.asarray(params, float))
-        return (target_cost(params, self.observed, self.obj_corners, self.camera, self.sigma)
-                + soft_constraint_cost(params, self.constraints))

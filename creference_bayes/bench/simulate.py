@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import (box_points, box_vertices, dimension_corners, horizon_from_rotation,
-                       project, rotation_from_pitch_roll)
-from .scene import SCENE_FORMAT
-from .units import UNITS_TO_M
+from ..core.geometry import (box_points, box_vertices, dimension_corners, horizon_from_rotation,
+                             project, rotation_from_pitch_roll)
+from ..io.scene import SCENE_FORMAT
+from ..core.units import UNITS_TO_M
 
 __all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION",
            "simulate_scene", "measurement_factor"]
@@ -291,7 +291,7 @@ def _sig(x: float, digits: int = 4) -> float:
 
 def _backproject(R, f, pp, h, uv):
     """Ground point (Y = h) seen at pixel ``uv`` by a camera with rotation R (a bare R, no horizon
-    line, so :meth:`~.geometry.Camera.backproject_to_ground` does not apply)."""
+    line, so :meth:`~creference_bayes.core.geometry.Camera.backproject_to_ground` does not apply)."""
     d = np.array([(uv[0] - pp[0]) / f, (uv[1] - pp[1]) / f, 1.0]) @ R
     return d * (h / d[1])
 

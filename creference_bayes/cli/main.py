@@ -1,0 +1,73 @@
+"""The ``creference`` command: the parser, the error handling and the shared helpers.
+
+Sub-commands register themselves: each module named in :data:`COMMAND_MODULES` has a
+``register(subparsers)`` that adds its parser and sets ``func`` (a callable taking the parsed
+arguments and returning an exit status). Invalid input exits with status 2 and a one-line message
+on standard error, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+from importlib import resources
+from pathlib import Path
+
+from .. import __version__
+from ..io.scene import SceneError, SceneWarning
+
+__all__ = ["main", "build_parser", "example_scene_path", "UsageError", "EXIT_INVALID"]
+
+#: Modules that add sub-commands, in the order of the help text.
+COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes.cli.plot",
+                              "creference_bayes.cli.bench"]
+
+EXIT_INVALID = 2
+
+
+class UsageError(Exception):
+    """A problem with what the user asked for; reported in one line with exit status 2."""
+
+
+def example_scene_path() -> Path:
+    """Path of the example scene shipped with the package."""
+    return Path(str(resources.files("creference_bayes") / "data" / "example_scene.json"))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="creference",
+        description="3D location of a target object from crowd annotations on one photo (C-Reference).")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)  # reported through scene.warnings
+            return int(args.func(args) or 0)
+    except (SceneError, UsageError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_INVALID
+    except OSError as exc:  # a directory, no permission, …: the user's input, not a bug
+        print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_INVALID
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

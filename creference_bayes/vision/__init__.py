@@ -1,0 +1,2 @@
+"""Adapters to image libraries: the horizon from an image (OpenCV) and the figures (matplotlib).
+"""

@@ -1,0 +1,93 @@
+"""The package's architecture: folders by concern, imports only downwards, a pure numerical core."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "creference_bayes"
+
+#: Each folder (or top-level module) may import only from its own rank or below.
+LAYERS = {"core": 0, "models": 1, "io": 2, "inference": 3, "vision": 4, "pipeline": 5,
+          "bench": 6, "workflows": 7, "cli": 8}
+HEAVY = ("cv2", "emcee", "arviz", "matplotlib", "dask", "poselib", "shapely", "PIL", "tqdm")
+STDLIB = set(sys.stdlib_module_names)
+
+
+def _modules():
+    for path in sorted(PKG.rglob("*.py")):
+        rel = path.relative_to(PKG)
+        if rel.parts[0] in ("__init__.py", "__main__.py"):
+            continue  # the public API and the entry point re-export from everywhere
+        yield path, rel
+
+
+def _layer(rel: Path) -> str:
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+def _imports(path: Path, rel: Path):
+    """(absolute module name, line) of every import in ``path``, relative ones resolved."""
+    package = ["creference_bayes", *rel.parts[:-1]]
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[:len(package) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+                if node.module is None:  # from .. import x: x may be a module
+                    for a in node.names:
+                        yield f"{mod}.{a.name}", node.lineno
+                    continue
+                yield mod, node.lineno
+            else:
+                yield node.module, node.lineno
+
+
+def test_every_module_is_in_a_known_folder():
+    unknown = {_layer(rel) for _, rel in _modules()} - set(LAYERS)
+    assert not unknown, f"modules outside the layout: {sorted(unknown)}"
+
+
+def test_no_module_imports_a_folder_above_it():
+    violations = []
+    for path, rel in _modules():
+        here = LAYERS[_layer(rel)]
+        for mod, line in _imports(path, rel):
+            parts = mod.split(".")
+            if parts[0] != "creference_bayes" or len(parts) < 2 or parts[1] not in LAYERS:
+                continue
+            if LAYERS[parts[1]] > here:
+                violations.append(f"{rel}:{line} imports {mod}")
+    assert not violations, "imports running upwards:\n" + "\n".join(violations)
+
+
+@pytest.mark.parametrize("folder", ["core", "models"])
+def test_core_and_models_import_numpy_scipy_and_the_standard_library_only(folder):
+    allowed = STDLIB | {"numpy", "scipy", "creference_bayes"}
+    bad = []
+    for path, rel in _modules():
+        if rel.parts[0] != folder:
+            continue
+        for mod, line in _imports(path, rel):
+            top = mod.split(".")[0]
+            if top not in allowed:
+                bad.append(f"{rel}:{line} imports {mod}")
+            elif top == "creference_bayes" and mod.split(".")[1] not in ("core", "models"):
+                bad.append(f"{rel}:{line} imports {mod}")
+    assert not bad, "\n".join(bad)
+
+
+def test_importing_core_and_models_loads_no_heavy_library():
+    code = ("import sys, pkgutil, importlib, creference_bayes.core as c, creference_bayes.models as m\n"
+            "for pkg in (c, m):\n"
+            "    for info in pkgutil.iter_modules(pkg.__path__):\n"
+            "        importlib.import_module(f'{pkg.__name__}.{info.name}')\n"
+            f"print(','.join(x for x in {HEAVY!r} if x in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "", f"loaded by importing core and models: {proc.stdout.strip()}"
