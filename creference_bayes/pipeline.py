@@ -17,7 +17,7 @@ from .core.metrics import location_percentage_error
 from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
-from .io.scene import Scene, load_scene
+from .io.scene import Scene, load_scene, scene_fingerprint
 
 __all__ = ["MODELS", "estimate", "build_models"]
 
@@ -126,7 +126,9 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
                   scene=scene.source.name if scene.source else None, evaluation=evaluation,
                   warnings=tuple(warnings), posterior=post, diagnostics=diag,
                   inference_data=idata, references=references,
-                  extra={} if horizon_estimate is None else {"horizon_estimate": horizon_estimate.to_dict()})
+                  extra={} if horizon_estimate is None else {"horizon_estimate": horizon_estimate.to_dict()},
+                  scene_id={"target": scene.target.id, "image_size": [scene.image_width, scene.image_height],
+                            "sha256": scene_fingerprint(scene)})
 
 
 def _camera_step(scene: Scene):

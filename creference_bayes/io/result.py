@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..models.params import PARAM_NAMES
+from .files import atomic_write_text
 
 __all__ = ["RESULT_FORMAT", "MapEstimate", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
 
@@ -173,6 +174,8 @@ class Result:
     evaluation : comparison with ground truth, or None
     warnings : what the user should know (assumed level camera, not converged, …)
     extra : anything else worth keeping in the JSON (keys are added, never renamed)
+    scene_id : what identifies the scene the result came from: ``target`` (its id),
+        ``image_size`` ([width, height], pixels) and ``sha256`` (:func:`~.scene.scene_fingerprint`)
     """
 
     target: str
@@ -186,6 +189,7 @@ class Result:
     evaluation: Evaluation | None = None
     warnings: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+    scene_id: dict | None = None
     #: the full posterior as an ``arviz.InferenceData`` (not in the JSON; see ``--netcdf``)
     inference_data: Any = field(default=None, repr=False, compare=False)
 
@@ -194,6 +198,8 @@ class Result:
         d: dict[str, Any] = {"format": RESULT_FORMAT, "scene": self.scene, "target": self.target,
                              "model": self.model, "preset": self.preset, "map": self.map.to_dict(),
                              "handedness": self.map.handedness}
+        if self.scene_id is not None:
+            d["scene_id"] = dict(self.scene_id)
         if self.posterior is not None:
             d["posterior"] = _plain(self.posterior.to_dict() if hasattr(self.posterior, "to_dict") else self.posterior)
         if self.diagnostics is not None:
@@ -213,7 +219,7 @@ class Result:
         """Serialise; write to ``path`` when given. Returns the JSON text."""
         text = json.dumps(self.to_dict(), indent=indent, allow_nan=False)
         if path is not None:
-            Path(path).write_text(text + "\n")
+            atomic_write_text(path, text + "\n")
         return text
 
     @property

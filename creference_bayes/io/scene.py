@@ -15,6 +15,7 @@ image sizes and the horizon no steeper than 45°; the known ground-truth extras
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import warnings
@@ -38,6 +39,7 @@ __all__ = [
     "load_scene",
     "parse_scene",
     "scene_to_dict",
+    "scene_fingerprint",
 ]
 
 SCENE_FORMAT = "creference-scene/1"
@@ -582,3 +584,15 @@ def _reference_to_dict(r: Reference) -> dict:
         if value is not None:
             d[key] = value
     return d
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """SHA-256 (hex) of the scene's content: its canonical ``creference-scene/1`` form.
+
+    Two scenes with the same annotations, camera, horizon, references and ground truth have the
+    same fingerprint, whatever the key order, whitespace or file name of their files; any change
+    of a value changes it. Results record it (``scene_id.sha256``) so that a result can be checked
+    against a scene, and a batch run can tell whether a scene changed since its result was made.
+    """
+    text = json.dumps(scene_to_dict(scene), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
