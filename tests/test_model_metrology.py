@@ -87,13 +87,19 @@ def test_reference_terms_against_scipy_student_t():
     assert np.exp(grid._log_w).sum() == pytest.approx(1.0)
 
 
-def test_closed_form_t2_cdf_matches_scipy():
-    from creference_bayes.models.metrology import _t_cdf
+def test_closed_form_t2_interval_matches_scipy_far_into_the_tails():
+    from creference_bayes.models.metrology import _t_interval
 
-    x = np.concatenate([-np.logspace(-3, 6, 50), [0.0], np.logspace(-3, 6, 50)])
-    np.testing.assert_allclose(_t_cdf(2.0, x), stats.t(2).cdf(x), rtol=1e-10, atol=1e-300)
-    np.testing.assert_allclose(_t_cdf(2.0, -x[x > 0]), stats.t(2).sf(x[x > 0]), rtol=1e-10)
-    np.testing.assert_allclose(_t_cdf(3.0, x), stats.t(3).cdf(x), rtol=1e-10)
+    rng = np.random.default_rng(0)
+    lo = -np.exp(rng.uniform(-5, 14, 2000))
+    hi = lo + np.exp(rng.uniform(-6, 15, 2000))
+    keep = lo + hi <= 0  # the callers' convention (they flip intervals into the lower half)
+    lo, hi = lo[keep], hi[keep]
+    t2 = stats.t(2)
+    want = np.where(hi <= 0, t2.sf(-hi) - t2.sf(-lo), t2.cdf(hi) - t2.cdf(lo))
+    np.testing.assert_allclose(_t_interval(2.0, lo, hi), want, rtol=1e-6)  # both lose digits to cancellation
+    np.testing.assert_allclose(_t_interval(3.0, lo, hi), stats.t(3).cdf(hi) - stats.t(3).cdf(lo), rtol=1e-8,
+                               atol=1e-15)
 
 
 def test_crowd_scale_adapts_to_the_references():

@@ -90,7 +90,7 @@ DEFAULT_TARGET_SIGMA_PX = 5.0
 REF_SCALE = 0.75
 REF_DOF = 2.0
 #: The grid over which the crowd's error scale s is integrated out, and its prior (log-normal).
-REF_SCALE_GRID = np.geomspace(0.005, 3.0, 16)
+REF_SCALE_GRID = np.geomspace(0.005, 3.0, 10)
 REF_SCALE_MEDIAN = 0.5
 REF_SCALE_LOG_SD = 1.0
 #: Pixel noise of a reference's endpoints, as a multiple of the target's corner scale σ.
@@ -215,6 +215,8 @@ class MetrologyModel(FreeParameters):
     orientation_free: bool = False
     camera_terms: CameraTerms = field(default_factory=CameraTerms)
     name: str = field(default="metrology", init=False)
+    #: The cost is smooth (no kinks): the optimiser may use Newton steps on it.
+    smooth: bool = field(default=True, init=False)
     #: The posterior's temperature for this model (the pipeline uses it when none is given).
     default_temperature: float = field(default=DEFAULT_TEMPERATURE, init=False)
 
@@ -271,8 +273,16 @@ class MetrologyModel(FreeParameters):
         self._log_low = np.log([r.low for r in usable])
         self._log_high = np.log([r.high for r in usable])
         self._is_range = np.array([r.is_range for r in usable], bool)
-        self._line_var = np.zeros(len(usable))  # σ_line² |∇ log ℓ_j|², set at the pilot
+        self._single, self._range = np.flatnonzero(~self._is_range), np.flatnonzero(self._is_range)
         self.pilot = None
+        self._set_line_var(np.zeros(len(usable)))
+
+    def _set_line_var(self, line_var: np.ndarray) -> None:
+        """σ_line² |∇ log ℓ_j|² per reference, and what the likelihood precomputes from it."""
+        self._line_var = line_var
+        scales = self.reference_scales  # (m, K)
+        self._inv_scales = 1.0 / scales
+        self._log_scale_sum = np.log(scales[self._single]).sum(axis=0)  # the singles' normalisers
 
     def set_pilot(self, full: np.ndarray) -> None:
         """Fix each reference's scale s_j at the (7,) parameter vector ``full`` (module docstring).
@@ -291,7 +301,7 @@ class MetrologyModel(FreeParameters):
         plus, minus = log_len.reshape(2, 4, m)
         grad2 = np.sum(((plus - minus) / (2 * _LINE_STEP_PX)) ** 2, axis=0)
         line_var = self.ref_line_sigma**2 * grad2
-        self._line_var = np.where(np.isfinite(line_var), line_var, 0.0)
+        self._set_line_var(np.where(np.isfinite(line_var), line_var, 0.0))
 
     @property
     def reference_scales(self) -> np.ndarray:
@@ -366,7 +376,12 @@ class MetrologyModel(FreeParameters):
 
     def _reference_nll(self, log_len: np.ndarray) -> np.ndarray:
         """−log Σ_k w_k Π_j p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n,)."""
-        out = -np.logaddexp.reduce(self._log_w - self._reference_terms(log_len), axis=1)
+        per_k = self._log_w - self._reference_terms(log_len)  # (n, K)
+        top = per_k.max(axis=1)
+        with np.errstate(invalid="ignore"):
+            # clipped at −600: smaller terms add nothing, and exp into subnormals is slow
+            rel = np.maximum(per_k - top[:, None], -600.0)
+            out = -(top + np.log(np.exp(rel).sum(axis=1)))
         return np.where(np.isfinite(out), out, 1e300)
 
     def _reference_terms(self, log_len: np.ndarray) -> np.ndarray:
@@ -374,30 +389,33 @@ class MetrologyModel(FreeParameters):
 
         Singles: −log of the t density in log-length (its ν-only constant dropped); ranges: −log of
         the t probability of the stated interval. The scales s_jk are fixed (the grid and the
-        pilot's line noise), so the normalisers log s_jk depend on k only.
+        pilot's line noise), so the normalisers log s_jk depend on k only and are precomputed.
         """
         nu = self.ref_dof
-        s = self.reference_scales[None]  # (1, m, K)
-        out = np.zeros((len(log_len), s.shape[2]))
-        single = ~self._is_range
-        if single.any():
-            z = (self._log_low[single, None] - log_len[:, single, None]) / s[:, single]
-            out += np.sum(0.5 * (nu + 1.0) * np.log1p(z**2 / nu) + np.log(s[:, single]), axis=1)
-        if self._is_range.any():
-            r = self._is_range
-            a = (self._log_low[r, None] - log_len[:, r, None]) / s[:, r]
-            b = (self._log_high[r, None] - log_len[:, r, None]) / s[:, r]
+        inv = self._inv_scales  # (m, K)
+        out = np.broadcast_to(self._log_scale_sum, (len(log_len), inv.shape[1])).copy()
+        single = self._single
+        if single.size:
+            z = (self._log_low[single, None] - log_len[:, single, None]) * inv[single]
+            out += (0.5 * (nu + 1.0)) * np.log1p(z * z * (1.0 / nu)).sum(axis=1)
+        r = self._range
+        if r.size:
+            a = (self._log_low[r, None] - log_len[:, r, None]) * inv[r]
+            b = (self._log_high[r, None] - log_len[:, r, None]) * inv[r]
             flip = (a + b) > 0  # use the lower tail for accuracy: T(b) − T(a) = T(−a) − T(−b)
             lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
-            p = _t_cdf(nu, hi) - _t_cdf(nu, lo)
-            out -= np.sum(np.log(np.maximum(p, 1e-300)), axis=1)
+            p = _t_interval(nu, lo, hi)
+            out -= np.log(np.maximum(p, 1e-300)).sum(axis=1)
         return out
 
 
-def _t_cdf(nu: float, x: np.ndarray) -> np.ndarray:
-    """Student-t CDF; for ν = 2 in closed form, F(x) = 1/(r(r − x)) for x < 0, r = √(x² + 2)
-    (accurate in the lower tail, where the callers evaluate it), else scipy's ``stdtr``."""
+def _t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """T_ν(hi) − T_ν(lo) for lo ≤ hi and lo + hi ≤ 0 (so lo ≤ 0): in closed form for ν = 2,
+    through the lower tail G(x) = T₂(x) = 1/(r(r − x)), r = √(x² + 2), x ≤ 0, which keeps full
+    relative precision far out in the tail; scipy's ``stdtr`` otherwise."""
     if nu != 2.0:
-        return stdtr(nu, x)
-    r = np.sqrt(x * x + 2.0)
-    return np.where(x < 0, 1.0 / (r * (r - x)), 1.0 - 1.0 / (r * (r + x)))
+        return stdtr(nu, hi) - stdtr(nu, lo)
+    ah = -np.abs(hi)
+    rh, rl = np.sqrt(ah * ah + 2.0), np.sqrt(lo * lo + 2.0)
+    g_hi, g_lo = 1.0 / (rh * (rh - ah)), 1.0 / (rl * (rl - lo))
+    return np.where(hi <= 0, g_hi, 1.0 - g_hi) - g_lo
