@@ -29,7 +29,7 @@ from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, Impor
                                TargetScene, apply_target_table, checked_scene, fmt_number,
                                mean_horizon, number_field, reference_from_fields,
                                relative_image_path, safe_name, unique_names)
-from .scene import SCENE_FORMAT, Scene, parse_scene, scene_to_dict
+from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
@@ -187,6 +187,7 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
                                          "and others have none")
         horizon = (mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
                    if shapes[HORIZON] else None)
+        refs_of = {key: [s for s in shapes[REFERENCE] if _belongs(s, key, groups)] for key in groups}
     except ConversionError as exc:
         return [], [exc]
 
@@ -196,7 +197,7 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
         tid = key or stem
         twhere = where if key == "" else f"{where}, target {tid!r}"
         try:
-            refs = [s for s in shapes[REFERENCE] if _belongs(s, key, groups)]
+            refs = refs_of[key]
             scene = _target_scene(tid, tshapes, refs, horizon, width, height, twhere, targets)
             if image_dir is not None:
                 scene["image"]["path"] = relative_image_path(Path(image_dir) / name, out_dir)
