@@ -357,3 +357,12 @@ def test_cli_needs_an_export_and_an_output_folder(tmp_path, capsys):
     assert main(["import", "label-studio", str(EXPORT)]) == 2
     err = capsys.readouterr().err
     assert "give the export file" in err and "--out DIR is required" in err
+
+
+def test_vertices_without_ids_keep_their_list_order():
+    # Label Studio's SDK writes vertices with "id": null and "prevPointId": null
+    t = _export()[1]
+    for v in t["completions"][0]["result"][4]["value"]["vertices"]:
+        v["id"] = v["prevPointId"] = None
+    (s,) = scenes_from_label_studio([t]).scenes
+    assert np.allclose(s.scene["references"][0]["line"], [[400, 999], [500, 750]])

@@ -76,15 +76,18 @@ def _vertices(value: dict, where: str) -> list:
     verts = value.get("vertices")
     if not isinstance(verts, list) or not all(isinstance(v, dict) for v in verts):
         raise ConversionError(where, f"expected a list of vertices, got {verts!r}"[:120])
-    if verts and all("prevPointId" in v and "id" in v for v in verts):
-        nxt = {v["prevPointId"]: v for v in verts}
-        chain, cur = [], nxt.get(None)
-        while cur is not None and len(chain) <= len(verts):
+    ids = [v.get("id") for v in verts]
+    if all(isinstance(i, str) for i in ids) and len(set(ids)) == len(ids):
+        nxt: dict = {}
+        for v in verts:
+            nxt.setdefault(v.get("prevPointId"), []).append(v)
+        chain, cur = [], nxt.get(None, [None])[0]
+        while cur is not None and len(chain) < len(verts):
             chain.append(cur)
-            cur = nxt.get(cur["id"])
-        if len(chain) == len(verts):
+            cur = (nxt.get(cur["id"]) or [None])[0]
+        if len(chain) == len(verts) and len(nxt.get(None, [])) == 1:
             return chain
-    return verts
+    return verts  # no usable chain (e.g. the SDK writes null ids): the list order
 
 
 def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationItems:
