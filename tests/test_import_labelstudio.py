@@ -96,6 +96,13 @@ def test_image_dir_sets_a_path_relative_to_the_output_folder(tmp_path):
     scenes = {s.name: s.scene for s in report.scenes}
     assert scenes["cupboard"]["image"]["path"] == "../photos/ab12cd34-room.jpg"
     assert scenes["table"]["image"]["path"] == "../photos/street.png"
+    tasks = _export()
+    tasks[0]["data"]["image"] = "/data/local-files/?d=shoots/day%201/room.jpg"
+    tasks[1]["data"]["image_path"] = "given/as/is.png"
+    report = scenes_from_label_studio(tasks, image_dir=images, out_dir=tmp_path / "out")
+    scenes = {s.name: s.scene for s in report.scenes}
+    assert scenes["cupboard"]["image"]["path"] == "../photos/room.jpg"
+    assert scenes["table"]["image"]["path"] == "given/as/is.png"
 
 
 def test_users_file_names_the_workers(tmp_path):

@@ -20,7 +20,7 @@ import json
 from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any
-from urllib.parse import unquote, urlparse
+from urllib.parse import parse_qs, unquote, urlparse
 
 from .annotation_tools import (ConversionError, ImportReport, TargetScene, apply_target_table,
                                checked_scene, mean_horizon, number_field, reference_from_fields,
@@ -266,7 +266,9 @@ def _image_path(data: dict, image_dir, out_dir, where: str) -> str | None:
     url = data.get("image")
     if image_dir is None or not isinstance(url, str) or not url:
         return None
-    name = PurePosixPath(unquote(urlparse(url).path)).name
+    parsed = urlparse(url)
+    local = parse_qs(parsed.query).get("d")  # Label Studio's local files: /data/local-files/?d=dir/a.jpg
+    name = PurePosixPath(unquote(local[0] if local else parsed.path)).name
     if not name:
         raise ConversionError(where, f"no file name in data.image {url!r}")
     return relative_image_path(Path(image_dir) / name, out_dir)
