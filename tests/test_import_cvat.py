@@ -26,7 +26,7 @@ def _convert(text: str, **kw):
 def test_xml_file_gives_the_hand_written_scenes(assert_same_scene):
     report = scenes_from_cvat(read_cvat_xml(XML))
     scenes = {s.name: s.scene for s in report.scenes}
-    assert sorted(scenes) == ["living_room_cupboard", "living_room_lamp", "street"]
+    assert sorted(scenes) == ["living_room_cupboard", "living_room_lamp", "photos_street"]
     sofa = {"measure": "length", "mode": "direct", "value": 80, "unit": "in", "object": "sofa",
             "confidence": 0.6, "worker": "w3", "line": [[400, 2700], [1200, 2760]]}
     horizon = [[0, 1200], [4000, 1260]]
@@ -45,7 +45,7 @@ def test_xml_file_gives_the_hand_written_scenes(assert_same_scene):
                    "dimension_lines": [{"worker": "w1", "corners": [[3000, 2000], [3100, 1990],
                                                                     [2950, 1980], [3000, 1700]]}]},
         "references": [sofa]})
-    assert_same_scene(scenes["street"], {
+    assert_same_scene(scenes["photos_street"], {
         "format": "creference-scene/1", "image": {"width": 2000, "height": 1000},
         "target": {"id": "street", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
                    "dimension_lines": [{"corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]},
@@ -65,8 +65,8 @@ def test_cli_reads_the_xml_or_the_zip_and_exits_2_on_the_bad_image(tmp_path, cap
         out = tmp_path / source.suffix[1:]
         assert main(["import", "cvat", str(source), "--out", str(out), "--image-dir", str(tmp_path)]) == 2
         assert sorted(p.name for p in out.iterdir()) == [
-            "living_room_cupboard.json", "living_room_lamp.json", "street.json"]
-        street = json.loads((out / "street.json").read_text())
+            "living_room_cupboard.json", "living_room_lamp.json", "photos_street.json"]
+        street = json.loads((out / "photos_street.json").read_text())
         assert street["image"]["path"] == "../photos/street.png"
     assert "error: image 'bad.jpg', shape 1 (polyline 'reference')" in capsys.readouterr().err
 

@@ -192,6 +192,7 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
         return [], [exc]
 
     stem = PurePosixPath(name).stem or f"image{i}"
+    base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
     scenes, errors = [], []
     for key, tshapes in groups.items():
         tid = key or stem
@@ -204,7 +205,7 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
             origins = {f"target.dimension_lines[{j}]": s.desc for j, s in enumerate(tshapes)}
             origins.update({f"references[{j}]": s.desc for j, s in enumerate(refs)})
             checked_scene(scene, where, origins)
-            scenes.append(TargetScene(safe_name(stem if tid == stem else f"{stem}_{tid}"), scene, twhere))
+            scenes.append(TargetScene(safe_name(base if key == "" else f"{base}_{tid}"), scene, twhere))
         except ConversionError as exc:
             errors.append(exc)
     return scenes, errors
