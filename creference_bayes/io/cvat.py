@@ -204,7 +204,7 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
                 scene["image"]["path"] = relative_image_path(Path(image_dir) / name, out_dir)
             origins = {f"target.dimension_lines[{j}]": s.desc for j, s in enumerate(tshapes)}
             origins.update({f"references[{j}]": s.desc for j, s in enumerate(refs)})
-            checked_scene(scene, where, origins)
+            checked_scene(scene, twhere, origins)
             scenes.append(TargetScene(safe_name(base if key == "" else f"{base}_{tid}"), scene, twhere))
         except ConversionError as exc:
             errors.append(exc)
