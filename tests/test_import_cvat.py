@@ -221,3 +221,14 @@ def test_zip_without_annotations_xml(tmp_path, capsys):
         z.writestr("images/a.jpg", b"")
     assert main(["import", "cvat", str(zpath), "--out", str(tmp_path / "o")]) == 2
     assert "expected one annotations.xml in the ZIP, found 0" in capsys.readouterr().err
+
+
+def test_cli_checks_its_options_first(tmp_path, capsys):
+    bad = tmp_path / "t.csv"
+    bad.write_text("id,size\n")
+    out = tmp_path / "o"
+    assert main(["import", "cvat", str(XML), "--out", str(out), "--targets", str(bad)]) == 2
+    assert main(["import", "cvat", str(XML), "--out", str(out), "--image-dir", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert "error: --targets: " in err and "t.csv: missing column(s)" in err and "is not a folder" in err
+    assert not out.exists()
