@@ -1,0 +1,142 @@
+"""``creference import label-studio …`` and ``creference import cvat …``: annotation-tool exports →
+one ``creference-scene/1`` file per target (docs/import.md).
+
+A task (Label Studio) or image/target (CVAT) that cannot be converted is reported on standard
+error with the task or image and the region, and skipped; the others are written, each file
+atomically. The exit status is 2 when anything was skipped for an error, else 0.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import zipfile
+from pathlib import Path
+
+from .main import EXIT_INVALID, UsageError
+
+__all__ = ["register"]
+
+#: Largest annotations.xml read from a CVAT ZIP (bytes): far above any real export, far below a bomb.
+MAX_XML_BYTES = 1 << 30
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files")
+    sub = p.add_subparsers(dest="tool", required=True, metavar="TOOL")
+
+    ls = sub.add_parser("label-studio", help="a Label Studio JSON export → one scene per task",
+                        description="Convert a Label Studio JSON export (tasks with annotations) to "
+                                    "creference-scene/1 files, one per task (= target).")
+    ls.add_argument("export", nargs="?", metavar="EXPORT.json", help="the JSON export")
+    ls.add_argument("--print-config", action="store_true",
+                    help="print the labelling config for a new project and exit")
+    ls.add_argument("--lines", choices=["keypoints", "vectors"], default="keypoints",
+                    help="with --print-config: draw reference lines and the horizon as two keypoints "
+                         "(every version; default) or as vectors (recent versions with <VectorLabels>, "
+                         "checked with 1.23.2)")
+    ls.add_argument("--users", metavar="USERS.json",
+                    help="name workers by the users in this file (the JSON of GET /api/users) "
+                         "instead of by user id")
+    _common(ls)
+    ls.set_defaults(func=_run_label_studio)
+
+    cv = sub.add_parser("cvat", help="a CVAT for images 1.1 export → one scene per target",
+                        description="Convert a CVAT for images 1.1 export (annotations.xml, or the "
+                                    "ZIP holding it) to creference-scene/1 files, one per target.")
+    cv.add_argument("export", nargs="?", metavar="annotations.xml", help="the XML file or the ZIP")
+    cv.add_argument("--print-labels", action="store_true",
+                    help="print the label specification (for CVAT's Raw label editor) and exit")
+    _common(cv)
+    cv.set_defaults(func=_run_cvat)
+
+
+def _common(p) -> None:
+    p.add_argument("--out", metavar="DIR", help="folder for the scene files (created if needed)")
+    p.add_argument("--image-dir", metavar="DIR",
+                   help="folder holding the images: sets each scene's image.path")
+    p.add_argument("--targets", metavar="TARGETS.csv",
+                   help="known target sizes: CSV with target_id,length_m,width_m,height_m "
+                        "[,focal_length_px], for targets the export gives no size")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+
+
+def _prepare(args):
+    from ..io.annotation_tools import ConversionError, load_target_table
+
+    if args.export is None:
+        raise UsageError(f"import {args.tool}: give the export file (see --help)")
+    if not args.out:
+        raise UsageError(f"import {args.tool}: --out DIR is required")
+    if args.image_dir is not None and not Path(args.image_dir).is_dir():
+        raise UsageError(f"--image-dir: {args.image_dir!r} is not a folder")
+    try:
+        return load_target_table(args.targets) if args.targets else None
+    except ConversionError as exc:
+        raise UsageError(f"--targets: {exc}") from None
+
+
+def _run_label_studio(args) -> int:
+    from ..io.annotation_tools import ConversionError
+    from ..io.labelstudio import label_studio_config, read_export, read_users, scenes_from_label_studio
+
+    if args.print_config:
+        sys.stdout.write(label_studio_config(args.lines))
+        return 0
+    targets = _prepare(args)
+    try:
+        users = read_users(args.users) if args.users else None
+        report = scenes_from_label_studio(read_export(args.export), image_dir=args.image_dir,
+                                          out_dir=args.out, targets=targets, users=users)
+    except ConversionError as exc:
+        raise UsageError(str(exc)) from None
+    return _finish(report, args)
+
+
+def _read_cvat(path: str):
+    from ..io.annotation_tools import ConversionError
+    from ..io.cvat import read_cvat_xml
+
+    if not zipfile.is_zipfile(path):
+        return read_cvat_xml(path)
+    with zipfile.ZipFile(path) as z:
+        names = [n for n in z.namelist() if n.rsplit("/", 1)[-1] == "annotations.xml"]
+        if len(names) != 1:
+            raise ConversionError(path, f"expected one annotations.xml in the ZIP, found {len(names)}")
+        info = z.getinfo(names[0])
+        if info.file_size > MAX_XML_BYTES:
+            raise ConversionError(path, f"{names[0]} unpacks to {info.file_size} bytes; refused")
+        return read_cvat_xml(z.read(info))
+
+
+def _run_cvat(args) -> int:
+    from ..io.annotation_tools import ConversionError
+    from ..io.cvat import cvat_label_spec, scenes_from_cvat
+
+    if args.print_labels:
+        print(json.dumps(cvat_label_spec(), indent=2))
+        return 0
+    targets = _prepare(args)
+    try:
+        report = scenes_from_cvat(_read_cvat(args.export), image_dir=args.image_dir,
+                                  out_dir=args.out, targets=targets)
+    except ConversionError as exc:
+        raise UsageError(str(exc)) from None
+    return _finish(report, args)
+
+
+def _finish(report, args) -> int:
+    from ..io.annotation_tools import write_scenes
+
+    for note in report.notes:
+        if not args.quiet:
+            print(f"note: {note}", file=sys.stderr)
+    for err in report.errors:
+        print(f"error: {err}", file=sys.stderr)
+    paths = write_scenes(report.scenes, args.out)
+    if not args.quiet:
+        for scene, path in zip(report.scenes, paths):
+            print(f"wrote {path} ({scene.source})")
+        skipped = f", {len(report.errors)} skipped for errors" if report.errors else ""
+        print(f"{len(paths)} scene(s) written to {args.out}{skipped}")
+    return EXIT_INVALID if report.errors else 0

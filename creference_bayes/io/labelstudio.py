@@ -1,0 +1,274 @@
+"""Label Studio ↔ ``creference-scene/1``: the shipped labelling configs and the JSON export → one
+scene per target (docs/import.md is the user's guide); scenes → tasks is in
+:mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
+
+One task is one target: its ``data`` gives the image and the target's id and size, and each of its
+annotations is one worker's work on that target (a set of dimension lines, reference lines with
+their measurements, optionally the horizon). Several targets on one image are several tasks.
+
+Results are matched by their control (``from_name``) and label: keypoints from ``points`` with
+the labels :data:`TARGET_LABELS`, ``reference start`` / ``reference end`` (paired by a relation)
+and ``horizon``; or, with the vector config, two-point vectors from ``lines`` labelled
+``reference`` / ``horizon``. A reference's measurement is in per-region controls (same result id
+as the region) named as :data:`~.annotation_tools.REFERENCE_FIELDS`. Coordinates are percent of
+``original_width`` / ``original_height`` (or of the task's ``image_width`` / ``image_height``).
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path, PurePosixPath
+from typing import Any
+from urllib.parse import parse_qs, unquote, urlparse
+
+from .annotation_tools import (ConversionError, ImportReport, TargetScene, apply_target_table,
+                               checked_scene, mean_horizon, number_field, reference_from_fields,
+                               relative_image_path, safe_name, unique_names)
+from .labelstudio_export import label_studio_task, label_studio_tasks
+from .labelstudio_results import TARGET_LABELS, annotation_items
+from .scene import SCENE_FORMAT
+
+__all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "label_studio_config", "read_export", "read_users",
+           "scenes_from_label_studio", "label_studio_task", "label_studio_tasks"]
+
+#: The shipped configs, by how reference lines and the horizon are drawn.
+LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
+#: Task ``data`` fields read by the importer (``image`` is the one the config displays).
+DATA_FIELDS = ("image", "target_id", "target_length_m", "target_width_m", "target_height_m",
+               "image_width", "image_height", "image_path", "focal_length_px", "principal_point",
+               "horizon", "ground_truth")
+_DIMS = ("target_length_m", "target_width_m", "target_height_m")
+
+
+def label_studio_config(lines: str = "keypoints") -> str:
+    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``."""
+    if lines not in LINE_TOOLS:
+        raise ValueError(f"lines: expected one of {list(LINE_TOOLS)}, got {lines!r}")
+    return (resources.files("creference_bayes") / "data" / LINE_TOOLS[lines]).read_text("utf-8")
+
+
+def read_export(path: str | Path) -> Any:
+    """Decode a Label Studio JSON export file (raises :class:`ConversionError` naming the file)."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_bytes().decode("utf-8-sig"))
+    except UnicodeDecodeError:
+        raise ConversionError(str(path), "not UTF-8 text (expected Label Studio's JSON export)") from None
+    except json.JSONDecodeError as exc:
+        raise ConversionError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} "
+                                         f"column {exc.colno}") from None
+    except RecursionError:
+        raise ConversionError(str(path), "JSON nested too deeply") from None
+
+
+def read_users(path: str | Path) -> dict[str, str]:
+    """Worker names by Label Studio user id, from the JSON of ``GET /api/users`` (a list of users
+    with ``id`` and ``username``/``email``) or a plain ``{"id": "name"}`` object."""
+    users = read_export(path)
+    if isinstance(users, dict):
+        return {str(k): str(v) for k, v in users.items()}
+    if not isinstance(users, list):
+        raise ConversionError(str(path), "expected the list of users from GET /api/users")
+    out = {}
+    for u in users:
+        if not isinstance(u, dict) or "id" not in u:
+            raise ConversionError(str(path), f"expected users with an 'id', got {u!r}"[:120])
+        out[str(u["id"])] = str(u.get("username") or u.get("email") or u["id"])
+    return out
+
+
+def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
+                             out_dir: str | Path | None = None, targets: dict | None = None,
+                             users: dict[str, str] | None = None) -> ImportReport:
+    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task.
+
+    Parameters
+    ----------
+    tasks : list
+        The export: tasks with ``data`` and ``annotations`` (``completions`` before 1.0).
+    image_dir : path, optional
+        Where the images are: ``image.path`` becomes this folder joined with the file name of the
+        task's ``image`` URL (unless the task gives ``image_path``).
+    out_dir : path, optional
+        The folder the scenes will be written to; image paths are made relative to it.
+    targets : dict, optional
+        Known sizes by target id (:func:`~.annotation_tools.load_target_table`).
+    users : dict, optional
+        Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
+        in ``completed_by`` (or the e-mail, when the export expands the user).
+
+    Returns
+    -------
+    ImportReport
+        A task that cannot be converted is in ``errors`` (its message names the task and the
+        region) and the others are in ``scenes``.
+    """
+    if isinstance(tasks, dict) and "data" in tasks:
+        tasks = [tasks]
+    if not isinstance(tasks, list):
+        raise ConversionError("(export)", f"expected a list of tasks (Label Studio's JSON export), "
+                                          f"got {type(tasks).__name__}")
+    scenes, errors, notes = [], [], []
+    for i, task in enumerate(tasks):
+        try:
+            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes)
+        except ConversionError as exc:
+            errors.append(exc)
+            continue
+        if converted is not None:
+            scenes.append(converted)
+    kept, clashes = unique_names(scenes)
+    return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
+
+
+def _task_name(task: Any, index: int) -> str:
+    tid = task.get("id") if isinstance(task, dict) else None
+    if isinstance(tid, (int, str)) and not isinstance(tid, bool):
+        return f"task {tid}"
+    return f"task at index {index}"
+
+
+def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> TargetScene | None:
+    where = _task_name(task, index)
+    if not isinstance(task, dict):
+        raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
+    data = task.get("data")
+    if not isinstance(data, dict):
+        if "annotations" not in task and "completions" not in task:
+            raise ConversionError(where, "no 'data' and no 'annotations': is this Label Studio's "
+                                         "JSON export (not JSON-MIN or CSV)?")
+        raise ConversionError(where, "'data' is missing or not an object")
+    anns = task.get("annotations", task.get("completions", []))
+    if not isinstance(anns, list):
+        raise ConversionError(where, f"'annotations' is not a list: {type(anns).__name__}")
+    anns = [a for a in anns if not (isinstance(a, dict) and a.get("was_cancelled") is True)]
+    if not any(not isinstance(a, dict) or a.get("result") for a in anns):
+        notes.append(f"{where}: no annotations yet; skipped")
+        return None
+    width, height = _image_size(anns, data, where)
+
+    if "target_id" in data:
+        tid = data["target_id"]
+        if isinstance(tid, bool) or not isinstance(tid, (str, int)) or str(tid).strip() == "":
+            raise ConversionError(where, f"data.target_id must be text, got {tid!r}")
+        tid = str(tid).strip()
+    else:
+        tid = f"task{task.get('id', index)}"
+    given = [k for k in _DIMS if data.get(k) not in (None, "")]
+    if given and len(given) < 3:
+        raise ConversionError(where, f"data has {given} but not {[k for k in _DIMS if k not in given]}")
+    dims = ({k[7:-2]: number_field(data[k], where, f"data.{k}", positive=True) for k in _DIMS}
+            if given else None)
+    size, table_focal = apply_target_table(tid, dims, targets, where)
+
+    lines, refs, horizons, origins = [], [], [], {}
+    for k, ann in enumerate(anns):
+        items = annotation_items(ann, k, width, height, where, users, notes)
+        n = (items.corners is not None) + len(items.references)
+        secs = items.lead_time / n if items.lead_time is not None and n else None
+        if items.corners is not None:
+            origins[f"target.dimension_lines[{len(lines)}]"] = items.name
+            line = {"corners": items.corners}
+            line.update({k2: v for k2, v in (("worker", items.worker), ("seconds", secs)) if v is not None})
+            lines.append(line)
+        for rid, fields_, seg in items.references:
+            origins[f"references[{len(refs)}]"] = f"region {rid!r}"
+            refs.append(reference_from_fields(fields_, seg, f"{where}, region {rid!r}",
+                                              worker=items.worker, seconds=secs))
+        horizons.extend(items.horizons)
+    if not lines:
+        raise ConversionError(where, "no annotation draws the target's dimension lines "
+                                     f"({', '.join(repr(x) for x in TARGET_LABELS)})")
+
+    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
+    image_path = _image_path(data, image_dir, out_dir, where)
+    if image_path is not None:
+        scene["image"]["path"] = image_path
+    camera = {}
+    focal = data.get("focal_length_px")
+    if focal not in (None, ""):
+        camera["focal_length_px"] = number_field(focal, where, "data.focal_length_px", positive=True)
+    elif table_focal is not None:
+        camera["focal_length_px"] = table_focal
+    if data.get("principal_point") is not None:
+        camera["principal_point"] = data["principal_point"]
+    if camera:
+        scene["camera"] = camera
+    if data.get("horizon") is not None:
+        scene["horizon"] = data["horizon"]
+        if horizons:
+            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
+    elif horizons:
+        scene["horizon"] = mean_horizon(horizons, width, where)
+    scene["target"] = {"id": tid, "dimensions_m": size, "dimension_lines": lines}
+    if refs:
+        scene["references"] = refs
+    if data.get("ground_truth") is not None:
+        scene["ground_truth"] = data["ground_truth"]
+    origins.update({"camera": "data.focal_length_px / data.principal_point",
+                    "horizon": "the horizon (data.horizon or annotated)",
+                    "ground_truth": "data.ground_truth"})
+    return TargetScene(safe_name(tid), checked_scene(scene, where, origins), where)
+
+
+def _whole(value: Any, where: str, what: str) -> int:
+    x = number_field(value, where, what, positive=True)
+    if x != int(x):
+        raise ConversionError(where, f"{what} must be whole pixels, got {x:g}")
+    return int(x)
+
+
+def _image_size(anns: list, data: dict, where: str) -> tuple[int, int]:
+    """(width, height): the results' original size, else the task's ``image_width/height``."""
+    seen: dict[tuple[int, int], str] = {}
+    for ann in anns:
+        for r in (ann.get("result") if isinstance(ann, dict) else None) or []:
+            if not isinstance(r, dict) or r.get("type") == "relation":
+                continue
+            rwhere = f"{where}, region {r.get('id')!r}"
+            rot = r.get("image_rotation")
+            if rot not in (None, 0, 0.0):
+                raise ConversionError(rwhere, f"image_rotation {rot!r} is not supported "
+                                              "(annotate the image unrotated)")
+            ow, oh = r.get("original_width"), r.get("original_height")
+            if ow is None and oh is None:
+                continue
+            size = (_whole(ow, rwhere, "original_width"), _whole(oh, rwhere, "original_height"))
+            seen.setdefault(size, rwhere)
+    if len(seen) > 1:
+        (a, wa), (b, wb) = list(seen.items())[:2]
+        raise ConversionError(where, f"results disagree on the image size: {a[0]}x{a[1]} ({wa}) "
+                                     f"and {b[0]}x{b[1]} ({wb})")
+    has_data = [data.get(k) not in (None, "") for k in ("image_width", "image_height")]
+    if any(has_data) and not all(has_data):
+        raise ConversionError(where, "data gives only one of image_width and image_height")
+    data_size = ((_whole(data["image_width"], where, "data.image_width"),
+                  _whole(data["image_height"], where, "data.image_height")) if all(has_data) else None)
+    if seen:
+        size = next(iter(seen))
+        if data_size is not None and data_size != size:
+            raise ConversionError(where, f"the results' original size {size[0]}x{size[1]} differs from "
+                                         f"data.image_width x image_height {data_size[0]}x{data_size[1]}")
+        return size
+    if data_size is None:
+        raise ConversionError(where, "no image size: the results have no original_width/"
+                                     "original_height and data has no image_width/image_height")
+    return data_size
+
+
+def _image_path(data: dict, image_dir, out_dir, where: str) -> str | None:
+    path = data.get("image_path")
+    if path not in (None, ""):
+        if not isinstance(path, str):
+            raise ConversionError(where, f"data.image_path must be text, got {path!r}")
+        return path
+    url = data.get("image")
+    if image_dir is None or not isinstance(url, str) or not url:
+        return None
+    parsed = urlparse(url)
+    local = parse_qs(parsed.query).get("d")  # Label Studio's local files: /data/local-files/?d=dir/a.jpg
+    name = PurePosixPath(unquote(local[0] if local else parsed.path)).name
+    if not name:
+        raise ConversionError(where, f"no file name in data.image {url!r}")
+    return relative_image_path(Path(image_dir) / name, out_dir)

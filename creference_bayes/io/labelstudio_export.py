@@ -1,0 +1,144 @@
+"""Scenes → Label Studio tasks: the opposite of the import, for round trips and for sending
+pre-annotated tasks (``predictions``) back to the crowd."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+from .labelstudio_results import (CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE,
+                                  TARGET_LABELS)
+from .scene import Scene, parse_scene, scene_to_dict
+
+__all__ = ["label_studio_task", "label_studio_tasks"]
+
+#: The configs' names, by how reference lines are drawn (the same keys as ``LINE_TOOLS``).
+_LINE_TOOLS = ("keypoints", "vectors")
+#: Drawn size of an exported keypoint, percent of the image width (Label Studio's ``value.width``).
+_POINT_SIZE = 0.5
+
+
+def _normalised(scene: Scene | dict) -> dict:
+    if isinstance(scene, dict):
+        scene = parse_scene(scene)
+    return scene_to_dict(scene)
+
+
+def label_studio_task(scene: Scene | dict, *, task_id: int = 1, lines: str = "keypoints",
+                      image_url: str | None = None, as_predictions: bool = False) -> dict:
+    """A Label Studio task (``data`` + ``annotations``) holding one scene's annotations.
+
+    Each worker's work becomes one annotation (``completed_by`` = the worker name, ``lead_time`` =
+    the sum of its items' seconds when all have them); a worker's second set of dimension lines
+    goes to a second annotation. The horizon, camera, image size and ground truth go to ``data``.
+    With ``as_predictions`` the annotations are written as ``predictions`` instead (pre-labels
+    shown to workers). Coordinates are percent of the image size, at full float precision.
+    """
+    if lines not in _LINE_TOOLS:
+        raise ValueError(f"lines: expected one of {list(_LINE_TOOLS)}, got {lines!r}")
+    d = _normalised(scene)
+    w, h = d["image"]["width"], d["image"]["height"]
+    t = d["target"]
+    data: dict[str, Any] = {"image": image_url or d["image"].get("path", ""), "target_id": t["id"],
+                            **{f"target_{k}_m": v for k, v in t["dimensions_m"].items()},
+                            "image_width": w, "image_height": h}
+    if d["image"].get("path"):
+        data["image_path"] = d["image"]["path"]
+    cam = d.get("camera") or {}
+    if cam.get("focal_length_px") is not None:
+        data["focal_length_px"] = cam["focal_length_px"]
+    if cam.get("principal_point") is not None:
+        data["principal_point"] = cam["principal_point"]
+    for key in ("horizon", "ground_truth"):
+        if d.get(key) is not None:
+            data[key] = d[key]
+
+    groups: OrderedDict = OrderedDict()
+    for i, dl in enumerate(t["dimension_lines"]):
+        groups.setdefault(dl.get("worker") or f"\0dims{i}", []).append(("dims", dl))
+    for i, ref in enumerate(d.get("references", [])):
+        groups.setdefault(ref.get("worker") or f"\0ref{i}", []).append(("ref", ref))
+    annotations = []
+    for key, items in groups.items():
+        dims = [x for x in items if x[0] == "dims"]
+        chunks = [[dims[0]] + [x for x in items if x[0] == "ref"]] if dims else [items]
+        chunks += [[x] for x in dims[1:]]
+        for chunk in chunks:
+            n = len(annotations) + 1
+            ann: dict[str, Any] = {"id": task_id * 1000 + n,
+                                   "result": _results(chunk, f"{task_id}_{n}", w, h, lines)}
+            if not key.startswith("\0"):
+                ann["completed_by"] = key
+            secs = [x[1].get("seconds") for x in chunk]
+            if all(s is not None for s in secs):
+                ann["lead_time"] = float(sum(secs))
+            annotations.append(ann)
+    task: dict[str, Any] = {"id": task_id, "data": data}
+    if as_predictions:
+        task["predictions"] = [{"model_version": "creference", "result": a["result"]} for a in annotations]
+    else:
+        task["annotations"] = annotations
+    return task
+
+
+def label_studio_tasks(scenes, *, lines: str = "keypoints", image_urls=None,
+                       start_id: int = 1, as_predictions: bool = False) -> list[dict]:
+    """Tasks for several scenes (ids ``start_id``, ``start_id + 1``, …); see :func:`label_studio_task`."""
+    scenes = list(scenes)
+    urls = list(image_urls) if image_urls is not None else [None] * len(scenes)
+    if len(urls) != len(scenes):
+        raise ValueError(f"image_urls: expected {len(scenes)} URLs, got {len(urls)}")
+    return [label_studio_task(s, task_id=start_id + i, lines=lines, image_url=u,
+                              as_predictions=as_predictions)
+            for i, (s, u) in enumerate(zip(scenes, urls))]
+
+
+def _point_result(rid, label, p, w, h):
+    return {"id": rid, "type": "keypointlabels", "from_name": POINTS, "to_name": IMAGE,
+            "original_width": w, "original_height": h, "image_rotation": 0,
+            "value": {"x": 100.0 * p[0] / w, "y": 100.0 * p[1] / h, "width": _POINT_SIZE,
+                      "keypointlabels": [label]}}
+
+
+def _control(rid, name, typ, value):
+    key = CONTROL_VALUE[typ]
+    return {"id": rid, "type": typ, "from_name": name, "to_name": IMAGE,
+            "value": {key: value if typ == "number" else [value]}}
+
+
+def _results(chunk, prefix, w, h, lines) -> list[dict]:
+    out: list[dict] = []
+    for k, (kind, item) in enumerate(chunk):
+        rid = f"{prefix}_{k}"
+        if kind == "dims":
+            out += [_point_result(f"{rid}_t{i + 1}", TARGET_LABELS[i], p, w, h)
+                    for i, p in enumerate(item["corners"])]
+            continue
+        (a, b) = item["line"]
+        if lines == "keypoints":
+            out += [_point_result(f"{rid}_s", REF_START, a, w, h), _point_result(f"{rid}_e", REF_END, b, w, h),
+                    {"type": "relation", "from_id": f"{rid}_s", "to_id": f"{rid}_e",
+                     "direction": "right", "labels": []}]
+            rid = f"{rid}_s"
+        else:
+            verts = [{"id": f"{rid}_v{i}", "x": 100.0 * p[0] / w, "y": 100.0 * p[1] / h,
+                      "prevPointId": None if i == 0 else f"{rid}_v0", "isBezier": False}
+                     for i, p in enumerate((a, b))]
+            out.append({"id": rid, "type": "vectorlabels", "from_name": LINES, "to_name": IMAGE,
+                        "original_width": w, "original_height": h, "image_rotation": 0,
+                        "value": {"vertices": verts, "closed": False, "vectorlabels": [REFERENCE]}})
+        out += [_control(rid, "measure", "choices", item["measure"]),
+                _control(rid, "mode", "choices", item["mode"])]
+        if "range" in item:
+            out += [_control(rid, "range_low", "number", item["range"][0]),
+                    _control(rid, "range_high", "number", item["range"][1])]
+        else:
+            out.append(_control(rid, "value", "number", item["value"]))
+        if item.get("unit"):
+            out.append(_control(rid, "unit", "choices", item["unit"]))
+        if item.get("confidence") is not None:
+            out.append(_control(rid, "confidence_pct", "number", round(100.0 * item["confidence"], 10)))
+        if item.get("object"):
+            out.append(_control(rid, "object", "textarea", item["object"]))
+    return out
+

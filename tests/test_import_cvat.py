@@ -1,0 +1,234 @@
+"""CVAT import/export: a hand-written CVAT for images 1.1 file, the round trip through simulated
+scenes, the shipped label spec, untrusted XML, and the bad-input messages."""
+
+import json
+import re
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.cli import main
+from creference_bayes.io.annotation_tools import REFERENCE_FIELDS, ConversionError, load_target_table
+from creference_bayes.io.cvat import (LABEL_ATTRIBUTES, cvat_label_spec, cvat_xml, read_cvat_xml,
+                                      scenes_from_cvat)
+
+DATA = Path(__file__).parent / "data"
+XML = DATA / "cvat_annotations.xml"
+
+
+def _convert(text: str, **kw):
+    return scenes_from_cvat(read_cvat_xml(text.encode()), **kw)
+
+
+def test_xml_file_gives_the_hand_written_scenes(assert_same_scene):
+    report = scenes_from_cvat(read_cvat_xml(XML))
+    scenes = {s.name: s.scene for s in report.scenes}
+    assert sorted(scenes) == ["living_room_cupboard", "living_room_lamp", "photos_street"]
+    sofa = {"measure": "length", "mode": "direct", "value": 80, "unit": "in", "object": "sofa",
+            "confidence": 0.6, "worker": "w3", "line": [[400, 2700], [1200, 2760]]}
+    horizon = [[0, 1200], [4000, 1260]]
+    assert_same_scene(scenes["living_room_cupboard"], {
+        "format": "creference-scene/1", "image": {"width": 4000, "height": 3000}, "horizon": horizon,
+        "target": {"id": "cupboard", "dimensions_m": {"length": 1.2, "width": 0.5, "height": 2.0},
+                   "dimension_lines": [
+                       {"worker": "w1", "corners": [[1600, 2400], [2000, 2340], [1520, 2280], [1600, 1500]]},
+                       {"worker": "w2", "corners": [[1640.5, 2430.25], [2040, 2370], [1480, 2250], [1640, 1470]]}]},
+        "references": [sofa,  # no target_id, direct: shared by both targets of the image
+                       {"measure": "width", "mode": "relative", "range": [0.9, 1.2],
+                        "line": [[3000, 2850], [3400, 2820]]}]})
+    assert_same_scene(scenes["living_room_lamp"], {
+        "format": "creference-scene/1", "image": {"width": 4000, "height": 3000}, "horizon": horizon,
+        "target": {"id": "lamp", "dimensions_m": {"length": 0.4, "width": 0.4, "height": 1.6},
+                   "dimension_lines": [{"worker": "w1", "corners": [[3000, 2000], [3100, 1990],
+                                                                    [2950, 1980], [3000, 1700]]}]},
+        "references": [sofa]})
+    assert_same_scene(scenes["photos_street"], {
+        "format": "creference-scene/1", "image": {"width": 2000, "height": 1000},
+        "target": {"id": "street", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
+                   "dimension_lines": [{"corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]},
+        "references": [{"measure": "distance", "mode": "direct", "range": [10, 15], "unit": "ft",
+                        "line": [[400, 999], [500, 750]]}]})
+    assert [str(e) for e in report.errors] == [
+        "image 'bad.jpg', shape 1 (polyline 'reference'): reference line has 3 points, expected 2"]
+    assert "image 'living_room.jpg', shape 6: label 'person' ignored" in report.notes
+    assert "image 'empty.jpg': no target annotated; skipped" in report.notes
+
+
+def test_cli_reads_the_xml_or_the_zip_and_exits_2_on_the_bad_image(tmp_path, capsys):
+    zpath = tmp_path / "task.zip"
+    with zipfile.ZipFile(zpath, "w") as z:
+        z.write(XML, "annotations.xml")
+    for source in (XML, zpath):
+        out = tmp_path / source.suffix[1:]
+        assert main(["import", "cvat", str(source), "--out", str(out), "--image-dir", str(tmp_path)]) == 2
+        assert sorted(p.name for p in out.iterdir()) == [
+            "living_room_cupboard.json", "living_room_lamp.json", "photos_street.json"]
+        street = json.loads((out / "photos_street.json").read_text())
+        assert street["image"]["path"] == "../photos/street.png"
+    assert "error: image 'bad.jpg', shape 1 (polyline 'reference')" in capsys.readouterr().err
+
+
+def test_print_labels_is_the_shipped_spec(capsys):
+    assert main(["import", "cvat", "--print-labels"]) == 0
+    spec = json.loads(capsys.readouterr().out)
+    assert spec == cvat_label_spec()
+    assert {lab["name"]: tuple(a["name"] for a in lab["attributes"]) for lab in spec} == LABEL_ATTRIBUTES
+    assert set(REFERENCE_FIELDS) < set(LABEL_ATTRIBUTES["reference"])
+    assert {lab["name"]: lab["type"] for lab in spec} == {"target": "points", "reference": "polyline",
+                                                          "horizon": "polyline"}
+    for lab in spec:
+        for a in lab["attributes"]:
+            # an unset select must stay unset (CVAT's sentinel), not default to its first value
+            if a["input_type"] == "select":
+                assert a["default_value"] == a["values"][0] == "__undefined__"
+            else:
+                assert a["input_type"] == "text" and a["default_value"] == ""
+
+
+# ----------------------------------------------------------------------------------------------
+# round trip: simulated scenes → CVAT XML → import → the same scenes (to CVAT's 0.01 px)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_round_trip_through_cvat_xml(seed, assert_same_scene):
+    scenes = [simulate_scene(np.random.default_rng(seed * 10 + k), tier="high", n_references=6,
+                             target_id=f"t{k}") for k in range(2)]
+    scenes[1]["horizon"] = scenes[0]["horizon"]  # both targets on one image
+    text = cvat_xml(scenes, image_names=["room.jpg", "room.jpg"])
+    assert len(re.findall(r"<image ", text)) == 1
+    report = _convert(text)
+    assert report.ok, report.errors
+    back = {s.scene["target"]["id"]: s.scene for s in report.scenes}
+    for s in scenes:
+        # what CVAT cannot carry: seconds, the ground truth (the camera here is the default one)
+        assert_same_scene(back[s["target"]["id"]], s, atol=0.005, drop=("seconds", "ground_truth"))
+
+
+def test_export_refuses_scenes_that_disagree_on_their_shared_image():
+    a, b = (simulate_scene(np.random.default_rng(k)) for k in range(2))
+    with pytest.raises(ValueError, match="disagree on its size or horizon"):
+        cvat_xml([a, b], image_names=["x.jpg", "x.jpg"])
+
+
+# ----------------------------------------------------------------------------------------------
+# bad input
+
+
+_HEAD = '<?xml version="1.0"?><annotations><version>1.1</version><meta><task/></meta>'
+_TARGET = ('<points label="target" points="1000,700;1200,700;900,650;1000,400">'
+           '<attribute name="target_id">{tid}</attribute><attribute name="length_m">1.6</attribute>'
+           '<attribute name="width_m">0.8</attribute><attribute name="height_m">0.75</attribute></points>')
+_REF = ('<polyline label="reference" points="{pts}"><attribute name="target_id">{tid}</attribute>'
+        '<attribute name="measure">length</attribute><attribute name="mode">{mode}</attribute>'
+        '<attribute name="value">{value}</attribute><attribute name="unit">{unit}</attribute></polyline>')
+
+
+def _doc(*shapes, name="im.jpg", size='width="2000" height="1000"'):
+    return f'{_HEAD}<image id="0" name="{name}" {size}>{"".join(shapes)}</image></annotations>'
+
+
+def _ref(tid="", mode="direct", value="2", unit="m", pts="100,900;300,920"):
+    return _REF.format(tid=tid, mode=mode, value=value, unit=unit, pts=pts)
+
+
+@pytest.mark.parametrize("doc, message", [
+    (_doc(_TARGET.format(tid="a"), _TARGET.format(tid="b"), _ref(mode="relative", unit="__undefined__")),
+     "image 'im.jpg', shape 2 (polyline 'reference'): a relative reference needs a target_id"),
+    (_doc(_TARGET.format(tid="a"), _ref(tid="c")),
+     "image 'im.jpg', shape 1 (polyline 'reference'): reference for target 'c', but no target shape"),
+    (_doc(_TARGET.format(tid="a"), _TARGET.format(tid="")), "some target shapes have a target_id"),
+    (_doc(_TARGET.format(tid=""), _ref(value="2 m")), "shape 1 (polyline 'reference'): value is not a number: '2 m'"),
+    (_doc(_TARGET.format(tid=""), _ref(unit="furlong")), "unknown unit 'furlong'"),
+    (_doc(_TARGET.format(tid=""), _ref(pts="100,900;1O0,950")), "a coordinate is not a number: '1O0'"),
+    (_doc(_TARGET.format(tid=""), _ref(pts="100,900,3;300,920")), "malformed point '100,900,3'"),
+    (_doc(_TARGET.format(tid="").replace("<points ", "<polygon ").replace("</points>", "</polygon>")),
+     "shape 0 (polygon 'target'): a target must be drawn as points or a polyline"),
+    (_doc(_TARGET.format(tid="").replace("1000,400", "1000,400;5,5")),
+     "shape 0 (points 'target'): target has 5 points, expected 4 (t1..t4)"),
+    (_doc(_TARGET.format(tid="").replace("0.8<", "0.9<"), _TARGET.format(tid="")),
+     "shape 1 (points 'target'): target size"),
+    (_doc(_TARGET.format(tid=""), size='width="2000"'), "image 'im.jpg': height is not a number: None"),
+    (_doc(_ref()), "image 'im.jpg': references or a horizon but no target shape"),
+    (_doc(_TARGET.format(tid="").replace("1000,400", "1000,-900")),
+     "image 'im.jpg', shape 0 (points 'target'): target.dimension_lines[0].corners[3]: point [1000, -900]"),
+    (_doc(_TARGET.format(tid=""), '<polyline label="horizon" points="5,0;5,900"/>'),
+     "a vertical horizon line at u = 5 cannot be used"),
+])
+def test_bad_image_is_reported_with_image_and_shape(doc, message):
+    report = _convert(doc)
+    assert report.scenes == ()
+    (err,) = report.errors
+    assert message in str(err), str(err)
+
+
+def test_one_bad_target_does_not_skip_the_other_target_of_its_image():
+    report = _convert(_doc(_TARGET.format(tid="a"), _TARGET.format(tid="b"),
+                           _ref(tid="b", unit="__undefined__")))
+    assert [s.name for s in report.scenes] == ["im_a"]
+    assert str(report.errors[0]).startswith("image 'im.jpg', shape 2 (polyline 'reference'): "
+                                            "a direct measurement needs a unit")
+
+
+def test_sizes_from_the_targets_table(tmp_path):
+    bare = _TARGET.format(tid="sofa").replace("1.6", "").replace("0.8", "").replace("0.75", "")
+    report = _convert(_doc(bare))
+    assert "no size for target 'sofa'" in str(report.errors[0])
+    csv = tmp_path / "t.csv"
+    csv.write_text("target_id,length_m,width_m,height_m\nsofa,2.1,0.9,0.8\n")
+    (s,) = _convert(_doc(bare), targets=load_target_table(csv)).scenes
+    assert s.scene["target"]["dimensions_m"] == {"length": 2.1, "width": 0.9, "height": 0.8}
+
+
+@pytest.mark.parametrize("table, message", [
+    ("id,length_m\n", "missing column(s) ['target_id', 'width_m', 'height_m']"),
+    ("target_id,length_m,width_m,height_m\na,1,1,0\n", "t.csv line 2: height_m must be positive, got 0"),
+    ("target_id,length_m,width_m,height_m\na,1,1,1\na,1,1,1\n", "t.csv line 3: target_id 'a' appears twice"),
+])
+def test_bad_targets_table(tmp_path, table, message):
+    csv = tmp_path / "t.csv"
+    csv.write_text(table)
+    with pytest.raises(ConversionError, match=re.escape(message)):
+        load_target_table(csv)
+
+
+def test_xml_with_entities_is_refused_before_parsing():
+    bomb = ('<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">'
+            '<!ENTITY lol2 "&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;">]>'
+            '<annotations>&lol2;</annotations>')
+    with pytest.raises(ConversionError, match="declares a DTD or entities"):
+        read_cvat_xml(bomb.encode())
+
+
+@pytest.mark.parametrize("text, message", [
+    ("<annotations><image", "not well-formed XML"),
+    ("<dataset/>", "the root element is <dataset>, expected <annotations>"),
+])
+def test_not_a_cvat_file(tmp_path, text, message, capsys):
+    path = tmp_path / "a.xml"
+    path.write_text(text)
+    with pytest.raises(ConversionError, match=message):
+        read_cvat_xml(path)
+    assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_zip_without_annotations_xml(tmp_path, capsys):
+    zpath = tmp_path / "task.zip"
+    with zipfile.ZipFile(zpath, "w") as z:
+        z.writestr("images/a.jpg", b"")
+    assert main(["import", "cvat", str(zpath), "--out", str(tmp_path / "o")]) == 2
+    assert "expected one annotations.xml in the ZIP, found 0" in capsys.readouterr().err
+
+
+def test_cli_checks_its_options_first(tmp_path, capsys):
+    bad = tmp_path / "t.csv"
+    bad.write_text("id,size\n")
+    out = tmp_path / "o"
+    assert main(["import", "cvat", str(XML), "--out", str(out), "--targets", str(bad)]) == 2
+    assert main(["import", "cvat", str(XML), "--out", str(out), "--image-dir", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert "error: --targets: " in err and "t.csv: missing column(s)" in err and "is not a folder" in err
+    assert not out.exists()
