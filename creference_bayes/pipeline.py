@@ -86,7 +86,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     hdi_prob : probability of the reported highest-density intervals
     sampling : sampler settings (:class:`~creference_bayes.sampling.SamplerSettings` fields,
         e.g. ``{"min_ess": 2000}``); unknown keys are rejected
-    progress : show the sampler's progress bar on standard error
+    progress : show progress bars on standard error (the ``paper`` presets' restarts, the
+        sampler's warm-up and sampling)
 
     Returns
     -------
@@ -105,7 +106,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     if model == "metrology":
         references = dataclasses.replace(references, used_as="likelihood",
                                          in_likelihood=models[0].n_references_used)
-    map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts)
+    map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts, progress_bar=progress)
     evaluation = None
     if scene.ground_truth is not None:
         evaluation = Evaluation(location_pct_error=float(
@@ -148,8 +149,9 @@ def _camera_step(scene: Scene):
         est = estimate_horizon(scene.image_path, principal_point=scene.principal_point,
                                scene_size=scene.image_size)
     except (OSError, ValueError) as exc:
-        return camera, [f"no horizon, and image.path {str(scene.image_path)!r} could not be used "
-                        f"({exc}): {level}"], None
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        return camera, [f"no horizon, and image.path {str(scene.image_path)!r} could not be read "
+                        f"({why}): {level}"], None
     if not est:
         return camera, [f"no horizon, and none found in the image ({est.reason}): {level}"], est
     camera = dataclasses.replace(camera, horizon=horizon_line(est.points))

@@ -453,7 +453,6 @@ def _run(safe, coords, moves, pos, rstate, n_steps):
 
 
 def _progress_bar(enabled: bool, total: int):
-    from tqdm.auto import tqdm
+    from .progress import progress_bar
 
-    return tqdm(total=total, disable=not enabled, file=sys.stderr, unit="step", leave=False,
-                desc="sampling", dynamic_ncols=True)
+    return progress_bar(enabled, total, desc="sampling", unit="step")
