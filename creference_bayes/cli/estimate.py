@@ -12,7 +12,7 @@ from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .main import UsageError, example_scene_path
 
-__all__ = ["register", "format_table"]
+__all__ = ["register", "format_table", "truth_of"]
 
 
 #: Units of the quantities a result may hold; a quantity not listed is shown without a unit.
@@ -30,9 +30,12 @@ def format_table(result, truth=None) -> str:
     Parameters
     ----------
     result : a :class:`~creference_bayes.io.result.Result` or its ``creference-result/1`` dict
-    truth : optional name → true value (missing names are left blank)
+    truth : optional: a :class:`~creference_bayes.io.scene.Scene` (its ground truth, if any) or
+        a dict name → true value (missing names are left blank)
     """
     d = result if isinstance(result, dict) else result.to_dict()
+    if truth is not None and not isinstance(truth, dict):
+        truth = truth_of(truth)
     post = d.get("posterior")
     point = dict(d["map"])
     names = list(point)
@@ -93,8 +96,9 @@ def _fmt(x, decimals: int = 3) -> str:
     return text.lstrip("-") if float(text) == 0 else text
 
 
-def _truth_dict(scene):
-    """The scene's ground truth by quantity name (pitch and roll from its extras when given)."""
+def truth_of(scene) -> dict | None:
+    """The scene's ground truth by quantity name (pitch and roll from its extras when given), or
+    None when it has none."""
     gt = scene.ground_truth
     if gt is None:
         return None
@@ -179,7 +183,7 @@ def _report(result, scene, args) -> None:
         print(f"target {result.target!r}  model {result.model}  preset {result.preset}  "
               f"MAP in {result.map.seconds:.2f} s")
         print(f"handedness {h:+d} ({HANDEDNESS_WORDS.get(h, 'unknown')})")
-        print(format_table(result, _truth_dict(scene)))
+        print(format_table(result, truth_of(scene)))
         if result.diagnostics is not None:
             print(_posterior_line(result))
         refs = _references_line(result.references)
