@@ -221,7 +221,7 @@ def test_plot_accepts_its_own_scene_and_checks_old_results_on_the_target_only(ma
     old_path = _write(folder / "old.json", old)
     proc = _plot(old_path, "--out", tmp_path / "b", "--quiet")  # finds scene.json by name
     assert proc.returncode == 0, proc.stderr
-    assert proc.stderr.startswith("note: the result records no scene_id")
+    assert proc.stderr.startswith("warning: the result records no scene_id")
     proc = _plot(old_path, "--scene", _write(tmp_path / "other.json", _noise_free_scene()),
                  "--out", tmp_path / "c")
     assert proc.returncode == 2 and "target 'target', the result's is 'tv-stand'" in proc.stderr

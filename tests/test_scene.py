@@ -120,14 +120,17 @@ def test_unknown_keys_warn_with_their_names():
     d["notes"] = "made by hand"
     d["image"]["colour"] = "rgb"
     d["target"]["dimension_lines"][0]["confidence"] = 0.5
-    d["references"][1]["note"] = "hard to see"  # one edit from 'mode', but too short to be a typo
+    d["references"][1]["note"] = "hard to see"  # two edits from 'mode': too far for a short key
+    d["references"][2]["order"] = 3  # two edits from 'worker'
+    d["references"][3]["object_id"] = "c7"  # 'object' plus more than a third of it
     with pytest.warns(SceneWarning) as record:
         scene = parse_scene(d)
     messages = [str(w.message) for w in record]
     assert sorted(messages) == sorted([
         "notes: unknown key ignored", "image.colour: unknown key ignored",
         "target.dimension_lines[0].confidence: unknown key ignored",
-        "references[1].note: unknown key ignored"])
+        "references[1].note: unknown key ignored", "references[2].order: unknown key ignored",
+        "references[3].object_id: unknown key ignored"])
     assert set(scene.warnings) == set(messages)
 
 
@@ -138,7 +141,7 @@ def _rename(path, new):
         obj = d
         for k in parent:
             obj = obj[k]
-        obj[new] = obj.pop(key)
+        obj[new] = obj.pop(key, 0.5)  # a key the example lacks gets a value
     return mutate
 
 
@@ -153,6 +156,9 @@ def _rename(path, new):
     (("target", "dimension_lines", 0, "corners"), "cornres", "target.dimension_lines[0].cornres: unknown key; did you mean 'corners'?"),
     (("references", 2, "value"), "valeu", "references[2].valeu: unknown key; did you mean 'value'?"),
     (("references", 0, "unit"), "units", "references[0].units: unknown key; did you mean 'unit'?"),
+    (("references", 0, "mode"), "model", "references[0].model: unknown key; did you mean 'mode'?"),
+    (("references", 1, "confidence"), "confidance", "references[1].confidance: unknown key; did you mean 'confidence'?"),
+    (("camera", "principal_point"), "principal point", "camera.principal point: unknown key; did you mean 'principal_point'?"),
 ])
 def test_a_near_miss_of_a_known_key_is_an_error_naming_the_suggestion(path, typo, expected):
     d = _example()

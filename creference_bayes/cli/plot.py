@@ -7,7 +7,7 @@ The scene is ``--scene``, else the result's ``scene`` name looked up next to the
 the current directory, then among the package's shipped scenes. Either way it must be the scene
 the result was estimated from: its target id, image size and content hash must match the result's
 ``scene_id`` (else a one-line error, exit 2). Results written before ``scene_id`` existed are
-checked on their target id only, with a note that the scene could not be checked fully.
+checked on their target id only, with a warning that the scene could not be checked fully.
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def _checked(result: dict, scene, where: str):
     if why:
         raise UsageError(f"{where}: not the scene this result was estimated from ({why})")
     if not isinstance(result.get("scene_id"), dict):
-        print("note: the result records no scene_id (written by an older version): only its target "
+        print("warning: the result records no scene_id (written by an older version): only its target "
               "id was checked against the scene", file=sys.stderr)
     return scene
 

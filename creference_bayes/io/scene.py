@@ -290,9 +290,9 @@ def near_miss(key: str, known) -> str | None:
 
     Keys are compared in lower case with ``-`` and spaces read as ``_``. A near miss is at most
     :data:`NEAR_MISS_EDITS` edits away (insertions, deletions, substitutions, swaps of neighbours;
-    one edit only for known keys of up to 4 characters, so ``note`` is not taken for ``mode``), or
-    a known key with a few characters added or dropped at one end (``focal_length`` for
-    ``focal_length_px``: at most a third of the known key).
+    one edit only for known keys of up to 7 characters, so neither ``note`` nor ``order`` is taken
+    for ``mode`` or ``worker``), or a known key with a few characters added or dropped at one end
+    (``focal_length`` for ``focal_length_px``: at most a third of the known key).
     """
     def norm(k: str) -> str:
         return k.lower().replace("-", "_").replace(" ", "_")
@@ -301,7 +301,7 @@ def near_miss(key: str, known) -> str | None:
     best, best_d = None, None
     for cand in sorted(known):
         c = norm(cand)
-        limit = 1 if len(c) <= 4 else NEAR_MISS_EDITS
+        limit = 1 if len(c) <= 7 else NEAR_MISS_EDITS
         d = _edit_distance(k, c)
         end = (c.startswith(k) or c.endswith(k) or k.startswith(c) or k.endswith(c)) and \
             min(len(k), len(c)) >= 4 and abs(len(k) - len(c)) <= len(c) / 3
