@@ -77,8 +77,9 @@ def stages(scene, seed: int) -> tuple[dict, dict, dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("scene", nargs="?", default=str(example_scene_path()))
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("scene", nargs="?", default=str(example_scene_path()),
+                    help="a creference-scene/1 file (default: the shipped example scene)")
+    ap.add_argument("--repeat", type=int, default=5, help="timed estimates (default: %(default)s)")
     ap.add_argument("--profile", action="store_true", help="cProfile one full estimate")
     args = ap.parse_args()
     scene = load_scene(args.scene)

@@ -55,29 +55,30 @@ def test_paper_restarts_bar_shows_on_stderr_and_changes_nothing(capsys, monkeypa
     assert counted.info == quiet.info
 
 
-def test_bench_scenes_bar_and_lines(capsys, monkeypatch):
+def test_bench_scenes_bar_and_lines(monkeypatch):
     import creference_bayes.inference.progress as progress
     from creference_bayes.bench.runner import BenchConfig, run_bench
 
-    tiny = BenchConfig(name="tiny", scenes=(("none", "indoor", 2),), ref_counts=(0,),
+    tiny = BenchConfig(name="tiny", scenes=(("none", "indoor", 1),), ref_counts=(0,),
                        posterior_ref_counts=(), paper_restarts=2, pair_scenes=0)
     lines = []
-    run_bench(tiny, seed=0, progress=lines.append, progress_bar=True)
-    assert "bench scenes" in capsys.readouterr().err
-    assert [line.split(":")[0] for line in lines] == ["none-indoor-00", "none-indoor-01"]
     monkeypatch.setattr(progress, "progress_bar", _Recorder)
-    run_bench(tiny, seed=0, progress_bar=True)
-    assert (_Recorder.last.total, _Recorder.last.n, _Recorder.last.closed) == (2, 2, True)
+    run_bench(tiny, seed=0, progress=lines.append, progress_bar=True)
+    assert (_Recorder.last.enabled, _Recorder.last.total, _Recorder.last.n) == (True, 1, 1)
+    assert _Recorder.last.closed
+    assert [line.split(":")[0] for line in lines] == ["none-indoor-00"]
 
 
 def test_progress_bars_never_load_the_notebook_flavour_of_tqdm():
     """tqdm.auto in a Jupyter kernel without ipywidgets warns (TqdmWarning) on import."""
     code = ("import sys\n"
-            "from creference_bayes import estimate\n"
-            "from creference_bayes.cli.main import example_scene_path\n"
-            "estimate(example_scene_path(), seed=0, progress=True, sampling={'min_ess': 100})\n"
+            "from creference_bayes.inference import sampling\n"
+            "from creference_bayes.inference.progress import progress_bar\n"
+            "with sampling._progress_bar(True, 2) as bar:\n"
+            "    bar.update(2)\n"
+            "progress_bar(True, 1, desc='restarts').close()\n"
             "print(sorted(m for m in sys.modules if m in ('tqdm.auto', 'tqdm.autonotebook', 'tqdm.notebook')))\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
-    assert "sampling" in proc.stderr  # the sampler's bar was shown (progress=True)
+    assert "sampling" in proc.stderr  # the bars were drawn, on standard error
