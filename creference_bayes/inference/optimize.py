@@ -96,20 +96,20 @@ def optimize_map(models: Sequence, preset: str = "default", rng=None,
     t0 = time.perf_counter()
     best, info, n_eval = None, {}, 0
     per_model = max(1, (_PAPER_RESTARTS.get(preset, 1) if restarts is None else restarts) // len(models))
-    bar = tick = None
+    bar = None
     if progress_bar and preset != "default":
         from .progress import progress_bar as _bar
 
         bar = _bar(True, per_model * len(models), desc=f"{preset} restarts", unit="restart")
 
-        def tick(*_) -> None:  # called for each local minimum, the first one included (SciPy ≥ 1.6);
-            bar.update(1)  # basinhopping stops when its callback returns True: return None
+    def tick(*_) -> None:  # called for each local minimum, the first one included (SciPy ≥ 1.6);
+        bar.update(1)  # basinhopping stops when its callback returns True: return None
     for model in models:
         counter = _Counter(model)
         if preset == "default":
             x, f, detail = _default(model, counter)
         else:
-            x, f, detail = _paper(model, counter, per_model, rng, callback=tick)
+            x, f, detail = _paper(model, counter, per_model, rng, callback=None if bar is None else tick)
         n_eval += counter.n
         info[f"handedness_{model.handedness:+d}"] = {"cost": f, **detail}
         if best is None or f < best[1]:

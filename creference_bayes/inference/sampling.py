@@ -43,7 +43,6 @@ How it samples
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field, fields
 
