@@ -112,7 +112,7 @@ def _orientation(scene, orientation: str, notes: list[str]):
         notes.append("no horizon: assumed a level camera (horizon through the principal point), "
                      "as asked (orientation 'level')")
         return "level", None, None
-    free = "pitch and roll estimated with the annotations (their prior: pitch, roll)"
+    free = "pitch and roll estimated from the annotations (and the orientation prior)"
     if scene.image_path is None:
         notes.append(f"no horizon and no image: {free}")
         return "free", None, None

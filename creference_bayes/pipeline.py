@@ -91,7 +91,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     hdi_prob : probability of the reported highest-density intervals
     sampling : sampler settings (:class:`~creference_bayes.inference.sampling.SamplerSettings`
         fields, e.g. ``{"min_ess": 2000}``); unknown keys are rejected
-    progress : show the sampler's progress bar on standard error
+    progress : show progress bars on standard error (the ``paper`` presets' restarts, the
+        sampler's warm-up and sampling)
     orientation : ``auto``, ``free`` or ``level``: how pitch and roll are treated
         (:func:`~.camera_setup.setup_camera`)
     focal_prior : ``auto``, ``default``, ``none`` or a
@@ -117,7 +118,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     if model == "metrology":
         references = dataclasses.replace(references, used_as="likelihood",
                                          in_likelihood=models[0].n_references_used)
-    map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts)
+    map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts, progress_bar=progress)
     warnings += _focal_prior_check(setup, map_est)
     evaluation = None
     if scene.ground_truth is not None:

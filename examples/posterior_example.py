@@ -1,8 +1,12 @@
 """The posterior of a scene's target: summary, diagnostics, NetCDF and figures, from Python.
 
-    python examples/posterior_example.py [SCENE.json] [OUTDIR]
+    python examples/posterior_example.py [SCENE.json] [--out DIR]
+
+Without SCENE.json it uses the synthetic example scene shipped with the package. Writes
+result.json, posterior.nc and four PNG figures into DIR (default: ./posterior_example).
 """
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -11,16 +15,26 @@ import matplotlib
 matplotlib.use("Agg")
 
 import creference_bayes as cb  # noqa: E402
+from creference_bayes.cli.main import example_scene_path  # noqa: E402
+
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+parser.add_argument("scene", nargs="?", default=None, metavar="SCENE.json",
+                    help="a creference-scene/1 file (default: the shipped example scene)")
+parser.add_argument("--out", default="posterior_example", metavar="DIR",
+                    help="folder for the result, the NetCDF file and the figures (default: %(default)s)")
+args = parser.parse_args()
+
+from creference_bayes.inference.summary import summary_table  # noqa: E402
+from creference_bayes.io.scene import load_scene  # noqa: E402
 from creference_bayes.vision import plotting  # noqa: E402
-from creference_bayes.cli.main import example_scene_path
-from creference_bayes.io.scene import load_scene
-from creference_bayes.inference.summary import summary_table
 
-scene = load_scene(sys.argv[1] if len(sys.argv) > 1 else example_scene_path())
-out = Path(sys.argv[2] if len(sys.argv) > 2 else "posterior_example")
-out.mkdir(exist_ok=True)
+scene = load_scene(args.scene or example_scene_path())
+out = Path(args.out)
+out.mkdir(parents=True, exist_ok=True)
 
-result = cb.estimate(scene, seed=0, hdi_prob=0.9, sampling={"min_ess": 1000}, progress=True)
+result = cb.estimate(scene, seed=0, hdi_prob=0.9, sampling={"min_ess": 1000},
+                     progress=sys.stderr.isatty())
 post, diag = result.posterior, result.diagnostics
 print(f"handedness {post.handedness:+d}, temperature {post.temperature:g}, {post.n_draws} draws")
 for name in ("x", "z", "distance_m"):

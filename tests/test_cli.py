@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -105,7 +106,7 @@ def test_estimate_writes_result_with_evaluation(tmp_path, capsys):
     out = tmp_path / "result.json"
     assert main(["estimate", str(scene), "--out", str(out), "--seed", "3", "--no-posterior"]) == 0
     printed = capsys.readouterr()
-    assert "location error (Eq. 3)" in printed.out and "MAP" in printed.out
+    assert "location error against the ground truth: MAP" in printed.out
     data = json.loads(out.read_text())
     assert data["format"] == "creference-result/1"
     assert data["scene"] == "scene.json" and data["target"] == "target"
@@ -128,8 +129,175 @@ def test_estimate_without_ground_truth_has_no_evaluation(tmp_path, capsys):
     assert "evaluation" not in data
 
 
-def test_unknown_keys_are_reported_not_fatal(tmp_path, capsys):
+def test_a_misspelt_key_exits_2_naming_the_suggestion(tmp_path):
     d = _noise_free_scene()
     d["refrences"] = d.pop("references")
-    assert main(["estimate", str(_write(tmp_path / "scene.json", d)), "--quiet", "--no-posterior"]) == 0
-    assert "warning: refrences: unknown key ignored" in capsys.readouterr().err
+    proc = _run("estimate", _write(tmp_path / "scene.json", d), "--no-posterior")
+    assert proc.returncode == 2
+    assert proc.stderr == "error: refrences: unknown key; did you mean 'references'?\n"
+    assert proc.stdout == ""
+
+
+def test_unknown_keys_are_reported_once_not_fatal(tmp_path, capsys):
+    d = _noise_free_scene()
+    d["notes"] = "drawn by hand"
+    assert main(["estimate", str(_write(tmp_path / "scene.json", d)), "--no-posterior"]) == 0
+    captured = capsys.readouterr()
+    everything = captured.out + captured.err
+    assert captured.err.count("warning: notes: unknown key ignored") == 1
+    assert everything.count("notes: unknown key ignored") == 1
+
+
+def test_an_unreadable_image_gives_one_clear_note_and_no_opencv_noise(tmp_path):
+    d = _example()
+    del d["horizon"]
+    d["image"]["path"] = "missing.png"
+    proc = _run("estimate", _write(tmp_path / "scene.json", d), "--no-posterior", cwd=tmp_path)
+    assert proc.returncode == 0
+    assert proc.stderr == ""  # in particular no "[ WARN:0@…] … findDecoder" from OpenCV
+    notes = [line for line in proc.stdout.splitlines() if "missing.png" in line]
+    assert notes == [f"note: no horizon, and image.path '{tmp_path / 'missing.png'}' could not be read "
+                     "(no such file): pitch and roll estimated from the annotations (and the orientation prior)"]
+
+
+def test_simulate_refuses_a_non_empty_folder_unless_overwrite(tmp_path, capsys):
+    out = tmp_path / "scenes"
+    assert main(["simulate", str(out), "--n", "2", "--quiet"]) == 0
+    first = (out / "scene_0000.json").read_text()
+    (out / "scene_0000.json").write_text("mine")
+    assert main(["simulate", str(out), "--n", "2", "--seed", "5", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {out}: the folder is not empty") and "--overwrite" in err
+    assert (out / "scene_0000.json").read_text() == "mine"  # untouched
+    assert main(["simulate", str(out), "--n", "2", "--quiet", "--overwrite"]) == 0
+    assert (out / "scene_0000.json").read_text() == first
+
+
+# ------------------------------------------------------------------------------------------------
+# plot: the scene must be the result's
+
+
+@pytest.fixture(scope="module")
+def map_result(tmp_path_factory):
+    """A MAP-only result of the example scene, and a copy of the scene next to it."""
+    folder = tmp_path_factory.mktemp("plot")
+    scene = _write(folder / "scene.json", _example())
+    out = folder / "result.json"
+    assert main(["estimate", str(scene), "--out", str(out), "--no-posterior", "--quiet"]) == 0
+    return folder, scene, out
+
+
+def _plot(result, *extra):
+    return subprocess.run([sys.executable, "-m", "creference_bayes", "plot", str(result), *map(str, extra)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_plot_refuses_another_scene(map_result, tmp_path):
+    folder, _, result = map_result
+    other = _write(tmp_path / "other.json", _noise_free_scene())
+    proc = _plot(result, "--scene", other, "--out", tmp_path / "figs")
+    assert proc.returncode == 2
+    assert proc.stderr == (f"error: --scene {other}: not the scene this result was estimated from "
+                           "(target 'target', the result's is 'tv-stand')\n")
+    assert not (tmp_path / "figs").exists()
+
+
+def test_plot_refuses_an_edited_scene(map_result, tmp_path):
+    folder, _, result = map_result
+    d = _example()
+    d["references"][0]["range"] = [0.7, 0.9]
+    edited = _write(tmp_path / "edited.json", d)
+    proc = _plot(result, "--scene", edited, "--out", tmp_path / "figs")
+    assert proc.returncode == 2
+    assert len(proc.stderr.splitlines()) == 1
+    assert "same target and image size but different content" in proc.stderr
+
+
+def test_plot_accepts_its_own_scene_and_checks_old_results_on_the_target_only(map_result, tmp_path):
+    folder, scene, result = map_result
+    assert main(["plot", str(result), "--scene", str(scene), "--out", str(tmp_path / "a"), "--quiet"]) == 0
+    assert (tmp_path / "a" / "boxes.png").is_file()
+    old = json.loads(result.read_text())
+    del old["scene_id"]  # as written before results recorded their scene
+    old_path = _write(folder / "old.json", old)
+    proc = _plot(old_path, "--out", tmp_path / "b", "--quiet")  # finds scene.json by name
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.startswith("warning: the result records no scene_id")
+    proc = _plot(old_path, "--scene", _write(tmp_path / "other.json", _noise_free_scene()),
+                 "--out", tmp_path / "c")
+    assert proc.returncode == 2 and "target 'target', the result's is 'tv-stand'" in proc.stderr
+
+
+# ------------------------------------------------------------------------------------------------
+# help and the console table
+
+
+def _actions():
+    """(command, action) for every argument of every command, the top level included."""
+    import argparse
+
+    from creference_bayes.cli.main import build_parser
+
+    parser = build_parser()
+    yield "creference", parser, parser._actions
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, p in sub.choices.items():
+        yield name, p, p._actions
+
+
+def test_every_argument_of_every_command_has_help():
+    missing = [f"{name} {a.dest}" for name, _, actions in _actions() for a in actions
+               if a.help is None or not str(a.help).strip()]
+    assert not missing, f"arguments without help: {missing}"
+
+
+def test_every_command_has_a_description_and_demo_says_its_scene_is_synthetic():
+    parsers = {name: p for name, p, _ in _actions()}
+    assert all(p.description for p in parsers.values()), [n for n, p in parsers.items() if not p.description]
+    assert "synthetic" in parsers["demo"].description
+
+
+def test_bench_help_and_readme_agree_on_timings():
+    from creference_bayes.cli.bench import BENCH_TIMES
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    help_text = {name: p.format_help() for name, p, _ in _actions()}["bench"]
+    for size, words in BENCH_TIMES.items():
+        readme_lines = [line for line in readme.splitlines() if f"creference bench --{size}" in line]
+        assert readme_lines and all(words in line for line in readme_lines), (size, readme_lines)
+        assert words in " ".join(help_text.split())
+
+
+def _fake_result(**extra_params):
+    params = {"x": 1.0, "y": 1.5, "z": 4.0, "yaw": 0.5, "focal_length_px": 1200.0, **extra_params}
+    names = list(params) + ["distance_m"]
+    return {"map": params, "posterior": {
+        "mean": {k: 1.0 for k in names}, "sd": {k: 0.0123 for k in names},
+        "hdi": {"prob": 0.9, **{k: [0.98, 1.02] for k in names}}}}
+
+
+def test_format_table_has_a_row_per_parameter_of_the_result():
+    from creference_bayes.cli.estimate import format_table
+
+    table = format_table(_fake_result(pitch=0.1, roll=-0.02))
+    rows = [line.split()[0] for line in table.splitlines()[2:]]
+    assert rows == ["x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m"]
+    roll = next(line for line in table.splitlines() if line.startswith("roll"))
+    assert roll.split()[1:] == ["rad", "-0.020", "1.000", "0.012", "[0.980,", "1.020]"]
+
+
+def test_format_table_prints_a_row_with_one_precision_and_aligned_columns():
+    from creference_bayes.cli.estimate import format_table
+
+    table = format_table(_fake_result())
+    lines = table.splitlines()
+
+    def cells(name):
+        line = next(line for line in lines if line.split()[0] == name)
+        return re.sub(r"\[\s+", "[", line).split()[1:]
+
+    assert cells("focal_length_px") == ["px", "1200", "1", "0", "[1,", "1]"]
+    assert cells("x") == ["m", "1.000", "1.000", "0.012", "[0.980,", "1.020]"]
+    hdi = [line.index("[") for line in lines[2:]]
+    assert len(set(hdi)) == 1  # the HDI column starts at the same place in every row
+    assert len({len(line) for line in lines[1:]}) == 1  # every row as wide as the rule under the header

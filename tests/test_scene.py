@@ -117,18 +117,73 @@ def test_median_corners_is_per_corner_median():
 
 def test_unknown_keys_warn_with_their_names():
     d = _example()
-    d["refrences"] = d.pop("references")
+    d["notes"] = "made by hand"
     d["image"]["colour"] = "rgb"
-    d["references"] = []
-    d["target"]["dimension_lines"][0]["cornres"] = []
+    d["target"]["dimension_lines"][0]["confidence"] = 0.5
+    d["references"][1]["note"] = "hard to see"  # two edits from 'mode': too far for a short key
+    d["references"][2]["order"] = 3  # two edits from 'worker'
+    d["references"][3]["object_id"] = "c7"  # 'object' plus more than a third of it
     with pytest.warns(SceneWarning) as record:
         scene = parse_scene(d)
     messages = [str(w.message) for w in record]
-    assert "refrences: unknown key ignored" in messages
-    assert "image.colour: unknown key ignored" in messages
-    assert "target.dimension_lines[0].cornres: unknown key ignored" in messages
+    assert sorted(messages) == sorted([
+        "notes: unknown key ignored", "image.colour: unknown key ignored",
+        "target.dimension_lines[0].confidence: unknown key ignored",
+        "references[1].note: unknown key ignored", "references[2].order: unknown key ignored",
+        "references[3].object_id: unknown key ignored"])
     assert set(scene.warnings) == set(messages)
-    assert scene.references == ()  # the misspelled key really is ignored
+
+
+def _rename(path, new):
+    """Mutation: rename the key at ``path`` (a tuple of keys and indices) to ``new``."""
+    def mutate(d):
+        *parent, key = path
+        obj = d
+        for k in parent:
+            obj = obj[k]
+        obj[new] = obj.pop(key, 0.5)  # a key the example lacks gets a value
+    return mutate
+
+
+@pytest.mark.parametrize("path, typo, expected", [
+    (("references",), "refrences", "refrences: unknown key; did you mean 'references'?"),
+    (("horizon",), "Horizon", "Horizon: unknown key; did you mean 'horizon'?"),
+    (("ground_truth",), "ground-truth", "ground-truth: unknown key; did you mean 'ground_truth'?"),
+    (("image", "height"), "heigth", "image.heigth: unknown key; did you mean 'height'?"),
+    (("camera", "focal_length_px"), "focal_length", "camera.focal_length: unknown key; did you mean 'focal_length_px'?"),
+    (("target", "dimension_lines"), "dimension_line", "target.dimension_line: unknown key; did you mean 'dimension_lines'?"),
+    (("target", "dimensions_m", "length"), "lenght", "target.dimensions_m.lenght: unknown key; did you mean 'length'?"),
+    (("target", "dimension_lines", 0, "corners"), "cornres", "target.dimension_lines[0].cornres: unknown key; did you mean 'corners'?"),
+    (("references", 2, "value"), "valeu", "references[2].valeu: unknown key; did you mean 'value'?"),
+    (("references", 0, "unit"), "units", "references[0].units: unknown key; did you mean 'unit'?"),
+    (("references", 0, "mode"), "model", "references[0].model: unknown key; did you mean 'mode'?"),
+    (("references", 1, "confidence"), "confidance", "references[1].confidance: unknown key; did you mean 'confidence'?"),
+    (("camera", "principal_point"), "principal point", "camera.principal point: unknown key; did you mean 'principal_point'?"),
+])
+def test_a_near_miss_of_a_known_key_is_an_error_naming_the_suggestion(path, typo, expected):
+    d = _example()
+    d.setdefault("camera", {})["focal_length_px"] = 1200.0
+    _rename(path, typo)(d)
+    with pytest.raises(SceneError) as info:
+        parse_scene(d)
+    assert str(info.value) == expected
+
+
+def test_ground_truth_is_free_form_even_for_near_misses():
+    d = _example()
+    d["ground_truth"]["yaw_radians"] = 0.3  # not checked against yaw_rad: extras are free-form
+    assert _parse(d).ground_truth.extra["yaw_radians"] == 0.3
+
+
+@pytest.mark.parametrize("a, b, distance", [
+    ("height", "heigth", 1), ("references", "refrences", 1), ("mode", "note", 2),
+    ("", "abc", 3), ("kitten", "sitting", 3), ("ca", "abc", 3),  # OSA, not full Damerau: 3
+])
+def test_edit_distance_known_answers(a, b, distance):
+    from creference_bayes.io.scene import _edit_distance
+
+    assert _edit_distance(a, b) == distance
+    assert _edit_distance(b, a) == distance
 
 
 def test_ground_truth_may_carry_extra_keys():

@@ -24,6 +24,7 @@ temperature T. Tables: :mod:`.report`; figures: :mod:`.figures`.
 
 from __future__ import annotations
 
+import errno
 import json
 import platform
 import sys
@@ -142,13 +143,26 @@ def variant(scene: Scene, n_target: int, references) -> Scene:
     return replace(scene, target=target, references=refs)
 
 
-def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str | None = None) -> list[Path]:
+def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str | None = None,
+                 *, overwrite: bool = False) -> list[Path]:
     """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
 
     ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); reference formats cycle
-    so that every ten references cover the ten formats once each.
+    so that every ten references cover the ten formats once each. Each file is written whole or
+    not at all (:func:`~creference_bayes.io.files.atomic_write_text`).
+
+    Raises
+    ------
+    FileExistsError
+        When ``outdir`` exists and is not empty, unless ``overwrite`` (files of the same name are
+        then replaced; other files are left alone).
     """
+    from ..io.files import atomic_write_text
+
     outdir = Path(outdir)
+    if not overwrite and outdir.is_dir() and any(outdir.iterdir()):
+        raise FileExistsError(errno.EEXIST, "folder is not empty (overwrite=True replaces its scenes)",
+                              str(outdir))
     outdir.mkdir(parents=True, exist_ok=True)
     tiers = list(TIERS) if tier == "all" else [tier]
     paths = []
@@ -156,7 +170,7 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
         d = simulate_scene(np.random.default_rng([seed, i]), setting=setting, tier=tiers[i % len(tiers)],
                            format_offset=5 * i)
         p = outdir / f"scene_{i:04d}.json"
-        p.write_text(json.dumps(d, indent=1) + "\n")
+        atomic_write_text(p, json.dumps(d, indent=1) + "\n")
         paths.append(p)
     return paths
 
@@ -322,7 +336,7 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
 
 
 def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature: float | None = None,
-              progress=None) -> dict:
+              progress=None, progress_bar: bool = False) -> dict:
     """Run the benchmark; returns the JSON-able document (records, summary, environment).
 
     Parameters
@@ -330,24 +344,33 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
     config : a :class:`BenchConfig` or the name of one of :data:`CONFIGS`
     seed : the seed of the scenes and of every estimator
     temperature : the paper model's posterior temperature (default: the package's)
-    progress : callable taking a line of text, or None
+    progress : callable taking a line of text (one per scene), or None
+    progress_bar : show a bar of the scenes on standard error (the lines then print above it)
     """
     if isinstance(config, str):
         if config not in CONFIGS:
             raise ValueError(f"config: expected one of {list(CONFIGS)}, got {config!r}")
         config = CONFIGS[config]
-    say = progress or (lambda s: None)
+    from ..inference.progress import progress_bar as _bar
+
     t0, c0 = time.perf_counter(), time.process_time()
     scenes = bench_scenes(config, seed)
     seen: dict[str, int] = {}
     records = []
-    for sid, scene in scenes:
-        tier = scene.ground_truth.extra["tier"]
-        seen[tier] = seen.get(tier, 0) + 1
-        records += _run_scene(sid, scene, config, seed, temperature,
-                              pairs=seen[tier] <= config.pair_scenes,
-                              sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
-                              baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
+    with _bar(progress_bar, len(scenes), desc="bench scenes", unit="scene") as bar:
+        def say(line: str) -> None:
+            if progress is not None:
+                with bar.external_write_mode(file=sys.stderr):  # above the bar, not through it
+                    progress(line)
+
+        for sid, scene in scenes:
+            tier = scene.ground_truth.extra["tier"]
+            seen[tier] = seen.get(tier, 0) + 1
+            records += _run_scene(sid, scene, config, seed, temperature,
+                                  pairs=seen[tier] <= config.pair_scenes,
+                                  sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
+                                  baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
+            bar.update(1)
     from .report import summarise
 
     doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),

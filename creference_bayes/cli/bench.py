@@ -9,11 +9,14 @@ from pathlib import Path
 
 from ..bench.runner import CONFIGS, plain, run_bench, write_scenes
 from ..bench.simulate import SETTINGS, TIERS
+from ..io.files import atomic_write_text
 from .main import UsageError
 
-__all__ = ["register"]
+__all__ = ["register", "BENCH_TIMES"]
 
-
+#: How long each bench size takes (two cores, the adopted defaults; docs/benchmark_results.md:
+#: quick 13 s, full 19 min). The README quotes the same words (a test checks it).
+BENCH_TIMES = {"quick": "under a minute", "full": "about 20 minutes"}
 
 
 def _run_bench_command(args) -> int:
@@ -32,12 +35,13 @@ def _run_bench_command(args) -> int:
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     if not poselib_available():
         print(f"note: p4pf skipped ({INSTALL_HINT})", file=sys.stderr)
-    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=say)
+    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=say,
+                    progress_bar=not args.quiet and sys.stderr.isatty())
     report = markdown_report(doc)
     if not poselib_available():
         report += f"\n\np4pf skipped: {INSTALL_HINT}\n"
-    (out / "bench.json").write_text(json.dumps(plain(doc), indent=1, allow_nan=False) + "\n")
-    (out / "bench.md").write_text(report + "\n")
+    atomic_write_text(out / "bench.json", json.dumps(plain(doc), indent=1, allow_nan=False) + "\n")
+    atomic_write_text(out / "bench.md", report + "\n")
     paths = []
     if not args.no_figures:
         from ..bench.figures import write_figures
@@ -52,35 +56,60 @@ def _run_bench_command(args) -> int:
 def _run_simulate_command(args) -> int:
     if args.n < 1:
         raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
-    paths = write_scenes(args.outdir, args.n, seed=args.seed, tier=args.tier, setting=args.setting)
+    out = Path(args.outdir)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder")
+    if not args.overwrite and out.is_dir() and any(out.iterdir()):
+        raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite "
+                         "(replaces scene_NNNN.json files of the same name)")
+    paths = write_scenes(out, args.n, seed=args.seed, tier=args.tier, setting=args.setting,
+                         overwrite=True)
     if not args.quiet:
         print(f"wrote {len(paths)} scenes to {args.outdir}")
     return 0
 
 
+def _n_scenes(size: str) -> int:
+    return sum(n for *_, n in CONFIGS[size].scenes)
+
+
 def register(subparsers) -> None:
     """Add ``bench`` and ``simulate`` to the ``creference`` command."""
-    p = subparsers.add_parser("bench", help="benchmark against the paper's method, P4Pf and the Cramér–Rao bound")
+    p = subparsers.add_parser(
+        "bench", help="benchmark against the paper's method, P4Pf and the Cramér–Rao bound",
+        description="Run the paper's method, PoseLib's P4Pf (extra 'peer'), both models of this "
+                    "package and the Cramér–Rao bound on the same simulated scenes; write tables "
+                    f"(bench.md, bench.json) and figures. --quick: {BENCH_TIMES['quick']}; --full: "
+                    f"{BENCH_TIMES['full']} on two cores. See docs/benchmark_results.md.")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="CI-sized run (default; under two minutes)")
-    size.add_argument("--full", action="store_true", help="the documented run (about 25 minutes)")
+    size.add_argument("--quick", action="store_true",
+                      help=f"CI-sized run, {_n_scenes('quick')} scenes (the default; {BENCH_TIMES['quick']})")
+    size.add_argument("--full", action="store_true",
+                      help=f"the documented run, {_n_scenes('full')} scenes ({BENCH_TIMES['full']})")
     p.add_argument("--out", default="bench_out", metavar="DIR", help="output directory (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of scenes and estimators (default: %(default)s)")
     p.add_argument("--paper-restarts", type=int, default=None, metavar="N",
                    help="override the paper preset's restarts (default: 200; 8 with --quick)")
-    p.add_argument("--temperature", type=float, default=None,
+    p.add_argument("--temperature", type=float, default=None, metavar="T",
                    help="posterior temperature of the paper model (default: the package's)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run_bench_command)
 
-    p = subparsers.add_parser("simulate", help="write synthetic creference-scene/1 files with ground truth")
-    p.add_argument("outdir", metavar="OUTDIR")
+    p = subparsers.add_parser(
+        "simulate", help="write synthetic creference-scene/1 files with ground truth",
+        description="Write N simulated scenes (scene_0000.json, …) with exact ground truth, as the "
+                    "benchmark draws them: a target box, 13 noisy dimension-line annotations, five "
+                    "references in the paper's ten formats and the horizon. No photo.")
+    p.add_argument("outdir", metavar="OUTDIR", help="folder to write into (created; must be empty "
+                                                    "unless --overwrite)")
     p.add_argument("--n", type=int, required=True, help="number of scenes")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
                    help="noise tier, or all to cycle through them (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),
                    help="indoor or outdoor (default: two thirds indoor)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into a non-empty folder, replacing files of the same name")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=_run_simulate_command)

@@ -12,52 +12,102 @@ from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .main import UsageError, example_scene_path
 
-__all__ = ["register", "format_table"]
+__all__ = ["register", "format_table", "truth_of"]
+
+
+#: Units of the quantities a result may hold; a quantity not listed is shown without a unit.
+UNITS = {"x": "m", "y": "m", "z": "m", "yaw": "rad", "pitch": "rad", "roll": "rad",
+         "focal_length_px": "px", "distance_m": "m"}
+#: Decimals shown per unit (millimetres, milliradians, whole pixels); every number of a row
+#: (MAP, mean, sd, HDI, truth) has its row's decimals. Other units: 4 significant digits of the MAP.
+DECIMALS = {"m": 3, "rad": 3, "px": 0}
 
 
 def format_table(result, truth=None) -> str:
-    """A plain-text table of a :class:`~creference_bayes.result.Result`."""
-    from ..models.params import PARAM_NAMES, PARAM_UNITS
+    """A plain-text table of a result: one row per quantity, in the order of the result's ``map``
+    (then the posterior's extra quantities, such as ``distance_m``), whatever parameters it has.
 
-    d = result.to_dict()
+    Parameters
+    ----------
+    result : a :class:`~creference_bayes.io.result.Result` or its ``creference-result/1`` dict
+    truth : optional: a :class:`~creference_bayes.io.scene.Scene` (its ground truth, if any) or
+        a dict name → true value (missing names are left blank)
+    """
+    d = result if isinstance(result, dict) else result.to_dict()
+    if truth is not None and not isinstance(truth, dict):
+        truth = truth_of(truth)
     post = d.get("posterior")
-    cols = ["parameter", "unit", "MAP"]
+    point = dict(d["map"])
+    names = list(point)
     if post:
-        cols += ["mean", "sd", f"HDI {post['hdi']['prob']:.0%}"]
+        names += [k for k in post["mean"] if k not in point]
+    if "distance_m" not in names and {"x", "z"} <= set(point):
+        names.append("distance_m")
+    if "distance_m" not in point and {"x", "z"} <= set(point):
+        point["distance_m"] = float(np.hypot(point["x"], point["z"]))
+    cols = ["quantity", "unit", "MAP"]
+    if post:
+        cols += ["mean", "sd", f"{post['hdi']['prob']:.0%} HDI"]
     if truth is not None:
         cols.append("truth")
-    names = list(PARAM_NAMES) + (["distance_m"] if post else [])
-    units = list(PARAM_UNITS) + (["m"] if post else [])
     rows = []
-    for name, unit in zip(names, units):
-        row = [name, unit, _fmt(d["map"].get(name, np.hypot(d["map"]["x"], d["map"]["z"])))]
+    for name in names:
+        unit = UNITS.get(name, "")
+        dec = _decimals(unit, point.get(name))
+        row = [name, unit, _fmt(point.get(name), dec)]
         if post:
-            lo, hi = post["hdi"][name]
-            row += [_fmt(post["mean"][name]), _fmt(post["sd"][name]), f"[{_fmt(lo)}, {_fmt(hi)}]"]
+            lo, hi = post["hdi"].get(name) or (None, None)
+            row += [_fmt(post["mean"].get(name), dec), _fmt(post["sd"].get(name), dec), (_fmt(lo, dec), _fmt(hi, dec))]
         if truth is not None:
-            row.append(_fmt(truth.get(name)) if truth.get(name) is not None else "")
+            row.append(_fmt(truth.get(name), dec))
         rows.append(row)
+    if post:  # the HDI as "[low, high]" with the lows and the highs aligned
+        i = cols.index(f"{post['hdi']['prob']:.0%} HDI")
+        wl = max(len(r[i][0]) for r in rows)
+        wh = max(len(r[i][1]) for r in rows)
+        for r in rows:
+            lo, hi = r[i]
+            r[i] = f"[{lo.rjust(wl)}, {hi.rjust(wh)}]" if lo or hi else ""
     widths = [max(len(str(r[i])) for r in rows + [cols]) for i in range(len(cols))]
-    line = "  ".join(c.ljust(w) for c, w in zip(cols, widths))
-    out = [line, "  ".join("-" * w for w in widths)]
-    out += ["  ".join(str(c).ljust(w) for c, w in zip(r, widths)) for r in rows]
-    return "\n".join(out)
+    left = {0, 1}  # names and units to the left, numbers to the right
+
+    def line(cells):
+        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return "\n".join([line(cols), "  ".join("-" * w for w in widths)] + [line(r) for r in rows])
 
 
-def _fmt(x) -> str:
+def _decimals(unit: str, value) -> int:
+    if unit in DECIMALS:
+        return DECIMALS[unit]
+    if value is None or not np.isfinite(value) or value == 0:
+        return 3
+    return int(max(0, 3 - np.floor(np.log10(abs(float(value))))))
+
+
+def _fmt(x, decimals: int = 3) -> str:
     if x is None:
         return ""
     x = float(x)
-    return f"{x:.4g}" if abs(x) < 1e4 else f"{x:.0f}"
+    if not np.isfinite(x):
+        return str(x)
+    text = f"{x:.{decimals}f}"
+    return text.lstrip("-") if float(text) == 0 else text
 
 
-def _truth_dict(scene):
+def truth_of(scene) -> dict | None:
+    """The scene's ground truth by quantity name (pitch and roll from its extras when given), or
+    None when it has none."""
     gt = scene.ground_truth
     if gt is None:
         return None
-    t = {"x": gt.location_m[0], "y": gt.location_m[1], "z": gt.location_m[2],
-         "yaw": gt.yaw_rad, "focal_length_px": gt.focal_length_px,
-         "distance_m": float(np.hypot(gt.location_m[0], gt.location_m[2]))}
+    x, y, z = (float(v) for v in gt.location_m)
+    t = {"x": x, "y": y, "z": z, "yaw": gt.yaw_rad, "focal_length_px": gt.focal_length_px,
+         "distance_m": float(np.hypot(x, z))}
+    for name in ("pitch", "roll"):
+        if gt.extra.get(f"{name}_rad") is not None:
+            t[name] = float(gt.extra[f"{name}_rad"])
     return t
 
 
@@ -95,46 +145,65 @@ def _check_posterior_options(args) -> None:
         raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
 
 
+#: Handedness of the dimension lines, in a word (core/geometry.py: dimension_corners).
+HANDEDNESS_WORDS = {1: "width line counter-clockwise from the length line, seen from above",
+                    -1: "width line clockwise from the length line, seen from above"}
+
+
 def _posterior_line(result) -> str:
     g = result.diagnostics
     ess = [v for v in g.ess_bulk.values() if v is not None]
     rhat = [v for v in g.r_hat.values() if v is not None]
-    state = "converged" if g.converged else "NOT converged"
-    return (f"posterior: {g.n_walkers} walkers in {g.n_ensembles} ensembles, {g.n_steps} steps "
-            f"(+{g.warmup_steps} warm-up), {state}; R-hat ≤ {max(rhat, default=float('nan')):.3f}, "
-            f"bulk ESS ≥ {min(ess, default=float('nan')):.0f}; {g.seconds:.2f} s; "
-            f"T = {result.posterior.temperature:g}")
+    state = "converged" if g.converged else "NOT converged (see the notes below)"
+    return (f"posterior: {state}; R-hat ≤ {max(rhat, default=float('nan')):.3f}, bulk ESS ≥ "
+            f"{min(ess, default=float('nan')):.0f}; {g.n_walkers} walkers in {g.n_ensembles} "
+            f"ensembles, {g.n_steps} steps (+{g.warmup_steps} warm-up), {g.seconds:.2f} s, "
+            f"temperature {result.posterior.temperature:g}")
+
+
+def _references_line(refs) -> str | None:
+    if refs is None or not hasattr(refs, "pairs_used"):
+        return None
+    if not refs.enabled:
+        return f"references: {refs.n_references} ignored (--no-references)"
+    if refs.n_references == 0:
+        return "references: none"
+    n_pairs = refs.pairs_used + refs.pairs_skipped
+    why = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in refs.skipped_reasons.items())
+    skipped = f" (skipped: {why})" if why else ""
+    if refs.used_as == "likelihood":
+        return (f"references: {refs.in_likelihood} of {refs.n_references} used as measurements; "
+                f"the paper's pairwise method could use {refs.pairs_used} of {n_pairs} pairs{skipped}")
+    return f"references: {refs.n_references}, as bounds from {refs.pairs_used} of {n_pairs} pairs{skipped}"
 
 
 def _report(result, scene, args) -> None:
     if not args.quiet:
+        h = result.map.handedness
         print(f"target {result.target!r}  model {result.model}  preset {result.preset}  "
-              f"handedness {result.map.handedness:+d}  MAP in {result.map.seconds:.2f} s")
-        print(format_table(result, _truth_dict(scene)))
+              f"MAP in {result.map.seconds:.2f} s")
+        print(f"handedness {h:+d} ({HANDEDNESS_WORDS.get(h, 'unknown')})")
+        print(format_table(result, truth_of(scene)))
         if result.diagnostics is not None:
             print(_posterior_line(result))
-        refs = result.references
-        if refs is not None and hasattr(refs, "pairs_used"):
-            if not refs.enabled:
-                print(f"references: {refs.n_references} ignored (--no-references)")
-            else:
-                why = ", ".join(f"{k} {n}" for k, n in refs.skipped_reasons.items())
-                pairs = (f"pairs solvable {refs.pairs_used}, skipped {refs.pairs_skipped}"
-                         + (f" ({why})" if why else ""))
-                if refs.used_as == "likelihood":
-                    print(f"references: {refs.n_references}, {refs.in_likelihood} in the likelihood "
-                          f"(for comparison, the paper's pairwise aggregation: {pairs})")
-                else:
-                    print(f"references: {refs.n_references} as pairwise bounds, {pairs.replace('solvable', 'used')}")
-        if result.evaluation is not None:
-            print(f"location error (Eq. 3): {result.evaluation.location_pct_error:.2f} %")
-            ev = result.evaluation
+        refs = _references_line(result.references)
+        if refs:
+            print(refs)
+        ev = result.evaluation
+        if ev is not None:
+            text = f"location error against the ground truth: MAP {ev.location_pct_error:.2f} %"
             if ev.posterior_location_pct_error is not None:
-                inside = [k for k, v in (ev.in_hdi or {}).items() if v]
-                print(f"posterior-mean location error: {ev.posterior_location_pct_error:.2f} %; "
-                      f"truth inside the HDI for: {', '.join(inside) or 'none'}")
+                text += f", posterior mean {ev.posterior_location_pct_error:.2f} %"
+            print(text + " (distance to the true location, as a share of its distance from the camera)")
+            if ev.in_hdi is not None:
+                inside = [k for k, v in ev.in_hdi.items() if v]
+                outside = [k for k, v in ev.in_hdi.items() if not v]
+                print(f"truth inside the {result.posterior.hdi_prob:.0%} HDI: {', '.join(inside) or 'none'}"
+                      + (f"; outside: {', '.join(outside)}" if outside else ""))
+        printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
         for w in result.warnings:
-            print(f"note: {w}")
+            if w not in printed:
+                print(f"note: {w}")
     if args.out:
         result.to_json(args.out)
         if not args.quiet:
@@ -144,7 +213,7 @@ def _report(result, scene, args) -> None:
 def _run_demo(args) -> int:
     args.scene = str(example_scene_path())
     if not args.quiet:
-        print(f"example scene: {args.scene}")
+        print(f"example scene (synthetic, with ground truth): {args.scene}")
     return _run_estimate(args)
 
 
@@ -174,10 +243,20 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
 
 def register(subparsers) -> None:
     """Add ``estimate`` and ``demo`` to the ``creference`` command."""
-    p = subparsers.add_parser("estimate", help="estimate the target of a scene file")
-    p.add_argument("scene", metavar="SCENE.json")
+    p = subparsers.add_parser(
+        "estimate", help="estimate the target of a scene file",
+        description="Estimate the 3D location of a scene's target: the MAP, then (unless "
+                    "--no-posterior) the posterior with credible intervals and diagnostics. "
+                    "Prints a table; --out writes a creference-result/1 file (docs/result_format.md).")
+    p.add_argument("scene", metavar="SCENE.json",
+                   help="a creference-scene/1 file (docs/scene_format.md)")
     _add_estimate_options(p)
     p.set_defaults(func=_run_estimate)
-    p = subparsers.add_parser("demo", help="estimate the example scene shipped with the package")
+    p = subparsers.add_parser(
+        "demo", help="estimate the synthetic example scene shipped with the package",
+        description="Run `creference estimate` on the example scene shipped with the package: a "
+                    "synthetic scene (simulated annotations of a TV stand in a room, no photo) "
+                    "with five references and its ground truth, so the output also shows the "
+                    "error of the estimate.")
     _add_estimate_options(p)
     p.set_defaults(func=_run_demo)

@@ -22,8 +22,11 @@ MAX_XML_BYTES = 1 << 30
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files")
-    sub = p.add_subparsers(dest="tool", required=True, metavar="TOOL")
+    p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files",
+                              description="Convert the annotations of a Label Studio or CVAT project "
+                                          "to creference-scene/1 files, one per target.")
+    sub = p.add_subparsers(dest="tool", required=True, metavar="TOOL",
+                           help="the annotation tool the export comes from: label-studio or cvat")
 
     ls = sub.add_parser("label-studio", help="a Label Studio JSON export → one scene per task",
                         description="Convert a Label Studio JSON export (tasks with annotations) to "

@@ -39,9 +39,12 @@ def example_scene_path() -> Path:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="creference",
-        description="3D location of a target object from crowd annotations on one photo (C-Reference).")
+        description="3D location of a target object from crowd annotations on one photo "
+                    "(C-Reference), with credible intervals. Start with `creference demo`; the "
+                    "user guide is docs/user_guide.md.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                help="one of the commands below; `creference COMMAND --help` for its options")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser

@@ -4,7 +4,10 @@ Writes ``top_view.png``, ``pairs.png`` and ``ranks.png`` (these need the posteri
 ``boxes.png`` (this needs the scene). Posterior draws come from the NetCDF file named in the
 result (``--netcdf`` at estimation) when it exists, else from the draws kept in the JSON.
 The scene is ``--scene``, else the result's ``scene`` name looked up next to the result file, in
-the current directory, then among the package's shipped scenes.
+the current directory, then among the package's shipped scenes. Either way it must be the scene
+the result was estimated from: its target id, image size and content hash must match the result's
+``scene_id`` (else a one-line error, exit 2). Results written before ``scene_id`` existed are
+checked on their target id only, with a warning that the scene could not be checked fully.
 """
 
 from __future__ import annotations
@@ -16,11 +19,20 @@ __all__ = ["register"]
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("plot", help="plot a result: projected boxes, pair plot, ranks, top view")
-    p.add_argument("result", metavar="RESULT.json")
-    p.add_argument("--scene", metavar="SCENE.json", help="the scene the result came from")
+    p = subparsers.add_parser(
+        "plot", help="plot a result: projected boxes, pair plot, ranks, top view",
+        description="Draw the figures of a result: boxes.png (the MAP and posterior boxes over the "
+                    "photo or a blank canvas; needs the scene), top_view.png (the ground seen from "
+                    "above), pairs.png and ranks.png (need the posterior). See docs/user_guide.md.")
+    p.add_argument("result", metavar="RESULT.json",
+                   help="a creference-result/1 file written by `creference estimate --out`")
+    p.add_argument("--scene", metavar="SCENE.json",
+                   help="the scene the result was estimated from (default: the result's scene "
+                        "name, looked up next to the result, in the current directory, then among "
+                        "the shipped scenes); a different scene is refused")
     p.add_argument("--out", metavar="DIR", default=".", help="output directory (default: .)")
-    p.add_argument("--format", default="png", choices=["png", "pdf", "svg"])
+    p.add_argument("--format", default="png", choices=["png", "pdf", "svg"],
+                   help="file format of the figures (default: %(default)s)")
     p.add_argument("--dpi", type=int, default=110, help="resolution of PNG files (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=_run)
@@ -31,7 +43,7 @@ def _find_scene(result: dict, result_path: Path, explicit: str | None):
     from ..io.scene import load_scene
 
     if explicit:
-        return load_scene(explicit)
+        return _checked(result, load_scene(explicit), "--scene " + str(explicit))
     name = result.get("scene")
     if not name:
         return None
@@ -39,9 +51,48 @@ def _find_scene(result: dict, result_path: Path, explicit: str | None):
                   Path(str(resources.files("creference_bayes") / "data" / name))]
     for c in candidates:
         if c.is_file():
-            return load_scene(c)
+            return _checked(result, load_scene(c), f"scene {str(c)!r} (found by the result's "
+                                                   "scene name; pass --scene)")
     raise UsageError(f"scene: {name!r} not found next to the result, in the current directory or "
                      "among the shipped scenes; pass --scene")
+
+
+def scene_mismatch(result: dict, scene) -> str | None:
+    """What differs between the scene a result records (``scene_id``) and ``scene``; None if
+    nothing does. A result without ``scene_id`` (written before it existed) is compared on its
+    ``target`` id only."""
+    from ..io.scene import scene_fingerprint
+
+    recorded = result.get("scene_id")
+    if not isinstance(recorded, dict):
+        recorded = {"target": result.get("target")}
+    actual = {"target": scene.target.id, "image_size": [scene.image_width, scene.image_height]}
+    diffs = []
+    if "target" in recorded and recorded["target"] != actual["target"]:
+        diffs.append(f"target {actual['target']!r}, the result's is {recorded['target']!r}")
+    if "image_size" in recorded and list(recorded["image_size"]) != actual["image_size"]:
+        w, h = actual["image_size"]
+        rw, rh = recorded["image_size"]
+        diffs.append(f"image {w}x{h} px, the result's is {rw}x{rh}")
+    if not diffs and "sha256" in recorded and recorded["sha256"] != scene_fingerprint(scene):
+        diffs.append(f"same target and image size but different content: sha256 "
+                     f"{scene_fingerprint(scene)[:12]}…, the result's is {str(recorded['sha256'])[:12]}…; "
+                     "edited since the estimate?")
+    return "; ".join(diffs) or None
+
+
+def _checked(result: dict, scene, where: str):
+    import sys
+
+    from .main import UsageError
+
+    why = scene_mismatch(result, scene)
+    if why:
+        raise UsageError(f"{where}: not the scene this result was estimated from ({why})")
+    if not isinstance(result.get("scene_id"), dict):
+        print("warning: the result records no scene_id (written by an older version): only its target "
+              "id was checked against the scene", file=sys.stderr)
+    return scene
 
 
 def _run(args) -> int:

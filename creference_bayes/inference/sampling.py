@@ -43,7 +43,6 @@ How it samples
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field, fields
 
@@ -453,7 +452,6 @@ def _run(safe, coords, moves, pos, rstate, n_steps):
 
 
 def _progress_bar(enabled: bool, total: int):
-    from tqdm.auto import tqdm
+    from .progress import progress_bar
 
-    return tqdm(total=total, disable=not enabled, file=sys.stderr, unit="step", leave=False,
-                desc="sampling", dynamic_ncols=True)
+    return progress_bar(enabled, total, desc="sampling", unit="step")

@@ -3,7 +3,10 @@
 Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
 and names the value (``references[2].unit: unknown unit 'furlong' …``); nothing else escapes
 :func:`parse_scene` (a property test mutates valid scenes to check it). Unknown keys are not
-errors: they are kept in :attr:`Scene.warnings` and emitted as :class:`SceneWarning`.
+errors, unless one is a near miss of a known key of the same object (``refrences``: unknown
+key; did you mean 'references'?, :func:`near_miss`), which would otherwise silently drop what
+the user meant; the others are kept in :attr:`Scene.warnings` and emitted as
+:class:`SceneWarning`. ``ground_truth`` is free-form (extra keys are kept without a warning).
 
 Optional keys may also be ``null`` (``camera``, ``horizon``, ``references``, ``ground_truth``,
 ``camera.principal_point``, ``camera.focal_length_px``), meaning absent. Limits beyond
@@ -41,6 +44,7 @@ __all__ = [
     "parse_scene",
     "scene_to_dict",
     "scene_fingerprint",
+    "near_miss",
 ]
 
 SCENE_FORMAT = "creference-scene/1"
@@ -57,6 +61,9 @@ MAX_REPR = 60
 MAX_IMAGE_SIDE = 1_000_000
 #: Segments shorter than this (pixels) count as zero-length.
 MIN_SEGMENT_PX = 1e-6
+#: An unknown key this many edits (or fewer) from a known key of the same object is taken for a
+#: typo of it and rejected (:func:`near_miss`); keys farther from every known key only warn.
+NEAR_MISS_EDITS = 2
 
 
 class SceneError(ValueError):
@@ -271,10 +278,55 @@ def _check_segment(a: np.ndarray, b: np.ndarray, path: str, what: str = "line") 
         raise SceneError(path, f"zero-length {what} from [{a[0]:g}, {a[1]:g}] to [{b[0]:g}, {b[1]:g}]")
 
 
+def _edit_distance(a: str, b: str) -> int:
+    """Optimal-string-alignment distance: insertions, deletions, substitutions and swaps of two
+    neighbouring characters each cost 1 (``heigth`` is one edit from ``height``)."""
+    prev2, prev = None, list(range(len(b) + 1))
+    for i in range(1, len(a) + 1):
+        cur = [i] + [0] * len(b)
+        for j in range(1, len(b) + 1):
+            cur[j] = min(prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (a[i - 1] != b[j - 1]))
+            if i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
+                cur[j] = min(cur[j], prev2[j - 2] + 1)
+        prev2, prev = prev, cur
+    return prev[-1]
+
+
+def near_miss(key: str, known) -> str | None:
+    """The known key that ``key`` is most likely a typo of, or None.
+
+    Keys are compared in lower case with ``-`` and spaces read as ``_``. A near miss is at most
+    :data:`NEAR_MISS_EDITS` edits away (insertions, deletions, substitutions, swaps of neighbours;
+    one edit only for known keys of up to 7 characters, so neither ``note`` nor ``order`` is taken
+    for ``mode`` or ``worker``), or a known key with a few characters added or dropped at one end
+    (``focal_length`` for ``focal_length_px``: at most a third of the known key).
+    """
+    def norm(k: str) -> str:
+        return k.lower().replace("-", "_").replace(" ", "_")
+
+    k = norm(key)
+    best, best_d = None, None
+    for cand in sorted(known):
+        c = norm(cand)
+        limit = 1 if len(c) <= 7 else NEAR_MISS_EDITS
+        d = _edit_distance(k, c)
+        end = (c.startswith(k) or c.endswith(k) or k.startswith(c) or k.endswith(c)) and \
+            min(len(k), len(c)) >= 4 and abs(len(k) - len(c)) <= len(c) / 3
+        if (d <= limit or end) and (best_d is None or d < best_d):
+            best, best_d = cand, d
+    return best
+
+
 def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> None:
+    """Unknown keys: an error when one is a near miss of a known key (:func:`near_miss`), else a
+    warning in ``sink``."""
     for key in obj:
-        if key not in known:
-            sink.append(f"{_join(path, key)}: unknown key ignored")
+        if key in known:
+            continue
+        guess = near_miss(key, known) if isinstance(key, str) else None
+        if guess is not None:
+            raise SceneError(_join(path, key), f"unknown key; did you mean {guess!r}?")
+        sink.append(f"{_join(path, key)}: unknown key ignored")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -42,7 +42,9 @@ special case.
 
 from __future__ import annotations
 
+import errno
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
@@ -50,7 +52,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["METHODS", "HorizonEstimate", "detect_segments", "merge_collinear", "find_vanishing_points",
+__all__ = ["METHODS", "HorizonEstimate", "read_gray", "detect_segments", "merge_collinear", "find_vanishing_points",
            "estimate_horizon", "horizon_error"]
 
 METHODS = ("auto", "lsd", "hough")
@@ -109,12 +111,55 @@ class HorizonEstimate:
                 "assumed_level": self.assumed_level}
 
 
+def read_gray(path: str | Path) -> np.ndarray:
+    """An image file as an (h, w) uint8 array, without OpenCV's own messages on standard error.
+
+    The file is read by Python (so a missing file, a folder or a permission problem is an
+    ``OSError`` naming the path, with no OpenCV ``[ WARN ] … findDecoder`` line) and decoded by
+    ``cv2.imdecode`` with OpenCV's logging silenced for the call.
+
+    Raises
+    ------
+    OSError
+        When the file cannot be read; ``strerror`` says why, ``filename`` is the path.
+    ValueError
+        When OpenCV cannot decode it as an image.
+    """
+    path = Path(path)
+    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else _read_error(path)
+    with _quiet_opencv():
+        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    if img is None:
+        raise ValueError("not an image OpenCV can decode")
+    return img
+
+
+def _read_error(path: Path):
+    if not path.exists():
+        raise FileNotFoundError(errno.ENOENT, "no such file", str(path))
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "a folder, not an image file", str(path))
+    return np.fromfile(path, dtype=np.uint8)  # anything else: let the OS say what is wrong
+
+
+@contextmanager
+def _quiet_opencv():
+    """OpenCV's log level set to silent for the duration (restored after)."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None or not hasattr(log, "setLogLevel"):
+        yield
+        return
+    previous = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        log.setLogLevel(previous)
+
+
 def _gray(image) -> np.ndarray:
     if isinstance(image, (str, Path)):
-        img = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise FileNotFoundError(2, "cannot read image", str(image))
-        return img
+        return read_gray(image)
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)

@@ -1,0 +1,34 @@
+"""Progress bars (tqdm) on standard error, in one place: how they look and where they go.
+
+Callers decide *whether* to show one (the command line: not with ``--quiet``, and only when
+standard error is a terminal); this module only builds it. The bars are tqdm's plain text bars
+(``tqdm.std``), also inside Jupyter: ``tqdm.auto`` would pick the notebook widget there and, in a
+kernel without ipywidgets, emit a ``TqdmWarning`` on import even when the bar is disabled.
+"""
+
+from __future__ import annotations
+
+import sys
+
+__all__ = ["progress_bar"]
+
+
+def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = None,
+                 unit: str = "it"):
+    """A tqdm bar on standard error that disappears when done, or a disabled (silent) one.
+
+    Parameters
+    ----------
+    enabled : show the bar
+    total : expected number of updates (None: unknown)
+    desc : the label before the bar
+    unit : what one update counts
+
+    Returns
+    -------
+    ``tqdm.std.tqdm``, usable as a context manager; ``update(n)`` advances it.
+    """
+    from tqdm.std import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr,
+                leave=False, dynamic_ncols=True)
