@@ -15,6 +15,8 @@ from creference_bayes.workflows.batch import (BatchSettings, derive_seed, discov
                                               run_scene)
 from creference_bayes.workflows.engines import LocalEngine
 
+#: Small sampler settings: the tests are about the batch, not the posterior's precision.
+SMALL = BatchSettings(seed=5, sampling={"n_ensembles": 2, "n_walkers": 16, "tau_multiple": 20, "min_ess": 100})
 INVALID = {"format": "creference-scene/1", "image": {"width": 640}, "target": {}}
 
 
@@ -34,7 +36,7 @@ def dataset(tmp_path_factory):
     (scenes / "broken.json").write_text(json.dumps(INVALID))
     out = root / "out"
     events = []
-    report = run_batch([scenes], out, LocalEngine(2), BatchSettings(seed=5),
+    report = run_batch([scenes], out, LocalEngine(2), SMALL,
                        on_event=lambda key, status: events.append((key, status)))
     return {"scenes": scenes, "out": out, "report": report, "events": events}
 
@@ -59,6 +61,7 @@ def test_batch_estimates_valid_scenes_and_records_the_invalid_one(dataset):
         assert copy["target"] == scene["target"] and copy["ground_truth"] == scene["ground_truth"]
         assert res["batch"]["key"] == key and res["batch"]["scene_copy"] == f"scenes/{key}.json"
         assert res["batch"]["seed"] == derive_seed(5, res["scene_id"]["sha256"])
+        assert res["batch"]["settings"] == SMALL.to_dict()
         assert res["posterior"]["n_draws"] > 0
     manifest = json.loads((out / "batch.json").read_text())
     assert [s["status"] for s in manifest["scenes"]] == ["failed"] + ["done"] * 6
@@ -89,7 +92,7 @@ def test_resume_after_deleting_two_results_recomputes_exactly_those_two(dataset,
     before = {k: _result(out, k) for k in deleted}
     for k in deleted:
         (out / "results" / f"{k}.json").unlink()
-    report = run_batch([dataset["scenes"]], out, LocalEngine(2), BatchSettings(seed=5))
+    report = run_batch([dataset["scenes"]], out, LocalEngine(2), SMALL)
     assert sorted(report.keys("done")) == deleted
     assert sorted(report.keys("skipped")) == sorted(set(f"scene_{i:04d}" for i in range(6)) - set(deleted))
     assert report.keys("failed") == ["broken"]
@@ -103,7 +106,7 @@ def test_dask_local_cluster_gives_identical_numbers(dataset, tmp_path):
 
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
         report = run_batch([dataset["scenes"]], tmp_path / "dask", DaskEngine(cluster.scheduler_address),
-                           BatchSettings(seed=5))
+                           SMALL)
     assert report.status == dataset["report"].status
     for key in report.keys("done"):
         assert _numbers(_result(tmp_path / "dask", key)) == _numbers(_result(dataset["out"], key))

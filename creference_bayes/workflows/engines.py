@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import threading
 import time
 from concurrent.futures import Executor, ProcessPoolExecutor
 
@@ -31,6 +33,29 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _init_worker(parent_pid: int, interval: float = 1.0) -> None:
+    """Pool initializer: leave Ctrl-C to the batch process, and end with it.
+
+    Ctrl-C in a terminal reaches every process of the group; the batch process handles it (it
+    records what finished and ends the pool), so the workers ignore it. A pool's workers would
+    also outlive a batch process killed with SIGKILL (nothing runs its clean-up), finishing
+    their scene for nobody and then waiting for tasks forever: a thread ends them instead.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch():
+        while True:
+            time.sleep(interval)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except PermissionError:  # the PID exists (another user's): keep watching
+                pass
+
+    threading.Thread(target=watch, name="creference-watch-parent", daemon=True).start()
 
 
 class Engine:
@@ -81,7 +106,8 @@ class LocalEngine(Engine):
         self._executor = self._new()
 
     def _new(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context)
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,
+                                   initializer=_init_worker, initargs=(os.getpid(),))
 
     @property
     def executor(self) -> Executor:
@@ -107,6 +133,7 @@ class LocalEngine(Engine):
                     p.terminate()
             for p in processes:
                 p.join(timeout=5)
+            self._executor.shutdown(wait=True)  # let the pool's manager thread release its queues
         else:
             self._executor.shutdown(wait=True)
 

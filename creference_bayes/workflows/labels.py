@@ -89,6 +89,8 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     inputs, skipped = [], []
     for path in sorted((batch_dir / "results").rglob("*.json")):
         key = path.relative_to(batch_dir / "results").with_suffix("").as_posix()
+        if any(part.startswith(".") for part in key.split("/")):
+            continue  # a temporary file left by a write that was killed (io/files.py)
         try:
             result = json.loads(path.read_text())
             if result.get("format") != RESULT_FORMAT or "batch" not in result:
@@ -291,6 +293,8 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         objects += objs
     failed = []
     for path in sorted((Path(batch_dir) / "errors").rglob("*.json")):
+        if path.name.startswith("."):
+            continue
         try:
             d = json.loads(path.read_text())
             failed.append({"key": d["key"], "error": d["error"]})
