@@ -20,27 +20,27 @@ are the same whatever the engine, the worker count or the order.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import hashlib
 import json
 import time
-import traceback
 import warnings
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from .. import __version__
 from ..io.files import atomic_write_json
-from ..io.scene import SceneError, SceneWarning, load_scene, parse_scene, scene_fingerprint, scene_to_dict
-from ..pipeline import DEFAULT_MODEL, estimate
+from ..io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
+from ..pipeline import DEFAULT_MODEL
+from .batch_files import ERROR_FORMAT, layout, record_error, up_to_date
+from .batch_runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
 __all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
            "discover_scenes", "derive_seed", "run_scene", "run_batch", "layout"]
 
 BATCH_FORMAT = "creference-batch/1"
-ERROR_FORMAT = "creference-batch-error/1"
 
 
 @dataclass(frozen=True)
@@ -80,13 +80,6 @@ class SceneInput:
 
     key: str
     path: Path
-
-
-def layout(out: str | Path, key: str) -> dict[str, Path]:
-    """The batch folder's files for ``key``: ``result``, ``scene`` (the copy) and ``error``."""
-    out = Path(out)
-    return {"result": out / "results" / f"{key}.json", "scene": out / "scenes" / f"{key}.json",
-            "error": out / "errors" / f"{key}.json"}
 
 
 def discover_scenes(inputs, exclude: str | Path | None = None) -> list[SceneInput]:
@@ -134,32 +127,6 @@ def derive_seed(base_seed: int, fingerprint: str) -> int:
     return int(digest[:15], 16)
 
 
-def run_scene(job: dict) -> dict:
-    """Estimate one scene (runs in a worker: a local process or a Dask worker thread).
-
-    ``job`` holds the decoded scene (``data``), its file (``source``), the scene's ``seed`` and the
-    settings' ``estimate`` keyword arguments. Never raises for a bad scene or a failed estimate:
-    returns ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
-    """
-    t0 = time.perf_counter()
-    stage = "load"
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)  # reported in the result's warnings
-            scene = parse_scene(job["data"], source=job["source"])
-            stage = "estimate"
-            result = estimate(scene, seed=job["seed"], **job["estimate"])
-        return {"ok": True, "result": result.to_dict(), "seconds": time.perf_counter() - t0}
-    except Exception as exc:  # isolate the failure: the batch goes on
-        return {"ok": False, "stage": stage, "error": _one_line(exc),
-                "traceback": traceback.format_exc(), "seconds": time.perf_counter() - t0}
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 @dataclass
 class BatchReport:
     """What a batch run did. ``status`` maps every KEY to ``done``, ``skipped``, ``failed`` or
@@ -182,35 +149,6 @@ class BatchReport:
     def targets_per_minute(self) -> float | None:
         n = len(self.keys("done"))
         return 60.0 * n / self.seconds if n and self.seconds > 0 else None
-
-
-def _up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:
-    """Whether the stored result is the scene's as it is now, made with these settings."""
-    try:
-        d = json.loads(paths["result"].read_text())
-        return (d.get("scene_id", {}).get("sha256") == fingerprint
-                and d.get("batch", {}).get("settings") == settings)
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
-def _record_error(paths: dict, si: SceneInput, stage: str, error: str, tb: str | None = None) -> None:
-    for stale in ("result", "scene"):  # a result of an older version of the scene is not its result
-        paths[stale].unlink(missing_ok=True)
-    doc = {"format": ERROR_FORMAT, "key": si.key, "source": str(si.path.resolve()), "stage": stage,
-           "error": error}
-    if tb:
-        doc["traceback"] = tb
-    atomic_write_json(paths["error"], doc)
-
-
-def _record_result(paths: dict, si: SceneInput, scene, result: dict, seed: int, settings: dict) -> None:
-    atomic_write_json(paths["scene"], scene_to_dict(scene))  # first the copy, then the result
-    result["batch"] = {"key": si.key, "source": str(si.path.resolve()),
-                       "scene_copy": f"scenes/{si.key}.json",
-                       "seed": seed, "settings": settings}
-    atomic_write_json(paths["result"], result)
-    paths["error"].unlink(missing_ok=True)
 
 
 def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings = BatchSettings(), *,
@@ -243,41 +181,20 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
             raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
+        ident = settings.to_dict()
+        status = {si.key: "not run" for si in scenes}
+        errors: dict[str, str] = {}
+        todo = _prepare(scenes, out, settings, ident, status, errors)
     except BaseException:
         engine.close(abandon=True)
         raise
-    ident = settings.to_dict()
-    status = {si.key: "not run" for si in scenes}
-    errors: dict[str, str] = {}
-    todo = deque()
-    for si in scenes:
-        paths = layout(out, si.key)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(si.path)
-            data = json.loads(si.path.read_text(encoding="utf-8-sig"))
-        except (SceneError, OSError, ValueError) as exc:
-            errors[si.key] = _one_line(exc)
-            status[si.key] = "failed"
-            _record_error(paths, si, "load", errors[si.key])
-            continue
-        fingerprint = scene_fingerprint(scene)
-        if _up_to_date(paths, fingerprint, ident):
-            status[si.key] = "skipped"
-            if not paths["scene"].exists():
-                atomic_write_json(paths["scene"], scene_to_dict(scene))
-            continue
-        seed = derive_seed(settings.seed, fingerprint)
-        todo.append((si, scene, {"data": data, "source": str(si.path), "seed": seed,
-                                 "estimate": settings.estimate_kwargs()}))
     if on_event:
         for key in (k for k, s in status.items() if s in ("failed", "skipped")):
             on_event(key, status[key])
 
     n_invalid = sum(s == "failed" for s in status.values())
-    bar = _progress_bar(len(todo) + n_invalid, n_invalid, progress)
-    runner = _Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
+    bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
+    runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
     try:
         runner.run(todo)
     finally:
@@ -288,110 +205,37 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
                              engine=engine.describe(), computed_seconds=runner.seconds)
         write_summary(out, scenes, report)
         atomic_write_json(out / "batch.json", {
-            "format": BATCH_FORMAT, "settings": ident, "engine": report.engine,
-            "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
+            "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
+            "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
             "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
                         **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
     return report
 
 
-def _progress_bar(total: int, failed: int, enabled: bool):
-    """Scenes to do (those that failed to load count as done and failed from the start)."""
-    import sys
-
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, initial=failed, unit="scene", desc="batch", disable=not enabled,
-                file=sys.stderr, dynamic_ncols=True, postfix={"failed": failed})
-
-
-class _Runner:
-    """Keeps ``engine.slots()`` jobs in flight, records each outcome as it arrives."""
-
-    def __init__(self, out, engine, ident, time_limit, status, errors, bar, on_event):
-        self.out, self.engine, self.ident, self.time_limit = out, engine, ident, time_limit
-        self.status, self.errors, self.bar, self.on_event = status, errors, bar, on_event
-        self.running: dict[cf.Future, tuple] = {}  # future -> (scene input, scene, job, start)
-        self.abandoned: set[cf.Future] = set()  # over the time limit, maybe running: hold a slot
-        self.n_failed = sum(s == "failed" for s in status.values())
-        self.seconds = 0.0
-
-    def run(self, todo: deque) -> None:
-        t0 = time.perf_counter()
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict) -> deque:
+    """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
+    todo = deque()
+    for si in scenes:
+        paths = layout(out, si.key)
         try:
-            while todo or self.running:
-                self._fill(todo)
-                done, _ = cf.wait(set(self.running) | self.abandoned, timeout=self._timeout(),
-                                  return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    self._collect(fut)
-                self._enforce_time_limit()
-                if todo and self.abandoned and not self.running and self.engine.can_stop_tasks:
-                    self.engine.renew()  # only abandoned tasks hold the slots: end them
-                    self.abandoned.clear()
-        finally:
-            self.seconds = time.perf_counter() - t0
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(si.path)
+            data = json.loads(si.path.read_text(encoding="utf-8-sig"))
+        except (SceneError, OSError, ValueError) as exc:
+            errors[si.key] = one_line(exc)
+            status[si.key] = "failed"
+            record_error(paths, si, "load", errors[si.key])
+            continue
+        fingerprint = scene_fingerprint(scene)
+        if up_to_date(paths, fingerprint, ident):
+            status[si.key] = "skipped"
+            if not paths["scene"].exists():
+                atomic_write_json(paths["scene"], scene_to_dict(scene))
+            continue
+        seed = derive_seed(settings.seed, fingerprint)
+        todo.append((si, scene, {"data": data, "source": str(si.path), "seed": seed,
+                                 "estimate": settings.estimate_kwargs()}))
+    return todo
 
-    def _fill(self, todo: deque) -> None:
-        while todo and len(self.running) + len(self.abandoned) < self.engine.slots():
-            si, scene, job = todo.popleft()
-            fut = self.engine.executor.submit(run_scene, job)
-            self.running[fut] = (si, scene, job, time.monotonic())
 
-    def _timeout(self) -> float | None:
-        if self.time_limit is None or not self.running:
-            return None
-        first = min(start for *_, start in self.running.values())
-        return max(0.0, first + self.time_limit - time.monotonic())
-
-    def _collect(self, fut: cf.Future) -> None:
-        if fut in self.abandoned:
-            self.abandoned.discard(fut)
-            return
-        if fut not in self.running:  # already failed with a broken pool
-            return
-        si, scene, job, _ = self.running.pop(fut)
-        try:
-            res = fut.result()
-        except cf.BrokenExecutor as exc:  # a worker process died: every task in the pool is lost
-            self._finish(si, False, "worker", f"a worker process died ({_one_line(exc)}); rerun to retry")
-            for other, (osi, *_rest) in list(self.running.items()):
-                self._finish(osi, False, "worker", "lost with a worker process that died; rerun to retry")
-            self.running.clear()
-            self.abandoned.clear()
-            self.engine.renew()
-            return
-        except cf.CancelledError:
-            self._finish(si, False, "worker", "the task was cancelled by the engine; rerun to retry")
-            return
-        except Exception as exc:  # raised by the engine itself (e.g. Dask's KilledWorker)
-            self._finish(si, False, "worker", _one_line(exc), traceback.format_exc())
-            return
-        if res["ok"]:
-            _record_result(layout(self.out, si.key), si, scene, res["result"], job["seed"], self.ident)
-            self._finish(si, True)
-        else:
-            self._finish(si, False, res["stage"], res["error"], res.get("traceback"))
-
-    def _enforce_time_limit(self) -> None:
-        if self.time_limit is None:
-            return
-        now = time.monotonic()
-        for fut, (si, *_rest, start) in list(self.running.items()):
-            if now - start >= self.time_limit and not fut.done():
-                del self.running[fut]
-                if not fut.cancel():
-                    self.abandoned.add(fut)
-                self._finish(si, False, "time limit", f"TimeLimit: no result within "
-                             f"{self.time_limit:g} s; the computation was abandoned")
-
-    def _finish(self, si: SceneInput, ok: bool, stage=None, error=None, tb=None) -> None:
-        if not ok:
-            self.n_failed += 1
-            self.errors[si.key] = error
-            _record_error(layout(self.out, si.key), si, stage, error, tb)
-        self.status[si.key] = "done" if ok else "failed"
-        self.bar.update(1)
-        self.bar.set_postfix(failed=self.n_failed)
-        if self.on_event:
-            self.on_event(si.key, self.status[si.key])
