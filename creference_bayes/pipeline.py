@@ -1,7 +1,8 @@
 """The public entry point: :func:`estimate` one scene's target, from scene to :class:`Result`.
 
-Data flow (one way): scene → camera/horizon → references → model per handedness → MAP →
-(posterior) → result. Each stage lives in its own module; this one only wires them.
+Data flow (one way): scene → camera (built once: :mod:`.camera_setup`) → references → model per
+handedness → MAP → (posterior) → result. Each stage lives in its own module; this one only wires
+them.
 """
 
 from __future__ import annotations
@@ -12,14 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.geometry import HANDEDNESS, Camera, horizon_line
+from .camera_setup import CameraSetup, setup_camera
+from .core.geometry import HANDEDNESS
 from .core.metrics import location_percentage_error
 from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
 from .io.scene import Scene, load_scene, scene_fingerprint
 
-__all__ = ["MODELS", "estimate", "build_models"]
+__all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models"]
 
 MODELS = ("paper", "metrology")
 #: The default model. The benchmark (docs/benchmark_results.md) found the metrology model as good
@@ -29,45 +31,47 @@ MODELS = ("paper", "metrology")
 DEFAULT_MODEL = "metrology"
 
 
-def build_models(scene: Scene, *, model: str = "paper", preset: str = "default",
-                 camera: Camera | None = None, constraints=None, use_references: bool = True,
-                 **options) -> list:
-    """One model per handedness for ``scene``.
+def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL, preset: str = "default",
+                 constraints=None, use_references: bool = True, **options) -> list:
+    """One model per handedness for ``scene``, all sharing the estimate's camera ``setup``.
 
     Parameters
     ----------
+    scene : the scene
+    setup : the camera, its orientation mode and priors (:func:`~.camera_setup.setup_camera`)
     model : one of :data:`MODELS`
     preset : optimiser preset; it decides the bounds
-    camera : the camera (defaults to the scene's; pass one with an estimated horizon)
     constraints : soft constraints from the references (paper model), or None
     use_references : whether the metrology model uses the scene's references (the paper model
         uses ``constraints`` instead)
     options : model settings (``sigma`` for the paper model, default
-        :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the paper's 100 px with the
-        paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``, ``ref_dof`` for the
-        metrology model)
+        :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the
+        paper's 100 px with the paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``,
+        ``ref_dof``, ``ref_line_sigma`` for the metrology model)
     """
     if model not in MODELS:
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
     bounds = preset_bounds(preset, scene.image_width, scene.image_height)
+    common = dict(camera=setup.camera, bounds=bounds, orientation_free=setup.orientation_free,
+                  camera_terms=setup.terms)
     if model == "metrology":
         from .models.metrology import MetrologyModel
 
-        return [MetrologyModel.from_scene(scene, h, bounds=bounds, camera=camera,
-                                          use_references=use_references, **options) for h in HANDEDNESS]
+        return [MetrologyModel.from_scene(scene, h, use_references=use_references, **common, **options)
+                for h in HANDEDNESS]
     unknown = set(options) - {"sigma"}
     if unknown:
         raise ValueError(f"model options: unknown option(s) {sorted(unknown)} for model {model!r}")
     if preset == "default":  # calibrated posterior; the paper presets keep the paper's σ and T = 1
         options = {"sigma": CALIBRATED_SIGMA_PX, "default_temperature": CALIBRATED_TEMPERATURE, **options}
-    return [PaperModel.from_scene(scene, h, bounds=bounds, constraints=constraints,
-                                  camera=camera, **options) for h in HANDEDNESS]
+    return [PaperModel.from_scene(scene, h, constraints=constraints, **common, **options) for h in HANDEDNESS]
 
 
 def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str = DEFAULT_MODEL,
              use_references: bool = True, seed=None, posterior: bool = True, restarts: int | None = None,
              temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
-             progress: bool = False, **options) -> Result:
+             progress: bool = False, orientation: str = "auto", focal_prior="auto",
+             orientation_prior=None, **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -81,12 +85,20 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         preset has none
     posterior : sample the posterior after the MAP (method.md §7)
     temperature : T of log p = −cost′/T + log prior (default: the model's own, 1 for the
-        metrology model and for the paper presets, :data:`~creference_bayes.models.paper.CALIBRATED_TEMPERATURE` for the
-        paper model with the default preset)
+        metrology model and for the paper presets,
+        :data:`~creference_bayes.models.paper.CALIBRATED_TEMPERATURE` for the paper model with the
+        default preset)
     hdi_prob : probability of the reported highest-density intervals
-    sampling : sampler settings (:class:`~creference_bayes.sampling.SamplerSettings` fields,
-        e.g. ``{"min_ess": 2000}``); unknown keys are rejected
+    sampling : sampler settings (:class:`~creference_bayes.inference.sampling.SamplerSettings`
+        fields, e.g. ``{"min_ess": 2000}``); unknown keys are rejected
     progress : show the sampler's progress bar on standard error
+    orientation : ``auto``, ``free`` or ``level``: how pitch and roll are treated
+        (:func:`~.camera_setup.setup_camera`)
+    focal_prior : ``auto``, ``default``, ``none`` or a
+        :class:`~creference_bayes.models.camera_terms.FocalPrior`
+    orientation_prior : a :class:`~creference_bayes.models.camera_terms.OrientationPrior`, or None
+        for the scene's or the default
+    options : model settings (:func:`build_models`)
 
     Returns
     -------
@@ -95,17 +107,18 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     rng = np.random.default_rng(seed)
-    warnings = list(scene.warnings)
-    camera, notes, horizon_estimate = _camera_step(scene)
-    warnings += notes
-    references = _references_step(scene, camera, preset, use_references)
-    models = build_models(scene, model=model, preset=preset, camera=camera,
+    setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior,
+                         orientation_prior=orientation_prior)
+    warnings = list(scene.warnings) + list(setup.notes)
+    references = _references_step(scene, setup, preset, use_references)
+    models = build_models(scene, setup, model=model, preset=preset,
                           constraints=references.constraints if model == "paper" else None,
                           use_references=use_references, **options)
     if model == "metrology":
         references = dataclasses.replace(references, used_as="likelihood",
                                          in_likelihood=models[0].n_references_used)
     map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts)
+    warnings += _focal_prior_check(setup, map_est)
     evaluation = None
     if scene.ground_truth is not None:
         evaluation = Evaluation(location_pct_error=float(
@@ -122,53 +135,45 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
             err, inside = evaluate_posterior(post, scene.ground_truth, list(diag.r_hat))
             evaluation = dataclasses.replace(evaluation, posterior_location_pct_error=err,
                                              in_hdi=inside)
+    extra = {"camera": setup.to_dict()}
+    if setup.horizon_estimate is not None:
+        extra["horizon_estimate"] = setup.horizon_estimate.to_dict()
     return Result(target=scene.target.id, model=model, preset=preset, map=map_est,
                   scene=scene.source.name if scene.source else None, evaluation=evaluation,
                   warnings=tuple(warnings), posterior=post, diagnostics=diag,
-                  inference_data=idata, references=references,
-                  extra={} if horizon_estimate is None else {"horizon_estimate": horizon_estimate.to_dict()},
+                  inference_data=idata, references=references, extra=extra,
                   scene_id={"target": scene.target.id, "image_size": [scene.image_width, scene.image_height],
                             "sha256": scene_fingerprint(scene)})
 
 
-def _camera_step(scene: Scene):
-    """The camera, with the horizon estimated from the image when the scene gives none.
-
-    Returns the camera, notes for the result's warnings and the horizon estimate (or None).
-    """
-    camera = Camera.from_scene(scene)
-    if scene.horizon is not None:
-        return camera, [], None
-    level = "assumed a level camera (horizon through the principal point)"
-    if scene.image_path is None:
-        return camera, [f"no horizon and no image: {level}"], None
-    from .vision.horizon import estimate_horizon
-
-    try:
-        est = estimate_horizon(scene.image_path, principal_point=scene.principal_point,
-                               scene_size=scene.image_size)
-    except (OSError, ValueError) as exc:
-        return camera, [f"no horizon, and image.path {str(scene.image_path)!r} could not be used "
-                        f"({exc}): {level}"], None
-    if not est:
-        return camera, [f"no horizon, and none found in the image ({est.reason}): {level}"], est
-    camera = dataclasses.replace(camera, horizon=horizon_line(est.points))
-    return camera, [f"no horizon given: estimated from the image ({est.method} segments, "
-                    f"{len(est.vanishing_points)} vanishing points, confidence {est.confidence:.2f})"], est
+def _focal_prior_check(setup: CameraSetup, map_est) -> list[str]:
+    """A warning when the MAP's µ lies outside the 99 % interval of an informative focal prior."""
+    prior = setup.terms.focal
+    if prior is None or prior.source == "default":
+        return []
+    lo, hi = prior.interval(0.99)
+    mu = float(map_est.params[4])
+    if lo <= mu <= hi:
+        return []
+    return [f"the annotations disagree with the {prior.source} focal length prior: MAP "
+            f"{mu:.0f} px, prior median {prior.median_px:.0f} px (99 % interval {lo:.0f}–{hi:.0f}); "
+            "was the image cropped or resized?"]
 
 
-def _references_step(scene: Scene, camera: Camera, preset: str, use_references: bool):
+def _references_step(scene: Scene, setup: CameraSetup, preset: str, use_references: bool):
     """Pairs of references → soft constraints, as a :class:`ReferenceReport`.
 
     The paper model's cost uses the constraints; for the metrology model the pairs are only
-    reported (for comparison and for the top-view plot).
+    reported (for comparison and for the top-view plot). The pairwise aggregation needs a horizon:
+    the exact or measured one, else a level camera (:attr:`CameraSetup.aggregation_camera`).
     """
     from .core.metrology import ReferenceReport, aggregate_references
 
     if not use_references:
         return ReferenceReport(len(scene.references), enabled=False)
     bounds = preset_bounds(preset, scene.image_width, scene.image_height)
-    return aggregate_references(scene, camera, focal_range_px=(bounds.lower[4], bounds.upper[4]))
+    return aggregate_references(scene, setup.aggregation_camera,
+                                focal_range_px=(bounds.lower[4], bounds.upper[4]))
 
 
 def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampling, progress):
@@ -194,12 +199,11 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
                         log_mask=model.bounds.lower[model.free] > 0, progress=progress)
     except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
         return None, None, None, [f"posterior not sampled: {exc}"]
-    fixed, free = model.bounds.lower, model.free
-    arrays = posterior_arrays(chains, fixed, free)
-    post, diag = summarise(chains, fixed, free, hdi_prob=hdi_prob, min_ess=settings.min_ess,
+    arrays = posterior_arrays(chains, model.expand)
+    post, diag = summarise(chains, model.expand, free=model.free, hdi_prob=hdi_prob, min_ess=settings.min_ess,
                            tau_multiple=settings.tau_multiple, handedness=map_est.handedness,
                            temperature=temperature, arrays=arrays)
-    idata = to_inference_data(chains, fixed, free, scene=scene, attrs={
+    idata = to_inference_data(chains, model.expand, scene=scene, arrays=arrays, attrs={
         "model": model.name, "handedness": map_est.handedness, "temperature": temperature,
         "hdi_prob": hdi_prob})
     notes = []

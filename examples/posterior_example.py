@@ -43,7 +43,7 @@ d = result.to_dict()
 draws = plotting.draws_from_result(d, result.inference_data)
 figures = {"boxes": plotting.plot_boxes(d, scene, draws),
            "pairs": plotting.plot_pairs(draws, result=d, truth=plotting._truth(scene)),
-           "ranks": plotting.plot_ranks(draws),
+           "ranks": plotting.plot_ranks(draws, result=d),
            "top_view": plotting.plot_top_view(d, draws, scene=scene)}
 for name, fig in figures.items():
     fig.savefig(out / f"{name}.png", dpi=110)

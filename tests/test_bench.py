@@ -44,7 +44,8 @@ def test_noise_free_tier_is_solved(quick):
     none = [r for r in doc["records"] if r["tier"] == "none"]
     ours = [r for r in none if r["estimator"] == f"ours-{default_model}" and r["n_target"] == 5]
     assert ours and all(r["error"] < 0.5 for r in ours)  # the package's default estimator
-    assert all(r["error"] < 1e-3 for r in none if r["estimator"] == "p4pf")
+    # coordinates are stored to 0.01 px, which alone moves far targets by up to a few 0.1 %
+    assert all(r["error"] < 0.5 for r in none if r["estimator"] == "p4pf")
     assert all(r["error"] == 0.0 for r in none if r["estimator"].startswith("crb"))
 
 

@@ -96,7 +96,8 @@ def test_unknown_preset_is_a_usage_error(capsys):
 
 
 def _noise_free_scene() -> dict:
-    return simulate_scene(4, setting="indoor", tier="none", principal_offset=0.1, n_target_annotations=1)
+    return simulate_scene(4, setting="indoor", tier="none", principal_offset=0.1, n_target_annotations=1,
+                          decimals=None)
 
 
 def test_estimate_writes_result_with_evaluation(tmp_path, capsys):
@@ -108,7 +109,7 @@ def test_estimate_writes_result_with_evaluation(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["format"] == "creference-result/1"
     assert data["scene"] == "scene.json" and data["target"] == "target"
-    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px"}
+    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
     assert all(math.isfinite(v) for v in data["map"].values())
     err = data["evaluation"]["location_pct_error"]
     assert 0 <= err < 1.0  # noise-free scene: the estimate is close to the truth
@@ -123,7 +124,7 @@ def test_estimate_without_ground_truth_has_no_evaluation(tmp_path, capsys):
     assert capsys.readouterr().out == ""
     data = json.loads(out.read_text())
     assert data["format"] == "creference-result/1"
-    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px"}
+    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
     assert "evaluation" not in data
 
 

@@ -22,7 +22,9 @@ def _setup(seed=0, with_horizon=True):
     R = rotation_from_pitch_roll(pitch, roll)
     camera = Camera(PP, horizon_line(horizon_from_rotation(R, f, PP, 2880)) if with_horizon else None)
     obj = dimension_corners(1.4, 0.6, 0.9, -1)
-    truth = np.array([1.2, 1.5, 7.0, rng.uniform(-np.pi, np.pi), f])
+    # (x, y, z, yaw, µ, pitch, roll): the cost builds the camera rotation from the vector's angles
+    angles = (pitch, roll) if with_horizon else (0.0, 0.0)
+    truth = np.array([1.2, 1.5, 7.0, rng.uniform(-np.pi, np.pi), f, *angles])
     pts = box_points(truth, obj)
     rvec, _ = cv2.Rodrigues(R if with_horizon else np.eye(3))
     K = np.array([[f, 0, PP[0]], [0, f, PP[1]], [0, 0, 1]])
@@ -40,7 +42,7 @@ def _eq5(projected, observed, sigma=SIGMA):
 @pytest.mark.parametrize("with_horizon", [True, False])
 def test_batch_equals_loop_of_single_evaluations(with_horizon):
     camera, obj, truth, observed, rng = _setup(1, with_horizon)
-    batch = truth + rng.normal(0, [1.0, 0.3, 3.0, 1.0, 300.0], (64, 5))
+    batch = truth + rng.normal(0, [1.0, 0.3, 3.0, 1.0, 300.0, 0.05, 0.05], (64, 7))
     batch[:3, 2] = [-2.0, 0.0, 0.3]  # some corners behind the camera
     costs = target_cost(batch, observed, obj, camera, SIGMA)
     assert costs.shape == (64,) and np.all(np.isfinite(costs))
@@ -62,7 +64,7 @@ def test_cost_matches_eq5_computed_from_opencv_projections():
     camera, obj, truth, observed, rng = _setup(3)
     R = camera.rotation(truth[4])
     for _ in range(20):
-        p = truth + rng.normal(0, [0.5, 0.1, 1.0, 0.3, 0.0])  # µ fixed: R from the horizon is the same
+        p = truth + rng.normal(0, [0.5, 0.1, 1.0, 0.3, 0.0, 0.0, 0.0])  # µ fixed: R from the horizon is the same
         pts = box_points(p, obj)
         rvec, _ = cv2.Rodrigues(R)
         K = np.array([[p[4], 0, PP[0]], [0, p[4], PP[1]], [0, 0, 1]])
@@ -73,7 +75,7 @@ def test_cost_matches_eq5_computed_from_opencv_projections():
 def test_true_pose_is_the_minimum_nearby():
     camera, obj, truth, observed, rng = _setup(4)
     at_truth = target_cost(truth, observed, obj, camera)[0]
-    near = truth + rng.normal(0, [0.05, 0.05, 0.05, 0.02, 20.0], (200, 5))
+    near = truth + rng.normal(0, [0.05, 0.05, 0.05, 0.02, 20.0, 0.002, 0.002], (200, 7))
     assert np.all(target_cost(near, observed, obj, camera) > at_truth)
 
 

@@ -179,13 +179,20 @@ def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_scen
         warnings.simplefilter("ignore")
         result = estimate(tmp_path / "scene.json", posterior=False, seed=0)
     notes = [w for w in result.warnings if "estimated from the image" in w]
-    assert len(notes) == 1 and "confidence" in notes[0]
-    est = result.to_dict()["horizon_estimate"]
+    assert len(notes) == 1 and "confidence" in notes[0] and "measurement" in notes[0]
+    d = result.to_dict()
+    est = d["horizon_estimate"]
     assert horizon_error(np.array(est["points"]), true, W, H) < 0.01
-    # without an image the pipeline says it assumed a level camera
+    # the estimate enters as a measurement: pitch and roll are free, with the estimate's sd
+    assert d["camera"]["orientation"] == "free"
+    assert d["camera"]["horizon"]["source"] == "image"
+    assert d["camera"]["horizon"]["sd_px"] == pytest.approx(est["sd_px"]) and est["sd_px"] >= 0.02 * H
+    assert abs(d["map"]["pitch"] - gt["pitch_rad"]) < np.radians(1.0)
+    # without an image the pipeline says it estimated pitch and roll with the annotations
     del data["image"]["path"]
     (tmp_path / "level.json").write_text(json.dumps(data))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         level = estimate(tmp_path / "level.json", posterior=False, seed=0)
-    assert any("assumed a level camera" in w for w in level.warnings)
+    assert any("no horizon and no image: pitch and roll estimated" in w for w in level.warnings)
+    assert level.to_dict()["camera"]["orientation"] == "free"

@@ -329,6 +329,7 @@ def test_pair_bounds_of_a_single_value_is_a_point():
 # -- the pipeline ----------------------------------------------------------------------------------
 
 def test_estimate_builds_constraints_from_references_and_reports_pairs(make_scene):
+    from creference_bayes.camera_setup import setup_camera
     from creference_bayes.pipeline import build_models, estimate
 
     scene = make_scene(2, tier="none")
@@ -341,8 +342,9 @@ def test_estimate_builds_constraints_from_references_and_reports_pairs(make_scen
     # the constraints enter the paper model's cost: a pose far outside the bounds pays for it
     far = result.map.params.copy()
     far[2] *= 3.0
-    with_c = build_models(scene, constraints=report.constraints)[0].cost(far)
-    without = build_models(scene)[0].cost(far)
+    setup = setup_camera(scene)
+    with_c = build_models(scene, setup, model="paper", constraints=report.constraints)[0].cost(far)
+    without = build_models(scene, setup, model="paper")[0].cost(far)
     assert with_c[0] - without[0] > 10.0
     off = estimate(scene, posterior=False, seed=0, use_references=False)
     assert not off.references.enabled and off.to_dict()["references"]["pairs_used"] == 0

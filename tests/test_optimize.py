@@ -11,14 +11,16 @@ from creference_bayes.models.params import Bounds, wrap_angle
 from creference_bayes.models.paper import PaperModel
 from creference_bayes.inference.optimize import (_Counter, _paper, optimize_map, preset_bounds,
                                                  theta_scan)
-from creference_bayes.pipeline import build_models
+from creference_bayes.camera_setup import setup_camera
+from creference_bayes.pipeline import build_models as _build_models
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.bench.simulate import simulate_scene
 
 
 def noise_free_scene(seed: int, setting: str, **kwargs):
     """A noise-free synthetic scene with pitch, roll and an off-centre principal point."""
-    d = simulate_scene(seed, setting=setting, tier="none", principal_offset=0.1, n_target_annotations=1, **kwargs)
+    d = simulate_scene(seed, setting=setting, tier="none", principal_offset=0.1, n_target_annotations=1,
+                       decimals=None, **kwargs)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return parse_scene(d)
@@ -26,7 +28,12 @@ def noise_free_scene(seed: int, setting: str, **kwargs):
 
 def _truth(scene) -> np.ndarray:
     gt = scene.ground_truth
-    return np.r_[gt.location_m, gt.yaw_rad, gt.focal_length_px]
+    return np.r_[gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"], gt.extra["roll_rad"]]
+
+
+def build_models(scene, model="paper", **kw):
+    """The paper model (the optimiser's tests predate the default) with a flat focal prior."""
+    return _build_models(scene, setup_camera(scene, focal_prior="none"), model=model, **kw)
 
 
 def _check_recovered(scene, est, tol_pct=0.1):
@@ -59,7 +66,8 @@ def test_default_recovers_fifty_noise_free_scenes():
 
 
 def test_known_focal_length_is_kept_fixed():
-    d = simulate_scene(21, setting="indoor", tier="none", principal_offset=0.1, n_target_annotations=1)
+    d = simulate_scene(21, setting="indoor", tier="none", principal_offset=0.1, n_target_annotations=1,
+                       decimals=None)
     focal = d["ground_truth"]["focal_length_px"]
     d["camera"]["focal_length_px"] = focal
     known = parse_scene(d)
@@ -81,20 +89,27 @@ def test_theta_scan_is_exact_at_the_true_yaw():
     handed = scene.ground_truth.extra["handedness"]
     obj = dimension_corners(scene.target.length, scene.target.width, scene.target.height, handed)
     camera = Camera.from_scene(scene)
+    pp = camera.principal_point
     observed, _ = camera.project(box_points(truth, obj), truth[4])
     bounds = Bounds.default(*scene.image_size)
     # with µ known, one solve is exact
-    cands = theta_scan(camera, observed, obj, bounds.with_fixed(4, truth[4]), n_theta=n_theta)
+    cands = theta_scan(observed, obj, bounds.with_fixed(4, truth[4]), pp, camera=camera, n_theta=n_theta)
     np.testing.assert_allclose(cands[k], truth, rtol=1e-9, atol=1e-9)
     # with µ unknown, R depends on µ through the horizon: the fixed-point iteration converges to it
     # (slowly: the default's 4 iterations only give a start for the local refinement)
-    cands = theta_scan(camera, observed, obj, bounds, n_theta=n_theta, n_iter=300)
+    cands = theta_scan(observed, obj, bounds, pp, camera=camera, n_theta=n_theta, n_iter=300)
     np.testing.assert_allclose(cands[k], truth, rtol=1e-6, atol=1e-6)
     # a level camera (no horizon) needs a single solve
-    level = Camera(camera.principal_point)
+    level = Camera(pp)
     observed, _ = level.project(box_points(truth, obj), truth[4])
-    cands = theta_scan(level, observed, obj, bounds, n_theta=n_theta, n_iter=1)
-    np.testing.assert_allclose(cands[k], truth, rtol=1e-8, atol=1e-8)
+    cands = theta_scan(observed, obj, bounds, pp, camera=level, n_theta=n_theta, n_iter=1)
+    np.testing.assert_allclose(cands[k], np.r_[truth[:5], 0.0, 0.0], rtol=1e-8, atol=1e-8)
+    # a grid of fixed orientations: exact at the true (pitch, roll), for every candidate's rows
+    observed, _ = camera.project(box_points(truth, obj), truth[4])
+    grid = np.array([[0.0, 0.0], truth[5:], [0.2, -0.1]])
+    cands = theta_scan(observed, obj, bounds, pp, orientations=grid, n_theta=n_theta)
+    assert cands.shape == (3 * n_theta, 7)
+    np.testing.assert_allclose(cands[n_theta + k], truth, rtol=1e-8, atol=1e-8)
 
 
 def _paper_models(scene, preset):
@@ -133,7 +148,7 @@ def test_presets_and_result_dict():
     with pytest.raises(ValueError, match="unknown preset 'fast'"):
         optimize_map(build_models(scene), "fast")
     est = optimize_map(build_models(scene), "default")
-    assert set(est.to_dict()) == {"x", "y", "z", "yaw", "focal_length_px"}
+    assert set(est.to_dict()) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
     assert est.preset == "default" and est.n_evaluations > 0 and est.seconds > 0
     assert -np.pi <= est.params[3] < np.pi
     assert isinstance(build_models(scene)[0], PaperModel)

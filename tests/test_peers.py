@@ -20,7 +20,7 @@ from creference_bayes.bench.peers import INSTALL_HINT, estimate_p4pf
 def _scene(seed, n=5, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        s = parse_scene(simulate_scene(np.random.default_rng(seed), **kw))
+        s = parse_scene(simulate_scene(np.random.default_rng(seed), **{"decimals": None, **kw}))
     return replace(s, target=replace(s.target, dimension_lines=s.target.dimension_lines[:n]))
 
 

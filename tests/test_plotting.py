@@ -53,7 +53,7 @@ def test_pair_and_rank_plots(noise_free):
     fig = plotting.plot_pairs(draws, result=d, truth={"x": 1.0, "z": 5.0})
     visible = [a for a in fig.axes if a.get_visible()]
     assert len(visible) == 5 * 6 // 2  # lower triangle of the five parameters
-    fig = plotting.plot_ranks(draws)
+    fig = plotting.plot_ranks(draws, result=d)
     assert len([a for a in fig.axes if a.get_visible()]) == 6
     # each ensemble's rank histogram sums to its number of draws
     ax = fig.axes[0]

@@ -9,21 +9,22 @@ from creference_bayes.core.geometry import Camera
 from creference_bayes.core.metrology import aggregate_references
 from creference_bayes.models.params import Bounds, wrap_angle
 from creference_bayes.inference.optimize import optimize_map
+from creference_bayes.camera_setup import setup_camera
 from creference_bayes.pipeline import build_models, estimate
 from creference_bayes.inference.posterior import LogPosterior, laplace_scales
 
 
 @dataclass
 class QuadraticModel:
-    """cost = ½ (p − c)ᵀ H (p − c) over all five parameters, with wide bounds."""
+    """cost = ½ (p − c)ᵀ H (p − c) over all seven parameters, with wide bounds."""
 
     H: np.ndarray
     c: np.ndarray
-    bounds: Bounds = field(default_factory=lambda: Bounds(np.full(5, -100.0), np.full(5, 100.0)))
+    bounds: Bounds = field(default_factory=lambda: Bounds(np.full(7, -100.0), np.full(7, 100.0)))
     name: str = "quadratic"
 
     def __post_init__(self):
-        self.free = np.ones(5, bool)
+        self.free = np.ones(7, bool)
 
     def expand(self, p):
         return np.atleast_2d(p)
@@ -34,7 +35,7 @@ class QuadraticModel:
 
 
 def _paper_model(scene):
-    models = build_models(scene, camera=Camera.from_scene(scene))
+    models = build_models(scene, setup_camera(scene, focal_prior="none"), model="paper")
     m = optimize_map(models, rng=0)
     return next(x for x in models if x.handedness == m.handedness), m
 
@@ -61,29 +62,29 @@ def test_support_is_the_bounds_but_yaw_is_circular(make_scene):
     outside = p.copy()
     outside[4] = model.bounds.lower[4] * 0.99
     assert lp(outside)[0] == -np.inf
-    assert lp(np.where(np.arange(5) == 0, np.nan, p))[0] == -np.inf
+    assert lp(np.where(np.arange(len(p)) == 0, np.nan, p))[0] == -np.inf
 
 
 def test_non_finite_costs_become_minus_infinity():
-    model = QuadraticModel(np.eye(5), np.zeros(5))
-    bad = QuadraticModel(np.eye(5), np.zeros(5))
+    model = QuadraticModel(np.eye(7), np.zeros(7))
+    bad = QuadraticModel(np.eye(7), np.zeros(7))
     bad.cost = lambda p: np.array([np.nan, np.inf, -np.inf, 1.0])[: len(p)]
-    out = LogPosterior(bad)(np.zeros((4, 5)))
+    out = LogPosterior(bad)(np.zeros((4, 7)))
     assert out[:3].tolist() == [-np.inf, -np.inf, -np.inf] and out[3] == -1.0
-    assert np.isfinite(LogPosterior(model)(np.zeros((1, 5))))[0]
+    assert np.isfinite(LogPosterior(model)(np.zeros((1, 7))))[0]
 
 
 @pytest.mark.parametrize("t", [0, -1, np.nan, np.inf, True])
 def test_temperature_must_be_positive(t):
     with pytest.raises(ValueError, match="temperature"):
-        LogPosterior(QuadraticModel(np.eye(5), np.zeros(5)), t)
+        LogPosterior(QuadraticModel(np.eye(7), np.zeros(7)), t)
 
 
 def test_laplace_recovers_a_known_covariance():
     rng = np.random.default_rng(0)
-    a = rng.standard_normal((5, 5))
-    cov = a @ a.T + 0.5 * np.eye(5)
-    c = rng.standard_normal(5)
+    a = rng.standard_normal((7, 7))
+    cov = a @ a.T + 0.5 * np.eye(7)
+    c = rng.standard_normal(7)
     lap = laplace_scales(LogPosterior(QuadraticModel(np.linalg.inv(cov), c), temperature=2.0), c)
     assert lap.positive_definite
     np.testing.assert_allclose(lap.cov, 2.0 * cov, rtol=1e-6, atol=1e-9)
@@ -91,12 +92,13 @@ def test_laplace_recovers_a_known_covariance():
 
 def test_laplace_falls_back_on_a_kink():
     """|p| has no curvature at its minimum: the fallback gives positive, finite scales."""
-    model = QuadraticModel(np.eye(5), np.zeros(5))
-    model.cost = lambda p: np.sum(np.abs(p) * [1, 2, 3, 4, 5], axis=1)
-    lap = laplace_scales(LogPosterior(model), np.zeros(5))
+    model = QuadraticModel(np.eye(7), np.zeros(7))
+    w = np.arange(1, 8)
+    model.cost = lambda p: np.sum(np.abs(p) * w, axis=1)
+    lap = laplace_scales(LogPosterior(model), np.zeros(7))
     assert np.all(np.isfinite(lap.scale)) and np.all(lap.scale > 0)
     # along each axis the log-density falls by ~0.5 within about one scale
-    assert np.all(np.abs(lap.scale * [1, 2, 3, 4, 5] - 0.5) < 0.5)
+    assert np.all(np.abs(lap.scale * w - 0.5) < 0.5)
 
 
 def test_noise_free_posterior_concentrates_on_the_truth(make_scene):
@@ -106,7 +108,8 @@ def test_noise_free_posterior_concentrates_on_the_truth(make_scene):
     camera = Camera.from_scene(scene)
     report = aggregate_references(scene, camera)
     assert report.pairs_used >= 3
-    models = build_models(scene, camera=camera, constraints=report.constraints)
+    models = build_models(scene, setup_camera(scene, focal_prior="none"), model="paper",
+                          constraints=report.constraints)
     m = optimize_map(models, rng=0)
     model = next(x for x in models if x.handedness == m.handedness)
     from creference_bayes.inference.sampling import sample
@@ -115,7 +118,7 @@ def test_noise_free_posterior_concentrates_on_the_truth(make_scene):
     lp = LogPosterior(model)
     lap = laplace_scales(lp, m.params[model.free])
     chains = sample(lp, m.params[model.free], lap.cov, rng=1, log_mask=model.bounds.lower[model.free] > 0)
-    post, diag = summarise(chains, model.bounds.lower, model.free)
+    post, diag = summarise(chains, model.expand)
     err, inside = evaluate_posterior(post, scene.ground_truth, list(diag.r_hat))
     assert diag.converged, diag.warnings
     assert all(inside.values()), (inside, post.hdi)

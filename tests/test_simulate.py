@@ -51,10 +51,19 @@ def test_camera_and_distance_ranges(setting):
         assert len(t.dimension_lines) == 13 and len(scene.references) == 5
 
 
+def test_coordinates_are_stored_to_two_decimals_by_default():
+    d, _ = _scene(3, tier="low")
+    pts = np.concatenate([np.ravel(a["corners"]) for a in d["target"]["dimension_lines"]]
+                         + [np.ravel(r["line"]) for r in d["references"]] + [np.ravel(d["horizon"])])
+    np.testing.assert_allclose(pts, np.round(pts, 2), atol=1e-9)
+    raw, _ = _scene(3, tier="low", decimals=None)
+    assert np.abs(np.ravel(raw["horizon"]) - np.round(np.ravel(raw["horizon"]), 2)).max() > 1e-6
+
+
 def test_noise_free_tier_is_exact():
     """Tier none: annotations are the true projections; stated lengths are the true lengths."""
     for seed in range(6):
-        d, scene = _scene(seed, tier="none", principal_offset=0.05)
+        d, scene = _scene(seed, tier="none", principal_offset=0.05, decimals=None)
         g = scene.ground_truth
         t = scene.target
         params = np.array([*g.location_m, g.yaw_rad, g.focal_length_px])

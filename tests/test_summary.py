@@ -11,8 +11,15 @@ from creference_bayes.inference.sampling import Chains
 from creference_bayes.inference.summary import (az, in_hdi, posterior_arrays, summarise,
                                                 summary_table, to_inference_data)
 
-FREE = np.array([True, True, True, True, True])
-FIXED = np.zeros(5)
+
+FREE = np.array([True] * 5 + [False] * 2)
+
+
+def EXPAND(p):
+    """A model's expand: the five sampled parameters plus a level camera's pitch and roll."""
+    p = np.atleast_2d(p)
+    return np.column_stack([p, np.zeros((len(p), 2))])
+
 
 
 def _chains(values, burn_in=0, thin=1, tau=1.0):
@@ -32,9 +39,9 @@ def test_inference_data_layout_and_netcdf_round_trip(tmp_path, make_scene):
     values = _iid(rng)
     chains = _chains(values, burn_in=100, thin=2)
     scene = make_scene(3, tier="low")
-    idata = to_inference_data(chains, FIXED, FREE, scene=scene)
+    idata = to_inference_data(chains, EXPAND, scene=scene)
     post = idata.posterior
-    assert set(post.data_vars) == {"x", "y", "z", "yaw", "focal_length_px", "distance_m"}
+    assert set(post.data_vars) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m"}
     assert post.sizes["chain"] == 4 and post.sizes["draw"] == 16 * 150
     # walker-major: the first 150 draws of ensemble 0 are walker 0's kept steps in order
     np.testing.assert_array_equal(post["z"].values[0, :150], values[100::2, 0, 0, 2])
@@ -51,7 +58,7 @@ def test_inference_data_layout_and_netcdf_round_trip(tmp_path, make_scene):
 def test_gaussian_moments_and_hdi():
     rng = np.random.default_rng(1)
     values = _iid(rng, n=2000)
-    summary, diag = summarise(_chains(values), FIXED, FREE, hdi_prob=0.9)
+    summary, diag = summarise(_chains(values), EXPAND, hdi_prob=0.9)
     for name, mu, sd in (("x", 1.0, 0.1), ("z", 5.0, 0.5), ("focal_length_px", 1000.0, 50.0)):
         n = values.shape[0] * values.shape[1] * values.shape[2]
         assert summary.mean[name] == pytest.approx(mu, abs=4 * sd / np.sqrt(n))
@@ -72,7 +79,7 @@ def test_yaw_is_circular_across_pi():
     values = _iid(rng)
     yaw = stats.vonmises.rvs(kappa=50, loc=3.1, size=values.shape[:3], random_state=3)
     values[..., 3] = (yaw + np.pi) % (2 * np.pi) - np.pi  # wrapped, as a sampler might return
-    summary, _ = summarise(_chains(values), FIXED, FREE)
+    summary, _ = summarise(_chains(values), EXPAND)
     flat = values[..., 3].ravel()
     assert summary.mean["yaw"] == pytest.approx(stats.circmean(flat, high=np.pi, low=-np.pi), abs=1e-9)
     assert summary.sd["yaw"] == pytest.approx(stats.circstd(flat, high=np.pi, low=-np.pi), rel=1e-6)
@@ -81,7 +88,7 @@ def test_yaw_is_circular_across_pi():
     assert in_hdi("yaw", -np.pi + 0.01, (lo, hi))  # just across the seam
     assert in_hdi("yaw", np.pi - 0.01 + 4 * np.pi, (lo, hi))
     assert not in_hdi("yaw", 0.0, (lo, hi))
-    arrays = posterior_arrays(_chains(values), FIXED, FREE)
+    arrays = posterior_arrays(_chains(values), EXPAND)
     assert np.ptp(arrays["yaw"]) < 2.0  # unwrapped around the mean: no jump of 2π
 
 
@@ -89,7 +96,7 @@ def test_diagnostics_say_why_not_converged():
     rng = np.random.default_rng(4)
     values = _iid(rng, n=60)
     values[:, 0, :, 2] += 1.0  # ensemble 0 stuck elsewhere in z
-    _, diag = summarise(_chains(values, tau=5.0), FIXED, FREE, min_ess=1e6)
+    _, diag = summarise(_chains(values, tau=5.0), EXPAND, free=FREE, min_ess=1e6)
     assert not diag.converged
     text = " | ".join(diag.warnings)
     assert "R-hat across ensembles above 1.01 for z" in text
@@ -103,7 +110,7 @@ def test_result_json_follows_the_contract(tmp_path):
     nc = tmp_path / "r.nc"
     assert main(["demo", "--quiet", "--out", str(out), "--netcdf", str(nc), "--hdi-prob", "0.8"]) == 0
     d = json.loads(out.read_text())
-    keys = {"x", "y", "z", "yaw", "focal_length_px", "distance_m"}
+    keys = {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m"}
     for part in ("mean", "median", "sd"):
         assert set(d["posterior"][part]) == keys
     assert d["posterior"]["hdi"]["prob"] == 0.8

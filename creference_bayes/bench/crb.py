@@ -1,17 +1,21 @@
 """The Cramér–Rao bound on location error at the true pose (benchmark.md, "the limit").
 
-For unbiased estimators of θ = (x, y, z, yaw, µ) (µ dropped when the focal length is known), the
-covariance is at least F⁻¹, F the Fisher information of the annotations at the true θ:
+For unbiased estimators of θ = (x, y, z, yaw, µ[, pitch, roll]) (µ dropped when the focal length
+is known; pitch and roll included when there is no exact horizon, otherwise they follow from the
+horizon and µ and the chain rule carries their change into µ's column), the covariance is at least
+F⁻¹, F the Fisher information of the annotations at the true θ:
 
 - target annotations: each of n annotations observes the four projected corners C_µ(x_s) with
   independent Gaussian noise σ_t per pixel coordinate, so F_t = (n / σ_t²) Σᵢ Jᵢᵀ Jᵢ, Jᵢ the
-  (2, 5) Jacobian of corner i's projection (central differences; the projection is smooth);
-- references (the metrology model's view, :mod:`~creference_bayes.models.metrology`): each reference measures its
-  segment's real length ℓ_j(µ, h) = h·g_j(µ). A worker's log-error ε with log-sd σ_m and the
+  (2, k) Jacobian of corner i's projection (central differences; the projection is smooth);
+- references (the metrology model's view, :mod:`~creference_bayes.models.metrology`): each
+  reference measures its segment's real length ℓ_j(µ, h, pitch, roll). A worker's log-error ε with log-sd σ_m and the
   endpoints' pixel noise σ_r (propagated to log ℓ_j to first order) give, for the linearised
   Gaussian model, F_r = Σ_j ∇log ℓ_j ∇log ℓ_jᵀ / (σ_m² + σ_line,j²). For the heavy-tailed
   "paper" workers (log-error s·t_ν) the equivalent σ_m² is 1/I = (ν + 3)s² / (ν + 1), the inverse
-  Fisher information of a Student-t location (the clip of the simulator is ignored).
+  Fisher information of a Student-t location (the clip of the simulator is ignored);
+- a horizon measured with σ_h pixels per point (when pitch and roll are free): F_h = J_hᵀ J_h / σ_h²,
+  J_h the Jacobian of the two points' offsets from the predicted horizon.
 
 The location's covariance is the (x, y, z) block of F⁻¹. It is reported as the RMS error
 √tr C and as the median of ‖e‖ for e ~ N(0, C) (Monte Carlo with a fixed seed), both in metres and
@@ -24,17 +28,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.geometry import Camera, box_points, dimension_corners
-from ..models.params import FOCAL, PARAM_NAMES
+from ..core.cost import project_params
+from ..core.geometry import Camera, dimension_corners, horizon_from_rotation, rotation_from_pitch_roll
+from ..models.camera_terms import horizon_offsets
 from ..models.metrology import ground_lengths
+from ..models.params import FOCAL, N_PARAMS, PARAM_NAMES, PITCH, ROLL
 
 __all__ = ["CramerRao", "projection_jacobian", "log_length_gradient", "line_log_sd",
            "measurement_log_sd", "cramer_rao", "cramer_rao_scene"]
 
 #: Draws used for the median of ‖e‖ under N(0, C).
 N_MEDIAN_DRAWS = 20000
-#: Central-difference steps per parameter (x, y, z in m; yaw rad; µ px), relative to max(1, |θ|).
-_STEP = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-6])
+#: Central-difference steps per parameter (x, y, z in m; yaw rad; µ px; pitch, roll rad), relative
+#: to max(1, |θ|).
+_STEP = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-6, 1e-7, 1e-7])
 
 
 @dataclass(frozen=True)
@@ -70,39 +77,58 @@ def _steps(params: np.ndarray) -> np.ndarray:
     return _STEP * np.maximum(1.0, np.abs(params))
 
 
-def projection_jacobian(params: np.ndarray, obj_corners: np.ndarray, camera: Camera) -> np.ndarray:
-    """∂(u₁, v₁, …, u₄, v₄)/∂(x, y, z, yaw, µ) at ``params``, shape (8, 5), pixels per unit."""
-    p = np.asarray(params, float)
+def _filled(params: np.ndarray, camera: Camera, orientation_free: bool) -> np.ndarray:
+    """(n, 7) vectors with pitch and roll from the camera's horizon and µ unless they are free."""
+    p = np.atleast_2d(np.array(params, float))
+    if not orientation_free:
+        p[:, PITCH], p[:, ROLL] = camera.pitch_roll(p[:, FOCAL])
+    return p
+
+
+def _jacobian(fun, params: np.ndarray, camera: Camera, orientation_free: bool) -> np.ndarray:
+    """Central-difference Jacobian (len(fun), 7) of ``fun((n, 7)) → (n, k)`` at ``params``; the
+    pitch and roll columns are zero unless they are free (their change is in µ's column)."""
+    p = _filled(params, camera, orientation_free)[0]
     h = _steps(p)
-    pts = np.vstack([p + np.diag(h), p - np.diag(h)])
-    uv, _ = camera.project(box_points(pts, obj_corners), pts[:, FOCAL])
-    return ((uv[:5] - uv[5:]).reshape(5, -1) / (2.0 * h[:, None])).T
+    pts = _filled(np.vstack([p + np.diag(h), p - np.diag(h)]), camera, orientation_free)
+    f = fun(pts)
+    J = ((f[:N_PARAMS] - f[N_PARAMS:]) / (2.0 * h[:, None])).T
+    if not orientation_free:
+        J[:, [PITCH, ROLL]] = 0.0
+    return J
 
 
-def log_length_gradient(lines: np.ndarray, camera: Camera, params: np.ndarray) -> np.ndarray:
-    """∂ log ℓ_j / ∂(x, y, z, yaw, µ) of ground segments, shape (m, 5) (only y and µ are non-zero)."""
-    p = np.asarray(params, float)
-    grad = np.zeros((len(lines), 5))
-    grad[:, 1] = 1.0 / p[1]  # ℓ = h·g(µ)
-    hmu = _steps(p)[FOCAL]
-    ell = ground_lengths(lines, camera, np.array([p[FOCAL] + hmu, p[FOCAL] - hmu]), np.array([1.0, 1.0]))
-    grad[:, FOCAL] = (np.log(ell[0]) - np.log(ell[1])) / (2.0 * hmu)
-    return grad
+def projection_jacobian(params: np.ndarray, obj_corners: np.ndarray, camera: Camera,
+                        orientation_free: bool = False) -> np.ndarray:
+    """∂(u₁, v₁, …, u₄, v₄)/∂(x, y, z, yaw, µ, pitch, roll) at ``params``, shape (8, 7), pixels
+    per unit (pitch and roll columns zero unless ``orientation_free``)."""
+    pp = camera.principal_point
+    return _jacobian(lambda q: project_params(q, obj_corners, pp)[0].reshape(len(q), -1), params,
+                     camera, orientation_free)
 
 
-def line_log_sd(lines: np.ndarray, camera: Camera, params: np.ndarray, sigma_px: float) -> np.ndarray:
+def log_length_gradient(lines: np.ndarray, camera: Camera, params: np.ndarray,
+                        orientation_free: bool = False) -> np.ndarray:
+    """∂ log ℓ_j / ∂(x, y, z, yaw, µ, pitch, roll) of ground segments, shape (m, 7) (x, z and yaw
+    columns are zero: a reference does not depend on the target's place)."""
+    lines = np.asarray(lines, float)
+    return _jacobian(lambda q: np.log(ground_lengths(lines, camera.principal_point, q)), params,
+                     camera, orientation_free)
+
+
+def line_log_sd(lines: np.ndarray, camera: Camera, params: np.ndarray, sigma_px: float,
+                orientation_free: bool = False) -> np.ndarray:
     """SD of log ℓ_j caused by Gaussian noise σ (pixels) on each endpoint coordinate, shape (m,)."""
     lines = np.asarray(lines, float)
     if sigma_px == 0 or len(lines) == 0:
         return np.zeros(len(lines))
-    p = np.asarray(params, float)
-    mu, h, eps = np.array([p[FOCAL]]), np.array([p[1]]), 1e-3
+    full, eps = _filled(params, camera, orientation_free), 1e-3
     var = np.zeros(len(lines))
     for k in range(4):  # the four endpoint coordinates
         d = np.zeros(4)
         d[k] = eps
-        plus = ground_lengths(lines + d.reshape(2, 2), camera, mu, h)[0]
-        minus = ground_lengths(lines - d.reshape(2, 2), camera, mu, h)[0]
+        plus = ground_lengths(lines + d.reshape(2, 2), camera.principal_point, full)[0]
+        minus = ground_lengths(lines - d.reshape(2, 2), camera.principal_point, full)[0]
         var += ((np.log(plus) - np.log(minus)) / (2 * eps)) ** 2
     return sigma_px * np.sqrt(var)
 
@@ -124,37 +150,50 @@ def measurement_log_sd(model: str) -> float:
 def cramer_rao(params: np.ndarray, obj_corners: np.ndarray, camera: Camera, *, sigma_px: float,
                n_annotations: int, reference_lines: np.ndarray | None = None,
                reference_log_sd: float = 0.0, reference_sigma_px: float = 0.0,
-               focal_known: bool = False) -> CramerRao:
-    """The bound at the true ``params`` (5,) for the given noise.
+               focal_known: bool = False, orientation_free: bool = False,
+               horizon_sd_px: float | None = None, image_width: float = 2880.0) -> CramerRao:
+    """The bound at the true ``params`` for the given noise.
 
     Parameters
     ----------
-    params : (5,) true x, y, z (m), yaw (rad), µ (px)
+    params : (7,) true x, y, z (m), yaw (rad), µ (px), pitch, roll (rad); (5,) is accepted when
+        the orientation follows from ``camera``'s horizon
     obj_corners : (4, 3) object-frame corners of the annotated handedness
-    camera : principal point and horizon
+    camera : principal point and, unless ``orientation_free``, the horizon
     sigma_px : σ_t of each corner coordinate, pixels (0 gives a zero bound)
     n_annotations : annotations of the target
     reference_lines : (m, 2, 2) true reference segments, pixels, or None for target only
     reference_log_sd : σ_m, the worker's log-error (see :func:`measurement_log_sd`)
     reference_sigma_px : σ_r, pixel noise of each reference endpoint coordinate
     focal_known : drop µ from the parameters
+    orientation_free : pitch and roll are parameters (no exact horizon)
+    horizon_sd_px : with ``orientation_free``, a horizon measured with this uncertainty per point
+        (its two points at u = 0 and u = ``image_width``); None for no horizon at all
     """
-    p = np.asarray(params, float)
-    free = np.ones(5, bool)
+    p = np.zeros(N_PARAMS)
+    p[:len(params)] = np.asarray(params, float)
+    p = _filled(p, camera, orientation_free)[0]
+    free = np.ones(N_PARAMS, bool)
     free[FOCAL] = not focal_known
+    free[[PITCH, ROLL]] = orientation_free
     names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
     gt_norm = float(np.linalg.norm(p[:3]))
     if sigma_px == 0:
         zero = np.zeros((free.sum(), free.sum()))
         return CramerRao(zero, names, np.zeros((3, 3)), 0.0, 0.0, 0.0, 0.0)
-    J = projection_jacobian(p, obj_corners, camera)[:, free]
+    J = projection_jacobian(p, obj_corners, camera, orientation_free)[:, free]
     F = n_annotations / sigma_px**2 * (J.T @ J)
     if reference_lines is not None and len(reference_lines):
         lines = np.asarray(reference_lines, float)
-        g = log_length_gradient(lines, camera, p)[:, free]
-        var = reference_log_sd**2 + line_log_sd(lines, camera, p, reference_sigma_px) ** 2
+        g = log_length_gradient(lines, camera, p, orientation_free)[:, free]
+        var = reference_log_sd**2 + line_log_sd(lines, camera, p, reference_sigma_px, orientation_free) ** 2
         var = np.maximum(var, 1e-12)  # exact references: (nearly) infinite information
         F = F + (g.T / var) @ g
+    if orientation_free and horizon_sd_px is not None:
+        R = rotation_from_pitch_roll(p[PITCH], p[ROLL])
+        pts = horizon_from_rotation(R, p[FOCAL], camera.principal_point, image_width)
+        Jh = _jacobian(lambda q: horizon_offsets(pts, q, camera.principal_point), p, camera, True)[:, free]
+        F = F + Jh.T @ Jh / horizon_sd_px**2
     try:
         cov = np.linalg.inv(F)
         singular = not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0)
@@ -171,7 +210,8 @@ def cramer_rao(params: np.ndarray, obj_corners: np.ndarray, camera: Camera, *, s
 
 
 def cramer_rao_scene(scene, *, n_annotations: int = 5, references: bool = False,
-                     n_references: int | None = None, sigma_px: float | None = None) -> CramerRao:
+                     n_references: int | None = None, sigma_px: float | None = None,
+                     orientation_free: bool | None = None, horizon_sd_px: float | None = None) -> CramerRao:
     """The bound for a simulated scene, from its ground truth and its noise tier.
 
     Parameters
@@ -182,6 +222,8 @@ def cramer_rao_scene(scene, *, n_annotations: int = 5, references: bool = False,
     references : include the references (the metrology model's information)
     n_references : how many of them (default all)
     sigma_px : override the tier's σ_t
+    orientation_free : pitch and roll unknown (default: when the scene has no horizon)
+    horizon_sd_px : a horizon measured with this uncertainty (with ``orientation_free``)
     """
     from .simulate import TIERS
 
@@ -190,12 +232,18 @@ def cramer_rao_scene(scene, *, n_annotations: int = 5, references: bool = False,
         raise ValueError("scene: needs simulated ground truth (ground_truth.tier, handedness, …)")
     tier = TIERS[gt.extra["tier"]]
     t = scene.target
-    params = np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px])
+    params = np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"],
+                       gt.extra["roll_rad"]])
+    free_orientation = scene.horizon is None if orientation_free is None else orientation_free
     corners = dimension_corners(t.length, t.width, t.height, int(gt.extra["handedness"]))
     lines = None
     if references:
         lines = np.asarray(gt.extra["reference_lines_px"], float)[:n_references]
-    return cramer_rao(params, corners, Camera.from_scene(scene),
+    camera = Camera.from_scene(scene)
+    if free_orientation:  # the true orientation, not one derived from a horizon
+        camera = Camera(camera.principal_point, None, camera.focal_length_px)
+    return cramer_rao(params, corners, camera, orientation_free=free_orientation,
+                      horizon_sd_px=horizon_sd_px, image_width=scene.image_width,
                       sigma_px=tier.target_px if sigma_px is None else sigma_px,
                       n_annotations=n_annotations, reference_lines=lines,
                       reference_log_sd=measurement_log_sd(tier.measurement),

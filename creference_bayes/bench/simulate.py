@@ -144,7 +144,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
                    n_references: int = 5, n_target_annotations: int = 13,
                    image_size: tuple[int, int] = (2880, 1800), principal_offset: float = 0.0,
                    roll_deg: float = 3.0, target_id: str = "target",
-                   format_offset: int | None = None) -> dict:
+                   format_offset: int | None = None, distance_range: tuple[float, float] | None = None,
+                   single_values: bool = False, decimals: int | None = 2) -> dict:
     """Draw one synthetic scene.
 
     Parameters
@@ -161,6 +162,10 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     format_offset : None to give the references distinct formats in a random order; an integer k
         to use ``FORMATS[(k + j) % 10]`` for reference j, so that scenes simulated with offsets
         0, 5, 10, … cover all ten formats in exactly equal shares (``creference simulate`` does)
+    distance_range : (low, high) target distance, metres, instead of the setting's
+    single_values : every reference states a single value (no ranges)
+    decimals : image coordinates (corners, lines, horizon) are rounded to this many decimals, as
+        annotation tools store them (2: 0.01 px); None keeps them exact
 
     Returns
     -------
@@ -194,7 +199,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     tname = names[rng.integers(len(names))]
     size = tuple(round(_u(rng, r), 4) for r in catalogue[tname])  # as stated in the scene file
     L, W, H = size
-    params, _, _ = _place(rng, setting, R, f, pp, h, size, w_img, h_img, cfg["distance"],
+    params, _, _ = _place(rng, setting, R, f, pp, h, size, w_img, h_img,
+                          cfg["distance"] if distance_range is None else distance_range,
                           need_inside=np.arange(8))
     best = None
     for s in (1, -1):
@@ -209,7 +215,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     corners_true, _ = project(box_points(params, dimension_corners(L, W, H, handed)), R, f, pp)
     lines = []
     for i in range(n_target_annotations):
-        noisy = corners_true + rng.normal(0.0, tier.target_px, corners_true.shape)
+        noisy = _round(corners_true + rng.normal(0.0, tier.target_px, corners_true.shape), decimals)
         lines.append({"worker": f"t{i + 1:02d}", "corners": noisy.tolist(),
                       "seconds": 183.5})
 
@@ -221,6 +227,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         order = (int(format_offset) + np.arange(len(FORMATS))) % len(FORMATS)
     for j in range(n_references):
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
+        is_range = is_range and not single_values
         oname = names[rng.integers(len(names))]
         osize = tuple(_u(rng, r) for r in catalogue[oname])
         oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, w_img, h_img,
@@ -243,6 +250,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         line = seg_uv + rng.normal(0.0, tier.reference_px, (2, 2))
         line[:, 0] = np.clip(line[:, 0], 0, w_img)
         line[:, 1] = np.clip(line[:, 1], 0, h_img)
+        line = _round(line, decimals)
         ref = {"worker": f"r{j + 1:02d}", "object": oname, "measure": measure, "mode": mode}
         if mode == "relative":
             base = L if measure == "length" else W
@@ -265,7 +273,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         truths.append(true_len)
         true_lines.append(seg_uv.tolist())
 
-    horizon = horizon_from_rotation(R, f, pp, w_img)
+    horizon = _round(horizon_from_rotation(R, f, pp, w_img), decimals)
     return {
         "format": SCENE_FORMAT,
         "image": {"width": int(w_img), "height": int(h_img)},
@@ -282,6 +290,10 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
             "reference_lines_px": true_lines, "target_corners_px": corners_true.tolist(),
         },
     }
+
+
+def _round(a: np.ndarray, decimals: int | None) -> np.ndarray:
+    return a if decimals is None else np.round(a, decimals)
 
 
 def _sig(x: float, digits: int = 4) -> float:

@@ -69,7 +69,7 @@ def _run(args) -> int:
     figures["top_view"] = plotting.plot_top_view(result, draws, scene=scene, truth=truth)
     if draws is not None:
         figures["pairs"] = plotting.plot_pairs(draws, result=result, truth=truth)
-        figures["ranks"] = plotting.plot_ranks(draws)
+        figures["ranks"] = plotting.plot_ranks(draws, result=result)
     elif not args.quiet:
         print("note: the result has no posterior (estimated with --no-posterior): "
               "no pair or rank plot")

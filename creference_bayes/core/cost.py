@@ -1,7 +1,9 @@
 """The paper's costs, vectorised over a batch of parameter vectors (method.md §2, §3, §5).
 
-Parameter vectors are ``(x, y, z, yaw, focal_length_px)``: metres, metres, metres, radians,
-pixels; a batch has shape (n, 5) and every cost returns shape (n,).
+Parameter vectors are ``(x, y, z, yaw, focal_length_px, pitch, roll)``: metres, metres, metres,
+radians, pixels, radians, radians (models/params.py); a batch has shape (n, 7) and every cost
+returns shape (n,). The camera rotation is built from the vectors' pitch and roll
+(:func:`~.geometry.rotation_from_pitch_roll`), so the costs need only the principal point.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import Camera, box_points
+from .geometry import Camera, box_points, project, rotation_from_pitch_roll
 
 __all__ = [
     "PAPER_SIGMA_PX",
@@ -20,6 +22,7 @@ __all__ = [
     "SoftConstraints",
     "target_cost",
     "reprojection_residuals",
+    "project_params",
     "sigmoid_penalty",
     "soft_constraint_cost",
 ]
@@ -40,7 +43,7 @@ def reprojection_residuals(params: np.ndarray, observed: np.ndarray, obj_corners
 
     Parameters
     ----------
-    params : (n, 5)
+    params : (n, 7)
     observed : (4, 2) annotated corners t1..t4, pixels
     obj_corners : (4, 3) object-frame corners matching t1..t4 (:func:`~.geometry.dimension_corners`)
 
@@ -51,9 +54,20 @@ def reprojection_residuals(params: np.ndarray, observed: np.ndarray, obj_corners
     depth : (n, 4) camera-frame depth of each corner, metres
     """
     params = np.atleast_2d(params)
-    pts = box_points(params, obj_corners)
-    projected, depth = camera.project(pts, params[:, 4])
+    projected, depth = project_params(params, obj_corners, camera.principal_point)
     return projected, observed - projected, depth
+
+
+def project_params(params: np.ndarray, obj_points: np.ndarray, principal_point) -> tuple[np.ndarray, np.ndarray]:
+    """Object points placed at each pose and projected with each camera of (n, 7) vectors.
+
+    Returns
+    -------
+    uv : (n, k, 2) pixels;  depth : (n, k) camera-frame depth, metres
+    """
+    params = np.atleast_2d(params)
+    R = rotation_from_pitch_roll(params[:, 5], params[:, 6])
+    return project(box_points(params, obj_points), R, params[:, 4], principal_point)
 
 
 def target_cost(params: np.ndarray, observed: np.ndarray, obj_corners: np.ndarray,

@@ -14,9 +14,14 @@ Presets
 ``default``
     A global start (:func:`theta_scan`: for every yaw on a 1° grid and both handednesses, the
     projection equations are linear in (µx', µy', z', µ), method.md §6; pitch from the horizon
-    depends on µ, so the solve is iterated a few times), then, from the best few starts, a
-    Levenberg–Marquardt-style reprojection fit and an L-BFGS-B refinement of the model's cost
-    with a vectorised central-difference gradient, over wide bounds.
+    depends on µ, so the solve is iterated a few times; when pitch and roll are free parameters,
+    the scan runs on a 5° yaw grid for every (pitch, roll) of :data:`ORIENTATION_GRID_DEG`), then,
+    from the best few starts, a Levenberg–Marquardt-style reprojection fit and an L-BFGS-B
+    refinement of the model's cost with a vectorised central-difference gradient, over wide
+    bounds.
+
+Models with a pilot (the metrology model's reference scales, fixed at a pilot estimate) get it set
+at each handedness's first optimum, and are refined once more from there with it.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import basinhopping, least_squares, minimize
 
-from ..core.geometry import box_points, yaw_matrix
+from ..core.cost import reprojection_residuals
+from ..core.geometry import rotation_from_pitch_roll, yaw_matrix
 from ..io.result import MapEstimate
 from ..models.params import FOCAL, YAW, Bounds, wrap_angle
 
@@ -36,7 +42,7 @@ __all__ = ["PRESETS", "optimize_map", "theta_scan", "preset_bounds"]
 PRESETS = ("default", "paper", "paper-controlled")
 _PAPER_RESTARTS = {"paper": 200, "paper-controlled": 100}
 #: Typical magnitude of each parameter, used to scale the optimiser's variables.
-_SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1000.0])
+_SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1000.0, 0.1, 0.1])
 
 
 def preset_bounds(preset: str, image_width: int, image_height: int) -> Bounds:
@@ -100,6 +106,11 @@ def optimize_map(models: Sequence, preset: str = "default", rng=None,
         else:
             total = _PAPER_RESTARTS[preset] if restarts is None else restarts
             x, f, detail = _paper(model, counter, max(1, total // len(models)), rng)
+        if hasattr(model, "set_pilot"):  # fix the model's pilot-dependent scales here, refine again
+            model.set_pilot(model.expand(x)[0])
+            x = _refine(model, counter, x, reprojection=False)
+            f = counter.scalar(x)
+            detail["pilot"] = True
         n_eval += counter.n
         info[f"handedness_{model.handedness:+d}"] = {"cost": f, **detail}
         if best is None or f < best[1]:
@@ -141,30 +152,57 @@ def _paper(model, counter: _Counter, restarts: int, rng) -> tuple[np.ndarray, fl
 # ------------------------------------------------------------------------------------------------
 # the default optimiser
 
+#: The (pitch, roll) grid of the start when they are free parameters, degrees: wide enough for
+#: photos pitched from 20° up to 50° down and rolled by ±10°; the refinement does the rest.
+ORIENTATION_GRID_DEG = (np.arange(-20.0, 51.0, 7.5), np.array([-10.0, -4.0, 0.0, 4.0, 10.0]))
+#: Yaw steps of the scan: 1° with a horizon (one orientation), 5° over the orientation grid.
+N_THETA, N_THETA_GRID = 360, 72
 
-def theta_scan(camera, observed: np.ndarray, obj_corners: np.ndarray, bounds: Bounds,
-               n_theta: int = 360, n_iter: int = 4) -> np.ndarray:
-    """Closed-form pose for every yaw on a grid (method.md §6).
+
+def theta_scan(observed: np.ndarray, obj_corners: np.ndarray, bounds: Bounds, principal_point,
+               *, camera=None, orientations: np.ndarray | None = None, n_theta: int = N_THETA,
+               n_iter: int = 4) -> np.ndarray:
+    """Closed-form poses for every yaw on a grid (method.md §6), for one or many camera orientations.
 
     For fixed yaw θ and camera rotation R, with T' = R·(x, y, z) and qᵢ = R·Ry(θ)·oᵢ, the
     projection ũᵢ·(T'z + qᵢz) = µ·(T'x + qᵢx) (and the same in v) is linear in
-    (µT'x, µT'y, T'z, µ), or in T' alone when µ is known. When the horizon is given R depends on
-    µ, so the solve is repeated ``n_iter`` times with R from the previous µ.
+    (µT'x, µT'y, T'z, µ), or in T' alone when µ is known.
+
+    Parameters
+    ----------
+    observed : (4, 2) corners t1..t4, pixels
+    obj_corners : (4, 3) object-frame corners, metres
+    bounds : the µ bounds (a known µ when lower = upper)
+    principal_point : (2,) pixels
+    camera : orientation from its horizon (or a level camera): R depends on µ, so the solve is
+        repeated ``n_iter`` times with R from the previous µ
+    orientations : (k, 2) fixed (pitch, roll) candidates, radians, instead of ``camera``
 
     Returns
     -------
-    (n_theta, 5) candidate parameter vectors; rows that put the box behind the camera or give a
-    non-positive µ are NaN.
+    (k · n_theta, 7) candidate parameter vectors (pitch and roll filled in); rows that put the box
+    behind the camera or give a non-positive µ are NaN.
     """
     thetas = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
-    offsets = np.einsum("nij,kj->nki", yaw_matrix(thetas), obj_corners)  # (n, 4, 3) in G
-    d = observed - camera.principal_point  # (4, 2) centred pixels
+    if orientations is None:
+        pitch = roll = np.zeros(n_theta)
+        th = thetas
+    else:
+        o = np.asarray(orientations, float).reshape(-1, 2)
+        pitch, roll = np.repeat(o[:, 0], n_theta), np.repeat(o[:, 1], n_theta)
+        th = np.tile(thetas, len(o))
+    n = len(th)
+    offsets = np.einsum("nij,kj->nki", yaw_matrix(th), obj_corners)  # (n, 4, 3) in G
+    d = observed - np.asarray(principal_point, float)  # (4, 2) centred pixels
     lo, hi = bounds.lower[FOCAL], bounds.upper[FOCAL]
     known = lo == hi
-    mu = np.full(n_theta, lo if known else np.sqrt(lo * hi))
-    for _ in range(1 if camera.horizon is None else n_iter):
-        R = camera.rotation(mu)
-        q = offsets if R is None else np.einsum("nij,nkj->nki", R, offsets)
+    mu = np.full(n, lo if known else np.sqrt(lo * hi))
+    derived = orientations is None and camera is not None and camera.horizon is not None
+    for _ in range(n_iter if derived else 1):
+        if derived:
+            pitch, roll = camera.pitch_roll(mu)
+        R = rotation_from_pitch_roll(pitch, roll)
+        q = np.einsum("nij,nkj->nki", R, offsets)
         A, b = _linear_system(q, d, mu if known else None)
         w = _solve_scaled(A, b)
         if known:
@@ -172,8 +210,10 @@ def theta_scan(camera, observed: np.ndarray, obj_corners: np.ndarray, bounds: Bo
         else:
             mu = np.clip(w[:, 3], lo, hi)
             t_cam = np.column_stack([w[:, 0] / w[:, 3], w[:, 1] / w[:, 3], w[:, 2]])
-    t = t_cam if R is None else np.einsum("nji,nj->ni", R, t_cam)  # Rᵀ T'
-    params = np.column_stack([t, thetas, mu])
+    if derived:
+        pitch, roll = camera.pitch_roll(mu)
+    t = np.einsum("nji,nj->ni", R, t_cam)  # Rᵀ T'
+    params = np.column_stack([t, th, mu, pitch, roll])
     with np.errstate(invalid="ignore"):
         depth_ok = np.all((q[..., 2] + t_cam[:, None, 2]) > 0, axis=1)
     bad = ~depth_ok | ~np.all(np.isfinite(params), axis=1)
@@ -220,9 +260,20 @@ def _pick_starts(candidates: np.ndarray, costs: np.ndarray, k: int, min_sep: flo
     return chosen
 
 
+def _scan(model) -> np.ndarray:
+    """Candidate starts of the default preset for ``model`` (:func:`theta_scan`)."""
+    pp = model.camera.principal_point
+    if not model.orientation_free:
+        return theta_scan(model.observed, model.obj_corners, model.bounds, pp, camera=model.camera)
+    pitches, rolls = np.radians(np.meshgrid(*ORIENTATION_GRID_DEG, indexing="ij"))
+    grid = np.column_stack([pitches.ravel(), rolls.ravel()])
+    return theta_scan(model.observed, model.obj_corners, model.bounds, pp, orientations=grid,
+                      n_theta=N_THETA_GRID)
+
+
 def _default(model, counter: _Counter, n_starts: int = 3) -> tuple[np.ndarray, float, dict]:
     free = model.free
-    cands = theta_scan(model.camera, model.observed, model.obj_corners, model.bounds)
+    cands = _scan(model)
     finite = np.all(np.isfinite(cands), axis=1)
     lo, hi = model.bounds.lower, model.bounds.upper
     cands[finite] = np.clip(cands[finite], lo, hi)
@@ -239,10 +290,10 @@ def _default(model, counter: _Counter, n_starts: int = 3) -> tuple[np.ndarray, f
         f = counter.scalar(x)
         if f < best_f:
             best_x, best_f = x, f
-    return best_x, best_f, {"scan_starts": len(starts)}
+    return best_x, best_f, {"scan_starts": len(starts), "scan_candidates": int(finite.sum())}
 
 
-def _refine(model, counter: _Counter, x0: np.ndarray) -> np.ndarray:
+def _refine(model, counter: _Counter, x0: np.ndarray, reprojection: bool = True) -> np.ndarray:
     free = model.free
     scale = _SCALE[free]
     lo, hi = model.bounds.lower[free], model.bounds.upper[free]
@@ -251,19 +302,20 @@ def _refine(model, counter: _Counter, x0: np.ndarray) -> np.ndarray:
     if yaw_free:  # yaw is circular: do not let its bound stop the optimiser
         iy = int(np.sum(free[:YAW]))
         lo_s[iy], hi_s[iy] = -np.inf, np.inf
+    z0 = np.clip(x0 / scale, lo_s, hi_s)
 
     # 1. reprojection least squares (smooth, fast) from the closed-form start
-    def resid(z):
-        full = model.expand(z * scale)
-        counter.n += 1
-        _, r, depth = _reprojection(model, full)
-        return np.concatenate([r.ravel(), 1e3 * np.minimum(depth.ravel() - 1e-3, 0.0)])
+    if reprojection:
+        def resid(z):
+            full = model.expand(z * scale)
+            counter.n += 1
+            _, r, depth = reprojection_residuals(full, model.observed, model.obj_corners, model.camera)
+            return np.concatenate([r.ravel(), 1e3 * np.minimum(depth.ravel() - 1e-3, 0.0)])
 
-    z0 = np.clip(x0 / scale, lo_s, hi_s)
-    try:
-        z0 = least_squares(resid, z0, bounds=(lo_s, hi_s), x_scale=1.0, max_nfev=200).x
-    except ValueError:
-        pass
+        try:
+            z0 = least_squares(resid, z0, bounds=(lo_s, hi_s), x_scale=1.0, max_nfev=200).x
+        except ValueError:
+            pass
 
     # 2. L-BFGS-B on the model's own cost, with a vectorised central-difference gradient
     eps = 1e-6
@@ -277,9 +329,3 @@ def _refine(model, counter: _Counter, x0: np.ndarray) -> np.ndarray:
     res = minimize(fun_grad, z0, jac=True, method="L-BFGS-B", bounds=list(zip(lo_s, hi_s)),
                    options={"ftol": 1e-13, "gtol": 1e-9, "maxiter": 500})
     return res.x * scale
-
-
-def _reprojection(model, full: np.ndarray):
-    from ..core.cost import reprojection_residuals
-
-    return reprojection_residuals(full, model.observed, model.obj_corners, model.camera)

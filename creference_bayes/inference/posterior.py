@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.params import PARAM_NAMES, YAW
+from ..models.params import CIRCULAR, N_PARAMS, PARAM_NAMES, YAW
 
 __all__ = ["DEFAULT_TEMPERATURE", "LogPosterior", "Laplace", "laplace_scales"]
 
@@ -32,8 +32,9 @@ __all__ = ["DEFAULT_TEMPERATURE", "LogPosterior", "Laplace", "laplace_scales"]
 #: (the benchmark's coverage study) can change the default in one place.
 DEFAULT_TEMPERATURE = 1.0
 
-#: Fallback per-parameter scales (x, y, z m; yaw rad; µ px) when the cost gives no curvature.
-_FALLBACK_SCALE = np.array([0.1, 0.05, 0.2, 0.05, 20.0])
+#: Fallback per-parameter scales (x, y, z m; yaw rad; µ px; pitch, roll rad) when the cost gives
+#: no curvature.
+_FALLBACK_SCALE = np.array([0.1, 0.05, 0.2, 0.05, 20.0, 0.01, 0.01])
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ class LogPosterior:
 
     Parameters
     ----------
-    model : a model with ``cost((n, 5)) → (n,)``, ``bounds``, ``free`` and ``expand`` (for
+    model : a model with ``cost((n, 7)) → (n,)``, ``bounds``, ``free`` and ``expand`` (for
         example :class:`~creference_bayes.models.paper.PaperModel`)
     temperature : T > 0; larger T widens the posterior
 
@@ -57,14 +58,15 @@ class LogPosterior:
         if isinstance(t, bool) or not (isinstance(t, (int, float, np.floating)) and np.isfinite(t) and t > 0):
             raise ValueError(f"temperature: expected a finite number > 0, got {t!r}")
         # bounds of the free parameters, yaw unbounded (circular)
-        lo = np.where(np.arange(5) == YAW, -np.inf, self.model.bounds.lower)[self.free]
-        hi = np.where(np.arange(5) == YAW, np.inf, self.model.bounds.upper)[self.free]
+        circular = np.isin(np.arange(N_PARAMS), CIRCULAR)
+        lo = np.where(circular, -np.inf, self.model.bounds.lower)[self.free]
+        hi = np.where(circular, np.inf, self.model.bounds.upper)[self.free]
         object.__setattr__(self, "_lo", lo)
         object.__setattr__(self, "_hi", hi)
 
     @property
     def free(self) -> np.ndarray:
-        """(5,) bool: which of (x, y, z, yaw, µ) are sampled."""
+        """(7,) bool: which of (x, y, z, yaw, µ, pitch, roll) are sampled."""
         return np.asarray(self.model.free, bool)
 
     @property

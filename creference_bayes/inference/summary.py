@@ -46,33 +46,43 @@ def _unwrap_around_mean(yaw: np.ndarray) -> np.ndarray:
     return m + wrap_angle(yaw - m)
 
 
-def posterior_arrays(chains, fixed: np.ndarray, free: np.ndarray) -> dict[str, np.ndarray]:
+def _full(expand, free_draws: np.ndarray) -> np.ndarray:
+    """(..., n_free) free parameters → (..., 7) full vectors through the model's ``expand``."""
+    flat = free_draws.reshape(-1, free_draws.shape[-1])
+    return expand(flat).reshape(free_draws.shape[:-1] + (len(PARAM_NAMES),))
+
+
+def _varies(x: np.ndarray) -> bool:
+    """Whether draws vary beyond rounding (a derived roll that is constant in exact arithmetic)."""
+    return bool(np.ptp(x) > 1e-9 * max(1.0, float(np.max(np.abs(x)))))
+
+
+def posterior_arrays(chains, expand) -> dict[str, np.ndarray]:
     """Named (n_ensembles, n_draws) arrays of every summarised quantity.
 
     Parameters
     ----------
     chains : :class:`~.sampling.Chains` over the free parameters
-    fixed : (5,) the full parameter vector's fixed values (µ when known)
-    free : (5,) bool
+    expand : the model's map from free parameters (n, n_free) to full vectors (n, 7) (fixed
+        values and derived pitch and roll filled in)
     """
-    d = chains.draws()  # (n_ens, n_draws, n_free)
-    full = np.broadcast_to(np.asarray(fixed, float), d.shape[:2] + (5,)).copy()
-    full[..., np.asarray(free, bool)] = d
+    full = _full(expand, chains.draws())  # (n_ens, n_draws, 7)
     out = {name: full[..., i] for i, name in enumerate(PARAM_NAMES)}
     out["yaw"] = _unwrap_around_mean(out["yaw"])
     out["distance_m"] = np.hypot(out["x"], out["z"])
     return out
 
 
-def to_inference_data(chains, fixed, free, *, scene=None, attrs: dict | None = None) -> "az.InferenceData":
+def to_inference_data(chains, expand, *, scene=None, attrs: dict | None = None,
+                      arrays: dict | None = None) -> "az.InferenceData":
     """An InferenceData of a run (module docstring for the layout).
 
-    Groups: ``posterior`` (x, y, z, yaw, focal_length_px, distance_m), ``sample_stats`` (``lp``,
+    Groups: ``posterior`` (x, y, z, yaw, focal_length_px, pitch, roll, distance_m), ``sample_stats`` (``lp``,
     the log-posterior −cost′/T up to a constant; ``accepted``, whether the step into this draw
     was an accepted move), and, given the scene, ``observed_data`` (the dimension-line corners,
     their per-corner median, the reference lines and their [low, high] values).
     """
-    post = posterior_arrays(chains, fixed, free)
+    post = arrays if arrays is not None else posterior_arrays(chains, expand)
     lp = chains.draws(chains.log_prob)
     moved = np.ones(chains.chain.shape[:3], bool)
     moved[1:] = np.any(chains.chain[1:] != chains.chain[:-1], axis=-1)
@@ -124,7 +134,7 @@ def in_hdi(name: str, value: float, interval) -> bool:
     return bool(lo <= value <= hi)
 
 
-def summarise(chains, fixed, free, *, hdi_prob: float = DEFAULT_HDI_PROB, min_ess: float = 1000.0,
+def summarise(chains, expand, *, free=None, hdi_prob: float = DEFAULT_HDI_PROB, min_ess: float = 1000.0,
               tau_multiple: float = 50.0, handedness: int = 0, temperature: float = 1.0,
               arrays: dict | None = None) -> tuple[PosteriorSummary, Diagnostics]:
     """Posterior summary and diagnostics of a run.
@@ -132,7 +142,10 @@ def summarise(chains, fixed, free, *, hdi_prob: float = DEFAULT_HDI_PROB, min_es
     Parameters
     ----------
     chains : :class:`~.sampling.Chains` over the free parameters
-    fixed, free : (5,) fixed values and the free mask of the model
+    expand : the model's map from free parameters to full vectors (:func:`posterior_arrays`)
+    free : (7,) bool, the sampled parameters: their autocorrelation times are the sampler's own
+        (``chains.autocorr_time``); those of derived quantities are computed here. None: compute
+        all here
     hdi_prob : probability of the highest-density intervals
     min_ess, tau_multiple : the convergence requirements (bulk ESS of every sampled quantity;
         chain length after burn-in in autocorrelation times)
@@ -144,9 +157,9 @@ def summarise(chains, fixed, free, *, hdi_prob: float = DEFAULT_HDI_PROB, min_es
     """
     if not 0.0 < hdi_prob < 1.0:
         raise ValueError(f"hdi_prob: expected a probability in (0, 1), got {hdi_prob!r}")
-    post = arrays if arrays is not None else posterior_arrays(chains, fixed, free)
-    free = np.asarray(free, bool)
-    sampled = [n for n, f in zip(PARAM_NAMES, free) if f] + ["distance_m"]
+    post = arrays if arrays is not None else posterior_arrays(chains, expand)
+    # sampled or derived from sampled ones (pitch and roll from µ and a horizon): not constant
+    sampled = [n for n in SUMMARY_NAMES if _varies(post[n])]
     mean, median, sd, hdi = {}, {}, {}, {}
     for name in SUMMARY_NAMES:
         x = post[name]
@@ -166,7 +179,7 @@ def summarise(chains, fixed, free, *, hdi_prob: float = DEFAULT_HDI_PROB, min_es
                                handedness=int(handedness), temperature=float(temperature),
                                n_draws=int(post["x"].size),
                                draws=_json_draws(post, sampled))
-    return summary, _diagnostics(chains, post, sampled, np.asarray(fixed, float), free, min_ess, tau_multiple)
+    return summary, _diagnostics(chains, post, sampled, expand, free, min_ess, tau_multiple)
 
 
 def _json_draws(post: dict, names: list[str]) -> dict:
@@ -180,13 +193,13 @@ def _json_draws(post: dict, names: list[str]) -> dict:
     return out
 
 
-def _diagnostics(chains, post, sampled, fixed, free, min_ess, tau_multiple) -> Diagnostics:
-    tau = dict(zip([n for n, f in zip(PARAM_NAMES, free) if f], map(float, chains.autocorr_time)))
+def _diagnostics(chains, post, sampled, expand, free, min_ess, tau_multiple) -> Diagnostics:
     kept = chains.chain[chains.burn_in:]
-    full = np.broadcast_to(fixed, kept.shape[:3] + (5,)).copy()
-    full[..., free] = kept
-    distance = np.hypot(full[..., 0], full[..., 2]).reshape(len(kept), -1)
-    tau["distance_m"] = float(integrated_time(distance))
+    full = _full(expand, kept).reshape(len(kept), -1, len(PARAM_NAMES))  # (step, walker, 7)
+    tau = {n: float(t) for n, t in zip(PARAM_NAMES, integrated_time(full)) if n in sampled}
+    if free is not None:  # the sampler's own estimate for what it sampled
+        tau.update(zip([n for n, f in zip(PARAM_NAMES, free) if f], map(float, chains.autocorr_time)))
+    tau["distance_m"] = float(integrated_time(np.hypot(full[..., 0], full[..., 2])))
     ess, ess_tail, rhat = {}, {}, {}
     for name in sampled:
         a = post[name]

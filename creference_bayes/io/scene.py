@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..core.units import UNITS_TO_M
+from ..models.camera_terms import FocalPrior, OrientationPrior
 
 __all__ = [
     "SCENE_FORMAT",
@@ -153,6 +154,12 @@ class Scene:
     focal_length_px: float | None = None
     horizon: np.ndarray | None = None
     references: tuple[Reference, ...] = ()
+    #: Pixel uncertainty of each horizon point (0: the horizon is exact).
+    horizon_sd_px: float = 0.0
+    #: The scene's own prior on µ (``camera.focal_length_prior``), or None.
+    focal_prior: FocalPrior | None = None
+    #: The scene's own prior on pitch and roll (``camera.orientation_prior``), or None.
+    orientation_prior: OrientationPrior | None = None
     ground_truth: GroundTruth | None = None
     image_path: Path | None = None
     source: Path | None = None
@@ -406,6 +413,49 @@ def _parse_ground_truth(obj: Any, path: str) -> GroundTruth:
     )
 
 
+_FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
+#: Default log-sd of a focal-length prior a scene states without one.
+STATED_FOCAL_LOG_SD = 0.1
+_ORIENTATION_PRIOR_KEYS = {"pitch_mean_deg", "pitch_sd_deg", "roll_mean_deg", "roll_sd_deg"}
+
+
+def _parse_focal_prior(obj: Any, path: str, size: tuple[int, int], sink: list[str]) -> FocalPrior | None:
+    """``{"median_px": µ}`` or ``{"equivalent_35mm_mm": f}``, with optional ``log_sd`` (default
+    :data:`STATED_FOCAL_LOG_SD`) and ``dof`` (default: a log-normal)."""
+    if obj is None:
+        return None
+    obj = _dict(obj, path)
+    _warn_unknown(obj, _FOCAL_PRIOR_KEYS, path, sink)
+    given = [k for k in ("median_px", "equivalent_35mm_mm") if obj.get(k) is not None]
+    if len(given) != 1:
+        raise SceneError(path, "expected exactly one of 'median_px' and 'equivalent_35mm_mm', got "
+                               f"{_short(sorted(given))}")
+    log_sd = obj.get("log_sd")
+    log_sd = STATED_FOCAL_LOG_SD if log_sd is None else _number(log_sd, _join(path, "log_sd"), positive=True)
+    dof = obj.get("dof")
+    dof = math.inf if dof is None else _number(dof, _join(path, "dof"), positive=True)
+    value = _number(obj[given[0]], _join(path, given[0]), positive=True)
+    if given[0] == "median_px":
+        return FocalPrior(value, log_sd, dof, source="scene")
+    return FocalPrior.from_35mm(value, size, log_sd=log_sd, dof=dof, source="scene")
+
+
+def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> OrientationPrior | None:
+    """Degrees: ``pitch_mean_deg``, ``pitch_sd_deg``, ``roll_mean_deg``, ``roll_sd_deg`` (each
+    optional; the default prior's values otherwise)."""
+    if obj is None:
+        return None
+    obj = _dict(obj, path)
+    _warn_unknown(obj, _ORIENTATION_PRIOR_KEYS, path, sink)
+    kw = {}
+    for key in sorted(_ORIENTATION_PRIOR_KEYS):
+        if obj.get(key) is not None:
+            sd = key.endswith("sd_deg")
+            v = _number(obj[key], _join(path, key), positive=sd, lo=None if sd else -90.0, hi=None if sd else 90.0)
+            kw[key[:-4]] = math.radians(v)
+    return OrientationPrior(**kw)
+
+
 def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     """Validate a decoded scene (a dict) and return a :class:`Scene`.
 
@@ -426,8 +476,8 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     fmt = _get(data, "format", "")
     if fmt != SCENE_FORMAT:
         raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {_short(fmt)}")
-    _warn_unknown(data, {"format", "image", "camera", "horizon", "target", "references",
-                         "ground_truth"}, "", sink)
+    _warn_unknown(data, {"format", "image", "camera", "horizon", "horizon_sd_px", "target",
+                         "references", "ground_truth"}, "", sink)
 
     image = _dict(_get(data, "image", ""), "image")
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
@@ -449,7 +499,8 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
 
     camera = data.get("camera")
     camera = {} if camera is None else _dict(camera, "camera")
-    _warn_unknown(camera, {"principal_point", "focal_length_px"}, "camera", sink)
+    _warn_unknown(camera, {"principal_point", "focal_length_px", "focal_length_prior",
+                           "orientation_prior"}, "camera", sink)
     pp = camera.get("principal_point")
     if pp is None:
         principal = np.array([w / 2.0, h / 2.0])
@@ -460,6 +511,10 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
                              f"[{principal[0]:g}, {principal[1]:g}] lies outside the {w}x{h} image")
     focal = camera.get("focal_length_px")
     focal = None if focal is None else _number(focal, "camera.focal_length_px", positive=True)
+    focal_prior = _parse_focal_prior(camera.get("focal_length_prior"), "camera.focal_length_prior",
+                                     (w, h), sink)
+    orientation_prior = _parse_orientation_prior(camera.get("orientation_prior"),
+                                                 "camera.orientation_prior", sink)
 
     horizon = data.get("horizon")
     if horizon is not None:
@@ -469,6 +524,10 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
         if abs(horizon[1, 0] - horizon[0, 0]) < abs(horizon[1, 1] - horizon[0, 1]):
             raise SceneError("horizon", "a horizon steeper than 45 degrees is not supported, got "
                                         f"{_short(horizon.round(2).tolist())}")
+    horizon_sd = data.get("horizon_sd_px")
+    horizon_sd = 0.0 if horizon_sd is None else _number(horizon_sd, "horizon_sd_px", nonneg=True)
+    if horizon_sd > 0 and horizon is None:
+        raise SceneError("horizon_sd_px", f"an uncertainty {horizon_sd:g} px without a horizon")
 
     target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
     refs = data.get("references")
@@ -482,6 +541,7 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return Scene(image_width=w, image_height=h, target=target, principal_point=principal,
                  focal_length_px=focal, horizon=horizon, references=references,
+                 horizon_sd_px=horizon_sd, focal_prior=focal_prior, orientation_prior=orientation_prior,
                  ground_truth=ground_truth, image_path=image_path, source=source,
                  warnings=tuple(sink))
 
@@ -541,6 +601,16 @@ def scene_to_dict(scene: Scene) -> dict:
         out["image"]["path"] = _relative_image_path(scene)
     if scene.horizon is not None:
         out["horizon"] = scene.horizon.tolist()
+    if scene.horizon_sd_px:
+        out["horizon_sd_px"] = scene.horizon_sd_px
+    if scene.focal_prior is not None:
+        fp = scene.focal_prior
+        out["camera"]["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
+                                               **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
+    if scene.orientation_prior is not None:
+        op = scene.orientation_prior
+        out["camera"]["orientation_prior"] = {f"{k}_deg": math.degrees(getattr(op, k)) for k in
+                                              ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
     if scene.references:
         out["references"] = [_reference_to_dict(r) for r in scene.references]
     if scene.ground_truth is not None:

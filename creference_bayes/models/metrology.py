@@ -1,41 +1,60 @@
 """The second model, ``metrology``: references as measurement likelihoods (method.md §7).
 
-Given the focal length µ, the horizon and the camera height h (= the target's y, since the box
-stands on the ground), every annotated ground segment has a definite real length: its endpoints'
-viewing rays meet the ground Y = h at two points of the gravity-aligned frame G, and
+Given the focal length µ, the camera's pitch and roll and its height h (= the target's y, since
+the box stands on the ground), every annotated ground segment has a definite real length: its
+endpoints' viewing rays meet the ground Y = h at two points of the gravity-aligned frame G, and
 
-    ℓ(µ, h) = h · g(µ),     g(µ) = ‖ d_p / d_p,y − d_q / d_q,y ‖
+    ℓ(µ, pitch, roll, h) = h · ‖ d_p / d_p,y − d_q / d_q,y ‖
 
-with d = Rᵀ K⁻¹ (u, v, 1) the ray of a pixel (R from the horizon and µ). So each reference is a
-noisy *measurement* of a function of the parameters, instead of one side of a pairwise bound:
+with d = Rᵀ K⁻¹ (u, v, 1) the ray of a pixel and R = Rz(roll)·Rx(pitch) (pitch and roll follow
+from an exact horizon and µ, or are parameters of their own). So each reference is a noisy
+*measurement* of a function of the parameters, instead of one side of a pairwise bound:
 
-- a single value v:  log v = log ℓ + s·ε,  ε ~ Student-t(ν)         (heavy-tailed in log-length)
-- a range [lo, hi]:  the worker's value lies somewhere in it: P = T_ν((log hi − log ℓ)/s)
-  − T_ν((log lo − log ℓ)/s)                                        (interval-censored)
+- a single value v:  log v = log ℓ + s_j·ε,  ε ~ Student-t(ν)      (heavy-tailed in log-length)
+- a range [lo, hi]:  the worker's value lies somewhere in it: P = T_ν((log hi − log ℓ)/s_j)
+  − T_ν((log lo − log ℓ)/s_j)                                     (interval-censored)
 
 Relative values (ratios to the target's length or width) are converted to metres with the target's
-known size, as everywhere else. The defaults s = :data:`REF_SCALE`, ν = :data:`REF_DOF` describe
-the paper's crowd workers (Table 2: median error ≈ 60 %, heavy right tail), not one noise tier.
-The drawn segment is itself noisy, and a segment far away (close to the horizon) turns a few pixels
-into a large length error, so each reference's scale is widened by its line noise:
-s_j² = s² + σ_line² Σ_k (∂ log ℓ_j / ∂p_k)² over its four endpoint coordinates p_k (forward
-differences of 0.5 px, recomputed for every (µ, h)), with σ_line = :data:`REF_LINE_FACTOR` × the
-target's corner scale σ (lines are drawn by the same crowd on the same photo) unless given.
+known size, as everywhere else. ν = :data:`REF_DOF` gives the heavy tails of the paper's crowd
+workers (Table 2: median error ≈ 60 %, a long right tail).
+
+The crowd's error scale s is not assumed: it is shared by the scene's references and integrated
+out over a grid (:data:`REF_SCALE_GRID`, from 0.5 % to 300 %, with a log-normal prior of median
+:data:`REF_SCALE_MEDIAN` and log-sd :data:`REF_SCALE_LOG_SD`), so the likelihood of the references
+is Σ_k w_k Π_j p(v_j | ℓ_j, s_k). A scene whose references agree with each other and with the
+target (careful workers, or exact values) puts its weight on small s and lets the references pin
+the depth–focal-length ridge; a scene of wild guesses puts it on large s and leans on the target.
+A fixed scale (the option ``ref_scale``) gives the plain product.
+
+Line noise. The drawn segment is itself noisy, and a segment far away (close to the horizon) turns
+a few pixels into a large length error, so each reference's scale is widened by its line noise:
+s_j² = s² + σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i, with
+σ_line = :data:`REF_LINE_FACTOR` × the target's corner scale σ unless given. The derivatives are
+taken once, at a *pilot* estimate (:meth:`MetrologyModel.set_pilot`: the optimiser sets it at its
+first optimum and refines from there), and then held fixed. Recomputing them at every parameter
+value (as this model did before) makes each reference's normalising constant −log s_j a function
+of (µ, h, pitch, roll), which rewards states where the lines look insensitive, independently of
+what the workers said: with exact references that pull alone moved the optimum by up to 5 % of
+the distance. With fixed scales, exact data put every term's minimum at the truth.
 
 The target's annotations enter jointly rather than through a per-corner median: each corner of each
 annotation is a bivariate Student-t(:data:`TARGET_DOF`) observation of the projected corner, with a
 scale σ estimated from the annotations' own spread (pooled standard deviation around the per-corner
-mean, at least :data:`MIN_TARGET_SIGMA_PX`; :data:`DEFAULT_TARGET_SIGMA_PX` with a single
-annotation). The heavy tails keep one careless annotation from dragging the fit.
+mean, at least :data:`MIN_TARGET_SIGMA_PX`, which only noise-free or copied annotations reach;
+:data:`DEFAULT_TARGET_SIGMA_PX` with a single annotation). The heavy tails keep one careless
+annotation from dragging the fit.
 
-The cost is the negative log-likelihood up to a constant (a proper likelihood, so the posterior's
-temperature for this model is 1: :data:`DEFAULT_TEMPERATURE`). The camera must be above the
-ground, so the lower bound of y is raised to :data:`MIN_CAMERA_HEIGHT_M`. References with an
-endpoint on or above the horizon measure nothing and are left out (counted in
-:attr:`MetrologyModel.reference_status`).
+The cost is the negative log-likelihood up to a constant, plus the camera terms (priors on µ,
+pitch and roll, a horizon measurement: :mod:`.camera_terms`). It is a proper log-posterior, so the
+posterior's temperature for this model is 1 (:data:`DEFAULT_TEMPERATURE`). The camera must be
+above the ground, so the lower bound of y is raised to :data:`MIN_CAMERA_HEIGHT_M`. With an exact
+horizon, references with an endpoint on or above it measure nothing and are left out (counted in
+:attr:`MetrologyModel.reference_status`); when pitch and roll are free, a ray at or above the
+state's horizon is taken to meet the ground very far away (:data:`MIN_RAY_DOWN`), so such a state
+explains the worker's value badly but finitely.
 
-The model offers the same interface as :class:`~creference_bayes.model.PaperModel`:
-``cost(params (n, 5)) → (n,)``, ``bounds``, ``free``, ``expand``, ``handedness``, ``camera``,
+The model offers the same interface as :class:`~creference_bayes.models.paper.PaperModel`:
+``cost(params (n, 7)) → (n,)``, ``bounds``, ``free``, ``expand``, ``handedness``, ``camera``,
 ``observed`` (the per-corner median, used only to start the optimiser), ``obj_corners``, ``name``.
 """
 
@@ -46,30 +65,41 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import stdtr
 
-from ..core.cost import BEHIND_CAMERA_PENALTY
-from ..core.geometry import Camera, box_points, dimension_corners, project
+from ..core.cost import BEHIND_CAMERA_PENALTY, project_params
+from ..core.geometry import Camera, dimension_corners, rotation_from_pitch_roll
 from ..core.metrology import GroundFrame
-from .params import FOCAL, Bounds, FreeParameters
+from .camera_terms import CameraTerms
+from .params import FOCAL, PITCH, ROLL, Bounds, FreeParameters
 
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
-    "REF_LINE_FACTOR", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "DEFAULT_TEMPERATURE",
+    "REF_SCALE_GRID", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
+    "REF_LINE_FACTOR", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
     "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths",
 ]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
 TARGET_DOF = 4.0
-#: Floor of the estimated corner scale, pixels (annotation resolution).
-MIN_TARGET_SIGMA_PX = 1.0
+#: Floor of the estimated corner scale, pixels. Real crowd annotations spread by a pixel or more,
+#: so the floor only matters when annotations agree exactly (noise-free or copied): it is then
+#: well above the 0.003 px that coordinates stored to 0.01 px keep.
+MIN_TARGET_SIGMA_PX = 0.05
 #: Corner scale when there is a single annotation (no spread to estimate it from), pixels.
 DEFAULT_TARGET_SIGMA_PX = 5.0
 #: Scale s and degrees of freedom ν of a worker's error in log-length (see the module docstring).
 REF_SCALE = 0.75
 REF_DOF = 2.0
+#: The grid over which the crowd's error scale s is integrated out, and its prior (log-normal).
+REF_SCALE_GRID = np.geomspace(0.005, 3.0, 16)
+REF_SCALE_MEDIAN = 0.5
+REF_SCALE_LOG_SD = 1.0
 #: Pixel noise of a reference's endpoints, as a multiple of the target's corner scale σ.
 REF_LINE_FACTOR = 2.0
-#: Endpoint step of the forward differences of log-length, pixels.
+#: Endpoint step of the central differences of log-length at the pilot, pixels.
 _LINE_STEP_PX = 0.5
+#: Smallest downward component of a unit-depth viewing ray (d_y, with d_z ≈ 1): rays closer to
+#: the horizon than this meet the ground at about h / MIN_RAY_DOWN, i.e. 1000 camera heights away.
+MIN_RAY_DOWN = 1e-3
 #: Lowest camera height the model allows, metres.
 MIN_CAMERA_HEIGHT_M = 0.05
 #: Reference endpoints closer than this to the horizon (or above it) are unusable, pixels.
@@ -125,33 +155,28 @@ def estimate_target_sigma(corners: np.ndarray) -> float:
     return float(max(np.sqrt(ss / (8 * (n - 1))), MIN_TARGET_SIGMA_PX))
 
 
-def ground_lengths(lines: np.ndarray, camera: Camera, focal: np.ndarray, height: np.ndarray,
-                   rotation: np.ndarray | None = None) -> np.ndarray:
-    """Real lengths of ground segments for a batch of (µ, h).
+def ground_lengths(lines: np.ndarray, principal_point, full: np.ndarray) -> np.ndarray:
+    """Real lengths of ground segments for a batch of parameter vectors.
 
     Parameters
     ----------
-    lines : (m, 2, 2) segment endpoints, pixels (all below the horizon)
-    camera : its principal point and horizon
-    focal : (n,) µ, pixels
-    height : (n,) camera height h, metres
-    rotation : (n, 3, 3) R for ``focal`` if already computed (None: from ``camera``)
+    lines : (m, 2, 2) segment endpoints, pixels
+    principal_point : (2,) pixels
+    full : (n, 7) parameter vectors; µ, pitch, roll and the camera height h = y are used
 
     Returns
     -------
-    (n, m) lengths, metres
+    (n, m) lengths, metres. A ray at or above the horizon is taken to meet the ground
+    at 1 / :data:`MIN_RAY_DOWN` camera heights (a huge, finite length).
     """
-    focal = np.atleast_1d(np.asarray(focal, float))
-    height = np.atleast_1d(np.asarray(height, float))
-    pts = np.asarray(lines, float).reshape(-1, 2) - camera.principal_point  # (2m, 2)
-    d = np.concatenate([pts[None] / focal[:, None, None], np.ones((len(focal), len(pts), 1))], axis=-1)
-    R = camera.rotation(focal) if rotation is None and camera.horizon is not None else rotation
-    if R is not None:
-        d = np.einsum("nji,npj->npi", R, d)  # Rᵀ d per row
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ground = d / d[..., 1:2]  # ray scaled to unit height below the camera
-    seg = ground[:, 1::2] - ground[:, 0::2]  # (n, m, 3)
-    return height[:, None] * np.linalg.norm(seg, axis=-1)
+    full = np.atleast_2d(np.asarray(full, float))
+    pts = np.asarray(lines, float).reshape(-1, 2) - np.asarray(principal_point, float)  # (2m, 2)
+    R = rotation_from_pitch_roll(full[:, PITCH], full[:, ROLL])  # (n, 3, 3)
+    # ray in G: Rᵀ K⁻¹ (u, v, 1) = ((u − cx) R[0] + (v − cy) R[1]) / µ + R[2]  (rows of R)
+    d = (pts @ R[:, :2, :]) / full[:, FOCAL, None, None] + R[:, None, 2, :]  # (n, 2m, 3)
+    down = np.maximum(d[..., 1], MIN_RAY_DOWN)
+    gx, gz = d[..., 0] / down, d[..., 2] / down  # ground point per unit camera height
+    return full[:, 1, None] * np.hypot(gx[:, 1::2] - gx[:, 0::2], gz[:, 1::2] - gz[:, 0::2])
 
 
 @dataclass
@@ -160,7 +185,7 @@ class MetrologyModel(FreeParameters):
 
     Parameters
     ----------
-    camera : Camera
+    camera : Camera (principal point, exact horizon or None, known focal length or None)
     annotations : (n_annotation, 4, 2) every annotation's corners t1..t4, pixels
     dimensions : (length, width, height) of the target, metres
     handedness : +1 or −1
@@ -168,8 +193,12 @@ class MetrologyModel(FreeParameters):
         the camera's focal length is known)
     references : the references to use (empty for target-only)
     target_sigma : corner scale, pixels; None to estimate it (:func:`estimate_target_sigma`)
-    target_dof, ref_scale, ref_dof : see the module constants
+    target_dof, ref_dof : see the module constants
+    ref_scale : a fixed crowd error scale s in log-length; None (default) integrates it out over
+        :data:`REF_SCALE_GRID` (module docstring)
     ref_line_sigma : pixel noise of the references' endpoints (None: :data:`REF_LINE_FACTOR` × σ)
+    orientation_free : pitch and roll are parameters; else they follow from ``camera``
+    camera_terms : priors on µ, pitch, roll and a horizon measurement (:mod:`.camera_terms`)
     """
 
     camera: Camera
@@ -180,9 +209,11 @@ class MetrologyModel(FreeParameters):
     references: tuple[ReferenceMeasurement, ...] = ()
     target_sigma: float | None = None
     target_dof: float = TARGET_DOF
-    ref_scale: float = REF_SCALE
+    ref_scale: float | None = None
     ref_dof: float = REF_DOF
     ref_line_sigma: float | None = None
+    orientation_free: bool = False
+    camera_terms: CameraTerms = field(default_factory=CameraTerms)
     name: str = field(default="metrology", init=False)
     #: The posterior's temperature for this model (the pipeline uses it when none is given).
     default_temperature: float = field(default=DEFAULT_TEMPERATURE, init=False)
@@ -196,8 +227,16 @@ class MetrologyModel(FreeParameters):
         self.annotations = ann
         for key in ("target_dof", "ref_scale", "ref_dof"):
             v = getattr(self, key)
+            if v is None and key == "ref_scale":
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a finite number > 0, got {v!r}")
+        if self.ref_scale is None:
+            grid = REF_SCALE_GRID
+            log_w = -0.5 * ((np.log(grid) - np.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2
+        else:
+            grid, log_w = np.array([float(self.ref_scale)]), np.zeros(1)
+        self._scale_grid, self._log_w = grid, log_w - np.logaddexp.reduce(log_w)
         if self.target_sigma is None:
             self.target_sigma = estimate_target_sigma(ann)
         elif not (np.isfinite(self.target_sigma) and self.target_sigma > 0):
@@ -215,40 +254,76 @@ class MetrologyModel(FreeParameters):
         if self.camera.focal_length_px is not None:
             bounds = bounds.with_fixed(FOCAL, self.camera.focal_length_px)
         self.bounds = bounds
-        self.free = self.bounds.lower < self.bounds.upper
+        self.free = self._free_mask()
         self._split_references()
 
     def _split_references(self) -> None:
         usable, status = [], {}
-        frame = GroundFrame.from_camera(self.camera)
+        frame = None if self.orientation_free else GroundFrame.from_camera(self.camera)
         for r in self.references:
-            if frame.distance(r.line).min() < MIN_HORIZON_PX:
+            if frame is not None and frame.distance(r.line).min() < MIN_HORIZON_PX:
                 status[r.index] = "endpoint_above_horizon"
             else:
                 usable.append(r)
                 status[r.index] = "used"
         self.reference_status = status
         self._lines = np.array([r.line for r in usable]).reshape(-1, 2, 2)
-        steps = [np.zeros((2, 2))] + [np.eye(4)[k].reshape(2, 2) * _LINE_STEP_PX for k in range(4)]
-        self._lines_all = np.concatenate([self._lines + d for d in steps])  # (5m, 2, 2)
         self._log_low = np.log([r.low for r in usable])
         self._log_high = np.log([r.high for r in usable])
         self._is_range = np.array([r.is_range for r in usable], bool)
+        self._line_var = np.zeros(len(usable))  # σ_line² |∇ log ℓ_j|², set at the pilot
+        self.pilot = None
+
+    def set_pilot(self, full: np.ndarray) -> None:
+        """Fix each reference's scale s_j at the (7,) parameter vector ``full`` (module docstring).
+
+        The optimiser calls it at its first optimum; the posterior then uses these scales.
+        """
+        full = np.asarray(full, float).reshape(1, -1)
+        self.pilot = full[0].copy()
+        m = len(self._lines)
+        if m == 0 or self.ref_line_sigma == 0:
+            return
+        steps = np.eye(4).reshape(4, 2, 2) * _LINE_STEP_PX  # one endpoint coordinate each
+        lines = np.concatenate([self._lines[None] + steps[:, None], self._lines[None] - steps[:, None]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_len = np.log(ground_lengths(lines.reshape(-1, 2, 2), self.camera.principal_point, full))
+        plus, minus = log_len.reshape(2, 4, m)
+        grad2 = np.sum(((plus - minus) / (2 * _LINE_STEP_PX)) ** 2, axis=0)
+        line_var = self.ref_line_sigma**2 * grad2
+        self._line_var = np.where(np.isfinite(line_var), line_var, 0.0)
+
+    @property
+    def reference_scales(self) -> np.ndarray:
+        """(m, K) the scales s_jk = √(s_k² + σ_line² |∇ log ℓ_j|²) of the usable references in
+        log-length, for each crowd scale s_k of the grid (K = 1 with a fixed ``ref_scale``)."""
+        return np.sqrt(self._scale_grid[None, :] ** 2 + self._line_var[:, None])
+
+    def crowd_scale_weights(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The posterior weights of the crowd scale grid at (n, 7) parameter vectors: (grid (K,),
+        weights (n, K)) — what the references say about how accurate their workers were."""
+        params = np.atleast_2d(np.asarray(params, float))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, params))
+        per_k = self._log_w - self._reference_terms(log_len)
+        return self._scale_grid.copy(), np.exp(per_k - np.logaddexp.reduce(per_k, axis=1, keepdims=True))
 
     @classmethod
-    def from_scene(cls, scene, handedness: int, *, bounds: Bounds | None = None,
-                   camera: Camera | None = None, use_references: bool = True,
-                   **options) -> "MetrologyModel":
-        """The model of ``scene`` for one handedness; ``options`` are the settings above."""
+    def from_scene(cls, scene, handedness: int, *, camera: Camera, bounds: Bounds | None = None,
+                   use_references: bool = True, orientation_free: bool = False,
+                   camera_terms: CameraTerms | None = None, **options) -> "MetrologyModel":
+        """The model of ``scene`` for one handedness, with the estimate's ``camera``;
+        ``options`` are the settings above."""
         unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof", "ref_line_sigma"}
         if unknown:
             raise ValueError(f"metrology model: unknown option(s) {sorted(unknown)}")
         t = scene.target
         refs = tuple(ReferenceMeasurement.from_reference(r, t) for r in scene.references) if use_references else ()
-        return cls(camera=camera or Camera.from_scene(scene), annotations=t.corners,
+        return cls(camera=camera, annotations=t.corners,
                    dimensions=(t.length, t.width, t.height), handedness=handedness,
                    bounds=bounds or Bounds.default(scene.image_width, scene.image_height),
-                   references=refs, **options)
+                   references=refs, orientation_free=orientation_free,
+                   camera_terms=camera_terms or CameraTerms(), **options)
 
     @property
     def n_references_used(self) -> int:
@@ -256,56 +331,73 @@ class MetrologyModel(FreeParameters):
 
     # -- the cost --------------------------------------------------------------------------------
     def cost(self, params: np.ndarray) -> np.ndarray:
-        """Negative log-likelihood (up to a constant) for (n, 5) parameter vectors, shape (n,)."""
+        """Negative log-posterior (up to a constant) for (n, 7) parameter vectors, shape (n,)."""
         params = np.atleast_2d(np.asarray(params, float))
-        mu = params[:, FOCAL]
-        R = self.camera.rotation(mu)
-        projected, depth = project(box_points(params, self.obj_corners), R, mu, self.camera.principal_point)
+        projected, depth = project_params(params, self.obj_corners, self.camera.principal_point)
         total = self._target_nll(projected) + BEHIND_CAMERA_PENALTY * np.sum(np.maximum(0.0, 1e-3 - depth), axis=-1)
         if len(self._lines):
             h = np.maximum(params[:, 1], MIN_CAMERA_HEIGHT_M)
-            log_len, scale = self._log_lengths(mu, h, R)
-            total = total + self._reference_nll(log_len, scale)
-        return total
-
-    def _log_lengths(self, mu, h, R) -> tuple[np.ndarray, np.ndarray]:
-        """(n, m) log real lengths of the usable references and their scales s_j."""
-        m = len(self._lines)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_all = np.log(ground_lengths(self._lines_all, self.camera, mu, h, R)).reshape(len(mu), 5, m)
-        log_len = log_all[:, 0]
-        if self.ref_line_sigma == 0:
-            return log_len, np.full_like(log_len, self.ref_scale)
-        grad2 = np.sum(((log_all[:, 1:] - log_len[:, None]) / _LINE_STEP_PX) ** 2, axis=1)
-        return log_len, np.sqrt(self.ref_scale**2 + self.ref_line_sigma**2 * grad2)
+            full = params if np.all(params[:, 1] == h) else np.column_stack([params[:, :1], h, params[:, 2:]])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, full))
+            total = total + self._reference_nll(log_len)
+        return total + self.camera_terms.neg_log(params, self.camera.principal_point,
+                                                 focal_free=bool(self.free[FOCAL]),
+                                                 orientation_free=self.orientation_free)
 
     def target_nll(self, params: np.ndarray) -> np.ndarray:
         """The target annotations' part of :meth:`cost`, shape (n,)."""
-        params = np.atleast_2d(np.asarray(params, float))
-        projected, _ = self.camera.project(box_points(params, self.obj_corners), params[:, FOCAL])
+        projected, _ = project_params(params, self.obj_corners, self.camera.principal_point)
         return self._target_nll(projected)
+
+    def reference_nll(self, params: np.ndarray) -> np.ndarray:
+        """The references' part of :meth:`cost`, shape (n,)."""
+        params = np.atleast_2d(np.asarray(params, float))
+        if not len(self._lines):
+            return np.zeros(len(params))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, params))
+        return self._reference_nll(log_len)
 
     def _target_nll(self, projected: np.ndarray) -> np.ndarray:
         r2 = np.sum((self.annotations[None] - projected[:, None]) ** 2, axis=-1)  # (n, A, 4)
         nu = self.target_dof
         return 0.5 * (nu + 2.0) * np.sum(np.log1p(r2 / (nu * self.target_sigma**2)), axis=(1, 2))
 
-    def _reference_nll(self, log_len: np.ndarray, scale) -> np.ndarray:
-        """Reference terms for (n, m) log-lengths and scales s_j (array or scalar), shape (n,).
-        Singles: −log of the t density in log-length (its ν-only constant dropped); ranges: −log P."""
-        nu = self.ref_dof
-        s = np.broadcast_to(np.asarray(scale, float), log_len.shape)
-        out = np.zeros(len(log_len))
-        single = ~self._is_range
-        if single.any():
-            z = (self._log_low[single] - log_len[:, single]) / s[:, single]
-            out += np.sum(0.5 * (nu + 1.0) * np.log1p(z**2 / nu) + np.log(s[:, single]), axis=1)
-        if self._is_range.any():
-            a = (self._log_low[self._is_range] - log_len[:, self._is_range]) / s[:, self._is_range]
-            b = (self._log_high[self._is_range] - log_len[:, self._is_range]) / s[:, self._is_range]
-            flip = (a + b) > 0  # use the lower tail for accuracy: T(b) − T(a) = T(−a) − T(−b)
-            lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
-            p = stdtr(nu, hi) - stdtr(nu, lo)
-            out -= np.sum(np.log(np.maximum(p, 1e-300)), axis=1)
+    def _reference_nll(self, log_len: np.ndarray) -> np.ndarray:
+        """−log Σ_k w_k Π_j p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n,)."""
+        out = -np.logaddexp.reduce(self._log_w - self._reference_terms(log_len), axis=1)
         return np.where(np.isfinite(out), out, 1e300)
 
+    def _reference_terms(self, log_len: np.ndarray) -> np.ndarray:
+        """Σ_j −log p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n, K).
+
+        Singles: −log of the t density in log-length (its ν-only constant dropped); ranges: −log of
+        the t probability of the stated interval. The scales s_jk are fixed (the grid and the
+        pilot's line noise), so the normalisers log s_jk depend on k only.
+        """
+        nu = self.ref_dof
+        s = self.reference_scales[None]  # (1, m, K)
+        out = np.zeros((len(log_len), s.shape[2]))
+        single = ~self._is_range
+        if single.any():
+            z = (self._log_low[single, None] - log_len[:, single, None]) / s[:, single]
+            out += np.sum(0.5 * (nu + 1.0) * np.log1p(z**2 / nu) + np.log(s[:, single]), axis=1)
+        if self._is_range.any():
+            r = self._is_range
+            a = (self._log_low[r, None] - log_len[:, r, None]) / s[:, r]
+            b = (self._log_high[r, None] - log_len[:, r, None]) / s[:, r]
+            flip = (a + b) > 0  # use the lower tail for accuracy: T(b) − T(a) = T(−a) − T(−b)
+            lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
+            p = _t_cdf(nu, hi) - _t_cdf(nu, lo)
+            out -= np.sum(np.log(np.maximum(p, 1e-300)), axis=1)
+        return out
+
+
+def _t_cdf(nu: float, x: np.ndarray) -> np.ndarray:
+    """Student-t CDF; for ν = 2 in closed form, F(x) = 1/(r(r − x)) for x < 0, r = √(x² + 2)
+    (accurate in the lower tail, where the callers evaluate it), else scipy's ``stdtr``."""
+    if nu != 2.0:
+        return stdtr(nu, x)
+    r = np.sqrt(x * x + 2.0)
+    return np.where(x < 0, 1.0 / (r * (r - x)), 1.0 - 1.0 / (r * (r + x)))

@@ -26,11 +26,14 @@
    synthetic test scenes this cut the 90th-percentile error from about 2–3 % to 0.6 % of the
    height). A pass that fails keeps the previous one.
 
-``confidence`` ∈ [0, 1] is a heuristic, not a probability: (1 − exp(−n/20)) for n segments
-supporting the points used, × exp(−½(s/(1 % of the height))²) with s the larger statistical
-standard error of the horizon's rows at the image borders (``sigma_rows_px``), × 0.5 when the
-horizon was assumed level. It does not see systematic errors (segment biases, a wrongly
-classified point).
+Uncertainty. ``sigma_rows_px`` is the statistical standard error of the horizon's rows at the
+image borders, from the vanishing points' covariances. It does not see systematic errors (segment
+biases, a wrongly classified point, a scene that is not built of right angles, ground that is not
+level), which on real street photos are often larger. ``sd_px``, the uncertainty the estimate
+enters the model with (as a measurement of the horizon, not as the truth), adds a systematic part
+of :data:`SYSTEMATIC_FRACTION` of the image height in quadrature (doubled when the horizon was
+assumed level). ``confidence`` is the probability, under N(0, sd_px²), that the horizon lies
+within 1 % of the image height of the estimate at a border.
 
 Computation is in normalised coordinates (centred on the principal point, scaled by half the image
 diagonal), in which vanishing points are unit homogeneous 3-vectors, so points at infinity need no
@@ -39,6 +42,7 @@ special case.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
@@ -56,6 +60,9 @@ MIN_SIGMA_PX = 0.3
 #: of the refining passes; HORIZON_PASSES such passes follow the first estimate.
 NEAR_HORIZON = 0.2
 HORIZON_PASSES = 2
+#: Systematic error of an estimated horizon, as a fraction of the image height (module docstring):
+#: 2 % of the height is about 0.5–1° of pitch for common focal lengths.
+SYSTEMATIC_FRACTION = 0.02
 
 
 @dataclass(frozen=True)
@@ -65,7 +72,8 @@ class HorizonEstimate:
     Attributes
     ----------
     points : (2, 2) horizon points at u = 0 and u = image width, pixels; None on failure
-    confidence : heuristic in [0, 1] (module docstring); 0 on failure
+    confidence : probability in [0, 1] that the horizon lies within 1 % of the image height of
+        the estimate at a border, under ``sd_px`` (module docstring); 0 on failure
     n_segments : line segments detected
     method : ``"lsd"`` or ``"hough"``
     vanishing_points : (k, 3) homogeneous vanishing points in pixels (w = 0 at infinity)
@@ -75,6 +83,8 @@ class HorizonEstimate:
         from the vanishing points' covariances (statistical only)
     assumed_level : True when only one horizontal vanishing point was found and no vertical one,
         so the horizon was taken level through it
+    sd_px : the uncertainty of each horizon point, statistical and systematic, pixels (module
+        docstring); None on failure
     """
 
     points: np.ndarray | None
@@ -86,6 +96,7 @@ class HorizonEstimate:
     reason: str = ""
     sigma_rows_px: np.ndarray | None = None
     assumed_level: bool = False
+    sd_px: float | None = None
 
     def __bool__(self) -> bool:
         return self.points is not None
@@ -93,7 +104,9 @@ class HorizonEstimate:
     def to_dict(self) -> dict:
         return {"points": None if self.points is None else self.points.tolist(),
                 "confidence": self.confidence, "n_segments": self.n_segments, "method": self.method,
-                "reason": self.reason}
+                "reason": self.reason, "sd_px": self.sd_px,
+                "sigma_rows_px": None if self.sigma_rows_px is None else self.sigma_rows_px.tolist(),
+                "assumed_level": self.assumed_level}
 
 
 def _gray(image) -> np.ndarray:
@@ -385,14 +398,15 @@ def estimate_horizon(image, *, principal_point=None, scene_size: tuple[int, int]
     pix = _to_pixels(vps, centre, scale)
     rows = _border_rows(line, T_inv, w)
     jac = np.array([(_border_rows(line + e, T_inv, w) - rows) / 1e-7 for e in 1e-7 * np.eye(3)]).T
-    sigma_rows = np.sqrt(np.maximum(np.diag(jac @ line_cov @ jac.T), 0.0))
-    conf = (1.0 - np.exp(-n_support / 20.0)) * np.exp(-0.5 * (sigma_rows.max() / (0.01 * h)) ** 2)
-    if assumed_level:
-        conf *= 0.5
+    sigma_rows = np.sqrt(np.maximum(np.diag(jac @ line_cov @ jac.T), 0.0)) / to_image[1]
+    height_px = h / to_image[1]
+    systematic = SYSTEMATIC_FRACTION * height_px * (2.0 if assumed_level else 1.0)
+    sd = float(np.hypot(sigma_rows.max(), systematic))
+    conf = math.erf(0.01 * height_px / (sd * math.sqrt(2.0)))
     points = np.array([[0.0, rows[0]], [float(w), rows[1]]]) / to_image
     pix = pix / np.append(to_image, 1.0)
     return HorizonEstimate(points, float(conf), len(seg), used, pix, vertical,
-                           sigma_rows_px=sigma_rows / to_image[1], assumed_level=assumed_level)
+                           sigma_rows_px=sigma_rows, assumed_level=assumed_level, sd_px=sd)
 
 
 def _horizon_pass(seg, size, centre, scale, seed, n_hypotheses, inlier_px):

@@ -172,11 +172,12 @@ def plot_pairs(draws: dict, *, names=None, result: dict | None = None, truth: di
     Parameters
     ----------
     draws : named (chain, draw) arrays
-    names : quantities to show (default: those that vary among x, y, z, yaw, focal_length_px)
+    names : quantities to show (default: the parameters that were sampled: those that vary, but
+        not pitch and roll when the result says they followed from a horizon)
     result : the result dict (for the MAP and the HDI); truth : true values, or None
     """
     if names is None:
-        names = [k for k in PARAM_NAMES if np.ptp(np.asarray(draws[k])) > 0]
+        names = _sampled_names(draws, result)
     n = len(names)
     fig = fig or Figure(figsize=(2.1 * n + 0.5, 2.1 * n + 0.5), layout="constrained")
     axes = fig.subplots(n, n, squeeze=False)
@@ -226,13 +227,21 @@ def _vline(ax, value, color) -> None:
         ax.axvline(value, color=color, lw=1.5)
 
 
-def plot_ranks(draws: dict, *, names=None, fig=None, bins: int | None = None) -> Figure:
+def _sampled_names(draws: dict, result: dict | None) -> list[str]:
+    """Parameters that vary in ``draws``; pitch and roll only when they were free parameters."""
+    derived = ((result or {}).get("camera") or {}).get("orientation") not in (None, "free")
+    return [k for k in PARAM_NAMES if k in draws and np.ptp(np.asarray(draws[k])) > 0
+            and not (derived and k in ("pitch", "roll"))]
+
+
+def plot_ranks(draws: dict, *, names=None, fig=None, bins: int | None = None,
+               result: dict | None = None) -> Figure:
     """Rank plots: for each quantity, the histogram of each chain's (ensemble's) ranks among all
     draws. Well-mixed independent chains give flat, overlapping histograms; a chain stuck apart
     shows up as a slope or a hump (Vehtari et al. 2021). ``bins`` defaults to about 20 draws
     per bin per chain, at most 20 bins."""
     if names is None:
-        names = [k for k in _NAMES if k in draws and np.ptp(np.asarray(draws[k])) > 0]
+        names = _sampled_names(draws, result) + (["distance_m"] if "distance_m" in draws else [])
     n = len(names)
     cols = min(3, n)
     rows = -(-n // cols)

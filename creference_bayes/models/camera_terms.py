@@ -1,0 +1,213 @@
+"""What is known about the camera besides the annotations: priors on µ, pitch and roll, and a
+horizon measured with an uncertainty.
+
+Every term is a negative log-density over full parameter vectors (n, 7) (:mod:`.params`); the
+models add :meth:`CameraTerms.neg_log` to their cost (times their temperature, so that it enters
+the posterior untempered).
+
+Focal length
+    ``log µ ~ Student-t_ν(log m, s)``: heavy tails, so that a wrong prior (a cropped photo, a
+    mis-read EXIF tag) is overruled by the annotations instead of dragging them. The density is
+    over µ itself (the Jacobian 1/µ is included), since the sampler's coordinates are µ's.
+    Sources, in order of precedence (the pipeline decides): the scene's
+    ``camera.focal_length_prior``; the image's EXIF (35 mm-equivalent focal length, or focal
+    length and focal-plane resolution; log-sd :data:`EXIF_LOG_SD`); otherwise a weakly
+    informative default from the fields of view of real cameras (:func:`default_focal_prior`).
+Pitch and roll (only when they are free parameters, i.e. no exact horizon)
+    Independent normals, by default pitch ~ N(0°, 15°) and roll ~ N(0°, 10°)
+    (:data:`DEFAULT_ORIENTATION_PRIOR`): photos are mostly taken near level, seldom tilted by
+    more than a few degrees, and looking down by up to a few tens of degrees.
+Horizon measurement
+    A horizon line known only up to σ pixels (estimated from the image, or stated with
+    ``horizon_sd_px``): each of its two points lies at a signed distance N(0, σ²) from the horizon
+    that (µ, pitch, roll) predicts. The predicted horizon is the image of the plane at infinity
+    orthogonal to gravity; for R = Rz(roll)·Rx(pitch) (core/geometry.py) a pixel (u, v) lies at
+    signed distance ``−sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)`` from it, positive
+    below (the same convention as :func:`~creference_bayes.core.geometry.horizon_line`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import FOCAL, PITCH, ROLL
+
+__all__ = ["FULL_FRAME_DIAGONAL_MM", "EXIF_LOG_SD", "DEFAULT_FOCAL_35MM", "DEFAULT_FOCAL_LOG_SD",
+           "DEFAULT_FOCAL_DOF", "FocalPrior", "OrientationPrior", "DEFAULT_ORIENTATION_PRIOR",
+           "HorizonMeasurement", "CameraTerms", "default_focal_prior", "horizon_offsets"]
+
+#: Diagonal of a 36 × 24 mm frame: the 35 mm-equivalent focal length scales with it.
+FULL_FRAME_DIAGONAL_MM = float(np.hypot(36.0, 24.0))
+#: log-sd of a focal-length prior read from EXIF: the tag is exact for the lens, but a crop, a
+#: digital zoom or a resize with a crop changes the field of view (about ±10 %).
+EXIF_LOG_SD = 0.1
+#: The weakly informative default: 35 mm-equivalent focal length 30 mm (between a phone's main
+#: camera, 24–28 mm, and a standard lens, 50 mm), log-sd 0.5 and 3 degrees of freedom, so that
+#: 13 mm (an ultra-wide phone camera) and 85 mm (a portrait lens) lie within about 1.6 and 2.1
+#: scales and a 300 mm telephoto is still possible.
+DEFAULT_FOCAL_35MM = 30.0
+DEFAULT_FOCAL_LOG_SD = 0.5
+DEFAULT_FOCAL_DOF = 3.0
+
+
+def _check_positive(name: str, value: float) -> float:
+    v = float(value)
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class FocalPrior:
+    """``log µ ~ Student-t_dof(log median_px, log_sd)`` (``dof`` = inf: a normal).
+
+    Attributes
+    ----------
+    median_px : the prior median of µ, pixels
+    log_sd : scale in log µ (0.1 ≈ ±10 %)
+    dof : degrees of freedom (inf for a log-normal)
+    source : where it came from (``scene``, ``exif``, ``default``), for the report
+    """
+
+    median_px: float
+    log_sd: float
+    dof: float = DEFAULT_FOCAL_DOF
+    source: str = "scene"
+
+    def __post_init__(self):
+        _check_positive("focal prior median_px", self.median_px)
+        _check_positive("focal prior log_sd", self.log_sd)
+        if not self.dof > 0:
+            raise ValueError(f"focal prior dof: expected a number > 0 or inf, got {self.dof!r}")
+
+    @classmethod
+    def from_35mm(cls, focal_35mm: float, image_size, **kw) -> "FocalPrior":
+        """The prior for a 35 mm-equivalent focal length (mm) on an image of (width, height) px."""
+        diag = float(np.hypot(*image_size))
+        return cls(_check_positive("focal_35mm", focal_35mm) / FULL_FRAME_DIAGONAL_MM * diag, **kw)
+
+    def z(self, focal) -> np.ndarray:
+        """Standardised log-offset (log µ − log median) / log_sd."""
+        return (np.log(np.asarray(focal, float)) - np.log(self.median_px)) / self.log_sd
+
+    def neg_log(self, focal) -> np.ndarray:
+        """−log p(µ) up to a constant, for µ in pixels (any shape)."""
+        z = self.z(focal)
+        core = 0.5 * z**2 if np.isinf(self.dof) else 0.5 * (self.dof + 1.0) * np.log1p(z**2 / self.dof)
+        return core + np.log(np.asarray(focal, float))
+
+    def interval(self, prob: float = 0.99) -> tuple[float, float]:
+        """Central prior interval of µ (pixels) holding ``prob``."""
+        from scipy import stats
+
+        q = stats.t.ppf(0.5 + prob / 2, self.dof) if np.isfinite(self.dof) else stats.norm.ppf(0.5 + prob / 2)
+        return (float(self.median_px * np.exp(-q * self.log_sd)), float(self.median_px * np.exp(q * self.log_sd)))
+
+    def to_dict(self) -> dict:
+        return {"median_px": self.median_px, "log_sd": self.log_sd,
+                "dof": None if np.isinf(self.dof) else self.dof, "source": self.source}
+
+
+def default_focal_prior(image_size) -> FocalPrior:
+    """The weakly informative default prior for an image of (width, height) pixels."""
+    return FocalPrior.from_35mm(DEFAULT_FOCAL_35MM, image_size, log_sd=DEFAULT_FOCAL_LOG_SD,
+                                dof=DEFAULT_FOCAL_DOF, source="default")
+
+
+@dataclass(frozen=True)
+class OrientationPrior:
+    """Independent normal priors on pitch and roll, radians (pitch > 0 looks down)."""
+
+    pitch_mean: float = 0.0
+    pitch_sd: float = float(np.radians(15.0))
+    roll_mean: float = 0.0
+    roll_sd: float = float(np.radians(10.0))
+
+    def __post_init__(self):
+        _check_positive("orientation prior pitch_sd", self.pitch_sd)
+        _check_positive("orientation prior roll_sd", self.roll_sd)
+
+    def neg_log(self, pitch, roll) -> np.ndarray:
+        return (0.5 * ((np.asarray(pitch) - self.pitch_mean) / self.pitch_sd) ** 2
+                + 0.5 * ((np.asarray(roll) - self.roll_mean) / self.roll_sd) ** 2)
+
+    def to_dict(self) -> dict:
+        return {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
+
+
+DEFAULT_ORIENTATION_PRIOR = OrientationPrior()
+
+
+def horizon_offsets(points: np.ndarray, full: np.ndarray, principal_point) -> np.ndarray:
+    """Signed distances (pixels, positive below) of image points from the predicted horizon.
+
+    Parameters
+    ----------
+    points : (k, 2) pixels
+    full : (n, 7) parameter vectors (µ, pitch and roll are used)
+    principal_point : (2,) pixels
+
+    Returns
+    -------
+    (n, k) pixels
+    """
+    p = np.asarray(points, float) - np.asarray(principal_point, float)
+    full = np.atleast_2d(full)
+    roll, pitch, mu = full[:, ROLL, None], full[:, PITCH, None], full[:, FOCAL, None]
+    return -np.sin(roll) * p[:, 0] + np.cos(roll) * p[:, 1] + mu * np.tan(pitch)
+
+
+@dataclass(frozen=True)
+class HorizonMeasurement:
+    """A horizon line through two image points, each known up to ``sd_px`` (pixels).
+
+    ``source`` is ``scene`` (a stated ``horizon_sd_px``) or ``image`` (estimated from the photo).
+    """
+
+    points: np.ndarray
+    sd_px: float
+    source: str = "scene"
+
+    def __post_init__(self):
+        _check_positive("horizon sd_px", self.sd_px)
+        object.__setattr__(self, "points", np.asarray(self.points, float).reshape(2, 2))
+
+    def neg_log(self, full: np.ndarray, principal_point) -> np.ndarray:
+        d = horizon_offsets(self.points, full, principal_point) / self.sd_px
+        return 0.5 * np.sum(d**2, axis=1)
+
+    def to_dict(self) -> dict:
+        return {"points": self.points.tolist(), "sd_px": self.sd_px, "source": self.source}
+
+
+@dataclass(frozen=True)
+class CameraTerms:
+    """The camera priors and the horizon measurement of one scene (any may be None).
+
+    ``orientation`` and ``horizon`` apply only when pitch and roll are free parameters;
+    ``focal`` only when µ is free.
+    """
+
+    focal: FocalPrior | None = None
+    orientation: OrientationPrior | None = None
+    horizon: HorizonMeasurement | None = None
+
+    def neg_log(self, full: np.ndarray, principal_point, *, focal_free: bool,
+                orientation_free: bool) -> np.ndarray | float:
+        """Σ of the applicable terms for (n, 7) vectors: (n,) or 0.0 when none applies."""
+        out = 0.0
+        if self.focal is not None and focal_free:
+            out = out + self.focal.neg_log(full[:, FOCAL])
+        if orientation_free:
+            if self.orientation is not None:
+                out = out + self.orientation.neg_log(full[:, PITCH], full[:, ROLL])
+            if self.horizon is not None:
+                out = out + self.horizon.neg_log(full, principal_point)
+        return out
+
+    def to_dict(self) -> dict:
+        """``{"focal_prior", "orientation_prior", "horizon"}``, each a dict or None."""
+        return {f"{k}_prior" if k != "horizon" else k: None if getattr(self, k) is None else getattr(self, k).to_dict()
+                for k in ("focal", "orientation", "horizon")}
