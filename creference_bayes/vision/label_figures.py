@@ -40,7 +40,8 @@ def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.
         obs = np.array([r["observed_share"] for r in rows])
         se = np.array([r["se"] for r in rows])
         ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
-        ax.errorbar(pred, pred, yerr=2 * se, fmt="none", ecolor="grey", capsize=3,
+        yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
+        ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,
                     label="±2 se if calibrated")
         ax.plot(pred, obs, "o-", color="#d62728", label="observed")
         for p, o, r in zip(pred, obs, rows):

@@ -36,11 +36,16 @@ def label_rows(objects) -> list[dict]:
     return rows
 
 
-def calibration(objects, n_bins: int = 10) -> dict[float, list[dict]]:
-    """IoU threshold → reliability table of P(IoU ≥ t) against the true IoU (objects with truth)."""
+def calibration(objects, n_bins: int | None = None) -> dict[float, list[dict]]:
+    """IoU threshold → reliability table of P(IoU ≥ t) against the true IoU (objects with truth).
+
+    ``n_bins`` defaults to 10 with at least 200 such objects, else 5.
+    """
     known = [o for o in objects if o.true_iou is not None]
     if not known:
         return {}
+    if n_bins is None:
+        n_bins = 10 if len(known) >= 200 else 5
     true = np.array([o.true_iou for o in known])
     return {t: reliability_table([o.quality.p_iou[t] for o in known], true >= t, n_bins) for t in IOU_THRESHOLDS}
 
