@@ -1,0 +1,101 @@
+"""``creference batch INPUTS... --out DIR``: estimate every scene of a data set (docs/batch.md)."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from ..inference.optimize import PRESETS
+from ..pipeline import DEFAULT_MODEL, MODELS
+from .main import UsageError
+
+__all__ = ["register", "EXIT_FAILED"]
+
+#: Exit status when the batch ran but some scenes failed (2 is for invalid command lines).
+EXIT_FAILED = 1
+
+
+def _settings(args):
+    from ..workflows.batch import BatchSettings
+
+    if not 0.0 < args.hdi_prob < 1.0:
+        raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
+    if args.temperature is not None and not (math.isfinite(args.temperature) and args.temperature > 0):
+        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature!r}")
+    if args.min_ess is not None and not args.min_ess >= 1:
+        raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
+    return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
+                         posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
+                         temperature=args.temperature, use_references=not args.no_references,
+                         sampling={} if args.min_ess is None else {"min_ess": args.min_ess})
+
+
+def _engine(args):
+    from ..workflows.engines import DaskEngine, LocalEngine
+
+    if args.scheduler:
+        if args.workers is not None:
+            raise UsageError("--workers: with --scheduler the Dask workers decide (start them with "
+                             "`dask worker ADDRESS --nworkers N --nthreads 1`)")
+        try:
+            return DaskEngine(args.scheduler)
+        except ConnectionError as exc:
+            raise UsageError(f"--scheduler: {exc}") from None
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers: expected an integer >= 1, got {args.workers}")
+    return LocalEngine(args.workers)
+
+
+def _run_batch(args) -> int:
+    from ..workflows.batch import run_batch
+    from ..workflows.batch_summary import summary_line
+
+    settings = _settings(args)
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
+        raise UsageError(f"--time-limit: expected a number of seconds > 0, got {args.time_limit!r}")
+    engine = _engine(args)
+    try:
+        report = run_batch(args.inputs, args.out, engine, settings, time_limit=args.time_limit,
+                           progress=not args.quiet and sys.stderr.isatty())
+    except ValueError as exc:  # no scene found, two scenes with one name (the engine is closed)
+        raise UsageError(str(exc)) from None
+    if not args.quiet:
+        for key, error in report.errors.items():
+            print(f"failed: {key}: {error}", file=sys.stderr)
+        print(summary_line(report, args.out))
+    return 0 if report.ok else EXIT_FAILED
+
+
+def register(subparsers) -> None:
+    """Add ``batch`` to the ``creference`` command."""
+    p = subparsers.add_parser(
+        "batch", help="estimate every scene of a data set, locally or on a Dask cluster",
+        description="Estimate every scene file (folders: every *.json below them) into a batch "
+                    "folder: results/, scenes/ (copies), errors/, summary.csv, batch.json. A rerun "
+                    "skips scenes whose result is up to date. Exit status 0 when every scene "
+                    "succeeded, 1 when some failed, 2 for an invalid command line.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="scene files and folders of scene files")
+    p.add_argument("--out", required=True, metavar="DIR", help="the batch folder (created)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local worker processes (default: the machine's cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask distributed scheduler, e.g. tcp://host:8786 (needs the dist extra)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="base seed; each scene's seed derives from it and the scene's content "
+                        "(default: %(default)s)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
+                   help="a scene still running after this long is recorded as failed (default: none)")
+    p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
+    p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS, help="likelihood model (default: %(default)s)")
+    p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    g = p.add_argument_group("posterior")
+    g.add_argument("--no-posterior", action="store_true",
+                   help="the MAP only (creference labels then has no uncertainty to export)")
+    g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
+                   help="probability of the credible intervals (default: %(default)s)")
+    g.add_argument("--temperature", type=float, default=None, metavar="T",
+                   help="temperature of the posterior (default: the model's)")
+    g.add_argument("--min-ess", type=float, default=None, metavar="N",
+                   help="bulk effective sample size to reach (default: 1000)")
+    p.set_defaults(func=_run_batch)

@@ -1,0 +1,63 @@
+"""``creference labels BATCH_DIR --out DIR``: 3D labels with their uncertainty (docs/labels.md)."""
+
+from __future__ import annotations
+
+import math
+
+from .main import UsageError
+
+__all__ = ["register", "FORMATS"]
+
+#: Label formats.
+FORMATS = ("kitti",)
+
+
+def _run_labels(args) -> int:
+    from ..workflows.label_quality import IOU_THRESHOLDS
+    from ..workflows.label_report import write_report
+    from ..workflows.labels import export_labels
+
+    if not (math.isfinite(args.min_quality) and 0.0 <= args.min_quality <= 1.0):
+        raise UsageError(f"--min-quality: expected a probability in [0, 1], got {args.min_quality!r}")
+    if args.score_iou not in IOU_THRESHOLDS:
+        raise UsageError(f"--score-iou: expected one of {list(IOU_THRESHOLDS)}, got {args.score_iou!r}")
+    try:
+        export = export_labels(args.batch_dir, args.out, type_name=args.type, score_iou=args.score_iou,
+                               n_draws=args.draws)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    paths = write_report(export, args.out, min_quality=args.min_quality, score_iou=args.score_iou,
+                         batch_dir=args.batch_dir, figure=not args.no_figure)
+    key = f"p_iou_ge_{args.score_iou:g}"
+    low = sum(o.quality.to_dict()[key] < args.min_quality for o in export.objects)
+    if not args.quiet:
+        print(f"wrote {len(export.objects)} labels for {len(export.images)} images to {args.out} "
+              f"(label_2/, calib/, uncertainty/); {low} below the minimum quality "
+              f"P(IoU ≥ {args.score_iou:g}) < {args.min_quality:g} (needs_annotation.csv); "
+              f"not labelled: {len(export.failed_scenes)} failed, {len(export.skipped)} skipped; "
+              f"report: {paths['report']}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``labels`` to the ``creference`` command."""
+    p = subparsers.add_parser(
+        "labels", help="KITTI 3D labels with their uncertainty from a batch folder",
+        description="Write per image a KITTI label file (label_2/), its calib file (calib/, "
+                    "P2 = K[R|0] in the gravity-aligned frame) and an uncertainty sidecar "
+                    "(uncertainty/, JSON), plus a data-set report (report.md, quality.png, "
+                    "labels.csv, needs_annotation.csv).")
+    p.add_argument("batch_dir", metavar="BATCH_DIR", help="a folder written by creference batch")
+    p.add_argument("--out", required=True, metavar="DIR", help="the label folder (created)")
+    p.add_argument("--format", default="kitti", choices=FORMATS, help="label format (default: %(default)s)")
+    p.add_argument("--type", default=None, metavar="NAME",
+                   help="KITTI type of every object, e.g. Car (default: the target's id)")
+    p.add_argument("--score-iou", type=float, default=0.7, metavar="T",
+                   help="the score is P(IoU >= T), T = 0.5 or 0.7 (default: %(default)s)")
+    p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",
+                   help="objects whose score is below Q are listed for more annotations (default: %(default)s)")
+    p.add_argument("--draws", type=int, default=100, metavar="N",
+                   help="posterior draws per object in the sidecar (default: %(default)s)")
+    p.add_argument("--no-figure", action="store_true", help="do not write quality.png")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=_run_labels)

@@ -1,0 +1,54 @@
+"""Figures of a label export (matplotlib, imported with this module only): label quality across
+the data set and, with ground truth, reliability diagrams of the quality."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+__all__ = ["quality_figure"]
+
+
+def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.7)",
+                   reliability: dict | None = None, fig: Figure | None = None) -> Figure:
+    """Histogram of the labels' quality with the threshold below which objects go back for more
+    annotations; one reliability diagram per IoU threshold when ground truth is known.
+
+    Parameters
+    ----------
+    scores : (n,) the labels' quality (probabilities)
+    threshold : the user's minimum quality
+    score_label : what the score is
+    reliability : IoU threshold → rows of :func:`~creference_bayes.workflows.label_quality.reliability_table`
+    fig : a figure to draw on (default: a new one)
+    """
+    scores = np.asarray(scores, float)
+    panels = 1 + len(reliability or {})
+    if fig is None:
+        fig = Figure(figsize=(4.2 * panels, 3.6), layout="constrained")
+    axes = fig.subplots(1, panels, squeeze=False)[0]
+    ax = axes[0]
+    ax.hist(scores, bins=np.linspace(0, 1, 21), color="#1f77b4", edgecolor="white")
+    ax.axvline(threshold, color="#d62728", ls="--",
+               label=f"minimum {threshold:g}: {int(np.sum(scores < threshold))} of {scores.size} below")
+    ax.set_xlabel(f"label quality {score_label}")
+    ax.set_ylabel("objects")
+    ax.set_xlim(0, 1)
+    ax.legend(loc="upper left", fontsize="small")
+    for ax, (t, rows) in zip(axes[1:], (reliability or {}).items()):
+        pred = np.array([r["mean_predicted"] for r in rows])
+        obs = np.array([r["observed_share"] for r in rows])
+        se = np.array([r["se"] for r in rows])
+        ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
+        yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
+        ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,
+                    label="±2 se if calibrated")
+        ax.plot(pred, obs, "o-", color="#d62728", label="observed")
+        for p, o, r in zip(pred, obs, rows):
+            ax.annotate(str(r["count"]), (p, o), textcoords="offset points", xytext=(3, -10), fontsize=7)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.set_xlabel(f"predicted P(IoU ≥ {t:g})")
+        ax.set_ylabel(f"share with true IoU ≥ {t:g}")
+        ax.legend(loc="upper left", fontsize="small")
+    return fig

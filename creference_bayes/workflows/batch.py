@@ -1,0 +1,241 @@
+"""Estimate every scene of a data set: discovery, seeds, resume, failure isolation (docs/batch.md).
+
+The batch folder::
+
+    DIR/results/KEY.json   creference-result/1 of the scene, plus a ``batch`` block (key, source,
+                           seed, settings): written atomically, the mark that the scene is done
+    DIR/scenes/KEY.json    a copy of the scene (canonical form, same fingerprint as the original):
+                           what ``creference labels`` needs (sizes, camera, horizon, truth)
+    DIR/errors/KEY.json    why the scene failed (invalid input, an exception, the time limit)
+    DIR/summary.csv        one row per target (batch_summary.py)
+    DIR/batch.json         the run's settings and every scene's status
+
+KEY is the scene file's path relative to the folder given on the command line, without
+``.json`` (a file given directly: its stem). A scene is skipped on a rerun when its result exists,
+records the fingerprint of the scene as it is now (``scene_id.sha256``) and was made with the same
+settings; everything else is (re)computed. Each scene's seed derives from the base seed and the
+scene's fingerprint (:func:`derive_seed`), never from its position or the engine, so the numbers
+are the same whatever the engine, the worker count or the order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import warnings
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from .. import __version__
+from ..io.files import atomic_write_json
+from ..io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
+from ..pipeline import DEFAULT_MODEL
+from .batch_files import ERROR_FORMAT, layout, record_error, up_to_date
+from .batch_runner import Runner, one_line, progress_bar, run_scene
+from .engines import Engine
+
+__all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
+           "discover_scenes", "derive_seed", "run_scene", "run_batch", "layout"]
+
+BATCH_FORMAT = "creference-batch/1"
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """What decides a scene's numbers; a result made with other settings is recomputed.
+
+    Attributes
+    ----------
+    seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
+    model, preset, posterior, hdi_prob, temperature, use_references : as :func:`~creference_bayes.estimate`
+    sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
+    """
+
+    seed: int = 0
+    model: str = DEFAULT_MODEL
+    preset: str = "default"
+    posterior: bool = True
+    hdi_prob: float = 0.9
+    temperature: float | None = None
+    use_references: bool = True
+    sampling: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["sampling"] = dict(sorted(self.sampling.items()))
+        return d
+
+    def estimate_kwargs(self) -> dict:
+        return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
+                "hdi_prob": self.hdi_prob, "temperature": self.temperature,
+                "use_references": self.use_references, "sampling": dict(self.sampling) or None}
+
+
+@dataclass(frozen=True)
+class SceneInput:
+    """One scene file and the KEY that names its files in the batch folder."""
+
+    key: str
+    path: Path
+
+
+def discover_scenes(inputs, exclude: str | Path | None = None) -> list[SceneInput]:
+    """Scene files from files and folders (every ``*.json`` below a folder, sorted, hidden ones left out).
+
+    Parameters
+    ----------
+    inputs : paths of scene files or folders
+    exclude : a folder whose files are never inputs (the batch folder itself)
+
+    Raises
+    ------
+    FileNotFoundError : an input does not exist
+    ValueError : no scene file at all, or two different files with the same KEY
+    """
+    exclude = None if exclude is None else Path(exclude).resolve()
+    found: dict[str, SceneInput] = {}
+    for item in inputs:
+        root = Path(item)
+        if root.is_dir():
+            files = [(p.relative_to(root).with_suffix("").as_posix(), p) for p in sorted(root.rglob("*.json"))
+                     if not any(part.startswith(".") for part in p.relative_to(root).parts)]
+        elif root.exists():
+            files = [(root.stem, root)]
+        else:
+            raise FileNotFoundError(2, "no such file or folder", str(root))
+        for key, path in files:
+            resolved = path.resolve()
+            if exclude is not None and resolved.is_relative_to(exclude):
+                continue
+            if key in found and found[key].path.resolve() != resolved:
+                raise ValueError(f"two scene files would share the name {key!r} in the batch folder: "
+                                 f"{found[key].path} and {path} (run them as separate batches)")
+            found.setdefault(key, SceneInput(key, path))
+    if not found:
+        raise ValueError(f"no scene files (*.json) in {', '.join(map(str, inputs)) or 'the inputs'}")
+    return list(found.values())
+
+
+def derive_seed(base_seed: int, fingerprint: str) -> int:
+    """A scene's seed, an integer in [0, 2⁶⁰), from the base seed and the scene's fingerprint
+    (:func:`~creference_bayes.io.scene.scene_fingerprint`): the same scene content gives the same
+    seed wherever, whenever and in whatever order it runs."""
+    digest = hashlib.sha256(f"creference-batch:{int(base_seed)}:{fingerprint}".encode()).hexdigest()
+    return int(digest[:15], 16)
+
+
+@dataclass
+class BatchReport:
+    """What a batch run did. ``status`` maps every KEY to ``done``, ``skipped``, ``failed`` or
+    ``not run`` (interrupted); ``errors`` maps failed KEYs to their one-line error."""
+
+    status: dict[str, str]
+    errors: dict[str, str]
+    seconds: float
+    engine: str
+    computed_seconds: float = 0.0
+
+    def keys(self, status: str) -> list[str]:
+        return [k for k, s in self.status.items() if s == status]
+
+    @property
+    def ok(self) -> bool:
+        return all(s in ("done", "skipped") for s in self.status.values())
+
+    @property
+    def targets_per_minute(self) -> float | None:
+        n = len(self.keys("done"))
+        return 60.0 * n / self.seconds if n and self.seconds > 0 else None
+
+
+def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings = BatchSettings(), *,
+              time_limit: float | None = None, progress: bool = False,
+              on_event: Callable[[str, str], None] | None = None) -> BatchReport:
+    """Estimate every scene of ``inputs`` into the batch folder ``out`` with ``engine``.
+
+    Parameters
+    ----------
+    inputs : scene files and folders (:func:`discover_scenes`)
+    out : the batch folder (created)
+    engine : :class:`~.engines.LocalEngine` or :class:`~.engines.DaskEngine`; closed on return
+    settings : what decides the numbers
+    time_limit : seconds a scene may take from the moment it starts, or None. A scene over it is
+        recorded as failed and the batch goes on; its computation is abandoned (a local worker
+        process is ended when the batch ends, a Dask worker thread runs on until it finishes)
+    progress : show a tqdm bar on standard error
+    on_event : called with (KEY, status) as each scene ends (tests, logging)
+
+    Returns
+    -------
+    BatchReport; the folder also holds ``summary.csv`` and ``batch.json``
+    """
+    from .batch_summary import write_summary
+
+    t_start = time.perf_counter()
+    out = Path(out)
+    try:
+        if time_limit is not None and not time_limit > 0:
+            raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
+        scenes = discover_scenes(inputs, exclude=out)
+        out.mkdir(parents=True, exist_ok=True)
+        ident = settings.to_dict()
+        status = {si.key: "not run" for si in scenes}
+        errors: dict[str, str] = {}
+        todo = _prepare(scenes, out, settings, ident, status, errors)
+    except BaseException:
+        engine.close(abandon=True)
+        raise
+    if on_event:
+        for key in (k for k, s in status.items() if s in ("failed", "skipped")):
+            on_event(key, status[key])
+
+    n_invalid = sum(s == "failed" for s in status.values())
+    bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
+    runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
+    try:
+        runner.run(todo)
+    finally:
+        bar.close()
+        interrupted = any(s == "not run" for s in status.values())
+        engine.close(abandon=interrupted or bool(runner.abandoned))
+        report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
+                             engine=engine.describe(), computed_seconds=runner.seconds)
+        write_summary(out, scenes, report)
+        atomic_write_json(out / "batch.json", {
+            "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
+            "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
+            "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
+                        **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
+    return report
+
+
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict) -> deque:
+    """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
+    todo = deque()
+    for si in scenes:
+        paths = layout(out, si.key)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(si.path)
+            data = json.loads(si.path.read_text(encoding="utf-8-sig"))
+        except (SceneError, OSError, ValueError) as exc:
+            errors[si.key] = one_line(exc)
+            status[si.key] = "failed"
+            record_error(paths, si, "load", errors[si.key])
+            continue
+        fingerprint = scene_fingerprint(scene)
+        if up_to_date(paths, fingerprint, ident):
+            status[si.key] = "skipped"
+            if not paths["scene"].exists():
+                atomic_write_json(paths["scene"], scene_to_dict(scene))
+            continue
+        seed = derive_seed(settings.seed, fingerprint)
+        todo.append((si, scene, {"data": data, "source": str(si.path), "seed": seed,
+                                 "estimate": settings.estimate_kwargs()}))
+    return todo
+
+

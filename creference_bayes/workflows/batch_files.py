@@ -1,0 +1,53 @@
+"""The batch folder's files for one scene: where they are, when a result is up to date, and how
+a result or an error is recorded (atomically, the scene copy before its result)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .. import __version__
+from ..io.files import atomic_write_json
+from ..io.scene import scene_to_dict
+
+__all__ = ["ERROR_FORMAT", "layout", "up_to_date", "record_error", "record_result"]
+
+ERROR_FORMAT = "creference-batch-error/1"
+
+
+def layout(out: str | Path, key: str) -> dict[str, Path]:
+    """The batch folder's files for ``key``: ``result``, ``scene`` (the copy) and ``error``."""
+    out = Path(out)
+    return {"result": out / "results" / f"{key}.json", "scene": out / "scenes" / f"{key}.json",
+            "error": out / "errors" / f"{key}.json"}
+
+
+def up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:
+    """Whether the stored result is the scene's as it is now, made with these settings."""
+    try:
+        d = json.loads(paths["result"].read_text())
+        return (d.get("scene_id", {}).get("sha256") == fingerprint
+                and d.get("batch", {}).get("settings") == settings)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def record_error(paths: dict, si, stage: str, error: str, tb: str | None = None) -> None:
+    """Write ``errors/KEY.json`` for the scene input ``si`` (and drop its stale result and copy)."""
+    for stale in ("result", "scene"):  # a result of an older version of the scene is not its result
+        paths[stale].unlink(missing_ok=True)
+    doc = {"format": ERROR_FORMAT, "key": si.key, "source": str(si.path.resolve()), "stage": stage,
+           "error": error}
+    if tb:
+        doc["traceback"] = tb
+    atomic_write_json(paths["error"], doc)
+
+
+def record_result(paths: dict, si, scene, result: dict, seed: int, settings: dict) -> None:
+    """Write the scene copy, then the result with its ``batch`` block; drop an old error record."""
+    atomic_write_json(paths["scene"], scene_to_dict(scene))  # first the copy, then the result
+    result["batch"] = {"key": si.key, "source": str(si.path.resolve()),
+                       "scene_copy": f"scenes/{si.key}.json",
+                       "seed": seed, "settings": settings, "creference_version": __version__}
+    atomic_write_json(paths["result"], result)
+    paths["error"].unlink(missing_ok=True)

@@ -1,0 +1,143 @@
+"""Running scenes on an engine: the task a worker runs (:func:`run_scene`) and the loop that
+keeps every worker busy, enforces the time limit and records each outcome as it arrives."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import sys
+import time
+import traceback
+import warnings
+from collections import deque
+
+from ..io.scene import SceneWarning, parse_scene
+from ..pipeline import estimate
+from .batch_files import layout, record_error, record_result
+
+__all__ = ["run_scene", "one_line", "Runner", "progress_bar"]
+
+
+def run_scene(job: dict) -> dict:
+    """Estimate one scene (runs in a worker: a local process or a Dask worker thread).
+
+    ``job`` holds the decoded scene (``data``), its file (``source``), the scene's ``seed`` and the
+    settings' ``estimate`` keyword arguments. Never raises for a bad scene or a failed estimate:
+    returns ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
+    """
+    t0 = time.perf_counter()
+    stage = "load"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)  # reported in the result's warnings
+            scene = parse_scene(job["data"], source=job["source"])
+            stage = "estimate"
+            result = estimate(scene, seed=job["seed"], **job["estimate"])
+        return {"ok": True, "result": result.to_dict(), "seconds": time.perf_counter() - t0}
+    except Exception as exc:  # isolate the failure: the batch goes on
+        return {"ok": False, "stage": stage, "error": one_line(exc),
+                "traceback": traceback.format_exc(), "seconds": time.perf_counter() - t0}
+
+
+def one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def progress_bar(total: int, failed: int, enabled: bool):
+    """Scenes to do (those that failed to load count as done and failed from the start)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=failed, unit="scene", desc="batch", disable=not enabled,
+                file=sys.stderr, dynamic_ncols=True, postfix={"failed": failed})
+
+
+class Runner:
+    """Keeps ``engine.slots()`` jobs in flight, records each outcome as it arrives."""
+
+    def __init__(self, out, engine, ident, time_limit, status, errors, bar, on_event):
+        self.out, self.engine, self.ident, self.time_limit = out, engine, ident, time_limit
+        self.status, self.errors, self.bar, self.on_event = status, errors, bar, on_event
+        self.running: dict[cf.Future, tuple] = {}  # future -> (scene input, scene, job, start)
+        self.abandoned: set[cf.Future] = set()  # over the time limit, maybe running: hold a slot
+        self.n_failed = sum(s == "failed" for s in status.values())
+        self.seconds = 0.0
+
+    def run(self, todo: deque) -> None:
+        t0 = time.perf_counter()
+        try:
+            while todo or self.running:
+                self._fill(todo)
+                done, _ = cf.wait(set(self.running) | self.abandoned, timeout=self._timeout(),
+                                  return_when=cf.FIRST_COMPLETED)
+                for fut in done:
+                    self._collect(fut)
+                self._enforce_time_limit()
+                if todo and self.abandoned and not self.running and self.engine.can_stop_tasks:
+                    self.engine.renew()  # only abandoned tasks hold the slots: end them
+                    self.abandoned.clear()
+        finally:
+            self.seconds = time.perf_counter() - t0
+
+    def _fill(self, todo: deque) -> None:
+        while todo and len(self.running) + len(self.abandoned) < self.engine.slots():
+            si, scene, job = todo.popleft()
+            fut = self.engine.executor.submit(run_scene, job)
+            self.running[fut] = (si, scene, job, time.monotonic())
+
+    def _timeout(self) -> float | None:
+        if self.time_limit is None or not self.running:
+            return None
+        first = min(start for *_, start in self.running.values())
+        return max(0.0, first + self.time_limit - time.monotonic())
+
+    def _collect(self, fut: cf.Future) -> None:
+        if fut in self.abandoned:
+            self.abandoned.discard(fut)
+            return
+        if fut not in self.running:  # already failed with a broken pool
+            return
+        si, scene, job, _ = self.running.pop(fut)
+        try:
+            res = fut.result()
+        except cf.BrokenExecutor as exc:  # a worker process died: every task in the pool is lost
+            self._finish(si, False, "worker", f"a worker process died ({one_line(exc)}); rerun to retry")
+            for other, (osi, *_rest) in list(self.running.items()):
+                self._finish(osi, False, "worker", "lost with a worker process that died; rerun to retry")
+            self.running.clear()
+            self.abandoned.clear()
+            self.engine.renew()
+            return
+        except cf.CancelledError:
+            self._finish(si, False, "worker", "the task was cancelled by the engine; rerun to retry")
+            return
+        except Exception as exc:  # raised by the engine itself (e.g. Dask's KilledWorker)
+            self._finish(si, False, "worker", one_line(exc), traceback.format_exc())
+            return
+        if res["ok"]:
+            record_result(layout(self.out, si.key), si, scene, res["result"], job["seed"], self.ident)
+            self._finish(si, True)
+        else:
+            self._finish(si, False, res["stage"], res["error"], res.get("traceback"))
+
+    def _enforce_time_limit(self) -> None:
+        if self.time_limit is None:
+            return
+        now = time.monotonic()
+        for fut, (si, *_rest, start) in list(self.running.items()):
+            if now - start >= self.time_limit and not fut.done():
+                del self.running[fut]
+                if not fut.cancel():
+                    self.abandoned.add(fut)
+                self._finish(si, False, "time limit", f"TimeLimit: no result within "
+                             f"{self.time_limit:g} s; the computation was abandoned")
+
+    def _finish(self, si, ok: bool, stage=None, error=None, tb=None) -> None:
+        if not ok:
+            self.n_failed += 1
+            self.errors[si.key] = error
+            record_error(layout(self.out, si.key), si, stage, error, tb)
+        self.status[si.key] = "done" if ok else "failed"
+        self.bar.update(1)
+        self.bar.set_postfix(failed=self.n_failed)
+        if self.on_event:
+            self.on_event(si.key, self.status[si.key])
