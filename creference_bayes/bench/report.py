@@ -194,7 +194,7 @@ def _timing(doc) -> dict:
 
 def _crb_ratio(doc) -> dict:
     """Median over scenes of error / CRB (target-only bound for 0 refs, with refs otherwise)."""
-    recs, nt = doc["records"], doc["config"]["n_target"]
+    recs = doc["records"]
     crb = {(r["scene"], r["estimator"]): r["error"] for r in recs if r["estimator"].startswith("crb")}
     out = {}
     for label, sel, key in estimator_rows(doc):
@@ -307,7 +307,7 @@ def markdown_report(doc: dict) -> str:
     out += [_table(["estimator"] + [c if c != "noisy" else "all noisy tiers" for c in cols],
                    [[k] + [_f(v.get(t), 2) for t in cols] for k, v in s["crb_ratio"].items()]), ""]
 
-    out += [f"Better model per tier (median MAP error with 5 references): "
+    out += ["Better model per tier (median MAP error with 5 references): "
             + ", ".join(f"{t}: **{m}**" for t, m in s["better_model"].items()), ""]
 
     for setting in ("indoor", "outdoor"):
