@@ -64,6 +64,7 @@ from creference_bayes.workflows.advice_candidates import Candidate, FormatMix, c
 N_TARGET_POOL, N_REF_POOL = 13, 10
 TARGET_S, REF_S = 183.5, 64.4
 FIVE_PLUS_FIVE_S = 5 * TARGET_S + 5 * REF_S
+HALF_S = FIVE_PLUS_FIVE_S / 2
 TARGET_SHARE = 0.10
 FIXED = {"target x1": (1, 0), "target x2": (2, 0), "target x5": (5, 0), "target x10": (10, 0),
          "5 + 2 refs": (5, 2), "5 + 4 refs": (5, 4), "5 + 5 refs": (5, 5)}
@@ -127,6 +128,35 @@ def _estimate(scene, seed, min_ess):
             "post_error": r.evaluation.posterior_location_pct_error}
 
 
+def _reweighted(base, est, scene, kind, n_draws=2000):
+    """HDI width of the distance (m) of the base draws, evenly thinned, as they are and reweighted
+    by the annotation that was actually added (the advice's update, given the realised value):
+    set against the re-estimate, it checks the update apart from the predictive distribution."""
+    from creference_bayes.camera_setup import setup_camera
+    from creference_bayes.workflows.advice_observe import ModelContext, ReferenceObservation, TargetObservation
+    from creference_bayes.workflows.advice_update import normalise, weighted_hdi
+
+    r = est["result"]
+    ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params)
+    keep = np.unique(np.linspace(0, len(est["draws"]) - 1, n_draws).round().astype(int))
+    draws = ctx.model.expand(est["draws"][keep][:, ctx.model.free])
+    if kind == "target":
+        obs = TargetObservation(ctx)
+        obs.corners = scene.target.dimension_lines[-1].corners[None]
+    else:
+        ref = scene.references[-1]
+        obs = ReferenceObservation(ctx, ref.line, measure=ref.measure, object=ref.object)
+        low, high = ref.length_bounds_m(scene.target)
+        obs.log_low, obs.log_high, obs.is_range = np.log([low]), np.log([high]), np.array([ref.is_range])
+        if not obs.usable:
+            return None, None
+    w, _ = normalise(obs.log_ratio(draws))
+    dist = np.hypot(draws[:, 0], draws[:, 2])
+    now, _ = weighted_hdi(dist, np.full((1, len(dist)), 1.0 / len(dist)), 0.9)
+    after, _ = weighted_hdi(dist, w, 0.9)
+    return float(now[0]), float(after[0])
+
+
 def _advise(scene, est, seed, cands, mixes=None, settings=None):
     r = est["result"]
     return advise_posterior(scene, est["draws"], handedness=r.map.handedness, map_params=r.map.params,
@@ -154,6 +184,30 @@ def _bar(total, desc):
 # predicted against realised
 
 
+def _predict_case(seed: int, k: int, tiers: list[str]):
+    """Scene k of the predict experiment: its pool, starting point and the annotations added."""
+    tier = tiers[k % len(tiers)]
+    pool = _scene(seed, k, tier, None)
+    rng = np.random.default_rng([seed, k, 1])
+    n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
+    base = variant(pool, n_t, range(n_r))
+    nxt = pool.references[n_r]
+    cands = [c for c in candidates(base) if c.kind == "target"]
+    cands.append(Candidate("new-ref", "reference", nxt.measure, nxt.object, np.asarray(nxt.line), (), REF_S))
+    mixes = {"new-ref": FormatMix(float(nxt.is_range), format_mix(base).range_precision, 0.0)}
+    repeat = [c for c in candidates(base) if c.kind == "reference" and not c.new_segment][:1]
+    cands += [dataclasses.replace(c, key="repeat-ref") for c in repeat]
+    added = {"target": dataclasses.replace(base, target=dataclasses.replace(
+                 base.target, dimension_lines=pool.target.dimension_lines[:n_t + 1])),
+             "new-ref": _with_refs(base, base.references + (nxt,))}
+    if repeat:
+        j = repeat[0].based_on[0]
+        added["repeat-ref"] = _with_refs(base, base.references + (
+            _second_worker(pool, j, n_r, np.random.default_rng([seed, k, 4])),))
+    return {"tier": tier, "pool": pool, "n_t": n_t, "n_r": n_r, "base": base, "cands": cands,
+            "mixes": mixes, "added": added}
+
+
 def run_predict(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -166,52 +220,61 @@ def run_predict(args) -> None:
             name = f"s{k:04d}"
             if name in done:
                 continue
-            tier = tiers[k % len(tiers)]
-            pool = _scene(args.seed, k, tier, None)
-            rng = np.random.default_rng([args.seed, k, 1])
-            n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
-            base = variant(pool, n_t, range(n_r))
+            case = _predict_case(args.seed, k, tiers)
+            base = case["base"]
             t0 = time.perf_counter()
             before = _estimate(base, [args.seed, k, 2], args.min_ess)
             if before is None:
                 continue
-            nxt = pool.references[n_r]
-            secs = {"target": TARGET_S, "reference": REF_S}
-            cands = [c for c in candidates(base) if c.kind == "target"]
-            cands.append(Candidate("new-ref", "reference", nxt.measure, nxt.object, np.asarray(nxt.line),
-                                   (), secs["reference"]))
-            mixes = {"new-ref": FormatMix(float(nxt.is_range), format_mix(base).range_precision, 0.0)}
-            repeat = [c for c in candidates(base) if c.kind == "reference" and not c.new_segment][:1]
-            cands += [dataclasses.replace(c, key="repeat-ref") for c in repeat]
-            advice = _advise(base, before, [args.seed, k, 3], cands, mixes)
+            advice = _advise(base, before, [args.seed, k, 3], case["cands"], case["mixes"])
             t_adv = time.perf_counter() - t0
-            added = {"target": dataclasses.replace(base, target=dataclasses.replace(
-                         base.target, dimension_lines=pool.target.dimension_lines[:n_t + 1])),
-                     "new-ref": _with_refs(base, base.references + (nxt,))}
-            if repeat:
-                j = repeat[0].based_on[0]
-                added["repeat-ref"] = _with_refs(base, base.references + (
-                    _second_worker(pool, j, n_r, np.random.default_rng([args.seed, k, 4])),))
             preds = {p.candidate.key: p for p in advice.predictions}
             rows = []
-            for kind, scene in added.items():
+            for kind, scene in case["added"].items():
                 if kind not in preds:
                     continue
                 after = _estimate(scene, [args.seed, k, 5], args.min_ess)
                 if after is None:
                     continue
                 p = preds[kind]
+                rew_now, rew_after = _reweighted(base, before, scene, kind)
                 rows.append({"kind": kind, "measure": p.candidate.measure,
+                             "rew_now_m": rew_now, "rew_after_m": rew_after,
                              "pred_now_m": advice.now.hdi_width_m, "pred_after_m": p.expected.hdi_width_m,
                              "pred_now_share": advice.now.hdi_share, "pred_after_share": p.expected.hdi_share,
                              "pred_gain_pct": p.gain_pct, "pred_gain_se_pct": p.gain_se_pct,
                              "real_before_m": before["width"], "real_after_m": after["width"],
                              "real_before_share": before["share"], "real_after_share": after["share"],
                              "ess": p.ess_median, "fallbacks": p.fallbacks})
-            _append(path, {"scene": name, "tier": tier, "setting": pool.ground_truth.extra["setting"],
-                           "n_target": n_t, "n_refs": n_r, "estimate_and_advice_s": t_adv,
+            _append(path, {"scene": name, "tier": case["tier"], "setting": case["pool"].ground_truth.extra["setting"],
+                           "n_target": case["n_t"], "n_refs": case["n_r"], "estimate_and_advice_s": t_adv,
                            "advice_only_s": advice.seconds, "n_candidates": len(advice.predictions),
                            "rows": rows})
+
+
+def run_reweight(args) -> None:
+    """For recorded predict scenes without them: the base draws reweighted by the annotation
+    actually added (the base estimate is rerun with its seed, which gives the same draws)."""
+    out = Path(args.out)
+    recs = [json.loads(x) for x in (out / "predict.jsonl").read_text().splitlines() if x.strip()]
+    path = out / "reweight.jsonl"
+    done = _done(path)
+    todo = [r for r in recs if r["scene"] not in done and r["rows"] and "rew_now_m" not in r["rows"][0]]
+    tiers = args.tiers.split(",")
+    with _bar(len(todo), "reweight") as bar:
+        for r in todo[:args.n]:
+            bar.update(1)
+            k = int(r["scene"][1:])
+            case = _predict_case(args.seed, k, tiers)
+            before = _estimate(case["base"], [args.seed, k, 2], args.min_ess)
+            if abs(before["width"] - r["rows"][0]["real_before_m"]) > 1e-9 * max(1.0, before["width"]):
+                print(f"{r['scene']}: the rerun base estimate differs from the record; skipped", file=sys.stderr)
+                continue
+            rows = {}
+            for kind, scene in case["added"].items():
+                if any(x["kind"] == kind for x in r["rows"]):
+                    rows[kind] = _reweighted(case["base"], before, scene, kind)
+            _append(path, {"scene": r["scene"], "rows": rows})
 
 
 # ------------------------------------------------------------------------------------------------
@@ -318,6 +381,16 @@ def _boot_ratio(num, den, rng, n=2000):
 
 def report_predict(out: Path) -> str:
     recs = [json.loads(x) for x in (out / "predict.jsonl").read_text().splitlines() if x.strip()]
+    if (out / "reweight.jsonl").is_file():
+        extra = {}
+        for x in (out / "reweight.jsonl").read_text().splitlines():
+            if x.strip():
+                d = json.loads(x)
+                extra[d["scene"]] = d["rows"]
+        for r in recs:
+            for row in r["rows"]:
+                if "rew_now_m" not in row and row["kind"] in extra.get(r["scene"], {}):
+                    row["rew_now_m"], row["rew_after_m"] = extra[r["scene"]][row["kind"]]
     rows_by = {}
     for r in recs:
         for row in r["rows"]:
@@ -328,21 +401,37 @@ def report_predict(out: Path) -> str:
     table = []
     for kind in sorted(rows_by, key=lambda s: (s.split(" ")[0] != "target", s)):
         rows = rows_by[kind]
-        pred = np.array([x["pred_now_m"] - x["pred_after_m"] for x in rows])
-        real = np.array([x["real_before_m"] - x["real_after_m"] for x in rows])
-        pa = np.array([x["pred_after_m"] for x in rows])
-        ra = np.array([x["real_after_m"] for x in rows])
+        # the change as a share of the current width: each scene counts the same, near or far
+        pred = np.array([(x["pred_now_m"] - x["pred_after_m"]) / x["pred_now_m"] for x in rows])
+        real = np.array([(x["real_before_m"] - x["real_after_m"]) / x["real_before_m"] for x in rows])
+        pm = np.array([x["pred_now_m"] - x["pred_after_m"] for x in rows])
+        rm = np.array([x["real_before_m"] - x["real_after_m"] for x in rows])
         lo, hi = _boot_ratio(real, pred, rng)
-        table.append((kind, len(rows), f"{pred.mean():.4f}", f"{real.mean():.4f}",
+        table.append((kind, len(rows), f"{100 * pred.mean():.2f} %", f"{100 * real.mean():.2f} %",
                       f"{real.mean() / pred.mean():.2f} [{lo:.2f}, {hi:.2f}]",
-                      f"{ra.mean() / pa.mean():.3f}", f"{np.median([x['ess'] for x in rows]):.2f}",
+                      f"{pm.mean():.3f}", f"{rm.mean():.3f}", f"{np.median([x['ess'] for x in rows]):.2f}",
                       sum(x["fallbacks"] > 0 for x in rows)))
+    check = []
+    for kind in ("target", "new-ref", "repeat-ref"):
+        rows = [x for x in rows_by.get(kind, []) if x.get("rew_now_m")]
+        if not rows:
+            continue
+        rew = np.array([x["rew_after_m"] / x["rew_now_m"] for x in rows])
+        real = np.array([x["real_after_m"] / x["real_before_m"] for x in rows])
+        check.append((kind, len(rows), f"{100 * (1 - rew.mean()):.2f} %", f"{100 * (1 - real.mean()):.2f} %",
+                      f"{100 * np.median(np.abs(rew - real)):.1f} %", f"{100 * np.percentile(np.abs(rew - real), 90):.1f} %"))
     secs = np.array([r["advice_only_s"] for r in recs])
     ncand = np.array([r["n_candidates"] for r in recs])
-    text = (f"Predicted against realised change of the 90 % HDI width of the distance (metres; "
-            f"{len(recs)} scenes; change = before − after, so positive is narrower)\n\n"
-            + _md(("kind", "n", "mean predicted", "mean realised", "realised / predicted [90 % bootstrap]",
-                   "realised / predicted width after", "median ESS share", "with fallbacks"), table)
+    text = (f"Predicted against realised narrowing of the 90 % HDI of the distance ({len(recs)} scenes; "
+            f"narrowing = (width before − width after) / width before, mean over scenes; in metres the "
+            f"plain mean of before − after)\n\n"
+            + _md(("kind", "n", "predicted", "realised", "realised / predicted [90 % bootstrap]",
+                   "predicted m", "realised m", "median ESS share", "with fallbacks"), table)
+            + ("\n\nThe update alone: the base draws reweighted by the annotation actually added, "
+               "against the full re-estimate with it (narrowing as above; the difference of the "
+               "after/before width ratios, per scene)\n\n" + _md(
+                   ("kind", "n", "reweighted", "re-estimated", "median |difference|", "90th percentile"), check)
+               if check else "")
             + f"\n\nTime per object (advice alone, without the estimate): median {np.median(secs):.2f} s, "
               f"mean {secs.mean():.2f} s, 90th percentile {np.percentile(secs, 90):.2f} s, "
               f"{ncand.mean():.1f} candidates on average\n")
@@ -354,6 +443,14 @@ def _summary(entries):
     return (len(e), f"{np.mean([x['seconds'] for x in entries]):.0f}", f"{np.median(e):.1f}",
             f"{e.mean():.1f}", f"{100 * np.mean([x['covered'] for x in entries]):.0f} %",
             f"{100 * np.mean([x['share'] <= TARGET_SHARE for x in entries]):.0f} %")
+
+
+def _truncated(adaptive: dict, seconds: float) -> dict:
+    """The adaptive run's state at its last estimate within ``seconds`` of human time (a run with
+    that budget could have added a cheaper annotation instead of the one that crossed it, so this
+    is a conservative stand-in for it)."""
+    last = [s for s in adaptive["steps"] if s["seconds"] <= seconds][-1]
+    return {k: last[k] for k in ("seconds", "error", "post_error", "covered", "share")}
 
 
 def report_policy(out: Path) -> str:
@@ -370,6 +467,8 @@ def report_policy(out: Path) -> str:
             if got:
                 rows.append((label,) + _summary(got))
         rows.insert(0, ("adaptive",) + _summary([r["adaptive"] for r in rs]))
+        rows.insert(1, (f"adaptive, stopped at {HALF_S:.0f} s",) + _summary([_truncated(r["adaptive"], HALF_S)
+                                                                          for r in rs]))
         comp = np.array([[r["adaptive"]["n_target"], r["adaptive"]["n_refs"]] for r in rs])
         text.append(f"Policies, {cond} scenes (tier high)\n\n" + _md(
             ("policy", "scenes", "mean human s", "median error %", "mean error %", "90 % coverage",
@@ -437,20 +536,22 @@ def main(argv=None) -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
     for name, helptext in (("predict", "predicted against realised change, by kind"),
+                           ("reweight", "for recorded predict scenes: the update given the realised annotation"),
                            ("policy", "the adaptive policy against the fixed designs"),
                            ("report", "tables and the figure from the records")):
         s = sub.add_parser(name, help=helptext)
         s.add_argument("--out", default="advice_study", help="folder of the records and outputs")
         if name != "report":
-            s.add_argument("--n", type=int, default=200 if name == "predict" else 40,
+            s.add_argument("--n", type=int, default=40 if name == "policy" else 200,
                            help="scenes (policy: per condition)")
             s.add_argument("--seed", type=int, default=0, help="base seed")
             s.add_argument("--min-ess", type=float, default=400.0,
                            help="bulk ESS each estimate runs to (default: %(default)s)")
-        if name == "predict":
+        if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
     args = p.parse_args(argv)
-    {"predict": run_predict, "policy": run_policy, "report": run_report}[args.command](args)
+    {"predict": run_predict, "reweight": run_reweight, "policy": run_policy,
+     "report": run_report}[args.command](args)
 
 
 if __name__ == "__main__":
