@@ -223,3 +223,22 @@ def test_request_files_carry_the_segment_and_import_back(example, tmp_path):
     got = report.scenes[0].scene
     assert len(got["references"]) == len(scene.references) + 1
     assert got["references"][-1]["value"] == 12.5 and got["references"][-1]["measure"] == "distance"
+
+
+def test_batch_advice_does_not_depend_on_the_worker_count(batch_dir):
+    from creference_bayes.workflows.advice_batch import advise_batch
+
+    settings = AdviceSettings(n_draws=100, n_futures=20)
+    one = advise_batch(batch_dir, seed=3, settings=settings)
+    two = advise_batch(batch_dir, seed=3, settings=settings, workers=2)
+
+    def plain(batch):
+        out = []
+        for o in batch.objects:
+            d = o.advice.to_dict()
+            d.pop("seconds")
+            out.append((o.key, d))
+        return out
+
+    assert plain(one) == plain(two)
+    assert plain(one)[0][1]["seed"] != plain(one)[1][1]["seed"]  # each object its own stream

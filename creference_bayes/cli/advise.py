@@ -25,6 +25,8 @@ def _settings(args):
         raise UsageError(f"--draws: expected an integer >= 50, got {args.draws}")
     if args.futures < 10:
         raise UsageError(f"--futures: expected an integer >= 10, got {args.futures}")
+    if args.workers < 1:
+        raise UsageError(f"--workers: expected an integer >= 1, got {args.workers}")
     if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
         raise UsageError(f"--budget: expected a number of seconds > 0, got {args.budget!r}")
     return AdviceSettings(n_draws=args.draws, n_futures=args.futures, target_hdi_width=args.target_hdi_width,
@@ -69,7 +71,8 @@ def _batch(args, settings, progress: bool) -> int:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
     try:
-        batch = advise_batch(args.input, seed=args.seed, settings=settings, progress=progress)
+        batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
+                             progress=progress)
     except ValueError as exc:
         raise UsageError(" ".join(str(exc).split())) from None
     paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines)
@@ -97,6 +100,8 @@ def _run(args) -> int:
         return _batch(args, settings, progress)
     if args.budget is not None:
         raise UsageError("--budget: only for a batch folder")
+    if args.workers != 1:
+        raise UsageError("--workers: only for a batch folder")
     return _one(args, settings, progress)
 
 
@@ -134,6 +139,8 @@ def register(subparsers) -> None:
     p.add_argument("--budget", type=float, default=None, metavar="SECONDS",
                    help="a batch folder: list requests, best first, until their human time reaches "
                         "this many seconds (default: every object that should get one)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="a batch folder: advise on N objects at once in local processes (default: %(default)s)")
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
                    help="how the Label Studio requests draw a segment, as the project's labelling "
                         "config does (default: %(default)s)")

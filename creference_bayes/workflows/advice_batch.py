@@ -73,29 +73,55 @@ def _image_name(scene, key: str) -> str:
     return PurePath(str(scene.image_path)).name if scene.image_path is not None else PurePath(key).name
 
 
+def _advise_one(result: dict, scene, seed, settings):
+    """One object (run in a worker process with ``workers`` > 1): its Advice, or the reason it
+    cannot be advised on."""
+    try:
+        return advise_result(result, scene, seed=seed, settings=settings)
+    except ValueError as exc:
+        return " ".join(str(exc).split())
+
+
 def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettings | None = None,
-                 progress: bool = False) -> BatchAdvice:
+                 workers: int = 1, progress: bool = False) -> BatchAdvice:
     """The advice for every result of a ``creference batch`` folder with posterior draws.
 
     Results without draws, whose scene copy changed, or of another model are listed in
-    ``skipped`` with the reason.
+    ``skipped`` with the reason. With ``workers`` > 1 the objects are advised on in that many
+    local processes; each object's seed derives from ``seed`` and its key
+    (:func:`object_seed`), so the numbers do not depend on ``workers``.
     """
     from ..inference.progress import progress_bar
     from .labels import load_batch
 
     inputs, skipped = load_batch(batch_dir)
     skipped = list(skipped)
-    objects = []
+    scenes = {inp.key: _with_batch_image(inp.scene, inp.result) for inp in inputs}
+    jobs = [(inp.result, scenes[inp.key], object_seed(seed, inp.key), settings) for inp in inputs]
     with progress_bar(progress, len(inputs), desc="advice", unit="object") as bar:
-        for inp in inputs:
-            scene = _with_batch_image(inp.scene, inp.result)
-            try:
-                advice = advise_result(inp.result, scene, seed=object_seed(seed, inp.key), settings=settings)
-            except ValueError as exc:
-                skipped.append({"key": inp.key, "reason": " ".join(str(exc).split())})
-            else:
-                objects.append(ObjectAdvice(inp.key, _image_name(scene, inp.key), scene, advice))
-            bar.update(1)
+        if workers > 1 and len(jobs) > 1:
+            from concurrent.futures import as_completed
+
+            from .engines import LocalEngine
+
+            with LocalEngine(workers) as engine:
+                futures = {engine.executor.submit(_advise_one, *job): inp.key for job, inp in zip(jobs, inputs)}
+                outcome = {}
+                for f in as_completed(futures):
+                    outcome[futures[f]] = f.result()
+                    bar.update(1)
+        else:
+            outcome = {}
+            for job, inp in zip(jobs, inputs):
+                outcome[inp.key] = _advise_one(*job)
+                bar.update(1)
+    objects = []
+    for inp in inputs:
+        got = outcome[inp.key]
+        if isinstance(got, str):
+            skipped.append({"key": inp.key, "reason": got})
+        else:
+            objects.append(ObjectAdvice(inp.key, _image_name(scenes[inp.key], inp.key), scenes[inp.key], got))
     objects.sort(key=lambda o: (o.advice.action != "collect", -o.score, o.key))
     return BatchAdvice(tuple(objects), tuple(skipped))
 

@@ -49,7 +49,11 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
 def _with_seed(advice: Advice, seed) -> Advice:
     import dataclasses
 
-    return dataclasses.replace(advice, seed=seed if isinstance(seed, (int, type(None))) else None)
+    if isinstance(seed, (list, tuple)) and all(isinstance(v, int) for v in seed):
+        seed = list(seed)
+    elif not isinstance(seed, (int, type(None))):
+        seed = None  # a Generator: not recordable
+    return dataclasses.replace(advice, seed=seed)
 
 
 def _vector(values: dict, what: str, required) -> np.ndarray:
