@@ -342,7 +342,8 @@ def run_policy(args) -> None:
     path = out / "policy.jsonl"
     done = _done(path)
     settings = AdviceSettings(min_gain=0.0)
-    jobs = [(f"{c}-{k:03d}", c, k) for c in ("paper-like", "outdoor") for k in range(args.n)]
+    # conditions interleaved, so that a run stopped early has as many scenes of each
+    jobs = [(f"{c}-{k:03d}", c, k) for k in range(args.n) for c in ("paper-like", "outdoor")]
     with _bar(len(jobs), "policy") as bar:
         for name, cond, k in jobs:
             bar.update(1)
