@@ -364,6 +364,54 @@ def run_policy(args) -> None:
 
 
 # ------------------------------------------------------------------------------------------------
+# time per object
+
+
+def run_timing(args) -> None:
+    """The advice's own time per object with the default settings and every candidate the scene
+    allows, on scenes as the paper designs them (5 sets of dimension lines, 5 references), from
+    the estimate's draws (a scene given to ``creference advise``) and from the 400 draws a result
+    file keeps (a result or a batch folder)."""
+    from creference_bayes.workflows.advice_inputs import advise_result
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "timing.jsonl"
+    done = _done(path)
+    with _bar(args.n, "timing") as bar:
+        for k in range(args.n):
+            bar.update(1)
+            name = f"t{k:04d}"
+            if name in done:
+                continue
+            pool = _scene(args.seed + 2000, k, "high" if k % 2 else "medium", None)
+            scene = variant(pool, 5, range(5))
+            est = _estimate(scene, [args.seed, k, 10], args.min_ess)
+            a = _advise(scene, est, [args.seed, k, 11], None)
+            t0 = time.perf_counter()
+            b = advise_result(est["result"].to_dict(), scene, seed=[args.seed, k, 12])
+            t_result = time.perf_counter() - t0
+            _append(path, {"scene": name, "setting": pool.ground_truth.extra["setting"],
+                           "n_candidates": len(a.predictions), "scene_s": a.seconds, "result_s": t_result,
+                           "result_advice_s": b.seconds, "action": a.action, "best": a.best.candidate.kind
+                           if a.best else None})
+
+
+def report_timing(out: Path) -> str:
+    recs = [json.loads(x) for x in (out / "timing.jsonl").read_text().splitlines() if x.strip()]
+    rows = []
+    for key, label in (("scene_s", "from the estimate's draws (600 used)"),
+                       ("result_s", "from a result file (400 draws; with rebuilding its models)")):
+        t = np.array([r[key] for r in recs])
+        rows.append((label, len(t), f"{np.median(t):.2f}", f"{t.mean():.2f}", f"{np.percentile(t, 90):.2f}",
+                     f"{t.max():.2f}"))
+    n = np.array([r["n_candidates"] for r in recs])
+    return ("Time per object of the advice alone (seconds; 5 target sets + 5 references, every candidate "
+            f"the scene allows: {n.mean():.1f} on average, {n.min()}–{n.max()})\n\n"
+            + _md(("input", "objects", "median", "mean", "90th percentile", "max"), rows) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------
 # tables and figure
 
 
@@ -521,9 +569,13 @@ def figure_policy(out: Path) -> Path:
 
 def run_report(args) -> None:
     out = Path(args.out)
+    if not out.is_dir():
+        raise SystemExit(f"{out}: no such folder (run predict, timing or policy first)")
     parts = []
     if (out / "predict.jsonl").is_file():
         parts.append(report_predict(out))
+    if (out / "timing.jsonl").is_file():
+        parts.append(report_timing(out))
     if (out / "policy.jsonl").is_file():
         parts.append(report_policy(out))
         parts.append(f"Figure: {figure_policy(out)}")
@@ -538,12 +590,13 @@ def main(argv=None) -> None:
     sub = p.add_subparsers(dest="command", required=True)
     for name, helptext in (("predict", "predicted against realised change, by kind"),
                            ("reweight", "for recorded predict scenes: the update given the realised annotation"),
+                           ("timing", "the advice's time per object with the default settings"),
                            ("policy", "the adaptive policy against the fixed designs"),
                            ("report", "tables and the figure from the records")):
         s = sub.add_parser(name, help=helptext)
         s.add_argument("--out", default="advice_study", help="folder of the records and outputs")
         if name != "report":
-            s.add_argument("--n", type=int, default=40 if name == "policy" else 200,
+            s.add_argument("--n", type=int, default={"policy": 40, "timing": 20}.get(name, 200),
                            help="scenes (policy: per condition)")
             s.add_argument("--seed", type=int, default=0, help="base seed")
             s.add_argument("--min-ess", type=float, default=400.0,
@@ -551,7 +604,7 @@ def main(argv=None) -> None:
         if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
     args = p.parse_args(argv)
-    {"predict": run_predict, "reweight": run_reweight, "policy": run_policy,
+    {"predict": run_predict, "reweight": run_reweight, "timing": run_timing, "policy": run_policy,
      "report": run_report}[args.command](args)
 
 

@@ -35,7 +35,7 @@ def _settings(args):
 
 def _one(args, settings, progress: bool) -> int:
     from ..io.files import atomic_write_json
-    from ..io.scene import load_scene
+    from ..io.scene import SceneError, load_scene
     from ..workflows.advice_inputs import (advice_table, advise_result, advise_scene, load_result,
                                            scene_for_result)
 
@@ -51,9 +51,9 @@ def _one(args, settings, progress: bool) -> int:
             if args.scene is not None:
                 raise UsageError("--scene: only for a result file (INPUT is a scene)")
             advice, _ = advise_scene(load_scene(path), seed=args.seed, settings=settings, progress=progress)
+    except SceneError:
+        raise
     except ValueError as exc:
-        if type(exc).__name__ == "SceneError":
-            raise
         raise UsageError(" ".join(str(exc).split())) from None
     if args.out is not None:
         atomic_write_json(args.out, advice.to_dict())

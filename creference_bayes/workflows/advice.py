@@ -60,7 +60,7 @@ class AdviceSettings:
     target_hdi_width: float = 0.10
     min_gain: float = 0.5
     iou_threshold: float = 0.7
-    iou_pairs: int = 32
+    iou_pairs: int = 16
 
     def __post_init__(self):
         for key, ok, what in (
@@ -209,6 +209,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     """
     t0 = time.perf_counter()
     settings = settings or AdviceSettings()
+    if int(handedness) not in (1, -1):
+        raise ValueError(f"handedness: expected 1 or -1, got {handedness!r}")
     if setup is None:
         from ..camera_setup import setup_camera
 
@@ -219,6 +221,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     draws = np.atleast_2d(np.asarray(draws, float))
     if draws.shape[1:] != (7,) or len(draws) < 20:
         raise ValueError(f"draws: expected at least 20 posterior draws of 7 parameters, got shape {draws.shape}")
+    if not np.all(np.isfinite(draws)):
+        raise ValueError("draws: expected finite posterior draws, got NaN or infinity")
     keep = np.unique(np.linspace(0, len(draws) - 1, min(settings.n_draws, len(draws))).round().astype(int))
     inner = model.expand(draws[keep][:, model.free])  # fixed and derived parameters as the model has them
     n = len(inner)
@@ -278,7 +282,7 @@ def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, now, settings, rng
                       ess_median=float(np.median(ess) / len(inner)), fallbacks=int(len(collapsed)))
 
 
-def _split_se(full: np.ndarray, weights: np.ndarray, prob: float, rng, n_splits: int = 4) -> float:
+def _split_se(full: np.ndarray, weights: np.ndarray, prob: float, rng, n_splits: int = 3) -> float:
     """Standard error of the expected gain (points) from the finite set of draws: the gain computed
     on two random halves of the draws differs by about twice it (each half's variance is double)."""
     if not len(weights):
