@@ -175,13 +175,15 @@ class Advice:
                 "settings": self.settings.to_dict(), "seed": self.seed, "seconds": self.seconds}
 
 
-def _outlooks(full: np.ndarray, weights: np.ndarray, sizes, settings: AdviceSettings, rng) -> dict:
-    """Per row of weights: HDI width and median of the distance, location sd, label quality."""
+def _outlooks(full: np.ndarray, weights: np.ndarray, sizes, settings: AdviceSettings, rng,
+              iou_pairs: int | None = None) -> dict:
+    """Per row of weights: HDI width and median of the distance, location sd, label quality
+    (from ``iou_pairs`` resampled draws per row, default ``settings.iou_pairs``)."""
     dist = np.hypot(full[:, 0], full[:, 2])
     width, median = weighted_hdi(dist, weights, settings.hdi_prob)
     return {"hdi_width_m": width, "distance_m": median, "hdi_share": width / median,
             "location_sd_m": location_sd(full, weights),
-            "p_iou": p_iou(full, weights, sizes, settings.iou_threshold, rng, settings.iou_pairs)}
+            "p_iou": p_iou(full, weights, sizes, settings.iou_threshold, rng, iou_pairs or settings.iou_pairs)}
 
 
 def _mean_outlook(rows: dict) -> Outlook:
@@ -228,7 +230,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     n = len(inner)
     outer_idx = np.unique(np.linspace(0, n - 1, min(settings.n_futures, n)).round().astype(int))
     sizes = (scene.target.length, scene.target.width, scene.target.height)
-    now = _mean_outlook(_outlooks(inner, np.full((1, n), 1.0 / n), sizes, settings, rng))
+    # the present from every draw (one row: the label quality against all of them)
+    now = _mean_outlook(_outlooks(inner, np.full((1, n), 1.0 / n), sizes, settings, rng, iou_pairs=n))
     base_cost = model.cost(inner)
     crowd = model.crowd_scale_weights(inner)[1]
     mix = format_mix(scene)
