@@ -242,8 +242,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
 
     with progress_bar(progress, len(cands), desc="advice", unit="annotation") as bar:
         for cand, s in zip(cands, seeds):
-            pred = _predict(ctx, cand, (mixes or {}).get(cand.key, mix), inner, outer_idx, (base_cost, crowd), sizes, now, settings,
-                            np.random.default_rng(s), notes)
+            pred = _predict(ctx, cand, (mixes or {}).get(cand.key, mix), inner, outer_idx,
+                            (base_cost, crowd), sizes, now, settings, np.random.default_rng(s), notes)
             if pred is not None:
                 predictions.append(pred)
             bar.update(1)
