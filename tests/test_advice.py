@@ -242,3 +242,36 @@ def test_batch_advice_does_not_depend_on_the_worker_count(batch_dir):
 
     assert plain(one) == plain(two)
     assert plain(one)[0][1]["seed"] != plain(one)[1][1]["seed"]  # each object its own stream
+
+
+def test_answered_label_studio_requests_import_as_the_scene_with_the_answers(example):
+    """A worker's answers to request tasks (the prediction completed with a value; a new set of
+    dimension lines) import as the scene the request was made for plus the new annotations."""
+    import dataclasses
+
+    from creference_bayes.io.labelstudio import label_studio_task, scenes_from_label_studio
+    from creference_bayes.workflows.advice_requests import label_studio_requests
+
+    scene = example[0]
+    ref_cand = next(c for c in candidates(scene) if c.kind == "reference" and c.new_segment)
+    ref_task, tgt_task = label_studio_requests([("k", scene, ref_cand), ("k", scene, candidates(scene)[0])])
+    result = list(ref_task["predictions"][0]["result"])
+    region = next(r["id"] for r in result if r.get("type") == "keypointlabels")
+    for name, typ, value in (("mode", "choices", ["direct"]), ("value", "number", 7.5), ("unit", "choices", ["m"])):
+        key = "number" if typ == "number" else "choices"
+        result.append({"id": region, "type": typ, "from_name": name, "to_name": "image", "value": {key: value}})
+    ref_task["annotations"] = [{"id": 1, "completed_by": "w-new", "result": result}]
+    first = scene.target.dimension_lines[0]
+    new_line = dataclasses.replace(first, corners=first.corners + 1.5, worker="w-dims")
+    alone = dataclasses.replace(scene, target=dataclasses.replace(scene.target, dimension_lines=(new_line,)),
+                                references=())
+    tgt_task["annotations"] = label_studio_task(alone)["annotations"]
+    reports = [scenes_from_label_studio([task]) for task in (ref_task, tgt_task)]  # one object each
+    assert not any(r.errors for r in reports), [r.errors for r in reports]
+    with_ref, with_lines = (r.scenes[0].scene for r in reports)
+    assert len(with_ref["references"]) == len(scene.references) + 1
+    assert with_ref["references"][-1]["value"] == 7.5 and with_ref["references"][-1]["worker"] == "w-new"
+    np.testing.assert_allclose(with_ref["references"][-1]["line"], ref_cand.line, atol=1e-6)
+    assert len(with_lines["target"]["dimension_lines"]) == len(scene.target.dimension_lines) + 1
+    np.testing.assert_allclose(with_lines["target"]["dimension_lines"][-1]["corners"], new_line.corners, atol=1e-6)
+    assert with_lines["references"] == with_ref["references"][:-1]
