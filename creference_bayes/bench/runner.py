@@ -68,6 +68,11 @@ class BenchConfig:
     sweep_scenes : scenes per tier in that sweep
     sampler : emcee settings for the bench (:class:`~creference_bayes.inference.sampling.SamplerSettings` options)
     n_target, n_target_baseline : target annotations the estimators get (5) and the baseline (10)
+    camera_studies : also run the metrology model on every scene without its horizon
+        (``ours-metrology-nohorizon``: pitch and roll estimated) and with a flat focal-length prior
+        (``ours-metrology-flatfocal``), with the Cramér–Rao bound for free pitch and roll
+    exact_scenes : noise-free scenes with 20 exact references, estimated with and without them
+        (:func:`exact_reference_records`)
     """
 
     name: str
@@ -82,6 +87,8 @@ class BenchConfig:
     sampler: dict = field(default_factory=dict)
     n_target: int = 5
     n_target_baseline: int = 10
+    camera_studies: bool = True
+    exact_scenes: int = 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -96,7 +103,7 @@ CONFIGS = {
     "quick": BenchConfig(
         name="quick", scenes=_grid({"none": (1, 0), "low": (1, 0), "medium": (0, 1), "high": (1, 1)}),
         ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline_scenes=0,
-        pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}),
+        pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}, exact_scenes=1),
     # the documented run (docs/benchmark_results.md)
     "full": BenchConfig(
         name="full", scenes=_grid({t: (5, 3) for t in TIERS}),
@@ -104,7 +111,7 @@ CONFIGS = {
         paper_baseline_scenes=2, pair_scenes=3, sweep_scenes=8,
         paper_posterior_grid=((100.0, 1.0), (100.0, 0.1), (2.0, 1.0), (2.0, 2.0), (2.0, 3.0), (2.0, 4.0),
                               (3.0, 3.0), (3.0, 4.0)),
-        sampler={"min_ess": 400}),
+        sampler={"min_ess": 400}, exact_scenes=10),
 }
 
 
@@ -311,6 +318,9 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
                 rec.update(_posterior_fields(res, truth))
             recs.append(rec)
 
+    if config.camera_studies:
+        recs += _camera_records(sid, scene, config, seed, truth)
+
     if pairs:  # Fig. 11: each pair of references alone
         from ..core.metrology import aggregate_references
 
@@ -332,6 +342,65 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
                                 sigma=sigma, map_error=res.evaluation.location_pct_error,
                                 **_posterior_fields(res, truth)))
     say(f"{sid}: paper {recs[2]['error']:.1f} %, crb {crb_t:.2f}/{crb_r:.2f} %")
+    return recs
+
+
+#: The camera studies' estimators and the estimate options that make them.
+CAMERA_STUDIES = {"ours-metrology-nohorizon": {"orientation": "auto"},
+                  "ours-metrology-flatfocal": {"focal_prior": "none"}}
+
+
+def _camera_records(sid: str, scene: Scene, config: BenchConfig, seed: int, truth: dict) -> list[dict]:
+    """The metrology model without the horizon and with a flat focal prior, at 0 and all refs."""
+    from .crb import cramer_rao_scene
+
+    nt, all_refs = config.n_target, tuple(range(len(scene.references)))
+    recs = []
+    for name, refs in (("crb-target-nohorizon", False), ("crb-refs-nohorizon", True)):
+        c = cramer_rao_scene(scene, n_annotations=nt, references=refs, orientation_free=True)
+        recs.append(_record(sid, scene, name, n_target=nt, n_refs=len(all_refs) if refs else 0,
+                            error=c.median_pct, rmse=c.rmse_pct))
+    for estimator, options in CAMERA_STUDIES.items():
+        base = replace(scene, horizon=None) if estimator.endswith("nohorizon") else scene
+        for k in sorted({0, len(all_refs)}):
+            post = k in config.posterior_ref_counts
+            res = _estimate(variant(base, nt, all_refs[:k]), "metrology", "default", seed, posterior=post,
+                            sampling=config.sampler, **options)
+            rec = _record(sid, scene, estimator, model="metrology", preset="default", n_target=nt, n_refs=k,
+                          error=res.evaluation.location_pct_error, seconds=res.map.seconds,
+                          handedness_ok=res.map.handedness == scene.ground_truth.extra["handedness"])
+            if post and res.posterior is not None:
+                rec.update(_posterior_fields(res, truth))
+            recs.append(rec)
+    return recs
+
+
+def exact_reference_scenes(n: int, seed: int = 0) -> list[tuple[str, Scene]]:
+    """Noise-free outdoor scenes as annotation tools store them (0.01 px): targets 25–45 m away,
+    pitch, roll up to 5°, an off-centre principal point, 13 exact target annotations and 20 exact
+    references (single values, stated to 4 significant digits)."""
+    out = []
+    for i in range(n):
+        d = simulate_scene(np.random.default_rng([seed, 99, i]), setting="outdoor", tier="none",
+                           n_references=20, principal_offset=0.08, roll_deg=5.0,
+                           distance_range=(25.0, 45.0), single_values=True)
+        out.append((f"exact-outdoor-{i:02d}", _parse(d)))
+    return out
+
+
+def exact_reference_records(n: int, seed: int = 0, say=lambda s: None) -> list[dict]:
+    """The default estimator's MAP on :func:`exact_reference_scenes`, with and without the references
+    (exact references must help, never hurt)."""
+    recs = []
+    for sid, scene in exact_reference_scenes(n, seed):
+        errors = {}
+        for k in (0, len(scene.references)):
+            res = _estimate(variant(scene, len(scene.target.dimension_lines), tuple(range(k))),
+                            "metrology", "default", seed)
+            errors[k] = res.evaluation.location_pct_error
+            recs.append(_record(sid, scene, "exact-metrology", n_target=len(scene.target.dimension_lines),
+                                n_refs=k, error=errors[k]))
+        say(f"{sid}: exact references {errors}")
     return recs
 
 
@@ -371,6 +440,8 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
                                   sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
                                   baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
             bar.update(1)
+    if config.exact_scenes:
+        records += exact_reference_records(config.exact_scenes, seed, say)
     from .report import summarise
 
     doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),

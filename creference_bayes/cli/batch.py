@@ -7,6 +7,7 @@ import sys
 
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
+from .estimate import add_camera_options, check_posterior_values
 from .main import UsageError
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -18,16 +19,12 @@ EXIT_FAILED = 1
 def _settings(args):
     from ..workflows.batch import BatchSettings
 
-    if not 0.0 < args.hdi_prob < 1.0:
-        raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
-    if args.temperature is not None and not (math.isfinite(args.temperature) and args.temperature > 0):
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature!r}")
-    if args.min_ess is not None and not args.min_ess >= 1:
-        raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
+    check_posterior_values(args)
     return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                          posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                          temperature=args.temperature, use_references=not args.no_references,
-                         sampling={} if args.min_ess is None else {"min_ess": args.min_ess})
+                         sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
+                         focal_prior=args.focal_prior, orientation=args.orientation)
 
 
 def _engine(args):
@@ -89,6 +86,7 @@ def register(subparsers) -> None:
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS, help="likelihood model (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    add_camera_options(p)
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true",
                    help="the MAP only (creference labels then has no uncertainty to export)")

@@ -50,7 +50,8 @@ class BatchSettings:
     Attributes
     ----------
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
-    model, preset, posterior, hdi_prob, temperature, use_references : as :func:`~creference_bayes.estimate`
+    model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation :
+        as :func:`~creference_bayes.estimate`
     sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
     """
 
@@ -62,6 +63,8 @@ class BatchSettings:
     temperature: float | None = None
     use_references: bool = True
     sampling: dict = field(default_factory=dict)
+    focal_prior: str = "auto"
+    orientation: str = "auto"
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -71,7 +74,8 @@ class BatchSettings:
     def estimate_kwargs(self) -> dict:
         return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
-                "use_references": self.use_references, "sampling": dict(self.sampling) or None}
+                "use_references": self.use_references, "sampling": dict(self.sampling) or None,
+                "focal_prior": self.focal_prior, "orientation": self.orientation}
 
 
 @dataclass(frozen=True)
