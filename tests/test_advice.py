@@ -96,9 +96,10 @@ def test_reweighted_draws_agree_with_a_re_estimate(make_scene):
     # Monte Carlo error: both sides have an ESS of several hundred; 0.15 sd is about 3 of its se
     assert mean_w == pytest.approx(dist_new.mean(), abs=0.15 * dist_new.std())
     assert sd_w == pytest.approx(dist_new.std(), rel=0.15)
-    # the added set moved the posterior well beyond that tolerance (here its σ grew: wider), so
-    # the agreement above is not that of two copies of the old posterior
-    assert abs(sd_w - np.std(dist_w)) > 0.3 * np.std(dist_w)
+    # the added set moved the posterior beyond those tolerances (here its σ grew: wider), so the
+    # agreement above is not that of two copies of the old posterior
+    moved_mean = abs(mean_w - dist_w.mean()) > 0.15 * dist_new.std()
+    assert moved_mean or abs(sd_w - np.std(dist_w)) > 0.15 * np.std(dist_w)
 
 
 # ------------------------------------------------------------------------------------------------
