@@ -276,3 +276,16 @@ def test_answered_label_studio_requests_import_as_the_scene_with_the_answers(exa
     assert len(with_lines["target"]["dimension_lines"]) == len(scene.target.dimension_lines) + 1
     np.testing.assert_allclose(with_lines["target"]["dimension_lines"][-1]["corners"], new_line.corners, atol=1e-6)
     assert with_lines["references"] == with_ref["references"][:-1]
+
+
+def test_a_result_is_advised_on_with_the_camera_set_up_of_its_estimate(example):
+    from creference_bayes.workflows.advice_inputs import _camera_setup
+
+    scene, result, _ = example
+    d = result.to_dict()
+    assert _camera_setup(d, scene).to_dict()["focal_prior"] == d["camera"]["focal_prior"]
+    flat = dict(d, camera=dict(d["camera"], focal_prior=None))  # as estimated with --focal-prior none
+    assert _camera_setup(flat, scene).terms.focal is None
+    odd = dict(d, camera=dict(d["camera"], focal_prior=dict(d["camera"]["focal_prior"], median_px=1.0)))
+    with pytest.raises(ValueError, match="camera set-up cannot be rebuilt"):
+        _camera_setup(odd, scene)

@@ -116,10 +116,36 @@ def _with_batch_image(scene, result: dict):
     return dataclasses.replace(scene, image_path=candidate) if candidate.is_file() else scene
 
 
+def _camera_setup(result: dict, scene):
+    """The camera set-up the result's estimate used: its batch settings' ``orientation`` and
+    ``focal_prior`` when it has them, else read back from its ``camera`` block; checked against
+    that block (a posterior of another set-up would be reweighted with the wrong model)."""
+    from ..camera_setup import setup_camera
+
+    cam = result.get("camera") or {}
+    batch = (result.get("batch") or {}).get("settings") or {}
+    mode = cam.get("orientation")
+    orientation = batch.get("orientation") or ("level" if mode == "level" else "free" if mode == "free" else "auto")
+    prior = cam.get("focal_prior") or {}
+    focal_prior = batch.get("focal_prior") or (
+        "none" if "focal_prior" in cam and cam["focal_prior"] is None and scene.focal_length_px is None
+        else "default" if prior.get("source") == "default" else "auto")
+    setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior)
+    if cam:
+        mine = setup.to_dict()
+        theirs_fp, mine_fp = cam.get("focal_prior"), mine.get("focal_prior")
+        same_fp = (theirs_fp is None) == (mine_fp is None) and (
+            theirs_fp is None or np.isclose(theirs_fp["median_px"], mine_fp["median_px"], rtol=1e-6))
+        if mine["orientation"] != mode or not same_fp:
+            raise ValueError("the camera set-up cannot be rebuilt as the estimate had it (orientation "
+                             f"{mode!r}, focal prior {theirs_fp!r}); estimate the scene again with "
+                             "creference advise SCENE")
+    return setup
+
+
 def advise_result(result: dict, scene, *, seed=None, settings: AdviceSettings | None = None,
                   progress: bool = False) -> Advice:
     """Advise on a stored result (its ``posterior.draws``) of ``scene``."""
-    from ..camera_setup import setup_camera
     from ..pipeline import build_models
 
     if result.get("format") != RESULT_FORMAT:
@@ -130,10 +156,7 @@ def advise_result(result: dict, scene, *, seed=None, settings: AdviceSettings | 
     handedness = int(result.get("handedness") or (result.get("posterior") or {}).get("handedness") or 0)
     if handedness not in (1, -1):
         raise ValueError(f"handedness: expected 1 or -1, got {result.get('handedness')!r}")
-    recorded = (result.get("camera") or {}).get("orientation")
-    setup = setup_camera(scene, orientation="level" if recorded == "level" else "auto")
-    if recorded == "free" and setup.orientation != "free":
-        setup = setup_camera(scene, orientation="free")
+    setup = _camera_setup(result, scene)
     model = next(m for m in build_models(scene, setup) if m.handedness == handedness)
     free = [k for k, f in zip(PARAM_NAMES, model.free) if f]
     pilot = model.expand(_vector(result.get("map") or {}, "map", free)[:, model.free])[0]
