@@ -246,7 +246,10 @@ def run_predict(args) -> None:
                              "real_before_m": before["width"], "real_after_m": after["width"],
                              "real_before_share": before["share"], "real_after_share": after["share"],
                              "ess": p.ess_median, "fallbacks": p.fallbacks})
+            loc = base.ground_truth.location_m
+            dist = np.hypot(before["draws"][:, 0], before["draws"][:, 2])
             _append(path, {"scene": name, "tier": case["tier"], "setting": case["pool"].ground_truth.extra["setting"],
+                           "truth_quantile": float(np.mean(dist < np.hypot(loc[0], loc[2]))),
                            "n_target": case["n_t"], "n_refs": case["n_r"], "estimate_and_advice_s": t_adv,
                            "advice_only_s": advice.seconds, "n_candidates": len(advice.predictions),
                            "rows": rows})
@@ -476,6 +479,19 @@ def report_predict(out: Path) -> str:
             lo, hi = _boot_ratio(rs, ps, rng)
             bands.append((label, kind, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
                           f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
+    quant = {r["scene"]: r.get("truth_quantile") for r in recs}
+    if (out / "reweight.jsonl").is_file():
+        for x in (out / "reweight.jsonl").read_text().splitlines():
+            if x.strip():
+                d = json.loads(x)
+                quant[d["scene"]] = quant.get(d["scene"]) if quant.get(d["scene"]) is not None else d.get("truth_quantile")
+    calib = []
+    for lo_b, hi_b, label in ((0.0, 0.5, "< 50 %"), (0.5, np.inf, ">= 50 %"), (0.0, np.inf, "all")):
+        q = np.array([quant[r["scene"]] for r in recs if r["rows"] and quant.get(r["scene"]) is not None
+                      and lo_b <= r["rows"][0]["real_before_share"] < hi_b])
+        if len(q):
+            calib.append((label, len(q), f"{np.mean(q):.2f}", f"{100 * np.mean(q < 0.5):.0f} %",
+                          f"{100 * np.mean((q > 0.05) & (q < 0.95)):.0f} %", f"{100 * np.mean(q < 0.1):.0f} %"))
     check = []
     for kind in ("target", "new-ref", "repeat-ref"):
         rows = [x for x in rows_by.get(kind, []) if x.get("rew_now_m")]
@@ -502,6 +518,11 @@ def report_predict(out: Path) -> str:
                "after/before width ratios, per scene)\n\n" + _md(
                    ("kind", "n", "reweighted", "re-estimated", "median |difference|", "90th percentile"), check)
                if check else "")
+            + ("\n\nWhere the true distance falls in the posterior before (its quantile; a calibrated "
+               "posterior gives a uniform quantile: mean 0.5, half below the median, 90 % in the central "
+               "90 %, 10 % in the lowest decile)\n\n" + _md(
+                   ("HDI share before", "scenes", "mean quantile", "below the median", "in the central 90 %",
+                    "in the lowest decile"), calib) if calib else "")
             + f"\n\nTime per object (advice alone, without the estimate): median {np.median(secs):.2f} s, "
               f"mean {secs.mean():.2f} s, 90th percentile {np.percentile(secs, 90):.2f} s, "
               f"{ncand.mean():.1f} candidates on average\n")
