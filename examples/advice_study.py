@@ -134,7 +134,8 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
     set against the re-estimate, it checks the update apart from the predictive distribution."""
     from creference_bayes.camera_setup import setup_camera
     from creference_bayes.workflows.advice_observe import ModelContext, ReferenceObservation, TargetObservation
-    from creference_bayes.workflows.advice_update import normalise, weighted_hdi
+    from creference_bayes.workflows.advice_update import (MIN_ESS, MIN_ESS_FRACTION, normalise,
+                                                          tempered_update, weighted_hdi)
 
     r = est["result"]
     ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params)
@@ -150,9 +151,17 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
         obs.log_low, obs.log_high, obs.is_range = np.log([low]), np.log([high]), np.array([ref.is_range])
         if not obs.usable:
             return None, None
-    w, _ = normalise(obs.log_ratio(draws))
+    w, ess = normalise(obs.log_ratio(draws))
     dist = np.hypot(draws[:, 0], draws[:, 2])
     now, _ = weighted_hdi(dist, np.full((1, len(dist)), 1.0 / len(dist)), 0.9)
+    if ess[0] < max(MIN_ESS, MIN_ESS_FRACTION * len(draws)):  # as the advice does: the fallback
+        from creference_bayes.inference.posterior import LogPosterior
+
+        new = ctx.model_of(scene)
+        moved, _ = tempered_update(LogPosterior(ctx.model), LogPosterior(new), draws[:, ctx.model.free],
+                                   np.random.default_rng(0))
+        full = new.expand(moved)
+        dist, w = np.hypot(full[:, 0], full[:, 2]), np.full((1, len(full)), 1.0 / len(full))
     after, _ = weighted_hdi(dist, w, 0.9)
     return float(now[0]), float(after[0])
 
