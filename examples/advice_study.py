@@ -583,6 +583,7 @@ def figure_policy(out: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     recs = [json.loads(x) for x in (out / "policy.jsonl").read_text().splitlines() if x.strip()]
     conds = [c for c in ("paper-like", "outdoor") if any(r["condition"] == c for r in recs)]
@@ -601,17 +602,22 @@ def figure_policy(out: Path) -> Path:
             t = np.array([s["seconds"] for s in steps])
             e = np.array([s["error"] for s in steps])
             curves.append(e[np.searchsorted(t, grid, side="right") - 1])
-        ax.plot(grid, np.median(curves, axis=0), "-", color="k", label="adaptive (median over scenes; "
-                "a scene that stopped keeps its last error)")
+        ax.plot(grid, np.median(curves, axis=0), "-", color="k", label="adaptive policy (median over "
+                "scenes along its runs; a run that stopped keeps its last error)")
         a = [r["adaptive"] for r in rs]
         ax.plot(np.mean([x["seconds"] for x in a]), np.median([x["error"] for x in a]), "k*", ms=14,
                 label="adaptive where it stopped (mean seconds)")
+        ax.axvline(HALF_S, color="grey", ls="--", lw=1, label="half the human time of 5 + 5")
+        five = [r["fixed"]["5 + 5 refs"]["error"] for r in rs if "5 + 5 refs" in r["fixed"]]
+        ax.axhline(np.median(five), color="tab:orange", ls=":", lw=1, label="error of 5 + 5 (median)")
         ax.set_xlabel("human seconds per target")
-        ax.set_ylabel("median location error, %")
+        ax.set_ylabel("median location error, % (Eq. 3, MAP)")
         ax.set_title(f"{cond} scenes, tier high ({len(rs)} scenes)")
         ax.set_yscale("log")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     path = out / "advice_policy.png"
     fig.savefig(path, dpi=120)
