@@ -587,7 +587,7 @@ def figure_policy(out: Path) -> Path:
 
     recs = [json.loads(x) for x in (out / "policy.jsonl").read_text().splitlines() if x.strip()]
     conds = [c for c in ("paper-like", "outdoor") if any(r["condition"] == c for r in recs)]
-    fig, axes = plt.subplots(1, len(conds), figsize=(6 * len(conds), 4.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(conds), figsize=(6 * len(conds), 5.2), squeeze=False)
     for ax, cond in zip(axes[0], conds):
         rs = [r for r in recs if r["condition"] == cond and r.get("adaptive")]
         for family, labels, style in (("target sets only", ("target x1", "target x2", "target x5", "target x10"), "o-"),
@@ -617,8 +617,9 @@ def figure_policy(out: Path) -> Path:
         ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
         ax.yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     path = out / "advice_policy.png"
     fig.savefig(path, dpi=120)
     return path
