@@ -7,6 +7,7 @@ import sys
 
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
+from .estimate import add_confidence_map_option, confidence_map_option
 from .main import UsageError
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -27,7 +28,8 @@ def _settings(args):
     return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                          posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                          temperature=args.temperature, use_references=not args.no_references,
-                         sampling={} if args.min_ess is None else {"min_ess": args.min_ess})
+                         sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
+                         confidence_map=confidence_map_option(args.confidence_map, args.model))
 
 
 def _engine(args):
@@ -88,6 +90,7 @@ def register(subparsers) -> None:
     p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS, help="likelihood model (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
+    add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true",

@@ -25,7 +25,7 @@ import json
 import time
 import warnings
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -52,6 +52,9 @@ class BatchSettings:
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
     model, preset, posterior, hdi_prob, temperature, use_references : as :func:`~creference_bayes.estimate`
     sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
+    confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
+        :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
+        actually used (a file's by its content, wherever it lies)
     """
 
     seed: int = 0
@@ -62,16 +65,29 @@ class BatchSettings:
     temperature: float | None = None
     use_references: bool = True
     sampling: dict = field(default_factory=dict)
+    confidence_map: object = "default"
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = asdict(replace(self, confidence_map=None))
         d["sampling"] = dict(sorted(self.sampling.items()))
+        d["confidence_map"] = self._map_identity()
+        return d
+
+    def _map_identity(self) -> dict:
+        """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
+        from ..models.confidence_map import describe_confidence_map, resolve_confidence_map
+
+        if self.model == "paper":  # the paper model reads no confidence (the pipeline checks the map)
+            return {"name": "none"}
+        d = describe_confidence_map(resolve_confidence_map(self.confidence_map))
+        d.pop("source", None)
         return d
 
     def estimate_kwargs(self) -> dict:
         return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
-                "use_references": self.use_references, "sampling": dict(self.sampling) or None}
+                "use_references": self.use_references, "sampling": dict(self.sampling) or None,
+                "confidence_map": self.confidence_map}
 
 
 @dataclass(frozen=True)
