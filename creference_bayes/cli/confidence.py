@@ -33,7 +33,7 @@ def format_map(cmap) -> str:
 
 
 def _check_fit_options(args) -> None:
-    for name in ("bootstrap", "min_per_level", "min_group", "workers"):
+    for name in ("draws", "min_per_level", "min_group", "workers"):
         if getattr(args, name) < 1:
             raise UsageError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
     if not 0.0 < args.interval_prob < 1.0:
@@ -63,7 +63,7 @@ def _run_fit(args) -> int:
         raise UsageError("--method truth: no range has a known truth (the scenes' ground truth needs "
                          "reference_lengths_m, or the true camera: focal_length_px, pitch_rad, roll_rad, "
                          "camera_height_m)")
-    options = dict(bootstrap=args.bootstrap, seed=args.seed, interval_prob=args.interval_prob,
+    options = dict(draws=args.draws, seed=args.seed, interval_prob=args.interval_prob,
                    min_per_level=args.min_per_level, min_group=args.min_group)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     try:
@@ -154,8 +154,7 @@ def register(subparsers) -> None:
                            help="fit (write a map file) or report (reliability and scores)")
     f = sub.add_parser(
         "fit", help="fit a confidence map from scenes",
-        description="Fit a monotone confidence map with an uncertainty per level (a bootstrap over "
-                    "scenes) and write it as a creference-confidence-map/1 file, for "
+        description="Fit a monotone confidence map with an uncertainty per level and write it as a creference-confidence-map/1 file, for "
                     "`creference estimate --confidence-map MAP.json`. With ground truth the share "
                     "of ranges holding the truth is used; without, each range is scored against "
                     "the posterior of its length given the scene's other annotations (one estimate "
@@ -165,8 +164,9 @@ def register(subparsers) -> None:
     f.add_argument("--method", default="auto", choices=METHODS,
                    help="truth: ranges with a known truth; marginal: without ground truth; auto: "
                         "truth when every range has one (default: %(default)s)")
-    f.add_argument("--bootstrap", type=int, default=200, metavar="B",
-                   help="bootstrap samples over scenes (default: %(default)s)")
+    f.add_argument("--draws", type=int, default=1000, metavar="B",
+                   help="draws of each level's uncertainty: posterior draws with ground truth, "
+                        "bootstrap samples over scenes without (default: %(default)s)")
     f.add_argument("--interval-prob", type=float, default=0.95, metavar="P",
                    help="probability of each level's interval (default: %(default)s)")
     f.add_argument("--min-per-level", type=int, default=10, metavar="N",
@@ -174,7 +174,7 @@ def register(subparsers) -> None:
     f.add_argument("--min-group", type=int, default=200, metavar="N",
                    help="a measure and mode with this many ranges gets a curve of its own "
                         "(default: %(default)s)")
-    f.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the estimates (default: %(default)s)")
+    f.add_argument("--seed", type=int, default=0, help="seed of the draws and the estimates (default: %(default)s)")
     f.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes for the estimates of the marginal method (default: %(default)s)")
     f.add_argument("--min-ess", type=float, default=None, metavar="N",

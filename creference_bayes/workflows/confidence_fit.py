@@ -3,10 +3,13 @@
 **With ground truth** (:func:`fit_with_truth`). g(c) is the probability that a range stated at
 confidence c holds its truth, so at each stated level it is estimated by the share of ranges that
 do, made non-decreasing in c by weighted isotonic regression (pool-adjacent-violators). The
-uncertainty per level comes from a bootstrap over scenes (scenes, not ranges, are resampled: the
-ranges of one scene share its camera and, in real data, often its workers). The shape of the
-distribution a range is read through (normal or Student-t, the map's ``dof``) is the one under
-which the truths are most likely given g.
+uncertainty per level is posterior: each level's share gets a Jeffreys Beta(k + ½, n − k + ½)
+posterior, and every joint draw is projected onto the monotone maps by the same isotonic
+regression (a resampling bootstrap would give a zero-width interval at a level where every range
+held the truth, which is common for under-confident workers at 95 % and 99 %). It treats ranges
+as independent; workers who answer many times with an own calibration make the real uncertainty
+larger. The shape of the distribution a range is read through (normal or Student-t, the map's
+``dof``) is the one under which the truths are most likely given g.
 
 **Without ground truth** (:func:`fit_marginal`). Each range j comes with draws of its real length
 given all the other annotations of its scene (:mod:`.confidence_loo`). Its marginal likelihood at
@@ -17,7 +20,8 @@ coverage p is
 (m_j, w_j its log-centre and log half-width, σ²_line,j its line's noise). g at each level
 maximises the sum of log L_j of the level's ranges, under the same monotone constraint (PAVA on
 the summed likelihoods: exact for unimodal terms), and ``dof`` maximises the total. The profile is
-tabulated on a grid of p, so the bootstrap over scenes costs sums only.
+tabulated on a grid of p; the uncertainty per level comes from a bootstrap over scenes (scenes,
+not ranges, are resampled: the ranges of one scene share its posterior), which costs sums only.
 
 Levels: the distinct stated confidences (up to :data:`MAX_LEVELS`, else that many quantile bins,
 each at its mean confidence); levels with fewer than ``min_per_level`` ranges are left out (the
@@ -92,25 +96,18 @@ def _check(ranges, what: str) -> None:
 
 
 # -- with ground truth ------------------------------------------------------------------------------
-def _truth_curve(covered, conf, scene_idx, n_scenes, W, min_per_level, prob):
+def _truth_curve(covered, conf, draws, rng, min_per_level, prob):
     levels, idx = assign_levels(conf)
-    n_sl = np.zeros((n_scenes, len(levels)))
-    k_sl = np.zeros_like(n_sl)
-    np.add.at(n_sl, (scene_idx, idx), 1.0)
-    np.add.at(k_sl, (scene_idx, idx), covered.astype(float))
-    keep = n_sl.sum(axis=0) >= min_per_level
+    n = np.bincount(idx, minlength=len(levels)).astype(float)
+    k = np.bincount(idx, weights=covered.astype(float), minlength=len(levels))
+    keep = n >= min_per_level
     if not keep.any():
         raise ValueError(f"no confidence level has {min_per_level} ranges or more (--min-per-level)")
-    n_sl, k_sl, levels = n_sl[:, keep], k_sl[:, keep], levels[keep]
-    n, k = n_sl.sum(axis=0), k_sl.sum(axis=0)
+    n, k, levels = n[keep], k[keep], levels[keep]
     point = isotonic_regression(k / n, weights=n).x
-    nb, kb = W @ n_sl, W @ k_sl
-    boots = np.empty_like(nb)
-    for b in range(len(W)):
-        ok = nb[b] > 0
-        y = np.where(ok, kb[b] / np.maximum(nb[b], 1.0), point)
-        boots[b] = isotonic_regression(y, weights=np.where(ok, nb[b], 1e-9)).x
-    return _summary(point, boots, levels, n, prob), int((~keep).sum())
+    post = rng.beta(k + 0.5, n - k + 0.5, size=(draws, len(n)))
+    post = np.array([isotonic_regression(row, weights=n).x for row in post])
+    return _summary(point, post, levels, n, prob), int((~keep).sum())
 
 
 def _truth_dof(ranges, cmap: ConfidenceMap, dof_grid) -> tuple[float | None, dict]:
@@ -129,15 +126,15 @@ def _truth_dof(ranges, cmap: ConfidenceMap, dof_grid) -> tuple[float | None, dic
     return best, {("normal" if k is None else f"t{k:g}"): round(v, 3) for k, v in ll.items()}
 
 
-def fit_with_truth(ranges, *, bootstrap: int = 200, seed=0, interval_prob: float = 0.95,
+def fit_with_truth(ranges, *, draws: int = 1000, seed=0, interval_prob: float = 0.95,
                    min_per_level: int = 10, min_group: int = 200, dof_grid=DOF_GRID) -> ConfidenceMap:
     """Fit g from ranges with a known truth (module docstring).
 
     Parameters
     ----------
     ranges : :class:`~.confidence_data.StatedRange` (those without a truth are left out)
-    bootstrap : bootstrap samples over scenes
-    seed : seed of the bootstrap
+    draws : posterior draws of the curve
+    seed : seed of the draws
     interval_prob : probability of each level's interval
     min_per_level : fewer ranges at a level leave it out
     min_group : a measure and mode with at least this many ranges gets its own curve
@@ -150,22 +147,21 @@ def fit_with_truth(ranges, *, bootstrap: int = 200, seed=0, interval_prob: float
     ranges = [r for r in ranges if r.truth is not None]
     _check(ranges, " and a known truth")
     rng = np.random.default_rng(seed)
-    scene_idx, n_scenes = _scene_index(ranges)
-    W = _bootstrap_weights(n_scenes, bootstrap, rng)
+    _, n_scenes = _scene_index(ranges)
     covered = np.array([r.covered for r in ranges])
     conf = np.array([r.confidence for r in ranges])
-    pooled, dropped = _truth_curve(covered, conf, scene_idx, n_scenes, W, min_per_level, interval_prob)
+    pooled, dropped = _truth_curve(covered, conf, draws, rng, min_per_level, interval_prob)
     groups = {}
     for g, ix in _groups(ranges, min_group).items():
         ix = np.array(ix)
-        groups[g], _ = _truth_curve(covered[ix], conf[ix], scene_idx[ix], n_scenes, W, min_per_level,
-                                    interval_prob)
+        groups[g], _ = _truth_curve(covered[ix], conf[ix], draws, rng, min_per_level, interval_prob)
     cmap = ConfidenceMap(kind="fitted", pooled=pooled, groups=groups, interval_prob=interval_prob)
     dof, ll = _truth_dof(ranges, cmap, dof_grid)
     sources = sorted({r.truth_source for r in ranges})
     return ConfidenceMap(kind="fitted", pooled=pooled, groups=groups, dof=dof, interval_prob=interval_prob,
                          fit={"method": "truth", "truth": sources, "scenes": n_scenes, "ranges": len(ranges),
-                              "levels_left_out": dropped, "bootstrap": bootstrap, "seed": seed,
+                              "levels_left_out": dropped, "uncertainty": "posterior (Jeffreys per level, "
+                              "projected onto monotone maps)", "draws": draws, "seed": seed,
                               "dof_log_likelihood": ll})
 
 
@@ -225,14 +221,15 @@ def _marginal_curve(table, conf, scene_idx, n_scenes, W, min_per_level, prob):
     return _summary(point, boots, levels[keep], n[keep], prob), total, int((~keep).sum())
 
 
-def fit_marginal(predictions, *, bootstrap: int = 200, seed=0, interval_prob: float = 0.95,
+def fit_marginal(predictions, *, draws: int = 1000, seed=0, interval_prob: float = 0.95,
                  min_per_level: int = 10, min_group: int = 200, dof_grid=DOF_GRID) -> ConfidenceMap:
     """Fit g without ground truth, from leave-one-out length posteriors (module docstring).
 
     Parameters
     ----------
     predictions : :class:`~.confidence_loo.RangePrediction` of the data set
-    bootstrap, seed, interval_prob, min_per_level, min_group, dof_grid : as :func:`fit_with_truth`
+    draws : bootstrap samples over scenes
+    seed, interval_prob, min_per_level, min_group, dof_grid : as :func:`fit_with_truth`
 
     Returns
     -------
@@ -243,7 +240,7 @@ def fit_marginal(predictions, *, bootstrap: int = 200, seed=0, interval_prob: fl
     rng = np.random.default_rng(seed)
     ranges = [p.range for p in preds]
     scene_idx, n_scenes = _scene_index(ranges)
-    W = _bootstrap_weights(n_scenes, bootstrap, rng)
+    W = _bootstrap_weights(n_scenes, draws, rng)
     conf = np.array([r.confidence for r in ranges])
     fits, ll = {}, {}
     for dof in dof_grid:
@@ -260,5 +257,6 @@ def fit_marginal(predictions, *, bootstrap: int = 200, seed=0, interval_prob: fl
                                           interval_prob)
     return ConfidenceMap(kind="fitted", pooled=pooled, groups=groups, dof=dof, interval_prob=interval_prob,
                          fit={"method": "marginal", "scenes": n_scenes, "ranges": len(preds),
-                              "levels_left_out": dropped, "bootstrap": bootstrap, "seed": seed,
-                              "refits": int(sum(p.refit for p in preds)), "dof_log_likelihood": ll})
+                              "levels_left_out": dropped, "uncertainty": "bootstrap over scenes",
+                              "draws": draws, "seed": seed, "refits": int(sum(p.refit for p in preds)),
+                              "dof_log_likelihood": ll})
