@@ -32,9 +32,8 @@ ranges gets a curve of its own; the others use the pooled curve.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import isotonic_regression
-from scipy.special import expit, logit, logsumexp
+from scipy.special import expit, gammaln, logit
 
 from ..models.confidence_map import ConfidenceMap, CoverageCurve, interval_quantile
 
@@ -120,8 +119,7 @@ def _truth_dof(ranges, cmap: ConfidenceMap, dof_grid) -> tuple[float | None, dic
     for dof in dof_grid:
         s = w / interval_quantile(g, dof)
         u = (x - m) / s
-        dens = stats.norm.logpdf(u) if dof is None else stats.t.logpdf(u, dof)
-        ll[dof] = float(np.sum(dens - np.log(s)))
+        ll[dof] = float(np.sum(_log_density(u, dof) - np.log(s)))
     best = max(ll, key=ll.get)
     return best, {("normal" if k is None else f"t{k:g}"): round(v, 3) for k, v in ll.items()}
 
@@ -166,6 +164,14 @@ def fit_with_truth(ranges, *, draws: int = 1000, seed=0, interval_prob: float = 
 
 
 # -- without ground truth -----------------------------------------------------------------------------
+def _log_density(u: np.ndarray, dof: float | None) -> np.ndarray:
+    """log f_D(u) of the standard normal (``dof`` None) or Student-t."""
+    if dof is None:
+        return -0.5 * u * u - 0.5 * np.log(2.0 * np.pi)
+    const = gammaln(0.5 * (dof + 1.0)) - gammaln(0.5 * dof) - 0.5 * np.log(dof * np.pi)
+    return const - 0.5 * (dof + 1.0) * np.log1p(u * u / dof)
+
+
 def _marginal_table(preds, dof) -> np.ndarray:
     """(n, P) log L_j(p) on the coverage grid (module docstring)."""
     q = interval_quantile(_P_GRID, dof)  # (P,)
@@ -173,9 +179,10 @@ def _marginal_table(preds, dof) -> np.ndarray:
     for j, pr in enumerate(preds):
         r = pr.range
         S = np.sqrt((r.half_width / q) ** 2 + pr.line_var)  # (P,)
-        u = (r.centre - pr.log_length[:, None]) / S[None, :]  # (D, P)
-        dens = stats.norm.logpdf(u) if dof is None else stats.t.logpdf(u, dof)
-        out[j] = logsumexp(dens, axis=0) - np.log(len(pr.log_length)) - np.log(S)
+        u = (r.centre - pr.log_length[:, None]) * (1.0 / S)[None, :]  # (D, P)
+        dens = _log_density(u, dof)
+        top = dens.max(axis=0)
+        out[j] = top + np.log(np.exp(dens - top).mean(axis=0)) - np.log(S)
     return out
 
 
