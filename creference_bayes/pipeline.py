@@ -217,9 +217,10 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     Returns the :class:`~creference_bayes.io.result.PosteriorSummary`, the :class:`~creference_bayes.io.result.Diagnostics` (whose
     ``seconds`` cover the whole step), the InferenceData and notes for the result's warnings.
     """
-    from .inference.posterior import DEFAULT_TEMPERATURE, LogPosterior, laplace_scales
+    from .inference.posterior import DEFAULT_TEMPERATURE, LogPosterior, Reparametrised, laplace_scales
     from .inference.sampling import SamplerSettings, SamplingError, sample
     from .inference.summary import posterior_arrays, summarise, to_inference_data
+    from .models.coordinates import HorizonDistance
 
     t0 = time.perf_counter()
     settings = SamplerSettings.from_options(sampling)
@@ -227,13 +228,21 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     if temperature is None:  # a model may bring its own (metrology: a proper likelihood, T = 1)
         temperature = getattr(model, "default_temperature", DEFAULT_TEMPERATURE)
     log_post = LogPosterior(model, temperature)
+    coords = HorizonDistance.from_model(model)  # pitch → log of the target's distance below the horizon
+    target = log_post if coords is None else Reparametrised(log_post, coords)
     center = map_est.params[model.free]
-    laplace = laplace_scales(log_post, center)
+    center = center if coords is None else coords.forward(center[None])[0]
+    laplace = laplace_scales(target, center)
     try:
-        chains = sample(log_post, center, laplace.cov, settings=settings, rng=rng,
+        chains = sample(target, center, laplace.cov, settings=settings, rng=rng,
                         log_mask=model.bounds.lower[model.free] > 0, progress=progress)
     except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
         return None, None, None, [f"posterior not sampled: {exc}"]
+    if coords is not None:  # back to the model's parameters
+        q = chains.chain.reshape(-1, chains.chain.shape[-1])
+        chains = dataclasses.replace(
+            chains, chain=coords.inverse(q).reshape(chains.chain.shape),
+            log_prob=chains.log_prob - coords.log_jacobian(q).reshape(chains.log_prob.shape))
     arrays = posterior_arrays(chains, model.expand)
     post, diag = summarise(chains, model.expand, free=model.free, hdi_prob=hdi_prob, min_ess=settings.min_ess,
                            tau_multiple=settings.tau_multiple, handedness=map_est.handedness,

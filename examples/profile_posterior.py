@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import json
 import pstats
 import statistics
 import time
@@ -52,7 +53,10 @@ def main(argv=None) -> None:
     ap.add_argument("--no-horizon", action="store_true", help="with --study: drop the horizon")
     ap.add_argument("--repeat", type=int, default=5, help="seeds (scenes with --study) timed (default 5)")
     ap.add_argument("--profile", action="store_true", help="cProfile one full estimate")
+    ap.add_argument("--sampling", default=None, metavar="JSON",
+                    help='sampler settings to try, e.g. \'{"n_walkers": 24}\' (default: the package\'s)')
     args = ap.parse_args(argv)
+    sampling = None if args.sampling is None else json.loads(args.sampling)
 
     def scene_for(seed):
         if args.study:
@@ -73,7 +77,7 @@ def main(argv=None) -> None:
     for seed in range(1, args.repeat + 1):
         scene = scene_for(seed)
         w0, c0 = time.perf_counter(), time.process_time()
-        r = cb.estimate(scene, seed=seed)
+        r = cb.estimate(scene, seed=seed, sampling=sampling)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         d = r.diagnostics
         rows.append({"map": r.map.seconds, "posterior": d.seconds, "total": wall, "cpu": cpu,

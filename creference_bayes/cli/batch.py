@@ -7,7 +7,7 @@ import sys
 
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .estimate import add_confidence_map_option, confidence_map_option
+from .estimate import add_camera_options, add_confidence_map_option, confidence_map_option
 from .main import UsageError
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -29,6 +29,7 @@ def _settings(args):
                          posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                          temperature=args.temperature, use_references=not args.no_references,
                          sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
+                         focal_prior=args.focal_prior, orientation=args.orientation,
                          confidence_map=confidence_map_option(args.confidence_map, args.model))
 
 
@@ -92,6 +93,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    add_camera_options(p)
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true",
                    help="the MAP only (creference labels then has no uncertainty to export)")

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 
+from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .main import UsageError, example_scene_path
@@ -151,6 +152,7 @@ def _run_estimate(args) -> int:
     cmap = confidence_map_option(args.confidence_map, args.model)
     result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
+                      focal_prior=args.focal_prior, orientation=args.orientation,
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
                       sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
                       progress=not args.quiet and sys.stderr.isatty())
@@ -247,6 +249,21 @@ def _run_demo(args) -> int:
     return _run_estimate(args)
 
 
+def add_camera_options(p: argparse.ArgumentParser) -> None:
+    """``--focal-prior`` and ``--orientation`` (shared by ``estimate``, ``demo`` and ``batch``)."""
+    g = p.add_argument_group("camera")
+    g.add_argument("--focal-prior", default="auto", choices=FOCAL_PRIORS,
+                   help="prior on the focal length when the scene does not give it: auto (the "
+                        "scene's camera.focal_length_prior, else the photo's EXIF, else a weak "
+                        "default around a 30 mm-equivalent lens), default (the weak default), "
+                        "none (flat within the bounds) (default: %(default)s)")
+    g.add_argument("--orientation", default="auto", choices=ORIENTATIONS,
+                   help="camera pitch and roll: auto (from an exact horizon; otherwise estimated, "
+                        "with the horizon from the photo as a measurement when there is one), free "
+                        "(estimated even with a horizon), level (assume a level camera when there "
+                        "is no horizon, the old behaviour) (default: %(default)s)")
+
+
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
     p.add_argument("--preset", default="default", choices=PRESETS,
@@ -259,6 +276,7 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    add_camera_options(p)
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true", help="the MAP only: do not sample the posterior")
     g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",

@@ -110,18 +110,21 @@ def optimize_map(models: Sequence, preset: str = "default", rng=None,
 
     def tick(*_) -> None:  # called for each local minimum, the first one included (SciPy ≥ 1.6);
         bar.update(1)  # basinhopping stops when its callback returns True: return None
-    for model in models:
-        counter = _Counter(model)
-        if preset == "default":
-            x, f, detail = _default(model, counter)
-        else:
+    if preset == "default":
+        runs = _default_all(models)
+    else:
+        runs = []
+        for model in models:
+            counter = _Counter(model)
             x, f, detail = _paper(model, counter, per_model, rng, callback=None if bar is None else tick)
-        if hasattr(model, "set_pilot"):  # fix the model's pilot-dependent scales here, refine again
-            model.set_pilot(model.expand(x)[0])
-            x = _refine(model, counter, x, reprojection=False)
-            f = counter.scalar(x)
-            detail["pilot"] = True
-        n_eval += counter.n
+            if hasattr(model, "set_pilot"):  # fix the model's pilot-dependent scales here, refine again
+                model.set_pilot(model.expand(x)[0])
+                x = _refine(model, counter, x, reprojection=False)
+                f = counter.scalar(x)
+                detail["pilot"] = True
+            runs.append((model, x, f, detail, counter.n))
+    for model, x, f, detail, n in runs:
+        n_eval += n
         info[f"handedness_{model.handedness:+d}"] = {"cost": f, **detail}
         if best is None or f < best[1]:
             best = (model, f, x)
@@ -272,6 +275,17 @@ def _pick_starts(candidates: np.ndarray, costs: np.ndarray, k: int, min_sep: flo
     return chosen
 
 
+def _best_per_pitch(candidates: np.ndarray, costs: np.ndarray, exclude=()) -> list[int]:
+    """Index of the cheapest finite candidate for each distinct pitch (column 5), best first."""
+    out = []
+    for pitch in np.unique(candidates[np.isfinite(costs), 5]):
+        idx = np.flatnonzero((candidates[:, 5] == pitch) & np.isfinite(costs))
+        best = int(idx[np.argmin(costs[idx])])
+        if best not in exclude:
+            out.append(best)
+    return sorted(out, key=lambda i: costs[i])
+
+
 def _scan(model) -> np.ndarray:
     """Candidate starts of the default preset for ``model`` (:func:`theta_scan`)."""
     pp = model.camera.principal_point
@@ -283,7 +297,39 @@ def _scan(model) -> np.ndarray:
                       n_theta=N_THETA_GRID)
 
 
-def _default(model, counter: _Counter, n_starts: int = 3) -> tuple[np.ndarray, float, dict]:
+#: A handedness whose best start costs this much more than the other's refined optimum is not
+#: refined itself (its cost is then reported from its start, an upper bound).
+SKIP_MARGIN = 25.0
+
+
+def _default_all(models, n_starts: int = 3) -> list:
+    """The default preset for every model (handedness): cheap fits from the scan's starts for all,
+    then the full refinement of the best, and of another only when its best start comes within
+    :data:`SKIP_MARGIN` of that optimum. Models with a pilot get it set at their best start,
+    before the refinement. Returns (model, x, cost, detail, evaluations) per model."""
+    prepared = []
+    for k, model in enumerate(models):
+        counter = _Counter(model)
+        x, detail = _default_start(model, counter, n_starts)
+        if hasattr(model, "set_pilot"):
+            model.set_pilot(model.expand(x)[0])
+            detail["pilot"] = True
+        prepared.append((counter.scalar(x), k, model, counter, x, detail))
+    prepared.sort(key=lambda item: item[0])
+    runs, best_f = [], np.inf
+    for f0, k, model, counter, x, detail in prepared:
+        if f0 <= best_f + SKIP_MARGIN:
+            x = _refine(model, counter, x, reprojection=False)
+            f = counter.scalar(x)
+            best_f = min(best_f, f)
+        else:
+            f, detail["refined"] = f0, False
+        runs.append((k, (model, x, f, detail, counter.n)))
+    return [run for _, run in sorted(runs, key=lambda r: r[0])]
+
+
+def _default_start(model, counter: _Counter, n_starts: int) -> tuple[np.ndarray, dict]:
+    """The best of the cheap fits from the scan's starts (free parameters) and what happened."""
     free = model.free
     cands = _scan(model)
     finite = np.all(np.isfinite(cands), axis=1)
@@ -292,22 +338,33 @@ def _default(model, counter: _Counter, n_starts: int = 3) -> tuple[np.ndarray, f
     costs = np.full(len(cands), np.inf)
     costs[finite] = counter(cands[finite][:, free])
     starts = _pick_starts(cands, costs, n_starts)
+    if model.orientation_free:  # and the best candidate at every pitch of the grid: a far target
+        starts += _best_per_pitch(cands, costs, exclude=starts)  # pins its pitch only weakly
     if not starts:  # nothing usable from the scan: fall back to the centre of the bounds
         cands = np.array([np.where(np.isfinite(lo + hi), (lo + hi) / 2, 0.0)])
         cands[0, 2] = np.clip(10.0, lo[2], hi[2])
         starts = [0]
-    # a cheap reprojection fit from every start; the model's full cost decides which one to refine
-    fitted = [_refine(model, counter, cands[i, free], polish=False) for i in starts]
+    # a cheap first fit from every start, and the model's full cost decides which one to refine:
+    # a reprojection least-squares fit from the best few and, for smooth costs, a few Newton
+    # steps on the cost itself from all. (With pitch and roll free, seven parameters fit the four
+    # corners of the target alone almost exactly in many ways, so the reprojection fit may land
+    # far from the cost's optimum when the target pins the camera only weakly; either can win.)
+    smooth = getattr(model, "smooth", False)
+    fitted = [_refine(model, counter, cands[i, free], polish=False, max_newton=0) for i in starts[:n_starts]]
+    if smooth:
+        fitted += [_refine(model, counter, cands[i, free], reprojection=False, max_newton=8, polish=False)
+                   for i in starts]
+    if not smooth:  # the paper model: refine each and keep the best (its kinks make starts matter)
+        fitted = [_refine(model, counter, x, reprojection=False) for x in fitted]
     costs = counter(np.array(fitted))
-    best_x = _refine(model, counter, fitted[int(np.argmin(costs))], reprojection=False)
-    best_f = counter.scalar(best_x)
-    return best_x, best_f, {"scan_starts": len(starts), "scan_candidates": int(finite.sum())}
+    return fitted[int(np.argmin(costs))], {"scan_starts": len(starts), "scan_candidates": int(finite.sum())}
 
 
 def _refine(model, counter: _Counter, x0: np.ndarray, reprojection: bool = True,
-            polish: bool = True) -> np.ndarray:
+            polish: bool = True, max_newton: int = 150) -> np.ndarray:
     """From ``x0`` (free parameters): a least-squares fit of the reprojection of the per-corner
-    median (``reprojection``), then a minimisation of the model's cost (``polish``)."""
+    median (``reprojection``), then a minimisation of the model's cost: trust-region Newton (at
+    most ``max_newton`` iterations) for smooth costs, then L-BFGS-B (``polish``)."""
     free = model.free
     scale = _SCALE[free]
     lo, hi = model.bounds.lower[free], model.bounds.upper[free]
@@ -320,24 +377,32 @@ def _refine(model, counter: _Counter, x0: np.ndarray, reprojection: bool = True,
 
     # 1. reprojection least squares (smooth, fast) from the closed-form start
     if reprojection:
-        def resid(z):
-            full = model.expand(z * scale)
-            counter.n += 1
+        def resid(z):  # (n, d) → (n, 12): corner residuals (px) and a steep penalty behind the camera
+            full = model.expand(np.atleast_2d(z) * scale)
+            counter.n += len(full)
             _, r, depth = reprojection_residuals(full, model.observed, model.obj_corners, model.camera)
-            return np.concatenate([r.ravel(), 1e3 * np.minimum(depth.ravel() - 1e-3, 0.0)])
+            return np.concatenate([r.reshape(len(full), -1), 1e3 * np.minimum(depth - 1e-3, 0.0)], axis=1)
 
-        try:
-            z0 = least_squares(resid, z0, bounds=(lo_s, hi_s), x_scale=1.0, max_nfev=200).x
+        def jac(z):  # central differences, all rows in one vectorised call
+            h = 1e-6 * np.eye(len(z))
+            r = resid(np.vstack([z + h, z - h]))
+            return ((r[:len(z)] - r[len(z):]) / 2e-6).T
+
+        try:  # MINPACK's Levenberg–Marquardt (fast; no bounds: the result is clipped to them)
+            z_ls = least_squares(lambda z: resid(z)[0], z0, jac=jac, method="lm", x_scale=1.0,
+                                 max_nfev=200).x
+            if np.all(np.isfinite(z_ls)):
+                z0 = np.clip(z_ls, lo_s, hi_s)
         except ValueError:
             pass
-    if not polish:
-        return z0 * scale
 
     # 2. the model's own cost: trust-region Newton for smooth costs, then (or else) L-BFGS-B
     maxiter = 500
-    if getattr(model, "smooth", False):
-        z0 = _trust_newton(lambda z: counter(z * scale), z0, lo_s, hi_s)
+    if getattr(model, "smooth", False) and max_newton:
+        z0 = _trust_newton(lambda z: counter(z * scale), z0, lo_s, hi_s, max_iter=max_newton)
         maxiter = 30  # a polish with L-BFGS-B's own stopping rule
+    if not polish:
+        return z0 * scale
     eps = 1e-6
 
     def fun_grad(z):

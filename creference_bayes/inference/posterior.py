@@ -26,7 +26,7 @@ import numpy as np
 
 from ..models.params import CIRCULAR, N_PARAMS, PARAM_NAMES, YAW
 
-__all__ = ["DEFAULT_TEMPERATURE", "LogPosterior", "Laplace", "laplace_scales"]
+__all__ = ["DEFAULT_TEMPERATURE", "LogPosterior", "Reparametrised", "Laplace", "laplace_scales"]
 
 #: The temperature T of log p = −cost′/T + log prior. One constant so that a calibration
 #: (the benchmark's coverage study) can change the default in one place.
@@ -99,6 +99,29 @@ class LogPosterior:
                 lp = -cost / self.temperature
             out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
         return out
+
+
+@dataclass(frozen=True)
+class Reparametrised:
+    """A log-posterior in other coordinates q = forward(p): log p(inverse(q)) + log |∂p/∂q|.
+
+    ``coords`` has ``forward``, ``inverse`` and ``log_jacobian`` over (n, n_free) arrays (e.g.
+    :class:`~creference_bayes.models.coordinates.HorizonDistance`). Non-finite values, from
+    coordinates outside the map's domain, give −∞.
+    """
+
+    log_post: LogPosterior
+    coords: object
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.log_post.free
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(q, float))
+        with np.errstate(all="ignore"):
+            out = self.log_post(self.coords.inverse(q)) + self.coords.log_jacobian(q)
+        return np.where(np.isfinite(out), out, -np.inf)
 
 
 @dataclass(frozen=True)

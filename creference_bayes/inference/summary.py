@@ -260,8 +260,8 @@ def evaluate_posterior(summary: PosteriorSummary, truth, names) -> tuple[float, 
     loc = np.array([summary.mean[k] for k in ("x", "y", "z")])
     true_loc = np.asarray(truth.location_m, float)
     values = {"x": true_loc[0], "y": true_loc[1], "z": true_loc[2], "yaw": truth.yaw_rad,
-              "focal_length_px": truth.focal_length_px,
-              "distance_m": float(np.hypot(true_loc[0], true_loc[2]))}
+              "focal_length_px": truth.focal_length_px, "pitch": truth.extra.get("pitch_rad"),
+              "roll": truth.extra.get("roll_rad"), "distance_m": float(np.hypot(true_loc[0], true_loc[2]))}
     inside = {k: in_hdi(k, float(values[k]), summary.hdi[k])
               for k in names if values.get(k) is not None}
     return float(location_percentage_error(loc, true_loc)), inside

@@ -468,7 +468,8 @@ def _parse_ground_truth(obj: Any, path: str) -> GroundTruth:
 _FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
 #: Default log-sd of a focal-length prior a scene states without one.
 STATED_FOCAL_LOG_SD = 0.1
-_ORIENTATION_PRIOR_KEYS = {"pitch_mean_deg", "pitch_sd_deg", "roll_mean_deg", "roll_sd_deg"}
+_ORIENTATION_PRIOR_KEYS = {"pitch_mean_deg", "pitch_sd_deg", "roll_mean_deg", "roll_sd_deg",
+                           "height_median_m", "height_log_sd"}
 
 
 def _parse_focal_prior(obj: Any, path: str, size: tuple[int, int], sink: list[str]) -> FocalPrior | None:
@@ -493,18 +494,23 @@ def _parse_focal_prior(obj: Any, path: str, size: tuple[int, int], sink: list[st
 
 
 def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> OrientationPrior | None:
-    """Degrees: ``pitch_mean_deg``, ``pitch_sd_deg``, ``roll_mean_deg``, ``roll_sd_deg`` (each
-    optional; the default prior's values otherwise)."""
+    """Degrees: ``pitch_mean_deg``, ``pitch_sd_deg``, ``roll_mean_deg``, ``roll_sd_deg``; the
+    camera height's ``height_median_m`` (metres) and ``height_log_sd``. Each optional: the default
+    prior's values otherwise."""
     if obj is None:
         return None
     obj = _dict(obj, path)
     _warn_unknown(obj, _ORIENTATION_PRIOR_KEYS, path, sink)
     kw = {}
     for key in sorted(_ORIENTATION_PRIOR_KEYS):
-        if obj.get(key) is not None:
-            sd = key.endswith("sd_deg")
-            v = _number(obj[key], _join(path, key), positive=sd, lo=None if sd else -90.0, hi=None if sd else 90.0)
-            kw[key[:-4]] = math.radians(v)
+        if obj.get(key) is None:
+            continue
+        if key.startswith("height_"):
+            kw[key] = _number(obj[key], _join(path, key), positive=True)
+            continue
+        sd = key.endswith("sd_deg")
+        v = _number(obj[key], _join(path, key), positive=sd, lo=None if sd else -90.0, hi=None if sd else 90.0)
+        kw[key[:-4]] = math.radians(v)
     return OrientationPrior(**kw)
 
 
@@ -661,8 +667,9 @@ def scene_to_dict(scene: Scene) -> dict:
                                                **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
     if scene.orientation_prior is not None:
         op = scene.orientation_prior
-        out["camera"]["orientation_prior"] = {f"{k}_deg": math.degrees(getattr(op, k)) for k in
-                                              ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
+        out["camera"]["orientation_prior"] = {
+            **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
+            "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
     if scene.references:
         out["references"] = [_reference_to_dict(r) for r in scene.references]
     if scene.ground_truth is not None:

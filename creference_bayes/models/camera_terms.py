@@ -13,10 +13,14 @@ Focal length
     ``camera.focal_length_prior``; the image's EXIF (35 mm-equivalent focal length, or focal
     length and focal-plane resolution; log-sd :data:`EXIF_LOG_SD`); otherwise a weakly
     informative default from the fields of view of real cameras (:func:`default_focal_prior`).
-Pitch and roll (only when they are free parameters, i.e. no exact horizon)
-    Independent normals, by default pitch ~ N(0°, 15°) and roll ~ N(0°, 10°)
+Pitch, roll and the camera height (only when pitch and roll are free parameters, i.e. no exact horizon)
+    By default pitch ~ N(0°, 15°), roll ~ N(0°, 10°) and log h ~ Student-t₃(log 1.6 m, 0.5)
     (:data:`DEFAULT_ORIENTATION_PRIOR`): photos are mostly taken near level, seldom tilted by
-    more than a few degrees, and looking down by up to a few tens of degrees.
+    more than a few degrees, looking down by up to a few tens of degrees, from about eye or car
+    height (0.6–4.4 m within two scales, a balcony or a drone still possible in the tails).
+    Without a horizon the target and the references trade the camera's pitch against its
+    height and the depth; without this prior the posterior's tail runs to cameras tens of metres
+    up. With an exact horizon the height is pinned by the data and no prior is applied.
 Horizon measurement
     A horizon line known only up to σ pixels (estimated from the image, or stated with
     ``horizon_sd_px``): each of its two points lies at a signed distance N(0, σ²) from the horizon
@@ -118,23 +122,32 @@ def default_focal_prior(image_size) -> FocalPrior:
 
 @dataclass(frozen=True)
 class OrientationPrior:
-    """Independent normal priors on pitch and roll, radians (pitch > 0 looks down)."""
+    """Priors on the camera's pose when there is no exact horizon: independent normals on pitch
+    and roll (radians; pitch > 0 looks down) and a Student-t₃ on the log of its height above the
+    floor (median ``height_median_m`` metres, scale ``height_log_sd``)."""
 
     pitch_mean: float = 0.0
     pitch_sd: float = float(np.radians(15.0))
     roll_mean: float = 0.0
     roll_sd: float = float(np.radians(10.0))
+    height_median_m: float = 1.6
+    height_log_sd: float = 0.5
 
     def __post_init__(self):
-        _check_positive("orientation prior pitch_sd", self.pitch_sd)
-        _check_positive("orientation prior roll_sd", self.roll_sd)
+        for key in ("pitch_sd", "roll_sd", "height_median_m", "height_log_sd"):
+            _check_positive(f"orientation prior {key}", getattr(self, key))
 
-    def neg_log(self, pitch, roll) -> np.ndarray:
+    def neg_log(self, pitch, roll, height) -> np.ndarray:
+        """−log p up to a constant; the height's density is over h itself (Jacobian 1/h)."""
+        h = np.maximum(np.asarray(height, float), 1e-300)
+        z = (np.log(h) - np.log(self.height_median_m)) / self.height_log_sd
         return (0.5 * ((np.asarray(pitch) - self.pitch_mean) / self.pitch_sd) ** 2
-                + 0.5 * ((np.asarray(roll) - self.roll_mean) / self.roll_sd) ** 2)
+                + 0.5 * ((np.asarray(roll) - self.roll_mean) / self.roll_sd) ** 2
+                + 2.0 * np.log1p(z**2 / 3.0) + np.log(h))
 
     def to_dict(self) -> dict:
-        return {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
+        out = {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
+        return {**out, "height_median_m": self.height_median_m, "height_log_sd": self.height_log_sd}
 
 
 DEFAULT_ORIENTATION_PRIOR = OrientationPrior()
@@ -202,7 +215,7 @@ class CameraTerms:
             out = out + self.focal.neg_log(full[:, FOCAL])
         if orientation_free:
             if self.orientation is not None:
-                out = out + self.orientation.neg_log(full[:, PITCH], full[:, ROLL])
+                out = out + self.orientation.neg_log(full[:, PITCH], full[:, ROLL], full[:, 1])
             if self.horizon is not None:
                 out = out + self.horizon.neg_log(full, principal_point)
         return out

@@ -50,7 +50,8 @@ class BatchSettings:
     Attributes
     ----------
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
-    model, preset, posterior, hdi_prob, temperature, use_references : as :func:`~creference_bayes.estimate`
+    model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation :
+        as :func:`~creference_bayes.estimate`
     sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
     confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
         :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
@@ -65,6 +66,8 @@ class BatchSettings:
     temperature: float | None = None
     use_references: bool = True
     sampling: dict = field(default_factory=dict)
+    focal_prior: str = "auto"
+    orientation: str = "auto"
     confidence_map: object = "default"
 
     def to_dict(self) -> dict:
@@ -87,6 +90,7 @@ class BatchSettings:
         return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
+                "focal_prior": self.focal_prior, "orientation": self.orientation,
                 "confidence_map": self.confidence_map}
 
 

@@ -1,0 +1,92 @@
+"""Sampling coordinates in which a model's posterior is nearly Gaussian.
+
+When pitch is a free parameter, a far target's posterior lies along a curved ridge: the depth z,
+the camera height h, the focal length µ and the pitch trade against each other through the
+target's distance below the horizon in the image, D = −sin(roll)(u − cx) + cos(roll)(v − cy) +
+µ tan(pitch) (pixels, at the target's bottom centre (u, v)): z ≈ h µ / D. In (log h, log z,
+log µ, log D) that ridge is a straight line, which the sampler's affine coordinates follow, while
+in pitch it bends (on a 41 m target the plain parametrisation mixed with autocorrelation times of
+hundreds of steps). :class:`HorizonDistance` replaces pitch by log D in the sampled vector; the
+others are unchanged (the sampler takes logarithms of the positive ones itself).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import FOCAL, PITCH, ROLL
+
+__all__ = ["HorizonDistance"]
+
+
+@dataclass(frozen=True)
+class HorizonDistance:
+    """Free parameters ↔ sampling coordinates with pitch replaced by log D (module docstring).
+
+    Attributes
+    ----------
+    point : (2,) the target's bottom centre in the image, pixels
+    principal_point : (2,) pixels
+    i_pitch, i_roll, i_focal : positions of pitch, roll and µ in the free vector (i_focal None
+        when µ is fixed, then ``focal`` is used)
+    focal : the fixed µ, pixels (when ``i_focal`` is None)
+    """
+
+    point: np.ndarray
+    principal_point: np.ndarray
+    i_pitch: int
+    i_roll: int
+    i_focal: int | None
+    focal: float | None = None
+
+    @classmethod
+    def from_model(cls, model) -> "HorizonDistance | None":
+        """The coordinates for a model whose pitch and roll are free, else None. The target's
+        bottom centre is the midpoint of the length and width lines' ends (t2, t3) of the
+        per-corner median annotation: the centre of the box's bottom face."""
+        free = np.asarray(model.free, bool)
+        if not (getattr(model, "orientation_free", False) and free[PITCH] and free[ROLL]):
+            return None
+        pos = np.cumsum(free) - 1
+        obs = np.asarray(model.observed, float)
+        return cls(point=0.5 * (obs[1] + obs[2]), principal_point=np.asarray(model.camera.principal_point, float),
+                   i_pitch=int(pos[PITCH]), i_roll=int(pos[ROLL]),
+                   i_focal=int(pos[FOCAL]) if free[FOCAL] else None,
+                   focal=None if free[FOCAL] else float(model.bounds.lower[FOCAL]))
+
+    def _mu(self, v: np.ndarray) -> np.ndarray:
+        return v[:, self.i_focal] if self.i_focal is not None else np.full(len(v), self.focal)
+
+    def _offset(self, roll: np.ndarray) -> np.ndarray:
+        """The part of D that does not depend on pitch, pixels."""
+        du, dv = self.point - self.principal_point
+        return -np.sin(roll) * du + np.cos(roll) * dv
+
+    def forward(self, p: np.ndarray) -> np.ndarray:
+        """(n, k) free parameters → sampling coordinates; NaN where the target's bottom is not
+        below the horizon (D ≤ 0: no ground point there)."""
+        p = np.atleast_2d(np.asarray(p, float))
+        q = p.copy()
+        d = self._offset(p[:, self.i_roll]) + self._mu(p) * np.tan(p[:, self.i_pitch])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            q[:, self.i_pitch] = np.where(d > 0, np.log(d), np.nan)
+        return q
+
+    def inverse(self, q: np.ndarray) -> np.ndarray:
+        """Sampling coordinates (n, k) → free parameters."""
+        q = np.atleast_2d(np.asarray(q, float))
+        p = q.copy()
+        with np.errstate(over="ignore"):
+            d = np.exp(q[:, self.i_pitch])
+        p[:, self.i_pitch] = np.arctan((d - self._offset(q[:, self.i_roll])) / self._mu(q))
+        return p
+
+    def log_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """(n,) log |∂p/∂q|: ∂pitch/∂log D = D cos²(pitch) / µ."""
+        q = np.atleast_2d(np.asarray(q, float))
+        with np.errstate(over="ignore", divide="ignore"):
+            d = np.exp(q[:, self.i_pitch])
+            t = (d - self._offset(q[:, self.i_roll])) / self._mu(q)
+            return np.log(d) - np.log1p(t * t) - np.log(self._mu(q))
