@@ -4,7 +4,7 @@ range, with a known true map, and three checks of the research tools against it.
 (a) fit with ground truth: does `creference confidence fit` recover the true map g within its
     stated uncertainty at every level? (over-confident, calibrated and under-confident workers)
 (b) fit without ground truth: how close does the marginal-likelihood fit get, and how does it
-    degrade with fewer scenes? (over-confident workers; the same scenes as (a))
+    degrade with fewer scenes? (over-confident workers; the same scenes as (a), and noisier ones)
 (c) in a reference-dominated setting (one set of target dimension lines, far targets): coverage
     of the 90 % region of the distance, its width, interval score and accuracy with the maps
     none, identity, the fits of (a) and (b) and the true map, for over-confident and for
@@ -33,7 +33,7 @@ from creference_bayes.bench.confidence_workers import ConfidentWorkers
 from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.core.metrics import interval_score
 from creference_bayes.io.files import atomic_path, atomic_write_json, atomic_write_text
-from creference_bayes.io.scene import parse_scene
+from creference_bayes.io.scene import parse_scene, scene_fingerprint
 from creference_bayes.models.confidence_map import ConfidenceMap, CoverageCurve
 from creference_bayes.workflows.confidence_data import StatedRange, stated_ranges
 from creference_bayes.workflows.confidence_fit import fit_marginal, fit_with_truth
@@ -41,11 +41,15 @@ from creference_bayes.workflows.confidence_loo import RangePrediction, predict_d
 
 #: The two kinds of scene: (a) and (b) use the standard one, (c) the reference-dominated one.
 STANDARD = {"tier": "low", "n_references": 6}
-REFERENCE_DOMINATED = {"tier": "low", "n_references": 6, "n_target_annotations": 1, "setting": "outdoor",
+#: With one annotation the model takes the target's corner noise to be 5 px and the lines' 10 px
+#: (DEFAULT_TARGET_SIGMA_PX, REF_LINE_FACTOR): the medium tier's, so that (c) compares confidence
+#: treatments, not a misjudged pixel noise.
+REFERENCE_DOMINATED = {"tier": "medium", "n_references": 6, "n_target_annotations": 1, "setting": "outdoor",
                        "distance_range": (15.0, 30.0)}
 POOL_SEEDS = {"over": 11, "calibrated": 12, "under": 13}
-SIZES = {"full": {"a": 300, "b": (25, 50, 100, 200), "c": 150, "draws": 1000, "replicates": 200},
-         "quick": {"a": 40, "b": (4, 8), "c": 3, "draws": 200, "replicates": 10}}
+SIZES = {"full": {"a": 300, "b": (25, 50, 100, 200), "b_medium": (50, 200), "c": 150, "draws": 1000,
+                  "replicates": 200},
+         "quick": {"a": 40, "b": (4, 8), "b_medium": (4,), "c": 3, "draws": 200, "replicates": 10}}
 
 
 def pool(kind: str, seed: int) -> ConfidentWorkers:
@@ -70,9 +74,7 @@ def data_set(out: Path, name: str, n: int, seed: int, workers: ConfidentWorkers,
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             d = simulate_scene(np.random.default_rng([seed, tag, i]), confidence=workers, **kind)
-        path = folder / f"scene_{i:04d}.json"
-        if not path.exists():
-            atomic_write_text(path, json.dumps(d, indent=1) + "\n")
+        atomic_write_text(folder / f"scene_{i:04d}.json", json.dumps(d, indent=1) + "\n")
         scenes.append((f"scene_{i:04d}", parse_scene(d)))
         if dicts is not None:
             dicts.append(d)
@@ -143,11 +145,13 @@ def _statement(workers: ConfidentWorkers, rng, scene: str, j: int) -> StatedRang
 
 
 # -- (b) ---------------------------------------------------------------------------------------------
-def part_b(args, sizes, out, lines) -> ConfidenceMap:
+def part_b(args, sizes, out, lines, tier: str = "low") -> ConfidenceMap:
     workers = pool("over", args.seed)
-    n_max = max(sizes["b"])
-    scenes = data_set(out, "a_over", n_max, args.seed, workers, STANDARD)
-    cache = out / "b_predictions.json"
+    counts = sizes["b"] if tier == "low" else sizes["b_medium"]
+    n_max = max(counts)
+    scenes = (data_set(out, "a_over", n_max, args.seed, workers, STANDARD) if tier == "low" else
+              data_set(out, f"b_over_{tier}", n_max, args.seed, workers, {**STANDARD, "tier": tier}))
+    cache = out / f"b_predictions_{tier}.json"
     preds = []
     if cache.exists():
         doc = json.loads(cache.read_text())
@@ -163,7 +167,7 @@ def part_b(args, sizes, out, lines) -> ConfidenceMap:
                                   "predictions": [p.to_dict() for p in preds]}, indent=None)
     rows, per_level, final = [], {}, None
     order = {k: i for i, (k, _) in enumerate(scenes)}
-    for n in sizes["b"]:
+    for n in counts:
         sub = [p for p in preds if order[p.range.scene] < n]
         marg = fit_marginal(sub, draws=sizes["draws"], seed=args.seed, min_per_level=5)
         truth = fit_with_truth(stated_ranges(scenes[:n]), draws=sizes["draws"], seed=args.seed,
@@ -179,14 +183,15 @@ def part_b(args, sizes, out, lines) -> ConfidenceMap:
                      marg.fit["refits"]])
         per_level[n] = cm
         final = marg
-        atomic_write_json(out / f"map_b_{n}.json", marg.to_dict())
-    print_table("(b) over-confident workers: fit without ground truth (marginal likelihood) against the "
-                "true map, by number of scenes; the fit with ground truth on the same scenes for comparison",
+        atomic_write_json(out / f"map_b_{tier}_{n}.json", marg.to_dict())
+    print_table(f"(b) over-confident workers, {tier}-noise scenes: fit without ground truth (marginal "
+                "likelihood) against the true map, by number of scenes; the fit with ground truth on the "
+                "same scenes for comparison",
                 ["scenes", "ranges", "shape", "mean abs error", "max abs error", "mean error",
                  "levels inside 95 %", "mean interval width", "truth fit: mean abs error",
                  "truth fit: mean width", "refits"], rows, lines)
-    n = max(sizes["b"])
-    print_table(f"(b) per level, {n} scenes", ["stated c", "true g", "fitted g (no truth)", "95 % interval", "n"],
+    n = n_max
+    print_table(f"(b) per level, {tier}-noise scenes, {n} scenes", ["stated c", "true g", "fitted g (no truth)", "95 % interval", "n"],
                 [[f"{r['level']:g}", f"{r['true']:.3f}", f"{r['fit']:.3f}", f"{r['low']:.3f}–{r['high']:.3f}", r["n"]]
                  for r in per_level[n]], lines)
     return final
@@ -252,13 +257,13 @@ def part_c(args, sizes, out, lines, fitted_a: dict, fitted_b: ConfidenceMap | No
         jobs = []
         for label, m in maps.items():
             tag = m if isinstance(m, str) else m.digest()[:12]
-            jobs += [{"key": f"{kind}|{key}|{tag}", "scene": dicts[i], "seed": i, "map": m}
-                     for i, (key, _) in enumerate(scenes)]
+            jobs += [{"key": f"{kind}|{key}|{scene_fingerprint(sc)[:12]}|{tag}", "scene": dicts[i], "seed": i, "map": m}
+                     for i, (key, sc) in enumerate(scenes)]
         done = run_jobs(jobs, out / "c_results.jsonl", args.workers)
         base = None
         for label, m in maps.items():
             tag = m if isinstance(m, str) else m.digest()[:12]
-            recs = [done[f"{kind}|{key}|{tag}"] for key, _ in scenes]
+            recs = [done[f"{kind}|{key}|{scene_fingerprint(sc)[:12]}|{tag}"] for key, sc in scenes]
             hit = np.array([r["in_hdi"] for r in recs], float)
             err = np.array([r["error_pct"] for r in recs])
             if base is None:
@@ -273,7 +278,7 @@ def part_c(args, sizes, out, lines, fitted_a: dict, fitted_b: ConfidenceMap | No
                          f"{np.mean([r['converged'] for r in recs]):.2f}",
                          f"{np.mean([r['seconds'] for r in recs]):.1f}"])
     print_table("(c) reference-dominated scenes (one set of target dimension lines, targets 15–30 m away, "
-                "six ranges with a confidence): the distance's 90 % region",
+                "medium pixel noise, six ranges with a confidence): the distance's 90 % region",
                 ["workers", "confidence map", "scenes", "coverage of the 90 % HDI ± se", "coverage, central 90 %",
                  "median HDI width / distance", "mean interval score / distance (central 90 %)",
                  "median error %", "mean error %", "median paired error change vs none (points)",
@@ -306,6 +311,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1, help="local processes for the estimates (default: %(default)s)")
     ap.add_argument("--parts", default="abc", help="which parts to run, e.g. ab (default: %(default)s)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes: a check that everything runs")
+    ap.add_argument("--quick-b", action="store_true",
+                    help="(b) on low-noise scenes only (not also on medium-noise ones)")
     args = ap.parse_args()
     sizes = SIZES["quick" if args.quick else "full"]
     out = Path(args.out)
@@ -316,6 +323,8 @@ def main() -> None:
     if "a" in args.parts:
         replicate_check(args, sizes, lines)
     fitted_b = part_b(args, sizes, out, lines) if "b" in args.parts else None
+    if "b" in args.parts and not args.quick_b:
+        part_b(args, sizes, out, lines, tier="medium")
     if "c" in args.parts:
         part_c(args, sizes, out, lines, fitted_a, fitted_b)
     fig = write_figure(out, args.seed, sizes, fitted_a, fitted_b)
