@@ -24,16 +24,24 @@ def test_every_estimator_appears(quick):
     _, doc = quick
     recs = doc["records"]
     names = {r["estimator"] for r in recs}
-    assert {"paper", "p4pf", "ours-paper", "ours-metrology", "crb-target", "crb-refs"} <= names
-    scenes = {r["scene"] for r in recs}
-    for name in ("paper", "p4pf", "ours-paper", "ours-metrology", "crb-target", "crb-refs"):
+    every_scene = ("paper", "p4pf", "ours-paper", "ours-metrology", "crb-target", "crb-refs",
+                   "ours-metrology-nohorizon", "ours-metrology-flatfocal", "crb-target-nohorizon",
+                   "crb-refs-nohorizon")
+    assert set(every_scene) | {"exact-metrology"} <= names
+    scenes = {r["scene"] for r in recs if r["estimator"] != "exact-metrology"}
+    for name in every_scene:
         assert {r["scene"] for r in recs if r["estimator"] == name} == scenes, name
+    exact = [r for r in recs if r["estimator"] == "exact-metrology"]
+    assert {r["n_refs"] for r in exact} == {0, 20} and all(r["error"] < 0.1 for r in exact)
     for model in ("paper", "metrology"):  # MAP with 0 and 5 references, and a posterior
         rows = [r for r in recs if r["estimator"] == f"ours-{model}"]
         assert {r["n_refs"] for r in rows} >= {0, 5}
         assert any("coverage" in r and "post_error" in r for r in rows)
     assert {r["tier"] for r in recs} == {"none", "low", "medium", "high"}
     assert {r["setting"] for r in recs} == {"indoor", "outdoor"}
+    crb = {(r["scene"], r["estimator"]): r["error"] for r in recs if r["estimator"].startswith("crb-refs")}
+    for sid in scenes:  # unknown pitch and roll can only cost information
+        assert crb[(sid, "crb-refs-nohorizon")] >= crb[(sid, "crb-refs")] - 1e-9
     paper = [r for r in recs if r["estimator"] == "paper"]
     assert all(r["restarts"] == CONFIGS["quick"].paper_restarts for r in paper)
 

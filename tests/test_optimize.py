@@ -152,3 +152,20 @@ def test_presets_and_result_dict():
     assert est.preset == "default" and est.n_evaluations > 0 and est.seconds > 0
     assert -np.pi <= est.params[3] < np.pi
     assert isinstance(build_models(scene)[0], PaperModel)
+
+
+def test_trust_newton_minimises_a_curved_valley_within_bounds():
+    """Rosenbrock's banana (a curved ridge like depth against focal length) in 3 dimensions (where
+    its only minimum is (1, 1, 1)): found inside the bounds, and a bound respected when the
+    minimum lies outside it."""
+    from creference_bayes.inference.newton import trust_newton
+
+    def rosen(z):
+        z = np.atleast_2d(z)
+        return np.sum(100.0 * (z[:, 1:] - z[:, :-1] ** 2) ** 2 + (1 - z[:, :-1]) ** 2, axis=1)
+
+    lo, hi = np.full(3, -5.0), np.full(3, 5.0)
+    z = trust_newton(rosen, np.array([-1.2, 1.0, -0.5]), lo, hi)
+    np.testing.assert_allclose(z, 1.0, atol=1e-4)
+    z = trust_newton(rosen, np.zeros(3), lo, np.array([5.0, 0.5, 5.0]))
+    assert z[1] <= 0.5 + 1e-12 and rosen(z)[0] < rosen(np.zeros(3))[0]

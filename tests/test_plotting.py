@@ -105,3 +105,26 @@ def test_plot_command_errors(tmp_path, capsys):
                              "map": {"x": 0, "y": 1, "z": 5, "yaw": 0, "focal_length_px": 1000}}))
     assert main(["plot", str(r)]) == 2
     assert "nowhere.json" in capsys.readouterr().err
+
+
+def test_boxes_without_a_horizon_are_drawn_with_each_draws_camera():
+    """Without a horizon the box must be projected with the estimate's own pitch and roll (not a
+    level camera): the MAP box lands on the annotated corners."""
+    import warnings
+    from dataclasses import replace
+
+    import creference_bayes as cb
+    from creference_bayes.bench.simulate import simulate_scene
+    from creference_bayes.core.geometry import box_vertices, dimension_corners
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = cb.parse_scene(simulate_scene(3, tier="low", roll_deg=5.0))
+    scene = replace(scene, horizon=None)
+    d = cb.estimate(scene, seed=0, posterior=False).to_dict()
+    box = plotting._project_boxes(scene, plotting._params(d["map"], scene))[0]
+    t = scene.target
+    c = dimension_corners(t.length, t.width, t.height, d["handedness"])
+    verts = box_vertices(t.length, t.width, t.height)
+    idx = [int(np.argmin(np.linalg.norm(verts - v, axis=1))) for v in c]  # the annotated corners' vertices
+    assert np.median(np.linalg.norm(box[idx] - t.median_corners, axis=1)) < 5.0

@@ -180,7 +180,7 @@ def test_ground_truth_is_free_form_even_for_near_misses():
     ("", "abc", 3), ("kitten", "sitting", 3), ("ca", "abc", 3),  # OSA, not full Damerau: 3
 ])
 def test_edit_distance_known_answers(a, b, distance):
-    from creference_bayes.io.scene import _edit_distance
+    from creference_bayes.io.validation import _edit_distance
 
     assert _edit_distance(a, b) == distance
     assert _edit_distance(b, a) == distance

@@ -17,7 +17,9 @@ TIER_ORDER = ("none", "low", "medium", "high")
 NOISY = ("low", "medium", "high")
 #: The paper's mean task times (§7.2.2), seconds: one target annotation, one reference annotation.
 TASK_SECONDS = {"target": 183.5, "reference": 64.4}
-PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
+PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m")
+#: The estimators whose posteriors are checked for calibration.
+CALIBRATED = ("ours-paper", "ours-metrology", "ours-metrology-nohorizon", "ours-metrology-flatfocal")
 N_RANK_BINS = 10
 
 
@@ -48,9 +50,17 @@ def estimator_rows(doc: dict) -> list[tuple[str, dict, str]]:
         for k in sorted({0, nref} & set(cfg["posterior_ref_counts"])):
             rows.append((f"ours-{model} posterior mean, {k} refs",
                          dict(estimator=f"ours-{model}", n_target=nt, n_refs=k), "post_error"))
+    for est, what in (("ours-metrology-nohorizon", "no horizon"), ("ours-metrology-flatfocal", "flat focal prior")):
+        for k in (0, nref):
+            rows.append((f"{est} MAP, {k} refs", dict(estimator=est, n_target=nt, n_refs=k), "error"))
+            if k in cfg["posterior_ref_counts"]:
+                rows.append((f"{est} posterior mean, {k} refs", dict(estimator=est, n_target=nt, n_refs=k),
+                             "post_error"))
     rows += [("Cramér–Rao bound, target only", dict(estimator="crb-target"), "error"),
-             (f"Cramér–Rao bound, + {nref} refs (metrology)", dict(estimator="crb-refs"), "error")]
-    return rows
+             (f"Cramér–Rao bound, + {nref} refs (metrology)", dict(estimator="crb-refs"), "error"),
+             ("Cramér–Rao bound, no horizon, target only", dict(estimator="crb-target-nohorizon"), "error"),
+             (f"Cramér–Rao bound, no horizon, + {nref} refs", dict(estimator="crb-refs-nohorizon"), "error")]
+    return [r for r in rows if _sel(doc["records"], **r[1])]
 
 
 def _by_tier(doc) -> dict:
@@ -138,12 +148,12 @@ def _ranks(recs) -> dict:
 
 def _calibration(doc) -> dict:
     out = {}
-    for model in ("paper", "metrology"):
-        recs = [r for r in _sel(doc["records"], estimator=f"ours-{model}") if "coverage" in r]
+    for est in CALIBRATED:
+        recs = [r for r in _sel(doc["records"], estimator=est) if "coverage" in r]
         if not recs:
             continue
         noisy = [r for r in recs if r["tier"] in NOISY]
-        out[model] = {"temperature": recs[0]["temperature"], "all": _coverage(noisy), "ranks": _ranks(noisy),
+        out[est.removeprefix("ours-")] = {"temperature": recs[0]["temperature"], "all": _coverage(noisy), "ranks": _ranks(noisy),
                       "by_tier": {t: _coverage(_sel(recs, tier=t)) for t in TIER_ORDER},
                       "by_refs": {k: _coverage(_sel(noisy, n_refs=k)) for k in sorted({r["n_refs"] for r in recs})},
                       "converged": float(np.mean([r["converged"] for r in recs]))}
@@ -184,7 +194,7 @@ def _timing(doc) -> dict:
 
 def _crb_ratio(doc) -> dict:
     """Median over scenes of error / CRB (target-only bound for 0 refs, with refs otherwise)."""
-    recs, nt = doc["records"], doc["config"]["n_target"]
+    recs = doc["records"]
     crb = {(r["scene"], r["estimator"]): r["error"] for r in recs if r["estimator"].startswith("crb")}
     out = {}
     for label, sel, key in estimator_rows(doc):
@@ -196,7 +206,9 @@ def _crb_ratio(doc) -> dict:
             for r in _sel(recs, **sel):
                 if r["tier"] not in (NOISY if t == "noisy" else (t,)):
                     continue
-                bound = crb.get((r["scene"], "crb-refs" if r.get("n_refs") else "crb-target"))
+                kind = "crb-refs" if r.get("n_refs") else "crb-target"
+                suffix = "-nohorizon" if sel.get("estimator", "").endswith("-nohorizon") else ""
+                bound = crb.get((r["scene"], kind + suffix))
                 if r.get(key) is not None and bound and np.isfinite(bound):
                     ratios.append(r[key] / bound)
             if ratios:
@@ -216,11 +228,46 @@ def _default_choice(by_tier: dict) -> dict:
     return out
 
 
+def _paired(doc, estimator: str, against: str = "ours-metrology") -> dict:
+    """The same scenes with and without a change (``estimator`` against ``against``), per number of
+    references: MAP error statistics and the distance's 50 / 90 % coverage, over the noisy tiers."""
+    recs, nt = doc["records"], doc["config"]["n_target"]
+    out = {}
+    for k in sorted({r["n_refs"] for r in _sel(recs, estimator=estimator)}):
+        block = {}
+        for name in (against, estimator):
+            rows = [r for r in _sel(recs, estimator=name, n_target=nt, n_refs=k) if r["tier"] in NOISY]
+            cov = [r["coverage"]["distance_m"] for r in rows if "distance_m" in r.get("coverage", {})]
+            block[name] = {"error": stats([r["error"] for r in rows]),
+                           "post_error": stats([r.get("post_error") for r in rows]),
+                           "coverage": {"n": len(cov), "50": float(np.mean([c["50"] for c in cov])) if cov else None,
+                                        "90": float(np.mean([c["90"] for c in cov])) if cov else None}}
+        out[k] = block
+    return out
+
+
+def _exact(doc) -> dict:
+    """Noise-free scenes with exact references: error with and without them, per scene."""
+    recs = _sel(doc["records"], estimator="exact-metrology")
+    scenes = sorted({r["scene"] for r in recs})
+    rows = {}
+    for sid in scenes:
+        by_k = {r["n_refs"]: r["error"] for r in _sel(recs, scene=sid)}
+        rows[sid] = {"without": by_k.get(0), "with": max(v for k, v in by_k.items() if k)}
+    if not rows:
+        return {}
+    w, wo = [v["with"] for v in rows.values()], [v["without"] for v in rows.values()]
+    return {"scenes": rows, "max_with": max(w), "max_without": max(wo),
+            "worse": int(sum(a > b + 0.01 for a, b in zip(w, wo)))}
+
+
 def summarise(doc: dict) -> dict:
     by_tier = _by_tier(doc)
     return {"by_tier": by_tier, "vs_refs": _vs_refs(doc), "same_time": _same_time(doc), "pairs": _pairs(doc),
             "calibration": _calibration(doc), "sweep": _sweep(doc), "timing": _timing(doc),
-            "crb_ratio": _crb_ratio(doc), "better_model": _default_choice(by_tier)}
+            "crb_ratio": _crb_ratio(doc), "better_model": _default_choice(by_tier),
+            "horizon": _paired(doc, "ours-metrology-nohorizon"),
+            "focal_prior": _paired(doc, "ours-metrology-flatfocal"), "exact": _exact(doc)}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -260,7 +307,7 @@ def markdown_report(doc: dict) -> str:
     out += [_table(["estimator"] + [c if c != "noisy" else "all noisy tiers" for c in cols],
                    [[k] + [_f(v.get(t), 2) for t in cols] for k, v in s["crb_ratio"].items()]), ""]
 
-    out += [f"Better model per tier (median MAP error with 5 references): "
+    out += ["Better model per tier (median MAP error with 5 references): "
             + ", ".join(f"{t}: **{m}**" for t, m in s["better_model"].items()), ""]
 
     for setting in ("indoor", "outdoor"):
@@ -322,6 +369,31 @@ def markdown_report(doc: dict) -> str:
                          if "distance_m" in v["by_tier"].get(t, {}) else "–" for t in TIER_ORDER]
                 for key, v in s["sweep"].items()]
         out += [_table(["σ, T"] + list(TIER_ORDER), rows), ""]
+
+    for key, title in (("horizon", "Without the horizon (pitch and roll estimated) against with it, same scenes, "
+                                   "noisy tiers"),
+                       ("focal_prior", "The default focal-length prior against a flat one, same scenes, noisy tiers")):
+        block = s.get(key) or {}
+        if not block:
+            continue
+        out += [f"{title}: MAP error median / mean / p90 %, posterior-mean error median / mean %, and the "
+                f"share of scenes whose true distance lies in the 50 % / 90 % HDI.", ""]
+        rows = []
+        for k, pair in block.items():
+            for name, v in pair.items():
+                e, pe, c = v["error"], v["post_error"], v["coverage"]
+                rows.append([name, str(k), f"{_f(e.get('median'), 2)} / {_f(e.get('mean'), 2)} / {_f(e.get('p90'), 2)}",
+                             f"{_f(pe.get('median'), 2)} / {_f(pe.get('mean'), 2)}" if pe.get("n") else "–",
+                             f"{_f(100 * c['50'], 0)} / {_f(100 * c['90'], 0)} ({c['n']})" if c["n"] else "–"])
+        out += [_table(["estimator", "refs", "MAP error", "posterior-mean error", "coverage 50 / 90"], rows), ""]
+
+    ex = s.get("exact") or {}
+    if ex:
+        out += [f"Exact references (noise-free, 0.01 px, 20 exact single values, outdoor 25–45 m): MAP error %, "
+                f"with the references at most {_f(ex['max_with'], 3)}, without at most {_f(ex['max_without'], 3)}; "
+                f"worse with them (by over 0.01 points): {ex['worse']} of {len(ex['scenes'])} scenes.", ""]
+        out += [_table(["scene", "without refs", "with 20 refs"],
+                       [[sid, _f(v["without"], 4), _f(v["with"], 4)] for sid, v in ex["scenes"].items()]), ""]
 
     out += ["Time per target (median seconds; ratio to the `paper` preset on the same scene).", ""]
     out += [_table(["estimator", "seconds", "ratio to paper"],

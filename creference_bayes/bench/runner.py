@@ -68,6 +68,11 @@ class BenchConfig:
     sweep_scenes : scenes per tier in that sweep
     sampler : emcee settings for the bench (:class:`~creference_bayes.inference.sampling.SamplerSettings` options)
     n_target, n_target_baseline : target annotations the estimators get (5) and the baseline (10)
+    camera_studies : also run the metrology model on every scene without its horizon
+        (``ours-metrology-nohorizon``: pitch and roll estimated) and with a flat focal-length prior
+        (``ours-metrology-flatfocal``), with the Cramér–Rao bound for free pitch and roll
+    exact_scenes : noise-free scenes with 20 exact references, estimated with and without them
+        (:func:`exact_reference_records`)
     """
 
     name: str
@@ -82,6 +87,8 @@ class BenchConfig:
     sampler: dict = field(default_factory=dict)
     n_target: int = 5
     n_target_baseline: int = 10
+    camera_studies: bool = True
+    exact_scenes: int = 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -96,7 +103,7 @@ CONFIGS = {
     "quick": BenchConfig(
         name="quick", scenes=_grid({"none": (1, 0), "low": (1, 0), "medium": (0, 1), "high": (1, 1)}),
         ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline_scenes=0,
-        pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}),
+        pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}, exact_scenes=1),
     # the documented run (docs/benchmark_results.md)
     "full": BenchConfig(
         name="full", scenes=_grid({t: (5, 3) for t in TIERS}),
@@ -104,7 +111,7 @@ CONFIGS = {
         paper_baseline_scenes=2, pair_scenes=3, sweep_scenes=8,
         paper_posterior_grid=((100.0, 1.0), (100.0, 0.1), (2.0, 1.0), (2.0, 2.0), (2.0, 3.0), (2.0, 4.0),
                               (3.0, 3.0), (3.0, 4.0)),
-        sampler={"min_ess": 400}),
+        sampler={"min_ess": 400}, exact_scenes=10),
 }
 
 
@@ -312,6 +319,11 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
                 rec.update(_posterior_fields(res, truth))
             recs.append(rec)
 
+    if config.camera_studies:
+        from .studies import camera_records
+
+        recs += camera_records(sid, scene, config, seed, truth)
+
     if pairs:  # Fig. 11: each pair of references alone
         from ..core.metrology import aggregate_references
 
@@ -372,6 +384,10 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
                                   sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
                                   baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
             bar.update(1)
+    if config.exact_scenes:
+        from .studies import exact_reference_records
+
+        records += exact_reference_records(config.exact_scenes, seed, say)
     from .report import summarise
 
     doc = {"format": BENCH_FORMAT, "version": __version__, "seed": seed, "config": config.to_dict(),

@@ -7,7 +7,8 @@ import sys
 
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .estimate import add_camera_options, add_confidence_map_option, confidence_map_option
+from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
+                       confidence_map_option)
 from .main import UsageError
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -19,12 +20,7 @@ EXIT_FAILED = 1
 def _settings(args):
     from ..workflows.batch import BatchSettings
 
-    if not 0.0 < args.hdi_prob < 1.0:
-        raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
-    if args.temperature is not None and not (math.isfinite(args.temperature) and args.temperature > 0):
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature!r}")
-    if args.min_ess is not None and not args.min_ess >= 1:
-        raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
+    check_posterior_values(args)
     return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                          posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                          temperature=args.temperature, use_references=not args.no_references,

@@ -169,6 +169,11 @@ def _check_posterior_options(args) -> None:
     """The posterior options' values, checked before any work is done."""
     if args.no_posterior and args.netcdf:
         raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
+    check_posterior_values(args)
+
+
+def check_posterior_values(args) -> None:
+    """``--hdi-prob``, ``--temperature`` and ``--min-ess`` (shared with ``batch``)."""
     if not 0.0 < args.hdi_prob < 1.0:
         raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
     if args.temperature is not None and not (np.isfinite(args.temperature) and args.temperature > 0):

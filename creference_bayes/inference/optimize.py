@@ -33,11 +33,12 @@ import numpy as np
 from scipy.optimize import basinhopping, least_squares, minimize
 
 from ..core.cost import reprojection_residuals
-from ..core.geometry import rotation_from_pitch_roll, yaw_matrix
 from ..io.result import MapEstimate
-from ..models.params import FOCAL, YAW, Bounds, wrap_angle
+from ..models.params import YAW, Bounds, wrap_angle
+from .newton import trust_newton
+from .scan import best_per_pitch, pick_starts, scan, theta_scan
 
-__all__ = ["PRESETS", "optimize_map", "theta_scan", "preset_bounds"]
+__all__ = ["PRESETS", "SKIP_MARGIN", "optimize_map", "theta_scan", "preset_bounds"]
 
 PRESETS = ("default", "paper", "paper-controlled")
 _PAPER_RESTARTS = {"paper": 200, "paper-controlled": 100}
@@ -167,136 +168,6 @@ def _paper(model, counter: _Counter, restarts: int, rng, callback=None) -> tuple
 # ------------------------------------------------------------------------------------------------
 # the default optimiser
 
-#: The (pitch, roll) grid of the start when they are free parameters, degrees: wide enough for
-#: photos pitched from 20° up to 50° down and rolled by ±10°; the refinement does the rest.
-ORIENTATION_GRID_DEG = (np.arange(-20.0, 51.0, 10.0), np.array([-8.0, 0.0, 8.0]))
-#: Yaw steps of the scan: 1° with a horizon (one orientation), 5° over the orientation grid.
-N_THETA, N_THETA_GRID = 360, 72
-
-
-def theta_scan(observed: np.ndarray, obj_corners: np.ndarray, bounds: Bounds, principal_point,
-               *, camera=None, orientations: np.ndarray | None = None, n_theta: int = N_THETA,
-               n_iter: int = 4) -> np.ndarray:
-    """Closed-form poses for every yaw on a grid (method.md §6), for one or many camera orientations.
-
-    For fixed yaw θ and camera rotation R, with T' = R·(x, y, z) and qᵢ = R·Ry(θ)·oᵢ, the
-    projection ũᵢ·(T'z + qᵢz) = µ·(T'x + qᵢx) (and the same in v) is linear in
-    (µT'x, µT'y, T'z, µ), or in T' alone when µ is known.
-
-    Parameters
-    ----------
-    observed : (4, 2) corners t1..t4, pixels
-    obj_corners : (4, 3) object-frame corners, metres
-    bounds : the µ bounds (a known µ when lower = upper)
-    principal_point : (2,) pixels
-    camera : orientation from its horizon (or a level camera): R depends on µ, so the solve is
-        repeated ``n_iter`` times with R from the previous µ
-    orientations : (k, 2) fixed (pitch, roll) candidates, radians, instead of ``camera``
-
-    Returns
-    -------
-    (k · n_theta, 7) candidate parameter vectors (pitch and roll filled in); rows that put the box
-    behind the camera or give a non-positive µ are NaN.
-    """
-    thetas = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
-    if orientations is None:
-        pitch = roll = np.zeros(n_theta)
-        th = thetas
-    else:
-        o = np.asarray(orientations, float).reshape(-1, 2)
-        pitch, roll = np.repeat(o[:, 0], n_theta), np.repeat(o[:, 1], n_theta)
-        th = np.tile(thetas, len(o))
-    n = len(th)
-    offsets = np.einsum("nij,kj->nki", yaw_matrix(th), obj_corners)  # (n, 4, 3) in G
-    d = observed - np.asarray(principal_point, float)  # (4, 2) centred pixels
-    lo, hi = bounds.lower[FOCAL], bounds.upper[FOCAL]
-    known = lo == hi
-    mu = np.full(n, lo if known else np.sqrt(lo * hi))
-    derived = orientations is None and camera is not None and camera.horizon is not None
-    for _ in range(n_iter if derived else 1):
-        if derived:
-            pitch, roll = camera.pitch_roll(mu)
-        R = rotation_from_pitch_roll(pitch, roll)
-        q = np.einsum("nij,nkj->nki", R, offsets)
-        A, b = _linear_system(q, d, mu if known else None)
-        w = _solve_scaled(A, b)
-        if known:
-            t_cam = w
-        else:
-            mu = np.clip(w[:, 3], lo, hi)
-            t_cam = np.column_stack([w[:, 0] / w[:, 3], w[:, 1] / w[:, 3], w[:, 2]])
-    if derived:
-        pitch, roll = camera.pitch_roll(mu)
-    t = np.einsum("nji,nj->ni", R, t_cam)  # Rᵀ T'
-    params = np.column_stack([t, th, mu, pitch, roll])
-    with np.errstate(invalid="ignore"):
-        depth_ok = np.all((q[..., 2] + t_cam[:, None, 2]) > 0, axis=1)
-    bad = ~depth_ok | ~np.all(np.isfinite(params), axis=1)
-    if not known:
-        bad |= w[:, 3] <= 0
-    params[bad] = np.nan
-    return params
-
-
-def _linear_system(q: np.ndarray, d: np.ndarray, mu_known):
-    n = len(q)
-    A = np.zeros((n, 8, 4 if mu_known is None else 3))
-    b = np.zeros((n, 8))
-    for axis, rows in ((0, slice(0, 4)), (1, slice(4, 8))):
-        du = d[:, axis]  # (4,)
-        if mu_known is None:  # unknowns (µT'x, µT'y, T'z, µ)
-            A[:, rows, axis] = -1.0
-            A[:, rows, 2] = du
-            A[:, rows, 3] = -q[..., axis]
-            b[:, rows] = -du * q[..., 2]
-        else:  # unknowns (T'x, T'y, T'z)
-            A[:, rows, axis] = -mu_known[:, None]
-            A[:, rows, 2] = du
-            b[:, rows] = -du * q[..., 2] + mu_known[:, None] * q[..., axis]
-    return A, b
-
-
-def _solve_scaled(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched least squares with column scaling (the columns mix pixels and metres)."""
-    s = np.linalg.norm(A, axis=1, keepdims=True)
-    s[s == 0] = 1.0
-    w = np.einsum("nij,nj->ni", np.linalg.pinv(A / s), b)
-    return w / s[:, 0, :]
-
-
-def _pick_starts(candidates: np.ndarray, costs: np.ndarray, k: int, min_sep: float = np.radians(10)):
-    order = np.argsort(np.where(np.isfinite(costs), costs, np.inf))
-    chosen: list[int] = []
-    for i in order:
-        if not np.isfinite(costs[i]) or len(chosen) == k:
-            break
-        if all(abs(wrap_angle(candidates[i, YAW] - candidates[j, YAW])) > min_sep for j in chosen):
-            chosen.append(i)
-    return chosen
-
-
-def _best_per_pitch(candidates: np.ndarray, costs: np.ndarray, exclude=()) -> list[int]:
-    """Index of the cheapest finite candidate for each distinct pitch (column 5), best first."""
-    out = []
-    for pitch in np.unique(candidates[np.isfinite(costs), 5]):
-        idx = np.flatnonzero((candidates[:, 5] == pitch) & np.isfinite(costs))
-        best = int(idx[np.argmin(costs[idx])])
-        if best not in exclude:
-            out.append(best)
-    return sorted(out, key=lambda i: costs[i])
-
-
-def _scan(model) -> np.ndarray:
-    """Candidate starts of the default preset for ``model`` (:func:`theta_scan`)."""
-    pp = model.camera.principal_point
-    if not model.orientation_free:
-        return theta_scan(model.observed, model.obj_corners, model.bounds, pp, camera=model.camera)
-    pitches, rolls = np.radians(np.meshgrid(*ORIENTATION_GRID_DEG, indexing="ij"))
-    grid = np.column_stack([pitches.ravel(), rolls.ravel()])
-    return theta_scan(model.observed, model.obj_corners, model.bounds, pp, orientations=grid,
-                      n_theta=N_THETA_GRID)
-
-
 #: A handedness whose best start costs this much more than the other's refined optimum is not
 #: refined itself (its cost is then reported from its start, an upper bound).
 SKIP_MARGIN = 25.0
@@ -331,15 +202,15 @@ def _default_all(models, n_starts: int = 3) -> list:
 def _default_start(model, counter: _Counter, n_starts: int) -> tuple[np.ndarray, dict]:
     """The best of the cheap fits from the scan's starts (free parameters) and what happened."""
     free = model.free
-    cands = _scan(model)
+    cands = scan(model)
     finite = np.all(np.isfinite(cands), axis=1)
     lo, hi = model.bounds.lower, model.bounds.upper
     cands[finite] = np.clip(cands[finite], lo, hi)
     costs = np.full(len(cands), np.inf)
     costs[finite] = counter(cands[finite][:, free])
-    starts = _pick_starts(cands, costs, n_starts)
+    starts = pick_starts(cands, costs, n_starts)
     if model.orientation_free:  # and the best candidate at every pitch of the grid: a far target
-        starts += _best_per_pitch(cands, costs, exclude=starts)  # pins its pitch only weakly
+        starts += best_per_pitch(cands, costs, exclude=starts)  # pins its pitch only weakly
     if not starts:  # nothing usable from the scan: fall back to the centre of the bounds
         cands = np.array([np.where(np.isfinite(lo + hi), (lo + hi) / 2, 0.0)])
         cands[0, 2] = np.clip(10.0, lo[2], hi[2])
@@ -399,7 +270,7 @@ def _refine(model, counter: _Counter, x0: np.ndarray, reprojection: bool = True,
     # 2. the model's own cost: trust-region Newton for smooth costs, then (or else) L-BFGS-B
     maxiter = 500
     if getattr(model, "smooth", False) and max_newton:
-        z0 = _trust_newton(lambda z: counter(z * scale), z0, lo_s, hi_s, max_iter=max_newton)
+        z0 = trust_newton(lambda z: counter(z * scale), z0, lo_s, hi_s, max_iter=max_newton)
         maxiter = 30  # a polish with L-BFGS-B's own stopping rule
     if not polish:
         return z0 * scale
@@ -414,50 +285,3 @@ def _refine(model, counter: _Counter, x0: np.ndarray, reprojection: bool = True,
     res = minimize(fun_grad, z0, jac=True, method="L-BFGS-B", bounds=list(zip(lo_s, hi_s)),
                    options={"ftol": 1e-13, "gtol": 1e-9, "maxiter": maxiter})
     return res.x * scale
-
-
-def _trust_newton(fun, z0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, h: float = 1e-4,
-                  max_iter: int = 150) -> np.ndarray:
-    """Minimise a smooth vectorised ``fun((n, d)) → (n,)`` by a trust-region Newton method
-    (SciPy's ``trust-exact``, Moré–Sorensen: it handles indefinite Hessians) within box bounds.
-
-    The gradient and Hessian come from central and secant differences with step ``h``, all points
-    in one call (1 + 2d + d(d − 1) rows: as cheap as a few single calls for a vectorised cost).
-    Where L-BFGS-B creeps for hundreds of iterations along the depth–focal-length ridge (and,
-    without a horizon, stops short of the optimum), this converges in tens. The bounds are kept
-    by evaluating the cost at the clipped point plus a steep quadratic penalty for the distance
-    clipped (``trust-exact`` itself has none). Its "bad approximation" stop at the finite
-    differences' precision is the normal end.
-    """
-    d = len(z0)
-    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
-    E = h * np.eye(d)
-    offsets = np.vstack([np.zeros(d), E, -E] + [E[i] + E[j] for i, j in pairs] + [-E[i] - E[j] for i, j in pairs])
-    k = len(pairs)
-
-    def penalised(z):
-        c = np.clip(z, lo, hi)
-        return fun(c) + 1e6 * np.sum((z - c) ** 2, axis=1)
-
-    cache: dict = {}
-
-    def derivatives(z):
-        key = z.tobytes()
-        if key not in cache:
-            vals = penalised(z + offsets)
-            f0, fp, fm = vals[0], vals[1:d + 1], vals[d + 1:2 * d + 1]
-            fpp, fmm = vals[2 * d + 1:2 * d + 1 + k], vals[2 * d + 1 + k:]
-            H = np.diag((fp + fm - 2 * f0) / h**2)
-            for (i, j), a, b in zip(pairs, fpp, fmm):
-                H[i, j] = H[j, i] = (a + b - 2 * f0 - H[i, i] * h * h - H[j, j] * h * h) / (2 * h * h)
-            cache.clear()
-            cache[key] = (float(f0), (fp - fm) / (2 * h), H)
-        return cache[key]
-
-    z0 = np.clip(np.asarray(z0, float), lo, hi)
-    with np.errstate(all="ignore"):
-        res = minimize(lambda z: derivatives(z)[0], z0, jac=lambda z: derivatives(z)[1],
-                       hess=lambda z: derivatives(z)[2], method="trust-exact",
-                       options={"gtol": 1e-8, "maxiter": max_iter})
-    z = np.clip(res.x, lo, hi)
-    return z if np.all(np.isfinite(z)) and fun(z[None])[0] <= fun(z0[None])[0] else z0

@@ -14,7 +14,7 @@ __all__ = ["progress_bar"]
 
 
 def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = None,
-                 unit: str = "it"):
+                 unit: str = "it", initial: int = 0, leave: bool = False, postfix: dict | None = None):
     """A tqdm bar on standard error that disappears when done, or a disabled (silent) one.
 
     Parameters
@@ -23,6 +23,9 @@ def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = 
     total : expected number of updates (None: unknown)
     desc : the label before the bar
     unit : what one update counts
+    initial : updates already done
+    leave : keep the finished bar on the screen
+    postfix : values shown after the bar (``set_postfix`` changes them)
 
     Returns
     -------
@@ -30,5 +33,5 @@ def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = 
     """
     from tqdm.std import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr,
-                leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, initial=initial,
+                leave=leave, dynamic_ncols=True, postfix=postfix)

@@ -34,7 +34,7 @@ __all__ = ["Coordinates"]
 #: Minimum share of a coordinate's variance a shear term must explain to be kept.
 _MIN_EXPLAINED = 0.02
 #: At most this many sample points are used to fit the map.
-_MAX_FIT_POINTS = 3000
+_MAX_FIT_POINTS = 1500
 #: The shear is extrapolated this many sample ranges beyond the fitted sample, then held constant.
 _EXTRAPOLATE = 1.0
 

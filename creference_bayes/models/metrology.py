@@ -101,7 +101,7 @@ DEFAULT_TARGET_SIGMA_PX = 5.0
 REF_SCALE = 0.75
 REF_DOF = 2.0
 #: The grid over which the crowd's error scale s is integrated out, and its prior (log-normal).
-REF_SCALE_GRID = np.geomspace(0.005, 3.0, 10)
+REF_SCALE_GRID = np.geomspace(0.005, 3.0, 8)
 REF_SCALE_MEDIAN = 0.5
 REF_SCALE_LOG_SD = 1.0
 #: Pixel noise of a reference's endpoints, as a multiple of the target's corner scale σ.

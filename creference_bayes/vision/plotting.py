@@ -12,7 +12,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle, Wedge
 
-from ..core.geometry import Camera, box_points, box_vertices
+from ..core.cost import project_params
+from ..core.geometry import Camera, box_vertices
 from ..models.params import PARAM_NAMES, PARAM_UNITS
 
 __all__ = ["draws_from_result", "plot_boxes", "plot_pairs", "plot_ranks", "plot_top_view"]
@@ -53,16 +54,23 @@ def _truth(scene) -> dict | None:
             "distance_m": float(np.hypot(x, z))}
 
 
-def _params(source: dict) -> np.ndarray:
-    return np.array([source[k] for k in PARAM_NAMES], float)
+def _params(source: dict, scene) -> np.ndarray:
+    """(n, 7) parameter vectors from a MAP dict or from draws (arrays under each name). Results
+    written before pitch and roll were parameters lack them: they then follow from the scene's
+    horizon (a level camera without one)."""
+    cols = {k: np.atleast_1d(np.asarray(source[k], float)).ravel() for k in PARAM_NAMES[:5]}
+    if "pitch" in source and "roll" in source:
+        pitch, roll = (np.atleast_1d(np.asarray(source[k], float)).ravel() for k in ("pitch", "roll"))
+    else:
+        pitch, roll = Camera.from_scene(scene).pitch_roll(cols["focal_length_px"])
+    return np.column_stack([*cols.values(), pitch, roll])
 
 
 def _project_boxes(scene, params: np.ndarray) -> np.ndarray:
-    """(n, 8, 2) pixels of the boxes at (n, 5) parameters; NaN where behind the camera."""
+    """(n, 8, 2) pixels of the boxes at (n, 7) parameters, each with its own camera (focal length,
+    pitch, roll); NaN where behind the camera."""
     t = scene.target
-    camera = Camera.from_scene(scene)
-    pts = box_points(params, box_vertices(t.length, t.width, t.height))
-    uv, depth = camera.project(pts, params[:, 4])
+    uv, depth = project_params(params, box_vertices(t.length, t.width, t.height), scene.principal_point)
     uv[depth <= 0] = np.nan
     return uv
 
@@ -91,13 +99,13 @@ def plot_boxes(result: dict, scene, draws: dict | None = None, *, n_boxes: int =
         ax.plot(*np.asarray(scene.horizon).T, ls="--", color="#777777", lw=1, label="horizon")
     boxes = np.zeros((0, 8, 2))
     if draws is not None:
-        flat = np.column_stack([np.asarray(draws[k]).ravel() for k in PARAM_NAMES])
+        flat = _params(draws, scene)
         pick = np.random.default_rng(rng).choice(len(flat), size=min(n_boxes, len(flat)), replace=False)
         boxes = _project_boxes(scene, flat[pick])
         for box in boxes:
             _draw_box(ax, box, color=_POST_COLOR, alpha=0.15, lw=0.8)
         ax.plot([], [], color=_POST_COLOR, alpha=0.5, label=f"{len(pick)} posterior draws")
-    _draw_box(ax, _project_boxes(scene, _params(result["map"])[None])[0], color=_MAP_COLOR, lw=1.8,
+    _draw_box(ax, _project_boxes(scene, _params(result["map"], scene))[0], color=_MAP_COLOR, lw=1.8,
               label="MAP")
     for i, c in enumerate(scene.target.corners):
         ax.plot(*c[[1, 0, 2]].T, color="k", lw=0.6, alpha=0.5, label="annotations" if i == 0 else None)
@@ -120,7 +128,7 @@ def plot_boxes(result: dict, scene, draws: dict | None = None, *, n_boxes: int =
 def _zoom_inset(ax, scene, result, boxes) -> None:
     w, h = scene.image_width, scene.image_height
     pts = np.vstack([scene.target.corners.reshape(-1, 2),
-                     _project_boxes(scene, _params(result["map"])[None])[0], boxes.reshape(-1, 2)])
+                     _project_boxes(scene, _params(result["map"], scene))[0], boxes.reshape(-1, 2)])
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     lo, hi = np.maximum(pts.min(axis=0), 0), np.minimum(pts.max(axis=0), [w, h])
     size = max(hi[0] - lo[0], (hi[1] - lo[1]) * w / h) * 1.15 + 1.0

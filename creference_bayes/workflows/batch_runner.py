@@ -4,7 +4,6 @@ keeps every worker busy, enforces the time limit and records each outcome as it 
 from __future__ import annotations
 
 import concurrent.futures as cf
-import sys
 import time
 import traceback
 import warnings
@@ -45,10 +44,10 @@ def one_line(exc: BaseException) -> str:
 
 def progress_bar(total: int, failed: int, enabled: bool):
     """Scenes to do (those that failed to load count as done and failed from the start)."""
-    from tqdm.auto import tqdm
+    from ..inference.progress import progress_bar as bar
 
-    return tqdm(total=total, initial=failed, unit="scene", desc="batch", disable=not enabled,
-                file=sys.stderr, dynamic_ncols=True, postfix={"failed": failed})
+    return bar(enabled, total, desc="batch", unit="scene", initial=failed, leave=True,
+               postfix={"failed": failed})
 
 
 class Runner:
