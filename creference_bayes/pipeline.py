@@ -48,7 +48,9 @@ def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL
     options : model settings (``sigma`` for the paper model, default
         :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the
         paper's 100 px with the paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``,
-        ``ref_dof``, ``ref_line_sigma`` for the metrology model)
+        ``ref_dof``, ``ref_line_sigma`` and ``confidence_map`` (a
+        :class:`~creference_bayes.models.confidence_map.ConfidenceMap` or None) for the metrology
+        model)
     """
     if model not in MODELS:
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
@@ -72,7 +74,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
              use_references: bool = True, seed=None, posterior: bool = True, restarts: int | None = None,
              temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
              progress: bool = False, orientation: str = "auto", focal_prior="auto",
-             orientation_prior=None, **options) -> Result:
+             orientation_prior=None, confidence_map="default", **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -100,6 +102,12 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         :class:`~creference_bayes.models.camera_terms.FocalPrior`
     orientation_prior : a :class:`~creference_bayes.models.camera_terms.OrientationPrior`, or None
         for the scene's or the default
+    confidence_map : how the metrology model reads ranges stated with a confidence: ``"none"``
+        (ignored), ``"identity"``, the path of a map file or a
+        :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; ``"default"`` is
+        :data:`~creference_bayes.models.confidence_map.DEFAULT_CONFIDENCE_MAP` (docs/confidence.md).
+        The paper model turns ranges into bounds and has no use for a confidence: with it, any
+        map other than ``"default"`` or ``"none"`` is an error
     options : model settings (:func:`build_models`)
 
     Returns
@@ -123,6 +131,9 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
                          orientation_prior=orientation_prior)
     warnings = list(scene.warnings) + list(setup.notes)
     references = _references_step(scene, setup, preset, use_references)
+    cmap = _confidence_map(model, confidence_map)
+    if model == "metrology":
+        options = {**options, "confidence_map": cmap}
     models = build_models(scene, setup, model=model, preset=preset,
                           constraints=references.constraints if model == "paper" else None,
                           use_references=use_references, **options)
@@ -147,7 +158,7 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
             err, inside = evaluate_posterior(post, scene.ground_truth, list(diag.r_hat))
             evaluation = dataclasses.replace(evaluation, posterior_location_pct_error=err,
                                              in_hdi=inside)
-    extra = {"camera": setup.to_dict()}
+    extra = {"camera": setup.to_dict(), "confidence": _confidence_summary(scene, models, cmap)}
     if setup.horizon_estimate is not None:
         extra["horizon_estimate"] = setup.horizon_estimate.to_dict()
     return Result(target=scene.target.id, model=model, preset=preset, map=map_est,
@@ -156,6 +167,29 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
                   inference_data=idata, references=references, extra=extra,
                   scene_id={"target": scene.target.id, "image_size": [scene.image_width, scene.image_height],
                             "sha256": scene_fingerprint(scene)})
+
+
+def _confidence_map(model: str, value):
+    """The confidence map the model reads ranges with (None: confidences ignored)."""
+    from .models.confidence_map import ConfidenceMap, resolve_confidence_map
+
+    if model == "paper":
+        if value is None or (isinstance(value, str) and value in ("default", "none")):
+            return None
+        shown = value.source or value.kind if isinstance(value, ConfidenceMap) else value
+        raise ValueError(f"confidence_map: the paper model turns ranges into bounds and does not read "
+                         f"stated confidences, got {shown!r} (use the metrology model, or 'none')")
+    return resolve_confidence_map(value)
+
+
+def _confidence_summary(scene: Scene, models, cmap) -> dict:
+    """The result's ``confidence`` block: the map and how many ranges it read."""
+    from .models.confidence_map import describe_confidence_map
+
+    stated = sum(r.is_range and r.confidence is not None for r in scene.references)
+    read = getattr(models[0], "n_stated_ranges", 0) if cmap is not None else 0
+    return {"map": describe_confidence_map(cmap), "ranges_with_confidence": int(stated),
+            "read_with_map": int(read)}
 
 
 def _focal_prior_check(setup: CameraSetup, map_est) -> list[str]:

@@ -45,3 +45,15 @@ def test_degenerate_inputs_are_rejected():
         location_percentage_error([1.0, 1.0], [1.0, 1.0])
     with pytest.raises(ValueError):
         range_precision(-1.0, 1.0)
+
+
+def test_interval_score_known_answers():
+    """Gneiting & Raftery (2007), Eq. 43, by hand: width, plus 2/α times the miss."""
+    from creference_bayes.core.metrics import interval_score
+
+    np.testing.assert_allclose(interval_score([1, 1, 1], [3, 3, 3], [2, 0, 4.5], 0.1), [2.0, 22.0, 32.0])
+    assert interval_score(1.0, 3.0, 0.5, 0.5) == pytest.approx(2.0 + 4.0 * 0.5)
+    with pytest.raises(ValueError, match="alpha"):
+        interval_score(1, 2, 1.5, 1.0)
+    with pytest.raises(ValueError, match="low > high"):
+        interval_score(2, 1, 1.5, 0.1)

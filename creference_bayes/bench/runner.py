@@ -151,12 +151,13 @@ def variant(scene: Scene, n_target: int, references) -> Scene:
 
 
 def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str | None = None,
-                 *, overwrite: bool = False) -> list[Path]:
+                 *, overwrite: bool = False, **options) -> list[Path]:
     """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
 
     ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); reference formats cycle
     so that every ten references cover the ten formats once each. Each file is written whole or
-    not at all (:func:`~creference_bayes.io.files.atomic_write_text`).
+    not at all (:func:`~creference_bayes.io.files.atomic_write_text`). ``options`` go to
+    :func:`~.simulate.simulate_scene` (e.g. ``confidence``, ``n_references``).
 
     Raises
     ------
@@ -175,7 +176,7 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
     paths = []
     for i in range(n):
         d = simulate_scene(np.random.default_rng([seed, i]), setting=setting, tier=tiers[i % len(tiers)],
-                           format_offset=5 * i)
+                           format_offset=5 * i, **options)
         p = outdir / f"scene_{i:04d}.json"
         atomic_write_text(p, json.dumps(d, indent=1) + "\n")
         paths.append(p)

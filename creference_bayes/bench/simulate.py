@@ -17,6 +17,7 @@ from ..core.geometry import (box_points, box_vertices, dimension_corners, horizo
                              project, rotation_from_pitch_roll)
 from ..io.scene import SCENE_FORMAT
 from ..core.units import UNITS_TO_M
+from .confidence_workers import ConfidentWorkers
 
 __all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION",
            "simulate_scene", "measurement_factor"]
@@ -145,7 +146,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
                    image_size: tuple[int, int] = (2880, 1800), principal_offset: float = 0.0,
                    roll_deg: float = 3.0, target_id: str = "target",
                    format_offset: int | None = None, distance_range: tuple[float, float] | None = None,
-                   single_values: bool = False, decimals: int | None = 2) -> dict:
+                   single_values: bool = False, decimals: int | None = 2,
+                   confidence: ConfidentWorkers | None = None) -> dict:
     """Draw one synthetic scene.
 
     Parameters
@@ -166,6 +168,10 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     single_values : every reference states a single value (no ranges)
     decimals : image coordinates (corners, lines, horizon) are rounded to this many decimals, as
         annotation tools store them (2: 0.01 px); None keeps them exact
+    confidence : a :class:`~.confidence_workers.ConfidentWorkers` pool: every reference is then a
+        range with a stated confidence, by a worker of the pool, with the pool's true confidence
+        map (the tier's measurement noise is not used; measure and mode follow the formats as
+        usual). None (default) leaves the scene exactly as without the option
 
     Returns
     -------
@@ -227,7 +233,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         order = (int(format_offset) + np.arange(len(FORMATS))) % len(FORMATS)
     for j in range(n_references):
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
-        is_range = is_range and not single_values
+        is_range = (is_range and not single_values) or confidence is not None
         oname = names[rng.integers(len(names))]
         osize = tuple(_u(rng, r) for r in catalogue[oname])
         oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, w_img, h_img,
@@ -246,7 +252,11 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
             p_3d = _backproject(R, f, pp, h, p_uv)
             seg_uv, seg_3d = np.array([p_uv, q_uv]), np.array([p_3d, overts[near]])
         true_len = float(np.linalg.norm(seg_3d[1] - seg_3d[0]))
-        stated = true_len * _measure_noise(rng, tier.measurement)
+        if confidence is None:
+            stated = true_len * _measure_noise(rng, tier.measurement)
+        else:
+            worker, f_low, f_high, conf = confidence.state(rng)
+            stated = true_len * math.sqrt(f_low * f_high)
         line = seg_uv + rng.normal(0.0, tier.reference_px, (2, 2))
         line[:, 0] = np.clip(line[:, 0], 0, w_img)
         line[:, 1] = np.clip(line[:, 1], 0, h_img)
@@ -258,7 +268,11 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         else:
             unit = ["m", "ft", "in", "yd"][rng.integers(4)]
             value = stated / UNITS_TO_M[unit]
-        if is_range:
+        if confidence is not None:
+            per_metre = value / stated
+            ref.update(worker=worker, confidence=conf,
+                       range=[_sig(true_len * f_low * per_metre), _sig(true_len * f_high * per_metre)])
+        elif is_range:
             precision = float(np.exp(rng.normal(math.log(RANGE_PRECISION["median"]),
                                                 RANGE_PRECISION["log_sd"])))
             precision = min(precision, 1.9)  # keep the low end positive

@@ -7,7 +7,8 @@ import sys
 
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .estimate import add_camera_options, check_posterior_values
+from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
+                       confidence_map_option)
 from .main import UsageError
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -24,7 +25,8 @@ def _settings(args):
                          posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                          temperature=args.temperature, use_references=not args.no_references,
                          sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
-                         focal_prior=args.focal_prior, orientation=args.orientation)
+                         focal_prior=args.focal_prior, orientation=args.orientation,
+                         confidence_map=confidence_map_option(args.confidence_map, args.model))
 
 
 def _engine(args):
@@ -85,6 +87,7 @@ def register(subparsers) -> None:
     p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS, help="likelihood model (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
+    add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     add_camera_options(p)
     g = p.add_argument_group("posterior")

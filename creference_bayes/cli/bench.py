@@ -62,8 +62,24 @@ def _run_simulate_command(args) -> int:
     if not args.overwrite and out.is_dir() and any(out.iterdir()):
         raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite "
                          "(replaces scene_NNNN.json files of the same name)")
+    options = {}
+    if args.confidence is not None:
+        from ..bench.confidence_workers import TRUE_MAPS, ConfidentWorkers
+
+        try:
+            true_map = args.confidence if args.confidence in TRUE_MAPS else float(args.confidence)
+        except ValueError:
+            raise UsageError(f"--confidence: expected one of {list(TRUE_MAPS)} or a width factor > 0, "
+                             f"got {args.confidence!r}") from None
+        if args.confidence_workers < 1:
+            raise UsageError(f"--confidence-workers: expected an integer >= 1, got {args.confidence_workers}")
+        try:
+            options["confidence"] = ConfidentWorkers.pool(true_map, n_workers=args.confidence_workers,
+                                                          seed=[args.seed, 1])
+        except ValueError as exc:
+            raise UsageError(f"--confidence: {exc}") from None
     paths = write_scenes(out, args.n, seed=args.seed, tier=args.tier, setting=args.setting,
-                         overwrite=True)
+                         overwrite=True, **options)
     if not args.quiet:
         print(f"wrote {len(paths)} scenes to {args.outdir}")
     return 0
@@ -109,6 +125,14 @@ def register(subparsers) -> None:
                    help="noise tier, or all to cycle through them (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),
                    help="indoor or outdoor (default: two thirds indoor)")
+    p.add_argument("--confidence", default=None, metavar="MAP",
+                   help="every reference is a range stated with a confidence by a pool of workers "
+                        "(each with an own error scale) whose true confidence map is calibrated, "
+                        "over (over-confident: a stated 90%% holds about 60%%), under, or a width "
+                        "factor (1 calibrated; docs/confidence.md); default: the paper's formats, "
+                        "no confidence")
+    p.add_argument("--confidence-workers", type=int, default=40, metavar="N",
+                   help="workers in the pool of --confidence (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty folder, replacing files of the same name")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")

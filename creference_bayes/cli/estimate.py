@@ -13,7 +13,7 @@ from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .main import UsageError, example_scene_path
 
-__all__ = ["register", "format_table", "truth_of"]
+__all__ = ["register", "format_table", "truth_of", "confidence_map_option", "add_confidence_map_option"]
 
 
 #: Units of the quantities a result may hold; a quantity not listed is shown without a unit.
@@ -112,6 +112,35 @@ def truth_of(scene) -> dict | None:
     return t
 
 
+def confidence_map_option(value: str | None, model: str):
+    """The map named by ``--confidence-map`` (None: the default), read and checked before any work:
+    ``"default"``, ``"none"``, ``"identity"`` or a :class:`ConfidenceMap` read from the file."""
+    from ..models.confidence_map import MAP_NAMES, ConfidenceMap, ConfidenceMapError
+
+    if value is None:
+        return "default"
+    if model == "paper" and value != "none":
+        raise UsageError(f"--confidence-map: the paper model turns ranges into bounds and does not read "
+                         f"stated confidences, got {value!r} (use --model metrology, or none)")
+    if value in MAP_NAMES:
+        return value
+    try:
+        return ConfidenceMap.load(value)
+    except ConfidenceMapError as exc:
+        raise UsageError(f"--confidence-map: {exc}") from None
+
+
+def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
+    """``--confidence-map`` (estimate, demo, batch)."""
+    from ..models.confidence_map import DEFAULT_CONFIDENCE_MAP
+
+    p.add_argument("--confidence-map", default=None, metavar="none|identity|MAP.json",
+                   help="how the metrology model reads a range stated with a confidence: none "
+                        "(confidence ignored), identity (the worker's c %% range read as their central "
+                        "c %% interval) or a map fitted by `creference confidence fit` (default: "
+                        f"{DEFAULT_CONFIDENCE_MAP}; docs/confidence.md)")
+
+
 def _run_estimate(args) -> int:
     from ..io.scene import load_scene
     from ..pipeline import estimate
@@ -120,7 +149,8 @@ def _run_estimate(args) -> int:
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
     _check_posterior_options(args)
-    result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model,
+    cmap = confidence_map_option(args.confidence_map, args.model)
+    result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation,
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
@@ -249,6 +279,7 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
                         "docs/benchmark_results.md)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
+    add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     add_camera_options(p)
     g = p.add_argument_group("posterior")

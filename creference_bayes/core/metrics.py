@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["percentage_error", "range_percentage_error", "location_percentage_error", "range_precision"]
+__all__ = ["percentage_error", "range_percentage_error", "location_percentage_error", "range_precision",
+           "interval_score"]
 
 
 def _check_gt(gt) -> np.ndarray:
@@ -67,3 +68,26 @@ def range_precision(low, high) -> np.ndarray:
     if np.any(centre == 0):
         raise ValueError("range centre must be non-zero")
     return (high - low) / centre * 100.0
+
+
+def interval_score(low, high, truth, alpha) -> np.ndarray:
+    """The interval score of a central (1 − α) interval [l, u] for the truth x (Gneiting & Raftery
+    2007, Eq. 43; lower is better):
+
+        (u − l) + (2/α)(l − x)·1{x < l} + (2/α)(x − u)·1{x > u},
+
+    in the units of its arguments (pass logs for a score in log-length).
+
+    Parameters
+    ----------
+    low, high, truth : arrays of one shape (broadcast), low ≤ high
+    alpha : 1 − the interval's nominal coverage, in (0, 1)
+    """
+    low, high, truth = (np.asarray(a, float) for a in (low, high, truth))
+    alpha = np.asarray(alpha, float)
+    if np.any(~((alpha > 0) & (alpha < 1))):
+        raise ValueError(f"alpha: expected values in (0, 1), got {alpha}")
+    if np.any(low > high):
+        raise ValueError("interval: low > high")
+    return ((high - low) + (2.0 / alpha) * np.maximum(low - truth, 0.0)
+            + (2.0 / alpha) * np.maximum(truth - high, 0.0))

@@ -26,6 +26,16 @@ target (careful workers, or exact values) puts its weight on small s and lets th
 the depth–focal-length ridge; a scene of wild guesses puts it on large s and leans on the target.
 A fixed scale (the option ``ref_scale``) gives the plain product.
 
+Stated confidence. With a confidence map g (the option ``confidence_map``,
+:mod:`.confidence_map`), a range [lo, hi] stated with a confidence c is read as the worker's
+central interval at the calibrated coverage g(c): its log-centre m = (log lo + log hi)/2 is a
+measurement of log ℓ with its own scale s_c = w / q_D((1 + g(c))/2) (w the log half-width, q_D the
+map's normal or Student-t quantile), m = log ℓ + s_c·ε, ε ~ D. These terms sit outside the
+crowd-scale mixture (the worker has said how accurate they are), and are widened by line noise
+like the others. References without a confidence, single values (a confidence needs an interval
+to be about) and ranges whose ends are equal keep the treatment above; without a map
+(``confidence_map=None``, the option ``none``) every reference does.
+
 Line noise. The drawn segment is itself noisy, and a segment far away (close to the horizon) turns
 a few pixels into a large length error, so each reference's scale is widened by its line noise:
 s_j² = s² + σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i, with
@@ -69,6 +79,7 @@ from ..core.cost import BEHIND_CAMERA_PENALTY, project_params
 from ..core.geometry import Camera, dimension_corners, rotation_from_pitch_roll
 from ..core.metrology import GroundFrame
 from .camera_terms import CameraTerms
+from .confidence_map import ConfidenceMap
 from .params import FOCAL, PITCH, ROLL, Bounds, FreeParameters
 
 __all__ = [
@@ -118,6 +129,8 @@ class ReferenceMeasurement:
     line : (2, 2) endpoints, pixels
     low, high : the stated length in metres (equal for a single value)
     is_range : whether ``[low, high]`` is an interval
+    confidence : the worker's stated confidence in [0, 1], or None
+    measure, mode : the reference's measure and mode (a confidence map may differ by them)
     """
 
     index: int
@@ -125,11 +138,15 @@ class ReferenceMeasurement:
     low: float
     high: float
     is_range: bool
+    confidence: float | None = None
+    measure: str | None = None
+    mode: str | None = None
 
     @classmethod
     def from_reference(cls, ref, target) -> "ReferenceMeasurement":
         low, high = ref.length_bounds_m(target)
-        return cls(ref.index, np.asarray(ref.line, float), float(low), float(high), bool(ref.is_range))
+        return cls(ref.index, np.asarray(ref.line, float), float(low), float(high), bool(ref.is_range),
+                   None if ref.confidence is None else float(ref.confidence), ref.measure, ref.mode)
 
 
 def estimate_target_sigma(corners: np.ndarray) -> float:
@@ -199,6 +216,8 @@ class MetrologyModel(FreeParameters):
     ref_line_sigma : pixel noise of the references' endpoints (None: :data:`REF_LINE_FACTOR` × σ)
     orientation_free : pitch and roll are parameters; else they follow from ``camera``
     camera_terms : priors on µ, pitch, roll and a horizon measurement (:mod:`.camera_terms`)
+    confidence_map : how ranges stated with a confidence are read (module docstring), or None
+        to ignore confidences
     """
 
     camera: Camera
@@ -214,6 +233,7 @@ class MetrologyModel(FreeParameters):
     ref_line_sigma: float | None = None
     orientation_free: bool = False
     camera_terms: CameraTerms = field(default_factory=CameraTerms)
+    confidence_map: ConfidenceMap | None = None
     name: str = field(default="metrology", init=False)
     #: The cost is smooth (no kinks): the optimiser may use Newton steps on it.
     smooth: bool = field(default=True, init=False)
@@ -270,12 +290,39 @@ class MetrologyModel(FreeParameters):
                 status[r.index] = "used"
         self.reference_status = status
         self._lines = np.array([r.line for r in usable]).reshape(-1, 2, 2)
+        self.reference_indices = np.array([r.index for r in usable], int)
         self._log_low = np.log([r.low for r in usable])
         self._log_high = np.log([r.high for r in usable])
         self._is_range = np.array([r.is_range for r in usable], bool)
-        self._single, self._range = np.flatnonzero(~self._is_range), np.flatnonzero(self._is_range)
+        stated = self._read_confidences(usable)
+        self._single = np.flatnonzero(~self._is_range)
+        self._range = np.flatnonzero(self._is_range & ~stated)
         self.pilot = None
         self._set_line_var(np.zeros(len(usable)))
+
+    def _read_confidences(self, usable) -> np.ndarray:
+        """Which usable references are ranges read through the confidence map, (m,) bool; their
+        log-centres and scales s_c (module docstring)."""
+        cmap = self.confidence_map
+        stated = np.array([cmap is not None and r.is_range and r.confidence is not None and r.high > r.low
+                           for r in usable], bool)
+        self._stated = np.flatnonzero(stated)
+        half = 0.5 * (self._log_high - self._log_low)
+        self._stated_centre = 0.5 * (self._log_high + self._log_low)[self._stated]
+        self._stated_scale = np.array([float(cmap.scale(usable[j].confidence, half[j], usable[j].measure,
+                                                        usable[j].mode)) for j in self._stated])
+        return stated
+
+    @property
+    def line_variances(self) -> np.ndarray:
+        """(m,) σ_line² |∇ log ℓ_j|² of the usable references (in the order of
+        :attr:`reference_indices`), at the pilot; zeros before :meth:`set_pilot`."""
+        return self._line_var.copy()
+
+    @property
+    def n_stated_ranges(self) -> int:
+        """References read through the confidence map (ranges with a confidence, below the horizon)."""
+        return len(self._stated)
 
     def _set_line_var(self, line_var: np.ndarray) -> None:
         """σ_line² |∇ log ℓ_j|² per reference, and what the likelihood precomputes from it."""
@@ -283,6 +330,8 @@ class MetrologyModel(FreeParameters):
         scales = self.reference_scales  # (m, K)
         self._inv_scales = 1.0 / scales
         self._log_scale_sum = np.log(scales[self._single]).sum(axis=0)  # the singles' normalisers
+        sd = np.sqrt(self._stated_scale**2 + line_var[self._stated])
+        self._stated_inv_sd, self._stated_log_sd_sum = 1.0 / sd, float(np.log(sd).sum())
 
     def set_pilot(self, full: np.ndarray) -> None:
         """Fix each reference's scale s_j at the (7,) parameter vector ``full`` (module docstring).
@@ -306,12 +355,17 @@ class MetrologyModel(FreeParameters):
     @property
     def reference_scales(self) -> np.ndarray:
         """(m, K) the scales s_jk = √(s_k² + σ_line² |∇ log ℓ_j|²) of the usable references in
-        log-length, for each crowd scale s_k of the grid (K = 1 with a fixed ``ref_scale``)."""
-        return np.sqrt(self._scale_grid[None, :] ** 2 + self._line_var[:, None])
+        log-length, for each crowd scale s_k of the grid (K = 1 with a fixed ``ref_scale``); the
+        rows of ranges read through the confidence map hold their own √(s_c² + σ_line² |∇ log ℓ_j|²)
+        in every column."""
+        out = np.sqrt(self._scale_grid[None, :] ** 2 + self._line_var[:, None])
+        out[self._stated] = np.sqrt(self._stated_scale**2 + self._line_var[self._stated])[:, None]
+        return out
 
     def crowd_scale_weights(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The posterior weights of the crowd scale grid at (n, 7) parameter vectors: (grid (K,),
-        weights (n, K)) — what the references say about how accurate their workers were."""
+        weights (n, K)) — what the references say about how accurate their workers were (the
+        ranges read through the confidence map say nothing about it)."""
         params = np.atleast_2d(np.asarray(params, float))
         with np.errstate(divide="ignore", invalid="ignore"):
             log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, params))
@@ -324,7 +378,8 @@ class MetrologyModel(FreeParameters):
                    camera_terms: CameraTerms | None = None, **options) -> "MetrologyModel":
         """The model of ``scene`` for one handedness, with the estimate's ``camera``;
         ``options`` are the settings above."""
-        unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof", "ref_line_sigma"}
+        unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof", "ref_line_sigma",
+                                  "confidence_map"}
         if unknown:
             raise ValueError(f"metrology model: unknown option(s) {sorted(unknown)}")
         t = scene.target
@@ -375,14 +430,30 @@ class MetrologyModel(FreeParameters):
         return 0.5 * (nu + 2.0) * np.sum(np.log1p(r2 / (nu * self.target_sigma**2)), axis=(1, 2))
 
     def _reference_nll(self, log_len: np.ndarray) -> np.ndarray:
-        """−log Σ_k w_k Π_j p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n,)."""
+        """−log Σ_k w_k Π_j p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n,), plus the terms
+        of the ranges read through the confidence map (outside the mixture)."""
+        if self._stated.size and not (self._single.size or self._range.size):
+            out = self._stated_nll(log_len)
+            return np.where(np.isfinite(out), out, 1e300)
         per_k = self._log_w - self._reference_terms(log_len)  # (n, K)
         top = per_k.max(axis=1)
         with np.errstate(invalid="ignore"):
             # clipped at −600: smaller terms add nothing, and exp into subnormals is slow
             rel = np.maximum(per_k - top[:, None], -600.0)
             out = -(top + np.log(np.exp(rel).sum(axis=1)))
+            if self._stated.size:
+                out = out + self._stated_nll(log_len)
         return np.where(np.isfinite(out), out, 1e300)
+
+    def _stated_nll(self, log_len: np.ndarray) -> np.ndarray:
+        """Σ_j −log p(m_j | ℓ_j) of the ranges read through the confidence map, (n, m) → (n,):
+        normal or Student-t (the map's ``dof``) in log-length, constants depending on neither the
+        parameters nor the data dropped."""
+        z = (self._stated_centre - log_len[:, self._stated]) * self._stated_inv_sd
+        dof = self.confidence_map.dof
+        if dof is None:
+            return 0.5 * np.sum(z * z, axis=1) + self._stated_log_sd_sum
+        return (0.5 * (dof + 1.0)) * np.sum(np.log1p(z * z / dof), axis=1) + self._stated_log_sd_sum
 
     def _reference_terms(self, log_len: np.ndarray) -> np.ndarray:
         """Σ_j −log p(v_j | ℓ_j, s_k) for (n, m) log-lengths, shape (n, K).

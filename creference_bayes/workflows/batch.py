@@ -25,7 +25,7 @@ import json
 import time
 import warnings
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -53,6 +53,9 @@ class BatchSettings:
     model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation :
         as :func:`~creference_bayes.estimate`
     sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
+    confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
+        :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
+        actually used (a file's by its content, wherever it lies)
     """
 
     seed: int = 0
@@ -65,17 +68,30 @@ class BatchSettings:
     sampling: dict = field(default_factory=dict)
     focal_prior: str = "auto"
     orientation: str = "auto"
+    confidence_map: object = "default"
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = asdict(replace(self, confidence_map=None))
         d["sampling"] = dict(sorted(self.sampling.items()))
+        d["confidence_map"] = self._map_identity()
+        return d
+
+    def _map_identity(self) -> dict:
+        """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
+        from ..models.confidence_map import describe_confidence_map, resolve_confidence_map
+
+        if self.model == "paper":  # the paper model reads no confidence (the pipeline checks the map)
+            return {"name": "none"}
+        d = describe_confidence_map(resolve_confidence_map(self.confidence_map))
+        d.pop("source", None)
         return d
 
     def estimate_kwargs(self) -> dict:
         return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
-                "focal_prior": self.focal_prior, "orientation": self.orientation}
+                "focal_prior": self.focal_prior, "orientation": self.orientation,
+                "confidence_map": self.confidence_map}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,119 @@
+"""Fitting confidence maps (workflows/confidence_fit.py) on statements with a known true map:
+with ground truth, without (marginal likelihood), per group; levels, PAVA, the chosen shape."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from creference_bayes.bench.confidence_workers import ConfidentWorkers
+from creference_bayes.workflows.confidence_data import StatedRange
+from creference_bayes.workflows.confidence_fit import _P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth
+from creference_bayes.workflows.confidence_loo import N_DRAWS, RangePrediction
+
+
+def _statements(workers, n, seed, measure="length", mode="direct", scenes=None):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        w, lo, hi, c = workers.state(rng)
+        out.append(StatedRange(f"s{i // 6 if scenes is None else scenes}", i % 6, w, measure, mode, c, lo, hi,
+                               1.0, "object"))
+    return out
+
+
+def test_levels_are_the_distinct_confidences_or_quantile_bins():
+    levels, idx = assign_levels([0.9, 0.5, 0.9, 0.7])
+    np.testing.assert_allclose(levels, [0.5, 0.7, 0.9])
+    np.testing.assert_array_equal(idx, [2, 0, 2, 1])
+    c = np.random.default_rng(0).uniform(0.3, 1.0, 1000)
+    levels, idx = assign_levels(c, max_levels=5)
+    assert len(levels) == 5 and np.all(np.diff(levels) > 0)
+    np.testing.assert_allclose(levels, [c[idx == k].mean() for k in range(5)])
+    assert np.all(np.bincount(idx) == 200)
+
+
+@pytest.mark.parametrize("kind", ["over", "calibrated", "under"])
+def test_fit_with_truth_recovers_the_true_map(kind):
+    workers = ConfidentWorkers.pool(kind, n_workers=30, seed=2)
+    cmap = fit_with_truth(_statements(workers, 3000, seed=1), draws=400, interval_prob=0.999)
+    c = cmap.pooled
+    g = workers.true_coverage(np.array(c.levels))
+    assert np.all((np.array(c.low) <= g) & (g <= np.array(c.high))), (c, g)
+    assert np.all(np.diff(c.coverage) >= 0) and sum(c.n) == 3000
+    assert np.all(np.array(c.high) - np.array(c.low) < 0.25)
+    assert cmap.fit["method"] == "truth" and cmap.fit["ranges"] == 3000 and cmap.fit["scenes"] == 500
+    assert cmap.dof in (10.0, 30.0, None)  # near-normal errors (mild width jitter)
+
+
+def test_the_shape_follows_heavy_tailed_errors():
+    """Errors drawn from a Student-t with 3 degrees of freedom: coverage g, and the fit picks a
+    heavy-tailed shape."""
+    rng = np.random.default_rng(5)
+    g_true = {0.5: 0.3, 0.9: 0.6, 0.99: 0.8}
+    ranges = []
+    for i in range(3000):
+        c = [0.5, 0.9, 0.99][i % 3]
+        s = 1.0 / stats.t.ppf(0.5 + g_true[c] / 2, 3)  # half-width 1 in log-length
+        centre = s * rng.standard_t(3)
+        ranges.append(StatedRange(f"s{i // 6}", i % 6, None, "width", "direct", c, np.exp(centre - 1),
+                                  np.exp(centre + 1), 1.0, "object"))
+    cmap = fit_with_truth(ranges, draws=200)
+    np.testing.assert_allclose(cmap.pooled.coverage, list(g_true.values()), atol=0.05)
+    assert cmap.dof in (2.0, 3.0, 5.0)
+
+
+def test_groups_get_their_own_curves():
+    over = _statements(ConfidentWorkers.pool("over", seed=1), 1200, seed=2, measure="distance")
+    under = _statements(ConfidentWorkers.pool("under", seed=1), 1200, seed=3, measure="width", mode="relative")
+    cmap = fit_with_truth(over + under, draws=200, min_group=1000)
+    assert set(cmap.groups) == {"distance/direct", "width/relative"}
+    assert cmap.coverage(0.9, "distance", "direct") < 0.7 < cmap.coverage(0.9, "width", "relative")
+    assert fit_with_truth(over + under, draws=50, min_group=2000).groups == {}
+
+
+def test_pava_merges_levels_that_would_decrease():
+    grid = np.log(_P_GRID / (1 - _P_GRID))
+    tables = np.array([-(grid - m) ** 2 / (2 * 0.3**2) for m in (-1.0, 0.5, -0.5, 1.0)])
+    p, total = _pava(tables)
+    assert np.all(np.diff(p) >= 0)
+    assert p[1] == p[2]  # the violators share one value: the maximiser of their summed profile
+    np.testing.assert_allclose(np.log(p[1] / (1 - p[1])), 0.0, atol=0.02)
+    np.testing.assert_allclose(np.log(p[[0, 3]] / (1 - p[[0, 3]])), [-1.0, 1.0], atol=0.02)
+
+
+def _predictions(workers, n, seed, spread):
+    """Statements with a calibrated leave-one-out posterior: the truth is a draw from it."""
+    rng = np.random.default_rng(seed)
+    preds = []
+    for r in _statements(workers, n, seed):
+        mu = np.log(r.truth) + spread * rng.standard_normal()  # the posterior's centre
+        draws = mu + spread * rng.standard_normal(N_DRAWS)
+        preds.append(RangePrediction(r, draws, 0.0, 0.0, False))
+    return preds
+
+
+def test_fit_without_truth_recovers_the_true_map_from_calibrated_posteriors():
+    workers = ConfidentWorkers(tuple(f"w{i}" for i in range(20)),
+                               tuple(np.geomspace(0.15, 0.5, 20)), width_factor=0.5, width_jitter=0.0)
+    cmap = fit_marginal(_predictions(workers, 1800, seed=3, spread=0.05), draws=60)
+    c = cmap.pooled
+    g = workers.true_coverage(np.array(c.levels))
+    sd = np.array(c.sd)
+    assert np.all(np.abs(np.array(c.coverage) - g) < 4 * sd + 0.03), (c.coverage, g)
+    assert cmap.dof in (10.0, 30.0, None)  # normal errors
+    assert cmap.fit["method"] == "marginal" and cmap.fit["uncertainty"] == "bootstrap over scenes"
+
+
+def test_fits_are_deterministic_for_a_seed():
+    workers = ConfidentWorkers.pool("over", seed=0)
+    r = _statements(workers, 300, seed=0)
+    assert fit_with_truth(r, seed=4) == fit_with_truth(r, seed=4)
+    p = _predictions(workers, 120, 1, 0.1)
+    assert fit_marginal(p, seed=4, draws=20, min_per_level=5) == fit_marginal(p, seed=4, draws=20, min_per_level=5)
+
+
+def test_nothing_to_fit_says_so():
+    with pytest.raises(ValueError, match="no range with a stated confidence and a known truth"):
+        fit_with_truth([StatedRange("s", 0, None, "length", "direct", 0.9, 1.0, 2.0)])
+    with pytest.raises(ValueError, match="no confidence level has 10 ranges or more"):
+        fit_with_truth(_statements(ConfidentWorkers.pool("over"), 20, seed=0))
