@@ -28,15 +28,21 @@ import os as _os
 
 # Every array this package factors is tiny (4x4 solves, 8x4 batches, 5x5 Hessians); a threaded
 # BLAS only adds overhead there (measured: 0.93 s vs 0.13 s per MAP on 2 cores). Applies only when
-# numpy is not imported yet and the user has not chosen a thread count.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+# numpy is not imported yet and the user has not chosen a thread count; estimate() also limits an
+# already-loaded BLAS to one thread while it runs (inference/threads.py), unless the user chose.
+_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_USER_SET_THREADS = any(_var in _os.environ for _var in _THREAD_VARS)
+for _var in _THREAD_VARS:
     _os.environ.setdefault(_var, "1")
 
 from .core.metrics import (location_percentage_error, percentage_error, range_percentage_error,
                            range_precision)
 from .io.result import MapEstimate, Result
 from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
+from .inference import threads as _threads
 from .pipeline import estimate
+
+_threads.USER_SET_THREADS = _USER_SET_THREADS
 
 __all__ = [
     "__version__",

@@ -19,6 +19,7 @@ from .core.metrics import location_percentage_error
 from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
+from .inference.threads import single_threaded_blas
 from .io.scene import Scene, load_scene, scene_fingerprint
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models"]
@@ -115,6 +116,16 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    with single_threaded_blas():
+        return _estimate(scene, preset=preset, model=model, use_references=use_references, seed=seed,
+                         posterior=posterior, restarts=restarts, temperature=temperature,
+                         hdi_prob=hdi_prob, sampling=sampling, progress=progress,
+                         orientation=orientation, focal_prior=focal_prior,
+                         orientation_prior=orientation_prior, **options)
+
+
+def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, restarts, temperature,
+              hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, **options) -> Result:
     rng = np.random.default_rng(seed)
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior,
                          orientation_prior=orientation_prior)

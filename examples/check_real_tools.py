@@ -42,7 +42,7 @@ import numpy as np
 from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.io.cvat import cvat_xml
 from creference_bayes.io.labelstudio import label_studio_config, label_studio_task
-from creference_bayes.io.scene import parse_scene, scene_to_dict
+from creference_bayes.io.scene import scene_differences
 
 # ----------------------------------------------------------------------------------------------
 # scenes and comparison
@@ -60,41 +60,6 @@ def make_scenes(n: int, seed: int) -> list[dict]:
     return scenes
 
 
-def differences(got: dict, want: dict, atol: float, drop=()) -> list[str]:
-    """Where two scenes differ (both normalised; numbers to ``atol``; keys in ``drop`` ignored)."""
-    def norm(d):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            d = scene_to_dict(parse_scene(d))
-
-        def strip(x):
-            if isinstance(x, dict):
-                return {k: strip(v) for k, v in x.items() if k not in drop}
-            return [strip(v) for v in x] if isinstance(x, list) else x
-        return strip(d)
-
-    out: list[str] = []
-
-    def walk(a, b, path):
-        if isinstance(a, dict) and isinstance(b, dict):
-            for k in sorted(set(a) | set(b)):
-                if k not in a or k not in b:
-                    out.append(f"{path}.{k}: only in {'imported' if k in a else 'original'}")
-                else:
-                    walk(a[k], b[k], f"{path}.{k}")
-        elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
-            for i, (p, q) in enumerate(zip(a, b)):
-                walk(p, q, f"{path}[{i}]")
-        elif isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
-            if abs(a - b) > atol + 1e-12 * abs(b):
-                out.append(f"{path}: {a!r} != {b!r}")
-        elif a != b:
-            out.append(f"{path}: {str(a)[:60]} != {str(b)[:60]}")
-
-    walk(norm(got), norm(want), "scene")
-    return out
-
-
 def run_import(tool: str, export: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
     """``creference import TOOL EXPORT --out OUT`` in this interpreter."""
     cmd = [sys.executable, "-m", "creference_bayes", "import", tool, str(export), "--out", str(out), *extra]
@@ -107,7 +72,7 @@ def compare_dir(out: Path, scenes: list[dict], atol: float, drop=()) -> dict:
     for s in scenes:
         tid = s["target"]["id"]
         got = next((d for d in found.values() if d["target"]["id"] == tid), None)
-        result[tid] = ["not imported"] if got is None else differences(got, s, atol, drop)
+        result[tid] = ["not imported"] if got is None else scene_differences(got, s, atol, drop)
     return result
 
 

@@ -27,39 +27,12 @@ def make_scene():
 
 @pytest.fixture
 def assert_same_scene():
-    """assert_same_scene(a, b, atol=1e-9, drop=()): two scene dicts are the same scene (both
-    normalised by parse_scene → scene_to_dict; numbers equal to ``atol`` absolute and 1e-12
-    relative; keys named in ``drop`` — "seconds", "ground_truth", … — removed anywhere)."""
-    from creference_bayes.io.scene import parse_scene, scene_to_dict
-
-    def _norm(d, drop):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            d = scene_to_dict(parse_scene(d))
-
-        def strip(x):
-            if isinstance(x, dict):
-                return {k: strip(v) for k, v in x.items() if k not in drop}
-            if isinstance(x, list):
-                return [strip(v) for v in x]
-            return x
-        return strip(d)
-
-    def _cmp(x, y, path, atol):
-        if isinstance(x, dict):
-            assert isinstance(y, dict) and set(x) == set(y), f"{path}: keys {sorted(x)} != {sorted(y)}"
-            for k in x:
-                _cmp(x[k], y[k], f"{path}.{k}", atol)
-        elif isinstance(x, list):
-            assert isinstance(y, list) and len(x) == len(y), f"{path}: {x!r} != {y!r}"
-            for i, (p, q) in enumerate(zip(x, y)):
-                _cmp(p, q, f"{path}[{i}]", atol)
-        elif isinstance(x, float) or isinstance(y, float):
-            assert abs(x - y) <= atol + 1e-12 * abs(x), f"{path}: {x!r} != {y!r}"
-        else:
-            assert x == y, f"{path}: {x!r} != {y!r}"
+    """assert_same_scene(a, b, atol=1e-9, drop=()): two scene dicts are the same scene
+    (``creference_bayes.io.scene.scene_differences`` finds nothing)."""
+    from creference_bayes.io.scene import scene_differences
 
     def check(a, b, atol=1e-9, drop=()):
-        _cmp(_norm(a, set(drop)), _norm(b, set(drop)), "scene", atol)
+        diff = scene_differences(a, b, atol=atol, drop=drop)
+        assert not diff, "\n".join(diff)
 
     return check

@@ -1,6 +1,7 @@
 """The package's architecture: folders by concern, imports only downwards, a pure numerical core."""
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -91,3 +92,21 @@ def test_importing_core_and_models_loads_no_heavy_library():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "", f"loaded by importing core and models: {proc.stdout.strip()}"
+
+
+def test_estimates_run_with_one_blas_thread_even_when_numpy_came_first():
+    """A user script that imports NumPy before the package gets the default (threaded) BLAS; the
+    estimate limits it to one thread while it runs, unless the user chose a count."""
+    code = ("import os\n"
+            "for v in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'): os.environ.pop(v, None)\n"
+            "import numpy\n"
+            "from threadpoolctl import threadpool_info\n"
+            "import creference_bayes\n"
+            "from creference_bayes.inference.threads import single_threaded_blas\n"
+            "with single_threaded_blas():\n"
+            "    inside = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+            "print(max(inside), creference_bayes.inference.threads.USER_SET_THREADS)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["1", "False"]

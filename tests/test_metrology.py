@@ -11,7 +11,7 @@ from creference_bayes.core.geometry import (Camera, box_points, dimension_corner
                                             horizon_from_rotation, horizon_line, project,
                                             rotation_from_pitch_roll)
 from creference_bayes.core.metrology import (GroundFrame, SkipRules, aggregate_references,
-                                             pair_bounds, pixel_sensitivity, solve_pair,
+                                             pair_bounds, pixel_sensitivity,
                                              target_ground_point)
 
 #: the skip rules without the pixel-sensitivity rule (tests of exactness keep every stable pair)

@@ -546,3 +546,19 @@ def test_mutated_scenes_raise_only_scene_errors(base, n, data):
         return
     _assert_really_valid(scene)
     assert not (n == 1 and done[0][0] == "nonfinite"), f"accepted a non-finite value at {done}"
+
+
+def test_scene_differences_names_each_changed_place_and_ignores_spelling():
+    from creference_bayes.io.scene import scene_differences
+    raw = _example()
+    assert scene_differences(raw, _parse(raw)) == []  # a dict and its parsed Scene are the same
+    other = copy.deepcopy(raw)
+    other["target"]["dimension_lines"][0]["corners"][0][0] += 0.004
+    other["references"][1]["range"] = [7.0, 9.9793]
+    del other["horizon"]
+    got = scene_differences(raw, other, atol=0.001)
+    assert any(g.startswith("scene.target.dimension_lines[0]") for g in got), got
+    assert any(g.startswith("scene.references[1].") for g in got), got
+    assert "scene.horizon: only in the first scene" in got
+    # within atol, or under a dropped key, nothing is reported
+    assert scene_differences(raw, other, atol=0.01, drop=("references", "horizon")) == []

@@ -132,6 +132,14 @@ def pairs(summary: dict, fig=None):
     return fig
 
 
+def _coverage_bars(ax, x, values, label: str):
+    """Bars of the 50 % and 90 % HDI coverage (``values(level)`` per x) with their nominal lines."""
+    for off, lvl, col in ((-0.2, "50", "tab:orange"), (0.2, "90", "tab:blue")):
+        ax.bar(x + off, values(lvl), 0.38, color=col, label=label.format(lvl))
+        ax.axhline(int(lvl) / 100, color=col, ls="--", lw=1)
+    ax.set_ylim(0, 1.05)
+
+
 def calibration(summary: dict, fig=None):
     """Coverage of the 50 % and 90 % HDIs per parameter, and rank histograms, per model."""
     plt = _plt()
@@ -141,11 +149,8 @@ def calibration(summary: dict, fig=None):
     for m, (model, c) in enumerate(cal.items()):
         ax = fig.add_subplot(len(cal), 1 + len(params), m * (1 + len(params)) + 1)
         x = np.arange(len(params))
-        for off, lvl, col in ((-0.2, "50", "tab:orange"), (0.2, "90", "tab:blue")):
-            ax.bar(x + off, [c["all"].get(p, {}).get(lvl, np.nan) for p in params], 0.38, color=col, label=f"{lvl} %")
-            ax.axhline(int(lvl) / 100, color=col, ls="--", lw=1)
+        _coverage_bars(ax, x, lambda lvl, c=c: [c["all"].get(p, {}).get(lvl, np.nan) for p in params], "{} %")
         ax.set_xticks(x, ["x", "y", "z", "yaw", "µ", "d"], fontsize=8)
-        ax.set_ylim(0, 1.05)
         ax.set_title(f"ours-{model} (T={c['temperature']:g})\ncoverage", fontsize=9)
         ax.legend(fontsize=7, loc="lower left")
         for i, p in enumerate(params):
@@ -169,12 +174,9 @@ def sweep(summary: dict, fig=None):
     ax = fig.add_subplot(111)
     keys = list(sw)
     x = np.arange(len(keys))
-    for off, lvl, col in ((-0.2, "50", "tab:orange"), (0.2, "90", "tab:blue")):
-        ax.bar(x + off, [sw[k]["all"].get("distance_m", {}).get(lvl, np.nan) for k in keys], 0.38,
-               color=col, label=f"{lvl} % HDI")
-        ax.axhline(int(lvl) / 100, color=col, ls="--", lw=1)
+    _coverage_bars(ax, x, lambda lvl: [sw[k]["all"].get("distance_m", {}).get(lvl, np.nan) for k in keys],
+                   "{} % HDI")
     ax.set_xticks(x, [k.replace(", ", "\n") for k in keys], fontsize=8)
-    ax.set_ylim(0, 1.05)
     ax.set_ylabel("share of scenes with the true distance inside")
     ax.set_title("Paper model posterior: coverage against σ (Eq. 5) and temperature T")
     ax.legend(fontsize=8)

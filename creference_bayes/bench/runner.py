@@ -218,7 +218,7 @@ def _truth(scene: Scene) -> dict:
     g = scene.ground_truth
     x, y, z = g.location_m
     return {"x": x, "y": y, "z": z, "yaw": g.yaw_rad, "focal_length_px": g.focal_length_px,
-            "distance_m": float(np.hypot(x, z))}
+            "pitch": g.extra.get("pitch_rad"), "roll": g.extra.get("roll_rad"), "distance_m": float(np.hypot(x, z))}
 
 
 def _hdi(values: np.ndarray, prob: float) -> tuple[float, float]:

@@ -24,6 +24,7 @@ __all__ = ["main", "build_parser", "example_scene_path", "UsageError", "EXIT_INV
 COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes.cli.plot",
                               "creference_bayes.cli.imports", "creference_bayes.cli.bench",
                               "creference_bayes.cli.batch", "creference_bayes.cli.labels",
+                              "creference_bayes.cli.advise",
                               "creference_bayes.cli.confidence"]
 
 EXIT_INVALID = 2

@@ -198,7 +198,8 @@ def _axis_steps(log_post, x0, f0, start, drop, max_halvings) -> np.ndarray:
 
 
 def _secant_hessian(log_post, x0, f0, h) -> np.ndarray:
-    """Central-difference Hessian of log p with per-axis steps ``h`` (one batched call)."""
+    """Central-difference Hessian of log p with per-axis steps ``h`` (one batched call). Entries
+    from points of zero density are non-finite; the caller then falls back to the diagonal."""
     n = len(x0)
     E = np.diag(h)
     pts = [x0 + E, x0 - E]
@@ -207,9 +208,10 @@ def _secant_hessian(log_post, x0, f0, h) -> np.ndarray:
         pts += [x0 + E[i] + E[j], x0 - E[i] - E[j]]
     f = log_post(np.vstack(pts))
     fp, fm = f[:n], f[n:2 * n]
-    H = np.diag((fp + fm - 2.0 * f0) / h**2)
-    for k, (i, j) in enumerate(pairs):
-        fpp, fmm = f[2 * n + 2 * k], f[2 * n + 2 * k + 1]
-        # f(x+ei+ej) + f(x−ei−ej) − 2 f0 = h_i² H_ii + h_j² H_jj + 2 h_i h_j H_ij
-        H[i, j] = H[j, i] = (fpp + fmm - 2.0 * f0 - H[i, i] * h[i]**2 - H[j, j] * h[j]**2) / (2.0 * h[i] * h[j])
+    with np.errstate(invalid="ignore", over="ignore"):  # −∞ − (−∞): NaN, handled by the caller
+        H = np.diag((fp + fm - 2.0 * f0) / h**2)
+        for k, (i, j) in enumerate(pairs):
+            fpp, fmm = f[2 * n + 2 * k], f[2 * n + 2 * k + 1]
+            # f(x+ei+ej) + f(x−ei−ej) − 2 f0 = h_i² H_ii + h_j² H_jj + 2 h_i h_j H_ij
+            H[i, j] = H[j, i] = (fpp + fmm - 2.0 * f0 - H[i, i] * h[i]**2 - H[j, j] * h[j]**2) / (2.0 * h[i] * h[j])
     return H

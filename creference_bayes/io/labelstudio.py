@@ -177,6 +177,8 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
             refs.append(reference_from_fields(fields_, seg, f"{where}, region {rid!r}",
                                               worker=items.worker, seconds=secs))
         horizons.extend(items.horizons)
+    if data.get("creference_scene") is not None:  # a request task of creference advise
+        return _answered_request(data, lines, refs, origins, image_dir, out_dir, where)
     if not lines:
         raise ConversionError(where, "no annotation draws the target's dimension lines "
                                      f"({', '.join(repr(x) for x in TARGET_LABELS)})")
@@ -210,6 +212,32 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
                     "horizon": "the horizon (data.horizon or annotated)",
                     "ground_truth": "data.ground_truth"})
     return TargetScene(safe_name(tid), checked_scene(scene, where, origins), where)
+
+
+def _answered_request(data, lines, refs, origins, image_dir, out_dir, where) -> TargetScene:
+    """A request task (``creference advise``, docs/advice.md) carries the scene it was made for
+    in ``data.creference_scene``: its answers are appended to that scene's dimension lines and
+    references, so the task imports as the scene with the new annotations."""
+    import copy
+
+    base = data["creference_scene"]
+    if not isinstance(base, dict) or not isinstance(base.get("target"), dict):
+        raise ConversionError(where, "data.creference_scene is not a creference-scene/1 scene")
+    scene = copy.deepcopy(base)
+    target = scene["target"]
+    old_lines, old_refs = list(target.get("dimension_lines") or []), list(scene.get("references") or [])
+    shift = {"target.dimension_lines": len(old_lines), "references": len(old_refs)}
+    moved = {}
+    for key, name in origins.items():  # the answers' key paths move behind the scene's own items
+        head, _, index = key.rpartition("[")
+        moved[f"{head}[{int(index[:-1]) + shift[head]}]"] = name
+    target["dimension_lines"] = old_lines + lines
+    if old_refs or refs:
+        scene["references"] = old_refs + refs
+    image_path = _image_path(data, image_dir, out_dir, where)
+    if image_path is not None:
+        scene.setdefault("image", {})["path"] = image_path
+    return TargetScene(safe_name(str(target.get("id", "target"))), checked_scene(scene, where, moved), where)
 
 
 def _whole(value: Any, where: str, what: str) -> int:

@@ -24,7 +24,7 @@ import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -47,6 +47,7 @@ __all__ = [
     "parse_scene",
     "scene_to_dict",
     "scene_fingerprint",
+    "scene_differences",
     "near_miss",
 ]
 
@@ -557,3 +558,48 @@ def scene_fingerprint(scene: Scene) -> str:
     """
     text = json.dumps(scene_to_dict(scene), sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:
+    """Where two scenes differ, one line each (an empty list: the same scene).
+
+    Both are normalised first (``parse_scene`` then ``scene_to_dict``, warnings silenced), so
+    spelling that the format allows either way (defaults, units, key order) does not count.
+    Numbers are compared to ``atol`` (pixels or metres, as the key has them) plus 1e-12 relative;
+    keys named in ``drop`` (e.g. ``"seconds"``, ``"ground_truth"``) are removed at every depth.
+    Used for round trips through annotation tools.
+    """
+    drop = set(drop)
+
+    def norm(d):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
+
+        def strip(x):
+            if isinstance(x, dict):
+                return {k: strip(v) for k, v in x.items() if k not in drop}
+            return [strip(v) for v in x] if isinstance(x, list) else x
+        return strip(d)
+
+    out: list[str] = []
+
+    def walk(x, y, path):
+        if isinstance(x, dict) and isinstance(y, dict):
+            for k in sorted(set(x) | set(y)):
+                if k not in x or k not in y:
+                    out.append(f"{path}.{k}: only in the {'first' if k in x else 'second'} scene")
+                else:
+                    walk(x[k], y[k], f"{path}.{k}")
+        elif isinstance(x, list) and isinstance(y, list) and len(x) == len(y):
+            for i, (p, q) in enumerate(zip(x, y)):
+                walk(p, q, f"{path}[{i}]")
+        elif (isinstance(x, (int, float)) and isinstance(y, (int, float))
+              and not isinstance(x, bool) and not isinstance(y, bool)):
+            if not abs(x - y) <= atol + 1e-12 * abs(y):
+                out.append(f"{path}: {x!r} != {y!r}")
+        elif x != y:
+            out.append(f"{path}: {str(x)[:60]} != {str(y)[:60]}")
+
+    walk(norm(a), norm(b), "scene")
+    return out

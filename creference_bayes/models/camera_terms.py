@@ -14,10 +14,13 @@ Focal length
     length and focal-plane resolution; log-sd :data:`EXIF_LOG_SD`); otherwise a weakly
     informative default from the fields of view of real cameras (:func:`default_focal_prior`).
 Pitch, roll and the camera height (only when pitch and roll are free parameters, i.e. no exact horizon)
-    By default pitch ~ N(0°, 15°), roll ~ N(0°, 10°) and log h ~ Student-t₃(log 1.6 m, 0.5)
+    By default pitch ~ N(0°, 15°), roll ~ N(0°, 10°) and log h ~ N(log 1.6 m, 0.6)
     (:data:`DEFAULT_ORIENTATION_PRIOR`): photos are mostly taken near level, seldom tilted by
     more than a few degrees, looking down by up to a few tens of degrees, from about eye or car
-    height (0.6–4.4 m within two scales, a balcony or a drone still possible in the tails).
+    height (0.5–5.3 m within two standard deviations; a balcony or a drone needs the scene's
+    ``camera.orientation_prior``). The height's prior is a log-normal rather than a heavy-tailed
+    one on purpose: a density over h with polynomial tails in log h, times the Jacobian 1/h,
+    grows without bound as h → 0 and pulled weakly identified MAPs onto the lowest height allowed.
     Without a horizon the target and the references trade the camera's pitch against its
     height and the depth; without this prior the posterior's tail runs to cameras tens of metres
     up. With an exact horizon the height is pinned by the data and no prior is applied.
@@ -123,15 +126,15 @@ def default_focal_prior(image_size) -> FocalPrior:
 @dataclass(frozen=True)
 class OrientationPrior:
     """Priors on the camera's pose when there is no exact horizon: independent normals on pitch
-    and roll (radians; pitch > 0 looks down) and a Student-t₃ on the log of its height above the
-    floor (median ``height_median_m`` metres, scale ``height_log_sd``)."""
+    and roll (radians; pitch > 0 looks down) and a log-normal on its height above the floor
+    (median ``height_median_m`` metres, log-sd ``height_log_sd``)."""
 
     pitch_mean: float = 0.0
     pitch_sd: float = float(np.radians(15.0))
     roll_mean: float = 0.0
     roll_sd: float = float(np.radians(10.0))
     height_median_m: float = 1.6
-    height_log_sd: float = 0.5
+    height_log_sd: float = 0.6
 
     def __post_init__(self):
         for key in ("pitch_sd", "roll_sd", "height_median_m", "height_log_sd"):
@@ -143,7 +146,7 @@ class OrientationPrior:
         z = (np.log(h) - np.log(self.height_median_m)) / self.height_log_sd
         return (0.5 * ((np.asarray(pitch) - self.pitch_mean) / self.pitch_sd) ** 2
                 + 0.5 * ((np.asarray(roll) - self.roll_mean) / self.roll_sd) ** 2
-                + 2.0 * np.log1p(z**2 / 3.0) + np.log(h))
+                + 0.5 * z**2 + np.log(h))
 
     def to_dict(self) -> dict:
         out = {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}

@@ -1,0 +1,183 @@
+"""The cheap update behind the advice: posterior draws reweighted by a simulated annotation, the
+effective-sample-size check, a tempered resample-move fallback when the weights collapse, and
+the weighted summaries the advice reports (NumPy only).
+
+For M simulated annotations and N current draws the weights form an (M, N) matrix: row i is the
+posterior after the i-th simulated annotation, as importance weights p(new_i | θ_j) on the draws
+θ_j (the draws are from the current posterior, so the ratio of the new posterior to the current
+one is the new annotation's likelihood, including whatever else adding it changes in the model).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .advice_iou import iou_3d_pairs
+
+__all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "normalise", "weighted_hdi", "location_sd", "mean_boxes",
+           "p_iou", "systematic_resample", "tempered_update"]
+
+#: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
+#: not trusted: that simulated future is recomputed by :func:`tempered_update`.
+MIN_ESS = 30.0
+MIN_ESS_FRACTION = 0.05
+
+
+def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of log-weights (M, N) → normalised weights (M, N) and each row's ESS (M,).
+
+    A row with no finite weight gets ESS 0 (and uniform weights, to be replaced by the caller).
+    """
+    log_w = np.atleast_2d(np.asarray(log_w, float))
+    top = np.max(np.where(np.isfinite(log_w), log_w, -np.inf), axis=1, keepdims=True)
+    dead = ~np.isfinite(top[:, 0])
+    with np.errstate(invalid="ignore"):
+        w = np.exp(np.where(np.isfinite(log_w), log_w - np.where(dead[:, None], 0.0, top), -np.inf))
+    w[dead] = 1.0
+    w /= w.sum(axis=1, keepdims=True)
+    ess = 1.0 / np.sum(w * w, axis=1)
+    ess[dead] = 0.0
+    return w, ess
+
+
+def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shortest interval holding ``prob`` of the weight, and the weighted median, per row.
+
+    Parameters
+    ----------
+    values : (N,) draws of one quantity
+    weights : (M, N) normalised weights
+    prob : in (0, 1)
+
+    Returns
+    -------
+    width (M,), median (M,) in the unit of ``values``
+    """
+    values = np.asarray(values, float)
+    w = np.atleast_2d(weights)
+    order = np.argsort(values)
+    v = values[order]
+    m, n = w.shape
+    c = np.concatenate([np.zeros((m, 1)), np.cumsum(w[:, order], axis=1)], axis=1)  # (M, N + 1)
+    c[:, -1] = 1.0 + 1e-12
+    offset = 2.0 * np.arange(m)[:, None]
+    flat = (c + offset).ravel()
+    # for each start a: the first end b with C[b] − C[a] ≥ prob (b indexes C, so the end draw is b − 1)
+    goal = (c[:, :n] + prob - 1e-12 + offset).ravel()
+    b = (np.searchsorted(flat, goal) - (np.arange(m)[:, None] * (n + 1)).repeat(n, axis=1).ravel()).reshape(m, n)
+    ok = b <= n
+    width = np.where(ok, v[np.clip(b - 1, 0, n - 1)] - v[None, :], np.inf).min(axis=1)
+    mid = np.searchsorted(flat, (0.5 + offset).ravel()) - np.arange(m) * (n + 1)
+    median = v[np.clip(mid - 1, 0, n - 1)]
+    return width, median
+
+
+def location_sd(full: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """√(var x + var y + var z) per row of weights (M,), metres; ``full`` (N, 7) draws."""
+    loc = np.asarray(full, float)[:, :3]
+    w = np.atleast_2d(weights)
+    mean = w @ loc                       # (M, 3)
+    second = w @ (loc * loc)
+    return np.sqrt(np.maximum(np.sum(second - mean * mean, axis=1), 0.0))
+
+
+def mean_boxes(full: np.ndarray, weights: np.ndarray, sizes) -> np.ndarray:
+    """The weighted posterior-mean box per row (M, 7): mean x, y, z, circular mean yaw, ``sizes``."""
+    full = np.asarray(full, float)
+    w = np.atleast_2d(weights)
+    loc = w @ full[:, :3]
+    yaw = np.arctan2(w @ np.sin(full[:, 3]), w @ np.cos(full[:, 3]))
+    return np.column_stack([loc, yaw, np.broadcast_to(np.asarray(sizes, float), (len(w), 3))])
+
+
+def systematic_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
+    """``n`` indices drawn by systematic resampling from normalised ``weights`` (N,)."""
+    c = np.cumsum(weights)
+    c[-1] = 1.0
+    return np.searchsorted(c, (rng.uniform() + np.arange(n)) / n)
+
+
+def p_iou(full: np.ndarray, weights: np.ndarray, sizes, threshold: float, rng, n_pairs: int = 64) -> np.ndarray:
+    """P(IoU(mean box, true box) ≥ threshold) per row of weights (M,).
+
+    The true box is a posterior draw; each row's share is estimated from ``n_pairs`` draws
+    resampled (systematically) by its weights, which keeps the cost at M × ``n_pairs`` IoUs.
+    """
+    full = np.asarray(full, float)
+    w = np.atleast_2d(weights)
+    boxes = mean_boxes(full, w, sizes)
+    idx = np.stack([systematic_resample(row, n_pairs, rng) for row in w])   # (M, n_pairs)
+    draws = np.column_stack([full[:, :4], np.broadcast_to(np.asarray(sizes, float), (len(full), 3))])
+    iou = iou_3d_pairs(np.repeat(boxes, n_pairs, axis=0), draws[idx.ravel()])
+    return (iou.reshape(len(w), n_pairs) >= threshold).mean(axis=1)
+
+
+def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: int = 4,
+                    ess_fraction: float = 0.5, max_stages: int = 50) -> tuple[np.ndarray, dict]:
+    """Move draws of the current posterior to the new one when plain reweighting collapses.
+
+    Sequential Monte Carlo along the path p_β ∝ p_old^(1−β) p_new^β: β grows in steps chosen so
+    that each step's weights keep an ESS of ``ess_fraction`` · N; after each step the draws are
+    resampled (systematically) and moved by ``n_moves`` random-walk Metropolis steps that leave
+    p_β invariant (Gaussian proposals with the draws' covariance, scale adapted to the acceptance).
+
+    Parameters
+    ----------
+    log_old, log_new : callables (n, d) → (n,), the unnormalised log-densities of the current and
+        the new posterior (−∞ outside the support)
+    particles : (N, d) draws of the current posterior
+    rng : numpy Generator
+
+    Returns
+    -------
+    (N, d) draws of the new posterior (equally weighted), and ``info`` (stages, acceptance)
+    """
+    x = np.array(particles, float)
+    n, d = x.shape
+    lo, ln = log_old(x), log_new(x)
+    base_cov = np.cov(x.T).reshape(d, d)
+    jitter = 1e-8 * np.diag(np.diag(base_cov)) + 1e-300 * np.eye(d)
+    beta, stages, accepted, tried = 0.0, 0, 0, 0
+    step = 2.38 / np.sqrt(d)
+    while beta < 1.0 and stages < max_stages:
+        delta = np.where(np.isfinite(ln) & np.isfinite(lo), ln - lo, -np.inf)
+        nxt = _next_beta(delta, beta, ess_fraction * n)
+        w, _ = normalise(((nxt - beta) * delta)[None])
+        idx = systematic_resample(w[0], n, rng)
+        x, lo, ln, beta = x[idx], lo[idx], ln[idx], nxt
+        stages += 1
+        unique = len(np.unique(idx))
+        cov = np.cov(x.T).reshape(d, d) if unique > d else np.diag(np.diag(base_cov)) * unique / n
+        chol = np.linalg.cholesky(cov + jitter)
+        for _ in range(n_moves):
+            prop = x + step * rng.standard_normal((n, d)) @ chol.T
+            plo, pln = log_old(prop), log_new(prop)
+            cur, new = _bridge(lo, ln, beta), _bridge(plo, pln, beta)
+            with np.errstate(invalid="ignore"):
+                acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(new), new - cur, -np.inf)
+            x[acc], lo[acc], ln[acc] = prop[acc], plo[acc], pln[acc]
+            rate = acc.mean()
+            accepted, tried = accepted + acc.sum(), tried + n
+            step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
+    return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta}
+
+
+def _bridge(lo: np.ndarray, ln: np.ndarray, beta: float) -> np.ndarray:
+    """log p_β = (1 − β) log p_old + β log p_new, −∞ wherever either is (no 0 · ∞)."""
+    with np.errstate(invalid="ignore"):
+        out = (1.0 - beta) * lo + beta * ln
+    return np.where(np.isfinite(lo) & np.isfinite(ln), out, -np.inf)
+
+
+def _next_beta(delta: np.ndarray, beta: float, ess_goal: float) -> float:
+    """The largest β' ≤ 1 whose incremental weights exp((β' − β) δ) keep ESS ≥ ``ess_goal``."""
+    def ess(b):
+        return normalise(((b - beta) * delta)[None])[1][0]
+
+    if ess(1.0) >= ess_goal:
+        return 1.0
+    lo, hi = beta, 1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ess(mid) >= ess_goal else (lo, mid)
+    return max(lo, beta + 1e-6)
