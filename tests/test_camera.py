@@ -11,7 +11,7 @@ from PIL import Image
 from scipy import stats
 
 import creference_bayes as cb
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.simulate import simulate_scene, true_params
 from creference_bayes.camera_setup import GIVEN_HORIZON_SD_PX, setup_camera
 from creference_bayes.core.geometry import horizon_from_rotation, rotation_from_pitch_roll
 from creference_bayes.io.scene import SceneError, parse_scene, scene_to_dict
@@ -32,9 +32,6 @@ def _parse(d):
         return parse_scene(d)
 
 
-def _truth(scene):
-    g = scene.ground_truth
-    return np.array([*g.location_m, g.yaw_rad, g.focal_length_px, g.extra["pitch_rad"], g.extra["roll_rad"]])
 
 
 # -- orientation and focal prior decisions ------------------------------------------------------
@@ -137,7 +134,7 @@ def test_sampling_coordinates_round_trip_and_jacobian():
     hd = HorizonDistance.from_model(model)
     assert hd is not None and HorizonDistance.from_model(build_models(_parse(_scene_dict(5)),
                                                                       setup_camera(_parse(_scene_dict(5))))[0]) is None
-    p = _truth(s)[model.free] + np.random.default_rng(1).normal(0, 0.01, (6, 7))
+    p = true_params(s)[model.free] + np.random.default_rng(1).normal(0, 0.01, (6, 7))
     q = hd.forward(p)
     np.testing.assert_allclose(hd.inverse(q), p, rtol=1e-12, atol=1e-12)
     eps = 1e-6
@@ -201,12 +198,12 @@ def test_free_orientation_recovers_noise_free_scenes():
         del d["horizon"]
         s = _parse(d)
         r = cb.estimate(s, posterior=False)
-        m, t = r.map.params, _truth(s)
+        m, t = r.map.params, true_params(s)
         assert r.evaluation.location_pct_error < 0.2, (seed, r.evaluation.location_pct_error)
         assert abs(m[5] - t[5]) < np.radians(0.2) and abs(m[6] - t[6]) < np.radians(0.2)
 
 
-def test_without_a_horizon_the_posterior_widens_and_still_holds_the_truth():
+def test_without_a_horizon_the_posterior_widens_and_still_holds_thetrue_params():
     d = _scene_dict(11, n_target_annotations=5, roll_deg=4.0, principal_offset=0.05)
     s = _parse(d)
     kw = dict(seed=0, sampling={"min_ess": 300})

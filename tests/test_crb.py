@@ -14,7 +14,7 @@ from creference_bayes.core.geometry import (Camera, box_points, dimension_corner
                                            rotation_from_pitch_roll)
 from creference_bayes.models.metrology import ground_lengths
 from creference_bayes.io.scene import parse_scene
-from creference_bayes.bench.simulate import PAPER_NOISE, simulate_scene
+from creference_bayes.bench.simulate import PAPER_NOISE, simulate_scene, true_params
 
 
 def _scene(seed, **kw):
@@ -25,8 +25,7 @@ def _scene(seed, **kw):
 
 def _truth(scene):
     g, t = scene.ground_truth, scene.target
-    p = np.array([*g.location_m, g.yaw_rad, g.focal_length_px, g.extra["pitch_rad"], g.extra["roll_rad"]])
-    return p, dimension_corners(t.length, t.width, t.height, g.extra["handedness"]), Camera.from_scene(scene)
+    return true_params(scene), dimension_corners(t.length, t.width, t.height, g.extra["handedness"]), Camera.from_scene(scene)
 
 
 def test_bound_matches_the_spread_of_maximum_likelihood():

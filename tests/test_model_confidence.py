@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 
 from creference_bayes.bench.confidence_workers import ConfidentWorkers
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.simulate import simulate_scene, true_params
 from creference_bayes.core.geometry import Camera
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.confidence_map import ConfidenceMap, CoverageCurve, interval_quantile
@@ -27,9 +27,6 @@ def _scene(seed, confidence=WORKERS, **kw):
         return parse_scene(simulate_scene(np.random.default_rng(seed), tier="low", confidence=confidence, **kw))
 
 
-def _truth(scene):
-    g = scene.ground_truth
-    return np.array([*g.location_m, g.yaw_rad, g.focal_length_px, g.extra["pitch_rad"], g.extra["roll_rad"]])
 
 
 def _model(scene, **kw):
@@ -43,7 +40,7 @@ def _without_confidence(scene):
 
 def _params(scene, n=6, seed=0):
     rng = np.random.default_rng(seed)
-    p = np.repeat(_truth(scene)[None], n, axis=0)
+    p = np.repeat(true_params(scene)[None], n, axis=0)
     p[:, 1] *= np.exp(rng.normal(0, 0.1, n))
     p[:, 4] *= np.exp(rng.normal(0, 0.1, n))
     return p
@@ -60,7 +57,7 @@ def test_none_is_exactly_the_treatment_without_confidences(seed):
     for m in (_model(scene), _model(scene, confidence_map=None),
               _model(_without_confidence(scene), confidence_map=ConfidenceMap.identity())):
         for model in (plain, m):
-            model.set_pilot(_truth(scene))
+            model.set_pilot(true_params(scene))
         np.testing.assert_array_equal(m.cost(params), plain.cost(params))
         assert m.n_stated_ranges == 0
 
@@ -71,7 +68,7 @@ def test_mapped_ranges_are_measurements_of_log_length_against_scipy(cmap):
     S² = s_c² + line variance, s_c = w / q_D((1 + g(c))/2), outside any mixture."""
     scene = _scene(4)
     m = _model(scene, confidence_map=cmap)
-    m.set_pilot(_truth(scene))
+    m.set_pilot(true_params(scene))
     assert m.n_stated_ranges == len(scene.references)
     params = _params(scene)
     lo, hi = np.log([r.length_bounds_m(scene.target) for r in scene.references]).T
@@ -95,7 +92,7 @@ def test_mixed_references_add_the_mapped_terms_to_the_mixture_of_the_others():
     others = _model(replace(mixed, references=tuple(refs[:2])))
     mapped = _model(replace(mixed, references=tuple(refs[2:])), confidence_map=FITTED)
     for model in (m, others, mapped):
-        model.set_pilot(_truth(scene))
+        model.set_pilot(true_params(scene))
     assert m.n_stated_ranges == len(refs) - 2
     params = _params(scene)
     np.testing.assert_allclose(m.reference_nll(params),

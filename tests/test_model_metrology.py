@@ -20,7 +20,7 @@ from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.pipeline import build_models, estimate
 from creference_bayes.io.scene import parse_scene, scene_to_dict
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.simulate import simulate_scene, true_params
 
 
 def _scene(seed, n=5, **kw):
@@ -30,9 +30,6 @@ def _scene(seed, n=5, **kw):
     return replace(s, target=replace(s.target, dimension_lines=s.target.dimension_lines[:n]))
 
 
-def _truth(scene):
-    g = scene.ground_truth
-    return np.array([*g.location_m, g.yaw_rad, g.focal_length_px, g.extra["pitch_rad"], g.extra["roll_rad"]])
 
 
 def _model(scene, **kw):
@@ -87,18 +84,21 @@ def test_reference_terms_against_scipy_student_t():
 
 
 def test_closed_form_t2_interval_matches_scipy_far_into_the_tails():
-    from creference_bayes.models.metrology import _t_interval
+    from creference_bayes.models.metrology import t_interval
 
     rng = np.random.default_rng(0)
     lo = -np.exp(rng.uniform(-5, 14, 2000))
     hi = lo + np.exp(rng.uniform(-6, 15, 2000))
-    keep = lo + hi <= 0  # the callers' convention (they flip intervals into the lower half)
-    lo, hi = lo[keep], hi[keep]
-    t2 = stats.t(2)
-    want = np.where(hi <= 0, t2.sf(-hi) - t2.sf(-lo), t2.cdf(hi) - t2.cdf(lo))
-    np.testing.assert_allclose(_t_interval(2.0, lo, hi), want, rtol=1e-6)  # both lose digits to cancellation
-    np.testing.assert_allclose(_t_interval(3.0, lo, hi), stats.t(3).cdf(hi) - stats.t(3).cdf(lo), rtol=1e-8,
-                               atol=1e-15)
+    t2, t3 = stats.t(2), stats.t(3)
+    # scipy's lower-tail form where the interval sits in the lower half, its upper-tail form otherwise
+    lower = lo + hi <= 0
+    want2 = np.where(lower, t2.cdf(hi) - t2.cdf(lo), t2.sf(lo) - t2.sf(hi))
+    want3 = np.where(lower, t3.cdf(hi) - t3.cdf(lo), t3.sf(lo) - t3.sf(hi))
+    assert 0 < lower.sum() < len(lo)  # both halves are exercised
+    np.testing.assert_allclose(t_interval(2.0, lo, hi), want2, rtol=1e-6)  # both lose digits to cancellation
+    np.testing.assert_allclose(t_interval(3.0, lo, hi), want3, rtol=1e-8, atol=1e-15)
+    # mirrored intervals have the same probability
+    np.testing.assert_allclose(t_interval(2.0, -hi, -lo), t_interval(2.0, lo, hi), rtol=1e-12)
 
 
 def test_crowd_scale_adapts_to_the_references():
@@ -109,7 +109,7 @@ def test_crowd_scale_adapts_to_the_references():
     means = []
     for sc in (exact, noisy):
         m = _model(sc)
-        grid, w = m.crowd_scale_weights(_truth(sc))
+        grid, w = m.crowd_scale_weights(true_params(sc))
         means.append(float(np.exp(np.sum(w[0] * np.log(grid)))))
     assert means[0] < 0.02 < 0.2 < means[1]
 
@@ -121,7 +121,7 @@ def test_line_noise_widens_far_references():
     s = _scene(4, tier="medium", setting="outdoor")
     m = _model(s, ref_line_sigma=10.0, ref_scale=0.75)
     np.testing.assert_allclose(m.reference_scales, m.ref_scale)  # no pilot yet
-    p = _truth(s)
+    p = true_params(s)
     m.set_pilot(p)
     scale = m.reference_scales[:, 0]
     cam, mu, h = m.camera, p[4], p[1]
@@ -217,7 +217,7 @@ def test_interface_and_bounds():
     assert m.name == "metrology" and m.default_temperature == 1.0
     assert m.bounds.lower[1] == MIN_CAMERA_HEIGHT_M
     assert not m.free[5:].any() and m.free[:5].all()  # pitch and roll follow from the horizon
-    p = np.tile(_truth(s), (7, 1))
+    p = np.tile(true_params(s), (7, 1))
     assert m.cost(p).shape == (7,)
     np.testing.assert_allclose(m.expand(p[:, m.free]), p, atol=1e-6)  # derived angles ≈ the truth
     assert m.observed.shape == (4, 2) and m.obj_corners.shape == (4, 3)

@@ -14,7 +14,7 @@ from creference_bayes.inference.optimize import (_Counter, _paper, optimize_map,
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.pipeline import build_models as _build_models
 from creference_bayes.io.scene import parse_scene
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.simulate import simulate_scene, true_params
 
 
 def noise_free_scene(seed: int, setting: str, **kwargs):
@@ -26,9 +26,6 @@ def noise_free_scene(seed: int, setting: str, **kwargs):
         return parse_scene(d)
 
 
-def _truth(scene) -> np.ndarray:
-    gt = scene.ground_truth
-    return np.r_[gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"], gt.extra["roll_rad"]]
 
 
 def build_models(scene, model="paper", **kw):
@@ -37,7 +34,7 @@ def build_models(scene, model="paper", **kw):
 
 
 def _check_recovered(scene, est, tol_pct=0.1):
-    truth = _truth(scene)
+    truth = true_params(scene)
     err = location_percentage_error(est.params[:3], truth[:3])
     assert err < tol_pct, f"location error {err:.4g} %"
     assert est.handedness == scene.ground_truth.extra["handedness"]
@@ -81,7 +78,7 @@ def test_known_focal_length_is_kept_fixed():
 def test_theta_scan_is_exact_at_the_true_yaw():
     """For a yaw on the scan's grid, the linear solve returns the true pose and focal length."""
     scene = noise_free_scene(5, "outdoor")
-    truth = _truth(scene)
+    truth = true_params(scene)
     n_theta = 360
     grid = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
     k = 123

@@ -225,15 +225,14 @@ def cramer_rao_scene(scene, *, n_annotations: int = 5, references: bool = False,
     orientation_free : pitch and roll unknown (default: when the scene has no horizon)
     horizon_sd_px : a horizon measured with this uncertainty (with ``orientation_free``)
     """
-    from .simulate import TIERS
+    from .simulate import TIERS, true_params
 
     gt = scene.ground_truth
     if gt is None or "tier" not in gt.extra:
         raise ValueError("scene: needs simulated ground truth (ground_truth.tier, handedness, …)")
     tier = TIERS[gt.extra["tier"]]
     t = scene.target
-    params = np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"],
-                       gt.extra["roll_rad"]])
+    params = true_params(scene)
     free_orientation = scene.horizon is None if orientation_free is None else orientation_free
     corners = dimension_corners(t.length, t.width, t.height, int(gt.extra["handedness"]))
     lines = None

@@ -20,7 +20,7 @@ from ..core.units import UNITS_TO_M
 from .confidence_workers import ConfidentWorkers
 
 __all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION",
-           "simulate_scene", "measurement_factor"]
+           "simulate_scene", "measurement_factor", "true_params"]
 
 
 @dataclass(frozen=True)
@@ -139,6 +139,19 @@ def _place(rng, setting, R, f, pp, h, size, w_img, h_img, dist_range, need_insid
         if np.all((pts[:, 0] > 5) & (pts[:, 0] < w_img - 5) & (pts[:, 1] > 5) & (pts[:, 1] < h_img - 5)):
             return params, uv, verts
     raise RuntimeError("could not place an object inside the image")
+
+
+def true_params(scene) -> np.ndarray:
+    """The true parameter vector of a simulated scene, shape (7,), in ``PARAM_NAMES`` order:
+    x, y, z (m), yaw (rad), focal length (px), pitch, roll (rad).
+
+    Raises ValueError when the scene has no simulated ground truth (pitch and roll in its extras).
+    """
+    gt = scene.ground_truth
+    if gt is None or "pitch_rad" not in gt.extra or "roll_rad" not in gt.extra:
+        raise ValueError("scene: needs simulated ground truth (ground_truth.pitch_rad and roll_rad)")
+    return np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"],
+                     gt.extra["roll_rad"]], dtype=float)
 
 
 def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTier = "none",

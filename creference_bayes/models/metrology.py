@@ -86,7 +86,7 @@ __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
     "REF_SCALE_GRID", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
     "REF_LINE_FACTOR", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
-    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths",
+    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "t_interval",
 ]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -473,17 +473,21 @@ class MetrologyModel(FreeParameters):
         if r.size:
             a = (self._log_low[r, None] - log_len[:, r, None]) * inv[r]
             b = (self._log_high[r, None] - log_len[:, r, None]) * inv[r]
-            flip = (a + b) > 0  # use the lower tail for accuracy: T(b) − T(a) = T(−a) − T(−b)
-            lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
-            p = _t_interval(nu, lo, hi)
+            p = t_interval(nu, a, b)
             out -= np.log(np.maximum(p, 1e-300)).sum(axis=1)
         return out
 
 
-def _t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """T_ν(hi) − T_ν(lo) for lo ≤ hi and lo + hi ≤ 0 (so lo ≤ 0): in closed form for ν = 2,
-    through the lower tail G(x) = T₂(x) = 1/(r(r − x)), r = √(x² + 2), x ≤ 0, which keeps full
-    relative precision far out in the tail; scipy's ``stdtr`` otherwise."""
+def t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """T_ν(hi) − T_ν(lo), the Student-t probability of [lo, hi] (lo ≤ hi, elementwise), to full
+    relative precision far out in either tail.
+
+    An interval in the upper half is mirrored into the lower one (T(b) − T(a) = T(−a) − T(−b)),
+    where the tail G(x) = T₂(x) = 1/(r(r − x)), r = √(x² + 2), x ≤ 0, is exact for ν = 2; other ν
+    use scipy's ``stdtr``.
+    """
+    flip = (lo + hi) > 0
+    lo, hi = np.where(flip, -hi, lo), np.where(flip, -lo, hi)
     if nu != 2.0:
         return stdtr(nu, hi) - stdtr(nu, lo)
     ah = -np.abs(hi)

@@ -29,11 +29,10 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import stdtr
 
 from ..core.cost import project_params
 from ..io.scene import DimensionLine, Reference
-from ..models.metrology import MIN_CAMERA_HEIGHT_M, ground_lengths
+from ..models.metrology import MIN_CAMERA_HEIGHT_M, ground_lengths, t_interval
 from ..pipeline import build_models
 
 __all__ = ["ModelContext", "TargetObservation", "ReferenceObservation", "observation_for"]
@@ -201,25 +200,12 @@ class ReferenceObservation:
             lo = (self.log_low[rows, None, None] - log_len[None, :, None]) * inv   # (r, N, K')
             if ranged:
                 hi = (self.log_high[rows, None, None] - log_len[None, :, None]) * inv
-                p = np.maximum(_t_interval(nu, lo, hi), 0.0)
+                p = np.maximum(t_interval(nu, lo, hi), 0.0)
             else:  # the t density in log-length, its ν-only constant dropped (polynomial tails: no underflow)
                 p = inv * (1.0 + lo * lo / nu) ** (-0.5 * (nu + 1.0))
             with np.errstate(divide="ignore"):
                 out[rows] = np.log(np.einsum("rnk,nk->rn", p, pi))
         return np.where(np.isfinite(out), out, -np.inf)
-
-
-def _t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """T_ν(hi) − T_ν(lo) for lo ≤ hi, through the lower tail (full relative precision far out);
-    in closed form for ν = 2 (T₂(x) = 1/(r(r − x)) for x ≤ 0, r = √(x² + 2)), as the model does."""
-    flip = (lo + hi) > 0  # T(b) − T(a) = T(−a) − T(−b)
-    lo, hi = np.where(flip, -hi, lo), np.where(flip, -lo, hi)
-    if nu != 2.0:
-        return stdtr(nu, hi) - stdtr(nu, lo)
-    ah = -np.abs(hi)
-    rh, rl = np.sqrt(ah * ah + 2.0), np.sqrt(lo * lo + 2.0)
-    g_hi, g_lo = 1.0 / (rh * (rh - ah)), 1.0 / (rl * (rl - lo))
-    return np.where(hi <= 0, g_hi, 1.0 - g_hi) - g_lo
 
 
 def observation_for(candidate, ctx: ModelContext, mix):
