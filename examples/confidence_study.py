@@ -58,10 +58,9 @@ def pool(kind: str, seed: int) -> ConfidentWorkers:
     return ConfidentWorkers.pool(kind, n_workers=40, seed=[seed, POOL_SEEDS[kind]])
 
 
-def true_map(workers: ConfidentWorkers, dof: float | None = None) -> ConfidenceMap:
-    """The workers' true coverage as a map, read through a normal (``dof`` None) or a Student-t."""
+def true_map(workers: ConfidentWorkers) -> ConfidenceMap:
     lv = np.array(workers.levels)
-    return ConfidenceMap(kind="fitted", pooled=CoverageCurve(tuple(lv), tuple(workers.true_coverage(lv))), dof=dof,
+    return ConfidenceMap(kind="fitted", pooled=CoverageCurve(tuple(lv), tuple(workers.true_coverage(lv))),
                          fit={"method": "true map of the simulated workers"})
 
 
@@ -292,9 +291,6 @@ def part_c(args, sizes, out, lines, fitted_a: dict, fitted_b: ConfidenceMap | No
         if kind == "over" and fitted_b is not None:
             maps["fitted, no truth (b)"] = fitted_b
         maps["true map"] = true_map(workers)
-        if kind in fitted_a and fitted_a[kind].dof is not None:
-            # the true coverage read through the fit's shape: how much of the fit's effect is its shape
-            maps[f"true map, shape t{fitted_a[kind].dof:g} of (a)"] = true_map(workers, fitted_a[kind].dof)
         jobs = []
         for label, m in maps.items():
             tag = m if isinstance(m, str) else m.digest()[:12]
