@@ -10,7 +10,9 @@ range, with a known true map, and three checks of the research tools against it.
     none, identity, the fits of (a) and (b) and the true map, for over-confident and for
     calibrated workers.
 
-    python examples/confidence_study.py --out confidence_study_out --workers 2          # the full study
+    python examples/confidence_study.py --out confidence_study_out --workers 2          # the full presets
+    python examples/confidence_study.py --out confidence_study_out --workers 2 \
+        --n-a 300 --replicates 200 --n-b 10,25,50,100,200 --n-b-medium 25,100 --n-c 150   # docs/confidence.md
     python examples/confidence_study.py --out /tmp/cs --quick                           # a check, ~2 min
 
 Every data set is written to OUT/data/NAME/ as scene files, so the package's own commands can be
@@ -190,11 +192,46 @@ def part_b(args, sizes, out, lines, tier: str = "low") -> ConfidenceMap:
                 ["scenes", "ranges", "shape", "mean abs error", "max abs error", "mean error",
                  "levels inside 95 %", "mean interval width", "truth fit: mean abs error",
                  "truth fit: mean width", "refits"], rows, lines)
+    block_table(args, sizes, tier, workers, scenes, preds, order, lines)
     n = n_max
     print_table(f"(b) per level, {tier}-noise scenes, {n} scenes", ["stated c", "true g", "fitted g (no truth)", "95 % interval", "n"],
                 [[f"{r['level']:g}", f"{r['true']:.3f}", f"{r['fit']:.3f}", f"{r['low']:.3f}–{r['high']:.3f}", r["n"]]
                  for r in per_level[n]], lines)
     return final
+
+
+def block_table(args, sizes, tier, workers, scenes, preds, order, lines) -> None:
+    """How the fit without truth degrades with fewer scenes, beyond the luck of one data set: the
+    largest data set cut into disjoint blocks of n scenes, both fits on every block."""
+    n_max = len(scenes)
+    truths = stated_ranges(scenes)
+    rows = []
+    for n in [n for n in (sizes["b"] if tier == "low" else sizes["b_medium"]) if 2 * n <= n_max]:
+        stats = {"marg": [], "truth": []}
+        for b in range(n_max // n):
+            block = range(b * n, (b + 1) * n)
+            keys = {scenes[i][0] for i in block}
+            fits = {"marg": fit_marginal([p for p in preds if order[p.range.scene] in block], draws=200,
+                                         seed=args.seed, min_per_level=5),
+                    "truth": fit_with_truth([r for r in truths if r.scene in keys], draws=200, seed=args.seed,
+                                            min_per_level=5)}
+            for name, fit in fits.items():
+                cmp_ = compare(fit, workers)
+                err = np.array([r["fit"] - r["true"] for r in cmp_])
+                stats[name].append((err.mean(), np.abs(err).mean(), np.mean([r["inside"] for r in cmp_])))
+        row = [n, n_max // n]
+        for name in ("marg", "truth"):
+            a = np.array(stats[name])
+            row += [f"{a[:, 0].mean():+.3f} ± {a[:, 0].std(ddof=1) / np.sqrt(len(a)):.3f}", f"{a[:, 1].mean():.3f}",
+                    f"{a[:, 2].mean():.2f}"]
+        rows.append(row)
+    if rows:
+        print_table(f"(b) {tier}-noise scenes, the {n_max} scenes cut into disjoint blocks of n: mean over the "
+                    "blocks of the mean error (± its standard error over blocks), the mean abs error and the "
+                    "share of levels whose 95 % interval holds the true g",
+                    ["n scenes", "blocks", "no truth: mean error", "no truth: mean abs error",
+                     "no truth: levels inside", "truth: mean error", "truth: mean abs error", "truth: levels inside"],
+                    rows, lines)
 
 
 # -- (c) ---------------------------------------------------------------------------------------------
@@ -313,11 +350,24 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="tiny sizes: a check that everything runs")
     ap.add_argument("--quick-b", action="store_true",
                     help="(b) on low-noise scenes only (not also on medium-noise ones)")
+    ap.add_argument("--n-a", type=int, help="scenes per data set of (a) (overrides the preset)")
+    ap.add_argument("--n-b", help="numbers of scenes of (b), low noise, comma-separated (e.g. 10,25,50)")
+    ap.add_argument("--n-b-medium", help="numbers of scenes of (b), medium noise, comma-separated")
+    ap.add_argument("--n-c", type=int, help="scenes per kind of worker in (c)")
+    ap.add_argument("--replicates", type=int, help="replicate data sets of the (a) coverage check")
     args = ap.parse_args()
-    sizes = SIZES["quick" if args.quick else "full"]
+    sizes = dict(SIZES["quick" if args.quick else "full"])
+    for key, value in (("a", args.n_a), ("c", args.n_c), ("replicates", args.replicates)):
+        if value is not None:
+            sizes[key] = value
+    for key, value in (("b", args.n_b), ("b_medium", args.n_b_medium)):
+        if value:
+            sizes[key] = tuple(sorted(int(v) for v in value.split(",")))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    lines = [f"# Confidence-map study (seed {args.seed}, {'quick' if args.quick else 'full'} sizes)"]
+    lines = [f"# Confidence-map study (seed {args.seed}, {'quick' if args.quick else 'full'} sizes; "
+             f"a {sizes['a']}, b {sizes['b']}, b medium {sizes['b_medium']}, c {sizes['c']}, "
+             f"replicates {sizes['replicates']})"]
     t0 = time.perf_counter()
     fitted_a = part_a(args, sizes, out, lines) if "a" in args.parts else {}
     if "a" in args.parts:

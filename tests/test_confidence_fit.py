@@ -117,3 +117,33 @@ def test_nothing_to_fit_says_so():
         fit_with_truth([StatedRange("s", 0, None, "length", "direct", 0.9, 1.0, 2.0)])
     with pytest.raises(ValueError, match="no confidence level has 10 ranges or more"):
         fit_with_truth(_statements(ConfidentWorkers.pool("over"), 20, seed=0))
+
+
+def test_leave_one_out_draws_match_an_estimate_without_the_range():
+    """The importance-weighted draws of a range's length equal (within Monte Carlo error) the
+    posterior of an estimate made without that range."""
+    import dataclasses
+    import warnings
+
+    from creference_bayes.bench.simulate import simulate_scene
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.models.metrology import ground_lengths
+    from creference_bayes.models.params import PARAM_NAMES
+    from creference_bayes.pipeline import estimate
+    from creference_bayes.workflows.confidence_loo import predict_ranges
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = parse_scene(simulate_scene(np.random.default_rng(8), tier="low", n_references=4,
+                                           n_target_annotations=3, confidence=ConfidentWorkers.pool("over")))
+    sampling = {"min_ess": 400}
+    preds, info = predict_ranges(scene, "s", seed=1, sampling=sampling)
+    assert info["ranges"] == len(preds) == 4
+    p = preds[0]
+    without = dataclasses.replace(scene, references=scene.references[1:])
+    post = estimate(without, seed=2, confidence_map="none", sampling=sampling).inference_data.posterior
+    draws = np.column_stack([np.asarray(post[k]).ravel() for k in PARAM_NAMES])
+    exact = np.log(ground_lengths(scene.references[0].line[None], scene.principal_point, draws)[:, 0])
+    assert abs(np.mean(p.log_length) - exact.mean()) < 0.15 * exact.std() + 1e-3
+    assert np.std(p.log_length) == pytest.approx(exact.std(), rel=0.2)
+    assert p.line_var > 0 and not p.refit
