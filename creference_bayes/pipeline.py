@@ -121,11 +121,12 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
                          posterior=posterior, restarts=restarts, temperature=temperature,
                          hdi_prob=hdi_prob, sampling=sampling, progress=progress,
                          orientation=orientation, focal_prior=focal_prior,
-                         orientation_prior=orientation_prior, **options)
+                         orientation_prior=orientation_prior, confidence_map=confidence_map, **options)
 
 
 def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, restarts, temperature,
-              hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, **options) -> Result:
+              hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, confidence_map,
+              **options) -> Result:
     rng = np.random.default_rng(seed)
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior,
                          orientation_prior=orientation_prior)
