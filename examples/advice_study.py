@@ -30,6 +30,7 @@ run can be stopped and resumed (scenes already recorded are skipped).
 Usage::
 
     python examples/advice_study.py predict --n 200 --out advice_study
+    python examples/advice_study.py timing --n 20 --out advice_study
     python examples/advice_study.py policy --n 40 --out advice_study
     python examples/advice_study.py report --out advice_study
 
