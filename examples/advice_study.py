@@ -30,10 +30,11 @@ run can be stopped and resumed (scenes already recorded are skipped).
 Usage::
 
     python examples/advice_study.py predict --n 200 --out advice_study
+    python examples/advice_study.py timing --n 20 --out advice_study
     python examples/advice_study.py policy --n 40 --out advice_study
     python examples/advice_study.py report --out advice_study
 
-These runs take hours of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
+These runs take tens of minutes (predict) to hours (policy) of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@
   carries no annotations (Label Studio's community edition takes a task with an annotation out of
   the labelling queue); a reference request carries the segment to measure as a prediction
   (keypoints or a vector, with its measure and object filled in), which the worker completes with
-  the value. Exported back, an answered task imports (``creference import labelstudio``) as the
+  the value. Exported back, an answered task imports (``creference import label-studio``) as the
   scene in ``creference_scene`` with the answers appended.
 - **CVAT**: the scenes' annotations (:func:`~creference_bayes.io.cvat.cvat_xml`) plus, for a
   reference request, a ``reference`` polyline on the segment with ``target_id``, ``object`` and
