@@ -49,6 +49,8 @@ __all__ = [
     "scene_fingerprint",
     "scene_differences",
     "near_miss",
+    "parse_header",
+    "read_scene_json",
 ]
 
 SCENE_FORMAT = "creference-scene/1"
@@ -369,7 +371,29 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
         raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {_short(fmt)}")
     _warn_unknown(data, {"format", "image", "camera", "horizon", "horizon_sd_px", "target",
                          "references", "ground_truth"}, "", sink)
+    head = parse_header(data, source, sink)
+    w, h = head["image_width"], head["image_height"]
+    target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
+    refs = data.get("references")
+    refs = [] if refs is None else _list(refs, "references")
+    references = tuple(_parse_reference(r, i, _join("references", i), w, h, sink)
+                       for i, r in enumerate(refs))
+    gt = data.get("ground_truth")
+    ground_truth = None if gt is None else _parse_ground_truth(gt, "ground_truth")
 
+    for message in sink:
+        warnings.warn(message, SceneWarning, stacklevel=2)
+    return Scene(target=target, references=references, ground_truth=ground_truth, warnings=tuple(sink), **head)
+
+
+
+def parse_header(data: dict, source, sink: list[str]) -> dict:
+    """The parts every scene format shares: ``image``, ``camera`` and ``horizon``/``horizon_sd_px``.
+
+    Returns the :class:`Scene` fields they fill (``image_width``, ``image_height``,
+    ``principal_point``, ``focal_length_px``, ``horizon``, ``horizon_sd_px``, ``focal_prior``,
+    ``orientation_prior``, ``image_path``, ``source``); raises :class:`SceneError` on bad input.
+    """
     image = _dict(_get(data, "image", ""), "image")
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
     width_f = _number(_get(image, "width", "image"), "image.width", positive=True)
@@ -419,22 +443,9 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     horizon_sd = 0.0 if horizon_sd is None else _number(horizon_sd, "horizon_sd_px", nonneg=True)
     if horizon_sd > 0 and horizon is None:
         raise SceneError("horizon_sd_px", f"an uncertainty {horizon_sd:g} px without a horizon")
-
-    target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
-    refs = data.get("references")
-    refs = [] if refs is None else _list(refs, "references")
-    references = tuple(_parse_reference(r, i, _join("references", i), w, h, sink)
-                       for i, r in enumerate(refs))
-    gt = data.get("ground_truth")
-    ground_truth = None if gt is None else _parse_ground_truth(gt, "ground_truth")
-
-    for message in sink:
-        warnings.warn(message, SceneWarning, stacklevel=2)
-    return Scene(image_width=w, image_height=h, target=target, principal_point=principal,
-                 focal_length_px=focal, horizon=horizon, references=references,
-                 horizon_sd_px=horizon_sd, focal_prior=focal_prior, orientation_prior=orientation_prior,
-                 ground_truth=ground_truth, image_path=image_path, source=source,
-                 warnings=tuple(sink))
+    return dict(image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
+                horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
+                orientation_prior=orientation_prior, image_path=image_path, source=source)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -448,6 +459,13 @@ def load_scene(path: str | Path) -> Scene:
         If ``path`` does not exist.
     """
     path = Path(path)
+    return parse_scene(read_scene_json(path), source=path)
+
+
+def read_scene_json(path: Path) -> Any:
+    """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
+    JSON with finite numbers."""
+    path = Path(path)
     raw = path.read_bytes()
     try:
         data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
@@ -459,7 +477,7 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError("(file)", f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
     except RecursionError:
         raise SceneError("(file)", "JSON nested too deeply") from None
-    return parse_scene(data, source=path)
+    return data
 
 
 class _ConstantError(Exception):
