@@ -54,6 +54,10 @@ def _run_bench_command(args) -> int:
 
 
 def _run_simulate_command(args) -> int:
+    if args.objects is not None:
+        from .frame import run_frame_simulate
+
+        return run_frame_simulate(args)
     if args.n < 1:
         raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
     out = Path(args.outdir)
@@ -136,4 +140,7 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty folder, replacing files of the same name")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    from .frame import add_frame_simulate_options
+
+    add_frame_simulate_options(p)
     p.set_defaults(func=_run_simulate_command)

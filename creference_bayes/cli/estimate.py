@@ -144,7 +144,10 @@ def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
 def _run_estimate(args) -> int:
     from ..io.scene import load_scene
     from ..pipeline import estimate
+    from .frame import is_frame_file, run_frame_estimate
 
+    if is_frame_file(args.scene):
+        return run_frame_estimate(args)
     scene = load_scene(args.scene)
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -303,8 +306,11 @@ def register(subparsers) -> None:
                     "--no-posterior) the posterior with credible intervals and diagnostics. "
                     "Prints a table; --out writes a creference-result/1 file (docs/result_format.md).")
     p.add_argument("scene", metavar="SCENE.json",
-                   help="a creference-scene/1 file (docs/scene_format.md)")
+                   help="a creference-scene/1 file, or a creference-scene/2 frame of several targets "
+                        "(docs/scene_format.md, docs/frames.md)")
     _add_estimate_options(p)
+    p.add_argument("--classes", metavar="CLASSES.json", default=None,
+                   help="frames: size priors of your own classes (docs/frames.md); the scene's own win")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",

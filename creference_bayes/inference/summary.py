@@ -27,7 +27,7 @@ with _warnings.catch_warnings():
     import arviz as az
 
 __all__ = ["SUMMARY_NAMES", "DEFAULT_HDI_PROB", "to_inference_data", "summarise",
-           "draws_from_inference_data", "summary_table", "in_hdi", "JSON_DRAWS"]
+           "draws_from_inference_data", "summary_table", "in_hdi", "JSON_DRAWS", "convergence", "hdi_columns"]
 
 #: Quantities summarised, in order: the parameters and the ground distance √(x² + z²).
 SUMMARY_NAMES = PARAM_NAMES + ("distance_m",)
@@ -265,3 +265,19 @@ def evaluate_posterior(summary: PosteriorSummary, truth, names) -> tuple[float, 
     inside = {k: in_hdi(k, float(values[k]), summary.hdi[k])
               for k in names if values.get(k) is not None}
     return float(location_percentage_error(loc, true_loc)), inside
+
+
+def convergence(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bulk ESS, tail ESS and rank-normalised split R-hat of every column of ``draws`` (chain,
+    draw, k), each (k,); constant columns get NaN."""
+    ds = az.convert_to_dataset({"p": np.asarray(draws, float)})
+    ess_b = az.ess(ds, method="bulk")["p"].values
+    ess_t = az.ess(ds, method="tail")["p"].values
+    rhat = az.rhat(ds)["p"].values
+    return np.asarray(ess_b, float), np.asarray(ess_t, float), np.asarray(rhat, float)
+
+
+def hdi_columns(samples: np.ndarray, prob: float) -> np.ndarray:
+    """Highest-density interval of every column of ``samples`` (N, k): (k, 2)."""
+    s = np.asarray(samples, float)
+    return np.array([az.hdi(s[:, j], hdi_prob=prob) for j in range(s.shape[1])]).reshape(-1, 2)

@@ -269,6 +269,10 @@ class FrameModel:
         of[:, O_GROUND] = self.ground_sd_m > 0
         self.object_free = of
         self.sizes_known = ~of[:, O_SIZE].any(axis=1)
+        self._size_mu = np.array([o.size_prior.log_median if o.sizes is None else np.zeros(3) for o in self.objects])
+        self._size_inv_sd = np.array([1.0 / np.asarray(o.size_prior.log_sd) if o.sizes is None else np.zeros(3)
+                                      for o in self.objects])
+        self._size_on = np.array([[o.sizes is None] * 3 for o in self.objects], float)
         # the height prior: always, unless an exact horizon and known sizes pin the scale
         self.use_height_prior = self.orientation == "free" or not bool(np.all(self.sizes_known))
 
@@ -422,14 +426,15 @@ class FrameModel:
         return out
 
     def object_neg_log_prior(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
-        """Negative log-prior of each object block, (n, m): the class size prior (free sizes only)
-        and the ground offset's normal prior; the location is flat inside the bounds."""
-        out = np.zeros(objs.shape[:2])
-        for i, o in enumerate(self.objects):
-            if o.sizes is None:
-                out[:, i] += o.size_prior.neg_log(objs[:, i, O_SIZE])
+        """Negative log-prior of each object block, (n, m): the class size prior (free sizes only;
+        a density over the sizes) and the ground offset's normal prior; the location is flat
+        inside the bounds."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_s = np.log(objs[..., O_SIZE])
+        z = (log_s - self._size_mu) * self._size_inv_sd
+        out = np.sum((0.5 * z * z + log_s) * self._size_on, axis=-1)
         if self.ground_sd_m > 0:
-            out += 0.5 * (objs[..., O_GROUND] / self.ground_sd_m) ** 2
+            out = out + 0.5 * (objs[..., O_GROUND] / self.ground_sd_m) ** 2
         return out
 
     # -- the camera terms ------------------------------------------------------------------------

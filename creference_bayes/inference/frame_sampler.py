@@ -1,0 +1,362 @@
+"""Sampling a frame's posterior: blocked Metropolis within Gibbs, in sheared coordinates.
+
+A frame of m objects has 5 + 7m parameters (40–70 for ten objects), but given the camera its
+objects are independent. The sampler uses that:
+
+* **Coordinates.** Working coordinates (:mod:`.frame_coords`), then a *shear*: each object's
+  block is measured from its conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), with Bᵢ
+  the regression of object i on the camera (from the Laplace approximation at the MAP, then
+  re-estimated from the warm-up draws). The shear has unit Jacobian. In (c, õ) the blocks are
+  close to independent, so updating them in turn mixes as if they were.
+* **Object step.** Every object of every chain proposes a random-walk move õᵢ' = õᵢ + sᵢ Lᵢ z
+  (Lᵢ the Cholesky factor of its conditional covariance) and accepts or rejects it on its own
+  term alone; this is valid because, given the camera, the posterior factorises over objects.
+  All objects and chains are one vectorised evaluation.
+* **Camera step.** The camera proposes c' = c + s_c L_c z (its marginal covariance); every
+  object moves with it along its regression (õ fixed), and the whole posterior accepts or rejects.
+* **Warm-up.** The step scales are adapted towards an acceptance of about 0.3 and the
+  covariances and shear re-estimated twice from the draws; then everything is frozen and the
+  main phase is an ordinary Markov chain. Warm-up draws are discarded.
+* **Stopping.** Chains run in chunks until every free parameter's bulk ESS reaches ``min_ess``
+  and its rank-normalised split R-hat across the chains is at most ``max_rhat``, or
+  ``max_iterations``; ``converged`` says which.
+
+Everything random comes from ``rng``: the same seed gives the same draws.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from ..models.frame import CAMERA_NAMES, O_YAW, OBJECT_NAMES, FrameModel
+from .frame_coords import from_work, log_jacobian, to_work
+from .frame_map import FrameMAP, derivatives
+
+__all__ = ["FrameSamplerSettings", "FrameDraws", "FrameDiagnostics", "sample_frame"]
+
+
+@dataclass(frozen=True)
+class FrameSamplerSettings:
+    """Settings of :func:`sample_frame`.
+
+    Attributes
+    ----------
+    n_chains : independent chains (for R-hat), ≥ 2
+    min_ess : bulk effective sample size every free parameter must reach
+    max_rhat : largest split R-hat accepted
+    warmup : warm-up iterations (one object step and one camera step each)
+    chunk : iterations between convergence checks
+    max_iterations : cap on main-phase iterations (the result then says it has not converged)
+    max_draws : draws kept per chain (older draws are thinned when exceeded)
+    """
+
+    n_chains: int = 8
+    min_ess: float = 400.0
+    max_rhat: float = 1.01
+    warmup: int = 600
+    chunk: int = 400
+    max_iterations: int = 20000
+    max_draws: int = 2000
+
+    def __post_init__(self):
+        checks = [("n_chains", self.n_chains >= 2, "an integer ≥ 2"), ("min_ess", self.min_ess >= 0, "a number ≥ 0"),
+                  ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"), ("warmup", self.warmup >= 50, "an integer ≥ 50"),
+                  ("chunk", self.chunk >= 20, "an integer ≥ 20"),
+                  ("max_iterations", self.max_iterations >= self.chunk, "an integer ≥ chunk"),
+                  ("max_draws", self.max_draws >= 100, "an integer ≥ 100")]
+        for name, ok, expected in checks:
+            if not ok:
+                raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_options(cls, options: dict | None) -> "FrameSamplerSettings":
+        options = dict(options or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
+        return cls(**options)
+
+
+@dataclass(frozen=True)
+class FrameDraws:
+    """Posterior draws in natural parameters: cameras (chain, draw, 5), objects (chain, draw, m, 7)."""
+
+    cameras: np.ndarray
+    objects: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameDiagnostics:
+    """How the sampler did: per free parameter bulk ESS and R-hat (dicts keyed by
+    ``camera.<name>`` and ``<target id>.<name>``), iterations, acceptance rates, ``converged`` and
+    the reasons when it is not, seconds."""
+
+    n_chains: int
+    warmup: int
+    iterations: int
+    thin: int
+    ess_bulk: dict
+    r_hat: dict
+    acceptance: dict
+    converged: bool
+    warnings: tuple[str, ...] = ()
+    seconds: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        r = lambda d: {k: (None if v is None or not np.isfinite(v) else round(float(v), 4)) for k, v in d.items()}
+        return {"n_chains": self.n_chains, "warmup": self.warmup, "iterations": self.iterations, "thin": self.thin,
+                "min_ess_bulk": _min(self.ess_bulk), "max_r_hat": _max(self.r_hat),
+                "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
+                "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
+                "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3)}
+
+
+def _min(d):
+    v = [x for x in d.values() if x is not None and np.isfinite(x)]
+    return round(float(min(v)), 1) if v else None
+
+
+def _max(d):
+    v = [x for x in d.values() if x is not None and np.isfinite(x)]
+    return round(float(max(v)), 4) if v else None
+
+
+class _Target:
+    """The log-density in working coordinates, split into the camera's and each object's part."""
+
+    def __init__(self, model: FrameModel, temperature: float):
+        self.m, self.T = model, temperature
+
+    def objects(self, wc, wo):
+        cams, objs = from_work(wc, wo)
+        cams = self.m.complete_camera(cams)
+        with np.errstate(all="ignore"):
+            lp = -self.m.object_terms(cams, objs, self.T) + log_jacobian(wc, wo, self.m.camera_free, self.m.object_free)[1]
+            inside = (objs >= self.m.object_lower) & (objs <= self.m.object_upper)
+        inside[..., O_YAW] = True
+        ok = np.all(inside, axis=-1) & np.isfinite(lp)
+        return np.where(ok, lp, -np.inf)
+
+    def camera(self, wc):
+        cams, _ = from_work(wc, np.zeros((len(wc), 1, 7)))
+        cams = self.m.complete_camera(cams)
+        with np.errstate(all="ignore"):
+            lp = -self.m.camera_term(cams, self.T) + log_jacobian(wc, np.zeros((len(wc), 1, 7)),
+                                                                  self.m.camera_free, self.m.object_free[:1])[0]
+        ok = np.all((cams >= self.m.camera_lower) & (cams <= self.m.camera_upper), axis=1) & np.isfinite(lp)
+        return np.where(ok, lp, -np.inf)
+
+
+def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Cholesky factor of ``cov`` on its free rows and columns, zero elsewhere; (…, k, k)."""
+    out = np.zeros_like(cov)
+    idx = np.flatnonzero(free)
+    if idx.size == 0:
+        return out
+    sub = cov[np.ix_(idx, idx)]
+    sub = 0.5 * (sub + sub.T)
+    for jitter in (0.0, 1e-10, 1e-8, 1e-6, 1e-4):
+        try:
+            L = np.linalg.cholesky(sub + jitter * np.diag(np.maximum(np.diag(sub), 1e-12)))
+            break
+        except np.linalg.LinAlgError:
+            continue
+    else:
+        L = np.diag(np.sqrt(np.maximum(np.abs(np.diag(sub)), 1e-12)))
+    out[np.ix_(idx, idx)] = L
+    return out
+
+
+def _laplace(model: FrameModel, wc0, wo0, temperature):
+    D = derivatives(model, wc0, wo0, temperature, with_jacobian=True)
+    m = model.n_objects
+    try:
+        Sc, Ao, B = D.covariance_blocks()
+        ok = np.all(np.isfinite(Sc)) and np.all(np.isfinite(Ao)) and np.all(np.linalg.eigvalsh(Sc[np.ix_(model.camera_free, model.camera_free)]) > 0)
+    except np.linalg.LinAlgError:
+        ok = False
+    if not ok:  # a diagonal fallback: conditional variances along the axes
+        Sc = np.diag(1.0 / np.maximum(np.abs(np.diag(D.H_cc)), 1e-6))
+        Ao = np.array([np.diag(1.0 / np.maximum(np.abs(np.diag(D.H_oo[i])), 1e-6)) for i in range(m)])
+        B = np.zeros((m, 7, 5))
+    B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
+    return Sc, Ao, B, ok
+
+
+def _reestimate(model, wc_hist, wo_hist, Sc0, Ao0, B0):
+    """Covariances and shear from warm-up draws (pooled over chains), blended with the Laplace
+    ones (80 % / 20 %) so that a short warm-up cannot make them singular."""
+    cf, of = model.camera_free, model.object_free
+    C = wc_hist.reshape(-1, 5)
+    O = wo_hist.reshape(-1, model.n_objects, 7)
+    cm, om = C.mean(axis=0), O.mean(axis=0)
+    dc, do = C - cm, O - om
+    n = len(C)
+    Scc = dc.T @ dc / (n - 1)
+    Scc = np.where(np.outer(cf, cf), Scc, 0.0)
+    Soo = np.einsum("nmi,nmj->mij", do, do) / (n - 1)
+    Soc = np.einsum("nmi,nc->mic", do, dc) / (n - 1)
+    idx = np.flatnonzero(cf)
+    inv = np.zeros((5, 5))
+    if idx.size:
+        inv[np.ix_(idx, idx)] = np.linalg.pinv(Scc[np.ix_(idx, idx)])
+    B = np.einsum("mic,cd->mid", Soc, inv) * of[:, :, None] * cf[None, None, :]
+    cond = Soo - np.einsum("mic,mjc->mij", B, Soc)
+    Sc = 0.8 * Scc + 0.2 * Sc0
+    Ao = 0.8 * cond + 0.2 * Ao0
+    Bn = 0.8 * B + 0.2 * B0
+    return Sc, Ao, Bn
+
+
+def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSamplerSettings | None = None,
+                 rng=None, temperature: float = 1.0, progress: bool = False) -> tuple[FrameDraws, FrameDiagnostics]:
+    """Sample the posterior of ``model`` from its MAP (module docstring).
+
+    Returns the draws (natural parameters) and the diagnostics.
+    """
+    s = settings or FrameSamplerSettings()
+    rng = np.random.default_rng(rng)
+    t0 = time.perf_counter()
+    m, C = model.n_objects, s.n_chains
+    cf, of = model.camera_free, model.object_free
+    target = _Target(model, temperature)
+    wc0, wo0 = to_work(map_est.camera, map_est.objects)
+    Sc, Ao, B, laplace_ok = _laplace(model, wc0, wo0, temperature)
+    Sc0, Ao0, B0 = Sc, Ao, B
+    kc = int(cf.sum())
+    ko = of.sum(axis=1)
+    sc = 2.38 / np.sqrt(max(kc, 1))
+    so = 2.38 / np.sqrt(np.maximum(ko, 1))
+    Lc = _chol(Sc, cf)
+    Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
+    # start: over-dispersed draws from the Laplace approximation
+    wc = wc0 + 1.2 * rng.standard_normal((C, 5)) @ Lc.T
+    wt = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7)))
+    shear = lambda wc_: np.einsum("mik,ck->cmi", B, wc_ - wc0)
+    wo = wt + shear(wc)
+    lp_c, lp_o = target.camera(wc), target.objects(wc, wo)
+    bad = ~(np.isfinite(lp_c) & np.all(np.isfinite(lp_o), axis=1))
+    wc[bad], wt[bad] = wc0, wo0
+    wo = wt + shear(wc)
+    lp_c, lp_o = target.camera(wc), target.objects(wc, wo)
+    if not (np.all(np.isfinite(lp_c)) and np.all(np.isfinite(lp_o))):
+        raise RuntimeError("the MAP has zero posterior density: cannot start the sampler")
+    acc_c, acc_o = [], []
+
+    def step(adapt_rate: float | None):
+        nonlocal wc, wt, wo, lp_c, lp_o, sc, so
+        # objects, given the camera
+        prop = wt + so[None, :, None] * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7)))
+        new = prop + (wo - wt)
+        lp_new = target.objects(wc, new)
+        a = np.log(rng.uniform(size=(C, m))) < lp_new - lp_o
+        wt = np.where(a[..., None], prop, wt)
+        wo = np.where(a[..., None], new, wo)
+        lp_o = np.where(a, lp_new, lp_o)
+        # the camera, objects moving along their regression
+        if kc:
+            pc = wc + sc * rng.standard_normal((C, 5)) @ Lc.T
+            new = wt + shear(pc)
+            lpc_new, lpo_new = target.camera(pc), target.objects(pc, new)
+            with np.errstate(invalid="ignore"):
+                b = np.log(rng.uniform(size=C)) < (lpc_new + lpo_new.sum(axis=1)) - (lp_c + lp_o.sum(axis=1))
+            wc = np.where(b[:, None], pc, wc)
+            wo = np.where(b[:, None, None], new, wo)
+            lp_c = np.where(b, lpc_new, lp_c)
+            lp_o = np.where(b[:, None], lpo_new, lp_o)
+        else:
+            b = np.ones(C, bool)
+        if adapt_rate is not None:
+            so = so * np.exp(adapt_rate * (a.mean(axis=0) - 0.3))
+            sc = sc * np.exp(adapt_rate * (b.mean() - 0.3))
+        return a, b
+
+    from .progress import progress_bar
+
+    with progress_bar(progress, s.warmup + s.max_iterations, desc="sampling", unit="it") as bar:
+        hist_c, hist_o = [], []
+        marks = {int(0.4 * s.warmup), int(0.7 * s.warmup)}
+        for t in range(s.warmup):
+            step(1.0 / (t + 10) ** 0.6 * 3.0)
+            hist_c.append(wc.copy())
+            hist_o.append(wo.copy())
+            if t in marks:
+                keep = slice(len(hist_c) // 2, None)
+                Sc, Ao, B = _reestimate(model, np.array(hist_c[keep]), np.array(hist_o[keep]), Sc0, Ao0, B0)
+                Lc = _chol(Sc, cf)
+                Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
+                sc = 2.38 / np.sqrt(max(kc, 1))
+                so = 2.38 / np.sqrt(np.maximum(ko, 1))
+                wt = wo - shear(wc)
+                hist_c, hist_o = [], []
+            bar.update(1)
+        # main phase
+        cams_d, objs_d = [], []
+        thin, it, ok = 1, 0, False
+        diag = None
+        while it < s.max_iterations:
+            for _ in range(s.chunk):
+                a, b = step(None)
+                acc_o.append(a.mean(axis=0))
+                acc_c.append(b.mean())
+                it += 1
+                if it % thin == 0:
+                    cams, objs = from_work(wc, wo)
+                    cams_d.append(model.complete_camera(cams))
+                    objs_d.append(objs)
+                if len(cams_d) >= 2 * s.max_draws:
+                    cams_d, objs_d, thin = cams_d[1::2], objs_d[1::2], thin * 2
+            bar.update(s.chunk)
+            diag = _diagnose(model, np.array(cams_d), np.array(objs_d), map_est, s)
+            if diag["ok"]:
+                ok = True
+                break
+    cams = np.transpose(np.array(cams_d), (1, 0, 2))
+    objs = np.transpose(np.array(objs_d), (1, 0, 2, 3))
+    acceptance = {"camera": float(np.mean(acc_c)), "objects": float(np.mean(acc_o))}
+    warn = []
+    if not ok:
+        warn.append(f"not converged after {it} iterations: " + "; ".join(diag["why"]))
+    if not laplace_ok:
+        warn.append("the Laplace approximation at the MAP was not positive definite (diagonal proposals used)")
+    return FrameDraws(cams, objs), FrameDiagnostics(
+        C, s.warmup, it, thin, diag["ess_bulk"], diag["r_hat"], acceptance, ok, tuple(warn),
+        time.perf_counter() - t0, {"laplace_positive_definite": bool(laplace_ok)})
+
+
+def _diagnose(model: FrameModel, cams: np.ndarray, objs: np.ndarray, map_est: FrameMAP, s: FrameSamplerSettings) -> dict:
+    """ESS and R-hat of every free parameter (yaw unwrapped around the MAP) and each object's
+    ground distance; whether the stopping rule is met."""
+    from .diagnostics import ess_bulk, rhat_rank
+
+    cols, names = [], []
+    cams = np.transpose(cams, (1, 0, 2))  # (chain, draw, 5)
+    objs = np.transpose(objs, (1, 0, 2, 3))
+    for j in np.flatnonzero(model.camera_free):
+        cols.append(cams[..., j])
+        names.append(f"camera.{CAMERA_NAMES[j]}")
+    for i, o in enumerate(model.objects):
+        for j in np.flatnonzero(model.object_free[i]):
+            x = objs[..., i, j]
+            if j == O_YAW:
+                x = map_est.objects[i, O_YAW] + (x - map_est.objects[i, O_YAW] + np.pi) % (2 * np.pi) - np.pi
+            cols.append(x)
+            names.append(f"{o.id}.{OBJECT_NAMES[j]}")
+        cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
+        names.append(f"{o.id}.distance_m")
+    arr = np.stack(cols, axis=-1)
+    eb, rh = ess_bulk(arr), rhat_rank(arr)
+    why = []
+    if np.nanmin(eb) < s.min_ess:
+        k = int(np.nanargmin(eb))
+        why.append(f"bulk ESS of {names[k]} {eb[k]:.0f} < {s.min_ess:g}")
+    if np.nanmax(rh) > s.max_rhat:
+        k = int(np.nanargmax(rh))
+        why.append(f"R-hat of {names[k]} {rh[k]:.3f} > {s.max_rhat:g}")
+    return {"ok": not why, "why": why, "ess_bulk": dict(zip(names, eb.tolist())),
+            "r_hat": dict(zip(names, rh.tolist()))}
