@@ -13,7 +13,10 @@
    number of objects (a perturbation of an object coordinate is applied to every object at
    once: each object's term sees only its own), and the step is solved through the Schur
    complement of the camera block: O(m) work for m objects.
-3. **Line noise** of the references is fixed at the first optimum (the pilot) and the optimum
+3. **Continuation.** When annotations agree to a pixel or better, the cost is so sharp that far
+   from the optimum only the Student-t tails are felt; a first pass with σ raised to 3 px finds
+   the basin, the second refines with the real σ.
+4. **Line noise** of the references is fixed at the first optimum (the pilot) and the optimum
    refined from there, as the single-target model does.
 
 The result carries the arrowhead Hessian at the optimum (:class:`Arrowhead`), which the sampler
@@ -35,6 +38,8 @@ __all__ = ["Arrowhead", "FrameMAP", "optimize_frame", "derivatives", "initial_ob
 _YAW_GRID = np.radians(np.arange(0.0, 360.0, 5.0))
 _PITCH_GRID = np.radians([-10.0, -4.0, 0.0, 4.0, 10.0, 20.0, 35.0])
 _FOCAL_GRID = (0.5, 0.7, 1.0, 1.4, 2.0)
+#: Corner scale (px) of the first, smoother pass when the annotations agree more closely than this.
+_SMOOTH_SIGMA_PX = 3.0
 
 
 @dataclass
@@ -277,9 +282,15 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     best = None
     iters = 0
+    sigma = model.sigma.copy()
     for value, err, cam, objs, hand in candidates[:n_refine]:
         model.handedness = hand.astype(float)
         wc, wo = to_work(cam, objs)
+        if np.any(sigma < _SMOOTH_SIGMA_PX):  # continuation: a smoother cost first (far from the
+            model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # optimum a tiny σ leaves only t-tails)
+            wc, wo, f, it = _newton(model, wc, wo, temperature)
+            model.sigma = sigma
+            iters += it
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
         if best is None or f < best[0]:

@@ -1,0 +1,177 @@
+"""The frame: several targets of one photo with one shared camera (docs/frames.md)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from creference_bayes.bench.frame_simulate import simulate_frame
+from creference_bayes.core.geometry import dimension_corners, rotation_from_pitch_roll
+from creference_bayes.frame_pipeline import build_frame_model, estimate_frame, rebuild_model
+from creference_bayes.inference.diagnostics import ess_bulk, rhat_rank
+from creference_bayes.inference.frame_map import optimize_frame
+from creference_bayes.io.frame_scene import frame_to_dict, load_frame, parse_frame
+from creference_bayes.io.scene import SceneError
+from creference_bayes.models.frame import object_corners
+from creference_bayes.models.size_priors import KITTI_SIZE_PRIORS, size_priors_from_dict
+
+TINY = {"warmup": 100, "chunk": 100, "max_iterations": 300, "min_ess": 20, "n_chains": 4}
+
+
+def _with_true_sizes(scene):
+    for t in scene["targets"]:
+        t["dimensions_m"] = t["ground_truth"]["dimensions_m"]
+    return scene
+
+
+def test_object_corners_match_the_single_target_geometry():
+    for hand in (1, -1):
+        got = object_corners(np.array([[4.2, 1.7, 1.5]]), np.array([hand]))[0]
+        np.testing.assert_allclose(got, dimension_corners(4.2, 1.7, 1.5, hand))
+
+
+def test_projection_matches_opencv():
+    cv2 = pytest.importorskip("cv2")
+    scene = simulate_frame(4, n_objects=3, noise_px=0.0)
+    frame = parse_frame(_with_true_sizes(scene))
+    model, _ = build_frame_model(frame)
+    gt = scene["ground_truth"]
+    cam = np.array([gt["focal_length_px"], gt["pitch_rad"], gt["roll_rad"], gt["camera_height_m"], 0.5])
+    objs = np.array([[t["ground_truth"]["location_m"][0], t["ground_truth"]["location_m"][2], t["ground_truth"]["yaw_rad"],
+                      *t["ground_truth"]["dimensions_m"].values(), t["ground_truth"]["ground_m"]] for t in scene["targets"]])
+    model.handedness = np.array([t["ground_truth"]["handedness"] for t in scene["targets"]], float)
+    uv, _ = model.project(cam[None], objs[None])
+    R = rotation_from_pitch_roll(cam[1], cam[2])
+    K = np.array([[cam[0], 0, model.principal_point[0]], [0, cam[0], model.principal_point[1]], [0, 0, 1.0]])
+    for i, t in enumerate(scene["targets"]):
+        loc = np.array(t["ground_truth"]["location_m"])
+        c, s = np.cos(objs[i, 2]), np.sin(objs[i, 2])
+        Ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        pts = loc + dimension_corners(*objs[i, 3:6], int(model.handedness[i])) @ Ry.T
+        ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], np.zeros(3), K, None)
+        np.testing.assert_allclose(uv[0, i], ref[:, 0], atol=1e-6)
+        # the simulated (noise-free) annotations are that projection, rounded to 0.01 px
+        np.testing.assert_allclose(frame.targets[i].corners[0], ref[:, 0], atol=0.006)
+
+
+def test_noise_free_frame_with_known_sizes_is_recovered_exactly():
+    scene = _with_true_sizes(simulate_frame(11, n_objects=6, noise_px=0.0, ground_sd_m=0.0))
+    est = optimize_frame(build_frame_model(parse_frame(scene))[0])
+    for i, t in enumerate(scene["targets"]):
+        loc = np.array(t["ground_truth"]["location_m"])
+        got = np.array([est.objects[i, 0], est.camera[3] - est.objects[i, 6], est.objects[i, 1]])
+        assert np.linalg.norm(got - loc) / np.linalg.norm(loc) < 1e-3, t["id"]
+        assert est.handedness[i] == t["ground_truth"]["handedness"]
+    assert est.camera[0] == pytest.approx(scene["ground_truth"]["focal_length_px"], rel=1e-3)
+
+
+def test_joint_map_is_accurate_with_class_priors():
+    errs = []
+    for seed in range(3):
+        scene = simulate_frame(seed, n_objects=8, noise_px=2.0)
+        est = optimize_frame(build_frame_model(parse_frame(scene))[0])
+        for i, t in enumerate(scene["targets"]):
+            loc = np.array(t["ground_truth"]["location_m"])
+            got = np.array([est.objects[i, 0], est.camera[3] - est.objects[i, 6], est.objects[i, 1]])
+            errs.append(np.linalg.norm(got - loc) / np.linalg.norm(loc))
+    # sizes from class priors (a car's length ±11 %) bound what any estimate can do; 2 px of noise
+    assert np.median(errs) < 0.08
+
+
+def test_diagnostics_match_arviz():
+    az = pytest.importorskip("arviz")
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(4, 301, 5)), axis=1) * 0.1 + rng.normal(size=(4, 301, 5))
+    x[..., 4] = np.round(x[..., 4], 1)  # ties
+    for j in range(5):
+        assert ess_bulk(x)[j] == pytest.approx(float(az.ess(x[..., j], method="bulk")), rel=1e-8)
+        assert rhat_rank(x)[j] == pytest.approx(float(az.rhat(x[..., j])), rel=1e-8)
+
+
+def test_size_priors_from_a_dict_name_the_key():
+    priors = size_priors_from_dict({"Kayak": {"length_m": 4.0, "width_m": 0.7, "height_m": 0.4}})
+    assert priors["Kayak"].median_m == (4.0, 0.7, 0.4)
+    with pytest.raises(ValueError, match=r"classes.Kayak.width_m: expected a number > 0, got -1"):
+        size_priors_from_dict({"Kayak": {"length_m": 4.0, "width_m": -1, "height_m": 0.4}})
+    with pytest.raises(ValueError, match=r"classes.Kayak.log_sd"):
+        size_priors_from_dict({"Kayak": {"length_m": 4.0, "width_m": 1, "height_m": 0.4, "log_sd": [0.1]}})
+    assert set(KITTI_SIZE_PRIORS) >= {"Car", "Van", "Truck", "Pedestrian", "Cyclist", "Tram", "Misc"}
+
+
+def test_frame_scene_round_trips_and_rejects_bad_input():
+    scene = simulate_frame(2, n_objects=3)
+    scene["references"] = [{"measure": "length", "mode": "direct", "value": 4.1, "unit": "m", "target": "t0"},
+                           {"measure": "length", "mode": "relative", "value": 1.5, "target": "t1",
+                            "line": scene["targets"][1]["dimension_lines"][0]["corners"][:2]}]
+    frame = parse_frame(scene)
+    assert frame.reference_targets == (0, 1) and frame.references[0].line is None
+    again = parse_frame(frame_to_dict(frame))
+    assert frame_to_dict(again) == frame_to_dict(frame)
+    bad = json.loads(json.dumps(scene))
+    bad["targets"][2]["id"] = "t0"
+    with pytest.raises(SceneError, match=r"targets\[2\].id: duplicate id 't0'"):
+        parse_frame(bad)
+    bad = json.loads(json.dumps(scene))
+    bad["targets"][1]["class"] = "Spaceship"
+    with pytest.raises(SceneError, match=r"targets\[1\].class: no size prior for class 'Spaceship'"):
+        parse_frame(bad)
+    bad = json.loads(json.dumps(scene))
+    del bad["references"][1]["target"]
+    with pytest.raises(SceneError, match=r"references\[1\].target: a relative reference in a frame"):
+        parse_frame(bad)
+    bad = json.loads(json.dumps(scene))
+    bad["references"][0]["target"] = "nobody"
+    with pytest.raises(SceneError, match=r"references\[0\].target: no target with id 'nobody'"):
+        parse_frame(bad)
+
+
+def test_a_version_1_scene_is_a_one_target_frame(tmp_path):
+    from creference_bayes.cli.main import example_scene_path
+
+    frame = load_frame(example_scene_path())
+    assert len(frame.targets) == 1 and frame.targets[0].dimensions is not None
+    model, _ = build_frame_model(frame)
+    assert model.ground_sd_m == 0.0 and not model.object_free[0, 3:].any()
+
+
+def test_posterior_is_deterministic_and_the_result_rebuilds_its_model(tmp_path):
+    scene = simulate_frame(5, n_objects=3, focal_known=True)
+    path = tmp_path / "f.json"
+    path.write_text(json.dumps(scene))
+    a = estimate_frame(path, seed=3, sampling=TINY)
+    b = estimate_frame(path, seed=3, sampling=TINY)
+    np.testing.assert_array_equal(a.draws.objects, b.draws.objects)
+    d = a.to_dict()
+    assert d["format"] == "creference-result/2" and len(d["objects"]) == 3
+    assert np.all(np.isfinite(a.draws.cameras)) and np.all(np.isfinite(a.draws.objects))
+    assert d["camera"]["map"]["focal_length_px"] == pytest.approx(scene["ground_truth"]["focal_length_px"])
+    model = rebuild_model(d, path)
+    fresh, _ = build_frame_model(load_frame(path))
+    m = optimize_frame(fresh)
+    cams = np.array([[d["camera"]["map"][k] for k in ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")]])
+    assert np.allclose(model.handedness, m.handedness)
+    assert model.neg_log_posterior(cams, m.objects[None]) == pytest.approx(fresh.neg_log_posterior(cams, m.objects[None]))
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "creference_bayes", *args], capture_output=True, text=True,
+                          timeout=300, cwd=cwd)
+
+
+def test_command_line_simulates_and_estimates_a_frame(tmp_path):
+    out = tmp_path / "frames"
+    proc = _cli("simulate", str(out), "--n", "1", "--objects", "3", "--seed", "1")
+    assert proc.returncode == 0, proc.stderr
+    frame = out / "frame_0000.json"
+    proc = _cli("estimate", str(frame), "--no-posterior", "--out", str(tmp_path / "r.json"))
+    assert proc.returncode == 0, proc.stderr
+    assert "focal length px" in proc.stdout and "t2" in proc.stdout
+    assert json.loads((tmp_path / "r.json").read_text())["format"] == "creference-result/2"
+    data = json.loads(frame.read_text())
+    data["targets"][0]["dimension_lines"] = []
+    frame.write_text(json.dumps(data))
+    proc = _cli("estimate", str(frame), "--no-posterior", "--out", str(tmp_path / "bad.json"))
+    assert proc.returncode == 2 and "targets[0].dimension_lines: expected at least one annotation" in proc.stderr
+    assert not (tmp_path / "bad.json").exists()
