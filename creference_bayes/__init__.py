@@ -41,12 +41,14 @@ from .io.result import MapEstimate, Result
 from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
 from .inference import threads as _threads
 from .pipeline import estimate
+from .frame_pipeline import estimate_frame
 
 _threads.USER_SET_THREADS = _USER_SET_THREADS
 
 __all__ = [
     "__version__",
     "estimate",
+    "estimate_frame",
     "load_scene",
     "parse_scene",
     "Scene",

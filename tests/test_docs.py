@@ -85,6 +85,10 @@ def _parse(d):
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the documented examples carry no unknown keys
+        if d.get("format") == "creference-scene/2":
+            from creference_bayes.io.frame_scene import parse_frame
+
+            return parse_frame(d)
         return parse_scene(d)
 
 
