@@ -1,13 +1,23 @@
 """Working coordinates of a frame's parameters, shared by its optimiser and its sampler.
 
-In these coordinates the posterior is close to Gaussian: positive quantities enter by their
-logarithms (µ, the camera height, the crowd's scale, an object's depth and sizes), so a far
-object's long depth–size–focal-length ridge is straight, and an object's lateral position by
-b = µ x / z, about its pixel offset from the principal point, which the camera barely moves (x / z
-alone moves as 1 / µ along that ridge):
+The camera enters by the logarithms of its positive parameters; each object is *anchored to the
+image*:
 
     camera: (log µ, pitch, roll, log height, log ref_scale)
-    object: (µ x / z, log z, yaw, log length, log width, log height, ground)
+    object: (u, v, ψ, log(length / z), log(width / z), log(height / z), ground)
+
+(u, v) is the pixel of the object's bottom centre, ψ = yaw + atan2(z, x) its turn relative to the
+viewing ray, and its sizes are taken relative to its depth z (angular sizes). Given these, the
+camera places the object exactly: the ray through (u, v) meets the object's ground (the plane at
+``height − ground``) at (x, z), and the sizes follow from z. So when the camera moves (a little
+more pitch, a larger µ, a higher camera), every object moves with it in the way that keeps its
+image, and an object's coordinates barely correlate with the camera's: the posterior is close to
+a product of blocks, which is what the blocked sampler needs. (Plain coordinates tie a far object's
+depth to the pitch through 1 / (its distance below the horizon), a curve no linear correction
+follows.) Known sizes stay fixed in metres.
+
+The Jacobian of (u, v) → (x, z) on the plane y = y₀ is y₀² / (µ² d_y³), d = Rᵀ K⁻¹ (u, v, 1) the
+viewing ray (a homography's Jacobian); each size contributes its value.
 
 Arrays: cameras (n, 5), objects (n, m, 7), as :mod:`~creference_bayes.models.frame`.
 """
@@ -16,43 +26,81 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CAMERA_LOG", "OBJECT_LOG", "to_work", "from_work", "log_jacobian", "FD_STEPS"]
+from ..core.geometry import rotation_from_pitch_roll
+from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, FrameModel
+
+__all__ = ["CAMERA_LOG", "FrameCoords", "FD_STEPS"]
 
 CAMERA_LOG = np.array([True, False, False, True, True])
-OBJECT_LOG = np.array([False, True, False, True, True, True, False])
 #: Finite-difference steps in working coordinates (camera block, then object block).
-FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-5, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
+FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
 
 
-def to_work(cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Natural parameters → working coordinates."""
-    wc = np.array(cams, float)
-    wo = np.array(objs, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wc[..., CAMERA_LOG] = np.log(wc[..., CAMERA_LOG])
-        wo[..., 0] = objs[..., 0] / objs[..., 1] * np.asarray(cams, float)[..., 0][..., None]
-        wo[..., OBJECT_LOG] = np.log(wo[..., OBJECT_LOG])
-    return wc, wo
+class FrameCoords:
+    """Natural parameters ↔ working coordinates for one model (module docstring)."""
 
+    def __init__(self, model: FrameModel):
+        self.model = model
+        self.pp = np.asarray(model.principal_point, float)
+        self.known = ~model.object_free[:, O_SIZE]  # (m, 3)
+        self.known_sizes = np.array([o.initial_sizes for o in model.objects])
 
-def from_work(wc: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Working coordinates → natural parameters."""
-    cams = np.array(wc, float)
-    objs = np.array(wo, float)
-    with np.errstate(over="ignore"):
-        cams[..., CAMERA_LOG] = np.exp(cams[..., CAMERA_LOG])
-        objs[..., OBJECT_LOG] = np.exp(objs[..., OBJECT_LOG])
-    objs[..., 0] = wo[..., 0] * objs[..., 1] / cams[..., 0][..., None]
-    return cams, objs
+    def camera_from_work(self, wc: np.ndarray) -> np.ndarray:
+        cams = np.array(wc, float)
+        with np.errstate(over="ignore"):
+            cams[..., CAMERA_LOG] = np.exp(cams[..., CAMERA_LOG])
+        return self.model.complete_camera(cams)
 
+    def to_work(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Natural (n, 5), (n, m, 7) → working coordinates."""
+        cams = self.model.complete_camera(np.atleast_2d(cams))
+        objs = np.asarray(objs, float).reshape(len(cams), -1, 7)
+        wc = cams.copy()
+        wc[:, CAMERA_LOG] = np.log(cams[:, CAMERA_LOG])
+        R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])  # (n, 3, 3)
+        P = np.stack([objs[..., 0], cams[:, C_HEIGHT, None] - objs[..., O_GROUND], objs[..., 1]], axis=-1)
+        pc = np.einsum("nij,nmj->nmi", R, P)
+        mu = cams[:, C_FOCAL, None]
+        wo = objs.copy()
+        wo[..., 0] = mu * pc[..., 0] / pc[..., 2] + self.pp[0]
+        wo[..., 1] = mu * pc[..., 1] / pc[..., 2] + self.pp[1]
+        wo[..., O_YAW] = objs[..., O_YAW] + np.arctan2(objs[..., 1], objs[..., 0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wo[..., O_SIZE] = np.log(objs[..., O_SIZE]) - np.log(objs[..., 1:2])
+        return wc, wo
 
-def log_jacobian(wc: np.ndarray, wo: np.ndarray, camera_free: np.ndarray, object_free: np.ndarray):
-    """log |∂natural/∂working| of the free parameters: (camera part (n,), object part (n, m)).
+    def _rays(self, cams: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """(n, m, 3) viewing rays Rᵀ K⁻¹ (u, v, 1) in the gravity-aligned frame."""
+        R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])
+        mu = cams[:, C_FOCAL, None]
+        p = np.stack([(wo[..., 0] - self.pp[0]) / mu, (wo[..., 1] - self.pp[1]) / mu, np.ones(wo.shape[:-1])], axis=-1)
+        return np.einsum("nji,nmj->nmi", R, p)
 
-    Each logarithm contributes its coordinate; (b, log z) → (x, z), x = b z / µ, contributes
-    2 log z − log µ.
-    """
-    cam = np.sum(wc[:, CAMERA_LOG & camera_free], axis=1)
-    obj = (np.sum(np.where(object_free & OBJECT_LOG, wo, 0.0), axis=-1) + wo[..., 1]  # z counted twice
-           - wc[:, 0, None])
-    return cam, obj
+    def from_work(self, wc: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Working coordinates → natural (cameras completed: fixed and derived entries filled in);
+        a pixel on or above the horizon gives a NaN object (zero density)."""
+        return self.from_work_jacobian(wc, wo)[:2]
+
+    def from_work_jacobian(self, wc: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`from_work` and the objects' part of :meth:`log_jacobian`, (n, m), in one pass."""
+        cams = self.camera_from_work(np.atleast_2d(wc))
+        wo = np.asarray(wo, float).reshape(len(cams), -1, 7)
+        d = self._rays(cams, wo)
+        y0 = cams[:, C_HEIGHT, None] - wo[..., O_GROUND]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t = np.where(d[..., 1] > 0, y0 / d[..., 1], np.nan)
+            objs = wo.copy()
+            objs[..., 0] = t * d[..., 0]
+            objs[..., 1] = t * d[..., 2]
+            objs[..., O_YAW] = wo[..., O_YAW] - np.arctan2(objs[..., 1], objs[..., 0])
+            sizes = np.exp(wo[..., O_SIZE]) * objs[..., 1:2]
+            objs[..., O_SIZE] = np.where(self.known, self.known_sizes, sizes)
+            jac = (2 * np.log(y0) - 2 * np.log(cams[:, C_FOCAL, None]) - 3 * np.log(d[..., 1])
+                   + np.sum(np.where(self.known, 0.0, wo[..., O_SIZE] + np.log(objs[..., 1:2])), axis=-1))
+        return cams, objs, jac
+
+    def log_jacobian(self, wc: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """log |∂natural/∂working| of the free parameters: (camera part (n,), object part (n, m))."""
+        wc = np.atleast_2d(wc)
+        cam = np.sum(wc[:, CAMERA_LOG & self.model.camera_free], axis=1)
+        return cam, self.from_work_jacobian(wc, wo)[2]

@@ -7,7 +7,7 @@
    one batched least-squares solve per object. The objects' y gives the camera height (the median
    over objects, their ground offsets the rest). The camera whose objects fit best starts.
 2. **Joint Newton.** Levenberg–Marquardt steps on the negative log-posterior in working
-   coordinates (:mod:`.frame_coords`). Given the camera the objects are independent, so the
+   coordinates (:mod:`.frame_coords`: each object anchored to the image). Given the camera the objects are independent, so the
    Hessian is an *arrowhead*: a camera block, one block per object and their couplings. Its
    derivatives come from one batched set of finite differences whose cost does not grow with the
    number of objects (a perturbation of an object coordinate is applied to every object at
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, FrameModel
-from .frame_coords import FD_STEPS, from_work, to_work
+from .frame_coords import FD_STEPS, FrameCoords
 
 __all__ = ["Arrowhead", "FrameMAP", "optimize_frame", "derivatives", "initial_objects"]
 
@@ -185,8 +185,7 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
     working coordinates, by central differences batched over every object at once.
 
     ``with_jacobian`` adds −log |∂natural/∂working| (the density the sampler targets)."""
-    from .frame_coords import log_jacobian
-
+    coords = FrameCoords(model)
     d = 12
     h = FD_STEPS
     E = np.diag(h)
@@ -197,13 +196,12 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
     P = np.array(pts)  # (n, 12)
     WC = wc[None] + P[:, :5] * model.camera_free
     WO = wo[None] + P[:, None, 5:] * model.object_free[None]
-    cams, objs = from_work(WC, WO)
-    cams = model.complete_camera(cams)
+    cams, objs = coords.from_work(WC, WO)
     with np.errstate(all="ignore"):
         fo = model.object_terms(cams, objs, temperature)  # (n, m)
         fc = model.camera_term(cams, temperature)  # (n,)
         if with_jacobian:
-            jc, jo = log_jacobian(WC, WO, model.camera_free, model.object_free)
+            jc, jo = coords.log_jacobian(WC, WO)
             fo, fc = fo - jo, fc - jc
     value = float(fc[0] + fo[0].sum())
     F = np.concatenate([fc[:, None], fo], axis=1)  # (n, 1 + m): camera term, then each object's
@@ -234,7 +232,7 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
 
 
 def _total(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: float) -> float:
-    cams, objs = from_work(wc[None], wo[None])
+    cams, objs = FrameCoords(model).from_work(wc[None], wo[None])
     return float(model.neg_log_posterior(cams, objs, temperature)[0])
 
 
@@ -265,8 +263,6 @@ def _newton(model: FrameModel, wc, wo, temperature: float, max_iter: int = 60, t
             lam *= 8.0
         if not improved or done:
             break
-    wo = wo.copy()
-    wo[:, 2] = (wo[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return wc, wo, f, it
 
 
@@ -285,7 +281,7 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
     sigma = model.sigma.copy()
     for value, err, cam, objs, hand in candidates[:n_refine]:
         model.handedness = hand.astype(float)
-        wc, wo = to_work(cam, objs)
+        wc, wo = (a[0] for a in FrameCoords(model).to_work(cam[None], objs[None]))
         if np.any(sigma < _SMOOTH_SIGMA_PX):  # continuation: a smoother cost first (far from the
             model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # optimum a tiny σ leaves only t-tails)
             wc, wo, f, it = _newton(model, wc, wo, temperature)
@@ -297,12 +293,13 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
             best = (f, wc, wo, hand)
     f, wc, wo, hand = best
     model.handedness = hand.astype(float)
-    cams, _ = from_work(wc[None], wo[None])
+    cams, _ = FrameCoords(model).from_work(wc[None], wo[None])
     if len(model.references):
-        model.set_pilot(model.complete_camera(cams)[0])
+        model.set_pilot(cams[0])
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
     D = derivatives(model, wc, wo, temperature)
-    cams, objs = from_work(wc[None], wo[None])
-    return FrameMAP(model.complete_camera(cams)[0], objs[0], hand, f, D,
+    cams, objs = FrameCoords(model).from_work(wc[None], wo[None])
+    objs[0, :, 2] = (objs[0, :, 2] + np.pi) % (2 * np.pi) - np.pi
+    return FrameMAP(cams[0], objs[0], hand, f, D,
                     {"iterations": iters, "starts": len(candidates), "seconds": time.perf_counter() - t0})

@@ -14,10 +14,16 @@ objects are independent. The sampler uses that:
   All objects and chains are one vectorised evaluation.
 * **Camera step.** The camera proposes c' = c + s_c L_c z (its marginal covariance); every
   object moves with it along its regression (õ fixed), and the whole posterior accepts or rejects.
+* **Independence steps.** Every other iteration, each block instead proposes from a Student-t
+  (5 degrees of freedom, 1.3 × the block's covariance) around its centre, accepted with the
+  Metropolis–Hastings ratio: where the posterior is close to Gaussian in these coordinates (most
+  blocks) such a step jumps across the whole posterior; where it is not, the random-walk steps
+  still mix.
 * **Warm-up.** The step scales are adapted towards an acceptance of about 0.3 and the
   covariances and shear re-estimated twice from the draws; then everything is frozen and the
   main phase is an ordinary Markov chain. Warm-up draws are discarded.
-* **Stopping.** Chains run in chunks until every free parameter's bulk ESS reaches ``min_ess``
+* **Stopping.** Chains run in chunks (each long enough for the slowest quantity to reach the
+  target at its current rate) until every free parameter's bulk ESS reaches ``min_ess``
   and its rank-normalised split R-hat across the chains is at most ``max_rhat``, or
   ``max_iterations``; ``converged`` says which.
 
@@ -32,10 +38,15 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from ..models.frame import CAMERA_NAMES, O_YAW, OBJECT_NAMES, FrameModel
-from .frame_coords import from_work, log_jacobian, to_work
+from .frame_coords import CAMERA_LOG as _CAMERA_LOG, FrameCoords
 from .frame_map import FrameMAP, derivatives
 
 __all__ = ["FrameSamplerSettings", "FrameDraws", "FrameDiagnostics", "sample_frame"]
+
+#: Degrees of freedom and scale of the independence proposals (a Student-t a little wider than the
+#: posterior's Gaussian approximation, so that its tails cover the posterior's).
+_IND_DOF = 5.0
+_IND_SCALE = 1.3
 
 
 @dataclass(frozen=True)
@@ -131,23 +142,21 @@ class _Target:
 
     def __init__(self, model: FrameModel, temperature: float):
         self.m, self.T = model, temperature
+        self.coords = FrameCoords(model)
 
     def objects(self, wc, wo):
-        cams, objs = from_work(wc, wo)
-        cams = self.m.complete_camera(cams)
+        cams, objs, jac = self.coords.from_work_jacobian(wc, wo)
         with np.errstate(all="ignore"):
-            lp = -self.m.object_terms(cams, objs, self.T) + log_jacobian(wc, wo, self.m.camera_free, self.m.object_free)[1]
+            lp = -self.m.object_terms(cams, objs, self.T) + jac
             inside = (objs >= self.m.object_lower) & (objs <= self.m.object_upper)
         inside[..., O_YAW] = True
         ok = np.all(inside, axis=-1) & np.isfinite(lp)
         return np.where(ok, lp, -np.inf)
 
     def camera(self, wc):
-        cams, _ = from_work(wc, np.zeros((len(wc), 1, 7)))
-        cams = self.m.complete_camera(cams)
+        cams = self.coords.camera_from_work(wc)
         with np.errstate(all="ignore"):
-            lp = -self.m.camera_term(cams, self.T) + log_jacobian(wc, np.zeros((len(wc), 1, 7)),
-                                                                  self.m.camera_free, self.m.object_free[:1])[0]
+            lp = -self.m.camera_term(cams, self.T) + np.sum(wc[:, _CAMERA_LOG & self.m.camera_free], axis=1)
         ok = np.all((cams >= self.m.camera_lower) & (cams <= self.m.camera_upper), axis=1) & np.isfinite(lp)
         return np.where(ok, lp, -np.inf)
 
@@ -225,7 +234,8 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
     m, C = model.n_objects, s.n_chains
     cf, of = model.camera_free, model.object_free
     target = _Target(model, temperature)
-    wc0, wo0 = to_work(map_est.camera, map_est.objects)
+    coords = FrameCoords(model)
+    wc0, wo0 = (a[0] for a in coords.to_work(map_est.camera[None], map_est.objects[None]))
     Sc, Ao, B, laplace_ok = _laplace(model, wc0, wo0, temperature)
     Sc0, Ao0, B0 = Sc, Ao, B
     kc = int(cf.sum())
@@ -248,30 +258,55 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
         raise RuntimeError("the MAP has zero posterior density: cannot start the sampler")
     acc_c, acc_o = [], []
 
-    def step(adapt_rate: float | None):
+    mc, mt = wc0.copy(), wo0.copy()  # centres of the independence proposals (camera; sheared objects)
+    Lci, Loi = np.linalg.pinv(Lc), np.linalg.pinv(Lo)
+
+    def log_q_obj(x):  # (C, m): Student-t log-density (up to constants) of the object proposal
+        w = np.einsum("mij,cmj->cmi", Loi, x - mt) / _IND_SCALE
+        return -0.5 * (_IND_DOF + ko) * np.log1p(np.sum(w * w, axis=-1) / _IND_DOF)
+
+    def log_q_cam(x):
+        w = (x - mc) @ Lci.T / _IND_SCALE
+        return -0.5 * (_IND_DOF + kc) * np.log1p(np.sum(w * w, axis=-1) / _IND_DOF)
+
+    def t_draws(shape):
+        return rng.standard_normal(shape) / np.sqrt(rng.chisquare(_IND_DOF, shape[:-1] + (1,)) / _IND_DOF)
+
+    def step(adapt_rate: float | None, independent: bool):
         nonlocal wc, wt, wo, lp_c, lp_o, sc, so
         # objects, given the camera
-        prop = wt + so[None, :, None] * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7)))
+        if independent:
+            prop = mt + _IND_SCALE * np.einsum("mij,cmj->cmi", Lo, t_draws((C, m, 7)))
+            corr = log_q_obj(wt) - log_q_obj(prop)
+        else:
+            prop = wt + so[None, :, None] * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7)))
+            corr = 0.0
         new = prop + (wo - wt)
         lp_new = target.objects(wc, new)
-        a = np.log(rng.uniform(size=(C, m))) < lp_new - lp_o
+        with np.errstate(invalid="ignore"):
+            a = np.log(rng.uniform(size=(C, m))) < lp_new - lp_o + corr
         wt = np.where(a[..., None], prop, wt)
         wo = np.where(a[..., None], new, wo)
         lp_o = np.where(a, lp_new, lp_o)
         # the camera, objects moving along their regression
         if kc:
-            pc = wc + sc * rng.standard_normal((C, 5)) @ Lc.T
+            if independent:
+                pc = mc + _IND_SCALE * t_draws((C, 5)) @ Lc.T
+                corr = log_q_cam(wc) - log_q_cam(pc)
+            else:
+                pc = wc + sc * rng.standard_normal((C, 5)) @ Lc.T
+                corr = 0.0
             new = wt + shear(pc)
             lpc_new, lpo_new = target.camera(pc), target.objects(pc, new)
             with np.errstate(invalid="ignore"):
-                b = np.log(rng.uniform(size=C)) < (lpc_new + lpo_new.sum(axis=1)) - (lp_c + lp_o.sum(axis=1))
+                b = np.log(rng.uniform(size=C)) < (lpc_new + lpo_new.sum(axis=1)) - (lp_c + lp_o.sum(axis=1)) + corr
             wc = np.where(b[:, None], pc, wc)
             wo = np.where(b[:, None, None], new, wo)
             lp_c = np.where(b, lpc_new, lp_c)
             lp_o = np.where(b[:, None], lpo_new, lp_o)
         else:
             b = np.ones(C, bool)
-        if adapt_rate is not None:
+        if adapt_rate is not None and not independent:
             so = so * np.exp(adapt_rate * (a.mean(axis=0) - 0.3))
             sc = sc * np.exp(adapt_rate * (b.mean() - 0.3))
         return a, b
@@ -282,7 +317,7 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
         hist_c, hist_o = [], []
         marks = {int(0.4 * s.warmup), int(0.7 * s.warmup)}
         for t in range(s.warmup):
-            step(1.0 / (t + 10) ** 0.6 * 3.0)
+            step(1.0 / (t + 10) ** 0.6 * 3.0, independent=t % 2 == 1)
             hist_c.append(wc.copy())
             hist_o.append(wo.copy())
             if t in marks:
@@ -290,32 +325,41 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
                 Sc, Ao, B = _reestimate(model, np.array(hist_c[keep]), np.array(hist_o[keep]), Sc0, Ao0, B0)
                 Lc = _chol(Sc, cf)
                 Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
+                Lci, Loi = np.linalg.pinv(Lc), np.linalg.pinv(Lo)
                 sc = 2.38 / np.sqrt(max(kc, 1))
                 so = 2.38 / np.sqrt(np.maximum(ko, 1))
                 wt = wo - shear(wc)
+                hc = np.array(hist_c[keep]).reshape(-1, 5)
+                mc = hc.mean(axis=0)
+                mt = (np.array(hist_o[keep]) - np.einsum("mik,tck->tcmi", B, np.array(hist_c[keep]) - wc0)).reshape(-1, m, 7).mean(axis=0)
                 hist_c, hist_o = [], []
             bar.update(1)
         # main phase
         cams_d, objs_d = [], []
         thin, it, ok = 1, 0, False
         diag = None
+        chunk = s.chunk
         while it < s.max_iterations:
-            for _ in range(s.chunk):
-                a, b = step(None)
+            chunk = min(chunk, s.max_iterations - it)
+            for _ in range(chunk):
+                a, b = step(None, independent=it % 2 == 1)
                 acc_o.append(a.mean(axis=0))
                 acc_c.append(b.mean())
                 it += 1
                 if it % thin == 0:
-                    cams, objs = from_work(wc, wo)
-                    cams_d.append(model.complete_camera(cams))
+                    cams, objs = coords.from_work(wc, wo)
+                    cams_d.append(cams)
                     objs_d.append(objs)
                 if len(cams_d) >= 2 * s.max_draws:
                     cams_d, objs_d, thin = cams_d[1::2], objs_d[1::2], thin * 2
-            bar.update(s.chunk)
+            bar.update(chunk)
             diag = _diagnose(model, np.array(cams_d), np.array(objs_d), map_est, s)
             if diag["ok"]:
                 ok = True
                 break
+            # the next check where the slowest quantity should reach min_ess (checks are costly)
+            rate = max(diag["min_ess"], 1.0) / it
+            chunk = int(np.clip(1.2 * s.min_ess / rate - it, s.chunk, 2 * it))
     cams = np.transpose(np.array(cams_d), (1, 0, 2))
     objs = np.transpose(np.array(objs_d), (1, 0, 2, 3))
     acceptance = {"camera": float(np.mean(acc_c)), "objects": float(np.mean(acc_o))}
@@ -358,5 +402,5 @@ def _diagnose(model: FrameModel, cams: np.ndarray, objs: np.ndarray, map_est: Fr
     if np.nanmax(rh) > s.max_rhat:
         k = int(np.nanargmax(rh))
         why.append(f"R-hat of {names[k]} {rh[k]:.3f} > {s.max_rhat:g}")
-    return {"ok": not why, "why": why, "ess_bulk": dict(zip(names, eb.tolist())),
+    return {"ok": not why, "why": why, "min_ess": float(np.nanmin(eb)), "ess_bulk": dict(zip(names, eb.tolist())),
             "r_hat": dict(zip(names, rh.tolist()))}
