@@ -175,3 +175,46 @@ def test_command_line_simulates_and_estimates_a_frame(tmp_path):
     proc = _cli("estimate", str(frame), "--no-posterior", "--out", str(tmp_path / "bad.json"))
     assert proc.returncode == 2 and "targets[0].dimension_lines: expected at least one annotation" in proc.stderr
     assert not (tmp_path / "bad.json").exists()
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_frame_bound_of_one_target_equals_the_single_target_bound(seed):
+    """Two implementations: bench/crb.py (one target) and bench/frame_crb.py (frames)."""
+    import warnings
+
+    from creference_bayes.bench.crb import cramer_rao_scene
+    from creference_bayes.bench.frame_crb import frame_crb
+    from creference_bayes.bench.simulate import simulate_scene, true_params
+    from creference_bayes.io.frame_scene import frame_from_scene
+    from creference_bayes.io.scene import parse_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = parse_scene(simulate_scene(seed, tier="low", n_references=0))
+    single = cramer_rao_scene(scene, n_annotations=len(scene.target.dimension_lines))
+    model, _ = build_frame_model(frame_from_scene(scene), focal_prior="none")
+    p = true_params(scene)
+    model.handedness = np.array([scene.ground_truth.extra["handedness"]], float)
+    t = scene.target
+    bound = frame_crb(model, np.array([p[4], p[5], p[6], p[1], 0.5]),
+                      np.array([[p[0], p[2], p[3], t.length, t.width, t.height, 0.0]]), 2.0)
+    np.testing.assert_allclose(bound.location_cov[0], single.location_cov, rtol=1e-3, atol=1e-12)
+
+
+def test_frame_bound_shrinks_with_more_objects_sharing_the_camera():
+    scene = simulate_frame(21, n_objects=8, noise_px=2.0, focal_known=False)
+    frame = parse_frame(scene)
+    model, _ = build_frame_model(frame)
+    gt = scene["ground_truth"]
+    cam = np.array([gt["focal_length_px"], gt["pitch_rad"], gt["roll_rad"], gt["camera_height_m"], 0.5])
+    objs = np.array([[t["ground_truth"]["location_m"][0], t["ground_truth"]["location_m"][2], t["ground_truth"]["yaw_rad"],
+                      *t["ground_truth"]["dimensions_m"].values(), t["ground_truth"]["ground_m"]] for t in scene["targets"]])
+    model.handedness = np.array([t["ground_truth"]["handedness"] for t in scene["targets"]], float)
+    from creference_bayes.bench.frame_crb import frame_crb
+
+    joint = frame_crb(model, cam, objs, 2.0)
+    one = dict(scene, targets=scene["targets"][:1])
+    m1, _ = build_frame_model(parse_frame(one))
+    m1.handedness = model.handedness[:1]
+    alone = frame_crb(m1, cam, objs[:1], 2.0)
+    assert joint.distance_sd_m[0] < alone.distance_sd_m[0]
