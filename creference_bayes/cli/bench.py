@@ -23,6 +23,8 @@ def _run_bench_command(args) -> int:
     from ..bench.peers import INSTALL_HINT, poselib_available
     from ..bench.report import markdown_report
 
+    if args.frames:
+        return _run_frame_bench(args)
     config = CONFIGS["full" if args.full else "quick"]
     if args.paper_restarts is not None:
         if args.paper_restarts < 1:
@@ -89,6 +91,27 @@ def _run_simulate_command(args) -> int:
     return 0
 
 
+def _run_frame_bench(args) -> int:
+    """``creference bench --frames``: the frame benchmark (docs/benchmark_results.md, "Frames")."""
+    from ..bench.frame_bench import frame_tables, rows_to_json, run_frame_bench
+
+    if args.full:
+        kw = dict(counts=(3, 8, 15), frames=4, tiers=("low", "high"))
+    else:
+        kw = dict(counts=(3, 6), frames=1, tiers=("low",), sampling={"max_iterations": 2000})
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    rows = run_frame_bench(seed=args.seed, progress=say, **kw)
+    table = frame_tables(rows)
+    atomic_write_text(out / "frame_bench.json", json.dumps(rows_to_json(rows), indent=1, allow_nan=False) + "\n")
+    atomic_write_text(out / "frame_bench.md", table + "\n")
+    if not args.quiet:
+        print(table)
+        print(f"\nwrote {out / 'frame_bench.json'}, {out / 'frame_bench.md'}")
+    return 0
+
+
 def _n_scenes(size: str) -> int:
     return sum(n for *_, n in CONFIGS[size].scenes)
 
@@ -113,6 +136,9 @@ def register(subparsers) -> None:
     p.add_argument("--temperature", type=float, default=None, metavar="T",
                    help="posterior temperature of the paper model (default: the package's)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
+    p.add_argument("--frames", action="store_true",
+                   help="the frame benchmark instead: simulated frames of several objects, joint against one "
+                        "at a time and the frame bound (--quick: 2 frames; --full: 24 frames of 3–15 objects)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run_bench_command)
 
