@@ -93,12 +93,9 @@ def ground_truth_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarra
 
 
 def detection_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarray:
-    """(m,) 0 counted, 1 ignored (lower than the minimum height, whatever the class), −1 another class.
-
-    The height is truncated to whole pixels before the comparison, as the devkit stores it in an integer.
-    """
+    """(m,) 0 counted, 1 ignored (lower than the minimum height, whatever the class), −1 another class."""
     cls = cls.lower()
-    height = np.trunc(np.abs(frame.det_height_px))
+    height = np.abs(frame.det_height_px)
     same = np.array([t.lower() == cls for t in frame.det_type], bool)
     return np.where(height < MIN_HEIGHT[difficulty], 1, np.where(same, 0, -1))
 
