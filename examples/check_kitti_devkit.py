@@ -6,7 +6,9 @@ prclibo/kitti_eval) compiles with g++ and Boost (Debian: ``apt-get install g++ l
 
     g++ -O2 -w -o evaluate_object_3d_offline evaluate_object_3d_offline.cpp
 
-It judges Car at IoU 0.7; for Car at 0.5 build a second binary with the minimum overlaps set to
+Build it against Boost 1.81's headers (``apt-get download libboost1.81-dev``, ``dpkg -x`` it, then
+``-I .../usr/include``): with Debian's default Boost 1.74 the devkit scores some nearly coincident
+boxes as not overlapping (docs/evaluation.md). It judges Car at IoU 0.7; for Car at 0.5 build a second binary with the minimum overlaps set to
 0.5 (``sed 's/{0.7, 0.5, 0.5}/{0.5, 0.5, 0.5}/g'`` on the ``MIN_OVERLAP`` line) and pass it as
 ``--devkit-car05``. Keep both outside the project: the devkit's source is not ours to commit.
 
