@@ -246,3 +246,35 @@ def test_camera_angles_come_from_the_result_or_the_horizon(make_scene):
     assert camera_angles({"focal_length_px": 1000.0, "pitch": 0.1, "roll": -0.2}, scene) == (0.1, -0.2)
     level = dataclasses.replace(scene, horizon=None)
     assert tuple(map(float, camera_angles({"focal_length_px": [900.0, 1100.0]}, level)[0])) == (0.0, 0.0)
+
+
+def test_evaluate_kitti_reads_what_labels_writes(batch, tmp_path, capsys):
+    """Reference boxes made from the scenes' ground truth: `creference evaluate kitti` finds for each
+    label the IoU that `creference labels` recorded as `true_iou` (to the label file's 4 decimals)
+    and the sidecar's P(IoU ≥ t)."""
+    labels = batch["labels"]
+    gt_dir = tmp_path / "gt" / "label_2"
+    gt_dir.mkdir(parents=True)
+    sidecar = {}
+    for side in sorted((labels / "uncertainty").glob("*.json")):
+        label_lines = (labels / "label_2" / f"{side.stem}.txt").read_text().splitlines()
+        lines = []
+        for obj in json.loads(side.read_text())["objects"]:
+            gt = json.loads((batch["batch"] / "scenes" / f"{obj['scene']}.json").read_text())["ground_truth"]
+            d = obj["dimensions_m"]
+            bbox = label_lines[obj["line"] - 1].split()[4:8]
+            lines.append(" ".join([obj["type"], "0.00", "0", "0.00", *bbox, f"{d['h']:.4f}", f"{d['w']:.4f}",
+                                   f"{d['l']:.4f}", *(f"{v:.4f}" for v in gt["location_m"]), f"{gt['yaw_rad']:.4f}"]))
+            sidecar[(side.stem, obj["line"])] = obj
+        (gt_dir / f"{side.stem}.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "eval"
+    assert main(["evaluate", "kitti", str(gt_dir.parent), str(labels), "--out", str(out), "--quiet"]) == 0
+    doc = json.loads((out / "evaluation.json").read_text())
+    assert len(doc["objects"]) == len(sidecar) >= 5
+    for o in doc["objects"]:
+        s = sidecar[(o["image"], o["line"])]
+        assert o["iou_3d"] == pytest.approx(s["true_iou"], abs=2e-3)
+        assert o["p_iou_ge_0.7"] == s["quality"]["p_iou_ge_0.7"]
+    assert sum(0.05 < o["iou_3d"] < 0.99 for o in doc["objects"]) >= 3  # real partial overlaps
+    assert doc["reliability"]["p_iou_ge_0.7"]["count"] == len(sidecar)
+    assert (out / "reliability.png").is_file()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["quality_figure"]
+__all__ = ["quality_figure", "reliability_figure"]
 
 
 def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.7)",
@@ -36,19 +36,47 @@ def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.
     ax.set_xlim(0, 1)
     ax.legend(loc="upper left", fontsize="small")
     for ax, (t, rows) in zip(axes[1:], (reliability or {}).items()):
-        pred = np.array([r["mean_predicted"] for r in rows])
-        obs = np.array([r["observed_share"] for r in rows])
-        se = np.array([r["se"] for r in rows])
-        ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
-        yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
-        ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,
-                    label="±2 se if calibrated")
-        ax.plot(pred, obs, "o-", color="#d62728", label="observed")
-        for p, o, r in zip(pred, obs, rows):
-            ax.annotate(str(r["count"]), (p, o), textcoords="offset points", xytext=(3, -10), fontsize=7)
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 1)
-        ax.set_xlabel(f"predicted P(IoU ≥ {t:g})")
-        ax.set_ylabel(f"share with true IoU ≥ {t:g}")
-        ax.legend(loc="upper left", fontsize="small")
+        _reliability_panel(ax, t, rows)
+    return fig
+
+
+def _reliability_panel(ax, t: float, rows: list[dict], title: str | None = None) -> None:
+    """Observed share against mean predicted P(IoU ≥ t) per bin, with the ±2 se band of a
+    calibrated forecast and each bin's count."""
+    pred = np.array([r["mean_predicted"] for r in rows])
+    obs = np.array([r["observed_share"] for r in rows])
+    se = np.array([r["se"] for r in rows])
+    ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
+    yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
+    ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,
+                label="±2 se if calibrated")
+    ax.plot(pred, obs, "o-", color="#d62728", label="observed")
+    for p, o, r in zip(pred, obs, rows):
+        ax.annotate(str(r["count"]), (p, o), textcoords="offset points", xytext=(3, -10), fontsize=7)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_xlabel(f"predicted P(IoU ≥ {t:g})")
+    ax.set_ylabel(f"share with true IoU ≥ {t:g}")
+    if title:
+        ax.set_title(title, fontsize="medium")
+    ax.legend(loc="upper left", fontsize="small")
+
+
+def reliability_figure(reliability: dict, fig: Figure | None = None) -> Figure:
+    """One reliability diagram per IoU threshold t: the labels' P(IoU ≥ t) against the IoU they
+    have with the reference boxes.
+
+    Parameters
+    ----------
+    reliability : t → {``rows``: :func:`~creference_bayes.evaluation.reliability.reliability_table`
+        rows, ``brier``: the Brier score, ``count``: labels}
+    fig : a figure to draw on (default: a new one)
+    """
+    if not reliability:
+        raise ValueError("reliability: expected at least one threshold with labels, got none")
+    if fig is None:
+        fig = Figure(figsize=(4.2 * len(reliability), 3.8), layout="constrained")
+    axes = fig.subplots(1, len(reliability), squeeze=False)[0]
+    for ax, (t, r) in zip(axes, reliability.items()):
+        _reliability_panel(ax, t, r["rows"], f"{r['count']} labels, Brier score {r['brier']:.3f}")
     return fig
