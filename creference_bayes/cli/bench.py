@@ -56,6 +56,17 @@ def _run_bench_command(args) -> int:
 
 
 def _run_simulate_command(args) -> int:
+    if args.outdir is None and args.out_dir is None:
+        raise UsageError("simulate: give the output folder (OUTDIR or --out)")
+    if args.outdir is not None and args.out_dir is not None and args.outdir != args.out_dir:
+        raise UsageError(f"simulate: two output folders, {args.outdir} and --out {args.out_dir}")
+    args.outdir = args.outdir or args.out_dir
+    if args.from_kitti is not None:
+        from .frame import run_kitti_simulate
+
+        return run_kitti_simulate(args)
+    if args.n is None:
+        raise UsageError("--n: the number of scenes is required (unless --from-kitti)")
     if args.objects is not None:
         from .frame import run_frame_simulate
 
@@ -147,9 +158,10 @@ def register(subparsers) -> None:
         description="Write N simulated scenes (scene_0000.json, …) with exact ground truth, as the "
                     "benchmark draws them: a target box, 13 noisy dimension-line annotations, five "
                     "references in the paper's ten formats and the horizon. No photo.")
-    p.add_argument("outdir", metavar="OUTDIR", help="folder to write into (created; must be empty "
-                                                    "unless --overwrite)")
-    p.add_argument("--n", type=int, required=True, help="number of scenes")
+    p.add_argument("outdir", metavar="OUTDIR", nargs="?", default=None,
+                   help="folder to write into (created; must be empty unless --overwrite)")
+    p.add_argument("--out", dest="out_dir", metavar="OUTDIR", default=None, help="the same as OUTDIR")
+    p.add_argument("--n", type=int, default=None, help="number of scenes (not with --from-kitti)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
                    help="noise tier, or all to cycle through them (default: %(default)s)")

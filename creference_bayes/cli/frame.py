@@ -12,7 +12,7 @@ import numpy as np
 from .main import UsageError
 
 __all__ = ["is_frame_file", "run_frame_estimate", "format_frame_tables", "run_frame_simulate",
-           "add_frame_simulate_options"]
+           "run_kitti_simulate", "add_frame_simulate_options"]
 
 
 def is_frame_file(path) -> bool:
@@ -148,9 +148,41 @@ def run_frame_simulate(args) -> int:
     return 0
 
 
+def run_kitti_simulate(args) -> int:
+    """``creference simulate --from-kitti DIR --out SCENES``: frames on KITTI's real geometry."""
+    from ..bench.kitti_frames import kitti_frames
+
+    if args.seed < 0:
+        raise UsageError(f"--seed: expected a non-negative integer, got {args.seed}")
+    if args.annotations < 1:
+        raise UsageError(f"--annotations: expected an integer ≥ 1, got {args.annotations}")
+    if not args.noise_px >= 0:
+        raise UsageError(f"--noise-px: expected a number ≥ 0, got {args.noise_px}")
+    src = Path(args.from_kitti)
+    if not (src / "label_2").is_dir() or not (src / "calib").is_dir():
+        raise UsageError(f"--from-kitti {src}: not a KITTI folder (needs label_2/ and calib/)")
+    out = Path(args.outdir)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder")
+    if not args.overwrite and out.is_dir() and any(out.iterdir()):
+        raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite")
+    try:
+        totals = kitti_frames(src, out, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed)
+    except ValueError as exc:  # a malformed label or calib file: its message names file and line
+        raise UsageError(str(exc)) from None
+    if not args.quiet:
+        skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
+        print(f"wrote {totals['frames']} frames with {totals['kept']} objects to {out}"
+              + (f" (left out: {skipped})" if skipped else ""))
+    return 0
+
+
 def add_frame_simulate_options(p) -> None:
     """The frame options of ``creference simulate``."""
     g = p.add_argument_group("frames (creference-scene/2, docs/frames.md)")
+    g.add_argument("--from-kitti", metavar="DIR", default=None,
+                   help="frames from a KITTI folder (label_2/, calib/, image_2/): simulated dimension lines "
+                        "on the real boxes (docs/kitti.md)")
     g.add_argument("--objects", type=int, default=None, metavar="K",
                    help="write frames of K targets each instead of single-target scenes")
     g.add_argument("--kind", choices=("street", "indoor"), default="street", help="frames: the kind of scene")

@@ -79,6 +79,8 @@ class FrameScene:
     source: Path | None = None
     warnings: tuple[str, ...] = ()
     format: str = FRAME_FORMAT
+    #: KITTI's P2 (3, 4) when the frame came from a KITTI folder: labels go back into its frame.
+    kitti_p2: np.ndarray | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -181,6 +183,11 @@ def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
         raise SceneError("format", f"expected 'creference-scene/1' or {FRAME_FORMAT!r}, got {_short(data.get('format'))}")
     sink: list[str] = []
     _warn_unknown(data, _TOP_KEYS, "", sink)
+    kitti_p2 = None
+    if isinstance(data.get("camera"), dict) and "kitti_p2" in data["camera"]:
+        camera = dict(data["camera"])
+        kitti_p2 = _parse_p2(camera.pop("kitti_p2"), "camera.kitti_p2")
+        data = {**data, "camera": camera}
     head = parse_header(data, source, sink)
     w, h = head["image_width"], head["image_height"]
     classes = {}
@@ -216,7 +223,20 @@ def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return FrameScene(targets=targets, references=tuple(r for r, _ in parsed),
                       reference_targets=tuple(o for _, o in parsed), classes=classes, ground_truth=gt,
-                      warnings=tuple(sink), **head)
+                      warnings=tuple(sink), kitti_p2=kitti_p2, **head)
+
+
+def _parse_p2(value: Any, path: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    rows = _list(value, path)
+    if len(rows) != 3:
+        raise SceneError(path, f"expected 3 rows of 4 numbers (KITTI's P2), got {len(rows)} rows")
+    out = np.array([[_number(v, _join(_join(path, i), j)) for j, v in enumerate(_list(r, _join(path, i)))]
+                    for i, r in enumerate(rows)], dtype=object)
+    if out.ndim != 2 or out.shape != (3, 4):
+        raise SceneError(path, f"expected 3 rows of 4 numbers (KITTI's P2), got {_short(value)}")
+    return out.astype(float)
 
 
 def load_frame(path: str | Path) -> FrameScene:
@@ -260,6 +280,8 @@ def frame_to_dict(frame: FrameScene) -> dict:
                                    _relative(frame.image_path, frame.source.parent))
     if frame.focal_length_px is not None:
         out["camera"]["focal_length_px"] = frame.focal_length_px
+    if frame.kitti_p2 is not None:
+        out["camera"]["kitti_p2"] = np.asarray(frame.kitti_p2).tolist()
     if frame.horizon is not None:
         out["horizon"] = np.asarray(frame.horizon).tolist()
         if frame.horizon_sd_px:
