@@ -1,0 +1,90 @@
+"""Frames from a KITTI folder and labels back into KITTI's frame (synthetic KITTI files, no data)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from creference_bayes.bench.kitti_frames import kitti_frame, read_p2
+from creference_bayes.io.frame_scene import parse_frame
+from creference_bayes.workflows.frames import kitti_poses, write_frame_labels
+
+P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
+# type trunc occ alpha  l t r b  h w l  x y z  ry
+LABELS = """Car 0.00 0 -1.58 587.01 173.33 614.12 200.12 1.65 1.67 3.64 -0.65 1.71 46.70 -1.59
+Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0.48 1.20 1.84 1.47 8.41 0.01
+Car 0.00 1 1.85 387.63 175.00 423.81 203.12 1.67 1.87 3.69 -16.53 2.39 58.49 1.57
+Cyclist 0.80 0 -1.00 0.0 170.0 40.0 260.0 1.7 0.6 1.8 -12.0 1.6 10.0 0.5
+DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10
+"""
+
+
+@pytest.fixture
+def kitti_dir(tmp_path):
+    d = tmp_path / "kitti"
+    (d / "label_2").mkdir(parents=True)
+    (d / "calib").mkdir()
+    (d / "label_2" / "000007.txt").write_text(LABELS)
+    rows = " ".join(f"{v:.12e}" for v in P2.ravel())
+    (d / "calib" / "000007.txt").write_text(f"P0: {rows}\nP1: {rows}\nP2: {rows}\nP3: {rows}\n")
+    return d
+
+
+def test_frames_from_kitti_keep_what_a_person_could_annotate(kitti_dir):
+    scene, report = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                                rng=0, n_annotations=3, noise_px=0.0)
+    assert [t["class"] for t in scene["targets"]] == ["Car", "Pedestrian", "Car"]
+    assert report["skipped"]["truncation"] == 1  # the cyclist, truncated 0.8
+    assert scene["camera"]["focal_length_px"] == pytest.approx(P2[0, 0])
+    assert "horizon" not in scene and "dimensions_m" not in scene["targets"][0]
+    np.testing.assert_allclose(read_p2(kitti_dir / "calib" / "000007.txt"), P2)
+
+
+def test_labels_of_the_true_state_are_kittis_own_boxes(kitti_dir):
+    """The frame's conventions (nearest corner, handedness, yaw, P2's offset) there and back."""
+    from creference_bayes.evaluation.kitti_eval import evaluate_kitti
+    from creference_bayes.frame_pipeline import build_frame_model
+    from creference_bayes.models.frame import CAMERA_NAMES
+
+    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                           rng=0, n_annotations=2, noise_px=0.0)
+    frame = parse_frame(scene)
+    model, _ = build_frame_model(frame)
+    model.handedness = np.array([t["ground_truth"]["handedness"] for t in scene["targets"]], float)
+    objs = np.array([[t["ground_truth"]["location_m"][0], t["ground_truth"]["location_m"][2], t["ground_truth"]["yaw_rad"],
+                      *t["ground_truth"]["dimensions_m"].values(), 0.0] for t in scene["targets"]])
+    h = np.array([t["ground_truth"]["location_m"][1] for t in scene["targets"]])
+    objs[:, 6] = h.max() - h
+    cam = np.array([P2[0, 0], 0.0, 0.0, h.max(), 0.5])
+    # the annotations are the projection of the true state, to 0.01 px
+    uv, _ = model.project(cam[None], objs[None])
+    for i, t in enumerate(frame.targets):
+        np.testing.assert_allclose(t.corners[0], uv[0, i], atol=0.006)
+    boxes = kitti_poses(frame, cam[None], objs[None])[0]
+    for t, b in zip(scene["targets"], boxes):
+        k = t["ground_truth"]["kitti"]
+        np.testing.assert_allclose(b[:3], k["location"], atol=1e-9)
+        assert np.cos(b[3] - k["rotation_y"]) == pytest.approx(1.0, abs=1e-9) or \
+            np.cos(b[3] - k["rotation_y"]) == pytest.approx(-1.0, abs=1e-9)
+    result = {"camera": {"map": dict(zip(CAMERA_NAMES, cam))},
+              "objects": [{"map": dict(zip(("x", "z", "yaw", "length_m", "width_m", "height_m", "ground_m"), o))}
+                          for o in objs]}
+    write_frame_labels(frame, result, kitti_dir / "out", "000007")
+    ev = evaluate_kitti(kitti_dir / "label_2", kitti_dir / "out" / "label_2")
+    # label files hold two decimals (KITTI's own precision)
+    assert [o["iou_3d"] for o in ev.objects] == pytest.approx([1.0, 1.0, 1.0], abs=1e-3)
+
+
+def test_simulate_from_kitti_on_the_command_line(kitti_dir, tmp_path):
+    out = tmp_path / "scenes"
+    proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(kitti_dir),
+                           "--out", str(out), "--annotations", "2"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "1 frames with 3 objects" in proc.stdout and "1 by truncation" in proc.stdout
+    data = json.loads((out / "000007.json").read_text())
+    assert data["format"] == "creference-scene/2" and len(data["targets"][0]["dimension_lines"]) == 2
+    proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(tmp_path),
+                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "not a KITTI folder" in proc.stderr
