@@ -16,10 +16,11 @@ How
 1. **Explore.** An ensemble runs on the tempered density p^(1/T) (T = 3 by default) from an
    over-dispersed cloud around the MAP: valleys of a few nats become shallow and walkers spread
    over every basin within reach.
-2. **Climb.** From a spread subset of the explored points (farthest-point sampling, the highest
+2. **Climb.** From a spread subset of the explored points (8) (farthest-point sampling, the highest
    first) an L-BFGS-B fit of the *untempered* log-density finds the local maxima; circular
    coordinates (yaw) are wrapped to within π of the MAP, and maxima closer than
-   :data:`SAME_MODE` (in the MAP's whitened units) are merged.
+   :data:`SAME_MODE` (in the MAP's whitened units) or without a valley between them
+   (:data:`VALLEY`) are merged.
 3. **Weigh.** Each maximum gets a Laplace approximation; its mass is estimated as
    exp(log p) · √det(2π Σ). Modes under :data:`MIN_SHARE` of the total are dropped.
 
@@ -40,6 +41,8 @@ __all__ = ["Mode", "find_modes", "fit_mixture", "assign"]
 
 #: Two local maxima closer than this (in the MAP's Laplace-whitened units) are one mode.
 SAME_MODE = 1.0
+#: Two maxima with no dip deeper than this (nats) on the line between them are one mode.
+VALLEY = 0.5
 #: Modes whose Laplace mass is under this share of the total are dropped.
 MIN_SHARE = 1e-3
 #: At most this many modes are kept (the heaviest).
@@ -68,7 +71,7 @@ class Mode:
 
 def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=None,
                temperature: float = 3.0, n_steps: int = 150, n_walkers: int = 32,
-               n_climbs: int = 12) -> list[Mode]:
+               n_climbs: int = 8) -> list[Mode]:
     """The posterior's modes, the one at ``center`` first (module docstring).
 
     Parameters
@@ -116,7 +119,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     for i in np.argsort(-lp):
         if i == 0 or not np.isfinite(lp[i]) or lp[i] < lp[0] - MAX_DROP:
             continue
-        if all(np.linalg.norm(u_found[i] - u_found[j]) > SAME_MODE for j in keep):
+        if not any(_same_mode(neg, u_found[i], u_found[j]) for j in keep):
             keep.append(int(i))
     modes = []
     for i in keep:
@@ -129,6 +132,16 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     out = [Mode(m[0], m[1], m[2], float(s)) for m, s in zip(modes, shares)]
     rest = sorted((m for m in out[1:] if m.share >= MIN_SHARE), key=lambda m: -m.share)
     return [out[0]] + rest[:MAX_MODES - 1]
+
+
+def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two maxima are one mode: close (:data:`SAME_MODE`), or no valley deeper than
+    :data:`VALLEY` nats between them on the straight line (in the whitened coordinates)."""
+    if np.linalg.norm(a - b) <= SAME_MODE:
+        return True
+    t = np.linspace(0.0, 1.0, 7)[:, None]
+    v = neg(a + t * (b - a))
+    return bool(np.max(v[1:-1]) <= max(v[0], v[-1]) + VALLEY)
 
 
 def _spread(u: np.ndarray, lp: np.ndarray, k: int) -> np.ndarray:
@@ -156,7 +169,7 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
         return float(v[0]), np.where(np.isfinite(g) & (np.abs(g) < 1e200), g, 0.0)
 
     with np.errstate(all="ignore"):
-        res = minimize(fg, u0, jac=True, method="L-BFGS-B", options={"maxiter": 200})
+        res = minimize(fg, u0, jac=True, method="L-BFGS-B", options={"maxiter": 100})
     return res.x if np.isfinite(res.fun) and res.fun <= fg(u0)[0] else u0
 
 
