@@ -250,7 +250,7 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     modes = []
     if settings.mode_search:  # other modes: the ensembles start in them, the proposal covers them
         modes = find_modes(target, center, laplace.cov, laplace=lambda c: laplace_scales(target, c).cov,
-                           rng=rng, log_mask=log_mask, circular=log_post.yaw_index,
+                           rng=_side_stream(rng), log_mask=log_mask, circular=log_post.yaw_index,
                            temperature=settings.explore_temperature, n_steps=settings.explore_steps)
     try:
         chains = sample(target, center, laplace.cov, settings=settings, rng=rng, log_mask=log_mask,
@@ -298,3 +298,11 @@ def _mode_report(modes, model, coords, log_post, chains) -> tuple[dict, ...]:
                     "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": m.share,
                     "draw_share_per_ensemble": None if shares is None else [g[k] for g in shares]})
     return tuple(out)
+
+
+def _side_stream(rng: np.random.Generator) -> np.random.Generator:
+    """A generator independent of ``rng`` that leaves ``rng`` untouched (the mode search's): a
+    posterior with one mode gets exactly the draws it got without the search."""
+    seq = rng.bit_generator.seed_seq
+    return np.random.default_rng(np.random.SeedSequence(
+        seq.entropy, spawn_key=tuple(seq.spawn_key) + (2**31 + 19,), pool_size=seq.pool_size))
