@@ -129,9 +129,9 @@ def _orientation(scene, orientation: str, notes: list[str]):
         notes.append(f"no horizon, and none found in the image ({est.reason}): {free}")
         return "free", None, est
     notes.append(f"no horizon given: estimated from the image ({est.method} segments, "
-                 f"{len(est.vanishing_points)} vanishing points, ±{est.sd_px:.1f} px, confidence "
+                 f"{len(est.vanishing_points)} vanishing points, scale {est.sd_px:.1f} px (heavy-tailed), confidence "
                  f"{est.confidence:.2f}) and used as a measurement; pitch and roll estimated with it")
-    return "free", HorizonMeasurement(est.points, est.sd_px, "image"), est
+    return "free", HorizonMeasurement(est.points, est.sd_px, "image", dof=est.dof), est
 
 
 def _focal_prior(scene, choice, notes: list[str]) -> FocalPrior | None:

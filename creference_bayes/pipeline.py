@@ -230,6 +230,7 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     ``seconds`` cover the whole step), the InferenceData and notes for the result's warnings.
     """
     from .inference.posterior import DEFAULT_TEMPERATURE, LogPosterior, Reparametrised, laplace_scales
+    from .inference.modes import find_modes
     from .inference.sampling import SamplerSettings, SamplingError, sample
     from .inference.summary import posterior_arrays, summarise, to_inference_data
     from .models.coordinates import HorizonDistance
@@ -245,9 +246,15 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     center = map_est.params[model.free]
     center = center if coords is None else coords.forward(center[None])[0]
     laplace = laplace_scales(target, center)
+    log_mask = model.bounds.lower[model.free] > 0
+    modes = []
+    if settings.mode_search:  # other modes: the ensembles start in them, the proposal covers them
+        modes = find_modes(target, center, laplace.cov, laplace=lambda c: laplace_scales(target, c).cov,
+                           rng=_side_stream(rng), log_mask=log_mask, circular=log_post.yaw_index,
+                           temperature=settings.explore_temperature, n_steps=settings.explore_steps)
     try:
-        chains = sample(target, center, laplace.cov, settings=settings, rng=rng,
-                        log_mask=model.bounds.lower[model.free] > 0, progress=progress)
+        chains = sample(target, center, laplace.cov, settings=settings, rng=rng, log_mask=log_mask,
+                        progress=progress, modes=[(m.center, m.cov) for m in modes[1:]])
     except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
         return None, None, None, [f"posterior not sampled: {exc}"]
     if coords is not None:  # back to the model's parameters
@@ -259,6 +266,8 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     post, diag = summarise(chains, model.expand, free=model.free, hdi_prob=hdi_prob, min_ess=settings.min_ess,
                            tau_multiple=settings.tau_multiple, handedness=map_est.handedness,
                            temperature=temperature, arrays=arrays)
+    if len(modes) > 1:
+        diag = dataclasses.replace(diag, modes=_mode_report(modes, model, coords, log_post, chains))
     idata = to_inference_data(chains, model.expand, scene=scene, arrays=arrays, attrs={
         "model": model.name, "handedness": map_est.handedness, "temperature": temperature,
         "hdi_prob": hdi_prob})
@@ -272,3 +281,28 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
                      f"{min(other) - map_est.cost:+.2f}); the posterior is conditioned on "
                      f"handedness {map_est.handedness:+d}")
     return post, dataclasses.replace(diag, seconds=time.perf_counter() - t0), idata, notes
+
+
+def _mode_report(modes, model, coords, log_post, chains) -> tuple[dict, ...]:
+    """The diagnostics' ``modes``: where each mode found before sampling is, how much lower its
+    log-density is than the MAP's, its Laplace share of the mass, and the share of each
+    ensemble's draws nearest to it."""
+    centers = np.array([m.center for m in modes])
+    free = centers if coords is None else coords.inverse(centers)
+    full = model.expand(free)
+    lp = log_post(free)
+    shares = chains.info.get("mode_shares")
+    out = []
+    for k, m in enumerate(modes):
+        out.append({"distance_m": float(np.hypot(full[k, 0], full[k, 2])), "yaw": float(full[k, 3]),
+                    "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": m.share,
+                    "draw_share_per_ensemble": None if shares is None else [g[k] for g in shares]})
+    return tuple(out)
+
+
+def _side_stream(rng: np.random.Generator) -> np.random.Generator:
+    """A generator independent of ``rng`` that leaves ``rng`` untouched (the mode search's): a
+    posterior with one mode gets exactly the draws it got without the search."""
+    seq = rng.bit_generator.seed_seq
+    return np.random.default_rng(np.random.SeedSequence(
+        seq.entropy, spawn_key=tuple(seq.spawn_key) + (2**31 + 19,), pool_size=seq.pool_size))

@@ -92,23 +92,36 @@ class GroupedStretchMove(emcee.moves.Move):
 
 
 class IndependenceMove(emcee.moves.MHMove):
-    """Independence Metropolis–Hastings with a multivariate-t proposal.
+    """Independence Metropolis–Hastings with a multivariate-t proposal, or a mixture of them.
 
-    Every walker proposes x' ~ t_ν(m, S S ᵀ) regardless of where it is; the Hastings factor is
-    log q(x) − log q(x'). It uses no other walker, so ensembles stay independent.
+    Every walker proposes x' ~ Σₖ wₖ t_ν(mₖ, Sₖ Sₖᵀ) regardless of where it is; the Hastings
+    factor is log q(x) − log q(x'). It uses no other walker, so ensembles stay independent. A
+    mixture (one component per mode of the posterior, :mod:`.modes`) lets a walker jump between
+    modes that no local move connects.
 
     Parameters
     ----------
-    mean : (ndim,)
-    chol : (ndim, ndim) lower-triangular S
+    mean : (ndim,) or (k, ndim)
+    chol : (ndim, ndim) or (k, ndim, ndim) lower-triangular Sₖ
     df : ν
+    weights : (k,) mixture weights (default: one component)
     """
 
-    def __init__(self, mean: np.ndarray, chol: np.ndarray, df: float):
-        self.mean, self.chol, self.df = np.asarray(mean, float), np.asarray(chol, float), float(df)
-        self._inv = np.linalg.inv(self.chol)
+    def __init__(self, mean: np.ndarray, chol: np.ndarray, df: float, weights=None):
+        self.means = np.atleast_2d(np.asarray(mean, float))
+        self.chols = np.asarray(chol, float).reshape(len(self.means), self.means.shape[1], -1)
+        k, d = self.means.shape
+        self.weights = np.ones(k) / k if weights is None else np.asarray(weights, float) / np.sum(weights)
+        self.mean, self.chol, self.df = self.means[0], self.chols[0], float(df)
+        self._invs = np.linalg.inv(self.chols)
+        self._log_norm = np.log(self.weights) - np.array([np.sum(np.log(np.abs(np.diag(c))))
+                                                          for c in self.chols])
         self.proposed = self.accepted = 0
-        super().__init__(self._propose, ndim=len(self.mean))
+        super().__init__(self._propose, ndim=d)
+
+    @property
+    def n_components(self) -> int:
+        return len(self.means)
 
     @property
     def acceptance(self) -> float:
@@ -116,8 +129,15 @@ class IndependenceMove(emcee.moves.MHMove):
         return self.accepted / self.proposed if self.proposed else float("nan")
 
     def log_q(self, x: np.ndarray) -> np.ndarray:
-        z = (x - self.mean) @ self._inv.T
-        return -0.5 * (self.df + len(self.mean)) * np.log1p(np.sum(z * z, axis=1) / self.df)
+        """(n,) log-density of the proposal at x, up to a constant."""
+        d = self.means.shape[1]
+        terms = []
+        for m, inv, c in zip(self.means, self._invs, self._log_norm):
+            z = (x - m) @ inv.T
+            terms.append(c - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=1) / self.df))
+        terms = np.column_stack(terms)
+        top = terms.max(axis=1, keepdims=True)
+        return (top + np.log(np.sum(np.exp(terms - top), axis=1, keepdims=True)))[:, 0]
 
     def propose(self, model, state):
         """As :meth:`emcee.moves.MHMove.propose`, with a vectorised log-probability call."""
@@ -133,5 +153,11 @@ class IndependenceMove(emcee.moves.MHMove):
     def _propose(self, x, random):
         n, d = x.shape
         w = random.chisquare(self.df, n) / self.df
-        y = self.mean + (random.randn(n, d) / np.sqrt(w)[:, None]) @ self.chol.T
+        z = random.randn(n, d) / np.sqrt(w)[:, None]
+        if self.n_components == 1:
+            y = self.mean + z @ self.chol.T
+        else:
+            k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))
+            k = np.minimum(k, self.n_components - 1)
+            y = self.means[k] + np.einsum("nij,nj->ni", self.chols[k], z)
         return y, self.log_q(x) - self.log_q(y)

@@ -50,10 +50,11 @@ import emcee
 import numpy as np
 
 from .autocorr import integrated_time
+from .modes import fit_mixture
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
 
-__all__ = ["SamplerSettings", "Chains", "SamplingError", "sample"]
+__all__ = ["SamplerSettings", "Chains", "SamplingError", "sample", "explore"]
 
 
 class SamplingError(RuntimeError):
@@ -86,6 +87,9 @@ class SamplerSettings:
     min_independence_acceptance : warm-up goes on while that proposal is accepted less often (it
         then does not yet cover the posterior)
     proposal_df, proposal_scale : degrees of freedom and scale inflation of that proposal
+    mode_search : before sampling, look for other modes (:mod:`.modes`; done by the caller,
+        :func:`creference_bayes.pipeline.estimate`, which passes them as ``modes``)
+    explore_temperature, explore_steps : the tempered exploration of that search
     """
 
     n_ensembles: int = 4
@@ -104,6 +108,9 @@ class SamplerSettings:
     min_independence_acceptance: float = 0.15
     proposal_df: float = 6.0
     proposal_scale: float = 1.2
+    mode_search: bool = True
+    explore_temperature: float = 3.0
+    explore_steps: int = 150
 
     def __post_init__(self):
         checks = [
@@ -123,6 +130,9 @@ class SamplerSettings:
              "a number in [0, 1)"),
             ("proposal_df", self.proposal_df > 0, "a number > 0"),
             ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+            ("mode_search", isinstance(self.mode_search, bool), "true or false"),
+            ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
+            ("explore_steps", self.explore_steps >= 10, "an integer ≥ 10"),
         ]
         for name, ok, expected in checks:
             if not ok:
@@ -233,11 +243,13 @@ class _InSpace:
         return self.safe(self.coords.q_to_p(q)) + self.coords.log_jacobian(q)
 
 
-def _initial_points(safe, center, cov, rngs, n_walkers, max_tries: int = 200) -> np.ndarray:
-    """(n_ens · n_walkers, d) starting points with finite log-probability, one generator each."""
-    L = np.linalg.cholesky(cov)
+def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200) -> np.ndarray:
+    """(n_ens · n_walkers, d) starting points with finite log-probability, one generator each;
+    ensemble g is drawn from N(centre, cov) of ``starts[g % len(starts)]``."""
     out = []
-    for g in rngs:
+    for k, g in enumerate(rngs):
+        center, cov = starts[k % len(starts)]
+        L = np.linalg.cholesky(cov)
         pts = center + g.standard_normal((n_walkers, len(center))) @ L.T
         lp = safe(pts)
         shrink = 1.0
@@ -265,9 +277,20 @@ def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
     return [(proposal, w)] + [(m, (1.0 - w) * p) for m, p in local]
 
 
-def _fit_proposal(u: np.ndarray, settings: SamplerSettings) -> IndependenceMove | None:
+def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None) -> IndependenceMove | None:
+    """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates: a
+    multivariate t, or with several modes (``centers`` (k, d), k ≥ 2) a mixture of them with a
+    component per mode that the sample still holds (:func:`.modes.fit_mixture`)."""
     if settings.independence_weight == 0.0:
         return None
+    if centers is not None and len(centers) > 1:
+        weights, means, covs = fit_mixture(u, centers)
+        if len(weights) > 1:
+            try:
+                chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
+                return IndependenceMove(means, chols, settings.proposal_df, weights=weights)
+            except np.linalg.LinAlgError:
+                pass
     cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
     try:
         return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df)
@@ -275,10 +298,15 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings) -> IndependenceMove 
         return None
 
 
-def _stable(u: np.ndarray) -> bool:
-    """Whether a stage's second half, in the coordinates fitted before it, still looks whitened."""
+def _stable(u: np.ndarray, loose: bool = False) -> bool:
+    """Whether a stage's second half, in the coordinates fitted before it, still looks whitened.
+
+    ``loose`` (several modes): the share of the walkers in each mode, and so the sample's mean
+    and spread, fluctuate from stage to stage while the mixture proposal moves them between
+    modes; the mixture, not the affine map, does the work there, so the tolerance is wider."""
     sd = u.std(axis=0)
-    return bool(np.all(np.abs(u.mean(axis=0)) < 0.3) and np.all((sd > 0.75) & (sd < 1.33)))
+    m_max, sd_max = (0.5, 2.0) if loose else (0.3, 1.33)
+    return bool(np.all(np.abs(u.mean(axis=0)) < m_max) and np.all((sd > 1 / sd_max) & (sd < sd_max)))
 
 
 def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.ndarray]:
@@ -297,7 +325,7 @@ def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.nda
 
 
 def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
-           log_mask=None, progress: bool = False) -> Chains:
+           log_mask=None, progress: bool = False, modes=None) -> Chains:
     """Sample ``log_prob`` with independent emcee ensembles until converged (module docstring).
 
     Parameters
@@ -311,6 +339,12 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     log_mask : (ndim,) bool, parameters that are always positive and are better sampled as
         logarithms (:mod:`.reparam`); the density is corrected for it
     progress : show a progress bar (tqdm) on standard error
+    modes : further modes of the posterior besides ``center`` (:func:`.modes.find_modes`), a
+        sequence of (centre (ndim,), covariance (ndim, ndim)). Ensemble g then starts in mode
+        g mod (1 + len(modes)), ``center`` being mode 0 (an over-dispersed start: R-hat across
+        the ensembles then tells whether they found the same posterior), the independence
+        proposal is a mixture with a component per mode, and the sampler coordinates are
+        affine (no shear: one polynomial cannot straighten two modes)
 
     Returns
     -------
@@ -334,19 +368,28 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     safe = _SafeLogProb(log_prob)
     if not np.isfinite(safe(center[None])[0]):
         raise SamplingError("the starting point has log-probability −∞ (or NaN)")
-    pos = _initial_points(safe, center, cov, rng.spawn(s.n_ensembles), s.n_walkers)
+    starts = [(center, cov)] + [(np.asarray(c, float).reshape(d), np.asarray(v, float).reshape(d, d))
+                                for c, v in (modes or [])]
+    centers = np.array([c for c, _ in starts]) if len(starts) > 1 else None
+    pos = _initial_points(safe, starts, rng.spawn(s.n_ensembles), s.n_walkers)
     rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
     info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
-                  "reparametrised": False}
+                  "reparametrised": False, "modes": len(starts)}
     with _progress_bar(progress, 3 * s.warmup + 10 * s.chunk) as bar:
         coords = Coordinates.affine(center, cov, log_mask)
-        coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar)
-        sampler, chain, burn, tau = _main_phase(safe, coords, proposal, pos, rstate, s, info, bar,
-                                                log_mask)
+        coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
+                                                centers)
+        sampler, chain, burn, tau, coords = _main_phase(safe, coords, proposal, pos, rstate, s, info,
+                                                        bar, log_mask, centers)
     n, g, k = chain.shape[0], s.n_ensembles, s.n_walkers
     info.update({"nonfinite": safe.nonfinite, "log_prob_calls": safe.calls,
                  "log_prob_evaluations": safe.evaluations,
                  "moves": [type(m).__name__ for m in sampler._moves]})
+    if centers is not None:  # which mode each kept draw is nearest to, per ensemble
+        kept = coords.forward(chain[burn:]).reshape(-1, s.n_ensembles, s.n_walkers, d)
+        near = np.argmin(((kept[..., None, :] - coords.forward(centers)) ** 2).sum(-1), axis=-1)
+        info["mode_shares"] = [[float(np.mean(near[:, g] == k)) for k in range(len(centers))]
+                               for g in range(s.n_ensembles)]
     with np.errstate(divide="ignore"):  # the sampler's log-density includes log |∂p/∂u|
         lp = sampler.get_log_prob() - np.sum(np.log(chain[..., log_mask]), axis=-1)
     return Chains(chain=chain.reshape(n, g, k, d), log_prob=lp.reshape(n, g, k), burn_in=burn,
@@ -356,7 +399,7 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
                   seconds=time.perf_counter() - t0, info=info)
 
 
-def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar):
+def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None):
     """Run stages, refitting the coordinates and the proposal after each, until a stage run in
     the coordinates fitted before it still looks whitened and the proposal is accepted often
     enough (or ``max_warmup``). Returns the coordinates, proposal, positions and random state."""
@@ -369,7 +412,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         pos, rstate = coords.inverse(u[-1]), state.random_state
         tail_u = u[stage // 2:].reshape(-1, d)
         indep = proposal.acceptance if proposal is not None else float("nan")
-        stable = info["reparametrised"] and _stable(tail_u) and (
+        stable = info["reparametrised"] and _stable(tail_u, centers is not None) and (
             proposal is None or indep >= s.min_independence_acceptance)
         n_warm += stage
         info["warmup_stages"].append(stage)
@@ -380,8 +423,8 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
             break
         try:
             tail_p = coords.inverse(tail_u)
-            coords = Coordinates.fit(tail_p, log_mask)
-            proposal = _fit_proposal(coords.forward(tail_p), s)
+            coords = Coordinates.fit(tail_p, log_mask, shear=centers is None)
+            proposal = _fit_proposal(coords.forward(tail_p), s, _forward(coords, centers))
             info["reparametrised"] = True
         except np.linalg.LinAlgError:
             break  # nothing to learn from a degenerate sample: go on as we are
@@ -391,9 +434,9 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
 
 
 def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: dict, bar,
-                log_mask=None):
+                log_mask=None, centers=None):
     """Run in chunks until converged or ``max_steps``; returns the sampler, the chain in
-    parameters (n, walkers, d), the burn-in and τ.
+    parameters (n, walkers, d), the burn-in, τ and the coordinates finally used.
 
     If the first chunk shows τ above ``retune_tau`` (the warm-up had not yet seen the whole
     posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
@@ -416,8 +459,8 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         if n == step and tau_max > s.retune_tau and info["retunes"] < s.max_retunes and s.adapt:
             try:
                 tail = chain[n // 2:].reshape(-1, d)
-                coords = Coordinates.fit(tail, log_mask)
-                proposal = _fit_proposal(coords.forward(tail), s)
+                coords = Coordinates.fit(tail, log_mask, shear=centers is None)
+                proposal = _fit_proposal(coords.forward(tail), s, _forward(coords, centers))
             except np.linalg.LinAlgError:
                 pass
             else:
@@ -438,7 +481,42 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         n_target = int(np.ceil(1.1 * need))
         bar.total = sum(info["warmup_stages"]) + max(n_target, n + s.chunk)
         bar.refresh()
-    return sampler, chain, burn, tau
+    return sampler, chain, burn, tau, coords
+
+
+def _forward(coords, centers):
+    return None if centers is None else coords.forward(centers)
+
+
+def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_steps: int = 150,
+            n_walkers: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`).
+
+    Parameters
+    ----------
+    log_prob : callable, (n, d) → (n,) log-density in parameters
+    coords : sampler coordinates (e.g. :meth:`.reparam.Coordinates.affine` at the MAP); the
+        walkers start from N(0, I) in them
+    rng : numpy Generator
+    temperature, n_steps, n_walkers : T, steps and walkers (even, ≥ 2·d)
+
+    Returns
+    -------
+    u : (n, d) the second half of the run, in ``coords``
+    log_prob : (n,) the untempered log-density there (in ``coords``, with its Jacobian)
+    """
+    safe = _SafeLogProb(log_prob)
+    in_space = _InSpace(safe, coords)
+    d = len(coords.m)
+    n_walkers = max(n_walkers + n_walkers % 2, 2 * d)
+    u0 = _initial_points(in_space, [(np.zeros(d), np.eye(d))], [rng], n_walkers)
+    sampler = emcee.EnsembleSampler(n_walkers, d, lambda u: in_space(u) / temperature, vectorize=True,
+                                    moves=[(GroupedDEMove(1), 0.8), (GroupedStretchMove(1), 0.2)])
+    rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+    sampler.run_mcmc(emcee.State(u0, random_state=rstate), n_steps, skip_initial_state_check=True)
+    half = n_steps // 2
+    return (sampler.get_chain(discard=half).reshape(-1, d),
+            temperature * sampler.get_log_prob(discard=half).ravel())
 
 
 def _run(safe, coords, moves, pos, rstate, n_steps):

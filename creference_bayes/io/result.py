@@ -130,6 +130,9 @@ class Diagnostics:
     converged : chain ≥ 50 τ after burn-in, every R-hat ≤ 1.01, every bulk ESS ≥ the minimum
     warnings : the reasons when not converged, and anything else worth knowing
     seconds : wall time of the sampling
+    modes : when the posterior has several modes (found before sampling; the ensembles start
+        in different ones), one dict each: ``distance_m``, ``yaw``, ``log_density_below_map``,
+        ``laplace_share`` and ``draw_share_per_ensemble``
     """
 
     n_walkers: int
@@ -146,6 +149,7 @@ class Diagnostics:
     converged: bool
     warnings: tuple[str, ...] = ()
     seconds: float = 0.0
+    modes: tuple = ()
 
     def to_dict(self) -> dict:
         d: dict[str, Any] = {k: getattr(self, k) for k in (
@@ -154,6 +158,8 @@ class Diagnostics:
             d[key] = {k: _finite_or_none(v) for k, v in getattr(self, key).items()}
         d.update({"acceptance_fraction": _finite_or_none(self.acceptance_fraction),
                   "converged": bool(self.converged), "warnings": list(self.warnings)})
+        if self.modes:
+            d["modes"] = [dict(m) for m in self.modes]
         return d
 
 

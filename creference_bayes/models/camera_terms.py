@@ -180,22 +180,33 @@ class HorizonMeasurement:
     """A horizon line through two image points, each known up to ``sd_px`` (pixels).
 
     ``source`` is ``scene`` (a stated ``horizon_sd_px``) or ``image`` (estimated from the photo).
+    ``dof`` None: the two offsets are independent N(0, sd_px²); a number ν: they follow a bivariate
+    Student-t with ν degrees of freedom and scale ``sd_px`` (heavy tails: the image estimate is
+    sometimes far off, method.md "The horizon from a photo").
     """
 
     points: np.ndarray
     sd_px: float
     source: str = "scene"
+    dof: float | None = None
 
     def __post_init__(self):
         _check_positive("horizon sd_px", self.sd_px)
+        if self.dof is not None:
+            _check_positive("horizon dof", self.dof)
         object.__setattr__(self, "points", np.asarray(self.points, float).reshape(2, 2))
 
     def neg_log(self, full: np.ndarray, principal_point) -> np.ndarray:
         d = horizon_offsets(self.points, full, principal_point) / self.sd_px
-        return 0.5 * np.sum(d**2, axis=1)
+        if self.dof is None:
+            return 0.5 * np.sum(d**2, axis=1)
+        return 0.5 * (self.dof + 2.0) * np.log1p(np.sum(d**2, axis=1) / self.dof)
 
     def to_dict(self) -> dict:
-        return {"points": self.points.tolist(), "sd_px": self.sd_px, "source": self.source}
+        out = {"points": self.points.tolist(), "sd_px": self.sd_px, "source": self.source}
+        if self.dof is not None:
+            out["dof"] = self.dof
+        return out
 
 
 @dataclass(frozen=True)
