@@ -42,7 +42,9 @@ Likelihood
       with a log-normal prior, median 0.5, log-sd 1), widened by the segment's line noise at a
       pilot estimate (as the metrology model, method.md).
     * The horizon, when measured (from the photo or stated with an uncertainty): its two points
-      lie N(0, σ²) from the predicted horizon, σ² = σ_h² + (µ tan τ)², τ the ground plane's tilt
+      lie N(0, σ²) from the predicted horizon (a bivariate Student-t of the same scale when the
+      measurement says so: the photo's estimate has heavy tails), σ² = σ_h² + (µ tan τ)², τ the
+      ground plane's tilt
       from level (``ground_tilt_sd_rad``): a level horizon says where gravity is, the camera's
       pitch and roll are relative to the road.
 
@@ -490,7 +492,10 @@ class FrameModel:
             return np.zeros(len(cams))
         d = horizon_offsets(hz.points, cams[:, [0, 0, 0, 0, C_FOCAL, C_PITCH, C_ROLL]], self.principal_point)
         var = hz.sd_px**2 + (cams[:, C_FOCAL] * np.tan(self.ground_tilt_sd_rad)) ** 2
-        return 0.5 * np.sum(d * d, axis=1) / var + np.log(var)
+        r2 = np.sum(d * d, axis=1) / var
+        if hz.dof is None:
+            return 0.5 * r2 + np.log(var)
+        return 0.5 * (hz.dof + 2.0) * np.log1p(r2 / hz.dof) + np.log(var)
 
     def pointwise_log_likelihood(self, cams: np.ndarray, objs: np.ndarray) -> dict[str, np.ndarray]:
         """Log-likelihood of each observation: ``annotations`` (n, m, K) (zero for missing ones),
