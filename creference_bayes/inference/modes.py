@@ -169,7 +169,7 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
         return float(v[0]), np.where(np.isfinite(g) & (np.abs(g) < 1e200), g, 0.0)
 
     with np.errstate(all="ignore"):
-        res = minimize(fg, u0, jac=True, method="L-BFGS-B", options={"maxiter": 100})
+        res = minimize(fg, u0, jac=True, method="L-BFGS-B", options={"maxiter": 100, "ftol": 1e-7, "gtol": 1e-4})
     return res.x if np.isfinite(res.fun) and res.fun <= fg(u0)[0] else u0
 
 
