@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperMode
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
 from .inference.threads import single_threaded_blas
-from .io.scene import Scene, load_scene, scene_fingerprint
+from .io.scene import Scene, load_scene, parse_scene, scene_fingerprint
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models"]
 
@@ -79,7 +80,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
 
     Parameters
     ----------
-    scene : a :class:`Scene` or a path to a ``creference-scene/1`` file
+    scene : a :class:`Scene`, a path to a ``creference-scene/1`` file or such a file's content
+        as a dict (validated by :func:`~creference_bayes.io.scene.parse_scene`)
     preset : ``default`` (θ scan + local refinement), ``paper`` or ``paper-controlled``
     model : the likelihood model
     use_references : use the scene's reference annotations when it has any
@@ -114,7 +116,9 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     -------
     Result
     """
-    if not isinstance(scene, Scene):
+    if isinstance(scene, Mapping):  # a decoded scene file, as docs/scene_format.md shows it
+        scene = parse_scene(scene)
+    elif not isinstance(scene, Scene):
         scene = load_scene(scene)
     with single_threaded_blas():
         return _estimate(scene, preset=preset, model=model, use_references=use_references, seed=seed,

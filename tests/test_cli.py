@@ -55,17 +55,18 @@ def test_console_script_missing_file_exits_2(tmp_path):
 
 
 @pytest.mark.parametrize("content, start", [
-    ('{"format": "creference-scene/1"', "error: (file): not valid JSON"),
-    ('{"format": "creference-scene/1", "x": NaN}', "error: (file): non-standard JSON constant NaN"),
+    ('{"format": "creference-scene/1"', "error: {path}: not valid JSON"),
+    ('{"format": "creference-scene/1", "x": NaN}', "error: {path}: non-standard JSON constant NaN"),
     ('{"format": "creference-scene/0"}', "error: format: expected 'creference-scene/1', got 'creference-scene/0'"),
     ("[]", "error: (scene): expected an object, got list []"),
 ])
 def test_broken_files_exit_2(tmp_path, capsys, content, start):
-    status = main(["estimate", str(_write(tmp_path / "s.json", content))])
+    path = _write(tmp_path / "s.json", content)
+    status = main(["estimate", str(path)])
     err = capsys.readouterr().err
     assert status == 2
     assert err.strip().splitlines() == [err.strip()]
-    assert err.startswith(start), err
+    assert err.startswith(start.format(path=path)), err
 
 
 @pytest.mark.parametrize("mutate, start", [

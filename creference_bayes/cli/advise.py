@@ -7,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, check_output_file, seed_value
 
 __all__ = ["register"]
 
@@ -39,6 +39,7 @@ def _one(args, settings, progress: bool) -> int:
     from ..workflows.advice_inputs import (advice_table, advise_result, advise_scene, load_result,
                                            scene_for_result)
 
+    check_output_file("--out", args.out)
     path = Path(args.input)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
@@ -111,7 +112,7 @@ def register(subparsers) -> None:
         "advise", help="which annotation to collect next, or whether to stop",
         description="For the posterior of a target, the expected effect of one more set of target "
                     "dimension lines and of one more reference on each object already referenced, "
-                    "on the width of the 90 %% HDI of the distance, the location's sd and the label "
+                    "on the width of the 90 % HDI of the distance, the location's sd and the label "
                     "quality, per minute of human time (preposterior simulation under the model's "
                     "noise model); a ranked table and a recommendation. On a batch folder: every "
                     "object ranked and the request list for the crowd (requests.csv, Label Studio "
@@ -131,7 +132,7 @@ def register(subparsers) -> None:
     p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
                    help="stop when the best expected gain is below G points of the distance (HDI "
                         "width in percent of the distance) per minute of human time (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the estimate and the simulation (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--draws", type=int, default=600, metavar="N",
                    help="posterior draws used, thinned evenly (default: %(default)s)")
     p.add_argument("--futures", type=int, default=150, metavar="M",

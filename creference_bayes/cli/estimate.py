@@ -11,7 +11,7 @@ import numpy as np
 from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .main import UsageError, example_scene_path
+from .main import UsageError, check_output_file, example_scene_path, seed_value
 
 __all__ = ["register", "format_table", "truth_of", "confidence_map_option", "add_confidence_map_option"]
 
@@ -169,6 +169,8 @@ def _check_posterior_options(args) -> None:
     """The posterior options' values, checked before any work is done."""
     if args.no_posterior and args.netcdf:
         raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
+    check_output_file("--out", args.out)
+    check_output_file("--netcdf", args.netcdf)
     check_posterior_values(args)
 
 
@@ -277,7 +279,7 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
                    help="likelihood model: the measurement-likelihood extension or the paper's "
                         "cost with pairwise soft constraints (default: %(default)s; see "
                         "docs/benchmark_results.md)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
