@@ -48,10 +48,13 @@ def _one(args, settings, progress: bool) -> int:
         if result is not None:
             scene = scene_for_result(path, result, args.scene)
             advice = advise_result(result, scene, seed=args.seed, settings=settings, progress=progress)
+            hdi = ((result.get("posterior") or {}).get("hdi") or {}).get("distance_m")
         else:
             if args.scene is not None:
                 raise UsageError("--scene: only for a result file (INPUT is a scene)")
-            advice, _ = advise_scene(load_scene(path), seed=args.seed, settings=settings, progress=progress)
+            advice, estimated = advise_scene(load_scene(path), seed=args.seed, settings=settings,
+                                             progress=progress)
+            hdi = estimated.posterior.hdi.get("distance_m")
     except SceneError:
         raise
     except ValueError as exc:
@@ -59,7 +62,7 @@ def _one(args, settings, progress: bool) -> int:
     if args.out is not None:
         atomic_write_json(args.out, advice.to_dict())
     if not args.quiet:
-        print(advice_table(advice))
+        print(advice_table(advice, hdi))
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0

@@ -237,8 +237,12 @@ def _report(result, scene, args) -> None:
             if ev.in_hdi is not None:
                 inside = [k for k, v in ev.in_hdi.items() if v]
                 outside = [k for k, v in ev.in_hdi.items() if not v]
+                truth = truth_of(scene) or {}
+                fixed = [k for k in result.posterior.mean if k in truth and k not in ev.in_hdi]
                 print(f"truth inside the {result.posterior.hdi_prob:.0%} HDI: {', '.join(inside) or 'none'}"
-                      + (f"; outside: {', '.join(outside)}" if outside else ""))
+                      + (f"; outside: {', '.join(outside)}" if outside else "")
+                      + (f"; not checked: {', '.join(fixed)} (no spread in the posterior: fixed by "
+                         "the exact horizon or the camera set-up)" if fixed else ""))
         printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
         for w in result.warnings:
             if w not in printed:

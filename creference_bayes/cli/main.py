@@ -86,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     except (SceneError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
+    except BrokenPipeError:  # the output's reader went away (`creference … | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except FileNotFoundError as exc:  # the library's own reason ("not a batch folder …") when it gave one
         reason = exc.strerror if exc.strerror and exc.strerror != os.strerror(errno.ENOENT) else "no such file"
         print(f"error: {exc.filename}: {reason}", file=sys.stderr)

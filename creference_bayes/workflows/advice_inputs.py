@@ -182,13 +182,22 @@ def load_result(path: str | Path) -> dict:
     return d if isinstance(d, dict) and d.get("format") == RESULT_FORMAT else None
 
 
-def advice_table(advice: Advice) -> str:
-    """The advice as text: the present, one row per annotation (best first), the recommendation."""
+def advice_table(advice: Advice, estimate_hdi: tuple[float, float] | None = None) -> str:
+    """The advice as text: the present, one row per annotation (best first), the recommendation.
+
+    ``estimate_hdi``: the estimate's own HDI of the distance (metres, on all its draws), shown
+    beside the advice's, which is computed on the ``settings.n_draws`` draws it weighs (so the
+    two differ by the sampling error of the thinned draws).
+    """
     now, s = advice.now, advice.settings
+    full = ""
+    if estimate_hdi is not None:
+        full = (f" (on the {s.n_draws} draws the advice weighs; the estimate's, on all its draws: "
+                f"{estimate_hdi[1] - estimate_hdi[0]:.3g} m)")
     lines = [f"advice for target {advice.target!r}",
              f"now: {s.hdi_prob:.0%} HDI of the distance {now.hdi_width_m:.3g} m = "
-             f"{100 * now.hdi_share:.1f} % of {now.distance_m:.3g} m; location sd {now.location_sd_m:.3g} m; "
-             f"P(IoU >= {s.iou_threshold:g}) {now.p_iou:.2f}", ""]
+             f"{100 * now.hdi_share:.1f} % of {now.distance_m:.3g} m{full}; location sd "
+             f"{now.location_sd_m:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou:.2f}", ""]
     head = ("rank", "annotation", "cost s", "HDI after", "gain pts", "pts/min", "loc sd m",
             f"P(IoU>={s.iou_threshold:g})", "ESS", "fallbacks")
     rows = []
