@@ -15,7 +15,7 @@ from .main import UsageError, seed_value
 __all__ = ["register", "BENCH_TIMES"]
 
 #: How long each bench size takes (two cores, the adopted defaults; docs/benchmark_results.md:
-#: quick 13 s, full 32 min). The README quotes the same words (a test checks it).
+#: quick 13 s, full 32 min). The README and docs/overview.md quote the same words (a test checks it).
 BENCH_TIMES = {"quick": "under a minute", "full": "about 30 minutes"}
 
 
