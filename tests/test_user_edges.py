@@ -158,6 +158,7 @@ def test_estimate_accepts_a_scene_dict():
     from_dict = cb.estimate(d, posterior=False, seed=1)
     from_file = cb.estimate(example_scene_path(), posterior=False, seed=1)
     assert from_dict.to_dict()["map"] == from_file.to_dict()["map"]
+    assert from_dict.to_dict()["scene"] is None  # as docs/result_format.md says for a dict
     with pytest.raises(cb.SceneError if hasattr(cb, "SceneError") else Exception, match="image"):
         cb.estimate({"format": "creference-scene/1"}, posterior=False)
 
