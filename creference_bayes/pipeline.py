@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +21,9 @@ from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperMode
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
 from .inference.threads import single_threaded_blas
-from .io.scene import Scene, load_scene, scene_fingerprint
+from .io.scene import Scene, load_scene, parse_scene, scene_fingerprint
 
-__all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models"]
+__all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models", "reprojection_check"]
 
 MODELS = ("paper", "metrology")
 #: The default model. The benchmark (docs/benchmark_results.md) found the metrology model as good
@@ -79,7 +80,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
 
     Parameters
     ----------
-    scene : a :class:`Scene` or a path to a ``creference-scene/1`` file
+    scene : a :class:`Scene`, a path to a ``creference-scene/1`` file or such a file's content
+        as a dict (validated by :func:`~creference_bayes.io.scene.parse_scene`)
     preset : ``default`` (θ scan + local refinement), ``paper`` or ``paper-controlled``
     model : the likelihood model
     use_references : use the scene's reference annotations when it has any
@@ -114,7 +116,9 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     -------
     Result
     """
-    if not isinstance(scene, Scene):
+    if isinstance(scene, Mapping):  # a decoded scene file, as docs/scene_format.md shows it
+        scene = parse_scene(scene)
+    elif not isinstance(scene, Scene):
         scene = load_scene(scene)
     with single_threaded_blas():
         return _estimate(scene, preset=preset, model=model, use_references=use_references, seed=seed,
@@ -143,6 +147,7 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
                                          in_likelihood=models[0].n_references_used)
     map_est = optimize_map(models, preset=preset, rng=rng, restarts=restarts, progress_bar=progress)
     warnings += _focal_prior_check(setup, map_est)
+    warnings += reprojection_check(scene, setup, map_est)
     evaluation = None
     if scene.ground_truth is not None:
         evaluation = Evaluation(location_pct_error=float(
@@ -191,6 +196,41 @@ def _confidence_summary(scene: Scene, models, cmap) -> dict:
     read = getattr(models[0], "n_stated_ranges", 0) if cmap is not None else 0
     return {"map": describe_confidence_map(cmap), "ranges_with_confidence": int(stated),
             "read_with_map": int(read)}
+
+
+#: The MAP's box is reported as missing the annotations when the RMS distance of its projected
+#: corners t1..t4 from the annotations' per-corner median exceeds this many times the
+#: annotations' own spread (docs/user_guide.md, "When the box misses the annotations").
+REPROJECTION_WARN_FACTOR = 3.0
+#: Floor of that spread, pixels: identical (copied or noise-free) annotations have none.
+REPROJECTION_MIN_SPREAD_PX = 1.0
+
+
+def reprojection_check(scene: Scene, setup: CameraSetup, map_est) -> list[str]:
+    """A warning when the MAP's box visibly misses the target's annotations.
+
+    The MAP's reprojection error is the RMS over t1..t4 of the distance (pixels) between the
+    projected corner and the annotations' per-corner median; the annotations' spread is the RMS
+    distance of one annotation's corner from their consensus, √2 σ with σ the pooled
+    per-coordinate sd (:func:`~.models.metrology.estimate_target_sigma`; 5 px for a single
+    annotation), at least :data:`REPROJECTION_MIN_SPREAD_PX`. Warns when the error exceeds
+    :data:`REPROJECTION_WARN_FACTOR` times the spread.
+    """
+    from .core.cost import project_params
+    from .core.geometry import dimension_corners
+    from .models.metrology import estimate_target_sigma
+
+    t = scene.target
+    obj = dimension_corners(t.length, t.width, t.height, map_est.handedness)
+    uv, _ = project_params(map_est.params[None], obj, setup.camera.principal_point)
+    error = float(np.sqrt(np.mean(np.sum((uv[0] - t.median_corners) ** 2, axis=-1))))
+    spread = max(np.sqrt(2.0) * estimate_target_sigma(t.corners), REPROJECTION_MIN_SPREAD_PX)
+    if not np.isfinite(error) or error > REPROJECTION_WARN_FACTOR * spread:
+        return [f"the MAP's box misses the target's annotations: its corners are {error:.1f} px (RMS) "
+                f"from the annotations' median, over {REPROJECTION_WARN_FACTOR:g} times the annotations' "
+                f"own spread ({spread:.1f} px); the estimate is not supported by the annotations (try "
+                "the default model and preset, or check the dimension lines and the target's size)"]
+    return []
 
 
 def _focal_prior_check(setup: CameraSetup, map_est) -> list[str]:

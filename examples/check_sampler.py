@@ -4,7 +4,8 @@ For simulated scenes, sample the paper model's posterior (MAP handedness) with
 :func:`creference_bayes.inference.sampling.sample` and with two long runs of emcee's own ``DEMove``
 (64 walkers, ``--steps`` steps, first quarter discarded), and print both means and sds and the
 z-score of the difference of the means (Monte Carlo errors from each run's autocorrelation time).
-Slow: about half a minute per scene and core.
+Slow: about half a minute per scene and core. A check that it runs:
+``python examples/check_sampler.py --seeds 1 --steps 400 --min-ess 200``.
 
     python examples/check_sampler.py --seeds 1 2 3 --tier medium            # with references
     python examples/check_sampler.py --seeds 1 2 3 --tier low --no-references
@@ -19,13 +20,13 @@ import warnings
 import emcee
 import numpy as np
 
-from creference_bayes.core.geometry import Camera
+from creference_bayes.camera_setup import setup_camera
 from creference_bayes.core.metrology import aggregate_references
 from creference_bayes.models.params import PARAM_NAMES
 from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.pipeline import build_models
 from creference_bayes.inference.posterior import LogPosterior, laplace_scales
-from creference_bayes.inference.sampling import sample
+from creference_bayes.inference.sampling import SamplerSettings, sample
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.bench.simulate import simulate_scene
 
@@ -34,12 +35,12 @@ def posterior(seed: int, tier: str, references: bool):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scene = parse_scene(simulate_scene(np.random.default_rng(seed), tier=tier, principal_offset=0.05))
-    camera = Camera.from_scene(scene)
-    constraints = aggregate_references(scene, camera).constraints if references else None
-    models = build_models(scene, camera=camera, constraints=constraints)
+    setup = setup_camera(scene)
+    constraints = aggregate_references(scene, setup.aggregation_camera).constraints if references else None
+    models = build_models(scene, setup, model="paper", constraints=constraints)
     m = optimize_map(models, rng=0)
     model = next(x for x in models if x.handedness == m.handedness)
-    return model, LogPosterior(model), m.params[model.free]
+    return model, LogPosterior(model, model.default_temperature), m.params[model.free]
 
 
 def reference_run(lp, start, steps, rng):
@@ -60,14 +61,17 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--tier", default="medium")
     ap.add_argument("--no-references", action="store_true")
-    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--steps", type=int, default=20000, help="steps of each plain emcee run (default: %(default)s)")
+    ap.add_argument("--min-ess", type=float, default=None,
+                    help="bulk ESS our sampler runs to (default: the package's, 1000)")
     args = ap.parse_args()
+    settings = SamplerSettings.from_options(None if args.min_ess is None else {"min_ess": args.min_ess})
     print("| seed | parameter | ours mean ± sd | emcee mean ± sd | z | sd ratio | ours: s, steps, max τ |")
     print("|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         model, lp, center = posterior(seed, args.tier, not args.no_references)
         t0 = time.perf_counter()
-        chains = sample(lp, center, laplace_scales(lp, center).cov, rng=seed,
+        chains = sample(lp, center, laplace_scales(lp, center).cov, rng=seed, settings=settings,
                         log_mask=model.bounds.lower[model.free] > 0)
         seconds = time.perf_counter() - t0
         ours = chains.draws().reshape(-1, len(center))

@@ -131,9 +131,10 @@ def replicate_check(args, sizes, lines) -> None:
             c = fit_with_truth(ranges, draws=400, seed=rep).pooled
             if len(c.levels) == len(g):
                 inside.append([lo <= t <= hi for lo, hi, t in zip(c.low, c.high, g)])
-        inside = np.array(inside)
-        rows.append([kind, len(inside), " ".join(f"{v:.2f}" for v in inside.mean(axis=0)),
-                     f"{inside.all(axis=1).mean():.2f}"])
+        inside = np.array(inside, dtype=bool).reshape(-1, len(g))  # data sets whose fit has every level
+        rows.append([kind, len(inside),
+                     " ".join(f"{v:.2f}" for v in inside.mean(axis=0)) if len(inside) else "(no fit had every level)",
+                     f"{inside.all(axis=1).mean():.2f}" if len(inside) else ""])
     print_table(f"(a) the stated uncertainty: share of {sizes['replicates']} replicate data sets of "
                 f"{sizes['a']} scenes (× 6 ranges) whose 95 % interval holds the true g, per level "
                 "(0.5 … 0.99) and at every level at once", ["workers", "replicates", "per level", "every level"],

@@ -94,6 +94,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="dataset_run", help="work folder (default %(default)s; must not exist)")
     ap.add_argument("--workers", type=int, default=2, help="local batch workers (default %(default)s)")
     ap.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default %(default)s)")
+    ap.add_argument("--min-ess", type=float, default=None,
+                    help="the batch's bulk ESS (default: the package's, 1000; less for a quick check)")
     args = ap.parse_args(argv)
 
     from creference_bayes.bench.simulate import simulate_scene
@@ -119,7 +121,8 @@ def main(argv=None) -> int:
     n, diff = _same_scenes(out / "scenes", out / "scenes_cvat")
     print(f"  the same {n} targets from both tools; largest corner difference {diff:.3f} px")
     status.append(_run(["batch", str(out / "scenes"), "--out", str(out / "batch"), "--workers",
-                        str(args.workers), "--seed", str(args.seed), "--quiet"]))
+                        str(args.workers), "--seed", str(args.seed), "--quiet",
+                        *(["--min-ess", f"{args.min_ess:g}"] if args.min_ess else [])]))
     status.append(_run(["labels", str(out / "batch"), "--out", str(out / "labels")]))
     errors = _reprojection(out / "labels", out / "scenes")
     print(f"\nreprojection of the exported KITTI boxes with their calib P2, against the annotated corners: "

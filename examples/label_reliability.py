@@ -34,13 +34,16 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (default: cores)")
     ap.add_argument("--scheduler", default=None, help="a Dask scheduler address instead")
     ap.add_argument("--bins", type=int, default=5, help="bins of predicted probability (default: %(default)s)")
+    ap.add_argument("--min-ess", type=float, default=None,
+                    help="bulk ESS of each estimate (default: the package's, 1000; less for a quick check)")
     args = ap.parse_args()
 
     out = Path(args.out)
     scenes = out / "scenes"
     write_scenes(scenes, args.n, seed=args.seed, tier=args.tier)
     engine = DaskEngine(args.scheduler) if args.scheduler else LocalEngine(args.workers)
-    report = run_batch([scenes], out / "batch", engine, BatchSettings(seed=args.seed), progress=True)
+    report = run_batch([scenes], out / "batch", engine, BatchSettings(seed=args.seed, sampling={} if args.min_ess is None else {"min_ess": args.min_ess}),
+                       progress=True)
     print(summary_line(report, out / "batch"))
     export = export_labels(out / "batch", out / "labels")
     paths = write_report(export, out / "labels", batch_dir=out / "batch")

@@ -1,8 +1,8 @@
 """Measure the MAP presets on synthetic scenes: location error (Eq. 3) and time per estimate.
 
 Every scene has pitch, roll and an off-centre principal point (up to 10 % of the image size) and
-alternates indoor / outdoor; the estimate is target-only (no references), as in the paper's
-Fig. 9a. Prints a Markdown table. Examples::
+alternates indoor / outdoor; the estimate is the paper model's MAP, target-only (no references),
+as in the paper's Fig. 9a. Prints a Markdown table. Examples::
 
     python examples/measure_presets.py                       # 50 noise-free scenes, default preset
     python examples/measure_presets.py --n 50 --n-paper 20 --presets default,paper
@@ -22,6 +22,7 @@ import warnings
 
 import numpy as np
 
+from creference_bayes.camera_setup import setup_camera
 from creference_bayes.core.metrics import location_percentage_error
 from creference_bayes.inference.optimize import PRESETS, optimize_map
 from creference_bayes.pipeline import build_models
@@ -42,7 +43,8 @@ def measure(preset: str, tier: str, seeds) -> dict:
     errors, wall, cpu = [], [], []
     for i, seed in enumerate(seeds):
         scene = make_scene(seed, tier)
-        models = build_models(scene, preset=preset)
+        models = build_models(scene, setup_camera(scene), model="paper", preset=preset,
+                              use_references=False)
         c0 = time.process_time()
         est = optimize_map(models, preset, rng=seed)
         cpu.append(time.process_time() - c0)

@@ -1,6 +1,6 @@
 """The posterior of a scene's target: summary, diagnostics, NetCDF and figures, from Python.
 
-    python examples/posterior_example.py [SCENE.json] [--out DIR]
+    python examples/posterior_example.py [SCENE.json] [--out DIR] [--min-ess N]
 
 Without SCENE.json it uses the synthetic example scene shipped with the package. Writes
 result.json, posterior.nc and four PNG figures into DIR (default: ./posterior_example).
@@ -23,6 +23,8 @@ parser.add_argument("scene", nargs="?", default=None, metavar="SCENE.json",
                     help="a creference-scene/1 file (default: the shipped example scene)")
 parser.add_argument("--out", default="posterior_example", metavar="DIR",
                     help="folder for the result, the NetCDF file and the figures (default: %(default)s)")
+parser.add_argument("--min-ess", type=float, default=1000, metavar="N",
+                    help="bulk ESS the sampler runs to (default: %(default)s; less for a quick look)")
 args = parser.parse_args()
 
 from creference_bayes.inference.summary import summary_table  # noqa: E402
@@ -33,7 +35,7 @@ scene = load_scene(args.scene or example_scene_path())
 out = Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 
-result = cb.estimate(scene, seed=0, hdi_prob=0.9, sampling={"min_ess": 1000},
+result = cb.estimate(scene, seed=0, hdi_prob=0.9, sampling={"min_ess": args.min_ess},
                      progress=sys.stderr.isatty())
 post, diag = result.posterior, result.diagnostics
 print(f"handedness {post.handedness:+d}, temperature {post.temperature:g}, {post.n_draws} draws")

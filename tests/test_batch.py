@@ -186,7 +186,7 @@ def test_cli_batch_exit_status_and_summary_line(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "1", "--no-posterior"]) == 1
     captured = capsys.readouterr()
     assert "2 scenes: 0 estimated, 1 already done, 1 failed" in captured.out
-    assert "zz_bad: SceneError: (file): not valid JSON" in captured.err
+    assert f"zz_bad: SceneError: {tmp_path / 's' / 'zz_bad.json'}: not valid JSON" in captured.err
     assert main(["batch", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "0"]) == 2
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--scheduler", "tcp://x:1",

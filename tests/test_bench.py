@@ -110,3 +110,17 @@ def test_calibration_of_known_draws():
     assert cover["x"] == {"50": False, "90": False} and ranks["x"] == pytest.approx(0.99, abs=0.002)
     cover, _ = calibration_of(draws, {"x": 1.0})  # between the 50 % (±0.674) and 90 % (±1.645) ends
     assert cover["x"] == {"50": False, "90": True}
+
+
+def test_the_error_by_tier_figure_has_few_distinct_series_per_panel(quick):
+    from matplotlib.colors import to_hex
+
+    from creference_bayes.bench.figures import error_by_tier
+
+    fig = error_by_tier(quick[1])
+    assert len(fig.axes) == 2
+    for ax in fig.axes:
+        handles, labels = ax.get_legend_handles_labels()
+        assert 2 <= len(labels) <= 8, labels
+        looks = {(to_hex(h.get_color()), h.get_marker(), str(h.get_markerfacecolor())) for h in handles}
+        assert len(looks) == len(labels), labels  # no two series drawn alike

@@ -55,17 +55,18 @@ def test_console_script_missing_file_exits_2(tmp_path):
 
 
 @pytest.mark.parametrize("content, start", [
-    ('{"format": "creference-scene/1"', "error: (file): not valid JSON"),
-    ('{"format": "creference-scene/1", "x": NaN}', "error: (file): non-standard JSON constant NaN"),
+    ('{"format": "creference-scene/1"', "error: {path}: not valid JSON"),
+    ('{"format": "creference-scene/1", "x": NaN}', "error: {path}: non-standard JSON constant NaN"),
     ('{"format": "creference-scene/0"}', "error: format: expected 'creference-scene/1', got 'creference-scene/0'"),
     ("[]", "error: (scene): expected an object, got list []"),
 ])
 def test_broken_files_exit_2(tmp_path, capsys, content, start):
-    status = main(["estimate", str(_write(tmp_path / "s.json", content))])
+    path = _write(tmp_path / "s.json", content)
+    status = main(["estimate", str(path)])
     err = capsys.readouterr().err
     assert status == 2
     assert err.strip().splitlines() == [err.strip()]
-    assert err.startswith(start), err
+    assert err.startswith(start.format(path=path)), err
 
 
 @pytest.mark.parametrize("mutate, start", [
@@ -260,7 +261,8 @@ def test_every_command_has_a_description_and_demo_says_its_scene_is_synthetic():
 def test_bench_help_and_readme_agree_on_timings():
     from creference_bayes.cli.bench import BENCH_TIMES
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text() + (root / "docs" / "overview.md").read_text()
     help_text = {name: p.format_help() for name, p, _ in _actions()}["bench"]
     for size, words in BENCH_TIMES.items():
         readme_lines = [line for line in readme.splitlines() if f"creference bench --{size}" in line]

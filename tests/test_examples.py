@@ -1,14 +1,55 @@
-"""Every example script takes --help, and writes nothing when it does."""
+"""Every example script takes --help (and writes nothing then), and every one runs to the end on
+a tiny budget: the scripts are run, not only parsed, so an API change that breaks one fails here."""
 
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pytest
+
 EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"))
+
+#: A tiny run of each example: its arguments, and files (relative to its working folder) it must
+#: write. Each one runs in a few seconds; together under a minute on one core.
+TINY = {
+    "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/predict.jsonl"]),
+                        (["report", "--out", "as"], ["as/advice_study.md"])],
+    "aggregation_study.py": [(["--draws", "50", "--out-dir", "agg"], ["agg/aggregation_study.png",
+                                                                      "agg/aggregation_study.md"])],
+    "batch_throughput.py": [(["--n", "2", "--engines", "local2", "--min-ess", "100", "--out", "bt"],
+                             ["bt/local_2/summary.csv"])],
+    "check_sampler.py": [(["--seeds", "1", "--steps", "400", "--min-ess", "200"], [])],
+    "confidence_study.py": [(["--quick", "--parts", "a", "--n-a", "10", "--replicates", "2", "--out", "cs"],
+                             ["cs/confidence_study.md"])],
+    "dataset_pipeline.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "dp"],
+                             ["dp/labels/report.md"])],
+    "estimate_scene.py": [([], [])],
+    "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
+    "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
+                              ["lr/labels/report.md"])],
+    "measure_presets.py": [(["--n", "2"], [])],
+    "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
+    "profile_posterior.py": [(["--repeat", "1"], [])],
+}
+#: Longer runs of the parts the tiny runs leave out (marked slow).
+SLOW = {
+    "confidence_study.py": [(["--quick", "--quick-b", "--n-a", "10", "--n-b", "4", "--n-c", "1",
+                              "--replicates", "2", "--out", "cs"], ["cs/confidence_study.md"])],
+    "batch_throughput.py": [(["--n", "2", "--min-ess", "100", "--out", "bt"], ["bt/dask_2/summary.csv"])],
+}
+#: Examples that need tools outside the package: run by the tests named, when the tools are there.
+EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_STUDIO_VENV, CREFERENCE_DATUMARO_VENV)"}
 
 
 def test_there_are_examples():
     assert len(EXAMPLES) >= 5
+
+
+def test_every_example_has_a_tiny_run():
+    names = {p.name for p in EXAMPLES}
+    assert names == set(TINY) | set(EXTERNAL), names ^ (set(TINY) | set(EXTERNAL))
 
 
 def test_every_example_takes_help_and_writes_nothing(tmp_path):
@@ -30,3 +71,49 @@ def test_no_example_writes_into_docs_by_default():
     for script in EXAMPLES:
         text = script.read_text()
         assert 'default="docs' not in text and "default='docs" not in text, script.name
+
+
+def _run_all(runs: dict, tmp_path: Path, parallel: int = 2) -> None:
+    """Run each script's steps in order, ``parallel`` scripts at a time; check status and files."""
+    env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONWARNINGS": "ignore"}
+    queue = [(name, steps) for name, steps in runs.items()]
+    active, failures = {}, []
+
+    def start(name, steps):
+        cwd = tmp_path / Path(name).stem
+        cwd.mkdir(exist_ok=True)
+        args, files = steps[0]
+        proc = subprocess.Popen([sys.executable, str(EXAMPLES[0].parent / name), *args], cwd=cwd, env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                stdin=subprocess.DEVNULL)
+        active[name] = (proc, steps, cwd, time.monotonic())
+
+    while queue or active:
+        while queue and len(active) < parallel:
+            start(*queue.pop(0))
+        time.sleep(0.1)
+        for name, (proc, steps, cwd, t0) in list(active.items()):
+            if proc.poll() is None:
+                if time.monotonic() - t0 > 300:
+                    proc.kill()
+                continue
+            out, err = proc.communicate()
+            del active[name]
+            print(f"{name} {' '.join(steps[0][0])}: {time.monotonic() - t0:.1f} s")
+            args, files = steps[0]
+            missing = [f for f in files if not (cwd / f).is_file()]
+            if proc.returncode != 0 or missing:
+                failures.append(f"{name} {' '.join(args)}: exit {proc.returncode}, missing {missing}\n"
+                                f"{err[-1500:]}")
+            elif len(steps) > 1:
+                queue.insert(0, (name, steps[1:]))
+    assert not failures, "\n\n".join(failures)
+
+
+def test_every_example_runs_on_a_tiny_budget(tmp_path):
+    _run_all(TINY, tmp_path)
+
+
+@pytest.mark.slow
+def test_the_examples_longer_runs(tmp_path):
+    _run_all(SLOW, tmp_path)

@@ -66,7 +66,7 @@ def test_export_file_gives_the_hand_computed_scenes(assert_same_scene):
 def test_export_file_reports_the_bad_task_and_notes_the_unannotated_one():
     report = scenes_from_label_studio(_export())
     assert [str(e) for e in report.errors] == [
-        "task 19, region 'a1b2': reference line has 3 points, expected 2"]
+        "task 19, annotation 301, region 'a1b2': reference line has 3 points, expected 2"]
     assert "task 20: no annotations yet; skipped" in report.notes
     assert not report.ok
 
@@ -75,7 +75,7 @@ def test_cli_writes_the_good_tasks_and_exits_2(tmp_path, capsys):
     out = tmp_path / "scenes"
     assert main(["import", "label-studio", str(EXPORT), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "error: task 19, region 'a1b2': reference line has 3 points, expected 2" in err
+    assert "error: task 19, annotation 301, region 'a1b2': reference line has 3 points, expected 2" in err
     assert sorted(p.name for p in out.iterdir()) == ["cupboard.json", "table.json"]  # no temp files
     from creference_bayes.io.scene import load_scene
 
@@ -264,23 +264,23 @@ def _break(**kinds):
 @pytest.mark.parametrize("kind, message", [
     ("missing_corner", "task 17, annotation 101: target corner(s) ['t3 end of width'] missing"),
     ("two_t1", "task 17, annotation 101: two points labelled 't1 bottom corner'"),
-    ("value_and_range", "task 17, region 'rs1': both a value (80) and a range given"),
-    ("relative_with_unit", "task 17, region 'rs1': a relative measurement takes no unit, got 'in'"),
-    ("direct_without_unit", "task 17, region 'rs1': a direct measurement needs a unit"),
-    ("relative_distance", "task 17, region 'rs2': a distance cannot be relative"),
-    ("confidence", "task 17, region 'rs1': confidence (%) must be in [0, 100], got 150"),
-    ("not_a_number", "task 17, region 'rs1': value is not a number: 'eighty'"),
-    ("no_measure", "task 17, region 'rs1': reference has no measure"),
-    ("half_range", "task 17, region 'rs2': a range needs both low and high, got only range low 0.9"),
+    ("value_and_range", "task 17, annotation 101, region 'rs1': both a value (80) and a range given"),
+    ("relative_with_unit", "task 17, annotation 101, region 'rs1': a relative measurement takes no unit, got 'in'"),
+    ("direct_without_unit", "task 17, annotation 101, region 'rs1': a direct measurement needs a unit"),
+    ("relative_distance", "task 17, annotation 102, region 'rs2': a distance cannot be relative"),
+    ("confidence", "task 17, annotation 101, region 'rs1': confidence (%) must be in [0, 100], got 150"),
+    ("not_a_number", "task 17, annotation 101, region 'rs1': value is not a number: 'eighty'"),
+    ("no_measure", "task 17, annotation 101, region 'rs1': reference has no measure"),
+    ("half_range", "task 17, annotation 102, region 'rs2': a range needs both low and high, got only range low 0.9"),
     ("unlinked", "is not linked to a 'reference end' (draw a relation between the two ends)"),
-    ("bad_relation", "task 17, region 'rs1': a relation links 'reference start' to 't2 end of length'"),
-    ("unknown_label", "task 17, region 'h1': unknown keypoint label 'sky'"),
-    ("rotated", "task 17, region 'a2': image_rotation 90 is not supported"),
+    ("bad_relation", "task 17, annotation 101, region 'rs1': a relation links 'reference start' to 't2 end of length'"),
+    ("unknown_label", "task 17, annotation 101, region 'h1': unknown keypoint label 'sky'"),
+    ("rotated", "task 17, annotation 101, region 'a2': image_rotation 90 is not supported"),
     ("sizes_disagree", "task 17: results disagree on the image size: 4000x3000"),
     ("no_size", "task 17: no image size"),
-    ("far_outside", "task 17, region 'rs1': references[0].line[1]: point [36000, 2760] is far outside"),
+    ("far_outside", "task 17, annotation 101, region 'rs1': references[0].line[1]: point [36000, 2760] is far outside"),
     ("one_horizon_point", "task 17, annotation 101: 1 points labelled 'horizon', expected 2"),
-    ("controls_on_a_corner", "task 17, region 'a1': a 't1 bottom corner' point carries reference fields"),
+    ("controls_on_a_corner", "task 17, annotation 101, region 'a1': a 't1 bottom corner' point carries reference fields"),
     ("no_target", "task 17: no annotation draws the target's dimension lines"),
     ("missing_dims", "task 17: data has ['target_length_m', 'target_height_m'] but not ['target_width_m']"),
     ("bad_dims", "task 17: data.target_height_m is not a number: 'two metres'"),
@@ -325,7 +325,7 @@ def test_vector_with_three_points_and_closed_vector():
     verts = t["completions"][0]["result"][4]["value"]["vertices"]
     verts.append({"id": "v1p2", "x": 30, "y": 70, "prevPointId": "v1p1", "isBezier": False})
     assert str(scenes_from_label_studio([t]).errors[0]) == (
-        "task 5, region 'v1': reference line has 3 points, expected 2")
+        "task 5, annotation 201, region 'v1': reference line has 3 points, expected 2")
     t = _export()[1]
     t["completions"][0]["result"][4]["value"]["closed"] = True
     assert "a closed vector (a polygon) is not a line" in str(scenes_from_label_studio([t]).errors[0])
@@ -373,3 +373,47 @@ def test_vertices_without_ids_keep_their_list_order():
         v["id"] = v["prevPointId"] = None
     (s,) = scenes_from_label_studio([t]).scenes
     assert np.allclose(s.scene["references"][0]["line"], [[400, 999], [500, 750]])
+
+
+def _doc_blocks(name: str) -> list:
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / name).read_text()
+    return [json.loads(b) for b in re.findall(r"```json\n(.*?)```", text, re.S)]
+
+
+def test_the_documented_annotation_imports_as_a_references_only_annotation():
+    """docs/import.md's example annotation (references only, no target points) converts as it says."""
+    from creference_bayes.cli.main import example_scene_path
+    from creference_bayes.io.labelstudio import scenes_from_label_studio
+    from creference_bayes.io.labelstudio_export import label_studio_tasks
+
+    documented = next(b for b in _doc_blocks("import.md") if isinstance(b, dict) and "completed_by" in b)
+    task = label_studio_tasks([json.loads(example_scene_path().read_text())])[0]
+    targets_only = [a for a in task["annotations"] if str(a["completed_by"]).startswith("t")]
+    task["annotations"] = targets_only + [documented]
+    report = scenes_from_label_studio([task])
+    assert not report.errors, report.errors
+    (scene,) = report.scenes
+    (ref,) = scene.scene["references"]
+    assert (ref["object"], ref["measure"], ref["mode"], ref["unit"], ref["range"], ref["worker"]) == \
+        ("dining table", "width", "direct", "m", [0.734, 0.9024], "r01")
+    assert ref["line"][0] == pytest.approx([0.287412 * 2880, 0.596782 * 1800], abs=0.01)
+
+
+@pytest.mark.parametrize("lines", ["keypoints", "vectors"])
+def test_the_configs_comment_lists_every_documented_task_field(lines):
+    import re
+    from pathlib import Path
+
+    from creference_bayes.io.labelstudio import label_studio_config
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "import.md").read_text()
+    table = doc[doc.index("| field | required | meaning |"):]
+    table = table[:table.index("\n\n")]
+    fields = set(re.findall(r"^\| `([a-z_]+)`", table, re.M)) | set(re.findall(r"`(target_[a-z]+_m)`", table))
+    assert {"image", "target_id", "ground_truth", "image_width"} <= fields
+    comment = label_studio_config(lines).split("-->")[0]
+    missing = sorted(f for f in fields if f not in comment)
+    assert not missing, missing

@@ -128,3 +128,21 @@ def test_boxes_without_a_horizon_are_drawn_with_each_draws_camera():
     verts = box_vertices(t.length, t.width, t.height)
     idx = [int(np.argmin(np.linalg.norm(verts - v, axis=1))) for v in c]  # the annotated corners' vertices
     assert np.median(np.linalg.norm(box[idx] - t.median_corners, axis=1)) < 5.0
+
+
+def test_top_view_zooms_on_a_cloud_too_small_to_see():
+    """A 5 cm cloud 20 m away is a dot at the plot's scale: an inset shows its credible region."""
+    result = {"map": {"x": 3.0, "y": 1.5, "z": 20.0, "yaw": 0.2, "focal_length_px": 1500.0},
+              "posterior": {"hdi": {"prob": 0.9}}}
+    rng = np.random.default_rng(1)
+    small = {"x": rng.normal(3.0, 0.02, (4, 300)), "z": rng.normal(20.0, 0.05, (4, 300))}
+    fig = plotting.plot_top_view(result, small, truth={"x": 3.01, "z": 20.03})
+    main_ax, = fig.axes
+    insets = main_ax.child_axes
+    assert len(insets) == 1
+    (x0, x1), (z0, z1) = insets[0].get_xlim(), insets[0].get_ylim()
+    assert x0 < 2.95 and x1 > 3.05 and z0 < 19.9 and z1 > 20.1  # the cloud's 99 % box
+    assert x1 - x0 < 0.1 * np.ptp(main_ax.get_xlim())  # magnified at least ten times
+    assert insets[0].collections  # the draws and the credible region's contour
+    wide = {"x": rng.normal(3.0, 3.0, (4, 300)), "z": rng.normal(20.0, 6.0, (4, 300))}
+    assert plotting.plot_top_view(result, wide).axes[0].child_axes == []  # visible as it is: no inset

@@ -22,36 +22,87 @@ def _plt():
     return plt
 
 
+#: The families of estimators by colour (tab10, far apart), for :func:`error_by_tier`.
+_FAMILY_COLOURS = {"paper": "C0", "p4pf": "C7", "ours-paper": "C1", "ours-metrology": "C3",
+                   "ours-metrology-nohorizon": "C4", "ours-metrology-flatfocal": "C2", "crb": "k"}
+
+
+def _tier_panels(doc: dict) -> list[tuple[str, list]]:
+    """The rows of :func:`~.report.estimator_rows` split into two readable panels: the estimators
+    with the references, and the metrology MAP's camera studies (the other rows are in bench.md)."""
+    from .report import estimator_rows
+
+    rows = estimator_rows(doc)
+    nref = max(doc["config"]["ref_counts"])
+
+    def pick(est, k=None, key="error"):
+        return [r for r in rows if r[1].get("estimator") == est and r[2] == key
+                and (k is None or r[1].get("n_refs") == k)]
+
+    first = (pick("paper") + pick("p4pf") + pick("ours-paper", nref) + pick("ours-metrology", nref)
+             + pick("ours-metrology", nref, "post_error") + pick("crb-refs"))
+    second = (pick("ours-metrology", 0) + pick("ours-metrology", nref) + pick("ours-metrology-nohorizon", 0)
+              + pick("ours-metrology-nohorizon", nref) + pick("ours-metrology-flatfocal", 0)
+              + pick("ours-metrology-flatfocal", nref) + pick("crb-target") + pick("crb-refs-nohorizon"))
+    return [(f"the estimators ({nref} references; p4pf: the target only)", first),
+            ("the metrology MAP: references, the horizon, the focal prior", second)]
+
+
+def _style(sel: dict, key: str) -> dict:
+    """Colour by family, marker by quantity (MAP ●, posterior mean ◆, bound ▬), open for no references."""
+    est = sel.get("estimator", "")
+    family = "crb" if est.startswith("crb") else est
+    colour = "0.55" if est == "crb-refs-nohorizon" else _FAMILY_COLOURS.get(family, "C9")
+    marker = "_" if family == "crb" else ("D" if key == "post_error" else "o")
+    no_refs = sel.get("n_refs") == 0 or est in ("crb-target", "crb-target-nohorizon", "p4pf")
+    return dict(color=colour, marker=marker, ms=14 if marker == "_" else 6, mew=2 if marker == "_" else 1.2,
+                mfc="white" if no_refs and marker != "_" else colour,
+                ls=":" if "nohorizon" in est and family == "crb" else "-")
+
+
 def error_by_tier(doc: dict, fig=None):
-    """Median location error per tier and estimator (bars: interquartile range), log scale."""
-    from .report import _sel, estimator_rows
+    """Median location error per tier (bars: interquartile range), log scale, in two panels of a
+    few distinct series each: colour = estimator family, marker = MAP (●) / posterior mean (◆) /
+    Cramér–Rao bound (▬), open marker = no references."""
+    from .report import _sel
 
     plt = _plt()
-    fig = fig or plt.figure(figsize=(11, 5.5))
-    ax = fig.add_subplot(111)
-    rows = estimator_rows(doc)
-    width = 0.8 / len(rows)
-    cmap = plt.get_cmap("tab20")
-    for i, (label, sel, key) in enumerate(rows):
-        for j, t in enumerate(TIERS):
-            v = np.array([r.get(key) for r in _sel(doc["records"], tier=t, **sel) if r.get(key) is not None], float)
-            v = np.maximum(v[np.isfinite(v)], 1e-4)
-            if v.size == 0:
-                continue
-            q1, med, q3 = np.percentile(v, [25, 50, 75])
-            x = j - 0.4 + (i + 0.5) * width
-            ax.errorbar(x, med, yerr=[[med - q1], [q3 - med]], fmt="o", ms=4, color=cmap(i % 20),
-                        label=label if j == 0 or not ax.get_legend_handles_labels()[1].count(label) else None)
-    ax.set_xticks(range(len(TIERS)), [f"{t}" for t in TIERS])
-    ax.set_yscale("log")
-    ax.set_xlabel("noise tier")
-    ax.set_ylabel("location error, % (Eq. 3)")
-    ax.set_title("Location error by noise tier: median and interquartile range "
-                 "(errors below 1e-4 % drawn at 1e-4 %)", fontsize=10)
-    ax.grid(True, which="major", axis="y", alpha=0.3)
-    handles, labels = ax.get_legend_handles_labels()
-    uniq = dict(zip(labels, handles))
-    ax.legend(uniq.values(), uniq.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    panels = _tier_panels(doc)
+    fig = fig or plt.figure(figsize=(12, 6.4))
+    axes = fig.subplots(1, len(panels), sharey=True)
+    for ax, (title, rows) in zip(np.atleast_1d(axes), panels):
+        width = 0.8 / max(len(rows), 1)
+        for i, (label, sel, key) in enumerate(rows):
+            style = _style(sel, key)
+            ls = style.pop("ls")
+            for j, t in enumerate(TIERS):
+                v = np.array([r.get(key) for r in _sel(doc["records"], tier=t, **sel) if r.get(key) is not None],
+                             float)
+                v = np.maximum(v[np.isfinite(v)], 1e-4)
+                if v.size == 0:
+                    continue
+                q1, med, q3 = np.percentile(v, [25, 50, 75])
+                x = j - 0.4 + (i + 0.5) * width
+                bars = ax.errorbar(x, med, yerr=[[med - q1], [q3 - med]], fmt="none", ecolor=style["color"],
+                                   elinewidth=1.2, alpha=0.6)
+                if ls != "-":
+                    bars[2][0].set_linestyle(ls)
+                ax.plot([x], [med], ls="none", label=label if j == 0 or label not in
+                        ax.get_legend_handles_labels()[1] else None, **style)
+        ax.set_xticks(range(len(TIERS)), list(TIERS))
+        for j in range(1, len(TIERS)):
+            ax.axvline(j - 0.5, color="0.85", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel("noise tier")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, which="major", axis="y", alpha=0.3)
+        handles, labels = ax.get_legend_handles_labels()
+        uniq = dict(zip(labels, handles))
+        ax.legend(uniq.values(), uniq.keys(), fontsize=7.5, loc="upper center", ncol=2,
+                  bbox_to_anchor=(0.5, -0.13), frameon=False)
+    np.atleast_1d(axes)[0].set_ylabel("location error, % (Eq. 3)")
+    fig.suptitle("Location error by noise tier: median (marker) and interquartile range (bar); "
+                 "errors below 1e-4 % drawn at 1e-4 %; open marker: no references", fontsize=10)
     fig.tight_layout()
     return fig
 

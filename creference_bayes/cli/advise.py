@@ -7,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, check_output_file, seed_value
 
 __all__ = ["register"]
 
@@ -39,6 +39,7 @@ def _one(args, settings, progress: bool) -> int:
     from ..workflows.advice_inputs import (advice_table, advise_result, advise_scene, load_result,
                                            scene_for_result)
 
+    check_output_file("--out", args.out)
     path = Path(args.input)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
@@ -47,10 +48,13 @@ def _one(args, settings, progress: bool) -> int:
         if result is not None:
             scene = scene_for_result(path, result, args.scene)
             advice = advise_result(result, scene, seed=args.seed, settings=settings, progress=progress)
+            hdi = ((result.get("posterior") or {}).get("hdi") or {}).get("distance_m")
         else:
             if args.scene is not None:
                 raise UsageError("--scene: only for a result file (INPUT is a scene)")
-            advice, _ = advise_scene(load_scene(path), seed=args.seed, settings=settings, progress=progress)
+            advice, estimated = advise_scene(load_scene(path), seed=args.seed, settings=settings,
+                                             progress=progress)
+            hdi = estimated.posterior.hdi.get("distance_m")
     except SceneError:
         raise
     except ValueError as exc:
@@ -58,7 +62,7 @@ def _one(args, settings, progress: bool) -> int:
     if args.out is not None:
         atomic_write_json(args.out, advice.to_dict())
     if not args.quiet:
-        print(advice_table(advice))
+        print(advice_table(advice, hdi))
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0
@@ -111,7 +115,7 @@ def register(subparsers) -> None:
         "advise", help="which annotation to collect next, or whether to stop",
         description="For the posterior of a target, the expected effect of one more set of target "
                     "dimension lines and of one more reference on each object already referenced, "
-                    "on the width of the 90 %% HDI of the distance, the location's sd and the label "
+                    "on the width of the 90 % HDI of the distance, the location's sd and the label "
                     "quality, per minute of human time (preposterior simulation under the model's "
                     "noise model); a ranked table and a recommendation. On a batch folder: every "
                     "object ranked and the request list for the crowd (requests.csv, Label Studio "
@@ -131,7 +135,7 @@ def register(subparsers) -> None:
     p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
                    help="stop when the best expected gain is below G points of the distance (HDI "
                         "width in percent of the distance) per minute of human time (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the estimate and the simulation (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--draws", type=int, default=600, metavar="N",
                    help="posterior draws used, thinned evenly (default: %(default)s)")
     p.add_argument("--futures", type=int, default=150, metavar="M",

@@ -9,7 +9,7 @@ from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
                        confidence_map_option)
-from .main import UsageError
+from .main import UsageError, seed_value
 
 __all__ = ["register", "EXIT_FAILED"]
 
@@ -79,7 +79,7 @@ def register(subparsers) -> None:
                    help="local worker processes (default: the machine's cores)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask distributed scheduler, e.g. tcp://host:8786 (needs the dist extra)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_value, default=0,
                    help="base seed; each scene's seed derives from it and the scene's content "
                         "(default: %(default)s)")
     p.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",

@@ -10,12 +10,12 @@ from pathlib import Path
 from ..bench.runner import CONFIGS, plain, run_bench, write_scenes
 from ..bench.simulate import SETTINGS, TIERS
 from ..io.files import atomic_write_text
-from .main import UsageError
+from .main import UsageError, seed_value
 
 __all__ = ["register", "BENCH_TIMES"]
 
 #: How long each bench size takes (two cores, the adopted defaults; docs/benchmark_results.md:
-#: quick 13 s, full 32 min). The README quotes the same words (a test checks it).
+#: quick 13 s, full 32 min). The README and docs/overview.md quote the same words (a test checks it).
 BENCH_TIMES = {"quick": "under a minute", "full": "about 30 minutes"}
 
 
@@ -141,7 +141,7 @@ def register(subparsers) -> None:
     size.add_argument("--full", action="store_true",
                       help=f"the documented run, {_n_scenes('full')} scenes ({BENCH_TIMES['full']})")
     p.add_argument("--out", default="bench_out", metavar="DIR", help="output directory (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of scenes and estimators (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="seed of scenes and estimators (default: %(default)s)")
     p.add_argument("--paper-restarts", type=int, default=None, metavar="N",
                    help="override the paper preset's restarts (default: 200; 8 with --quick)")
     p.add_argument("--temperature", type=float, default=None, metavar="T",
@@ -162,7 +162,7 @@ def register(subparsers) -> None:
                    help="folder to write into (created; must be empty unless --overwrite)")
     p.add_argument("--out", dest="out_dir", metavar="OUTDIR", default=None, help="the same as OUTDIR")
     p.add_argument("--n", type=int, default=None, help="number of scenes (not with --from-kitti)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
                    help="noise tier, or all to cycle through them (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),

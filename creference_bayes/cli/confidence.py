@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, seed_value
 
 __all__ = ["register", "METHODS", "format_map"]
 
@@ -174,7 +174,7 @@ def register(subparsers) -> None:
     f.add_argument("--min-group", type=int, default=200, metavar="N",
                    help="a measure and mode with this many ranges gets a curve of its own "
                         "(default: %(default)s)")
-    f.add_argument("--seed", type=int, default=0, help="seed of the draws and the estimates (default: %(default)s)")
+    f.add_argument("--seed", type=seed_value, default=0, help="seed of the draws and the estimates (default: %(default)s)")
     f.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes for the estimates of the marginal method (default: %(default)s)")
     f.add_argument("--min-ess", type=float, default=None, metavar="N",

@@ -11,7 +11,7 @@ import numpy as np
 from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.optimize import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .main import UsageError, example_scene_path
+from .main import UsageError, check_output_file, example_scene_path, seed_value
 
 __all__ = ["register", "format_table", "truth_of", "confidence_map_option", "add_confidence_map_option"]
 
@@ -172,6 +172,8 @@ def _check_posterior_options(args) -> None:
     """The posterior options' values, checked before any work is done."""
     if args.no_posterior and args.netcdf:
         raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
+    check_output_file("--out", args.out)
+    check_output_file("--netcdf", args.netcdf)
     check_posterior_values(args)
 
 
@@ -238,8 +240,12 @@ def _report(result, scene, args) -> None:
             if ev.in_hdi is not None:
                 inside = [k for k, v in ev.in_hdi.items() if v]
                 outside = [k for k, v in ev.in_hdi.items() if not v]
+                truth = truth_of(scene) or {}
+                fixed = [k for k in result.posterior.mean if k in truth and k not in ev.in_hdi]
                 print(f"truth inside the {result.posterior.hdi_prob:.0%} HDI: {', '.join(inside) or 'none'}"
-                      + (f"; outside: {', '.join(outside)}" if outside else ""))
+                      + (f"; outside: {', '.join(outside)}" if outside else "")
+                      + (f"; not checked: {', '.join(fixed)} (no spread in the posterior: fixed by "
+                         "the exact horizon or the camera set-up)" if fixed else ""))
         printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
         for w in result.warnings:
             if w not in printed:
@@ -280,7 +286,7 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
                    help="likelihood model: the measurement-likelihood extension or the paper's "
                         "cost with pairwise soft constraints (default: %(default)s; see "
                         "docs/benchmark_results.md)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")

@@ -101,6 +101,9 @@ def _read_cvat(path: str):
     from ..io.cvat import read_cvat_xml
 
     if not zipfile.is_zipfile(path):
+        if path.lower().endswith(".zip"):
+            raise ConversionError(path, "not a ZIP file (expected CVAT's task export, "
+                                        "\"CVAT for images 1.1\", or its annotations.xml)")
         return read_cvat_xml(path)
     with zipfile.ZipFile(path) as z:
         names = [n for n in z.namelist() if n.rsplit("/", 1)[-1] == "annotations.xml"]

@@ -26,6 +26,8 @@ def _run_labels(args) -> int:
                                n_draws=args.draws)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if not export.objects:
+        raise UsageError(f"{args.batch_dir}: nothing labelled, nothing written: {_why_none(export)}")
     paths = write_report(export, args.out, min_quality=args.min_quality, score_iou=args.score_iou,
                          batch_dir=args.batch_dir, figure=not args.no_figure)
     key = f"p_iou_ge_{args.score_iou:g}"
@@ -37,6 +39,19 @@ def _run_labels(args) -> int:
               f"not labelled: {len(export.failed_scenes)} failed, {len(export.skipped)} skipped; "
               f"report: {paths['report']}")
     return 0
+
+
+def _why_none(export) -> str:
+    """Why a batch gave no label, in one line: each reason with its count and a first key."""
+    reasons: dict[str, list[str]] = {}
+    for s in export.skipped:
+        reasons.setdefault(s["reason"], []).append(s["key"])
+    for f in export.failed_scenes:
+        reasons.setdefault("the scene failed in the batch (errors/)", []).append(f["key"])
+    if not reasons:
+        return "results/ holds no result"
+    return "; ".join(f"{reason}: {len(keys)} scene{'s' if len(keys) != 1 else ''} (e.g. {keys[0]})"
+                     for reason, keys in reasons.items())
 
 
 def register(subparsers) -> None:

@@ -9,7 +9,9 @@ on standard error, without a traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import sys
 import warnings
 from importlib import resources
@@ -18,7 +20,7 @@ from pathlib import Path
 from .. import __version__
 from ..io.scene import SceneError, SceneWarning
 
-__all__ = ["main", "build_parser", "example_scene_path", "UsageError", "EXIT_INVALID"]
+__all__ = ["main", "build_parser", "example_scene_path", "seed_value", "check_output_file", "UsageError", "EXIT_INVALID"]
 
 #: Modules that add sub-commands, in the order of the help text.
 COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes.cli.plot",
@@ -37,6 +39,26 @@ class UsageError(Exception):
 def example_scene_path() -> Path:
     """Path of the example scene shipped with the package."""
     return Path(str(resources.files("creference_bayes") / "data" / "example_scene.json"))
+
+
+def seed_value(text: str) -> int:
+    """``--seed``: a non-negative integer (NumPy's seeds), else argparse's one-line error naming
+    the option (exit 2)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = -1
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return seed
+
+
+def check_output_file(option: str, value) -> None:
+    """An option naming a file to write (``--out RESULT.json``, ``--netcdf PATH``): refused,
+    before any work, when it names an existing folder."""
+    if value is not None and Path(value).is_dir():
+        raise UsageError(f"{option}: {value} is a folder; give a file name, e.g. "
+                         f"{Path(value) / ('post.nc' if option == '--netcdf' else 'result.json')}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -64,8 +86,15 @@ def main(argv: list[str] | None = None) -> int:
     except (SceneError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
-    except FileNotFoundError as exc:
-        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+    except BrokenPipeError:  # the output's reader went away (`creference … | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
+    except FileNotFoundError as exc:  # the library's own reason ("not a batch folder …") when it gave one
+        reason = exc.strerror if exc.strerror and exc.strerror != os.strerror(errno.ENOENT) else "no such file"
+        print(f"error: {exc.filename}: {reason}", file=sys.stderr)
+        return EXIT_INVALID
+    except IsADirectoryError as exc:
+        print(f"error: {exc.filename}: is a folder, expected a file", file=sys.stderr)
         return EXIT_INVALID
     except OSError as exc:  # a directory, no permission, …: the user's input, not a bug
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)

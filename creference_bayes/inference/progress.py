@@ -9,8 +9,43 @@ kernel without ipywidgets, emit a ``TqdmWarning`` on import even when the bar is
 from __future__ import annotations
 
 import sys
+from contextlib import contextmanager
 
-__all__ = ["progress_bar"]
+__all__ = ["progress_bar", "SilentBar"]
+
+
+class SilentBar:
+    """What a disabled bar does (count, and nothing else), without tqdm.
+
+    A tqdm bar, even a disabled one, creates a ``multiprocessing`` lock, a named semaphore
+    registered with the resource tracker; a batch worker process ended by the batch (an
+    interrupt, a time limit) never releases it, and Python then warns about leaked semaphores.
+    """
+
+    def __init__(self, total: int | None = None, initial: int = 0):
+        self.total, self.n = total, initial
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def set_postfix(self, *args, **kwargs) -> None:
+        pass
+
+    def refresh(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    @contextmanager
+    def external_write_mode(self, file=None, nolock: bool = False):
+        yield
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return False
 
 
 def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = None,
@@ -29,9 +64,12 @@ def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = 
 
     Returns
     -------
-    ``tqdm.std.tqdm``, usable as a context manager; ``update(n)`` advances it.
+    ``tqdm.std.tqdm`` (or, when not ``enabled``, a :class:`SilentBar`), usable as a context
+    manager; ``update(n)`` advances it.
     """
+    if not enabled:
+        return SilentBar(total, initial)
     from tqdm.std import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, initial=initial,
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, initial=initial,
                 leave=leave, dynamic_ncols=True, postfix=postfix)

@@ -5,9 +5,10 @@ process killed mid-write leaves at most a ``.tmp`` file behind, never a truncate
 
 from __future__ import annotations
 
+import errno
 import json
 import os
-import tempfile
+import secrets
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -24,16 +25,29 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     format. On an exception the temporary file is removed and ``path`` is untouched.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = _new_temporary(path, suffix or path.suffix)
     try:
         yield tmp
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _new_temporary(path: Path, suffix: str) -> Path:
+    """Create an empty, new file beside ``path`` with the mode a plain ``open(path, "w")`` gives
+    (0666 less the umask; ``tempfile.mkstemp`` would make it 0600, and the rename keeps that)."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}"
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))  # pragma: no cover
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:

@@ -173,8 +173,8 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
             line.update({k2: v for k2, v in (("worker", items.worker), ("seconds", secs)) if v is not None})
             lines.append(line)
         for rid, fields_, seg in items.references:
-            origins[f"references[{len(refs)}]"] = f"region {rid!r}"
-            refs.append(reference_from_fields(fields_, seg, f"{where}, region {rid!r}",
+            origins[f"references[{len(refs)}]"] = f"{items.name}, region {rid!r}"
+            refs.append(reference_from_fields(fields_, seg, f"{where}, {items.name}, region {rid!r}",
                                               worker=items.worker, seconds=secs))
         horizons.extend(items.horizons)
     if data.get("creference_scene") is not None:  # a request task of creference advise
@@ -250,11 +250,12 @@ def _whole(value: Any, where: str, what: str) -> int:
 def _image_size(anns: list, data: dict, where: str) -> tuple[int, int]:
     """(width, height): the results' original size, else the task's ``image_width/height``."""
     seen: dict[tuple[int, int], str] = {}
-    for ann in anns:
+    for k, ann in enumerate(anns):
+        aname = f"annotation {ann.get('id', k)}" if isinstance(ann, dict) else f"annotation {k}"
         for r in (ann.get("result") if isinstance(ann, dict) else None) or []:
             if not isinstance(r, dict) or r.get("type") == "relation":
                 continue
-            rwhere = f"{where}, region {r.get('id')!r}"
+            rwhere = f"{where}, {aname}, region {r.get('id')!r}"
             rot = r.get("image_rotation")
             if rot not in (None, 0, 0.0):
                 raise ConversionError(rwhere, f"image_rotation {rot!r} is not supported "

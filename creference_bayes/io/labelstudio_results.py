@@ -121,7 +121,7 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
         if isinstance(rid, bool) or not isinstance(rid, (str, int)):
             raise ConversionError(awhere, f"result {j} ({typ}) has no region id")
         rid = str(rid)
-        rwhere = f"{where}, region {rid!r}"
+        rwhere = f"{awhere}, region {rid!r}"
         value = r.get("value")
         if not isinstance(value, dict):
             raise ConversionError(rwhere, f"'value' is not an object: {value!r}"[:120])
@@ -154,7 +154,7 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
     corners: dict[int, str] = {}
     starts, ends, hpoints = [], [], []
     for rid, reg in regions.items():
-        rwhere = f"{where}, region {rid!r}"
+        rwhere = f"{awhere}, region {rid!r}"
         if reg.kind == "keypoint":
             if reg.label in TARGET_LABELS:
                 i = TARGET_LABELS.index(reg.label)
@@ -191,17 +191,17 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
         fields_ = dict(controls.get(start, {}))
         for key, val in controls.get(end, {}).items():
             if key in fields_ and fields_[key] != val:
-                raise ConversionError(f"{where}, region {end!r}", f"'{key}' is {val!r} here but "
+                raise ConversionError(f"{awhere}, region {end!r}", f"'{key}' is {val!r} here but "
                                       f"{fields_[key]!r} on its reference start {start!r}")
             fields_[key] = val
         items.references.append((start, fields_, [regions[start].points[0], regions[end].points[0]]))
     used = set(starts) | set(ends) | {r for r, g in regions.items() if g.label == REFERENCE}
     for rid in controls:
         if rid not in regions:
-            raise ConversionError(f"{where}, region {rid!r}", f"reference fields {sorted(controls[rid])} "
+            raise ConversionError(f"{awhere}, region {rid!r}", f"reference fields {sorted(controls[rid])} "
                                   "belong to no region of this annotation")
         if rid not in used and controls[rid]:
-            raise ConversionError(f"{where}, region {rid!r}", f"a {regions[rid].label!r} point carries "
+            raise ConversionError(f"{awhere}, region {rid!r}", f"a {regions[rid].label!r} point carries "
                                   f"reference fields {sorted(controls[rid])}")
 
 
@@ -217,12 +217,12 @@ def _pairs(starts, ends, relations, regions, where, awhere):
         if a in ends and b in starts:
             a, b = b, a
         if not (a in starts and b in ends):
-            raise ConversionError(f"{where}, region {a!r}", f"a relation links {regions[a].label!r} to "
+            raise ConversionError(f"{awhere}, region {a!r}", f"a relation links {regions[a].label!r} to "
                                   f"{regions[b].label!r}; relations must link a 'reference start' "
                                   "to a 'reference end'")
         for rid in (a, b):
             if rid in partner:
-                raise ConversionError(f"{where}, region {rid!r}", f"{regions[rid].label!r} is linked "
+                raise ConversionError(f"{awhere}, region {rid!r}", f"{regions[rid].label!r} is linked "
                                       "to two points (a reference line has two ends)")
         partner[a], partner[b] = b, a
         pairs.append((a, b))
@@ -231,7 +231,7 @@ def _pairs(starts, ends, relations, regions, where, awhere):
     for rid in starts + ends:
         if rid not in partner:
             other = REF_END if rid in starts else REF_START
-            raise ConversionError(f"{where}, region {rid!r}", f"{regions[rid].label!r} is not linked "
+            raise ConversionError(f"{awhere}, region {rid!r}", f"{regions[rid].label!r} is not linked "
                                   f"to a '{other}' (draw a relation between the two ends)")
     return pairs
 

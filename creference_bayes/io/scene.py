@@ -470,13 +470,13 @@ def read_scene_json(path: Path) -> Any:
     try:
         data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
     except UnicodeDecodeError as exc:
-        raise SceneError("(file)", f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
+        raise SceneError(str(path), f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
     except json.JSONDecodeError as exc:
-        raise SceneError("(file)", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+        raise SceneError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
     except _ConstantError as exc:
-        raise SceneError("(file)", f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
+        raise SceneError(str(path), f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
     except RecursionError:
-        raise SceneError("(file)", "JSON nested too deeply") from None
+        raise SceneError(str(path), "JSON nested too deeply") from None
     return data
 
 

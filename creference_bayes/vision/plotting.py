@@ -276,14 +276,24 @@ def plot_ranks(draws: dict, *, names=None, fig=None, bins: int | None = None,
     return fig
 
 
-def _hdr_levels(x, z, prob, bins=60):
-    """Histogram of (x, z) and the density level enclosing ``prob`` of the draws."""
-    H, xe, ze = np.histogram2d(x, z, bins=bins)
+def _hdr_levels(x, z, prob, bins=40):
+    """Smoothed histogram of (x, z) and the density level enclosing ``prob`` of the draws.
+
+    The grid spans the central 99 % of the draws (padded), so that a few far draws do not leave the
+    cloud itself a handful of coarse cells; draws outside it count in the total.
+    """
     from scipy.ndimage import gaussian_filter
 
-    H = gaussian_filter(H, 1.0)
+    x, z = np.asarray(x, float), np.asarray(z, float)
+    rng = []
+    for v in (x, z):
+        lo, hi = np.quantile(v, [0.005, 0.995])
+        pad = 0.3 * max(hi - lo, 1e-9)
+        rng.append([lo - pad, hi + pad])
+    H, xe, ze = np.histogram2d(x, z, bins=bins, range=rng)
+    H = gaussian_filter(H, 1.5)
     flat = np.sort(H.ravel())[::-1]
-    cum = np.cumsum(flat) / flat.sum()
+    cum = np.cumsum(flat) / max(len(x), 1)
     level = flat[min(np.searchsorted(cum, prob), len(flat) - 1)]
     return H, xe, ze, level
 
@@ -343,8 +353,54 @@ def plot_top_view(result: dict, draws: dict | None = None, *, scene=None, truth:
     ax.set_ylabel("z, forward (m)")
     ax.set_title("top view of the ground plane")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8, framealpha=0.85)
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
+    if draws is not None:
+        _zoom_on_cloud(ax, x, z, (xe, ze, H, level), mp, truth, span)
     return fig
+
+
+#: The top view gets an inset on the posterior cloud when the cloud's 99 % box is smaller than
+#: this share of the plotted span (at the plot's scale its credible region is then a smudge).
+ZOOM_BELOW = 0.2
+
+
+def _zoom_on_cloud(ax, x, z, region, mp: dict, truth: dict | None, span: float) -> None:
+    """An inset magnifying the posterior cloud, its credible region, the MAP and the truth, in the
+    corner of the plot farthest from the cloud (not the legend's)."""
+    xe, ze, H, level = region
+    lo = np.array([np.quantile(x, 0.005), np.quantile(z, 0.005)])
+    hi = np.array([np.quantile(x, 0.995), np.quantile(z, 0.995)])
+    if truth is not None and np.all(np.abs(np.array([truth["x"], truth["z"]]) - (lo + hi) / 2) < span * ZOOM_BELOW):
+        lo = np.minimum(lo, [truth["x"], truth["z"]])
+        hi = np.maximum(hi, [truth["x"], truth["z"]])
+    size = max(float(np.max(hi - lo)), 1e-6)
+    if size >= ZOOM_BELOW * span:
+        return
+    centre = (lo + hi) / 2
+    half = 0.6 * size
+    # where the cloud sits in the axes (fractions), and the free corner farthest from it
+    to_axes = ax.transAxes.inverted().transform
+    cx, cy = to_axes(ax.transData.transform(centre))
+    # lower right, upper right, lower left (upper left holds the legend): the first the cloud is not in
+    free = [c for c in ((0.53, 0.04), (0.53, 0.53), (0.04, 0.04))
+            if not (c[0] - 0.05 < cx < c[0] + 0.48 and c[1] - 0.05 < cy < c[1] + 0.48)]
+    ox, oy = free[0] if free else (0.53, 0.04)
+    inset = ax.inset_axes([ox, oy, 0.43, 0.43])
+    sel = np.abs(x - centre[0]) < 2 * half
+    sel &= np.abs(z - centre[1]) < 2 * half
+    inset.scatter(x[sel][:4000], z[sel][:4000], s=3, alpha=0.25, color=_POST_COLOR, lw=0)
+    inset.contour((xe[:-1] + xe[1:]) / 2, (ze[:-1] + ze[1:]) / 2, H.T, levels=[level],
+                  colors=[_POST_COLOR], linewidths=1.5)
+    inset.plot(mp["x"], mp["z"], "x", color=_MAP_COLOR, ms=9, mew=2.2)
+    if truth is not None:
+        inset.plot(truth["x"], truth["z"], "*", color=_TRUTH_COLOR, ms=12)
+    inset.set_xlim(centre[0] - half, centre[0] + half)
+    inset.set_ylim(centre[1] - half, centre[1] + half)
+    inset.set_aspect("equal")
+    inset.tick_params(labelsize=7)
+    inset.grid(alpha=0.3)
+    inset.set_title(f"zoom ×{span / (2 * half):.0f}", fontsize=8)
+    ax.indicate_inset_zoom(inset, edgecolor="0.4")
 
 
 def _draw_camera(ax, mp: dict, scene, size: float) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,8 @@ def draws_from_result(result: dict, model) -> np.ndarray:
 
 def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Path | None = None):
     """The scene a result was made from: ``scene_path``, else the batch folder's copy
-    (``batch.scene_copy``), else the file named by ``scene`` next to the result; its
+    (``batch.scene_copy``), else the file named by ``scene`` next to the result, in the current
+    folder or among the package's shipped scenes; its
     fingerprint must be the one the result records."""
     result_path = Path(result_path)
     tried = []
@@ -88,8 +90,10 @@ def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Pa
         copy = (result.get("batch") or {}).get("scene_copy")
         if copy:
             tried.append(result_path.parents[len(Path(result["batch"]["key"]).parts)] / copy)
-        if result.get("scene"):
-            tried.append(result_path.parent / result["scene"])
+        if result.get("scene"):  # as `creference plot` looks: beside it, here, the shipped scenes
+            name = result["scene"]
+            tried += [result_path.parent / name, Path.cwd() / name,
+                      Path(str(resources.files("creference_bayes") / "data" / name))]
     for path in tried:
         if path.is_file():
             with warnings.catch_warnings():
@@ -100,8 +104,11 @@ def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Pa
                 raise ValueError(f"{path}: not the scene of the result (its fingerprint differs: the "
                                  "scene changed since the estimate; estimate it again)")
             return _with_batch_image(scene, result)
-    raise FileNotFoundError(2, "the result's scene was not found (give it with --scene)",
-                            str(tried[-1]) if tried else str(result_path))
+    if scene_path is not None:
+        raise FileNotFoundError(2, "no such file", str(scene_path))
+    where = (f"the result's scene {result['scene']!r} is not beside it, in the current folder or "
+             "among the shipped scenes" if result.get("scene") else "the result names no scene")
+    raise FileNotFoundError(2, f"{where}: give it with --scene", str(result_path))
 
 
 def _with_batch_image(scene, result: dict):
@@ -175,13 +182,22 @@ def load_result(path: str | Path) -> dict:
     return d if isinstance(d, dict) and d.get("format") == RESULT_FORMAT else None
 
 
-def advice_table(advice: Advice) -> str:
-    """The advice as text: the present, one row per annotation (best first), the recommendation."""
+def advice_table(advice: Advice, estimate_hdi: tuple[float, float] | None = None) -> str:
+    """The advice as text: the present, one row per annotation (best first), the recommendation.
+
+    ``estimate_hdi``: the estimate's own HDI of the distance (metres, on all its draws), shown
+    beside the advice's, which is computed on the ``settings.n_draws`` draws it weighs (so the
+    two differ by the sampling error of the thinned draws).
+    """
     now, s = advice.now, advice.settings
+    full = ""
+    if estimate_hdi is not None:
+        full = (f" (on the {s.n_draws} draws the advice weighs; the estimate's, on all its draws: "
+                f"{estimate_hdi[1] - estimate_hdi[0]:.3g} m)")
     lines = [f"advice for target {advice.target!r}",
              f"now: {s.hdi_prob:.0%} HDI of the distance {now.hdi_width_m:.3g} m = "
-             f"{100 * now.hdi_share:.1f} % of {now.distance_m:.3g} m; location sd {now.location_sd_m:.3g} m; "
-             f"P(IoU >= {s.iou_threshold:g}) {now.p_iou:.2f}", ""]
+             f"{100 * now.hdi_share:.1f} % of {now.distance_m:.3g} m{full}; location sd "
+             f"{now.location_sd_m:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou:.2f}", ""]
     head = ("rank", "annotation", "cost s", "HDI after", "gain pts", "pts/min", "loc sd m",
             f"P(IoU>={s.iou_threshold:g})", "ESS", "fallbacks")
     rows = []
@@ -195,7 +211,8 @@ def advice_table(advice: Advice) -> str:
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(len(head))]
     for r in [head] + rows:
         lines.append("  ".join(c.ljust(w) if i == 1 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
-    lines += ["", f"recommendation: {advice.action}: {advice.reason}"]
+    said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
+    lines += ["", f"recommendation: {said}"]
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes "
                  f"each on {s.n_draws} posterior draws at most; {advice.seconds:.1f} s)")

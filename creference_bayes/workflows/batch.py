@@ -202,27 +202,31 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
         ident = settings.to_dict()
-        status = {si.key: "not run" for si in scenes}
-        errors: dict[str, str] = {}
-        todo = _prepare(scenes, out, settings, ident, status, errors)
     except BaseException:
         engine.close(abandon=True)
         raise
-    if on_event:
-        for key in (k for k, s in status.items() if s in ("failed", "skipped")):
-            on_event(key, status[key])
-
-    n_invalid = sum(s == "failed" for s in status.values())
-    bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
-    runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
+    # From here on, whatever ends the run (an interrupt while the scenes are read, while they
+    # run, a bug), the folder gets its summary.csv and batch.json.
+    status = {si.key: "not run" for si in scenes}
+    errors: dict[str, str] = {}
+    bar = runner = None
     try:
+        todo = _prepare(scenes, out, settings, ident, status, errors)
+        if on_event:
+            for key in (k for k, s in status.items() if s in ("failed", "skipped")):
+                on_event(key, status[key])
+        n_invalid = sum(s == "failed" for s in status.values())
+        bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
+        runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
         runner.run(todo)
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         interrupted = any(s == "not run" for s in status.values())
-        engine.close(abandon=interrupted or bool(runner.abandoned))
+        engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
-                             engine=engine.describe(), computed_seconds=runner.seconds)
+                             engine=engine.describe(),
+                             computed_seconds=runner.seconds if runner is not None else 0.0)
         write_summary(out, scenes, report)
         atomic_write_json(out / "batch.json", {
             "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
