@@ -26,6 +26,7 @@ TINY = {
     "dataset_pipeline.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "dp"],
                              ["dp/labels/report.md"])],
     "estimate_scene.py": [([], [])],
+    "frame_speed.py": [(["--counts", "3", "--frames", "1", "--max-iterations", "400"], [])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
@@ -40,7 +41,11 @@ SLOW = {
     "batch_throughput.py": [(["--n", "2", "--min-ess", "100", "--out", "bt"], ["bt/dask_2/summary.csv"])],
 }
 #: Examples that need tools outside the package: run by the tests named, when the tools are there.
-EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_STUDIO_VENV, CREFERENCE_DATUMARO_VENV)"}
+EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_STUDIO_VENV, CREFERENCE_DATUMARO_VENV)",
+            "check_kitti_devkit.py": "tests/test_kitti_devkit.py (slow; the compiled official devkit)",
+            # a KITTI folder is needed: the tests build a synthetic one in KITTI's layout
+            "kitti_study.py": "tests/test_kitti_frames.py",
+            "horizon_kitti_check.py": "tests/test_horizon.py"}
 
 
 def test_there_are_examples():
