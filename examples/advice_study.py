@@ -60,7 +60,7 @@ from creference_bayes.io.scene import Reference, SceneWarning, parse_scene
 from creference_bayes.models.params import PARAM_NAMES
 from creference_bayes.pipeline import estimate
 from creference_bayes.workflows.advice import AdviceSettings, advise_posterior
-from creference_bayes.workflows.advice_candidates import Candidate, FormatMix, candidates, format_mix
+from creference_bayes.workflows.advice.candidates import Candidate, FormatMix, candidates, format_mix
 
 N_TARGET_POOL, N_REF_POOL = 13, 10
 TARGET_S, REF_S = 183.5, 64.4
@@ -134,8 +134,8 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
     by the annotation that was actually added (the advice's update, given the realised value):
     set against the re-estimate, it checks the update apart from the predictive distribution."""
     from creference_bayes.camera_setup import setup_camera
-    from creference_bayes.workflows.advice_observe import ModelContext, ReferenceObservation, TargetObservation
-    from creference_bayes.workflows.advice_update import (MIN_ESS, MIN_ESS_FRACTION, normalise,
+    from creference_bayes.workflows.advice.observe import ModelContext, ReferenceObservation, TargetObservation
+    from creference_bayes.workflows.advice.update import (MIN_ESS, MIN_ESS_FRACTION, normalise,
                                                           tempered_update, weighted_hdi)
 
     r = est["result"]
@@ -389,7 +389,7 @@ def run_timing(args) -> None:
     allows, on scenes as the paper designs them (5 sets of dimension lines, 5 references), from
     the estimate's draws (a scene given to ``creference advise``) and from the 400 draws a result
     file keeps (a result or a batch folder)."""
-    from creference_bayes.workflows.advice_inputs import advise_result
+    from creference_bayes.workflows.advice.inputs import advise_result
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

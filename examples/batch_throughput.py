@@ -20,7 +20,7 @@ from pathlib import Path
 
 from creference_bayes.bench.runner import write_scenes
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.engines import DaskEngine, LocalEngine
+from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
 
 
 def _numbers(folder: Path) -> dict:

@@ -37,9 +37,9 @@ from creference_bayes.core.metrics import interval_score
 from creference_bayes.io.files import atomic_path, atomic_write_json, atomic_write_text
 from creference_bayes.io.scene import parse_scene, scene_fingerprint
 from creference_bayes.models.confidence_map import ConfidenceMap, CoverageCurve
-from creference_bayes.workflows.confidence_data import StatedRange, stated_ranges
-from creference_bayes.workflows.confidence_fit import fit_marginal, fit_with_truth
-from creference_bayes.workflows.confidence_loo import RangePrediction, predict_data_set
+from creference_bayes.workflows.confidence.data import StatedRange, stated_ranges
+from creference_bayes.workflows.confidence.fit import fit_marginal, fit_with_truth
+from creference_bayes.workflows.confidence.loo import RangePrediction, predict_data_set
 
 #: The two kinds of scene: (a) and (b) use the standard one, (c) the reference-dominated one.
 STANDARD = {"tier": "low", "n_references": 6}
@@ -265,7 +265,7 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int) -> dict:
             done[rec["key"]] = rec
     todo = [j for j in jobs if j["key"] not in done]
     if todo:
-        from creference_bayes.workflows.engines import LocalEngine
+        from creference_bayes.workflows.batch.engines import LocalEngine
         import concurrent.futures as cf
 
         with open(cache, "a") as fh, LocalEngine(workers) as engine:
@@ -327,7 +327,7 @@ def write_figure(out: Path, seed: int, sizes: dict, fitted_a: dict, fitted_b) ->
     if "over" not in fitted_a:
         return None
     from creference_bayes.vision.confidence_figures import reliability_figure
-    from creference_bayes.workflows.confidence_report import confidence_report
+    from creference_bayes.workflows.confidence.report import confidence_report
 
     workers = pool("over", seed)
     scenes = data_set(out, "a_over", sizes["a"], seed, workers, STANDARD)

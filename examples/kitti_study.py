@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     from creference_bayes.frame_pipeline import build_frame_model, estimate_frame
     from creference_bayes.inference.frame_map import optimize_frame
     from creference_bayes.io.frame_scene import load_frame, parse_frame, frame_to_dict
-    from creference_bayes.workflows.frames import write_frame_labels
+    from creference_bayes.workflows.labels.frames import write_frame_labels
 
     out = Path(args.out)
     scenes = out / "scenes"
@@ -93,7 +93,7 @@ def main(argv=None) -> int:
             cams_alone.append(m.camera)
             alone["objects"].append(m.objects[0])
         # labels of the alone estimates, each with its own camera: one label file per image
-        from creference_bayes.workflows.frames import kitti_poses
+        from creference_bayes.workflows.labels.frames import kitti_poses
         from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
 
         (out / "alone" / "label_2").mkdir(parents=True, exist_ok=True)

@@ -19,9 +19,9 @@ import numpy as np
 
 from creference_bayes.bench.runner import write_scenes
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.batch_summary import summary_line
-from creference_bayes.workflows.engines import DaskEngine, LocalEngine
-from creference_bayes.workflows.label_report import calibration, write_report
+from creference_bayes.workflows.batch.summary import summary_line
+from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
+from creference_bayes.workflows.labels.report import calibration, write_report
 from creference_bayes.workflows.labels import export_labels
 
 

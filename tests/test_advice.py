@@ -14,7 +14,7 @@ from creference_bayes.inference.summary import draws_from_inference_data
 from creference_bayes.models.params import PARAM_NAMES
 from creference_bayes.workflows import advice as advice_module
 from creference_bayes.workflows.advice import AdviceSettings, advise_posterior
-from creference_bayes.workflows.advice_candidates import candidates
+from creference_bayes.workflows.advice.candidates import candidates
 
 FAST = {"min_ess": 300}
 
@@ -77,8 +77,8 @@ def test_reweighted_draws_agree_with_a_re_estimate(make_scene):
     """One simulated set of dimension lines: the current draws reweighted by it against the
     posterior of the scene estimated again with it (a brute-force re-estimate)."""
     from creference_bayes.camera_setup import setup_camera
-    from creference_bayes.workflows.advice_observe import ModelContext, TargetObservation
-    from creference_bayes.workflows.advice_update import normalise
+    from creference_bayes.workflows.advice.observe import ModelContext, TargetObservation
+    from creference_bayes.workflows.advice.update import normalise
 
     scene = variant(make_scene(21, tier="medium", setting="indoor"), 2, range(2))
     before = cb.estimate(scene, seed=1, sampling={"min_ess": 1500})
@@ -162,7 +162,7 @@ def test_cli_refuses_a_paper_model_result(example, tmp_path, capsys):
 def batch_dir(example, tmp_path_factory):
     """A batch folder holding the example's result twice (two keys), as creference batch writes it."""
     from creference_bayes.workflows.batch import SceneInput
-    from creference_bayes.workflows.batch_files import layout, record_result
+    from creference_bayes.workflows.batch.files import layout, record_result
 
     scene, result, _ = example
     out = tmp_path_factory.mktemp("batch")
@@ -195,7 +195,7 @@ def test_request_files_carry_the_segment_and_import_back(example, tmp_path):
     once a worker fills in the value, imports as the scene with one more reference."""
     from creference_bayes.io.cvat import read_cvat_xml, scenes_from_cvat
     from creference_bayes.io.labelstudio_results import annotation_items
-    from creference_bayes.workflows.advice_requests import cvat_requests, label_studio_requests
+    from creference_bayes.workflows.advice.requests import cvat_requests, label_studio_requests
 
     scene = example[0]
     cand = next(c for c in candidates(scene) if c.kind == "reference" and c.new_segment)
@@ -227,7 +227,7 @@ def test_request_files_carry_the_segment_and_import_back(example, tmp_path):
 
 
 def test_batch_advice_does_not_depend_on_the_worker_count(batch_dir):
-    from creference_bayes.workflows.advice_batch import advise_batch
+    from creference_bayes.workflows.advice.batch import advise_batch
 
     settings = AdviceSettings(n_draws=100, n_futures=20)
     one = advise_batch(batch_dir, seed=3, settings=settings)
@@ -251,7 +251,7 @@ def test_answered_label_studio_requests_import_as_the_scene_with_the_answers(exa
     import dataclasses
 
     from creference_bayes.io.labelstudio import label_studio_task, scenes_from_label_studio
-    from creference_bayes.workflows.advice_requests import label_studio_requests
+    from creference_bayes.workflows.advice.requests import label_studio_requests
 
     scene = example[0]
     ref_cand = next(c for c in candidates(scene) if c.kind == "reference" and c.new_segment)
@@ -279,7 +279,7 @@ def test_answered_label_studio_requests_import_as_the_scene_with_the_answers(exa
 
 
 def test_a_result_is_advised_on_with_the_camera_set_up_of_its_estimate(example):
-    from creference_bayes.workflows.advice_inputs import _camera_setup
+    from creference_bayes.workflows.advice.inputs import _camera_setup
 
     scene, result, _ = example
     d = result.to_dict()

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from creference_bayes.camera_setup import setup_camera
-from creference_bayes.workflows.advice_candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
+from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
                                                           annotation_seconds, candidates, format_mix)
-from creference_bayes.workflows.advice_iou import iou_3d_pairs
-from creference_bayes.workflows.advice_observe import ModelContext, ReferenceObservation, TargetObservation
-from creference_bayes.workflows.advice_update import normalise, tempered_update, weighted_hdi
-from creference_bayes.workflows.label_quality import box_iou_3d
+from creference_bayes.workflows.advice.iou import iou_3d_pairs
+from creference_bayes.workflows.advice.observe import ModelContext, ReferenceObservation, TargetObservation
+from creference_bayes.workflows.advice.update import normalise, tempered_update, weighted_hdi
+from creference_bayes.workflows.labels.quality import box_iou_3d
 
 
 def test_pairwise_iou_matches_shapely():

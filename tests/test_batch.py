@@ -13,7 +13,7 @@ from creference_bayes.bench.runner import write_scenes
 from creference_bayes.cli.main import main
 from creference_bayes.workflows.batch import (BatchSettings, derive_seed, discover_scenes, run_batch,
                                               run_scene)
-from creference_bayes.workflows.engines import LocalEngine
+from creference_bayes.workflows.batch.engines import LocalEngine
 
 #: Small sampler settings: the tests are about the batch, not the posterior's precision.
 SMALL = BatchSettings(seed=5, sampling={"n_ensembles": 2, "n_walkers": 16, "tau_multiple": 20, "min_ess": 100})
@@ -102,7 +102,7 @@ def test_resume_after_deleting_two_results_recomputes_exactly_those_two(dataset,
 
 def test_dask_local_cluster_gives_identical_numbers(dataset, tmp_path):
     distributed = pytest.importorskip("distributed")
-    from creference_bayes.workflows.engines import DaskEngine
+    from creference_bayes.workflows.batch.engines import DaskEngine
 
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
         report = run_batch([dataset["scenes"]], tmp_path / "dask", DaskEngine(cluster.scheduler_address),

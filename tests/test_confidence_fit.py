@@ -1,4 +1,4 @@
-"""Fitting confidence maps (workflows/confidence_fit.py) on statements with a known true map:
+"""Fitting confidence maps (workflows/confidence/fit.py) on statements with a known true map:
 with ground truth, without (marginal likelihood), per group; levels, PAVA, the chosen shape."""
 
 import numpy as np
@@ -6,9 +6,9 @@ import pytest
 from scipy import stats
 
 from creference_bayes.bench.confidence_workers import ConfidentWorkers
-from creference_bayes.workflows.confidence_data import StatedRange
-from creference_bayes.workflows.confidence_fit import _P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth
-from creference_bayes.workflows.confidence_loo import N_DRAWS, RangePrediction
+from creference_bayes.workflows.confidence.data import StatedRange
+from creference_bayes.workflows.confidence.fit import _P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth
+from creference_bayes.workflows.confidence.loo import N_DRAWS, RangePrediction
 
 
 def _statements(workers, n, seed, measure="length", mode="direct", scenes=None):
@@ -130,7 +130,7 @@ def test_leave_one_out_draws_match_an_estimate_without_the_range():
     from creference_bayes.models.metrology import ground_lengths
     from creference_bayes.models.params import PARAM_NAMES
     from creference_bayes.pipeline import estimate
-    from creference_bayes.workflows.confidence_loo import predict_ranges
+    from creference_bayes.workflows.confidence.loo import predict_ranges
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

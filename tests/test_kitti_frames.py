@@ -11,7 +11,7 @@ import pytest
 
 from creference_bayes.bench.kitti_frames import kitti_frame, read_p2
 from creference_bayes.io.frame_scene import parse_frame
-from creference_bayes.workflows.frames import kitti_poses, write_frame_labels
+from creference_bayes.workflows.labels.frames import kitti_poses, write_frame_labels
 
 P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
 # type trunc occ alpha  l t r b  h w l  x y z  ry

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from creference_bayes.workflows.label_quality import (box_iou_3d, footprints, label_quality,
+from creference_bayes.workflows.labels.quality import (box_iou_3d, footprints, label_quality,
                                                       reliability_table)
 
 BOX = np.array([1.0, 1.5, 8.0, 0.3, 4.0, 1.8, 1.5])  # x, y, z, yaw, length, width, height

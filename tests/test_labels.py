@@ -14,8 +14,8 @@ from creference_bayes.core.geometry import (Camera, box_points, box_vertices, di
                                             rotation_from_pitch_roll)
 from creference_bayes.io.scene import load_scene
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.engines import Engine
-from creference_bayes.workflows.label_report import write_report
+from creference_bayes.workflows.batch.engines import Engine
+from creference_bayes.workflows.labels.report import write_report
 from creference_bayes.workflows.labels import camera_angles, export_labels
 
 SMALL_SAMPLER = {"n_ensembles": 2, "n_walkers": 16, "tau_multiple": 20, "min_ess": 100}

@@ -15,9 +15,9 @@ import creference_bayes as cb
 from creference_bayes.bench.runner import write_scenes
 from creference_bayes.cli.main import build_parser, example_scene_path, main
 from creference_bayes.io.files import atomic_path, atomic_write_json
-from creference_bayes.workflows.advice_inputs import advice_table
+from creference_bayes.workflows.advice.inputs import advice_table
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.engines import LocalEngine
+from creference_bayes.workflows.batch.engines import LocalEngine
 
 FAST = ["--min-ess", "200", "--quiet"]
 
@@ -135,7 +135,7 @@ def test_help_texts_print_no_doubled_percent(capsys):
 
 
 def test_the_recommendation_does_not_repeat_its_action(example_result):
-    from creference_bayes.workflows.advice_inputs import advise_result
+    from creference_bayes.workflows.advice.inputs import advise_result
     from creference_bayes.workflows.advice import AdviceSettings
 
     result = json.loads(example_result.read_text())

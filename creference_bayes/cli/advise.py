@@ -36,7 +36,7 @@ def _settings(args):
 def _one(args, settings, progress: bool) -> int:
     from ..io.files import atomic_write_json
     from ..io.scene import SceneError, load_scene
-    from ..workflows.advice_inputs import (advice_table, advise_result, advise_scene, load_result,
+    from ..workflows.advice.inputs import (advice_table, advise_result, advise_scene, load_result,
                                            scene_for_result)
 
     check_output_file("--out", args.out)
@@ -69,7 +69,7 @@ def _one(args, settings, progress: bool) -> int:
 
 
 def _batch(args, settings, progress: bool) -> int:
-    from ..workflows.advice_batch import advise_batch, request_rows, write_batch_advice
+    from ..workflows.advice.batch import advise_batch, request_rows, write_batch_advice
 
     if args.scene is not None:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")

@@ -30,7 +30,7 @@ def _settings(args):
 
 
 def _engine(args):
-    from ..workflows.engines import DaskEngine, LocalEngine
+    from ..workflows.batch.engines import DaskEngine, LocalEngine
 
     if args.scheduler:
         if args.workers is not None:
@@ -47,7 +47,7 @@ def _engine(args):
 
 def _run_batch(args) -> int:
     from ..workflows.batch import run_batch
-    from ..workflows.batch_summary import summary_line
+    from ..workflows.batch.summary import summary_line
 
     settings = _settings(args)
     if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):

@@ -44,8 +44,8 @@ def _check_fit_options(args) -> None:
 
 def _run_fit(args) -> int:
     from ..io.files import atomic_write_json
-    from ..workflows.confidence_data import load_scenes, stated_ranges
-    from ..workflows.confidence_fit import fit_marginal, fit_with_truth
+    from ..workflows.confidence.data import load_scenes, stated_ranges
+    from ..workflows.confidence.fit import fit_marginal, fit_with_truth
 
     _check_fit_options(args)
     try:
@@ -72,7 +72,7 @@ def _run_fit(args) -> int:
                 "without a truth left out)")
             cmap = fit_with_truth(ranges, **options)
         else:
-            from ..workflows.confidence_loo import predict_data_set
+            from ..workflows.confidence.loo import predict_data_set
 
             say(f"fitting without ground truth: {len(ranges)} ranges in {len(scenes)} scenes "
                 "(one posterior per scene, leave-one-out per range)")
@@ -97,8 +97,8 @@ def _run_fit(args) -> int:
 def _run_report(args) -> int:
     from ..io.files import atomic_write_json, atomic_write_text
     from ..models.confidence_map import ConfidenceMap, ConfidenceMapError
-    from ..workflows.confidence_data import load_scenes, range_counts, stated_ranges
-    from ..workflows.confidence_report import confidence_report, markdown_report
+    from ..workflows.confidence.data import load_scenes, range_counts, stated_ranges
+    from ..workflows.confidence.report import confidence_report, markdown_report
 
     if args.min_answers < 1:
         raise UsageError(f"--min-answers: expected an integer >= 1, got {args.min_answers}")

@@ -13,8 +13,8 @@ FORMATS = ("kitti",)
 
 
 def _run_labels(args) -> int:
-    from ..workflows.label_quality import IOU_THRESHOLDS
-    from ..workflows.label_report import write_report
+    from ..workflows.labels.quality import IOU_THRESHOLDS
+    from ..workflows.labels.report import write_report
     from ..workflows.labels import export_labels
 
     if not (math.isfinite(args.min_quality) and 0.0 <= args.min_quality <= 1.0):

@@ -17,7 +17,7 @@ def reliability_figure(rows, maps: dict | None = None, *, true_map=None, fig: Fi
 
     Parameters
     ----------
-    rows : :class:`~creference_bayes.workflows.confidence_report.ReliabilityRow` (may be empty when
+    rows : :class:`~creference_bayes.workflows.confidence.report.ReliabilityRow` (may be empty when
         only maps are drawn)
     maps : label → :class:`~creference_bayes.models.confidence_map.ConfidenceMap` (pooled curves)
     true_map : optional callable c → g(c), drawn as a dashed line (simulated data)
@@ -62,7 +62,7 @@ def workers_figure(rows, fig: Figure | None = None) -> Figure:
 
     Parameters
     ----------
-    rows : :class:`~creference_bayes.workflows.confidence_report.WorkerRow`
+    rows : :class:`~creference_bayes.workflows.confidence.report.WorkerRow`
     fig : a figure to draw on (default: a new one)
     """
     if fig is None:

@@ -19,7 +19,7 @@ def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.
     scores : (n,) the labels' quality (probabilities)
     threshold : the user's minimum quality
     score_label : what the score is
-    reliability : IoU threshold → rows of :func:`~creference_bayes.workflows.label_quality.reliability_table`
+    reliability : IoU threshold → rows of :func:`~creference_bayes.workflows.labels.quality.reliability_table`
     fig : a figure to draw on (default: a new one)
     """
     scores = np.asarray(scores, float)

@@ -23,9 +23,9 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
-from ..io.files import atomic_write_json, atomic_write_text
-from .advice import Advice, AdviceSettings
-from .advice_inputs import _with_batch_image, advise_result
+from ...io.files import atomic_write_json, atomic_write_text
+from . import Advice, AdviceSettings
+from .inputs import _with_batch_image, advise_result
 
 __all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "BatchAdvice", "object_seed", "advise_batch",
            "request_rows", "write_batch_advice"]
@@ -91,8 +91,8 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
     local processes; each object's seed derives from ``seed`` and its key
     (:func:`object_seed`), so the numbers do not depend on ``workers``.
     """
-    from ..inference.progress import progress_bar
-    from .labels import load_batch
+    from ...inference.progress import progress_bar
+    from ..labels import load_batch
 
     inputs, skipped = load_batch(batch_dir)
     skipped = list(skipped)
@@ -102,7 +102,7 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
         if workers > 1 and len(jobs) > 1:
             from concurrent.futures import as_completed
 
-            from .engines import LocalEngine
+            from ..batch.engines import LocalEngine
 
             with LocalEngine(workers) as engine:
                 futures = {engine.executor.submit(_advise_one, *job): inp.key for job, inp in zip(jobs, inputs)}
@@ -150,7 +150,7 @@ def request_rows(batch: BatchAdvice, budget_s: float | None = None) -> list[dict
 def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float | None = None,
                        lines: str = "keypoints") -> dict[str, Path]:
     """Write the advice files (module docstring) to ``out``; returns their paths by name."""
-    from .advice_requests import cvat_requests, label_studio_requests
+    from .requests import cvat_requests, label_studio_requests
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,9 +1,9 @@
 """Whether one more annotation is worth its human time, and which (docs/advice.md).
 
 For the current posterior of a target, each annotation the scene allows
-(:mod:`.advice_candidates`) is weighed by preposterior simulation under the model's own noise
+(:mod:`creference_bayes.workflows.advice.candidates`) is weighed by preposterior simulation under the model's own noise
 model: a draw of the parameters is taken as the truth, the new annotation is simulated from it
-(:mod:`.advice_observe`), the other draws are reweighted by what it says (leave-one-out: the
+(:mod:`creference_bayes.workflows.advice.observe`), the other draws are reweighted by what it says (leave-one-out: the
 simulating draw is left out), and the posterior after it is summarised; the average over draws
 is the expected posterior after that annotation. What is reported, per annotation:
 
@@ -16,8 +16,8 @@ is the expected posterior after that annotation. What is reported, per annotatio
   per minute of the annotation's cost.
 
 Weights whose effective sample size collapses (fewer than
-:data:`~.advice_update.MIN_ESS` or :data:`~.advice_update.MIN_ESS_FRACTION` of the draws) are
-replaced by a tempered resample-move run to the new posterior (:func:`~.advice_update.tempered_update`),
+:data:`~creference_bayes.workflows.advice.update.MIN_ESS` or :data:`~creference_bayes.workflows.advice.update.MIN_ESS_FRACTION` of the draws) are
+replaced by a tempered resample-move run to the new posterior (:func:`~creference_bayes.workflows.advice.update.tempered_update`),
 and counted in ``fallbacks``.
 """
 
@@ -29,10 +29,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..inference.posterior import LogPosterior
-from .advice_candidates import Candidate, candidates as scene_candidates, format_mix
-from .advice_observe import ModelContext, observation_for
-from .advice_update import (MIN_ESS, MIN_ESS_FRACTION, location_sd, normalise, p_iou,
+from ...inference.posterior import LogPosterior
+from .candidates import Candidate, candidates as scene_candidates, format_mix
+from .observe import ModelContext, observation_for
+from .update import (MIN_ESS, MIN_ESS_FRACTION, location_sd, normalise, p_iou,
                             tempered_update, weighted_hdi)
 
 __all__ = ["AdviceSettings", "Outlook", "Prediction", "Advice", "advise_posterior"]
@@ -205,7 +205,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     seed : int or Generator; the same seed gives the same advice
     settings : :class:`AdviceSettings`
     candidates : the annotations to weigh (default: all the scene allows)
-    mixes : :class:`~.advice_candidates.FormatMix` by candidate key, for references to be stated
+    mixes : :class:`~creference_bayes.workflows.advice.candidates.FormatMix` by candidate key, for references to be stated
         otherwise than the scene's references are (default: the scene's mix for all)
     progress : a progress bar over the candidates on standard error
     """
@@ -214,7 +214,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     if int(handedness) not in (1, -1):
         raise ValueError(f"handedness: expected 1 or -1, got {handedness!r}")
     if setup is None:
-        from ..camera_setup import setup_camera
+        from ...camera_setup import setup_camera
 
         setup = setup_camera(scene)
     rng = np.random.default_rng(seed)
@@ -238,7 +238,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     cands = scene_candidates(scene) if candidates is None else list(candidates)
     seeds = rng.integers(2**63, size=len(cands))
     predictions, notes = [], []
-    from ..inference.progress import progress_bar
+    from ...inference.progress import progress_bar
 
     with progress_bar(progress, len(cands), desc="advice", unit="annotation") as bar:
         for cand, s in zip(cands, seeds):

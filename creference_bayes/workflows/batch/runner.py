@@ -9,9 +9,9 @@ import traceback
 import warnings
 from collections import deque
 
-from ..io.scene import SceneWarning, parse_scene
-from ..pipeline import estimate
-from .batch_files import layout, record_error, record_result
+from ...io.scene import SceneWarning, parse_scene
+from ...pipeline import estimate
+from .files import layout, record_error, record_result
 
 __all__ = ["run_scene", "one_line", "Runner", "progress_bar"]
 
@@ -44,7 +44,7 @@ def one_line(exc: BaseException) -> str:
 
 def progress_bar(total: int, failed: int, enabled: bool):
     """Scenes to do (those that failed to load count as done and failed from the start)."""
-    from ..inference.progress import progress_bar as bar
+    from ...inference.progress import progress_bar as bar
 
     return bar(enabled, total, desc="batch", unit="scene", initial=failed, leave=True,
                postfix={"failed": failed})

@@ -25,13 +25,13 @@ import warnings
 
 import numpy as np
 
-from ..camera_setup import setup_camera
-from ..inference.loo import PARETO_K_MAX, psis_weights
-from ..io.scene import Scene, parse_scene, scene_to_dict
-from ..models.metrology import ground_lengths
-from ..models.params import PARAM_NAMES
-from ..pipeline import build_models, estimate
-from .confidence_data import StatedRange, stated_ranges
+from ...camera_setup import setup_camera
+from ...inference.loo import PARETO_K_MAX, psis_weights
+from ...io.scene import Scene, parse_scene, scene_to_dict
+from ...models.metrology import ground_lengths
+from ...models.params import PARAM_NAMES
+from ...pipeline import build_models, estimate
+from .data import StatedRange, stated_ranges
 
 __all__ = ["N_DRAWS", "RangePrediction", "predict_ranges", "predict_scene_job", "scene_job", "predict_data_set"]
 
@@ -45,7 +45,7 @@ class RangePrediction:
 
     Attributes
     ----------
-    range : the :class:`~.confidence_data.StatedRange`
+    range : the :class:`~creference_bayes.workflows.confidence.data.StatedRange`
     log_length : (N_DRAWS,) equally weighted draws of log ℓ_j given the other annotations
     line_var : σ_line² |∇ log ℓ_j|², the line's own noise in log-length (variance)
     pareto_k : the Pareto shape of its leave-one-out weights
@@ -173,9 +173,9 @@ def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, wor
     """
     from tqdm.auto import tqdm
 
-    from ..io.scene import scene_fingerprint
-    from .batch import derive_seed
-    from .engines import LocalEngine
+    from ...io.scene import scene_fingerprint
+    from ..batch import derive_seed
+    from ..batch.engines import LocalEngine
 
     jobs = [scene_job(k, s, derive_seed(seed, scene_fingerprint(s)), sampling) for k, s in scenes
             if any(r.is_range and r.confidence is not None for r in s.references)]

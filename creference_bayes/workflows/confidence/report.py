@@ -1,6 +1,6 @@
 """How well workers' stated confidences hold up: reliability, interval scores, a per-worker view.
 
-From ranges with a known truth (:mod:`.confidence_data`):
+From ranges with a known truth (:mod:`creference_bayes.workflows.confidence.data`):
 
 - **reliability**: per stated level, the share of ranges that hold their truth (the realised
   coverage), with a 95 % Wilson interval. A calibrated crowd lies on the diagonal; below it,
@@ -23,9 +23,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.stats import binomtest
 
-from ..core.metrics import interval_score
-from ..models.confidence_map import ConfidenceMap, interval_quantile
-from .confidence_fit import assign_levels
+from ...core.metrics import interval_score
+from ...models.confidence_map import ConfidenceMap, interval_quantile
+from .fit import assign_levels
 
 __all__ = ["ReliabilityRow", "ScoreRow", "WorkerRow", "ConfidenceReport", "confidence_report",
            "range_scores", "markdown_report"]
@@ -129,8 +129,8 @@ def confidence_report(ranges, counts: dict, *, cmap: ConfidenceMap | None = None
 
     Parameters
     ----------
-    ranges : :class:`~.confidence_data.StatedRange`
-    counts : what the data set holds (:func:`~.confidence_data.range_counts`), kept in the report
+    ranges : :class:`~creference_bayes.workflows.confidence.data.StatedRange`
+    counts : what the data set holds (:func:`~creference_bayes.workflows.confidence.data.range_counts`), kept in the report
     cmap : a map to recalibrate the ranges with, or None
     min_answers : workers with fewer ranges are not listed
     map_label : how to name the map in the tables

@@ -29,12 +29,12 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
-from .. import __version__
-from ..io.files import atomic_write_json
-from ..io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
-from ..pipeline import DEFAULT_MODEL
-from .batch_files import ERROR_FORMAT, layout, record_error, up_to_date
-from .batch_runner import Runner, one_line, progress_bar, run_scene
+from ... import __version__
+from ...io.files import atomic_write_json
+from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
+from ...pipeline import DEFAULT_MODEL
+from .files import ERROR_FORMAT, layout, record_error, up_to_date
+from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
 __all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
@@ -78,7 +78,7 @@ class BatchSettings:
 
     def _map_identity(self) -> dict:
         """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
-        from ..models.confidence_map import describe_confidence_map, resolve_confidence_map
+        from ...models.confidence_map import describe_confidence_map, resolve_confidence_map
 
         if self.model == "paper":  # the paper model reads no confidence (the pipeline checks the map)
             return {"name": "none"}
@@ -192,7 +192,7 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     -------
     BatchReport; the folder also holds ``summary.csv`` and ``batch.json``
     """
-    from .batch_summary import write_summary
+    from .summary import write_summary
 
     t_start = time.perf_counter()
     out = Path(out)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .advice_iou import iou_3d_pairs
+from .iou import iou_3d_pairs
 
 __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "normalise", "weighted_hdi", "location_sd", "mean_boxes",
            "p_iou", "systematic_resample", "tempered_update"]

@@ -21,12 +21,12 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
-from ..core.geometry import Camera, box_points, box_vertices, horizon_line, rotation_from_pitch_roll
-from ..io.kitti import (KittiObject, kitti_object, project_with, projection_matrix, write_calib_file,
+from ...core.geometry import Camera, box_points, box_vertices, horizon_line, rotation_from_pitch_roll
+from ...io.kitti import (KittiObject, kitti_object, project_with, projection_matrix, write_calib_file,
                         write_label_file, write_sidecar, wrap_pi)
-from ..io.result import RESULT_FORMAT
-from ..io.scene import Scene, SceneError, SceneWarning, load_scene, scene_fingerprint
-from .label_quality import IOU_THRESHOLDS, LabelQuality, box_iou_3d, label_quality
+from ...io.result import RESULT_FORMAT
+from ...io.scene import Scene, SceneError, SceneWarning, load_scene, scene_fingerprint
+from .quality import IOU_THRESHOLDS, LabelQuality, box_iou_3d, label_quality
 
 __all__ = ["SIDECAR_FORMAT", "FRAME", "LabelInput", "ObjectLabel", "LabelExport", "camera_angles",
            "load_batch", "label_image", "export_labels"]

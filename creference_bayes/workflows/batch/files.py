@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .. import __version__
-from ..io.files import atomic_write_json
-from ..io.scene import scene_to_dict
+from ... import __version__
+from ...io.files import atomic_write_json
+from ...io.scene import scene_to_dict
 
 __all__ = ["ERROR_FORMAT", "layout", "up_to_date", "record_error", "record_result"]
 

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.scene import Scene, SceneWarning, load_scene
-from ..models.confidence_map import group_key
-from ..models.metrology import ground_lengths
-from .batch import discover_scenes
+from ...io.scene import Scene, SceneWarning, load_scene
+from ...models.confidence_map import group_key
+from ...models.metrology import ground_lengths
+from ..batch import discover_scenes
 
 __all__ = ["StatedRange", "load_scenes", "true_lengths", "stated_ranges", "range_counts"]
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.files import atomic_path, atomic_write_text
-from .label_quality import IOU_THRESHOLDS, reliability_table
+from ...io.files import atomic_path, atomic_write_text
+from .quality import IOU_THRESHOLDS, reliability_table
 
 __all__ = ["LABEL_COLUMNS", "label_rows", "calibration", "write_report"]
 
@@ -86,7 +86,7 @@ def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou
              "needs_annotation_csv": atomic_write_text(out / "needs_annotation.csv", _csv(low, LABEL_COLUMNS))}
     calib = calibration(export.objects)
     if figure and rows:
-        from ..vision.label_figures import quality_figure
+        from ...vision.label_figures import quality_figure
 
         fig = quality_figure([r[key] for r in rows], min_quality, score_label=score_label, reliability=calib)
         with atomic_path(out / "quality.png") as tmp:

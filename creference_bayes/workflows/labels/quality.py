@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..evaluation.iou3d import SHAPELY_INSTALL_HINT, box_iou_3d, footprints
-from ..evaluation.reliability import reliability_table
+from ...evaluation.iou3d import SHAPELY_INSTALL_HINT, box_iou_3d, footprints
+from ...evaluation.reliability import reliability_table
 
 __all__ = ["SHAPELY_INSTALL_HINT", "IOU_THRESHOLDS", "footprints", "box_iou_3d", "LabelQuality",
            "label_quality", "reliability_table"]

@@ -12,7 +12,7 @@ larger. The shape of the distribution a range is read through (normal or Student
 ``dof``) is the one under which the truths are most likely given g.
 
 **Without ground truth** (:func:`fit_marginal`). Each range j comes with draws of its real length
-given all the other annotations of its scene (:mod:`.confidence_loo`). Its marginal likelihood at
+given all the other annotations of its scene (:mod:`creference_bayes.workflows.confidence.loo`). Its marginal likelihood at
 coverage p is
 
     L_j(p) = mean_d f_D((m_j − log ℓ_jd) / S_j(p)) / S_j(p),   S_j(p)² = (w_j / q_D((1 + p)/2))² + σ²_line,j
@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import isotonic_regression
 from scipy.special import expit, gammaln, logit
 
-from ..models.confidence_map import ConfidenceMap, CoverageCurve, interval_quantile
+from ...models.confidence_map import ConfidenceMap, CoverageCurve, interval_quantile
 
 __all__ = ["DOF_GRID", "MAX_LEVELS", "assign_levels", "fit_with_truth", "fit_marginal"]
 
@@ -130,7 +130,7 @@ def fit_with_truth(ranges, *, draws: int = 1000, seed=0, interval_prob: float = 
 
     Parameters
     ----------
-    ranges : :class:`~.confidence_data.StatedRange` (those without a truth are left out)
+    ranges : :class:`~creference_bayes.workflows.confidence.data.StatedRange` (those without a truth are left out)
     draws : posterior draws of the curve
     seed : seed of the draws
     interval_prob : probability of each level's interval
@@ -234,7 +234,7 @@ def fit_marginal(predictions, *, draws: int = 1000, seed=0, interval_prob: float
 
     Parameters
     ----------
-    predictions : :class:`~.confidence_loo.RangePrediction` of the data set
+    predictions : :class:`~creference_bayes.workflows.confidence.loo.RangePrediction` of the data set
     draws : bootstrap samples over scenes
     seed, interval_prob, min_per_level, min_group, dof_grid : as :func:`fit_with_truth`
 

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.geometry import rotation_from_pitch_roll
-from ..io.kitti import kitti_object, projection_matrix, write_calib_file, write_label_file, write_sidecar
-from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
+from ...core.geometry import rotation_from_pitch_roll
+from ...io.kitti import kitti_object, projection_matrix, write_calib_file, write_label_file, write_sidecar
+from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
 
 __all__ = ["kitti_poses", "frame_label_objects", "write_frame_labels", "SIDECAR_FORMAT"]
 
@@ -57,8 +57,8 @@ def frame_label_objects(frame, result: dict, draws=None, *, score_iou: float = 0
     ``draws`` (a :class:`~creference_bayes.inference.frame_sampler.FrameDraws`) give each label's
     P(IoU ≥ 0.5) and P(IoU ≥ 0.7); the score is P(IoU ≥ ``score_iou``). Without draws the score is
     None and so is the quality."""
-    from ..evaluation.iou3d import overlaps
-    from ..models.frame import CAMERA_NAMES
+    from ...evaluation.iou3d import overlaps
+    from ...models.frame import CAMERA_NAMES
 
     cam = np.array([result["camera"]["map"][k] for k in CAMERA_NAMES], float)
     objs = np.array([[o["map"][k] for k in ("x", "z", "yaw", "length_m", "width_m", "height_m", "ground_m")]

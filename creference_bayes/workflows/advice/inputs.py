@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.result import RESULT_FORMAT
-from ..io.scene import SceneWarning, load_scene, scene_fingerprint
-from ..models.params import PARAM_NAMES
-from .advice import Advice, AdviceSettings, advise_posterior
+from ...io.result import RESULT_FORMAT
+from ...io.scene import SceneWarning, load_scene, scene_fingerprint
+from ...models.params import PARAM_NAMES
+from . import Advice, AdviceSettings, advise_posterior
 
 __all__ = ["ADVICE_MODEL", "advise_scene", "advise_result", "draws_from_result", "scene_for_result",
            "advice_table"]
@@ -30,7 +30,7 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
     -------
     (Advice, Result)
     """
-    from ..pipeline import estimate
+    from ...pipeline import estimate
 
     if estimate_options.get("model", ADVICE_MODEL) != ADVICE_MODEL:
         raise ValueError(f"model: the advice needs the {ADVICE_MODEL} model, got {estimate_options['model']!r}")
@@ -38,7 +38,7 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
     result = estimate(scene, seed=rng, posterior=True, progress=progress, **estimate_options)
     if result.inference_data is None:
         raise ValueError("the posterior could not be sampled: " + "; ".join(result.warnings))
-    from ..inference.summary import draws_from_inference_data
+    from ...inference.summary import draws_from_inference_data
 
     post = draws_from_inference_data(result.inference_data)
     draws = np.column_stack([np.asarray(post[k], float).ravel() for k in PARAM_NAMES])
@@ -127,7 +127,7 @@ def _camera_setup(result: dict, scene):
     """The camera set-up the result's estimate used: its batch settings' ``orientation`` and
     ``focal_prior`` when it has them, else read back from its ``camera`` block; checked against
     that block (a posterior of another set-up would be reweighted with the wrong model)."""
-    from ..camera_setup import setup_camera
+    from ...camera_setup import setup_camera
 
     cam = result.get("camera") or {}
     batch = (result.get("batch") or {}).get("settings") or {}
@@ -153,7 +153,7 @@ def _camera_setup(result: dict, scene):
 def advise_result(result: dict, scene, *, seed=None, settings: AdviceSettings | None = None,
                   progress: bool = False) -> Advice:
     """Advise on a stored result (its ``posterior.draws``) of ``scene``."""
-    from ..pipeline import build_models
+    from ...pipeline import build_models
 
     if result.get("format") != RESULT_FORMAT:
         raise ValueError(f"format: expected {RESULT_FORMAT!r}, got {result.get('format')!r}")

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.cost import project_params
-from ..io.scene import DimensionLine, Reference
-from ..models.metrology import MIN_CAMERA_HEIGHT_M, ground_lengths, t_interval
-from ..pipeline import build_models
+from ...core.cost import project_params
+from ...io.scene import DimensionLine, Reference
+from ...models.metrology import MIN_CAMERA_HEIGHT_M, ground_lengths, t_interval
+from ...pipeline import build_models
 
 __all__ = ["ModelContext", "TargetObservation", "ReferenceObservation", "observation_for"]
 
@@ -122,7 +122,7 @@ class ReferenceObservation:
     ctx : the scene's :class:`ModelContext`
     line : (2, 2) the segment, pixels
     measure, object : what it measures (for the scene with the simulated reference)
-    range_share, range_precision : how it is stated (:class:`~.advice_candidates.FormatMix`)
+    range_share, range_precision : how it is stated (:class:`~creference_bayes.workflows.advice.candidates.FormatMix`)
     seconds : recorded with the simulated reference
     """
 
@@ -209,7 +209,7 @@ class ReferenceObservation:
 
 
 def observation_for(candidate, ctx: ModelContext, mix):
-    """The observation of a :class:`~.advice_candidates.Candidate`, given the scene's format ``mix``."""
+    """The observation of a :class:`~creference_bayes.workflows.advice.candidates.Candidate`, given the scene's format ``mix``."""
     if candidate.kind == "target":
         return TargetObservation(ctx, seconds=candidate.seconds)
     return ReferenceObservation(ctx, candidate.line, measure=candidate.measure, object=candidate.object,

@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from ..io.cvat import LABEL_ATTRIBUTES, cvat_xml
-from ..io.labelstudio import label_studio_task
-from ..io.labelstudio_results import CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE
-from ..io.scene import scene_to_dict
+from ...io.cvat import LABEL_ATTRIBUTES, cvat_xml
+from ...io.labelstudio import label_studio_task
+from ...io.labelstudio_results import CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE
+from ...io.scene import scene_to_dict
 
 __all__ = ["REQUEST_WORKER", "request_fields", "label_studio_requests", "cvat_requests"]
 

@@ -8,7 +8,7 @@ import json
 import math
 from pathlib import Path
 
-from ..io.files import atomic_write_text
+from ...io.files import atomic_write_text
 
 __all__ = ["SUMMARY_COLUMNS", "summary_rows", "write_summary", "summary_line"]
 
