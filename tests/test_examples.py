@@ -31,6 +31,7 @@ TINY = {
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
     "measure_presets.py": [(["--n", "2"], [])],
+    "one_target_frames.py": [(["--per-tier", "1", "--tiers", "low", "--min-ess", "100"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
 }
