@@ -80,8 +80,11 @@ def read_users(path: str | Path) -> dict[str, str]:
 
 def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
                              out_dir: str | Path | None = None, targets: dict | None = None,
-                             users: dict[str, str] | None = None) -> ImportReport:
-    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task.
+                             users: dict[str, str] | None = None, frames: bool = False,
+                             classes: dict | None = None) -> ImportReport:
+    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task: a
+    ``creference-scene/1`` scene for a one-target task, a ``creference-scene/2`` frame for a task
+    that holds several targets (:mod:`.labelstudio_frames`).
 
     Parameters
     ----------
@@ -97,6 +100,11 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     users : dict, optional
         Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
         in ``completed_by`` (or the e-mail, when the export expands the user).
+    frames : bool
+        Import every task as a frame, one-target tasks too.
+    classes : dict, optional
+        Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
+        written into the frames whose size-less targets use them.
 
     Returns
     -------
@@ -112,7 +120,7 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     scenes, errors, notes = [], [], []
     for i, task in enumerate(tasks):
         try:
-            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes)
+            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes, frames, classes)
         except ConversionError as exc:
             errors.append(exc)
             continue
@@ -129,7 +137,8 @@ def _task_name(task: Any, index: int) -> str:
     return f"task at index {index}"
 
 
-def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> TargetScene | None:
+def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=False,
+                classes=None) -> TargetScene | None:
     where = _task_name(task, index)
     if not isinstance(task, dict):
         raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
@@ -147,6 +156,13 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
         notes.append(f"{where}: no annotations yet; skipped")
         return None
     width, height = _image_size(anns, data, where)
+    items_list = [annotation_items(ann, k, width, height, where, users, notes) for k, ann in enumerate(anns)]
+    if data.get("creference_scene") is None and (frames or "targets" in data or any(i.frame for i in items_list)):
+        from .labelstudio_frames import frame_task_scene
+
+        return frame_task_scene(task, index, data, items_list, (width, height), where,
+                                image_path=_image_path(data, image_dir, out_dir, where), table=targets,
+                                classes=classes, notes=notes)
 
     if "target_id" in data:
         tid = data["target_id"]
@@ -163,8 +179,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
     size, table_focal = apply_target_table(tid, dims, targets, where)
 
     lines, refs, horizons, origins = [], [], [], {}
-    for k, ann in enumerate(anns):
-        items = annotation_items(ann, k, width, height, where, users, notes)
+    for items in items_list:
         n = (items.corners is not None) + len(items.references)
         secs = items.lead_time / n if items.lead_time is not None and n else None
         if items.corners is not None:
