@@ -1,10 +1,13 @@
-"""Label Studio ↔ ``creference-scene/1``: the shipped labelling configs and the JSON export → one
-scene per target (docs/import.md is the user's guide); scenes → tasks is in
-:mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
+"""Label Studio ↔ scene files: the shipped labelling configs and the JSON export → one scene per
+task (docs/import.md is the user's guide); scenes → tasks is in :mod:`.labelstudio_export`, one
+annotation's results → items in :mod:`.labelstudio_results`, a frame task in
+:mod:`.labelstudio_frames`.
 
-One task is one target: its ``data`` gives the image and the target's id and size, and each of its
-annotations is one worker's work on that target (a set of dimension lines, reference lines with
-their measurements, optionally the horizon). Several targets on one image are several tasks.
+A one-target task gives a ``creference-scene/1`` scene: its ``data`` gives the image and the
+target's id and size, and each of its annotations is one worker's work on that target (a set of
+dimension lines, reference lines with their measurements, optionally the horizon). A task that
+holds several targets (``data.targets``, or regions that name their target) gives one
+``creference-scene/2`` frame.
 
 Results are matched by their control (``from_name``) and label: keypoints from ``points`` with
 the labels :data:`TARGET_LABELS`, ``reference start`` / ``reference end`` (paired by a relation)
@@ -29,23 +32,31 @@ from .labelstudio_export import label_studio_task, label_studio_tasks
 from .labelstudio_results import TARGET_LABELS, annotation_items
 from .scene import SCENE_FORMAT
 
-__all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "label_studio_config", "read_export", "read_users",
+__all__ = ["TARGET_LABELS", "LINE_TOOLS", "FRAME_TOOLS", "DATA_FIELDS", "FRAME_DATA_FIELDS", "label_studio_config", "read_export", "read_users",
            "scenes_from_label_studio", "label_studio_task", "label_studio_tasks"]
 
 #: The shipped configs, by how reference lines and the horizon are drawn.
 LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
+#: The shipped frame configs (every target of a photo in one task), likewise.
+FRAME_TOOLS = {"keypoints": "label_studio_frame_keypoints.xml", "vectors": "label_studio_frame_vectors.xml"}
 #: Task ``data`` fields read by the importer (``image`` is the one the config displays).
 DATA_FIELDS = ("image", "target_id", "target_length_m", "target_width_m", "target_height_m",
                "image_width", "image_height", "image_path", "focal_length_px", "principal_point",
                "horizon", "ground_truth")
+#: Task ``data`` fields of a frame task (:mod:`.labelstudio_frames`).
+FRAME_DATA_FIELDS = ("image", "targets", "frame_id", "image_width", "image_height", "image_path",
+                     "focal_length_px", "principal_point", "kitti_p2", "horizon", "horizon_sd_px", "classes",
+                     "ground_truth")
 _DIMS = ("target_length_m", "target_width_m", "target_height_m")
 
 
-def label_studio_config(lines: str = "keypoints") -> str:
-    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``."""
-    if lines not in LINE_TOOLS:
-        raise ValueError(f"lines: expected one of {list(LINE_TOOLS)}, got {lines!r}")
-    return (resources.files("creference_bayes") / "data" / LINE_TOOLS[lines]).read_text("utf-8")
+def label_studio_config(lines: str = "keypoints", frame: bool = False) -> str:
+    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``;
+    ``frame`` gives the config for frames (one task per photo, holding all its targets)."""
+    tools = FRAME_TOOLS if frame else LINE_TOOLS
+    if lines not in tools:
+        raise ValueError(f"lines: expected one of {list(tools)}, got {lines!r}")
+    return (resources.files("creference_bayes") / "data" / tools[lines]).read_text("utf-8")
 
 
 def read_export(path: str | Path) -> Any:
