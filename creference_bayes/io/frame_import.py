@@ -12,7 +12,7 @@ import math
 import warnings
 from typing import Any, Iterable
 
-from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior
+from ..models.size_priors import SIZE_KEYS, SizePrior
 from .annotation_tools import ConversionError
 from .frame_scene import frame_to_dict, parse_frame
 from .scene import scene_differences
@@ -98,8 +98,3 @@ def frame_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = 
 
     return scene_differences(a, b, atol=atol, drop=drop, normalise=normalise)
 
-
-def known_class(cls: str | None, own: Any, extra: dict | None) -> bool:
-    """Whether a class has a size prior: the frame's own classes, a ``--classes`` file, KITTI's."""
-    return cls is not None and (cls in (own if isinstance(own, dict) else {}) or cls in (extra or {})
-                                or cls in KITTI_SIZE_PRIORS)
