@@ -6,7 +6,6 @@ import copy
 import json
 import xml.etree.ElementTree as ET
 
-import numpy as np
 import pytest
 
 from creference_bayes.bench.frame_simulate import simulate_frame
