@@ -1,5 +1,6 @@
 """``creference import label-studio …`` and ``creference import cvat …``: annotation-tool exports →
-one ``creference-scene/1`` file per target (docs/import.md).
+one ``creference-scene/1`` file per target, or one ``creference-scene/2`` frame per task / image
+that holds several targets (docs/import.md).
 
 A task (Label Studio) or image/target (CVAT) that cannot be converted is reported on standard
 error with the task or image and the region, and skipped; the others are written, each file
@@ -24,13 +25,15 @@ MAX_XML_BYTES = 1 << 30
 def register(subparsers) -> None:
     p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files",
                               description="Convert the annotations of a Label Studio or CVAT project "
-                                          "to creference-scene/1 files, one per target.")
+                                          "to scene files: creference-scene/1, one per target, or "
+                                          "creference-scene/2 frames, one per photo holding all its targets.")
     sub = p.add_subparsers(dest="tool", required=True, metavar="TOOL",
                            help="the annotation tool the export comes from: label-studio or cvat")
 
     ls = sub.add_parser("label-studio", help="a Label Studio JSON export → one scene per task",
                         description="Convert a Label Studio JSON export (tasks with annotations) to "
-                                    "creference-scene/1 files, one per task (= target).")
+                                    "scene files, one per task: creference-scene/1 for a one-target task, "
+                                    "creference-scene/2 for a task holding several targets (a frame).")
     ls.add_argument("export", nargs="?", metavar="EXPORT.json", help="the JSON export")
     ls.add_argument("--print-config", action="store_true",
                     help="print the labelling config for a new project and exit")
@@ -38,6 +41,8 @@ def register(subparsers) -> None:
                     help="with --print-config: draw reference lines and the horizon as two keypoints "
                          "(every version; default) or as vectors (recent versions with <VectorLabels>, "
                          "checked with 1.23.2)")
+    ls.add_argument("--frame", action="store_true",
+                    help="with --print-config: the config for frames (one task per photo, every target in it)")
     ls.add_argument("--users", metavar="USERS.json",
                     help="name workers by the users in this file (the JSON of GET /api/users) "
                          "instead of by user id")
@@ -46,7 +51,8 @@ def register(subparsers) -> None:
 
     cv = sub.add_parser("cvat", help="a CVAT for images 1.1 export → one scene per target",
                         description="Convert a CVAT for images 1.1 export (annotations.xml, or the "
-                                    "ZIP holding it) to creference-scene/1 files, one per target.")
+                                    "ZIP holding it) to creference-scene/1 files, one per target, or "
+                                    "creference-scene/2 frames, one per image whose targets have a class.")
     cv.add_argument("export", nargs="?", metavar="annotations.xml", help="the XML file or the ZIP")
     cv.add_argument("--print-labels", action="store_true",
                     help="print the label specification (for CVAT's Raw label editor) and exit")
@@ -61,6 +67,12 @@ def _common(p) -> None:
     p.add_argument("--targets", metavar="TARGETS.csv",
                    help="known target sizes: CSV with target_id,length_m,width_m,height_m "
                         "[,focal_length_px], for targets the export gives no size")
+    p.add_argument("--frames", action="store_true",
+                   help="import every task / image as a creference-scene/2 frame, also those with one "
+                        "target or without classes")
+    p.add_argument("--classes", metavar="CLASSES.json",
+                   help="frames: size priors of your own classes (docs/frames.md), written into the "
+                        "frames whose targets use them")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -74,9 +86,15 @@ def _prepare(args):
     if args.image_dir is not None and not Path(args.image_dir).is_dir():
         raise UsageError(f"--image-dir: {args.image_dir!r} is not a folder")
     try:
-        return load_target_table(args.targets) if args.targets else None
+        table = load_target_table(args.targets) if args.targets else None
     except ConversionError as exc:
         raise UsageError(f"--targets: {exc}") from None
+    classes = None
+    if args.classes:
+        from .frame import _load_classes
+
+        classes = _load_classes(args.classes)
+    return table, classes
 
 
 def _run_label_studio(args) -> int:
@@ -84,13 +102,14 @@ def _run_label_studio(args) -> int:
     from ..io.labelstudio import label_studio_config, read_export, read_users, scenes_from_label_studio
 
     if args.print_config:
-        sys.stdout.write(label_studio_config(args.lines))
+        sys.stdout.write(label_studio_config(args.lines, frame=args.frame))
         return 0
-    targets = _prepare(args)
+    targets, classes = _prepare(args)
     try:
         users = read_users(args.users) if args.users else None
         report = scenes_from_label_studio(read_export(args.export), image_dir=args.image_dir,
-                                          out_dir=args.out, targets=targets, users=users)
+                                          out_dir=args.out, targets=targets, users=users,
+                                          frames=args.frames, classes=classes)
     except ConversionError as exc:
         raise UsageError(str(exc)) from None
     return _finish(report, args)
@@ -122,10 +141,10 @@ def _run_cvat(args) -> int:
     if args.print_labels:
         print(json.dumps(cvat_label_spec(), indent=2))
         return 0
-    targets = _prepare(args)
+    targets, classes = _prepare(args)
     try:
         report = scenes_from_cvat(_read_cvat(args.export), image_dir=args.image_dir,
-                                  out_dir=args.out, targets=targets)
+                                  out_dir=args.out, targets=targets, frames=args.frames, classes=classes)
     except ConversionError as exc:
         raise UsageError(str(exc)) from None
     return _finish(report, args)

@@ -36,11 +36,11 @@ __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_
 TARGET, REFERENCE, HORIZON = "target", "reference", "horizon"
 #: Attributes of each label, in the order they are written.
 LABEL_ATTRIBUTES = {
-    TARGET: ("target_id", "length_m", "width_m", "height_m", "worker"),
+    TARGET: ("target_id", "class", "length_m", "width_m", "height_m", "worker"),
     REFERENCE: ("target_id",) + REFERENCE_FIELDS + ("worker",),
     HORIZON: ("worker",),
 }
-_SELECTS = ("measure", "mode", "unit")
+_SELECTS = ("class", "measure", "mode", "unit")
 _N_POINTS = {TARGET: 4, REFERENCE: 2, HORIZON: 2}
 _DTD = re.compile(rb"<!\s*(DOCTYPE|ENTITY)", re.IGNORECASE)
 
@@ -75,8 +75,10 @@ def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
 
 
 def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
-                     out_dir: str | Path | None = None, targets: dict | None = None) -> ImportReport:
-    """Convert a parsed CVAT for images 1.1 document to one scene per target.
+                     out_dir: str | Path | None = None, targets: dict | None = None,
+                     frames: bool = False, classes: dict | None = None) -> ImportReport:
+    """Convert a parsed CVAT for images 1.1 document to one scene per target, or one
+    ``creference-scene/2`` frame per image whose targets carry a ``class`` (:mod:`.cvat_frames`).
 
     Parameters
     ----------
@@ -88,6 +90,11 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
         The folder the scenes will be written to; image paths are made relative to it.
     targets : dict, optional
         Known sizes by target id (:func:`~.annotation_tools.load_target_table`).
+    frames : bool
+        Import every image as a frame, also those whose targets carry no ``class``.
+    classes : dict, optional
+        Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
+        written into the frames whose size-less targets use them.
 
     Returns
     -------
@@ -103,7 +110,7 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
         notes.append("<track> elements ignored (export the task as 'CVAT for images', not video)")
     scenes, errors = [], []
     for i, image in enumerate(root.findall("image")):
-        found, errs = _image_scenes(image, i, image_dir, out_dir, targets, notes)
+        found, errs = _image_scenes(image, i, image_dir, out_dir, targets, notes, frames, classes)
         scenes += found
         errors += errs
     kept, clashes = unique_names(scenes)
@@ -159,7 +166,7 @@ def _shape(el: ET.Element, k: int, where: str) -> _Shape:
     return _Shape(swhere, desc, pts, attrs)
 
 
-def _image_scenes(image, i, image_dir, out_dir, targets, notes):
+def _image_scenes(image, i, image_dir, out_dir, targets, notes, frames=False, classes=None):
     name = image.get("name") or f"#{image.get('id', i)}"
     where = f"image {name!r}"
     try:
@@ -179,6 +186,11 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes):
                 raise ConversionError(where, "references or a horizon but no target shape")
             notes.append(f"{where}: no target annotated; skipped")
             return [], []
+        if frames or any(s.attrs.get("class") for s in shapes[TARGET]):
+            from .cvat_frames import frame_image_scene
+
+            return [frame_image_scene(image, i, name, width, height, shapes, image_dir, out_dir, targets,
+                                      classes)], []
         groups: dict[str, list] = {}
         for s in shapes[TARGET]:
             groups.setdefault(s.attrs.get("target_id", ""), []).append(s)
@@ -228,7 +240,9 @@ def _belongs(shape: _Shape, key: str, groups: dict) -> bool:
     return True  # a direct reference without target_id: shared by every target of the image
 
 
-def _target_scene(tid, tshapes, refs, horizon, width, height, where, targets) -> dict:
+def _shape_dims(tshapes) -> dict[str, float] | None:
+    """A target's size (m) from its shapes' ``length_m``/``width_m``/``height_m`` attributes (all
+    three or none; shapes that give them must agree), or None."""
     dims = None
     for shape in tshapes:
         swhere, attrs = shape.where, shape.attrs
@@ -242,7 +256,11 @@ def _target_scene(tid, tshapes, refs, horizon, width, height, where, targets) ->
         if dims is not None and any(not math.isclose(dims[k], these[k], rel_tol=1e-9) for k in dims):
             raise ConversionError(swhere, f"target size {these} differs from {dims} on another shape")
         dims = these
-    size, focal = apply_target_table(tid, dims, targets, where)
+    return dims
+
+
+def _target_scene(tid, tshapes, refs, horizon, width, height, where, targets) -> dict:
+    size, focal = apply_target_table(tid, _shape_dims(tshapes), targets, where)
     lines = []
     for shape in tshapes:
         line = {"corners": shape.pts}
@@ -304,20 +322,30 @@ def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
 def cvat_xml(scenes, *, image_names=None) -> str:
     """CVAT for images 1.1 XML (text) holding the scenes' annotations.
 
-    Scenes on the same image name share one ``<image>``; their horizons must agree. The image
-    name is ``image_names[i]``, else the file name of ``image.path``, else ``<target id>.jpg``.
+    Scenes on the same image name share one ``<image>``; their horizons must agree. A
+    ``creference-scene/2`` frame has its image to itself (every target with its ``class``). The
+    image name is ``image_names[i]``, else the file name of ``image.path``, else
+    ``<(first) target id>.jpg``.
     Coordinates are written with two decimals, as CVAT writes them. Not representable in CVAT and
-    therefore left out: ``seconds``, the camera, the ground truth.
+    therefore left out: ``seconds``, the camera, the ground truth, a frame's own ``classes``.
     """
-    scenes = [scene_to_dict(parse_scene(s) if isinstance(s, dict) else s) for s in scenes]
+    from .frame_import import is_frame
+    from .frame_scene import frame_to_dict, parse_frame
+
+    scenes = [(frame_to_dict(parse_frame(s) if isinstance(s, dict) else s) if is_frame(s) else
+               scene_to_dict(parse_scene(s) if isinstance(s, dict) else s)) for s in scenes]
     names = list(image_names) if image_names is not None else [None] * len(scenes)
     if len(names) != len(scenes):
         raise ValueError(f"image_names: expected {len(scenes)} names, got {len(names)}")
     images: dict[str, list] = {}
     for d, name in zip(scenes, names):
+        first = d["targets"][0]["id"] if "targets" in d else d["target"]["id"]
         name = name or (PurePosixPath(d["image"]["path"]).name if d["image"].get("path")
-                        else f"{safe_name(d['target']['id'])}.jpg")
+                        else f"{safe_name(first)}.jpg")
         images.setdefault(name, []).append(d)
+        if len(images[name]) > 1 and any("targets" in x for x in images[name]):
+            raise ValueError(f"image {name!r}: a frame holds every target of its image; it cannot share "
+                             "the image with another scene")
     root = ET.Element("annotations")
     ET.SubElement(root, "version").text = "1.1"
     root.append(_meta(len(images)))
@@ -327,6 +355,11 @@ def cvat_xml(scenes, *, image_names=None) -> str:
         if any((d["image"]["width"], d["image"]["height"]) != (w, h) for d in group) or len(horizons) > 1:
             raise ValueError(f"scenes on image {name!r} disagree on its size or horizon")
         img = ET.SubElement(root, "image", {"id": str(i), "name": name, "width": str(w), "height": str(h)})
+        if "targets" in group[0]:
+            from .cvat_frames import frame_image_shapes
+
+            frame_image_shapes(img, group[0])
+            continue
         for d in group:
             t = d["target"]
             size = {f"{k}_m": float(v) for k, v in t["dimensions_m"].items()}

@@ -1,10 +1,13 @@
-"""Label Studio ↔ ``creference-scene/1``: the shipped labelling configs and the JSON export → one
-scene per target (docs/import.md is the user's guide); scenes → tasks is in
-:mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
+"""Label Studio ↔ scene files: the shipped labelling configs and the JSON export → one scene per
+task (docs/import.md is the user's guide); scenes → tasks is in :mod:`.labelstudio_export`, one
+annotation's results → items in :mod:`.labelstudio_results`, a frame task in
+:mod:`.labelstudio_frames`.
 
-One task is one target: its ``data`` gives the image and the target's id and size, and each of its
-annotations is one worker's work on that target (a set of dimension lines, reference lines with
-their measurements, optionally the horizon). Several targets on one image are several tasks.
+A one-target task gives a ``creference-scene/1`` scene: its ``data`` gives the image and the
+target's id and size, and each of its annotations is one worker's work on that target (a set of
+dimension lines, reference lines with their measurements, optionally the horizon). A task that
+holds several targets (``data.targets``, or regions that name their target) gives one
+``creference-scene/2`` frame.
 
 Results are matched by their control (``from_name``) and label: keypoints from ``points`` with
 the labels :data:`TARGET_LABELS`, ``reference start`` / ``reference end`` (paired by a relation)
@@ -29,23 +32,31 @@ from .labelstudio_export import label_studio_task, label_studio_tasks
 from .labelstudio_results import TARGET_LABELS, annotation_items
 from .scene import SCENE_FORMAT
 
-__all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "label_studio_config", "read_export", "read_users",
+__all__ = ["TARGET_LABELS", "LINE_TOOLS", "FRAME_TOOLS", "DATA_FIELDS", "FRAME_DATA_FIELDS", "label_studio_config", "read_export", "read_users",
            "scenes_from_label_studio", "label_studio_task", "label_studio_tasks"]
 
 #: The shipped configs, by how reference lines and the horizon are drawn.
 LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
+#: The shipped frame configs (every target of a photo in one task), likewise.
+FRAME_TOOLS = {"keypoints": "label_studio_frame_keypoints.xml", "vectors": "label_studio_frame_vectors.xml"}
 #: Task ``data`` fields read by the importer (``image`` is the one the config displays).
 DATA_FIELDS = ("image", "target_id", "target_length_m", "target_width_m", "target_height_m",
                "image_width", "image_height", "image_path", "focal_length_px", "principal_point",
                "horizon", "ground_truth")
+#: Task ``data`` fields of a frame task (:mod:`.labelstudio_frames`).
+FRAME_DATA_FIELDS = ("image", "targets", "frame_id", "image_width", "image_height", "image_path",
+                     "focal_length_px", "principal_point", "kitti_p2", "horizon", "horizon_sd_px", "classes",
+                     "ground_truth")
 _DIMS = ("target_length_m", "target_width_m", "target_height_m")
 
 
-def label_studio_config(lines: str = "keypoints") -> str:
-    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``."""
-    if lines not in LINE_TOOLS:
-        raise ValueError(f"lines: expected one of {list(LINE_TOOLS)}, got {lines!r}")
-    return (resources.files("creference_bayes") / "data" / LINE_TOOLS[lines]).read_text("utf-8")
+def label_studio_config(lines: str = "keypoints", frame: bool = False) -> str:
+    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``;
+    ``frame`` gives the config for frames (one task per photo, holding all its targets)."""
+    tools = FRAME_TOOLS if frame else LINE_TOOLS
+    if lines not in tools:
+        raise ValueError(f"lines: expected one of {list(tools)}, got {lines!r}")
+    return (resources.files("creference_bayes") / "data" / tools[lines]).read_text("utf-8")
 
 
 def read_export(path: str | Path) -> Any:
@@ -80,8 +91,11 @@ def read_users(path: str | Path) -> dict[str, str]:
 
 def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
                              out_dir: str | Path | None = None, targets: dict | None = None,
-                             users: dict[str, str] | None = None) -> ImportReport:
-    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task.
+                             users: dict[str, str] | None = None, frames: bool = False,
+                             classes: dict | None = None) -> ImportReport:
+    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task: a
+    ``creference-scene/1`` scene for a one-target task, a ``creference-scene/2`` frame for a task
+    that holds several targets (:mod:`.labelstudio_frames`).
 
     Parameters
     ----------
@@ -97,6 +111,11 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     users : dict, optional
         Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
         in ``completed_by`` (or the e-mail, when the export expands the user).
+    frames : bool
+        Import every task as a frame, one-target tasks too.
+    classes : dict, optional
+        Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
+        written into the frames whose size-less targets use them.
 
     Returns
     -------
@@ -112,7 +131,7 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     scenes, errors, notes = [], [], []
     for i, task in enumerate(tasks):
         try:
-            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes)
+            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes, frames, classes)
         except ConversionError as exc:
             errors.append(exc)
             continue
@@ -129,7 +148,8 @@ def _task_name(task: Any, index: int) -> str:
     return f"task at index {index}"
 
 
-def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> TargetScene | None:
+def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=False,
+                classes=None) -> TargetScene | None:
     where = _task_name(task, index)
     if not isinstance(task, dict):
         raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
@@ -147,6 +167,13 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
         notes.append(f"{where}: no annotations yet; skipped")
         return None
     width, height = _image_size(anns, data, where)
+    items_list = [annotation_items(ann, k, width, height, where, users, notes) for k, ann in enumerate(anns)]
+    if data.get("creference_scene") is None and (frames or "targets" in data or any(i.frame for i in items_list)):
+        from .labelstudio_frames import frame_task_scene
+
+        return frame_task_scene(task, index, data, items_list, (width, height), where,
+                                image_path=_image_path(data, image_dir, out_dir, where), table=targets,
+                                classes=classes, notes=notes)
 
     if "target_id" in data:
         tid = data["target_id"]
@@ -163,8 +190,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes) -> Targe
     size, table_focal = apply_target_table(tid, dims, targets, where)
 
     lines, refs, horizons, origins = [], [], [], {}
-    for k, ann in enumerate(anns):
-        items = annotation_items(ann, k, width, height, where, users, notes)
+    for items in items_list:
         n = (items.corners is not None) + len(items.references)
         secs = items.lead_time / n if items.lead_time is not None and n else None
         if items.corners is not None:

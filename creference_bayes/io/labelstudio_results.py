@@ -1,10 +1,13 @@
-"""One Label Studio annotation's ``result`` list → what it contributes to a scene: the target's four
-corners, the reference lines with their per-region fields, the horizon lines (pixels).
+"""One Label Studio annotation's ``result`` list → what it contributes to a scene: the targets'
+four corners, the reference lines with their per-region fields, the horizon lines (pixels).
 
-Regions are keypoints (``keypointlabels``) or two-point vectors (``vectorlabels``); a per-region
-control's result has the region's id; keypoint reference lines are paired by relations
-(``from_id`` → ``to_id``). Nothing in the list is trusted: every problem raises a
-:class:`~.annotation_tools.ConversionError` naming the task and the region.
+Regions are keypoints (``keypointlabels``) or vectors (``vectorlabels``: two-point reference and
+horizon lines, four-point ``target`` lines t1..t4 in the frame config); a per-region control's
+result has the region's id; keypoint reference lines are paired by relations (``from_id`` →
+``to_id``). In a frame (several targets), a target's regions name it with the per-region
+``target`` field and may give its ``class`` (:data:`FRAME_FIELDS`). Nothing in the list is
+trusted: every problem raises a :class:`~.annotation_tools.ConversionError` naming the task and
+the region.
 """
 
 from __future__ import annotations
@@ -13,15 +16,20 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from .annotation_tools import REFERENCE_FIELDS, ConversionError, number_field
+from .annotation_tools import REFERENCE_FIELDS, ConversionError, _text, number_field
 
-__all__ = ["TARGET_LABELS", "REF_START", "REF_END", "REFERENCE", "HORIZON", "POINTS", "LINES", "IMAGE",
-           "CONTROL_VALUE", "AnnotationItems", "annotation_items"]
+__all__ = ["TARGET_LABELS", "REF_START", "REF_END", "REFERENCE", "HORIZON", "TARGET", "POINTS", "LINES",
+           "TARGET_LINES", "IMAGE", "CONTROL_VALUE", "FRAME_FIELDS", "Drawing", "AnnotationItems",
+           "annotation_items"]
 
 #: Keypoint labels of the target's corners t1..t4, in order.
 TARGET_LABELS = ("t1 bottom corner", "t2 end of length", "t3 end of width", "t4 top of height")
 REF_START, REF_END, REFERENCE, HORIZON = "reference start", "reference end", "reference", "horizon"
-POINTS, LINES, IMAGE = "points", "lines", "image"
+#: The label of a four-point target vector (t1, t2, t3, t4 in drawing order; frame config).
+TARGET = "target"
+POINTS, LINES, TARGET_LINES, IMAGE = "points", "lines", "targets", "image"
+#: Per-region fields that tie a region to a target of a frame: its id, and its class.
+FRAME_FIELDS = ("target", "class")
 #: The key holding a per-region control's value, by result type.
 CONTROL_VALUE = {"number": "number", "choices": "choices", "textarea": "text"}
 
@@ -33,11 +41,23 @@ class _Region:
     points: list         # [[u, v], ...] pixels
 
 
+@dataclass(frozen=True)
+class Drawing:
+    """One target drawn in one annotation: the region that names it (for messages), the target
+    it names and its class (None when not given), its corners t1..t4 (pixels)."""
+
+    region: str
+    target: str | None
+    cls: str | None
+    corners: list
+
+
 @dataclass
 class AnnotationItems:
     """What one annotation contributes: ``corners`` t1..t4 as a (4, 2) list in pixels (None when
-    it does not draw the target), ``references`` as (region id, fields, [[u, v], [u, v]]),
-    ``horizons`` as two-point lines; ``lead_time`` in seconds; ``name`` for messages."""
+    it does not draw a target; the first of ``drawings`` when it draws several), ``drawings``
+    every target it draws, ``references`` as (region id, fields, [[u, v], [u, v]]), ``horizons``
+    as two-point lines; ``lead_time`` in seconds; ``name`` for messages."""
 
     name: str
     worker: str | None
@@ -45,6 +65,9 @@ class AnnotationItems:
     corners: list | None = None
     references: list = field(default_factory=list)   # (region id, fields, line)
     horizons: list = field(default_factory=list)
+    drawings: list = field(default_factory=list)     # Drawing
+    #: Whether a region names a target or a class, or draws a target line: a frame's annotation.
+    frame: bool = False
 
 
 def _worker(completed_by: Any, users: dict[str, str]) -> str | None:
@@ -138,7 +161,7 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
                                        [_pixel(v, width, height, rwhere) for v in _vertices(value, rwhere)])
         elif typ in CONTROL_VALUE:
             name = r.get("from_name")
-            if name not in REFERENCE_FIELDS:
+            if name not in REFERENCE_FIELDS and name not in FRAME_FIELDS:
                 notes.append(f"{rwhere}: {typ} '{name}' is not a field the importer knows; ignored")
                 continue
             if name in controls.setdefault(rid, {}):
@@ -151,22 +174,23 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
 
 
 def _roles(regions, controls, relations, items: AnnotationItems, where: str, awhere: str) -> None:
-    corners: dict[int, str] = {}
+    corner_points: list[tuple[str, int]] = []
+    target_lines: list[str] = []
     starts, ends, hpoints = [], [], []
     for rid, reg in regions.items():
         rwhere = f"{awhere}, region {rid!r}"
         if reg.kind == "keypoint":
             if reg.label in TARGET_LABELS:
-                i = TARGET_LABELS.index(reg.label)
-                if i in corners:
-                    raise ConversionError(awhere, f"two points labelled {reg.label!r} (regions "
-                                                  f"{corners[i]!r} and {rid!r}); an annotation draws the "
-                                                  "target once")
-                corners[i] = rid
+                corner_points.append((rid, TARGET_LABELS.index(reg.label)))
             elif reg.label in (REF_START, REF_END, HORIZON):
                 {REF_START: starts, REF_END: ends, HORIZON: hpoints}[reg.label].append(rid)
             else:
                 raise ConversionError(rwhere, f"unknown keypoint label {reg.label!r}")
+        elif reg.label == TARGET:
+            if len(reg.points) != 4:
+                raise ConversionError(rwhere, f"target line has {len(reg.points)} points, expected 4 "
+                                              "(t1, t2, t3, t4 in this order)")
+            target_lines.append(rid)
         else:
             if reg.label not in (REFERENCE, HORIZON):
                 raise ConversionError(rwhere, f"unknown line label {reg.label!r} (expected "
@@ -177,12 +201,7 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
                 items.horizons.append(reg.points)
             else:
                 items.references.append((rid, controls.get(rid, {}), reg.points))
-    if corners:
-        missing = [TARGET_LABELS[i] for i in range(4) if i not in corners]
-        if missing:
-            raise ConversionError(awhere, f"target corner(s) {missing} missing (the dimension lines "
-                                          "need all four points)")
-        items.corners = [regions[corners[i]].points[0] for i in range(4)]
+    _drawings(regions, controls, corner_points, target_lines, items, awhere)
     if hpoints:
         if len(hpoints) != 2:
             raise ConversionError(awhere, f"{len(hpoints)} points labelled 'horizon', expected 2")
@@ -195,14 +214,84 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
                                       f"{fields_[key]!r} on its reference start {start!r}")
             fields_[key] = val
         items.references.append((start, fields_, [regions[start].points[0], regions[end].points[0]]))
-    used = set(starts) | set(ends) | {r for r, g in regions.items() if g.label == REFERENCE}
+    refs = set(starts) | set(ends) | {r for r, g in regions.items() if g.label == REFERENCE}
+    drawn = {r for r, _ in corner_points} | set(target_lines)
     for rid in controls:
         if rid not in regions:
             raise ConversionError(f"{awhere}, region {rid!r}", f"reference fields {sorted(controls[rid])} "
                                   "belong to no region of this annotation")
-        if rid not in used and controls[rid]:
-            raise ConversionError(f"{awhere}, region {rid!r}", f"a {regions[rid].label!r} point carries "
-                                  f"reference fields {sorted(controls[rid])}")
+        rwhere, label = f"{awhere}, region {rid!r}", regions[rid].label
+        if rid in drawn:
+            bad = sorted(k for k in controls[rid] if k not in FRAME_FIELDS)
+            if bad:
+                kind = "line" if regions[rid].kind == "vector" else "point"
+                raise ConversionError(rwhere, f"a {label!r} {kind} carries reference fields {bad}")
+        elif rid in refs:
+            if _field(controls[rid], "class", rwhere) is not None:
+                raise ConversionError(rwhere, "a reference carries a 'class' (a class belongs to a target)")
+            items.frame |= _field(controls[rid], "target", rwhere) is not None
+        elif controls[rid]:
+            raise ConversionError(rwhere, f"a {label!r} point carries reference fields {sorted(controls[rid])}")
+
+
+def _field(fields: dict, name: str, where: str) -> str | None:
+    return _text(fields.get(name), where, name)
+
+
+def _drawings(regions, controls, corner_points, target_lines, items: AnnotationItems, awhere: str) -> None:
+    """Group the corner points by the target they name (module docstring) and add every target
+    drawn (points or a target line) to ``items.drawings``."""
+    def name_of(rid):
+        return _field(controls.get(rid, {}), "target", f"{awhere}, region {rid!r}")
+
+    named = list(dict.fromkeys(n for n in (name_of(r) for r, _ in corner_points) if n is not None))
+    groups: dict[str | None, dict[int, str]] = {}
+    for rid, i in corner_points:
+        name = name_of(rid)
+        if name is None and named:
+            if len(named) > 1:
+                raise ConversionError(f"{awhere}, region {rid!r}", f"a {TARGET_LABELS[i]!r} point names no "
+                                      f"target, and this annotation draws several ({named}); give it its target")
+            name = named[0]
+        group = groups.setdefault(name, {})
+        if i in group:
+            which = "the target once" if name is None else f"each target once (target {name!r})"
+            raise ConversionError(awhere, f"two points labelled {TARGET_LABELS[i]!r} (regions {group[i]!r} "
+                                          f"and {rid!r}); an annotation draws {which}")
+        group[i] = rid
+    for name, group in groups.items():
+        missing = [TARGET_LABELS[i] for i in range(4) if i not in group]
+        if missing:
+            of = "" if name is None else f" of target {name!r}"
+            raise ConversionError(awhere, f"target corner(s) {missing}{of} missing (the dimension lines "
+                                          "need all four points)")
+        rids = [group[i] for i in range(4)]
+        items.drawings.append(Drawing(f"region {rids[0]!r}", name, _class_of(rids, controls, awhere),
+                                      [regions[r].points[0] for r in rids]))
+    for rid in target_lines:
+        name = name_of(rid)
+        if name is not None and name in groups:
+            raise ConversionError(f"{awhere}, region {rid!r}", f"target {name!r} is drawn twice in this "
+                                                               "annotation")
+        items.drawings.append(Drawing(f"region {rid!r}", name, _class_of([rid], controls, awhere),
+                                      [list(p) for p in regions[rid].points]))
+    items.frame |= bool(target_lines) or any(d.target is not None or d.cls is not None for d in items.drawings)
+    if items.drawings:
+        items.corners = items.drawings[0].corners
+
+
+def _class_of(rids, controls, awhere) -> str | None:
+    """The class the regions of one drawn target give (they must agree), or None."""
+    found: dict[str, str] = {}
+    for rid in rids:
+        cls = _field(controls.get(rid, {}), "class", f"{awhere}, region {rid!r}")
+        if cls is not None:
+            found.setdefault(cls, rid)
+    if len(found) > 1:
+        (a, ra), (b, rb) = list(found.items())[:2]
+        raise ConversionError(f"{awhere}, region {rb!r}", f"class {b!r} here but {a!r} on region {ra!r} "
+                                                          "of the same target")
+    return next(iter(found), None)
 
 
 def _pairs(starts, ends, relations, regions, where, awhere):

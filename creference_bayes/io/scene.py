@@ -578,21 +578,26 @@ def scene_fingerprint(scene: Scene) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:
+def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = (),
+                      normalise=None) -> list[str]:
     """Where two scenes differ, one line each (an empty list: the same scene).
 
     Both are normalised first (``parse_scene`` then ``scene_to_dict``, warnings silenced), so
     spelling that the format allows either way (defaults, units, key order) does not count.
     Numbers are compared to ``atol`` (pixels or metres, as the key has them) plus 1e-12 relative;
     keys named in ``drop`` (e.g. ``"seconds"``, ``"ground_truth"``) are removed at every depth.
-    Used for round trips through annotation tools.
+    Used for round trips through annotation tools. ``normalise`` (a scene dict → its canonical
+    dict) replaces the version-1 normalisation (frames: ``frame_import.frame_differences``).
     """
     drop = set(drop)
 
     def norm(d):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
+            if normalise is not None:
+                d = normalise(d)
+            else:
+                d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
 
         def strip(x):
             if isinstance(x, dict):
