@@ -56,5 +56,5 @@ def record_result(paths: dict, si, scene, result: dict, seed: int, settings: dic
     result["batch"] = {"key": si.key, "source": str(si.path.resolve()),
                        "scene_copy": f"scenes/{si.key}.json",
                        "seed": seed, "settings": settings, "creference_version": __version__}
-    atomic_write_json(paths["result"], result)
+    atomic_write_json(paths["result"], result, inline_numbers="draws" in result)
     paths["error"].unlink(missing_ok=True)
