@@ -221,3 +221,14 @@ def test_the_kitti_path_on_the_command_line(tmp_path):
     assert (tmp_path / "labels" / "report.md").is_file() and (tmp_path / "labels" / "quality.png").is_file()
     out = run("evaluate", "kitti", kitti / "label_2", tmp_path / "labels" / "label_2")
     assert "AP R40" in out and "Car         0.7  3D" in out
+
+
+def test_load_batch_leaves_frames_to_callers_that_take_them(batch):
+    """creference advise reads a batch with load_batch and takes one-target results only."""
+    from creference_bayes.workflows.labels import LabelInput, load_batch
+
+    inputs, skipped = load_batch(batch["out"])
+    assert [i.key for i in inputs] == ["single/scene_0000"] and isinstance(inputs[0], LabelInput)
+    assert sorted(s["key"] for s in skipped) == FRAMES and "a frame" in skipped[0]["reason"]
+    inputs, skipped = load_batch(batch["out"], frames=True)
+    assert len(inputs) == 4 and not skipped

@@ -84,10 +84,10 @@ def _image_group(key: str, result: dict, copy: dict) -> tuple[str, str]:
     return f"image:{Path(path).resolve(strict=False)}", PurePath(image).stem
 
 
-def load_batch(batch_dir: str | Path) -> tuple[list, list[dict]]:
-    """The batch's results that can be labelled (a :class:`LabelInput` per one-target scene, a
-    :class:`~.frame_batch.FrameLabelInput` per frame), and the others with the reason (``key``,
-    ``reason``)."""
+def load_batch(batch_dir: str | Path, frames: bool = False) -> tuple[list, list[dict]]:
+    """The batch's results that can be labelled (a :class:`LabelInput` per one-target scene and,
+    with ``frames``, a :class:`~.frame_batch.FrameLabelInput` per frame), and the others with the
+    reason (``key``, ``reason``; without ``frames``, a frame's is that it is a frame)."""
     from .frame_batch import FrameLabelInput
 
     batch_dir = Path(batch_dir)
@@ -103,6 +103,9 @@ def load_batch(batch_dir: str | Path) -> tuple[list, list[dict]]:
             if result.get("format") not in (RESULT_FORMAT, FRAME_RESULT_FORMAT) or "batch" not in result:
                 raise ValueError("not a result of creference batch")
             is_frame = result["format"] == FRAME_RESULT_FORMAT
+            if is_frame and not frames:
+                skipped.append({"key": key, "reason": "a frame (creference-result/2): not taken here yet"})
+                continue
             copy_path = batch_dir / result["batch"]["scene_copy"]
             copy = json.loads(copy_path.read_text())
             with warnings.catch_warnings():
@@ -282,7 +285,7 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         raise ValueError(f"draws: expected an integer >= 1, got {n_draws!r}")
     from .frame_batch import FrameLabelInput, label_frame
 
-    inputs, skipped = load_batch(batch_dir)
+    inputs, skipped = load_batch(batch_dir, frames=True)
     groups: dict[str, list] = {}
     for inp in inputs:
         groups.setdefault(inp.group, []).append(inp)
