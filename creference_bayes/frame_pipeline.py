@@ -82,7 +82,7 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
                    temperature: float = 1.0, hdi_prob: float = 0.9, sampling: dict | None = None,
                    progress: bool = False, orientation: str = "auto", focal_prior="auto",
                    orientation_prior=None, classes: dict[str, SizePrior] | None = None,
-                   use_references: bool = True, **options) -> "FrameResult":
+                   use_references: bool = True, keep_draws: int | None = None, **options) -> "FrameResult":
     """Estimate every target of a frame and the shared camera.
 
     Parameters
@@ -97,9 +97,11 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
     progress : a progress bar on standard error while sampling
     orientation, focal_prior, orientation_prior, classes, use_references, options : the model
         (:func:`build_frame_model`)
+    keep_draws : posterior draws the result keeps (``draws``, evenly spaced; 0: none); default
+        :data:`~.io.frame_result.RESULT_DRAWS`
     """
     from .inference.frame_map import optimize_frame
-    from .io.frame_result import FrameResult
+    from .io.frame_result import RESULT_DRAWS, FrameResult
     from .inference.threads import single_threaded_blas
 
     if not isinstance(frame, FrameScene):
@@ -126,7 +128,8 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
                       "seed": seed if isinstance(seed, (int, type(None))) else "generator",
                       "sampling": dict(sampling or {}), "classes": {k: v.to_dict() for k, v in (classes or {}).items()}}
         return FrameResult.build(frame, model, setup, map_est, draws, diag, hdi_prob=hdi_prob,
-                                 provenance=provenance, seconds=time.perf_counter() - t0)
+                                 provenance=provenance, seconds=time.perf_counter() - t0,
+                                 keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
 
 
 def rebuild_model(result, frame: FrameScene | str | Path) -> FrameModel:

@@ -62,7 +62,7 @@ def run_frame_estimate(args) -> int:
                             use_references=not args.no_references, sampling=sampling,
                             progress=not args.quiet and sys.stderr.isatty())
     if args.out:
-        atomic_write_json(args.out, result.to_dict())
+        atomic_write_json(args.out, result.to_dict(), inline_numbers=True)
     if not args.quiet:
         print(format_frame_tables(result.to_dict()))
         for w in result.warnings:

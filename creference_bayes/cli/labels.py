@@ -59,14 +59,15 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "labels", help="KITTI 3D labels with their uncertainty from a batch folder",
         description="Write per image a KITTI label file (label_2/), its calib file (calib/, "
-                    "P2 = K[R|0] in the gravity-aligned frame) and an uncertainty sidecar "
+                    "P2 = K[R|0] in the gravity-aligned frame; a KITTI frame's own P2) and an uncertainty sidecar "
                     "(uncertainty/, JSON), plus a data-set report (report.md, quality.png, "
                     "labels.csv, needs_annotation.csv).")
     p.add_argument("batch_dir", metavar="BATCH_DIR", help="a folder written by creference batch")
     p.add_argument("--out", required=True, metavar="DIR", help="the label folder (created)")
     p.add_argument("--format", default="kitti", choices=FORMATS, help="label format (default: %(default)s)")
     p.add_argument("--type", default=None, metavar="NAME",
-                   help="KITTI type of every object, e.g. Car (default: the target's id)")
+                   help="KITTI type of every object, e.g. Car (default: a frame object's class, a "
+                        "one-target scene's target id)")
     p.add_argument("--score-iou", type=float, default=0.7, metavar="T",
                    help="the score is P(IoU >= T), T = 0.5 or 0.7 (default: %(default)s)")
     p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",

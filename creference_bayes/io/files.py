@@ -8,6 +8,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import secrets
 from contextlib import contextmanager
 from pathlib import Path
@@ -66,6 +67,16 @@ def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> P
     return atomic_write_bytes(path, text.encode(encoding))
 
 
-def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2) -> Path:
-    """Write ``data`` as JSON (finite numbers only, a final newline) to ``path`` atomically."""
-    return atomic_write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
+#: A JSON list of numbers only, as ``json.dumps(indent=…)`` spreads it over lines.
+_NUMBER_LIST = re.compile(r"\[\s+(-?[0-9][-+0-9.eE]*(?:,\s+-?[0-9][-+0-9.eE]*)*)\s+\]")
+
+
+def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2, inline_numbers: bool = False) -> Path:
+    """Write ``data`` as JSON (finite numbers only, a final newline) to ``path`` atomically.
+
+    ``inline_numbers``: with ``indent``, a list of numbers only goes on one line (posterior draws:
+    a result of a few hundred draws per quantity stays readable and about half the size)."""
+    text = json.dumps(data, indent=indent, allow_nan=False)
+    if inline_numbers and indent is not None:
+        text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]", text)
+    return atomic_write_text(path, text + "\n")

@@ -27,12 +27,12 @@ from typing import Any
 import numpy as np
 
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior, size_priors_from_dict
-from .scene import (DimensionLine, Reference, Scene, _parse_dimension_line, _parse_reference, parse_header,
-                    parse_scene, read_scene_json)
+from .scene import (DimensionLine, Reference, Scene, _parse_dimension_line, _parse_reference, camera_priors_to_dict,
+                    parse_header, parse_scene, read_scene_json)
 from .validation import SceneError, SceneWarning, _dict, _get, _join, _list, _number, _short, _string, _warn_unknown
 
 __all__ = ["FRAME_FORMAT", "FrameTarget", "FrameScene", "parse_frame", "load_frame", "frame_from_scene",
-           "frame_to_dict"]
+           "frame_to_dict", "frame_fingerprint"]
 
 FRAME_FORMAT = "creference-scene/2"
 _TOP_KEYS = {"format", "image", "camera", "horizon", "horizon_sd_px", "classes", "targets", "references",
@@ -282,6 +282,7 @@ def frame_to_dict(frame: FrameScene) -> dict:
         out["camera"]["focal_length_px"] = frame.focal_length_px
     if frame.kitti_p2 is not None:
         out["camera"]["kitti_p2"] = np.asarray(frame.kitti_p2).tolist()
+    out["camera"].update(camera_priors_to_dict(frame))
     if frame.horizon is not None:
         out["horizon"] = np.asarray(frame.horizon).tolist()
         if frame.horizon_sd_px:
@@ -322,6 +323,17 @@ def frame_to_dict(frame: FrameScene) -> dict:
     if frame.ground_truth is not None:
         out["ground_truth"] = frame.ground_truth
     return out
+
+
+def frame_fingerprint(frame: FrameScene) -> str:
+    """SHA-256 (hex) of a frame's content, its canonical form (:func:`frame_to_dict`): as
+    :func:`~.scene.scene_fingerprint` for version 1, the same whatever the key order, whitespace or
+    file name; any change of a value changes it. Frame results record it (``scene_id.sha256``)."""
+    import hashlib
+    import json
+
+    text = json.dumps(frame_to_dict(frame), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def _relative(path: Path, base: Path) -> Path:

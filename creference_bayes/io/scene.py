@@ -512,15 +512,7 @@ def scene_to_dict(scene: Scene) -> dict:
         out["horizon"] = scene.horizon.tolist()
     if scene.horizon_sd_px:
         out["horizon_sd_px"] = scene.horizon_sd_px
-    if scene.focal_prior is not None:
-        fp = scene.focal_prior
-        out["camera"]["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
-                                               **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
-    if scene.orientation_prior is not None:
-        op = scene.orientation_prior
-        out["camera"]["orientation_prior"] = {
-            **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
-            "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
+    out["camera"].update(camera_priors_to_dict(scene))
     if scene.references:
         out["references"] = [_reference_to_dict(r) for r in scene.references]
     if scene.ground_truth is not None:
@@ -532,6 +524,22 @@ def scene_to_dict(scene: Scene) -> dict:
             gt["focal_length_px"] = g.focal_length_px
         gt.update(g.extra)
         out["ground_truth"] = gt
+    return out
+
+
+def camera_priors_to_dict(scene) -> dict:
+    """The ``camera`` block's ``focal_length_prior`` and ``orientation_prior`` of a scene or a
+    frame (those it has), as the file gives them."""
+    out: dict[str, Any] = {}
+    if scene.focal_prior is not None:
+        fp = scene.focal_prior
+        out["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
+                                     **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
+    if scene.orientation_prior is not None:
+        op = scene.orientation_prior
+        out["orientation_prior"] = {
+            **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
+            "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
     return out
 
 

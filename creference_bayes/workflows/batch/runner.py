@@ -19,7 +19,8 @@ __all__ = ["run_scene", "one_line", "Runner", "progress_bar"]
 def run_scene(job: dict) -> dict:
     """Estimate one scene (runs in a worker: a local process or a Dask worker thread).
 
-    ``job`` holds the decoded scene (``data``), its file (``source``), the scene's ``seed`` and the
+    ``job`` holds the ``kind`` (``"scene"``: one target; ``"frame"``: a ``creference-scene/2``
+    frame), the decoded scene (``data``), its file (``source``), the scene's ``seed`` and the
     settings' ``estimate`` keyword arguments. Never raises for a bad scene or a failed estimate:
     returns ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
     """
@@ -28,9 +29,17 @@ def run_scene(job: dict) -> dict:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SceneWarning)  # reported in the result's warnings
-            scene = parse_scene(job["data"], source=job["source"])
-            stage = "estimate"
-            result = estimate(scene, seed=job["seed"], **job["estimate"])
+            if job.get("kind") == "frame":
+                from ...frame_pipeline import estimate_frame
+                from ...io.frame_scene import parse_frame
+
+                frame = parse_frame(job["data"], source=job["source"])
+                stage = "estimate"
+                result = estimate_frame(frame, seed=job["seed"], **job["estimate"])
+            else:
+                scene = parse_scene(job["data"], source=job["source"])
+                stage = "estimate"
+                result = estimate(scene, seed=job["seed"], **job["estimate"])
         return {"ok": True, "result": result.to_dict(), "seconds": time.perf_counter() - t0}
     except Exception as exc:  # isolate the failure: the batch goes on
         return {"ok": False, "stage": stage, "error": one_line(exc),
@@ -53,13 +62,14 @@ def progress_bar(total: int, failed: int, enabled: bool):
 class Runner:
     """Keeps ``engine.slots()`` jobs in flight, records each outcome as it arrives."""
 
-    def __init__(self, out, engine, ident, time_limit, status, errors, bar, on_event):
-        self.out, self.engine, self.ident, self.time_limit = out, engine, ident, time_limit
+    def __init__(self, out, engine, idents, time_limit, status, errors, bar, on_event):
+        self.out, self.engine, self.idents, self.time_limit = out, engine, idents, time_limit
         self.status, self.errors, self.bar, self.on_event = status, errors, bar, on_event
         self.running: dict[cf.Future, tuple] = {}  # future -> (scene input, scene, job, start)
         self.abandoned: set[cf.Future] = set()  # over the time limit, maybe running: hold a slot
         self.n_failed = sum(s == "failed" for s in status.values())
         self.seconds = 0.0
+        self.n_targets = 0  # estimated in this run (a frame counts its objects)
 
     def run(self, todo: deque) -> None:
         t0 = time.perf_counter()
@@ -113,7 +123,9 @@ class Runner:
             self._finish(si, False, "worker", one_line(exc), traceback.format_exc())
             return
         if res["ok"]:
-            record_result(layout(self.out, si.key), si, scene, res["result"], job["seed"], self.ident)
+            record_result(layout(self.out, si.key), si, scene, res["result"], job["seed"],
+                          self.idents[job.get("kind", "scene")])
+            self.n_targets += len(res["result"].get("objects") or [None])
             self._finish(si, True)
         else:
             self._finish(si, False, res["stage"], res["error"], res.get("traceback"))

@@ -1,7 +1,8 @@
 """From a batch folder to KITTI labels with their uncertainty (docs/labels.md).
 
 Per image (``NAME`` = the image's file name without extension, or the scene file's when the
-scene has no image; the targets of one image share its files)::
+scene has no image; the targets of one image share its files; a frame, ``creference-scene/2``,
+is one image with its shared camera: :mod:`.frame_batch`)::
 
     OUT/label_2/NAME.txt        one KITTI line per target: the MAP box, score = P(IoU ≥ 0.7)
     OUT/calib/NAME.txt          P2 = K·[R | 0] in the gravity-aligned frame (io/kitti.py)
@@ -24,6 +25,8 @@ import numpy as np
 from ...core.geometry import Camera, box_points, box_vertices, horizon_line, rotation_from_pitch_roll
 from ...io.kitti import (KittiObject, kitti_object, project_with, projection_matrix, write_calib_file,
                         write_label_file, write_sidecar, wrap_pi)
+from ...io.frame_result import FRAME_RESULT_FORMAT
+from ...io.frame_scene import frame_fingerprint, load_frame
 from ...io.result import RESULT_FORMAT
 from ...io.scene import Scene, SceneError, SceneWarning, load_scene, scene_fingerprint
 from .quality import IOU_THRESHOLDS, LabelQuality, box_iou_3d, label_quality
@@ -81,8 +84,12 @@ def _image_group(key: str, result: dict, copy: dict) -> tuple[str, str]:
     return f"image:{Path(path).resolve(strict=False)}", PurePath(image).stem
 
 
-def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
-    """The batch's results that can be labelled, and the others with the reason (``key``, ``reason``)."""
+def load_batch(batch_dir: str | Path, frames: bool = False) -> tuple[list, list[dict]]:
+    """The batch's results that can be labelled (a :class:`LabelInput` per one-target scene and,
+    with ``frames``, a :class:`~.frame_batch.FrameLabelInput` per frame), and the others with the
+    reason (``key``, ``reason``; without ``frames``, a frame's is that it is a frame)."""
+    from .frame_batch import FrameLabelInput
+
     batch_dir = Path(batch_dir)
     if not (batch_dir / "results").is_dir():
         raise FileNotFoundError(2, "not a batch folder (no results/ inside)", str(batch_dir))
@@ -93,24 +100,30 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
             continue  # a temporary file left by a write that was killed (io/files.py)
         try:
             result = json.loads(path.read_text())
-            if result.get("format") != RESULT_FORMAT or "batch" not in result:
+            if result.get("format") not in (RESULT_FORMAT, FRAME_RESULT_FORMAT) or "batch" not in result:
                 raise ValueError("not a result of creference batch")
+            is_frame = result["format"] == FRAME_RESULT_FORMAT
+            if is_frame and not frames:
+                skipped.append({"key": key, "reason": "a frame (creference-result/2): not taken here yet"})
+                continue
             copy_path = batch_dir / result["batch"]["scene_copy"]
             copy = json.loads(copy_path.read_text())
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(copy_path)
+                scene = load_frame(copy_path) if is_frame else load_scene(copy_path)
         except (OSError, ValueError, KeyError, TypeError, SceneError) as exc:
             skipped.append({"key": key, "reason": f"cannot be read: {' '.join(str(exc).split())}"})
             continue
-        if scene_fingerprint(scene) != result.get("scene_id", {}).get("sha256"):
+        fingerprint = frame_fingerprint(scene) if is_frame else scene_fingerprint(scene)
+        if fingerprint != result.get("scene_id", {}).get("sha256"):
             skipped.append({"key": key, "reason": "its scene copy is not the scene of the result "
                                                   "(rerun creference batch)"})
-        elif not (result.get("posterior") or {}).get("draws"):
+        elif not ((result.get("draws") if is_frame else (result.get("posterior") or {}).get("draws"))):
             skipped.append({"key": key, "reason": "no posterior draws (batch run with --no-posterior?)"})
         else:
             group, name = _image_group(key, result, copy)
-            inputs.append(LabelInput(key, result, scene, name=name, group=group))
+            kind = FrameLabelInput if is_frame else LabelInput
+            inputs.append(kind(key, result, scene, name=name, group=group))
     return inputs, skipped
 
 
@@ -259,7 +272,8 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
     ----------
     batch_dir : a ``creference batch`` folder
     out : the label folder (created)
-    type_name : the KITTI type of every object (default: the target's id, whitespace → ``_``)
+    type_name : the KITTI type of every object (default: a frame's object its class; a one-target
+        scene's target its id, whitespace → ``_``)
     score_iou : the IoU threshold t of the score P(IoU ≥ t), one of :data:`IOU_THRESHOLDS`
     n_draws : posterior draws per object in the sidecar
     """
@@ -269,10 +283,18 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         raise ValueError(f"type: a KITTI class name has no whitespace, got {type_name!r}")
     if n_draws < 1:
         raise ValueError(f"draws: expected an integer >= 1, got {n_draws!r}")
-    inputs, skipped = load_batch(batch_dir)
-    groups: dict[str, list[LabelInput]] = {}
+    from .frame_batch import FrameLabelInput, label_frame
+
+    inputs, skipped = load_batch(batch_dir, frames=True)
+    groups: dict[str, list] = {}
     for inp in inputs:
         groups.setdefault(inp.group, []).append(inp)
+    for group, members in groups.items():
+        frames = [m.key for m in members if isinstance(m, FrameLabelInput)]
+        if frames and len(members) > 1:
+            others = [m.key for m in members if m.key != frames[0]]
+            raise ValueError(f"the frame {frames[0]} and {', '.join(others)} are of one image ({group}): "
+                             "a frame holds all the objects of its image (export them from separate batches)")
     names: dict[str, str] = {}
     for group, members in groups.items():
         name = members[0].name
@@ -283,13 +305,18 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
     out = Path(out)
     objects = []
     for name in sorted(names):
-        P2, cam, objs = label_image(groups[names[name]], type_name=type_name, score_iou=score_iou, n_draws=n_draws)
+        members = groups[names[name]]
+        if isinstance(members[0], FrameLabelInput):
+            P2, doc, objs = label_frame(members[0], type_name=type_name, score_iou=score_iou, n_draws=n_draws,
+                                        frame_description=FRAME)
+        else:
+            P2, cam, objs = label_image(members, type_name=type_name, score_iou=score_iou, n_draws=n_draws)
+            doc = {"format": SIDECAR_FORMAT, "image": name, "label_file": f"label_2/{name}.txt",
+                   "calib_file": f"calib/{name}.txt", "frame": FRAME, "camera": cam,
+                   "score": f"P(IoU >= {float(score_iou):g})", "objects": [o.sidecar for o in objs]}
         write_calib_file(out / "calib" / f"{name}.txt", P2)
         write_label_file(out / "label_2" / f"{name}.txt", [o.kitti for o in objs])
-        write_sidecar(out / "uncertainty" / f"{name}.json", {
-            "format": SIDECAR_FORMAT, "image": name, "label_file": f"label_2/{name}.txt",
-            "calib_file": f"calib/{name}.txt", "frame": FRAME, "camera": cam,
-            "score": f"P(IoU >= {float(score_iou):g})", "objects": [o.sidecar for o in objs]})
+        write_sidecar(out / "uncertainty" / f"{name}.json", doc)
         objects += objs
     failed = []
     for path in sorted((Path(batch_dir) / "errors").rglob("*.json")):

@@ -21,7 +21,8 @@ from ...core.geometry import rotation_from_pitch_roll
 from ...io.kitti import kitti_object, projection_matrix, write_calib_file, write_label_file, write_sidecar
 from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
 
-__all__ = ["kitti_poses", "frame_label_objects", "write_frame_labels", "SIDECAR_FORMAT"]
+__all__ = ["kitti_poses", "frame_boxes", "truth_boxes", "frame_label_objects", "write_frame_labels",
+           "SIDECAR_FORMAT"]
 
 SIDECAR_FORMAT = "creference-kitti-uncertainty/1"
 
@@ -51,25 +52,63 @@ def _p2(frame, cam: np.ndarray) -> np.ndarray:
     return projection_matrix(float(cam[C_FOCAL]), frame.principal_point, R)
 
 
-def frame_label_objects(frame, result: dict, draws=None, *, score_iou: float = 0.7, max_draws: int = 400):
-    """(P2 (3, 4), [(KittiObject, quality dict)]) for a frame and its ``creference-result/2`` dict.
-
-    ``draws`` (a :class:`~creference_bayes.inference.frame_sampler.FrameDraws`) give each label's
-    P(IoU ≥ 0.5) and P(IoU ≥ 0.7); the score is P(IoU ≥ ``score_iou``). Without draws the score is
-    None and so is the quality."""
-    from ...evaluation.iou3d import overlaps
+def _map_camera(result: dict) -> np.ndarray:
     from ...models.frame import CAMERA_NAMES
 
-    cam = np.array([result["camera"]["map"][k] for k in CAMERA_NAMES], float)
+    return np.array([result["camera"]["map"][k] for k in CAMERA_NAMES], float)
+
+
+def frame_boxes(frame, result: dict, draws=None, max_draws: int = 400):
+    """The labels' boxes: the MAP's (m, 7) and, with ``draws``, at most ``max_draws`` evenly spaced
+    draws' (n, m, 7) (else None), as :func:`kitti_poses`; with the draws' indices (n,)."""
+    cam = _map_camera(result)
     objs = np.array([[o["map"][k] for k in ("x", "z", "yaw", "length_m", "width_m", "height_m", "ground_m")]
                      for o in result["objects"]], float)
     boxes = kitti_poses(frame, cam[None], objs[None])[0]
-    samples = None
-    if draws is not None:
-        c = draws.cameras.reshape(-1, 5)
-        o = draws.objects.reshape(len(c), -1, 7)
-        keep = np.linspace(0, len(c) - 1, min(max_draws, len(c))).astype(int)
-        samples = kitti_poses(frame, c[keep], o[keep])
+    if draws is None:
+        return boxes, None, None
+    c = draws.cameras.reshape(-1, 5)
+    o = draws.objects.reshape(len(c), -1, 7)
+    keep = np.linspace(0, len(c) - 1, min(max_draws, len(c))).astype(int)
+    return boxes, kitti_poses(frame, c[keep], o[keep]), keep
+
+
+def truth_boxes(frame) -> list[np.ndarray | None]:
+    """Each target's true box in the labels' frame (7,) from the scene's ground truth, or None.
+
+    A frame with ``kitti_p2`` compares with KITTI's own label (``ground_truth.kitti``); another
+    frame's labels and truth are both in the gravity-aligned frame (``location_m``, ``yaw_rad``,
+    ``dimensions_m`` or the target's known dimensions)."""
+    out = []
+    for t in frame.targets:
+        g = t.ground_truth or {}
+        box = None
+        if frame.kitti_p2 is not None:
+            k = g.get("kitti")
+            if k is not None:
+                h, w, l = k["dimensions_hwl"]
+                box = np.array([*k["location"], k["rotation_y"], l, w, h], float)
+        elif "location_m" in g and g.get("yaw_rad") is not None:
+            d = g.get("dimensions_m")
+            sizes = [d["length"], d["width"], d["height"]] if d else t.dimensions
+            if sizes is not None:
+                box = np.array([*g["location_m"], g["yaw_rad"], *sizes], float)
+        out.append(box)
+    return out
+
+
+def frame_label_objects(frame, result: dict, draws=None, *, score_iou: float = 0.7, max_draws: int = 400,
+                        type_name: str | None = None):
+    """(P2 (3, 4), [(KittiObject, quality dict)]) for a frame and its ``creference-result/2`` dict.
+
+    ``draws`` (a :class:`~creference_bayes.inference.frame_sampler.FrameDraws`, or the
+    :class:`~creference_bayes.io.frame_result.StoredDraws` a result keeps) give each label's
+    P(IoU ≥ 0.5) and P(IoU ≥ 0.7); the score is P(IoU ≥ ``score_iou``). Without draws the score is
+    1 and the quality None. ``type`` is ``type_name``, else the target's class, else its id."""
+    from ...evaluation.iou3d import overlaps
+
+    cam = _map_camera(result)
+    boxes, samples, _ = frame_boxes(frame, result, draws, max_draws)
     P2 = _p2(frame, cam)
     out = []
     for i, t in enumerate(frame.targets):
@@ -80,7 +119,8 @@ def frame_label_objects(frame, result: dict, draws=None, *, score_iou: float = 0
             quality = {"p_iou_ge_0.5": float(np.mean(iou >= 0.5)), "p_iou_ge_0.7": float(np.mean(iou >= 0.7)),
                        "iou_mean": float(iou.mean()), "iou_median": float(np.median(iou)), "n_draws": int(len(iou))}
             score = quality[f"p_iou_ge_{score_iou:g}"]
-        obj = kitti_object(t.cls or "Object", boxes[i, :4], boxes[i, 4:7], P2, frame.image_size, score)
+        name = type_name or t.cls or "_".join(str(t.id).split()) or "Object"
+        obj = kitti_object(name, boxes[i, :4], boxes[i, 4:7], P2, frame.image_size, score)
         out.append((obj, quality))
     return P2, out
 
