@@ -3,12 +3,11 @@ scene found and checked, the model rebuilt, the figures drawn (docs/frames.md)."
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from .main import UsageError
 
-__all__ = ["find_frame_scene", "run_frame_plot"]
+__all__ = ["find_frame_scene", "run_frame_plot", "run_frame_advise"]
 
 
 def find_frame_scene(result: dict, result_path: Path, explicit: str | None):
@@ -77,4 +76,53 @@ def run_frame_plot(args, result: dict, path: Path) -> int:
         tmp.replace(target)
         if not args.quiet:
             print(f"wrote {target}")
+    return 0
+
+
+def run_frame_advise(args, settings) -> int:
+    """``creference advise FRAME.json|RESULT.json`` on a frame: the table, ``--out`` JSON."""
+    import json
+
+    import numpy as np
+
+    from ..frame_pipeline import build_frame_model, map_state, rebuild_model
+    from ..inference.frame_map import optimize_frame
+    from ..io.files import atomic_write_json
+    from ..io.frame_scene import load_frame
+    from ..workflows.advice.frame import advise_frame, frame_advice_table
+    from .main import check_output_file
+
+    check_output_file("--out", args.out)
+    path = Path(args.input)
+    d = json.loads(path.read_text(encoding="utf-8"))
+    try:
+        if d.get("format") == "creference-result/2":
+            frame = find_frame_scene(d, path, args.scene)
+            model = rebuild_model(d, frame)
+            camera, objects = map_state(d)
+            hdis = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in d["objects"]]
+            width = None if any(h is None for h in hdis) else np.array([b - a for a, b in hdis], float)
+            prob = ((d["camera"].get("posterior") or {}).get("hdi") or {}).get("prob")
+            if width is not None and prob is not None and abs(prob - settings.hdi_prob) > 1e-9:
+                width = None  # another probability: the Laplace approximation's at ours
+            temperature = float(d["provenance"].get("temperature", 1.0))
+        else:
+            if args.scene is not None:
+                raise UsageError("--scene: only for a result file (INPUT is a scene)")
+            frame = load_frame(path)
+            model, _ = build_frame_model(frame)
+            est = optimize_frame(model)
+            camera, objects, width, temperature = est.camera, est.objects, None, 1.0
+        advice = advise_frame(model, frame, camera, objects, width_now=width, settings=settings,
+                              temperature=temperature)
+    except (KeyError, TypeError) as exc:
+        raise UsageError(f"{path}: the frame's model cannot be rebuilt from it ({exc!r})") from None
+    except ValueError as exc:
+        raise UsageError(" ".join(str(exc).split())) from None
+    if args.out is not None:
+        atomic_write_json(args.out, advice.to_dict())
+    if not args.quiet:
+        print(frame_advice_table(advice))
+        if args.out is not None:
+            print(f"wrote {args.out}")
     return 0

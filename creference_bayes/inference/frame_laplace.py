@@ -23,7 +23,7 @@ from ..models.frame import FrameModel
 from .frame_coords import FD_STEPS, FrameCoords
 from .frame_map import Arrowhead, derivatives
 
-__all__ = ["FrameLaplace", "frame_laplace", "block_variances", "work_gradients"]
+__all__ = ["FrameLaplace", "frame_laplace", "laplace_blocks", "block_variances", "work_gradients"]
 
 
 @dataclass(frozen=True)
@@ -74,11 +74,13 @@ def frame_laplace(model: FrameModel, camera: np.ndarray, objects: np.ndarray, *,
     objects = np.asarray(objects, float)
     wc, wo = (a[0] for a in FrameCoords(model).to_work(camera[None], objects[None]))
     H = derivatives(model, wc, wo, temperature, with_jacobian=True)
-    Sc, Ao, B, ok = _blocks(model, H)
+    Sc, Ao, B, ok = laplace_blocks(model, H)
     return FrameLaplace(model, camera, objects, wc, wo, H, Sc, Ao, B, ok)
 
 
-def _blocks(model: FrameModel, H: Arrowhead):
+def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(``Sc``, ``Ao``, ``B``, ok) of an arrowhead Hessian ``H`` (module docstring), zero on fixed
+    parameters; when it is not positive definite, the inverse diagonals and no shear (ok False)."""
     m = model.n_objects
     try:
         Sc, Ao, B = H.covariance_blocks()

@@ -13,17 +13,15 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle
 
-from ..core.geometry import box_vertices, rotation_from_pitch_roll
-from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
+from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL
+from ..models.frame_boxes import footprint as _footprint
+from ..models.frame_boxes import frame_boxes_2d
 from .plotting import ZOOM_BELOW, _BOX_EDGES, _MAP_COLOR, _POST_COLOR, _hdr_levels, _load_image
 
 #: The truth is drawn in black (dashed): the objects' own colours include the single-target green.
 _TRUTH_COLOR = "k"
 
-__all__ = ["frame_boxes_2d", "plot_frame_boxes", "plot_frame_top_view", "plot_frame_camera", "object_labels"]
-
-_UNIT_BOX = box_vertices(1.0, 1.0, 1.0)  # (8, 3): bottom face first; scales with (l, h, w) per axis
-
+__all__ = ["plot_frame_boxes", "plot_frame_top_view", "plot_frame_camera", "object_labels"]
 
 def _colors(m: int) -> list:
     from matplotlib import colormaps
@@ -35,34 +33,6 @@ def _colors(m: int) -> list:
 def object_labels(frame) -> list[str]:
     """``id (class)`` of every target."""
     return [t.id if t.cls is None else f"{t.id} ({t.cls})" for t in frame.targets]
-
-
-def _world_boxes(objs: np.ndarray, cam_height: np.ndarray) -> np.ndarray:
-    """(n, 8, 3) box vertices in the gravity-aligned camera frame for (n, 7) states of one object."""
-    l, w, h = objs[:, O_SIZE].T
-    v = _UNIT_BOX[None] * np.stack([l, h, w], axis=-1)[:, None, :]  # x along l, y (down) h, z along w
-    c, s = np.cos(objs[:, O_YAW])[:, None], np.sin(objs[:, O_YAW])[:, None]
-    X = objs[:, 0, None] + c * v[..., 0] + s * v[..., 2]
-    Y = (cam_height - objs[:, O_GROUND])[:, None] + v[..., 1]
-    Z = objs[:, 1, None] - s * v[..., 0] + c * v[..., 2]
-    return np.stack([X, Y, Z], axis=-1)
-
-
-def frame_boxes_2d(cams: np.ndarray, objs: np.ndarray, principal_point) -> np.ndarray:
-    """Projected box vertices (n, 8, 2) pixels of one object at (n, 5) cameras and (n, 7) object
-    states; NaN where a vertex is behind the camera."""
-    P = _world_boxes(objs, cams[:, C_HEIGHT])
-    R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])
-    pc = np.einsum("nij,nkj->nki", R, P)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = cams[:, C_FOCAL, None, None] * pc[..., :2] / pc[..., 2:3] + np.asarray(principal_point, float)
-    uv[pc[..., 2] <= 0.05] = np.nan
-    return uv
-
-
-def _footprint(obj: np.ndarray) -> np.ndarray:
-    """(4, 2) ground footprint (x, z) of one (7,) object state."""
-    return _world_boxes(obj[None], np.zeros(1))[0, :4][:, [0, 2]]
 
 
 def _truth_state(target) -> np.ndarray | None:

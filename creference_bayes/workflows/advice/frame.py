@@ -1,0 +1,365 @@
+"""Which object and which annotation next, for a frame (docs/advice.md, "Frames").
+
+A frame has many objects and one camera, so the single target's preposterior simulation (one
+re-weighting per simulated outcome and candidate) would be slow. The frame's advice predicts
+instead from the Laplace approximation at the MAP (:mod:`~creference_bayes.inference.frame_laplace`,
+working coordinates): one more observation adds its expected (Fisher) information to the
+negative log-posterior's Hessian, and the predicted posterior sd of every object's distance and
+of the camera follow from the new Hessian by the delta method. An observation on object i
+touches the camera block, object i's block and their coupling only, so the Hessian stays an
+arrowhead and every prediction costs a few small inversions.
+
+Candidates, for every object i:
+
+- ``dims``: one more set of dimension lines. Its information is κ/σᵢ² Jᵀ J / T, J (8 × 12) the
+  Jacobian of object i's four projected corners with respect to the camera's and object i's
+  working coordinates, σᵢ the object's corner scale (the model's), T the temperature and κ the
+  curvature of the Student-t corner term per coordinate, (ν + 2) / ν / (1 + q)², q = |r|² / (ν σᵢ²),
+  averaged over every corner of every annotation of the frame at the MAP (the information a
+  set of the frame's own quality brings: 0.75 when the corners follow the model's Student-t,
+  0.83 for Gaussian corners of standard deviation σᵢ).
+- ``distance``: a worker's distance to object i, drawn as the paper's distance task: from the
+  image's bottom edge straight up to the object's nearest bottom corner (at the MAP). The
+  segment's real length depends on the camera only; its information is
+  (ν + 1) / (ν + 3) / (s² + v) g gᵀ / T, g the gradient of the segment's log-length, s the
+  crowd's scale at the MAP (ν = ``ref_dof``, the Fisher information of a Student-t location) and
+  v the segment's line noise in log-length (as the model's references). Left out when the corner
+  is within 10 px of the bottom edge.
+- ``length``: a worker's statement of object i's length (objects with a class size prior only),
+  the same information with g the gradient of log length and no line noise.
+
+A new reference is taken as a single value with the present crowd scale (when the frame has no
+references yet the scale is the prior's median, 0.5, and a first reference would make it a
+parameter: its predicted information is then an upper bound). The predicted width of an object's
+90 % interval after the annotation is the present one times the ratio of the predicted sds
+(the present one is the result's posterior HDI when it has one, else the Laplace approximation's
+normal interval). Gain: the sum over the frame's objects of the narrowing of each object's
+interval in points of its distance (the single target's measure, summed), per minute of the
+annotation's cost (:func:`frame_seconds`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import norm
+
+from ...inference.frame_laplace import block_variances, frame_laplace, laplace_blocks, work_gradients
+from ...inference.frame_map import Arrowhead
+from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE
+from ...models.frame_boxes import frame_boxes_2d
+from . import AdviceSettings
+from .candidates import PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS, SAME_SEGMENT_MIN_PX
+
+__all__ = ["FrameCandidate", "FramePrediction", "FrameAdvice", "advise_frame", "frame_seconds",
+           "corner_curvature", "frame_advice_table"]
+
+_CAMERA_REPORT = ((C_FOCAL, "focal_length_px", True), (C_PITCH, "pitch", False), (C_ROLL, "roll", False),
+                  (C_HEIGHT, "height_m", True))
+
+
+@dataclass(frozen=True)
+class FrameCandidate:
+    """One annotation the frame's advice weighs: ``kind`` ``dims``, ``distance`` or ``length`` on
+    object ``index`` (id ``object``); ``line`` (2, 2) pixels for a distance; its cost in seconds."""
+
+    kind: str
+    index: int
+    object: str
+    seconds: float
+    line: np.ndarray | None = None
+
+    @property
+    def key(self) -> str:
+        return f"{self.object}:{self.kind}"
+
+    @property
+    def description(self) -> str:
+        return {"dims": f"one more set of dimension lines on {self.object}",
+                "distance": f"distance to {self.object} (image bottom to its nearest bottom corner)",
+                "length": f"length of {self.object}"}[self.kind]
+
+    def to_dict(self) -> dict:
+        return {"key": self.key, "kind": self.kind, "object": self.object, "seconds": self.seconds,
+                "line": None if self.line is None else np.round(self.line, 2).tolist(),
+                "description": self.description}
+
+
+@dataclass(frozen=True)
+class FramePrediction:
+    """The predicted effect of one candidate: every object's distance sd and interval width after
+    it (m), the camera's sds after it, the frame's gain (points) and the gain per minute and per
+    second of human time."""
+
+    candidate: FrameCandidate
+    distance_sd_m: np.ndarray
+    width_m: np.ndarray
+    camera_sd: dict
+    gain_pct: float
+    gain_per_minute: float
+
+    @property
+    def gain_per_second(self) -> float:
+        return self.gain_per_minute / 60.0
+
+    def to_dict(self) -> dict:
+        return {"candidate": self.candidate.to_dict(), "distance_sd_m": _list(self.distance_sd_m),
+                "width_m": _list(self.width_m), "camera_sd": dict(self.camera_sd), "gain_pct": _r(self.gain_pct),
+                "gain_per_minute": _r(self.gain_per_minute), "gain_per_second": _r(self.gain_per_second)}
+
+
+def _r(v, nd=6):
+    return None if v is None or not np.isfinite(v) else round(float(v), nd)
+
+
+def _list(a, nd=6):
+    return [_r(v, nd) for v in np.asarray(a, float)]
+
+
+@dataclass(frozen=True)
+class FrameAdvice:
+    """The advice for a frame: the present (per object: MAP distance, distance sd and interval
+    width; the camera's sds), every candidate's prediction (best gain per minute first), and the
+    recommendation (``action`` ``collect`` or ``stop``, ``reason``)."""
+
+    objects: tuple[str, ...]
+    distance_m: np.ndarray
+    distance_sd_m: np.ndarray
+    width_m: np.ndarray
+    width_source: str
+    camera_sd: dict
+    predictions: tuple[FramePrediction, ...]
+    action: str
+    reason: str
+    settings: AdviceSettings
+    curvature: float
+    notes: tuple[str, ...] = ()
+    seconds: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def best(self) -> FramePrediction | None:
+        return self.predictions[0] if self.predictions else None
+
+    @property
+    def share(self) -> np.ndarray:
+        return self.width_m / self.distance_m
+
+    def to_dict(self) -> dict:
+        best = self.best
+        return {"format": "creference-frame-advice/1",
+                "now": {"objects": list(self.objects), "distance_m": _list(self.distance_m),
+                        "distance_sd_m": _list(self.distance_sd_m), "width_m": _list(self.width_m),
+                        "width_share": _list(self.share), "width_source": self.width_source,
+                        "camera_sd": dict(self.camera_sd)},
+                "action": self.action, "reason": self.reason,
+                "recommended": best.candidate.key if self.action == "collect" and best else None,
+                "predictions": [p.to_dict() for p in self.predictions], "curvature": _r(self.curvature),
+                "notes": list(self.notes), "settings": self.settings.to_dict(), "seconds": round(self.seconds, 3)}
+
+
+def frame_seconds(frame) -> dict[str, float]:
+    """Cost per kind, seconds: the median of the frame's recorded ``seconds`` of its dimension lines
+    (``dims``) and of its references (``reference``), else the paper's averages (183.5 s, 64.4 s)."""
+    def median(values, default):
+        values = [v for v in values if v is not None and v > 0]
+        return float(np.median(values)) if values else default
+
+    return {"dims": median([d.seconds for t in frame.targets for d in t.dimension_lines], PAPER_TARGET_SECONDS),
+            "reference": median([r.seconds for r in frame.references], PAPER_REFERENCE_SECONDS)}
+
+
+def corner_curvature(model, camera: np.ndarray, objects: np.ndarray) -> float:
+    """κ: the mean curvature per coordinate of the Student-t corner term, in units of 1/σᵢ², over
+    every annotated corner of the frame at the given state (module docstring)."""
+    uv, _ = model.project(model.complete_camera(np.asarray(camera, float)[None]), np.asarray(objects, float)[None])
+    r2 = np.sum((model.ann - uv[0][:, None]) ** 2, axis=-1)  # (m, K, 4)
+    nu = model.target_dof
+    q = r2 / (nu * model.sigma[:, None, None] ** 2)
+    k = (nu + 2.0) / nu / (1.0 + q) ** 2
+    mask = np.broadcast_to(model.ann_mask[..., None], k.shape) > 0
+    return float(k[mask].mean())
+
+
+def _candidates(model, frame, camera, objects, secs) -> tuple[list[FrameCandidate], list[str]]:
+    out, notes = [], []
+    w, h = frame.image_width, frame.image_height
+    for i, o in enumerate(model.objects):
+        out.append(FrameCandidate("dims", i, o.id, secs["dims"]))
+        box = frame_boxes_2d(camera[None], objects[i][None], frame.principal_point)[0, :4]  # bottom face
+        near = box[int(np.nanargmax(box[:, 1]))] if np.any(np.isfinite(box[:, 1])) else None
+        if near is None or not np.all(np.isfinite(near)) or not (0 <= near[0] <= w):
+            notes.append(f"{o.id}:distance: left out: its nearest bottom corner is outside the image")
+        elif near[1] >= h - 1 - SAME_SEGMENT_MIN_PX:
+            notes.append(f"{o.id}:distance: left out: the object touches the image's bottom edge")
+        else:
+            out.append(FrameCandidate("distance", i, o.id, secs["reference"],
+                                      np.array([[near[0], h - 1.0], [near[0], near[1]]])))
+        if model.object_free[i, 3]:
+            out.append(FrameCandidate("length", i, o.id, secs["reference"]))
+    return out, notes
+
+
+def _reference_information(model, lap, cand: FrameCandidate, temperature: float):
+    """(g_c (5,), g_o (7,), weight): the candidate reference's gradient in working coordinates and
+    its Fisher weight."""
+    nu = model.ref_dof
+    fisher = (nu + 1.0) / (nu + 3.0)
+    s = float(lap.camera[C_SCALE])
+    if cand.kind == "distance":
+        line = cand.line[None]
+
+        def log_len(cams, objs):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = np.log(model.ground_lengths(line, cams))[:, 0]
+            return np.broadcast_to(v[:, None, None], (len(cams), model.n_objects, 1))
+
+        g_c, _ = work_gradients(model, lap.wc, lap.wo, log_len)
+        var = s**2 + _line_variance(model, cand.line, lap.camera)
+        return g_c[cand.index, 0], np.zeros(7), fisher / var / temperature
+
+    def log_length(cams, objs):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(objs[..., 3:4])
+
+    g_c, g_o = work_gradients(model, lap.wc, lap.wo, log_length)
+    return g_c[cand.index, 0], g_o[cand.index, 0], fisher / s**2 / temperature
+
+
+def _line_variance(model, line: np.ndarray, camera: np.ndarray) -> float:
+    """A segment's noise in log-length at ``camera``: ref_line_sigma² |∂ log L / ∂ endpoints|²."""
+    step = 0.5
+    steps = np.eye(4).reshape(4, 2, 2) * step
+    lines = np.concatenate([line[None] + steps, line[None] - steps])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_len = np.log(model.ground_lengths(lines, camera[None]))[0]
+    d = (log_len[:4] - log_len[4:]) / (2 * step)
+    v = model.ref_line_sigma**2 * float(np.sum(d * d))
+    return v if np.isfinite(v) else 0.0
+
+
+def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width_now=None,
+                 settings: AdviceSettings | None = None, temperature: float = 1.0) -> FrameAdvice:
+    """The advice for a frame at its MAP (module docstring).
+
+    Parameters
+    ----------
+    model : the frame's :class:`~creference_bayes.models.frame.FrameModel`, with the MAP's
+        handedness and pilot (:func:`~creference_bayes.frame_pipeline.rebuild_model`)
+    frame : its :class:`~creference_bayes.io.frame_scene.FrameScene`
+    camera : (5,) and objects : (m, 7) the MAP
+    width_now : (m,) the present width of each distance's interval, metres (the posterior's HDI),
+        or None for the Laplace approximation's
+    settings : :class:`~creference_bayes.workflows.advice.AdviceSettings` (``hdi_prob``,
+        ``target_hdi_width``, ``min_gain`` are used)
+    temperature : the estimate's temperature
+    """
+    t0 = time.perf_counter()
+    settings = settings or AdviceSettings()
+    lap = frame_laplace(model, camera, objects, temperature=temperature)
+    m = model.n_objects
+    H = lap.hessian
+
+    def dist(cams, objs):
+        return np.hypot(objs[..., 0], objs[..., 1])[..., None]
+
+    gd_c, gd_o = (g[:, 0] for g in work_gradients(model, lap.wc, lap.wo, dist))
+
+    def outlook(Hn: Arrowhead):
+        Sc, Ao, B, ok = laplace_blocks(model, Hn)
+        sd = np.sqrt(np.maximum(block_variances(Sc, Ao, B, gd_c, gd_o), 0.0))
+        cam = {}
+        for j, name, log in _CAMERA_REPORT:
+            if model.camera_free[j]:
+                v = math.sqrt(max(Sc[j, j], 0.0))
+                cam[name] = _r(v * lap.camera[j] if log else v)
+        return sd, cam, ok
+
+    sd_now, cam_now, ok = outlook(H)
+    notes = [] if ok else ["the Hessian at the MAP is not positive definite: predictions use its diagonal"]
+    d_map = np.hypot(lap.objects[:, 0], lap.objects[:, 1])
+    z = float(norm.ppf(0.5 + settings.hdi_prob / 2))
+    if width_now is None:
+        width, source = 2 * z * sd_now, "laplace"
+    else:
+        width, source = np.asarray(width_now, float), "posterior"
+    kappa = corner_curvature(model, lap.camera, lap.objects)
+    g_uv = work_gradients(model, lap.wc, lap.wo, lambda c, o: model.project(c, o)[0].reshape(len(c), m, 8))
+    cands, more = _candidates(model, frame, lap.camera, lap.objects, frame_seconds(frame))
+    notes += more
+    preds = []
+    for cand in cands:
+        i = cand.index
+        if cand.kind == "dims":
+            J = np.concatenate([g_uv[0][i], g_uv[1][i]], axis=1)  # (8, 12)
+            dF = kappa / model.sigma[i] ** 2 / temperature * J.T @ J
+        else:
+            gc, go, wgt = _reference_information(model, lap, cand, temperature)
+            g = np.concatenate([gc, go])
+            if not np.all(np.isfinite(g)):
+                notes.append(f"{cand.key}: left out: its gradient is not finite")
+                continue
+            dF = wgt * np.outer(g, g)
+        Hn = Arrowhead(H.value, H.g_c, H.g_o, H.H_cc + dF[:5, :5], H.H_co.copy(), H.H_oo.copy())
+        Hn.H_co[i] += dF[:5, 5:]
+        Hn.H_oo[i] += dF[5:, 5:]
+        sd_after, cam_after, _ = outlook(Hn)
+        ratio = np.where(sd_now > 0, sd_after / np.where(sd_now > 0, sd_now, 1.0), 1.0)
+        w_after = width * np.minimum(ratio, 1.0)
+        gain = float(100.0 * np.sum((width - w_after) / d_map))
+        preds.append(FramePrediction(cand, sd_after, w_after, cam_after, gain,
+                                     gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf))
+    preds.sort(key=lambda p: -p.gain_per_minute)
+    action, reason = _recommend(width / d_map, preds, settings, [o.id for o in model.objects])
+    return FrameAdvice(tuple(o.id for o in model.objects), d_map, sd_now, width, source, cam_now, tuple(preds),
+                       action, reason, settings, kappa, tuple(notes), time.perf_counter() - t0)
+
+
+def _recommend(share, preds, settings: AdviceSettings, ids) -> tuple[str, str]:
+    goal = settings.target_hdi_width
+    if np.all(share <= goal):
+        return "stop", (f"precision target met: every object's {settings.hdi_prob:.0%} interval of the distance "
+                        f"is at most {100 * goal:g} % of it (widest: {ids[int(np.argmax(share))]}, "
+                        f"{100 * share.max():.1f} %)")
+    if not preds:
+        return "stop", "no annotation of this frame can be weighed"
+    best = preds[0]
+    if best.gain_per_minute < settings.min_gain:
+        return "stop", (f"the best predicted gain, {best.gain_per_minute:.2f} points per minute "
+                        f"({best.candidate.description}), is below the minimum {settings.min_gain:g}")
+    return "collect", (f"collect {best.candidate.description} next: {best.gain_pct:.1f} points of the "
+                       f"objects' distances in all, {best.gain_per_minute:.2f} points per minute")
+
+
+def frame_advice_table(advice: FrameAdvice, rows: int = 15) -> str:
+    """The advice as text: the present per object, the best ``rows`` candidates, the recommendation."""
+    s = advice.settings
+    lines = [f"frame advice: {len(advice.objects)} objects; now ({s.hdi_prob:.0%} interval of the distance, "
+             f"{'posterior HDI' if advice.width_source == 'posterior' else 'Laplace approximation'}):"]
+    order = np.argsort(-advice.share)
+    lines.append("  " + "  ".join(f"{advice.objects[i]} {advice.width_m[i]:.2g} m ({100 * advice.share[i]:.0f} %)"
+                                  for i in order[:12]) + ("  …" if len(order) > 12 else ""))
+    deg = {"pitch": 180 / np.pi, "roll": 180 / np.pi}
+    cam = ", ".join(f"{k}{' deg' if k in deg else ''} {v * deg.get(k, 1.0):.3g}" for k, v in advice.camera_sd.items()
+                    if v is not None)
+    lines += [f"  camera sd: {cam}" if cam else "  camera: fixed", ""]
+    head = ("rank", "object", "annotation", "cost s", "its width now → after", "frame gain pts", "pts/min")
+    table = []
+    index = {o: k for k, o in enumerate(advice.objects)}
+    for k, p in enumerate(advice.predictions[:rows], start=1):
+        i = index[p.candidate.object]
+        table.append((str(k), p.candidate.object, p.candidate.kind, f"{p.candidate.seconds:.0f}",
+                      f"{advice.width_m[i]:.3g} → {p.width_m[i]:.3g} m", f"{p.gain_pct:+.2f}", f"{p.gain_per_minute:+.3f}"))
+    widths = [max(len(r[c]) for r in table + [head]) for c in range(len(head))]
+    for r in [head] + table:
+        lines.append("  ".join(c.ljust(w) if j in (1, 2) else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths))))
+    if len(advice.predictions) > rows:
+        lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
+    lines += ["", f"recommendation: {advice.action}: {advice.reason}"]
+    lines += [f"note: {n}" for n in advice.notes]
+    lines.append(f"({len(advice.predictions)} annotations weighed from the Laplace approximation at the MAP, "
+                 f"κ = {advice.curvature:.2f}; {advice.seconds:.2f} s)")
+    return "\n".join(lines)
