@@ -14,10 +14,11 @@ Candidates, for every object i:
 - ``dims``: one more set of dimension lines. Its information is κ/σᵢ² Jᵀ J / T, J (8 × 12) the
   Jacobian of object i's four projected corners with respect to the camera's and object i's
   working coordinates, σᵢ the object's corner scale (the model's), T the temperature and κ the
-  curvature of the Student-t corner term per coordinate, (ν + 2) / ν / (1 + q)², q = |r|² / (ν σᵢ²),
-  averaged over every corner of every annotation of the frame at the MAP (the information a
-  set of the frame's own quality brings: 0.75 when the corners follow the model's Student-t,
-  0.83 for Gaussian corners of standard deviation σᵢ).
+  expected curvature of the Student-t corner term per coordinate, (ν + 2) / ν / (1 + q)²,
+  q = |r|² / (ν σᵢ²), for a new corner r ~ N(0, σᵢ² I) (:func:`expected_curvature`: 0.83 for
+  ν = 4; 0.75 if the corners followed the Student-t itself). Not the frame's own residuals at the
+  MAP (:func:`corner_curvature`, reported): those are fitted, the more so the fewer sets an object
+  has (one set is fitted almost exactly, κ → 1.5), and a new set is not.
 - ``distance``: a worker's distance to object i, drawn as the paper's distance task: from the
   image's bottom edge straight up to the object's nearest bottom corner (at the MAP). The
   segment's real length depends on the camera only; its information is
@@ -55,7 +56,7 @@ from . import AdviceSettings
 from .candidates import PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS, SAME_SEGMENT_MIN_PX
 
 __all__ = ["FrameCandidate", "FramePrediction", "FrameAdvice", "advise_frame", "frame_seconds",
-           "corner_curvature", "frame_advice_table"]
+           "corner_curvature", "expected_curvature", "frame_advice_table"]
 
 _CAMERA_REPORT = ((C_FOCAL, "focal_length_px", True), (C_PITCH, "pitch", False), (C_ROLL, "roll", False),
                   (C_HEIGHT, "height_m", True))
@@ -158,6 +159,7 @@ class FrameAdvice:
                 "action": self.action, "reason": self.reason,
                 "recommended": best.candidate.key if self.action == "collect" and best else None,
                 "predictions": [p.to_dict() for p in self.predictions], "curvature": _r(self.curvature),
+                "curvature_at_map": _r(self.extra.get("curvature_at_map")),
                 "notes": list(self.notes), "settings": self.settings.to_dict(), "seconds": round(self.seconds, 3)}
 
 
@@ -182,6 +184,14 @@ def corner_curvature(model, camera: np.ndarray, objects: np.ndarray) -> float:
     k = (nu + 2.0) / nu / (1.0 + q) ** 2
     mask = np.broadcast_to(model.ann_mask[..., None], k.shape) > 0
     return float(k[mask].mean())
+
+
+def expected_curvature(nu: float) -> float:
+    """κ(ν) = E[(ν + 2) / ν / (1 + X / ν)²] for X = |r|² / σ² ~ χ²₂ (a Gaussian corner): the
+    expected curvature per coordinate of the Student-t corner term, in units of 1/σ²."""
+    from scipy.integrate import quad
+
+    return float(quad(lambda x: 0.5 * np.exp(-0.5 * x) * (nu + 2.0) / nu / (1.0 + x / nu) ** 2, 0.0, np.inf)[0])
 
 
 def _candidates(model, frame, camera, objects, secs) -> tuple[list[FrameCandidate], list[str]]:
@@ -242,7 +252,8 @@ def _line_variance(model, line: np.ndarray, camera: np.ndarray) -> float:
 
 
 def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width_now=None,
-                 settings: AdviceSettings | None = None, temperature: float = 1.0) -> FrameAdvice:
+                 settings: AdviceSettings | None = None, temperature: float = 1.0,
+                 curvature: float | None = None) -> FrameAdvice:
     """The advice for a frame at its MAP (module docstring).
 
     Parameters
@@ -256,6 +267,8 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
     settings : :class:`~creference_bayes.workflows.advice.AdviceSettings` (``hdi_prob``,
         ``target_hdi_width``, ``min_gain`` are used)
     temperature : the estimate's temperature
+    curvature : κ of a new set of dimension lines (default :func:`expected_curvature` of the
+        model's ν; (ν + 2) / ν is that of a set exactly on the MAP's corners, which the tests use)
     """
     t0 = time.perf_counter()
     settings = settings or AdviceSettings()
@@ -286,7 +299,8 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
         width, source = 2 * z * sd_now, "laplace"
     else:
         width, source = np.asarray(width_now, float), "posterior"
-    kappa = corner_curvature(model, lap.camera, lap.objects)
+    kappa = expected_curvature(model.target_dof) if curvature is None else float(curvature)
+    fitted = corner_curvature(model, lap.camera, lap.objects)
     g_uv = work_gradients(model, lap.wc, lap.wo, lambda c, o: model.project(c, o)[0].reshape(len(c), m, 8))
     cands, more = _candidates(model, frame, lap.camera, lap.objects, frame_seconds(frame))
     notes += more
@@ -315,7 +329,8 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
     preds.sort(key=lambda p: -p.gain_per_minute)
     action, reason = _recommend(width / d_map, preds, settings, [o.id for o in model.objects])
     return FrameAdvice(tuple(o.id for o in model.objects), d_map, sd_now, width, source, cam_now, tuple(preds),
-                       action, reason, settings, kappa, tuple(notes), time.perf_counter() - t0)
+                       action, reason, settings, kappa, tuple(notes), time.perf_counter() - t0,
+                       {"curvature_at_map": fitted})
 
 
 def _recommend(share, preds, settings: AdviceSettings, ids) -> tuple[str, str]:
