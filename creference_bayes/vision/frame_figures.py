@@ -97,7 +97,7 @@ def _draw_box(ax, uv: np.ndarray, **style) -> None:
             ax.plot(*uv[[a, b]].T, **style)
 
 
-def _cloud(ax, x, z, color, prob, max_points=1500, rng=0, contour=True):
+def _cloud(ax, x, z, color, prob, max_points=800, rng=0, contour=True):
     sel = np.random.default_rng(rng).permutation(len(x))[:max_points]
     ax.scatter(x[sel], z[sel], s=2, alpha=0.2, color=color, lw=0)
     if contour and len(x) >= 50:
