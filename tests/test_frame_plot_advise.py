@@ -221,3 +221,16 @@ def test_advise_a_frame_from_the_command_line(frame3, tmp_path, capsys):
     assert gains == sorted(gains, reverse=True)
     # and on the result, which finds its scene beside it
     assert main(["advise", str(d / "result.json"), "--quiet"]) == 0
+
+
+@pytest.mark.parametrize("command", ["plot", "advise"])
+def test_a_frame_result_missing_a_key_is_a_one_line_error(frame3, tmp_path, capsys, command):
+    d, scene, result = frame3
+    broken = copy.deepcopy(result)
+    del broken["objects"][1]["map"]["yaw"]
+    (tmp_path / "result.json").write_text(json.dumps(broken))
+    args = [command, str(tmp_path / "result.json"), "--scene", str(d / "frame.json")]
+    assert main(args + (["--out", str(tmp_path / "figs")] if command == "plot" else [])) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("objects[1].map.yaw: expected a number, got None") and "\n" not in err
+    assert not (tmp_path / "figs").exists()

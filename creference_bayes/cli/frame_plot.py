@@ -7,7 +7,33 @@ from pathlib import Path
 
 from .main import UsageError
 
-__all__ = ["find_frame_scene", "run_frame_plot", "run_frame_advise"]
+__all__ = ["check_frame_result", "find_frame_scene", "run_frame_plot", "run_frame_advise"]
+
+
+def check_frame_result(result: dict, path: Path) -> None:
+    """A one-line error naming the first key a frame result lacks (``objects[0].map.x``, …)."""
+    from ..models.frame import CAMERA_NAMES, OBJECT_NAMES
+
+    def need(obj, key, where, kind=dict):
+        value = obj.get(key) if isinstance(obj, dict) else None
+        if not isinstance(value, kind):
+            raise UsageError(f"{path}: {where}{key}: expected {'a list' if kind is list else 'an object'}, "
+                             f"got {type(value).__name__ if value is not None else 'nothing'}")
+        return value
+
+    cam = need(need(result, "camera", ""), "map", "camera.")
+    need(result, "provenance", "")
+    objects = need(result, "objects", "", list)
+    if not objects:
+        raise UsageError(f"{path}: objects: expected at least one object, got []")
+    for k in CAMERA_NAMES:
+        if not isinstance(cam.get(k), (int, float)):
+            raise UsageError(f"{path}: camera.map.{k}: expected a number, got {cam.get(k)!r}")
+    for i, o in enumerate(objects):
+        mp = need(o, "map", f"objects[{i}].")
+        for k in OBJECT_NAMES:
+            if not isinstance(mp.get(k), (int, float)):
+                raise UsageError(f"{path}: objects[{i}].map.{k}: expected a number, got {mp.get(k)!r}")
 
 
 def find_frame_scene(result: dict, result_path: Path, explicit: str | None):
@@ -48,6 +74,7 @@ def run_frame_plot(args, result: dict, path: Path) -> int:
     from ..frame_pipeline import frame_draws, map_state, rebuild_model
     from ..vision import frame_figures as ff
 
+    check_frame_result(result, path)
     frame = find_frame_scene(result, path, args.scene)
     try:
         model = rebuild_model(result, frame)
@@ -97,6 +124,7 @@ def run_frame_advise(args, settings) -> int:
     d = json.loads(path.read_text(encoding="utf-8"))
     try:
         if d.get("format") == "creference-result/2":
+            check_frame_result(d, path)
             frame = find_frame_scene(d, path, args.scene)
             model = rebuild_model(d, frame)
             camera, objects = map_state(d)

@@ -8,6 +8,9 @@ the current directory, then among the package's shipped scenes. Either way it mu
 the result was estimated from: its target id, image size and content hash must match the result's
 ``scene_id`` (else a one-line error, exit 2). Results written before ``scene_id`` existed are
 checked on their target id only, with a warning that the scene could not be checked fully.
+
+A frame's result (``creference-result/2``) gets ``frame_boxes``, ``frame_top_view`` and
+``frame_camera`` instead (:mod:`.frame_plot`, docs/frames.md).
 """
 
 from __future__ import annotations
