@@ -234,3 +234,21 @@ def test_a_frame_result_missing_a_key_is_a_one_line_error(frame3, tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert err.endswith("objects[1].map.yaw: expected a number, got None") and "\n" not in err
     assert not (tmp_path / "figs").exists()
+
+
+def test_a_laplace_block_that_is_not_positive_definite_is_repaired_alone(frame3):
+    from creference_bayes.inference.frame_laplace import laplace_blocks
+
+    d, scene, result = frame3
+    model = rebuild_model(result, d / "frame.json")
+    lap = frame_laplace(model, *map_state(result))
+    assert lap.ok
+    H = copy.deepcopy(lap.hessian)
+    f = np.flatnonzero(model.object_free[1])
+    w, V = np.linalg.eigh(H.H_oo[1][np.ix_(f, f)])
+    w[0] = -w[0]  # one negative curvature in object 1
+    H.H_oo[1][np.ix_(f, f)] = (V * w) @ V.T
+    Sc, Ao, B, ok = laplace_blocks(model, H)
+    assert not ok
+    np.testing.assert_allclose(Ao[0], lap.Ao[0], rtol=1e-6, atol=1e-12)  # the others keep theirs
+    np.testing.assert_allclose(Ao[1], lap.Ao[1], rtol=1e-6, atol=1e-12)  # |λ| is λ: the same block

@@ -37,8 +37,8 @@ class FrameLaplace:
     wc : (5,);  wo : (m, 7) the MAP in working coordinates
     hessian : the arrowhead Hessian there
     Sc : (5, 5);  Ao : (m, 7, 7);  B : (m, 7, 5) the covariance by blocks
-    ok : False when the Hessian was not positive definite (then ``Sc`` and ``Ao`` are the
-        inverse diagonals and ``B`` is zero)
+    ok : False when the Hessian was not positive definite (then its blocks were repaired:
+        :func:`laplace_blocks`)
     """
 
     model: FrameModel
@@ -80,25 +80,47 @@ def frame_laplace(model: FrameModel, camera: np.ndarray, objects: np.ndarray, *,
 
 def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """(``Sc``, ``Ao``, ``B``, ok) of an arrowhead Hessian ``H`` (module docstring), zero on fixed
-    parameters; when it is not positive definite, the inverse diagonals and no shear (ok False)."""
+    parameters. A block that is not positive definite (an object's, or the camera's Schur
+    complement: a MAP in natural coordinates need not be a mode of the working-coordinate
+    density) has its negative eigenvalues replaced by their absolute values (at least 1e-9 of its
+    largest), and ok is False."""
     m = model.n_objects
-    try:
-        Sc, Ao, B = H.covariance_blocks()
-        cf = model.camera_free
-        ok = bool(np.all(np.isfinite(Sc)) and np.all(np.isfinite(Ao))
-                  and np.all(np.linalg.eigvalsh(Sc[np.ix_(cf, cf)]) > 0) if cf.any() else np.all(np.isfinite(Ao)))
-        ok = ok and all(np.all(np.linalg.eigvalsh(Ao[i][np.ix_(f, f)]) > 0)
-                        for i, f in enumerate(model.object_free) if f.any())
-    except np.linalg.LinAlgError:
-        ok = False
-    if not ok:
-        Sc = np.diag(1.0 / np.maximum(np.abs(np.diag(H.H_cc)), 1e-6))
-        Ao = np.array([np.diag(1.0 / np.maximum(np.abs(np.diag(H.H_oo[i])), 1e-6)) for i in range(m)])
-        B = np.zeros((m, 7, 5))
+    H_oo = H.H_oo.copy()
+    ok = True
+    for i in range(m):
+        H_oo[i], good = _positive(H_oo[i], model.object_free[i])
+        ok &= good
+    Ao = np.linalg.inv(H_oo)
+    B = -np.einsum("mij,mcj->mic", Ao, H.H_co)
+    S = H.H_cc + np.einsum("mcj,mjd->cd", H.H_co, B)
+    S, good = _positive(S, model.camera_free)
+    ok &= good
+    Sc = np.linalg.inv(S)
     Sc = Sc * np.outer(model.camera_free, model.camera_free)
     Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
     B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
-    return Sc, Ao, B, ok
+    return Sc, Ao, B, bool(ok)
+
+
+def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``A`` with the eigenvalues of its free block made positive (module docstring of
+    :func:`laplace_blocks`); True when they already were."""
+    idx = np.flatnonzero(free)
+    if not idx.size:
+        return A, True
+    sub = A[np.ix_(idx, idx)]
+    sub = 0.5 * (sub + sub.T)
+    finite = bool(np.all(np.isfinite(sub)))
+    if not finite:  # the inverse diagonal where it is finite
+        sub = np.diag(np.where(np.isfinite(np.diag(sub)), np.abs(np.diag(sub)), 1.0))
+    w, V = np.linalg.eigh(sub)
+    floor = 1e-9 * max(float(np.abs(w).max()), 1e-300)
+    good = finite and bool(w.min() > floor)
+    if good:
+        return A, True
+    out = A.copy()
+    out[np.ix_(idx, idx)] = (V * np.maximum(np.abs(w), floor)) @ V.T
+    return out, False
 
 
 def block_variances(Sc: np.ndarray, Ao: np.ndarray, B: np.ndarray, g_c: np.ndarray, g_o: np.ndarray) -> np.ndarray:

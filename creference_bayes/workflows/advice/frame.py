@@ -292,7 +292,8 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
         return sd, cam, ok
 
     sd_now, cam_now, ok = outlook(H)
-    notes = [] if ok else ["the Hessian at the MAP is not positive definite: predictions use its diagonal"]
+    notes = [] if ok else ["the Hessian at the MAP is not positive definite: its negative curvatures "
+                           "were taken with their absolute value (a rough prediction)"]
     d_map = np.hypot(lap.objects[:, 0], lap.objects[:, 1])
     z = float(norm.ppf(0.5 + settings.hdi_prob / 2))
     if width_now is None:
