@@ -51,42 +51,15 @@ from scipy.stats import norm
 from ...inference.frame_laplace import block_variances, frame_laplace, laplace_blocks, work_gradients
 from ...inference.frame_map import Arrowhead
 from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE
-from ...models.frame_boxes import frame_boxes_2d
 from . import AdviceSettings
-from .candidates import PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS, SAME_SEGMENT_MIN_PX
+from .frame_candidates import FrameCandidate, frame_candidates, frame_seconds
+from .frame_table import frame_advice_table
 
 __all__ = ["FrameCandidate", "FramePrediction", "FrameAdvice", "advise_frame", "frame_seconds",
            "corner_curvature", "expected_curvature", "frame_advice_table"]
 
 _CAMERA_REPORT = ((C_FOCAL, "focal_length_px", True), (C_PITCH, "pitch", False), (C_ROLL, "roll", False),
                   (C_HEIGHT, "height_m", True))
-
-
-@dataclass(frozen=True)
-class FrameCandidate:
-    """One annotation the frame's advice weighs: ``kind`` ``dims``, ``distance`` or ``length`` on
-    object ``index`` (id ``object``); ``line`` (2, 2) pixels for a distance; its cost in seconds."""
-
-    kind: str
-    index: int
-    object: str
-    seconds: float
-    line: np.ndarray | None = None
-
-    @property
-    def key(self) -> str:
-        return f"{self.object}:{self.kind}"
-
-    @property
-    def description(self) -> str:
-        return {"dims": f"one more set of dimension lines on {self.object}",
-                "distance": f"distance to {self.object} (image bottom to its nearest bottom corner)",
-                "length": f"length of {self.object}"}[self.kind]
-
-    def to_dict(self) -> dict:
-        return {"key": self.key, "kind": self.kind, "object": self.object, "seconds": self.seconds,
-                "line": None if self.line is None else np.round(self.line, 2).tolist(),
-                "description": self.description}
 
 
 @dataclass(frozen=True)
@@ -163,17 +136,6 @@ class FrameAdvice:
                 "notes": list(self.notes), "settings": self.settings.to_dict(), "seconds": round(self.seconds, 3)}
 
 
-def frame_seconds(frame) -> dict[str, float]:
-    """Cost per kind, seconds: the median of the frame's recorded ``seconds`` of its dimension lines
-    (``dims``) and of its references (``reference``), else the paper's averages (183.5 s, 64.4 s)."""
-    def median(values, default):
-        values = [v for v in values if v is not None and v > 0]
-        return float(np.median(values)) if values else default
-
-    return {"dims": median([d.seconds for t in frame.targets for d in t.dimension_lines], PAPER_TARGET_SECONDS),
-            "reference": median([r.seconds for r in frame.references], PAPER_REFERENCE_SECONDS)}
-
-
 def corner_curvature(model, camera: np.ndarray, objects: np.ndarray) -> float:
     """κ: the mean curvature per coordinate of the Student-t corner term, in units of 1/σᵢ², over
     every annotated corner of the frame at the given state (module docstring)."""
@@ -192,25 +154,6 @@ def expected_curvature(nu: float) -> float:
     from scipy.integrate import quad
 
     return float(quad(lambda x: 0.5 * np.exp(-0.5 * x) * (nu + 2.0) / nu / (1.0 + x / nu) ** 2, 0.0, np.inf)[0])
-
-
-def _candidates(model, frame, camera, objects, secs) -> tuple[list[FrameCandidate], list[str]]:
-    out, notes = [], []
-    w, h = frame.image_width, frame.image_height
-    for i, o in enumerate(model.objects):
-        out.append(FrameCandidate("dims", i, o.id, secs["dims"]))
-        box = frame_boxes_2d(camera[None], objects[i][None], frame.principal_point)[0, :4]  # bottom face
-        near = box[int(np.nanargmax(box[:, 1]))] if np.any(np.isfinite(box[:, 1])) else None
-        if near is None or not np.all(np.isfinite(near)) or not (0 <= near[0] <= w):
-            notes.append(f"{o.id}:distance: left out: its nearest bottom corner is outside the image")
-        elif near[1] >= h - 1 - SAME_SEGMENT_MIN_PX:
-            notes.append(f"{o.id}:distance: left out: the object touches the image's bottom edge")
-        else:
-            out.append(FrameCandidate("distance", i, o.id, secs["reference"],
-                                      np.array([[near[0], h - 1.0], [near[0], near[1]]])))
-        if model.object_free[i, 3]:
-            out.append(FrameCandidate("length", i, o.id, secs["reference"]))
-    return out, notes
 
 
 def _reference_information(model, lap, cand: FrameCandidate, temperature: float):
@@ -303,7 +246,7 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
     kappa = expected_curvature(model.target_dof) if curvature is None else float(curvature)
     fitted = corner_curvature(model, lap.camera, lap.objects)
     g_uv = work_gradients(model, lap.wc, lap.wo, lambda c, o: model.project(c, o)[0].reshape(len(c), m, 8))
-    cands, more = _candidates(model, frame, lap.camera, lap.objects, frame_seconds(frame))
+    cands, more = frame_candidates(model, frame, lap.camera, lap.objects, frame_seconds(frame))
     notes += more
     preds = []
     for cand in cands:
@@ -348,34 +291,3 @@ def _recommend(share, preds, settings: AdviceSettings, ids) -> tuple[str, str]:
                         f"({best.candidate.description}), is below the minimum {settings.min_gain:g}")
     return "collect", (f"collect {best.candidate.description} next: {best.gain_pct:.1f} points of the "
                        f"objects' distances in all, {best.gain_per_minute:.2f} points per minute")
-
-
-def frame_advice_table(advice: FrameAdvice, rows: int = 15) -> str:
-    """The advice as text: the present per object, the best ``rows`` candidates, the recommendation."""
-    s = advice.settings
-    lines = [f"frame advice: {len(advice.objects)} objects; now ({s.hdi_prob:.0%} interval of the distance, "
-             f"{'posterior HDI' if advice.width_source == 'posterior' else 'Laplace approximation'}):"]
-    order = np.argsort(-advice.share)
-    lines.append("  " + "  ".join(f"{advice.objects[i]} {advice.width_m[i]:.2g} m ({100 * advice.share[i]:.0f} %)"
-                                  for i in order[:12]) + ("  …" if len(order) > 12 else ""))
-    deg = {"pitch": 180 / np.pi, "roll": 180 / np.pi}
-    cam = ", ".join(f"{k}{' deg' if k in deg else ''} {v * deg.get(k, 1.0):.3g}" for k, v in advice.camera_sd.items()
-                    if v is not None)
-    lines += [f"  camera sd: {cam}" if cam else "  camera: fixed", ""]
-    head = ("rank", "object", "annotation", "cost s", "its width now → after", "frame gain pts", "pts/min")
-    table = []
-    index = {o: k for k, o in enumerate(advice.objects)}
-    for k, p in enumerate(advice.predictions[:rows], start=1):
-        i = index[p.candidate.object]
-        table.append((str(k), p.candidate.object, p.candidate.kind, f"{p.candidate.seconds:.0f}",
-                      f"{advice.width_m[i]:.3g} → {p.width_m[i]:.3g} m", f"{p.gain_pct:+.2f}", f"{p.gain_per_minute:+.3f}"))
-    widths = [max(len(r[c]) for r in table + [head]) for c in range(len(head))]
-    for r in [head] + table:
-        lines.append("  ".join(c.ljust(w) if j in (1, 2) else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths))))
-    if len(advice.predictions) > rows:
-        lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
-    lines += ["", f"recommendation: {advice.action}: {advice.reason}"]
-    lines += [f"note: {n}" for n in advice.notes]
-    lines.append(f"({len(advice.predictions)} annotations weighed from the Laplace approximation at the MAP, "
-                 f"κ = {advice.curvature:.2f}; {advice.seconds:.2f} s)")
-    return "\n".join(lines)
