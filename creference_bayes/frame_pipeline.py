@@ -20,7 +20,7 @@ from .io.frame_scene import FrameScene, load_frame
 from .models.frame import DEFAULT_GROUND_SD_M, DEFAULT_GROUND_TILT_SD_RAD, FrameModel, FrameReference, ObjectData
 from .models.size_priors import SizePrior
 
-__all__ = ["estimate_frame", "build_frame_model", "rebuild_model", "FRAME_OPTIONS"]
+__all__ = ["estimate_frame", "build_frame_model", "rebuild_model", "map_state", "frame_draws", "FRAME_OPTIONS"]
 
 #: Model options a user may set (the result's provenance records them).
 FRAME_OPTIONS = ("ground_sd_m", "ground_tilt_sd_rad", "target_dof", "ref_dof", "ref_line_sigma")
@@ -149,3 +149,35 @@ def rebuild_model(result, frame: FrameScene | str | Path) -> FrameModel:
     if d.get("pilot_camera") is not None:
         model.set_pilot(np.array(d["pilot_camera"], float))
     return model
+
+
+def map_state(result) -> tuple[np.ndarray, np.ndarray]:
+    """The MAP of a ``creference-result/2`` (or its dict) as model arrays: camera (5,) and
+    objects (m, 7) (:mod:`~.models.frame` order)."""
+    from .models.frame import CAMERA_NAMES, OBJECT_NAMES
+
+    d = result if isinstance(result, dict) else result.to_dict()
+    camera = np.array([d["camera"]["map"][k] for k in CAMERA_NAMES], float)
+    objects = np.array([[o["map"][k] for k in OBJECT_NAMES] for o in d["objects"]], float)
+    return camera, objects
+
+
+def frame_draws(result, model: FrameModel, *, n: int = 2000, seed=0) -> tuple[np.ndarray, np.ndarray, str]:
+    """Posterior draws of a frame result: those it keeps (``draws``: ``cameras`` (N, 5) and
+    ``objects`` (N, m, 7)) when it has them, else ``n`` draws of the Laplace approximation at its
+    MAP (:mod:`~.inference.frame_laplace`) of the rebuilt ``model``.
+
+    Returns cameras (k, 5), objects (k, m, 7) and where they came from (``"posterior"`` or
+    ``"laplace"``).
+    """
+    from .inference.frame_laplace import frame_laplace
+    from .io.frame_result import stored_draws
+
+    d = result if isinstance(result, dict) else result.to_dict()
+    kept = stored_draws(d)  # a malformed ``draws`` raises ValueError naming the key
+    if kept is not None and kept.objects.shape[2] == model.n_objects:
+        return kept.cameras.reshape(-1, 5), kept.objects.reshape(-1, model.n_objects, 7), "posterior"
+    camera, objects = map_state(d)
+    lap = frame_laplace(model, camera, objects, temperature=float(d["provenance"].get("temperature", 1.0)))
+    cams, objs = lap.draws(n, seed)
+    return cams, objs, "laplace"

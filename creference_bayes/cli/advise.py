@@ -106,7 +106,22 @@ def _run(args) -> int:
         raise UsageError("--budget: only for a batch folder")
     if args.workers != 1:
         raise UsageError("--workers: only for a batch folder")
+    if _is_frame(args.input):
+        from .frame_plot import run_frame_advise
+
+        return run_frame_advise(args, settings)
     return _one(args, settings, progress)
+
+
+def _is_frame(path) -> bool:
+    """A ``creference-scene/2`` frame or its ``creference-result/2``."""
+    import json
+
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and d.get("format") in ("creference-scene/2", "creference-result/2")
 
 
 def register(subparsers) -> None:
@@ -119,10 +134,13 @@ def register(subparsers) -> None:
                     "quality, per minute of human time (preposterior simulation under the model's "
                     "noise model); a ranked table and a recommendation. On a batch folder: every "
                     "object ranked and the request list for the crowd (requests.csv, Label Studio "
-                    "tasks, CVAT XML).")
+                    "tasks, CVAT XML). On a frame (creference-scene/2 or its creference-result/2): "
+                    "which object and which annotation next, predicted from the Laplace approximation "
+                    "at the MAP (docs/advice.md#frames).")
     p.add_argument("input", metavar="INPUT",
-                   help="a scene file (estimated first), a result file of the metrology model, or a "
-                        "folder written by creference batch")
+                   help="a scene file (estimated first), a result file of the metrology model, a frame "
+                        "(creference-scene/2) or its result (creference-result/2), or a folder "
+                        "written by creference batch")
     p.add_argument("--out", metavar="PATH", default=None,
                    help="a scene or result: write the advice as JSON to PATH; a batch folder: the "
                         "folder for the advice files (default: BATCH_DIR/advice)")

@@ -8,6 +8,9 @@ the current directory, then among the package's shipped scenes. Either way it mu
 the result was estimated from: its target id, image size and content hash must match the result's
 ``scene_id`` (else a one-line error, exit 2). Results written before ``scene_id`` existed are
 checked on their target id only, with a warning that the scene could not be checked fully.
+
+A frame's result (``creference-result/2``) gets ``frame_boxes``, ``frame_top_view`` and
+``frame_camera`` instead (:mod:`.frame_plot`, docs/frames.md).
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ def register(subparsers) -> None:
                     "photo or a blank canvas; needs the scene), top_view.png (the ground seen from "
                     "above), pairs.png and ranks.png (need the posterior). See docs/user_guide.md.")
     p.add_argument("result", metavar="RESULT.json",
-                   help="a creference-result/1 file written by `creference estimate --out`")
+                   help="a creference-result/1 file written by `creference estimate --out`, or a frame's "
+                        "creference-result/2 (then frame_boxes, frame_top_view and frame_camera; docs/frames.md)")
     p.add_argument("--scene", metavar="SCENE.json",
                    help="the scene the result was estimated from (default: the result's scene "
                         "name, looked up next to the result, in the current directory, then among "
@@ -104,6 +108,11 @@ def _run(args) -> int:
     from ..io.result import load_result_dict
 
     path = Path(args.result)
+    frame_result = _frame_result(path)
+    if frame_result is not None:
+        from .frame_plot import run_frame_plot
+
+        return run_frame_plot(args, frame_result, path)
     try:
         result = load_result_dict(path)
     except ValueError as exc:  # wrong format key, or not JSON
@@ -130,6 +139,17 @@ def _run(args) -> int:
         if not args.quiet:
             print(f"wrote {target}")
     return 0
+
+
+def _frame_result(path: Path) -> dict | None:
+    """The document of a ``creference-result/2`` file (a frame), or None for anything else."""
+    import json
+
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) and d.get("format") == "creference-result/2" else None
 
 
 def _load_netcdf(result: dict, result_path: Path):
