@@ -216,6 +216,8 @@ def test_advise_a_frame_from_the_command_line(frame3, tmp_path, capsys):
     assert main(["advise", str(d / "frame.json"), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "recommendation:" in text and "frame gain pts" in text
+    said = next(line for line in text.splitlines() if line.startswith("recommendation:"))
+    assert said.split()[1] in ("collect", "stop") and "collect: collect" not in said, said
     doc = json.loads(out.read_text())
     assert doc["format"] == "creference-frame-advice/1"
     keys = [p["candidate"]["key"] for p in doc["predictions"]]
