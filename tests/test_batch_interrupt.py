@@ -17,11 +17,13 @@ SMALL = ["--min-ess", "100", "--quiet", "--seed", "3"]
 
 
 def _wait_for(predicate, proc, timeout=120.0):
+    """Poll ``predicate`` until it returns something other than None or False; return that."""
     end = time.monotonic() + timeout
-    while not predicate():
+    while (value := predicate()) is None or value is False:
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < end, "timed out"
         time.sleep(0.05)
+    return value
 
 
 def _interrupt(proc) -> str:
@@ -47,8 +49,18 @@ def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "1", *SMALL],
                             start_new_session=True, stderr=subprocess.PIPE, text=True)
     _wait_for(out.is_dir, proc)
-    time.sleep(1.0)  # the two real scenes are read in well under a second; then the pipe blocks
-    err = _interrupt(proc)
+
+    def reading_the_pipe():  # a writer can open a FIFO without blocking only once a reader has
+        try:
+            return os.open(scenes / "zz_pipe.json", os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:
+            return None
+
+    writer = _wait_for(reading_the_pipe, proc)  # held open (no EOF): the batch stays blocked
+    try:
+        err = _interrupt(proc)
+    finally:
+        os.close(writer)
     assert proc.returncode == 130, err
     _check_folder(out, 3)
 
