@@ -218,3 +218,16 @@ def test_frame_bound_shrinks_with_more_objects_sharing_the_camera():
     m1.handedness = model.handedness[:1]
     alone = frame_crb(m1, cam, objs[:1], 2.0)
     assert joint.distance_sd_m[0] < alone.distance_sd_m[0]
+
+
+def test_an_object_placed_above_the_camera_at_the_start_does_not_poison_the_map():
+    # this 30-object street frame's first starts put one object's ground offset at +1 m under a
+    # 0.97 m camera: its bottom above the camera, zero density; the optimiser returned NaN for it
+    # and the sampler refused to start ("the MAP has zero posterior density")
+    scene = simulate_frame([0, 30, 0], kind="street", n_objects=30, n_annotations=5)
+    model, _ = build_frame_model(parse_frame(scene))
+    est = optimize_frame(model)
+    assert np.isfinite(est.value) and np.all(np.isfinite(est.objects))
+    loc = np.array([t["ground_truth"]["location_m"] for t in scene["targets"]])
+    got = np.c_[est.objects[:, 0], est.camera[3] - est.objects[:, 6], est.objects[:, 1]]
+    assert np.median(np.linalg.norm(got - loc, axis=1) / np.linalg.norm(loc, axis=1)) < 0.06

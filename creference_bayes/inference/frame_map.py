@@ -150,7 +150,12 @@ def initial_objects(model: FrameModel, cam: np.ndarray) -> tuple[np.ndarray, np.
     objs[:, 0], objs[:, 1], objs[:, 2] = t[:, 0], np.maximum(t[:, 2], 0.2), yaw
     objs[:, O_SIZE] = [o.initial_sizes for o in model.objects]
     if model.ground_sd_m > 0:
-        objs[:, O_GROUND] = np.clip(cam[C_HEIGHT] - t[:, 1], -1.0, 1.0)
+        with np.errstate(invalid="ignore"):
+            g = np.clip(cam[C_HEIGHT] - t[:, 1], -1.0, 1.0)
+        # an object whose own placement is unusable stands on the camera's ground plane: its
+        # bottom must stay below the camera (else it has no ray to the ground and zero density)
+        g[~np.isfinite(g) | (cam[C_HEIGHT] - g < 0.2)] = 0.0
+        objs[:, O_GROUND] = g
     return cam, objs, np.where(pick == 0, 1, -1), float(np.sum(err))
 
 
@@ -277,9 +282,11 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
         candidates.append((value, err, cam, objs, hand))
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     best = None
-    iters = 0
+    iters = refined = 0
     sigma = model.sigma.copy()
-    for value, err, cam, objs, hand in candidates[:n_refine]:
+    for value, err, cam, objs, hand in candidates:
+        if refined >= n_refine and best is not None and np.isfinite(best[0]):
+            break
         model.handedness = hand.astype(float)
         wc, wo = (a[0] for a in FrameCoords(model).to_work(cam[None], objs[None]))
         if np.any(sigma < _SMOOTH_SIGMA_PX):  # continuation: a smoother cost first (far from the
@@ -289,9 +296,13 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
             iters += it
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
+        refined += 1
         if best is None or f < best[0]:
             best = (f, wc, wo, hand)
     f, wc, wo, hand = best
+    if not np.isfinite(f):
+        raise RuntimeError(f"no start of the frame's optimiser reached a finite posterior density "
+                           f"({len(candidates)} starts tried)")
     model.handedness = hand.astype(float)
     cams, _ = FrameCoords(model).from_work(wc[None], wo[None])
     if len(model.references):
