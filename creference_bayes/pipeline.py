@@ -75,7 +75,7 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
              use_references: bool = True, seed=None, posterior: bool = True, restarts: int | None = None,
              temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
              progress: bool = False, orientation: str = "auto", focal_prior="auto",
-             orientation_prior=None, confidence_map="default", **options) -> Result:
+             orientation_prior=None, confidence_map="default", location_prior="auto", **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -110,6 +110,9 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         :data:`~creference_bayes.models.confidence_map.DEFAULT_CONFIDENCE_MAP` (docs/confidence.md).
         The paper model turns ranges into bounds and has no use for a confidence: with it, any
         map other than ``"default"`` or ``"none"`` is an error
+    location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the
+        paper presets, whose method has no prior), ``"log-depth"`` or ``"flat"``
+        (:mod:`~creference_bayes.models.location_prior`, method.md "Priors")
     options : model settings (:func:`build_models`)
 
     Returns
@@ -125,15 +128,18 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
                          posterior=posterior, restarts=restarts, temperature=temperature,
                          hdi_prob=hdi_prob, sampling=sampling, progress=progress,
                          orientation=orientation, focal_prior=focal_prior,
-                         orientation_prior=orientation_prior, confidence_map=confidence_map, **options)
+                         orientation_prior=orientation_prior, confidence_map=confidence_map,
+                         location_prior=location_prior, **options)
 
 
 def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, restarts, temperature,
               hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, confidence_map,
-              **options) -> Result:
+              location_prior, **options) -> Result:
     rng = np.random.default_rng(seed)
+    if isinstance(location_prior, str) and location_prior == "auto":
+        location_prior = "log-depth" if preset == "default" else "flat"
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior,
-                         orientation_prior=orientation_prior)
+                         orientation_prior=orientation_prior, location_prior=location_prior)
     warnings = list(scene.warnings) + list(setup.notes)
     references = _references_step(scene, setup, preset, use_references)
     cmap = _confidence_map(model, confidence_map)

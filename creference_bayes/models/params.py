@@ -125,6 +125,26 @@ class FreeParameters:
             d[[PITCH, ROLL]] = True
         return d
 
+    def map_cost(self, params: np.ndarray) -> np.ndarray:
+        """The cost the MAP minimises, for (n, 7) vectors, shape (n,).
+
+        The model's ``cost`` itself, or, when its camera terms take the MAP in log coordinates
+        (:attr:`~.camera_terms.CameraTerms.map_in_log_coordinates`), the cost minus
+        T·Σ log pᵢ over the free parameters that are always positive (lower bound > 0: y for the
+        metrology model, z, µ), T the model's default temperature: the MAP is then the mode of
+        the density in the coordinates the sampler works in and the priors are stated in
+        (:mod:`.location_prior`).
+        """
+        params = np.atleast_2d(np.asarray(params, float))
+        cost = self.cost(params)
+        terms = getattr(self, "camera_terms", None)
+        if terms is None or not terms.map_in_log_coordinates:
+            return cost
+        positive = self.free & (self.bounds.lower > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jac = np.sum(np.log(params[:, positive]), axis=1)
+        return cost - getattr(self, "default_temperature", 1.0) * jac
+
     def expand(self, free_params: np.ndarray) -> np.ndarray:
         """(n, n_free) free parameters → (n, 7) full vectors (derived pitch and roll filled in)."""
         free_params = np.atleast_2d(free_params)
