@@ -34,7 +34,7 @@ DEFAULT_MODEL = "metrology"
 
 
 def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL, preset: str = "default",
-                 constraints=None, use_references: bool = True, **options) -> list:
+                 constraints=None, use_references: bool = True, bounds=None, **options) -> list:
     """One model per handedness for ``scene``, all sharing the estimate's camera ``setup``.
 
     Parameters
@@ -46,6 +46,9 @@ def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL
     constraints : soft constraints from the references (paper model), or None
     use_references : whether the metrology model uses the scene's references (the paper model
         uses ``constraints`` instead)
+    bounds : a :class:`~creference_bayes.models.params.Bounds` box instead of the preset's (the
+        prior is truncated to it: simulation-based calibration estimates within the box its
+        scenes are drawn from)
     options : model settings (``sigma`` for the paper model, default
         :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the
         paper's 100 px with the paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``,
@@ -55,7 +58,8 @@ def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL
     """
     if model not in MODELS:
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
-    bounds = preset_bounds(preset, scene.image_width, scene.image_height)
+    if bounds is None:
+        bounds = preset_bounds(preset, scene.image_width, scene.image_height)
     common = dict(camera=setup.camera, bounds=bounds, orientation_free=setup.orientation_free,
                   camera_terms=setup.terms)
     if model == "metrology":
@@ -75,7 +79,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
              use_references: bool = True, seed=None, posterior: bool = True, restarts: int | None = None,
              temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
              progress: bool = False, orientation: str = "auto", focal_prior="auto",
-             orientation_prior=None, confidence_map="default", location_prior="auto", **options) -> Result:
+             orientation_prior=None, confidence_map="default", location_prior="auto", bounds=None,
+             **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -113,6 +118,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the
         paper presets, whose method has no prior), ``"log-depth"`` or ``"flat"``
         (:mod:`~creference_bayes.models.location_prior`, method.md "Priors")
+    bounds : a :class:`~creference_bayes.models.params.Bounds` box instead of the preset's
+        (:func:`build_models`)
     options : model settings (:func:`build_models`)
 
     Returns
@@ -129,12 +136,12 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
                          hdi_prob=hdi_prob, sampling=sampling, progress=progress,
                          orientation=orientation, focal_prior=focal_prior,
                          orientation_prior=orientation_prior, confidence_map=confidence_map,
-                         location_prior=location_prior, **options)
+                         location_prior=location_prior, bounds=bounds, **options)
 
 
 def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, restarts, temperature,
               hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, confidence_map,
-              location_prior, **options) -> Result:
+              location_prior, bounds, **options) -> Result:
     rng = np.random.default_rng(seed)
     if isinstance(location_prior, str) and location_prior == "auto":
         location_prior = "log-depth" if preset == "default" else "flat"
@@ -147,7 +154,7 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
         options = {**options, "confidence_map": cmap}
     models = build_models(scene, setup, model=model, preset=preset,
                           constraints=references.constraints if model == "paper" else None,
-                          use_references=use_references, **options)
+                          use_references=use_references, bounds=bounds, **options)
     if model == "metrology":
         references = dataclasses.replace(references, used_as="likelihood",
                                          in_likelihood=models[0].n_references_used)
