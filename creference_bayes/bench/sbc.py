@@ -51,7 +51,7 @@ from .simulate import OBJECTS
 
 __all__ = ["SBC_BOX", "IMAGE_SIZE", "TARGET_SCALE_PX", "REF_LENGTH_M", "DESIGNS", "QUANTITIES",
            "N_RANK_DRAWS", "N_BINS", "SBCBox", "draw_truth", "simulate_sbc_scene", "rank_of_truth",
-           "run_sbc", "sbc_summary", "rank_uniformity"]
+           "run_sbc", "sbc_summary", "sbc_markdown", "rank_uniformity"]
 
 IMAGE_SIZE = (2880, 1800)
 #: Scale of the t₄ corner noise, pixels (the model's scale for a single set of lines).
@@ -264,3 +264,18 @@ def sbc_summary(records: list[dict]) -> dict:
                                  "max": float(sec.max())},
                      "quantities": {q: rank_uniformity([r["ranks"][q] for r in ok]) for q in QUANTITIES}}
     return out
+
+
+def sbc_markdown(summary: dict) -> str:
+    """The summary as a Markdown table: one row per design and quantity."""
+    head = ("| design | quantity | scenes | rank histogram (8 bins, low → high) | χ² p | KS p |\n"
+            "|---|---|---|---|---|---|")
+    rows = []
+    for d, s in summary.items():
+        for q, u in s["quantities"].items():
+            f = lambda v: "–" if v is None else f"{v:.3g}"
+            rows.append(f"| {d} | {q} | {u['n']} | {' '.join(map(str, u['counts']))} | {f(u['chi2_p'])} | {f(u['ks_p'])} |")
+    tail = [f"\n{d}: {s['scenes']} scenes, {100 * s['converged']:.0f} % converged, CPU seconds per estimate "
+            f"median {s['seconds']['median']:.2f}, 99th percentile {s['seconds']['p99']:.2f}, max {s['seconds']['max']:.2f}"
+            for d, s in summary.items()]
+    return "\n".join([head, *rows]) + "\n" + "\n".join(tail)
