@@ -102,3 +102,15 @@ def test_thin_design_does_not_lean_far():
         q_flat.append(_truth_quantile(scene, "flat")[0])
     assert all(0.2 < q < 0.8 for q in q_new), q_new
     assert np.mean(q_flat) < np.mean(q_new) - 0.15, (q_flat, q_new)
+
+
+def test_cli_option_and_result_record_the_prior(tmp_path):
+    import json
+
+    from creference_bayes.cli.main import example_scene_path, main
+
+    for choice, kind in (("flat", "flat"), ("auto", "log-depth")):
+        out = tmp_path / f"{choice}.json"
+        assert main(["estimate", str(example_scene_path()), "--no-posterior", "--quiet",
+                     "--location-prior", choice, "--out", str(out)]) == 0
+        assert json.loads(out.read_text())["camera"]["location_prior"] == {"kind": kind}

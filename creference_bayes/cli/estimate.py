@@ -156,6 +156,7 @@ def _run_estimate(args) -> int:
     result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation,
+                      location_prior=getattr(args, "location_prior", "auto"),
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
                       sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
                       progress=not args.quiet and sys.stderr.isatty())
@@ -317,6 +318,10 @@ def register(subparsers) -> None:
     _add_estimate_options(p)
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
                    help="frames: size priors of your own classes (docs/frames.md); the scene's own win")
+    p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat"),
+                   help="prior on the target's ground position: uniform in log depth with the MAP in log "
+                        "coordinates, or flat in (x, z) (auto: log-depth with the default preset, flat with "
+                        "the paper presets; docs/method.md, Priors)")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",
