@@ -318,10 +318,10 @@ def register(subparsers) -> None:
     _add_estimate_options(p)
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
                    help="frames: size priors of your own classes (docs/frames.md); the scene's own win")
-    p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat"),
+    p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"),
                    help="prior on the target's ground position: uniform in log depth with the MAP in log "
                         "coordinates, or flat in (x, z) (auto: log-depth with the default preset, flat with "
-                        "the paper presets; docs/method.md, Priors)")
+                        "the paper presets; inverse-square, 1/d², for comparison; docs/method.md, Priors)")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",

@@ -236,7 +236,7 @@ class CameraTerms:
         """Σ of the applicable terms for (n, 7) vectors: (n,) or 0.0 when none applies."""
         out = 0.0
         if self.location is not None and self.location.kind != "flat":
-            out = out + self.location.neg_log(full[:, 2])
+            out = out + self.location.neg_log(full[:, 0], full[:, 2])
         if self.focal is not None and focal_free:
             out = out + self.focal.neg_log(full[:, FOCAL])
         if orientation_free:

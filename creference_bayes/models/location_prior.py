@@ -32,6 +32,8 @@ The MAP in the same coordinates
 
 ``flat`` keeps the earlier behaviour: a flat prior in (x, z) and the MAP in the parameters
 themselves (the paper's presets use it: the paper's method as published has no prior).
+``inverse-square``, p(x, z) ∝ 1/d² with the MAP in log coordinates, is there for comparison
+(method.md: it leans near).
 """
 
 from __future__ import annotations
@@ -42,8 +44,9 @@ import numpy as np
 
 __all__ = ["LOCATION_PRIORS", "DEFAULT_LOCATION_PRIOR", "LocationPrior"]
 
-#: The location priors: ``log-depth`` (p(x, z) ∝ 1/z, the MAP in log coordinates) and ``flat``.
-LOCATION_PRIORS = ("log-depth", "flat")
+#: The location priors: ``log-depth`` (p(x, z) ∝ 1/z, the MAP in log coordinates), ``flat`` and,
+#: for comparison, ``inverse-square`` (p(x, z) ∝ 1/d², d = √(x² + z²), the MAP in log coordinates).
+LOCATION_PRIORS = ("log-depth", "flat", "inverse-square")
 DEFAULT_LOCATION_PRIOR = "log-depth"
 
 
@@ -65,15 +68,18 @@ class LocationPrior:
     @property
     def map_in_log_coordinates(self) -> bool:
         """Whether the MAP is the mode in log coordinates of the positive parameters."""
-        return self.kind == "log-depth"
+        return self.kind != "flat"
 
-    def neg_log(self, z) -> np.ndarray | float:
-        """−log p(x, z) up to a constant, for depths ``z`` in metres (any shape; z > 0 inside
-        every preset's bounds)."""
+    def neg_log(self, x, z) -> np.ndarray | float:
+        """−log p(x, z) up to a constant, for ground coordinates ``x``, ``z`` in metres (any
+        shape; z > 0 inside every preset's bounds)."""
         if self.kind == "flat":
             return 0.0
+        x, z = np.asarray(x, float), np.asarray(z, float)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.log(np.asarray(z, float))
+            if self.kind == "inverse-square":
+                return np.log(x * x + z * z)
+            return np.log(z)
 
     def to_dict(self) -> dict:
         return {"kind": self.kind}
