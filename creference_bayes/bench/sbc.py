@@ -23,7 +23,9 @@ The noise model is the model's: every corner of every set of dimension lines is 
 Student-t (ν = 4, scale :data:`TARGET_SCALE_PX`); every reference is a ground segment (a length
 from :data:`REF_LENGTH_M`) whose stated value is ℓ·exp(s·ε), ε ~ Student-t₂, with the crowd's
 scale s drawn from the model's grid with its prior weights, and whose end points are off by
-N(0, (2σ)²) per coordinate (the model's line noise, σ_line = 2σ). What the model only
+N(0, (2σ)²) per coordinate (the model's line noise, σ_line = 2σ). Scenes whose annotations
+do not all lie in the image are drawn again: a selection on the data alone, which leaves the
+posterior given the data, and so the uniformity of the ranks, unchanged. What the model only
 approximates: with several sets of dimension lines it plugs in the spread of the annotations for
 σ (their pooled standard deviation, √2 times the t₄ scale); the line noise enters through
 derivatives at a pilot estimate. The check measures those approximations too.
@@ -121,10 +123,21 @@ def _ground_segment(rng, truth: np.ndarray, box: SBCBox) -> np.ndarray:
     return np.array([a, a + length * np.array([math.cos(ang), 0.0, math.sin(ang)])])
 
 
+_TRIES = 200
+
+
+def _inside(uv: np.ndarray) -> bool:
+    w, h = IMAGE_SIZE
+    return bool(np.all((uv[:, 0] >= 0) & (uv[:, 0] <= w) & (uv[:, 1] >= 0) & (uv[:, 1] <= h)))
+
+
 def simulate_sbc_scene(rng: np.random.Generator, truth: np.ndarray, n_target: int, n_refs: int,
-                       box: SBCBox = SBC_BOX) -> dict:
+                       box: SBCBox = SBC_BOX) -> dict | None:
     """A ``creference-scene/1`` scene (dict) from ``truth`` with the model's own noise (module
-    docstring): no horizon, focal length unknown, single-valued references in metres."""
+    docstring): no horizon, focal length unknown, single-valued references in metres. None when
+    the drawn annotations do not all lie in the image (the caller then draws a new scene: a
+    selection on the data alone, which leaves the posterior given the data, and so the ranks'
+    uniformity, unchanged)."""
     w, h_img = IMAGE_SIZE
     pp = np.array([w / 2, h_img / 2])
     R = rotation_from_pitch_roll(truth[5], truth[6])
@@ -136,15 +149,22 @@ def simulate_sbc_scene(rng: np.random.Generator, truth: np.ndarray, n_target: in
     def t4(shape):  # bivariate Student-t, ν = 4: normal / sqrt(χ²₄ / 4), one χ² per point
         return rng.normal(0.0, TARGET_SCALE_PX, shape) / np.sqrt(rng.chisquare(4.0, shape[:-1] + (1,)) / 4.0)
 
-    lines = [{"worker": f"t{i + 1:02d}", "corners": (corners + t4(corners.shape)).tolist(), "seconds": 183.5}
-             for i in range(n_target)]
+    noisy = [corners + t4(corners.shape) for _ in range(n_target)]
+    if not all(_inside(c) for c in noisy):
+        return None
+    lines = [{"worker": f"t{i + 1:02d}", "corners": c.tolist(), "seconds": 183.5} for i, c in enumerate(noisy)]
     w_k = np.exp(-0.5 * ((np.log(REF_SCALE_GRID) - math.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2)
     s = float(rng.choice(REF_SCALE_GRID, p=w_k / w_k.sum()))
     refs = []
     for j in range(n_refs):
-        seg = _ground_segment(rng, truth, box)
-        uv, _ = project(seg, R, truth[4], pp)
-        uv = uv + rng.normal(0.0, 2.0 * TARGET_SCALE_PX, uv.shape)
+        for _ in range(_TRIES):  # a segment whose drawn line lies in the image
+            seg = _ground_segment(rng, truth, box)
+            uv, depth = project(seg, R, truth[4], pp)
+            uv = uv + rng.normal(0.0, 2.0 * TARGET_SCALE_PX, uv.shape)
+            if np.all(depth > 0) and _inside(uv):
+                break
+        else:
+            return None
         length = float(np.linalg.norm(seg[1] - seg[0]))
         refs.append({"worker": f"r{j + 1:02d}", "object": "segment", "measure": "length", "mode": "direct",
                      "value": length * math.exp(s * rng.standard_t(2.0)), "unit": "m", "line": uv.tolist(),
@@ -203,11 +223,14 @@ def run_sbc(n_scenes: int = 40, *, designs=tuple(DESIGNS), seed: int = 0, box: S
         n_target, ref_cycle = DESIGNS[name]
         for i in range(n_scenes):
             rng = np.random.default_rng([seed, list(DESIGNS).index(name), i])
-            truth = draw_truth(rng, box)
             k = ref_cycle[i % len(ref_cycle)]
+            d = None
+            while d is None:  # annotations outside the image: a new scene (a selection on the data)
+                truth = draw_truth(rng, box)
+                d = simulate_sbc_scene(rng, truth, n_target, k, box)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                scene = parse_scene(simulate_sbc_scene(rng, truth, n_target, k, box))
+                scene = parse_scene(d)
             t0 = time.process_time()
             res = estimate(scene, seed=[seed, i], bounds=bounds, temperature=temperature, sampling=sampling,
                            location_prior="log-depth", focal_prior="default")
