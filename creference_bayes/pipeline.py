@@ -297,6 +297,9 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     coords = HorizonDistance.from_model(model)  # pitch → log of the target's distance below the horizon
     target = log_post if coords is None else Reparametrised(log_post, coords)
     center = map_est.params[model.free]
+    lo, hi = log_post._lo, log_post._hi  # a MAP on a bound: start just inside it (the round trip
+    span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)  # through the sampler's coordinates
+    center = np.clip(center, lo + 1e-6 * span, hi - 1e-6 * span)  # must not leave the support)
     center = center if coords is None else coords.forward(center[None])[0]
     laplace = laplace_scales(target, center)
     log_mask = model.bounds.lower[model.free] > 0
