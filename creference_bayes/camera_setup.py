@@ -16,6 +16,9 @@ The decision, in :func:`setup_camera`:
   ``camera.focal_length_prior``, else the image's EXIF, else the weak default
   (:func:`~creference_bayes.models.camera_terms.default_focal_prior`); ``"default"`` skips the
   first two, ``"none"`` keeps the flat prior within the bounds.
+- **Location prior** (``location_prior``): ``"log-depth"`` (uniform in log depth, the MAP in log
+  coordinates: :mod:`~creference_bayes.models.location_prior`) or ``"flat"`` (the paper presets'
+  and earlier versions').
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import numpy as np
 from .core.geometry import Camera, horizon_line
 from .models.camera_terms import (DEFAULT_ORIENTATION_PRIOR, EXIF_LOG_SD, CameraTerms, FocalPrior,
                                   HorizonMeasurement, OrientationPrior, default_focal_prior)
+from .models.location_prior import DEFAULT_LOCATION_PRIOR, LocationPrior
 
 __all__ = ["ORIENTATIONS", "FOCAL_PRIORS", "GIVEN_HORIZON_SD_PX", "CameraSetup", "setup_camera"]
 
@@ -71,7 +75,8 @@ class CameraSetup:
 
 
 def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPrior = "auto",
-                 orientation_prior: OrientationPrior | None = None) -> CameraSetup:
+                 orientation_prior: OrientationPrior | None = None,
+                 location_prior: str | LocationPrior = DEFAULT_LOCATION_PRIOR) -> CameraSetup:
     """Decide the camera of ``scene`` (module docstring).
 
     Parameters
@@ -82,11 +87,14 @@ def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPr
     orientation_prior : prior on pitch and roll when they are free (default: the scene's
         ``camera.orientation_prior``, else
         :data:`~creference_bayes.models.camera_terms.DEFAULT_ORIENTATION_PRIOR`)
+    location_prior : a name of :data:`~creference_bayes.models.location_prior.LOCATION_PRIORS` or a
+        :class:`~creference_bayes.models.location_prior.LocationPrior`
     """
     if orientation not in ORIENTATIONS:
         raise ValueError(f"orientation: expected one of {list(ORIENTATIONS)}, got {orientation!r}")
     if not isinstance(focal_prior, FocalPrior) and focal_prior not in FOCAL_PRIORS:
         raise ValueError(f"focal_prior: expected one of {list(FOCAL_PRIORS)} or a FocalPrior, got {focal_prior!r}")
+    location = location_prior if isinstance(location_prior, LocationPrior) else LocationPrior(location_prior)
     pp = np.asarray(scene.principal_point, float)
     base = Camera(pp, None, scene.focal_length_px)
     notes: list[str] = []
@@ -95,7 +103,7 @@ def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPr
     prior = orientation_prior or getattr(scene, "orientation_prior", None) or DEFAULT_ORIENTATION_PRIOR
     terms = CameraTerms(focal=_focal_prior(scene, focal_prior, notes),
                         orientation=prior if mode == "free" else None,
-                        horizon=measured if mode == "free" else None)
+                        horizon=measured if mode == "free" else None, location=location)
     agg_points = scene.horizon if scene.horizon is not None else (None if measured is None else measured.points)
     aggregation = dataclasses.replace(base, horizon=None if agg_points is None else horizon_line(agg_points))
     return CameraSetup(camera, mode, terms, tuple(notes), estimate, aggregation)

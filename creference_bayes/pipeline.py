@@ -34,7 +34,7 @@ DEFAULT_MODEL = "metrology"
 
 
 def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL, preset: str = "default",
-                 constraints=None, use_references: bool = True, **options) -> list:
+                 constraints=None, use_references: bool = True, bounds=None, **options) -> list:
     """One model per handedness for ``scene``, all sharing the estimate's camera ``setup``.
 
     Parameters
@@ -46,6 +46,9 @@ def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL
     constraints : soft constraints from the references (paper model), or None
     use_references : whether the metrology model uses the scene's references (the paper model
         uses ``constraints`` instead)
+    bounds : a :class:`~creference_bayes.models.params.Bounds` box instead of the preset's (the
+        prior is truncated to it: simulation-based calibration estimates within the box its
+        scenes are drawn from)
     options : model settings (``sigma`` for the paper model, default
         :data:`~creference_bayes.models.paper.CALIBRATED_SIGMA_PX` with the default preset and the
         paper's 100 px with the paper presets; ``target_sigma``, ``target_dof``, ``ref_scale``,
@@ -55,7 +58,8 @@ def build_models(scene: Scene, setup: CameraSetup, *, model: str = DEFAULT_MODEL
     """
     if model not in MODELS:
         raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
-    bounds = preset_bounds(preset, scene.image_width, scene.image_height)
+    if bounds is None:
+        bounds = preset_bounds(preset, scene.image_width, scene.image_height)
     common = dict(camera=setup.camera, bounds=bounds, orientation_free=setup.orientation_free,
                   camera_terms=setup.terms)
     if model == "metrology":
@@ -75,7 +79,8 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
              use_references: bool = True, seed=None, posterior: bool = True, restarts: int | None = None,
              temperature: float | None = None, hdi_prob: float = 0.9, sampling: dict | None = None,
              progress: bool = False, orientation: str = "auto", focal_prior="auto",
-             orientation_prior=None, confidence_map="default", **options) -> Result:
+             orientation_prior=None, confidence_map="default", location_prior="auto", bounds=None,
+             **options) -> Result:
     """Estimate the target's 3D location in one scene.
 
     Parameters
@@ -110,6 +115,11 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
         :data:`~creference_bayes.models.confidence_map.DEFAULT_CONFIDENCE_MAP` (docs/confidence.md).
         The paper model turns ranges into bounds and has no use for a confidence: with it, any
         map other than ``"default"`` or ``"none"`` is an error
+    location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the
+        paper presets, whose method has no prior), ``"log-depth"`` or ``"flat"``
+        (:mod:`~creference_bayes.models.location_prior`, method.md "Priors")
+    bounds : a :class:`~creference_bayes.models.params.Bounds` box instead of the preset's
+        (:func:`build_models`)
     options : model settings (:func:`build_models`)
 
     Returns
@@ -125,15 +135,18 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
                          posterior=posterior, restarts=restarts, temperature=temperature,
                          hdi_prob=hdi_prob, sampling=sampling, progress=progress,
                          orientation=orientation, focal_prior=focal_prior,
-                         orientation_prior=orientation_prior, confidence_map=confidence_map, **options)
+                         orientation_prior=orientation_prior, confidence_map=confidence_map,
+                         location_prior=location_prior, bounds=bounds, **options)
 
 
 def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, restarts, temperature,
               hdi_prob, sampling, progress, orientation, focal_prior, orientation_prior, confidence_map,
-              **options) -> Result:
+              location_prior, bounds, **options) -> Result:
     rng = np.random.default_rng(seed)
+    if isinstance(location_prior, str) and location_prior == "auto":
+        location_prior = "log-depth" if preset == "default" else "flat"
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior,
-                         orientation_prior=orientation_prior)
+                         orientation_prior=orientation_prior, location_prior=location_prior)
     warnings = list(scene.warnings) + list(setup.notes)
     references = _references_step(scene, setup, preset, use_references)
     cmap = _confidence_map(model, confidence_map)
@@ -141,7 +154,7 @@ def _estimate(scene: Scene, *, preset, model, use_references, seed, posterior, r
         options = {**options, "confidence_map": cmap}
     models = build_models(scene, setup, model=model, preset=preset,
                           constraints=references.constraints if model == "paper" else None,
-                          use_references=use_references, **options)
+                          use_references=use_references, bounds=bounds, **options)
     if model == "metrology":
         references = dataclasses.replace(references, used_as="likelihood",
                                          in_likelihood=models[0].n_references_used)
@@ -284,6 +297,9 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     coords = HorizonDistance.from_model(model)  # pitch → log of the target's distance below the horizon
     target = log_post if coords is None else Reparametrised(log_post, coords)
     center = map_est.params[model.free]
+    lo, hi = log_post._lo, log_post._hi  # a MAP on a bound: start just inside it (the round trip
+    span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)  # through the sampler's coordinates
+    center = np.clip(center, lo + 1e-6 * span, hi - 1e-6 * span)  # must not leave the support)
     center = center if coords is None else coords.forward(center[None])[0]
     laplace = laplace_scales(target, center)
     log_mask = model.bounds.lower[model.free] > 0

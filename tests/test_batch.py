@@ -191,3 +191,11 @@ def test_cli_batch_exit_status_and_summary_line(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "0"]) == 2
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--scheduler", "tcp://x:1",
                  "--workers", "2"]) == 2
+
+
+def test_the_location_prior_is_a_setting_a_resume_compares():
+    # a batch started with one location prior and resumed with another must not mix the two
+    flat, auto = BatchSettings(location_prior="flat"), BatchSettings()
+    assert flat.to_dict() != auto.to_dict()
+    assert flat.estimate_kwargs()["location_prior"] == "flat"
+    assert flat.frame_dict() == auto.frame_dict()  # frames keep their flat prior either way

@@ -36,6 +36,7 @@ TINY = {
     "one_target_frames.py": [(["--per-tier", "1", "--tiers", "low", "--min-ess", "100"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
+    "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"])],
 }
 #: Longer runs of the parts the tiny runs leave out (marked slow).
 SLOW = {

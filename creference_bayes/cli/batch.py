@@ -36,7 +36,7 @@ def _settings(args):
                              temperature=args.temperature, use_references=not args.no_references,
                              sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
                              focal_prior=args.focal_prior, orientation=args.orientation,
-                             confidence_map=confidence_map_option(args.confidence_map, args.model),
+                             location_prior=args.location_prior, confidence_map=confidence_map_option(args.confidence_map, args.model),
                              frame_sampling=frame_sampling, classes=_load_classes(args.classes) or {})
     except ValueError as exc:  # a sampler setting out of range
         raise UsageError(str(exc)) from None

@@ -156,6 +156,7 @@ def _run_estimate(args) -> int:
     result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation,
+                      location_prior=args.location_prior,
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
                       sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
                       progress=not args.quiet and sys.stderr.isatty())
@@ -276,6 +277,11 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
                         "with the horizon from the photo as a measurement when there is one), free "
                         "(estimated even with a horizon), level (assume a level camera when there "
                         "is no horizon, the old behaviour) (default: %(default)s)")
+    g.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"),
+                   help="one target: prior on its ground position: uniform in log depth with the MAP in log "
+                        "coordinates, or flat in (x, z) (auto: log-depth with the default preset, flat with "
+                        "the paper presets; inverse-square, 1/d², for comparison; docs/method.md, Priors); "
+                        "frames keep the flat prior")
 
 
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:

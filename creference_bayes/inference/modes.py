@@ -128,7 +128,11 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
         log_mass = lp[i] + 0.5 * logdet if sign > 0 else -np.inf
         modes.append((p_found[i] if i else center, c, float(lp[i]), log_mass))
     log_masses = np.array([m[3] for m in modes])
-    shares = np.exp(log_masses - logsumexp(log_masses))
+    finite = np.isfinite(log_masses)  # a Laplace covariance that is not positive definite (a
+    if finite.any():  # mode on a bound) gives no mass estimate: that mode gets no share
+        shares = np.where(finite, np.exp(np.where(finite, log_masses, 0.0) - logsumexp(log_masses[finite])), 0.0)
+    else:
+        shares = (np.arange(len(modes)) == 0).astype(float)
     out = [Mode(m[0], m[1], m[2], float(s)) for m, s in zip(modes, shares)]
     rest = sorted((m for m in out[1:] if m.share >= MIN_SHARE), key=lambda m: -m.share)
     return [out[0]] + rest[:MAX_MODES - 1]

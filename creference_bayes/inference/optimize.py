@@ -62,16 +62,19 @@ def _check_preset(preset: str) -> None:
 
 
 class _Counter:
-    """Wraps a model's cost over free parameters and counts evaluations."""
+    """Wraps the cost a model's MAP minimises (``map_cost`` when it has one: the MAP in log
+    coordinates, models/location_prior.py; else ``cost``) over free parameters and counts
+    evaluations."""
 
     def __init__(self, model):
         self.model = model
+        self.cost = getattr(model, "map_cost", model.cost)
         self.n = 0
 
     def __call__(self, free: np.ndarray) -> np.ndarray:
         free = np.atleast_2d(free)
         self.n += len(free)
-        return self.model.cost(self.model.expand(free))
+        return self.cost(self.model.expand(free))
 
     def scalar(self, free: np.ndarray) -> float:
         return float(self(free)[0])

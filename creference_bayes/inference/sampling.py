@@ -441,7 +441,9 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
     If the first chunk shows τ above ``retune_tau`` (the warm-up had not yet seen the whole
     posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
     and the proposal are refitted to it and the main phase starts again (at most
-    ``max_retunes`` times; the discarded chunks count as warm-up).
+    ``max_retunes`` times; the discarded chunks count as warm-up). Afterwards the chain grows
+    towards the length the current τ asks for, at most doubling at a time (a high estimate of
+    τ from a short chain no longer commits the run to thousands of steps it does not need).
     """
     nw, d = pos.shape
     sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
@@ -449,7 +451,9 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
     n, n_target, burn, tau, tau_prev = 0, s.chunk, None, np.full(d, np.nan), np.inf
     info["stopped"], info["retunes"] = "max_steps", 0
     while n < s.max_steps:
-        step = int(min(max(s.chunk, n_target - n), s.max_steps - n))
+        # towards the expected length, but at most doubling the chain at a time: one high
+        # estimate of τ from a short chain must not commit the run to tens of thousands of steps
+        step = int(min(max(s.chunk, min(n_target - n, n)), s.max_steps - n))
         state = sampler.run_mcmc(state, step, skip_initial_state_check=True)
         chain = np.concatenate([chain, coords.inverse(sampler.get_chain(discard=n))])
         n += step

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .location_prior import LocationPrior
 from .params import FOCAL, PITCH, ROLL
 
 __all__ = ["FULL_FRAME_DIAGONAL_MM", "EXIF_LOG_SD", "DEFAULT_FOCAL_35MM", "DEFAULT_FOCAL_LOG_SD",
@@ -211,20 +212,31 @@ class HorizonMeasurement:
 
 @dataclass(frozen=True)
 class CameraTerms:
-    """The camera priors and the horizon measurement of one scene (any may be None).
+    """The camera priors, the horizon measurement and the location prior of one scene (any may
+    be None).
 
     ``orientation`` and ``horizon`` apply only when pitch and roll are free parameters;
-    ``focal`` only when µ is free.
+    ``focal`` only when µ is free; ``location`` (:class:`~.location_prior.LocationPrior`, the
+    prior on the target's ground position) always; None is flat.
     """
 
     focal: FocalPrior | None = None
     orientation: OrientationPrior | None = None
     horizon: HorizonMeasurement | None = None
+    location: LocationPrior | None = None
+
+    @property
+    def map_in_log_coordinates(self) -> bool:
+        """Whether the MAP is taken in log coordinates of the positive parameters (the location
+        prior decides: :attr:`~.location_prior.LocationPrior.map_in_log_coordinates`)."""
+        return self.location is not None and self.location.map_in_log_coordinates
 
     def neg_log(self, full: np.ndarray, principal_point, *, focal_free: bool,
                 orientation_free: bool) -> np.ndarray | float:
         """Σ of the applicable terms for (n, 7) vectors: (n,) or 0.0 when none applies."""
         out = 0.0
+        if self.location is not None and self.location.kind != "flat":
+            out = out + self.location.neg_log(full[:, 0], full[:, 2])
         if self.focal is not None and focal_free:
             out = out + self.focal.neg_log(full[:, FOCAL])
         if orientation_free:
@@ -235,6 +247,6 @@ class CameraTerms:
         return out
 
     def to_dict(self) -> dict:
-        """``{"focal_prior", "orientation_prior", "horizon"}``, each a dict or None."""
+        """``{"focal_prior", "orientation_prior", "horizon", "location_prior"}``, each a dict or None."""
         return {f"{k}_prior" if k != "horizon" else k: None if getattr(self, k) is None else getattr(self, k).to_dict()
-                for k in ("focal", "orientation", "horizon")}
+                for k in ("focal", "orientation", "horizon", "location")}

@@ -408,7 +408,8 @@ class MetrologyModel(FreeParameters):
             total = total + self._reference_nll(log_len)
         return total + self.camera_terms.neg_log(params, self.camera.principal_point,
                                                  focal_free=bool(self.free[FOCAL]),
-                                                 orientation_free=self.orientation_free)
+                                                 orientation_free=self.orientation_free) \
+            + self.scale_prior_neg_log(params)
 
     def target_nll(self, params: np.ndarray) -> np.ndarray:
         """The target annotations' part of :meth:`cost`, shape (n,)."""

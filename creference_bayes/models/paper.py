@@ -83,6 +83,6 @@ class PaperModel(FreeParameters):
         params = np.atleast_2d(np.asarray(params, float))
         return (target_cost(params, self.observed, self.obj_corners, self.camera, self.sigma)
                 + soft_constraint_cost(params, self.constraints)
-                + self.default_temperature * self.camera_terms.neg_log(
+                + self.default_temperature * (self.camera_terms.neg_log(
                     params, self.camera.principal_point, focal_free=bool(self.free[FOCAL]),
-                    orientation_free=self.orientation_free))
+                    orientation_free=self.orientation_free) + self.scale_prior_neg_log(params)))

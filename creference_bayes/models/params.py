@@ -125,6 +125,58 @@ class FreeParameters:
             d[[PITCH, ROLL]] = True
         return d
 
+    def _log_coordinates(self) -> bool:
+        terms = getattr(self, "camera_terms", None)
+        return terms is not None and terms.map_in_log_coordinates
+
+    def _positive(self) -> np.ndarray:
+        """(7,) bool: free parameters that are always positive (lower bound > 0)."""
+        return self.free & (self.bounds.lower > 0)
+
+    def scale_prior_neg_log(self, params: np.ndarray) -> np.ndarray | float:
+        """−log of the scale-invariant priors p(θ) ∝ 1/θ, for (n, 7) vectors: (n,) or 0.0.
+
+        Under a location prior that takes the MAP in log coordinates
+        (:attr:`~.camera_terms.CameraTerms.map_in_log_coordinates`), every positive free
+        parameter without an informative prior of its own is uniform in its logarithm: µ without
+        a focal-length prior and the camera height y without the height prior (an exact
+        horizon). (Flat in µ or y would lean to the far end of the ridges they lie on, as the flat
+        location prior did: :mod:`.location_prior`.) The depth z has its own
+        (:class:`~.location_prior.LocationPrior`).
+        """
+        if not self._log_coordinates():
+            return 0.0
+        terms = self.camera_terms
+        mask = np.zeros(N_PARAMS, bool)
+        mask[FOCAL] = terms.focal is None
+        mask[1] = not (self.orientation_free and terms.orientation is not None)
+        mask &= self._positive()
+        if not mask.any():
+            return 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.sum(np.log(np.atleast_2d(params)[:, mask]), axis=1)
+
+    def map_cost(self, params: np.ndarray) -> np.ndarray:
+        """The cost the MAP minimises, for (n, 7) vectors, shape (n,).
+
+        The model's ``cost`` itself, or, when its camera terms take the MAP in log coordinates
+        (:attr:`~.camera_terms.CameraTerms.map_in_log_coordinates`), the cost minus
+        T·Σ log θᵢ over the free parameters that are always positive (:meth:`_positive`: y for
+        the metrology model, z, µ), T the model's default temperature: the MAP is then the mode of
+        the density in the coordinates the sampler works in and the priors are stated in
+        (:mod:`.location_prior`). With the scale-invariant priors of
+        :meth:`scale_prior_neg_log` and the location prior's 1/z, the Jacobian cancels them: the
+        MAP is the maximum of the likelihood times the informative priors alone (focal length,
+        pose, height).
+        """
+        params = np.atleast_2d(np.asarray(params, float))
+        cost = self.cost(params)
+        if not self._log_coordinates():
+            return cost
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jac = np.sum(np.log(params[:, self._positive()]), axis=1)
+        return cost - getattr(self, "default_temperature", 1.0) * jac
+
     def expand(self, free_params: np.ndarray) -> np.ndarray:
         """(n, n_free) free parameters → (n, 7) full vectors (derived pitch and roll filled in)."""
         free_params = np.atleast_2d(free_params)

@@ -16,7 +16,7 @@ from ..core.cost import project_params
 from ..core.geometry import Camera, box_vertices
 from ..models.params import PARAM_NAMES, PARAM_UNITS
 
-__all__ = ["draws_from_result", "plot_boxes", "plot_pairs", "plot_ranks", "plot_top_view"]
+__all__ = ["draws_from_result", "plot_boxes", "plot_pairs", "plot_ranks", "plot_sbc_ranks", "plot_top_view"]
 
 _NAMES = PARAM_NAMES + ("distance_m",)
 _UNITS = dict(zip(_NAMES, PARAM_UNITS + ("m",)))
@@ -273,6 +273,39 @@ def plot_ranks(draws: dict, *, names=None, fig=None, bins: int | None = None,
         ax.set_visible(False)
     axes[0].legend(fontsize=7, loc="lower left", ncols=2)
     fig.suptitle("rank plots per ensemble (dotted: uniform)")
+    return fig
+
+
+def plot_sbc_ranks(summary: dict, *, fig=None) -> Figure:
+    """Simulation-based calibration: the histogram of the truth's ranks per design (rows) and
+    quantity (columns), with the uniform count and its 99 % band (binomial), and the χ² and KS
+    p-values in each title.
+
+    Parameters
+    ----------
+    summary : design → {"quantities": quantity → {"counts", "chi2_p", "ks_p", "n"}} (as
+        :func:`creference_bayes.bench.sbc.sbc_summary` returns it)
+    """
+    from scipy import stats
+
+    designs = list(summary)
+    quants = list(next(iter(summary.values()))["quantities"]) if designs else []
+    fig = fig or Figure(figsize=(3.2 * max(1, len(quants)), 2.4 * max(1, len(designs))), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(max(1, len(designs)), max(1, len(quants)), squeeze=False))
+    for i, d in enumerate(designs):
+        for j, q in enumerate(quants):
+            ax, u = axes[i, j], summary[d]["quantities"][q]
+            counts = np.asarray(u["counts"])
+            k, n = len(counts), int(u["n"])
+            ax.bar(np.arange(k), counts, width=0.9, color="C0")
+            if n:
+                lo, hi = stats.binom.ppf([0.005, 0.995], n, 1.0 / k)
+                ax.axhspan(lo, hi, color="0.85", zorder=0)
+                ax.axhline(n / k, color="k", ls=":", lw=1)
+            p = lambda v: "–" if v is None else f"{v:.2g}"
+            ax.set_title(f"{d}: {q}\nχ² p {p(u['chi2_p'])}, KS p {p(u['ks_p'])}", fontsize=8)
+            ax.set_xticks([0, k - 1], ["low", "high"], fontsize=7)
+    fig.suptitle("rank of the truth among posterior draws (grey: 99 % band of a uniform)", fontsize=9)
     return fig
 
 

@@ -56,8 +56,8 @@ class BatchSettings:
     Attributes
     ----------
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
-    model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation :
-        as :func:`~creference_bayes.estimate`
+    model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation,
+    location_prior : as :func:`~creference_bayes.estimate`
     sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
     confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
         :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
@@ -81,6 +81,7 @@ class BatchSettings:
     sampling: dict = field(default_factory=dict)
     focal_prior: str = "auto"
     orientation: str = "auto"
+    location_prior: str = "auto"
     confidence_map: object = "default"
     frame_sampling: dict = field(default_factory=dict)
     classes: dict = field(default_factory=dict)
@@ -131,7 +132,7 @@ class BatchSettings:
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "confidence_map": self.confidence_map}
+                "location_prior": self.location_prior, "confidence_map": self.confidence_map}
 
 
 @dataclass(frozen=True)
