@@ -207,14 +207,35 @@ def mean_horizon(lines: Iterable, width: int, where: str) -> list[list[float]]:
     return [[0.0, float(np.mean(lefts))], [float(width), float(np.mean(rights))]]
 
 
+def set_camera_and_horizon(scene: dict, camera: dict, data: dict, horizons: list, width: float, where: str,
+                           notes: list) -> None:
+    """The scene's ``camera`` block (when not empty) and horizon: the task's ``data.horizon``
+    before the annotated horizon lines (their mean; a note says when they are ignored)."""
+    if camera:
+        scene["camera"] = camera
+    if data.get("horizon") is not None:
+        scene["horizon"] = data["horizon"]
+        if horizons:
+            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
+    elif horizons:
+        scene["horizon"] = mean_horizon(horizons, width, where)
+
+
 def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
     """Validate a converted scene with :func:`parse_scene`; a failure becomes a
     :class:`ConversionError` naming ``where`` and, through ``origins`` (a key-path prefix such as
     ``references[2]`` → ``region 'a1b2'``), the region the bad value came from."""
+    return checked_with(parse_scene, scene, where, origins)
+
+
+def checked_with(parse, scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
+    """``scene`` after ``parse(scene)`` accepted it (warnings silenced); a :class:`SceneError`
+    becomes a :class:`ConversionError` naming ``where`` and the region of the longest matching
+    ``origins`` prefix (the last one that matches)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            parse_scene(scene)
+            parse(scene)
     except SceneError as exc:
         origin = None
         for prefix, name in (origins or {}).items():

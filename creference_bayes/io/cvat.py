@@ -308,6 +308,20 @@ def _meta(n_images: int) -> ET.Element:
     return meta
 
 
+def reference_shape(img, r: dict, target_id) -> None:
+    """A scene's reference ``r`` (with a line) as a ``reference`` polyline of ``img``, tied to
+    ``target_id``."""
+    vals = {"target_id": target_id, "object": r.get("object"), "measure": r["measure"],
+            "mode": r["mode"], "unit": r.get("unit"), "worker": r.get("worker")}
+    if "range" in r:
+        vals["range_low"], vals["range_high"] = map(float, r["range"])
+    else:
+        vals["value"] = float(r["value"])
+    if r.get("confidence") is not None:
+        vals["confidence_pct"] = round(100.0 * r["confidence"], 10)
+    _shape_el(img, "polyline", REFERENCE, r["line"], vals)
+
+
 def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
     el = ET.SubElement(parent, tag, {"label": label, "source": "manual", "occluded": "0",
                                      "points": ";".join(f"{u:.2f},{v:.2f}" for u, v in pts),
@@ -367,15 +381,7 @@ def cvat_xml(scenes, *, image_names=None) -> str:
                 _shape_el(img, "points", TARGET, dl["corners"],
                           {"target_id": t["id"], **size, "worker": dl.get("worker")})
             for r in d.get("references", []):
-                vals = {"target_id": t["id"], "object": r.get("object"), "measure": r["measure"],
-                        "mode": r["mode"], "unit": r.get("unit"), "worker": r.get("worker")}
-                if "range" in r:
-                    vals["range_low"], vals["range_high"] = map(float, r["range"])
-                else:
-                    vals["value"] = float(r["value"])
-                if r.get("confidence") is not None:
-                    vals["confidence_pct"] = round(100.0 * r["confidence"], 10)
-                _shape_el(img, "polyline", REFERENCE, r["line"], vals)
+                reference_shape(img, r, t["id"])
         if group[0].get("horizon") is not None:
             _shape_el(img, "polyline", HORIZON, group[0]["horizon"], {})
     ET.indent(root)

@@ -17,7 +17,7 @@ from typing import Any
 
 from .annotation_tools import (REFERENCE_FIELDS, ConversionError, TargetScene, mean_horizon,
                                reference_from_fields, relative_image_path, safe_name)
-from .cvat import HORIZON, REFERENCE, TARGET, _shape_dims, _shape_el
+from .cvat import HORIZON, REFERENCE, TARGET, _shape_dims, _shape_el, reference_shape
 from .frame_import import checked_frame, classes_block, frame_focal, frame_size
 from .frame_scene import FRAME_FORMAT
 
@@ -108,14 +108,6 @@ def frame_image_shapes(img: ET.Element, d: dict) -> None:
         if "line" not in r:
             raise ValueError(f"references[{i}]: a measurement of target {r.get('target')!r}'s own "
                              f"{r['measure']} (no line) cannot be written as a CVAT shape")
-        vals = {"target_id": r.get("target"), "object": r.get("object"), "measure": r["measure"],
-                "mode": r["mode"], "unit": r.get("unit"), "worker": r.get("worker")}
-        if "range" in r:
-            vals["range_low"], vals["range_high"] = map(float, r["range"])
-        else:
-            vals["value"] = float(r["value"])
-        if r.get("confidence") is not None:
-            vals["confidence_pct"] = round(100.0 * r["confidence"], 10)
-        _shape_el(img, "polyline", REFERENCE, r["line"], vals)
+        reference_shape(img, r, r.get("target"))
     if d.get("horizon") is not None:
         _shape_el(img, "polyline", HORIZON, d["horizon"], {})

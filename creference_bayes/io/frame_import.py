@@ -9,14 +9,12 @@ A target of a frame needs no size: without one its class's size prior applies (t
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Any, Iterable
 
 from ..models.size_priors import SIZE_KEYS, SizePrior
-from .annotation_tools import ConversionError
+from .annotation_tools import ConversionError, checked_with
 from .frame_scene import frame_to_dict, parse_frame
 from .scene import scene_differences
-from .validation import SceneError
 
 __all__ = ["frame_size", "frame_focal", "classes_block", "checked_frame", "frame_differences", "is_frame"]
 
@@ -76,18 +74,7 @@ def checked_frame(scene: dict, where: str, origins: dict[str, str] | None = None
     :class:`ConversionError` naming ``where`` and, through ``origins`` (a key-path prefix such as
     ``targets[1].dimension_lines[0]`` → ``annotation 7, region 'a1'``; later, longer prefixes
     win), the region the bad value came from."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            parse_frame(scene)
-    except SceneError as exc:
-        origin = None
-        for prefix, name in (origins or {}).items():
-            if exc.path == prefix or exc.path.startswith(prefix + ".") or exc.path.startswith(prefix + "["):
-                origin = name
-        place = f"{where}, {origin}" if origin else where
-        raise ConversionError(place, f"{exc.path}: {exc.problem}") from None
-    return scene
+    return checked_with(parse_frame, scene, where, origins)
 
 
 def frame_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:

@@ -26,7 +26,7 @@ from typing import Any
 from urllib.parse import parse_qs, unquote, urlparse
 
 from .annotation_tools import (ConversionError, ImportReport, TargetScene, apply_target_table,
-                               checked_scene, mean_horizon, number_field, reference_from_fields,
+                               checked_scene, number_field, reference_from_fields, set_camera_and_horizon,
                                relative_image_path, safe_name, unique_names)
 from .labelstudio_export import label_studio_task, label_studio_tasks
 from .labelstudio_results import TARGET_LABELS, annotation_items
@@ -221,14 +221,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=F
         camera["focal_length_px"] = table_focal
     if data.get("principal_point") is not None:
         camera["principal_point"] = data["principal_point"]
-    if camera:
-        scene["camera"] = camera
-    if data.get("horizon") is not None:
-        scene["horizon"] = data["horizon"]
-        if horizons:
-            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
-    elif horizons:
-        scene["horizon"] = mean_horizon(horizons, width, where)
+    set_camera_and_horizon(scene, camera, data, horizons, width, where, notes)
     scene["target"] = {"id": tid, "dimensions_m": size, "dimension_lines": lines}
     if refs:
         scene["references"] = refs

@@ -16,7 +16,7 @@ from pathlib import PurePosixPath
 from typing import Any
 from urllib.parse import parse_qs, unquote, urlparse
 
-from .annotation_tools import (ConversionError, TargetScene, _text, mean_horizon, number_field,
+from .annotation_tools import (ConversionError, TargetScene, _text, number_field, set_camera_and_horizon,
                                reference_from_fields, safe_name)
 from .frame_import import checked_frame, classes_block, frame_focal, frame_size
 from .frame_scene import FRAME_FORMAT
@@ -88,14 +88,7 @@ def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size:
     for key in ("principal_point", "kitti_p2"):
         if data.get(key) is not None:
             camera[key] = data[key]
-    if camera:
-        scene["camera"] = camera
-    if data.get("horizon") is not None:
-        scene["horizon"] = data["horizon"]
-        if horizons:
-            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
-    elif horizons:
-        scene["horizon"] = mean_horizon(horizons, width, where)
+    set_camera_and_horizon(scene, camera, data, horizons, width, where, notes)
     if data.get("horizon_sd_px") is not None:
         scene["horizon_sd_px"] = data["horizon_sd_px"]
     out_targets = []

@@ -36,8 +36,9 @@ def frame_advice_table(advice: FrameAdvice, rows: int = 15) -> str:
         lines.append("  ".join(c.ljust(w) if j in (1, 2) else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths))))
     if len(advice.predictions) > rows:
         lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
-    said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
-    lines += ["", f"recommendation: {said}"]
+    from .inputs import recommendation_line
+
+    lines += ["", recommendation_line(advice.action, advice.reason)]
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed from the Laplace approximation at the MAP, "
                  f"κ = {advice.curvature:.2f}; {advice.seconds:.2f} s)")

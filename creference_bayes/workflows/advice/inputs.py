@@ -182,6 +182,11 @@ def load_result(path: str | Path) -> dict:
     return d if isinstance(d, dict) and d.get("format") == RESULT_FORMAT else None
 
 
+def recommendation_line(action: str, reason: str) -> str:
+    """``recommendation: …`` with the action said once (a reason may begin with it)."""
+    return f"recommendation: {reason if reason.startswith(action) else f'{action}: {reason}'}"
+
+
 def advice_table(advice: Advice, estimate_hdi: tuple[float, float] | None = None) -> str:
     """The advice as text: the present, one row per annotation (best first), the recommendation.
 
@@ -211,8 +216,7 @@ def advice_table(advice: Advice, estimate_hdi: tuple[float, float] | None = None
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(len(head))]
     for r in [head] + rows:
         lines.append("  ".join(c.ljust(w) if i == 1 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
-    said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
-    lines += ["", f"recommendation: {said}"]
+    lines += ["", recommendation_line(advice.action, advice.reason)]
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes "
                  f"each on {s.n_draws} posterior draws at most; {advice.seconds:.1f} s)")
