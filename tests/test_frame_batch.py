@@ -192,14 +192,9 @@ def test_frames_without_posterior_are_not_labelled(tmp_path):
 
 def test_the_kitti_path_on_the_command_line(tmp_path):
     """simulate --from-kitti → batch → labels → evaluate kitti, on the synthetic KITTI folder."""
-    from test_kitti_frames import LABELS, P2
+    from test_kitti_frames import P2, write_kitti_folder
 
-    kitti = tmp_path / "kitti"
-    (kitti / "label_2").mkdir(parents=True)
-    (kitti / "calib").mkdir()
-    (kitti / "label_2" / "000007.txt").write_text(LABELS)
-    rows = " ".join(f"{v:.12e}" for v in P2.ravel())
-    (kitti / "calib" / "000007.txt").write_text(f"P0: {rows}\nP1: {rows}\nP2: {rows}\nP3: {rows}\n")
+    kitti = write_kitti_folder(tmp_path / "kitti")
 
     def run(*args):
         proc = subprocess.run([sys.executable, "-m", "creference_bayes", *map(str, args)], capture_output=True,

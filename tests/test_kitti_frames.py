@@ -23,15 +23,19 @@ DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10
 """
 
 
-@pytest.fixture
-def kitti_dir(tmp_path):
-    d = tmp_path / "kitti"
+def write_kitti_folder(d):
+    """A one-frame KITTI folder (label_2/000007.txt with LABELS, calib/000007.txt with P2) at ``d``."""
     (d / "label_2").mkdir(parents=True)
     (d / "calib").mkdir()
     (d / "label_2" / "000007.txt").write_text(LABELS)
     rows = " ".join(f"{v:.12e}" for v in P2.ravel())
     (d / "calib" / "000007.txt").write_text(f"P0: {rows}\nP1: {rows}\nP2: {rows}\nP3: {rows}\n")
     return d
+
+
+@pytest.fixture
+def kitti_dir(tmp_path):
+    return write_kitti_folder(tmp_path / "kitti")
 
 
 def test_frames_from_kitti_keep_what_a_person_could_annotate(kitti_dir):

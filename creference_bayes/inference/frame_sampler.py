@@ -33,13 +33,14 @@ Everything random comes from ``rng``: the same seed gives the same draws.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..models.frame import CAMERA_NAMES, O_YAW, OBJECT_NAMES, FrameModel
 from .frame_coords import CAMERA_LOG as _CAMERA_LOG, FrameCoords
 from .frame_map import FrameMAP, derivatives
+from .options import settings_from_options
 
 __all__ = ["FrameSamplerSettings", "FrameDraws", "FrameDiagnostics", "sample_frame"]
 
@@ -84,12 +85,7 @@ class FrameSamplerSettings:
 
     @classmethod
     def from_options(cls, options: dict | None) -> "FrameSamplerSettings":
-        options = dict(options or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(options) - known)
-        if unknown:
-            raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
-        return cls(**options)
+        return settings_from_options(cls, options)
 
 
 @dataclass(frozen=True)

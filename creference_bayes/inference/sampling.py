@@ -44,13 +44,14 @@ How it samples
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
 
 from .autocorr import integrated_time
 from .modes import fit_mixture
+from .options import settings_from_options
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
 
@@ -141,12 +142,7 @@ class SamplerSettings:
     @classmethod
     def from_options(cls, options: dict | None) -> "SamplerSettings":
         """Settings from a dict; unknown keys are rejected with a message naming them."""
-        options = dict(options or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(options) - known)
-        if unknown:
-            raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
-        return cls(**options)
+        return settings_from_options(cls, options)
 
 
 @dataclass(frozen=True)

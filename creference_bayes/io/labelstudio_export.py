@@ -71,14 +71,25 @@ def label_studio_task(scene: Scene | dict, *, task_id: int = 1, lines: str = "ke
         chunks += [[x] for x in dims[1:]]
         for chunk in chunks:
             n = len(annotations) + 1
-            ann: dict[str, Any] = {"id": task_id * 1000 + n,
-                                   "result": _results(chunk, f"{task_id}_{n}", w, h, lines)}
-            if not key.startswith("\0"):
-                ann["completed_by"] = key
-            secs = [x[1].get("seconds") for x in chunk]
-            if all(s is not None for s in secs):
-                ann["lead_time"] = float(sum(secs))
-            annotations.append(ann)
+            annotations.append(_annotation(task_id * 1000 + n, key, chunk,
+                                           _results(chunk, f"{task_id}_{n}", w, h, lines)))
+    return _task(task_id, data, annotations, as_predictions)
+
+
+def _annotation(ann_id: int, key: str, chunk, result: list[dict]) -> dict:
+    """One annotation: its results, its worker (``key``, unless a placeholder starting with NUL)
+    and its lead time when every item of ``chunk`` states its seconds."""
+    ann: dict[str, Any] = {"id": ann_id, "result": result}
+    if not key.startswith("\0"):
+        ann["completed_by"] = key
+    secs = [x[1].get("seconds") for x in chunk]
+    if all(s is not None for s in secs):
+        ann["lead_time"] = float(sum(secs))
+    return ann
+
+
+def _task(task_id: int, data: dict, annotations: list[dict], as_predictions: bool) -> dict:
+    """A task with its annotations, or with them as predictions."""
     task: dict[str, Any] = {"id": task_id, "data": data}
     if as_predictions:
         task["predictions"] = [{"model_version": "creference", "result": a["result"]} for a in annotations]
@@ -213,19 +224,8 @@ def label_studio_frame_task(frame, *, task_id: int = 1, lines: str = "keypoints"
                 rid = f"{task_id}_{n}_{k}"
                 result += (_target_results(rid, item, w, h, lines) if kind == "dims"
                            else _reference_results(rid, item, w, h, lines))
-            ann: dict[str, Any] = {"id": task_id * 1000 + n, "result": result}
-            if not key.startswith("\0"):
-                ann["completed_by"] = key
-            secs = [x[1].get("seconds") for x in chunk]
-            if all(s is not None for s in secs):
-                ann["lead_time"] = float(sum(secs))
-            annotations.append(ann)
-    task: dict[str, Any] = {"id": task_id, "data": data}
-    if as_predictions:
-        task["predictions"] = [{"model_version": "creference", "result": a["result"]} for a in annotations]
-    else:
-        task["annotations"] = annotations
-    return task
+            annotations.append(_annotation(task_id * 1000 + n, key, chunk, result))
+    return _task(task_id, data, annotations, as_predictions)
 
 
 def _frame_chunks(items) -> list[list]:
