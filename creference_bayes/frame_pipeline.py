@@ -66,6 +66,8 @@ def build_frame_model(frame: FrameScene, *, orientation: str = "auto", focal_pri
 
 def _frame_reference(r, owner, frame: FrameScene) -> FrameReference:
     sizes = ("length", "width", "height")
+    if isinstance(owner, tuple):
+        return FrameReference(r.index, "distance", r.low, r.high, r.is_range, None, owner[0], None, owner[1])
     if r.line is None:
         return FrameReference(r.index, "size", r.low, r.high, r.is_range, None, owner, sizes.index(r.measure))
     if r.mode == "relative":

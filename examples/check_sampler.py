@@ -17,8 +17,11 @@ steps each, the Laplace covariance at the MAP as its proposal shape, first quart
 independent algorithm with none of the sampler's blocking, shear or independence steps. Compared:
 each object's distance, x, z and yaw (wrapped) and the free camera parameters; Monte Carlo errors
 from bulk ESS. A check that it runs: ``python examples/check_sampler.py --frame 3 --seeds 1 --steps 2000``.
+``--distances K`` adds K workers' distances between pairs of targets (the terms that couple two
+objects, sampled colour by colour).
 
     python examples/check_sampler.py --frame 10 --seeds 1 2 3 --steps 60000
+    python examples/check_sampler.py --frame 5 --distances 3 --seeds 1 2 3 --steps 60000
 """
 
 from __future__ import annotations
@@ -88,7 +91,7 @@ def frame_reference_run(model, map_est, steps: int, rng, n_chains: int = 8):
 
     def logp(zc, zo):
         wc, wo = to_work(zc, zo)
-        return target.camera(wc) + target.objects(wc, wo).sum(axis=1)
+        return target.camera(wc) + target.objects(wc, wo).sum(axis=1) + target.pairs(wc, wo).sum(axis=1)
 
     zc, zo = np.zeros((n_chains, 5)), np.zeros((n_chains, m, 7))
     lp = logp(zc, zo)
@@ -108,6 +111,19 @@ def frame_reference_run(model, map_est, steps: int, rng, n_chains: int = 8):
     return cams.reshape(n_chains, -1, 5), objs.reshape(n_chains, -1, m, 7), time.perf_counter() - t0
 
 
+def add_distances(scene: dict, k: int, rng) -> None:
+    """Add ``k`` workers' distances between random pairs of the scene's targets: the true ground
+    distance between their bottom centres, off by a log-normal factor (sd 0.1), to 0.5 m."""
+    targets = scene["targets"]
+    for _ in range(min(k, len(targets) * (len(targets) - 1) // 2)):
+        i, j = rng.choice(len(targets), 2, replace=False)
+        a, b = (np.array(targets[n]["ground_truth"]["location_m"]) for n in (i, j))
+        d = float(np.hypot(a[0] - b[0], a[2] - b[2]) * np.exp(rng.normal(0.0, 0.1)))
+        scene.setdefault("references", []).append({"targets": [targets[i]["id"], targets[j]["id"]],
+                                                   "measure": "distance", "value": max(0.5, round(2 * d) / 2),
+                                                   "unit": "m"})
+
+
 def frame_check(args) -> None:
     """The frame sampler against :func:`frame_reference_run` (module docstring)."""
     from creference_bayes.bench.frame_simulate import simulate_frame
@@ -124,7 +140,9 @@ def frame_check(args) -> None:
     for seed in args.seeds:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            frame = parse_frame(simulate_frame(seed, n_objects=args.frame))
+            scene = simulate_frame(seed, n_objects=args.frame)
+            add_distances(scene, args.distances, np.random.default_rng(200 + seed))
+            frame = parse_frame(scene)
         model, _ = build_frame_model(frame)
         map_est = optimize_frame(model)
         settings = FrameSamplerSettings.from_options(None if args.min_ess is None else {"min_ess": int(args.min_ess)})
@@ -170,6 +188,8 @@ def main() -> None:
                     help="bulk ESS our sampler runs to (default: the package's, 1000)")
     ap.add_argument("--frame", type=int, default=None, metavar="N",
                     help="check the frame sampler on street frames of N objects instead")
+    ap.add_argument("--distances", type=int, default=0, metavar="K",
+                    help="with --frame: add K workers' distances between random pairs of targets")
     args = ap.parse_args()
     if args.frame is not None:
         frame_check(args)

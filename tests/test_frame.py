@@ -231,3 +231,111 @@ def test_an_object_placed_above_the_camera_at_the_start_does_not_poison_the_map(
     loc = np.array([t["ground_truth"]["location_m"] for t in scene["targets"]])
     got = np.c_[est.objects[:, 0], est.camera[3] - est.objects[:, 6], est.objects[:, 1]]
     assert np.median(np.linalg.norm(got - loc, axis=1) / np.linalg.norm(loc, axis=1)) < 0.06
+
+
+# -- a worker's distance between two targets ---------------------------------------------------------
+
+def _add_distance(scene, a, b, value):
+    scene.setdefault("references", []).append({"targets": [a, b], "measure": "distance", "value": value, "unit": "m"})
+    return scene
+
+
+def _true_distance(scene, a, b):
+    la, lb = (np.array(t["ground_truth"]["location_m"]) for t in scene["targets"] if t["id"] in (a, b))
+    return float(np.hypot(la[0] - lb[0], la[2] - lb[2]))
+
+
+def test_a_distance_between_two_targets_round_trips_and_rejects_bad_input():
+    scene = _add_distance(simulate_frame(2, n_objects=3), "t0", "t2", 12.5)
+    frame = parse_frame(scene)
+    assert frame.reference_targets == ((0, 2),)
+    assert frame.references[0].measure == "distance" and frame.references[0].low == 12.5
+    assert frame_to_dict(parse_frame(frame_to_dict(frame))) == frame_to_dict(frame)
+    model, _ = build_frame_model(frame)
+    assert model.pairs.tolist() == [[0, 2]]
+    cases = [(lambda r: r.update(targets=["t0"]), r"references\[0\].targets: a distance is between two targets, got 1"),
+             (lambda r: r.update(targets=["t0", "t9"]), r"references\[0\].targets\[1\]: no target with id 't9'"),
+             (lambda r: r.update(targets=["t1", "t1"]), r"references\[0\].targets\[1\]: .*two different targets"),
+             (lambda r: r.update(measure="height"), r"references\[0\].measure: .* measures their 'distance'"),
+             (lambda r: r.update(line=[[1, 2], [3, 4]]), r"references\[0\].line: a distance between two targets has no"),
+             (lambda r: r.update(value=-3), r"references\[0\]")]
+    for change, message in cases:
+        bad = json.loads(json.dumps(scene))
+        change(bad["references"][0])
+        with pytest.raises(SceneError, match=message):
+            parse_frame(bad)
+
+
+def test_the_coupled_hessian_is_the_whole_posteriors():
+    """The arrowhead with its pair blocks against brute-force second differences of the whole
+    negative log-posterior (working coordinates): the cross-object block is where the distance
+    reference puts it."""
+    from creference_bayes.inference.frame_coords import FD_STEPS, FrameCoords
+    from creference_bayes.inference.frame_map import derivatives
+
+    scene = simulate_frame(3, n_objects=3, n_annotations=2)
+    _add_distance(scene, "t0", "t1", round(_true_distance(scene, "t0", "t1"), 1))
+    model, _ = build_frame_model(parse_frame(scene))
+    mp = optimize_frame(model)
+    co = FrameCoords(model)
+    wc, wo = (x[0] for x in co.to_work(mp.camera[None], mp.objects[None]))
+    dense = derivatives(model, wc, wo).dense()
+    free = np.flatnonzero(np.concatenate([model.camera_free, model.object_free.ravel()]))
+    x0 = np.concatenate([wc, wo.ravel()])
+    h = np.concatenate([FD_STEPS[:5], np.tile(FD_STEPS[5:], model.n_objects)])
+
+    def f(x):
+        c, o = co.from_work(x[None, :5], x[None, 5:].reshape(1, -1, 7))
+        return model.neg_log_posterior(c, o)[0]
+
+    brute = np.zeros_like(dense)
+    for i in free:
+        for j in free[free >= i]:
+            ei, ej = np.eye(len(x0))[i] * h[i], np.eye(len(x0))[j] * h[j]
+            brute[i, j] = brute[j, i] = (f(x0 + ei + ej) - f(x0 + ei - ej) - f(x0 - ei + ej) + f(x0 - ei - ej)) / (4 * h[i] * h[j])
+    sub = np.ix_(free, free)
+    assert np.abs(brute[sub] - dense[sub]).max() < 1e-4 * np.abs(brute[sub]).max()
+    cross = brute[5:12, 12:19]
+    assert np.abs(cross - dense[5:12, 12:19]).max() < 1e-3 * np.abs(cross).max()
+    assert np.abs(cross).max() > 1e3 * np.abs(brute[5:12, 19:26]).max()  # the pair couples t0 and t1, nothing else
+
+
+def test_workers_distances_between_two_targets_narrow_the_frame():
+    """One set of dimension lines on t1, five on the others; three workers state the distance from
+    t0 to t1 (within 4 % of the truth). The posterior's t0–t1 distance follows them, the frame's
+    distance intervals narrow in total, and t1's truth stays inside its interval."""
+    from creference_bayes.models.frame import O_X, O_Z
+
+    for seed in (4, 6):
+        scene = simulate_frame(seed, n_objects=3, n_annotations=5)
+        t1 = scene["targets"][1]
+        t1["dimension_lines"] = t1["dimension_lines"][:1]
+        plain = estimate_frame(parse_frame(json.loads(json.dumps(scene))), seed=0)
+        d = _true_distance(scene, "t0", "t1")
+        for factor in (0.96, 1.0, 1.03):
+            _add_distance(scene, "t0", "t1", round(d * factor, 1))
+        coupled = estimate_frame(parse_frame(scene), seed=0)
+        assert plain.diagnostics.converged and coupled.diagnostics.converged
+        hdi = [[o["posterior"]["hdi"]["distance_m"] for o in r.to_dict()["objects"]] for r in (plain, coupled)]
+        width = [sum(hi - lo for lo, hi in h) for h in hdi]
+        assert width[1] < 0.9 * width[0], (seed, hdi)
+        true1 = np.hypot(*np.array(t1["ground_truth"]["location_m"])[[0, 2]])
+        assert hdi[1][1][0] <= true1 <= hdi[1][1][1]
+        objs = coupled.draws.objects.reshape(-1, 3, 7)
+        dd = np.hypot(objs[:, 0, O_X] - objs[:, 1, O_X], objs[:, 0, O_Z] - objs[:, 1, O_Z])
+        assert abs(np.median(dd) - d) < 0.05 * d
+        before = plain.draws.objects.reshape(-1, 3, 7)
+        spread = lambda x: np.subtract(*np.percentile(x, [95, 5]))
+        assert spread(dd) < 0.75 * spread(np.hypot(before[:, 0, O_X] - before[:, 1, O_X], before[:, 0, O_Z] - before[:, 1, O_Z]))
+
+
+def test_coupled_objects_never_share_a_colour():
+    from creference_bayes.inference.frame_sampler import _colour
+
+    assert _colour(4, np.zeros((0, 2), int)) == [None]
+    pairs = np.array([[0, 1], [1, 2], [2, 0], [3, 4]])
+    colours = _colour(6, pairs)
+    assert np.all(np.sum(colours, axis=0) == 1)  # every object in exactly one colour
+    for c in colours:
+        assert not any(c[i] and c[j] for i, j in pairs)
+    assert len(colours) == 3  # a triangle needs three

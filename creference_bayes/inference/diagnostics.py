@@ -14,7 +14,7 @@ import numpy as np
 from scipy.special import ndtri
 from scipy.stats import rankdata
 
-__all__ = ["rank_normalise", "split_chains", "rhat_rank", "ess_bulk"]
+__all__ = ["rank_normalise", "split_chains", "rhat_rank", "rhat_split_raw", "ess_bulk", "ess_bulk_rhat"]
 
 
 def split_chains(x: np.ndarray) -> np.ndarray:
@@ -28,8 +28,7 @@ def split_chains(x: np.ndarray) -> np.ndarray:
 def rank_normalise(x: np.ndarray) -> np.ndarray:
     """Normal scores of the pooled ranks (average ranks for ties), per column: (c, n, k)."""
     c, n, k = x.shape
-    flat = x.reshape(c * n, k)
-    r = rankdata(flat, axis=0, method="average")
+    r = rankdata(x.reshape(c * n, k), axis=0, method="average")
     return ndtri((r - 0.375) / (c * n + 0.25)).reshape(c, n, k)
 
 
@@ -45,9 +44,18 @@ def _rhat(x: np.ndarray) -> np.ndarray:
 def rhat_rank(x: np.ndarray) -> np.ndarray:
     """Rank-normalised split R-hat: the larger of the bulk and the folded (tail) one, (k,)."""
     s = split_chains(np.asarray(x, float))
-    bulk = _rhat(rank_normalise(s))
+    return _rhat_split(s, rank_normalise(s))
+
+
+def rhat_split_raw(x: np.ndarray) -> np.ndarray:
+    """Split R-hat of the raw values (no ranks, no folding), (k,): a cheap first look, used to
+    skip the full check while the chains plainly disagree."""
+    return _rhat(split_chains(np.asarray(x, float)))
+
+
+def _rhat_split(s: np.ndarray, z: np.ndarray) -> np.ndarray:
     folded = np.abs(s - np.median(s.reshape(-1, s.shape[2]), axis=0))
-    return np.maximum(bulk, _rhat(rank_normalise(folded)))
+    return np.maximum(_rhat(z), _rhat(rank_normalise(folded)))
 
 
 def _autocov(x: np.ndarray) -> np.ndarray:
@@ -102,3 +110,11 @@ def _ess(x: np.ndarray) -> np.ndarray:
 def ess_bulk(x: np.ndarray) -> np.ndarray:
     """Bulk effective sample size of every column of (chain, draw, k): (k,)."""
     return _ess(rank_normalise(split_chains(np.asarray(x, float))))
+
+
+def ess_bulk_rhat(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ess_bulk` and :func:`rhat_rank` of (chain, draw, k) together, ranking the split
+    draws once for both: ((k,), (k,))."""
+    s = split_chains(np.asarray(x, float))
+    z = rank_normalise(s)
+    return _ess(z), _rhat_split(s, z)

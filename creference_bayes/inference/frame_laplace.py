@@ -85,6 +85,8 @@ def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndar
     density) has its negative eigenvalues replaced by their absolute values (at least 1e-9 of its
     largest), and ok is False."""
     m = model.n_objects
+    if len(H.pairs):
+        return _dense_blocks(model, H)
     H_oo = H.H_oo.copy()
     ok = True
     for i in range(m):
@@ -100,6 +102,28 @@ def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndar
     Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
     B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
     return Sc, Ao, B, bool(ok)
+
+
+def _dense_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """:func:`laplace_blocks` when distance references couple objects: from the whole inverse,
+    each object's covariance given the camera alone (the other objects integrated out), so that
+    a quantity of one object has its marginal variance (:func:`block_variances`)."""
+    free = np.concatenate([model.camera_free, model.object_free.ravel()])
+    A, ok = _positive(H.dense(), free)
+    cov = np.linalg.inv(A)
+    Scc = cov[:5, :5] * np.outer(model.camera_free, model.camera_free)
+    idx = np.flatnonzero(model.camera_free)
+    inv = np.zeros((5, 5))
+    if idx.size:
+        inv[np.ix_(idx, idx)] = np.linalg.inv(Scc[np.ix_(idx, idx)])
+    m = model.n_objects
+    Soc = cov[5:, :5].reshape(m, 7, 5)
+    B = np.einsum("mic,cd->mid", Soc, inv)
+    Soo = np.array([cov[5 + 7 * i:12 + 7 * i, 5 + 7 * i:12 + 7 * i] for i in range(m)])
+    Ao = Soo - np.einsum("mic,mjc->mij", B, Soc)
+    Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
+    B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
+    return Scc, Ao, B, bool(ok)
 
 
 def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:

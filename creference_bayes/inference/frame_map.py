@@ -60,10 +60,39 @@ class Arrowhead:
     H_cc: np.ndarray
     H_co: np.ndarray
     H_oo: np.ndarray
+    #: (P, 2) objects coupled by a distance reference, and (P, 7, 7) ∂²/∂oᵢ∂oⱼ of each pair
+    pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), int))
+    H_pair: np.ndarray = field(default_factory=lambda: np.zeros((0, 7, 7)))
+
+    def dense(self, lam: float = 0.0) -> np.ndarray:
+        """The whole Hessian (5 + 7m, 5 + 7m), camera first, plus ``lam`` on the diagonal."""
+        m = len(self.H_oo)
+        H = np.zeros((5 + 7 * m, 5 + 7 * m))
+        H[:5, :5] = self.H_cc
+        for i in range(m):
+            sl = slice(5 + 7 * i, 12 + 7 * i)
+            H[:5, sl] = self.H_co[i]
+            H[sl, :5] = self.H_co[i].T
+            H[sl, sl] = self.H_oo[i]
+        for (i, j), Hij in zip(self.pairs, self.H_pair):
+            si, sj = slice(5 + 7 * i, 12 + 7 * i), slice(5 + 7 * j, 12 + 7 * j)
+            H[si, sj] += Hij
+            H[sj, si] += Hij.T
+        return H + lam * np.eye(len(H))
 
     def solve(self, lam: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
         """The (damped) Newton step (Δc (5,), Δo (m, 7)), or None when the Hessian is not
-        positive definite."""
+        positive definite. Through the Schur complement of the camera block (O(m)); with objects
+        coupled by distance references, one dense solve."""
+        if len(self.pairs):
+            try:
+                H = self.dense(lam)
+                L = np.linalg.cholesky(H)
+                g = np.concatenate([self.g_c, self.g_o.ravel()])
+                step = -np.linalg.solve(L.T, np.linalg.solve(L, g))
+                return step[:5], step[5:].reshape(-1, 7)
+            except np.linalg.LinAlgError:
+                return None
         try:
             A = self.H_oo + lam * np.eye(7)
             np.linalg.cholesky(A)
@@ -81,7 +110,14 @@ class Arrowhead:
     def covariance_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The Laplace approximation by blocks: the camera's marginal covariance (5, 5), each
         object's covariance given the camera (m, 7, 7), and the shear B (m, 7, 5) with
-        E[o | c] = o* + B (c − c*)."""
+        E[o | c] = o* + B (c − c*). With objects coupled by distance references, each object's
+        covariance is the one given the camera *and the other objects* (what a step of one object
+        sees), the camera's and the shear from the whole inverse."""
+        if len(self.pairs):
+            cov = np.linalg.inv(self.dense())
+            Sc = cov[:5, :5]
+            B = (cov[5:, :5] @ np.linalg.inv(Sc)).reshape(-1, 7, 5)
+            return Sc, np.linalg.inv(self.H_oo), B
         A_inv = np.linalg.inv(self.H_oo)
         B = -np.einsum("mij,mcj->mic", A_inv, self.H_co)
         S = self.H_cc - np.einsum("mcj,mjd->cd", self.H_co, -B)
@@ -233,7 +269,54 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
     H_oo = np.where(of[:, :, None] & of[:, None, :], Ho[:, 5:, 5:], np.eye(7)[None])
     bad = ~np.all(np.isfinite(H_oo), axis=(1, 2))
     H_oo[bad] = np.eye(7)
-    return Arrowhead(value, np.nan_to_num(g_c), np.nan_to_num(g_o), np.nan_to_num(H_cc), np.nan_to_num(H_co), H_oo)
+    out = Arrowhead(value, np.nan_to_num(g_c), np.nan_to_num(g_o), np.nan_to_num(H_cc), np.nan_to_num(H_co), H_oo)
+    if len(model.pairs):
+        _add_pairs(model, coords, wc, wo, temperature, out)
+    return out
+
+
+def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: float, D: Arrowhead) -> None:
+    """Add the distance references' terms to ``D``: each pair's gradient and Hessian over
+    (camera, oᵢ, oⱼ) by central differences, its blocks added where they belong and the
+    cross-object block kept in ``D.H_pair``."""
+    h = np.concatenate([FD_STEPS[:5], FD_STEPS[5:], FD_STEPS[5:]])  # (19,)
+    d = len(h)
+    E = np.diag(h)
+    pairs = [(a, b) for a in range(d) for b in range(a + 1, d)]
+    P = np.array([np.zeros(d)] + list(E) + list(-E) + [E[a] + E[b] for a, b in pairs] + [-E[a] - E[b] for a, b in pairs])
+    free = np.concatenate([model.camera_free, np.zeros(14, bool)])
+    cf, of = model.camera_free, model.object_free
+    D.pairs = model.pairs.copy()
+    D.H_pair = np.zeros((len(model.pairs), 7, 7))
+    D.value = float(D.value + model.pair_terms(*coords.from_work(wc[None], wo[None]), temperature)[0].sum())
+    for p, (i, j) in enumerate(model.pairs):
+        free[5:12], free[12:] = of[i], of[j]
+        Q = P * free
+        WC = wc[None] + Q[:, :5]
+        WO = np.repeat(wo[None], len(Q), axis=0)
+        WO[:, i] += Q[:, 5:12]
+        WO[:, j] += Q[:, 12:]
+        with np.errstate(all="ignore"):
+            f = model.pair_terms(*coords.from_work(WC, WO), temperature)[:, p]
+        f0, fp, fm = f[0], f[1:1 + d], f[1 + d:1 + 2 * d]
+        g = np.where(free, (fp - fm) / (2 * h), 0.0)
+        dg = (fp + fm - 2 * f0) / h**2
+        H = np.diag(dg)
+        base = 1 + 2 * d
+        fpp, fmm = f[base:base + len(pairs)], f[base + len(pairs):]
+        for k, (a, b) in enumerate(pairs):
+            H[a, b] = H[b, a] = (fpp[k] + fmm[k] - 2 * f0 - dg[a] * h[a] ** 2 - dg[b] * h[b] ** 2) / (2 * h[a] * h[b])
+        H = np.nan_to_num(H * np.outer(free, free))
+        g = np.nan_to_num(g)
+        D.g_c = D.g_c + g[:5] * cf
+        D.g_o[i] += g[5:12]
+        D.g_o[j] += g[12:]
+        D.H_cc = D.H_cc + H[:5, :5]
+        D.H_co[i] += H[:5, 5:12]
+        D.H_co[j] += H[:5, 12:]
+        D.H_oo[i] += H[5:12, 5:12]
+        D.H_oo[j] += H[12:, 12:]
+        D.H_pair[p] = H[5:12, 12:]
 
 
 def _total(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: float) -> float:

@@ -10,7 +10,9 @@ A frame scene has the ``image``, ``camera``, ``horizon`` and ``horizon_sd_px`` o
   KITTI classes (``{"Kayak": {"length_m": 4.0, "width_m": 0.7, "height_m": 0.4, "log_sd": 0.1}}``);
 * ``references``: as in version 1, plus ``target`` (the id of a target): a ``relative`` reference
   is a ratio to that target's length or width; a reference without a ``line`` is a worker's
-  measurement of that target's own ``length``, ``width`` or ``height``;
+  measurement of that target's own ``length``, ``width`` or ``height``; a reference with
+  ``targets`` (two ids) and ``measure: "distance"`` is the distance on the ground between their
+  bottom centres;
 * ``ground_truth`` (optional): the camera's ``focal_length_px``, ``camera_height_m``,
   ``pitch_rad`` and ``roll_rad``.
 
@@ -66,8 +68,9 @@ class FrameScene:
     principal_point: np.ndarray
     targets: tuple[FrameTarget, ...]
     references: tuple[Reference, ...] = ()
-    #: For each reference, the index of the target it names, or None.
-    reference_targets: tuple[int | None, ...] = ()
+    #: For each reference, the index of the target it names, or None; a pair of indices for a
+    #: distance between two targets.
+    reference_targets: tuple[int | tuple[int, int] | None, ...] = ()
     classes: dict[str, SizePrior] = field(default_factory=dict)
     focal_length_px: float | None = None
     horizon: np.ndarray | None = None
@@ -141,6 +144,8 @@ def _parse_target_truth(obj: Any, path: str) -> dict:
 def _parse_frame_reference(obj: Any, index: int, path: str, w: int, h: int, ids: dict[str, int],
                            sink: list[str]) -> tuple[Reference, int | None]:
     obj = _dict(obj, path)
+    if "targets" in obj:
+        return _parse_distance_reference(obj, index, path, w, h, ids, sink)
     target = obj.get("target")
     owner = None
     if target is not None:
@@ -171,6 +176,39 @@ def _parse_frame_reference(obj: Any, index: int, path: str, w: int, h: int, ids:
     return Reference(index=index, measure=measure, mode="direct", low=ref.low, high=ref.high,
                      line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
                      confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), owner
+
+
+def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, ids: dict[str, int],
+                              sink: list[str]) -> tuple[Reference, tuple[int, int]]:
+    """A worker's distance on the ground between two targets (bottom centre to bottom centre):
+    ``{"targets": [id, id], "measure": "distance", "value"/"range", "unit"}``."""
+    tpath = _join(path, "targets")
+    names = _list(obj["targets"], tpath)
+    if len(names) != 2:
+        raise SceneError(tpath, f"a distance is between two targets, got {len(names)} ids ({_short(names)})")
+    owners = []
+    for k, name in enumerate(names):
+        name = _string(name, _join(tpath, k))
+        if name not in ids:
+            raise SceneError(_join(tpath, k), f"no target with id {_short(name)} (targets: {sorted(ids)})")
+        owners.append(ids[name])
+    if owners[0] == owners[1]:
+        raise SceneError(_join(tpath, 1), f"a distance is between two different targets, got {_short(names[1])} twice")
+    for key in ("line", "target"):
+        if key in obj:
+            raise SceneError(_join(path, key), f"a distance between two targets has no {key!r} (it is measured "
+                                               "between their bottom centres)")
+    if obj.get("measure", "distance") != "distance":
+        raise SceneError(_join(path, "measure"), f"a reference naming two targets measures their 'distance', "
+                                                 f"got {_short(obj.get('measure'))}")
+    if obj.get("mode", "direct") != "direct":
+        raise SceneError(_join(path, "mode"), f"a distance must be 'direct' (with a unit), got {_short(obj.get('mode'))}")
+    rest = {k: v for k, v in obj.items() if k != "targets"}
+    fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
+    ref = _parse_reference(fake, index, path, w, h, sink)
+    return Reference(index=index, measure="distance", mode="direct", low=ref.low, high=ref.high,
+                     line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
+                     confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), (owners[0], owners[1])
 
 
 def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
@@ -315,7 +353,9 @@ def frame_to_dict(frame: FrameScene) -> dict:
                     d[key] = getattr(r, key)
         else:
             d = _reference_to_dict(r)
-        if owner is not None:
+        if isinstance(owner, tuple):
+            d["targets"] = [frame.targets[k].id for k in owner]
+        elif owner is not None:
             d["target"] = frame.targets[owner].id
         refs.append(d)
     if refs:

@@ -20,7 +20,9 @@ separate methods (:meth:`FrameModel.object_nll`, :meth:`FrameModel.camera_nll`,
 :meth:`FrameModel.object_neg_log_prior`, :meth:`FrameModel.camera_neg_log_prior`), so a
 temperature widens what the annotations say and never the priors. Given the camera, objects are
 independent: every object term depends on the camera and its own block only, which is what lets
-the optimiser and the sampler scale with the number of objects.
+the optimiser and the sampler scale with the number of objects. The one exception is a worker's
+distance between two targets: a *pair* term (:meth:`FrameModel.pair_terms`) of the two objects'
+blocks and the crowd's scale.
 
 Geometry
     The gravity-aligned camera frame has x right, y down, z forward; the reference ground plane is
@@ -37,7 +39,9 @@ Likelihood
       frame's pooled spread when it has a single annotation; :func:`target_sigmas`).
     * References (:class:`FrameReference`): a worker's value or range for the real length of a
       ground segment (``ground``), a ratio of a segment to a target's length or width
-      (``relative``), or a target's own length, width or height (``size``); each a Student-t
+      (``relative``), a target's own length, width or height (``size``), or the ground distance
+      between the bottom centres of two targets (``distance``; the one term that couples two
+      objects given the camera); each a Student-t
       (ν = 2) measurement in log-length with the crowd's scale ``ref_scale`` (a camera parameter
       with a log-normal prior, median 0.5, log-sd 1), widened by the segment's line noise at a
       pilot estimate (as the metrology model, method.md).
@@ -153,9 +157,10 @@ class FrameReference:
     """A worker's measurement, as the frame model reads it.
 
     ``kind`` is ``ground`` (the real length of the ground segment ``line``, metres), ``relative``
-    (that length divided by target ``owner``'s length or width, ``size_index`` 0 or 1) or ``size``
-    (target ``owner``'s length, width or height, ``size_index`` 0–2, metres; no line).
-    ``low``/``high`` are the stated value (equal) or range.
+    (that length divided by target ``owner``'s length or width, ``size_index`` 0 or 1), ``size``
+    (target ``owner``'s length, width or height, ``size_index`` 0–2, metres; no line) or
+    ``distance`` (the distance on the ground between the bottom centres of targets ``owner`` and
+    ``other``, metres; no line). ``low``/``high`` are the stated value (equal) or range.
     """
 
     index: int
@@ -166,13 +171,18 @@ class FrameReference:
     line: np.ndarray | None = None
     owner: int | None = None
     size_index: int | None = None
+    other: int | None = None
 
     def __post_init__(self):
-        if self.kind not in ("ground", "relative", "size"):
+        if self.kind not in ("ground", "relative", "size", "distance"):
             raise ValueError(f"reference {self.index}: unknown kind {self.kind!r}")
-        if (self.kind == "size") != (self.line is None):
-            raise ValueError(f"reference {self.index}: a {self.kind} reference {'has no' if self.kind == 'size' else 'needs a'} line")
-        if self.kind != "ground" and (self.owner is None or self.size_index is None):
+        lineless = self.kind in ("size", "distance")
+        if lineless != (self.line is None):
+            raise ValueError(f"reference {self.index}: a {self.kind} reference {'has no' if lineless else 'needs a'} line")
+        if self.kind == "distance":
+            if self.owner is None or self.other is None or self.owner == self.other:
+                raise ValueError(f"reference {self.index}: a distance reference names two different targets")
+        elif self.kind != "ground" and (self.owner is None or self.size_index is None):
             raise ValueError(f"reference {self.index}: a {self.kind} reference names a target and a size")
 
 
@@ -318,6 +328,10 @@ class FrameModel:
         self.ref_is_range = np.array([r.is_range for r in refs], bool)
         self.ref_owner = np.array([-1 if r.owner is None else r.owner for r in refs], int)
         self.ref_size = np.array([-1 if r.size_index is None else r.size_index for r in refs], int)
+        self.ref_other = np.array([-1 if r.other is None else r.other for r in refs], int)
+        self._distance = self.ref_kind == "distance" if refs else np.zeros(0, bool)
+        #: (P, 2) the targets each distance reference couples (in reference order)
+        self.pairs = np.stack([self.ref_owner[self._distance], self.ref_other[self._distance]], axis=1).reshape(-1, 2)
         self._with_line = np.array([r.line is not None for r in refs], bool)
         self._lines = np.array([r.line for r in refs if r.line is not None]).reshape(-1, 2, 2)
         self._line_pos = np.cumsum(self._with_line) - 1
@@ -353,7 +367,7 @@ class FrameModel:
         if len(self._lines):
             with np.errstate(divide="ignore", invalid="ignore"):
                 pred[:, self._with_line] = np.log(self.ground_lengths(self._lines, cams))
-        owned = self.ref_owner >= 0
+        owned = (self.ref_owner >= 0) & ~self._distance
         if owned.any():
             with np.errstate(divide="ignore", invalid="ignore"):
                 log_size = np.log(objs[:, self.ref_owner[owned], 3 + self.ref_size[owned]])
@@ -361,6 +375,8 @@ class FrameModel:
             idx = np.flatnonzero(owned)
             pred[:, idx[rel]] -= log_size[:, rel]
             pred[:, idx[~rel]] = log_size[:, ~rel]
+        if self._distance.any():
+            pred[:, self._distance] = self.log_pair_distances(objs)
         s = np.sqrt(cams[:, C_SCALE, None] ** 2 + self.ref_line_var[None])  # (n, k)
         nu = self.ref_dof
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -371,17 +387,32 @@ class FrameModel:
         ll = np.where(self.ref_is_range[None], rng, single)
         return np.where(np.isfinite(ll), -ll, 1e300)
 
+    def log_pair_distances(self, objs: np.ndarray) -> np.ndarray:
+        """(n, P) log of the ground distance (m) between the bottom centres of each coupled pair."""
+        a, b = objs[:, self.pairs[:, 0]], objs[:, self.pairs[:, 1]]
+        with np.errstate(divide="ignore"):
+            return np.log(np.hypot(a[..., O_X] - b[..., O_X], a[..., O_Z] - b[..., O_Z]))
+
     def _reference_nll(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(camera part (n,), per object part (n, m)) of the references' negative log-likelihood."""
+        """(camera part (n,), per object part (n, m)) of the references' negative log-likelihood;
+        distance references (which couple two objects) are in neither (:meth:`pair_nll`)."""
         n, m = len(cams), self.n_objects
         obj_part = np.zeros((n, m))
         if not len(self.references):
             return np.zeros(n), obj_part
         nll = self.reference_nll_matrix(cams, objs)
-        owned = self.ref_owner >= 0
+        owned = (self.ref_owner >= 0) & ~self._distance
         for j in np.flatnonzero(owned):
             obj_part[:, self.ref_owner[j]] += nll[:, j]
-        return nll[:, ~owned].sum(axis=1), obj_part
+        return nll[:, ~owned & ~self._distance].sum(axis=1), obj_part
+
+    def pair_nll(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
+        """Negative log-likelihood of each distance reference, (n, P): the terms that couple two
+        objects (zero columns when there are none). They depend on the camera only through the
+        crowd's scale."""
+        if not self._distance.any():
+            return np.zeros((len(cams), 0))
+        return self.reference_nll_matrix(cams, objs)[:, self._distance]
 
     # -- the object terms ------------------------------------------------------------------------
     def project(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -445,7 +476,7 @@ class FrameModel:
         segments and a measured horizon (module docstring)."""
         out = self.horizon_nll(cams)
         ground = self.ref_owner < 0
-        if ground.any():
+        if ground.any():  # (distance references have owners: they are pair terms)
             out = out + self.reference_nll_matrix(cams, np.ones((len(cams), self.n_objects, 7)))[:, ground].sum(axis=1)
         return out
 
@@ -478,11 +509,18 @@ class FrameModel:
         """−log posterior contribution of the camera block alone, (n,)."""
         return self.camera_nll(cams) / temperature + self.camera_neg_log_prior(cams)
 
+    def pair_terms(self, cams: np.ndarray, objs: np.ndarray, temperature: float = 1.0) -> np.ndarray:
+        """−log posterior contribution of each pair of objects a distance reference couples,
+        (n, P): nll / T (no prior)."""
+        return self.pair_nll(cams, objs) / temperature
+
     def neg_log_posterior(self, cams: np.ndarray, objs: np.ndarray, temperature: float = 1.0) -> np.ndarray:
         """(n,) −log p(camera, objects | annotations) up to a constant; +inf outside the bounds."""
         cams = self.complete_camera(cams)
         with np.errstate(all="ignore"):
             out = self.camera_term(cams, temperature) + self.object_terms(cams, objs, temperature).sum(axis=1)
+            if len(self.pairs):
+                out = out + self.pair_terms(cams, objs, temperature).sum(axis=1)
         return np.where(self.in_bounds(cams, objs) & np.isfinite(out), out, np.inf)
 
     def horizon_nll(self, cams: np.ndarray) -> np.ndarray:

@@ -261,7 +261,7 @@ def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width
                 notes.append(f"{cand.key}: left out: its gradient is not finite")
                 continue
             dF = wgt * np.outer(g, g)
-        Hn = Arrowhead(H.value, H.g_c, H.g_o, H.H_cc + dF[:5, :5], H.H_co.copy(), H.H_oo.copy())
+        Hn = Arrowhead(H.value, H.g_c, H.g_o, H.H_cc + dF[:5, :5], H.H_co.copy(), H.H_oo.copy(), H.pairs, H.H_pair)
         Hn.H_co[i] += dF[:5, 5:]
         Hn.H_oo[i] += dF[5:, 5:]
         sd_after, cam_after, _ = outlook(Hn)

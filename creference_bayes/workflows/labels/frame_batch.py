@@ -81,8 +81,8 @@ def label_frame(inp: FrameLabelInput, *, type_name: str | None = None, score_iou
     objects, entries = [], []
     n_refs = [0] * len(frame.targets)
     for owner in frame.reference_targets:
-        if owner is not None:
-            n_refs[owner] += 1
+        for k in (owner if isinstance(owner, tuple) else () if owner is None else (owner,)):
+            n_refs[k] += 1
     for i, (t, o, (kobj, q)) in enumerate(zip(frame.targets, res["objects"], items)):
         quality = LabelQuality(p_iou={float(th): q[f"p_iou_ge_{th:g}"] for th in IOU_THRESHOLDS},
                                iou_mean=q["iou_mean"], iou_median=q["iou_median"], n_draws=q["n_draws"])
