@@ -23,7 +23,7 @@ from .models.size_priors import SizePrior
 __all__ = ["estimate_frame", "build_frame_model", "rebuild_model", "map_state", "frame_draws", "FRAME_OPTIONS"]
 
 #: Model options a user may set (the result's provenance records them).
-FRAME_OPTIONS = ("ground_sd_m", "ground_tilt_sd_rad", "target_dof", "ref_dof", "ref_line_sigma")
+FRAME_OPTIONS = ("ground_sd_m", "ground_tilt_sd_rad", "target_dof", "ref_dof", "ref_line_sigma", "location_prior")
 
 
 def build_frame_model(frame: FrameScene, *, orientation: str = "auto", focal_prior="auto",
@@ -39,7 +39,8 @@ def build_frame_model(frame: FrameScene, *, orientation: str = "auto", focal_pri
     classes : size priors from a file given by the user (the scene's own ``classes`` win)
     use_references : use the workers' references
     options : model settings (:data:`FRAME_OPTIONS`): ``ground_sd_m`` (m), ``ground_tilt_sd_rad``,
-        ``target_dof``, ``ref_dof``, ``ref_line_sigma`` (px)
+        ``target_dof``, ``ref_dof``, ``ref_line_sigma`` (px), ``location_prior`` (``log-depth``,
+        the default, or ``flat``: :mod:`~.models.frame`)
     """
     unknown = sorted(set(options) - set(FRAME_OPTIONS))
     if unknown:
@@ -60,7 +61,8 @@ def build_frame_model(frame: FrameScene, *, orientation: str = "auto", focal_pri
                        focal_length_px=frame.focal_length_px,
                        ground_sd_m=options.get("ground_sd_m", DEFAULT_GROUND_SD_M),
                        ground_tilt_sd_rad=options.get("ground_tilt_sd_rad", DEFAULT_GROUND_TILT_SD_RAD),
-                       **{k: options[k] for k in ("target_dof", "ref_dof", "ref_line_sigma") if k in options})
+                       **{k: options[k] for k in ("target_dof", "ref_dof", "ref_line_sigma", "location_prior")
+                          if k in options})
     return model, setup
 
 
@@ -124,7 +126,8 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
             settings = FrameSamplerSettings.from_options(sampling)
             draws, diag = sample_frame(model, map_est, settings=settings, rng=rng, temperature=temperature,
                                        progress=progress)
-        provenance = {"model": "frame", "options": {k: options[k] for k in sorted(options)},
+        recorded = {"location_prior": model.location_prior, **options}
+        provenance = {"model": "frame", "options": {k: recorded[k] for k in sorted(recorded)},
                       "orientation": orientation, "focal_prior": focal_prior if isinstance(focal_prior, str) else "given",
                       "use_references": use_references, "temperature": temperature, "hdi_prob": hdi_prob,
                       "seed": seed if isinstance(seed, (int, type(None))) else "generator",
@@ -143,10 +146,12 @@ def rebuild_model(result, frame: FrameScene | str | Path) -> FrameModel:
     if not isinstance(frame, FrameScene):
         frame = load_frame(frame)
     prov = d["provenance"]
+    # results made before frames had a location prior were made with a flat one
+    options = {"location_prior": "flat", **prov["options"]}
     classes = size_priors_from_dict(prov.get("classes") or {}, "provenance.classes", "file") if prov.get("classes") else None
     model, _ = build_frame_model(frame, orientation=prov["orientation"],
                                  focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
-                                 classes=classes, use_references=prov["use_references"], **prov["options"])
+                                 classes=classes, use_references=prov["use_references"], **options)
     model.handedness = np.array([o["handedness"] for o in d["objects"]], float)
     if d.get("pilot_camera") is not None:
         model.set_pilot(np.array(d["pilot_camera"], float))

@@ -149,7 +149,9 @@ def _prior_hessian(model, camera, objects, cam_idx, obj_idx, offsets) -> np.ndar
         def fo(o):
             objs = objects.copy()
             objs[i] = o
-            return float(model.object_neg_log_prior(camera[None], objs[None])[0, i])
+            # the location is a fixed unknown here, not a random parameter: its prior is left out
+            return float((model.object_neg_log_prior(camera[None], objs[None])
+                          - model.map_log_jacobian(objs[None]))[0, i])
 
         for a in range(len(idx)):
             for b in range(a, len(idx)):

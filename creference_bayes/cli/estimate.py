@@ -281,7 +281,7 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
                    help="one target: prior on its ground position: uniform in log depth with the MAP in log "
                         "coordinates, or flat in (x, z) (auto: log-depth with the default preset, flat with "
                         "the paper presets; inverse-square, 1/d², for comparison; docs/method.md, Priors); "
-                        "frames keep the flat prior")
+                        "frames: log-depth (auto) or flat")
 
 
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:

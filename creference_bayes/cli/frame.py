@@ -41,6 +41,18 @@ def _load_classes(path):
         raise UsageError(str(exc)) from None
 
 
+def frame_location_prior(option: str) -> str:
+    """``--location-prior`` for a frame: ``auto`` is the frame default; ``inverse-square`` is a
+    single-target comparison only (a usage error)."""
+    from ..models.frame import FRAME_LOCATION_PRIORS
+
+    if option == "auto":
+        return FRAME_LOCATION_PRIORS[0]
+    if option not in FRAME_LOCATION_PRIORS:
+        raise UsageError(f"--location-prior: frames take {' or '.join(FRAME_LOCATION_PRIORS)}, got {option!r}")
+    return option
+
+
 def run_frame_estimate(args) -> int:
     from ..frame_pipeline import estimate_frame
     from ..io.files import atomic_write_json
@@ -55,7 +67,9 @@ def run_frame_estimate(args) -> int:
     if args.netcdf:
         raise UsageError("--netcdf: not yet available for frames (the result file holds the summaries)")
     sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
+    location = frame_location_prior(args.location_prior)
     result = estimate_frame(frame, seed=args.seed, posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
+                            location_prior=location,
                             temperature=1.0 if args.temperature is None else args.temperature,
                             focal_prior=args.focal_prior, orientation=args.orientation,
                             classes=_load_classes(getattr(args, "classes", None)),

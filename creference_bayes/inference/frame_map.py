@@ -244,6 +244,8 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
         if with_jacobian:
             jc, jo = coords.log_jacobian(WC, WO)
             fo, fc = fo - jo, fc - jc
+        else:  # the MAP's objective (FrameModel.map_objective)
+            fo = fo - model.map_log_jacobian(objs)
     value = float(fc[0] + fo[0].sum())
     F = np.concatenate([fc[:, None], fo], axis=1)  # (n, 1 + m): camera term, then each object's
     f0 = F[0]
@@ -321,7 +323,7 @@ def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: floa
 
 def _total(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: float) -> float:
     cams, objs = FrameCoords(model).from_work(wc[None], wo[None])
-    return float(model.neg_log_posterior(cams, objs, temperature)[0])
+    return float(model.map_objective(cams, objs, temperature)[0])
 
 
 def _newton(model: FrameModel, wc, wo, temperature: float, max_iter: int = 60, tol: float = 1e-7):
@@ -361,7 +363,7 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
     for cam in _camera_starts(model):
         cam, objs, hand, err = initial_objects(model, cam)
         model.handedness = hand.astype(float)
-        value = float(model.neg_log_posterior(cam[None], objs[None], temperature)[0])
+        value = float(model.map_objective(cam[None], objs[None], temperature)[0])
         candidates.append((value, err, cam, objs, hand))
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     best = None

@@ -55,7 +55,13 @@ Likelihood
 Priors
     Focal length, pitch, roll and camera height as the single-target model
     (:mod:`.camera_terms`); sizes from the class (:mod:`.size_priors`); ground offsets normal;
-    the location flat in (x, z) inside the bounds.
+    each object's location ``log-depth`` (p(x, z) ∝ 1/z: uniform in log depth, the single-target
+    default and its reasons in :mod:`.location_prior`) or ``flat`` in (x, z), inside the bounds.
+
+The MAP
+    is taken in log depth (:meth:`FrameModel.map_objective`): the mode of the density over
+    (x, log z), so that a prior in 1/z and the Jacobian z of log z cancel and the MAP does not
+    depend on the choice between the two priors (as the single-target MAP in log coordinates).
 """
 
 from __future__ import annotations
@@ -73,7 +79,7 @@ from .size_priors import SizePrior
 
 __all__ = ["CAMERA_NAMES", "CAMERA_UNITS", "OBJECT_NAMES", "OBJECT_UNITS", "C_FOCAL", "C_PITCH", "C_ROLL",
            "C_HEIGHT", "C_SCALE", "O_X", "O_Z", "O_YAW", "O_SIZE", "O_GROUND", "DEFAULT_GROUND_SD_M",
-           "DEFAULT_GROUND_TILT_SD_RAD", "ObjectData", "FrameReference", "FrameModel", "target_sigmas",
+           "DEFAULT_GROUND_TILT_SD_RAD", "FRAME_LOCATION_PRIORS", "ObjectData", "FrameReference", "FrameModel", "target_sigmas",
            "object_corners"]
 
 CAMERA_NAMES = ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")
@@ -91,6 +97,8 @@ DEFAULT_GROUND_SD_M = 0.08
 #: Tilt of the ground plane from level, radians: the same fits tilt by 1.1° (across) and 0.6°
 #: (along the road) in standard deviation from KITTI's level rectified camera.
 DEFAULT_GROUND_TILT_SD_RAD = float(np.radians(1.0))
+#: Location priors of a frame's objects (module docstring); the first is the default.
+FRAME_LOCATION_PRIORS = ("log-depth", "flat")
 #: Behind-the-camera penalty per metre (as the single-target models).
 _BEHIND = 1e6
 
@@ -218,6 +226,7 @@ class FrameModel:
     ground_tilt_sd_rad : the ground's tilt from level, widening a measured horizon
     target_dof, ref_dof : Student-t degrees of freedom
     ref_line_sigma : pixel noise of reference lines (None: 2 × the median σᵢ)
+    location_prior : ``log-depth`` (p ∝ 1/z per object) or ``flat``
     """
 
     principal_point: np.ndarray
@@ -234,9 +243,12 @@ class FrameModel:
     ref_dof: float = REF_DOF
     ref_line_sigma: float | None = None
     height_prior: OrientationPrior = field(default_factory=OrientationPrior)
+    location_prior: str = FRAME_LOCATION_PRIORS[0]
     name: str = field(default="frame", init=False)
 
     def __post_init__(self):
+        if self.location_prior not in FRAME_LOCATION_PRIORS:
+            raise ValueError(f"location_prior: expected one of {list(FRAME_LOCATION_PRIORS)}, got {self.location_prior!r}")
         if self.orientation not in ("free", "horizon", "level"):
             raise ValueError(f"orientation: expected free, horizon or level, got {self.orientation!r}")
         if self.orientation == "horizon" and self.horizon_line is None:
@@ -460,15 +472,29 @@ class FrameModel:
 
     def object_neg_log_prior(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         """Negative log-prior of each object block, (n, m): the class size prior (free sizes only;
-        a density over the sizes) and the ground offset's normal prior; the location is flat
-        inside the bounds."""
+        a density over the sizes), the ground offset's normal prior and the location's (log z for
+        ``log-depth``, nothing for ``flat``; both inside the bounds)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             log_s = np.log(objs[..., O_SIZE])
         z = (log_s - self._size_mu) * self._size_inv_sd
         out = np.sum((0.5 * z * z + log_s) * self._size_on, axis=-1)
         if self.ground_sd_m > 0:
             out = out + 0.5 * (objs[..., O_GROUND] / self.ground_sd_m) ** 2
-        return out
+        return out + self.map_log_jacobian(objs)
+
+    def map_log_jacobian(self, objs: np.ndarray) -> np.ndarray:
+        """log |∂z/∂log z| = log z of each object (n, m) for ``log-depth`` (the MAP's coordinates,
+        module docstring), zeros for ``flat``."""
+        if self.location_prior != "log-depth":
+            return np.zeros(objs.shape[:-1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(objs[..., O_Z])
+
+    def map_objective(self, cams: np.ndarray, objs: np.ndarray, temperature: float = 1.0) -> np.ndarray:
+        """(n,) what the MAP minimises: −log of the posterior density over (camera, x, log z, …),
+        i.e. :meth:`neg_log_posterior` − Σ log z under ``log-depth`` (module docstring)."""
+        with np.errstate(all="ignore"):
+            return self.neg_log_posterior(cams, objs, temperature) - self.map_log_jacobian(objs).sum(axis=-1)
 
     # -- the camera terms ------------------------------------------------------------------------
     def camera_nll(self, cams: np.ndarray) -> np.ndarray:

@@ -107,7 +107,14 @@ class BatchSettings:
                 "temperature": 1.0 if self.temperature is None else self.temperature,
                 "use_references": self.use_references, "sampling": dict(sorted(self.frame_sampling.items())),
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "classes": {k: self.classes[k].to_dict() for k in sorted(self.classes)}, "keep_draws": RESULT_DRAWS}
+                "classes": {k: self.classes[k].to_dict() for k in sorted(self.classes)}, "keep_draws": RESULT_DRAWS,
+                "location_prior": self.frame_location_prior()}
+
+    def frame_location_prior(self) -> str:
+        """The frames' location prior: ``location_prior`` unless ``auto`` (then the frame default)."""
+        from ...models.frame import FRAME_LOCATION_PRIORS
+
+        return FRAME_LOCATION_PRIORS[0] if self.location_prior == "auto" else self.location_prior
 
     def frame_kwargs(self) -> dict:
         """Keyword arguments of :func:`~creference_bayes.frame_pipeline.estimate_frame`."""
@@ -115,7 +122,7 @@ class BatchSettings:
                 "temperature": 1.0 if self.temperature is None else self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.frame_sampling) or None,
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "classes": dict(self.classes) or None}
+                "classes": dict(self.classes) or None, "location_prior": self.frame_location_prior()}
 
     def _map_identity(self) -> dict:
         """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
