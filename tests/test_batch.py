@@ -198,4 +198,5 @@ def test_the_location_prior_is_a_setting_a_resume_compares():
     flat, auto = BatchSettings(location_prior="flat"), BatchSettings()
     assert flat.to_dict() != auto.to_dict()
     assert flat.estimate_kwargs()["location_prior"] == "flat"
-    assert flat.frame_dict() == auto.frame_dict()  # frames keep their flat prior either way
+    assert flat.frame_dict() != auto.frame_dict()  # frames too: log-depth by default, flat on request
+    assert (flat.frame_kwargs()["location_prior"], auto.frame_kwargs()["location_prior"]) == ("flat", "log-depth")
