@@ -28,7 +28,9 @@ objects are independent. The sampler uses that:
 * **Stopping.** Chains run in chunks (each long enough for the slowest quantity to reach the
   target at its current rate) until every free parameter's bulk ESS reaches ``min_ess``
   and its rank-normalised split R-hat across the chains is at most ``max_rhat``, or
-  ``max_iterations``; ``converged`` says which.
+  ``max_iterations``; ``converged`` says which. The ranked check sorts every column of every
+  draw, so it runs only when the raw split R-hat (means and variances) is within 3× of the
+  threshold; the rule that decides is always the ranked one.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
 """
