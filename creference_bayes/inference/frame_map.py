@@ -227,14 +227,8 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
 
     ``with_jacobian`` adds −log |∂natural/∂working| (the density the sampler targets)."""
     coords = FrameCoords(model)
-    d = 12
     h = FD_STEPS
-    E = np.diag(h)
-    pts = [np.zeros(d)]
-    pts += [E[a] for a in range(d)] + [-E[a] for a in range(d)]
-    pairs = [(a, b) for a in range(d) for b in range(a + 1, d)]
-    pts += [E[a] + E[b] for a, b in pairs] + [-E[a] - E[b] for a, b in pairs]
-    P = np.array(pts)  # (n, 12)
+    P = _stencil(h)  # (n, 12)
     WC = wc[None] + P[:, :5] * model.camera_free
     WO = wo[None] + P[:, None, 5:] * model.object_free[None]
     cams, objs = coords.from_work(WC, WO)
@@ -248,18 +242,7 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
             fo = fo - model.map_log_jacobian(objs)
     value = float(fc[0] + fo[0].sum())
     F = np.concatenate([fc[:, None], fo], axis=1)  # (n, 1 + m): camera term, then each object's
-    f0 = F[0]
-    fp, fm = F[1:1 + d], F[1 + d:1 + 2 * d]
-    grad = (fp - fm) / (2 * h[:, None])  # (d, 1 + m)
-    H = np.zeros((1 + F.shape[1] - 1, d, d))
-    diag = (fp + fm - 2 * f0) / h[:, None] ** 2  # (d, 1 + m)
-    base = 1 + 2 * d
-    npairs = len(pairs)
-    fpp, fmm = F[base:base + npairs], F[base + npairs:]
-    for k, (a, b) in enumerate(pairs):
-        H[:, a, b] = H[:, b, a] = (fpp[k] + fmm[k] - 2 * f0 - diag[a] * h[a] ** 2 - diag[b] * h[b] ** 2) / (2 * h[a] * h[b])
-    idx = np.arange(d)
-    H[:, idx, idx] = diag.T
+    grad, H = _second_differences(F, h)
     Hc, Ho = H[0], H[1:]
     g_c = (grad[:5, 0] + grad[:5, 1:].sum(axis=1)) * model.camera_free
     g_o = grad[5:, 1:].T * model.object_free
@@ -277,15 +260,40 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
     return out
 
 
+def _stencil(h: np.ndarray) -> np.ndarray:
+    """Points of a central-difference gradient and Hessian with steps ``h`` (d,): the centre,
+    ±hₐ, then +(hₐ + h_b) and −(hₐ + h_b) for a < b; (1 + 2d + d(d − 1), d)."""
+    d = len(h)
+    E = np.diag(h)
+    pairs = [(a, b) for a in range(d) for b in range(a + 1, d)]
+    return np.array([np.zeros(d)] + list(E) + list(-E) + [E[a] + E[b] for a, b in pairs]
+                    + [-E[a] - E[b] for a, b in pairs])
+
+
+def _second_differences(F: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (d, k) and Hessians (k, d, d) of k functions from their values F (n, k) at
+    :func:`_stencil` ``(h)``."""
+    d = len(h)
+    pairs = [(a, b) for a in range(d) for b in range(a + 1, d)]
+    f0, fp, fm = F[0], F[1:1 + d], F[1 + d:1 + 2 * d]
+    grad = (fp - fm) / (2 * h[:, None])
+    diag = (fp + fm - 2 * f0) / h[:, None] ** 2  # (d, k)
+    base = 1 + 2 * d
+    fpp, fmm = F[base:base + len(pairs)], F[base + len(pairs):]
+    H = np.zeros((F.shape[1], d, d))
+    for k, (a, b) in enumerate(pairs):
+        H[:, a, b] = H[:, b, a] = (fpp[k] + fmm[k] - 2 * f0 - diag[a] * h[a] ** 2 - diag[b] * h[b] ** 2) / (2 * h[a] * h[b])
+    idx = np.arange(d)
+    H[:, idx, idx] = diag.T
+    return grad, H
+
+
 def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: float, D: Arrowhead) -> None:
     """Add the distance references' terms to ``D``: each pair's gradient and Hessian over
     (camera, oᵢ, oⱼ) by central differences, its blocks added where they belong and the
     cross-object block kept in ``D.H_pair``."""
     h = np.concatenate([FD_STEPS[:5], FD_STEPS[5:], FD_STEPS[5:]])  # (19,)
-    d = len(h)
-    E = np.diag(h)
-    pairs = [(a, b) for a in range(d) for b in range(a + 1, d)]
-    P = np.array([np.zeros(d)] + list(E) + list(-E) + [E[a] + E[b] for a, b in pairs] + [-E[a] - E[b] for a, b in pairs])
+    P = _stencil(h)
     free = np.concatenate([model.camera_free, np.zeros(14, bool)])
     cf, of = model.camera_free, model.object_free
     D.pairs = model.pairs.copy()
@@ -300,16 +308,9 @@ def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: floa
         WO[:, j] += Q[:, 12:]
         with np.errstate(all="ignore"):
             f = model.pair_terms(*coords.from_work(WC, WO), temperature)[:, p]
-        f0, fp, fm = f[0], f[1:1 + d], f[1 + d:1 + 2 * d]
-        g = np.where(free, (fp - fm) / (2 * h), 0.0)
-        dg = (fp + fm - 2 * f0) / h**2
-        H = np.diag(dg)
-        base = 1 + 2 * d
-        fpp, fmm = f[base:base + len(pairs)], f[base + len(pairs):]
-        for k, (a, b) in enumerate(pairs):
-            H[a, b] = H[b, a] = (fpp[k] + fmm[k] - 2 * f0 - dg[a] * h[a] ** 2 - dg[b] * h[b] ** 2) / (2 * h[a] * h[b])
-        H = np.nan_to_num(H * np.outer(free, free))
-        g = np.nan_to_num(g)
+        g, H = _second_differences(f[:, None], h)
+        g = np.nan_to_num(np.where(free, g[:, 0], 0.0))
+        H = np.nan_to_num(H[0] * np.outer(free, free))
         D.g_c = D.g_c + g[:5] * cf
         D.g_o[i] += g[5:12]
         D.g_o[j] += g[12:]

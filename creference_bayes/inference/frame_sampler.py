@@ -146,20 +146,27 @@ class _Target:
         self.m, self.T = model, temperature
         self.coords = FrameCoords(model)
 
-    def objects(self, wc, wo):
+    def objects(self, wc, wo, with_pairs: bool = False):
+        """(C, m) log-density of each object's block; with ``with_pairs`` also :meth:`pairs`'s
+        (C, P), from the same transform."""
         cams, objs, jac = self.coords.from_work_jacobian(wc, wo)
         with np.errstate(all="ignore"):
             lp = -self.m.object_terms(cams, objs, self.T) + jac
             inside = (objs >= self.m.object_lower) & (objs <= self.m.object_upper)
         inside[..., O_YAW] = True
         ok = np.all(inside, axis=-1) & np.isfinite(lp)
-        return np.where(ok, lp, -np.inf)
+        lp = np.where(ok, lp, -np.inf)
+        return (lp, self._pairs(cams, objs)) if with_pairs else lp
 
     def pairs(self, wc, wo):
         """(C, P) log-density of each distance reference's pair term."""
         if not len(self.m.pairs):
             return np.zeros((len(wc), 0))
-        cams, objs = self.coords.from_work(wc, wo)
+        return self._pairs(*self.coords.from_work(wc, wo))
+
+    def _pairs(self, cams, objs):
+        if not len(self.m.pairs):
+            return np.zeros((len(cams), 0))
         with np.errstate(all="ignore"):
             lp = -self.m.pair_terms(cams, objs, self.T)
         return np.where(np.isfinite(lp), lp, -np.inf)
@@ -260,11 +267,11 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
     wt = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7)))
     shear = lambda wc_: np.einsum("mik,ck->cmi", B, wc_ - wc0)
     wo = wt + shear(wc)
-    lp_c, lp_o, lp_p = target.camera(wc), target.objects(wc, wo), target.pairs(wc, wo)
+    lp_c, (lp_o, lp_p) = target.camera(wc), target.objects(wc, wo, with_pairs=True)
     bad = ~(np.isfinite(lp_c) & np.all(np.isfinite(lp_o), axis=1) & np.all(np.isfinite(lp_p), axis=1))
     wc[bad], wt[bad] = wc0, wo0
     wo = wt + shear(wc)
-    lp_c, lp_o, lp_p = target.camera(wc), target.objects(wc, wo), target.pairs(wc, wo)
+    lp_c, (lp_o, lp_p) = target.camera(wc), target.objects(wc, wo, with_pairs=True)
     if not (np.all(np.isfinite(lp_c)) and np.all(np.isfinite(lp_o)) and np.all(np.isfinite(lp_p))):
         raise RuntimeError("the MAP has zero posterior density: cannot start the sampler")
     # objects coupled by a distance reference never move in the same object step: the objects are
@@ -303,10 +310,9 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
             if colour is not None:
                 prop = np.where(colour[None, :, None], prop, wt)
             new = prop + (wo - wt)
-            lp_new = target.objects(wc, new)
+            lp_new, lp_p_new = target.objects(wc, new, with_pairs=True)
             delta = lp_new - lp_o + corr
             if lp_p.shape[1]:
-                lp_p_new = target.pairs(wc, new)
                 with np.errstate(invalid="ignore"):
                     delta = delta + (lp_p_new - lp_p) @ incidence.T
             with np.errstate(invalid="ignore"):
@@ -329,7 +335,7 @@ def sample_frame(model: FrameModel, map_est: FrameMAP, *, settings: FrameSampler
                 pc = wc + sc * rng.standard_normal((C, 5)) @ Lc.T
                 corr = 0.0
             new = wt + shear(pc)
-            lpc_new, lpo_new, lpp_new = target.camera(pc), target.objects(pc, new), target.pairs(pc, new)
+            lpc_new, (lpo_new, lpp_new) = target.camera(pc), target.objects(pc, new, with_pairs=True)
             with np.errstate(invalid="ignore"):
                 b = np.log(rng.uniform(size=C)) < ((lpc_new + lpo_new.sum(axis=1) + lpp_new.sum(axis=1))
                                                    - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)) + corr)
