@@ -308,7 +308,8 @@ def test_the_coupled_hessian_is_the_whole_posteriors():
 def test_workers_distances_between_two_targets_narrow_the_frame():
     """One set of dimension lines on t1, five on the others; three workers state the distance from
     t0 to t1 (within 4 % of the truth). The posterior's t0–t1 distance follows them, the frame's
-    distance intervals narrow in total, and t1's truth stays inside its interval."""
+    distance intervals narrow in total, its 90 % spread falls by a fifth or more, and t1's truth
+    stays inside its interval."""
     from creference_bayes.models.frame import O_X, O_Z
 
     for seed in (4, 6):
@@ -331,7 +332,8 @@ def test_workers_distances_between_two_targets_narrow_the_frame():
         assert abs(np.median(dd) - d) < 0.05 * d
         before = plain.draws.objects.reshape(-1, 3, 7)
         spread = lambda x: np.subtract(*np.percentile(x, [95, 5]))
-        assert spread(dd) < 0.75 * spread(np.hypot(before[:, 0, O_X] - before[:, 1, O_X], before[:, 0, O_Z] - before[:, 1, O_Z]))
+        # long runs (min_ess 6000): 0.48 (seed 4) and 0.72 (seed 6); a default run is within ±0.04
+        assert spread(dd) < 0.8 * spread(np.hypot(before[:, 0, O_X] - before[:, 1, O_X], before[:, 0, O_Z] - before[:, 1, O_Z]))
 
 
 def test_coupled_objects_never_share_a_colour():
@@ -379,3 +381,29 @@ def test_the_location_prior_moves_the_posterior_of_a_thin_frame_not_its_map(tmp_
     assert rebuild_model(old, frame).location_prior == "flat"
     with pytest.raises(ValueError, match="location_prior: expected one of"):
         estimate_frame(frame, posterior=False, location_prior="uniform")
+
+
+@pytest.mark.parametrize("tries", [1, 4])
+def test_a_multiple_try_step_keeps_its_target_distribution(tries):
+    """Chains started from exact draws of a skewed target and moved by independent multiple-try
+    steps from a poorly matched proposal must still hold that target (invariance), and more tries
+    must accept more often."""
+    from scipy import stats
+
+    from creference_bayes.inference.frame_sampler import multiple_try_pick
+
+    rng = np.random.default_rng(3)
+    target, proposal = stats.gamma(3.0), stats.norm(4.0, 2.5)  # proposal off-centre, too wide
+    n = 40000
+    x = target.rvs(size=n, random_state=rng)
+    accepted = []
+    for _ in range(15):
+        y = proposal.rvs(size=(n, tries), random_state=rng)
+        log_w = np.where(y > 0, target.logpdf(np.maximum(y, 1e-300)), -np.inf) - proposal.logpdf(y)
+        j, ok = multiple_try_pick(log_w, target.logpdf(x) - proposal.logpdf(x), rng)
+        x = np.where(ok, y[np.arange(n), j], x)
+        accepted.append(ok.mean())
+    assert stats.kstest(x, target.cdf).pvalue > 1e-3
+    assert abs(x.mean() - 3.0) < 4 * np.sqrt(3.0 / n)
+    accept = np.mean(accepted)
+    assert (accept > 0.8) if tries == 4 else (0.5 < accept < 0.8)
