@@ -102,7 +102,8 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
     out = tmp_path / "study"
     proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
-                           "--max-iterations", "400"], capture_output=True, text=True, timeout=300,
+                           "--max-iterations", "400", "--option", "ground_sd_m=0.05"], capture_output=True, text=True,
+                          timeout=300,
                           env={**os.environ, "MPLBACKEND": "Agg"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
@@ -112,3 +113,9 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
         assert len(rows) == 3, (method, rows)  # the three annotatable objects, one row each
     study = json.loads((out / "study.json").read_text())
     assert len(study["times"]) == 1 and "AP3D R40" in proc.stdout
+    # the Car box errors: one row per method and band that holds a car, each naming its count
+    errors = [line for line in proc.stdout.splitlines() if " depth " in line and " n " in line]
+    assert {line.split()[0] for line in errors} == {"joint", "alone", "bound"}, proc.stdout
+    bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--option",
+                          "ground_sd=1"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--option 'ground_sd=1'" in bad.stderr
