@@ -8,6 +8,7 @@ them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -276,6 +277,29 @@ def _references_step(scene: Scene, setup: CameraSetup, preset: str, use_referenc
                                 focal_range_px=(bounds.lower[4], bounds.upper[4]))
 
 
+def _REPORTED_NAMES(model) -> list[str]:
+    """Names of :func:`_reported`'s columns."""
+    from .models.params import PARAM_NAMES
+
+    return [n for n, f in zip(PARAM_NAMES, model.free) if not f] + ["distance_m"]
+
+
+def _reported(model, coords, q: np.ndarray) -> np.ndarray:
+    """(n, k) quantities the result reports that the sampler does not sample itself, from its
+    coordinates ``q``: the fixed or derived parameters (pitch and roll from µ and a horizon;
+    constant ones are harmless) and the distance. The sampler's stopping rule watches their
+    autocorrelation times too (a derived quantity can mix more slowly than any parameter)."""
+    full = model.expand(q if coords is None else coords.inverse(q))
+    free = np.asarray(model.free, bool)
+    out = np.column_stack([full[:, ~free], np.hypot(full[:, 0], full[:, 2])])
+    # a column constant in exact arithmetic (a derived roll) varies by rounding, whose "τ" is
+    # noise: make it exactly constant, as the summary treats it (τ = 1)
+    with np.errstate(invalid="ignore"):
+        still = np.ptp(out, axis=0) <= 1e-9 * np.maximum(1.0, np.max(np.abs(out), axis=0))
+    out[:, still] = out[:1, still]
+    return out
+
+
 def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampling, progress):
     """Sample the posterior of the MAP's handedness from the MAP, and summarise it.
 
@@ -287,13 +311,17 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     from .inference.sampling import SamplerSettings, SamplingError, sample
     from .inference.summary import posterior_arrays, summarise, to_inference_data
     from .models.coordinates import HorizonDistance
+    from .models.params import YAW
 
     t0 = time.perf_counter()
     settings = SamplerSettings.from_options(sampling)
     model = next(m for m in models if m.handedness == map_est.handedness)
     if temperature is None:  # a model may bring its own (metrology: a proper likelihood, T = 1)
         temperature = getattr(model, "default_temperature", DEFAULT_TEMPERATURE)
-    log_post = LogPosterior(model, temperature)
+    # yaw on one turn around the MAP's, not the whole real line (a periodic density there is
+    # improper, and an ensemble diffuses over turns where the annotations hardly fix yaw)
+    yaw_map = float(map_est.params[YAW]) if model.free[YAW] else None
+    log_post = LogPosterior(model, temperature, yaw_center=yaw_map)
     coords = HorizonDistance.from_model(model)  # pitch → log of the target's distance below the horizon
     target = log_post if coords is None else Reparametrised(log_post, coords)
     center = map_est.params[model.free]
@@ -310,7 +338,9 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
                            temperature=settings.explore_temperature, n_steps=settings.explore_steps)
     try:
         chains = sample(target, center, laplace.cov, settings=settings, rng=rng, log_mask=log_mask,
-                        progress=progress, modes=[(m.center, m.cov) for m in modes[1:]])
+                        progress=progress, modes=[(m.center, m.cov) for m in modes[1:]],
+                        derived=functools.partial(_reported, model, coords))
+        chains.info["derived_tau"] = dict(zip(_REPORTED_NAMES(model), chains.info["derived_tau"]))
     except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
         return None, None, None, [f"posterior not sampled: {exc}"]
     if coords is not None:  # back to the model's parameters

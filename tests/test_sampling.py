@@ -173,3 +173,32 @@ def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
         q = c.to_q(ui[None])
         consts.append(np.log(abs(np.linalg.det(J))) - c.log_jacobian(q)[0])
     assert np.ptp(consts) < 1e-5
+
+
+def test_warm_up_judges_whitening_by_median_and_quartiles_not_by_moments():
+    """A heavy-tailed but well whitened stage counts as settled (the standard deviation of a
+    t₂.₅ sample is far above 1.33 however good the map); a shifted or too wide one does not."""
+    from creference_bayes.inference.sampling import _stable
+
+    rng = np.random.default_rng(0)
+    heavy = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)
+    heavy /= np.subtract(*np.percentile(heavy, [75, 25], axis=0)) / 1.349  # unit quartile spread
+    assert heavy.std(axis=0).max() > 1.33  # what the old moment-based check saw
+    assert _stable(heavy)
+    normal = rng.standard_normal((4000, 5))
+    assert _stable(normal)
+    assert not _stable(normal + np.array([0, 0, 0.5, 0, 0]))
+    assert not _stable(normal * np.array([1, 1, 1, 1.6, 1]))
+    assert not _stable(normal * np.array([1, 0.6, 1, 1, 1]))
+
+
+def test_integrated_time_of_a_walker_that_never_moved_is_one():
+    """A constant column (a derived roll that µ does not change) has τ = 1, not the chain's
+    length: its mean differs from its value in the last bit (0.1 over 300 steps: 5e-16), and
+    that residue used to read as perfect correlation, holding a converged run to the step cap."""
+    rng = np.random.default_rng(0)
+    x = np.stack([np.full((300, 32), 0.1), rng.standard_normal((300, 32))], axis=-1)
+    assert (x[:, :, 0] - x[:, :, 0].mean(axis=0))[0, 0] != 0.0  # the residue is there
+    tau = integrated_time(x)
+    assert tau[0] == 1.0
+    assert tau[1] == pytest.approx(1.0, abs=0.3)

@@ -140,12 +140,37 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
 
 def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two maxima are one mode: close (:data:`SAME_MODE`), or no valley deeper than
-    :data:`VALLEY` nats between them on the straight line (in the whitened coordinates)."""
+    :data:`VALLEY` nats between them, on the straight line (in the whitened coordinates) or, where
+    that line leaves a curved ridge, on the path through each intermediate cross-section's own
+    maximum (:func:`_pass_height`)."""
     if np.linalg.norm(a - b) <= SAME_MODE:
         return True
     t = np.linspace(0.0, 1.0, 7)[:, None]
     v = neg(a + t * (b - a))
-    return bool(np.max(v[1:-1]) <= max(v[0], v[-1]) + VALLEY)
+    floor = max(v[0], v[-1])
+    if np.max(v[1:-1]) <= floor + VALLEY:
+        return True
+    return _pass_height(neg, a, b) <= floor + VALLEY
+
+
+def _pass_height(neg, a: np.ndarray, b: np.ndarray, n: int = 5) -> float:
+    """The highest −log p met on the way from ``a`` to ``b`` along a bending path: the largest,
+    over n evenly spaced planes orthogonal to the segment, of the least −log p in each plane.
+
+    Maxima along one far, curved ridge (a wide posterior's depth–focal-length ridge: points
+    60–200 whitened units apart) see a deep "valley" on the straight line between them that is
+    only the ridge's bend; a true valley (a second basin, the outlier-corner mode) stays deep
+    in every plane between the two.
+    """
+    e = (b - a) / np.linalg.norm(b - a)
+    basis = np.linalg.svd(np.eye(len(a)) - np.outer(e, e))[0][:, :len(a) - 1]  # ⟂ e
+    worst = -np.inf
+    for t in np.linspace(0.0, 1.0, n + 2)[1:-1]:
+        p0 = a + t * (b - a)
+        section = lambda y, p0=p0: neg(p0 + np.atleast_2d(y) @ basis.T)  # noqa: E731
+        y = _climb(section, np.zeros(len(a) - 1))
+        worst = max(worst, float(section(y)[0]))
+    return worst
 
 
 def _spread(u: np.ndarray, lp: np.ndarray, k: int) -> np.ndarray:

@@ -3,9 +3,16 @@
     log p(s, µ | annotations) = −cost′(s, µ) / T + log prior(s, µ)
 
 with the prior uniform inside the model's :class:`~creference_bayes.models.params.Bounds` (so log prior is 0 inside and
-−∞ outside) and T a temperature. Yaw is circular: it is never bounded here (the cost depends on
-it through sin and cos only), so a sampler may move it freely and summaries wrap it. A known focal
-length fixes µ: the posterior is then over the model's free parameters only (``model.free``).
+−∞ outside) and T a temperature. Yaw is circular: the cost depends on it through sin and cos
+only, so the model's bounds never bound it. On the real line a circular density is periodic and
+its total mass infinite: a sampler left to move yaw freely, where the annotations hardly fix it
+(one set of lines on a few pixels), diffuses over ever more turns, and an ensemble's moves, which
+scale with the walkers' spread, make that spread grow geometrically (10²¹ rad was seen), which
+ruins the whitening and the autocorrelation times of every other parameter. ``yaw_center``
+therefore cuts the circle open at the antipode of a given yaw (the MAP's): the density lives on
+(yaw_center − π, yaw_center + π], which is the same distribution on the circle, and summaries
+wrap it as before. A known focal length fixes µ: the posterior is then over the model's free
+parameters only (``model.free``).
 
 The posterior conditions on one handedness of the dimension lines, the MAP's: the two are
 separate models (no yaw turns one into the other), and the MAP picks the one that fits.
@@ -46,21 +53,28 @@ class LogPosterior:
     model : a model with ``cost((n, 7)) → (n,)``, ``bounds``, ``free`` and ``expand`` (for
         example :class:`~creference_bayes.models.paper.PaperModel`)
     temperature : T > 0; larger T widens the posterior
+    yaw_center : rad, or None: yaw is confined to (yaw_center − π, yaw_center + π] (the circle
+        cut open opposite this yaw; module docstring); None leaves it unbounded (for optimisers
+        and local curvature)
 
     Calling it with an (n, n_free) array returns the (n,) log-densities (unnormalised).
     """
 
     model: object
     temperature: float = DEFAULT_TEMPERATURE
+    yaw_center: float | None = None
 
     def __post_init__(self):
         t = self.temperature
         if isinstance(t, bool) or not (isinstance(t, (int, float, np.floating)) and np.isfinite(t) and t > 0):
             raise ValueError(f"temperature: expected a finite number > 0, got {t!r}")
-        # bounds of the free parameters, yaw unbounded (circular)
+        # bounds of the free parameters; yaw (circular) unbounded, or one turn around yaw_center
+        c = self.yaw_center
+        if c is not None and not (isinstance(c, (int, float, np.floating)) and np.isfinite(c)):
+            raise ValueError(f"yaw_center: expected a finite angle in radians or None, got {c!r}")
         circular = np.isin(np.arange(N_PARAMS), CIRCULAR)
-        lo = np.where(circular, -np.inf, self.model.bounds.lower)[self.free]
-        hi = np.where(circular, np.inf, self.model.bounds.upper)[self.free]
+        lo = np.where(circular, -np.inf if c is None else c - np.pi, self.model.bounds.lower)[self.free]
+        hi = np.where(circular, np.inf if c is None else c + np.pi, self.model.bounds.upper)[self.free]
         object.__setattr__(self, "_lo", lo)
         object.__setattr__(self, "_hi", hi)
 
@@ -84,7 +98,8 @@ class LogPosterior:
         return int(self.free[:YAW].sum()) if self.free[YAW] else None
 
     def in_support(self, free_params: np.ndarray) -> np.ndarray:
-        """(n,) bool: finite and inside the bounds (yaw unbounded)."""
+        """(n,) bool: finite and inside the bounds (yaw unbounded, or within a turn of
+        ``yaw_center``)."""
         p = np.atleast_2d(np.asarray(free_params, float))
         return np.all((p >= self._lo) & (p <= self._hi) & np.isfinite(p), axis=1)
 

@@ -24,10 +24,11 @@ How it samples
   polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
   is 1; the density is corrected for the logarithms) and an independence proposal (a
   multivariate t fitted in the straightened space), until a stage run in the map fitted before it
-  still looks whitened and the proposal is accepted often enough. Warm-up draws are discarded;
+  still looks whitened (median and quartiles, robust to a heavy-tailed posterior) and the
+  proposal is accepted often enough. Warm-up draws are discarded;
   the map and the proposal are then frozen, so the main phase is an ordinary (non-adaptive)
-  Markov chain. If its first chunk shows a large τ, that chunk is turned into one more warm-up
-  stage (at most twice).
+  Markov chain. If its first chunk shows a large τ, or a later one a τ the step cap cannot
+  satisfy, the chain so far is turned into one more warm-up stage (at most twice).
 * **Main phase.** A mixture of moves (emcee picks one per step): the independence proposal
   (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps)
   and the grouped differential-evolution and stretch moves (robust where the proposal fits
@@ -76,8 +77,9 @@ class SamplerSettings:
         previous check (emcee's advice: a τ that is still growing means the tails are still being
         found)
     max_steps : cap on main-phase steps (the result then says it has not converged)
-    retune_tau, max_retunes : a first main-phase chunk with τ above ``retune_tau`` steps is
-        turned into one more warm-up stage, at most ``max_retunes`` times (:func:`_main_phase`)
+    retune_tau, max_retunes : a first main-phase chunk with τ above ``retune_tau`` steps, or
+        any check whose τ asks for more steps than ``max_steps``, turns the chain so far into one
+        more warm-up stage, at most ``max_retunes`` times (:func:`_main_phase`)
     chunk : steps between convergence checks (grows to the expected remaining length)
     warmup : length of the first two warm-up stages; later stages double. The coordinates and
         the proposal are refitted after each stage, until a stage run in the coordinates fitted
@@ -297,12 +299,19 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None) -> Ind
 def _stable(u: np.ndarray, loose: bool = False) -> bool:
     """Whether a stage's second half, in the coordinates fitted before it, still looks whitened.
 
+    Centre and spread are the median and the interquartile range (over 1.349, a normal's), not
+    the mean and standard deviation: a heavy-tailed posterior (a far target's depth over a decade)
+    gives a polynomial map fitted to one stage's tails a standard deviation well over 1.33 on
+    the next stage's tails however well it fits the bulk, and the warm-up then ran to its cap
+    (5000 steps where 400 did; tests/test_sampling.py).
+
     ``loose`` (several modes): the share of the walkers in each mode, and so the sample's mean
     and spread, fluctuate from stage to stage while the mixture proposal moves them between
     modes; the mixture, not the affine map, does the work there, so the tolerance is wider."""
-    sd = u.std(axis=0)
+    q25, median, q75 = np.percentile(u, [25, 50, 75], axis=0)
+    sd = (q75 - q25) / 1.349
     m_max, sd_max = (0.5, 2.0) if loose else (0.3, 1.33)
-    return bool(np.all(np.abs(u.mean(axis=0)) < m_max) and np.all((sd > 1 / sd_max) & (sd < sd_max)))
+    return bool(np.all(np.abs(median) < m_max) and np.all((sd > 1 / sd_max) & (sd < sd_max)))
 
 
 def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.ndarray]:
@@ -321,7 +330,7 @@ def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.nda
 
 
 def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
-           log_mask=None, progress: bool = False, modes=None) -> Chains:
+           log_mask=None, progress: bool = False, modes=None, derived=None) -> Chains:
     """Sample ``log_prob`` with independent emcee ensembles until converged (module docstring).
 
     Parameters
@@ -341,6 +350,11 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
         the ensembles then tells whether they found the same posterior), the independence
         proposal is a mixture with a component per mode, and the sampler coordinates are
         affine (no shear: one polynomial cannot straighten two modes)
+    derived : callable (n, ndim) → (n, k), quantities of the parameters that the result will
+        report (the target's distance), or None. The stopping rule then wants the chain
+        ``tau_multiple`` autocorrelation times of these too, not only of the parameters (a
+        derived quantity can mix more slowly than any parameter); their τ goes to
+        ``Chains.info["derived_tau"]``
 
     Returns
     -------
@@ -376,7 +390,7 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
         coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
                                                 centers)
         sampler, chain, burn, tau, coords = _main_phase(safe, coords, proposal, pos, rstate, s, info,
-                                                        bar, log_mask, centers)
+                                                        bar, log_mask, centers, derived)
     n, g, k = chain.shape[0], s.n_ensembles, s.n_walkers
     info.update({"nonfinite": safe.nonfinite, "log_prob_calls": safe.calls,
                  "log_prob_evaluations": safe.evaluations,
@@ -430,14 +444,16 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
 
 
 def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: dict, bar,
-                log_mask=None, centers=None):
+                log_mask=None, centers=None, derived=None):
     """Run in chunks until converged or ``max_steps``; returns the sampler, the chain in
     parameters (n, walkers, d), the burn-in, τ and the coordinates finally used.
 
     If the first chunk shows τ above ``retune_tau`` (the warm-up had not yet seen the whole
-    posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
-    and the proposal are refitted to it and the main phase starts again (at most
-    ``max_retunes`` times; the discarded chunks count as warm-up). Afterwards the chain grows
+    posterior, so the map does not fit it), or a later check a τ for which 2 τ + ``tau_multiple``
+    τ exceeds ``max_steps`` (the run could not converge in the cap as it is), the chain so far
+    becomes one more warm-up stage: the map and the proposal are refitted to its second half and
+    the main phase starts again (at most ``max_retunes`` times; the discarded chunks count as
+    warm-up). Afterwards the chain grows
     towards the length the current τ asks for, at most doubling at a time (a high estimate of
     τ from a short chain no longer commits the run to thousands of steps it does not need).
     """
@@ -454,9 +470,15 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         chain = np.concatenate([chain, coords.inverse(sampler.get_chain(discard=n))])
         n += step
         bar.update(step)
-        burn, tau = _burn_and_tau(chain, burn)
-        tau_max = float(np.max(tau))
-        if n == step and tau_max > s.retune_tau and info["retunes"] < s.max_retunes and s.adapt:
+        burn, tau_all = _burn_and_tau(_with_derived(chain, derived), burn)
+        tau, info["derived_tau"] = tau_all[:d], [float(t) for t in tau_all[d:]]
+        tau_max = float(np.max(tau_all))
+        # refit on what the chain has seen: after a first chunk with a large τ, or whenever the
+        # current τ asks for more steps than the cap leaves (walkers stuck in tails the warm-up
+        # never reached, where the proposal is too thin)
+        hopeless = 2.0 * tau_max + s.tau_multiple * tau_max > s.max_steps
+        if ((n == step and tau_max > s.retune_tau) or hopeless) and info["retunes"] < s.max_retunes \
+                and s.adapt:
             try:
                 tail = chain[n // 2:].reshape(-1, d)
                 coords = Coordinates.fit(tail, log_mask, shear=centers is None)
@@ -482,6 +504,15 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         bar.total = sum(info["warmup_stages"]) + max(n_target, n + s.chunk)
         bar.refresh()
     return sampler, chain, burn, tau, coords
+
+
+def _with_derived(chain: np.ndarray, derived) -> np.ndarray:
+    """(n, walkers, d) chain with the ``derived`` quantities appended as columns."""
+    if derived is None or not len(chain):
+        return chain
+    n, w, d = chain.shape
+    extra = np.asarray(derived(chain.reshape(-1, d)), float).reshape(n, w, -1)
+    return np.concatenate([chain, extra], axis=2)
 
 
 def _forward(coords, centers):

@@ -200,6 +200,11 @@ def _diagnostics(chains, post, sampled, expand, free, min_ess, tau_multiple) -> 
     if free is not None:  # the sampler's own estimate for what it sampled
         tau.update(zip([n for n, f in zip(PARAM_NAMES, free) if f], map(float, chains.autocorr_time)))
     tau["distance_m"] = float(integrated_time(np.hypot(full[..., 0], full[..., 2])))
+    # the sampler's own, for what its stopping rule watched besides the parameters (a dict of
+    # name → τ; :func:`creference_bayes.pipeline._reported`)
+    derived = chains.info.get("derived_tau")
+    if isinstance(derived, dict):
+        tau.update({k: float(v) for k, v in derived.items() if k in tau})
     ess, ess_tail, rhat = {}, {}, {}
     for name in sampled:
         a = post[name]
