@@ -202,3 +202,4 @@ def test_integrated_time_of_a_walker_that_never_moved_is_one():
     tau = integrated_time(x)
     assert tau[0] == 1.0
     assert tau[1] == pytest.approx(1.0, abs=0.3)
+
