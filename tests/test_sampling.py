@@ -203,3 +203,26 @@ def test_integrated_time_of_a_walker_that_never_moved_is_one():
     assert tau[0] == 1.0
     assert tau[1] == pytest.approx(1.0, abs=0.3)
 
+
+
+@pytest.mark.parametrize("tries", [1, 4])
+def test_the_multiple_try_independence_move_keeps_its_target(tries):
+    """Walkers started from exact Gamma(3) draws stay Gamma(3)-distributed under the
+    independence move with a mismatched t proposal (invariance), and more tries are accepted
+    more often."""
+    from creference_bayes.inference.moves import IndependenceMove
+
+    n = 20000
+    target = stats.gamma(3.0)
+    x0 = target.rvs(size=(n, 1), random_state=np.random.default_rng(1))
+    move = IndependenceMove(np.array([2.0]), np.array([[1.2]]), df=6.0, tries=tries)
+    log_prob = lambda x: np.where(x[:, 0] > 0, target.logpdf(np.maximum(x[:, 0], 1e-300)), -np.inf)  # noqa: E731
+    sampler = emcee.EnsembleSampler(n, 1, log_prob, moves=[move], vectorize=True)
+    state = emcee.State(x0, random_state=np.random.RandomState(2).get_state())
+    sampler.run_mcmc(state, 10, skip_initial_state_check=True)
+    x = sampler.get_chain()[-1, :, 0]
+    assert stats.kstest(x, target.cdf).pvalue > 1e-3
+    assert abs(x.mean() - 3.0) < 4 * np.sqrt(3.0 / n)
+    assert move.acceptance > (0.75 if tries == 4 else 0.4)
+    if tries == 1:
+        assert move.acceptance < 0.75

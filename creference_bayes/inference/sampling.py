@@ -30,7 +30,8 @@ How it samples
   Markov chain. If its first chunk shows a large τ, that chunk is turned into one more warm-up
   stage (at most twice).
 * **Main phase.** A mixture of moves (emcee picks one per step): the independence proposal
-  (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps)
+  (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps;
+  ``independence_tries`` (4) proposals per walker, one picked by multiple-try Metropolis)
   and the grouped differential-evolution and stretch moves (robust where the proposal fits
   badly). It runs in chunks until the chain after burn-in is at
   least ``tau_multiple`` (50) integrated autocorrelation times long, τ has settled (changed by
@@ -89,6 +90,8 @@ class SamplerSettings:
     min_independence_acceptance : warm-up goes on while that proposal is accepted less often (it
         then does not yet cover the posterior)
     proposal_df, proposal_scale : degrees of freedom and scale inflation of that proposal
+    independence_tries : proposals per walker in each independence step (multiple-try
+        Metropolis, :class:`~.moves.IndependenceMove`; 1: the ordinary independence step)
     mode_search : before sampling, look for other modes (:mod:`.modes`; done by the caller,
         :func:`creference_bayes.pipeline.estimate`, which passes them as ``modes``)
     explore_temperature, explore_steps : the tempered exploration of that search
@@ -110,6 +113,7 @@ class SamplerSettings:
     min_independence_acceptance: float = 0.15
     proposal_df: float = 6.0
     proposal_scale: float = 1.2
+    independence_tries: int = 4
     mode_search: bool = True
     explore_temperature: float = 3.0
     explore_steps: int = 150
@@ -132,6 +136,9 @@ class SamplerSettings:
              "a number in [0, 1)"),
             ("proposal_df", self.proposal_df > 0, "a number > 0"),
             ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+            ("independence_tries", isinstance(self.independence_tries, (int, np.integer))
+             and not isinstance(self.independence_tries, bool) and self.independence_tries >= 1,
+             "an integer ≥ 1"),
             ("mode_search", isinstance(self.mode_search, bool), "true or false"),
             ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
             ("explore_steps", self.explore_steps >= 10, "an integer ≥ 10"),
@@ -285,12 +292,14 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None) -> Ind
         if len(weights) > 1:
             try:
                 chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
-                return IndependenceMove(means, chols, settings.proposal_df, weights=weights)
+                return IndependenceMove(means, chols, settings.proposal_df, weights=weights,
+                                        tries=settings.independence_tries)
             except np.linalg.LinAlgError:
                 pass
     cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
     try:
-        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df)
+        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df,
+                                tries=settings.independence_tries)
     except np.linalg.LinAlgError:
         return None
 
