@@ -277,7 +277,7 @@ def _references_step(scene: Scene, setup: CameraSetup, preset: str, use_referenc
                                 focal_range_px=(bounds.lower[4], bounds.upper[4]))
 
 
-def _REPORTED_NAMES(model) -> list[str]:
+def _reported_names(model) -> list[str]:
     """Names of :func:`_reported`'s columns."""
     from .models.params import PARAM_NAMES
 
@@ -340,7 +340,7 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
         chains = sample(target, center, laplace.cov, settings=settings, rng=rng, log_mask=log_mask,
                         progress=progress, modes=[(m.center, m.cov) for m in modes[1:]],
                         derived=functools.partial(_reported, model, coords))
-        chains.info["derived_tau"] = dict(zip(_REPORTED_NAMES(model), chains.info["derived_tau"]))
+        chains.info["derived_tau"] = dict(zip(_reported_names(model), chains.info["derived_tau"]))
     except SamplingError as exc:  # e.g. a MAP with zero posterior density: report, do not crash
         return None, None, None, [f"posterior not sampled: {exc}"]
     if coords is not None:  # back to the model's parameters
