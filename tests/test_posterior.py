@@ -135,3 +135,20 @@ def test_known_focal_length_is_not_sampled(make_scene):
     assert r.posterior.sd["focal_length_px"] == 0.0
     assert r.posterior.mean["focal_length_px"] == pytest.approx(scene.focal_length_px)
     assert "focal_length_px" not in r.diagnostics.r_hat
+
+
+
+def test_yaw_center_confines_yaw_to_one_turn(make_scene):
+    """With ``yaw_center`` the density lives on (c − π, c + π], the circle cut open opposite c:
+    the same values inside, zero a turn away; without it yaw is periodic and unbounded."""
+    model, m = _paper_model(make_scene(2, tier="low"))
+    p = m.params[model.free].copy()
+    c = float(p[3])
+    lp, cut = LogPosterior(model), LogPosterior(model, yaw_center=c)
+    near = np.array([p + np.eye(len(p))[3] * d for d in (-3.0, -0.5, 0.0, 0.5, 3.0)])
+    np.testing.assert_allclose(cut(near), lp(near), rtol=1e-12)
+    turned = np.array([p + np.eye(len(p))[3] * d for d in (-2 * np.pi, 2 * np.pi, np.pi + 1e-6)])
+    assert np.all(np.isfinite(lp(turned)))
+    assert np.all(cut(turned) == -np.inf)
+    with pytest.raises(ValueError, match="yaw_center"):
+        LogPosterior(model, yaw_center=float("nan"))

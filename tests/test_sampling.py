@@ -204,7 +204,6 @@ def test_integrated_time_of_a_walker_that_never_moved_is_one():
     assert tau[1] == pytest.approx(1.0, abs=0.3)
 
 
-
 @pytest.mark.parametrize("tries", [1, 4])
 def test_the_multiple_try_independence_move_keeps_its_target(tries):
     """Walkers started from exact Gamma(3) draws stay Gamma(3)-distributed under the
