@@ -287,17 +287,11 @@ def _reported_names(model) -> list[str]:
 def _reported(model, coords, q: np.ndarray) -> np.ndarray:
     """(n, k) quantities the result reports that the sampler does not sample itself, from its
     coordinates ``q``: the fixed or derived parameters (pitch and roll from µ and a horizon;
-    constant ones are harmless) and the distance. The sampler's stopping rule watches their
+    constant ones, even to rounding only, get τ = 1) and the distance. The sampler's stopping rule watches their
     autocorrelation times too (a derived quantity can mix more slowly than any parameter)."""
     full = model.expand(q if coords is None else coords.inverse(q))
     free = np.asarray(model.free, bool)
-    out = np.column_stack([full[:, ~free], np.hypot(full[:, 0], full[:, 2])])
-    # a column constant in exact arithmetic (a derived roll) varies by rounding, whose "τ" is
-    # noise: make it exactly constant, as the summary treats it (τ = 1)
-    with np.errstate(invalid="ignore"):
-        still = np.ptp(out, axis=0) <= 1e-9 * np.maximum(1.0, np.max(np.abs(out), axis=0))
-    out[:, still] = out[:1, still]
-    return out
+    return np.column_stack([full[:, ~free], np.hypot(full[:, 0], full[:, 2])])
 
 
 def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampling, progress):

@@ -33,9 +33,11 @@ def integrated_time(x: np.ndarray, c: float = 5.0) -> np.ndarray:
         raise ValueError(f"integrated_time: expected (n_steps ≥ 2, n_walkers[, ndim]), got {x.shape}")
     n = x.shape[0]
     n_fft = 1 << int(np.ceil(np.log2(2 * n)))
-    # a walker that never moved is exactly zero after centring (its mean can differ from its
-    # value in the last bit, and that constant residue would read as perfect correlation)
-    centred = np.where(np.ptp(x, axis=0) == 0.0, 0.0, x - x.mean(axis=0))
+    # a walker that never moved (or moved by rounding only: a derived roll that is constant in
+    # exact arithmetic) is exactly zero after centring; its mean can differ from its value in the
+    # last bit, and that constant residue would read as perfect correlation
+    still = np.ptp(x, axis=0) <= 1e-9 * np.maximum(1.0, np.max(np.abs(x), axis=0))
+    centred = np.where(still, 0.0, x - x.mean(axis=0))
     f = np.fft.rfft(centred, n=n_fft, axis=0)
     acf = np.fft.irfft(f.real**2 + f.imag**2, n=n_fft, axis=0)[:n]
     with np.errstate(invalid="ignore", divide="ignore"):

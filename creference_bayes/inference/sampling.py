@@ -470,7 +470,7 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
     """
     nw, d = pos.shape
     sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
-    chain = np.zeros((0, nw, d))
+    chain, watched = np.zeros((0, nw, d)), None  # watched: the chain and its derived columns
     n, n_target, burn, tau, tau_prev = 0, s.chunk, None, np.full(d, np.nan), np.inf
     info["stopped"], info["retunes"] = "max_steps", 0
     while n < s.max_steps:
@@ -478,10 +478,13 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         # estimate of τ from a short chain must not commit the run to tens of thousands of steps
         step = int(min(max(s.chunk, min(n_target - n, n)), s.max_steps - n))
         state = sampler.run_mcmc(state, step, skip_initial_state_check=True)
-        chain = np.concatenate([chain, coords.inverse(sampler.get_chain(discard=n))])
+        new = coords.inverse(sampler.get_chain(discard=n))
+        chain = np.concatenate([chain, new])
+        new = _with_derived(new, derived)  # derived columns of the new steps only
+        watched = new if watched is None else np.concatenate([watched, new])
         n += step
         bar.update(step)
-        burn, tau_all = _burn_and_tau(_with_derived(chain, derived), burn)
+        burn, tau_all = _burn_and_tau(watched, burn)
         tau, info["derived_tau"] = tau_all[:d], [float(t) for t in tau_all[d:]]
         tau_max = float(np.max(tau_all))
         if n == step and tau_max > s.retune_tau and info["retunes"] < s.max_retunes and s.adapt:
@@ -495,7 +498,7 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
                 info["retunes"] += 1
                 info["warmup_stages"].append(n)
                 sampler, state = _run(safe, coords, _moves(s, proposal), chain[-1], state.random_state, 0)
-                chain = np.zeros((0, nw, d))
+                chain, watched = np.zeros((0, nw, d)), None
                 n, n_target, burn, tau_prev = 0, s.chunk, None, np.inf
                 continue
         ess_est = nw * (n - burn) / tau_max
