@@ -278,3 +278,72 @@ def test_a_horizon_tilted_beyond_the_limit_is_taken_level_through_the_best_point
     row = -line[2] / line[1] * scale + centre[1]  # the level line's row in pixels
     assert row == pytest.approx(near[1], abs=3.0)
     assert MAX_ROLL_DEG == 10.0
+
+
+def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_horizons(tmp_path):
+    """examples/kitti_one_car.py on a one-frame folder in KITTI's layout (a rendered level street
+    of P2's camera; two cars and a pedestrian): one scene per car with its true size, the other
+    objects as references on their real bottom length edges, and both horizons."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "kitti_one_car.py"
+    spec = importlib.util.spec_from_file_location("kitti_one_car", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
+    labels = ("Car 0.00 0 -1.58 587.01 173.33 614.12 200.12 1.65 1.67 3.64 -0.65 1.71 26.70 -1.59\n"
+              "Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0.48 1.20 1.84 1.47 8.41 0.01\n"
+              "Car 0.00 1 1.85 387.63 175.00 423.81 203.12 1.67 1.87 3.69 -6.53 1.69 18.49 1.57\n")
+    for sub in ("label_2", "calib", "image_2"):
+        (tmp_path / sub).mkdir()
+    (tmp_path / "label_2" / "000003.txt").write_text(labels)
+    (tmp_path / "calib" / "000003.txt").write_text("P2: " + " ".join(f"{v:.9e}" for v in P2.ravel()) + "\n")
+    img, true = render(0.0, 0.0, P2[0, 0], size=(1242, 375), pp=P2[:2, 2], seed=3, grid_yaw_deg=25.0)
+    cv2.imwrite(str(tmp_path / "image_2" / "000003.png"), img)
+
+    scenes = list(script.one_car_scenes(tmp_path, cars_per_frame=2, n_annotations=3, noise_px=0.0,
+                                        focal="unknown", seed=0))
+    assert [sid for sid, _, _ in scenes] == ["000003-0", "000003-2"]
+    offset = np.linalg.solve(P2[:, :3], P2[:, 3])
+    rows = [line.split() for line in labels.splitlines()]
+    for (sid, scene, level), car in zip(scenes, (rows[0], rows[2])):
+        h, w, l = map(float, car[8:11])
+        assert scene["target"]["dimensions_m"] == {"length": l, "width": w, "height": h}
+        assert len(scene["target"]["dimension_lines"]) == 3 and scene["camera"]["focal_length_px"] is None
+        np.testing.assert_allclose(scene["ground_truth"]["location_m"], np.array(car[11:14], float) + offset)
+        np.testing.assert_allclose(level, [[0.0, P2[1, 2]], [1242.0, P2[1, 2]]])
+        assert "horizon" not in scene and Path(scene["image"]["path"]).exists()
+        # the other two objects, each a range on a bottom edge as long as the object (projected by P2)
+        assert sorted(r["object"] for r in scene["references"]) == ["car", "pedestrian"]
+        for ref in scene["references"]:
+            other = rows[1] if ref["object"] == "pedestrian" else rows[2] if car is rows[0] else rows[0]
+            oh, ow, ol = map(float, other[8:11])
+            loc, ry = np.array(other[11:14], float), float(other[14])
+            R = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
+            corners = loc + np.array([[a * ol / 2, 0, b * ow / 2] for a in (-1, 1) for b in (-1, 1)]) @ R.T
+            X = corners @ P2[:, :3].T + P2[:, 3]
+            uv = X[:, :2] / X[:, 2:]
+            hit = [int(np.argmin(np.linalg.norm(uv - p, axis=1))) for p in np.asarray(ref["line"])]
+            assert all(np.linalg.norm(uv[k] - p) < 0.01 for k, p in zip(hit, np.asarray(ref["line"])))
+            assert np.linalg.norm(corners[hit[0]] - corners[hit[1]]) == pytest.approx(ol)
+            assert 0 < ref["range"][0] < ref["range"][1] and ref["unit"] == "m"
+
+    out = tmp_path / "one_car.json"
+    assert script.main([str(tmp_path), "--annotations", "3", "--focal", "known", "--min-ess", "100",
+                        "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert [r["scene"] for r in doc["rows"]] == ["000003-0", "000003-2"]
+    for row in doc["rows"]:
+        assert row["image"]["horizon_source"] == "image" and row["level"]["orientation"] == "horizon"
+        assert row["horizon_error_px"] < 10  # the rendered street's horizon is the row c_y
+        # P2's focal length and the car's true size fix its distance: both horizons do well
+        assert row["level"]["map_pct"] < 3 and row["image"]["map_pct"] < 3
+    s = doc["summary"]
+    assert s["image"]["scenes"] == s["level"]["scenes"] == 2
+    assert s["median_ratio_map"] == pytest.approx(s["image"]["map_median_pct"] / s["level"]["map_median_pct"])
+    first = s["by_horizon_error"][0]  # both horizons within 10 px: both scenes in the first band
+    assert first["scenes"] == 2 and sum(b["scenes"] for b in s["by_horizon_error"]) == 2
+    assert first["image_map_pct"] == pytest.approx(np.median([r["image"]["map_pct"] for r in doc["rows"]]))
+    with pytest.raises(SystemExit) as bad:  # argparse's usage error: not a KITTI folder
+        script.main([str(tmp_path / "label_2")])
+    assert bad.value.code == 2
