@@ -16,6 +16,13 @@ CLI = [sys.executable, "-m", "creference_bayes"]
 SMALL = ["--min-ess", "100", "--quiet", "--seed", "3"]
 
 
+def _default_sigint():
+    """Ctrl-C's default action in the child: a test run started in the background by a
+    non-interactive shell (``cmd &``) inherits SIGINT ignored, and Python then installs no handler
+    (the batch, rightly, ran to the end and the FIFO test hung)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _wait_for(predicate, proc, timeout=120.0):
     """Poll ``predicate`` until it returns something other than None or False; return that."""
     end = time.monotonic() + timeout
@@ -47,7 +54,7 @@ def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
     os.mkfifo(scenes / "zz_pipe.json")  # reading it blocks: the batch is stopped while reading
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "1", *SMALL],
-                            start_new_session=True, stderr=subprocess.PIPE, text=True)
+                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     _wait_for(out.is_dir, proc)
 
     def reading_the_pipe():  # a writer can open a FIFO without blocking only once a reader has
@@ -70,7 +77,7 @@ def test_interrupt_while_scenes_run_writes_the_summary_and_leaks_nothing(tmp_pat
     write_scenes(scenes, 5, seed=4, tier="low")
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "2", *SMALL],
-                            start_new_session=True, stderr=subprocess.PIPE, text=True)
+                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     results = out / "results"
     _wait_for(lambda: results.is_dir() and any(results.glob("*.json")), proc)
     err = _interrupt(proc)
