@@ -1,7 +1,8 @@
 """One car a scene on real KITTI photos: is the image horizon trusted only as much as it deserves?
 
     python examples/kitti_one_car.py KITTI_DIR [--cars-per-frame 2] [--annotations 13]
-                                     [--focal unknown|known] [--seed 0] [--limit N] [--json FILE]
+                                     [--focal unknown|known] [--level-sd PX] [--seed 0] [--limit N]
+                                     [--json FILE]
 
 KITTI_DIR is a folder in KITTI's object layout (``label_2/``, ``calib/``, ``image_2/``). For each
 frame with an image, up to ``--cars-per-frame`` of its cars (chosen with the seed among the objects
@@ -22,7 +23,10 @@ annotated corners in the image) become single-target scenes (``creference-scene/
 Every scene is estimated twice with the same seed: with the horizon found in the photo (no
 ``horizon`` key; the package estimates it from ``image.path``) and with the level horizon given
 (the row c_y of P2 across the image, exact: KITTI's rectified camera is level to about a degree).
-The truth is KITTI's label moved into P2's camera frame. Prints per variant: the share of scenes
+With ``--level-sd PX`` a third time, with the same level horizon given as a measurement known to
+PX pixels (``horizon_sd_px``): a horizon as good as the level one but stated with an uncertainty
+like the image's, which tells what the stated uncertainty costs apart from the image horizon's
+error. The truth is KITTI's label moved into P2's camera frame. Prints per variant: the share of scenes
 whose true distance lies in the 90 % HDI, the median and mean location error (MAP and posterior
 mean, % of the true distance), the share converged, and the CPU time per estimate; then the
 ratio of the image variant's median error to the level variant's, and the errors by how far the
@@ -101,8 +105,9 @@ def one_car_scenes(folder: Path, *, cars_per_frame: int, n_annotations: int, noi
 
 def run(folder: Path, *, cars_per_frame: int = 2, n_annotations: int = 13, noise_px: float = 2.0,
         focal: str = "unknown", seed: int = 0, limit: int | None = None, sampling: dict | None = None,
-        say=print) -> list[dict]:
-    """Estimate every one-car scene with the image horizon and with the level horizon; one row each."""
+        level_sd_px: float | None = None, say=print) -> list[dict]:
+    """Estimate every one-car scene with the image horizon and with the level horizon (and, with
+    ``level_sd_px``, the level horizon stated to that many pixels); one row each."""
     from creference_bayes import estimate
     from creference_bayes.io.scene import parse_scene
 
@@ -111,8 +116,9 @@ def run(folder: Path, *, cars_per_frame: int = 2, n_annotations: int = 13, noise
                                             noise_px=noise_px, focal=focal, seed=seed, limit=limit):
         loc = np.asarray(scene["ground_truth"]["location_m"])
         row = {"scene": sid, "distance_m": float(np.hypot(loc[0], loc[2])), "references": len(scene["references"])}
-        for variant in ("image", "level"):
-            data = dict(scene, horizon=level.tolist()) if variant == "level" else scene
+        for variant in ("image", "level") + (() if level_sd_px is None else ("level_sd",)):
+            data = {"image": scene, "level": dict(scene, horizon=level.tolist()),
+                    "level_sd": dict(scene, horizon=level.tolist(), horizon_sd_px=level_sd_px)}[variant]
             t0 = time.process_time()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
@@ -141,7 +147,7 @@ def run(folder: Path, *, cars_per_frame: int = 2, n_annotations: int = 13, noise
 def summary(rows: list[dict]) -> dict:
     """Per variant: coverage, median/mean MAP and posterior-mean errors, converged, time; the ratio."""
     out = {}
-    for v in ("image", "level"):
+    for v in ("image", "level") + (("level_sd",) if "level_sd" in rows[0] else ()):
         r = [row[v] for row in rows]
         out[v] = {"scenes": len(r),
                   "coverage_90": float(np.mean([x["in90"] for x in r])),
@@ -174,12 +180,18 @@ def print_table(s: dict, say=print) -> None:
     say("| horizon | scenes | 90 % HDI holds the distance | median / mean error, MAP (%) | "
         "median / mean error, posterior mean (%) | converged | median / max s |")
     say("|---|---|---|---|---|---|---|")
-    for v, name in (("image", "from the image"), ("level", "level, given")):
+    for v, name in (("image", "from the image"), ("level", "level, given"), ("level_sd", "level, given ± sd")):
+        if v not in s:
+            continue
         x = s[v]
         say(f"| {name} | {x['scenes']} | {100 * x['coverage_90']:.0f} % | {x['map_median_pct']:.1f} / "
             f"{x['map_mean_pct']:.1f} | {x['mean_median_pct']:.1f} / {x['mean_mean_pct']:.1f} | "
             f"{100 * x['converged']:.0f} % | {x['median_s']:.1f} / {x['max_s']:.1f} |")
     say(f"median error, image / level: {s['median_ratio_map']:.2f}× (MAP), {s['median_ratio_mean']:.2f}× (posterior mean)")
+    if "level_sd" in s:
+        x, y = s["level_sd"], s["level"]
+        say(f"median error, level ± sd / level: {x['map_median_pct'] / y['map_median_pct']:.2f}× (MAP), "
+            f"{x['mean_median_pct'] / y['mean_median_pct']:.2f}× (posterior mean)")
     say("")
     say("| image horizon's error (px) | scenes | median error, image horizon: MAP / mean (%) | "
         "level horizon: MAP / mean (%) | image: 90 % HDI holds the distance |")
@@ -204,6 +216,8 @@ def main(argv=None) -> int:
     p.add_argument("--annotations", type=int, default=13)
     p.add_argument("--noise-px", type=float, default=2.0)
     p.add_argument("--focal", choices=("unknown", "known"), default="unknown")
+    p.add_argument("--level-sd", type=float, default=None, metavar="PX",
+                   help="also estimate with the level horizon given as a measurement known to PX pixels")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--limit", type=int, default=None, help="the first N frames only")
     p.add_argument("--min-ess", type=int, default=None, help="the sampler's effective sample size target")
@@ -213,7 +227,7 @@ def main(argv=None) -> int:
         if not (a.kitti / sub).is_dir():
             p.error(f"{a.kitti}: expected the folder {sub}/ (KITTI's object layout)")
     rows = run(a.kitti, cars_per_frame=a.cars_per_frame, n_annotations=a.annotations, noise_px=a.noise_px,
-               focal=a.focal, seed=a.seed, limit=a.limit,
+               focal=a.focal, seed=a.seed, limit=a.limit, level_sd_px=a.level_sd,
                sampling=None if a.min_ess is None else {"min_ess": a.min_ess})
     if not rows:
         print(f"{a.kitti}: no frame with an image and a car", file=sys.stderr)

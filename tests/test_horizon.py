@@ -330,16 +330,18 @@ def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_h
 
     out = tmp_path / "one_car.json"
     assert script.main([str(tmp_path), "--annotations", "3", "--focal", "known", "--min-ess", "100",
-                        "--json", str(out)]) == 0
+                        "--level-sd", "15", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert [r["scene"] for r in doc["rows"]] == ["000003-0", "000003-2"]
     for row in doc["rows"]:
         assert row["image"]["horizon_source"] == "image" and row["level"]["orientation"] == "horizon"
+        # --level-sd: the same level horizon as a measurement (pitch and roll free), not exact
+        assert row["level_sd"]["orientation"] == "free" and row["level_sd"]["horizon_source"] == "scene"
         assert row["horizon_error_px"] < 10  # the rendered street's horizon is the row c_y
         # P2's focal length and the car's true size fix its distance: both horizons do well
         assert row["level"]["map_pct"] < 3 and row["image"]["map_pct"] < 3
     s = doc["summary"]
-    assert s["image"]["scenes"] == s["level"]["scenes"] == 2
+    assert s["image"]["scenes"] == s["level"]["scenes"] == s["level_sd"]["scenes"] == 2
     assert s["median_ratio_map"] == pytest.approx(s["image"]["map_median_pct"] / s["level"]["map_median_pct"])
     first = s["by_horizon_error"][0]  # both horizons within 10 px: both scenes in the first band
     assert first["scenes"] == 2 and sum(b["scenes"] for b in s["by_horizon_error"]) == 2
