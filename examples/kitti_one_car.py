@@ -226,6 +226,8 @@ def main(argv=None) -> int:
     for sub in ("label_2", "calib", "image_2"):
         if not (a.kitti / sub).is_dir():
             p.error(f"{a.kitti}: expected the folder {sub}/ (KITTI's object layout)")
+    if a.level_sd is not None and not (math.isfinite(a.level_sd) and a.level_sd > 0):
+        p.error(f"--level-sd: expected a number of pixels > 0, got {a.level_sd}")
     rows = run(a.kitti, cars_per_frame=a.cars_per_frame, n_annotations=a.annotations, noise_px=a.noise_px,
                focal=a.focal, seed=a.seed, limit=a.limit, level_sd_px=a.level_sd,
                sampling=None if a.min_ess is None else {"min_ess": a.min_ess})

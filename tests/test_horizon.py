@@ -349,3 +349,6 @@ def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_h
     with pytest.raises(SystemExit) as bad:  # argparse's usage error: not a KITTI folder
         script.main([str(tmp_path / "label_2")])
     assert bad.value.code == 2
+    with pytest.raises(SystemExit) as bad:  # a stated uncertainty must be positive
+        script.main([str(tmp_path), "--level-sd", "0"])
+    assert bad.value.code == 2
