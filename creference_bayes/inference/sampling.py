@@ -440,14 +440,15 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         while done < stage:  # in chunks: a stage already whitened ends early (below)
             state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
             done = sampler.iteration
-            u = sampler.get_chain()
-            tail_u = u[done // 2:].reshape(-1, d)
+            if done < min(stage, 2 * s.warmup):
+                continue  # too short to be judged before its end
+            tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
             indep = proposal.acceptance if proposal is not None else float("nan")
             stable = info["reparametrised"] and _stable(tail_u, centers is not None) and (
                 proposal is None or indep >= s.min_independence_acceptance)
-            if stable and done >= 2 * s.warmup:
+            if stable:
                 break
-        pos, rstate = coords.inverse(u[-1]), state.random_state
+        pos, rstate = coords.inverse(state.coords), state.random_state
         stage = done
         n_warm += stage
         info["warmup_stages"].append(stage)
