@@ -101,6 +101,69 @@ def test_laplace_falls_back_on_a_kink():
     assert np.all(np.abs(lap.scale * w - 0.5) < 0.5)
 
 
+def test_laplace_on_the_bound_measures_the_inner_side():
+    """A MAP on the box's upper bound of z, the density rising towards it (log p = z + const,
+    no curvature there): the step is the inner side's, where log p has fallen by about ½ (0.5 m),
+    not the 1e-6 of the box by which the MAP is moved inside (the outer side has zero density and
+    says nothing about the width). The sampler's starting cloud is this wide along z."""
+    model = QuadraticModel(np.eye(7), np.zeros(7), Bounds(np.full(7, -10.0), np.full(7, 10.0)))
+    model.cost = lambda p: 0.5 * np.sum(np.delete(p, 2, axis=1) ** 2, axis=1) + (10.0 - p[:, 2])
+    x0 = np.zeros(7)
+    x0[2] = 10.0 - 1e-6 * 20.0
+    lap = laplace_scales(LogPosterior(model), x0)
+    assert not lap.positive_definite  # no curvature along z: the conditional widths
+    # a fall of ½ at 0.5 m; the bracket accepts a fall of ⅛ to 2, so 0.125–2 m
+    assert 0.12 < lap.scale[2] < 2.01, lap.scale
+    assert np.all((np.delete(lap.scale, 2) > 0.49) & (np.delete(lap.scale, 2) < 2.01)), lap.scale
+
+
+def test_laplace_in_a_corner_of_the_support_keeps_the_nominal_scale():
+    """Where every step along an axis long enough to measure a width leaves the support (a corner
+    that only a combination of parameters can leave inwards), that axis keeps its nominal start
+    scale instead of shrinking to the corner's size."""
+    model = QuadraticModel(np.eye(7), np.zeros(7))
+    lp = LogPosterior(model)
+
+    class Wedge:  # the support cut to −(1e-6 + |p5|) ≤ p6 ≤ 0
+        free = lp.free
+
+        def __call__(self, p):
+            p = np.atleast_2d(p)
+            out = lp(p)
+            return np.where((p[:, 6] <= 0) & (p[:, 6] >= -(1e-6 + np.abs(p[:, 5]))), out, -np.inf)
+
+    lap = laplace_scales(Wedge(), np.zeros(7))
+    assert lap.scale[6] >= 0.01, lap.scale  # the nominal roll scale (rad)
+    assert np.all((lap.scale[:5] > 0.49) & (lap.scale[:5] < 2.01)), lap.scale
+
+
+def test_a_map_on_the_box_bound_needs_no_long_warm_up():
+    """SBC's thin scene 12 (seed 0): the MAP sits on the box's 60 m bound and the posterior runs
+    down the depth–focal ridge to about 35 m. Started from a cloud 1e-6 of the box thin along
+    the ridge, the warm-up crawled down it to its 5000-step cap; started from the inner side's
+    width it settles in the first stages."""
+    import warnings
+
+    from creference_bayes.bench.sbc import DESIGNS, SBC_BOX, draw_truth, simulate_sbc_scene
+    from creference_bayes.io.scene import parse_scene
+
+    n_target, refs = DESIGNS["thin"]
+    rng = np.random.default_rng([0, list(DESIGNS).index("thin"), 12])
+    data = None
+    while data is None:
+        data = simulate_sbc_scene(rng, draw_truth(rng, SBC_BOX), n_target, refs[12 % len(refs)], SBC_BOX)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = parse_scene(data)
+    r = estimate(scene, seed=[0, 12], bounds=SBC_BOX.bounds(), location_prior="log-depth",
+                 focal_prior="default")
+    assert r.map.params[2] > 59.9  # the MAP on the bound: the case this test is about
+    assert r.diagnostics.converged
+    assert r.diagnostics.warmup_steps <= 1000, r.diagnostics.warmup_steps
+    lo, hi = r.posterior.hdi["z"]
+    assert lo < 45.0 and hi > 58.0  # the ridge, found
+
+
 def test_noise_free_posterior_concentrates_on_the_truth(make_scene):
     """Exact annotations and exact references: every true value inside its 90 % HDI, and the
     posterior mean within 3 % (Eq. 3) of the true location, with a tight posterior."""

@@ -196,20 +196,36 @@ def laplace_scales(log_post: LogPosterior, center: np.ndarray, *, target_drop: f
 
 
 def _axis_steps(log_post, x0, f0, start, drop, max_halvings) -> np.ndarray:
-    """Per-axis step where log p has fallen by about ``drop`` (both directions, the smaller)."""
+    """Per-axis step where log p has fallen by about ``drop`` (both directions, the smaller).
+
+    A side that leaves the support (log p = −∞: a MAP on the box's bound) says nothing about the
+    width and is ignored; the step is then the inner side's. Taking the smaller there shrank the
+    step to the 1e-6 of the box by which a MAP on its bound is moved inside, the sampler started
+    from a cloud that thin along the ridge, and its warm-up crawled down the ridge for thousands
+    of steps (SBC thin scene 12: a MAP at the 60 m bound, a posterior over 34–60 m).
+
+    An axis along which log p never fell by ``drop``/4 inside the support (every step long enough
+    to measure a width left it: a MAP in a corner of the support, where only a combination of
+    parameters stays inside) keeps at least its ``start`` scale: its width was not measured, and
+    the step shrunk to the corner's 1e-6 started the ensemble flat along it (SBC full scene 27:
+    a MAP at the roll bound, 1800 warm-up steps instead of 400)."""
     n = len(x0)
     h = start.copy()
+    measured = np.zeros(n, bool)
     for _ in range(max_halvings):  # vectorised bracketing: grow or shrink all axes at once
         pts = np.vstack([x0 + np.diag(h), x0 - np.diag(h)])
-        fall = f0 - log_post(pts)
-        fall = np.maximum(fall[:n], fall[n:])  # the steeper side
-        fall = np.where(np.isfinite(fall), fall, np.inf)
+        lp = log_post(pts)
+        inside = lp > -np.inf
+        fall = np.where(inside, f0 - lp, -np.inf)
+        fall = np.maximum(fall[:n], fall[n:])  # the steeper side inside the support
+        fall = np.where(np.isfinite(fall), fall, np.inf)  # NaN, or neither side inside: shrink
         too_far = fall > 4.0 * drop
         too_near = fall < 0.25 * drop
+        measured |= np.isfinite(fall) & ~too_near
         if not (too_far.any() or too_near.any()):
             break
         h = np.where(too_far, h / 2.0, np.where(too_near, h * 2.0, h))
-    return h
+    return np.where(measured, h, np.maximum(h, start))
 
 
 def _secant_hessian(log_post, x0, f0, h) -> np.ndarray:
