@@ -117,6 +117,21 @@ def test_laplace_on_the_bound_measures_the_inner_side():
     assert np.all((np.delete(lap.scale, 2) > 0.49) & (np.delete(lap.scale, 2) < 2.01)), lap.scale
 
 
+def test_laplace_near_a_bound_keeps_its_full_hessian():
+    """A MAP 0.3 inside a bound, the posterior's scale several times that: the width is measured
+    on the inner side, but the Hessian's central differences are taken with steps short enough
+    to stay inside, so a Gaussian's covariance is still recovered exactly."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((7, 7))
+    cov = a @ a.T + 0.5 * np.eye(7)
+    c = np.zeros(7)
+    c[2] = 9.7
+    model = QuadraticModel(np.linalg.inv(cov), c, Bounds(np.full(7, -10.0), np.full(7, 10.0)))
+    lap = laplace_scales(LogPosterior(model), c)
+    assert lap.positive_definite
+    np.testing.assert_allclose(lap.cov, cov, rtol=1e-6, atol=1e-9)
+
+
 def test_laplace_in_a_corner_of_the_support_keeps_the_nominal_scale():
     """Where every step along an axis long enough to measure a width leaves the support (a corner
     that only a combination of parameters can leave inwards), that axis keeps its nominal start

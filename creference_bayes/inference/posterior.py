@@ -184,6 +184,10 @@ def laplace_scales(log_post: LogPosterior, center: np.ndarray, *, target_drop: f
         return Laplace(x0, np.diag(fallback**2), fallback, False)
     h = _axis_steps(log_post, x0, f0, fallback, target_drop, max_halvings)
     H = _secant_hessian(log_post, x0, f0, h)
+    if not np.all(np.isfinite(H)):  # a step left the support: near a bound, shorter steps
+        inside = _steps_inside(log_post, x0, h)
+        if inside is not None:
+            H = _secant_hessian(log_post, x0, f0, inside)
     try:
         cov = np.linalg.inv(-H)
         np.linalg.cholesky(cov)
@@ -226,6 +230,25 @@ def _axis_steps(log_post, x0, f0, start, drop, max_halvings) -> np.ndarray:
             break
         h = np.where(too_far, h / 2.0, np.where(too_near, h * 2.0, h))
     return np.where(measured, h, np.maximum(h, start))
+
+
+def _steps_inside(log_post, x0, h, max_halvings: int = 6) -> np.ndarray | None:
+    """``h`` halved on each axis whose ±step leaves the support until both stay inside, or None
+    when that takes more than ``max_halvings`` (the point is on a bound, not near one).
+
+    :func:`_axis_steps` measures a width on the inner side alone, so its step can reach past a
+    bound the MAP is near; the central differences of the Hessian would then straddle it. A MAP
+    0.3 m inside a bound kept its full Hessian before that rule (steps shrunk to fit) and must
+    keep it (tests/test_posterior.py)."""
+    n = len(x0)
+    h = np.asarray(h, float).copy()
+    for _ in range(max_halvings + 1):
+        lp = log_post(np.vstack([x0 + np.diag(h), x0 - np.diag(h)]))
+        out = ~((lp[:n] > -np.inf) & (lp[n:] > -np.inf))
+        if not out.any():
+            return h
+        h = np.where(out, h / 2.0, h)
+    return None
 
 
 def _secant_hessian(log_post, x0, f0, h) -> np.ndarray:
