@@ -109,13 +109,30 @@ def _second_worker(pool, j: int, index: int, rng):
                      worker=f"second-{j}", seconds=REF_S, stated=(low, high))
 
 
+#: Every estimate's CPU seconds, convergence and overflow warnings since the last record was
+#: written (each record carries its own: the issue's bound of 5 s per estimate, checked in the report).
+_COSTS: list[dict] = []
+
+
+def _costs() -> list[dict]:
+    out = list(_COSTS)
+    _COSTS.clear()
+    return out
+
+
 def _with_refs(scene, refs):
     refs = tuple(dataclasses.replace(r, index=i) for i, r in enumerate(refs))
     return dataclasses.replace(scene, references=refs)
 
 
 def _estimate(scene, seed, min_ess):
-    r = estimate(scene, seed=seed, sampling={"min_ess": min_ess})
+    t0 = time.process_time()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = estimate(scene, seed=seed, sampling={"min_ess": min_ess})
+    cost = {"cpu_s": time.process_time() - t0, "converged": bool(r.diagnostics.converged),
+            "overflow_warnings": sum("overflow" in str(w.message) for w in caught)}
+    _COSTS.append(cost)
     if r.inference_data is None:
         return None
     post = draws_from_inference_data(r.inference_data)
@@ -123,7 +140,7 @@ def _estimate(scene, seed, min_ess):
     gt = scene.ground_truth
     true_d = float(np.hypot(gt.location_m[0], gt.location_m[2]))
     lo, hi = r.posterior.hdi["distance_m"]
-    return {"result": r, "draws": draws, "width": hi - lo, "median": r.posterior.median["distance_m"],
+    return {"result": r, "draws": draws, "cost": cost, "width": hi - lo, "median": r.posterior.median["distance_m"],
             "share": (hi - lo) / r.posterior.median["distance_m"], "covered": bool(lo <= true_d <= hi),
             "error": float(location_percentage_error(r.map.params[:3], gt.location_m)),
             "post_error": r.evaluation.posterior_location_pct_error}
@@ -232,6 +249,7 @@ def run_predict(args) -> None:
                 continue
             case = _predict_case(args.seed, k, tiers)
             base = case["base"]
+            _costs()
             t0 = time.perf_counter()
             before = _estimate(base, [args.seed, k, 2], args.min_ess)
             if before is None:
@@ -262,7 +280,7 @@ def run_predict(args) -> None:
                            "truth_quantile": float(np.mean(dist < np.hypot(loc[0], loc[2]))),
                            "n_target": case["n_t"], "n_refs": case["n_r"], "estimate_and_advice_s": t_adv,
                            "advice_only_s": advice.seconds, "n_candidates": len(advice.predictions),
-                           "rows": rows})
+                           "rows": rows, "estimates": _costs()})
 
 
 def run_reweight(args) -> None:
@@ -369,6 +387,7 @@ def run_policy(args) -> None:
             pool = _scene(args.seed + (1000 if cond == "outdoor" else 0), k, "high",
                           "outdoor" if cond == "outdoor" else None)
             rec = {"scene": name, "condition": cond, "setting": pool.ground_truth.extra["setting"], "fixed": {}}
+            _costs()
             for label, (n_t, n_r) in FIXED.items():
                 est = _estimate(variant(pool, n_t, range(n_r)), [args.seed, k, 6, n_t, n_r], args.min_ess)
                 if est is not None:
@@ -377,6 +396,7 @@ def run_policy(args) -> None:
                                            "share": est["share"]}
             rec["adaptive"] = run_adaptive(pool, args.seed, k + (1000 if cond == "outdoor" else 0),
                                            args.min_ess, settings)
+            rec["estimates"] = _costs()
             _append(path, rec)
 
 
@@ -626,6 +646,28 @@ def figure_policy(out: Path) -> Path:
     return path
 
 
+def report_estimates(out: Path) -> str | None:
+    """CPU seconds per estimate (MAP and posterior, one process) in each study's records, with the
+    share converged and the overflow warnings: the issue's bound of 5 s per estimate."""
+    rows = []
+    for study in ("predict", "policy"):
+        path = out / f"{study}.jsonl"
+        if not path.is_file():
+            continue
+        costs = [c for x in path.read_text().splitlines() if x.strip() for c in json.loads(x).get("estimates", [])]
+        if not costs:
+            continue
+        t = np.array([c["cpu_s"] for c in costs])
+        rows.append((study, len(t), f"{np.median(t):.2f}", f"{np.percentile(t, 99):.2f}", f"{t.max():.2f}",
+                     int(np.sum(t > 5.0)), f"{100 * np.mean([c['converged'] for c in costs]):.1f} %",
+                     sum(c["overflow_warnings"] for c in costs)))
+    if not rows:
+        return None
+    return ("Time per estimate (CPU seconds, MAP and posterior, one process)\n\n"
+            + _md(("study", "estimates", "median", "99th percentile", "max", "over 5 s", "converged",
+                   "overflow warnings"), rows))
+
+
 def run_report(args) -> None:
     out = Path(args.out)
     if not out.is_dir():
@@ -638,6 +680,9 @@ def run_report(args) -> None:
     if (out / "policy.jsonl").is_file():
         parts.append(report_policy(out))
         parts.append(f"Figure: {figure_policy(out)}")
+    times = report_estimates(out)
+    if times:
+        parts.append(times)
     text = "\n\n".join(parts)
     (out / "advice_study.md").write_text(text + "\n")
     print(text)

@@ -20,6 +20,12 @@ ground-truth boxes they were matched to (median absolute depth, height / width /
 error by distance band) and the time per frame. ``--option KEY=VALUE`` sets a frame model option
 for the joint and the alone estimates. ``--max-frames`` and ``--max-iterations`` make a tiny run
 (the tests).
+
+The bound under other assumptions (``--methods bound`` runs it alone, in seconds):
+``--bound-option KEY=VALUE`` sets a frame model option for the bound's model only (for example
+``ground_sd_m=0.005``: a flat road); ``--sizes known`` gives every method each object's true size
+(no class prior). Each method's share of fully visible cars (KITTI occlusion 0) at 5–60 m
+whose label reaches IoU 0.7 is printed by band.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import argparse
 import json
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -76,10 +83,34 @@ def _box_errors(gt_dir: Path, label_dir: Path, objects: list[dict]) -> dict:
     return out
 
 
+def _visible_car_shares(gt_dir: Path, objects: list[dict]) -> dict:
+    """Among labels matched to a fully visible Car (occlusion 0) whose true distance is 5–60 m: per
+    band (5–20, 20–40, 40–60 m and all), [share with 3D IoU ≥ 0.7, count]."""
+    from creference_bayes.io.kitti_read import read_kitti_labels
+
+    cache, rows = {}, []
+    for o in objects:
+        if o.get("reference_line") is None or o.get("reference_type") != "Car":
+            continue
+        if o["image"] not in cache:
+            cache[o["image"]] = read_kitti_labels(gt_dir / f"{o['image']}.txt", scores=False)
+        g = cache[o["image"]]
+        i = int(np.flatnonzero(g.line == o["reference_line"])[0])
+        d = float(np.hypot(g.location[i, 0], g.location[i, 2]))
+        if g.occluded[i] == 0 and 5.0 <= d < 60.0:
+            rows.append((d, o["iou_3d"] >= 0.7))
+    rows = np.array(rows, float).reshape(-1, 2)
+    out = {}
+    for lo, hi, name in ((5, 20, "5-20 m"), (20, 40, "20-40 m"), (40, 60, "40-60 m"), (5, 60, "5-60 m")):
+        sel = rows[(rows[:, 0] >= lo) & (rows[:, 0] < hi), 1]
+        out[name] = [float(sel.mean()) if len(sel) else float("nan"), int(len(sel))]
+    return out
+
+
 def _truth_state(frame, model):
     from creference_bayes.models.frame import O_SIZE  # noqa: F401
 
-    cams, objs = [], []
+    objs = []
     for t in frame.targets:
         g = t.ground_truth
         d = g["dimensions_m"]
@@ -93,8 +124,6 @@ def _truth_state(frame, model):
 def replace_targets(frame, targets):
     """The frame with only ``targets`` (its camera knowledge, priors included, kept; references
     that name a target other than these are left out)."""
-    from dataclasses import replace
-
     keep = [frame.targets.index(t) for t in targets]
     refs = [(r, None if o is None else keep.index(o)) for r, o in zip(frame.references, frame.reference_targets)
             if o is None or o in keep]
@@ -120,20 +149,30 @@ def main(argv=None) -> int:
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a frame model option for the joint and the alone estimates (repeatable; "
                         "creference_bayes.frame_pipeline.FRAME_OPTIONS), e.g. target_dof=30")
+    p.add_argument("--methods", default="joint,alone,bound",
+                   help="which of joint, alone, bound to run (comma-separated; default all three)")
+    p.add_argument("--bound-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a frame model option for the bound's model only (repeatable), e.g. ground_sd_m=0.005")
+    p.add_argument("--sizes", choices=("prior", "known"), default="prior",
+                   help="prior: sizes from the class priors (the default, what a crowd knows); known: every "
+                        "method is given each object's true size (creference simulate --from-kitti --sizes known)")
     args = p.parse_args(argv)
     options = _model_options(args.option, p)
+    bound_options = _model_options(args.bound_option, p)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if not methods or set(methods) - {"joint", "alone", "bound"}:
+        p.error(f"--methods {args.methods!r}: expected a comma-separated subset of joint, alone, bound")
 
-    from creference_bayes.bench.frame_crb import frame_crb
     from creference_bayes.bench.kitti_frames import kitti_frames
     from creference_bayes.evaluation.kitti_eval import evaluate_kitti
-    from creference_bayes.frame_pipeline import build_frame_model, estimate_frame
-    from creference_bayes.inference.frame_map import optimize_frame
-    from creference_bayes.io.frame_scene import load_frame, parse_frame, frame_to_dict
+    from creference_bayes.frame_pipeline import estimate_frame
+    from creference_bayes.io.frame_scene import load_frame
     from creference_bayes.workflows.labels.frames import write_frame_labels
 
     out = Path(args.out)
     scenes = out / "scenes"
-    totals = kitti_frames(args.kitti, scenes, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed)
+    totals = kitti_frames(args.kitti, scenes, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed,
+                          sizes=args.sizes)
     paths = sorted(scenes.glob("*.json"))[:args.max_frames]
     print(f"{totals['frames']} frames, {totals['kept']} objects (left out: {totals['skipped']}); using {len(paths)}")
     rng = np.random.default_rng(args.seed)
@@ -144,70 +183,31 @@ def main(argv=None) -> int:
             frame = load_frame(path)
         name = path.stem
         if args.camera == "known":
-            from dataclasses import replace
-
             from creference_bayes.models.camera_terms import OrientationPrior
 
             h = float(np.median([t.ground_truth["location_m"][1] for t in frame.targets]))
             frame = replace(frame, orientation_prior=OrientationPrior(
                 pitch_sd=float(np.radians(0.5)), roll_sd=float(np.radians(0.5)), height_median_m=h, height_log_sd=0.02))
         depth_score = lambda z: np.exp(-np.asarray(z) / 40.0)
-        t0 = time.perf_counter()
-        res = estimate_frame(frame, seed=args.seed, sampling={"max_iterations": args.max_iterations}, **options)
-        times.append(time.perf_counter() - t0)
-        d = res.to_dict()
-        zs = np.array([o["map"]["z"] for o in d["objects"]])
-        write_frame_labels(frame, d, out / "joint", name, res.draws,
-                           scores=depth_score(zs) if args.same_score else None)
-        # alone: each object as a one-object frame
-        alone = {"camera": None, "objects": []}
-        cams_alone = []
-        for t in frame.targets:
-            single = replace_targets(frame, [t])
-            m = optimize_frame(build_frame_model(single, **options)[0])
-            cams_alone.append(m.camera)
-            alone["objects"].append(m.objects[0])
-        # labels of the alone estimates, each with its own camera: one label file per image
-        from creference_bayes.workflows.labels.frames import kitti_poses
-        from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
-
-        (out / "alone" / "label_2").mkdir(parents=True, exist_ok=True)
-        (out / "alone" / "calib").mkdir(parents=True, exist_ok=True)
-        objs = []
-        for t, c, o in zip(frame.targets, cams_alone, alone["objects"]):
-            b = kitti_poses(frame, c[None], o[None, None])[0, 0]
-            objs.append(kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(o[1]))))
-        write_label_file(out / "alone" / "label_2" / f"{name}.txt", objs)
-        write_calib_file(out / "alone" / "calib" / f"{name}.txt", frame.kitti_p2)
-        # the bound: boxes drawn from the Cramér–Rao covariance around the truth
-        model, _ = build_frame_model(frame)
-        model.handedness = np.array([t.ground_truth["handedness"] for t in frame.targets], float)
-        cam_t, objs_t = _truth_state(frame, model)
-        bound = frame_crb(model, cam_t, objs_t, args.noise_px)
-        cam_b, objs_b = cam_t.copy(), objs_t.copy()
-        if not bound.singular:
-            idx_c = list(np.flatnonzero(model.camera_free))
-            idx_o = [list(np.flatnonzero(model.object_free[i])) for i in range(model.n_objects)]
-            delta = rng.multivariate_normal(np.zeros(len(bound.cov)), bound.cov, method="eigh")
-            cam_b[idx_c] += delta[:len(idx_c)]
-            k = len(idx_c)
-            for i, ix in enumerate(idx_o):
-                objs_b[i, ix] += delta[k:k + len(ix)]
-                k += len(ix)
-        (out / "bound" / "label_2").mkdir(parents=True, exist_ok=True)
-        (out / "bound" / "calib").mkdir(parents=True, exist_ok=True)
-        boxes = kitti_poses(frame, cam_b[None], objs_b[None])[0]
-        write_label_file(out / "bound" / "label_2" / f"{name}.txt",
-                         [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(b[2])))
-                          for t, b in zip(frame.targets, boxes)])
-        write_calib_file(out / "bound" / "calib" / f"{name}.txt", frame.kitti_p2)
-        print(f"{name}: {len(frame.targets)} objects, {times[-1]:.1f} s, converged {d['diagnostics']['converged']}",
-              flush=True)
+        if "joint" in methods:
+            t0 = time.perf_counter()
+            res = estimate_frame(frame, seed=args.seed, sampling={"max_iterations": args.max_iterations}, **options)
+            times.append(time.perf_counter() - t0)
+            d = res.to_dict()
+            zs = np.array([o["map"]["z"] for o in d["objects"]])
+            write_frame_labels(frame, d, out / "joint", name, res.draws,
+                               scores=depth_score(zs) if args.same_score else None)
+            print(f"{name}: {len(frame.targets)} objects, {times[-1]:.1f} s, converged "
+                  f"{d['diagnostics']['converged']}", flush=True)
+        if "alone" in methods:
+            _alone(frame, name, options, out, depth_score)
+        if "bound" in methods:
+            _bound(frame, name, bound_options, args, out, rng, depth_score)
     gt = Path(args.kitti) / "label_2"
     report = {}
     print()
     print(f"{'method':<8}{'class':<12}{'IoU':>5}{'easy':>8}{'moderate':>10}{'hard':>8}   (AP3D R40)")
-    for method in ("joint", "alone", "bound"):
+    for method in methods:
         ev = evaluate_kitti(gt, out / method / "label_2")
         report[method] = ev.to_dict()
         for cls, thr in (("Car", 0.7), ("Car", 0.5), ("Pedestrian", 0.5), ("Cyclist", 0.5)):
@@ -218,7 +218,7 @@ def main(argv=None) -> int:
                       f"{rows.get('hard', 0):>8.1f}")
     print()
     print(f"{'method':<8}" + "".join(f"{b:>14}" for b in ("0-20 m", "20-40 m", "40+ m")) + "   (median 3D IoU, n)")
-    for method in ("joint", "alone", "bound"):
+    for method in methods:
         objs = report[method]["objects"]
         cells = []
         for lo, hi in ((0, 20), (20, 40), (40, 1e9)):
@@ -226,13 +226,18 @@ def main(argv=None) -> int:
             cells.append(f"{np.median(v):.2f} ({len(v)})" if v else "-")
         print(f"{method:<8}" + "".join(f"{c:>14}" for c in cells))
     print()
+    print("fully visible cars (occlusion 0) at 5-60 m whose label reaches 3D IoU 0.7: share (n)")
+    for method in methods:
+        shares = _visible_car_shares(gt, report[method]["objects"])
+        print(f"{method:<8}" + "".join(f"{band:>9} {v[0]:4.2f} ({v[1]})" for band, v in shares.items()))
+    print()
     print("Car boxes against the ground-truth box each was matched to (median absolute error: depth %, "
           "height / width / length %, yaw °; n)")
-    for method in ("joint", "alone", "bound"):
+    for method in methods:
         for band, row in _box_errors(gt, out / method / "label_2", report[method]["objects"]).items():
             print(f"{method:<8}{band:>8}  depth {row[0]:5.1f}  h/w/l {row[1]:4.1f} {row[2]:4.1f} {row[3]:4.1f}"
                   f"  yaw {row[4]:4.1f}  n {row[5]}")
-    rel = report["joint"]["reliability"].get("p_iou_ge_0.7")
+    rel = report["joint"]["reliability"].get("p_iou_ge_0.7") if "joint" in report else None
     if rel:
         print(f"\nlabel quality (joint): mean predicted P(IoU ≥ 0.7) {rel['mean_predicted']:.2f}, observed "
               f"{rel['observed_share']:.2f}, Brier {rel['brier']:.3f} over {rel['count']} labels")
@@ -242,10 +247,65 @@ def main(argv=None) -> int:
                 ok = abs(r["observed_share"] - r["mean_predicted"]) <= 2 * r["se"]
                 print(f"  {r['low']:.1f}–{r['high']:.1f}: {r['count']:4d}, {r['mean_predicted']:.2f}, "
                       f"{r['observed_share']:.2f} ± {2 * r['se']:.2f}, {'yes' if ok else 'NO'}")
-    print(f"time per frame: median {np.median(times):.1f} s, max {np.max(times):.1f} s")
+    if times:
+        print(f"time per frame: median {np.median(times):.1f} s, max {np.max(times):.1f} s")
     (out / "study.json").write_text(json.dumps({"times": times, **{k: {"ap": v["ap"], "reliability": v["reliability"]}
                                                                     for k, v in report.items()}}, indent=1))
     return 0
+
+
+def _alone(frame, name, options, out, depth_score):
+    """Each object of ``frame`` as a one-object frame (its own camera), the MAP, as KITTI labels."""
+    from creference_bayes.frame_pipeline import build_frame_model
+    from creference_bayes.inference.frame_map import optimize_frame
+    from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
+    from creference_bayes.workflows.labels.frames import kitti_poses
+
+    cams, objs_alone = [], []
+    for t in frame.targets:
+        m = optimize_frame(build_frame_model(replace_targets(frame, [t]), **options)[0])
+        cams.append(m.camera)
+        objs_alone.append(m.objects[0])
+    # each object with its own camera: still one label file per image
+    (out / "alone" / "label_2").mkdir(parents=True, exist_ok=True)
+    (out / "alone" / "calib").mkdir(parents=True, exist_ok=True)
+    objs = []
+    for t, c, o in zip(frame.targets, cams, objs_alone):
+        b = kitti_poses(frame, c[None], o[None, None])[0, 0]
+        objs.append(kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(o[1]))))
+    write_label_file(out / "alone" / "label_2" / f"{name}.txt", objs)
+    write_calib_file(out / "alone" / "calib" / f"{name}.txt", frame.kitti_p2)
+
+
+def _bound(frame, name, bound_options, args, out, rng, depth_score):
+    """Boxes drawn from the frame model's Cramér–Rao covariance around the truth, as KITTI labels
+    (``bound_options`` change the bound's model only)."""
+    from creference_bayes.bench.frame_crb import frame_crb
+    from creference_bayes.frame_pipeline import build_frame_model
+    from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
+    from creference_bayes.workflows.labels.frames import kitti_poses
+
+    model, _ = build_frame_model(frame, **bound_options)
+    model.handedness = np.array([t.ground_truth["handedness"] for t in frame.targets], float)
+    cam_t, objs_t = _truth_state(frame, model)
+    bound = frame_crb(model, cam_t, objs_t, args.noise_px)
+    cam_b, objs_b = cam_t.copy(), objs_t.copy()
+    if not bound.singular:
+        idx_c = list(np.flatnonzero(model.camera_free))
+        idx_o = [list(np.flatnonzero(model.object_free[i])) for i in range(model.n_objects)]
+        delta = rng.multivariate_normal(np.zeros(len(bound.cov)), bound.cov, method="eigh")
+        cam_b[idx_c] += delta[:len(idx_c)]
+        k = len(idx_c)
+        for i, ix in enumerate(idx_o):
+            objs_b[i, ix] += delta[k:k + len(ix)]
+            k += len(ix)
+    (out / "bound" / "label_2").mkdir(parents=True, exist_ok=True)
+    (out / "bound" / "calib").mkdir(parents=True, exist_ok=True)
+    boxes = kitti_poses(frame, cam_b[None], objs_b[None])[0]
+    write_label_file(out / "bound" / "label_2" / f"{name}.txt",
+                     [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(b[2])))
+                      for t, b in zip(frame.targets, boxes)])
+    write_calib_file(out / "bound" / "calib" / f"{name}.txt", frame.kitti_p2)
 
 
 if __name__ == "__main__":

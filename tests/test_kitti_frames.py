@@ -119,3 +119,60 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--option",
                           "ground_sd=1"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--option 'ground_sd=1'" in bad.stderr
+
+
+def test_frames_from_kitti_with_known_sizes_give_each_object_its_true_size(kitti_dir):
+    from creference_bayes.frame_pipeline import build_frame_model
+
+    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                           rng=0, n_annotations=2, noise_px=0.0, sizes="known")
+    # LABELS' rows: h w l of the first car 1.65 1.67 3.64, of the pedestrian 1.89 0.48 1.20
+    assert scene["targets"][0]["dimensions_m"] == {"length": 3.64, "width": 1.67, "height": 1.65}
+    assert scene["targets"][1]["dimensions_m"] == {"length": 1.20, "width": 0.48, "height": 1.89}
+    frame = parse_frame(scene)
+    assert frame.targets[0].dimensions == (3.64, 1.67, 1.65)
+    model, _ = build_frame_model(frame)
+    assert model.sizes_known.all()
+    # the same draw of annotations either way: only the sizes differ
+    prior, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                           rng=0, n_annotations=2, noise_px=1.0)
+    known, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                           rng=0, n_annotations=2, noise_px=1.0, sizes="known")
+    assert [t["dimension_lines"] for t in prior["targets"]] == [t["dimension_lines"] for t in known["targets"]]
+    with pytest.raises(ValueError, match="sizes: expected one of"):
+        kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt", sizes="true")
+
+
+def test_simulate_from_kitti_with_known_sizes_on_the_command_line(kitti_dir, tmp_path):
+    out = tmp_path / "scenes"
+    proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(kitti_dir),
+                           "--out", str(out), "--annotations", "1", "--sizes", "known"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads((out / "000007.json").read_text())
+    assert [t["dimensions_m"]["length"] for t in data["targets"]] == [3.64, 1.20, 3.69]
+    proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--n", "2", "--sizes", "known",
+                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--sizes known: only with --from-kitti" in proc.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_kitti_study_runs_the_bound_alone_under_other_assumptions(kitti_dir, tmp_path):
+    """``--methods bound`` writes the bound's labels only; with ``--sizes known`` the bound's boxes
+    keep each object's true size; the fully visible cars are counted by band (LABELS: one car
+    with occlusion 0 at 46.7 m, the other occluded)."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    out = tmp_path / "study"
+    proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
+                           "--methods", "bound", "--sizes", "known", "--bound-option", "ground_sd_m=0.005"],
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert not (out / "joint").exists() and not (out / "alone").exists()
+    rows = [r.split() for r in (out / "bound" / "label_2" / "000007.txt").read_text().splitlines()]
+    assert [r[0] for r in rows] == ["Car", "Pedestrian", "Car"]
+    assert [float(v) for v in rows[0][8:11]] == [1.65, 1.67, 3.64]  # KITTI's h w l, as given
+    share = next(line for line in proc.stdout.splitlines() if line.startswith("bound") and "5-60 m" in line)
+    assert "5-20 m  nan (0)" in share and "40-60 m" in share and share.rstrip().endswith("(1)"), share
+    bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"),
+                          "--methods", "joint,best"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--methods 'joint,best'" in bad.stderr

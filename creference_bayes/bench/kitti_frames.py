@@ -18,6 +18,9 @@ What a user with a calibrated camera knows is given: the focal length and princi
 (``camera.focal_length_px``, ``camera.principal_point``) and P2 itself (``camera.kitti_p2``, so
 that labels go back into KITTI's frame); what a user does not know is not: the camera's height,
 pitch and roll, the horizon (estimated from the photo when ``image_2`` is there) and the sizes.
+``sizes="known"`` (``--sizes known``) writes each object's true size into the frame instead: the
+method's original premise, a target of known size, for labels of objects whose make is known and
+to see what the class priors cost (docs/kitti.md).
 Ground truth (for evaluation only) is in the scene: each target's KITTI label (``kitti``) and its
 location in the camera frame of P2 (``location_m``, the rectified frame moved by P2's offset).
 """
@@ -31,13 +34,16 @@ import numpy as np
 from ..io.kitti_read import read_kitti_labels
 from ..models.size_priors import KITTI_SIZE_PRIORS
 
-__all__ = ["ANNOTATABLE", "read_p2", "kitti_frame", "kitti_frames", "MIN_HEIGHT_PX", "MAX_TRUNCATION",
+__all__ = ["ANNOTATABLE", "SIZES", "read_p2", "kitti_frame", "kitti_frames", "MIN_HEIGHT_PX", "MAX_TRUNCATION",
            "MAX_OCCLUSION"]
 
 ANNOTATABLE = tuple(KITTI_SIZE_PRIORS)
 MIN_HEIGHT_PX = 25.0
 MAX_TRUNCATION = 0.5
 MAX_OCCLUSION = 2
+#: What the frames say of the objects' sizes: ``prior`` (nothing: the class priors apply) or
+#: ``known`` (each object's true size, ``dimensions_m``).
+SIZES = ("prior", "known")
 
 
 def read_p2(path: str | Path) -> np.ndarray:
@@ -77,9 +83,11 @@ def _corners(loc, ry, dims_hwl, hand_corner):
 
 
 def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotations: int = 5,
-                noise_px: float = 2.0, frame_id: str | None = None) -> tuple[dict, dict]:
+                noise_px: float = 2.0, frame_id: str | None = None, sizes: str = "prior") -> tuple[dict, dict]:
     """One frame (a ``creference-scene/2`` dict) and a report of which objects were kept and why
-    the others were not."""
+    the others were not; ``sizes`` one of :data:`SIZES`."""
+    if sizes not in SIZES:
+        raise ValueError(f"sizes: expected one of {list(SIZES)}, got {sizes!r}")
     rng = np.random.default_rng(rng)
     labels = read_kitti_labels(label_path, scores=False)
     P2 = read_p2(calib_path)
@@ -121,11 +129,13 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
         a, b = best
         yaw, hand = (ry, -b) if a == -1 else (ry + np.pi, b)
         yaw = float((yaw + np.pi) % (2 * np.pi) - np.pi)
+        size = {"length": float(hwl[2]), "width": float(hwl[1]), "height": float(hwl[0])}
         targets.append({
             "id": f"{i}", "class": cls,
+            **({"dimensions_m": dict(size)} if sizes == "known" else {}),
             "dimension_lines": [{"worker": f"w{k}", "corners": c.tolist()} for k, c in enumerate(noisy)],
             "ground_truth": {"location_m": (loc + offset).tolist(), "yaw_rad": yaw, "handedness": int(hand),
-                             "dimensions_m": {"length": float(hwl[2]), "width": float(hwl[1]), "height": float(hwl[0])},
+                             "dimensions_m": size,
                              "kitti": {"type": cls, "location": loc.tolist(), "rotation_y": ry,
                                        "dimensions_hwl": hwl.tolist(), "truncated": float(labels.truncated[i]),
                                        "occluded": int(labels.occluded[i]), "line": int(labels.line[i])}},
@@ -140,7 +150,7 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
 
 
 def kitti_frames(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, seed: int = 0,
-                 progress=None) -> dict:
+                 progress=None, sizes: str = "prior") -> dict:
     """Write one frame per label file of ``folder`` into ``out`` (``<id>.json``); returns the totals
     of kept and skipped objects. Frames without an annotatable object are not written."""
     from ..io.files import atomic_write_json
@@ -155,7 +165,7 @@ def kitti_frames(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
         calib = folder / "calib" / lp.name
         image = folder / "image_2" / (lp.stem + ".png")
         scene, rep = kitti_frame(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k], n_annotations=n_annotations, noise_px=noise_px,
-                                 frame_id=lp.stem)
+                                 frame_id=lp.stem, sizes=sizes)
         for key, v in rep["skipped"].items():
             totals["skipped"][key] = totals["skipped"].get(key, 0) + v
         if rep["kept"]:

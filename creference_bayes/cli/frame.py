@@ -181,7 +181,8 @@ def run_kitti_simulate(args) -> int:
     if not args.overwrite and out.is_dir() and any(out.iterdir()):
         raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite")
     try:
-        totals = kitti_frames(src, out, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed)
+        totals = kitti_frames(src, out, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed,
+                              sizes=args.sizes)
     except ValueError as exc:  # a malformed label or calib file: its message names file and line
         raise UsageError(str(exc)) from None
     if not args.quiet:
@@ -197,6 +198,9 @@ def add_frame_simulate_options(p) -> None:
     g.add_argument("--from-kitti", metavar="DIR", default=None,
                    help="frames from a KITTI folder (label_2/, calib/, image_2/): simulated dimension lines "
                         "on the real boxes (docs/kitti.md)")
+    g.add_argument("--sizes", choices=("prior", "known"), default="prior",
+                   help="with --from-kitti: prior (the default) leaves the objects' sizes to their class "
+                        "priors, as a crowd knows them; known writes each object's true size into the frame")
     g.add_argument("--objects", type=int, default=None, metavar="K",
                    help="write frames of K targets each instead of single-target scenes")
     g.add_argument("--kind", choices=("street", "indoor"), default="street", help="frames: the kind of scene")
