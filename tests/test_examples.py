@@ -129,3 +129,26 @@ def test_every_example_runs_on_a_tiny_budget(tmp_path):
 @pytest.mark.slow
 def test_the_examples_longer_runs(tmp_path):
     _run_all(SLOW, tmp_path)
+
+
+def test_the_advice_study_accounts_for_every_estimate(tmp_path):
+    """Each predict record carries every estimate it made (the one before the advice and one per
+    annotation added), with its CPU seconds, convergence and overflow warnings, and ``report``
+    counts them all in its time table (the issue's bound of 5 s per estimate)."""
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    for args in (["predict", "--n", "2", "--min-ess", "100"], ["report"]):
+        proc = subprocess.run([sys.executable, str(script), *args, "--out", "as"], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-1500:]
+    recs = [json.loads(x) for x in (tmp_path / "as" / "predict.jsonl").read_text().splitlines()]
+    for r in recs:
+        assert len(r["estimates"]) == 1 + len(r["rows"]), r["estimates"]
+        assert all(e["cpu_s"] > 0 and isinstance(e["converged"], bool) and e["overflow_warnings"] >= 0
+                   for e in r["estimates"])
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("| predict |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert int(cells[1]) == sum(len(r["estimates"]) for r in recs)
+    assert float(cells[4]) == pytest.approx(max(e["cpu_s"] for r in recs for e in r["estimates"]), abs=0.006)
