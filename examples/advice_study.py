@@ -20,6 +20,9 @@ reference objects, or one more on an object already referenced) until the 90 % H
 distance is at most 10 % of it, nothing is expected to help, or the human time of the 5 + 5
 design is spent. The fixed designs: target sets only (1, 2, 5, 10) and 5 sets with k references
 (k = 0, 2, 4, 5). Scenes: the paper-like tier (``high``), all settings, and outdoor alone.
+``--rank-by location`` makes the policy collect the annotation with the largest expected drop of
+the location's posterior sd per second instead (the goal is stated in location error); it needs
+its own ``--out`` folder.
 
 ``report``: the tables (Markdown, printed and written) and the figure (median location error
 against human seconds, one line per policy) from the records.
@@ -33,6 +36,7 @@ Usage::
     python examples/advice_study.py timing --n 20 --out advice_study
     python examples/advice_study.py policy --n 40 --out advice_study
     python examples/advice_study.py report --out advice_study
+    python examples/advice_study.py policy --n 20 --rank-by location --out advice_location
 
 These runs take tens of minutes (predict) to hours (policy) of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
 """
@@ -332,7 +336,16 @@ def _policy_candidates(pool, scene, used_targets, used_objects):
     return cands
 
 
-def run_adaptive(pool, seed, k, min_ess, settings):
+def _pick(advice, rank_by: str):
+    """The annotation to collect: the advice's best (expected HDI narrowing per second), or with
+    ``rank_by="location"`` the largest expected drop of the location's posterior sd per second."""
+    if rank_by == "hdi":
+        return advice.best.candidate
+    now = advice.now.location_sd_m
+    return max(advice.predictions, key=lambda p: (now - p.expected.location_sd_m) / p.candidate.seconds).candidate
+
+
+def run_adaptive(pool, seed, k, min_ess, settings, rank_by="hdi"):
     scene = variant(pool, 1, ())
     used_targets, used_objects, spent, steps = 1, set(), TARGET_S, []
     rng = np.random.default_rng([seed, k, 7])
@@ -353,7 +366,7 @@ def run_adaptive(pool, seed, k, min_ess, settings):
         if not advice.predictions:
             break
         steps[-1]["gains"] = {p.candidate.key: round(p.gain_per_minute, 4) for p in advice.predictions}
-        best = advice.best.candidate
+        best = _pick(advice, rank_by)
         steps[-1]["chosen"] = best.key
         if best.kind == "target":
             scene = dataclasses.replace(scene, target=dataclasses.replace(
@@ -377,6 +390,10 @@ def run_policy(args) -> None:
     path = out / "policy.jsonl"
     done = _done(path)
     settings = AdviceSettings(min_gain=0.0)
+    if path.is_file():
+        other = {json.loads(x).get("rank_by", "hdi") for x in path.read_text().splitlines() if x.strip()}
+        if other - {args.rank_by}:
+            raise SystemExit(f"{path}: records ranked by {sorted(other)}; --rank-by {args.rank_by} needs its own --out")
     # conditions interleaved, so that a run stopped early has as many scenes of each
     jobs = [(f"{c}-{k:03d}", c, k) for k in range(args.n) for c in ("paper-like", "outdoor")]
     with _bar(len(jobs), "policy") as bar:
@@ -395,7 +412,8 @@ def run_policy(args) -> None:
                                            "post_error": est["post_error"], "covered": est["covered"],
                                            "share": est["share"]}
             rec["adaptive"] = run_adaptive(pool, args.seed, k + (1000 if cond == "outdoor" else 0),
-                                           args.min_ess, settings)
+                                           args.min_ess, settings, args.rank_by)
+            rec["rank_by"] = args.rank_by
             rec["estimates"] = _costs()
             _append(path, rec)
 
@@ -707,6 +725,11 @@ def main(argv=None) -> None:
                            help="bulk ESS each estimate runs to (default: %(default)s)")
         if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
+        if name == "policy":
+            s.add_argument("--rank-by", choices=("hdi", "location"), default="hdi",
+                           help="the adaptive policy collects the annotation with the largest expected narrowing "
+                                "of the distance's HDI per second (hdi, the advice's ranking) or drop of the "
+                                "location's posterior sd per second (location)")
     args = p.parse_args(argv)
     {"predict": run_predict, "reweight": run_reweight, "timing": run_timing, "policy": run_policy,
      "report": run_report}[args.command](args)

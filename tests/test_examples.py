@@ -152,3 +152,24 @@ def test_the_advice_study_accounts_for_every_estimate(tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert int(cells[1]) == sum(len(r["estimates"]) for r in recs)
     assert float(cells[4]) == pytest.approx(max(e["cpu_s"] for r in recs for e in r["estimates"]), abs=0.006)
+
+
+def test_the_advice_studys_policy_can_rank_by_location_error():
+    """``policy --rank-by location`` collects the annotation with the largest expected drop of the
+    location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
+    import importlib.util
+    from types import SimpleNamespace as NS
+
+    spec = importlib.util.spec_from_file_location("advice_study", EXAMPLES[0].parent / "advice_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    target = NS(key="target", seconds=183.5)
+    ref = NS(key="first-0", seconds=64.4)
+    # the reference narrows the HDI more per minute; the target set brings the location's sd down
+    # by 0.9 m (0.0049 m/s) against the reference's 0.2 m (0.0031 m/s)
+    advice = NS(now=NS(location_sd_m=2.0),
+                predictions=[NS(candidate=ref, expected=NS(location_sd_m=1.8), gain_per_minute=3.0),
+                             NS(candidate=target, expected=NS(location_sd_m=1.1), gain_per_minute=1.0)])
+    advice.best = advice.predictions[0]
+    assert study._pick(advice, "hdi") is ref
+    assert study._pick(advice, "location") is target
