@@ -36,7 +36,7 @@ Usage::
     python examples/advice_study.py timing --n 20 --out advice_study
     python examples/advice_study.py policy --n 40 --out advice_study
     python examples/advice_study.py report --out advice_study
-    python examples/advice_study.py policy --n 20 --rank-by location --out advice_location
+    python examples/advice_study.py policy --n 40 --rank-by location --out advice_location
 
 These runs take tens of minutes (predict) to hours (policy) of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
 """
@@ -144,7 +144,7 @@ def _estimate(scene, seed, min_ess):
     gt = scene.ground_truth
     true_d = float(np.hypot(gt.location_m[0], gt.location_m[2]))
     lo, hi = r.posterior.hdi["distance_m"]
-    return {"result": r, "draws": draws, "cost": cost, "width": hi - lo, "median": r.posterior.median["distance_m"],
+    return {"result": r, "draws": draws, "width": hi - lo, "median": r.posterior.median["distance_m"],
             "share": (hi - lo) / r.posterior.median["distance_m"], "covered": bool(lo <= true_d <= hi),
             "error": float(location_percentage_error(r.map.params[:3], gt.location_m)),
             "post_error": r.evaluation.posterior_location_pct_error}
