@@ -56,20 +56,30 @@ def _model_options(pairs, parser) -> dict:
     return out
 
 
-def _box_errors(gt_dir: Path, label_dir: Path, objects: list[dict]) -> dict:
+def _gt_row(gt: dict, gt_dir: Path, o: dict):
+    """The ground-truth labels of ``o``'s image (read once into ``gt``) and the row the evaluation
+    matched ``o`` to."""
+    from creference_bayes.io.kitti_read import read_kitti_labels
+
+    if o["image"] not in gt:
+        gt[o["image"]] = read_kitti_labels(gt_dir / f"{o['image']}.txt", scores=False)
+    g = gt[o["image"]]
+    return g, int(np.flatnonzero(g.line == o["reference_line"])[0])
+
+
+def _box_errors(gt: dict, gt_dir: Path, label_dir: Path, objects: list[dict]) -> dict:
     """Per distance band, the median absolute errors of the Car labels against the ground-truth box
     the evaluation matched each to: depth (% of the true z), log-sizes (%), yaw (°); and the count."""
     from creference_bayes.io.kitti_read import read_kitti_labels
 
-    cache, rows = {}, []
+    labels, rows = {}, []
     for o in objects:
         if o["type"] != "Car" or o.get("reference_line") is None:
             continue
-        if o["image"] not in cache:
-            cache[o["image"]] = (read_kitti_labels(gt_dir / f"{o['image']}.txt", scores=False),
-                                 read_kitti_labels(label_dir / f"{o['image']}.txt", scores=True))
-        g, d = cache[o["image"]]
-        i, j = int(np.flatnonzero(g.line == o["reference_line"])[0]), int(np.flatnonzero(d.line == o["line"])[0])
+        if o["image"] not in labels:
+            labels[o["image"]] = read_kitti_labels(label_dir / f"{o['image']}.txt", scores=True)
+        (g, i), d = _gt_row(gt, gt_dir, o), labels[o["image"]]
+        j = int(np.flatnonzero(d.line == o["line"])[0])
         z = g.location[i, 2]
         yaw = (d.rotation_y[j] - g.rotation_y[i] + np.pi / 2) % np.pi - np.pi / 2
         rows.append([z, 100 * abs(d.location[j, 2] - z) / z, *(100 * np.abs(np.log(d.dimensions[j] / g.dimensions[i]))),
@@ -83,19 +93,14 @@ def _box_errors(gt_dir: Path, label_dir: Path, objects: list[dict]) -> dict:
     return out
 
 
-def _visible_car_shares(gt_dir: Path, objects: list[dict]) -> dict:
+def _visible_car_shares(gt: dict, gt_dir: Path, objects: list[dict]) -> dict:
     """Among labels matched to a fully visible Car (occlusion 0) whose true distance is 5–60 m: per
     band (5–20, 20–40, 40–60 m and all), [share with 3D IoU ≥ 0.7, count]."""
-    from creference_bayes.io.kitti_read import read_kitti_labels
-
-    cache, rows = {}, []
+    rows = []
     for o in objects:
         if o.get("reference_line") is None or o.get("reference_type") != "Car":
             continue
-        if o["image"] not in cache:
-            cache[o["image"]] = read_kitti_labels(gt_dir / f"{o['image']}.txt", scores=False)
-        g = cache[o["image"]]
-        i = int(np.flatnonzero(g.line == o["reference_line"])[0])
+        g, i = _gt_row(gt, gt_dir, o)
         d = float(np.hypot(g.location[i, 0], g.location[i, 2]))
         if g.occluded[i] == 0 and 5.0 <= d < 60.0:
             rows.append((d, o["iou_3d"] >= 0.7))
@@ -204,6 +209,7 @@ def main(argv=None) -> int:
         if "bound" in methods:
             _bound(frame, name, bound_options, args, out, rng, depth_score)
     gt = Path(args.kitti) / "label_2"
+    gt_labels = {}  # each image's ground truth, read once for every table
     report = {}
     print()
     print(f"{'method':<8}{'class':<12}{'IoU':>5}{'easy':>8}{'moderate':>10}{'hard':>8}   (AP3D R40)")
@@ -228,13 +234,13 @@ def main(argv=None) -> int:
     print()
     print("fully visible cars (occlusion 0) at 5-60 m whose label reaches 3D IoU 0.7: share (n)")
     for method in methods:
-        shares = _visible_car_shares(gt, report[method]["objects"])
+        shares = _visible_car_shares(gt_labels, gt, report[method]["objects"])
         print(f"{method:<8}" + "".join(f"{band:>9} {v[0]:4.2f} ({v[1]})" for band, v in shares.items()))
     print()
     print("Car boxes against the ground-truth box each was matched to (median absolute error: depth %, "
           "height / width / length %, yaw °; n)")
     for method in methods:
-        for band, row in _box_errors(gt, out / method / "label_2", report[method]["objects"]).items():
+        for band, row in _box_errors(gt_labels, gt, out / method / "label_2", report[method]["objects"]).items():
             print(f"{method:<8}{band:>8}  depth {row[0]:5.1f}  h/w/l {row[1]:4.1f} {row[2]:4.1f} {row[3]:4.1f}"
                   f"  yaw {row[4]:4.1f}  n {row[5]}")
     rel = report["joint"]["reliability"].get("p_iou_ge_0.7") if "joint" in report else None
@@ -258,7 +264,6 @@ def _alone(frame, name, options, out, depth_score):
     """Each object of ``frame`` as a one-object frame (its own camera), the MAP, as KITTI labels."""
     from creference_bayes.frame_pipeline import build_frame_model
     from creference_bayes.inference.frame_map import optimize_frame
-    from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
     from creference_bayes.workflows.labels.frames import kitti_poses
 
     cams, objs_alone = [], []
@@ -267,14 +272,21 @@ def _alone(frame, name, options, out, depth_score):
         cams.append(m.camera)
         objs_alone.append(m.objects[0])
     # each object with its own camera: still one label file per image
-    (out / "alone" / "label_2").mkdir(parents=True, exist_ok=True)
-    (out / "alone" / "calib").mkdir(parents=True, exist_ok=True)
-    objs = []
-    for t, c, o in zip(frame.targets, cams, objs_alone):
-        b = kitti_poses(frame, c[None], o[None, None])[0, 0]
-        objs.append(kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(o[1]))))
-    write_label_file(out / "alone" / "label_2" / f"{name}.txt", objs)
-    write_calib_file(out / "alone" / "calib" / f"{name}.txt", frame.kitti_p2)
+    boxes = [kitti_poses(frame, c[None], o[None, None])[0, 0] for c, o in zip(cams, objs_alone)]
+    _write_labels(out / "alone", name, frame, boxes, [depth_score(o[1]) for o in objs_alone])
+
+
+def _write_labels(folder: Path, name: str, frame, boxes, scores) -> None:
+    """One image's KITTI label file (``boxes``: per target x, y, z, rotation_y, h, w, l in P2's
+    frame) and its calib under ``folder``."""
+    from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
+
+    (folder / "label_2").mkdir(parents=True, exist_ok=True)
+    (folder / "calib").mkdir(parents=True, exist_ok=True)
+    write_label_file(folder / "label_2" / f"{name}.txt",
+                     [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(sc))
+                      for t, b, sc in zip(frame.targets, boxes, scores)])
+    write_calib_file(folder / "calib" / f"{name}.txt", frame.kitti_p2)
 
 
 def _bound(frame, name, bound_options, args, out, rng, depth_score):
@@ -282,7 +294,6 @@ def _bound(frame, name, bound_options, args, out, rng, depth_score):
     (``bound_options`` change the bound's model only)."""
     from creference_bayes.bench.frame_crb import frame_crb
     from creference_bayes.frame_pipeline import build_frame_model
-    from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
     from creference_bayes.workflows.labels.frames import kitti_poses
 
     model, _ = build_frame_model(frame, **bound_options)
@@ -299,13 +310,8 @@ def _bound(frame, name, bound_options, args, out, rng, depth_score):
         for i, ix in enumerate(idx_o):
             objs_b[i, ix] += delta[k:k + len(ix)]
             k += len(ix)
-    (out / "bound" / "label_2").mkdir(parents=True, exist_ok=True)
-    (out / "bound" / "calib").mkdir(parents=True, exist_ok=True)
     boxes = kitti_poses(frame, cam_b[None], objs_b[None])[0]
-    write_label_file(out / "bound" / "label_2" / f"{name}.txt",
-                     [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(depth_score(b[2])))
-                      for t, b in zip(frame.targets, boxes)])
-    write_calib_file(out / "bound" / "calib" / f"{name}.txt", frame.kitti_p2)
+    _write_labels(out / "bound", name, frame, boxes, [depth_score(b[2]) for b in boxes])
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ def _run_simulate_command(args) -> int:
     if args.outdir is not None and args.out_dir is not None and args.outdir != args.out_dir:
         raise UsageError(f"simulate: two output folders, {args.outdir} and --out {args.out_dir}")
     args.outdir = args.outdir or args.out_dir
-    if getattr(args, "sizes", "prior") != "prior" and args.from_kitti is None:
+    if args.sizes != "prior" and args.from_kitti is None:
         raise UsageError(f"--sizes {args.sizes}: only with --from-kitti (simulated frames draw their own sizes)")
     if args.from_kitti is not None:
         from .frame import run_kitti_simulate
