@@ -304,7 +304,7 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     from .inference.modes import find_modes
     from .inference.sampling import SamplerSettings, SamplingError, sample
     from .inference.summary import posterior_arrays, summarise, to_inference_data
-    from .models.coordinates import HorizonDistance
+    from .models.coordinates import Chained, HorizonDistance, ImageRay
     from .models.params import YAW
 
     t0 = time.perf_counter()
@@ -316,7 +316,8 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     # improper, and an ensemble diffuses over turns where the annotations hardly fix yaw)
     yaw_map = float(map_est.params[YAW]) if model.free[YAW] else None
     log_post = LogPosterior(model, temperature, yaw_center=yaw_map)
-    coords = HorizonDistance.from_model(model)  # pitch → log of the target's distance below the horizon
+    # pitch → log of the target's distance below the horizon; x, y → the target's image offsets
+    coords = Chained.of(HorizonDistance.from_model(model), ImageRay.from_model(model))
     target = log_post if coords is None else Reparametrised(log_post, coords)
     center = map_est.params[model.free]
     lo, hi = log_post._lo, log_post._hi  # a MAP on a bound: start just inside it (the round trip

@@ -1,7 +1,10 @@
 """The advice end to end: determinism, the reweighted posterior against a re-estimate, the ESS
 fallback, the command line on a scene, a result and a batch folder, and the request files."""
 
+import csv
+import io
 import json
+import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -124,7 +127,11 @@ def test_cli_on_a_result_finds_its_scene_and_checks_it(example, tmp_path, capsys
     result.to_json(res)
     assert main(["advise", str(res), "--draws", "100", "--futures", "20", "--target-hdi-width", "0.01",
                  "--min-gain", "0"]) == 0
-    assert "recommendation: collect" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # every gain on this already narrow scene is within noise of 0 (±0.1 points at 100 draws), so
+    # collect or stop may come out; what the width target decides is that it is not met
+    assert "recommendation: " in out and "precision target met" not in out
+    assert len(re.findall(r"^ +\d+ +", out, flags=re.M)) == len(candidates(scene))
     changed = json.loads(example_scene_path().read_text())
     changed["target"]["dimension_lines"].pop()
     (tmp_path / "example_scene.json").write_text(json.dumps(changed))
@@ -173,18 +180,22 @@ def batch_dir(example, tmp_path_factory):
 
 
 def test_cli_on_a_batch_writes_the_ranked_request_files(batch_dir, tmp_path, capsys):
+    # 400 draws: the example is already narrow and every gain is near 0; on 100 draws the shortest
+    # interval's small-sample bias can make them all negative, and nothing is requested
     out = tmp_path / "advice"
-    assert main(["advise", str(batch_dir), "--out", str(out), "--draws", "100", "--futures", "20",
+    assert main(["advise", str(batch_dir), "--out", str(out), "--draws", "400", "--futures", "20",
                  "--target-hdi-width", "0", "--min-gain", "0", "--budget", "250"]) == 0
     assert "2 objects advised" in capsys.readouterr().out
     d = json.loads((out / "advice.json").read_text())
     assert [o["key"] for o in d["objects"]] and len(d["objects"]) == 2
-    rows = (out / "requests.csv").read_text().splitlines()
-    assert rows[0].startswith("rank,key,target,image,kind,measure,object,request,line_px,seconds")
-    n_rows = len(rows) - 1
+    text = (out / "requests.csv").read_text()
+    assert text.startswith("rank,key,target,image,kind,measure,object,request,line_px,seconds")
+    rows = list(csv.DictReader(io.StringIO(text)))  # a segment's "x,y;x,y" is a quoted field
+    n_rows = len(rows)
     assert n_rows >= 1
-    cum = [float(r.split(",")[10]) for r in rows[1:]]
-    assert all(c <= 250 for c in cum)
+    cum = [float(r["cumulative_seconds"]) for r in rows]
+    assert cum == sorted(cum) and cum[-1] <= 250
+    assert all(r["line_px"].count(";") == 1 for r in rows if r["kind"] == "reference")
     tasks = json.loads((out / "label_studio_requests.json").read_text())
     assert len(tasks) == n_rows
     ET.fromstring((out / "cvat_requests.xml").read_text().split("\n", 1)[1])

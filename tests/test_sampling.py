@@ -178,18 +178,46 @@ def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
 def test_warm_up_judges_whitening_by_median_and_quartiles_not_by_moments():
     """A heavy-tailed but well whitened stage counts as settled (the standard deviation of a
     t₂.₅ sample is far above 1.33 however good the map); a shifted or too wide one does not."""
-    from creference_bayes.inference.sampling import _stable
+    from creference_bayes.inference.sampling import _location_spread, _stable
 
     rng = np.random.default_rng(0)
     heavy = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)
     heavy /= np.subtract(*np.percentile(heavy, [75, 25], axis=0)) / 1.349  # unit quartile spread
     assert heavy.std(axis=0).max() > 1.33  # what the old moment-based check saw
-    assert _stable(heavy)
+    again = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)  # the sample the map was fitted to
+    again /= np.subtract(*np.percentile(again, [75, 25], axis=0)) / 1.349
+    assert _stable(heavy, reference=_location_spread(again))
     normal = rng.standard_normal((4000, 5))
     assert _stable(normal)
     assert not _stable(normal + np.array([0, 0, 0.5, 0, 0]))
     assert not _stable(normal * np.array([1, 1, 1, 1.6, 1]))
     assert not _stable(normal * np.array([1, 0.6, 1, 1, 1]))
+
+
+def test_warm_up_compares_a_stage_with_the_sample_its_map_was_fitted_to():
+    """A skewed posterior whitened by its mean and covariance keeps quartiles unlike a normal's
+    in the best of maps (the warm-up then ran to its 5000-step cap on every such posterior): a
+    stage is judged against the fitted sample's own median and quantile ranges. A stage from
+    the same posterior passes; one whose tails widened 1.8× with the same quartiles does not."""
+    from creference_bayes.inference.sampling import _location_spread, _stable
+
+    rng = np.random.default_rng(3)
+
+    def skewed(n):
+        x = rng.gamma(0.5, size=(n, 5))
+        return (x - 0.5) / np.sqrt(0.5)  # mean 0, sd 1, as a whitening by moments leaves it
+
+    fitted, stage = skewed(6000), skewed(6000)
+    assert not _stable(stage)  # against a normal's median and quartiles
+    assert _stable(stage, reference=_location_spread(fitted))
+    wide = stage.copy()  # coordinate 2's tails stretched away from its quartiles, 2.5×
+    q25, q75 = np.percentile(wide[:, 2], [25, 75])
+    x = wide[:, 2]
+    wide[:, 2] = np.where(x > q75, q75 + 2.5 * (x - q75), np.where(x < q25, q25 - 2.5 * (q25 - x), x))
+    c_wide, s_wide = _location_spread(wide)
+    c_ref, s_ref = _location_spread(fitted)
+    assert abs(s_wide[0, 2] / s_ref[0, 2] - 1) < 0.15 and s_wide[1, 2] / s_ref[1, 2] > 1.5
+    assert not _stable(wide, reference=_location_spread(fitted))
 
 
 def test_integrated_time_of_a_walker_that_never_moved_is_one():
