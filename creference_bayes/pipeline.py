@@ -327,11 +327,11 @@ def _posterior_step(models, map_est, scene, rng, *, temperature, hdi_prob, sampl
     laplace = laplace_scales(target, center)
     log_mask = model.bounds.lower[model.free] > 0
     modes = []
-    if settings.mode_search:  # other modes: the ensembles start in them, the proposal covers them
-        modes = find_modes(target, center, laplace.cov, laplace=lambda c: laplace_scales(target, c).cov,
-                           rng=_side_stream(rng), log_mask=log_mask, circular=log_post.yaw_index,
-                           temperature=settings.explore_temperature, n_steps=settings.explore_steps)
     try:
+        if settings.mode_search:  # other modes: the ensembles start in them, the proposal covers them
+            modes = find_modes(target, center, laplace.cov, laplace=lambda c: laplace_scales(target, c).cov,
+                               rng=_side_stream(rng), log_mask=log_mask, circular=log_post.yaw_index,
+                               temperature=settings.explore_temperature, n_steps=settings.explore_steps)
         chains = sample(target, center, laplace.cov, settings=settings, rng=rng, log_mask=log_mask,
                         progress=progress, modes=[(m.center, m.cov) for m in modes[1:]],
                         derived=functools.partial(_reported, model, coords))

@@ -106,6 +106,26 @@ def test_start_with_zero_density_is_a_clear_error():
         sample(lambda p: np.full(len(p), np.nan), [0.0, 0.0])
 
 
+def test_a_start_at_the_apex_of_a_thin_wedge_still_finds_its_walkers():
+    """The support is a wedge 1e-4 rad wide whose apex is 1e-7 from the start (a MAP on two
+    bounds the coordinates couple): no Gaussian redraw lands in it, but pulling the points
+    towards the start does; every walker has a finite log-probability."""
+    from creference_bayes.inference.sampling import _SafeLogProb, _initial_points
+
+    def log_prob(p):
+        x, y = p[:, 0], p[:, 1]
+        inside = (x > 0) & (y > 0) & (np.abs(x - y) < 1e-4 * (x + y))
+        return np.where(inside, -0.5 * (x**2 + y**2), -np.inf)
+
+    centre = np.array([1e-7, 1e-7])
+    pts = _initial_points(_SafeLogProb(log_prob), [(centre, np.eye(2))], [np.random.default_rng(0)], 16)
+    assert pts.shape == (16, 2) and np.all(np.isfinite(log_prob(pts)))
+    assert len(np.unique(pts, axis=0)) == 16
+    with pytest.raises(SamplingError, match="halvings"):
+        _initial_points(_SafeLogProb(log_prob), [(centre, np.eye(2))], [np.random.default_rng(0)], 16,
+                        max_halvings=0)
+
+
 def test_settings_reject_unknown_and_bad_options():
     with pytest.raises(ValueError, match=r"unknown option\(s\) \['walkers'\]"):
         SamplerSettings.from_options({"walkers": 10})

@@ -252,9 +252,15 @@ class _InSpace:
         return self.safe(self.coords.q_to_p(q)) + self.coords.log_jacobian(q)
 
 
-def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200) -> np.ndarray:
+def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200, max_halvings: int = 100) -> np.ndarray:
     """(n_ens · n_walkers, d) starting points with finite log-probability, one generator each;
-    ensemble g is drawn from N(centre, cov) of ``starts[g % len(starts)]``."""
+    ensemble g is drawn from N(centre, cov) of ``starts[g % len(starts)]``.
+
+    Points of log-probability −∞ are redrawn (the cloud halved every 20 tries); those still
+    outside after ``max_tries`` are pulled towards the centre, halving their offset up to
+    ``max_halvings`` times. A centre just inside two bounds that the coordinates couple (x and
+    y at their box's limits, both ∝ z / µ in the image offsets) leaves a wedge of directions
+    too thin for any redraw to hit, but every point near enough the centre is inside."""
     out = []
     for k, g in enumerate(rngs):
         center, cov = starts[k % len(starts)]
@@ -262,17 +268,21 @@ def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200) -> np.n
         pts = center + g.standard_normal((n_walkers, len(center))) @ L.T
         lp = safe(pts)
         shrink = 1.0
-        for attempt in range(max_tries):
+        for attempt in range(max_tries + max_halvings):
             bad = ~np.isfinite(lp)
             if not bad.any():
                 break
-            if attempt and attempt % 20 == 0:
-                shrink *= 0.5
-            pts[bad] = center + shrink * g.standard_normal((bad.sum(), len(center))) @ L.T
+            if attempt < max_tries:
+                if attempt and attempt % 20 == 0:
+                    shrink *= 0.5
+                pts[bad] = center + shrink * g.standard_normal((bad.sum(), len(center))) @ L.T
+            else:
+                pts[bad] = center + 0.5 * (pts[bad] - center)
             lp[bad] = safe(pts[bad])
         else:
             raise SamplingError(f"could not draw {n_walkers} starting points with finite "
-                                f"log-probability around the start in {max_tries} tries")
+                                f"log-probability around the start in {max_tries} tries and "
+                                f"{max_halvings} halvings towards it")
         out.append(pts)
     return np.vstack(out)
 
