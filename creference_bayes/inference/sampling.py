@@ -24,7 +24,9 @@ How it samples
   polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
   is 1; the density is corrected for the logarithms) and an independence proposal (a
   multivariate t fitted in the straightened space), until a stage run in the map fitted before it
-  still looks whitened (median and quartiles, robust to a heavy-tailed posterior) and the
+  looks like the sample that map was fitted to (median, quartile and 5–95 % ranges, robust to a
+  heavy-tailed posterior; compared with the fitted sample's own, since a skewed posterior keeps
+  them unlike a normal's in the best of maps) and the
   proposal is accepted often enough. A stage is judged every ``chunk`` steps on the second half
   of what it has run, and ends as soon as it passes after at least 2 · ``warmup`` steps: the
   stage that confirms a good map need not run its doubled length (on the SBC scenes' slowest
@@ -87,8 +89,8 @@ class SamplerSettings:
         main phase; fixed in warm-up, where each stage is judged every ``chunk`` steps)
     warmup : length of the first two warm-up stages; later stages double. The coordinates and
         the proposal are refitted after each stage, until a stage run in the coordinates fitted
-        before it still looks whitened (:func:`_stable`; judged as it runs, so such a stage
-        ends after 2 · ``warmup`` steps), or ``max_warmup`` steps
+        before it looks like the sample they were fitted to (:func:`_stable`; judged as it runs,
+        so such a stage ends after 2 · ``warmup`` steps), or ``max_warmup`` steps
     max_warmup : cap on warm-up steps
     adapt : fit the straightening map and the independence proposal during warm-up
     independence_weight : probability that a main-phase step uses the independence proposal
@@ -252,7 +254,8 @@ class _InSpace:
         return self.safe(self.coords.q_to_p(q)) + self.coords.log_jacobian(q)
 
 
-def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200, max_halvings: int = 100) -> np.ndarray:
+def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200,
+                    max_halvings: int = 100) -> np.ndarray:
     """(n_ens · n_walkers, d) starting points with finite log-probability, one generator each;
     ensemble g is drawn from N(centre, cov) of ``starts[g % len(starts)]``.
 
@@ -360,7 +363,8 @@ def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
     ref_centre, ref_sd = (0.0, 1.0) if reference is None else reference
     m_max, sd_max = (0.5, 2.0) if loose else (0.3, 1.33)
     ratio = sd / ref_sd
-    return bool(np.all(np.abs(centre - ref_centre) < m_max) and np.all((ratio > 1 / sd_max) & (ratio < sd_max)))
+    return bool(np.all(np.abs(centre - ref_centre) < m_max)
+                and np.all((ratio > 1 / sd_max) & (ratio < sd_max)))
 
 
 def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.ndarray]:
@@ -460,8 +464,9 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
 
 def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None):
     """Run stages, refitting the coordinates and the proposal after each, until a stage run in
-    the coordinates fitted before it still looks whitened and the proposal is accepted often
-    enough (or ``max_warmup``). Returns the coordinates, proposal, positions and random state."""
+    the coordinates fitted before it looks like the sample they were fitted to and the proposal
+    is accepted often enough (or ``max_warmup``). Returns the coordinates, proposal, positions
+    and random state."""
     d = pos.shape[1]
     proposal, n_warm, stage, stable, reference = None, 0, s.warmup, False, None
     while not stable and n_warm < s.max_warmup:

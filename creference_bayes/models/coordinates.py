@@ -8,6 +8,11 @@ log µ, log D) that ridge is a straight line, which the sampler's affine coordin
 in pitch it bends (on a 41 m target the plain parametrisation mixed with autocorrelation times of
 hundreds of steps). :class:`HorizonDistance` replaces pitch by log D in the sampled vector; the
 others are unchanged (the sampler takes logarithms of the positive ones itself).
+
+With few annotations the posterior also runs along the target's viewing ray, where x and y grow
+with z. :class:`ImageRay` replaces x and y by the target's offsets in the image from the
+principal point, µx/z and µy/z, which the annotations pin and which stay put along the ray.
+:class:`Chained` applies one set of coordinates after another (the pipeline chains the two).
 """
 
 from __future__ import annotations
