@@ -106,9 +106,9 @@ class ImageRay:
     it is. With few of them (one set of lines on a far target) the posterior stretches along the
     viewing ray, where x and y grow in proportion to z: in the sampler's (x, y, log z, log µ)
     that ray is an exponential curve, which an affine map and a mixture proposal cannot follow
-    (an outdoor scene seen once, 17–999 m: walkers stuck for 500 steps in the ray's far part,
-    τ ≈ 850 steps, the 20 000-step cap). In (U, V, log z, log µ) the ray is a straight line:
-    U and V hardly move, and log z trades linearly against log µ.
+    (an outdoor scene seen once, 17–999 m: walkers stuck for up to 570 steps in the ray's far
+    part, τ ≈ 850 steps, the 20 000-step cap). In (U, V, log z, log µ) the ray is a straight
+    line: U and V hardly move, and log z trades linearly against log µ.
 
     Attributes
     ----------
