@@ -128,7 +128,7 @@ def test_cli_on_a_result_finds_its_scene_and_checks_it(example, tmp_path, capsys
     assert main(["advise", str(res), "--draws", "100", "--futures", "20", "--target-hdi-width", "0.01",
                  "--min-gain", "0"]) == 0
     out = capsys.readouterr().out
-    # every gain on this already narrow scene is within noise of 0 (±0.1 points at 100 draws), so
+    # every gain on this already narrow scene is within noise of 0 (tenths of a point at 100 draws), so
     # collect or stop may come out; what the width target decides is that it is not met
     assert "recommendation: " in out and "precision target met" not in out
     assert len(re.findall(r"^ +\d+ +", out, flags=re.M)) == len(candidates(scene))
