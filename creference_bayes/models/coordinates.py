@@ -26,6 +26,20 @@ from .params import FOCAL, PITCH, ROLL
 __all__ = ["HorizonDistance"]
 
 
+def _focal_fields(model) -> dict:
+    """``i_focal`` (µ's position in the model's free vector, or None when µ is fixed) and
+    ``focal`` (the fixed µ, pixels, or None), as the coordinate classes keep them."""
+    free = np.asarray(model.free, bool)
+    if free[FOCAL]:
+        return {"i_focal": int(np.cumsum(free)[FOCAL] - 1), "focal": None}
+    return {"i_focal": None, "focal": float(model.bounds.lower[FOCAL])}
+
+
+def _focal(v: np.ndarray, i_focal: int | None, focal: float | None) -> np.ndarray:
+    """(n,) µ of each row of ``v`` (n, k): its column, or the fixed value."""
+    return v[:, i_focal] if i_focal is not None else np.full(len(v), focal)
+
+
 @dataclass(frozen=True)
 class HorizonDistance:
     """Free parameters ↔ sampling coordinates with pitch replaced by log D (module docstring).
@@ -57,12 +71,10 @@ class HorizonDistance:
         pos = np.cumsum(free) - 1
         obs = np.asarray(model.observed, float)
         return cls(point=0.5 * (obs[1] + obs[2]), principal_point=np.asarray(model.camera.principal_point, float),
-                   i_pitch=int(pos[PITCH]), i_roll=int(pos[ROLL]),
-                   i_focal=int(pos[FOCAL]) if free[FOCAL] else None,
-                   focal=None if free[FOCAL] else float(model.bounds.lower[FOCAL]))
+                   i_pitch=int(pos[PITCH]), i_roll=int(pos[ROLL]), **_focal_fields(model))
 
     def _mu(self, v: np.ndarray) -> np.ndarray:
-        return v[:, self.i_focal] if self.i_focal is not None else np.full(len(v), self.focal)
+        return _focal(v, self.i_focal, self.focal)
 
     def _offset(self, roll: np.ndarray) -> np.ndarray:
         """The part of D that does not depend on pitch, pixels."""
@@ -130,15 +142,12 @@ class ImageRay:
         if not (free[:3].all() and model.bounds.lower[2] > 0):
             return None
         pos = np.cumsum(free) - 1
-        return cls(i_x=int(pos[0]), i_y=int(pos[1]), i_z=int(pos[2]),
-                   i_focal=int(pos[FOCAL]) if free[FOCAL] else None,
-                   focal=None if free[FOCAL] else float(model.bounds.lower[FOCAL]))
+        return cls(i_x=int(pos[0]), i_y=int(pos[1]), i_z=int(pos[2]), **_focal_fields(model))
 
     def _scale(self, v: np.ndarray) -> np.ndarray:
         """z / µ, metres per pixel at the target's depth."""
-        mu = v[:, self.i_focal] if self.i_focal is not None else self.focal
         with np.errstate(divide="ignore", invalid="ignore"):
-            return v[:, self.i_z] / mu
+            return v[:, self.i_z] / _focal(v, self.i_focal, self.focal)
 
     def forward(self, p: np.ndarray) -> np.ndarray:
         """(n, k) free parameters → sampling coordinates."""
