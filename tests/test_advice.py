@@ -64,6 +64,29 @@ def test_advice_is_ranked_and_recommends_by_its_settings(example):
     assert low.action == "stop" and "below the minimum" in low.reason
 
 
+def test_a_small_sample_of_draws_does_not_count_against_the_references(example):
+    """The example's posterior is narrow (its HDI about 6 % of the distance): one more reference
+    can hardly narrow it, and the advice from 100 draws must say so as it does from 1000. Set
+    against the present on all 100 draws, every future (from the 99 left once the simulating draw
+    is out) lost about a draw's spacing: every reference came out at about −0.1 to −0.3 points."""
+    scene, result, draws = example
+    assert len(draws) >= 1000
+
+    def gains(n_draws):
+        a = _advise(example, seed=3, settings=AdviceSettings(n_draws=n_draws, n_futures=60))
+        for p in a.predictions:  # the gain is the present minus the expected, as reported
+            assert p.gain_pct == pytest.approx(100 * (a.now.hdi_share - p.expected.hdi_share), abs=1e-9)
+        return {p.candidate.key: p.gain_pct for p in a.predictions if p.candidate.kind != "target"}
+
+    few, many = gains(100), gains(1000)
+    assert few.keys() == many.keys() and len(few) >= 5
+    # each gain from 100 draws and 60 futures scatters by about ±0.05 points; their mean does not
+    keys = sorted(few)
+    assert np.mean([few[k] for k in keys]) == pytest.approx(np.mean([many[k] for k in keys]), abs=0.04)
+    for key in keys:
+        assert few[key] == pytest.approx(many[key], abs=0.1), key
+
+
 def test_collapsed_weights_fall_back_to_the_tempered_update(example, monkeypatch):
     monkeypatch.setattr(advice_module, "MIN_ESS", 1e9)  # every simulated future counts as collapsed
     scene = example[0]

@@ -14,7 +14,8 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"
 #: A tiny run of each example: its arguments, and files (relative to its working folder) it must
 #: write. Each one runs in a few seconds; together under a minute on one core.
 TINY = {
-    "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/predict.jsonl"]),
+    "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--focal-prior", "1650,0.27", "--out", "as"],
+                         ["as/predict.jsonl"]),
                         (["report", "--out", "as"], ["as/advice_study.md"])],
     "aggregation_study.py": [(["--draws", "50", "--out-dir", "agg"], ["agg/aggregation_study.png",
                                                                       "agg/aggregation_study.md"])],
@@ -144,6 +145,7 @@ def test_the_advice_study_accounts_for_every_estimate(tmp_path):
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr[-1500:]
     recs = [json.loads(x) for x in (tmp_path / "as" / "predict.jsonl").read_text().splitlines()]
+    assert all(r["focal_prior"] is None for r in recs)  # the package's default prior
     for r in recs:
         assert len(r["estimates"]) == 1 + len(r["rows"]), r["estimates"]
         assert all(e["cpu_s"] > 0 and isinstance(e["converged"], bool) and e["overflow_warnings"] >= 0
@@ -173,3 +175,33 @@ def test_the_advice_studys_policy_can_rank_by_location_error():
     advice.best = advice.predictions[0]
     assert study._pick(advice, "hdi") is ref
     assert study._pick(advice, "location") is target
+
+
+def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
+    """``--focal-prior MEDIAN,LOG_SD`` reaches the estimates (their camera block) and is recorded;
+    a malformed value is a usage error that names the option and the value."""
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    proc = subprocess.run([sys.executable, str(script), "predict", "--n", "1", "--min-ess", "100",
+                           "--focal-prior", "1650,0.27", "--out", "as"], cwd=tmp_path,
+                          env={**os.environ, "MPLBACKEND": "Agg"}, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    rec = json.loads((tmp_path / "as" / "predict.jsonl").read_text().splitlines()[0])
+    assert rec["focal_prior"]["median_px"] == 1650 and rec["focal_prior"]["log_sd"] == 0.27
+
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("advice_study_fp", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    study._FOCAL_PRIOR = study.FocalPrior(1650.0, 0.27, float("inf"), source="scene")
+    base = study._predict_case(0, 0, ["medium"])["base"]
+    assert base.focal_prior == study._FOCAL_PRIOR
+    from creference_bayes.camera_setup import setup_camera
+
+    assert setup_camera(base).terms.focal == study._FOCAL_PRIOR
+
+    bad = subprocess.run([sys.executable, str(script), "predict", "--focal-prior", "1650", "--out", "x"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr

@@ -43,10 +43,18 @@ def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[np.ndarray, np.ndarray]:
     """Shortest interval holding ``prob`` of the weight, and the weighted median, per row.
 
+    Each draw's weight is spread evenly around it (draw i sits at the cumulative weight
+    W_{i-1} + w_i / 2) and the distribution function is interpolated linearly between draws, so
+    the interval's ends and the median move continuously with the weights. Counting whole draws
+    instead (the interval from draw a to the first draw b with W_b − W_{a-1} ≥ ``prob``)
+    overshoots ``prob`` by up to a draw's weight, more for uneven weights than for even ones: the
+    advice's reweighted futures and its equal-weight present then differ by an amount that has
+    nothing to do with the annotation (docs/advice.md, "How the advice is computed").
+
     Parameters
     ----------
     values : (N,) draws of one quantity
-    weights : (M, N) normalised weights
+    weights : (M, N) normalised weights (zeros allowed)
     prob : in (0, 1)
 
     Returns
@@ -54,21 +62,32 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
     width (M,), median (M,) in the unit of ``values``
     """
     values = np.asarray(values, float)
-    w = np.atleast_2d(weights)
+    w = np.atleast_2d(np.asarray(weights, float))
     order = np.argsort(values)
     v = values[order]
+    w = w[:, order]
     m, n = w.shape
-    c = np.concatenate([np.zeros((m, 1)), np.cumsum(w[:, order], axis=1)], axis=1)  # (M, N + 1)
-    c[:, -1] = 1.0 + 1e-12
-    offset = 2.0 * np.arange(m)[:, None]
-    flat = (c + offset).ravel()
-    # for each start a: the first end b with C[b] − C[a] ≥ prob (b indexes C, so the end draw is b − 1)
-    goal = (c[:, :n] + prob - 1e-12 + offset).ravel()
-    b = (np.searchsorted(flat, goal) - (np.arange(m)[:, None] * (n + 1)).repeat(n, axis=1).ravel()).reshape(m, n)
-    ok = b <= n
-    width = np.where(ok, v[np.clip(b - 1, 0, n - 1)] - v[None, :], np.inf).min(axis=1)
-    mid = np.searchsorted(flat, (0.5 + offset).ravel()) - np.arange(m) * (n + 1)
-    median = v[np.clip(mid - 1, 0, n - 1)]
+    # positions of the draws on the weight axis, strictly increasing within a row
+    c = np.cumsum(w, axis=1) - 0.5 * w + np.arange(n) * 1e-15
+    rows = np.arange(m)[:, None]
+    shift = 4.0 * rows                      # rows laid end to end on one increasing axis
+    flat = (c + shift).ravel()
+
+    def at(p):  # the value at weight position p (M, K), interpolated between draws
+        j = np.searchsorted(flat, (p + shift).ravel()).reshape(p.shape) - rows * n
+        j = np.clip(j, 1, n - 1)
+        c0, c1 = c[rows, j - 1], c[rows, j]
+        t = np.clip((p - c0) / np.maximum(c1 - c0, 1e-300), 0.0, 1.0)
+        return v[j - 1] + t * (v[j] - v[j - 1])
+
+    # the width is piecewise linear in the start, so the shortest interval starts or ends at a draw
+    starts_ok = c + prob <= c[:, -1:]
+    ends_ok = c - prob >= c[:, :1]
+    width = np.minimum(
+        np.where(starts_ok, at(np.where(starts_ok, c + prob, c[:, :1])) - v[None, :], np.inf).min(axis=1),
+        np.where(ends_ok, v[None, :] - at(np.where(ends_ok, c - prob, c[:, :1])), np.inf).min(axis=1))
+    width = np.where(np.isfinite(width), width, v[-1] - v[0])  # too few draws to hold prob
+    median = at(np.full((m, 1), 0.5))[:, 0]
     return width, median
 
 
