@@ -35,6 +35,7 @@ TINY = {
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
+    "line_noise_bias.py": [(["--n", "2", "--draws", "200"], [])],
     "measure_presets.py": [(["--n", "2"], [])],
     "one_target_frames.py": [(["--per-tier", "1", "--tiers", "low", "--min-ess", "100"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
@@ -205,3 +206,21 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     bad = subprocess.run([sys.executable, str(script), "predict", "--focal-prior", "1650", "--out", "x"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr
+
+
+def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_with_it():
+    """examples/line_noise_bias.py: with no end-point noise the reading is the true length; with
+    noise a short segment reads longer (|d + e| grows with e), a long ground line hardly moves."""
+    import importlib.util
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("line_noise_bias", EXAMPLES[0].parent / "line_noise_bias.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    exact = study.measure(3, ["none"], 50, 0)
+    assert exact and max(abs(r["shift"]) for r in exact) < 1e-6
+    noisy = study.measure(6, ["high"], 400, 0)
+    widths = [r["shift"] for r in noisy if r["measure"] == "width"]
+    distances = [r["shift"] for r in noisy if r["measure"] == "distance"]
+    assert np.median(widths) > 0.1 and abs(np.median(distances)) < 0.05
