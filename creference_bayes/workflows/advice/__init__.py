@@ -237,6 +237,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     sizes = (scene.target.length, scene.target.width, scene.target.height)
     # the present from every draw (one row: the label quality against all of them)
     now = _mean_outlook(_outlooks(inner, np.full((1, n), 1.0 / n), sizes, settings, rng, iou_pairs=n))
+    # and on the draws each future keeps (its simulating draw left out): the same for every candidate
+    present = _present_without(inner, outer_idx, settings.hdi_prob)
     base_cost = model.cost(inner)
     crowd = model.crowd_scale_weights(inner)[1]
     mix = format_mix(scene)
@@ -248,7 +250,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     with progress_bar(progress, len(cands), desc="advice", unit="annotation") as bar:
         for cand, s in zip(cands, seeds):
             pred = _predict(ctx, cand, (mixes or {}).get(cand.key, mix), inner, outer_idx,
-                            (base_cost, crowd), sizes, now, settings, np.random.default_rng(s), notes)
+                            (base_cost, crowd), sizes, (now, present), settings, np.random.default_rng(s), notes)
             if pred is not None:
                 predictions.append(pred)
             bar.update(1)
@@ -259,7 +261,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
                   notes=tuple(notes), seconds=time.perf_counter() - t0, format_mix=mix.to_dict())
 
 
-def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, now, settings, rng, notes):
+def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, present, settings, rng, notes):
+    now, (now_width, now_share) = present[0], (a.copy() for a in present[1])
     obs = observation_for(cand, ctx, mix)
     if getattr(obs, "usable", True) is False:
         notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
@@ -280,7 +283,6 @@ def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, now, settings, rng
             rows[k][i] = one[k][0]
     # The present on the same draws as each future (module docstring); fallback futures use every
     # draw, as the present does.
-    now_width, now_share = _present_without(inner, outer_idx, settings.hdi_prob)
     now_width[collapsed], now_share[collapsed] = now.hdi_width_m, now.hdi_share
     rows["hdi_width_m"] = rows["hdi_width_m"] + (now.hdi_width_m - now_width)
     rows["hdi_share"] = rows["hdi_share"] + (now.hdi_share - now_share)

@@ -69,14 +69,12 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
     m, n = w.shape
     # positions of the draws on the weight axis, strictly increasing within a row
     c = np.cumsum(w, axis=1) - 0.5 * w + np.arange(n) * 1e-15
-    rows = np.arange(m)[:, None]
-    shift = 4.0 * rows                      # rows laid end to end on one increasing axis
-    flat = (c + shift).ravel()
+    base = (np.arange(m) * n)[:, None]
+    flat = c.ravel()
 
-    def at(p):  # the value at weight position p (M, K), interpolated between draws
-        j = np.searchsorted(flat, (p + shift).ravel()).reshape(p.shape) - rows * n
-        j = np.clip(j, 1, n - 1)
-        c0, c1 = c[rows, j - 1], c[rows, j]
+    def at(p):  # the value at weight positions p (M, K), interpolated between draws
+        j = np.clip(np.array([np.searchsorted(c[i], p[i]) for i in range(m)]), 1, n - 1)
+        c0, c1 = flat[base + j - 1], flat[base + j]
         t = np.clip((p - c0) / np.maximum(c1 - c0, 1e-300), 0.0, 1.0)
         return v[j - 1] + t * (v[j] - v[j - 1])
 
