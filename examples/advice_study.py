@@ -207,9 +207,17 @@ def _advise(scene, est, seed, cands, mixes=None, settings=None):
 
 
 def _done(path: Path) -> set:
+    """Scenes already recorded in ``path``; a folder of records made with another focal prior is
+    refused (a resumed run must not mix them)."""
     if not path.is_file():
         return set()
-    return {json.loads(line)["scene"] for line in path.read_text().splitlines() if line.strip()}
+    recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    mine = None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict()
+    for r in recs:
+        if r.get("focal_prior") != mine:
+            sys.exit(f"advice_study.py: {path} holds records made with focal prior {r.get('focal_prior')}, "
+                     f"this run has {mine}: use another --out")
+    return {r["scene"] for r in recs}
 
 
 def _append(path: Path, record: dict) -> None:

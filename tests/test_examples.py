@@ -203,6 +203,11 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
 
     assert setup_camera(base).terms.focal == study._FOCAL_PRIOR
 
+    # resuming that folder without the prior would mix the two: refused, the file named
+    mixed = subprocess.run([sys.executable, str(script), "predict", "--n", "1", "--out", "as"], cwd=tmp_path,
+                           capture_output=True, text=True, timeout=120)
+    assert mixed.returncode != 0 and "predict.jsonl" in mixed.stderr and "another --out" in mixed.stderr
+
     bad = subprocess.run([sys.executable, str(script), "predict", "--focal-prior", "1650", "--out", "x"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr
