@@ -38,6 +38,13 @@ from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.metrology import ground_lengths
 
 STEP_PX = 0.5  # central-difference step for the linearised spread, as the model's pilot uses
+_STEPS = np.eye(4).reshape(4, 2, 2) * STEP_PX  # one end-point coordinate each
+
+
+def _read(lines, pp, truth) -> np.ndarray:
+    """log ℓ of (k, 2, 2) segments at the (1, 7) parameter vector ``truth``, (k,)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(ground_lengths(lines.reshape(-1, 2, 2), pp, truth))[0]
 
 
 def measure(n: int, tiers: list[str], draws: int, seed: int) -> list[dict]:
@@ -57,15 +64,9 @@ def measure(n: int, tiers: list[str], draws: int, seed: int) -> list[dict]:
             gt = scene.ground_truth.extra
             for ref, line, length in zip(scene.references, gt["reference_lines_px"], gt["reference_lengths_m"]):
                 line = np.asarray(line, float)
-
-                def read(lines):
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        return np.log(ground_lengths(lines.reshape(-1, 2, 2), pp, truth))[0]
-
-                steps = np.eye(4).reshape(4, 2, 2) * STEP_PX
-                grad = (read(line[None] + steps) - read(line[None] - steps)) / (2 * STEP_PX)
+                grad = (_read(line[None] + _STEPS, pp, truth) - _read(line[None] - _STEPS, pp, truth)) / (2 * STEP_PX)
                 lin_sd = sigma * float(np.sqrt(np.sum(grad**2)))
-                noisy = read(line[None] + rng.normal(0.0, sigma, (draws, 2, 2)))
+                noisy = _read(line[None] + rng.normal(0.0, sigma, (draws, 2, 2)), pp, truth)
                 ok = np.isfinite(noisy)
                 if ok.mean() < 0.5 or not np.isfinite(lin_sd):
                     continue

@@ -250,7 +250,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     with progress_bar(progress, len(cands), desc="advice", unit="annotation") as bar:
         for cand, s in zip(cands, seeds):
             pred = _predict(ctx, cand, (mixes or {}).get(cand.key, mix), inner, outer_idx,
-                            (base_cost, crowd), sizes, (now, present), settings, np.random.default_rng(s), notes)
+                            (base_cost, crowd), sizes, now, present, settings, np.random.default_rng(s), notes)
             if pred is not None:
                 predictions.append(pred)
             bar.update(1)
@@ -261,8 +261,7 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
                   notes=tuple(notes), seconds=time.perf_counter() - t0, format_mix=mix.to_dict())
 
 
-def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, present, settings, rng, notes):
-    now, (now_width, now_share) = present[0], (a.copy() for a in present[1])
+def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, now, present, settings, rng, notes):
     obs = observation_for(cand, ctx, mix)
     if getattr(obs, "usable", True) is False:
         notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
@@ -281,11 +280,12 @@ def _predict(ctx, cand, mix, inner, outer_idx, cached, sizes, present, settings,
         one = _outlooks(full, np.full((1, len(full)), 1.0 / len(full)), sizes, settings, rng)
         for k in rows:
             rows[k][i] = one[k][0]
-    # The present on the same draws as each future (module docstring); fallback futures use every
-    # draw, as the present does.
-    now_width[collapsed], now_share[collapsed] = now.hdi_width_m, now.hdi_share
-    rows["hdi_width_m"] = rows["hdi_width_m"] + (now.hdi_width_m - now_width)
-    rows["hdi_share"] = rows["hdi_share"] + (now.hdi_share - now_share)
+    # Each future against the present on its own draws (module docstring): shifted by the present
+    # on all draws minus that; fallback futures use every draw already, as the present does.
+    same_draws = np.ones(len(outer_idx), bool)
+    same_draws[collapsed] = False
+    rows["hdi_width_m"] = rows["hdi_width_m"] + np.where(same_draws, now.hdi_width_m - present[0], 0.0)
+    rows["hdi_share"] = rows["hdi_share"] + np.where(same_draws, now.hdi_share - present[1], 0.0)
     expected = _mean_outlook(rows)
     gains = 100.0 * (now.hdi_share - rows["hdi_share"])
     gain = float(np.mean(gains))
