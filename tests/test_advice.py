@@ -72,15 +72,20 @@ def test_a_small_sample_of_draws_does_not_count_against_the_references(example):
     scene, result, draws = example
     assert len(draws) >= 1000
 
-    def gains(n_draws):
-        a = _advise(example, seed=3, settings=AdviceSettings(n_draws=n_draws, n_futures=60))
+    def gains(n_draws, offset=0):
+        # the advice thins the draws evenly: an offset picks another sample of n_draws of them
+        a = _advise((scene, result, draws[offset:]), seed=3, settings=AdviceSettings(n_draws=n_draws, n_futures=60))
         for p in a.predictions:  # the gain is the present minus the expected, as reported
             assert p.gain_pct == pytest.approx(100 * (a.now.hdi_share - p.expected.hdi_share), abs=1e-9)
         return {p.candidate.key: p.gain_pct for p in a.predictions if p.candidate.kind != "target"}
 
-    few, many = gains(100), gains(1000)
-    assert few.keys() == many.keys() and len(few) >= 5
-    # each gain from 100 draws and 60 futures scatters by about ±0.05 points; their mean does not
+    samples = [gains(100, offset) for offset in (0, 3, 7)]
+    many = gains(1000)
+    assert all(f.keys() == many.keys() for f in samples) and len(many) >= 5
+    # one sample of 100 draws can sit a few hundredths of a point off for every reference at once
+    # (its luck is shared by the candidates); averaged over three samples, each gain scatters by
+    # about ±0.05 points and their mean by less
+    few = {k: float(np.mean([f[k] for f in samples])) for k in many}
     keys = sorted(few)
     assert np.mean([few[k] for k in keys]) == pytest.approx(np.mean([many[k] for k in keys]), abs=0.04)
     for key in keys:

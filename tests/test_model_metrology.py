@@ -15,7 +15,7 @@ from creference_bayes.models.params import Bounds
 from creference_bayes.models.metrology import (DEFAULT_TARGET_SIGMA_PX, MIN_CAMERA_HEIGHT_M,
                                                MIN_TARGET_SIGMA_PX, MetrologyModel,
                                                ReferenceMeasurement, estimate_target_sigma,
-                                               ground_lengths)
+                                               ground_lengths, segment_reading)
 from creference_bayes.inference.optimize import optimize_map
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.pipeline import build_models, estimate
@@ -114,9 +114,45 @@ def test_crowd_scale_adapts_to_the_references():
     assert means[0] < 0.02 < 0.2 < means[1]
 
 
+def test_a_short_noisy_segment_is_read_for_the_segment_it_was_drawn_from():
+    """End-point noise lengthens a segment a few σ long: its raw reading is biased long (by 0.15
+    to 0.6 in log-length here), which the model used to take as unbiased. Drawing each true segment
+    300 times (σ = 10 px) and correcting each drawing by its own shift, the corrected reading's
+    median is the true log-length, and at 5σ its stated spread covers the truth about as often as
+    it says; a long segment is left about as it was (a shift under 0.03, the linearised spread or
+    a little more)."""
+    s = _scene(4, tier="medium", setting="outdoor")
+    m = _model(s)
+    p, pp = true_params(s), m.camera.principal_point
+    sigma, rng = 10.0, np.random.default_rng(1)
+    w, h = s.image_width, s.image_height
+    # (height in the image, pixel length) of horizontal segments: along the image's rows the
+    # vertical noise is read as depth, the convex direction
+    for y, length, short in ((0.6, 50, True), (0.85, 25, True), (0.85, 50, True), (0.6, 400, False)):
+        centre = np.array([0.5 * w, y * h])
+        true = np.array([centre - [0.5 * length, 0.0], centre + [0.5 * length, 0.0]])
+        truth = np.log(ground_lengths(true[None], pp, p[None]))[0, 0]
+        drawn = true[None] + rng.normal(0.0, sigma, (300, 2, 2))
+        raw = np.log(ground_lengths(drawn, pp, p[None]))[0]
+        shift, var = segment_reading(drawn, pp, p, sigma)
+        z = (raw - shift - truth) / np.sqrt(var)
+        if short:
+            assert np.median(raw) - truth > 0.14, (y, length)
+            assert abs(np.median(raw - shift) - truth) < 0.07, (y, length)
+            if length >= 5 * sigma:
+                assert 0.6 <= np.mean(np.abs(z) < 1.0) <= 0.9 and 0.8 <= np.mean(np.abs(z) < 1.645) <= 0.97
+        else:
+            assert np.all(shift < 0.03) and abs(np.median(raw - shift) - truth) < 0.01
+            grad = [(np.log(ground_lengths(drawn + d, pp, p[None])) - np.log(ground_lengths(drawn - d, pp, p[None])))[0] / 1e-3
+                    for d in np.eye(4).reshape(4, 2, 2) * 5e-4]
+            ratio = var / (sigma**2 * np.sum(np.square(grad), axis=0))
+            assert np.all(ratio >= 0.999) and np.median(ratio) < 1.25  # (the model differences over 0.5 px)
+
+
 def test_line_noise_widens_far_references():
-    """s_j² = s² + σ_line² |∇ log ℓ_j|² at the pilot: against an independent central difference of
-    the log-length over the endpoints (backprojection through the horizon), larger for the
+    """s_j² = s² + σ_line² |∇ log ℓ_j|² at the pilot where the reading is linear (a long segment
+    far from the horizon), against an independent central difference of the log-length over the
+    endpoints (backprojection through the horizon); never narrower elsewhere, largest for the
     segment nearest the horizon, and fixed: the cost no longer moves the scales."""
     s = _scene(4, tier="medium", setting="outdoor")
     m = _model(s, ref_line_sigma=10.0, ref_scale=0.75)
@@ -135,8 +171,11 @@ def test_line_noise_widens_far_references():
             return np.log(np.linalg.norm(P[:, 1] - P[:, 0], axis=1))
 
         g2 += ((length(lines + d) - length(lines - d)) / 2e-3) ** 2
-    np.testing.assert_allclose(scale, np.sqrt(m.ref_scale**2 + 100.0 * g2), rtol=0.05)
-    assert np.all(scale >= m.ref_scale)
+    linear = np.sqrt(m.ref_scale**2 + 100.0 * g2)
+    long_ = (np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1) > 200.0) & (np.sqrt(100.0 * g2) < 0.15)
+    assert long_.sum() >= 1
+    np.testing.assert_allclose(scale[long_], linear[long_], rtol=0.05)
+    assert np.all(scale >= 0.95 * linear)
     dist = np.min(lines.reshape(-1, 2, 2) @ m.camera.horizon[:2] + m.camera.horizon[2], axis=1)
     assert scale[np.argmin(dist)] == scale.max()  # the segment nearest the horizon
     flat = _model(s, ref_line_sigma=0.0, ref_scale=0.75)
@@ -149,7 +188,7 @@ def test_line_noise_widens_far_references():
     q[2, 1] *= 0.7
     stats_t = stats.t(m.ref_dof)
     for row in q:
-        log_len = np.log(ground_lengths(m._lines, cam.principal_point, row[None]))[0]
+        log_len = np.log(ground_lengths(m._lines, cam.principal_point, row[None]))[0] - m.line_shifts
         want = 0.0
         for j, r in enumerate(s.references):
             lo, hi = np.log(r.length_bounds_m(s.target))

@@ -38,8 +38,11 @@ to be about) and ranges whose ends are equal keep the treatment above; without a
 
 Line noise. The drawn segment is itself noisy, and a segment far away (close to the horizon) turns
 a few pixels into a large length error, so each reference's scale is widened by its line noise:
-s_j² = s² + σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i, with
-σ_line = :data:`REF_LINE_FACTOR` × the target's corner scale σ unless given. The derivatives are
+s_j² = s² + v_j, v_j = σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i
+(times a factor ≥ 0 where the linearisation misjudges the spread), with σ_line =
+:data:`REF_LINE_FACTOR` × the target's corner scale σ unless given. A segment only a few σ_line
+long also reads *long* (the noise adds length on average), so the model reads log ℓ_j − shift_j,
+the reading inverted for its median bias (:func:`segment_reading`). Shifts and variances are
 taken once, at a *pilot* estimate (:meth:`MetrologyModel.set_pilot`: the optimiser sets it at its
 first optimum and refines from there), and then held fixed. Recomputing them at every parameter
 value (as this model did before) makes each reference's normalising constant −log s_j a function
@@ -85,8 +88,9 @@ from .params import FOCAL, PITCH, ROLL, Bounds, FreeParameters
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
     "REF_SCALE_GRID", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
-    "REF_LINE_FACTOR", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
-    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "t_interval",
+    "REF_LINE_FACTOR", "READ_DRAWS", "READ_SCALES", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
+    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "segment_reading",
+    "t_interval",
 ]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -108,6 +112,9 @@ REF_SCALE_LOG_SD = 1.0
 REF_LINE_FACTOR = 2.0
 #: Endpoint step of the central differences of log-length at the pilot, pixels.
 _LINE_STEP_PX = 0.5
+#: Noise draws and segment scales λ of the reading's inversion (:func:`segment_reading`).
+READ_DRAWS = 256
+READ_SCALES = np.geomspace(1.0 / 256.0, 2.0, 28)
 #: Smallest downward component of a unit-depth viewing ray (d_y, with d_z ≈ 1): rays closer to
 #: the horizon than this meet the ground at about h / MIN_RAY_DOWN, i.e. 1000 camera heights away.
 MIN_RAY_DOWN = 1e-3
@@ -194,6 +201,80 @@ def ground_lengths(lines: np.ndarray, principal_point, full: np.ndarray) -> np.n
     down = np.maximum(d[..., 1], MIN_RAY_DOWN)
     gx, gz = d[..., 0] / down, d[..., 2] / down  # ground point per unit camera height
     return full[:, 1, None] * np.hypot(gx[:, 1::2] - gx[:, 0::2], gz[:, 1::2] - gz[:, 0::2])
+
+
+def segment_reading(lines: np.ndarray, principal_point, full: np.ndarray, sigma: float, *,
+                    draws: int = READ_DRAWS) -> tuple[np.ndarray, np.ndarray]:
+    """How the drawn segments' log-lengths read the true ones, at one parameter vector.
+
+    A segment drawn with end-point noise σ reads long when it is only a few σ long: the noise adds
+    length on average, and the ground map is convex towards the horizon. For each segment the
+    reading is inverted: among the segments d(λ) = c + λ·(ends − c) (c its midpoint, λ on
+    :data:`READ_SCALES`), the one whose noisy readings (``draws`` draws of N(0, σ²) on each end-point
+    coordinate, the same draws for every λ and segment, seeded: deterministic) have the drawn
+    segment's reading as their median. Its exact log-length is the corrected reading, and
+
+    - ``shift`` = log ℓ(drawn) − log ℓ(d(λ*)) ≥ 0, the median bias of the reading (in log-length);
+    - ``var`` = σ² |∇ log ℓ(d(λ*))|² × ρ², the linearised variance at d(λ*), times the squared
+      ratio ρ of the spreads (half the 16–84 % range) of the *corrected* noisy readings and of
+      their linearisation, on the same draws: ρ = 1 for a segment many σ long (the two agree
+      draw by draw), larger where the reading stops following the segment; and never less than
+      the linearised variance at the drawn segment itself, σ² |∇ log ℓ(drawn)|². (The inversion
+      keeps the drawn segment's direction, which noise of the segment's own size has turned: for a
+      segment under about 5σ the corrected reading is centred but its errors are heavier-tailed
+      than a normal of this variance.)
+
+    Parameters
+    ----------
+    lines : (m, 2, 2) drawn segments, pixels
+    principal_point : (2,) pixels
+    full : (7,) parameter vector (µ, pitch, roll and the camera height y are used)
+    sigma : end-point noise, pixels (per coordinate)
+
+    Returns
+    -------
+    (shift (m,), var (m,)) in log-length; zeros for σ = 0 or no segment, and for a segment whose
+    reading is not finite.
+    """
+    lines = np.asarray(lines, float).reshape(-1, 2, 2)
+    m = len(lines)
+    shift, var = np.zeros(m), np.zeros(m)
+    if m == 0 or sigma == 0:
+        return shift, var
+    full = np.asarray(full, float).reshape(1, -1)
+
+    def log_len(segs):  # (..., m, 2, 2) → (..., m)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(ground_lengths(segs.reshape(-1, 2, 2), principal_point, full))[0].reshape(segs.shape[:-2])
+
+    noise = sigma * np.random.default_rng(20261125).standard_normal((draws, 1, 2, 2))
+    centre = lines.mean(axis=1, keepdims=True)
+    lam = np.append(READ_SCALES, 1.0)
+    segs = centre[None] + lam[:, None, None, None] * (lines - centre)[None]            # (L, m, 2, 2)
+    exact = log_len(segs)                                                               # (L, m)
+    median = np.median(log_len(segs[:, None] + noise[None]), axis=1)                    # (L, m)
+    r0, exact, median = exact[-1], exact[:-1], median[:-1]
+    steps = np.eye(4).reshape(4, 1, 2, 2) * _LINE_STEP_PX
+    for j in range(m):
+        g, e = np.maximum.accumulate(median[:, j]), exact[:, j]
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(e)) and np.isfinite(r0[j])):
+            continue
+        g = g + 1e-12 * np.arange(len(g))  # strictly increasing for the interpolation
+        log_lam = np.interp(r0[j], g, np.log(READ_SCALES))
+        star = centre[j] + np.exp(log_lam) * (lines[j] - centre[j])                     # (2, 2)
+        truth = float(np.interp(log_lam, np.log(READ_SCALES), e))
+        grad = (log_len(star[None] + steps) - log_len(star[None] - steps))[:, 0] / (2 * _LINE_STEP_PX)
+        drawn = (log_len(lines[j][None] + steps) - log_len(lines[j][None] - steps))[:, 0] / (2 * _LINE_STEP_PX)
+        noisy = log_len(star[None, None] + noise)[:, 0]                                  # (D,)
+        corrected = np.interp(noisy, g, e)
+        linear = truth + noise.reshape(draws, 4) @ grad
+        q = np.percentile(np.stack([corrected, linear]), [16, 84], axis=1)
+        spread, spread_lin = 0.5 * (q[1] - q[0])
+        lin_var, drawn_var = sigma**2 * float(grad @ grad), sigma**2 * float(drawn @ drawn)
+        if np.isfinite(lin_var) and np.isfinite(drawn_var) and spread_lin > 0:
+            shift[j] = r0[j] - truth
+            var[j] = max(lin_var * (spread / spread_lin) ** 2, drawn_var)
+    return shift, var
 
 
 @dataclass
@@ -298,6 +379,7 @@ class MetrologyModel(FreeParameters):
         self._single = np.flatnonzero(~self._is_range)
         self._range = np.flatnonzero(self._is_range & ~stated)
         self.pilot = None
+        self._line_shift = np.zeros(len(usable))
         self._set_line_var(np.zeros(len(usable)))
 
     def _read_confidences(self, usable) -> np.ndarray:
@@ -320,6 +402,20 @@ class MetrologyModel(FreeParameters):
         return self._line_var.copy()
 
     @property
+    def line_shifts(self) -> np.ndarray:
+        """(m,) the median lengthening of each usable reference's reading by its line noise, in
+        log-length, at the pilot (:func:`segment_reading`); the model reads log ℓ_j − shift_j.
+        Zeros before :meth:`set_pilot`."""
+        return self._line_shift.copy()
+
+    def reference_log_lengths(self, params: np.ndarray) -> np.ndarray:
+        """(n, m) the corrected readings log ℓ_j − shift_j of the usable references at (n, 7)
+        parameter vectors (−inf or nan where a length is 0 or undefined)."""
+        params = np.atleast_2d(np.asarray(params, float))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(ground_lengths(self._lines, self.camera.principal_point, params)) - self._line_shift
+
+    @property
     def n_stated_ranges(self) -> int:
         """References read through the confidence map (ranges with a confidence, below the horizon)."""
         return len(self._stated)
@@ -334,23 +430,20 @@ class MetrologyModel(FreeParameters):
         self._stated_inv_sd, self._stated_log_sd_sum = 1.0 / sd, float(np.log(sd).sum())
 
     def set_pilot(self, full: np.ndarray) -> None:
-        """Fix each reference's scale s_j at the (7,) parameter vector ``full`` (module docstring).
+        """Fix each reference's line noise (its reading's shift and variance, :func:`segment_reading`)
+        at the (7,) parameter vector ``full`` (module docstring).
 
-        The optimiser calls it at its first optimum; the posterior then uses these scales.
+        The optimiser calls it at its first optimum; the posterior then uses these values.
         """
         full = np.asarray(full, float).reshape(1, -1)
         self.pilot = full[0].copy()
-        m = len(self._lines)
-        if m == 0 or self.ref_line_sigma == 0:
+        if not len(self._lines) or self.ref_line_sigma == 0:
             return
-        steps = np.eye(4).reshape(4, 2, 2) * _LINE_STEP_PX  # one endpoint coordinate each
-        lines = np.concatenate([self._lines[None] + steps[:, None], self._lines[None] - steps[:, None]])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_len = np.log(ground_lengths(lines.reshape(-1, 2, 2), self.camera.principal_point, full))
-        plus, minus = log_len.reshape(2, 4, m)
-        grad2 = np.sum(((plus - minus) / (2 * _LINE_STEP_PX)) ** 2, axis=0)
-        line_var = self.ref_line_sigma**2 * grad2
-        self._set_line_var(np.where(np.isfinite(line_var), line_var, 0.0))
+        h = max(full[0, 1], MIN_CAMERA_HEIGHT_M)
+        shift, line_var = segment_reading(self._lines, self.camera.principal_point,
+                                          np.concatenate([full[0, :1], [h], full[0, 2:]]), self.ref_line_sigma)
+        self._line_shift = shift
+        self._set_line_var(line_var)
 
     @property
     def reference_scales(self) -> np.ndarray:
@@ -366,10 +459,7 @@ class MetrologyModel(FreeParameters):
         """The posterior weights of the crowd scale grid at (n, 7) parameter vectors: (grid (K,),
         weights (n, K)) — what the references say about how accurate their workers were (the
         ranges read through the confidence map say nothing about it)."""
-        params = np.atleast_2d(np.asarray(params, float))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, params))
-        per_k = self._log_w - self._reference_terms(log_len)
+        per_k = self._log_w - self._reference_terms(self.reference_log_lengths(params))
         return self._scale_grid.copy(), np.exp(per_k - np.logaddexp.reduce(per_k, axis=1, keepdims=True))
 
     @classmethod
@@ -403,9 +493,7 @@ class MetrologyModel(FreeParameters):
         if len(self._lines):
             h = np.maximum(params[:, 1], MIN_CAMERA_HEIGHT_M)
             full = params if np.all(params[:, 1] == h) else np.column_stack([params[:, :1], h, params[:, 2:]])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, full))
-            total = total + self._reference_nll(log_len)
+            total = total + self._reference_nll(self.reference_log_lengths(full))
         return total + self.camera_terms.neg_log(params, self.camera.principal_point,
                                                  focal_free=bool(self.free[FOCAL]),
                                                  orientation_free=self.orientation_free) \
@@ -421,9 +509,7 @@ class MetrologyModel(FreeParameters):
         params = np.atleast_2d(np.asarray(params, float))
         if not len(self._lines):
             return np.zeros(len(params))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_len = np.log(ground_lengths(self._lines, self.camera.principal_point, params))
-        return self._reference_nll(log_len)
+        return self._reference_nll(self.reference_log_lengths(params))
 
     def _target_nll(self, projected: np.ndarray) -> np.ndarray:
         r2 = np.sum((self.annotations[None] - projected[:, None]) ** 2, axis=-1)  # (n, A, 4)

@@ -51,6 +51,7 @@ from scipy.stats import norm
 from ...inference.frame_laplace import block_variances, frame_laplace, laplace_blocks, work_gradients
 from ...inference.frame_map import Arrowhead
 from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE
+from ...models.metrology import segment_reading
 from . import AdviceSettings
 from .frame_candidates import FrameCandidate, frame_candidates, frame_seconds
 from .frame_table import frame_advice_table
@@ -183,15 +184,10 @@ def _reference_information(model, lap, cand: FrameCandidate, temperature: float)
 
 
 def _line_variance(model, line: np.ndarray, camera: np.ndarray) -> float:
-    """A segment's noise in log-length at ``camera``: ref_line_sigma² |∂ log L / ∂ endpoints|²."""
-    step = 0.5
-    steps = np.eye(4).reshape(4, 2, 2) * step
-    lines = np.concatenate([line[None] + steps, line[None] - steps])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        log_len = np.log(model.ground_lengths(lines, camera[None]))[0]
-    d = (log_len[:4] - log_len[4:]) / (2 * step)
-    v = model.ref_line_sigma**2 * float(np.sum(d * d))
-    return v if np.isfinite(v) else 0.0
+    """A segment's noise in log-length at ``camera``, as the frame model takes it at its pilot
+    (:func:`~creference_bayes.models.metrology.segment_reading`)."""
+    _, var = segment_reading(line[None], model.principal_point, model.as_single_params(camera[None])[0], model.ref_line_sigma)
+    return float(var[0])
 
 
 def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width_now=None,

@@ -12,8 +12,9 @@ i-th simulated annotation (docs/advice.md, "How the advice is computed"):
   full costs of the models built from the scene with and without the set.
 - **A reference** (:class:`ReferenceObservation`): at the simulating draw, a crowd error scale
   s_k from its posterior given the scene's references (the grid weights
-  ``crowd_scale_weights``), then log v = log ℓ(θ) + s_jk·ε, ε ~ t(ν), with s_jk² = s_k² +
-  σ_line²|∇ log ℓ|² at the pilot, as the model reads a reference; stated as a range with the
+  ``crowd_scale_weights``), then log v = log ℓ(θ) − shift + s_jk·ε, ε ~ t(ν), with s_jk² = s_k² +
+  v_line and the shift (the reading's lengthening by line noise) at the pilot, as the model reads
+  a reference; stated as a range with the
   scene's share of ranges and its median precision. Since the crowd scale is shared, the ratio is
   log Σ_k π_k(θ) p(v | θ, s_k), with π_k(θ) the grid's posterior weights at θ: exact, and cheap
   (the tests check it against the cost difference of the two models).
@@ -138,6 +139,8 @@ class ReferenceObservation:
         # the new reference's scales s_jk over the crowd-scale grid (the model orders the usable
         # references as the scene does, so the new one is last)
         self.scales = probe.reference_scales[-1] if self.usable else None
+        # and the lengthening of its reading by line noise, which the model takes off
+        self.shift = float(probe.line_shifts[-1]) if self.usable else 0.0
         self.log_low = self.log_high = self.is_range = None
 
     def _scene_plus(self, low: float, high: float, is_range: bool):
@@ -156,11 +159,12 @@ class ReferenceObservation:
                                 bool(self.is_range[i]))
 
     def log_lengths(self, full: np.ndarray) -> np.ndarray:
-        """log ℓ of the segment at (n, 7) draws, metres (the camera height clipped as the model does)."""
+        """log ℓ − shift of the segment at (n, 7) draws, metres: the model's corrected reading (the
+        camera height clipped as the model does)."""
         full = np.array(full, float)
         full[:, 1] = np.maximum(full[:, 1], MIN_CAMERA_HEIGHT_M)
         with np.errstate(divide="ignore"):
-            return np.log(ground_lengths(self.line[None], self.ctx.model.camera.principal_point, full)[:, 0])
+            return np.log(ground_lengths(self.line[None], self.ctx.model.camera.principal_point, full)[:, 0]) - self.shift
 
     def simulate(self, rng, outer: np.ndarray) -> None:
         """Draw one stated value or range per row of ``outer`` (M, 7)."""
