@@ -1,14 +1,17 @@
 """How far off is the length a model reads from a noisy reference line? (docs/method.md, "The
 metrology model": line noise.)
 
-The metrology model reads a reference's ground length from the segment as drawn, and treats the
-drawn segment's pixel noise as unbiased in log-length, with a spread linearised at the pilot
-(σ_line² |∇ log ℓ|²). On the bench's simulator this script measures, at the *true* camera and
-location of each scene, the reading of every reference's true segment moved by the tier's
-endpoint noise (``--draws`` noise draws per segment): the median shift of log ℓ from the true
-log-length (the bias a worker's exact value would meet), its 10th and 90th percentiles over the
-segments, and the ratio of the reading's spread (half the 16–84 % range) to the linearised sd at
-the true segment. Rows by noise tier and by what the segment measures.
+The metrology model reads a reference's ground length from the segment as drawn, less the
+lengthening the drawn segment's pixel noise brings (its shift,
+:func:`~creference_bayes.models.metrology.segment_reading`). On the bench's simulator this script
+measures, at the *true* camera and location of each scene, the reading of every reference's true
+segment moved by the tier's endpoint noise (``--draws`` noise draws per segment): the median shift
+of the raw log ℓ from the true log-length (the bias a worker's exact value would meet without the
+correction), its 10th and 90th percentiles over the segments, the same median shift of the
+model's corrected reading log ℓ − shift (on the first ``--corrected`` draws of each segment, each
+drawn segment corrected by its own shift), and the ratio of the raw reading's spread (half the
+16–84 % range) to the linearised sd at the true segment. Rows by noise tier and by what the
+segment measures.
 
 ``--estimates N`` also estimates N paper-like (high tier) scenes twice, once as simulated and once
 with the references' lines drawn exactly (the same scenes, seeds and everything else), for one
@@ -21,8 +24,8 @@ Usage::
     python examples/line_noise_bias.py --n 80             # 80 scenes a tier, 10 segments each
     python examples/line_noise_bias.py --n 80 --estimates 60
 
-A shift of 0 and a spread ratio of 1 would mean the model's reading is right. The table of
-``--n 80`` is in docs/method.md ("Line noise"). About two seconds for 80 scenes a tier.
+A shift of 0 and a spread ratio of 1 would mean the raw reading is right. The table of
+``--n 80`` is in docs/method.md ("Line noise"). About a minute for 80 scenes a tier.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy as np
 from creference_bayes.bench.simulate import TIERS, simulate_scene, true_params
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.io.scene import parse_scene
-from creference_bayes.models.metrology import ground_lengths
+from creference_bayes.models.metrology import ground_lengths, segment_reading
 
 STEP_PX = 0.5  # central-difference step for the linearised spread, as the model's pilot uses
 _STEPS = np.eye(4).reshape(4, 2, 2) * STEP_PX  # one end-point coordinate each
@@ -47,9 +50,10 @@ def _read(lines, pp, truth) -> np.ndarray:
         return np.log(ground_lengths(lines.reshape(-1, 2, 2), pp, truth))[0]
 
 
-def measure(n: int, tiers: list[str], draws: int, seed: int) -> list[dict]:
+def measure(n: int, tiers: list[str], draws: int, seed: int, corrected: int = 40) -> list[dict]:
     """One record per reference segment: tier, measure, the median shift of the noisy reading's
-    log-length, and its spread against the linearised one."""
+    log-length, of the corrected reading's (its first ``corrected`` draws), and the raw reading's
+    spread against the linearised one."""
     rng = np.random.default_rng(seed)
     out = []
     for tier in tiers:
@@ -66,19 +70,25 @@ def measure(n: int, tiers: list[str], draws: int, seed: int) -> list[dict]:
                 line = np.asarray(line, float)
                 grad = (_read(line[None] + _STEPS, pp, truth) - _read(line[None] - _STEPS, pp, truth)) / (2 * STEP_PX)
                 lin_sd = sigma * float(np.sqrt(np.sum(grad**2)))
-                noisy = _read(line[None] + rng.normal(0.0, sigma, (draws, 2, 2)), pp, truth)
+                drawn = line[None] + rng.normal(0.0, sigma, (draws, 2, 2))
+                noisy = _read(drawn, pp, truth)
                 ok = np.isfinite(noisy)
                 if ok.mean() < 0.5 or not np.isfinite(lin_sd):
                     continue
                 lo, med, hi = np.quantile(noisy[ok], [0.16, 0.5, 0.84])
+                k = min(corrected, draws)
+                fixed = noisy[:k] - segment_reading(drawn[:k], pp, truth[0], sigma)[0] if k else np.full(1, np.nan)
                 out.append({"tier": tier, "measure": ref.measure, "shift": float(med - np.log(length)),
+                            "corrected_shift": float(np.nanmedian(np.where(np.isfinite(fixed), fixed, np.nan))
+                                                     - np.log(length)) if k else float("nan"),
                             "spread_ratio": float(0.5 * (hi - lo) / lin_sd) if lin_sd > 0 else float("nan")})
     return out
 
 
 def table(records: list[dict]) -> str:
     head = ("| tier (endpoint σ) | measure | segments | median shift of log ℓ | 10th / 90th percentile | "
-            "spread / linearised sd, median |\n|---|---|---|---|---|---|")
+            "corrected: median shift | 10th / 90th percentile | spread / linearised sd, median |\n"
+            "|---|---|---|---|---|---|---|---|")
     rows = []
     for tier in dict.fromkeys(r["tier"] for r in records):
         for measure in ("length", "width", "distance", "all"):
@@ -86,10 +96,13 @@ def table(records: list[dict]) -> str:
             if not s:
                 continue
             shift = np.array([r["shift"] for r in s])
+            fixed = np.array([r["corrected_shift"] for r in s])
             ratio = np.array([r["spread_ratio"] for r in s])
             p10, p50, p90 = np.percentile(shift, [10, 50, 90])
+            c10, c50, c90 = np.nanpercentile(fixed, [10, 50, 90]) if np.isfinite(fixed).any() else [np.nan] * 3
             rows.append(f"| {tier} ({TIERS[tier].reference_px:g} px) | {measure} | {len(s)} | {p50:+.3f} | "
-                        f"{p10:+.3f} / {p90:+.3f} | {np.nanmedian(ratio) if np.isfinite(ratio).any() else np.nan:.2f} |")
+                        f"{p10:+.3f} / {p90:+.3f} | {c50:+.3f} | {c10:+.3f} / {c90:+.3f} | "
+                        f"{np.nanmedian(ratio) if np.isfinite(ratio).any() else np.nan:.2f} |")
     return "\n".join([head, *rows])
 
 
@@ -126,6 +139,8 @@ def main(argv=None) -> None:
     p.add_argument("--n", type=int, default=80, help="scenes per tier (default: %(default)s)")
     p.add_argument("--tiers", default="medium,high", help="noise tiers (default: %(default)s)")
     p.add_argument("--draws", type=int, default=2000, help="noise draws per segment (default: %(default)s)")
+    p.add_argument("--corrected", type=int, default=40,
+                   help="of them, draws read with the model's correction (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--estimates", type=int, default=0, metavar="N",
                    help="also estimate N paper-like scenes with the reference lines as simulated and exact")
@@ -134,7 +149,7 @@ def main(argv=None) -> None:
     for t in tiers:
         if t not in TIERS:
             p.error(f"--tiers: unknown tier {t!r} (expected some of {list(TIERS)})")
-    print(table(measure(args.n, tiers, args.draws, args.seed)))
+    print(table(measure(args.n, tiers, args.draws, args.seed, args.corrected)))
     if args.estimates:
         print()
         print(estimates(args.estimates, args.seed))
