@@ -41,7 +41,9 @@ Usage::
 
 ``--focal-prior MEDIAN,LOG_SD`` has every scene state a log-normal focal-length prior (1650,0.27
 fits the simulator's cameras, 1000–2600 px); without it the package's default prior is used, as
-for a photo with nothing known about its camera. Each record says which.
+for a photo with nothing known about its camera. ``--line-reading corrected`` has the estimates
+and the advice read reference segments less the lengthening their line noise brings (the
+metrology model's option ``line_reading``; default ``linear``). Each record says which.
 
 These runs take tens of minutes (predict) to hours (policy) of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
 """
@@ -87,6 +89,8 @@ FIXED = {"target x1": (1, 0), "target x2": (2, 0), "target x5": (5, 0), "target 
 
 #: The focal-length prior every simulated scene states (``--focal-prior``); None: the default.
 _FOCAL_PRIOR: FocalPrior | None = None
+#: Metrology model settings of every estimate and advice (``--line-reading``); empty: the defaults.
+_MODEL_OPTIONS: dict = {}
 
 
 def _scene(seed: int, k: int, tier: str, setting: str | None):
@@ -145,7 +149,7 @@ def _estimate(scene, seed, min_ess):
     t0 = time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        r = estimate(scene, seed=seed, sampling={"min_ess": min_ess})
+        r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, **_MODEL_OPTIONS)
     cost = {"cpu_s": time.process_time() - t0, "converged": bool(r.diagnostics.converged),
             "overflow_warnings": sum("overflow" in str(w.message) for w in caught)}
     _COSTS.append(cost)
@@ -172,7 +176,7 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
                                                           tempered_update, weighted_hdi)
 
     r = est["result"]
-    ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params)
+    ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params, options=dict(_MODEL_OPTIONS))
     keep = np.unique(np.linspace(0, len(est["draws"]) - 1, n_draws).round().astype(int))
     draws = ctx.model.expand(est["draws"][keep][:, ctx.model.free])
     if kind == "target":
@@ -203,25 +207,30 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
 def _advise(scene, est, seed, cands, mixes=None, settings=None):
     r = est["result"]
     return advise_posterior(scene, est["draws"], handedness=r.map.handedness, map_params=r.map.params,
-                            seed=seed, candidates=cands, mixes=mixes, settings=settings)
+                            seed=seed, candidates=cands, mixes=mixes, settings=settings, model_options=_MODEL_OPTIONS)
 
 
 def _done(path: Path) -> set:
-    """Scenes already recorded in ``path``; a folder of records made with another focal prior is
-    refused (a resumed run must not mix them)."""
+    """Scenes already recorded in ``path``; a folder of records made with another focal prior or
+    line reading is refused (a resumed run must not mix them)."""
     if not path.is_file():
         return set()
     recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     mine = None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict()
+    reading = _MODEL_OPTIONS.get("line_reading", "linear")
     for r in recs:
         if r.get("focal_prior") != mine:
             sys.exit(f"advice_study.py: {path} holds records made with focal prior {r.get('focal_prior')}, "
                      f"this run has {mine}: use another --out")
+        if r.get("line_reading", "linear") != reading:
+            sys.exit(f"advice_study.py: {path} holds records made with line reading {r.get('line_reading', 'linear')!r}, "
+                     f"this run has {reading!r}: use another --out")
     return {r["scene"] for r in recs}
 
 
 def _append(path: Path, record: dict) -> None:
-    record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict()}
+    record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
+              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear")}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
 
@@ -748,6 +757,9 @@ def main(argv=None) -> None:
                            help="every scene states a log-normal focal-length prior (median in pixels, "
                                 "log-sd), e.g. 1650,0.27 to match the simulator's cameras; default: the "
                                 "package's default prior")
+            s.add_argument("--line-reading", choices=("linear", "corrected"), default="linear",
+                           help="how the metrology model reads reference segments (its option line_reading; "
+                                "default: %(default)s)")
         if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
         if name == "policy":
@@ -757,6 +769,9 @@ def main(argv=None) -> None:
                                 "location's posterior sd per second (location)")
     args = p.parse_args(argv)
     global _FOCAL_PRIOR
+    _MODEL_OPTIONS.clear()
+    if getattr(args, "line_reading", "linear") != "linear":
+        _MODEL_OPTIONS["line_reading"] = args.line_reading
     if getattr(args, "focal_prior", None):
         try:
             median, log_sd = (float(v) for v in args.focal_prior.split(","))

@@ -328,3 +328,51 @@ def test_a_result_is_advised_on_with_the_camera_set_up_of_its_estimate(example):
     odd = dict(d, camera=dict(d["camera"], focal_prior=dict(d["camera"]["focal_prior"], median_px=1.0)))
     with pytest.raises(ValueError, match="camera set-up cannot be rebuilt"):
         _camera_setup(odd, scene)
+
+
+def test_the_advice_rebuilds_its_models_with_the_estimates_model_options(monkeypatch):
+    """model_options reach every model the advice builds: with line_reading="corrected" a new
+    reference on a short, far segment is read less its shift (checked against the segment's own
+    reading and segment_reading), with the defaults as drawn."""
+    from creference_bayes.bench.simulate import simulate_scene, true_params
+    from creference_bayes.camera_setup import setup_camera
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.models.metrology import ground_lengths, segment_reading
+    from creference_bayes.workflows.advice.observe import ModelContext, ReferenceObservation
+
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = parse_scene(simulate_scene(np.random.default_rng(4), tier="high", setting="outdoor",
+                                           n_references=6))
+    base = variant(scene, 5, range(5))
+    p = true_params(scene)
+    setup = setup_camera(base)
+    handed = scene.ground_truth.extra["handedness"]
+    line = np.asarray(scene.references[5].line, float)
+    reading = np.log(ground_lengths(line[None], setup.camera.principal_point, p[None]))[0, 0]
+    for options in ({}, {"line_reading": "corrected"}):
+        ctx = ModelContext(base, setup, handed, p, options=options)
+        assert ctx.model.line_reading == options.get("line_reading", "linear")
+        obs = ReferenceObservation(ctx, line, measure=scene.references[5].measure)
+        assert obs.usable
+        shift = 0.0
+        if options:
+            # (a reference does not change the corner scale, so neither the line noise)
+            shift = segment_reading(line[None], setup.camera.principal_point, p, ctx.model.ref_line_sigma)[0][0]
+        assert obs.log_lengths(p[None])[0] == pytest.approx(reading - shift, abs=1e-9)
+    assert shift > 0.01  # a segment the correction moves
+    # and advise_posterior hands its model_options to the context it builds its models from
+    seen = []
+
+    class Spy(ModelContext):
+        def __post_init__(self):
+            seen.append(dict(self.options))
+            raise RuntimeError("stop here")
+
+    monkeypatch.setattr(advice_module, "ModelContext", Spy)
+    with pytest.raises(RuntimeError, match="stop here"):
+        advise_posterior(base, np.tile(p, (60, 1)), handedness=handed, map_params=p, seed=0,
+                         model_options={"line_reading": "corrected"})
+    assert seen == [{"line_reading": "corrected"}]

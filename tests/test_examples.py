@@ -35,7 +35,7 @@ TINY = {
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
-    "line_noise_bias.py": [(["--n", "2", "--draws", "200", "--estimates", "1"], [])],
+    "line_noise_bias.py": [(["--n", "2", "--draws", "200", "--estimates", "1", "--focal-prior", "1650,0.27"], [])],
     "measure_presets.py": [(["--n", "2"], [])],
     "one_target_frames.py": [(["--per-tier", "1", "--tiers", "low", "--min-ess", "100"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],

@@ -44,8 +44,7 @@ Likelihood
       objects given the camera); each a Student-t
       (ν = 2) measurement in log-length with the crowd's scale ``ref_scale`` (a camera parameter
       with a log-normal prior, median 0.5, log-sd 1), widened by the segment's line noise at a
-      pilot estimate, its reading corrected for the lengthening that noise brings to a short
-      segment (as the metrology model, method.md).
+      pilot estimate (as the metrology model, method.md).
     * The horizon, when measured (from the photo or stated with an uncertainty): its two points
       lie N(0, σ²) from the predicted horizon (a bivariate Student-t of the same scale when the
       measurement says so: the photo's estimate has heavy tails), σ² = σ_h² + (µ tan τ)², τ the
@@ -74,8 +73,8 @@ import numpy as np
 from ..core.geometry import rotation_from_pitch_roll, pitch_roll_from_horizon
 from .camera_terms import CameraTerms, OrientationPrior, horizon_offsets
 from .metrology import (DEFAULT_TARGET_SIGMA_PX, MIN_TARGET_SIGMA_PX, REF_DOF, REF_LINE_FACTOR,
-                        REF_SCALE_LOG_SD, REF_SCALE_MEDIAN, TARGET_DOF, ground_lengths, segment_reading,
-                        t_interval)
+                        REF_SCALE_LOG_SD, REF_SCALE_MEDIAN, TARGET_DOF, ground_lengths,
+                        linear_line_variances, t_interval)
 from .params import MAX_PITCH, MAX_ROLL
 from .size_priors import SizePrior
 
@@ -350,21 +349,17 @@ class FrameModel:
         self._lines = np.array([r.line for r in refs if r.line is not None]).reshape(-1, 2, 2)
         self._line_pos = np.cumsum(self._with_line) - 1
         self.ref_line_var = np.zeros(len(refs))
-        self.ref_line_shift = np.zeros(int(self._with_line.sum()))
         self.pilot = None
 
     def set_pilot(self, camera: np.ndarray) -> None:
-        """Fix every reference line's noise in log-length (its reading's lengthening and variance,
-        :func:`~creference_bayes.models.metrology.segment_reading`) at the (5,) camera ``camera``
-        (the optimiser's first optimum; method.md, "Line noise")."""
+        """Fix every reference line's noise in log-length at the (5,) camera ``camera`` (the
+        optimiser's first optimum; method.md, "Line noise")."""
         self.pilot = np.asarray(camera, float).copy()
         if not len(self._lines) or self.ref_line_sigma == 0:
             return
-        shift, var = segment_reading(self._lines, self.principal_point, self.as_single_params(self.pilot[None])[0],
-                                     self.ref_line_sigma)
-        self.ref_line_shift = shift
         self.ref_line_var = np.zeros(len(self.references))
-        self.ref_line_var[self._with_line] = var
+        self.ref_line_var[self._with_line] = linear_line_variances(
+            self._lines, self.principal_point, self.as_single_params(self.pilot[None])[0], self.ref_line_sigma)
 
     def ground_lengths(self, lines: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, k) real lengths (m) of (k, 2, 2) ground segments for (n, 5) cameras."""
@@ -383,7 +378,7 @@ class FrameModel:
         pred = np.zeros((n, len(self.references)))
         if len(self._lines):
             with np.errstate(divide="ignore", invalid="ignore"):
-                pred[:, self._with_line] = np.log(self.ground_lengths(self._lines, cams)) - self.ref_line_shift
+                pred[:, self._with_line] = np.log(self.ground_lengths(self._lines, cams))
         owned = (self.ref_owner >= 0) & ~self._distance
         if owned.any():
             with np.errstate(divide="ignore", invalid="ignore"):

@@ -38,11 +38,11 @@ to be about) and ranges whose ends are equal keep the treatment above; without a
 
 Line noise. The drawn segment is itself noisy, and a segment far away (close to the horizon) turns
 a few pixels into a large length error, so each reference's scale is widened by its line noise:
-s_j² = s² + v_j, v_j = σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i
-(times a factor ≥ 0 where the linearisation misjudges the spread), with σ_line =
-:data:`REF_LINE_FACTOR` × the target's corner scale σ unless given. A segment only a few σ_line
-long also reads *long* (the noise adds length on average), so the model reads log ℓ_j − shift_j,
-the reading inverted for its median bias (:func:`segment_reading`). Shifts and variances are
+s_j² = s² + v_j, v_j = σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates p_i,
+with σ_line = :data:`REF_LINE_FACTOR` × the target's corner scale σ unless given. A segment only a
+few σ_line long also reads *long* (the noise adds length on average); with the option
+``line_reading="corrected"`` the model reads log ℓ_j − shift_j instead, the reading inverted for
+that median bias, and v_j at least the above (:func:`segment_reading`). Variances and shifts are
 taken once, at a *pilot* estimate (:meth:`MetrologyModel.set_pilot`: the optimiser sets it at its
 first optimum and refines from there), and then held fixed. Recomputing them at every parameter
 value (as this model did before) makes each reference's normalising constant −log s_j a function
@@ -88,8 +88,8 @@ from .params import FOCAL, PITCH, ROLL, Bounds, FreeParameters
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
     "REF_SCALE_GRID", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
-    "REF_LINE_FACTOR", "READ_DRAWS", "READ_SCALES", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
-    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "segment_reading",
+    "REF_LINE_FACTOR", "LINE_READINGS", "DEFAULT_LINE_READING", "READ_DRAWS", "READ_SCALES", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
+    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "linear_line_variances", "segment_reading",
     "t_interval",
 ]
 
@@ -112,6 +112,11 @@ REF_SCALE_LOG_SD = 1.0
 REF_LINE_FACTOR = 2.0
 #: Endpoint step of the central differences of log-length at the pilot, pixels.
 _LINE_STEP_PX = 0.5
+#: How a reference's drawn segment is read (the option ``line_reading``): ``linear`` (default) as
+#: drawn, its noise linearised at the pilot; ``corrected`` less the lengthening its noise brings
+#: (:func:`segment_reading`; method.md, "Line noise").
+LINE_READINGS = ("linear", "corrected")
+DEFAULT_LINE_READING = "linear"
 #: Noise draws and segment scales λ of the reading's inversion (:func:`segment_reading`).
 READ_DRAWS = 128
 READ_SCALES = np.geomspace(1.0 / 128.0, 2.0, 20)
@@ -203,6 +208,22 @@ def ground_lengths(lines: np.ndarray, principal_point, full: np.ndarray) -> np.n
     return full[:, 1, None] * np.hypot(gx[:, 1::2] - gx[:, 0::2], gz[:, 1::2] - gz[:, 0::2])
 
 
+def linear_line_variances(lines: np.ndarray, principal_point, full: np.ndarray, sigma: float) -> np.ndarray:
+    """σ² |∇ log ℓ|² of each segment at one parameter vector: its reading's variance in log-length
+    from end-point noise σ (pixels, per coordinate), linearised by central differences over its
+    four end-point coordinates; (m,), zeros for σ = 0 and where the reading is not finite."""
+    lines = np.asarray(lines, float).reshape(-1, 2, 2)
+    if not len(lines) or sigma == 0:
+        return np.zeros(len(lines))
+    steps = np.eye(4).reshape(4, 1, 2, 2) * _LINE_STEP_PX  # one end-point coordinate each
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plus, minus = (np.log(ground_lengths((lines[None] + sign * steps).reshape(-1, 2, 2), principal_point,
+                                             np.asarray(full, float).reshape(1, -1)))[0].reshape(4, -1)
+                       for sign in (1.0, -1.0))
+        var = sigma**2 * np.sum(((plus - minus) / (2 * _LINE_STEP_PX)) ** 2, axis=0)
+    return np.where(np.isfinite(var), var, 0.0)
+
+
 def segment_reading(lines: np.ndarray, principal_point, full: np.ndarray, sigma: float, *,
                     draws: int = READ_DRAWS) -> tuple[np.ndarray, np.ndarray]:
     """How the drawn segments' log-lengths read the true ones, at one parameter vector.
@@ -255,6 +276,7 @@ def segment_reading(lines: np.ndarray, principal_point, full: np.ndarray, sigma:
     exact = log_len(segs)                                                               # (L, m)
     median = np.median(log_len(segs[:, None] + noise[None]), axis=1)                    # (L, m)
     r0, exact, median = exact[-1], exact[:-1], median[:-1]
+    drawn_var = linear_line_variances(lines, principal_point, full, sigma)
     steps = np.eye(4).reshape(4, 1, 2, 2) * _LINE_STEP_PX
     for j in range(m):
         g, e = np.maximum.accumulate(median[:, j]), exact[:, j]
@@ -265,16 +287,15 @@ def segment_reading(lines: np.ndarray, principal_point, full: np.ndarray, sigma:
         star = centre[j] + np.exp(log_lam) * (lines[j] - centre[j])                     # (2, 2)
         truth = float(np.interp(log_lam, np.log(READ_SCALES), e))
         grad = (log_len(star[None] + steps) - log_len(star[None] - steps))[:, 0] / (2 * _LINE_STEP_PX)
-        drawn = (log_len(lines[j][None] + steps) - log_len(lines[j][None] - steps))[:, 0] / (2 * _LINE_STEP_PX)
         noisy = log_len(star[None, None] + noise)[:, 0]                                  # (D,)
         corrected = np.interp(noisy, g, e)
         linear = truth + noise.reshape(draws, 4) @ grad
         q = np.percentile(np.stack([corrected, linear]), [16, 84], axis=1)
         spread, spread_lin = 0.5 * (q[1] - q[0])
-        lin_var, drawn_var = sigma**2 * float(grad @ grad), sigma**2 * float(drawn @ drawn)
-        if np.isfinite(lin_var) and np.isfinite(drawn_var) and spread_lin > 0:
+        lin_var = sigma**2 * float(grad @ grad)
+        if np.isfinite(lin_var) and spread_lin > 0:
             shift[j] = r0[j] - truth
-            var[j] = max(lin_var * (spread / spread_lin) ** 2, drawn_var)
+            var[j] = max(lin_var * (spread / spread_lin) ** 2, drawn_var[j])
     return shift, var
 
 
@@ -300,6 +321,8 @@ class MetrologyModel(FreeParameters):
     camera_terms : priors on µ, pitch, roll and a horizon measurement (:mod:`.camera_terms`)
     confidence_map : how ranges stated with a confidence are read (module docstring), or None
         to ignore confidences
+    line_reading : one of :data:`LINE_READINGS`: read each reference's segment as drawn
+        (``linear``, the default) or less the lengthening its line noise brings (``corrected``)
     """
 
     camera: Camera
@@ -316,6 +339,7 @@ class MetrologyModel(FreeParameters):
     orientation_free: bool = False
     camera_terms: CameraTerms = field(default_factory=CameraTerms)
     confidence_map: ConfidenceMap | None = None
+    line_reading: str = DEFAULT_LINE_READING
     name: str = field(default="metrology", init=False)
     #: The cost is smooth (no kinks): the optimiser may use Newton steps on it.
     smooth: bool = field(default=True, init=False)
@@ -329,6 +353,8 @@ class MetrologyModel(FreeParameters):
         if ann.ndim != 3 or ann.shape[1:] != (4, 2):
             raise ValueError(f"annotations: expected shape (n, 4, 2), got {ann.shape}")
         self.annotations = ann
+        if self.line_reading not in LINE_READINGS:
+            raise ValueError(f"line_reading: expected one of {list(LINE_READINGS)}, got {self.line_reading!r}")
         for key in ("target_dof", "ref_scale", "ref_dof"):
             v = getattr(self, key)
             if v is None and key == "ref_scale":
@@ -406,7 +432,7 @@ class MetrologyModel(FreeParameters):
     def line_shifts(self) -> np.ndarray:
         """(m,) the median lengthening of each usable reference's reading by its line noise, in
         log-length, at the pilot (:func:`segment_reading`); the model reads log ℓ_j − shift_j.
-        Zeros before :meth:`set_pilot`."""
+        Zeros before :meth:`set_pilot` and with ``line_reading="linear"``."""
         return self._line_shift.copy()
 
     def reference_log_lengths(self, params: np.ndarray) -> np.ndarray:
@@ -431,8 +457,9 @@ class MetrologyModel(FreeParameters):
         self._stated_inv_sd, self._stated_log_sd_sum = 1.0 / sd, float(np.log(sd).sum())
 
     def set_pilot(self, full: np.ndarray) -> None:
-        """Fix each reference's line noise (its reading's shift and variance, :func:`segment_reading`)
-        at the (7,) parameter vector ``full`` (module docstring).
+        """Fix each reference's line noise at the (7,) parameter vector ``full`` (module docstring):
+        its variance (:func:`linear_line_variances`), or with ``line_reading="corrected"`` its
+        reading's shift and variance (:func:`segment_reading`).
 
         The optimiser calls it at its first optimum; the posterior then uses these values.
         """
@@ -440,10 +467,12 @@ class MetrologyModel(FreeParameters):
         self.pilot = full[0].copy()
         if not len(self._lines) or self.ref_line_sigma == 0:
             return
-        h = max(full[0, 1], MIN_CAMERA_HEIGHT_M)
-        shift, line_var = segment_reading(self._lines, self.camera.principal_point,
-                                          np.concatenate([full[0, :1], [h], full[0, 2:]]), self.ref_line_sigma)
-        self._line_shift = shift
+        at = np.concatenate([full[0, :1], [max(full[0, 1], MIN_CAMERA_HEIGHT_M)], full[0, 2:]])
+        if self.line_reading == "corrected":
+            self._line_shift, line_var = segment_reading(self._lines, self.camera.principal_point, at,
+                                                         self.ref_line_sigma)
+        else:
+            line_var = linear_line_variances(self._lines, self.camera.principal_point, at, self.ref_line_sigma)
         self._set_line_var(line_var)
 
     @property
@@ -470,7 +499,7 @@ class MetrologyModel(FreeParameters):
         """The model of ``scene`` for one handedness, with the estimate's ``camera``;
         ``options`` are the settings above."""
         unknown = set(options) - {"target_sigma", "target_dof", "ref_scale", "ref_dof", "ref_line_sigma",
-                                  "confidence_map"}
+                                  "confidence_map", "line_reading"}
         if unknown:
             raise ValueError(f"metrology model: unknown option(s) {sorted(unknown)}")
         t = scene.target

@@ -197,7 +197,8 @@ def _mean_outlook(rows: dict) -> Outlook:
 
 def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, setup=None, seed=None,
                      settings: AdviceSettings | None = None, candidates: list[Candidate] | None = None,
-                     mixes: dict | None = None, progress: bool = False) -> Advice:
+                     mixes: dict | None = None, progress: bool = False,
+                     model_options: dict | None = None) -> Advice:
     """The advice for ``scene``'s target given posterior draws of the metrology model.
 
     Parameters
@@ -213,6 +214,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
     mixes : :class:`~creference_bayes.workflows.advice.candidates.FormatMix` by candidate key, for references to be stated
         otherwise than the scene's references are (default: the scene's mix for all)
     progress : a progress bar over the candidates on standard error
+    model_options : metrology model settings the posterior was made with (``estimate``'s, e.g.
+        ``line_reading="corrected"``); the models are rebuilt with them (default: the defaults)
     """
     t0 = time.perf_counter()
     settings = settings or AdviceSettings()
@@ -223,7 +226,8 @@ def advise_posterior(scene, draws: np.ndarray, *, handedness: int, map_params, s
 
         setup = setup_camera(scene)
     rng = np.random.default_rng(seed)
-    ctx = ModelContext(scene, setup, int(handedness), np.asarray(map_params, float))
+    ctx = ModelContext(scene, setup, int(handedness), np.asarray(map_params, float),
+                       options=dict(model_options or {}))
     model = ctx.model
     draws = np.atleast_2d(np.asarray(draws, float))
     if draws.shape[1:] != (7,) or len(draws) < 20:

@@ -51,7 +51,7 @@ from scipy.stats import norm
 from ...inference.frame_laplace import block_variances, frame_laplace, laplace_blocks, work_gradients
 from ...inference.frame_map import Arrowhead
 from ...models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE
-from ...models.metrology import segment_reading
+from ...models.metrology import linear_line_variances
 from . import AdviceSettings
 from .frame_candidates import FrameCandidate, frame_candidates, frame_seconds
 from .frame_table import frame_advice_table
@@ -185,9 +185,9 @@ def _reference_information(model, lap, cand: FrameCandidate, temperature: float)
 
 def _line_variance(model, line: np.ndarray, camera: np.ndarray) -> float:
     """A segment's noise in log-length at ``camera``, as the frame model takes it at its pilot
-    (:func:`~creference_bayes.models.metrology.segment_reading`)."""
-    _, var = segment_reading(line[None], model.principal_point, model.as_single_params(camera[None])[0], model.ref_line_sigma)
-    return float(var[0])
+    (:func:`~creference_bayes.models.metrology.linear_line_variances`)."""
+    return float(linear_line_variances(line[None], model.principal_point, model.as_single_params(camera[None])[0],
+                                       model.ref_line_sigma)[0])
 
 
 def advise_frame(model, frame, camera: np.ndarray, objects: np.ndarray, *, width_now=None,

@@ -56,6 +56,8 @@ class ModelContext:
     handedness : the posterior's handedness
     pilot : (7,) the parameter vector the models' line-noise derivatives are taken at (the MAP)
     model : the current model, pilot set
+    options : metrology model settings the models are built with (as ``estimate``'s, e.g.
+        ``line_reading``); the defaults when empty
     """
 
     scene: object
@@ -63,6 +65,7 @@ class ModelContext:
     handedness: int
     pilot: np.ndarray
     model: object = None
+    options: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.model is None:
@@ -70,7 +73,7 @@ class ModelContext:
 
     def model_of(self, scene):
         """The metrology model of ``scene`` for this handedness, with the pilot set."""
-        model = next(m for m in build_models(scene, self.setup) if m.handedness == self.handedness)
+        model = next(m for m in build_models(scene, self.setup, **self.options) if m.handedness == self.handedness)
         model.set_pilot(self.pilot)
         return model
 
