@@ -213,6 +213,39 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr
 
 
+def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
+    """``--line-reading corrected`` reaches every estimate and every advice of the study (their
+    model options), is recorded, and a folder made with the other reading is refused on resume."""
+    import importlib.util
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    spec = importlib.util.spec_from_file_location("advice_study_lr", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    seen = {"estimate": [], "advise": []}
+    real_estimate, real_advise = study.estimate, study.advise_posterior
+
+    def spy_estimate(*a, **kw):
+        seen["estimate"].append(kw.get("line_reading"))
+        return real_estimate(*a, **kw)
+
+    def spy_advise(*a, **kw):
+        seen["advise"].append(kw.get("model_options"))
+        return real_advise(*a, **kw)
+
+    monkeypatch.setattr(study, "estimate", spy_estimate)
+    monkeypatch.setattr(study, "advise_posterior", spy_advise)
+    monkeypatch.chdir(tmp_path)
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
+    assert seen["estimate"] and set(seen["estimate"]) == {"corrected"}
+    assert seen["advise"] and all(o == {"line_reading": "corrected"} for o in seen["advise"])
+    rec = json.loads((tmp_path / "lr" / "predict.jsonl").read_text().splitlines()[0])
+    assert rec["line_reading"] == "corrected"
+    with pytest.raises(SystemExit, match="line reading 'corrected'.*'linear'.*another --out"):
+        study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
+
+
 def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_with_it():
     """examples/line_noise_bias.py: with no end-point noise the reading is the true length; with
     noise a short segment reads longer (|d + e| grows with e), a long ground line hardly moves, and
