@@ -88,9 +88,10 @@ from .params import FOCAL, PITCH, ROLL, Bounds, FreeParameters
 __all__ = [
     "TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_SCALE", "REF_DOF",
     "REF_SCALE_GRID", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
-    "REF_LINE_FACTOR", "LINE_READINGS", "DEFAULT_LINE_READING", "READ_DRAWS", "READ_SCALES", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
-    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths", "linear_line_variances", "segment_reading",
-    "t_interval",
+    "REF_LINE_FACTOR", "LINE_READINGS", "DEFAULT_LINE_READING", "READ_DRAWS", "READ_SCALES",
+    "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "MIN_RAY_DOWN", "DEFAULT_TEMPERATURE",
+    "ReferenceMeasurement", "MetrologyModel", "estimate_target_sigma", "ground_lengths",
+    "linear_line_variances", "segment_reading", "t_interval",
 ]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -235,7 +236,8 @@ def segment_reading(lines: np.ndarray, principal_point, full: np.ndarray, sigma:
     coordinate, the same draws for every λ and segment, seeded: deterministic) have the drawn
     segment's reading as their median. Its exact log-length is the corrected reading, and
 
-    - ``shift`` = log ℓ(drawn) − log ℓ(d(λ*)) ≥ 0, the median bias of the reading (in log-length);
+    - ``shift`` = log ℓ(drawn) − log ℓ(d(λ*)), the median bias of the reading in log-length
+      (about 0 for a segment many σ long, up to log 128 for one no longer than its noise);
     - ``var`` = σ² |∇ log ℓ(d(λ*))|² × ρ², the linearised variance at d(λ*), times the squared
       ratio ρ of the spreads (half the 16–84 % range) of the *corrected* noisy readings and of
       their linearisation, on the same draws: ρ = 1 for a segment many σ long (the two agree

@@ -13,8 +13,8 @@ i-th simulated annotation (docs/advice.md, "How the advice is computed"):
 - **A reference** (:class:`ReferenceObservation`): at the simulating draw, a crowd error scale
   s_k from its posterior given the scene's references (the grid weights
   ``crowd_scale_weights``), then log v = log ℓ(θ) − shift + s_jk·ε, ε ~ t(ν), with s_jk² = s_k² +
-  v_line and the shift (the reading's lengthening by line noise) at the pilot, as the model reads
-  a reference; stated as a range with the
+  v_line, both at the pilot, as the model reads a reference (the shift, the reading's lengthening
+  by line noise, is 0 unless the model's ``line_reading`` is ``corrected``); stated as a range with the
   scene's share of ranges and its median precision. Since the crowd scale is shared, the ratio is
   log Σ_k π_k(θ) p(v | θ, s_k), with π_k(θ) the grid's posterior weights at θ: exact, and cheap
   (the tests check it against the cost difference of the two models).

@@ -10,12 +10,11 @@ exists. It is computed from one posterior per scene:
    sampling, Pareto-smoothed: :mod:`~creference_bayes.inference.loo`); when the smoothed weights
    are unreliable (Pareto k̂ > 0.7: the range moved the posterior a lot), estimate the scene
    again without it;
-3. push the (weighted) draws through ``ground_lengths`` of the range's drawn line, less the
-   lengthening its line noise brings (the metrology model's shift at the MAP), and resample them
-   to :data:`N_DRAWS` equally weighted draws of log ℓ_j.
+3. push the (weighted) draws through ``ground_lengths`` of the range's drawn line, and resample
+   them to :data:`N_DRAWS` equally weighted draws of log ℓ_j.
 
-The range's line noise at the MAP (its variance in log-length, the metrology model's) goes with
-it: a worker's range is about the object, the drawn line adds its own error.
+The range's line noise at the MAP (σ_line² |∇ log ℓ_j|², the metrology model's) goes with it: a
+worker's range is about the object, the drawn line adds its own error.
 """
 
 from __future__ import annotations
@@ -115,7 +114,6 @@ def predict_ranges(scene: Scene, key: str = "scene", *, seed=0, sampling: dict |
     draws = _draws(result)
     full_nll = model.reference_nll(draws)
     line_var = dict(zip(model.reference_indices.tolist(), model.line_variances.tolist()))
-    shift = dict(zip(model.reference_indices.tolist(), model.line_shifts.tolist()))
     out = []
     for index, r in ranges.items():
         if index not in line_var:  # above the horizon: the model does not use it
@@ -133,7 +131,7 @@ def predict_ranges(scene: Scene, key: str = "scene", *, seed=0, sampling: dict |
             again = estimate(without, seed=rng, confidence_map="none", sampling=sampling)
             these, w = _draws(again), None
         line = scene.references[index].line[None]
-        log_len = np.log(ground_lengths(line, scene.principal_point, these)[:, 0]) - shift[index]
+        log_len = np.log(ground_lengths(line, scene.principal_point, these)[:, 0])
         w = np.full(len(log_len), 1.0 / len(log_len)) if w is None else w
         out.append(RangePrediction(r, _resample(log_len, w, rng), float(line_var[index]), float(k[0]), refit))
     return out, info
