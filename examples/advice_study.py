@@ -38,6 +38,7 @@ Usage::
     python examples/advice_study.py report --out advice_study
     python examples/advice_study.py policy --n 40 --rank-by location --out advice_location
     python examples/advice_study.py predict --n 200 --focal-prior 1650,0.27 --out advice_matched
+    python examples/advice_study.py predict --n 200 --line-reading corrected --out advice_corrected
 
 ``--focal-prior MEDIAN,LOG_SD`` has every scene state a log-normal focal-length prior (1650,0.27
 fits the simulator's cameras, 1000–2600 px); without it the package's default prior is used, as
