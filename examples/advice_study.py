@@ -44,7 +44,9 @@ Usage::
 fits the simulator's cameras, 1000–2600 px); without it the package's default prior is used, as
 for a photo with nothing known about its camera. ``--line-reading corrected`` has the estimates
 and the advice read reference segments less the lengthening their line noise brings (the
-metrology model's option ``line_reading``; default ``linear``). Each record says which.
+metrology model's option ``line_reading``; default ``linear``); ``--ref-scale S`` fixes the crowd's
+error scale (the option ``ref_scale``; the paper-like tier's workers have 0.75) instead of
+integrating it out. Each record says which.
 
 These runs take tens of minutes (predict) to hours (policy) of CPU: run them under the shared lock (``flock /work/bench.lock ...``).
 """
@@ -226,12 +228,16 @@ def _done(path: Path) -> set:
         if r.get("line_reading", "linear") != reading:
             sys.exit(f"advice_study.py: {path} holds records made with line reading {r.get('line_reading', 'linear')!r}, "
                      f"this run has {reading!r}: use another --out")
+        if r.get("ref_scale") != _MODEL_OPTIONS.get("ref_scale"):
+            sys.exit(f"advice_study.py: {path} holds records made with crowd scale {r.get('ref_scale')!r}, "
+                     f"this run has {_MODEL_OPTIONS.get('ref_scale')!r}: use another --out")
     return {r["scene"] for r in recs}
 
 
 def _append(path: Path, record: dict) -> None:
     record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
-              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear")}
+              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"),
+              "ref_scale": _MODEL_OPTIONS.get("ref_scale")}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
 
@@ -761,6 +767,9 @@ def main(argv=None) -> None:
             s.add_argument("--line-reading", choices=("linear", "corrected"), default="linear",
                            help="how the metrology model reads reference segments (its option line_reading; "
                                 "default: %(default)s)")
+            s.add_argument("--ref-scale", type=float, metavar="S",
+                           help="a fixed crowd error scale in log-length for estimates and advice (the metrology "
+                                "model's option ref_scale; 0.75 is the paper-like tier's); default: integrated out")
         if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
         if name == "policy":
@@ -773,6 +782,10 @@ def main(argv=None) -> None:
     _MODEL_OPTIONS.clear()
     if getattr(args, "line_reading", "linear") != "linear":
         _MODEL_OPTIONS["line_reading"] = args.line_reading
+    if getattr(args, "ref_scale", None) is not None:
+        if not (math.isfinite(args.ref_scale) and args.ref_scale > 0):
+            p.error(f"--ref-scale: expected a number > 0, got {args.ref_scale!r}")
+        _MODEL_OPTIONS["ref_scale"] = args.ref_scale
     if getattr(args, "focal_prior", None):
         try:
             median, log_sd = (float(v) for v in args.focal_prior.split(","))

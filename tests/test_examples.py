@@ -214,8 +214,9 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
 
 
 def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
-    """``--line-reading corrected`` reaches every estimate and every advice of the study (their
-    model options), is recorded, and a folder made with the other reading is refused on resume."""
+    """``--line-reading corrected`` and ``--ref-scale`` reach every estimate and every advice of the
+    study (their model options), are recorded, and a folder made with other options is refused on
+    resume; a crowd scale that is not positive is a usage error."""
     import importlib.util
     import json
 
@@ -227,7 +228,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     real_estimate, real_advise = study.estimate, study.advise_posterior
 
     def spy_estimate(*a, **kw):
-        seen["estimate"].append(kw.get("line_reading"))
+        seen["estimate"].append((kw.get("line_reading"), kw.get("ref_scale")))
         return real_estimate(*a, **kw)
 
     def spy_advise(*a, **kw):
@@ -237,13 +238,19 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     monkeypatch.setattr(study, "estimate", spy_estimate)
     monkeypatch.setattr(study, "advise_posterior", spy_advise)
     monkeypatch.chdir(tmp_path)
-    study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
-    assert seen["estimate"] and set(seen["estimate"]) == {"corrected"}
-    assert seen["advise"] and all(o == {"line_reading": "corrected"} for o in seen["advise"])
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--ref-scale", "0.75",
+                "--out", "lr"])
+    assert seen["estimate"] and set(seen["estimate"]) == {("corrected", 0.75)}
+    assert seen["advise"] and all(o == {"line_reading": "corrected", "ref_scale": 0.75} for o in seen["advise"])
     rec = json.loads((tmp_path / "lr" / "predict.jsonl").read_text().splitlines()[0])
-    assert rec["line_reading"] == "corrected"
+    assert rec["line_reading"] == "corrected" and rec["ref_scale"] == 0.75
     with pytest.raises(SystemExit, match="line reading 'corrected'.*'linear'.*another --out"):
-        study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
+        study.main(["predict", "--n", "1", "--min-ess", "100", "--ref-scale", "0.75", "--out", "lr"])
+    with pytest.raises(SystemExit, match="crowd scale 0.75.*None.*another --out"):
+        study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
+    with pytest.raises(SystemExit) as bad:
+        study.main(["predict", "--ref-scale", "0", "--out", "x"])
+    assert bad.value.code == 2
 
 
 def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_with_it():
