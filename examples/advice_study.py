@@ -92,7 +92,8 @@ FIXED = {"target x1": (1, 0), "target x2": (2, 0), "target x5": (5, 0), "target 
 
 #: The focal-length prior every simulated scene states (``--focal-prior``); None: the default.
 _FOCAL_PRIOR: FocalPrior | None = None
-#: Metrology model settings of every estimate and advice (``--line-reading``); empty: the defaults.
+#: Metrology model settings of every estimate and advice (``--line-reading``, ``--ref-scale``);
+#: empty: the defaults.
 _MODEL_OPTIONS: dict = {}
 
 
@@ -214,8 +215,8 @@ def _advise(scene, est, seed, cands, mixes=None, settings=None):
 
 
 def _done(path: Path) -> set:
-    """Scenes already recorded in ``path``; a folder of records made with another focal prior or
-    line reading is refused (a resumed run must not mix them)."""
+    """Scenes already recorded in ``path``; a folder of records made with another focal prior,
+    line reading or crowd scale is refused (a resumed run must not mix them)."""
     if not path.is_file():
         return set()
     recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
