@@ -42,10 +42,7 @@ import numpy as np
 from creference_bayes.bench.simulate import TIERS, simulate_scene, true_params
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.io.scene import parse_scene
-from creference_bayes.models.metrology import ground_lengths, segment_reading
-
-STEP_PX = 0.5  # central-difference step for the linearised spread, as the model's pilot uses
-_STEPS = np.eye(4).reshape(4, 2, 2) * STEP_PX  # one end-point coordinate each
+from creference_bayes.models.metrology import ground_lengths, linear_line_variances, segment_reading
 
 
 def _read(lines, pp, truth) -> np.ndarray:
@@ -72,12 +69,11 @@ def measure(n: int, tiers: list[str], draws: int, seed: int, corrected: int = 40
             gt = scene.ground_truth.extra
             for ref, line, length in zip(scene.references, gt["reference_lines_px"], gt["reference_lengths_m"]):
                 line = np.asarray(line, float)
-                grad = (_read(line[None] + _STEPS, pp, truth) - _read(line[None] - _STEPS, pp, truth)) / (2 * STEP_PX)
-                lin_sd = sigma * float(np.sqrt(np.sum(grad**2)))
+                lin_sd = float(np.sqrt(linear_line_variances(line[None], pp, truth[0], sigma)[0]))  # as the model's
                 drawn = line[None] + rng.normal(0.0, sigma, (draws, 2, 2))
                 noisy = _read(drawn, pp, truth)
                 ok = np.isfinite(noisy)
-                if ok.mean() < 0.5 or not np.isfinite(lin_sd):
+                if ok.mean() < 0.5:
                     continue
                 lo, med, hi = np.quantile(noisy[ok], [0.16, 0.5, 0.84])
                 k = min(corrected, draws)
