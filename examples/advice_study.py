@@ -24,15 +24,23 @@ design is spent. The fixed designs: target sets only (1, 2, 5, 10) and 5 sets wi
 the location's posterior sd per second instead (the goal is stated in location error); it needs
 its own ``--out`` folder.
 
+``own``: predicted against realised on the model's own scenes: the truth drawn from the model's
+prior and every annotation from its noise model, as simulation-based calibration draws them
+(creference_bayes/bench/sbc.py, its box as the estimates' bounds); the same starting points and
+kinds as ``predict`` (the new reference on a new line, the repeat a second reading of the first
+reference's line). There the advice's expectation is the true one: a gap in ``own`` is the
+advice's, a gap only in ``predict`` is the model's fit to the simulator's scenes.
+
 ``report``: the tables (Markdown, printed and written) and the figure (median location error
 against human seconds, one line per policy) from the records.
 
-Records are appended to ``OUT/predict.jsonl`` and ``OUT/policy.jsonl`` one scene at a time, so a
+Records are appended to ``OUT/predict.jsonl``, ``OUT/own.jsonl`` and ``OUT/policy.jsonl`` one scene at a time, so a
 run can be stopped and resumed (scenes already recorded are skipped).
 
 Usage::
 
     python examples/advice_study.py predict --n 200 --out advice_study
+    python examples/advice_study.py own --n 300 --out advice_study
     python examples/advice_study.py timing --n 20 --out advice_study
     python examples/advice_study.py policy --n 40 --out advice_study
     python examples/advice_study.py report --out advice_study
@@ -95,6 +103,8 @@ _FOCAL_PRIOR: FocalPrior | None = None
 #: Metrology model settings of every estimate and advice (``--line-reading``, ``--ref-scale``);
 #: empty: the defaults.
 _MODEL_OPTIONS: dict = {}
+#: Further settings of every estimate (``own``: the box of the model's own scenes as the bounds).
+_ESTIMATE_KW: dict = {}
 
 
 def _scene(seed: int, k: int, tier: str, setting: str | None):
@@ -153,7 +163,7 @@ def _estimate(scene, seed, min_ess):
     t0 = time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, **_MODEL_OPTIONS)
+        r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, **_MODEL_OPTIONS, **_ESTIMATE_KW)
     cost = {"cpu_s": time.process_time() - t0, "converged": bool(r.diagnostics.converged),
             "overflow_warnings": sum("overflow" in str(w.message) for w in caught)}
     _COSTS.append(cost)
@@ -180,7 +190,7 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
                                                           tempered_update, weighted_hdi)
 
     r = est["result"]
-    ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params, options=dict(_MODEL_OPTIONS))
+    ctx = ModelContext(base, setup_camera(base), r.map.handedness, r.map.params, options=_model_options())
     keep = np.unique(np.linspace(0, len(est["draws"]) - 1, n_draws).round().astype(int))
     draws = ctx.model.expand(est["draws"][keep][:, ctx.model.free])
     if kind == "target":
@@ -211,7 +221,12 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
 def _advise(scene, est, seed, cands, mixes=None, settings=None):
     r = est["result"]
     return advise_posterior(scene, est["draws"], handedness=r.map.handedness, map_params=r.map.params,
-                            seed=seed, candidates=cands, mixes=mixes, settings=settings, model_options=_MODEL_OPTIONS)
+                            seed=seed, candidates=cands, mixes=mixes, settings=settings, model_options=_model_options())
+
+
+def _model_options() -> dict:
+    """The model settings the advice rebuilds its models with: the estimates' (and their bounds)."""
+    return {**_MODEL_OPTIONS, **({"bounds": _ESTIMATE_KW["bounds"]} if "bounds" in _ESTIMATE_KW else {})}
 
 
 def _done(path: Path) -> set:
@@ -277,19 +292,20 @@ def _predict_case(seed: int, k: int, tiers: list[str]):
             "mixes": mixes, "added": added}
 
 
-def run_predict(args) -> None:
+def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "predict.jsonl"
+    path = out / file
     done = _done(path)
     tiers = args.tiers.split(",")
-    with _bar(args.n, "predict") as bar:
+    case_of = case_of or _predict_case
+    with _bar(args.n, file.split(".")[0]) as bar:
         for k in range(args.n):
             bar.update(1)
             name = f"s{k:04d}"
             if name in done:
                 continue
-            case = _predict_case(args.seed, k, tiers)
+            case = case_of(args.seed, k, tiers)
             base = case["base"]
             _costs()
             t0 = time.perf_counter()
@@ -316,13 +332,79 @@ def run_predict(args) -> None:
                              "real_before_m": before["width"], "real_after_m": after["width"],
                              "real_before_share": before["share"], "real_after_share": after["share"],
                              "ess": p.ess_median, "fallbacks": p.fallbacks})
-            loc = base.ground_truth.location_m
+            gt = base.ground_truth
+            loc = gt.location_m
             dist = np.hypot(before["draws"][:, 0], before["draws"][:, 2])
-            _append(path, {"scene": name, "tier": case["tier"], "setting": case["pool"].ground_truth.extra["setting"],
+            true_hand = gt.extra.get("handedness")
+            kept = None if true_hand is None else bool(before["result"].map.handedness == true_hand)
+            yaw_off = np.angle(np.exp(1j * (before["draws"][:, 3] - gt.yaw_rad)))  # draw − truth, on the circle
+            setting = case["setting"] if "setting" in case else case["pool"].ground_truth.extra["setting"]
+            _append(path, {"scene": name, "tier": case["tier"], "setting": setting,
                            "truth_quantile": float(np.mean(dist < np.hypot(loc[0], loc[2]))),
+                           "handedness_kept_true": kept, "yaw_quantile": float(np.mean(yaw_off < 0)),
                            "n_target": case["n_t"], "n_refs": case["n_r"], "estimate_and_advice_s": t_adv,
                            "advice_only_s": advice.seconds, "n_candidates": len(advice.predictions),
                            "rows": rows, "estimates": _costs()})
+
+
+def _own_case(seed: int, k: int):
+    """Scene k of the own-model check: the truth drawn from the model's prior (within the box of
+    simulation-based calibration), the annotations from its noise model (creference_bayes.bench.sbc),
+    a starting point of 1, 2, 3 or 5 sets and 0–4 references, and the annotations added: the next
+    set, a reference on a new segment, a second worker's reference on the first one (the same true
+    line, drawn again with the line noise, its length stated again with the crowd's error)."""
+    from creference_bayes.bench.sbc import draw_truth, sbc_reference, simulate_sbc_scene
+
+    rng = np.random.default_rng([seed, k, 11])
+    n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
+    while True:  # annotations outside the image: a new scene (a selection on the data)
+        truth = draw_truth(rng)
+        d = simulate_sbc_scene(rng, truth, n_t + 1, n_r + 1)
+        if d is None:
+            continue
+        repeat = None
+        if n_r:
+            gt = d["ground_truth"]
+            for _ in range(200):
+                repeat = sbc_reference(rng, truth, gt["reference_lines_true_px"][0], gt["crowd_scale"],
+                                       "second-0", object=d["references"][0]["object"])
+                if repeat is not None:
+                    break
+            else:
+                continue
+        break
+    lines, refs = d["target"]["dimension_lines"], d["references"]
+
+    def scene_of(n_lines, references):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)
+            return parse_scene({**d, "target": {**d["target"], "dimension_lines": lines[:n_lines]},
+                                "references": references})
+
+    base = scene_of(n_t, refs[:n_r])
+    added = {"target": scene_of(n_t + 1, refs[:n_r]), "new-ref": scene_of(n_t, refs[:n_r + 1])}
+    nxt = added["new-ref"].references[n_r]
+    cands = [c for c in candidates(base) if c.kind == "target"]
+    cands.append(Candidate("new-ref", "reference", nxt.measure, nxt.object, np.asarray(nxt.line), (), REF_S))
+    mixes = {"new-ref": FormatMix(0.0, format_mix(base).range_precision, 0.0)}
+    if repeat is not None:
+        rep = [c for c in candidates(base) if c.kind == "reference" and not c.new_segment and 0 in c.based_on][:1]
+        cands += [dataclasses.replace(c, key="repeat-ref") for c in rep]
+        added["repeat-ref"] = scene_of(n_t, refs[:n_r] + [repeat])
+    return {"tier": "own", "setting": "own", "n_t": n_t, "n_r": n_r, "base": base, "cands": cands,
+            "mixes": mixes, "added": added}
+
+
+def run_own(args) -> None:
+    """Predicted against realised on the model's own scenes: where the scenes follow the model's
+    prior and noise model, the mean realised narrowing equals the mean predicted one (the advice
+    is an expectation under that posterior), in every band of the width before; a gap here is
+    the advice's, a gap only in ``predict`` is the model's fit to the simulator's scenes."""
+    from creference_bayes.bench.sbc import SBC_BOX
+
+    _ESTIMATE_KW.update(bounds=SBC_BOX.bounds(), focal_prior="default", location_prior="log-depth")
+    args.tiers = "own"
+    run_predict(args, case_of=lambda seed, k, tiers: _own_case(seed, k), file="own.jsonl")
 
 
 def run_reweight(args) -> None:
@@ -338,7 +420,7 @@ def run_reweight(args) -> None:
         for r in todo[:args.n]:
             bar.update(1)
             k = int(r["scene"][1:])
-            case = _predict_case(args.seed, k, tiers)
+            case = case_of(args.seed, k, tiers)
             before = _estimate(case["base"], [args.seed, k, 2], args.min_ess)
             if abs(before["width"] - r["rows"][0]["real_before_m"]) > 1e-9 * max(1.0, before["width"]):
                 print(f"{r['scene']}: the rerun base estimate differs from the record; skipped", file=sys.stderr)
@@ -521,9 +603,9 @@ def _boot_ratio(num, den, rng, n=2000):
     return np.percentile(r, [5, 95])
 
 
-def report_predict(out: Path) -> str:
-    recs = [json.loads(x) for x in (out / "predict.jsonl").read_text().splitlines() if x.strip()]
-    if (out / "reweight.jsonl").is_file():
+def report_predict(out: Path, file: str = "predict.jsonl") -> str:
+    recs = [json.loads(x) for x in (out / file).read_text().splitlines() if x.strip()]
+    if file == "predict.jsonl" and (out / "reweight.jsonl").is_file():
         extra = {}
         for x in (out / "reweight.jsonl").read_text().splitlines():
             if x.strip():
@@ -566,7 +648,7 @@ def report_predict(out: Path) -> str:
             bands.append((label, kind, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
                           f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
     quant = {r["scene"]: r.get("truth_quantile") for r in recs}
-    if (out / "reweight.jsonl").is_file():
+    if file == "predict.jsonl" and (out / "reweight.jsonl").is_file():
         for x in (out / "reweight.jsonl").read_text().splitlines():
             if x.strip():
                 d = json.loads(x)
@@ -587,9 +669,23 @@ def report_predict(out: Path) -> str:
         real = np.array([x["real_after_m"] / x["real_before_m"] for x in rows])
         check.append((kind, len(rows), f"{100 * (1 - rew.mean()):.2f} %", f"{100 * (1 - real.mean()):.2f} %",
                       f"{100 * np.median(np.abs(rew - real)):.1f} %", f"{100 * np.percentile(np.abs(rew - real), 90):.1f} %"))
+    hand = []
+    for label, sel in (("one set", lambda r: r["n_target"] == 1), ("two or more", lambda r: r["n_target"] > 1),
+                       ("all", lambda r: True)):
+        rs = [r for r in recs if sel(r) and r.get("handedness_kept_true") is not None and "yaw_quantile" in r]
+        if not rs:
+            continue
+        kept = np.array([r["handedness_kept_true"] for r in rs])
+        yq = np.array([r["yaw_quantile"] for r in rs])
+        inner = (yq > 0.1) & (yq < 0.9)
+        hand.append((label, len(rs), f"{100 * kept.mean():.0f} %",
+                     f"{100 * inner[kept].mean():.0f} %" if kept.any() else "–",
+                     f"{100 * inner[~kept].mean():.0f} %" if (~kept).any() else "–"))
     secs = np.array([r["advice_only_s"] for r in recs])
     ncand = np.array([r["n_candidates"] for r in recs])
-    text = (f"Predicted against realised narrowing of the 90 % HDI of the distance ({len(recs)} scenes; "
+    title = ("Predicted against realised" if file == "predict.jsonl" else
+             "On the model's own scenes (prior and noise model of simulation-based calibration): predicted against realised")
+    text = (f"{title} narrowing of the 90 % HDI of the distance ({len(recs)} scenes; "
             f"narrowing = (width before − width after) / width before, mean over scenes; in metres the "
             f"plain mean of before − after)\n\n"
             + _md(("kind", "n", "predicted", "realised", "realised / predicted [90 % bootstrap]",
@@ -609,6 +705,11 @@ def report_predict(out: Path) -> str:
                "90 %, 10 % in the lowest decile)\n\n" + _md(
                    ("HDI share before", "scenes", "mean quantile", "below the median", "in the central 90 %",
                     "in the lowest decile"), calib) if calib else "")
+            + ("\n\nThe handedness the posterior is conditioned on (the MAP's) against the true one, and the "
+               "yaw: the share of scenes whose true yaw lies in the central 80 % of the posterior (calibrated: "
+               "80 %), with the true handedness kept and with the other\n\n" + _md(
+                   ("target sets before", "scenes", "true handedness kept", "yaw in the central 80 %, kept",
+                    "yaw in the central 80 %, the other"), hand) if hand else "")
             + f"\n\nTime per object (advice alone, without the estimate): median {np.median(secs):.2f} s, "
               f"mean {secs.mean():.2f} s, 90th percentile {np.percentile(secs, 90):.2f} s, "
               f"{ncand.mean():.1f} candidates on average\n")
@@ -706,7 +807,7 @@ def report_estimates(out: Path) -> str | None:
     """CPU seconds per estimate (MAP and posterior, one process) in each study's records, with the
     share converged and the overflow warnings: the issue's bound of 5 s per estimate."""
     rows = []
-    for study in ("predict", "policy"):
+    for study in ("predict", "own", "policy"):
         path = out / f"{study}.jsonl"
         if not path.is_file():
             continue
@@ -731,6 +832,8 @@ def run_report(args) -> None:
     parts = []
     if (out / "predict.jsonl").is_file():
         parts.append(report_predict(out))
+    if (out / "own.jsonl").is_file():
+        parts.append(report_predict(out, "own.jsonl"))
     if (out / "timing.jsonl").is_file():
         parts.append(report_timing(out))
     if (out / "policy.jsonl").is_file():
@@ -749,6 +852,7 @@ def main(argv=None) -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
     for name, helptext in (("predict", "predicted against realised change, by kind"),
+                           ("own", "predicted against realised on the model's own scenes (its prior and noise)"),
                            ("reweight", "for recorded predict scenes: the update given the realised annotation"),
                            ("timing", "the advice's time per object with the default settings"),
                            ("policy", "the adaptive policy against the fixed designs"),
@@ -787,13 +891,16 @@ def main(argv=None) -> None:
         if not (math.isfinite(args.ref_scale) and args.ref_scale > 0):
             p.error(f"--ref-scale: expected a number > 0, got {args.ref_scale!r}")
         _MODEL_OPTIONS["ref_scale"] = args.ref_scale
+    if getattr(args, "focal_prior", None) and args.command == "own":
+        p.error("--focal-prior: the own-model check draws its cameras from the default prior, which its "
+                f"estimates use; got {args.focal_prior!r}")
     if getattr(args, "focal_prior", None):
         try:
             median, log_sd = (float(v) for v in args.focal_prior.split(","))
             _FOCAL_PRIOR = FocalPrior(median, log_sd, np.inf, source="scene")
         except ValueError as e:
             p.error(f"--focal-prior: expected MEDIAN,LOG_SD (two positive numbers), got {args.focal_prior!r} ({e})")
-    {"predict": run_predict, "reweight": run_reweight, "timing": run_timing, "policy": run_policy,
+    {"predict": run_predict, "own": run_own, "reweight": run_reweight, "timing": run_timing, "policy": run_policy,
      "report": run_report}[args.command](args)
 
 

@@ -16,6 +16,7 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"
 TINY = {
     "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--focal-prior", "1650,0.27", "--out", "as"],
                          ["as/predict.jsonl"]),
+                        (["own", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/own.jsonl"]),
                         (["report", "--out", "as"], ["as/advice_study.md"])],
     "aggregation_study.py": [(["--draws", "50", "--out-dir", "agg"], ["agg/aggregation_study.png",
                                                                       "agg/aggregation_study.md"])],
@@ -157,6 +158,72 @@ def test_the_advice_study_accounts_for_every_estimate(tmp_path):
     assert float(cells[4]) == pytest.approx(max(e["cpu_s"] for r in recs for e in r["estimates"]), abs=0.006)
 
 
+def _spy_on(study, monkeypatch, *keys) -> dict:
+    """Record, for every estimate the advice study makes, its keyword arguments ``keys`` (a tuple),
+    and for every advice its model options; the real functions still run."""
+    seen = {"estimate": [], "advise": []}
+    real_estimate, real_advise = study.estimate, study.advise_posterior
+
+    def spy_estimate(*a, **kw):
+        seen["estimate"].append(tuple(kw.get(k) for k in keys))
+        return real_estimate(*a, **kw)
+
+    def spy_advise(*a, **kw):
+        seen["advise"].append(kw.get("model_options"))
+        return real_advise(*a, **kw)
+
+    monkeypatch.setattr(study, "estimate", spy_estimate)
+    monkeypatch.setattr(study, "advise_posterior", spy_advise)
+    return seen
+
+
+def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path, monkeypatch):
+    """``own``: each scene's starting point and its three added annotations come from one truth of
+    the model's prior; the next set and the new reference are the scene's next ones, the repeat is
+    a second reading of the first reference's true segment; the advice is asked about exactly
+    these, and the estimates and the advice share the box of simulation-based calibration."""
+    import importlib.util
+
+    import numpy as np
+
+    from creference_bayes.bench.sbc import SBC_BOX
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    spec = importlib.util.spec_from_file_location("advice_study_own", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    case = next(c for c in (study._own_case(0, k) for k in range(12)) if c["n_r"] >= 1)
+    base, added = case["base"], case["added"]
+    n_t, n_r = case["n_t"], case["n_r"]
+    assert len(base.target.dimension_lines) == n_t and len(base.references) == n_r
+    assert len(added["target"].target.dimension_lines) == n_t + 1
+    assert [r.line.tolist() for r in added["new-ref"].references[:n_r]] == [r.line.tolist() for r in base.references]
+    assert len(added["new-ref"].references) == n_r + 1 and len(added["repeat-ref"].references) == n_r + 1
+    rep, first = added["repeat-ref"].references[-1], base.references[0]
+    assert rep.object == first.object and rep.worker != first.worker
+    true_line = np.asarray(base.ground_truth.extra["reference_lines_true_px"][0])
+    assert np.abs(np.asarray(rep.line) - true_line).max() < 60 and np.abs(np.asarray(first.line) - true_line).max() < 60
+    assert np.abs(np.asarray(rep.line) - first.line).max() > 0
+    keys = {c.key: c for c in case["cands"]}
+    assert set(keys) == {"target", "new-ref", "repeat-ref"} and 0 in keys["repeat-ref"].based_on
+    assert np.allclose(keys["new-ref"].line, added["new-ref"].references[-1].line)
+
+    seen = _spy_on(study, monkeypatch, "bounds", "focal_prior")
+    monkeypatch.chdir(tmp_path)
+    study.main(["own", "--n", "1", "--min-ess", "100", "--out", "own"])
+    box = SBC_BOX.bounds()
+    assert seen["estimate"] and all(np.array_equal(b.lower, box.lower) and np.array_equal(b.upper, box.upper)
+                                    and fp == "default" for b, fp in seen["estimate"])
+    assert seen["advise"] and all(np.array_equal(o["bounds"].upper, box.upper) for o in seen["advise"])
+    import json
+
+    rec = json.loads((tmp_path / "own" / "own.jsonl").read_text().splitlines()[0])
+    assert isinstance(rec["handedness_kept_true"], bool) and 0.0 <= rec["yaw_quantile"] <= 1.0
+    bad = subprocess.run([sys.executable, str(script), "own", "--focal-prior", "1650,0.27", "--out", "x"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--focal-prior" in bad.stderr
+
+
 def test_the_advice_studys_policy_can_rank_by_location_error():
     """``policy --rank-by location`` collects the annotation with the largest expected drop of the
     location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
@@ -224,19 +291,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     spec = importlib.util.spec_from_file_location("advice_study_lr", script)
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
-    seen = {"estimate": [], "advise": []}
-    real_estimate, real_advise = study.estimate, study.advise_posterior
-
-    def spy_estimate(*a, **kw):
-        seen["estimate"].append((kw.get("line_reading"), kw.get("ref_scale")))
-        return real_estimate(*a, **kw)
-
-    def spy_advise(*a, **kw):
-        seen["advise"].append(kw.get("model_options"))
-        return real_advise(*a, **kw)
-
-    monkeypatch.setattr(study, "estimate", spy_estimate)
-    monkeypatch.setattr(study, "advise_posterior", spy_advise)
+    seen = _spy_on(study, monkeypatch, "line_reading", "ref_scale")
     monkeypatch.chdir(tmp_path)
     study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--ref-scale", "0.75",
                 "--out", "lr"])

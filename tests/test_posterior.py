@@ -166,7 +166,7 @@ def test_a_map_on_the_box_bound_needs_no_long_warm_up():
     rng = np.random.default_rng([0, list(DESIGNS).index("thin"), 12])
     data = None
     while data is None:
-        data = simulate_sbc_scene(rng, draw_truth(rng, SBC_BOX), n_target, refs[12 % len(refs)], SBC_BOX)
+        data = simulate_sbc_scene(rng, draw_truth(rng, SBC_BOX), n_target, refs[12 % len(refs)])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scene = parse_scene(data)

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from creference_bayes.bench.sbc import (N_RANK_DRAWS, SBC_BOX, draw_truth, rank_of_truth, rank_uniformity,
-                                        run_sbc, sbc_summary, simulate_sbc_scene)
+from creference_bayes.bench.sbc import (N_RANK_DRAWS, REF_ROWS_PX, SBC_BOX, TARGET_SCALE_PX, draw_truth, rank_of_truth,
+                                        rank_uniformity, run_sbc, sbc_reference, sbc_summary, simulate_sbc_scene)
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import parse_scene
 
@@ -54,6 +54,57 @@ def test_truths_are_in_the_box_and_scenes_parse():
     scene = parse_scene(d)
     assert len(scene.target.dimension_lines) == 5 and len(scene.references) == 2
     assert scene.horizon is None and scene.focal_length_px is None
+
+
+def test_a_second_worker_measures_the_same_segment_with_the_models_noise():
+    """The scene records each reference's true line; ``sbc_reference`` on it is another worker's
+    reading: the drawn line is the true one off by N(0, (2σ)²) px per coordinate, the stated
+    length the ground's real length under the true line times exp(s·ε), ε ~ t₂ (quartiles ±0.816 s);
+    the true line is placed in the image, not by the camera."""
+    from creference_bayes.models.metrology import ground_lengths
+
+    rng = np.random.default_rng(5)
+    d = None
+    while d is None:
+        truth = draw_truth(rng)
+        d = simulate_sbc_scene(rng, truth, 1, 1)
+    true_line = np.asarray(d["ground_truth"]["reference_lines_true_px"][0])
+    assert true_line.shape == (2, 2) and REF_ROWS_PX[0] <= true_line[0, 1] <= REF_ROWS_PX[1]
+    length = ground_lengths(true_line[None], np.array([1440.0, 900.0]), truth[None])[0, 0]
+    # the same length by hand: the rays through the ends, scaled to meet the ground h below
+    from creference_bayes.core.geometry import rotation_from_pitch_roll
+
+    R = rotation_from_pitch_roll(truth[5], truth[6])
+    ends = []
+    for u, v in true_line:
+        ray = R.T @ np.array([(u - 1440.0) / truth[4], (v - 900.0) / truth[4], 1.0])
+        ends.append(ray * truth[1] / ray[1])
+    assert length == pytest.approx(np.linalg.norm(ends[1] - ends[0]), rel=1e-9)
+    s = 0.4
+    reads = [r for r in (sbc_reference(rng, truth, true_line, s, "w") for _ in range(4000)) if r is not None]
+    assert len(reads) > 1000
+    offs = np.array([np.asarray(r["line"]) - true_line for r in reads]).reshape(-1)
+    assert abs(offs.mean()) < 0.3 and offs.std() == pytest.approx(2 * TARGET_SCALE_PX, rel=0.05)
+    err = np.log([r["value"] / length for r in reads])
+    q1, q2, q3 = np.percentile(err, [25, 50, 75])
+    assert abs(q2) < 0.03 and (q3 - q1) / 2 == pytest.approx(0.8165 * s, rel=0.08)
+    assert {r["unit"] for r in reads} == {"m"} and {r["measure"] for r in reads} == {"length"}
+
+
+def test_where_the_reference_lines_fall_says_nothing_about_the_camera():
+    """The true lines of the references are drawn in the image whatever the parameters: two
+    cameras pitched 0° and 20° down get the same lines from the same random numbers."""
+    base = np.array([0.0, 1.6, 20.0, 0.3, 2000.0, 0.0, 0.0])
+    other = base.copy()
+    other[5] = np.radians(20.0)
+    lines = []
+    for truth in (base, other):
+        d = None
+        rng = np.random.default_rng(8)
+        while d is None:
+            d = simulate_sbc_scene(rng, truth, 1, 3)
+        lines.append(np.asarray(d["ground_truth"]["reference_lines_true_px"]))
+    assert lines[0].shape == (3, 2, 2) and np.array_equal(lines[0], lines[1])
 
 
 def test_ranks_count_the_draws_below():
