@@ -420,7 +420,7 @@ def run_reweight(args) -> None:
         for r in todo[:args.n]:
             bar.update(1)
             k = int(r["scene"][1:])
-            case = case_of(args.seed, k, tiers)
+            case = _predict_case(args.seed, k, tiers)
             before = _estimate(case["base"], [args.seed, k, 2], args.min_ess)
             if abs(before["width"] - r["rows"][0]["real_before_m"]) > 1e-9 * max(1.0, before["width"]):
                 print(f"{r['scene']}: the rerun base estimate differs from the record; skipped", file=sys.stderr)
@@ -885,6 +885,7 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     global _FOCAL_PRIOR
     _MODEL_OPTIONS.clear()
+    _ESTIMATE_KW.clear()
     if getattr(args, "line_reading", "linear") != "linear":
         _MODEL_OPTIONS["line_reading"] = args.line_reading
     if getattr(args, "ref_scale", None) is not None:

@@ -224,6 +224,30 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr
 
 
+def test_the_advice_studys_reweight_fills_in_older_predict_records(tmp_path):
+    """``reweight`` reruns the base estimate of a predict record made without the update check
+    and records, for each kind added, the base draws' HDI width as they are and reweighted."""
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    proc = subprocess.run([sys.executable, str(script), "predict", "--n", "1", "--min-ess", "100", "--out", "rw"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    path = tmp_path / "rw" / "predict.jsonl"
+    rec = json.loads(path.read_text().splitlines()[0])
+    kinds = {row["kind"] for row in rec["rows"]}
+    for row in rec["rows"]:  # as a record from before the check was recorded
+        row.pop("rew_now_m"), row.pop("rew_after_m")
+    path.write_text(json.dumps(rec) + "\n")
+    proc = subprocess.run([sys.executable, str(script), "reweight", "--n", "1", "--min-ess", "100", "--out", "rw"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    out = json.loads((tmp_path / "rw" / "reweight.jsonl").read_text().splitlines()[0])
+    assert out["scene"] == rec["scene"] and set(out["rows"]) == kinds
+    assert all(now is None or (now > 0 and after > 0) for now, after in out["rows"].values())
+
+
 def test_the_advice_studys_policy_can_rank_by_location_error():
     """``policy --rank-by location`` collects the annotation with the largest expected drop of the
     location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
