@@ -35,7 +35,7 @@ what the ground under it measures at the true parameters (the model's own readin
 (a prior over where objects stand) make where their lines fall in the image evidence about the
 pitch that the model does not use: with them the ranks of the pitch piled at the low end (one
 set of lines and four references, 100 scenes: χ² and KS p 0.001), while they are uniform with
-the lines placed in the image (KS p 0.61).
+the lines placed in the image (KS p 0.61; docs/benchmark_results.md).
 
 Scenes whose annotations do not all lie in the image are drawn again: a selection on the data
 alone, which leaves the posterior given the data, and so the uniformity of the ranks, unchanged. What the model only
