@@ -288,24 +288,29 @@ def _predict_case(seed: int, k: int, tiers: list[str]):
         j = repeat[0].based_on[0]
         added["repeat-ref"] = _with_refs(base, base.references + (
             _second_worker(pool, j, n_r, np.random.default_rng([seed, k, 4])),))
-    return {"tier": tier, "pool": pool, "n_t": n_t, "n_r": n_r, "base": base, "cands": cands,
-            "mixes": mixes, "added": added}
+    return {"tier": tier, "setting": pool.ground_truth.extra["setting"], "pool": pool, "n_t": n_t, "n_r": n_r,
+            "base": base, "cands": cands, "mixes": mixes, "added": added}
 
 
 def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
+    """The predict experiment; ``case_of(seed, k)`` makes scene k (default: :func:`_predict_case`
+    with ``--tiers``), its records go to ``OUT/file``."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / file
     done = _done(path)
-    tiers = args.tiers.split(",")
-    case_of = case_of or _predict_case
+    if case_of is None:
+        tiers = args.tiers.split(",")
+
+        def case_of(seed, k):
+            return _predict_case(seed, k, tiers)
     with _bar(args.n, file.split(".")[0]) as bar:
         for k in range(args.n):
             bar.update(1)
             name = f"s{k:04d}"
             if name in done:
                 continue
-            case = case_of(args.seed, k, tiers)
+            case = case_of(args.seed, k)
             base = case["base"]
             _costs()
             t0 = time.perf_counter()
@@ -338,8 +343,7 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
             true_hand = gt.extra.get("handedness")
             kept = None if true_hand is None else bool(before["result"].map.handedness == true_hand)
             yaw_off = np.angle(np.exp(1j * (before["draws"][:, 3] - gt.yaw_rad)))  # draw − truth, on the circle
-            setting = case["setting"] if "setting" in case else case["pool"].ground_truth.extra["setting"]
-            _append(path, {"scene": name, "tier": case["tier"], "setting": setting,
+            _append(path, {"scene": name, "tier": case["tier"], "setting": case["setting"],
                            "truth_quantile": float(np.mean(dist < np.hypot(loc[0], loc[2]))),
                            "handedness_kept_true": kept, "yaw_quantile": float(np.mean(yaw_off < 0)),
                            "n_target": case["n_t"], "n_refs": case["n_r"], "estimate_and_advice_s": t_adv,
@@ -357,22 +361,20 @@ def _own_case(seed: int, k: int):
 
     rng = np.random.default_rng([seed, k, 11])
     n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
-    while True:  # annotations outside the image: a new scene (a selection on the data)
+    def second_reading(truth, d):  # another worker on the first reference's true line, or None
+        gt = d["ground_truth"]
+        for _ in range(200):
+            ref = sbc_reference(rng, truth, gt["reference_lines_true_px"][0], gt["crowd_scale"], "second-0",
+                                object=d["references"][0]["object"])
+            if ref is not None:
+                return ref
+        return None
+
+    d = repeat = None
+    while d is None or (n_r and repeat is None):  # outside the image: a new scene (a selection on the data)
         truth = draw_truth(rng)
         d = simulate_sbc_scene(rng, truth, n_t + 1, n_r + 1)
-        if d is None:
-            continue
-        repeat = None
-        if n_r:
-            gt = d["ground_truth"]
-            for _ in range(200):
-                repeat = sbc_reference(rng, truth, gt["reference_lines_true_px"][0], gt["crowd_scale"],
-                                       "second-0", object=d["references"][0]["object"])
-                if repeat is not None:
-                    break
-            else:
-                continue
-        break
+        repeat = second_reading(truth, d) if d is not None and n_r else None
     lines, refs = d["target"]["dimension_lines"], d["references"]
 
     def scene_of(n_lines, references):
@@ -403,8 +405,7 @@ def run_own(args) -> None:
     from creference_bayes.bench.sbc import SBC_BOX
 
     _ESTIMATE_KW.update(bounds=SBC_BOX.bounds(), focal_prior="default", location_prior="log-depth")
-    args.tiers = "own"
-    run_predict(args, case_of=lambda seed, k, tiers: _own_case(seed, k), file="own.jsonl")
+    run_predict(args, case_of=_own_case, file="own.jsonl")
 
 
 def run_reweight(args) -> None:
