@@ -273,7 +273,7 @@ def _predict_case(seed: int, k: int, tiers: list[str]):
     tier = tiers[k % len(tiers)]
     pool = _scene(seed, k, tier, None)
     rng = np.random.default_rng([seed, k, 1])
-    n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
+    n_t, n_r = int(rng.choice(list(sets))), int(rng.integers(0, 5))
     base = variant(pool, n_t, range(n_r))
     nxt = pool.references[n_r]
     cands = [c for c in candidates(base) if c.kind == "target"]
@@ -351,16 +351,16 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
                            "rows": rows, "estimates": _costs()})
 
 
-def _own_case(seed: int, k: int):
+def _own_case(seed: int, k: int, sets: tuple[int, ...] = (1, 2, 3, 5)):
     """Scene k of the own-model check: the truth drawn from the model's prior (within the box of
     simulation-based calibration), the annotations from its noise model (creference_bayes.bench.sbc),
-    a starting point of 1, 2, 3 or 5 sets and 0–4 references, and the annotations added: the next
+    a starting point of ``sets`` sets (one of them, uniformly) and 0–4 references, and the annotations added: the next
     set, a reference on a new segment, a second worker's reference on the first one (the same true
     line, drawn again with the line noise, its length stated again with the crowd's error)."""
     from creference_bayes.bench.sbc import draw_truth, sbc_reference, simulate_sbc_scene
 
     rng = np.random.default_rng([seed, k, 11])
-    n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
+    n_t, n_r = int(rng.choice(list(sets))), int(rng.integers(0, 5))
     def second_reading(truth, d):  # another worker on the first reference's true line, or None
         gt = d["ground_truth"]
         for _ in range(200):
@@ -405,7 +405,8 @@ def run_own(args) -> None:
     from creference_bayes.bench.sbc import SBC_BOX
 
     _ESTIMATE_KW.update(bounds=SBC_BOX.bounds(), focal_prior="default", location_prior="log-depth")
-    run_predict(args, case_of=_own_case, file="own.jsonl")
+    sets = args.sets
+    run_predict(args, case_of=lambda seed, k: _own_case(seed, k, sets), file="own.jsonl")
 
 
 def run_reweight(args) -> None:
@@ -648,6 +649,16 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
             lo, hi = _boot_ratio(rs, ps, rng)
             bands.append((label, kind, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
                           f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
+    by_sets = []
+    for label, sel in (("one set", lambda n: n == 1), ("two", lambda n: n == 2), ("three or more", lambda n: n >= 3)):
+        rows = [x for r in recs if sel(r["n_target"]) for x in r["rows"] if x["kind"] == "target"]
+        if len(rows) < 3:
+            continue
+        ps = np.array([x["pred_now_share"] - x["pred_after_share"] for x in rows])
+        rs = np.array([x["real_before_share"] - x["real_after_share"] for x in rows])
+        lo, hi = _boot_ratio(rs, ps, rng)
+        by_sets.append((label, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
+                        f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
     quant = {r["scene"]: r.get("truth_quantile") for r in recs}
     if file == "predict.jsonl" and (out / "reweight.jsonl").is_file():
         for x in (out / "reweight.jsonl").read_text().splitlines():
@@ -696,6 +707,9 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
               "after), by the width of the posterior before (HDI share)\n\n"
             + _md(("HDI share before", "kind", "n", "predicted pts", "realised pts",
                    "realised / predicted [90 % bootstrap]"), bands)
+            + ("\n\nThe target set by the number of sets before it (points of the distance, as above)\n\n"
+               + _md(("target sets before", "n", "predicted pts", "realised pts",
+                      "realised / predicted [90 % bootstrap]"), by_sets) if by_sets else "")
             + ("\n\nThe update alone: the base draws reweighted by the annotation actually added, "
                "against the full re-estimate with it (narrowing as above; the difference of the "
                "after/before width ratios, per scene)\n\n" + _md(
@@ -848,6 +862,16 @@ def run_report(args) -> None:
     print(text)
 
 
+def _sets_arg(text: str) -> tuple[int, ...]:
+    try:
+        sets = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        sets = ()
+    if not sets or min(sets) < 1:
+        raise argparse.ArgumentTypeError(f"expected whole numbers ≥ 1 separated by commas, got {text!r}")
+    return sets
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -876,6 +900,10 @@ def main(argv=None) -> None:
             s.add_argument("--ref-scale", type=float, metavar="S",
                            help="a fixed crowd error scale in log-length for estimates and advice (the metrology "
                                 "model's option ref_scale; 0.75 is the paper-like tier's); default: integrated out")
+        if name == "own":
+            s.add_argument("--sets", default="1,2,3,5", type=_sets_arg,
+                           help="the starting point's numbers of target sets, one drawn per scene "
+                                "(default: %(default)s)")
         if name in ("predict", "reweight"):
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
         if name == "policy":

@@ -224,6 +224,47 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr
 
 
+def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, monkeypatch):
+    """``own --sets``: every scene starts from one of the numbers of target sets given (the
+    default draws are the study's own: 1, 2, 3 or 5), a bad list is refused naming the option,
+    and the report splits the target set's predicted and realised gain by the sets before it."""
+    import importlib.util
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    spec = importlib.util.spec_from_file_location("advice_study_sets", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    assert {study._own_case(0, k, (2,))["n_t"] for k in range(4)} == {2}
+    assert {study._own_case(0, k)["n_t"] for k in range(12)} <= {1, 2, 3, 5}
+    monkeypatch.chdir(tmp_path)
+    study.main(["own", "--sets", "2", "--n", "1", "--min-ess", "100", "--out", "o2"])
+    assert json.loads((tmp_path / "o2" / "own.jsonl").read_text().splitlines()[0])["n_target"] == 2
+    for bad_value in ("0", "1,x", ""):
+        bad = subprocess.run([sys.executable, str(script), "own", "--sets", bad_value, "--out", "x"],
+                             capture_output=True, text=True, timeout=120)
+        assert bad.returncode == 2 and "--sets" in bad.stderr and repr(bad_value) in bad.stderr
+
+    def row(kind, pred, real):  # shares of the distance before and after: predicted, realised
+        return {"kind": kind, "measure": None if kind == "target" else "length", "pred_now_m": 2.0,
+                "pred_after_m": 2.0 - pred, "real_before_m": 2.0, "real_after_m": 2.0 - real, "ess": 0.5,
+                "fallbacks": 0, "pred_now_share": 0.5, "pred_after_share": 0.5 - pred,
+                "real_before_share": 0.6, "real_after_share": 0.6 - real}
+    recs = [{"scene": f"s{i:04d}", "n_target": n, "n_refs": 0, "truth_quantile": 0.5, "advice_only_s": 0.1,
+             "n_candidates": 2, "rows": [row("target", p, r), row("new-ref", 0.01, 0.01)]}
+            for i, (n, p, r) in enumerate([(1, 0.06, 0.02), (1, 0.08, 0.01), (1, 0.04, 0.03),
+                                           (3, 0.01, 0.02), (4, 0.02, 0.02), (5, 0.03, 0.02)])]
+    (tmp_path / "fake").mkdir()
+    (tmp_path / "fake" / "own.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    text = study.report_predict(tmp_path / "fake", "own.jsonl")
+    part = text.split("by the number of sets before it")[1]
+    one = next(x for x in part.splitlines() if x.startswith("| one set |")).split(" | ")
+    more = next(x for x in part.splitlines() if x.startswith("| three or more |")).split(" | ")
+    assert one[1:4] == ["3", "6.00", "2.00"] and one[4].startswith("0.33 [")
+    assert more[1:4] == ["3", "2.00", "2.00"] and more[4].startswith("1.00 [")
+    assert "| two |" not in part.split("\n\n")[1]  # fewer than three scenes: no row
+
+
 def test_the_advice_studys_reweight_fills_in_older_predict_records(tmp_path):
     """``reweight`` reruns the base estimate of a predict record made without the update check
     and records, for each kind added, the base draws' HDI width as they are and reweighted."""
