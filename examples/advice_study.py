@@ -182,11 +182,12 @@ def _estimate(scene, seed, min_ess):
 
 def _reweighted(base, est, scene, kind, n_draws=2000):
     """HDI width of the distance (m) of the base draws, evenly thinned, as they are and reweighted
-    by the annotation that was actually added (the advice's update, given the realised value):
-    set against the re-estimate, it checks the update apart from the predictive distribution."""
+    by the annotation that was actually added (the advice's update, given the realised value, with
+    its correction of the weighted HDI's small-sample narrowing and its fallback): set against
+    the re-estimate, it checks the update apart from the predictive distribution."""
     from creference_bayes.camera_setup import setup_camera
     from creference_bayes.workflows.advice.observe import ModelContext, ReferenceObservation, TargetObservation
-    from creference_bayes.workflows.advice.update import (MIN_ESS, MIN_ESS_FRACTION, normalise,
+    from creference_bayes.workflows.advice.update import (MIN_ESS, MIN_ESS_FRACTION, normalise, shuffled_hdi,
                                                           tempered_update, weighted_hdi)
 
     r = est["result"]
@@ -215,6 +216,8 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
         full = new.expand(moved)
         dist, w = np.hypot(full[:, 0], full[:, 2]), np.full((1, len(full)), 1.0 / len(full))
     after, _ = weighted_hdi(dist, w, 0.9)
+    if ess[0] >= max(MIN_ESS, MIN_ESS_FRACTION * len(draws)):  # as the advice does: the small-sample narrowing out
+        after = after * now / shuffled_hdi(dist, w, 0.9, np.random.default_rng(0))[0]
     return float(now[0]), float(after[0])
 
 
