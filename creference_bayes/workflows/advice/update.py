@@ -14,8 +14,8 @@ import numpy as np
 
 from .iou import iou_3d_pairs
 
-__all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi", "location_sd", "mean_boxes",
-           "p_iou", "systematic_resample", "tempered_update"]
+__all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
+           "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update"]
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
 #: not trusted: that simulated future is recomputed by :func:`tempered_update`. (Until 2026-11-26
