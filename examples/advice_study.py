@@ -276,7 +276,7 @@ def _predict_case(seed: int, k: int, tiers: list[str]):
     tier = tiers[k % len(tiers)]
     pool = _scene(seed, k, tier, None)
     rng = np.random.default_rng([seed, k, 1])
-    n_t, n_r = int(rng.choice(list(sets))), int(rng.integers(0, 5))
+    n_t, n_r = int(rng.choice([1, 2, 3, 5])), int(rng.integers(0, 5))
     base = variant(pool, n_t, range(n_r))
     nxt = pool.references[n_r]
     cands = [c for c in candidates(base) if c.kind == "target"]
