@@ -144,18 +144,30 @@ def test_target_weights_use_the_new_corner_scale(context):
     assert np.ptp(with_sigma - without) > 1e-3  # … and the weights account for it
 
 
-def test_simulated_target_annotations_follow_the_model_noise(context):
-    ctx, draws = context
-    obs = TargetObservation(ctx)
-    rows = np.repeat(draws[:1], 4000, axis=0)
-    obs.simulate(np.random.default_rng(9), rows)
+def test_simulated_target_annotations_scatter_as_the_scenes_sets_do(context):
+    """Three sets: the model's corner scale is their pooled sd, and a simulated set must scatter
+    by that sd (a t₄ of that scale would scatter √2 more than any set seen). One set: the model's
+    stated t₄ scale (5 px), whose sd is √2 · 5 px."""
     from creference_bayes.core.cost import project_params
 
+    ctx, draws = context
+    rows = np.repeat(draws[:1], 4000, axis=0)
     proj, _ = project_params(draws[:1], ctx.model.obj_corners, ctx.model.camera.principal_point)
+    assert len(ctx.model.annotations) == 3
+    obs = TargetObservation(ctx)
+    obs.simulate(np.random.default_rng(9), rows)
     err = (obs.corners - proj).reshape(-1)
-    # bivariate t with ν = 4 and scale σ: each coordinate has variance σ² ν / (ν − 2) = 2σ²
-    assert np.std(err) == pytest.approx(np.sqrt(2) * ctx.model.target_sigma, rel=0.1)
+    assert np.std(err) == pytest.approx(ctx.model.target_sigma, rel=0.1)
     assert abs(np.median(err)) < 0.05 * ctx.model.target_sigma
+    t = ctx.scene.target
+    one = dataclasses.replace(ctx.scene, target=dataclasses.replace(t, dimension_lines=t.dimension_lines[:1]))
+    ctx1 = ModelContext(one, ctx.setup, ctx.handedness, ctx.pilot)
+    assert ctx1.model.target_sigma == 5.0
+    obs1 = TargetObservation(ctx1)
+    obs1.simulate(np.random.default_rng(9), rows)
+    err1 = (obs1.corners - proj).reshape(-1)
+    # bivariate t with ν = 4 and scale σ: each coordinate has variance σ² ν / (ν − 2) = 2σ²
+    assert np.std(err1) == pytest.approx(np.sqrt(2) * 5.0, rel=0.1)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -369,6 +369,8 @@ class MetrologyModel(FreeParameters):
         else:
             grid, log_w = np.array([float(self.ref_scale)]), np.zeros(1)
         self._scale_grid, self._log_w = grid, log_w - np.logaddexp.reduce(log_w)
+        #: whether target_sigma is the sets' pooled sd (two or more sets, no scale given)
+        self.target_sigma_from_spread = self.target_sigma is None and len(ann) >= 2
         if self.target_sigma is None:
             self.target_sigma = estimate_target_sigma(ann)
         elif not (np.isfinite(self.target_sigma) and self.target_sigma > 0):
