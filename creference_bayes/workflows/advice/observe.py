@@ -86,7 +86,7 @@ def simulation_scale(model) -> float:
 
     With one set the model's corner scale is a stated t scale (5 px by default) and is used as
     it is. With two or more it is the sets' pooled standard deviation, which the model takes as
-    its t scale (a wider likelihood, on purpose: docs/method.md); a t(ν) of that scale scatters
+    its t scale (a wider likelihood: docs/method.md); a t(ν) of that scale scatters
     √(ν / (ν − 2)) times more than the sets did (√2 at ν = 4). Drawn with it, a future set is
     noisier than any seen and the advice under-predicted what one more brings (on the model's
     own scenes from two sets on: 0.49 points predicted against 1.86 realised from three or more,
