@@ -354,11 +354,19 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
                            "rows": rows, "estimates": _costs()})
 
 
-def _own_case(seed: int, k: int, sets: tuple[int, ...] = (1, 2, 3, 5)):
+OWN_SETS = (1, 2, 3, 5)
+
+
+def _own_setting(sets) -> str:
+    """The records' ``setting`` of an own-model run: "own", or which starting sets it drew from."""
+    return "own" if tuple(sets) == OWN_SETS else "own, sets " + ",".join(map(str, sets))
+
+
+def _own_case(seed: int, k: int, sets: tuple[int, ...] = OWN_SETS):
     """Scene k of the own-model check: the truth drawn from the model's prior (within the box of
     simulation-based calibration), the annotations from its noise model (creference_bayes.bench.sbc),
-    a starting point of ``sets`` sets (one of them, uniformly) and 0–4 references, and the annotations added: the next
-    set, a reference on a new segment, a second worker's reference on the first one (the same true
+    a starting point of ``sets`` sets (one of them, uniformly) and 0–4 references, and the
+    annotations added: the next set, a reference on a new segment, a second worker's reference on the first one (the same true
     line, drawn again with the line noise, its length stated again with the crowd's error)."""
     from creference_bayes.bench.sbc import draw_truth, sbc_reference, simulate_sbc_scene
 
@@ -396,7 +404,7 @@ def _own_case(seed: int, k: int, sets: tuple[int, ...] = (1, 2, 3, 5)):
         rep = [c for c in candidates(base) if c.kind == "reference" and not c.new_segment and 0 in c.based_on][:1]
         cands += [dataclasses.replace(c, key="repeat-ref") for c in rep]
         added["repeat-ref"] = scene_of(n_t, refs[:n_r] + [repeat])
-    return {"tier": "own", "setting": "own", "n_t": n_t, "n_r": n_r, "base": base, "cands": cands,
+    return {"tier": "own", "setting": _own_setting(sets), "n_t": n_t, "n_r": n_r, "base": base, "cands": cands,
             "mixes": mixes, "added": added}
 
 
@@ -408,7 +416,12 @@ def run_own(args) -> None:
     from creference_bayes.bench.sbc import SBC_BOX
 
     _ESTIMATE_KW.update(bounds=SBC_BOX.bounds(), focal_prior="default", location_prior="log-depth")
-    sets = args.sets
+    sets, path = args.sets, Path(args.out) / "own.jsonl"
+    other = {json.loads(x).get("setting") for x in path.read_text().splitlines() if x.strip()} \
+        if path.is_file() else set()
+    if other - {_own_setting(sets)}:
+        sys.exit(f"advice_study.py: {path} holds records of {sorted(other)}, this run's --sets "
+                 f"{','.join(map(str, sets))} makes {_own_setting(sets)!r}: use another --out")
     run_predict(args, case_of=lambda seed, k: _own_case(seed, k, sets), file="own.jsonl")
 
 

@@ -239,7 +239,10 @@ def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, mo
     assert {study._own_case(0, k)["n_t"] for k in range(12)} <= {1, 2, 3, 5}
     monkeypatch.chdir(tmp_path)
     study.main(["own", "--sets", "2", "--n", "1", "--min-ess", "100", "--out", "o2"])
-    assert json.loads((tmp_path / "o2" / "own.jsonl").read_text().splitlines()[0])["n_target"] == 2
+    rec = json.loads((tmp_path / "o2" / "own.jsonl").read_text().splitlines()[0])
+    assert rec["n_target"] == 2 and rec["setting"] == "own, sets 2"
+    with pytest.raises(SystemExit, match="--sets 1"):  # a resumed run must not mix starting points
+        study.main(["own", "--sets", "1", "--n", "2", "--min-ess", "100", "--out", "o2"])
     for bad_value in ("0", "1,x", ""):
         bad = subprocess.run([sys.executable, str(script), "own", "--sets", bad_value, "--out", "x"],
                              capture_output=True, text=True, timeout=120)
