@@ -653,28 +653,25 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
                       f"{real.mean() / pred.mean():.2f} [{lo:.2f}, {hi:.2f}]",
                       f"{pm.mean():.3f}", f"{rm.mean():.3f}", f"{np.median([x['ess'] for x in rows]):.2f}",
                       sum(x["fallbacks"] > 0 for x in rows)))
+    def points(rows):  # n, predicted and realised points, their ratio [90 % bootstrap]
+        ps = np.array([x["pred_now_share"] - x["pred_after_share"] for x in rows])
+        rs = np.array([x["real_before_share"] - x["real_after_share"] for x in rows])
+        lo, hi = _boot_ratio(rs, ps, rng)
+        return (len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
+                f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]")
+
     bands = []
     for lo_b, hi_b, label in ((0.0, 0.25, "< 25 %"), (0.25, 0.5, "25–50 %"), (0.5, 1.0, "50–100 %"),
                               (1.0, np.inf, ">= 100 %"), (0.0, np.inf, "all")):
         for kind in ("target", "new-ref", "repeat-ref"):
             rows = [x for x in rows_by.get(kind, []) if lo_b <= x["real_before_share"] < hi_b]
-            if len(rows) < 3:
-                continue
-            ps = np.array([x["pred_now_share"] - x["pred_after_share"] for x in rows])
-            rs = np.array([x["real_before_share"] - x["real_after_share"] for x in rows])
-            lo, hi = _boot_ratio(rs, ps, rng)
-            bands.append((label, kind, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
-                          f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
+            if len(rows) >= 3:
+                bands.append((label, kind, *points(rows)))
     by_sets = []
     for label, sel in (("one set", lambda n: n == 1), ("two", lambda n: n == 2), ("three or more", lambda n: n >= 3)):
         rows = [x for r in recs if sel(r["n_target"]) for x in r["rows"] if x["kind"] == "target"]
-        if len(rows) < 3:
-            continue
-        ps = np.array([x["pred_now_share"] - x["pred_after_share"] for x in rows])
-        rs = np.array([x["real_before_share"] - x["real_after_share"] for x in rows])
-        lo, hi = _boot_ratio(rs, ps, rng)
-        by_sets.append((label, len(rows), f"{100 * ps.mean():.2f}", f"{100 * rs.mean():.2f}",
-                        f"{rs.mean() / ps.mean():.2f} [{lo:.2f}, {hi:.2f}]"))
+        if len(rows) >= 3:
+            by_sets.append((label, *points(rows)))
     quant = {r["scene"]: r.get("truth_quantile") for r in recs}
     if file == "predict.jsonl" and (out / "reweight.jsonl").is_file():
         for x in (out / "reweight.jsonl").read_text().splitlines():
