@@ -125,6 +125,7 @@ class IndependenceMove(emcee.moves.MHMove):
         if self.tries < 1:
             raise ValueError(f"tries: expected an integer ≥ 1, got {tries!r}")
         self._invs = np.linalg.inv(self.chols)
+        self._shifts = np.einsum("kij,kj->ki", self._invs, self.means)
         self._log_norm = np.log(self.weights) - np.array([np.sum(np.log(np.abs(np.diag(c))))
                                                           for c in self.chols])
         self.proposed = self.accepted = 0
@@ -141,12 +142,10 @@ class IndependenceMove(emcee.moves.MHMove):
 
     def log_q(self, x: np.ndarray) -> np.ndarray:
         """(n,) log-density of the proposal at x, up to a constant."""
-        d = self.means.shape[1]
-        terms = []
-        for m, inv, c in zip(self.means, self._invs, self._log_norm):
-            z = (x - m) @ inv.T
-            terms.append(c - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=1) / self.df))
-        terms = np.column_stack(terms)
+        k, d = self.means.shape
+        # every component's whitened offset in one product: z_k = S_k⁻¹ x − S_k⁻¹ m_k
+        z = (x @ self._invs.reshape(k * d, d).T).reshape(len(x), k, d) - self._shifts
+        terms = self._log_norm - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=2) / self.df)
         top = terms.max(axis=1, keepdims=True)
         return (top + np.log(np.sum(np.exp(terms - top), axis=1, keepdims=True)))[:, 0]
 
@@ -192,5 +191,8 @@ class IndependenceMove(emcee.moves.MHMove):
         else:
             k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))
             k = np.minimum(k, self.n_components - 1)
-            y = self.means[k] + np.einsum("nij,nj->ni", self.chols[k], z)
+            y = np.empty((n, d))
+            for j in range(self.n_components):  # one product per component, not per draw
+                pick = k == j
+                y[pick] = self.means[j] + z[pick] @ self.chols[j].T
         return y

@@ -22,8 +22,9 @@ How it samples
   only. During warm-up (stages of 100, 100, 200, 400, … steps) the sampler fits a map to the
   walkers (:class:`~.reparam.Coordinates`: log z and log µ, a whitening, then a triangular
   polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
-  is 1; the density is corrected for the logarithms) and an independence proposal (a
-  multivariate t fitted in the straightened space), until a stage run in the map fitted before it
+  is 1; the density is corrected for the logarithms) and an independence proposal (in the
+  straightened space, a mixture of up to three multivariate t components fitted by EM from
+  k-means centres, with the whole sample's t kept as a fourth: :func:`_fit_proposal`), until a stage run in the map fitted before it
   looks like the sample that map was fitted to (median, quartile and 5–95 % ranges, robust to a
   heavy-tailed posterior; compared with the fitted sample's own, since a skewed posterior keeps
   them unlike a normal's in the best of maps) and the
@@ -51,10 +52,12 @@ How it samples
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
+from scipy.cluster.vq import kmeans2
 
 from .autocorr import integrated_time
 from .modes import fit_mixture
@@ -63,6 +66,12 @@ from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
 
 __all__ = ["SamplerSettings", "Chains", "SamplingError", "sample", "explore"]
+
+
+#: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
+MIXTURE_POINTS = 3000
+#: Weight of the whole sample's t in a proposal mixture fitted to k-means centres (:func:`_fit_proposal`).
+DEFENSIVE_WEIGHT = 0.2
 
 
 class SamplingError(RuntimeError):
@@ -97,6 +106,9 @@ class SamplerSettings:
     min_independence_acceptance : warm-up goes on while that proposal is accepted less often (it
         then does not yet cover the posterior)
     proposal_df, proposal_scale : degrees of freedom and scale inflation of that proposal
+    proposal_components : with one mode, the proposal is a mixture of up to this many t
+        components, fitted to the warm-up sample by EM from k-means seeds (:func:`_fit_proposal`);
+        1 fits a single t. With several modes it has a component per mode instead
     independence_tries : proposals per walker in each independence step (multiple-try
         Metropolis, :class:`~.moves.IndependenceMove`; 1: the ordinary independence step)
     mode_search : before sampling, look for other modes (:mod:`.modes`; done by the caller,
@@ -120,6 +132,7 @@ class SamplerSettings:
     min_independence_acceptance: float = 0.15
     proposal_df: float = 6.0
     proposal_scale: float = 1.2
+    proposal_components: int = 3
     independence_tries: int = 4
     mode_search: bool = True
     explore_temperature: float = 3.0
@@ -143,6 +156,9 @@ class SamplerSettings:
              "a number in [0, 1)"),
             ("proposal_df", self.proposal_df > 0, "a number > 0"),
             ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+            ("proposal_components", isinstance(self.proposal_components, (int, np.integer))
+             and not isinstance(self.proposal_components, bool) and self.proposal_components >= 1,
+             "an integer ≥ 1"),
             ("independence_tries", isinstance(self.independence_tries, (int, np.integer))
              and not isinstance(self.independence_tries, bool) and self.independence_tries >= 1,
              "an integer ≥ 1"),
@@ -299,14 +315,36 @@ def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
     return [(proposal, w)] + [(m, (1.0 - w) * p) for m, p in local]
 
 
-def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None) -> IndependenceMove | None:
-    """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates: a
-    multivariate t, or with several modes (``centers`` (k, d), k ≥ 2) a mixture of them with a
-    component per mode that the sample still holds (:func:`.modes.fit_mixture`)."""
+def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None, rng=None) -> IndependenceMove | None:
+    """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates.
+
+    With several modes (``centers`` (k, d), k ≥ 2) a mixture with a component per mode that the
+    sample still holds (:func:`.modes.fit_mixture`). Otherwise a mixture of up to
+    ``settings.proposal_components`` components started from k-means centres of the sample
+    (``rng`` seeds them), or a single multivariate t when that is 1 or the mixture keeps one
+    component. The k-means and EM fits use :data:`MIXTURE_POINTS` of the sample, evenly thinned.
+    The mixture fitted to k-means centres keeps the single t as a component of weight
+    :data:`DEFENSIVE_WEIGHT` (a defensive mixture: the proposal's density is nowhere below that
+    share of the single t's, so no tail is offered less than a fifth as often as by the single t
+    alone, where an independence step's weight p/q could strand a walker).
+
+    Why: a posterior with a lump that the mode search merges with the MAP (no valley on the
+    straight line between them) gets a component of its own. On a thin pole whose yaw has a
+    second lump of 7 % of the mass some 70° from the MAP's, the single t reached it so rarely
+    that the yaw's τ was 46 steps (2467 steps, 5.5 s); with the mixture it is 2–5 (1.7 s;
+    docs/method.md, "Sampling and summaries")."""
     if settings.independence_weight == 0.0:
         return None
+    defensive = False
+    if centers is None or len(centers) < 2:
+        k = min(settings.proposal_components, len(u) // (4 * u.shape[1] + 4))
+        centers, defensive = (_kmeans_centres(_thinned(u), k, rng) if k >= 2 else None), True
     if centers is not None and len(centers) > 1:
-        weights, means, covs = fit_mixture(u, centers)
+        weights, means, covs = fit_mixture(_thinned(u) if defensive else u, centers)
+        if len(weights) > 1 and defensive:  # the whole sample's t as one more component
+            weights = np.append((1.0 - DEFENSIVE_WEIGHT) * weights, DEFENSIVE_WEIGHT)
+            means = np.vstack([means, u.mean(axis=0)])
+            covs = np.concatenate([covs, np.atleast_2d(np.cov(u.T))[None]])
         if len(weights) > 1:
             try:
                 chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
@@ -320,6 +358,24 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None) -> Ind
                                 tries=settings.independence_tries)
     except np.linalg.LinAlgError:
         return None
+
+
+def _thinned(u: np.ndarray, most: int = MIXTURE_POINTS) -> np.ndarray:
+    """At most ``most`` rows of ``u``, evenly spaced (the walkers' successive steps are
+    correlated: thinning them costs the fit little and saves most of its time)."""
+    return u if len(u) <= most else u[np.linspace(0, len(u) - 1, most).astype(int)]
+
+
+def _kmeans_centres(u: np.ndarray, k: int, rng) -> np.ndarray | None:
+    """``k`` k-means centres of the sample ``u`` (n, d) (k-means++ start, seeded by ``rng``), or
+    None when the sample is degenerate."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # an empty cluster: fit_mixture drops it
+        try:
+            centres, _ = kmeans2(u, k, minit="++", seed=np.random.default_rng(rng))
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+    return centres if np.all(np.isfinite(centres)) else None
 
 
 def _location_spread(u: np.ndarray, loose: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -436,18 +492,21 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     centers = np.array([c for c, _ in starts]) if len(starts) > 1 else None
     pos = _initial_points(safe, starts, rng.spawn(s.n_ensembles), s.n_walkers)
     rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+    fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
     info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
                   "reparametrised": False, "modes": len(starts)}
     with _progress_bar(progress, 3 * s.warmup + 10 * s.chunk) as bar:
         coords = Coordinates.affine(center, cov, log_mask)
         coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
-                                                centers)
+                                                centers, fit_rng)
         sampler, chain, burn, tau, coords = _main_phase(safe, coords, proposal, pos, rstate, s, info,
-                                                        bar, log_mask, centers, derived)
+                                                        bar, log_mask, centers, derived, fit_rng)
     n, g, k = chain.shape[0], s.n_ensembles, s.n_walkers
     info.update({"nonfinite": safe.nonfinite, "log_prob_calls": safe.calls,
                  "log_prob_evaluations": safe.evaluations,
-                 "moves": [type(m).__name__ for m in sampler._moves]})
+                 "moves": [type(m).__name__ for m in sampler._moves],
+                 "proposal_components": next((m.n_components for m in sampler._moves
+                                              if isinstance(m, IndependenceMove)), 0)})
     if centers is not None:  # which mode each kept draw is nearest to, per ensemble
         kept = coords.forward(chain[burn:]).reshape(-1, s.n_ensembles, s.n_walkers, d)
         near = np.argmin(((kept[..., None, :] - coords.forward(centers)) ** 2).sum(-1), axis=-1)
@@ -462,7 +521,8 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
                   seconds=time.perf_counter() - t0, info=info)
 
 
-def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None):
+def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
+            fit_rng=None):
     """Run stages, refitting the coordinates and the proposal after each, until a stage run in
     the coordinates fitted before it looks like the sample they were fitted to and the proposal
     is accepted often enough (or ``max_warmup``). Returns the coordinates, proposal, positions
@@ -497,7 +557,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
             tail_p = coords.inverse(tail_u)
             coords = Coordinates.fit(tail_p, log_mask, shear=centers is None)
             fitted = coords.forward(tail_p)
-            proposal = _fit_proposal(fitted, s, _forward(coords, centers))
+            proposal = _fit_proposal(fitted, s, _forward(coords, centers), fit_rng)
             reference = _location_spread(fitted, centers is not None)
             info["reparametrised"] = True
         except np.linalg.LinAlgError:
@@ -508,7 +568,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
 
 
 def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: dict, bar,
-                log_mask=None, centers=None, derived=None):
+                log_mask=None, centers=None, derived=None, fit_rng=None):
     """Run in chunks until converged or ``max_steps``; returns the sampler, the chain in
     parameters (n, walkers, d), the burn-in, τ and the coordinates finally used.
 
@@ -542,7 +602,7 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
             try:
                 tail = chain[n // 2:].reshape(-1, d)
                 coords = Coordinates.fit(tail, log_mask, shear=centers is None)
-                proposal = _fit_proposal(coords.forward(tail), s, _forward(coords, centers))
+                proposal = _fit_proposal(coords.forward(tail), s, _forward(coords, centers), fit_rng)
             except np.linalg.LinAlgError:
                 pass
             else:
