@@ -331,7 +331,7 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None, rng=No
     Why: a posterior with a lump that the mode search merges with the MAP (no valley on the
     straight line between them) gets a component of its own. On a thin pole whose yaw has a
     second lump of 7 % of the mass some 70° from the MAP's, the single t reached it so rarely
-    that the yaw's τ was 46 steps (2467 steps, 5.5 s); with the mixture it is 2–5 (1.7 s;
+    that the yaw's τ was 46 steps (2467 steps, 5.5 s); with the mixture it is about 4 (1.7 s;
     docs/method.md, "Sampling and summaries")."""
     if settings.independence_weight == 0.0:
         return None
