@@ -367,12 +367,12 @@ def _thinned(u: np.ndarray, most: int = MIXTURE_POINTS) -> np.ndarray:
 
 
 def _kmeans_centres(u: np.ndarray, k: int, rng) -> np.ndarray | None:
-    """``k`` k-means centres of the sample ``u`` (n, d) (k-means++ start, seeded by ``rng``), or
-    None when the sample is degenerate."""
+    """``k`` k-means centres of the sample ``u`` (n, d) (k-means++ start, seeded by ``rng``, by 0
+    when it is None), or None when the sample is degenerate."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # an empty cluster: fit_mixture drops it
         try:
-            centres, _ = kmeans2(u, k, minit="++", seed=np.random.default_rng(rng))
+            centres, _ = kmeans2(u, k, minit="++", seed=np.random.default_rng(0 if rng is None else rng))
         except (ValueError, np.linalg.LinAlgError):
             return None
     return centres if np.all(np.isfinite(centres)) else None
