@@ -320,7 +320,8 @@ def test_a_lump_beside_the_mode_gets_a_proposal_component_of_its_own():
     rng = np.random.default_rng(4)
     n = 4000
     lump = rng.random(n) < LUMP_WEIGHT
-    u = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)), rng.standard_normal((n, 5)))
+    u = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
+                 rng.standard_normal((n, 5)))
     mixture = _fit_proposal(u, SamplerSettings(), rng=np.random.default_rng(5))
     single = _fit_proposal(u, SamplerSettings(proposal_components=1))
     assert single.n_components == 1 and mixture.n_components >= 3
@@ -338,7 +339,8 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     rng = np.random.default_rng(0)
     n = 400000
     lump = rng.random(n) < LUMP_WEIGHT
-    exact = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)), rng.standard_normal((n, 5)))
+    exact = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
+                     rng.standard_normal((n, 5)))
     share = _in_lump(exact).mean()
     taus = {}
     for k in (1, 3):

@@ -24,11 +24,11 @@ How it samples
   polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
   is 1; the density is corrected for the logarithms) and an independence proposal (in the
   straightened space, a mixture of up to three multivariate t components fitted by EM from
-  k-means centres, with the whole sample's t kept as a fourth: :func:`_fit_proposal`), until a stage run in the map fitted before it
-  looks like the sample that map was fitted to (median, quartile and 5–95 % ranges, robust to a
-  heavy-tailed posterior; compared with the fitted sample's own, since a skewed posterior keeps
-  them unlike a normal's in the best of maps) and the
-  proposal is accepted often enough. A stage is judged every ``chunk`` steps on the second half
+  k-means centres, with the whole sample's t kept as a fourth: :func:`_fit_proposal`), until a
+  stage run in the map fitted before it looks like the sample that map was fitted to (median,
+  quartile and 5–95 % ranges, robust to a heavy-tailed posterior; compared with the fitted
+  sample's own, since a skewed posterior keeps them unlike a normal's in the best of maps) and
+  the proposal is accepted often enough. A stage is judged every ``chunk`` steps on the second half
   of what it has run, and ends as soon as it passes after at least 2 · ``warmup`` steps: the
   stage that confirms a good map need not run its doubled length (on the SBC scenes' slowest
   estimates that was 1 600 of 5 000 warm-up steps). Warm-up draws are discarded;
@@ -70,7 +70,8 @@ __all__ = ["SamplerSettings", "Chains", "SamplingError", "sample", "explore"]
 
 #: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
 MIXTURE_POINTS = 3000
-#: Weight of the whole sample's t in a proposal mixture fitted to k-means centres (:func:`_fit_proposal`).
+#: Weight of the whole sample's t in a proposal mixture fitted to k-means centres
+#: (:func:`_fit_proposal`).
 DEFENSIVE_WEIGHT = 0.2
 
 
@@ -315,7 +316,8 @@ def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
     return [(proposal, w)] + [(m, (1.0 - w) * p) for m, p in local]
 
 
-def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None, rng=None) -> IndependenceMove | None:
+def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
+                  rng=None) -> IndependenceMove | None:
     """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates.
 
     With several modes (``centers`` (k, d), k ≥ 2) a mixture with a component per mode that the
