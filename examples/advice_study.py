@@ -207,7 +207,8 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
     w, ess = normalise(obs.log_ratio(draws))
     dist = np.hypot(draws[:, 0], draws[:, 2])
     now, _ = weighted_hdi(dist, np.full((1, len(dist)), 1.0 / len(dist)), 0.9)
-    if ess[0] < max(MIN_ESS, MIN_ESS_FRACTION * len(draws)):  # as the advice does: the fallback
+    fallback = ess[0] < max(MIN_ESS, MIN_ESS_FRACTION * len(draws))  # the advice's threshold
+    if fallback:  # as the advice does: the tempered update
         from creference_bayes.inference.posterior import LogPosterior
 
         new = ctx.model_of(scene)
@@ -216,7 +217,7 @@ def _reweighted(base, est, scene, kind, n_draws=2000):
         full = new.expand(moved)
         dist, w = np.hypot(full[:, 0], full[:, 2]), np.full((1, len(full)), 1.0 / len(full))
     after, _ = weighted_hdi(dist, w, 0.9)
-    if ess[0] >= max(MIN_ESS, MIN_ESS_FRACTION * len(draws)):  # as the advice does: the small-sample narrowing out
+    if not fallback:  # as the advice does: the small-sample narrowing out
         after = after * now / shuffled_hdi(dist, w, 0.9, np.random.default_rng(0))[0]
     return float(now[0]), float(after[0])
 

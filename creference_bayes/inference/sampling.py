@@ -337,12 +337,13 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
     docs/method.md, "Sampling and summaries")."""
     if settings.independence_weight == 0.0:
         return None
-    defensive = False
+    defensive, fit_to = False, u
     if centers is None or len(centers) < 2:
+        defensive, fit_to = True, _thinned(u)
         k = min(settings.proposal_components, len(u) // (4 * u.shape[1] + 4))
-        centers, defensive = (_kmeans_centres(_thinned(u), k, rng) if k >= 2 else None), True
+        centers = _kmeans_centres(fit_to, k, rng) if k >= 2 else None
     if centers is not None and len(centers) > 1:
-        weights, means, covs = fit_mixture(_thinned(u) if defensive else u, centers)
+        weights, means, covs = fit_mixture(fit_to, centers)
         if len(weights) > 1 and defensive:  # the whole sample's t as one more component
             weights = np.append((1.0 - DEFENSIVE_WEIGHT) * weights, DEFENSIVE_WEIGHT)
             means = np.vstack([means, u.mean(axis=0)])
