@@ -10,13 +10,14 @@ again from a result and its scene in one call.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from .camera_setup import setup_camera
 
-from .io.frame_scene import FrameScene, load_frame
+from .io.frame_scene import FrameScene, load_frame, parse_frame
 from .models.frame import DEFAULT_GROUND_SD_M, DEFAULT_GROUND_TILT_SD_RAD, FrameModel, FrameReference, ObjectData
 from .models.size_priors import SizePrior
 
@@ -91,8 +92,8 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
 
     Parameters
     ----------
-    frame : a :class:`~.io.frame_scene.FrameScene` or the path of a ``creference-scene/2`` (or
-        ``/1``) file
+    frame : a :class:`~.io.frame_scene.FrameScene`, the path of a ``creference-scene/2`` (or
+        ``/1``) file, or such a file's content as a dict
     seed : int or Generator; the same seed gives the same result
     posterior : sample the posterior after the MAP
     temperature : T of log p = log-likelihood / T + log-prior (priors are never tempered)
@@ -108,8 +109,10 @@ def estimate_frame(frame: FrameScene | str | Path, *, seed=None, posterior: bool
     from .io.frame_result import RESULT_DRAWS, FrameResult
     from .inference.threads import single_threaded_blas
 
-    if not isinstance(frame, FrameScene):
-        frame = load_frame(frame)
+    if isinstance(frame, Mapping):  # a decoded scene file
+        frame = parse_frame(frame, classes=classes)
+    elif not isinstance(frame, FrameScene):
+        frame = load_frame(frame, classes=classes)
     if not (np.isfinite(temperature) and temperature > 0):
         raise ValueError(f"temperature: expected a finite number > 0, got {temperature!r}")
     rng = np.random.default_rng(seed)

@@ -22,7 +22,7 @@ from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperMode
 from .inference.optimize import optimize_map, preset_bounds
 from .io.result import Evaluation, Result
 from .inference.threads import single_threaded_blas
-from .io.scene import Scene, load_scene, parse_scene, scene_fingerprint
+from .io.scene import Scene, parse_scene, read_scene_json, scene_fingerprint
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "estimate", "build_models", "reprojection_check"]
 
@@ -86,8 +86,11 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
 
     Parameters
     ----------
-    scene : a :class:`Scene`, a path to a ``creference-scene/1`` file or such a file's content
-        as a dict (validated by :func:`~creference_bayes.io.scene.parse_scene`)
+    scene : a :class:`Scene`, a path to a scene file or such a file's content as a dict
+        (validated by :func:`~creference_bayes.io.scene.parse_scene`). A ``creference-scene/2``
+        frame is estimated whole (:func:`~creference_bayes.frame_pipeline.estimate_frame`, whose
+        :class:`~creference_bayes.io.frame_result.FrameResult` is returned; ``classes`` and the
+        frame model's options go in ``options``)
     preset : ``default`` (θ scan + local refinement), ``paper`` or ``paper-controlled``
     model : the likelihood model
     use_references : use the scene's reference annotations when it has any
@@ -127,10 +130,23 @@ def estimate(scene: Scene | str | Path, *, preset: str = "default", model: str =
     -------
     Result
     """
-    if isinstance(scene, Mapping):  # a decoded scene file, as docs/scene_format.md shows it
-        scene = parse_scene(scene)
-    elif not isinstance(scene, Scene):
-        scene = load_scene(scene)
+    if not isinstance(scene, Scene):
+        source = None if isinstance(scene, Mapping) else Path(scene)
+        data = scene if source is None else read_scene_json(source)
+        if isinstance(data, Mapping) and data.get("format") == "creference-scene/2":
+            from .frame_pipeline import estimate_frame  # a whole frame: every target, one camera
+
+            if model != DEFAULT_MODEL or preset != "default" or restarts is not None or bounds is not None:
+                raise ValueError("model, preset, restarts and bounds apply to single-target scenes; a "
+                                 "creference-scene/2 frame uses the frame model")
+            if location_prior != "auto":
+                options = {**options, "location_prior": location_prior}
+            return estimate_frame(data if source is None else source, seed=seed, posterior=posterior,
+                                  hdi_prob=hdi_prob, sampling=sampling, progress=progress,
+                                  orientation=orientation, focal_prior=focal_prior,
+                                  orientation_prior=orientation_prior, use_references=use_references,
+                                  temperature=1.0 if temperature is None else temperature, **options)
+        scene = parse_scene(data, source)
     with single_threaded_blas():
         return _estimate(scene, preset=preset, model=model, use_references=use_references, seed=seed,
                          posterior=posterior, restarts=restarts, temperature=temperature,

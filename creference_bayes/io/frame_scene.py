@@ -31,10 +31,10 @@ import numpy as np
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior, size_priors_from_dict
 from .scene import (DimensionLine, Reference, Scene, _parse_dimension_line, _parse_reference, camera_priors_to_dict,
                     parse_header, parse_scene, read_scene_json)
-from .validation import SceneError, SceneWarning, _dict, _get, _join, _list, _number, _short, _string, _warn_unknown
+from .validation import SceneError, SceneWarning, check_scene_format, _dict, _get, _join, _list, _number, _short, _string, _warn_unknown
 
 __all__ = ["FRAME_FORMAT", "FrameTarget", "FrameScene", "parse_frame", "load_frame", "frame_from_scene",
-           "frame_to_dict", "frame_fingerprint"]
+           "frame_to_dict", "frame_fingerprint", "find_size_prior"]
 
 FRAME_FORMAT = "creference-scene/2"
 _TOP_KEYS = {"format", "image", "camera", "horizon", "horizon_sd_px", "classes", "targets", "references",
@@ -84,6 +84,8 @@ class FrameScene:
     format: str = FRAME_FORMAT
     #: KITTI's P2 (3, 4) when the frame came from a KITTI folder: labels go back into its frame.
     kitti_p2: np.ndarray | None = None
+    #: The KITTI calib file's other lines (name → numbers), written back beside the labels.
+    kitti_calib: dict | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -91,11 +93,26 @@ class FrameScene:
 
     def size_prior(self, cls: str | None, extra: dict[str, SizePrior] | None = None) -> SizePrior | None:
         """The size prior of a class: the scene's own classes, then ``extra`` (a file given on the
-        command line), then the shipped KITTI classes."""
-        for table in (self.classes, extra or {}, KITTI_SIZE_PRIORS):
-            if cls in table:
-                return table[cls]
+        command line), then the shipped KITTI classes. Class names match whatever their case
+        (``car`` is KITTI's ``Car``, as KITTI's evaluation reads them)."""
+        return find_size_prior(cls, self.classes, extra)
+
+
+def find_size_prior(cls: str | None, *tables: dict[str, SizePrior] | None) -> SizePrior | None:
+    """The size prior of class ``cls`` from the first of ``tables`` (then the shipped KITTI
+    classes) that has it: an exact name first, else one that differs only in case."""
+    if cls is None:
         return None
+    tables = [t for t in tables if t] + [KITTI_SIZE_PRIORS]
+    for table in tables:
+        if cls in table:
+            return table[cls]
+    folded = cls.casefold()
+    for table in tables:
+        for name, prior in table.items():
+            if name.casefold() == folded:
+                return prior
+    return None
 
 
 def _parse_frame_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> FrameTarget:
@@ -211,20 +228,25 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
                      confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), (owners[0], owners[1])
 
 
-def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
+def parse_frame(data: Any, source: str | Path | None = None,
+                classes: dict[str, SizePrior] | None = None) -> FrameScene:
     """Validate a decoded ``creference-scene/2`` dict (or a version-1 one, as a one-target frame)
-    and return a :class:`FrameScene`; :class:`SceneError` names the key path of the first problem."""
+    and return a :class:`FrameScene`; :class:`SceneError` names the key path of the first problem.
+    ``classes``: size priors of the user's own classes (a classes file), which a target's class may
+    name besides the scene's own and the shipped KITTI classes."""
+    extra_classes = classes
     data = _dict(data, "(scene)")
-    if data.get("format") == "creference-scene/1":
+    if check_scene_format(_get(data, "format", "")) == "creference-scene/1":
         return frame_from_scene(parse_scene(data, source))
-    if data.get("format") != FRAME_FORMAT:
-        raise SceneError("format", f"expected 'creference-scene/1' or {FRAME_FORMAT!r}, got {_short(data.get('format'))}")
     sink: list[str] = []
     _warn_unknown(data, _TOP_KEYS, "", sink)
-    kitti_p2 = None
-    if isinstance(data.get("camera"), dict) and "kitti_p2" in data["camera"]:
+    kitti_p2 = kitti_calib = None
+    if isinstance(data.get("camera"), dict) and ("kitti_p2" in data["camera"] or "kitti_calib" in data["camera"]):
         camera = dict(data["camera"])
-        kitti_p2 = _parse_p2(camera.pop("kitti_p2"), "camera.kitti_p2")
+        kitti_p2 = _parse_p2(camera.pop("kitti_p2", None), "camera.kitti_p2")
+        kitti_calib = _parse_calib(camera.pop("kitti_calib", None), "camera.kitti_calib")
+        if kitti_calib is not None and kitti_p2 is None:
+            raise SceneError("camera.kitti_calib", "KITTI calib lines without 'kitti_p2' (the camera's P2)")
         data = {**data, "camera": camera}
     head = parse_header(data, source, sink)
     w, h = head["image_width"], head["image_height"]
@@ -247,8 +269,8 @@ def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
     for i, t in enumerate(targets):
         if t.dimensions is None and t.cls is None:
             raise SceneError(_join("targets", i), "needs 'dimensions_m' or a 'class' with a size prior")
-        if t.dimensions is None and t.cls not in classes and t.cls not in KITTI_SIZE_PRIORS:
-            known = sorted(set(classes) | set(KITTI_SIZE_PRIORS))
+        if t.dimensions is None and find_size_prior(t.cls, classes, extra_classes) is None:
+            known = sorted(set(classes) | set(extra_classes or {}) | set(KITTI_SIZE_PRIORS))
             raise SceneError(_join(_join("targets", i), "class"),
                              f"no size prior for class {_short(t.cls)} and no 'dimensions_m' (classes: {known}; "
                              "add it under 'classes' or give a classes file)")
@@ -261,7 +283,23 @@ def parse_frame(data: Any, source: str | Path | None = None) -> FrameScene:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return FrameScene(targets=targets, references=tuple(r for r, _ in parsed),
                       reference_targets=tuple(o for _, o in parsed), classes=classes, ground_truth=gt,
-                      warnings=tuple(sink), kitti_p2=kitti_p2, **head)
+                      warnings=tuple(sink), kitti_p2=kitti_p2, kitti_calib=kitti_calib, **head)
+
+
+def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:
+    """``camera.kitti_calib``: the calib file's other lines, name → numbers."""
+    if value is None:
+        return None
+    value = _dict(value, path)
+    out = {}
+    for name, numbers in value.items():
+        if not name or any(c.isspace() or c == ":" for c in name) or name == "P2":
+            raise SceneError(_join(path, name), "expected a calib line's name (no spaces, not P2: that is kitti_p2)")
+        lpath = _join(path, name)
+        out[name] = [_number(v, _join(lpath, i)) for i, v in enumerate(_list(numbers, lpath))]
+        if not out[name]:
+            raise SceneError(lpath, "expected numbers, got []")
+    return out
 
 
 def _parse_p2(value: Any, path: str) -> np.ndarray | None:
@@ -277,10 +315,11 @@ def _parse_p2(value: Any, path: str) -> np.ndarray | None:
     return out.astype(float)
 
 
-def load_frame(path: str | Path) -> FrameScene:
-    """Load a ``creference-scene/2`` (or ``/1``) file as a :class:`FrameScene`."""
+def load_frame(path: str | Path, classes: dict[str, SizePrior] | None = None) -> FrameScene:
+    """Load a ``creference-scene/2`` (or ``/1``) file as a :class:`FrameScene` (``classes``: as
+    :func:`parse_frame`)."""
     path = Path(path)
-    return parse_frame(read_scene_json(path), source=path)
+    return parse_frame(read_scene_json(path), source=path, classes=classes)
 
 
 def frame_from_scene(scene: Scene) -> FrameScene:
@@ -320,6 +359,8 @@ def frame_to_dict(frame: FrameScene) -> dict:
         out["camera"]["focal_length_px"] = frame.focal_length_px
     if frame.kitti_p2 is not None:
         out["camera"]["kitti_p2"] = np.asarray(frame.kitti_p2).tolist()
+    if frame.kitti_calib is not None:
+        out["camera"]["kitti_calib"] = {k: list(v) for k, v in frame.kitti_calib.items()}
     out["camera"].update(camera_priors_to_dict(frame))
     if frame.horizon is not None:
         out["horizon"] = np.asarray(frame.horizon).tolist()

@@ -11,8 +11,9 @@ import numpy as np
 
 from ..models.params import PARAM_NAMES
 from .files import atomic_write_text
+from .files import read_text
 
-__all__ = ["RESULT_FORMAT", "MapEstimate", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
+__all__ = ["scene_candidates", "RESULT_FORMAT", "MapEstimate", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
 
 RESULT_FORMAT = "creference-result/1"
 
@@ -249,10 +250,31 @@ def _plain(obj: Any) -> Any:
 
 def load_result_dict(path: str | Path) -> dict:
     """Read a ``creference-result/1`` JSON file (plain dict), checking its format key."""
-    data = json.loads(Path(path).read_text())
+    data = json.loads(read_text(path))
     if not isinstance(data, dict) or data.get("format") != RESULT_FORMAT:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ValueError(f"format: expected {RESULT_FORMAT!r}, got {got!r}")
     return data
 
 
+
+
+def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
+    """Where the scene of a result (either format) may be, in the order to look: the batch
+    folder's copy when the result came from ``creference batch`` (``batch.scene_copy``), then the
+    file the result names (``scene``) beside the result, in the current folder and among the
+    package's shipped scenes. The result file itself is never a candidate (a batch result is
+    named like its scene)."""
+    from importlib import resources
+
+    result_path = Path(result_path)
+    out = []
+    batch = result.get("batch") if isinstance(result.get("batch"), dict) else {}
+    if batch.get("scene_copy") and batch.get("key"):
+        out.append(result_path.parents[len(Path(batch["key"]).parts)] / batch["scene_copy"])
+    name = result.get("scene")
+    if isinstance(name, str) and name:
+        out += [result_path.parent / name, Path.cwd() / name,
+                Path(str(resources.files("creference_bayes") / "data" / name))]
+    me = result_path.resolve()
+    return [p for p in out if p.resolve() != me]

@@ -32,7 +32,8 @@ from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
 from .validation import (SceneError, SceneWarning, _check_inside, _check_segment, _dict, _get,
                          _got, _join, _list, _number, _point, _points, _short, _string, _warn_unknown,
-                         near_miss)
+                         check_scene_format, near_miss)
+from .files import read_bytes
 
 __all__ = [
     "SCENE_FORMAT",
@@ -366,9 +367,11 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     """
     sink: list[str] = []
     data = _dict(data, "(scene)")
-    fmt = _get(data, "format", "")
+    fmt = check_scene_format(_get(data, "format", ""))
     if fmt != SCENE_FORMAT:
-        raise SceneError("format", f"expected {SCENE_FORMAT!r}, got {_short(fmt)}")
+        raise SceneError("format", f"a {fmt!r} file is a frame: read it with "
+                                   "creference_bayes.io.frame_scene.load_frame (or estimate it with "
+                                   "creference_bayes.estimate, which takes either)")
     _warn_unknown(data, {"format", "image", "camera", "horizon", "horizon_sd_px", "target",
                          "references", "ground_truth"}, "", sink)
     head = parse_header(data, source, sink)
@@ -466,7 +469,7 @@ def read_scene_json(path: Path) -> Any:
     """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
     JSON with finite numbers."""
     path = Path(path)
-    raw = path.read_bytes()
+    raw = read_bytes(path)
     try:
         data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
     except UnicodeDecodeError as exc:
