@@ -84,7 +84,16 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
         floor = 0.03 if location_prior == "flat" else 0.005
         assert far and all(min(m["draw_share_per_ensemble"]) > floor for m in far)
         shares = np.array([m["draw_share_per_ensemble"] for m in far]).sum(axis=0)
-        assert np.ptp(shares) < 0.05  # the ensembles agree on the far modes' mass
+        # the ensembles agree on the far modes' mass within Monte Carlo error. The sampler stops
+        # at 50 τ or more per walker: at least 32 · 50 = 1600 effective draws per ensemble, so a
+        # share p has a standard error of at most √(p(1 − p)/1600) (0.011 at p ≈ 0.25, the flat
+        # prior; 0.006 at p ≈ 0.06, log-depth), and the range of four shares stays below six of
+        # them. Over 13 streams of the sampler's random numbers × 3 seeds (flat) and 8 × 3
+        # (log-depth) the range was at most 0.054 and 0.019 (a fixed 0.05 failed on one stream);
+        # with the independence proposal off (walkers that cannot move between the modes) it was
+        # 0.095 and 0.185 after 3000 steps
+        p = shares.mean()
+        assert np.ptp(shares) < 6 * np.sqrt(p * (1 - p) / 1600), shares
     lo, hi = np.array(hdis).T
     assert np.ptp(lo) < 0.1 and np.ptp(hi) < 1.0  # Monte Carlo error of the HDI's ends
     if location_prior == "flat":
