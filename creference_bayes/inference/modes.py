@@ -1,6 +1,6 @@
 """Finding a posterior's separate modes before sampling it, and a mixture fitted around them.
 
-Pure NumPy and SciPy; the tempered exploration runs through :func:`.sampling.explore`.
+Pure NumPy and SciPy; the tempered exploration runs through :func:`.ensemble.explore`.
 
 Why
 ---
@@ -24,7 +24,7 @@ How
 3. **Weigh.** Each maximum gets a Laplace approximation; its mass is estimated as
    exp(log p) · √det(2π Σ). Modes under :data:`MIN_SHARE` of the total are dropped.
 
-The sampler (:func:`.sampling.sample`) then starts its ensembles in different modes (an
+The sampler (:func:`.ensemble.sample`) then starts its ensembles in different modes (an
 over-dispersed start, so R-hat across ensembles tests that they found the same posterior) and
 its independence proposal is a mixture with a component per mode (:func:`fit_mixture`).
 """
@@ -82,7 +82,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     rng : numpy Generator
     log_mask : (d,) bool, positive parameters explored as logarithms
     circular : index of a circular coordinate (radians), or None
-    temperature, n_steps, n_walkers : the tempered exploration (:func:`.sampling.explore`)
+    temperature, n_steps, n_walkers : the tempered exploration (:func:`.ensemble.explore`)
     n_climbs : local maximisations from the explored points
 
     Returns
@@ -90,7 +90,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     list of :class:`Mode`, the one at ``center`` first, then by decreasing share
     """
     from .reparam import Coordinates
-    from .sampling import explore
+    from .ensemble import explore
 
     center = np.asarray(center, float)
     d = len(center)

@@ -14,7 +14,24 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_path"]
+__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_path", "read_bytes", "read_text"]
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The bytes of a file. An error while reading (not only while opening) names the file:
+    ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``, no file name) when the
+    read itself fails."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        if exc.filename is None:
+            raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
+
+
+def read_text(path: str | Path, encoding: str = "utf-8") -> str:
+    """The text of a file (:func:`read_bytes`; a ``UnicodeDecodeError`` as from ``Path.read_text``)."""
+    return read_bytes(path).decode(encoding)
 
 
 @contextmanager

@@ -180,3 +180,22 @@ def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> Non
         if guess is not None:
             raise SceneError(_join(path, key), f"unknown key; did you mean {guess!r}?")
         sink.append(f"{_join(path, key)}: unknown key ignored")
+
+
+#: The scene formats this package reads.
+SCENE_FORMATS = ("creference-scene/1", "creference-scene/2")
+
+
+def check_scene_format(value: Any, expected=SCENE_FORMATS) -> str:
+    """The ``format`` of a scene, or :class:`SceneError` saying what was expected and, for a result
+    file or a newer version of the format, what to do."""
+    shown = " or ".join(repr(f) for f in expected)
+    if isinstance(value, str) and value.startswith("creference-result/"):
+        raise SceneError("format", f"expected a scene ({shown}), got the result file format {value!r}: "
+                                   "give the scene the result was made from")
+    if isinstance(value, str) and value.startswith("creference-scene/") and value not in SCENE_FORMATS:
+        raise SceneError("format", f"expected {shown}, got {value!r}: a format version this release of "
+                                   "creference_bayes does not know (a newer release may)")
+    if value not in expected:
+        raise SceneError("format", f"expected {shown}, got {_short(value)}")
+    return value

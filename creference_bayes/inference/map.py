@@ -1,23 +1,34 @@
-"""The MAP of a frame: every object's pose and size and the shared camera, jointly.
+"""The MAP of a scene: every object's pose and size and the shared camera, jointly.
 
-1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown; roll 0, or the
-   measured horizon's), every object is placed by a closed-form solve: for a fixed yaw and
-   handedness, the projection equations of its four annotated corners (per-corner median) are
-   linear in its bottom centre (x, y, z) given the camera, so a 5° yaw grid × both handednesses is
-   one batched least-squares solve per object. The objects' y gives the camera height (the median
-   over objects, their ground offsets the rest). The camera whose objects fit best starts.
-2. **Joint Newton.** Levenberg–Marquardt steps on the negative log-posterior in working
-   coordinates (:mod:`.frame_coords`: each object anchored to the image). Given the camera the objects are independent, so the
-   Hessian is an *arrowhead*: a camera block, one block per object and their couplings. Its
-   derivatives come from one batched set of finite differences whose cost does not grow with the
-   number of objects (a perturbation of an object coordinate is applied to every object at
-   once: each object's term sees only its own), and the step is solved through the Schur
-   complement of the camera block: O(m) work for m objects.
-3. **Continuation.** When annotations agree to a pixel or better, the cost is so sharp that far
-   from the optimum only the Student-t tails are felt; a first pass with σ raised to 3 px finds
-   the basin, the second refines with the real σ.
-4. **Line noise** of the references is fixed at the first optimum (the pilot) and the optimum
-   refined from there, as the single-target model does.
+Presets (:data:`PRESETS`):
+
+``default``
+    1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown; roll 0, or the
+       measured horizon's), every object is placed by a closed-form solve: for a fixed yaw and
+       handedness, the projection equations of its four annotated corners (per-corner median) are
+       linear in its bottom centre (x, y, z) given the camera (method.md §6), so a 5° yaw grid ×
+       both handednesses is one batched least-squares solve per object. The objects' y gives the
+       camera height (the median over objects, their ground offsets the rest). The camera whose
+       objects fit best starts.
+    2. **Joint Newton.** Levenberg–Marquardt steps on the objective in working coordinates
+       (:mod:`.coords`: each object anchored to the image). Given the camera the objects are
+       independent, so the Hessian is an *arrowhead*: a camera block, one block per object and
+       their couplings. Its derivatives come from one batched set of finite differences whose cost
+       does not grow with the number of objects, and the step is solved through the Schur
+       complement of the camera block: O(m) work for m objects.
+    3. **Continuation.** When annotations agree to a pixel or better, the cost is so sharp that far
+       from the optimum only the Student-t tails are felt; a first pass with σ raised to 3 px finds
+       the basin, the second refines with the real σ.
+    4. **Pilot.** A model's quantities fixed at a first optimum (the references' line noise) are
+       set there and the optimum refined from it.
+    5. **Polish.** A model whose objective has kinks (the paper's, ``smooth = False``) is finished
+       by L-BFGS-B from there.
+``paper``, ``paper-controlled``
+    The paper's optimiser (§5.1.1, §6.1, §7.1): L-BFGS-B (``ftol`` 1e-8, finite-difference
+    gradient) inside monotonic basin hopping whose steps are uniform random restarts within the
+    paper's bounds (:func:`preset_bounds`); 200 (system study) or 100 (controlled study) restarts,
+    split between the handednesses the closed-form start gives and their opposite, so that the
+    total work is the paper's.
 
 The result carries the arrowhead Hessian at the optimum (:class:`Arrowhead`), which the sampler
 uses for its proposals and its camera–object shear.
@@ -29,11 +40,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import basinhopping, minimize
 
-from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, FrameModel
-from .frame_coords import FD_STEPS, FrameCoords
+from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Bounds, Model
+from .coords import FD_STEPS, WorkingCoords
 
-__all__ = ["Arrowhead", "FrameMAP", "optimize_frame", "derivatives", "initial_objects"]
+__all__ = ["PRESETS", "Arrowhead", "MapState", "FlatState", "optimize", "derivatives", "initial_objects", "preset_bounds"]
 
 _YAW_GRID = np.radians(np.arange(0.0, 360.0, 5.0))
 _PITCH_GRID = np.radians([-10.0, -4.0, 0.0, 4.0, 10.0, 20.0, 35.0])
@@ -125,7 +137,7 @@ class Arrowhead:
 
 
 @dataclass(frozen=True)
-class FrameMAP:
+class MapState:
     """The optimum: camera (5,), objects (m, 7), handedness (m,), its negative log-posterior, the
     arrowhead Hessian there, and ``info`` (iterations, seconds, starts tried)."""
 
@@ -137,13 +149,13 @@ class FrameMAP:
     info: dict = field(default_factory=dict)
 
 
-def _solve_objects(model: FrameModel, cam: np.ndarray, handedness: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closed-form placement of every object for one camera and one handedness over the yaw grid.
 
     Returns the best (x, y, z) (m, 3), yaw (m,) and the mean reprojection error (m,) pixels.
     """
     from ..core.geometry import rotation_from_pitch_roll
-    from ..models.frame import object_corners
+    from ..models.contract import object_corners
 
     mu = cam[C_FOCAL]
     R = rotation_from_pitch_roll(cam[C_PITCH], cam[C_ROLL])
@@ -171,7 +183,7 @@ def _solve_objects(model: FrameModel, cam: np.ndarray, handedness: int) -> tuple
     return t[best, idx], _YAW_GRID[best], err[best, idx]
 
 
-def initial_objects(model: FrameModel, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def initial_objects(model: Model, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Objects placed for one camera: (camera with its height set, objects (m, 7), handedness
     (m,), the total reprojection error in pixels)."""
     sols = [_solve_objects(model, cam, h) for h in (1, -1)]
@@ -182,8 +194,10 @@ def initial_objects(model: FrameModel, cam: np.ndarray) -> tuple[np.ndarray, np.
     cam = cam.copy()
     h = float(np.median(t[:, 1])) if np.all(np.isfinite(t[:, 1])) else cam[C_HEIGHT]
     cam[C_HEIGHT] = float(np.clip(h, 0.3, 20.0)) if h > 0 else cam[C_HEIGHT]
+    cam[C_HEIGHT] = float(np.clip(cam[C_HEIGHT], model.camera_lower[C_HEIGHT], model.camera_upper[C_HEIGHT]))
     objs = np.zeros((model.n_objects, 7))
     objs[:, 0], objs[:, 1], objs[:, 2] = t[:, 0], np.maximum(t[:, 2], 0.2), yaw
+    objs[:, :2] = np.clip(objs[:, :2], model.object_lower[:2], model.object_upper[:2])
     objs[:, O_SIZE] = [o.initial_sizes for o in model.objects]
     if model.ground_sd_m > 0:
         with np.errstate(invalid="ignore"):
@@ -195,17 +209,17 @@ def initial_objects(model: FrameModel, cam: np.ndarray) -> tuple[np.ndarray, np.
     return cam, objs, np.where(pick == 0, 1, -1), float(np.sum(err))
 
 
-def _camera_starts(model: FrameModel) -> list[np.ndarray]:
+def _camera_starts(model: Model) -> list[np.ndarray]:
+    """Cameras to place the objects from: a grid of µ around the prior's (when unknown) and, when
+    pitch and roll are free, of pitch (and the measured horizon's pitch and roll); inside the
+    model's bounds."""
     side = float(max(model.image_size))
     terms = model.camera_terms
-    if model.focal_length_px is not None:
-        focals = [model.focal_length_px]
-    else:
-        mid = terms.focal.median_px if terms.focal is not None else 30.0 / 43.27 * float(np.hypot(*model.image_size))
-        focals = [mid * k for k in _FOCAL_GRID if 0.1 * side <= mid * k <= 10 * side]
+    mid = model.focal_guess()
+    focals = [mid] if model.focal_length_px is not None else \
+        [mid * k for k in _FOCAL_GRID if 0.1 * side <= mid * k <= 10 * side] or [mid]
     starts = []
     for mu in focals:
-        cam = np.array([mu, 0.0, 0.0, 1.6, 0.5])
         if model.orientation == "free":
             hz = terms.horizon
             if hz is not None:
@@ -213,20 +227,25 @@ def _camera_starts(model: FrameModel) -> list[np.ndarray]:
 
                 p, r = pitch_roll_from_horizon(horizon_line(hz.points), mu, model.principal_point)
                 starts.append(np.array([mu, float(p), float(r), 1.6, 0.5]))
-            for pitch in _PITCH_GRID:
-                starts.append(np.array([mu, pitch, 0.0, 1.6, 0.5]))
+            starts += [np.array([mu, pitch, 0.0, 1.6, 0.5]) for pitch in _PITCH_GRID]
         else:
-            starts.append(model.complete_camera(cam)[0])
-    return starts
+            starts.append(model.complete_camera(np.array([mu, 0.0, 0.0, 1.6, 0.5]))[0])
+    lo, hi = model.camera_lower, model.camera_upper
+    out = []
+    for c in starts:
+        c = model.complete_camera(np.clip(c, lo, hi)[None])[0]
+        if not any(np.allclose(c, o) for o in out):
+            out.append(c)
+    return out
 
 
-def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: float = 1.0,
+def derivatives(model: Model, wc: np.ndarray, wo: np.ndarray, temperature: float = 1.0,
                 with_jacobian: bool = False) -> Arrowhead:
     """Gradient and arrowhead Hessian of the negative log-posterior at (wc (5,), wo (m, 7)) in
     working coordinates, by central differences batched over every object at once.
 
     ``with_jacobian`` adds −log |∂natural/∂working| (the density the sampler targets)."""
-    coords = FrameCoords(model)
+    coords = WorkingCoords(model)
     h = FD_STEPS
     P = _stencil(h)  # (n, 12)
     WC = wc[None] + P[:, :5] * model.camera_free
@@ -238,7 +257,7 @@ def derivatives(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: 
         if with_jacobian:
             jc, jo = coords.log_jacobian(WC, WO)
             fo, fc = fo - jo, fc - jc
-        else:  # the MAP's objective (FrameModel.map_objective)
+        else:  # the MAP's objective (Model.map_objective)
             fo = fo - model.map_log_jacobian(objs)
     value = float(fc[0] + fo[0].sum())
     F = np.concatenate([fc[:, None], fo], axis=1)  # (n, 1 + m): camera term, then each object's
@@ -288,7 +307,7 @@ def _second_differences(F: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.nd
     return grad, H
 
 
-def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: float, D: Arrowhead) -> None:
+def _add_pairs(model: Model, coords: WorkingCoords, wc, wo, temperature: float, D: Arrowhead) -> None:
     """Add the distance references' terms to ``D``: each pair's gradient and Hessian over
     (camera, oᵢ, oⱼ) by central differences, its blocks added where they belong and the
     cross-object block kept in ``D.H_pair``."""
@@ -322,12 +341,12 @@ def _add_pairs(model: FrameModel, coords: FrameCoords, wc, wo, temperature: floa
         D.H_pair[p] = H[5:12, 12:]
 
 
-def _total(model: FrameModel, wc: np.ndarray, wo: np.ndarray, temperature: float) -> float:
-    cams, objs = FrameCoords(model).from_work(wc[None], wo[None])
+def _total(model: Model, wc: np.ndarray, wo: np.ndarray, temperature: float) -> float:
+    cams, objs = WorkingCoords(model).from_work(wc[None], wo[None])
     return float(model.map_objective(cams, objs, temperature)[0])
 
 
-def _newton(model: FrameModel, wc, wo, temperature: float, max_iter: int = 60, tol: float = 1e-7):
+def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: float = 1e-7):
     """Levenberg–Marquardt on the arrowhead system; returns (wc, wo, value, iterations)."""
     f = _total(model, wc, wo, temperature)
     lam = 1e-3
@@ -357,9 +376,143 @@ def _newton(model: FrameModel, wc, wo, temperature: float, max_iter: int = 60, t
     return wc, wo, f, it
 
 
-def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int = 2) -> FrameMAP:
-    """The frame's MAP (module docstring). Sets the model's handedness per object and its pilot."""
+PRESETS = ("default", "paper", "paper-controlled")
+_PAPER_RESTARTS = {"paper": 200, "paper-controlled": 100}
+
+
+def preset_bounds(preset: str, image_size) -> Bounds | None:
+    """The box a preset optimises and samples within: the paper's for its presets (x, camera
+    height, z, µ as §6.1 and §7.1 give them; the camera at least 5 cm above the ground), None
+    (the model's own) for ``default``."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset: unknown preset {preset!r} (expected one of {list(PRESETS)})")
+    if preset == "default":
+        return None
+    z, height, focal = ((1.0, 50.0), (0.05, 5.0), (100.0, 3000.0)) if preset == "paper" else \
+        ((1.0, 100.0), (0.05, 10.0), (100.0, 2000.0))
+    return Bounds.box(image_size, x=(-10.0, 10.0), z=z, height=height, focal_px=focal)
+
+
+class FlatState:
+    """The free natural parameters of a model as one flat vector: the camera's free entries, then
+    each object's (row by row). ``pack`` (cams (n, 5), objs (n, m, 7)) → (n, d); ``unpack`` the
+    reverse, fixed entries taken from a template state."""
+
+    def __init__(self, model: Model, camera: np.ndarray, objects: np.ndarray):
+        self.model, self.camera, self.objects = model, np.asarray(camera, float), np.asarray(objects, float)
+        self.cf, self.of = model.camera_free, model.object_free
+        self.lower = np.concatenate([model.camera_lower[self.cf],
+                                     np.broadcast_to(model.object_lower, self.of.shape)[self.of]])
+        self.upper = np.concatenate([model.camera_upper[self.cf],
+                                     np.broadcast_to(model.object_upper, self.of.shape)[self.of]])
+        yaw = np.zeros(self.of.shape, bool)
+        yaw[:, O_YAW] = True
+        self.circular = np.concatenate([np.zeros(int(self.cf.sum()), bool), yaw[self.of]])
+
+    def pack(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
+        cams, objs = np.atleast_2d(cams), np.asarray(objs, float).reshape(len(np.atleast_2d(cams)), -1, 7)
+        return np.concatenate([cams[:, self.cf], objs[:, self.of]], axis=1)
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.atleast_2d(x)
+        kc = int(self.cf.sum())
+        cams = np.repeat(self.camera[None], len(x), axis=0)
+        objs = np.repeat(self.objects[None], len(x), axis=0)
+        cams[:, self.cf] = x[:, :kc]
+        objs[:, self.of] = x[:, kc:]
+        return self.model.complete_camera(cams), objs
+
+
+def _lbfgsb(model: Model, flat: FlatState, x0: np.ndarray, temperature: float, *, ftol: float,
+            maxiter: int = 500) -> tuple[np.ndarray, float]:
+    """L-BFGS-B on the MAP objective over the flat free parameters (scaled to their typical size,
+    yaw unbounded), with a vectorised central-difference gradient."""
+    scale = np.maximum(np.abs(x0), 0.1)
+    lo, hi = flat.lower / scale, flat.upper / scale
+    lo[flat.circular], hi[flat.circular] = -np.inf, np.inf
+    eps = 1e-6
+
+    def fun_grad(z):
+        n = len(z)
+        pts = np.vstack([z, z + eps * np.eye(n), z - eps * np.eye(n)]) * scale
+        f = model.map_objective(*flat.unpack(pts), temperature)
+        f = np.where(np.isfinite(f), f, 1e300)
+        return f[0], (f[1:n + 1] - f[n + 1:]) / (2 * eps)
+
+    res = minimize(fun_grad, np.clip(x0 / scale, lo, hi), jac=True, method="L-BFGS-B",
+                   bounds=list(zip(lo, hi)), options={"ftol": ftol, "gtol": 1e-9, "maxiter": maxiter})
+    return res.x * scale, float(res.fun)
+
+
+def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Basin hopping with random restarts (module docstring): (camera, objects, handedness, info)."""
+    start = max(_camera_starts(model), key=lambda c: -initial_objects(model, c)[3])
+    cam, objs, hand, _ = initial_objects(model, start)
+    best = None
+    per = max(1, restarts // 2)
+    for h in (hand, -hand):
+        model.handedness = h.astype(float)
+        flat = FlatState(model, cam, objs)
+        lo, hi = flat.lower.copy(), flat.upper.copy()
+        lo[flat.circular], hi[flat.circular] = -np.pi, np.pi
+
+        def f(x):
+            v = float(model.map_objective(*flat.unpack(x), temperature)[0])
+            return v if np.isfinite(v) else 1e300
+
+        res = basinhopping(f, rng.uniform(lo, hi), niter=per - 1, T=0.0, rng=rng,
+                           take_step=lambda x: rng.uniform(lo, hi),
+                           callback=None if bar is None else (lambda *_: bar.update(1)),
+                           minimizer_kwargs={"method": "L-BFGS-B", "bounds": list(zip(lo, hi)),
+                                             "options": {"ftol": 1e-8}})
+        if best is None or res.fun < best[0]:
+            best = (float(res.fun), flat.unpack(res.x), h)
+    value, (cams, objs), hand = best
+    return cams[0], objs[0], hand, {"restarts": per * 2}
+
+
+def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0, rng=None,
+             restarts: int | None = None, progress: bool = False, n_refine: int = 2) -> MapState:
+    """The MAP of ``model`` (module docstring). Sets the model's handedness per object and its pilot.
+
+    Parameters
+    ----------
+    preset : one of :data:`PRESETS`
+    temperature : T of the posterior whose mode is sought
+    rng : seed or Generator (only the paper presets draw random numbers)
+    restarts : random restarts of the paper presets (None: the paper's); not for ``default``
+    progress : a progress bar of the paper presets' restarts on standard error
+    n_refine : starts of the default preset refined by Newton steps
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"preset: unknown preset {preset!r} (expected one of {list(PRESETS)})")
+    if restarts is not None:
+        if preset == "default":
+            raise ValueError("restarts: the default preset has no random restarts")
+        if isinstance(restarts, bool) or not isinstance(restarts, (int, np.integer)) or restarts < 1:
+            raise ValueError(f"restarts: expected an integer >= 1, got {restarts!r}")
     t0 = time.perf_counter()
+    if preset == "default":
+        cam, objs, hand, info = _default(model, temperature, n_refine)
+    else:
+        from .progress import progress_bar
+
+        n = _PAPER_RESTARTS[preset] if restarts is None else restarts
+        with progress_bar(progress, 2 * max(1, n // 2), desc=f"{preset} restarts", unit="restart") as bar:
+            cam, objs, hand, info = _paper(model, temperature, n, np.random.default_rng(rng), bar)
+        model.handedness = hand.astype(float)
+        model.set_pilot(cam)
+    wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
+    D = derivatives(model, wc, wo, temperature)
+    objs = objs.copy()
+    objs[:, O_YAW] = (objs[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
+    value = float(model.map_objective(cam[None], objs[None], temperature)[0])
+    return MapState(model.complete_camera(cam[None])[0], objs, hand, value, D,
+                    {**info, "preset": preset, "seconds": time.perf_counter() - t0})
+
+
+def _default(model: Model, temperature: float, n_refine: int):
+    """The default preset (module docstring): (camera, objects, handedness, info)."""
     candidates = []
     for cam in _camera_starts(model):
         cam, objs, hand, err = initial_objects(model, cam)
@@ -369,12 +522,12 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     best = None
     iters = refined = 0
-    sigma = model.sigma.copy()
+    sigma = np.array(model.sigma, float)
     for value, err, cam, objs, hand in candidates:
         if refined >= n_refine and best is not None and np.isfinite(best[0]):
             break
         model.handedness = hand.astype(float)
-        wc, wo = (a[0] for a in FrameCoords(model).to_work(cam[None], objs[None]))
+        wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
         if np.any(sigma < _SMOOTH_SIGMA_PX):  # continuation: a smoother cost first (far from the
             model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # optimum a tiny σ leaves only t-tails)
             wc, wo, f, it = _newton(model, wc, wo, temperature)
@@ -387,16 +540,21 @@ def optimize_frame(model: FrameModel, *, temperature: float = 1.0, n_refine: int
             best = (f, wc, wo, hand)
     f, wc, wo, hand = best
     if not np.isfinite(f):
-        raise RuntimeError(f"no start of the frame's optimiser reached a finite posterior density "
+        raise RuntimeError(f"no start of the optimiser reached a finite posterior density "
                            f"({len(candidates)} starts tried)")
     model.handedness = hand.astype(float)
-    cams, _ = FrameCoords(model).from_work(wc[None], wo[None])
-    if len(model.references):
-        model.set_pilot(cams[0])
+    coords = WorkingCoords(model)
+    cams, _ = coords.from_work(wc[None], wo[None])
+    model.set_pilot(cams[0])
+    if model.needs_pilot:
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
-    D = derivatives(model, wc, wo, temperature)
-    cams, objs = FrameCoords(model).from_work(wc[None], wo[None])
-    objs[0, :, 2] = (objs[0, :, 2] + np.pi) % (2 * np.pi) - np.pi
-    return FrameMAP(cams[0], objs[0], hand, f, D,
-                    {"iterations": iters, "starts": len(candidates), "seconds": time.perf_counter() - t0})
+    cams, objs = coords.from_work(wc[None], wo[None])
+    cam, objs = cams[0], objs[0]
+    if not model.smooth:  # kinks: finish with L-BFGS-B, which needs no Hessian
+        flat = FlatState(model, cam, objs)
+        x, _ = _lbfgsb(model, flat, flat.pack(cam[None], objs[None])[0], temperature, ftol=1e-13)
+        c2, o2 = flat.unpack(x)
+        if model.map_objective(c2, o2, temperature)[0] < model.map_objective(cam[None], objs[None], temperature)[0]:
+            cam, objs = c2[0], o2[0]
+    return cam, objs, hand, {"iterations": iters, "starts": len(candidates)}

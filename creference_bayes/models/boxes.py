@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.geometry import box_vertices, rotation_from_pitch_roll
-from .frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
+from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
 
 __all__ = ["world_boxes", "frame_boxes_2d", "footprint"]
 

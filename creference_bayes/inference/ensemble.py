@@ -2,7 +2,7 @@
 
 The emcee adapter. It knows nothing of cameras or boxes: it samples any vectorised
 ``log_prob((n, ndim)) → (n,)`` from a starting point and a covariance (the MAP and its Laplace
-approximation, :mod:`.posterior`).
+approximation). :mod:`.sampler` uses it for a scene with one object block.
 
 How it samples
 --------------
@@ -29,7 +29,7 @@ How it samples
   quartile and 5–95 % ranges, robust to a heavy-tailed posterior; compared with the fitted
   sample's own, since a skewed posterior keeps them unlike a normal's in the best of maps) and
   the proposal is accepted often enough. A stage is judged every ``chunk`` steps on the second half
-  of what it has run, and ends as soon as it passes after at least 2 · ``warmup`` steps: the
+  of what it has run, and ends as soon as it passes after at least 2 · ``stage`` steps: the
   stage that confirms a good map need not run its doubled length (on the SBC scenes' slowest
   estimates that was 1 600 of 5 000 warm-up steps). Warm-up draws are discarded;
   the map and the proposal are then frozen, so the main phase is an ordinary (non-adaptive)
@@ -37,12 +37,13 @@ How it samples
   stage (at most twice).
 * **Main phase.** A mixture of moves (emcee picks one per step): the independence proposal
   (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps;
-  ``independence_tries`` (4) proposals per walker, one picked by multiple-try Metropolis)
+  ``tries`` (4) proposals per walker, one picked by multiple-try Metropolis)
   and the grouped differential-evolution and stretch moves (robust where the proposal fits
   badly). It runs in chunks until the chain after burn-in is at
   least ``tau_multiple`` (50) integrated autocorrelation times long, τ has settled (changed by
-  less than ``tau_tolerance`` since the previous check) and the estimated bulk ESS reaches
-  ``min_ess``, or ``max_steps`` is reached. Burn-in is 2·max τ and thinning ½·min τ
+  less than ``tau_tolerance`` since the previous check), the estimated bulk ESS reaches
+  ``min_ess`` and the rank-normalised split R-hat across the ensembles is at most ``max_rhat``,
+  or ``max_steps`` is reached. Burn-in is 2·max τ and thinning ½·min τ
   (emcee's advice).
 * **Seeding.** Everything random comes from ``rng``: the same seed gives identical draws.
 * **Robustness.** A log-probability that returns NaN or ±∞ is treated as −∞ (the state is
@@ -60,12 +61,12 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from .autocorr import integrated_time
+from .diagnostics import rhat_rank
 from .modes import fit_mixture
-from .options import settings_from_options
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
 
-__all__ = ["SamplerSettings", "Chains", "SamplingError", "sample", "explore"]
+__all__ = ["Chains", "SamplingError", "sample", "explore"]
 
 
 #: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
@@ -77,104 +78,6 @@ DEFENSIVE_WEIGHT = 0.2
 
 class SamplingError(RuntimeError):
     """The sampler cannot start (for example, the starting point has zero density)."""
-
-
-@dataclass(frozen=True)
-class SamplerSettings:
-    """Settings of :func:`sample`.
-
-    Attributes
-    ----------
-    n_ensembles : independent ensembles (chains for R-hat), ≥ 2
-    n_walkers : walkers per ensemble, even, ≥ max(8, 2·ndim)
-    min_ess : requested bulk effective sample size of every parameter
-    tau_multiple : the chain after burn-in must be at least this many autocorrelation times long
-    tau_tolerance : the largest τ must also have changed by less than this fraction since the
-        previous check (emcee's advice: a τ that is still growing means the tails are still being
-        found)
-    max_steps : cap on main-phase steps (the result then says it has not converged)
-    retune_tau, max_retunes : a first main-phase chunk with τ above ``retune_tau`` steps is
-        turned into one more warm-up stage, at most ``max_retunes`` times (:func:`_main_phase`)
-    chunk : steps between convergence checks (grows to the expected remaining length in the
-        main phase; fixed in warm-up, where each stage is judged every ``chunk`` steps)
-    warmup : length of the first two warm-up stages; later stages double. The coordinates and
-        the proposal are refitted after each stage, until a stage run in the coordinates fitted
-        before it looks like the sample they were fitted to (:func:`_stable`; judged as it runs,
-        so such a stage ends after 2 · ``warmup`` steps), or ``max_warmup`` steps
-    max_warmup : cap on warm-up steps
-    adapt : fit the straightening map and the independence proposal during warm-up
-    independence_weight : probability that a main-phase step uses the independence proposal
-    min_independence_acceptance : warm-up goes on while that proposal is accepted less often (it
-        then does not yet cover the posterior)
-    proposal_df, proposal_scale : degrees of freedom and scale inflation of that proposal
-    proposal_components : with one mode, the proposal is a mixture of up to this many t
-        components, fitted to the warm-up sample by EM from k-means seeds (:func:`_fit_proposal`);
-        1 fits a single t. With several modes it has a component per mode instead
-    independence_tries : proposals per walker in each independence step (multiple-try
-        Metropolis, :class:`~.moves.IndependenceMove`; 1: the ordinary independence step)
-    mode_search : before sampling, look for other modes (:mod:`.modes`; done by the caller,
-        :func:`creference_bayes.pipeline.estimate`, which passes them as ``modes``)
-    explore_temperature, explore_steps : the tempered exploration of that search
-    """
-
-    n_ensembles: int = 4
-    n_walkers: int = 32
-    min_ess: float = 1000.0
-    tau_multiple: float = 50.0
-    tau_tolerance: float = 0.2
-    retune_tau: float = 20.0
-    max_retunes: int = 2
-    max_steps: int = 20000
-    chunk: int = 100
-    warmup: int = 100
-    max_warmup: int = 5000
-    adapt: bool = True
-    independence_weight: float = 0.8
-    min_independence_acceptance: float = 0.15
-    proposal_df: float = 6.0
-    proposal_scale: float = 1.2
-    proposal_components: int = 3
-    independence_tries: int = 4
-    mode_search: bool = True
-    explore_temperature: float = 3.0
-    explore_steps: int = 150
-
-    def __post_init__(self):
-        checks = [
-            ("n_ensembles", self.n_ensembles >= 2, "an integer ≥ 2"),
-            ("n_walkers", self.n_walkers >= 8 and self.n_walkers % 2 == 0, "an even integer ≥ 8"),
-            ("min_ess", self.min_ess >= 0, "a number ≥ 0"),
-            ("tau_multiple", self.tau_multiple > 0, "a number > 0"),
-            ("tau_tolerance", self.tau_tolerance > 0, "a number > 0"),
-            ("retune_tau", self.retune_tau > 0, "a number > 0"),
-            ("max_retunes", self.max_retunes >= 0, "an integer ≥ 0"),
-            ("max_steps", self.max_steps >= 1, "an integer ≥ 1"),
-            ("chunk", self.chunk >= 10, "an integer ≥ 10"),
-            ("warmup", self.warmup >= 10, "an integer ≥ 10"),
-            ("max_warmup", self.max_warmup >= self.warmup, "an integer ≥ warmup"),
-            ("independence_weight", 0.0 <= self.independence_weight < 1.0, "a number in [0, 1)"),
-            ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0,
-             "a number in [0, 1)"),
-            ("proposal_df", self.proposal_df > 0, "a number > 0"),
-            ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
-            ("proposal_components", isinstance(self.proposal_components, (int, np.integer))
-             and not isinstance(self.proposal_components, bool) and self.proposal_components >= 1,
-             "an integer ≥ 1"),
-            ("independence_tries", isinstance(self.independence_tries, (int, np.integer))
-             and not isinstance(self.independence_tries, bool) and self.independence_tries >= 1,
-             "an integer ≥ 1"),
-            ("mode_search", isinstance(self.mode_search, bool), "true or false"),
-            ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
-            ("explore_steps", self.explore_steps >= 10, "an integer ≥ 10"),
-        ]
-        for name, ok, expected in checks:
-            if not ok:
-                raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
-
-    @classmethod
-    def from_options(cls, options: dict | None) -> "SamplerSettings":
-        """Settings from a dict; unknown keys are rejected with a message naming them."""
-        return settings_from_options(cls, options)
 
 
 @dataclass(frozen=True)
@@ -312,7 +215,7 @@ def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
     local = [(GroupedDEMove(g), 0.8), (GroupedStretchMove(g), 0.2)]
     if proposal is None:
         return local
-    w = settings.independence_weight
+    w = 0.8 if settings.independence_weight is None else settings.independence_weight
     return [(proposal, w)] + [(m, (1.0 - w) * p) for m, p in local]
 
 
@@ -352,13 +255,13 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
             try:
                 chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
                 return IndependenceMove(means, chols, settings.proposal_df, weights=weights,
-                                        tries=settings.independence_tries)
+                                        tries=settings.tries)
             except np.linalg.LinAlgError:
                 pass
     cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
     try:
         return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df,
-                                tries=settings.independence_tries)
+                                tries=settings.tries)
     except np.linalg.LinAlgError:
         return None
 
@@ -498,7 +401,7 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
     info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
                   "reparametrised": False, "modes": len(starts)}
-    with _progress_bar(progress, 3 * s.warmup + 10 * s.chunk) as bar:
+    with _progress_bar(progress, 3 * s.stage + 10 * s.chunk) as bar:
         coords = Coordinates.affine(center, cov, log_mask)
         coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
                                                 centers, fit_rng)
@@ -531,7 +434,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
     is accepted often enough (or ``max_warmup``). Returns the coordinates, proposal, positions
     and random state."""
     d = pos.shape[1]
-    proposal, n_warm, stage, stable, reference = None, 0, s.warmup, False, None
+    proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
     while not stable and n_warm < s.max_warmup:
         stage = min(stage, s.max_warmup - n_warm)
         sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
@@ -539,7 +442,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         while done < stage:  # in chunks: a stage already whitened ends early (below)
             state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
             done = sampler.iteration
-            if done < min(stage, 2 * s.warmup):
+            if done < min(stage, 2 * s.stage):
                 continue  # too short to be judged before its end
             tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
             indep = proposal.acceptance if proposal is not None else float("nan")
@@ -618,15 +521,31 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
         ess_est = nw * (n - burn) / tau_max
         steady = abs(tau_max - tau_prev) <= s.tau_tolerance * tau_max
         tau_prev = tau_max
+        rhat_ok = True
         if n - burn >= s.tau_multiple * tau_max and ess_est >= s.min_ess and steady:
-            info["stopped"] = "converged"
-            break
+            info["max_r_hat"] = _max_rank_rhat(watched[burn:], s.n_ensembles)
+            rhat_ok = info["max_r_hat"] <= s.max_rhat
+            if rhat_ok:
+                info["stopped"] = "converged"
+                break
         # expected total: burn-in + max(50 τ, the steps the ESS needs), with a 10 % margin
         need = 2.0 * tau_max + max(s.tau_multiple * tau_max, s.min_ess * tau_max / nw)
+        if not rhat_ok:  # R-hat − 1 falls about as 1 / length
+            need = max(need, n * (info["max_r_hat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else 2 * n)
         n_target = int(np.ceil(1.1 * need))
         bar.total = sum(info["warmup_stages"]) + max(n_target, n + s.chunk)
         bar.refresh()
     return sampler, chain, burn, tau, coords
+
+
+def _max_rank_rhat(chain: np.ndarray, n_ensembles: int) -> float:
+    """The largest rank-normalised split R-hat across the ensembles of every column of a chain
+    (n, walkers, k), each ensemble's draws walker-major (:mod:`.diagnostics`)."""
+    n, w, k = chain.shape
+    per = w // n_ensembles
+    arr = np.moveaxis(chain.reshape(n, n_ensembles, per, k), 0, 2).reshape(n_ensembles, per * n, k)
+    with np.errstate(all="ignore"):
+        return float(np.nanmax(np.append(rhat_rank(arr), 1.0)))
 
 
 def _with_derived(chain: np.ndarray, derived) -> np.ndarray:

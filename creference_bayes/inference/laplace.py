@@ -1,14 +1,14 @@
-"""The Laplace approximation of a frame's posterior at its MAP, in working coordinates.
+"""The Laplace approximation of a scene's posterior at its MAP, in working coordinates.
 
-The frame's posterior is close to a Gaussian in the working coordinates of
-:mod:`.frame_coords` (each object anchored to the image), so a Gaussian fitted at the MAP there
-(the negative log-posterior's arrowhead Hessian, :func:`.frame_map.derivatives`, including the
+The posterior is close to a Gaussian in the working coordinates of
+:mod:`.coords` (each object anchored to the image), so a Gaussian fitted at the MAP there
+(the negative log-posterior's arrowhead Hessian, :func:`.map.derivatives`, including the
 Jacobian of the change of coordinates as the sampler's density does) gives cheap, curved draws in
 natural coordinates and the delta-method variance of any per-object quantity. ``creference plot``
-uses its draws when a result has none; ``creference advise`` on a frame uses its variances, and
-how much one more observation changes them (docs/frames.md).
+uses its draws when a result has none; ``creference advise`` uses its variances, and
+how much one more observation changes them.
 
-By blocks (as :meth:`.frame_map.Arrowhead.covariance_blocks`): the camera's marginal covariance
+By blocks (as :meth:`.map.Arrowhead.covariance_blocks`): the camera's marginal covariance
 ``Sc`` (5, 5), each object's covariance given the camera ``Ao`` (m, 7, 7) and the shear ``B``
 (m, 7, 5), E[oᵢ | c] = oᵢ* + Bᵢ (c − c*). Fixed parameters have zero variance.
 """
@@ -19,16 +19,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.frame import FrameModel
-from .frame_coords import FD_STEPS, FrameCoords
-from .frame_map import Arrowhead, derivatives
+from ..models.contract import Model
+from .coords import FD_STEPS, WorkingCoords
+from .map import Arrowhead, derivatives
 
-__all__ = ["FrameLaplace", "frame_laplace", "laplace_blocks", "block_variances", "work_gradients"]
+__all__ = ["Laplace", "laplace", "laplace_blocks", "block_variances", "work_gradients"]
 
 
 @dataclass(frozen=True)
-class FrameLaplace:
-    """A frame's Laplace approximation (module docstring).
+class Laplace:
+    """A scene's Laplace approximation (module docstring).
 
     Attributes
     ----------
@@ -41,7 +41,7 @@ class FrameLaplace:
         :func:`laplace_blocks`)
     """
 
-    model: FrameModel
+    model: Model
     camera: np.ndarray
     objects: np.ndarray
     wc: np.ndarray
@@ -61,24 +61,24 @@ class FrameLaplace:
         Lo = np.array([_chol(self.Ao[i], self.model.object_free[i]) for i in range(m)])
         dc = rng.standard_normal((n, 5)) @ Lc.T
         do = np.einsum("mij,nmj->nmi", Lo, rng.standard_normal((n, m, 7))) + np.einsum("mic,nc->nmi", self.B, dc)
-        cams, objs = FrameCoords(self.model).from_work(self.wc[None] + dc, self.wo[None] + do)
+        cams, objs = WorkingCoords(self.model).from_work(self.wc[None] + dc, self.wo[None] + do)
         ok = np.all(np.isfinite(objs), axis=(1, 2)) & self.model.in_bounds(cams, objs)
         return cams[ok], objs[ok]
 
 
-def frame_laplace(model: FrameModel, camera: np.ndarray, objects: np.ndarray, *,
-                  temperature: float = 1.0) -> FrameLaplace:
+def laplace(model: Model, camera: np.ndarray, objects: np.ndarray, *,
+                  temperature: float = 1.0) -> Laplace:
     """The Laplace approximation at the MAP ``camera`` (5,) and ``objects`` (m, 7) (natural
     coordinates; the model's handedness must be the MAP's)."""
     camera = model.complete_camera(np.asarray(camera, float)[None])[0]
     objects = np.asarray(objects, float)
-    wc, wo = (a[0] for a in FrameCoords(model).to_work(camera[None], objects[None]))
+    wc, wo = (a[0] for a in WorkingCoords(model).to_work(camera[None], objects[None]))
     H = derivatives(model, wc, wo, temperature, with_jacobian=True)
     Sc, Ao, B, ok = laplace_blocks(model, H)
-    return FrameLaplace(model, camera, objects, wc, wo, H, Sc, Ao, B, ok)
+    return Laplace(model, camera, objects, wc, wo, H, Sc, Ao, B, ok)
 
 
-def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+def laplace_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """(``Sc``, ``Ao``, ``B``, ok) of an arrowhead Hessian ``H`` (module docstring), zero on fixed
     parameters. A block that is not positive definite (an object's, or the camera's Schur
     complement: a MAP in natural coordinates need not be a mode of the working-coordinate
@@ -104,7 +104,7 @@ def laplace_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndar
     return Sc, Ao, B, bool(ok)
 
 
-def _dense_blocks(model: FrameModel, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+def _dense_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """:func:`laplace_blocks` when distance references couple objects: from the whole inverse,
     each object's covariance given the camera alone (the other objects integrated out), so that
     a quantity of one object has its marginal variance (:func:`block_variances`)."""
@@ -156,7 +156,7 @@ def block_variances(Sc: np.ndarray, Ao: np.ndarray, B: np.ndarray, g_c: np.ndarr
     return own + np.einsum("mc,cd,md->m", via, Sc, via)
 
 
-def work_gradients(model: FrameModel, wc: np.ndarray, wo: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
+def work_gradients(model: Model, wc: np.ndarray, wo: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
     """Central-difference gradients of per-object quantities in working coordinates.
 
     ``f(cams (n, 5), objs (n, m, 7)) -> (n, m, q)`` in natural coordinates; every coordinate is
@@ -168,7 +168,7 @@ def work_gradients(model: FrameModel, wc: np.ndarray, wo: np.ndarray, f) -> tupl
     P = np.concatenate([E, -E])  # (24, 12)
     WC = wc[None] + P[:, :5] * model.camera_free
     WO = wo[None] + P[:, None, 5:] * model.object_free[None]
-    cams, objs = FrameCoords(model).from_work(WC, WO)
+    cams, objs = WorkingCoords(model).from_work(WC, WO)
     F = np.asarray(f(cams, objs), float)  # (24, m, q)
     d = (F[:12] - F[12:]) / (2 * h[:, None, None])  # (12, m, q)
     g = np.transpose(d, (1, 2, 0))  # (m, q, 12)

@@ -1,4 +1,4 @@
-"""Working coordinates of a frame's parameters, shared by its optimiser and its sampler.
+"""Working coordinates of a scene's parameters, shared by its optimiser and its sampler.
 
 The camera enters by the logarithms of its positive parameters; each object is *anchored to the
 image*:
@@ -19,7 +19,7 @@ follows.) Known sizes stay fixed in metres.
 The Jacobian of (u, v) → (x, z) on the plane y = y₀ is y₀² / (µ² d_y³), d = Rᵀ K⁻¹ (u, v, 1) the
 viewing ray (a homography's Jacobian); each size contributes its value.
 
-Arrays: cameras (n, 5), objects (n, m, 7), as :mod:`~creference_bayes.models.frame`.
+Arrays: cameras (n, 5), objects (n, m, 7), as :mod:`~creference_bayes.models.contract`.
 """
 
 from __future__ import annotations
@@ -27,19 +27,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.geometry import rotation_from_pitch_roll
-from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, FrameModel
+from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Model
 
-__all__ = ["CAMERA_LOG", "FrameCoords", "FD_STEPS"]
+__all__ = ["CAMERA_LOG", "WorkingCoords", "FD_STEPS"]
 
 CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
 
 
-class FrameCoords:
+class WorkingCoords:
     """Natural parameters ↔ working coordinates for one model (module docstring)."""
 
-    def __init__(self, model: FrameModel):
+    def __init__(self, model: Model):
         self.model = model
         self.pp = np.asarray(model.principal_point, float)
         self.known = ~model.object_free[:, O_SIZE]  # (m, 3)
