@@ -286,7 +286,7 @@ def _write_labels(folder: Path, name: str, frame, boxes, scores) -> None:
     write_label_file(folder / "label_2" / f"{name}.txt",
                      [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(sc))
                       for t, b, sc in zip(frame.targets, boxes, scores)])
-    write_calib_file(folder / "calib" / f"{name}.txt", frame.kitti_p2)
+    write_calib_file(folder / "calib" / f"{name}.txt", frame.kitti_p2, frame.kitti_calib)
 
 
 def _bound(frame, name, bound_options, args, out, rng, depth_score):

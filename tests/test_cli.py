@@ -57,7 +57,7 @@ def test_console_script_missing_file_exits_2(tmp_path):
 @pytest.mark.parametrize("content, start", [
     ('{"format": "creference-scene/1"', "error: {path}: not valid JSON"),
     ('{"format": "creference-scene/1", "x": NaN}', "error: {path}: non-standard JSON constant NaN"),
-    ('{"format": "creference-scene/0"}', "error: format: expected 'creference-scene/1', got 'creference-scene/0'"),
+    ('{"format": "creference-scene/0"}', "error: format: expected 'creference-scene/1' or 'creference-scene/2', got 'creference-scene/0'"),
     ("[]", "error: (scene): expected an object, got list []"),
 ])
 def test_broken_files_exit_2(tmp_path, capsys, content, start):

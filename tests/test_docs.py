@@ -140,3 +140,76 @@ def test_figure_script_draws_the_handedness_figure(tmp_path):
                            "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "handedness.png").stat().st_size > 10_000
+
+
+# ------------------------------------------------------------------------------------------------
+# docs/labels.md: every Python snippet runs as printed, on the sidecars `creference labels` writes
+
+
+def _python_blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), re.S)
+
+
+@pytest.fixture(scope="module")
+def labelled(tmp_path_factory):
+    """A folder as docs/labels.md has it: `labels/` from `creference labels` on a batch of one
+    simulated one-target scene (scene_0000) and one simulated frame (frame_0000), no images."""
+    import numpy as np
+
+    from creference_bayes.bench.frame_simulate import simulate_frame
+    from creference_bayes.bench.runner import write_scenes
+    from creference_bayes.cli.main import main
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    root = tmp_path_factory.mktemp("labels_doc")
+    write_scenes(root / "scenes", 1, seed=2, tier="low")
+    frame = simulate_frame(np.random.default_rng(4), n_objects=2, n_annotations=3)
+    (root / "scenes" / "frame_0000.json").write_text(json.dumps(frame))
+    settings = BatchSettings(seed=3, sampling={"n_ensembles": 2, "n_walkers": 16, "tau_multiple": 20, "min_ess": 100},
+                             frame_sampling={"n_chains": 4, "warmup": 100, "chunk": 100, "max_iterations": 200,
+                                             "min_ess": 20})
+    report = run_batch([root / "scenes"], root / "batch", LocalEngine(1), settings)
+    assert report.ok, report.errors
+    assert main(["labels", str(root / "batch"), "--out", str(root / "labels"), "--quiet"]) == 0
+    return root
+
+
+def test_every_python_snippet_of_labels_md_runs_on_the_sidecars_labels_writes(labelled, monkeypatch):
+    """The bird's-eye snippets run as printed (one on a one-target sidecar, one on a frame's, whose
+    draws are KITTI boxes with rotation_y and estimated sizes), and their `spatial` is what it
+    says: the share of the drawn footprints (shapely, KITTI's box convention) holding each point."""
+    import numpy as np
+    import shapely
+
+    from creference_bayes.evaluation.iou3d import footprints
+
+    blocks = _python_blocks(ROOT / "docs" / "labels.md")
+    assert len(blocks) >= 2
+    sources = set()
+    monkeypatch.chdir(labelled)
+    for code in blocks:
+        ns: dict = {}
+        exec(compile(code, "docs/labels.md", "exec"), ns)
+        sources.add(code.split('open("', 1)[1].split('"', 1)[0])
+        d, spatial, X, Z = ns["d"], ns["spatial"], ns["X"], ns["Z"]
+        n = d["n"]
+        yaw = np.asarray(d.get("yaw", d.get("rotation_y")), float)
+        if "dim" in ns:
+            length, width = np.full(n, ns["dim"]["l"]), np.full(n, ns["dim"]["w"])
+        else:
+            length, width = np.asarray(ns["lengths"], float), np.asarray(ns["widths"], float)
+        boxes = np.column_stack([d["x"], np.zeros(n), d["z"], yaw, length, width, np.ones(n)])
+        polygons = shapely.polygons(footprints(boxes))
+        assert spatial.shape == X.shape and 0 <= spatial.min() and spatial.max() <= 1 and spatial.max() > 0
+        rng = np.random.default_rng(0)
+        partial = np.flatnonzero((spatial.ravel() > 0) & (spatial.ravel() < 1))
+        cells = np.concatenate([rng.choice(partial, min(60, len(partial)), replace=False),
+                                rng.choice(spatial.size, 40, replace=False)])
+        for c in cells:
+            share = shapely.covers(polygons, shapely.points(X.ravel()[c], Z.ravel()[c])).mean()
+            assert abs(share - spatial.ravel()[c]) <= 1.0 / n + 1e-9
+    assert sources == {"labels/uncertainty/scene_0000.json", "labels/uncertainty/frame_0000.json"}
+    frame = json.loads((labelled / "labels" / "uncertainty" / "frame_0000.json").read_text())
+    draws = frame["objects"][0]["draws"]
+    assert "dimensions_m" not in frame["objects"][0] and {"rotation_y", "length", "width"} <= set(draws)

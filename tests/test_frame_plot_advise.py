@@ -95,6 +95,17 @@ def test_frame_figures_label_every_object_and_zoom_on_small_clouds(frame3):
     assert len(panels) - 1 >= n_near >= 1
 
 
+def test_plot_writes_the_zoom_panels_apart_when_too_many_for_the_top_view(frame3, tmp_path, monkeypatch):
+    from creference_bayes.vision import frame_figures as ff
+
+    d, scene, result = frame3
+    assert main(["plot", str(d / "result.json"), "--out", str(tmp_path / "few"), "--quiet"]) == 0
+    assert not (tmp_path / "few" / "frame_zooms.png").exists()  # beside the top view
+    monkeypatch.setattr(ff, "MAX_ZOOM_PANELS", 0)  # as a crowded frame's: more than fit beside it
+    assert main(["plot", str(d / "result.json"), "--out", str(tmp_path / "many"), "--quiet"]) == 0
+    assert (tmp_path / "many" / "frame_zooms.png").stat().st_size > 10_000
+
+
 def test_plot_refuses_a_frame_that_is_not_the_results(frame3, tmp_path, capsys):
     d, scene, result = frame3
     other = simulate_frame(2, n_objects=4)

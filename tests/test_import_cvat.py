@@ -58,6 +58,8 @@ def test_xml_file_gives_the_hand_written_scenes(assert_same_scene):
 
 
 def test_cli_reads_the_xml_or_the_zip_and_exits_2_on_the_bad_image(tmp_path, capsys):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "street.png").write_bytes(b"")  # found under its name in the task
     zpath = tmp_path / "task.zip"
     with zipfile.ZipFile(zpath, "w") as z:
         z.write(XML, "annotations.xml")
@@ -139,13 +141,13 @@ def _ref(tid="", mode="direct", value="2", unit="m", pts="100,900;300,920"):
      "image 'im.jpg', shape 2 (polyline 'reference'): a relative reference needs a target_id"),
     (_doc(_TARGET.format(tid="a"), _ref(tid="c")),
      "image 'im.jpg', shape 1 (polyline 'reference'): reference for target 'c', but no target shape"),
-    (_doc(_TARGET.format(tid="a"), _TARGET.format(tid="")), "some target shapes have a target_id"),
+    (_doc(_TARGET.format(tid="a"), _TARGET.format(tid="")),
+     "image 'im.jpg', shape 1 (points 'target'): this target shape has no target_id, and the image has several "
+     "targets (['a']); give every target shape its target_id"),
     (_doc(_TARGET.format(tid=""), _ref(value="2 m")), "shape 1 (polyline 'reference'): value is not a number: '2 m'"),
     (_doc(_TARGET.format(tid=""), _ref(unit="furlong")), "unknown unit 'furlong'"),
     (_doc(_TARGET.format(tid=""), _ref(pts="100,900;1O0,950")), "a coordinate is not a number: '1O0'"),
     (_doc(_TARGET.format(tid=""), _ref(pts="100,900,3;300,920")), "malformed point '100,900,3'"),
-    (_doc(_TARGET.format(tid="").replace("<points ", "<polygon ").replace("</points>", "</polygon>")),
-     "shape 0 (polygon 'target'): a target must be drawn as points or a polyline"),
     (_doc(_TARGET.format(tid="").replace("1000,400", "1000,400;5,5")),
      "shape 0 (points 'target'): target has 5 points, expected 4 (t1..t4)"),
     (_doc(_TARGET.format(tid="").replace("0.8<", "0.9<"), _TARGET.format(tid="")),
@@ -232,3 +234,184 @@ def test_cli_checks_its_options_first(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "error: --targets: " in err and "t.csv: missing column(s)" in err and "is not a folder" in err
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# the --targets table: rows keyed by image and target, camera-only rows
+
+
+def _table(tmp_path, text):
+    csv = tmp_path / "t.csv"
+    csv.write_text(text)
+    return load_target_table(csv)
+
+
+def _image(name, *shapes):
+    return f'<image id="0" name="{name}" width="2000" height="1000">{"".join(shapes)}</image>'
+
+
+def _two_images(tid="1"):
+    """Two images, each with one size-less target of the same id (KITTI-style ids per image)."""
+    bare = _TARGET.format(tid=tid).replace("1.6", "").replace("0.8", "").replace("0.75", "")
+    misc = bare.replace('<attribute name="target_id">', '<attribute name="class">Misc</attribute>'
+                                                       '<attribute name="target_id">')
+    return (f'{_HEAD}{_image("drive/a.png", misc)}{_image("drive/b.png", misc)}</annotations>').encode()
+
+
+def test_a_targets_row_with_an_image_applies_to_that_image_only(tmp_path):
+    table = _table(tmp_path, "image,target_id,length_m,width_m,height_m\na.png,1,4.2,1.8,1.5\n")
+    report = scenes_from_cvat(read_cvat_xml(_two_images()), targets=table)
+    assert report.ok, report.errors
+    a, b = (s.scene["targets"][0] for s in report.scenes)
+    assert a["dimensions_m"] == {"length": 4.2, "width": 1.8, "height": 1.5}
+    assert "dimensions_m" not in b and b["class"] == "Misc"  # its class's size prior applies
+    assert not any("t.csv" in n for n in report.notes)
+
+
+def test_a_targets_row_without_an_image_applies_everywhere_and_says_so(tmp_path):
+    table = _table(tmp_path, "target_id,length_m,width_m,height_m\n1,4.2,1.8,1.5\n")
+    report = scenes_from_cvat(read_cvat_xml(_two_images()), targets=table)
+    assert [s.scene["targets"][0]["dimensions_m"]["length"] for s in report.scenes] == [4.2, 4.2]
+    (note,) = [n for n in report.notes if "t.csv" in n]
+    assert note.startswith("t.csv line 2: target '1' has no image and was applied on 2 images "
+                           "('drive/a.png', 'drive/b.png')"), note
+
+
+def test_a_targets_row_may_give_only_a_focal_length(tmp_path):
+    table = _table(tmp_path, "image,target_id,length_m,width_m,height_m,focal_length_px\n"
+                             ",sofa,,,,2100\n"        # every image with a target 'sofa'
+                             "im.jpg,,,,,2100\n")     # the camera of im.jpg, no target
+    (s,) = _convert(_doc(_TARGET.format(tid="sofa")), targets=table).scenes
+    assert s.scene["camera"] == {"focal_length_px": 2100.0}
+    assert s.scene["target"]["dimensions_m"] == {"length": 1.6, "width": 0.8, "height": 0.75}  # the export's
+    (s,) = _convert(_doc(_TARGET.format(tid="lamp")), targets=table).scenes  # the image's own row
+    assert s.scene["camera"] == {"focal_length_px": 2100.0}
+    (s,) = _convert(_doc(_TARGET.format(tid="lamp"), name="other.jpg"), targets=table).scenes
+    assert "camera" not in s.scene
+    bare = _TARGET.format(tid="sofa").replace("1.6", "").replace("0.8", "").replace("0.75", "")
+    (err,) = _convert(_doc(bare), targets=table).errors  # a focal length is no size
+    assert "no size for target 'sofa'" in str(err)
+
+
+def test_targets_rows_of_one_photo_must_agree_on_the_focal_length(tmp_path):
+    table = _table(tmp_path, "image,target_id,length_m,width_m,height_m,focal_length_px\n"
+                             "im.jpg,,,,,2100\nim.jpg,sofa,,,,1900\n")
+    (err,) = _convert(_doc(_TARGET.format(tid="sofa")), targets=table).errors
+    assert str(err) == ("image 'im.jpg', target 'sofa': the --targets table gives focal lengths 2100 px "
+                        "(t.csv line 2) and 1900 px (t.csv line 3) for one photo (one camera)")
+
+
+def test_a_targets_row_naming_no_image_of_the_export_is_noted(tmp_path):
+    table = _table(tmp_path, "image,target_id,length_m,width_m,height_m\nim.jgp,sofa,2,1,1\n")
+    report = _convert(_doc(_TARGET.format(tid="sofa")), targets=table)
+    assert report.ok
+    assert "--targets: no image of the export matches t.csv line 2 (image 'im.jgp'); not used" in report.notes
+
+
+@pytest.mark.parametrize("table, message", [
+    ("target_id,length_m,width_m,height_m\na,1,,1\n", "t.csv line 2: give all of length_m, width_m and height_m"),
+    ("target_id,length_m,width_m,height_m\na,,,\n", "t.csv line 2: the row for target 'a' gives no size and no "
+                                                    "focal_length_px"),
+    ("image,target_id,length_m,width_m,height_m\nx.png,,1,1,1\n", "t.csv line 2: empty target_id"),
+    ("image,target_id,length_m,width_m,height_m\nx.png,a,1,1,1\nx.png,a,2,1,1\n",
+     "t.csv line 3: image 'x.png' and target_id 'a' appears twice (also t.csv line 2)"),
+    ("target_id,length_m,width_m,height_m,focal_length_px\na,1,1,1,wide\n",
+     "focal_length_px is not a number: 'wide'"),
+])
+def test_bad_targets_table_rows(tmp_path, table, message):
+    with pytest.raises(ConversionError, match=re.escape(message)):
+        _table(tmp_path, table)
+
+
+def test_a_targets_table_that_is_not_text(tmp_path, capsys):
+    bad = tmp_path / "t.csv"
+    bad.write_bytes(b"target_id,length_m,width_m,height_m\n\xff\xfe,1,1,1\n")
+    assert main(["import", "cvat", str(XML), "--out", str(tmp_path / "o"), "--targets", str(bad)]) == 2
+    assert "error: --targets: " in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# --image-dir: the image under its name in the task, else by its file name; a note when missing
+
+
+def test_image_dir_finds_the_image_by_its_file_name(tmp_path):
+    images = tmp_path / "image_2"
+    images.mkdir()
+    doc = _doc(_TARGET.format(tid=""), name="street/000007.png")
+    (images / "000007.png").write_bytes(b"")
+    report = _convert(doc, image_dir=images, out_dir=tmp_path / "out")
+    (s,) = report.scenes
+    assert s.scene["image"]["path"] == "../image_2/000007.png"
+    assert not any("image file" in n for n in report.notes)
+    (images / "street").mkdir()
+    (images / "street" / "000007.png").write_bytes(b"")  # the full name wins when it exists
+    (s,) = _convert(doc, image_dir=images, out_dir=tmp_path / "out").scenes
+    assert s.scene["image"]["path"] == "../image_2/street/000007.png"
+
+
+def test_image_dir_without_the_image_says_so(tmp_path):
+    images = tmp_path / "image_2"
+    images.mkdir()
+    report = _convert(_doc(_TARGET.format(tid=""), name="street/000007.png"), image_dir=images,
+                      out_dir=tmp_path / "out")
+    (s,) = report.scenes
+    assert s.scene["image"]["path"] == "../image_2/000007.png"
+    (note,) = [n for n in report.notes if "image file" in n]
+    assert note.startswith(f"image 'street/000007.png': no image file {images / 'street' / '000007.png'} or "
+                           f"{images / '000007.png'}"), note
+
+
+# ----------------------------------------------------------------------------------------------
+# what docs/import.md says: other shapes are ignored with a note (an unnamed target among named ones
+# is refused: test_bad_image_is_reported_with_image_and_shape, and the frames' test)
+
+
+@pytest.mark.parametrize("tag", ["box", "polygon", "tag"])
+def test_a_target_drawn_with_another_shape_is_ignored_with_a_note(tag):
+    other = f'<{tag} label="target" points="1,2;3,4;5,6;7,8"><attribute name="target_id">x</attribute></{tag}>'
+    report = _convert(_doc(_TARGET.format(tid="sofa"), other))
+    assert report.ok, report.errors
+    (s,) = report.scenes
+    assert s.scene["target"]["id"] == "sofa" and len(s.scene["target"]["dimension_lines"]) == 1
+    assert f"image 'im.jpg', shape 1: <{tag}> 'target' ignored (a target is drawn as points or a polyline)" \
+        in report.notes
+
+
+# ----------------------------------------------------------------------------------------------
+# input files that are missing or cannot be read
+
+
+@pytest.mark.parametrize("name", ["missing.zip", "missing.xml"])
+def test_a_missing_export_says_it_does_not_exist(tmp_path, capsys, name):
+    path = tmp_path / name
+    assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {path}: no such file (it does not exist)"
+
+
+def test_an_unreadable_export_names_the_file(tmp_path, capsys, monkeypatch):
+    import builtins
+
+    path = tmp_path / "task.zip"
+    path.write_bytes(b"PK")
+    real_open = builtins.open
+
+    def refusing_open(file, *args, **kwargs):
+        if str(file) == str(path):
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", refusing_open)
+    assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {path}: cannot be read: Permission denied"
+
+
+def test_a_broken_zip_names_the_file(tmp_path, capsys):
+    path = tmp_path / "task.zip"
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        z.writestr("annotations.xml", "<annotations>" + "<image/>" * 1000 + "</annotations>")
+    data = bytearray(path.read_bytes())
+    data[60:90] = b"\0" * 30  # inside the compressed annotations.xml
+    path.write_bytes(bytes(data))
+    assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {path}: cannot read the ZIP: "), err

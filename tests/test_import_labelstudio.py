@@ -417,3 +417,160 @@ def test_the_configs_comment_lists_every_documented_task_field(lines):
     comment = label_studio_config(lines).split("-->")[0]
     missing = sorted(f for f in fields if f not in comment)
     assert not missing, missing
+
+
+# ----------------------------------------------------------------------------------------------
+# the --targets table: rows keyed by image and target; a focal length without sizes
+
+
+def _no_dims(task):
+    for k in ("target_length_m", "target_width_m", "target_height_m"):
+        del task["data"][k]
+    return task
+
+
+def test_targets_rows_are_keyed_by_image_and_target(tmp_path):
+    from creference_bayes.io.annotation_tools import load_target_table
+
+    a, b = _no_dims(_task()), _no_dims(_task())
+    b["id"], b["data"]["image"], b["data"]["target_id"] = 99, "/data/local-files/?d=yard/other.jpg", "cupboard2"
+    csv = tmp_path / "t.csv"
+    csv.write_text("image,target_id,length_m,width_m,height_m,focal_length_px\n"
+                   "ab12cd34-room.jpg,cupboard,1.2,0.5,2.0,\n"   # the file name of data.image
+                   "yard/other.jpg,cupboard2,0.9,0.4,1.0,\n"     # the path of a local file
+                   "other.jpg,,,,,2400\n"                        # a camera-only row
+                   "elsewhere.jpg,cupboard,3,3,3,\n")            # another image: not this cupboard
+    report = scenes_from_label_studio([a, b], targets=load_target_table(csv))
+    assert report.ok, report.errors
+    scenes = {s.name: s.scene for s in report.scenes}
+    assert scenes["cupboard"]["target"]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
+    assert "camera" not in scenes["cupboard"]
+    assert scenes["cupboard2"]["target"]["dimensions_m"] == {"length": 0.9, "width": 0.4, "height": 1.0}
+    assert scenes["cupboard2"]["camera"] == {"focal_length_px": 2400.0}
+    assert ("--targets: no image of the export matches t.csv line 5 (image 'elsewhere.jpg'); not used"
+            in report.notes)
+
+
+def test_a_focal_length_row_of_a_frame_task_without_sizes(tmp_path):
+    from creference_bayes.io.annotation_tools import load_target_table
+
+    csv = tmp_path / "t.csv"
+    csv.write_text("target_id,length_m,width_m,height_m,focal_length_px\ncupboard,,,,2100\n")
+    (s,) = scenes_from_label_studio([_task()], targets=load_target_table(csv), frames=True).scenes
+    assert s.scene["camera"] == {"focal_length_px": 2100.0}
+    assert s.scene["targets"][0]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
+
+
+# ----------------------------------------------------------------------------------------------
+# --frames on the one-target layout: the tasks of one image make one frame
+
+
+def _second_target_task():
+    """Task 17's image with another target, 'lamp' (its own task, as docs/import.md lays it out)."""
+    t = _task()
+    t["id"], t["data"]["target_id"] = 99, "lamp"
+    t["data"].update(target_length_m=0.4, target_width_m=0.4, target_height_m=1.6)
+    t["annotations"] = [t["annotations"][0]]
+    t["annotations"][0]["result"] = [r for r in _results(t) if r.get("id") in ("a1", "a2", "a3", "a4")]
+    for r in _results(t):
+        r["value"]["x"] += 30
+    return t
+
+
+def test_frames_merge_the_tasks_of_one_image():
+    report = scenes_from_label_studio([_task(), _second_target_task()], frames=True)
+    assert report.ok, report.errors
+    (s,) = report.scenes
+    assert s.name == "ab12cd34-room" and s.source == "task 17, task 99 (one image)"
+    d = s.scene
+    assert [(t["id"], t["dimensions_m"]["height"], len(t["dimension_lines"])) for t in d["targets"]] == [
+        ("cupboard", 2.0, 2), ("lamp", 1.6, 1)]
+    # x % of 4000 px: a1 at 40 % + 30 %; annotation 101 of task 99 holds one item: 240 s
+    assert d["targets"][1]["dimension_lines"] == [
+        {"corners": [[2800, 2400], [3200, 2340], [2720, 2280], [2800, 1500]], "worker": "3", "seconds": 240.0}]
+    assert [(r["mode"], r.get("target")) for r in d["references"]] == [("direct", None), ("relative", "cupboard")]
+    assert d["horizon"] == [[0, 1200], [4000, 1260]]
+
+
+def test_merged_one_target_tasks_split_their_truth_between_target_and_camera():
+    camera = {"focal_length_px": 3000.0, "camera_height_m": 1.4, "pitch_rad": 0.05, "roll_rad": 0.0}
+    first, second = _task(), _second_target_task()
+    first["data"]["ground_truth"] = {"location_m": [0.5, 1.4, 5.0], "yaw_rad": 0.3, **camera}
+    second["data"]["ground_truth"] = {"location_m": [1.5, 1.4, 6.0], "yaw_rad": -0.2, "handedness": -1, **camera}
+    report = scenes_from_label_studio([first, second], frames=True)
+    assert report.ok, report.errors
+    (s,) = report.scenes
+    assert s.scene["ground_truth"] == camera
+    assert [t["ground_truth"] for t in s.scene["targets"]] == [
+        {"location_m": [0.5, 1.4, 5.0], "yaw_rad": 0.3}, {"location_m": [1.5, 1.4, 6.0], "yaw_rad": -0.2, "handedness": -1}]
+    second["data"]["ground_truth"]["camera_height_m"] = 1.6  # one camera: the tasks must agree on it
+    (err,) = scenes_from_label_studio([first, second], frames=True).errors
+    assert str(err) == ("task 17, task 99 (one image): data.ground_truth.camera_height_m is 1.4 in task 17 but 1.6 "
+                        "in task 99 (the tasks of one image share it)")
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda t: t["data"].update(focal_length_px=1800),
+     "task 17, task 99 (one image): data.focal_length_px is 2000 in task 17 but 1800 in task 99"),
+    (lambda t: t["data"].update(target_id="cupboard"),
+     "task 17, task 99 (one image): target 'cupboard' is in task 17 and in task 99"),
+])
+def test_the_tasks_of_one_frame_must_agree(change, message):
+    first = _task()
+    first["data"]["focal_length_px"] = 2000
+    second = _second_target_task()
+    change(second)
+    report = scenes_from_label_studio([first, second], frames=True)
+    assert report.scenes == ()
+    (err,) = report.errors
+    assert message in str(err), str(err)
+
+
+def test_a_merged_frame_names_the_task_of_a_bad_region():
+    second = _second_target_task()
+    _find(_results(second), "a4")["value"]["y"] = 900.0  # far outside the image
+    (err,) = scenes_from_label_studio([_task(), second], frames=True).errors
+    assert str(err).startswith("task 17, task 99 (one image), task 99, annotation 101, region 'a1': "
+                               "targets[1].dimension_lines[0]"), str(err)
+
+
+# ----------------------------------------------------------------------------------------------
+# malformed exports: a message naming the task, annotation, region and value, never a traceback
+
+
+def test_a_result_that_is_not_a_list():
+    t = _task()
+    t["annotations"][1]["result"] = 150.0
+    (err,) = scenes_from_label_studio([t]).errors
+    assert str(err) == "task 17, annotation 102: 'result' is not a list: 150.0"
+
+
+def test_a_vertex_whose_prev_point_id_is_not_an_id():
+    t = _export()[1]
+    t["completions"][0]["result"][4]["value"]["vertices"][1]["prevPointId"] = {"id": "v1p0"}
+    (err,) = scenes_from_label_studio([t]).errors
+    assert str(err) == ("task 18, annotation 201, region 'v1': vertex 1 ('v1p1'): prevPointId is not a vertex "
+                        "id: {'id': 'v1p0'}")
+
+
+def test_a_missing_export_says_it_does_not_exist(tmp_path, capsys):
+    path = tmp_path / "export.json"
+    assert main(["import", "label-studio", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {path}: no such file (it does not exist)"
+
+
+@pytest.mark.parametrize("frames, truth", [
+    (False, {"location_m": [1.0, 1.5, 6.0], "yaw_rad": 0.5}),  # a one-target scene's truth
+    (True, {"camera_height_m": 1.5}),                          # a frame's: the camera's
+])
+def test_a_value_no_scene_file_can_hold_is_an_error_not_a_crash(tmp_path, capsys, frames, truth):
+    t = _task()
+    t["data"]["ground_truth"] = {**truth, "note": "INF"}
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps([t]).replace('"INF"', "1e400"))  # JSON's 1e400 reads as infinity
+    argv = ["import", "label-studio", str(export), "--out", str(tmp_path / "o")] + (["--frames"] if frames else [])
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == ("error: task 17, data.ground_truth: ground_truth.note: inf cannot "
+                                               "be written (a scene file holds finite numbers, text, lists and "
+                                               "objects)")
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -22,6 +22,12 @@ Cyclist 0.80 0 -1.00 0.0 170.0 40.0 260.0 1.7 0.6 1.8 -12.0 1.6 10.0 0.5
 DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10
 """
 
+# a real drive's other calib lines (KITTI's 2011_09_26 calibration, as its calib files give them)
+OTHER_CALIB = """R0_rect: 9.999239e-01 9.837760e-03 -7.445048e-03 -9.869795e-03 9.999421e-01 -4.278459e-03 7.402527e-03 4.351614e-03 9.999631e-01
+Tr_velo_to_cam: 7.533745e-03 -9.999714e-01 -6.166020e-04 -4.069766e-03 1.480249e-02 7.280733e-04 -9.998902e-01 -7.631618e-02 9.998621e-01 7.523790e-03 1.480755e-02 -2.717806e-01
+Tr_imu_to_velo: 9.999976e-01 7.553071e-04 -2.035826e-03 -8.086759e-01 -7.854027e-04 9.998898e-01 -1.482298e-02 3.195559e-01 2.024406e-03 1.482454e-02 9.998881e-01 -7.997231e-01
+"""
+
 
 def write_kitti_folder(d):
     """A one-frame KITTI folder (label_2/000007.txt with LABELS, calib/000007.txt with P2) at ``d``."""
@@ -29,7 +35,7 @@ def write_kitti_folder(d):
     (d / "calib").mkdir()
     (d / "label_2" / "000007.txt").write_text(LABELS)
     rows = " ".join(f"{v:.12e}" for v in P2.ravel())
-    (d / "calib" / "000007.txt").write_text(f"P0: {rows}\nP1: {rows}\nP2: {rows}\nP3: {rows}\n")
+    (d / "calib" / "000007.txt").write_text(f"P0: {rows}\nP1: {rows}\nP2: {rows}\nP3: {rows}\n{OTHER_CALIB}")
     return d
 
 
@@ -176,3 +182,26 @@ def test_kitti_study_runs_the_bound_alone_under_other_assumptions(kitti_dir, tmp
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"),
                           "--methods", "joint,best"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--methods 'joint,best'" in bad.stderr
+
+
+def test_labels_of_a_kitti_frame_carry_the_folders_real_calibration(kitti_dir):
+    """A frame made from a KITTI folder keeps the calib file's other lines, and its labels' calib
+    file gives them back (KITTI tools that go through the lidar read Tr_velo_to_cam), with P2."""
+    from creference_bayes.bench.kitti_frames import read_calib
+    from creference_bayes.io.frame_scene import frame_to_dict
+    from creference_bayes.models.frame import CAMERA_NAMES
+
+    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+                           rng=0, n_annotations=2, noise_px=1.0)
+    frame = parse_frame(json.loads(json.dumps(scene)))
+    assert parse_frame(frame_to_dict(frame)).kitti_calib == frame.kitti_calib  # round trip
+    cam = np.array([P2[0, 0], 0.01, 0.0, 1.7, 0.5])
+    result = {"camera": {"map": dict(zip(CAMERA_NAMES, cam))},
+              "objects": [{"map": {"x": 0.0, "z": 10.0 + i, "yaw": 0.1, "length_m": 4.0, "width_m": 1.8,
+                                   "height_m": 1.5, "ground_m": 0.0}} for i in range(len(frame.targets))]}
+    write_frame_labels(frame, result, kitti_dir / "out", "000007")
+    written = read_calib(kitti_dir / "out" / "calib" / "000007.txt")
+    given = read_calib(kitti_dir / "calib" / "000007.txt")
+    assert list(written) == ["P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo"]
+    for name in given:
+        np.testing.assert_allclose(written[name], given[name], rtol=1e-12, err_msg=name)

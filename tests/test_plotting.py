@@ -146,3 +146,43 @@ def test_top_view_zooms_on_a_cloud_too_small_to_see():
     assert insets[0].collections  # the draws and the credible region's contour
     wide = {"x": rng.normal(3.0, 3.0, (4, 300)), "z": rng.normal(20.0, 6.0, (4, 300))}
     assert plotting.plot_top_view(result, wide).axes[0].child_axes == []  # visible as it is: no inset
+
+
+@pytest.mark.parametrize("kind", ["evaluate", "labels"])
+def test_reliability_bin_counts_overlap_no_tick_label(kind):
+    """Issue 36: the bins' counts were written beside the points and ran into the tick labels when
+    a point sat near an axis. They now stand above the panel, one per bin at the bin's centre."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from creference_bayes.evaluation.reliability import brier_score, reliability_table
+    from creference_bayes.vision.label_figures import quality_figure, reliability_figure
+
+    rng = np.random.default_rng(0)
+    # predictions in every bin, with points on both axes' ends (share 0 at p ≈ 0.03, 1 at p ≈ 0.97)
+    p = np.concatenate([np.full(111, 0.03), rng.uniform(0.1, 0.9, 300), np.full(7, 0.97)])
+    y = np.concatenate([np.zeros(111, bool), rng.random(300) < 0.5, np.ones(7, bool)])
+    rows = reliability_table(p, y)
+    if kind == "evaluate":
+        fig = reliability_figure({t: {"rows": rows, "brier": brier_score(p, y), "count": len(p)} for t in (0.5, 0.7)})
+        panels = fig.axes[:2]
+    else:
+        fig = quality_figure(p, 0.5, reliability={0.7: rows})
+        panels = fig.axes[1:2]
+    FigureCanvasAgg(fig)
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    for ax in panels:
+        (top,) = ax.child_axes
+        counts = [t for t in top.xaxis.get_ticklabels() if t.get_visible() and t.get_text()]
+        assert [t.get_text() for t in counts] == [str(r["count"]) for r in rows]
+        others = [t for t in ax.xaxis.get_ticklabels() + ax.yaxis.get_ticklabels() if t.get_visible() and t.get_text()]
+        others += [ax.title, ax.xaxis.label, ax.yaxis.label]
+        frame = ax.get_window_extent(renderer)
+        boxes = [t.get_window_extent(renderer) for t in counts]
+        for b in boxes:
+            assert b.y0 >= frame.y1  # above the panel: clear of the data
+            for o in others:
+                ob = o.get_window_extent(renderer)
+                assert min(b.x1, ob.x1) <= max(b.x0, ob.x0) or min(b.y1, ob.y1) <= max(b.y0, ob.y0), o.get_text()
+        for a, b in zip(boxes, boxes[1:]):
+            assert a.x1 <= b.x0  # and clear of each other

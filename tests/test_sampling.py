@@ -277,8 +277,15 @@ def test_the_multiple_try_independence_move_keeps_its_target(tries):
 
 def test_a_warm_up_stage_already_whitened_ends_early():
     """A stage run in coordinates that already whiten the posterior, with the proposal accepted
-    often, stops after 2 · warmup steps instead of its doubled length, and the draws are still
-    the target's (the saving on the SBC scenes' slowest estimates: 8.7–10.6 s → 6.4–7.1 s)."""
+    often, is judged from 2 · warmup steps on and stops there instead of running its doubled
+    length, and the draws are still the target's (the saving on the SBC scenes' slowest
+    estimates: 8.7–10.6 s → 6.4–7.1 s).
+
+    Where exactly it stops is the sampler's path, not the behaviour: the stage is judged every
+    chunk from 2 · warmup on, and a judgement of a short stage fails by Monte Carlo noise now and
+    then (40 streams of the sampler's random numbers: 38 stopped at 2 · warmup = 40 steps, two at
+    60, against schedules of 160–640 steps). So: not before 2 · warmup, and at most half of its
+    scheduled 2 · stages[-2] (a stage that runs its schedule, the behaviour broken, fails)."""
     C = np.diag([1.0, 4.0, 0.25, 9.0, 1.0])
     Ci = np.linalg.inv(C)
 
@@ -288,7 +295,7 @@ def test_a_warm_up_stage_already_whitened_ends_early():
     settings = SamplerSettings(warmup=20, chunk=10, min_ess=400)
     chains = sample(log_prob, np.zeros(5), 1e-10 * np.eye(5), settings=settings, rng=0)
     stages = chains.info["warmup_stages"]
-    assert stages[-1] == 2 * settings.warmup < 2 * stages[-2]  # scheduled 2 · stages[-2], cut
+    assert 2 * settings.warmup <= stages[-1] <= stages[-2], stages  # scheduled 2 · stages[-2], cut
     assert chains.converged
     draws = chains.chain[chains.burn_in:].reshape(-1, 5)
     assert np.allclose(draws.var(axis=0), np.diag(C), rtol=0.15)

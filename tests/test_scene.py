@@ -358,7 +358,7 @@ INVALID = [
     (_set(("horizon", 1), [0.0, 885.287959567601]), "horizon: zero-length line"),
     (_set(("horizon", 1), [100.0, 5000.0]), "horizon: a horizon steeper than 45 degrees is not supported"),
     (_set(("horizon", 0, 1), -1e9), "horizon[0]: point [0, -1e+09] is far outside the 2880x1800 image"),
-    (_set(("format",), "creference-scene/2"), "format: expected 'creference-scene/1', got 'creference-scene/2'"),
+    (_set(("format",), "creference-scene/2"), "format: a 'creference-scene/2' file is a frame"),
     (_delete(("format",)), "format: missing required key"),
     (_delete(("image",)), "image: missing required key"),
     (_delete(("image", "width")), "image.width: missing required key"),

@@ -15,8 +15,10 @@ How a worker draws them: from the box's bottom corner nearest to the camera, the
 the object's length, the width line along its width, the height line up.
 
 What a user with a calibrated camera knows is given: the focal length and principal point of P2
-(``camera.focal_length_px``, ``camera.principal_point``) and P2 itself (``camera.kitti_p2``, so
-that labels go back into KITTI's frame); what a user does not know is not: the camera's height,
+(``camera.focal_length_px``, ``camera.principal_point``), P2 itself (``camera.kitti_p2``, so
+that labels go back into KITTI's frame) and the calib file's other lines (``camera.kitti_calib``,
+written back beside the labels, so that KITTI tools that go through the lidar find the real
+``Tr_velo_to_cam``); what a user does not know is not: the camera's height,
 pitch and roll, the horizon (estimated from the photo when ``image_2`` is there) and the sizes.
 ``sizes="known"`` (``--sizes known``) writes each object's true size into the frame instead: the
 method's original premise, a target of known size, for labels of objects whose make is known and
@@ -34,7 +36,7 @@ import numpy as np
 from ..io.kitti_read import read_kitti_labels
 from ..models.size_priors import KITTI_SIZE_PRIORS
 
-__all__ = ["ANNOTATABLE", "SIZES", "read_p2", "kitti_frame", "kitti_frames", "MIN_HEIGHT_PX", "MAX_TRUNCATION",
+__all__ = ["ANNOTATABLE", "SIZES", "read_p2", "read_calib", "kitti_frame", "kitti_frames", "MIN_HEIGHT_PX", "MAX_TRUNCATION",
            "MAX_OCCLUSION"]
 
 ANNOTATABLE = tuple(KITTI_SIZE_PRIORS)
@@ -46,20 +48,35 @@ MAX_OCCLUSION = 2
 SIZES = ("prior", "known")
 
 
+def read_calib(path: str | Path) -> dict[str, list[float]]:
+    """Every line of a KITTI calib file as name → numbers (``P0`` … ``Tr_imu_to_velo``);
+    ``ValueError`` naming the file and line."""
+    path = Path(path)
+    out = {}
+    for no, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        name, sep, rest = line.partition(":")
+        if not sep or not name.strip() or any(c.isspace() for c in name.strip()):
+            raise ValueError(f"{path}:{no}: expected 'NAME: numbers', got {line.strip()[:60]!r}")
+        try:
+            values = [float(v) for v in rest.split()]
+        except ValueError:
+            raise ValueError(f"{path}:{no}: {name.strip()}: expected numbers, got {rest.strip()[:60]!r}") from None
+        if not values or not np.all(np.isfinite(values)):
+            raise ValueError(f"{path}:{no}: {name.strip()}: expected finite numbers, got {rest.strip()[:60]!r}")
+        out[name.strip()] = values
+    return out
+
+
 def read_p2(path: str | Path) -> np.ndarray:
     """The (3, 4) P2 matrix of a KITTI calib file; ``ValueError`` naming the file and line."""
-    path = Path(path)
-    for no, line in enumerate(path.read_text().splitlines(), start=1):
-        if line.startswith("P2:"):
-            values = line.split()[1:]
-            try:
-                P = np.array([float(v) for v in values])
-            except ValueError:
-                raise ValueError(f"{path}:{no}: P2: expected 12 numbers, got {line.strip()!r}") from None
-            if P.size != 12 or not np.all(np.isfinite(P)):
-                raise ValueError(f"{path}:{no}: P2: expected 12 finite numbers, got {P.size}")
-            return P.reshape(3, 4)
-    raise ValueError(f"{path}: no 'P2:' line")
+    calib = read_calib(path)
+    if "P2" not in calib:
+        raise ValueError(f"{path}: no 'P2:' line")
+    if len(calib["P2"]) != 12:
+        raise ValueError(f"{path}: P2: expected 12 numbers, got {len(calib['P2'])}")
+    return np.array(calib["P2"]).reshape(3, 4)
 
 
 def _image_size(path: Path | None) -> tuple[int, int]:
@@ -91,6 +108,7 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
     rng = np.random.default_rng(rng)
     labels = read_kitti_labels(label_path, scores=False)
     P2 = read_p2(calib_path)
+    calib = {k: v for k, v in read_calib(calib_path).items() if k != "P2"}
     w, h = _image_size(None if image_path is None else Path(image_path))
     K = P2[:, :3]
     offset = np.linalg.solve(K, P2[:, 3])  # the rectified frame → P2's camera frame
@@ -142,7 +160,7 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
         })
     scene = {"format": "creference-scene/2", "image": {"width": int(w), "height": int(h)},
              "camera": {"principal_point": [float(P2[0, 2]), float(P2[1, 2])], "focal_length_px": float(P2[0, 0]),
-                        "kitti_p2": P2.tolist()},
+                        "kitti_p2": P2.tolist(), "kitti_calib": calib},
              "targets": targets, "ground_truth": {"frame": frame_id}}
     if image_path is not None:
         scene["image"]["path"] = str(image_path)

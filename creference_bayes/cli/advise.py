@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from .main import UsageError, check_output_file, seed_value
+from ..io.files import read_text
 
 __all__ = ["register"]
 
@@ -118,7 +119,7 @@ def _is_frame(path) -> bool:
     import json
 
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        d = json.loads(read_text(path))
     except (OSError, ValueError):
         return False
     return isinstance(d, dict) and d.get("format") in ("creference-scene/2", "creference-result/2")

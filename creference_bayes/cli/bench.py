@@ -57,6 +57,10 @@ def _run_bench_command(args) -> int:
     return 0
 
 
+#: Defaults of ``simulate``'s options that --from-kitti does not take (given otherwise: an error).
+_SIMULATE_DEFAULTS = {"kind": "street"}
+
+
 def _run_simulate_command(args) -> int:
     if args.outdir is None and args.out_dir is None:
         raise UsageError("simulate: give the output folder (OUTDIR or --out)")
@@ -67,6 +71,14 @@ def _run_simulate_command(args) -> int:
         raise UsageError(f"--sizes {args.sizes}: only with --from-kitti (simulated frames draw their own sizes)")
     if args.from_kitti is not None:
         from .frame import run_kitti_simulate
+
+        given = [f"--{name.replace('_', '-')}" for name in ("n", "objects", "kind", "tier", "setting", "confidence")
+                 if getattr(args, name) not in (None, "all", _SIMULATE_DEFAULTS.get(name))]
+        given += [f"--{name.replace('_', '-')}" for name in ("focal_known",) if getattr(args, name)]
+        given += ["--horizon"] if args.horizon != "none" else []
+        if given:
+            raise UsageError(f"{', '.join(given)}: not with --from-kitti (its frames are KITTI's own images, "
+                             "objects and cameras; --annotations, --noise-px, --sizes and --seed apply)")
 
         return run_kitti_simulate(args)
     if args.n is None:
@@ -202,10 +214,12 @@ def register(subparsers) -> None:
     p.set_defaults(func=_run_bench_command)
 
     p = subparsers.add_parser(
-        "simulate", help="write synthetic creference-scene/1 files with ground truth",
+        "simulate", help="write synthetic scenes or frames with ground truth (creference-scene/1 or /2)",
         description="Write N simulated scenes (scene_0000.json, …) with exact ground truth, as the "
                     "benchmark draws them: a target box, 13 noisy dimension-line annotations, five "
-                    "references in the paper's ten formats and the horizon. No photo.")
+                    "references in the paper's ten formats and the horizon (creference-scene/1). No photo. "
+                    "With --objects K: frames of K targets each (creference-scene/2); with --from-kitti: "
+                    "frames on the real boxes and cameras of a KITTI folder.")
     p.add_argument("outdir", metavar="OUTDIR", nargs="?", default=None,
                    help="folder to write into (created; must be empty unless --overwrite)")
     p.add_argument("--out", dest="out_dir", metavar="OUTDIR", default=None, help="the same as OUTDIR")

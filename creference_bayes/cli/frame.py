@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .main import UsageError
+from ..io.files import read_text
 
 __all__ = ["is_frame_file", "run_frame_estimate", "format_frame_tables", "run_frame_simulate",
            "run_kitti_simulate", "add_frame_simulate_options"]
@@ -32,7 +33,7 @@ def _load_classes(path):
     from ..models.size_priors import size_priors_from_dict
 
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        data = json.loads(read_text(path))
     except json.JSONDecodeError as exc:
         raise UsageError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}") from None
     try:
@@ -58,7 +59,8 @@ def run_frame_estimate(args) -> int:
     from ..io.files import atomic_write_json
     from ..io.frame_scene import load_frame
 
-    frame = load_frame(args.scene)
+    classes = _load_classes(getattr(args, "classes", None))
+    frame = load_frame(args.scene, classes=classes)
     for w in frame.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if args.model != "metrology" or args.preset != "default":
@@ -72,7 +74,7 @@ def run_frame_estimate(args) -> int:
                             location_prior=location,
                             temperature=1.0 if args.temperature is None else args.temperature,
                             focal_prior=args.focal_prior, orientation=args.orientation,
-                            classes=_load_classes(getattr(args, "classes", None)),
+                            classes=classes,
                             use_references=not args.no_references, sampling=sampling,
                             progress=not args.quiet and sys.stderr.isatty())
     if args.out:

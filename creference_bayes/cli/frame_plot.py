@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .main import UsageError
+from ..io.files import read_text
 
 __all__ = ["check_frame_result", "find_frame_scene", "run_frame_plot", "run_frame_advise"]
 
@@ -41,13 +42,14 @@ def find_frame_scene(result: dict, result_path: Path, explicit: str | None):
     ``scene`` name next to the result, then in the current directory. Its target ids and image
     size must be the result's (else a one-line error)."""
     from ..io.frame_scene import load_frame
+    from ..io.result import scene_candidates
 
     if explicit:
         return _checked(result, load_frame(explicit), f"--scene {explicit}")
     name = result.get("scene")
-    if not name:
+    if not name and not result.get("batch"):
         raise UsageError(f"{result_path}: the result names no scene; pass --scene")
-    for c in (result_path.parent / name, Path.cwd() / name):
+    for c in scene_candidates(result, result_path):
         if c.is_file():
             return _checked(result, load_frame(c), f"scene {str(c)!r} (found by the result's scene name; pass --scene)")
     raise UsageError(f"scene: {name!r} not found next to the result or in the current directory; pass --scene")
@@ -68,7 +70,8 @@ def _checked(result: dict, frame, where: str):
 
 
 def run_frame_plot(args, result: dict, path: Path) -> int:
-    """Write ``frame_boxes``, ``frame_top_view`` and ``frame_camera`` figures of a frame result."""
+    """Write ``frame_boxes``, ``frame_top_view`` and ``frame_camera`` figures of a frame result, and
+    ``frame_zooms`` when more objects need a zoom panel than fit beside the top view."""
     import numpy as np
 
     from ..frame_pipeline import frame_draws, map_state, rebuild_model
@@ -90,6 +93,10 @@ def run_frame_plot(args, result: dict, path: Path) -> int:
     prob = ((result["camera"].get("posterior") or {}).get("hdi") or {}).get("prob", 0.9)
     figures = {"frame_boxes": ff.plot_frame_boxes(frame, camera, objects, draws, draws_label=label),
                "frame_top_view": ff.plot_frame_top_view(frame, camera, objects, draws, prob=prob, draws_label=label)}
+    zoom = ff.zoom_indices(frame, objects, draws)
+    if len(zoom) > ff.MAX_ZOOM_PANELS:  # too many to sit beside the top view: a figure of their own
+        figures["frame_zooms"] = ff.plot_frame_zooms(frame, camera, objects, draws, indices=zoom, prob=prob,
+                                                     draws_label=label)
     if draws is not None:
         figures["frame_camera"] = ff.plot_frame_camera(cams, model.complete_camera(camera[None])[0],
                                                        np.asarray(model.camera_free), truth=frame.ground_truth,
@@ -121,7 +128,7 @@ def run_frame_advise(args, settings) -> int:
 
     check_output_file("--out", args.out)
     path = Path(args.input)
-    d = json.loads(path.read_text(encoding="utf-8"))
+    d = json.loads(read_text(path))
     try:
         if d.get("format") == "creference-result/2":
             check_frame_result(d, path)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import sys
 import zipfile
+import zlib
 from pathlib import Path
 
 from .main import EXIT_INVALID, UsageError
@@ -63,10 +64,11 @@ def register(subparsers) -> None:
 def _common(p) -> None:
     p.add_argument("--out", metavar="DIR", help="folder for the scene files (created if needed)")
     p.add_argument("--image-dir", metavar="DIR",
-                   help="folder holding the images: sets each scene's image.path")
+                   help="folder holding the images: sets each scene's image.path (the image is looked for "
+                        "under its name in the export, then by its file name; a note says when it is not there)")
     p.add_argument("--targets", metavar="TARGETS.csv",
-                   help="known target sizes: CSV with target_id,length_m,width_m,height_m "
-                        "[,focal_length_px], for targets the export gives no size")
+                   help="known target sizes and focal lengths: CSV with target_id,length_m,width_m,height_m "
+                        "[,focal_length_px][,image] (a row with an image applies to that image only)")
     p.add_argument("--frames", action="store_true",
                    help="import every task / image as a creference-scene/2 frame, also those with one "
                         "target or without classes")
@@ -116,22 +118,30 @@ def _run_label_studio(args) -> int:
 
 
 def _read_cvat(path: str):
-    from ..io.annotation_tools import ConversionError
+    """The parsed annotations.xml of a CVAT export: the XML file, or the ZIP holding it (a missing,
+    unreadable or broken file is a ConversionError naming it)."""
+    from ..io.annotation_tools import ConversionError, open_input
     from ..io.cvat import read_cvat_xml
 
-    if not zipfile.is_zipfile(path):
-        if path.lower().endswith(".zip"):
-            raise ConversionError(path, "not a ZIP file (expected CVAT's task export, "
-                                        "\"CVAT for images 1.1\", or its annotations.xml)")
-        return read_cvat_xml(path)
-    with zipfile.ZipFile(path) as z:
-        names = [n for n in z.namelist() if n.rsplit("/", 1)[-1] == "annotations.xml"]
-        if len(names) != 1:
-            raise ConversionError(path, f"expected one annotations.xml in the ZIP, found {len(names)}")
-        info = z.getinfo(names[0])
-        if info.file_size > MAX_XML_BYTES:
-            raise ConversionError(path, f"{names[0]} unpacks to {info.file_size} bytes; refused")
-        return read_cvat_xml(z.read(info))
+    with open_input(path) as f:
+        is_zip = zipfile.is_zipfile(f)
+        if not is_zip:
+            if path.lower().endswith(".zip"):
+                raise ConversionError(path, "not a ZIP file (expected CVAT's task export, "
+                                            "\"CVAT for images 1.1\", or its annotations.xml)")
+        else:
+            try:
+                with zipfile.ZipFile(f) as z:
+                    names = [n for n in z.namelist() if n.rsplit("/", 1)[-1] == "annotations.xml"]
+                    if len(names) != 1:
+                        raise ConversionError(path, f"expected one annotations.xml in the ZIP, found {len(names)}")
+                    info = z.getinfo(names[0])
+                    if info.file_size > MAX_XML_BYTES:
+                        raise ConversionError(path, f"{names[0]} unpacks to {info.file_size} bytes; refused")
+                    data = z.read(info)
+            except (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError, NotImplementedError, OSError) as exc:
+                raise ConversionError(path, f"cannot read the ZIP: {exc}") from None
+    return read_cvat_xml(data if is_zip else path)
 
 
 def _run_cvat(args) -> int:

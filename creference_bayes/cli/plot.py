@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+from ..io.files import read_text
 
 __all__ = ["register"]
 
@@ -29,7 +30,8 @@ def register(subparsers) -> None:
                     "above), pairs.png and ranks.png (need the posterior). See docs/user_guide.md.")
     p.add_argument("result", metavar="RESULT.json",
                    help="a creference-result/1 file written by `creference estimate --out`, or a frame's "
-                        "creference-result/2 (then frame_boxes, frame_top_view and frame_camera; docs/frames.md)")
+                        "creference-result/2 (then frame_boxes, frame_top_view and frame_camera, and frame_zooms when "
+                        "many objects need a zoom panel; docs/frames.md)")
     p.add_argument("--scene", metavar="SCENE.json",
                    help="the scene the result was estimated from (default: the result's scene "
                         "name, looked up next to the result, in the current directory, then among "
@@ -44,15 +46,15 @@ def register(subparsers) -> None:
 
 def _find_scene(result: dict, result_path: Path, explicit: str | None):
     from .main import UsageError
+    from ..io.result import scene_candidates
     from ..io.scene import load_scene
 
     if explicit:
         return _checked(result, load_scene(explicit), "--scene " + str(explicit))
     name = result.get("scene")
-    if not name:
+    if not name and not result.get("batch"):
         return None
-    candidates = [result_path.parent / name, Path.cwd() / name,
-                  Path(str(resources.files("creference_bayes") / "data" / name))]
+    candidates = scene_candidates(result, result_path)
     for c in candidates:
         if c.is_file():
             return _checked(result, load_scene(c), f"scene {str(c)!r} (found by the result's "
@@ -146,7 +148,7 @@ def _frame_result(path: Path) -> dict | None:
     import json
 
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(read_text(path))
     except (OSError, ValueError):
         return None
     return d if isinstance(d, dict) and d.get("format") == "creference-result/2" else None

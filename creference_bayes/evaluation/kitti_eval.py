@@ -9,6 +9,7 @@ P(IoU ≥ t) matches the IoU it really has (:mod:`.reliability`).
 
 from __future__ import annotations
 
+from ..io.files import read_text
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +40,7 @@ def label_folder(path: str | Path, role: str) -> Path:
 def read_sidecar_quality(path: Path) -> dict[int, dict[float, float]]:
     """Label line (1-based) → {t: P(IoU ≥ t)} from an uncertainty sidecar (docs/labels.md)."""
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(read_text(path))
     except ValueError as exc:
         raise LabelFileError(f"{path}: not JSON ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != SIDECAR_FORMAT:

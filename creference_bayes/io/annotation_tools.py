@@ -10,12 +10,13 @@ are converted (:class:`ImportReport`).
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import re
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Iterable
 
 import numpy as np
@@ -26,8 +27,8 @@ from .scene import MEASURES, MODES, SceneError, parse_scene
 
 __all__ = ["ConversionError", "TargetScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene",
-           "safe_name", "unique_names", "relative_image_path", "load_target_table",
-           "apply_target_table", "write_scenes", "fmt_number"]
+           "safe_name", "unique_names", "relative_image_path", "image_file", "open_input",
+           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes", "fmt_number"]
 
 #: The per-reference fields, as named in the shipped Label Studio config and CVAT label spec.
 REFERENCE_FIELDS = ("object", "measure", "mode", "value", "range_low", "range_high", "unit",
@@ -88,7 +89,10 @@ def number_field(value: Any, where: str, what: str, *, positive: bool = False,
         except ValueError:
             raise ConversionError(where, f"{what} is not a number: {_short(value)}") from None
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond any float
+            x = math.inf
     else:
         raise ConversionError(where, f"{what} is not a number: {_short(value)}")
     if not math.isfinite(x):
@@ -229,21 +233,50 @@ def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None
 
 
 def checked_with(parse, scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
-    """``scene`` after ``parse(scene)`` accepted it (warnings silenced); a :class:`SceneError`
-    becomes a :class:`ConversionError` naming ``where`` and the region of the longest matching
-    ``origins`` prefix (the last one that matches)."""
+    """``scene`` after ``parse(scene)`` accepted it (warnings silenced) and it was found writable
+    (JSON with finite numbers only: what :func:`write_scenes` writes); a :class:`SceneError`, or a
+    value that cannot be written, becomes a :class:`ConversionError` naming ``where`` and the region
+    of the longest matching ``origins`` prefix (the last one that matches)."""
+    def fail(path, problem):
+        origin = None
+        for prefix, name in (origins or {}).items():
+            if path == prefix or path.startswith(prefix + ".") or path.startswith(prefix + "["):
+                origin = name
+        raise ConversionError(f"{where}, {origin}" if origin else where, f"{path}: {problem}") from None
+
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             parse(scene)
     except SceneError as exc:
-        origin = None
-        for prefix, name in (origins or {}).items():
-            if exc.path == prefix or exc.path.startswith(prefix + ".") or exc.path.startswith(prefix + "["):
-                origin = name
-        place = f"{where}, {origin}" if origin else where
-        raise ConversionError(place, f"{exc.path}: {exc.problem}") from None
+        fail(exc.path, exc.problem)
+    bad = _unwritable(scene)
+    if bad is not None:
+        fail(bad[0], f"{_short(bad[1])} cannot be written (a scene file holds finite numbers, text, "
+                     "lists and objects)")
     return scene
+
+
+def _unwritable(obj: Any) -> tuple[str, Any] | None:
+    """The key path and value of the first thing in ``obj`` that JSON with finite numbers cannot
+    hold (None: it can); iterative, so a deeply nested value cannot exhaust the stack."""
+    stack = [("", obj, 0)]
+    while stack:
+        path, value, depth = stack.pop()
+        if depth > 200:
+            return path, "(nested more than 200 levels deep)"
+        if isinstance(value, dict):
+            for k, v in reversed(list(value.items())):
+                if not isinstance(k, str):
+                    return path, k
+                stack.append((f"{path}.{k}" if path else k, v, depth + 1))
+        elif isinstance(value, (list, tuple)):
+            stack.extend((f"{path}[{i}]", v, depth + 1) for i, v in reversed(list(enumerate(value))))
+        elif isinstance(value, float) and not math.isfinite(value):
+            return path, value
+        elif not (value is None or isinstance(value, (str, int, float))):
+            return path, value
+    return None
 
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -260,56 +293,203 @@ def fmt_number(x: float) -> str:
     return f"{float(x):.15g}"
 
 
+def open_input(path: str | Path):
+    """``path`` opened for reading (binary); a missing, unreadable or folder path is a
+    :class:`ConversionError` naming it."""
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise ConversionError(str(path), "no such file (it does not exist)") from None
+    except IsADirectoryError:
+        raise ConversionError(str(path), "is a folder, expected a file") from None
+    except OSError as exc:
+        raise ConversionError(str(path), f"cannot be read: {exc.strerror or exc}") from None
+
+
+def read_input(path: str | Path) -> bytes:
+    """The bytes of an input file (:func:`open_input`'s errors)."""
+    with open_input(path) as f:
+        try:
+            return f.read()
+        except OSError as exc:
+            raise ConversionError(str(path), f"cannot be read: {exc.strerror or exc}") from None
+
+
 _TABLE_COLUMNS = ("target_id", "length_m", "width_m", "height_m")
+_SIZE_KEYS = ("length", "width", "height")
 
 
-def load_target_table(path: str | Path) -> dict[str, dict[str, float]]:
-    """Known target sizes from a CSV file with the header ``target_id,length_m,width_m,height_m``
-    (an optional ``focal_length_px`` column gives a known focal length).
+@dataclass(frozen=True, eq=False)  # rows are told apart by identity (a row is used, or not)
+class TableRow:
+    """One row of the ``--targets`` table: where it is (``"t.csv line 3"``), the image it is for
+    (None: every image), the target id (None: a camera-only row of its image), the target's size
+    (m) and the focal length (px), each None when the row does not give it."""
 
-    Returns ``{target_id: {"length": m, "width": m, "height": m[, "focal_length_px": px]}}``.
+    line: str
+    image: str | None
+    target_id: str | None
+    size: dict[str, float] | None
+    focal_length_px: float | None
+
+
+class TargetTable:
+    """The ``--targets`` table, for one import: known sizes and focal lengths by image and target.
+
+    A row with an ``image`` applies to the targets of that image only (the image's name in the
+    export, or just its file name); a row without one applies to the target id on every image
+    (and a note says so when that is more than one image). A row with an image and no target id
+    gives the image's focal length only. :meth:`notes` reports rows applied to several images and
+    image rows that matched no image.
     """
+
+    def __init__(self, rows: Iterable[TableRow]):
+        self.rows = tuple(rows)
+        self._index: dict[tuple, TableRow] = {}
+        for r in self.rows:
+            other = self._index.setdefault((r.image, r.target_id), r)
+            if other is not r:
+                what = " and ".join(f"{k} {v!r}" for k, v in (("image", r.image), ("target_id", r.target_id))
+                                    if v is not None)
+                raise ConversionError(r.line, f"{what} appears twice (also {other.line})")
+        self._used: dict[TableRow, dict[str, None]] = {}
+
+    @classmethod
+    def of(cls, table: Any) -> "TargetTable":
+        """A fresh table for one import (its own record of which rows were used) from a
+        :class:`TargetTable`, a ``{target_id: {"length", "width", "height"[, "focal_length_px"]}}``
+        dict (every image), or None (an empty table)."""
+        if table is None or isinstance(table, TargetTable):
+            return cls(() if table is None else table.rows)
+        return cls(TableRow(f"targets[{tid!r}]", None, tid,
+                            {k: row[k] for k in _SIZE_KEYS} if "length" in row else None,
+                            row.get("focal_length_px")) for tid, row in table.items())
+
+    def row(self, images: list[str], target_id: str | None, where: str) -> TableRow | None:
+        """The row for ``target_id`` on the image named ``images`` (its names in the export; the
+        first names it in notes): the image's own row, else the row without an image, else None."""
+        names = dict.fromkeys(n for name in images for n in (name, PurePosixPath(name).name) if n)
+        found = list(dict.fromkeys(self._index[(n, target_id)] for n in names if (n, target_id) in self._index))
+        if len(found) > 1:
+            raise ConversionError(where, f"the --targets rows {found[0].line} and {found[1].line} both match "
+                                         f"this image (image {found[0].image!r} and {found[1].image!r})")
+        row = found[0] if found else self._index.get((None, target_id))
+        if row is not None:
+            self._used.setdefault(row, {})[images[0] if images else ""] = None
+        return row
+
+    def size(self, images: list[str], target_id: str, dims: dict[str, float] | None, where: str,
+             required: bool = False) -> dict[str, float] | None:
+        """The target's size (m): the export's ``dims`` or its row's (they must agree when both
+        give one), or None (``required``: a :class:`ConversionError`)."""
+        row = self.row(images, target_id, where)
+        given = row.size if row is not None else None
+        if dims is not None and given is not None:
+            for k in _SIZE_KEYS:
+                if not math.isclose(dims[k], given[k], rel_tol=1e-9):
+                    raise ConversionError(where, f"target {target_id!r}: {k} {dims[k]:g} m in the export "
+                                                 f"but {given[k]:g} m in the --targets table ({row.line})")
+        size = dims if dims is not None else given
+        if size is None and required:
+            hint = " or in the --targets table" if self.rows else " (or pass --targets FILE.csv)"
+            raise ConversionError(where, f"no size for target {target_id!r}: give length, width and "
+                                         f"height in metres in the export{hint}")
+        return None if size is None else dict(size)
+
+    def focal(self, images: list[str], target_ids: Iterable[str], where: str) -> float | None:
+        """The known focal length (px) of an image: its camera-only row's and its targets' rows'
+        (one camera: the rows that give one must agree), or None."""
+        found: dict[float, TableRow] = {}
+        for tid in (None, *target_ids):
+            row = self.row(images, tid, where)
+            if row is not None and row.focal_length_px is not None:
+                found.setdefault(row.focal_length_px, row)
+        if len(found) > 1:
+            (a, ra), (b, rb) = list(found.items())[:2]
+            raise ConversionError(where, f"the --targets table gives focal lengths {a:g} px ({ra.line}) and "
+                                         f"{b:g} px ({rb.line}) for one photo (one camera)")
+        return next(iter(found), None)
+
+    def notes(self) -> list[str]:
+        """What the user should know about this import's use of the table (see the class)."""
+        shared = [(r, list(self._used[r])) for r in self.rows
+                  if r.image is None and len(self._used.get(r, ())) > 1]
+        unused = [r for r in self.rows if r.image is not None and r not in self._used]
+        out = []
+        if shared:
+            r, imgs = shared[0]
+            more = f" (and {len(shared) - 1} more row(s) like it)" if len(shared) > 1 else ""
+            out.append(f"{r.line}: target {r.target_id!r} has no image and was applied on {len(imgs)} images "
+                       f"({', '.join(map(repr, imgs[:3]))}{', ...' if len(imgs) > 3 else ''}){more}; if these "
+                       "are different objects, give the rows an image column")
+        if unused:
+            lines = ", ".join(f"{r.line} (image {r.image!r})" for r in unused[:3])
+            out.append(f"--targets: no image of the export matches {lines}"
+                       f"{f' and {len(unused) - 3} more row(s)' if len(unused) > 3 else ''}; not used")
+        return out
+
+
+def load_target_table(path: str | Path) -> TargetTable:
+    """The ``--targets`` table from a CSV file with the header
+    ``target_id,length_m,width_m,height_m`` and the optional columns ``image`` and
+    ``focal_length_px`` (other columns are ignored). A row gives a target's size (all three or
+    none), a focal length, or both; a row with an image and an empty ``target_id`` gives that
+    image's focal length only."""
     path = Path(path)
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in _TABLE_COLUMNS if c not in (reader.fieldnames or [])]
+    try:
+        text = read_input(path).decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise ConversionError(str(path), "not UTF-8 text (expected a CSV file)") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    try:
+        fields = reader.fieldnames or []
+        missing = [c for c in _TABLE_COLUMNS if c not in fields]
         if missing:
             raise ConversionError(str(path), f"missing column(s) {missing}; expected a header "
-                                             f"{','.join(_TABLE_COLUMNS)}[,focal_length_px]")
-        table: dict[str, dict[str, float]] = {}
-        for i, row in enumerate(reader, start=2):
-            where = f"{path.name} line {i}"
-            tid = (row.get("target_id") or "").strip()
-            if not tid:
-                raise ConversionError(where, "empty target_id")
-            if tid in table:
-                raise ConversionError(where, f"target_id {tid!r} appears twice")
-            entry = {k[:-2]: number_field(row.get(k), where, k, positive=True)
-                     for k in _TABLE_COLUMNS[1:]}
-            focal = (row.get("focal_length_px") or "").strip()
-            if focal:
-                entry["focal_length_px"] = number_field(focal, where, "focal_length_px", positive=True)
-            table[tid] = entry
-    return table
+                                             f"{','.join(_TABLE_COLUMNS)}[,focal_length_px][,image]")
+        rows = []
+        for row in reader:
+            where = f"{path.name} line {reader.line_num}"
+            cell = {k: v.strip() if isinstance(v, str) else "" for k, v in row.items() if isinstance(k, str)}
+            if not any(cell.values()):
+                continue
+            image, tid = cell.get("image") or None, cell.get("target_id") or None
+            given = {k: cell[f"{k}_m"] for k in _SIZE_KEYS if cell[f"{k}_m"]}
+            if given and len(given) < 3:
+                raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
+                                             f"{ {k + '_m': v for k, v in given.items()} }")
+            size = {k: number_field(v, where, f"{k}_m", positive=True) for k, v in given.items()} or None
+            focal = (number_field(cell["focal_length_px"], where, "focal_length_px", positive=True)
+                     if cell.get("focal_length_px") else None)
+            if tid is None and (image is None or size is not None):
+                raise ConversionError(where, "empty target_id (only a camera-only row, an image with a "
+                                             "focal_length_px, may leave it empty)")
+            if size is None and focal is None:
+                raise ConversionError(where, f"the row for target {tid!r} gives no size and no focal_length_px")
+            rows.append(TableRow(where, image, tid, size, focal))
+    except csv.Error as exc:
+        raise ConversionError(f"{path.name} line {reader.line_num}", f"not a valid CSV row: {exc}") from None
+    return TargetTable(rows)
 
 
-def apply_target_table(target_id: str, dims: dict[str, float] | None,
-                       table: dict[str, dict[str, float]] | None, where: str
-                       ) -> tuple[dict[str, float], float | None]:
-    """The target's size (m) and known focal length (px, or None) from the tool's own fields
-    (``dims``, possibly None) and the ``--targets`` table; the two must agree when both give it."""
-    row = (table or {}).get(target_id)
-    if dims is None and row is None:
-        hint = " or in the --targets table" if table is not None else " (or pass --targets FILE.csv)"
-        raise ConversionError(where, f"no size for target {target_id!r}: give length, width and "
-                                     f"height in metres in the export{hint}")
-    if dims is not None and row is not None:
-        for k in ("length", "width", "height"):
-            if not math.isclose(dims[k], row[k], rel_tol=1e-9):
-                raise ConversionError(where, f"target {target_id!r}: {k} {dims[k]:g} m in the export "
-                                             f"but {row[k]:g} m in the --targets table")
-    size = dict(dims if dims is not None else {k: row[k] for k in ("length", "width", "height")})
-    return size, (row or {}).get("focal_length_px")
+def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, where: str,
+               notes: list[str]) -> str | None:
+    """A scene's ``image.path`` for the image the export names ``name`` (a relative path such as
+    ``street/000007.png``), in ``image_dir``: ``DIR/street/000007.png`` when that file exists, else
+    the name with its leading folders dropped (``DIR/000007.png``). When no such file exists, a
+    note names the image and the path is ``DIR/<file name>``; None when ``name`` has no file name."""
+    if "\0" in name:
+        raise ConversionError(where, f"the image's name {_short(name)} holds a NUL character")
+    parts = [p for p in PurePosixPath(name).parts if p not in ("/", ".", "..")]
+    if not parts:
+        notes.append(f"{where}: no file name in {name!r}; image.path not set")
+        return None
+    candidates = [Path(image_dir, *parts[i:]) for i in range(len(parts))]
+    found = next((c for c in candidates if c.is_file()), None)
+    if found is None:
+        found = candidates[-1]
+        notes.append(f"{where}: no image file {' or '.join(str(c) for c in candidates)}; image.path set to "
+                     f"{str(found)!r} all the same (estimate cannot use the photo until it is there)")
+    return relative_image_path(found, out_dir)
 
 
 def write_scenes(scenes: Iterable[TargetScene], out_dir: str | Path) -> list[Path]:

@@ -9,6 +9,7 @@ carry a ``worker`` attribute (CVAT records no per-shape annotator). A shape belo
 named by its ``target_id`` attribute; on an image with one target the attribute may be empty,
 and a direct reference without one is shared by all targets of its image. The target's size is
 in its shapes' ``length_m``/``width_m``/``height_m`` attributes or in a ``--targets`` table.
+Other shapes (boxes, polygons, …, tags) and other labels are ignored with a note.
 
 The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
 parsing, so no entity can expand.
@@ -26,9 +27,9 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportReport,
-                               TargetScene, apply_target_table, checked_scene, fmt_number,
-                               mean_horizon, number_field, reference_from_fields,
-                               relative_image_path, safe_name, unique_names)
+                               TargetScene, TargetTable, checked_scene, fmt_number, image_file,
+                               mean_horizon, number_field, read_input, reference_from_fields,
+                               safe_name, unique_names)
 from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
@@ -56,7 +57,7 @@ def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
     name = "(xml)"
     if not isinstance(source, bytes):
         name = str(source)
-        source = Path(source).read_bytes()
+        source = read_input(source)
     if _DTD.search(source):
         raise ConversionError(name, "the XML declares a DTD or entities, which CVAT files never "
                                     "do; refused (entity expansion is unsafe)")
@@ -75,7 +76,7 @@ def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
 
 
 def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
-                     out_dir: str | Path | None = None, targets: dict | None = None,
+                     out_dir: str | Path | None = None, targets: TargetTable | None = None,
                      frames: bool = False, classes: dict | None = None) -> ImportReport:
     """Convert a parsed CVAT for images 1.1 document to one scene per target, or one
     ``creference-scene/2`` frame per image whose targets carry a ``class`` (:mod:`.cvat_frames`).
@@ -85,11 +86,14 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
     root : Element
         ``<annotations>`` from :func:`read_cvat_xml`.
     image_dir : path, optional
-        Where the images are; ``image.path`` becomes this folder joined with the image's name.
+        Where the images are; ``image.path`` is the image's file in this folder
+        (:func:`~.annotation_tools.image_file`: its name in the task, else its file name; a note
+        says when neither exists).
     out_dir : path, optional
         The folder the scenes will be written to; image paths are made relative to it.
-    targets : dict, optional
-        Known sizes by target id (:func:`~.annotation_tools.load_target_table`).
+    targets : TargetTable, optional
+        Known sizes and focal lengths by image and target
+        (:func:`~.annotation_tools.load_target_table`).
     frames : bool
         Import every image as a frame, also those whose targets carry no ``class``.
     classes : dict, optional
@@ -108,12 +112,14 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
         notes.append(f"CVAT XML version {version!r}; read as 1.1")
     if root.find("track") is not None:
         notes.append("<track> elements ignored (export the task as 'CVAT for images', not video)")
+    table = TargetTable.of(targets)
     scenes, errors = [], []
     for i, image in enumerate(root.findall("image")):
-        found, errs = _image_scenes(image, i, image_dir, out_dir, targets, notes, frames, classes)
+        found, errs = _image_scenes(image, i, image_dir, out_dir, table, notes, frames, classes)
         scenes += found
         errors += errs
     kept, clashes = unique_names(scenes)
+    notes += table.notes()
     return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
 
 
@@ -149,8 +155,6 @@ def _shape(el: ET.Element, k: int, where: str) -> _Shape:
     label = el.get("label")
     desc = f"shape {k} ({el.tag} {label!r})"
     swhere = f"{where}, {desc}"
-    if el.tag not in ("points", "polyline"):
-        raise ConversionError(swhere, f"a {label} must be drawn as points or a polyline, got <{el.tag}>")
     pts = _points(el.get("points"), swhere)
     if len(pts) != _N_POINTS[label]:
         what = {TARGET: "target has", REFERENCE: "reference line has", HORIZON: "horizon has"}[label]
@@ -166,7 +170,7 @@ def _shape(el: ET.Element, k: int, where: str) -> _Shape:
     return _Shape(swhere, desc, pts, attrs)
 
 
-def _image_scenes(image, i, image_dir, out_dir, targets, notes, frames=False, classes=None):
+def _image_scenes(image, i, image_dir, out_dir, table, notes, frames=False, classes=None):
     name = image.get("name") or f"#{image.get('id', i)}"
     where = f"image {name!r}"
     try:
@@ -175,28 +179,24 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes, frames=False, cl
         shapes = {TARGET: [], REFERENCE: [], HORIZON: []}
         for k, el in enumerate(list(image)):
             label = el.get("label")
-            if el.tag == "tag":
-                continue
             if label not in shapes:
                 notes.append(f"{where}, shape {k}: label {label!r} ignored")
-                continue
-            shapes[label].append(_shape(el, k, where))
+            elif el.tag not in ("points", "polyline"):
+                notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (a {label} is drawn as "
+                             "points or a polyline)")
+            else:
+                shapes[label].append(_shape(el, k, where))
         if not shapes[TARGET]:
             if shapes[REFERENCE] or shapes[HORIZON]:
                 raise ConversionError(where, "references or a horizon but no target shape")
             notes.append(f"{where}: no target annotated; skipped")
             return [], []
+        image_path = image_file(image_dir, name, out_dir, where, notes) if image_dir is not None else None
         if frames or any(s.attrs.get("class") for s in shapes[TARGET]):
             from .cvat_frames import frame_image_scene
 
-            return [frame_image_scene(image, i, name, width, height, shapes, image_dir, out_dir, targets,
-                                      classes)], []
-        groups: dict[str, list] = {}
-        for s in shapes[TARGET]:
-            groups.setdefault(s.attrs.get("target_id", ""), []).append(s)
-        if "" in groups and len(groups) > 1:
-            raise ConversionError(where, f"some target shapes have a target_id ({sorted(k for k in groups if k)}) "
-                                         "and others have none")
+            return [frame_image_scene(name, i, width, height, shapes, image_path, table, classes)], []
+        groups = target_groups(shapes[TARGET])
         horizon = (mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
                    if shapes[HORIZON] else None)
         refs_of = {key: [s for s in shapes[REFERENCE] if _belongs(s, key, groups)] for key in groups}
@@ -211,9 +211,9 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes, frames=False, cl
         twhere = where if key == "" else f"{where}, target {tid!r}"
         try:
             refs = refs_of[key]
-            scene = _target_scene(tid, tshapes, refs, horizon, width, height, twhere, targets)
-            if image_dir is not None:
-                scene["image"]["path"] = relative_image_path(Path(image_dir) / name, out_dir)
+            scene = _target_scene(name, tid, tshapes, refs, horizon, width, height, twhere, table)
+            if image_path is not None:
+                scene["image"]["path"] = image_path
             origins = {f"target.dimension_lines[{j}]": s.desc for j, s in enumerate(tshapes)}
             origins.update({f"references[{j}]": s.desc for j, s in enumerate(refs)})
             checked_scene(scene, twhere, origins)
@@ -221,6 +221,20 @@ def _image_scenes(image, i, image_dir, out_dir, targets, notes, frames=False, cl
         except ConversionError as exc:
             errors.append(exc)
     return scenes, errors
+
+
+def target_groups(tshapes: list[_Shape]) -> dict[str, list[_Shape]]:
+    """An image's target shapes by ``target_id``. The id may be empty only on an image with a
+    single target (its id is then the image's name): among named targets, an unnamed shape is most
+    likely one whose id was forgotten, so it is refused rather than made a target of its own."""
+    groups: dict[str, list] = {}
+    for s in tshapes:
+        groups.setdefault(s.attrs.get("target_id", ""), []).append(s)
+    if "" in groups and len(groups) > 1:
+        raise ConversionError(groups[""][0].where, f"this target shape has no target_id, and the image has "
+                                                   f"several targets ({sorted(k for k in groups if k)}); "
+                                                   "give every target shape its target_id")
+    return groups
 
 
 def _belongs(shape: _Shape, key: str, groups: dict) -> bool:
@@ -259,8 +273,9 @@ def _shape_dims(tshapes) -> dict[str, float] | None:
     return dims
 
 
-def _target_scene(tid, tshapes, refs, horizon, width, height, where, targets) -> dict:
-    size, focal = apply_target_table(tid, _shape_dims(tshapes), targets, where)
+def _target_scene(name, tid, tshapes, refs, horizon, width, height, where, table) -> dict:
+    size = table.size([name], tid, _shape_dims(tshapes), where, required=True)
+    focal = table.focal([name], [tid], where)
     lines = []
     for shape in tshapes:
         line = {"corners": shape.pts}

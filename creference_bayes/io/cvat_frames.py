@@ -2,40 +2,36 @@
 (docs/import.md, "Frames").
 
 An image is a frame when one of its ``target`` shapes carries a ``class`` attribute (or the
-importer is told so: ``--frames``). Its ``target`` shapes are grouped by ``target_id`` (one
-target may leave it empty: its id is then the image's name); a target's ``class`` and its size
-(``length_m``/``width_m``/``height_m``, or the ``--targets`` table) come from its shapes, and
-without a size its class's size prior applies. A ``reference`` with a ``target_id`` names that
+importer is told so: ``--frames``). Its ``target`` shapes are grouped by ``target_id`` (an image
+with a single target may leave it empty: its id is then the image's name); a target's ``class``
+and its size (``length_m``/``width_m``/``height_m``, or the ``--targets`` table) come from its
+shapes, and without a size its class's size prior applies. A ``reference`` with a ``target_id`` names that
 target in the frame; a direct one without is a ground segment of the photo, kept once.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from pathlib import Path, PurePosixPath
+from pathlib import PurePosixPath
 from typing import Any
 
-from .annotation_tools import (REFERENCE_FIELDS, ConversionError, TargetScene, mean_horizon,
-                               reference_from_fields, relative_image_path, safe_name)
-from .cvat import HORIZON, REFERENCE, TARGET, _shape_dims, _shape_el, reference_shape
-from .frame_import import checked_frame, classes_block, frame_focal, frame_size
+from .annotation_tools import (REFERENCE_FIELDS, ConversionError, TargetScene, TargetTable, mean_horizon,
+                               reference_from_fields, safe_name)
+from .cvat import HORIZON, REFERENCE, TARGET, _shape_dims, _shape_el, reference_shape, target_groups
+from .frame_import import checked_frame, classes_block
 from .frame_scene import FRAME_FORMAT
 
 __all__ = ["frame_image_scene", "frame_image_shapes"]
 
 
-def frame_image_scene(image: ET.Element, i: int, name: str, width: int, height: int, shapes: dict,
-                      image_dir, out_dir, table: dict | None, classes: dict | None) -> TargetScene:
-    """One frame from an image's parsed shapes (``shapes``: label → list of ``_Shape``); raises
+def frame_image_scene(name: str, i: int, width: int, height: int, shapes: dict, image_path: str | None,
+                      table: TargetTable, classes: dict | None) -> TargetScene:
+    """One frame from the parsed shapes of the ``i``-th image, ``name`` (``shapes``: label → list
+    of ``_Shape``); ``image_path`` is its ``image.path`` (or None). Raises
     :class:`ConversionError` naming the image and the shape."""
     where = f"image {name!r}"
     stem = PurePosixPath(name).stem or f"image{i}"
-    groups: dict[str, list] = {}
-    for s in shapes[TARGET]:
-        groups.setdefault(s.attrs.get("target_id", ""), []).append(s)
-    if "" in groups and len(groups) > 1:
-        raise ConversionError(groups[""][0].where, f"this target shape has no target_id, and the image has "
-                                                   f"several targets ({sorted(k for k in groups if k)})")
+    groups = target_groups(shapes[TARGET])
     ids = {key: key or stem for key in groups}
     targets, origins = [], {}
     for j, (key, tshapes) in enumerate(groups.items()):
@@ -52,7 +48,7 @@ def frame_image_scene(image: ET.Element, i: int, name: str, width: int, height: 
         t: dict[str, Any] = {"id": tid}
         if found:
             t["class"] = next(iter(found))
-        dims = frame_size(tid, _shape_dims(tshapes), table, twhere)
+        dims = table.size([name], tid, _shape_dims(tshapes), twhere)
         if dims is not None:
             t["dimensions_m"] = dims
         t["dimension_lines"] = [{"corners": s.pts, **({"worker": s.attrs["worker"]} if s.attrs.get("worker") else {})}
@@ -77,9 +73,9 @@ def frame_image_scene(image: ET.Element, i: int, name: str, width: int, height: 
         refs.append(ref)
         origins[f"references[{k}]"] = s.desc
     scene: dict[str, Any] = {"format": FRAME_FORMAT, "image": {"width": width, "height": height}}
-    if image_dir is not None:
-        scene["image"]["path"] = relative_image_path(Path(image_dir) / name, out_dir)
-    focal = frame_focal([t["id"] for t in targets], table, where)
+    if image_path is not None:
+        scene["image"]["path"] = image_path
+    focal = table.focal([name], [t["id"] for t in targets], where)
     if focal is not None:
         scene["camera"] = {"focal_length_px": focal}
     if shapes[HORIZON]:

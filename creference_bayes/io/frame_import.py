@@ -1,6 +1,7 @@
 """What the Label Studio and CVAT importers share for frames (``creference-scene/2``, every target
-of one photo in one file): a target's size from the export or the ``--targets`` table, the
-classes block, the check every converted frame passes, and comparing two frames.
+of one photo in one file): the classes block, the check every converted frame passes, and
+comparing two frames (a target's size and the focal length from the ``--targets`` table are
+:class:`~.annotation_tools.TargetTable`'s).
 
 A target of a frame needs no size: without one its class's size prior applies (the scene's own
 ``classes``, a ``--classes`` file given to the importer, or the shipped KITTI classes).
@@ -8,15 +9,14 @@ A target of a frame needs no size: without one its class's size prior applies (t
 
 from __future__ import annotations
 
-import math
 from typing import Any, Iterable
 
 from ..models.size_priors import SIZE_KEYS, SizePrior
-from .annotation_tools import ConversionError, checked_with
+from .annotation_tools import checked_with
 from .frame_scene import frame_to_dict, parse_frame
 from .scene import scene_differences
 
-__all__ = ["frame_size", "frame_focal", "classes_block", "checked_frame", "frame_differences", "is_frame"]
+__all__ = ["classes_block", "checked_frame", "frame_differences", "is_frame"]
 
 
 def is_frame(scene: Any) -> bool:
@@ -24,36 +24,6 @@ def is_frame(scene: Any) -> bool:
     if isinstance(scene, dict):
         return scene.get("format") == "creference-scene/2"
     return getattr(scene, "format", None) == "creference-scene/2"
-
-
-def frame_size(target_id: str, dims: dict[str, float] | None, table: dict | None,
-               where: str) -> dict[str, float] | None:
-    """A frame target's known size (m): the export's ``dims`` or the ``--targets`` table's row
-    (they must agree when both give it), or None (its class's size prior applies)."""
-    row = (table or {}).get(target_id)
-    if dims is not None and row is not None:
-        for k in SIZE_KEYS:
-            if not math.isclose(dims[k], row[k], rel_tol=1e-9):
-                raise ConversionError(where, f"target {target_id!r}: {k} {dims[k]:g} m in the export "
-                                             f"but {row[k]:g} m in the --targets table")
-    if dims is not None:
-        return dict(dims)
-    return None if row is None else {k: row[k] for k in SIZE_KEYS}
-
-
-def frame_focal(target_ids: Iterable[str], table: dict | None, where: str) -> float | None:
-    """The focal length (px) the ``--targets`` table gives for a frame's targets (they share one
-    camera, so the rows that give one must agree), or None."""
-    found = {}
-    for tid in target_ids:
-        f = ((table or {}).get(tid) or {}).get("focal_length_px")
-        if f is not None:
-            found.setdefault(f, tid)
-    if len(found) > 1:
-        (a, ta), (b, tb) = list(found.items())[:2]
-        raise ConversionError(where, f"the --targets table gives focal lengths {a:g} px ({ta!r}) and "
-                                     f"{b:g} px ({tb!r}) for targets of one photo (one camera)")
-    return next(iter(found), None)
 
 
 def classes_block(targets: list[dict], own: Any, extra: dict[str, SizePrior] | None) -> dict | None:

@@ -24,7 +24,7 @@ from .files import atomic_write_json, atomic_write_text
 
 __all__ = ["KittiObject", "OCCLUDED_UNKNOWN", "projection_matrix", "project_with", "box_2d",
            "kitti_object", "format_label", "format_calib", "write_label_file", "write_calib_file",
-           "write_sidecar", "wrap_pi", "VELO_TO_CAM"]
+           "write_sidecar", "wrap_pi", "VELO_TO_CAM", "CALIB_LINES"]
 
 #: KITTI's occlusion code for "unknown" (the devkit's readme: 0 visible … 2 largely occluded, 3 unknown).
 OCCLUDED_UNKNOWN = 3
@@ -131,21 +131,32 @@ def format_label(objects) -> str:
     return "".join(o.to_line() + "\n" for o in objects)
 
 
-def format_calib(P2: np.ndarray) -> str:
-    """A KITTI calib file with P0–P3 = P2 (one camera), R0_rect = I and the virtual lidar."""
+#: The lines of a KITTI calib file, in the devkit's order.
+CALIB_LINES = ("P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo")
+
+
+def format_calib(P2: np.ndarray, lines: dict | None = None) -> str:
+    """A KITTI calib file with ``P2``. The other lines are ``lines`` (name → numbers: a real
+    calibration's, e.g. a KITTI folder's, kept as they were) where given, else those of one camera:
+    P0, P1, P3 = P2, R0_rect = I and the virtual lidar :data:`VELO_TO_CAM` (with no lidar, a
+    lidar tool then sees a gravity-aligned "lidar" on the camera)."""
     def row(name, m):
         return f"{name}: " + " ".join(f"{v:.12e}" for v in np.asarray(m, float).ravel()) + "\n"
     P2 = np.asarray(P2, float)
-    return (row("P0", P2) + row("P1", P2) + row("P2", P2) + row("P3", P2) + row("R0_rect", np.eye(3))
-            + row("Tr_velo_to_cam", VELO_TO_CAM) + row("Tr_imu_to_velo", np.eye(4)[:3]))
+    own = {"P0": P2, "P1": P2, "P2": P2, "P3": P2, "R0_rect": np.eye(3), "Tr_velo_to_cam": VELO_TO_CAM,
+           "Tr_imu_to_velo": np.eye(4)[:3]}
+    given = {k: v for k, v in (lines or {}).items() if k != "P2"}
+    names = list(CALIB_LINES) + [k for k in given if k not in CALIB_LINES]
+    return "".join(row(k, given.get(k, own.get(k))) for k in names)
 
 
 def write_label_file(path: str | Path, objects) -> Path:
     return atomic_write_text(path, format_label(objects))
 
 
-def write_calib_file(path: str | Path, P2: np.ndarray) -> Path:
-    return atomic_write_text(path, format_calib(P2))
+def write_calib_file(path: str | Path, P2: np.ndarray, lines: dict | None = None) -> Path:
+    """Write :func:`format_calib` to ``path`` atomically."""
+    return atomic_write_text(path, format_calib(P2, lines))
 
 
 def write_sidecar(path: str | Path, doc: dict) -> Path:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from .files import read_text
 
 __all__ = ["COLUMNS", "LabelFileError", "KittiLabels", "read_kitti_labels", "kitti_boxes"]
 
@@ -88,7 +89,7 @@ def read_kitti_labels(path: str | Path, *, scores: bool) -> KittiLabels:
         an occlusion that is not an integer, or a box (other than DontCare) without a positive size
     """
     path = Path(path)
-    text = path.read_text()
+    text = read_text(path)
     need = 16 if scores else 15
     rows, lines, types = [], [], []
     for no, raw in enumerate(text.splitlines(), start=1):

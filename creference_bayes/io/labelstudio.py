@@ -23,17 +23,18 @@ import json
 from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any
-from urllib.parse import parse_qs, unquote, urlparse
 
-from .annotation_tools import (ConversionError, ImportReport, TargetScene, apply_target_table,
-                               checked_scene, number_field, reference_from_fields, set_camera_and_horizon,
-                               relative_image_path, safe_name, unique_names)
+from .annotation_tools import (ConversionError, ImportReport, TargetScene, TargetTable, _short,
+                               checked_scene, image_file, number_field, read_input, reference_from_fields,
+                               set_camera_and_horizon, safe_name, unique_names)
 from .labelstudio_export import label_studio_task, label_studio_tasks
-from .labelstudio_results import TARGET_LABELS, annotation_items
+from .labelstudio_frames import FramePart, frame_scene, frame_task_part, url_path
+from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
 from .scene import SCENE_FORMAT
 
-__all__ = ["TARGET_LABELS", "LINE_TOOLS", "FRAME_TOOLS", "DATA_FIELDS", "FRAME_DATA_FIELDS", "label_studio_config", "read_export", "read_users",
-           "scenes_from_label_studio", "label_studio_task", "label_studio_tasks"]
+__all__ = ["TARGET_LABELS", "LINE_TOOLS", "FRAME_TOOLS", "DATA_FIELDS", "FRAME_DATA_FIELDS", "label_studio_config",
+           "read_export", "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task",
+           "label_studio_tasks"]
 
 #: The shipped configs, by how reference lines and the horizon are drawn.
 LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
@@ -61,16 +62,30 @@ def label_studio_config(lines: str = "keypoints", frame: bool = False) -> str:
 
 def read_export(path: str | Path) -> Any:
     """Decode a Label Studio JSON export file (raises :class:`ConversionError` naming the file)."""
-    path = Path(path)
+    return loads_export(read_input(path), str(path))
+
+
+def loads_export(text: bytes | str, name: str = "(export)") -> Any:
+    """Decode the text of a Label Studio JSON export (raises :class:`ConversionError` naming
+    ``name``): an integer beyond any float is read as infinite (and refused where a number is
+    read), a document nested too deeply is refused."""
     try:
-        return json.loads(path.read_bytes().decode("utf-8-sig"))
+        if isinstance(text, bytes):
+            text = text.decode("utf-8-sig")
+        return json.loads(text, parse_int=_json_int)
     except UnicodeDecodeError:
-        raise ConversionError(str(path), "not UTF-8 text (expected Label Studio's JSON export)") from None
+        raise ConversionError(name, "not UTF-8 text (expected Label Studio's JSON export)") from None
     except json.JSONDecodeError as exc:
-        raise ConversionError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} "
-                                         f"column {exc.colno}") from None
+        raise ConversionError(name, f"not valid JSON: {exc.msg} at line {exc.lineno} "
+                                    f"column {exc.colno}") from None
     except RecursionError:
-        raise ConversionError(str(path), "JSON nested too deeply") from None
+        raise ConversionError(name, "JSON nested too deeply") from None
+
+
+def _json_int(text: str) -> int | float:
+    """A JSON integer; one with more digits than any float holds is read as a float (infinite),
+    not as an integer Python refuses to convert or that overflows a float later."""
+    return int(text) if len(text) <= 400 else float(text)
 
 
 def read_users(path: str | Path) -> dict[str, str]:
@@ -102,17 +117,19 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     tasks : list
         The export: tasks with ``data`` and ``annotations`` (``completions`` before 1.0).
     image_dir : path, optional
-        Where the images are: ``image.path`` becomes this folder joined with the file name of the
-        task's ``image`` URL (unless the task gives ``image_path``).
+        Where the images are: ``image.path`` is the file of the task's ``image`` URL in this folder
+        (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
     out_dir : path, optional
         The folder the scenes will be written to; image paths are made relative to it.
-    targets : dict, optional
-        Known sizes by target id (:func:`~.annotation_tools.load_target_table`).
+    targets : TargetTable, optional
+        Known sizes and focal lengths by image and target
+        (:func:`~.annotation_tools.load_target_table`).
     users : dict, optional
         Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
         in ``completed_by`` (or the e-mail, when the export expands the user).
     frames : bool
-        Import every task as a frame, one-target tasks too.
+        Import every task as a frame, one-target tasks too. The tasks imported as frames are
+        grouped by image (``data.image``): one frame per image, holding the targets of all its tasks.
     classes : dict, optional
         Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
         written into the frames whose size-less targets use them.
@@ -128,16 +145,37 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     if not isinstance(tasks, list):
         raise ConversionError("(export)", f"expected a list of tasks (Label Studio's JSON export), "
                                           f"got {type(tasks).__name__}")
-    scenes, errors, notes = [], [], []
+    table = TargetTable.of(targets)
+    found, frame_parts, errors, notes = [], {}, [], []
     for i, task in enumerate(tasks):
         try:
-            converted = _task_scene(task, i, image_dir, out_dir, targets, users or {}, notes, frames, classes)
+            converted = _task_scene(task, i, image_dir, out_dir, table, users or {}, notes, frames)
         except ConversionError as exc:
             errors.append(exc)
             continue
-        if converted is not None:
-            scenes.append(converted)
+        if isinstance(converted, FramePart):  # the frame of its image, made once all tasks are read
+            image = converted.data.get("image")
+            key = image if isinstance(image, str) and image else i
+            if key not in frame_parts:
+                found.append(key)
+            frame_parts.setdefault(key, []).append(converted)
+        elif converted is not None:
+            found.append(converted)
+
+    def locate(data, where):  # a frame's image.path and the image's names for the table
+        return _image_path(data, image_dir, out_dir, where, notes), _image_names(data)
+
+    scenes = []
+    for item in found:
+        if isinstance(item, TargetScene):
+            scenes.append(item)
+            continue
+        try:
+            scenes.append(frame_scene(frame_parts[item], locate, table, classes, notes))
+        except ConversionError as exc:
+            errors.append(exc)
     kept, clashes = unique_names(scenes)
+    notes += table.notes()
     return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
 
 
@@ -148,8 +186,9 @@ def _task_name(task: Any, index: int) -> str:
     return f"task at index {index}"
 
 
-def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=False,
-                classes=None) -> TargetScene | None:
+def _task_scene(task, index, image_dir, out_dir, table, users, notes,
+                frames=False) -> TargetScene | FramePart | None:
+    """A one-target task's scene, what a frame task gives its image's frame, or None (no annotations)."""
     where = _task_name(task, index)
     if not isinstance(task, dict):
         raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
@@ -169,11 +208,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=F
     width, height = _image_size(anns, data, where)
     items_list = [annotation_items(ann, k, width, height, where, users, notes) for k, ann in enumerate(anns)]
     if data.get("creference_scene") is None and (frames or "targets" in data or any(i.frame for i in items_list)):
-        from .labelstudio_frames import frame_task_scene
-
-        return frame_task_scene(task, index, data, items_list, (width, height), where,
-                                image_path=_image_path(data, image_dir, out_dir, where), table=targets,
-                                classes=classes, notes=notes)
+        return frame_task_part(task, index, data, items_list, (width, height), where, notes)
 
     if "target_id" in data:
         tid = data["target_id"]
@@ -187,7 +222,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=F
         raise ConversionError(where, f"data has {given} but not {[k for k in _DIMS if k not in given]}")
     dims = ({k[7:-2]: number_field(data[k], where, f"data.{k}", positive=True) for k in _DIMS}
             if given else None)
-    size, table_focal = apply_target_table(tid, dims, targets, where)
+    size = table.size(_image_names(data), tid, dims, where, required=True)
 
     lines, refs, horizons, origins = [], [], [], {}
     for items in items_list:
@@ -204,17 +239,18 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=F
                                               worker=items.worker, seconds=secs))
         horizons.extend(items.horizons)
     if data.get("creference_scene") is not None:  # a request task of creference advise
-        return _answered_request(data, lines, refs, origins, image_dir, out_dir, where)
+        return _answered_request(data, lines, refs, origins, image_dir, out_dir, where, notes)
     if not lines:
         raise ConversionError(where, "no annotation draws the target's dimension lines "
                                      f"({', '.join(repr(x) for x in TARGET_LABELS)})")
 
     scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    image_path = _image_path(data, image_dir, out_dir, where)
+    image_path = _image_path(data, image_dir, out_dir, where, notes)
     if image_path is not None:
         scene["image"]["path"] = image_path
     camera = {}
     focal = data.get("focal_length_px")
+    table_focal = table.focal(_image_names(data), [tid], where)
     if focal not in (None, ""):
         camera["focal_length_px"] = number_field(focal, where, "data.focal_length_px", positive=True)
     elif table_focal is not None:
@@ -233,7 +269,7 @@ def _task_scene(task, index, image_dir, out_dir, targets, users, notes, frames=F
     return TargetScene(safe_name(tid), checked_scene(scene, where, origins), where)
 
 
-def _answered_request(data, lines, refs, origins, image_dir, out_dir, where) -> TargetScene:
+def _answered_request(data, lines, refs, origins, image_dir, out_dir, where, notes) -> TargetScene:
     """A request task (``creference advise``, docs/advice.md) carries the scene it was made for
     in ``data.creference_scene``: its answers are appended to that scene's dimension lines and
     references, so the task imports as the scene with the new annotations."""
@@ -242,6 +278,10 @@ def _answered_request(data, lines, refs, origins, image_dir, out_dir, where) -> 
     base = data["creference_scene"]
     if not isinstance(base, dict) or not isinstance(base.get("target"), dict):
         raise ConversionError(where, "data.creference_scene is not a creference-scene/1 scene")
+    for key, value in (("target.dimension_lines", base["target"].get("dimension_lines")),
+                       ("references", base.get("references"))):
+        if value is not None and not isinstance(value, list):
+            raise ConversionError(where, f"data.creference_scene.{key} is not a list: {_short(value)}")
     scene = copy.deepcopy(base)
     target = scene["target"]
     old_lines, old_refs = list(target.get("dimension_lines") or []), list(scene.get("references") or [])
@@ -253,7 +293,7 @@ def _answered_request(data, lines, refs, origins, image_dir, out_dir, where) -> 
     target["dimension_lines"] = old_lines + lines
     if old_refs or refs:
         scene["references"] = old_refs + refs
-    image_path = _image_path(data, image_dir, out_dir, where)
+    image_path = _image_path(data, image_dir, out_dir, where, notes)
     if image_path is not None:
         scene.setdefault("image", {})["path"] = image_path
     return TargetScene(safe_name(str(target.get("id", "target"))), checked_scene(scene, where, moved), where)
@@ -270,14 +310,16 @@ def _image_size(anns: list, data: dict, where: str) -> tuple[int, int]:
     """(width, height): the results' original size, else the task's ``image_width/height``."""
     seen: dict[tuple[int, int], str] = {}
     for k, ann in enumerate(anns):
-        aname = f"annotation {ann.get('id', k)}" if isinstance(ann, dict) else f"annotation {k}"
-        for r in (ann.get("result") if isinstance(ann, dict) else None) or []:
+        if not isinstance(ann, dict):
+            continue  # refused by annotation_items
+        aname, result = annotation_result(ann, k, where)
+        for r in result:
             if not isinstance(r, dict) or r.get("type") == "relation":
                 continue
-            rwhere = f"{where}, {aname}, region {r.get('id')!r}"
+            rwhere = f"{where}, {aname}, region {_short(r.get('id'))}"
             rot = r.get("image_rotation")
             if rot not in (None, 0, 0.0):
-                raise ConversionError(rwhere, f"image_rotation {rot!r} is not supported "
+                raise ConversionError(rwhere, f"image_rotation {_short(rot)} is not supported "
                                               "(annotate the image unrotated)")
             ow, oh = r.get("original_width"), r.get("original_height")
             if ow is None and oh is None:
@@ -305,18 +347,34 @@ def _image_size(anns: list, data: dict, where: str) -> tuple[int, int]:
     return data_size
 
 
-def _image_path(data: dict, image_dir, out_dir, where: str) -> str | None:
+def _image_path(data: dict, image_dir, out_dir, where: str, notes: list) -> str | None:
+    """The scene's ``image.path``: ``data.image_path`` as it is, else (with ``image_dir``) the file of
+    ``data.image`` in ``image_dir`` (for local files ``?d=dir/a.jpg``: ``dir/a.jpg``, else ``a.jpg``)."""
     path = data.get("image_path")
     if path not in (None, ""):
         if not isinstance(path, str):
-            raise ConversionError(where, f"data.image_path must be text, got {path!r}")
+            raise ConversionError(where, f"data.image_path must be text, got {_short(path)}")
         return path
     url = data.get("image")
     if image_dir is None or not isinstance(url, str) or not url:
         return None
-    parsed = urlparse(url)
-    local = parse_qs(parsed.query).get("d")  # Label Studio's local files: /data/local-files/?d=dir/a.jpg
-    name = PurePosixPath(unquote(local[0] if local else parsed.path)).name
-    if not name:
-        raise ConversionError(where, f"no file name in data.image {url!r}")
-    return relative_image_path(Path(image_dir) / name, out_dir)
+    local = url_path(url, where)
+    if not PurePosixPath(local).name:
+        raise ConversionError(where, f"no file name in data.image {_short(url)}")
+    return image_file(image_dir, local, out_dir, where, notes)
+
+
+def _image_names(data: dict) -> list[str]:
+    """The names of a task's image, for the ``--targets`` table's ``image`` column: ``data.image``,
+    the file path in it, ``data.image_path``."""
+    names = []
+    for key in ("image", "image_path"):
+        value = data.get(key)
+        if isinstance(value, str) and value:
+            names.append(value)
+            if key == "image":
+                try:
+                    names.append(url_path(value, ""))
+                except ConversionError:
+                    pass
+    return list(dict.fromkeys(names))

@@ -8,35 +8,60 @@ target is tied to its target by its ``target`` field; a region that names none b
 task's only target. A reference region's ``target`` names the target it is about (a relative
 reference: the target it is a ratio to). Sizes come from ``dimensions_m`` in ``data.targets`` or
 the ``--targets`` table; without one the target's class's size prior applies.
+
+The tasks imported as frames are grouped by their image (``data.image``): the tasks of one image
+(e.g. the one-target layout, a task per target, with ``--frames``) make one frame holding the
+targets of all of them (:func:`frame_task_part` per task, :func:`frame_scene` per image).
 """
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
 from pathlib import PurePosixPath
 from typing import Any
 from urllib.parse import parse_qs, unquote, urlparse
 
-from .annotation_tools import (ConversionError, TargetScene, _text, number_field, set_camera_and_horizon,
-                               reference_from_fields, safe_name)
-from .frame_import import checked_frame, classes_block, frame_focal, frame_size
+from .annotation_tools import (ConversionError, TargetScene, TargetTable, _short, _text, number_field,
+                               reference_from_fields, safe_name, set_camera_and_horizon)
+from .frame_import import checked_frame, classes_block
 from .frame_scene import FRAME_FORMAT
 from .labelstudio_results import TARGET_LABELS
 
-__all__ = ["frame_task_scene"]
+__all__ = ["FramePart", "frame_task_part", "frame_scene", "url_path", "SHARED_DATA"]
 
 _SIZE = ("length", "width", "height")
 _TARGET_KEYS = {"id", "class", "dimensions_m", "ground_truth"}
+#: ``data`` fields of the photo (not of one target): the tasks of one image must agree on them.
+SHARED_DATA = ("frame_id", "image_path", "focal_length_px", "principal_point", "kitti_p2", "horizon",
+               "horizon_sd_px", "classes", "ground_truth")
+#: A one-target task's ``ground_truth`` keys that belong to its target; the others are the camera's.
+_TARGET_TRUTH = ("location_m", "yaw_rad", "handedness")
 
 
-def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size: tuple[int, int], where: str, *,
-                     image_path: str | None, table: dict | None, classes: dict | None,
-                     notes: list[str]) -> TargetScene:
-    """One frame from a task whose annotations were read into ``items_list``
-    (:class:`~.labelstudio_results.AnnotationItems`); ``size`` is the image's (width, height) px,
-    ``image_path`` the scene's ``image.path`` (or None), ``table`` the ``--targets`` sizes and
-    ``classes`` the ``--classes`` size priors. Raises :class:`ConversionError`."""
-    width, height = size
-    declared = _declared(data, task, index, where)
+@dataclass
+class FramePart:
+    """What one task contributes to the frame of its image: its drawn targets (id → target with
+    ``lines`` and their ``origins``), references (with the regions they come from), horizon lines,
+    the image size and the task's ``data`` (its photo fields: :data:`SHARED_DATA`)."""
+
+    where: str
+    task: dict
+    index: int
+    data: dict
+    size: tuple[int, int]
+    targets: dict
+    refs: list
+    ref_origins: list
+    horizons: list
+
+
+def frame_task_part(task: dict, index: int, data: dict, items_list: list, size: tuple[int, int], where: str,
+                    notes: list[str]) -> FramePart:
+    """What a task whose annotations were read into ``items_list``
+    (:class:`~.labelstudio_results.AnnotationItems`) gives its image's frame; ``size`` is the
+    image's (width, height) px. Raises :class:`ConversionError`."""
+    declared, data = _declared(data, task, index, where)
     targets: dict[str, dict] = {tid: {"id": tid, **{k: v for k, v in t.items() if k != "id"}, "lines": [],
                                       "origins": []} for tid, t in declared.items()}
     refs, ref_origins, horizons = [], [], []
@@ -66,14 +91,52 @@ def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size:
             refs.append(ref)
             ref_origins.append(f"{items.name}, region {rid!r}")
         horizons.extend(items.horizons)
-
-    drawn = [t for t in targets.values() if t["lines"]]
     for t in targets.values():
         if not t["lines"]:
             notes.append(f"{where}: target {t['id']!r} of data.targets has no dimension lines; left out")
+    drawn = {tid: t for tid, t in targets.items() if t["lines"]}
     if not drawn:
         raise ConversionError(where, "no annotation draws a target's dimension lines "
                                      f"({', '.join(repr(x) for x in TARGET_LABELS)}, or a 'target' line)")
+    return FramePart(where, task, index, data, size, drawn, refs, ref_origins, horizons)
+
+
+def frame_scene(parts: list[FramePart], locate, table: TargetTable, classes: dict | None,
+                notes: list[str]) -> TargetScene:
+    """One frame from the parts of the tasks of one image (several tasks: the one-target layout, a
+    task per target); ``locate(data, where)`` gives the frame's ``image.path`` (or None) and the
+    image's names for the ``--targets`` table, ``classes`` are the ``--classes`` size priors. The
+    tasks must agree on the image's size and on :data:`SHARED_DATA`; a target id is drawn in one
+    task only; a relative reference of a task that draws one target is relative to that target."""
+    first = parts[0]
+    where = first.where if len(parts) == 1 else f"{', '.join(p.where for p in parts)} (one image)"
+
+    def origin(part, text):  # a merged frame's messages name the task too
+        return text if len(parts) == 1 else f"{part.where}, {text}"
+
+    for part in parts[1:]:
+        if part.size != first.size:
+            raise ConversionError(where, f"the image is {first.size[0]}x{first.size[1]} in {first.where} but "
+                                         f"{part.size[0]}x{part.size[1]} in {part.where}")
+    data = _shared_data(parts, where)
+    image_path, image_names = locate(data, where)
+    width, height = first.size
+    drawn: dict[str, dict] = {}
+    origins: dict[str, str] = {}
+    refs, ref_origins, horizons = [], [], []
+    for part in parts:
+        for tid, t in part.targets.items():
+            if tid in drawn:
+                raise ConversionError(where, f"target {tid!r} is in {drawn[tid]['part'].where} and in "
+                                             f"{part.where}; a target id must be unique among the tasks of its image")
+            drawn[tid] = {**t, "part": part}
+        if len(parts) > 1 and len(part.targets) == 1:  # a one-target task: its ratios are to its target
+            refs += [{**r, "target": next(iter(part.targets))} if r["mode"] == "relative" and "target" not in r
+                     else r for r in part.refs]
+        else:
+            refs += part.refs
+        ref_origins += [origin(part, o) for o in part.ref_origins]
+        horizons += part.horizons
     scene: dict[str, Any] = {"format": FRAME_FORMAT, "image": {"width": width, "height": height}}
     if image_path is not None:
         scene["image"]["path"] = image_path
@@ -82,7 +145,7 @@ def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size:
     if focal not in (None, ""):
         camera["focal_length_px"] = number_field(focal, where, "data.focal_length_px", positive=True)
     else:
-        table_focal = frame_focal([t["id"] for t in drawn], table, where)
+        table_focal = table.focal(image_names, list(drawn), where)
         if table_focal is not None:
             camera["focal_length_px"] = table_focal
     for key in ("principal_point", "kitti_p2"):
@@ -92,17 +155,21 @@ def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size:
     if data.get("horizon_sd_px") is not None:
         scene["horizon_sd_px"] = data["horizon_sd_px"]
     out_targets = []
-    for t in drawn:
+    for i, t in enumerate(drawn.values()):
         d: dict[str, Any] = {"id": t["id"]}
         if t.get("class") is not None:
             d["class"] = t["class"]
-        dims = frame_size(t["id"], t.get("dimensions_m"), table, f"{where}, target {t['id']!r}")
+        dims = table.size(image_names, t["id"], t.get("dimensions_m"), f"{where}, target {t['id']!r}")
         if dims is not None:
             d["dimensions_m"] = dims
         d["dimension_lines"] = t["lines"]
         if t.get("ground_truth") is not None:
             d["ground_truth"] = t["ground_truth"]
         out_targets.append(d)
+        part = t["part"]
+        origins[f"targets[{i}]"] = origin(part, t.get("class_from") or t["origins"][0])
+        origins[f"targets[{i}].ground_truth"] = origin(part, "data.targets")
+        origins.update({f"targets[{i}].dimension_lines[{j}]": origin(part, o) for j, o in enumerate(t["origins"])})
     own = classes_block(out_targets, data.get("classes"), classes)
     if own is not None:
         scene["classes"] = own
@@ -113,28 +180,69 @@ def frame_task_scene(task: dict, index: int, data: dict, items_list: list, size:
         scene["ground_truth"] = data["ground_truth"]
     origins = {"camera": "data.focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
                "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
-               "ground_truth": "data.ground_truth"}
-    for i, t in enumerate(drawn):
-        origins[f"targets[{i}]"] = t.get("class_from") or t["origins"][0]
-        origins[f"targets[{i}].ground_truth"] = "data.targets"
-        origins.update({f"targets[{i}].dimension_lines[{j}]": o for j, o in enumerate(t["origins"])})
+               "ground_truth": "data.ground_truth", **origins}
     origins.update({f"references[{k}]": o for k, o in enumerate(ref_origins)})
-    return TargetScene(_frame_name(data, task, index), checked_frame(scene, where, origins), where)
+    return TargetScene(_frame_name(data, first.task, first.index, where), checked_frame(scene, where, origins),
+                       where)
 
 
-def _declared(data: dict, task: dict, index: int, where: str) -> dict[str, dict]:
+def _shared_data(parts: list[FramePart], where: str) -> dict:
+    """The photo's ``data`` fields (:data:`SHARED_DATA`, and ``image``) from the tasks of one image:
+    each from the tasks that give it, which must agree."""
+    out: dict[str, Any] = {"image": parts[0].data.get("image")}
+    for key in SHARED_DATA:
+        given = [(p.data[key], p.where) for p in parts if p.data.get(key) not in (None, "")]
+        for value, pwhere in given[1:]:
+            path, a, b = f"data.{key}", given[0][0], value
+            while isinstance(a, dict) and isinstance(b, dict) and _canonical(a) != _canonical(b):
+                k = next(k for k in {**a, **b} if _canonical(a.get(k, _ABSENT)) != _canonical(b.get(k, _ABSENT)))
+                path, a, b = f"{path}.{k}", a.get(k, _ABSENT), b.get(k, _ABSENT)  # down to where they differ
+            if _canonical(a) != _canonical(b):
+                show = [("not given" if v is _ABSENT else _short(v)) for v in (a, b)]
+                raise ConversionError(where, f"{path} is {show[0]} in {given[0][1]} but {show[1]} in "
+                                             f"{pwhere} (the tasks of one image share it)")
+        if given:
+            out[key] = given[0][0]
+    return out
+
+
+_ABSENT = object()
+
+
+def _canonical(value: Any) -> str:
+    """A value as text, for comparing (``_ABSENT``: a key not given)."""
+    if value is _ABSENT:
+        return "(not given)"
+    try:
+        return json.dumps(value, sort_keys=True, default=repr)
+    except (TypeError, ValueError, RecursionError):  # keys of mixed types, a cycle, too deep: by identity
+        return f"{type(value).__name__} at {id(value)}"
+
+
+def _declared(data: dict, task: dict, index: int, where: str) -> tuple[dict[str, dict], dict]:
     """The targets ``data`` lists, by id (``data.targets``; or, for a one-target task imported as
-    a frame, ``target_id`` and ``target_*_m``)."""
+    a frame, ``target_id`` and ``target_*_m``), and ``data`` with the photo's fields (a one-target
+    task's ``ground_truth`` is split: location, yaw and handedness go to its target)."""
     if "targets" not in data:
         keys = ("target_length_m", "target_width_m", "target_height_m")
         if "target_id" not in data and not any(data.get(k) not in (None, "") for k in keys):
-            return {}
-        tid = str(data.get("target_id", f"task{task.get('id', index)}")).strip()
+            return {}, data
+        tid = data.get("target_id", f"task{task.get('id', index)}")
+        if isinstance(tid, bool) or not isinstance(tid, (str, int)) or str(tid).strip() == "":
+            raise ConversionError(where, f"data.target_id must be text, got {_short(tid)}")
+        tid = str(tid).strip()
         given = [k for k in keys if data.get(k) not in (None, "")]
         if given and len(given) < 3:
             raise ConversionError(where, f"data has {given} but not {[k for k in keys if k not in given]}")
         dims = {k[7:-2]: number_field(data[k], where, f"data.{k}", positive=True) for k in keys} if given else None
-        return {tid: {"dimensions_m": dims}}
+        entry: dict[str, Any] = {"dimensions_m": dims}
+        truth = data.get("ground_truth")
+        if isinstance(truth, dict) and "location_m" in truth:
+            entry["ground_truth"] = {k: v for k, v in truth.items() if k in _TARGET_TRUTH}
+            camera = {k: v for k, v in truth.items() if k in ("focal_length_px", "camera_height_m", "pitch_rad",
+                                                                 "roll_rad")}
+            data = {**data, "ground_truth": camera or None}
+        return {tid: entry}, data
     raw = data["targets"]
     if not isinstance(raw, list) or not raw:
         raise ConversionError(where, f"data.targets must be a non-empty list of targets, got {str(raw)[:60]!r}")
@@ -167,7 +275,7 @@ def _declared(data: dict, task: dict, index: int, where: str) -> dict[str, dict]
         if t.get("ground_truth") is not None:
             entry["ground_truth"] = t["ground_truth"]
         out[tid] = entry
-    return out
+    return out, data
 
 
 def _resolve(name: str | None, declared: dict, targets: dict, where: str) -> str:
@@ -183,7 +291,7 @@ def _resolve(name: str | None, declared: dict, targets: dict, where: str) -> str
     return name
 
 
-def _frame_name(data: dict, task: dict, index: int) -> str:
+def _frame_name(data: dict, task: dict, index: int, where: str) -> str:
     """The frame file's stem: ``data.frame_id``, else the image's file name without its
     extension, else ``task<id>``."""
     fid = data.get("frame_id")
@@ -192,9 +300,18 @@ def _frame_name(data: dict, task: dict, index: int) -> str:
     for key in ("image_path", "image"):
         url = data.get(key)
         if isinstance(url, str) and url:
-            parsed = urlparse(url)
-            local = parse_qs(parsed.query).get("d")
-            stem = PurePosixPath(unquote(local[0] if local else parsed.path)).stem
+            stem = PurePosixPath(url_path(url, where)).stem
             if stem:
                 return safe_name(stem)
     return safe_name(f"task{task.get('id', index)}")
+
+
+def url_path(url: str, where: str) -> str:
+    """The file an image URL names: for Label Studio's local files (``/data/local-files/?d=dir/a.jpg``)
+    the path ``dir/a.jpg``, else the file name of the URL's path."""
+    try:
+        parsed = urlparse(url)
+        local = parse_qs(parsed.query).get("d")
+    except ValueError as exc:  # e.g. a malformed IPv6 host
+        raise ConversionError(where, f"not a valid URL {_short(url)}: {exc}") from None
+    return local[0] if local else PurePosixPath(unquote(parsed.path)).name

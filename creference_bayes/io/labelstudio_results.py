@@ -16,11 +16,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from .annotation_tools import REFERENCE_FIELDS, ConversionError, _text, number_field
+from .annotation_tools import REFERENCE_FIELDS, ConversionError, _short, _text, number_field
 
 __all__ = ["TARGET_LABELS", "REF_START", "REF_END", "REFERENCE", "HORIZON", "TARGET", "POINTS", "LINES",
            "TARGET_LINES", "IMAGE", "CONTROL_VALUE", "FRAME_FIELDS", "Drawing", "AnnotationItems",
-           "annotation_items"]
+           "annotation_items", "annotation_result"]
 
 #: Keypoint labels of the target's corners t1..t4, in order.
 TARGET_LABELS = ("t1 bottom corner", "t2 end of length", "t3 end of width", "t4 top of height")
@@ -102,8 +102,12 @@ def _vertices(value: dict, where: str) -> list:
     ids = [v.get("id") for v in verts]
     if all(isinstance(i, str) for i in ids) and len(set(ids)) == len(ids):
         nxt: dict = {}
-        for v in verts:
-            nxt.setdefault(v.get("prevPointId"), []).append(v)
+        for j, v in enumerate(verts):
+            prev = v.get("prevPointId")
+            if prev is not None and not isinstance(prev, str):
+                raise ConversionError(where, f"vertex {j} ({v['id']!r}): prevPointId is not a vertex id: "
+                                             f"{_short(prev)}")
+            nxt.setdefault(prev, []).append(v)
         chain, cur = [], nxt.get(None, [None])[0]
         while cur is not None and len(chain) < len(verts):
             chain.append(cur)
@@ -111,6 +115,19 @@ def _vertices(value: dict, where: str) -> list:
         if len(chain) == len(verts) and len(nxt.get(None, [])) == 1:
             return chain
     return verts  # no usable chain (e.g. the SDK writes null ids): the list order
+
+
+def annotation_result(ann: dict, k: int, where: str) -> tuple[str, list]:
+    """The name of annotation ``ann`` (the ``k``-th of its task) for messages, and its ``result``
+    list (none: empty); a ``result`` that is not a list is a :class:`ConversionError`."""
+    aid = ann.get("id", k)
+    aname = f"annotation {aid if isinstance(aid, (int, str)) and not isinstance(aid, bool) else k}"
+    result = ann.get("result")
+    if result is None:
+        return aname, []
+    if not isinstance(result, list):
+        raise ConversionError(f"{where}, {aname}", f"'result' is not a list: {_short(result)}")
+    return aname, result
 
 
 def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationItems:
@@ -121,11 +138,8 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
     """
     if not isinstance(ann, dict):
         raise ConversionError(f"{where}, annotation {k}", f"expected an object, got {type(ann).__name__}")
-    aname = f"annotation {ann.get('id', k)}"
+    aname, result = annotation_result(ann, k, where)
     awhere = f"{where}, {aname}"
-    result = ann.get("result") or []
-    if not isinstance(result, list):
-        raise ConversionError(awhere, f"'result' is not a list: {type(result).__name__}")
     lead = ann.get("lead_time")
     lead = None if lead is None else number_field(lead, awhere, "lead_time", lo=0.0, hi=math.inf)
     items = AnnotationItems(aname, _worker(ann.get("completed_by"), users), lead)
@@ -137,6 +151,8 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
         if not isinstance(r, dict):
             raise ConversionError(awhere, f"result {j} is not an object")
         typ = r.get("type")
+        if not isinstance(typ, str):
+            raise ConversionError(awhere, f"result {j}: 'type' is not text: {_short(typ)}")
         if typ == "relation":
             relations.append((str(r.get("from_id")), str(r.get("to_id"))))
             continue

@@ -3,14 +3,24 @@ whole frame with a zoom per object, and the shared camera's posterior (docs/fram
 
 Every function takes the frame (:class:`~creference_bayes.io.frame_scene.FrameScene`), the MAP as
 model arrays (camera (5,), objects (m, 7), :mod:`~creference_bayes.models.frame` order) and
-posterior draws as model arrays (cameras (n, 5), objects (n, m, 7)) or None, draws on a new
-:class:`matplotlib.figure.Figure` (no pyplot state) and returns it.
+posterior draws as model arrays (cameras (n, 5), objects (n, m, 7)) or None, draws on the
+``ax``/``fig`` it is given or on a new :class:`matplotlib.figure.Figure` (no pyplot state) and
+returns the figure.
+
+Each object has a style of its own (:func:`object_styles`): one of :data:`OBJECT_COLORS`, with a
+line style of its own once the colours have all been used. Its label (``id (class)``; the id alone,
+with a key below the figure, when there are more than :data:`FULL_LABELS_UP_TO` objects) is placed
+near the object where it overlaps no other label, with a leader line when it had to move away.
 """
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Polygon, Rectangle
 
 from ..models.frame import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL
@@ -18,21 +28,76 @@ from ..models.frame_boxes import footprint as _footprint
 from ..models.frame_boxes import frame_boxes_2d
 from .plotting import ZOOM_BELOW, _BOX_EDGES, _MAP_COLOR, _POST_COLOR, _hdr_levels, _load_image
 
-#: The truth is drawn in black (dashed): the objects' own colours include the single-target green.
+#: The truth is drawn in black (dashed), a colour no object has.
 _TRUTH_COLOR = "k"
+#: The MAP bottom centre in the zoom panels (black: an object may be red).
+_CENTRE_COLOR = "k"
 
-__all__ = ["plot_frame_boxes", "plot_frame_top_view", "plot_frame_camera", "object_labels"]
+#: One strong colour per object: each has a relative luminance of at most 0.3 (a contrast of at
+#: least 3:1 against white, so that a label or a thin line in it reads on a light background), and
+#: any two differ by a CIE76 ΔE of at least 24. Grey and black are left out (the legends' and the
+#: truth's).
+OBJECT_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#d95f02", "#8c564b", "#c51b7d", "#00838f",
+                 "#6b6b00", "#3f3f9f", "#b8860b")
+#: The line style of an object's boxes and footprint: solid for the first round through the colours,
+#: then dashed, dotted, …, so that colour and line style together tell 66 objects apart.
+OBJECT_LINESTYLES = ("-", (0, (5, 2)), (0, (1, 1.2)), (0, (6, 2, 1, 2)), (0, (2.5, 2.5)), (0, (8, 2, 1, 2, 1, 2)))
+#: Up to this many objects, each label reads ``id (class)``; beyond, the id alone (or its number when
+#: an id is long) and a key below the figure gives each object's class.
+FULL_LABELS_UP_TO = 12
+#: At most this many zoom panels beside the top view; more go to :func:`plot_frame_zooms`.
+MAX_ZOOM_PANELS = 12
+#: The longest side of a figure (inches) that grows with the number of objects.
+MAX_FIGURE_IN = 18.0
 
-def _colors(m: int) -> list:
-    from matplotlib import colormaps
+__all__ = ["plot_frame_boxes", "plot_frame_top_view", "plot_frame_zooms", "plot_frame_camera", "object_labels",
+           "object_styles", "short_labels", "zoom_indices", "OBJECT_COLORS", "OBJECT_LINESTYLES",
+           "FULL_LABELS_UP_TO", "MAX_ZOOM_PANELS"]
 
-    cmap = colormaps["tab10" if m <= 10 else "tab20"]
-    return [cmap(i % cmap.N) for i in range(m)]
+
+def object_styles(m: int) -> list[dict]:
+    """``{"color", "ls"}`` of each of ``m`` objects: the colours in turn, then again with the next
+    line style; unique up to ``len(OBJECT_COLORS) * len(OBJECT_LINESTYLES)`` (66) objects."""
+    k = len(OBJECT_COLORS)
+    return [{"color": OBJECT_COLORS[i % k], "ls": OBJECT_LINESTYLES[(i // k) % len(OBJECT_LINESTYLES)]}
+            for i in range(m)]
 
 
 def object_labels(frame) -> list[str]:
     """``id (class)`` of every target."""
     return [t.id if t.cls is None else f"{t.id} ({t.cls})" for t in frame.targets]
+
+
+def short_labels(frame) -> list[str]:
+    """What marks each object in a crowded figure: its id when every id has at most 6 characters,
+    else its number (1, 2, …; the key below the figure gives the id and class)."""
+    ids = [str(t.id) for t in frame.targets]
+    return ids if max((len(s) for s in ids), default=0) <= 6 else [str(i + 1) for i in range(len(ids))]
+
+
+def _label_fontsize(m: int) -> float:
+    return 8.0 if m <= FULL_LABELS_UP_TO else 7.0 if m <= 30 else 6.0
+
+
+def _key(ax_or_fig, frame, styles, fontsize: float, width_in: float, *, outside: bool):
+    """The key of a crowded figure: each object's line style, short label, id and class."""
+    short, full = short_labels(frame), object_labels(frame)
+    texts = [f if s == str(t.id) else f"{s}: {f}" for s, f, t in zip(short, full, frame.targets)]
+    handles = [Line2D([], [], color=st["color"], ls=st["ls"], lw=1.8) for st in styles]
+    entry_in = (max(len(s) for s in texts) * 0.55 * fontsize + 32) / 72
+    ncols = int(np.clip(width_in // entry_in, 1, len(texts)))
+    kw = dict(ncols=ncols, fontsize=fontsize, frameon=False, handlelength=2.6, columnspacing=1.2,
+              title="objects", title_fontsize=fontsize + 1)
+    if outside:
+        return ax_or_fig.legend(handles, texts, loc="outside lower center", **kw)
+    return ax_or_fig.legend(handles, texts, loc="upper center", bbox_to_anchor=(0.5, -0.12), **kw)
+
+
+def _key_height_in(m: int, fontsize: float, width_in: float, frame) -> float:
+    texts = object_labels(frame)
+    entry_in = (max(len(s) for s in texts) * 0.55 * fontsize + 32) / 72
+    rows = -(-m // max(1, int(width_in // entry_in)))
+    return 0.45 + rows * fontsize * 1.75 / 72
 
 
 def _truth_state(target) -> np.ndarray | None:
@@ -48,74 +113,217 @@ def _pick(n_draws: int, k: int, rng) -> np.ndarray:
     return np.random.default_rng(rng).choice(n_draws, size=min(k, n_draws), replace=False)
 
 
+# ------------------------------------------------------------------------------------------------
+# Labels that do not overlap
+
+
+def _renderer(fig):
+    """The figure's renderer (an Agg canvas is attached to a figure made without pyplot)."""
+    if not hasattr(fig.canvas, "get_renderer"):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        FigureCanvasAgg(fig)
+    return fig.canvas.get_renderer()
+
+
+def _rects(points_list, transform) -> np.ndarray:
+    """(k, 4) display bounding rectangles x0, y0, x1, y1 of point sets in data coordinates."""
+    out = []
+    for p in points_list:
+        p = np.asarray(p, float).reshape(-1, 2)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p):
+            d = transform(p)
+            out.append([*d.min(axis=0), *d.max(axis=0)])
+    return np.array(out, float).reshape(-1, 4)
+
+
+def _overlap_area(cand: np.ndarray, rects: np.ndarray) -> np.ndarray:
+    """(K, k) intersection areas of K candidate rectangles with k rectangles."""
+    if not len(rects):
+        return np.zeros((len(cand), 0))
+    w = np.minimum(cand[:, None, 2], rects[None, :, 2]) - np.maximum(cand[:, None, 0], rects[None, :, 0])
+    h = np.minimum(cand[:, None, 3], rects[None, :, 3]) - np.maximum(cand[:, None, 1], rects[None, :, 1])
+    return np.clip(w, 0, None) * np.clip(h, 0, None)
+
+
+#: Directions tried around an anchor, best first: above, then the sides, then below.
+_DIRECTIONS = np.deg2rad([90, 65, 115, 40, 140, 15, 165, 0, 180, -20, -160, -45, -135, -70, -110, -90])
+
+
+def _place_labels(ax, anchors, texts, colors, *, fontsize: float, obstacles=(), avoid=(),
+                  soft_weight: float = 4.0) -> list:
+    """Write each text near its anchor (data coordinates) so that no two texts overlap and every
+    text lies inside the axes: the free place nearest to the anchor, preferring above it and places
+    that cover neither an obstacle (point sets in data coordinates: the objects' boxes or
+    footprints; covering one costs as much as ``soft_weight`` text heights farther away) nor another
+    anchor; ``avoid`` holds artists (a legend) no text may cover. A text
+    that had to move away from its anchor gets a leader line. The texts stay out of the layout: the
+    figure is laid out first (constrained layout), and then the texts are placed in its pixels.
+
+    Returns the :class:`~matplotlib.text.Annotation` of each text (None where the anchor is not finite).
+    """
+    fig = ax.figure.figure
+    renderer = _renderer(fig)
+    fig.draw_without_rendering()
+    to_px = ax.transData.transform
+    frame = ax.get_window_extent(renderer).extents
+    A = np.asarray(anchors, float).reshape(-1, 2)
+    ok = np.all(np.isfinite(A), axis=1)
+    P = np.full_like(A, np.nan)
+    if ok.any():
+        P[ok] = to_px(A[ok])
+    px_per_pt = fig.dpi / 72
+    pad = 0.25 * fontsize * px_per_pt
+    sizes = np.zeros((len(A), 2))
+    for i, s in enumerate(texts):
+        t = ax.text(0, 0, s, fontsize=fontsize)
+        bb = t.get_window_extent(renderer)
+        t.remove()
+        sizes[i] = bb.width + 2 * pad, bb.height + 2 * pad
+    h_ref = float(sizes[:, 1].max()) if len(sizes) else 10.0
+    soft = _rects(obstacles, to_px)
+    hard = np.array([a.get_window_extent(renderer).extents for a in avoid], float).reshape(-1, 4)
+    dirs = np.column_stack([np.cos(_DIRECTIONS), np.sin(_DIRECTIONS)])
+    rank = np.arange(len(dirs)) / len(dirs)  # a slight preference for the directions listed first
+    radii = 0.15 * h_ref + 0.6 * h_ref * np.arange(40)
+    # a coarse grid over the whole axes: the last resort of a label with no free place near it
+    gx, gy = np.meshgrid(np.arange(frame[0], frame[2], h_ref), np.arange(frame[1], frame[3], h_ref / 2))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    # the most crowded anchors first: they take the places next to them
+    crowd = np.array([np.sum(np.hypot(*(P[ok] - p).T) < 4 * h_ref) if ok[i] else -1 for i, p in enumerate(P)])
+    placed = np.zeros((0, 4))
+    centres = np.full_like(P, np.nan)
+    for i in np.argsort(-crowd, kind="stable"):
+        if not ok[i]:
+            continue
+        w, h = sizes[i]
+        half = np.array([w / 2, h / 2])
+        ring = P[i] + (dirs[None, :, :] * (half[None, None, :] + radii[:, None, None])).reshape(-1, 2)
+        cand = np.vstack([ring, grid])
+        dist = np.hypot(*(cand - P[i]).T) + np.concatenate([np.tile(rank, len(radii)), np.zeros(len(grid))]) * h_ref
+        rect = np.column_stack([cand - half, cand + half])
+        inside = (rect[:, 0] >= frame[0]) & (rect[:, 1] >= frame[1]) & (rect[:, 2] <= frame[2]) & (rect[:, 3] <= frame[3])
+        clash = _overlap_area(rect, placed).sum(axis=1) + _overlap_area(rect, hard).sum(axis=1)
+        others = P[ok & (np.arange(len(P)) != i)]
+        covers = ((others[None, :, 0] > rect[:, None, 0]) & (others[None, :, 0] < rect[:, None, 2])
+                  & (others[None, :, 1] > rect[:, None, 1]) & (others[None, :, 1] < rect[:, None, 3])).sum(axis=1)
+        own = (rect[:, 0] < P[i, 0]) & (P[i, 0] < rect[:, 2]) & (rect[:, 1] < P[i, 1]) & (P[i, 1] < rect[:, 3])
+        cost = dist + h_ref * (soft_weight * _overlap_area(rect, soft).sum(axis=1) / (w * h) + 4.0 * covers)
+        inside &= ~own  # a label never hides its own object's anchor
+        free = inside & (clash <= 0)
+        if free.any():
+            best = np.flatnonzero(free)[np.argmin(cost[free])]
+        else:  # nowhere free: the least overlap inside the axes
+            best = int(np.argmin(np.where(inside, clash, np.inf) + 1e-6 * cost))
+        centres[i] = cand[best]
+        placed = np.vstack([placed, rect[best]])
+    out = []
+    for i, s in enumerate(texts):
+        if not ok[i]:
+            out.append(None)
+            continue
+        off = centres[i] - P[i]
+        w, h = sizes[i]
+        gap = np.hypot(max(abs(off[0]) - w / 2, 0.0), max(abs(off[1]) - h / 2, 0.0))
+        arrow = ({"arrowstyle": "-", "color": colors[i], "lw": 0.7, "shrinkA": 0, "shrinkB": 1.5, "alpha": 0.9}
+                 if gap > 0.6 * h_ref else None)
+        a = ax.annotate(s, A[i], xytext=tuple(off / px_per_pt), textcoords="offset points", ha="center",
+                        va="center", fontsize=fontsize, color=colors[i], arrowprops=arrow, annotation_clip=False,
+                        zorder=6, bbox={"boxstyle": "square,pad=0.15", "facecolor": "white", "alpha": 0.8, "lw": 0})
+        a.set_in_layout(False)
+        out.append(a)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Every box on the photo
+
+
+def _box_segments(boxes: np.ndarray) -> list:
+    """The finite edges of (n, 8, 2) projected boxes, as line segments."""
+    segs = []
+    for uv in np.asarray(boxes).reshape(-1, 8, 2):
+        segs.extend(uv[[a, b]] for a, b in _BOX_EDGES if np.all(np.isfinite(uv[[a, b]])))
+    return segs
+
+
 def plot_frame_boxes(frame, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_boxes: int = 25,
-                     draws_label: str = "posterior draws", rng=0) -> Figure:
-    """The photo (or a blank canvas of its size) with every object's MAP box (its colour, labelled
-    with its id and class) and a light spread of ``n_boxes`` boxes per object from the draws, each
-    projected with its draw's own camera."""
+                     draws_label: str = "posterior draws", rng=0, ax=None) -> Figure:
+    """The photo (or a blank canvas of its size) with every object's MAP box (its colour and line
+    style, labelled with its id and class) and ``n_boxes`` boxes per object from the draws, each
+    projected with its draw's own camera. With more than :data:`FULL_LABELS_UP_TO` objects the
+    labels are the ids and a key below the image gives each object's class."""
     w, h = frame.image_width, frame.image_height
-    fig = Figure(figsize=(12, 12 * h / w + 1.0), layout="constrained")
-    ax = fig.add_subplot()
+    m = len(objects)
+    styles = object_styles(m)
+    full = m <= FULL_LABELS_UP_TO
+    labels = object_labels(frame) if full else short_labels(frame)
+    fs = _label_fontsize(m)
+    own = ax is None
+    if own:
+        # inches per pixel: the image 12 in wide (16 in from 40 objects on), at most 10 in high
+        scale = min((12.0 + 4.0 * np.clip((m - FULL_LABELS_UP_TO) / 28, 0, 1)) / w, 10.0 / h)
+        width_in = max(w * scale + 0.9, 6.0)
+        key_in = 0.0 if full else _key_height_in(m, fs, width_in, frame)
+        fig = Figure(figsize=(width_in, h * scale + 1.0 + key_in), layout="constrained")
+        ax = fig.add_subplot()
+    else:
+        fig = ax.figure.figure
     image = _load_image(frame)
     if image is not None:
         ax.imshow(image, extent=(0, w, h, 0))
     else:
         ax.add_patch(Rectangle((0, 0), w, h, facecolor="#f4f4f4", edgecolor="#999999"))
-    m = len(objects)
-    colors = _colors(m)
-    labels = object_labels(frame)
     if draws is not None:
         cams, objs = draws
         pick = _pick(len(cams), n_boxes, rng)
         for i in range(m):
-            for box in frame_boxes_2d(cams[pick], objs[pick, i], frame.principal_point):
-                _draw_box(ax, box, color=colors[i], alpha=0.12, lw=0.7)
+            segs = _box_segments(frame_boxes_2d(cams[pick], objs[pick, i], frame.principal_point))
+            ax.add_collection(LineCollection(segs, colors=styles[i]["color"], linewidths=0.9, alpha=0.3, zorder=2),
+                              autolim=False)
     maps = [frame_boxes_2d(camera[None], objects[i][None], frame.principal_point)[0] for i in range(m)]
+    lw = 1.6 if m <= 30 else 1.3
+    anchors = np.full((m, 2), np.nan)
     for i, box in enumerate(maps):
-        _draw_box(ax, box, color=colors[i], lw=1.6)
+        ax.add_collection(LineCollection(_box_segments(box), colors=styles[i]["color"], linestyles=[styles[i]["ls"]],
+                                         linewidths=lw, zorder=3), autolim=False)
         top = box[4:][np.all(np.isfinite(box[4:]), axis=1)]
         if len(top):
-            u, v = top[:, 0].mean(), top[:, 1].min()
-            ax.text(np.clip(u, 0, w), np.clip(v - 4, 8, h), labels[i], color=colors[i], fontsize=7, ha="center",
-                    va="bottom", bbox={"facecolor": "white", "alpha": 0.6, "lw": 0, "pad": 0.5})
-    ax.plot([], [], color="0.2", lw=1.6, label="MAP box")
+            anchors[i] = np.clip(top[:, 0].mean(), 0, w), np.clip(top[:, 1].min(), 0, h)
+    ax.plot([], [], color="0.2", lw=lw, label="box at the MAP (the most probable)")
     if draws is not None:
-        ax.plot([], [], color="0.2", lw=0.7, alpha=0.35, label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
+        ax.plot([], [], color="0.2", lw=0.9, alpha=0.3, label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
     ax.set_xlim(0, w)
     ax.set_ylim(h, 0)
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title(f"{m} objects: MAP and posterior boxes")
-    ax.legend(loc="lower left", fontsize=8, framealpha=0.8)
+    ax.set_title(f"{m} objects: boxes at the MAP" + (f" and {draws_label}" if draws is not None else ""))
+    legend = ax.legend(loc="lower left", fontsize=8, framealpha=0.85)
+    if not full:
+        _key(fig if own else ax, frame, styles, fs, fig.get_figwidth(), outside=own)
+    _place_labels(ax, anchors, labels, [s["color"] for s in styles], fontsize=fs,
+                  obstacles=[np.clip(b, [0, 0], [w, h]) for b in maps], avoid=[legend], soft_weight=8.0)
     return fig
 
 
-def _draw_box(ax, uv: np.ndarray, **style) -> None:
-    for a, b in _BOX_EDGES:
-        if np.all(np.isfinite(uv[[a, b]])):
-            ax.plot(*uv[[a, b]].T, **style)
+# ------------------------------------------------------------------------------------------------
+# The top view
 
 
 def _cloud(ax, x, z, color, prob, max_points=800, rng=0, contour=True):
     sel = np.random.default_rng(rng).permutation(len(x))[:max_points]
-    ax.scatter(x[sel], z[sel], s=2, alpha=0.2, color=color, lw=0)
+    ax.scatter(x[sel], z[sel], s=2, alpha=0.25, color=color, lw=0)
     if contour and len(x) >= 50:
         H, xe, ze, level = _hdr_levels(x, z, prob)
         ax.contour((xe[:-1] + xe[1:]) / 2, (ze[:-1] + ze[1:]) / 2, H.T, levels=[level], colors=[color],
                    linewidths=1.2)
 
 
-def plot_frame_top_view(frame, camera: np.ndarray, objects: np.ndarray, draws=None, *, prob: float = 0.9,
-                        draws_label: str = "posterior draws", rng=0) -> Figure:
-    """The ground seen from above: the camera and its field of view, every object's footprint at
-    the MAP (its colour), its posterior cloud of bottom centres and their ``prob`` credible region,
-    and the true footprint (dashed, green) when the scene has one. Objects whose cloud is smaller
-    than :data:`~.plotting.ZOOM_BELOW` of the plotted span get a zoom panel of their own (right),
-    each at its own scale."""
+def _geometry(frame, objects, draws):
+    """Truth states, clouds of bottom centres, the plotted points and their span (m)."""
     m = len(objects)
-    colors = _colors(m)
-    labels = object_labels(frame)
     truths = [_truth_state(t) for t in frame.targets]
     pts = [np.zeros((1, 2))] + [_footprint(o) for o in objects] + [_footprint(t) for t in truths if t is not None]
     clouds = []
@@ -126,13 +334,58 @@ def plot_frame_top_view(frame, camera: np.ndarray, objects: np.ndarray, draws=No
             pts.append(np.column_stack([np.quantile(objs[:, i, 0], [0.01, 0.99]), np.quantile(objs[:, i, 1], [0.01, 0.99])]))
     pts = np.vstack(pts)
     span = max(np.ptp(pts[:, 0]), np.ptp(pts[:, 1]), 1.0)
-    zoom = [i for i in range(m) if _object_extent(objects[i], clouds[i] if clouds else None, truths[i]) < ZOOM_BELOW * span]
-    cols = 0 if not zoom else min(len(zoom), 2 if len(zoom) <= 4 else 3 if len(zoom) <= 12 else 4 if len(zoom) <= 20 else 5)
-    rows = -(-len(zoom) // cols) if cols else 0
+    return truths, clouds, pts, span
+
+
+def zoom_indices(frame, objects: np.ndarray, draws=None) -> list[int]:
+    """The objects whose footprint, cloud and truth together are smaller than
+    :data:`~.plotting.ZOOM_BELOW` of the top view's span: each gets a zoom panel at its own scale."""
+    truths, clouds, _, span = _geometry(frame, objects, draws)
+    return [i for i in range(len(objects))
+            if _object_extent(objects[i], clouds[i] if clouds else None, truths[i]) < ZOOM_BELOW * span]
+
+
+def _legend_entries(ax, *, clouds: bool, truth: bool, draws_label: str, prob: float, centre: str | None,
+                    camera: bool) -> None:
+    ax.plot([], [], color="0.3", lw=1.5, label="footprint at the MAP")
+    if clouds:
+        ax.scatter([], [], s=6, color="0.3", label=f"bottom centres, {draws_label}")
+        ax.plot([], [], color="0.3", lw=1.2, label=f"{prob:.0%} credible region")
+    if centre:
+        ax.plot([], [], "x", color=_CENTRE_COLOR, ms=6, mew=1.5, label=centre)
+    if truth:
+        ax.plot([], [], color=_TRUTH_COLOR, ls="--", lw=1.0, label="truth")
+    if camera:
+        ax.plot([], [], color="#555555", lw=0.8, ls=":", label="field of view (at the MAP focal length)")
+        ax.plot([], [], "^", color="k", ms=7, label="camera")
+
+
+def plot_frame_top_view(frame, camera: np.ndarray, objects: np.ndarray, draws=None, *, prob: float = 0.9,
+                        draws_label: str = "posterior draws", rng=0, max_zoom: int | None = None,
+                        fig=None) -> Figure:
+    """The ground seen from above: the camera and its field of view, every object's footprint at
+    the MAP (its colour and line style), its posterior cloud of bottom centres and their ``prob``
+    credible region, and the true footprint (dashed, black) when the scene has one. Objects whose
+    cloud is smaller than :data:`~.plotting.ZOOM_BELOW` of the plotted span (:func:`zoom_indices`)
+    get a zoom panel of their own (right), each at its own scale, when there are at most
+    ``max_zoom`` of them (default :data:`MAX_ZOOM_PANELS`); with more, the title says so and
+    :func:`plot_frame_zooms` draws them."""
+    m = len(objects)
+    styles = object_styles(m)
+    colors = [s["color"] for s in styles]
+    full = m <= FULL_LABELS_UP_TO
+    labels = object_labels(frame) if full else short_labels(frame)
+    fs = _label_fontsize(m)
+    truths, clouds, pts, span = _geometry(frame, objects, draws)
+    zoom = zoom_indices(frame, objects, draws)
+    beside = zoom if len(zoom) <= (MAX_ZOOM_PANELS if max_zoom is None else max_zoom) else []
+    cols = -(-len(beside) // 4)  # at most 4 panels a column, as high as the top view
+    rows = -(-len(beside) // cols) if cols else 0
     lo, hi = pts.min(axis=0) - 0.06 * span, pts.max(axis=0) + 0.06 * span
     lo[1] = min(lo[1], -0.05 * span)
     main_h = 7.5
-    main_w = float(np.clip(main_h * (hi[0] - lo[0]) / (hi[1] - lo[1]), 4.5, 10.0))
+    # at least 7.5 in wide with a key under it, so that the key's columns keep it short
+    main_w = float(np.clip(main_h * (hi[0] - lo[0]) / (hi[1] - lo[1]), 5.0 if full else 7.5, 10.0))
     # widen the shorter side so that the data fill the panel at an equal aspect
     want = main_w / main_h
     if (hi[0] - lo[0]) / (hi[1] - lo[1]) < want:
@@ -141,20 +394,22 @@ def plot_frame_top_view(frame, camera: np.ndarray, objects: np.ndarray, draws=No
     else:
         grow = (hi[0] - lo[0]) / want - (hi[1] - lo[1])
         hi[1] += grow
-    fig = Figure(figsize=(main_w + 0.8 + 2.3 * cols, max(main_h + 1.6, 2.3 * rows + 0.6)), layout="constrained")
+    panel = 2.2
+    key_in = 0.0 if full else _key_height_in(m, fs, main_w + 0.8, frame)
+    if fig is None:
+        fig = Figure(figsize=(main_w + 1.0 + panel * cols, max(main_h + 2.2 + key_in, panel * rows + 0.8)),
+                     layout="constrained")
     if cols:
-        left, right = fig.subfigures(1, 2, width_ratios=[main_w + 0.8, 2.3 * cols])
+        left, right = fig.subfigures(1, 2, width_ratios=[main_w + 1.0, panel * cols])
     else:
         left, right = fig, None
     ax = left.add_subplot()
     for i in range(m):
         if clouds:
             _cloud(ax, *clouds[i], colors[i], prob, rng=rng, contour=i not in zoom)
-        _draw_footprint(ax, objects[i], colors[i])
+        _draw_footprint(ax, objects[i], colors[i], ls=styles[i]["ls"])
         if truths[i] is not None:
             _draw_footprint(ax, truths[i], _TRUTH_COLOR, ls="--", lw=1.0, fill=False)
-        fx, fz = _footprint(objects[i]).mean(axis=0)
-        ax.annotate(labels[i], (fx, fz), xytext=(4, 3), textcoords="offset points", fontsize=7, color=colors[i])
     _draw_camera(ax, frame, camera, 0.025 * span)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -162,21 +417,64 @@ def plot_frame_top_view(frame, camera: np.ndarray, objects: np.ndarray, draws=No
     ax.set_xlabel("x, right (m)")
     ax.set_ylabel("z, forward (m)")
     ax.grid(alpha=0.3)
-    ax.plot([], [], color="0.3", lw=1.5, label="footprint at the MAP")
-    if clouds:
-        ax.scatter([], [], s=6, color="0.3", label=f"bottom centres, {draws_label}")
-        ax.plot([], [], color="0.3", lw=1.2, label=f"{prob:.0%} credible region")
-    if any(t is not None for t in truths):
-        ax.plot([], [], color=_TRUTH_COLOR, ls="--", lw=1.0, label="truth")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncols=2, fontsize=7, frameon=False)
-    ax.set_title(f"top view of the frame ({m} objects)", fontsize=10)
+    _legend_entries(ax, clouds=bool(clouds), truth=any(t is not None for t in truths), draws_label=draws_label,
+                    prob=prob, centre="bottom centre at the MAP (zoom panels)" if beside else None, camera=True)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncols=2, fontsize=7, frameon=False)
+    title = f"top view of the frame ({m} objects)"
+    if zoom and not beside:
+        title += f"\nthe {len(zoom)} objects small at this scale: each at its own scale in the zoom figure"
+    ax.set_title(title, fontsize=10)
+    if not full:
+        _key(left, frame, styles, fs, main_w + 0.8, outside=True)
     if cols:
         axes = np.atleast_1d(right.subplots(rows, cols, squeeze=False)).ravel()
-        for a, i in zip(axes, zoom):
-            _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], colors[i], labels[i], prob, rng)
-        for a in axes[len(zoom):]:
+        for a, i in zip(axes, beside):
+            _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i],
+                        object_labels(frame)[i], prob, rng)
+        for a in axes[len(beside):]:
             a.set_visible(False)
-        right.suptitle("zoom on each object (own scale)", fontsize=9)
+        right.suptitle("zoom on each small object\n(own scale)" if cols == 1 else "zoom on each small object (own scale)",
+                       fontsize=9)
+    _place_labels(ax, objects[:, :2], labels, colors, fontsize=fs, obstacles=[_footprint(o) for o in objects])
+    return fig
+
+
+def plot_frame_zooms(frame, camera: np.ndarray, objects: np.ndarray, draws=None, *, indices=None,
+                     prob: float = 0.9, draws_label: str = "posterior draws", rng=0, fig=None) -> Figure:
+    """One panel per object at its own scale (its footprint at the MAP, the cloud of its bottom
+    centres and their ``prob`` credible region, the MAP bottom centre and the truth): the zoom
+    panels of :func:`plot_frame_top_view` on their own, for ``indices`` (default: the objects of
+    :func:`zoom_indices`, or every object when none is small). At most 8 panels a row, and the
+    figure at most :data:`MAX_FIGURE_IN` inches high."""
+    m = len(objects)
+    styles = object_styles(m)
+    truths, clouds, _, _ = _geometry(frame, objects, draws)
+    if indices is None:
+        indices = zoom_indices(frame, objects, draws) or list(range(m))
+    indices = list(indices)
+    n = max(len(indices), 1)
+    cols = int(min(8, max(1, np.ceil(np.sqrt(n)))))
+    rows = -(-n // cols)
+    panel = float(min(2.3, (MAX_FIGURE_IN - 1.2) / rows, MAX_FIGURE_IN / cols))
+    if fig is None:
+        fig = Figure(figsize=(max(panel * cols + 0.3, 4.6), panel * rows + 1.6), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    full = object_labels(frame)
+    for a, i in zip(axes, indices):
+        _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i], full[i], prob, rng)
+    for a in axes[len(indices):]:
+        a.set_visible(False)
+    proxy = fig.add_axes([0, 0, 0, 0])
+    proxy.set_visible(False)
+    _legend_entries(proxy, clouds=bool(clouds), truth=any(truths[i] is not None for i in indices),
+                    draws_label=draws_label, prob=prob, centre="bottom centre at the MAP", camera=False)
+    width_in = fig.get_figwidth()
+    fig.legend(*proxy.get_legend_handles_labels(), loc="outside lower center", ncols=3 if width_in > 9 else 2,
+               fontsize=8, frameon=False)
+    proxy.remove()
+    title = (f"each object at its own scale, seen from above ({len(indices)} of {m} objects; "
+             f"x right, z forward, m)")
+    fig.suptitle(textwrap.fill(title, int(width_in * 72 / 5.8)), fontsize=10)
     return fig
 
 
@@ -190,13 +488,14 @@ def _object_extent(obj, cloud, truth) -> float:
     return float(max(np.ptp(p[:, 0]), np.ptp(p[:, 1])))
 
 
-def _zoom_panel(ax, obj, cloud, truth, color, label, prob, rng) -> None:
+def _zoom_panel(ax, obj, cloud, truth, style, label, prob, rng) -> None:
+    color = style["color"]
     pts = [_footprint(obj)]
     if cloud is not None:
         _cloud(ax, *cloud, color, prob, rng=rng)
         pts.append(np.column_stack([np.quantile(cloud[0], [0.005, 0.995]), np.quantile(cloud[1], [0.005, 0.995])]))
-    _draw_footprint(ax, obj, color)
-    ax.plot(obj[0], obj[1], "x", color=_MAP_COLOR, ms=5, mew=1.5)
+    _draw_footprint(ax, obj, color, ls=style["ls"])
+    ax.plot(obj[0], obj[1], "x", color=_CENTRE_COLOR, ms=6, mew=1.5, zorder=5)
     if truth is not None:
         _draw_footprint(ax, truth, _TRUTH_COLOR, ls="--", lw=1.0, fill=False)
         pts.append(_footprint(truth))
@@ -212,10 +511,9 @@ def _zoom_panel(ax, obj, cloud, truth, color, label, prob, rng) -> None:
 
 
 def _draw_footprint(ax, obj, color, *, ls="-", lw=1.5, fill=True) -> None:
-    ax.add_patch(Polygon(_footprint(obj), closed=True, facecolor=color if fill else "none", alpha=0.35 if fill else 1.0,
-                         edgecolor=color, lw=lw, ls=ls))
     if fill:
-        ax.add_patch(Polygon(_footprint(obj), closed=True, facecolor="none", edgecolor=color, lw=lw, ls=ls))
+        ax.add_patch(Polygon(_footprint(obj), closed=True, facecolor=color, alpha=0.3, edgecolor="none"))
+    ax.add_patch(Polygon(_footprint(obj), closed=True, facecolor="none", edgecolor=color, lw=lw, ls=ls))
 
 
 def _draw_camera(ax, frame, camera, size: float) -> None:
@@ -224,10 +522,13 @@ def _draw_camera(ax, frame, camera, size: float) -> None:
     f = camera[C_FOCAL]
     far = 1e4
     ax.plot([0, -far * cx / f], [0, far], color="#555555", lw=0.8, ls=":")
-    ax.plot([0, far * (frame.image_width - cx) / f], [0, far], color="#555555", lw=0.8, ls=":",
-            label="field of view (MAP µ)")
+    ax.plot([0, far * (frame.image_width - cx) / f], [0, far], color="#555555", lw=0.8, ls=":")
     tri = np.array([[0, 0], [-0.6, -1.0], [0.6, -1.0]]) * size
-    ax.add_patch(Polygon(tri, closed=True, color="k", label="camera"))
+    ax.add_patch(Polygon(tri, closed=True, color="k"))
+
+
+# ------------------------------------------------------------------------------------------------
+# The shared camera
 
 
 _CAMERA_SHOWN = ((C_FOCAL, "focal_length_px", "focal length (px)", 1.0), (C_PITCH, "pitch", "pitch (°)", 180 / np.pi),
@@ -236,7 +537,7 @@ _TRUTH_KEYS = {"focal_length_px": "focal_length_px", "pitch": "pitch_rad", "roll
 
 
 def plot_frame_camera(cams: np.ndarray, camera: np.ndarray, free, *, truth: dict | None = None,
-                      draws_label: str = "posterior draws", max_points: int = 3000, rng=0) -> Figure:
+                      draws_label: str = "posterior draws", max_points: int = 3000, rng=0, fig=None) -> Figure:
     """The shared camera's posterior: marginal histograms (diagonal) and pairs (below) of the free
     ones of focal length, pitch, roll and camera height, with the MAP and the truth when known.
 
@@ -246,7 +547,8 @@ def plot_frame_camera(cams: np.ndarray, camera: np.ndarray, free, *, truth: dict
     """
     shown = [s for s in _CAMERA_SHOWN if free[s[0]] and np.ptp(cams[:, s[0]]) > 0]
     n = max(len(shown), 1)
-    fig = Figure(figsize=(1.8 * n + 0.6, 1.8 * n + 0.6), layout="constrained")
+    if fig is None:
+        fig = Figure(figsize=(1.8 * n + 0.6, 1.8 * n + 0.6), layout="constrained")
     axes = fig.subplots(n, n, squeeze=False)
     sel = np.random.default_rng(rng).permutation(len(cams))[:max_points]
     tv = {name: (truth or {}).get(key) for name, key in _TRUTH_KEYS.items()}
@@ -279,9 +581,13 @@ def plot_frame_camera(cams: np.ndarray, camera: np.ndarray, free, *, truth: dict
     if not shown:
         axes[0, 0].text(0.5, 0.5, "every camera parameter is fixed", ha="center", va="center")
         axes[0, 0].set_axis_off()
-    handles = [axes[0, 0].plot([], [], "x", color=_MAP_COLOR, label="MAP")[0]]
+    handles = [axes[0, 0].plot([], [], "x", color=_MAP_COLOR, label="MAP (the most probable camera)")[0],
+               axes[0, 0].scatter([], [], s=6, color=_POST_COLOR, label=draws_label)]
     if any(v is not None for v in tv.values()):
         handles.append(axes[0, 0].plot([], [], "*", color=_TRUTH_COLOR, label="truth")[0])
-    fig.legend(handles=handles, loc="upper right", fontsize=8)
+    if n >= 2:  # in the empty upper right triangle, below the title
+        fig.legend(handles=handles, loc="upper right", bbox_to_anchor=(0.99, 0.92), fontsize=8)
+    else:
+        fig.legend(handles=handles, loc="outside right upper", fontsize=8)
     fig.suptitle(f"the shared camera ({draws_label})", fontsize=10)
     return fig

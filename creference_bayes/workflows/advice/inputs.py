@@ -3,6 +3,7 @@ scene), and the advice as a table for the terminal."""
 
 from __future__ import annotations
 
+from ...io.files import read_text
 import json
 import warnings
 from importlib import resources
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ...io.result import RESULT_FORMAT
+from ...io.result import scene_candidates
 from ...io.scene import SceneWarning, load_scene, scene_fingerprint
 from ...models.params import PARAM_NAMES
 from . import Advice, AdviceSettings, advise_posterior
@@ -83,17 +85,7 @@ def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Pa
     folder or among the package's shipped scenes; its
     fingerprint must be the one the result records."""
     result_path = Path(result_path)
-    tried = []
-    if scene_path is not None:
-        tried.append(Path(scene_path))
-    else:
-        copy = (result.get("batch") or {}).get("scene_copy")
-        if copy:
-            tried.append(result_path.parents[len(Path(result["batch"]["key"]).parts)] / copy)
-        if result.get("scene"):  # as `creference plot` looks: beside it, here, the shipped scenes
-            name = result["scene"]
-            tried += [result_path.parent / name, Path.cwd() / name,
-                      Path(str(resources.files("creference_bayes") / "data" / name))]
+    tried = [Path(scene_path)] if scene_path is not None else scene_candidates(result, result_path)
     for path in tried:
         if path.is_file():
             with warnings.catch_warnings():
@@ -176,7 +168,7 @@ def advise_result(result: dict, scene, *, seed=None, settings: AdviceSettings | 
 def load_result(path: str | Path) -> dict:
     """A result file's document (JSON object with the result format), or None if it is not one."""
     try:
-        d = json.loads(Path(path).read_text())
+        d = json.loads(read_text(path))
     except (ValueError, UnicodeDecodeError):
         return None
     return d if isinstance(d, dict) and d.get("format") == RESULT_FORMAT else None

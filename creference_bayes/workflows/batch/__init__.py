@@ -25,6 +25,7 @@ are the same whatever the engine, the worker count or the order.
 
 from __future__ import annotations
 
+from ...io.files import read_text
 import hashlib
 import json
 import time
@@ -288,21 +289,21 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     return report
 
 
-def _read(path: Path):
+def _read(path: Path, classes: dict | None = None):
     """(kind, scene, decoded data, fingerprint) of a scene file: ``"frame"`` for a
     ``creference-scene/2`` file, else ``"scene"`` (whose loader reports any problem)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
+        data = json.loads(read_text(path, "utf-8-sig"))
     except ValueError:
         data = None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         if isinstance(data, dict) and data.get("format") == FRAME_FORMAT:
-            frame = load_frame(path)
+            frame = load_frame(path, classes=classes)
             return "frame", frame, data, frame_fingerprint(frame)
         scene = load_scene(path)
     if data is None:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
+        data = json.loads(read_text(path, "utf-8-sig"))
     return "scene", scene, data, scene_fingerprint(scene)
 
 
@@ -312,7 +313,7 @@ def _prepare(scenes, out: Path, settings: BatchSettings, idents: dict, status: d
     for si in scenes:
         paths = layout(out, si.key)
         try:
-            kind, scene, data, fingerprint = _read(si.path)
+            kind, scene, data, fingerprint = _read(si.path, settings.classes)
         except (SceneError, OSError, ValueError) as exc:
             errors[si.key] = one_line(exc)
             status[si.key] = "failed"

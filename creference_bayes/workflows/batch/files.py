@@ -3,6 +3,7 @@ a result or an error is recorded (atomically, the scene copy before its result).
 
 from __future__ import annotations
 
+from ...io.files import read_text
 import json
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def scene_copy(scene) -> dict:
 def up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:
     """Whether the stored result is the scene's as it is now, made with these settings."""
     try:
-        d = json.loads(paths["result"].read_text())
+        d = json.loads(read_text(paths["result"]))
         return (d.get("scene_id", {}).get("sha256") == fingerprint
                 and d.get("batch", {}).get("settings") == settings)
     except (OSError, ValueError, AttributeError):

@@ -33,7 +33,7 @@ def run_scene(job: dict) -> dict:
                 from ...frame_pipeline import estimate_frame
                 from ...io.frame_scene import parse_frame
 
-                frame = parse_frame(job["data"], source=job["source"])
+                frame = parse_frame(job["data"], source=job["source"], classes=job["estimate"].get("classes"))
                 stage = "estimate"
                 result = estimate_frame(frame, seed=job["seed"], **job["estimate"])
             else:

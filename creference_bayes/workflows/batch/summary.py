@@ -3,6 +3,7 @@ object of a frame) and its closing line."""
 
 from __future__ import annotations
 
+from ...io.files import read_text
 import csv
 import io
 import json
@@ -25,7 +26,7 @@ SUMMARY_COLUMNS = ("scene", "target", "class", "image", "status", "map_distance_
 
 def _read(path: Path) -> dict | None:
     try:
-        return json.loads(path.read_text())
+        return json.loads(read_text(path))
     except (OSError, ValueError):
         return None
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...io.scene import Scene, SceneWarning, load_scene
+from ...io.scene import Scene, SceneError, SceneWarning, load_scene
 from ...models.confidence_map import group_key
 from ...models.metrology import ground_lengths
 from ..batch import discover_scenes
@@ -92,7 +92,12 @@ def load_scenes(inputs) -> list[tuple[str, Scene]]:
     for si in discover_scenes(inputs):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SceneWarning)
-            out.append((si.key, load_scene(si.path)))
+            try:
+                out.append((si.key, load_scene(si.path)))
+            except SceneError as exc:  # say which file of the folder
+                if exc.path.startswith(str(si.path)):
+                    raise
+                raise SceneError(f"{si.path}: {exc.path}", exc.problem) from None
     return out
 
 

@@ -15,6 +15,7 @@ from the one its result records is not used (the scene changed: rerun the batch)
 
 from __future__ import annotations
 
+from ...io.files import read_text
 import json
 import warnings
 from dataclasses import dataclass, field, replace
@@ -99,7 +100,7 @@ def load_batch(batch_dir: str | Path, frames: bool = False) -> tuple[list, list[
         if any(part.startswith(".") for part in key.split("/")):
             continue  # a temporary file left by a write that was killed (io/files.py)
         try:
-            result = json.loads(path.read_text())
+            result = json.loads(read_text(path))
             if result.get("format") not in (RESULT_FORMAT, FRAME_RESULT_FORMAT) or "batch" not in result:
                 raise ValueError("not a result of creference batch")
             is_frame = result["format"] == FRAME_RESULT_FORMAT
@@ -107,7 +108,7 @@ def load_batch(batch_dir: str | Path, frames: bool = False) -> tuple[list, list[
                 skipped.append({"key": key, "reason": "a frame (creference-result/2): not taken here yet"})
                 continue
             copy_path = batch_dir / result["batch"]["scene_copy"]
-            copy = json.loads(copy_path.read_text())
+            copy = json.loads(read_text(copy_path))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = load_frame(copy_path) if is_frame else load_scene(copy_path)
@@ -323,7 +324,7 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         if path.name.startswith("."):
             continue
         try:
-            d = json.loads(path.read_text())
+            d = json.loads(read_text(path))
             failed.append({"key": d["key"], "error": d["error"]})
         except (OSError, ValueError, KeyError):
             continue

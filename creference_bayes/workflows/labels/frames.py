@@ -138,7 +138,7 @@ def write_frame_labels(frame, result: dict, out: str | Path, name: str, draws=No
     P2, items = frame_label_objects(frame, result, draws, score_iou=score_iou)
     objects = [o if scores is None else dataclasses.replace(o, score=float(scores[i])) for i, (o, _) in enumerate(items)]
     write_label_file(out / "label_2" / f"{name}.txt", objects)
-    write_calib_file(out / "calib" / f"{name}.txt", P2)
+    write_calib_file(out / "calib" / f"{name}.txt", P2, frame.kitti_calib)
     if draws is None:
         return None
     doc = {"format": SIDECAR_FORMAT, "frame": "kitti_p2" if frame.kitti_p2 is not None else "gravity-aligned",
