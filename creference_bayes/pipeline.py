@@ -192,6 +192,11 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                                      temperature=T, progress=progress)
             except SamplingError as exc:  # a MAP with zero posterior density: report, do not crash
                 notes.append(f"posterior not sampled: {exc}")
+            else:
+                if "denser_mode" in diag.info:  # the search before sampling found a better optimum
+                    from .inference.map import refine
+
+                    map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
         provenance = {"model": model, "preset": preset, "options": {k: options[k] for k in sorted(options)},
                       "orientation": orientation,
                       "focal_prior": focal_prior if isinstance(focal_prior, str) else "given",

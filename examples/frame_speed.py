@@ -1,4 +1,4 @@
-"""Time the frame estimate by object count: MAP and whole posterior, on simulated street frames.
+"""Time the estimate by object count: MAP and whole posterior, on simulated street scenes.
 
     python examples/frame_speed.py --counts 3 10 30 --frames 5
 
@@ -10,31 +10,30 @@ estimate limits BLAS to one thread; run it alone on the machine for figures to q
 from __future__ import annotations
 
 import argparse
+
 import numpy as np
 
-from creference_bayes.bench.frame_simulate import simulate_frame
-from creference_bayes.frame_pipeline import estimate_frame
-from creference_bayes.io.frame_scene import parse_frame
+from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.pipeline import estimate
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--counts", type=int, nargs="+", default=[3, 10, 30], help="objects per frame")
-    p.add_argument("--frames", type=int, default=5, help="frames per count")
+    p.add_argument("--counts", type=int, nargs="+", default=[3, 10, 30], help="objects per scene")
+    p.add_argument("--frames", type=int, default=5, help="scenes per count")
     p.add_argument("--annotations", type=int, default=5, help="dimension-line sets per object")
-    p.add_argument("--kind", choices=("street", "indoor"), default="street")
+    p.add_argument("--setting", choices=("street", "indoor", "outdoor"), default="street")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-iterations", type=int, default=20000, help="sampler cap (a tiny budget for tests)")
+    p.add_argument("--max-steps", type=int, default=20000, help="sampler cap (a tiny budget for tests)")
     args = p.parse_args(argv)
-    print(f"{'objects':>8}{'frames':>7}{'MAP med s':>10}{'MAP max s':>10}{'post med s':>11}{'post max s':>11}"
+    print(f"{'objects':>8}{'scenes':>7}{'MAP med s':>10}{'MAP max s':>10}{'post med s':>11}{'post max s':>11}"
           f"{'converged':>10}{'min ESS':>9}{'max R-hat':>10}")
     for n in args.counts:
         t_map, t_post, conv, ess, rhat = [], [], [], [], []
         for k in range(args.frames):
-            frame = parse_frame(simulate_frame([args.seed, n, k], kind=args.kind, n_objects=n,
-                                               n_annotations=args.annotations))
-            r = estimate_frame(frame, seed=k, sampling={"max_iterations": args.max_iterations})
-            d = r.to_dict()
+            scene = simulate_scene([args.seed, n, k], setting=args.setting, n_objects=n, sizes="prior", horizon="none",
+                                   n_references=0, n_target_annotations=args.annotations, tier="low")
+            d = estimate(scene, seed=k, sampling={"max_steps": args.max_steps}, keep_draws=0).to_dict()
             t_map.append(d["map_info"]["seconds"])
             t_post.append(d["diagnostics"]["seconds"])
             conv.append(d["diagnostics"]["converged"])

@@ -65,6 +65,7 @@ from .diagnostics import rhat_rank
 from .modes import fit_mixture
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
+from .sampler import SamplerSettings
 
 __all__ = ["Chains", "SamplingError", "sample", "explore"]
 

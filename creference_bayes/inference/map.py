@@ -43,15 +43,22 @@ import numpy as np
 from scipy.optimize import basinhopping, minimize
 
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Bounds, Model
-from .coords import FD_STEPS, WorkingCoords
+from .coords import CAMERA_LOG, FD_STEPS, WorkingCoords
 
-__all__ = ["PRESETS", "Arrowhead", "MapState", "FlatState", "optimize", "derivatives", "initial_objects", "preset_bounds"]
+__all__ = ["PRESETS", "Arrowhead", "MapState", "FlatState", "optimize", "refine", "derivatives", "initial_objects",
+           "preset_bounds"]
 
 _YAW_GRID = np.radians(np.arange(0.0, 360.0, 5.0))
 _PITCH_GRID = np.radians([-10.0, -4.0, 0.0, 4.0, 10.0, 20.0, 35.0])
 _FOCAL_GRID = (0.5, 0.7, 1.0, 1.4, 2.0)
 #: Corner scale (px) of the first, smoother pass when the annotations agree more closely than this.
 _SMOOTH_SIGMA_PX = 3.0
+#: How far (pixels) a non-smooth model rounds its kinks in the first rounds of Newton steps.
+_SOFTNESS_PX = (1.0, 0.1, 0.01)
+#: Largest Newton decrement gᵀH⁻¹g / 2 (nats: how much a full Newton step would still gain) Newton's
+#: end point may have; beyond it (or with a Hessian not positive definite) the optimum is finished
+#: by L-BFGS-B.
+_DECREMENT_TOL = 1e-3
 
 
 @dataclass
@@ -147,6 +154,8 @@ class MapState:
     value: float
     hessian: Arrowhead
     info: dict = field(default_factory=dict)
+    #: other local optima the search reached: (camera (5,), objects (m, 7), handedness (m,)), best first
+    others: tuple = ()
 
 
 def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -183,18 +192,22 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
     return t[best, idx], _YAW_GRID[best], err[best, idx]
 
 
-def initial_objects(model: Model, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Objects placed for one camera: (camera with its height set, objects (m, 7), handedness
-    (m,), the total reprojection error in pixels)."""
+def initial_objects(model: Model, cam: np.ndarray, handedness: np.ndarray | None = None,
+                    keep_camera: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Objects placed for one camera: (camera with its height set from them, unless
+    ``keep_camera``; objects (m, 7); handedness (m,); the total reprojection error in pixels). Each
+    object takes the handedness that fits its annotations better, or the one ``handedness`` (m,)
+    gives."""
     sols = [_solve_objects(model, cam, h) for h in (1, -1)]
-    pick = np.where(sols[0][2] <= sols[1][2], 0, 1)
+    pick = np.where(sols[0][2] <= sols[1][2], 0, 1) if handedness is None else np.where(handedness > 0, 0, 1)
     t = np.where(pick[:, None] == 0, sols[0][0], sols[1][0])
     yaw = np.where(pick == 0, sols[0][1], sols[1][1])
     err = np.where(pick == 0, sols[0][2], sols[1][2])
     cam = cam.copy()
     h = float(np.median(t[:, 1])) if np.all(np.isfinite(t[:, 1])) else cam[C_HEIGHT]
-    cam[C_HEIGHT] = float(np.clip(h, 0.3, 20.0)) if h > 0 else cam[C_HEIGHT]
-    cam[C_HEIGHT] = float(np.clip(cam[C_HEIGHT], model.camera_lower[C_HEIGHT], model.camera_upper[C_HEIGHT]))
+    if not keep_camera:
+        cam[C_HEIGHT] = float(np.clip(h, 0.3, 20.0)) if h > 0 else cam[C_HEIGHT]
+        cam[C_HEIGHT] = float(np.clip(cam[C_HEIGHT], model.camera_lower[C_HEIGHT], model.camera_upper[C_HEIGHT]))
     objs = np.zeros((model.n_objects, 7))
     objs[:, 0], objs[:, 1], objs[:, 2] = t[:, 0], np.maximum(t[:, 2], 0.2), yaw
     objs[:, :2] = np.clip(objs[:, :2], model.object_lower[:2], model.object_upper[:2])
@@ -258,7 +271,7 @@ def derivatives(model: Model, wc: np.ndarray, wo: np.ndarray, temperature: float
             jc, jo = coords.log_jacobian(WC, WO)
             fo, fc = fo - jo, fc - jc
         else:  # the MAP's objective (Model.map_objective)
-            fo = fo - model.map_log_jacobian(objs)
+            fo, fc = fo - model.map_log_jacobian(objs), fc - model.camera_log_jacobian(cams)
     value = float(fc[0] + fo[0].sum())
     F = np.concatenate([fc[:, None], fo], axis=1)  # (n, 1 + m): camera term, then each object's
     grad, H = _second_differences(F, h)
@@ -346,13 +359,36 @@ def _total(model: Model, wc: np.ndarray, wo: np.ndarray, temperature: float) -> 
     return float(model.map_objective(cams, objs, temperature)[0])
 
 
+def _camera_box(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's bounds in working coordinates (logarithms of the positive ones)."""
+    lo, hi = model.camera_lower.astype(float), model.camera_upper.astype(float)
+    with np.errstate(divide="ignore"):
+        lo[CAMERA_LOG], hi[CAMERA_LOG] = np.log(lo[CAMERA_LOG]), np.log(hi[CAMERA_LOG])
+    fixed = ~model.camera_free  # fixed entries are never moved: no bound applies
+    margin = 1e-10  # inside, after the round trip through exp
+    return np.where(fixed, -np.inf, lo + margin), np.where(fixed, np.inf, hi - margin)
+
+
+def _hold(D: Arrowhead, wc: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> Arrowhead:
+    """``D`` with every camera parameter on its bound whose gradient pushes out held there (its
+    gradient zero, its rows and columns of the Hessian the identity's: the active set)."""
+    held = ((wc <= lo) & (D.g_c > 0)) | ((wc >= hi) & (D.g_c < 0))
+    if held.any():
+        D.g_c[held] = 0.0
+        D.H_cc[held, :] = D.H_cc[:, held] = 0.0
+        D.H_cc[held, held] = 1.0
+        D.H_co[:, held, :] = 0.0
+    return D
+
+
 def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: float = 1e-7):
     """Levenberg–Marquardt on the arrowhead system; returns (wc, wo, value, iterations)."""
     f = _total(model, wc, wo, temperature)
     lam = 1e-3
     it = 0
+    lo, hi = _camera_box(model)
     for it in range(1, max_iter + 1):
-        D = derivatives(model, wc, wo, temperature)
+        D = _hold(derivatives(model, wc, wo, temperature), wc, lo, hi)
         improved = False
         for _ in range(12):
             step = D.solve(lam * (1.0 + np.abs(D.H_cc).max()) * 1e-6 + lam)
@@ -362,7 +398,7 @@ def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: f
             dc, do = step
             dc = np.clip(dc, -0.5, 0.5)
             do = np.clip(do, -0.5, 0.5)
-            nc, no = wc + dc, wo + do
+            nc, no = np.clip(wc + dc, lo, hi), wo + do  # projected onto the camera's box
             fn = _total(model, nc, no, temperature)
             if np.isfinite(fn) and fn < f:
                 improved = True
@@ -462,7 +498,7 @@ def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[n
 
         res = basinhopping(f, rng.uniform(lo, hi), niter=per - 1, T=0.0, rng=rng,
                            take_step=lambda x: rng.uniform(lo, hi),
-                           callback=None if bar is None else (lambda *_: bar.update(1)),
+                           callback=None if bar is None else (lambda *_: bar.update(1) and None),  # True stops it
                            minimizer_kwargs={"method": "L-BFGS-B", "bounds": list(zip(lo, hi)),
                                              "options": {"ftol": 1e-8}})
         if best is None or res.fun < best[0]:
@@ -492,8 +528,10 @@ def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0,
         if isinstance(restarts, bool) or not isinstance(restarts, (int, np.integer)) or restarts < 1:
             raise ValueError(f"restarts: expected an integer >= 1, got {restarts!r}")
     t0 = time.perf_counter()
+    others = ()
     if preset == "default":
         cam, objs, hand, info = _default(model, temperature, n_refine)
+        others = info.pop("others")
     else:
         from .progress import progress_bar
 
@@ -502,40 +540,126 @@ def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0,
             cam, objs, hand, info = _paper(model, temperature, n, np.random.default_rng(rng), bar)
         model.handedness = hand.astype(float)
         model.set_pilot(cam)
+    out = _state(model, cam, objs, hand, temperature, {**info, "preset": preset, "seconds": time.perf_counter() - t0})
+    return MapState(out.camera, out.objects, out.handedness, out.value, out.hessian, out.info, others)
+
+
+def _state(model: Model, cam, objs, hand, temperature: float, info: dict) -> MapState:
     wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
     D = derivatives(model, wc, wo, temperature)
     objs = objs.copy()
     objs[:, O_YAW] = (objs[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
     value = float(model.map_objective(cam[None], objs[None], temperature)[0])
-    return MapState(model.complete_camera(cam[None])[0], objs, hand, value, D,
-                    {**info, "preset": preset, "seconds": time.perf_counter() - t0})
+    return MapState(model.complete_camera(cam[None])[0], objs, np.asarray(hand, int), value, D, info)
+
+
+def refine(model: Model, current: MapState, camera: np.ndarray, objects: np.ndarray,
+           temperature: float = 1.0) -> MapState:
+    """The optimum reached from another start (camera (5,), objects (m, 7): a mode the sampler's
+    search found), if it is better than ``current``; else ``current``. The model's handedness is
+    kept."""
+    coords = WorkingCoords(model)
+    wc, wo = (a[0] for a in coords.to_work(camera[None], objects[None]))
+    wc, wo, f, it = _newton(model, wc, wo, temperature)
+    if not f < current.value:
+        return current
+    cams, objs = coords.from_work(wc[None], wo[None])
+    return _state(model, cams[0], objs[0], model.handedness, temperature,
+                  {**current.info, "iterations": current.info.get("iterations", 0) + it,
+                   "from_sampler_mode_search": True})
+
+
+#: An object whose fit with the other handedness (the camera held) comes within this many nats of
+#: its fit now is tried again with the camera free too.
+FLIP_MARGIN = 25.0
+#: At most this many objects are tried so.
+MAX_FLIPS = 4
+
+
+def _flips(model: Model, wc, wo, f: float, temperature: float):
+    """The other handedness of each object, tried at the optimum. (Which corner a worker started
+    from decides it; the closed-form start judges it on the per-corner median alone, which one
+    careless set of lines can mislead.) Every object is placed again with its handedness flipped
+    and fitted with the camera held (objects are independent given the camera); those whose fit
+    comes within :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest
+    first) are flipped one at a time and everything refined from there, each kept when the whole
+    objective improves. Returns (wc, wo, value, iterations)."""
+    coords = WorkingCoords(model)
+    cams, objs = coords.from_work(wc[None], wo[None])
+    h0 = model.handedness.copy()
+    _, flipped, _, _ = initial_objects(model, cams[0], handedness=-h0, keep_camera=True)
+    flipped[:, O_SIZE] = objs[0, :, O_SIZE]
+    model.handedness = -h0
+    wof = coords.to_work(cams, flipped[None])[1][0]
+    free = model.camera_free.copy()
+    model.camera_free[:] = False
+    try:
+        _, wof, _, iters = _newton(model, wc, wof, temperature)
+        per_f = _object_values(model, coords, wc, wof, temperature)
+    finally:
+        model.camera_free[:] = free
+        model.handedness = h0
+    gap = per_f - _object_values(model, coords, wc, wo, temperature)
+    for i in [k for k in np.argsort(gap) if gap[k] < FLIP_MARGIN][:MAX_FLIPS]:
+        hand = model.handedness.copy()
+        model.handedness = np.where(np.arange(len(hand)) == i, -hand, hand)
+        start = wo.copy()
+        start[i] = wof[i]
+        wc2, wo2, f2, it = _newton(model, wc, start, temperature)
+        iters += it
+        if f2 < f:
+            wc, wo, f = wc2, wo2, f2
+        else:
+            model.handedness = hand
+    return wc, wo, f, iters
+
+
+def _object_values(model: Model, coords: WorkingCoords, wc, wo, temperature: float) -> np.ndarray:
+    """(m,) each object's part of the MAP objective at working coordinates (wc, wo)."""
+    cams, objs = coords.from_work(wc[None], wo[None])
+    with np.errstate(all="ignore"):
+        v = (model.object_terms(cams, objs, temperature) - model.map_log_jacobian(objs))[0]
+    return np.where(np.isfinite(v), v, np.inf)
 
 
 def _default(model: Model, temperature: float, n_refine: int):
     """The default preset (module docstring): (camera, objects, handedness, info)."""
     candidates = []
-    for cam in _camera_starts(model):
-        cam, objs, hand, err = initial_objects(model, cam)
-        model.handedness = hand.astype(float)
-        value = float(model.map_objective(cam[None], objs[None], temperature)[0])
-        candidates.append((value, err, cam, objs, hand))
+    for start in _camera_starts(model):
+        placed = [initial_objects(model, start)]
+        if model.n_objects == 1:  # one object sets the camera: both handednesses from the start
+            placed.append(initial_objects(model, start, handedness=-placed[0][2]))
+        for cam, objs, hand, err in placed:
+            model.handedness = hand.astype(float)
+            value = float(model.map_objective(cam[None], objs[None], temperature)[0])
+            candidates.append((value, err, cam, objs, hand))
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
+    # the best starts, and the best of every other handedness (one object: refine both)
+    firsts = {}
+    for k, c in enumerate(candidates):
+        firsts.setdefault(tuple(c[4]), k)
+    chosen = sorted(set(range(min(n_refine, len(candidates)))) | set(firsts.values()))
     best = None
     iters = refined = 0
+    reached = []
     sigma = np.array(model.sigma, float)
-    for value, err, cam, objs, hand in candidates:
-        if refined >= n_refine and best is not None and np.isfinite(best[0]):
+    for k in chosen:
+        value, err, cam, objs, hand = candidates[k]
+        if refined >= n_refine + len(firsts) and best is not None and np.isfinite(best[0]):
             break
         model.handedness = hand.astype(float)
         wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
-        if np.any(sigma < _SMOOTH_SIGMA_PX):  # continuation: a smoother cost first (far from the
-            model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # optimum a tiny σ leaves only t-tails)
-            wc, wo, f, it = _newton(model, wc, wo, temperature)
-            model.sigma = sigma
-            iters += it
+        if np.any(sigma < _SMOOTH_SIGMA_PX) or not model.smooth:  # continuation: a smoother cost
+            model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # first (far from the optimum a tiny σ
+            for soft in (0.0,) if model.smooth else _SOFTNESS_PX:  # leaves only t-tails; kinks stop
+                model.softness_px = soft  # Newton: rounded ever less)
+                wc, wo, f, it = _newton(model, wc, wo, temperature)
+                iters += it
+            model.sigma, model.softness_px = sigma, 0.0
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
         refined += 1
+        reached.append((f, wc, wo, hand))
         if best is None or f < best[0]:
             best = (f, wc, wo, hand)
     f, wc, wo, hand = best
@@ -549,12 +673,23 @@ def _default(model: Model, temperature: float, n_refine: int):
     if model.needs_pilot:
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
+    wc, wo, f, it = _flips(model, wc, wo, f, temperature)
+    iters += it
     cams, objs = coords.from_work(wc[None], wo[None])
     cam, objs = cams[0], objs[0]
-    if not model.smooth:  # kinks: finish with L-BFGS-B, which needs no Hessian
-        flat = FlatState(model, cam, objs)
+    D = _hold(derivatives(model, wc, wo, temperature), wc, *_camera_box(model))
+    step = D.solve()
+    stalled = step is None or -0.5 * (D.g_c @ step[0] + np.sum(D.g_o * step[1])) > _DECREMENT_TOL
+    if stalled or not model.smooth:  # kinks, or Newton stopped short (a Hessian not positive where
+        flat = FlatState(model, cam, objs)  # a very sharp likelihood bends): L-BFGS-B needs none
         x, _ = _lbfgsb(model, flat, flat.pack(cam[None], objs[None])[0], temperature, ftol=1e-13)
         c2, o2 = flat.unpack(x)
         if model.map_objective(c2, o2, temperature)[0] < model.map_objective(cam[None], objs[None], temperature)[0]:
             cam, objs = c2[0], o2[0]
-    return cam, objs, hand, {"iterations": iters, "starts": len(candidates)}
+    others = []
+    for f_, wc_, wo_, hand_ in sorted(reached, key=lambda r: r[0]):
+        if np.isfinite(f_) and not (np.allclose(wc_, wc) and np.allclose(wo_, wo)):
+            c_, o_ = coords.from_work(wc_[None], wo_[None])
+            others.append((c_[0], o_[0], np.asarray(hand_, int)))
+    return cam, objs, model.handedness.astype(int), {"iterations": iters, "starts": len(candidates),
+                                                     "polished": bool(stalled), "others": tuple(others)}

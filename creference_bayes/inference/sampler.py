@@ -42,7 +42,7 @@ from ..models.contract import CAMERA_NAMES, O_YAW, OBJECT_NAMES, Model
 from .diagnostics import ess_bulk_rhat, rhat_split_raw
 from .laplace import laplace_blocks
 from .map import MapState, derivatives
-from .coords import WorkingCoords
+from .coords import HorizonDistance, WorkingCoords
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
 from .options import settings_from_options
 
@@ -178,7 +178,8 @@ class Diagnostics:
                 "thin": self.thin, "min_ess_bulk": _extreme(self.ess_bulk, min, 1),
                 "max_r_hat": _extreme(self.r_hat, max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
-                "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3)}
+                "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
+                **({"modes": self.info["mode_report"]} if self.info.get("mode_report") else {})}
 
 
 def _extreme(d, pick, nd):
@@ -271,10 +272,19 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     return _sample_blocks(model, map_est, s, rng, temperature, progress)
 
 
+def _interior(lower: np.ndarray, upper: np.ndarray, v: np.ndarray, margin: float = 1e-7) -> np.ndarray:
+    """``v`` pulled inside its bounds by ``margin`` of their span: a MAP on a bound stays inside
+    after the round trip through the sampled coordinates."""
+    span = np.where(np.isfinite(upper - lower), upper - lower, 0.0)
+    return np.clip(v, lower + margin * span, upper - margin * span)
+
+
 def _laplace_start(model: Model, map_est: MapState, temperature: float):
     """The MAP in working coordinates (wc0 (5,), wo0 (m, 7)) and the Laplace approximation there by
     blocks (Sc, Ao, B, ok: :func:`~.laplace.laplace_blocks`)."""
-    wc0, wo0 = (a[0] for a in WorkingCoords(model).to_work(map_est.camera[None], map_est.objects[None]))
+    cams, objs = _interior(model.camera_lower, model.camera_upper, map_est.camera), \
+        _interior(model.object_lower, model.object_upper, map_est.objects)
+    wc0, wo0 = (a[0] for a in WorkingCoords(model).to_work(cams[None], objs[None]))
     return (wc0, wo0) + laplace_blocks(model, derivatives(model, wc0, wo0, temperature, with_jacobian=True))
 
 
@@ -282,7 +292,7 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     """One object block: the whole free vector of working coordinates by the ensemble moves
     (:mod:`.ensemble`), after a search for other modes (:mod:`.modes`)."""
     from .ensemble import SamplingError as _Failed, sample as ensemble_sample
-    from .modes import find_modes
+    from .modes import MIN_SHARE, find_modes
 
     t0 = time.perf_counter()
     wc0, wo0, Sc, Ao, B, laplace_ok = _laplace_start(model, map_est, temperature)
@@ -300,23 +310,47 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     yaw = int(np.sum(cf)) + int(np.sum(of[0, :O_YAW]))
     circular = yaw if of[0, O_YAW] else None
 
-    def distance(u):  # the object's ground distance: the stopping rule watches it too
-        _, objs = target.natural(u)
+    # with pitch free, pitch is sampled as the log of the object's distance below the horizon
+    hd = HorizonDistance.of(model)
+    to_u = (lambda q: q) if hd is None else hd.inverse
+    log_prob = target if hd is None else (lambda q: target(hd.inverse(q)) + hd.log_jacobian(q))
+
+    def in_q(u, cov_u):  # a point and its covariance, in the sampled coordinates
+        if hd is None:
+            return u, cov_u
+        J = np.column_stack([(hd.forward(u + 1e-6 * e) - hd.forward(u - 1e-6 * e))[0] / 2e-6 for e in np.eye(len(u))])
+        return hd.forward(u[None])[0], J @ cov_u @ J.T
+
+    def distance(q):  # the object's ground distance: the stopping rule watches it too
+        _, objs = target.natural(to_u(q))
         return np.hypot(objs[:, 0, 0], objs[:, 0, 1])[:, None]
 
+    center, cov = in_q(center, cov)
     try:
         modes = []
         if s.mode_search:
             side = np.random.default_rng(np.random.SeedSequence(rng.bit_generator.seed_seq.entropy, spawn_key=tuple(
                 rng.bit_generator.seed_seq.spawn_key) + (2**31 + 19,), pool_size=rng.bit_generator.seed_seq.pool_size))
-            modes = find_modes(target, center, cov, laplace=lambda c: _whole_cov(model, target, c, temperature, free),
-                               rng=side, log_mask=np.zeros(len(center), bool), circular=circular,
-                               temperature=s.explore_temperature, n_steps=s.explore_steps)
-        chains = ensemble_sample(target, center, cov, settings=s, rng=rng, progress=progress,
+            laplace_q = lambda c: in_q(to_u(c[None])[0], _whole_cov(model, target, to_u(c[None])[0], temperature, free))[1]
+            others = [target.join(*(a for a in WorkingCoords(model).to_work(c[None], o[None])))[0]
+                      for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
+            others = [in_q(u_, cov)[0] for u_ in others if np.abs(u_[circular] - center[circular]) < np.pi] \
+                if circular is not None else [in_q(u_, cov)[0] for u_ in others]
+            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, log_mask=np.zeros(len(center), bool),
+                               circular=circular, temperature=s.explore_temperature, n_steps=s.explore_steps,
+                               extra_starts=np.array(others) if others else None)
+        better = None
+        if len(modes) > 1:  # a denser mode than the MAP's becomes the centre; modes with no mass go
+            lp = log_prob(np.array([m.center for m in modes]))
+            if lp.max() > lp[0] + 1.0:
+                better = modes[int(np.argmax(lp))]
+                modes = [better] + [m for m in modes if m is not better and m.share >= MIN_SHARE]
+                center, cov = better.center, better.cov
+        chains = ensemble_sample(log_prob, center, cov, settings=s, rng=rng, progress=progress,
                                  modes=[(m.center, m.cov) for m in modes[1:]], derived=distance)
     except _Failed as exc:
         raise SamplingError(str(exc)) from None
-    u = chains.draws()  # (ensemble, draws walker-major, d)
+    u = to_u(chains.draws().reshape(-1, chains.chain.shape[-1])).reshape(chains.draws().shape)
     lp = chains.draws(chains.log_prob)
     g, n, d = u.shape
     cams, objs = target.natural(u.reshape(-1, d))
@@ -330,8 +364,11 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
         why.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     info = {k: v for k, v in chains.info.items() if k in ("warmup_stages", "retunes", "modes", "proposal_components",
                                                             "log_prob_calls", "nonfinite")}
+    if better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
+        c, o = target.natural(to_u(better.center[None]))
+        info["denser_mode"] = (c[0], o[0])
     info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
-                 "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target)})
+                 "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
     return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
                               dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist())),
                               {"all": float(np.mean(chains.acceptance_fraction))}, ok, tuple(why),
@@ -350,16 +387,18 @@ def _whole_cov(model, target: BlockTarget, u: np.ndarray, temperature: float, fr
     return full[np.ix_(free, free)]
 
 
-def _mode_report(modes, target: BlockTarget) -> list[dict] | None:
+def _mode_report(modes, target: BlockTarget, to_u, shares=None) -> list[dict] | None:
     """Where each mode found before sampling is (its object's distance and yaw), how far below the
-    MAP's its log-density is, and its Laplace share of the mass; None with one mode."""
+    MAP's its log-density is, its Laplace share of the mass and the share of each ensemble's draws
+    nearest to it (they should agree); None with one mode."""
     if len(modes) < 2:
         return None
-    centers = np.array([m.center for m in modes])
+    centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
     lp = target(centers)
     return [{"distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])), "yaw": float(objs[k, 0, O_YAW]),
-             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share)}
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
+             "draw_share_per_ensemble": None if shares is None else [float(g[k]) for g in shares]}
             for k, m in enumerate(modes)]
 
 

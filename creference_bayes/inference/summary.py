@@ -22,47 +22,40 @@ import warnings as _warnings
 
 import numpy as np
 
-from ..models.contract import C_HEIGHT, O_GROUND, O_YAW
+from ..models.contract import CAMERA_NAMES, OBJECT_REPORT, object_report
 
 with _warnings.catch_warnings():
     _warnings.simplefilter("ignore", FutureWarning)  # arviz 0.23 announces its refactor on import
     import arviz as az
 
-__all__ = ["OBJECT_VARS", "CAMERA_VARS", "object_table", "to_inference_data", "draws_from_inference_data", "convergence", "summary_table", "az"]
+__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "draws_from_inference_data", "convergence", "summary_table", "az"]
 
-#: The per-object quantities of the posterior group, in order.
-OBJECT_VARS = ("x", "y", "z", "yaw", "length_m", "width_m", "height_m", "ground_m", "distance_m")
-#: The camera's quantities of the posterior group, in the camera block's order.
-CAMERA_VARS = ("focal_length_px", "pitch", "roll", "camera_height_m", "ref_scale")
-
-
-def object_table(cams: np.ndarray, objs: np.ndarray, yaw_centre=None) -> np.ndarray:
-    """(…, m, 9) the reported quantities of :data:`OBJECT_VARS` for cameras (…, 5) and objects
-    (…, m, 7); yaw on the arc of ±π around ``yaw_centre`` (m,) when given."""
-    y = cams[..., C_HEIGHT, None] - objs[..., O_GROUND]
-    yaw = objs[..., O_YAW]
-    if yaw_centre is not None:
-        yaw = yaw_centre + (yaw - yaw_centre + np.pi) % (2 * np.pi) - np.pi
-    d = np.hypot(objs[..., 0], objs[..., 1])
-    return np.stack([objs[..., 0], y, objs[..., 1], yaw, objs[..., 3], objs[..., 4], objs[..., 5],
-                     objs[..., O_GROUND], d], axis=-1)
+#: The per-object quantities of the posterior group, in order (the results' own report).
+OBJECT_VARS = OBJECT_REPORT
+#: The camera's quantities of the posterior group, in the camera block's order (the camera's
+#: height renamed: objects have a ``height_m`` of their own).
+CAMERA_VARS = tuple("camera_height_m" if n == "height_m" else n for n in CAMERA_NAMES)
 
 
-def to_inference_data(model, draws, *, yaw_centre=None, attrs: dict | None = None) -> "az.InferenceData":
-    """An InferenceData of a run (module docstring for the layout).
+def to_inference_data(result, attrs: dict | None = None) -> "az.InferenceData | None":
+    """The whole posterior of an estimate as an InferenceData (module docstring for the layout),
+    or None for an estimate without draws.
 
     Parameters
     ----------
-    model : the model sampled (its handedness and pilot as at the estimate)
-    draws : :class:`~.sampler.Draws`
-    yaw_centre : (m,) the MAP's yaws (the arc the draws' yaws are put on), or None
-    attrs : metadata for the InferenceData
+    result : :class:`~creference_bayes.io.result.Result` returned by :func:`creference_bayes.estimate`
+        (a result read back from its file holds a thinned set of draws only: use
+        ``result["draws"]`` there)
+    attrs : extra metadata for the InferenceData
     """
+    draws, model = result.draws, result.model
+    if draws is None or model is None:
+        return None
     cams, objs = draws.cameras, draws.objects  # (C, N, 5), (C, N, m, 7)
     C, N, m = objs.shape[:3]
-    ids = [o.id for o in model.objects]
+    yaw_centre = np.array([o["map"]["yaw"] for o in result.data["objects"]])
     post = {name: cams[..., k] for k, name in enumerate(CAMERA_VARS)}
-    table = object_table(cams, objs, yaw_centre)
+    table = object_report(cams, objs, yaw_centre)
     post.update({name: table[..., k] for k, name in enumerate(OBJECT_VARS)})
     ll = model.pointwise_log_likelihood(cams.reshape(-1, 5), objs.reshape(-1, m, 7))
     log_lik = {k: v.reshape((C, N) + v.shape[1:]) for k, v in ll.items() if v.size}
@@ -80,12 +73,13 @@ def to_inference_data(model, draws, *, yaw_centre=None, attrs: dict | None = Non
                  "reference_lines": ["reference", "end", "pixel_axis"], "annotations": ["object", "annotation"],
                  "references": ["reference_used" if model.name == "metrology" else "object"]})
     meta = {"model": model.name, "handedness": [int(h) for h in model.handedness],
-            "yaw": "radians, on the arc of ±pi around the MAP's", **(attrs or {})}
+            "yaw": "radians, on the arc of ±pi around the MAP's", "scene": str(result.data.get("scene")),
+            **(attrs or {})}
     stats = {"lp": draws.log_prob} if draws.log_prob is not None else None
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", FutureWarning)
         return az.from_dict(posterior=post, sample_stats=stats, log_likelihood=log_lik, observed_data=observed,
-                            coords={"object": ids}, dims=dims, attrs=meta)
+                            coords={"object": [o.id for o in model.objects]}, dims=dims, attrs=meta)
 
 
 def draws_from_inference_data(idata) -> dict[str, np.ndarray]:

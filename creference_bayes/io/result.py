@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, CAMERA_NAMES, O_YAW, OBJECT_NAMES
+from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT_REPORT, object_report
 from .files import read_text
 
 __all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
@@ -33,9 +33,6 @@ RESULT_FORMATS = ("creference-result/1", RESULT_FORMAT)
 RESULT_DRAWS = 400
 #: Decimals of the kept draws (10 µm, 10 µrad, 10⁻⁵ px).
 DRAW_DECIMALS = 5
-#: What each object reports, in order: its bottom centre (x, y, z), yaw, sizes, ground offset and
-#: ground distance √(x² + z²) from the camera's foot point.
-OBJECT_REPORT = ("x", "y", "z", "yaw", "length_m", "width_m", "height_m", "ground_m", "distance_m")
 #: How far the MAP's box may miss its annotations (RMS of its corners from their median, over
 #: this many times the annotations' own spread) before the result says so.
 REPROJECTION_WARN_FACTOR = 3.0
@@ -73,10 +70,11 @@ def _column(v: np.ndarray):
     return float(v[0]) if np.all(v == v[0]) else v.tolist()
 
 
-def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int) -> dict:
+def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int) -> dict:
+    """Evenly spaced draws of the chains' draws laid end to end, each with its chain."""
     n = len(cams)
     idx = np.unique(np.linspace(0, n - 1, min(n_keep, n)).round().astype(int))
-    return {"n": int(len(idx)), "of": int(n),
+    return {"n": int(len(idx)), "of": int(n), "chain": (idx // (n // n_chains)).tolist(),
             "camera": {k: _column(cams[idx, j]) for j, k in enumerate(CAMERA_NAMES)},
             "objects": [{k: _column(objs[idx, i, j]) for j, k in enumerate(OBJECT_NAMES)}
                         for i in range(objs.shape[1])]}
@@ -132,7 +130,8 @@ class Result:
     draws : the posterior draws (:class:`~creference_bayes.inference.sampler.Draws`), or None
     diagnostics : the sampler's :class:`~creference_bayes.inference.sampler.Diagnostics`, or None
     warnings : what the user should know
-    model : the model estimated (for :meth:`inference_data`; not in the file)
+    model : the model estimated (not in the file; :func:`creference_bayes.inference.summary.to_inference_data`
+        makes the whole posterior's ``arviz.InferenceData`` from it and the draws)
     """
 
     data: dict
@@ -148,22 +147,9 @@ class Result:
     def to_dict(self) -> dict:
         return self.data
 
-    def inference_data(self):
-        """The whole posterior as an ``arviz.InferenceData`` (:mod:`~creference_bayes.inference.summary`),
-        or None without a posterior."""
-        if self.draws is None or self.model is None:
-            return None
-        from ..inference.summary import to_inference_data
-
-        yaw = np.array([o["map"]["yaw"] for o in self.data["objects"]], float)
-        return to_inference_data(self.model, self.draws, yaw_centre=yaw,
-                                 attrs={"scene": self.data.get("scene") or "", "hdi_prob": self.data["hdi_prob"],
-                                        "temperature": self.data["provenance"]["temperature"]})
-
     @classmethod
     def build(cls, scene, model, setup, map_est, draws, diag, *, hdi_prob: float, provenance: dict,
               seconds: float, notes=(), keep_draws: int = RESULT_DRAWS) -> "Result":
-        from ..inference.summary import object_table
         from .scene import scene_fingerprint
 
         warnings = list(scene.warnings) + list(setup.notes) + list(notes)
@@ -172,16 +158,16 @@ class Result:
                   "setup": setup.to_dict()}
         if setup.horizon_estimate is not None:
             camera["setup"]["horizon_estimate"] = setup.horizon_estimate.to_dict()
-        objs_map = object_table(map_est.camera, map_est.objects)
+        objs_map = object_report(map_est.camera, map_est.objects)
         post_obj = post_cam = kept = None
         if draws is not None:
             cams = draws.cameras.reshape(-1, 5)
             objs = draws.objects.reshape(-1, model.n_objects, 7).copy()
             yaw0 = map_est.objects[:, O_YAW]
             objs[..., O_YAW] = yaw0 + (objs[..., O_YAW] - yaw0 + np.pi) % (2 * np.pi) - np.pi
-            table = object_table(cams, objs)  # (N, m, 9)
+            table = object_report(cams, objs)  # (N, m, 9)
             if keep_draws > 0:
-                kept = _keep_draws(cams, objs, keep_draws)
+                kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0])
             post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
             post_cam = _summary(cams, hdi_prob)
             camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
@@ -189,7 +175,7 @@ class Result:
                 warnings += [f"posterior not converged: {w}" for w in diag.warnings]
         if scene.ground_truth:
             camera["evaluation"] = _camera_evaluation(scene.ground_truth, camera.get("posterior"))
-        warnings += _checks(scene, model, setup, map_est)
+        warnings += map_checks(scene, model, setup, map_est)
         objects = []
         for i, (t, o) in enumerate(zip(scene.targets, model.objects)):
             entry = {"id": t.id, "class": t.cls, "handedness": int(map_est.handedness[i]),
@@ -235,7 +221,7 @@ def _references(model) -> dict:
     return out
 
 
-def _checks(scene, model, setup, map_est) -> list[str]:
+def map_checks(scene, model, setup, map_est) -> list[str]:
     """Warnings about the MAP: a box that misses its annotations, and a focal length that the
     annotations and an informative prior disagree on (a cropped photo?)."""
     out = []

@@ -364,8 +364,23 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
                                     for i, d in enumerate(lines)), dims, gt)
 
 
+def _free_form(value: Any, path: str) -> Any:
+    """A free-form value of a ground truth: plain JSON (strings, booleans, null, finite numbers,
+    lists and objects of them), else :class:`SceneError` naming where."""
+    if isinstance(value, dict):
+        return {k: _free_form(v, _join(path, k)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_free_form(v, _join(path, i)) for i, v in enumerate(value)]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        _number(value, path)  # finite
+        return value
+    if value is None or isinstance(value, (str, bool)):
+        return value
+    raise SceneError(path, f"expected a JSON value, got {_short(value)}")
+
+
 def _parse_target_truth(obj: Any, path: str) -> dict:
-    obj = _dict(obj, path)
+    obj = _free_form(_dict(obj, path), path)
     lpath = _join(path, "location_m")
     loc = _list(_get(obj, "location_m", path), lpath)
     if len(loc) != 3:
@@ -381,7 +396,7 @@ def _parse_target_truth(obj: Any, path: str) -> dict:
         d = _dict(obj["dimensions_m"], dpath)
         out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES}
     if obj.get("handedness") is not None and (isinstance(obj["handedness"], bool) or obj["handedness"] not in (1, -1)):
-        raise SceneError(_join(path, "handedness"), f"expected 1 or -1, got {_short(obj['handedness'])}")
+        raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(obj['handedness'])}")
     return out
 
 
@@ -474,7 +489,7 @@ def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
 def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
     """A version-1 ``ground_truth`` split into the target's (location, yaw, handedness and any
     other key) and the camera's (:data:`_CAMERA_TRUTH`)."""
-    obj = _dict(obj, "ground_truth")
+    obj = _free_form(_dict(obj, "ground_truth"), "ground_truth")
     target = {k: v for k, v in obj.items() if k not in _CAMERA_TRUTH}
     target = _parse_target_truth({**target, "location_m": _get(obj, "location_m", "ground_truth")}, "ground_truth")
     camera = {k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}
@@ -546,7 +561,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         target_truth, gt = _parse_v1_truth(gt)
         targets = (Target(targets[0].id, None, targets[0].dimension_lines, targets[0].dimensions, target_truth),)
     elif gt is not None:
-        gt = dict(_dict(gt, "ground_truth"))
+        gt = _free_form(_dict(gt, "ground_truth"), "ground_truth")
     for message in sink:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return Scene(targets=targets, references=tuple(r for r, _ in parsed), reference_targets=tuple(o for _, o in parsed),

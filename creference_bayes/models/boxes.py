@@ -9,7 +9,7 @@ import numpy as np
 from ..core.geometry import box_vertices, rotation_from_pitch_roll
 from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW
 
-__all__ = ["world_boxes", "frame_boxes_2d", "footprint"]
+__all__ = ["world_boxes", "image_boxes", "footprint"]
 
 _UNIT_BOX = box_vertices(1.0, 1.0, 1.0)  # (8, 3): bottom face first; scales with (l, h, w) per axis
 
@@ -26,7 +26,7 @@ def world_boxes(objs: np.ndarray, cam_height: np.ndarray) -> np.ndarray:
     return np.stack([X, Y, Z], axis=-1)
 
 
-def frame_boxes_2d(cams: np.ndarray, objs: np.ndarray, principal_point) -> np.ndarray:
+def image_boxes(cams: np.ndarray, objs: np.ndarray, principal_point) -> np.ndarray:
     """Projected box vertices (n, 8, 2) pixels of one object at (n, 5) cameras and (n, 7) object
     states; NaN where a vertex is less than 5 cm in front of the camera."""
     P = world_boxes(objs, cams[:, C_HEIGHT])

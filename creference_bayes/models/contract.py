@@ -55,7 +55,7 @@ from .size_priors import SizePrior
 __all__ = ["CAMERA_NAMES", "CAMERA_UNITS", "OBJECT_NAMES", "OBJECT_UNITS", "C_FOCAL", "C_PITCH", "C_ROLL",
            "C_HEIGHT", "C_SCALE", "O_X", "O_Z", "O_YAW", "O_SIZE", "O_GROUND", "MAX_PITCH", "MAX_ROLL",
            "DEFAULT_GROUND_SD_M", "DEFAULT_GROUND_TILT_SD_RAD", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
-           "ObjectData", "Bounds", "Model", "object_corners"]
+           "OBJECT_REPORT", "ObjectData", "Bounds", "Model", "object_corners", "object_report"]
 
 CAMERA_NAMES = ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")
 CAMERA_UNITS = ("px", "rad", "rad", "m", "1")
@@ -80,6 +80,23 @@ REF_SCALE_MEDIAN = 0.5
 REF_SCALE_LOG_SD = 1.0
 #: Behind-the-camera penalty per metre.
 _BEHIND = 1e6
+
+
+#: What results report of each object, in order: its bottom centre (x, y, z), yaw, sizes, ground
+#: offset and its ground distance √(x² + z²) from the camera's foot point (m, rad).
+OBJECT_REPORT = ("x", "y", "z", "yaw", "length_m", "width_m", "height_m", "ground_m", "distance_m")
+
+
+def object_report(cams: np.ndarray, objs: np.ndarray, yaw_centre=None) -> np.ndarray:
+    """(…, m, 9) the quantities of :data:`OBJECT_REPORT` for cameras (…, 5) and objects (…, m, 7):
+    y is the camera height less the object's ground offset; yaw on the arc of ±π around
+    ``yaw_centre`` (m,) when given."""
+    y = cams[..., C_HEIGHT, None] - objs[..., O_GROUND]
+    yaw = objs[..., O_YAW]
+    if yaw_centre is not None:
+        yaw = yaw_centre + (yaw - yaw_centre + np.pi) % (2 * np.pi) - np.pi
+    return np.stack([objs[..., O_X], y, objs[..., O_Z], yaw, objs[..., 3], objs[..., 4], objs[..., 5],
+                     objs[..., O_GROUND], np.hypot(objs[..., O_X], objs[..., O_Z])], axis=-1)
 
 
 def object_corners(sizes: np.ndarray, handedness: np.ndarray) -> np.ndarray:
@@ -202,6 +219,9 @@ class Model:
     name = "model"
     #: Whether the objective is smooth (no kinks): the optimiser may finish with Newton steps alone.
     smooth = True
+    #: A model that is not smooth rounds its kinks over this many pixels while it is > 0 (the MAP's
+    #: search starts on the rounded objective, then polishes on the exact one).
+    softness_px = 0.0
 
     def __init__(self, principal_point, image_size, objects, *, camera_terms: CameraTerms | None = None,
                  orientation: str = "free", horizon_line=None, focal_length_px: float | None = None,
@@ -377,13 +397,23 @@ class Model:
         return out + self.location.neg_log(objs[..., O_X], objs[..., O_Z])
 
     def map_log_jacobian(self, objs: np.ndarray) -> np.ndarray:
-        """log |∂z/∂log z| = log z of each object (n, m) when the MAP is taken in log depth (the
-        location prior says: :attr:`.location_prior.LocationPrior.map_in_log_coordinates`), zeros
-        otherwise."""
+        """log |∂z/∂log z| = log z of each object (n, m) when the MAP is taken in log coordinates
+        (the location prior says: :attr:`.location_prior.LocationPrior.map_in_log_coordinates`),
+        zeros otherwise."""
         if not self.location.map_in_log_coordinates:
             return np.zeros(objs.shape[:-1])
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.log(objs[..., O_Z])
+
+    def camera_log_jacobian(self, cams: np.ndarray) -> np.ndarray:
+        """(n,) log |∂(µ, h)/∂(log µ, log h)| of the free positive camera parameters, when the MAP
+        is taken in log coordinates (zeros otherwise): the MAP is the mode of the density in the
+        coordinates the sampler and the priors use."""
+        if not self.location.map_in_log_coordinates:
+            return np.zeros(len(cams))
+        cf = self.camera_free
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (np.log(cams[:, C_FOCAL]) * cf[C_FOCAL] + np.log(cams[:, C_HEIGHT]) * cf[C_HEIGHT])
 
     def camera_neg_log_prior(self, cams: np.ndarray) -> np.ndarray:
         """Negative log-prior of the camera block, (n,): focal length, pitch and roll, camera height
@@ -396,9 +426,13 @@ class Model:
         if self.orientation == "free":
             out += (0.5 * ((cams[:, C_PITCH] - p.pitch_mean) / p.pitch_sd) ** 2
                     + 0.5 * ((cams[:, C_ROLL] - p.roll_mean) / p.roll_sd) ** 2)
+        h = cams[:, C_HEIGHT]
         if self.use_height_prior:
-            h = cams[:, C_HEIGHT]
             out += 0.5 * ((np.log(h) - np.log(p.height_median_m)) / p.height_log_sd) ** 2 + np.log(h)
+        elif self.location.map_in_log_coordinates and self.camera_free[C_HEIGHT]:
+            out += np.log(h)  # scale-invariant: uniform in log h (flat would lean far along the ridge)
+        if t.focal is None and self.camera_free[C_FOCAL] and self.location.map_in_log_coordinates:
+            out += np.log(cams[:, C_FOCAL])  # no focal prior: uniform in log µ, likewise
         if self.camera_free[C_SCALE]:
             s = cams[:, C_SCALE]
             out += 0.5 * ((np.log(s) - np.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2 + np.log(s)
@@ -432,11 +466,14 @@ class Model:
         return np.where(self.in_bounds(cams, objs) & np.isfinite(out), out, np.inf)
 
     def map_objective(self, cams: np.ndarray, objs: np.ndarray, temperature: float = 1.0) -> np.ndarray:
-        """(n,) what the MAP minimises: −log of the posterior density over (camera, x, log z, …)
-        when the location prior takes the MAP in log depth, i.e. :meth:`neg_log_posterior` −
-        Σ log z; else :meth:`neg_log_posterior` itself."""
+        """(n,) what the MAP minimises: −log of the posterior density over (log µ, log h, x,
+        log z, …) when the location prior takes the MAP in log coordinates, i.e.
+        :meth:`neg_log_posterior` − Σ log z − log µ − log h (the free ones); else
+        :meth:`neg_log_posterior` itself."""
+        cams = self.complete_camera(cams)
         with np.errstate(all="ignore"):
-            return self.neg_log_posterior(cams, objs, temperature) - self.map_log_jacobian(objs).sum(axis=-1)
+            return (self.neg_log_posterior(cams, objs, temperature) - self.map_log_jacobian(objs).sum(axis=-1)
+                    - self.camera_log_jacobian(cams))
 
     # -- starting points and simulation --------------------------------------------------------------
     def focal_guess(self) -> float:

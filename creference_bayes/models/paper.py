@@ -64,6 +64,8 @@ class PaperModel(Model):
         r2 = np.sum((self.observed[None] - uv) ** 2, axis=-1)
         nll = 0.5 * r2 / self.sigma**2 + np.log(self.sigma * np.sqrt(2.0 * np.pi))
         gap = np.abs(self._norms[None] - np.linalg.norm(uv, axis=-1))
+        if self.softness_px > 0:  # rounded: √(g² + s²) − s
+            gap = np.hypot(gap, self.softness_px) - self.softness_px
         return np.sum(nll + gap, axis=-1), self.behind(depth)
 
     def _bounds_terms(self, objs: np.ndarray) -> np.ndarray:

@@ -1,9 +1,9 @@
-"""Frames from a KITTI folder: simulated crowd annotations on real street geometry.
+"""Scenes from a KITTI folder: simulated crowd annotations on real street geometry.
 
 ``creference simulate --from-kitti DIR --out SCENES`` reads a KITTI-layout folder (``label_2/``
-and ``calib/``, and ``image_2/`` when present) and writes one ``creference-scene/2`` frame per
-image. Each object a person could annotate gets K sets of dimension lines: the projections (with
-the frame's own P2) of its real box's corners moved by Gaussian noise of ``noise_px`` per
+and ``calib/``, and ``image_2/`` when present) and writes one ``creference-scene/2`` scene per
+image, every annotatable object a target. Each object a person could annotate gets K sets of dimension lines: the projections (with
+the image's own P2) of its real box's corners moved by Gaussian noise of ``noise_px`` per
 coordinate and rounded to 0.01 px, its class's size prior instead of its true size.
 
 Which objects: KITTI's classes other than DontCare (Car, Van, Truck, Pedestrian, Person_sitting,
@@ -20,7 +20,7 @@ that labels go back into KITTI's frame) and the calib file's other lines (``came
 written back beside the labels, so that KITTI tools that go through the lidar find the real
 ``Tr_velo_to_cam``); what a user does not know is not: the camera's height,
 pitch and roll, the horizon (estimated from the photo when ``image_2`` is there) and the sizes.
-``sizes="known"`` (``--sizes known``) writes each object's true size into the frame instead: the
+``sizes="known"`` (``--sizes known``) writes each object's true size into the scene instead: the
 method's original premise, a target of known size, for labels of objects whose make is known and
 to see what the class priors cost (docs/kitti.md).
 Ground truth (for evaluation only) is in the scene: each target's KITTI label (``kitti``) and its
@@ -36,14 +36,14 @@ import numpy as np
 from ..io.kitti_read import read_kitti_labels
 from ..models.size_priors import KITTI_SIZE_PRIORS
 
-__all__ = ["ANNOTATABLE", "SIZES", "read_p2", "read_calib", "kitti_frame", "kitti_frames", "MIN_HEIGHT_PX", "MAX_TRUNCATION",
-           "MAX_OCCLUSION"]
+__all__ = ["ANNOTATABLE", "SIZES", "read_p2", "read_calib", "kitti_scene", "kitti_scenes", "MIN_HEIGHT_PX",
+           "MAX_TRUNCATION", "MAX_OCCLUSION"]
 
 ANNOTATABLE = tuple(KITTI_SIZE_PRIORS)
 MIN_HEIGHT_PX = 25.0
 MAX_TRUNCATION = 0.5
 MAX_OCCLUSION = 2
-#: What the frames say of the objects' sizes: ``prior`` (nothing: the class priors apply) or
+#: What the scenes say of the objects' sizes: ``prior`` (nothing: the class priors apply) or
 #: ``known`` (each object's true size, ``dimensions_m``).
 SIZES = ("prior", "known")
 
@@ -99,9 +99,9 @@ def _corners(loc, ry, dims_hwl, hand_corner):
     return loc + p @ R.T
 
 
-def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotations: int = 5,
+def kitti_scene(label_path, calib_path, image_path=None, *, rng=None, n_annotations: int = 5,
                 noise_px: float = 2.0, frame_id: str | None = None, sizes: str = "prior") -> tuple[dict, dict]:
-    """One frame (a ``creference-scene/2`` dict) and a report of which objects were kept and why
+    """One scene (a ``creference-scene/2`` dict) and a report of which objects were kept and why
     the others were not; ``sizes`` one of :data:`SIZES`."""
     if sizes not in SIZES:
         raise ValueError(f"sizes: expected one of {list(SIZES)}, got {sizes!r}")
@@ -143,7 +143,7 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
             skipped["outside"] += 1
             continue
         noisy = np.round(uv[None] + rng.normal(0.0, noise_px, (n_annotations, 4, 2)), 2)
-        # the model's convention (models/frame.py): yaw and handedness of the drawn lines
+        # the model's convention (models/contract.py): yaw and handedness of the drawn lines
         a, b = best
         yaw, hand = (ry, -b) if a == -1 else (ry + np.pi, b)
         yaw = float((yaw + np.pi) % (2 * np.pi) - np.pi)
@@ -167,10 +167,10 @@ def kitti_frame(label_path, calib_path, image_path=None, *, rng=None, n_annotati
     return scene, {"kept": len(targets), "skipped": skipped}
 
 
-def kitti_frames(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, seed: int = 0,
+def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, seed: int = 0,
                  progress=None, sizes: str = "prior") -> dict:
-    """Write one frame per label file of ``folder`` into ``out`` (``<id>.json``); returns the totals
-    of kept and skipped objects. Frames without an annotatable object are not written."""
+    """Write one scene per label file of ``folder`` into ``out`` (``<id>.json``); returns the totals
+    of kept and skipped objects. Images without an annotatable object are not written."""
     from ..io.files import atomic_write_json
 
     folder, out = Path(folder), Path(out)
@@ -178,17 +178,17 @@ def kitti_frames(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
     if not labels:
         raise FileNotFoundError(folder / "label_2")
     out.mkdir(parents=True, exist_ok=True)
-    totals = {"frames": 0, "kept": 0, "skipped": {}}
+    totals = {"scenes": 0, "kept": 0, "skipped": {}}
     for k, lp in enumerate(labels):
         calib = folder / "calib" / lp.name
         image = folder / "image_2" / (lp.stem + ".png")
-        scene, rep = kitti_frame(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k], n_annotations=n_annotations, noise_px=noise_px,
+        scene, rep = kitti_scene(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k], n_annotations=n_annotations, noise_px=noise_px,
                                  frame_id=lp.stem, sizes=sizes)
         for key, v in rep["skipped"].items():
             totals["skipped"][key] = totals["skipped"].get(key, 0) + v
         if rep["kept"]:
             atomic_write_json(out / f"{lp.stem}.json", scene)
-            totals["frames"] += 1
+            totals["scenes"] += 1
             totals["kept"] += rep["kept"]
         if progress:
             progress(f"{lp.stem}: {rep['kept']} objects")

@@ -1,4 +1,5 @@
-"""The emcee adapter against analytic targets, and its seeding and robustness."""
+"""The emcee adapter (inference/sampler.py, ensemble.py, moves.py) against analytic targets, its
+seeding and robustness, and the block moves on real scenes."""
 
 import emcee
 import numpy as np
@@ -7,7 +8,8 @@ from scipy import stats
 
 from creference_bayes.inference.autocorr import integrated_time
 from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
-from creference_bayes.inference.sampling import SamplerSettings, SamplingError, sample
+from creference_bayes.inference.ensemble import SamplingError, sample
+from creference_bayes.inference.sampler import SamplerSettings
 from creference_bayes.inference.summary import az
 
 MEAN = np.array([1.0, -2.0, 0.5])
@@ -75,7 +77,7 @@ def test_recovers_a_curved_banana():
 
 
 def test_same_seed_same_draws():
-    settings = SamplerSettings(min_ess=100, tau_multiple=10, warmup=20, max_steps=200)
+    settings = SamplerSettings(min_ess=100, tau_multiple=10, stage=20, max_steps=200)
     a = sample(gaussian, MEAN, COV, rng=7, settings=settings)
     b = sample(gaussian, MEAN, COV, rng=7, settings=settings)
     c = sample(gaussian, MEAN, COV, rng=8, settings=settings)
@@ -110,7 +112,7 @@ def test_a_start_at_the_apex_of_a_thin_wedge_still_finds_its_walkers():
     """The support is a wedge 1e-4 rad wide whose apex is 1e-7 from the start (a MAP on two
     bounds the coordinates couple): no Gaussian redraw lands in it, but pulling the points
     towards the start does; every walker has a finite log-probability."""
-    from creference_bayes.inference.sampling import _SafeLogProb, _initial_points
+    from creference_bayes.inference.ensemble import _SafeLogProb, _initial_points
 
     def log_prob(p):
         x, y = p[:, 0], p[:, 1]
@@ -198,7 +200,7 @@ def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
 def test_warm_up_judges_whitening_by_median_and_quartiles_not_by_moments():
     """A heavy-tailed but well whitened stage counts as settled (the standard deviation of a
     t₂.₅ sample is far above 1.33 however good the map); a shifted or too wide one does not."""
-    from creference_bayes.inference.sampling import _location_spread, _stable
+    from creference_bayes.inference.ensemble import _location_spread, _stable
 
     rng = np.random.default_rng(0)
     heavy = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)
@@ -219,7 +221,7 @@ def test_warm_up_compares_a_stage_with_the_sample_its_map_was_fitted_to():
     in the best of maps (the warm-up then ran to its 5000-step cap on every such posterior): a
     stage is judged against the fitted sample's own median and quantile ranges. A stage from
     the same posterior passes; one whose tails widened 1.8× with the same quartiles does not."""
-    from creference_bayes.inference.sampling import _location_spread, _stable
+    from creference_bayes.inference.ensemble import _location_spread, _stable
 
     rng = np.random.default_rng(3)
 
@@ -292,10 +294,10 @@ def test_a_warm_up_stage_already_whitened_ends_early():
     def log_prob(p):
         return -0.5 * np.einsum("ij,jk,ik->i", p, Ci, p)
 
-    settings = SamplerSettings(warmup=20, chunk=10, min_ess=400)
+    settings = SamplerSettings(stage=20, chunk=10, min_ess=400)
     chains = sample(log_prob, np.zeros(5), 1e-10 * np.eye(5), settings=settings, rng=0)
     stages = chains.info["warmup_stages"]
-    assert 2 * settings.warmup <= stages[-1] <= stages[-2], stages  # scheduled 2 · stages[-2], cut
+    assert 2 * settings.stage <= stages[-1] <= stages[-2], stages  # scheduled 2 · stages[-2], cut
     assert chains.converged
     draws = chains.chain[chains.burn_in:].reshape(-1, 5)
     assert np.allclose(draws.var(axis=0), np.diag(C), rtol=0.15)
@@ -322,7 +324,7 @@ def test_a_lump_beside_the_mode_gets_a_proposal_component_of_its_own():
     """Fitted to a sample of the lumpy density, the default proposal is a mixture (k-means
     components and the whole sample's t) that offers the lump far more often than one t does,
     and never offers any point less than DEFENSIVE_WEIGHT as often as that t."""
-    from creference_bayes.inference.sampling import DEFENSIVE_WEIGHT, _fit_proposal
+    from creference_bayes.inference.ensemble import DEFENSIVE_WEIGHT, _fit_proposal
 
     rng = np.random.default_rng(4)
     n = 4000
@@ -362,3 +364,93 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
                 ess = x.shape[0] / chains.autocorr_time[0]
                 assert abs(_in_lump(x).mean() - share) < 4 * np.sqrt(share * (1 - share) / ess)
     assert np.mean(taus[3]) < 0.8 * np.mean(taus[1]), taus
+
+
+def test_diagnostics_match_arviz():
+    from creference_bayes.inference.diagnostics import ess_bulk, rhat_rank
+
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(4, 301, 5)), axis=1) * 0.1 + rng.normal(size=(4, 301, 5))
+    x[..., 4] = np.round(x[..., 4], 1)  # ties
+    for j in range(5):
+        assert ess_bulk(x)[j] == pytest.approx(float(az.ess(x[..., j], method="bulk")), rel=1e-8)
+        assert rhat_rank(x)[j] == pytest.approx(float(az.rhat(x[..., j])), rel=1e-8)
+
+
+@pytest.mark.parametrize("tries", [1, 4])
+def test_a_multiple_try_step_keeps_its_target_distribution(tries):
+    """Chains started from exact draws of a skewed target and moved by independent multiple-try
+    steps from a poorly matched proposal must still hold that target (invariance), and more tries
+    must accept more often."""
+    from creference_bayes.inference.multiple_try import multiple_try_pick
+
+    rng = np.random.default_rng(3)
+    target, proposal = stats.gamma(3.0), stats.norm(4.0, 2.5)  # proposal off-centre, too wide
+    n = 40000
+    x = target.rvs(size=n, random_state=rng)
+    accepted = []
+    for _ in range(15):
+        y = proposal.rvs(size=(n, tries), random_state=rng)
+        log_w = np.where(y > 0, target.logpdf(np.maximum(y, 1e-300)), -np.inf) - proposal.logpdf(y)
+        j, ok = multiple_try_pick(log_w, target.logpdf(x) - proposal.logpdf(x), rng)
+        x = np.where(ok, y[np.arange(n), j], x)
+        accepted.append(ok.mean())
+    assert stats.kstest(x, target.cdf).pvalue > 1e-3
+    assert abs(x.mean() - 3.0) < 4 * np.sqrt(3.0 / n)
+    accept = np.mean(accepted)
+    assert (accept > 0.8) if tries == 4 else (0.5 < accept < 0.8)
+
+
+def test_coupled_objects_never_share_a_colour():
+    from creference_bayes.inference.moves import colours
+
+    assert colours(4, np.zeros((0, 2), int)) == [None]
+    pairs = np.array([[0, 1], [1, 2], [2, 0], [3, 4]])
+    got = colours(6, pairs)
+    assert np.all(np.sum(got, axis=0) == 1)  # every object in exactly one colour
+    for c in got:
+        assert not any(c[i] and c[j] for i, j in pairs)
+    assert len(got) == 3  # a triangle needs three
+
+
+def _scene_model(seed, **kw):
+    from conftest import truth_scene
+    from creference_bayes.inference.map import optimize
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.pipeline import build_model
+
+    d, truth = truth_scene(seed, **kw)
+    model, _ = build_model(parse_scene(d))
+    return model, optimize(model), truth
+
+
+def test_the_move_set_follows_the_block_structure():
+    """One object block: the whole vector by ensemble moves (4 ensembles as chains); several: block
+    sweeps (each walker a chain). Either way the same seed gives the same draws."""
+    from creference_bayes.inference.sampler import sample as sample_scene
+
+    tiny = SamplerSettings(min_ess=50)
+    for m, chains in ((1, tiny.n_ensembles), (3, tiny.n_chains)):
+        model, est, _ = _scene_model(2, m=m, n_annotations=2, noise_px=2.0)
+        a, da = sample_scene(model, est, settings=tiny, rng=4)
+        b, _ = sample_scene(model, est, settings=tiny, rng=4)
+        assert a.objects.shape[0] == chains and a.objects.shape[2] == m
+        np.testing.assert_array_equal(a.objects, b.objects)
+        assert set(da.ess_bulk) == set(da.r_hat) and all(k.endswith(".distance_m") or "." in k for k in da.ess_bulk)
+
+
+def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_is_gaussian():
+    """Five objects of known size, many precise annotations: the posterior is close to Gaussian in
+    the working coordinates, so the draws' distance sd must agree with the Laplace approximation's
+    (delta method) to within Monte Carlo error and the approximation's own error (20 %)."""
+    from creference_bayes.inference.laplace import laplace
+    from creference_bayes.inference.sampler import sample as sample_scene
+
+    model, est, _ = _scene_model(5, m=5, n_annotations=6, noise_px=1.0, n_refs=3)
+    draws, diag = sample_scene(model, est, settings=SamplerSettings(min_ess=300), rng=0)
+    assert diag.converged
+    d = np.hypot(draws.objects[..., 0], draws.objects[..., 1]).reshape(-1, 5)
+    _, objs = laplace(model, est.camera, est.objects).draws(20000, 1)
+    dl = np.hypot(objs[..., 0], objs[..., 1])
+    np.testing.assert_allclose(d.std(axis=0), dl.std(axis=0), rtol=0.2)
+    np.testing.assert_allclose(d.mean(axis=0), dl.mean(axis=0), rtol=0.01)

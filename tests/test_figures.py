@@ -1,5 +1,5 @@
-"""The figures of a frame (issue 36): labels that do not overlap, strong and distinct object styles,
-titles inside the figure, capped sizes, a legend that names every mark.
+"""The figures of a scene of 1 to 60 objects (issue 36): labels that do not overlap, strong and
+distinct object styles, titles inside the figure, capped sizes, a legend that names every mark.
 
 The figures are drawn at the simulated truth with synthetic draws around it (no optimiser, no
 sampler): what is checked is the drawing, not where an estimate happens to stop.
@@ -14,9 +14,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 from matplotlib.text import Text
 
-from creference_bayes.bench.frame_simulate import simulate_frame
-from creference_bayes.io.frame_scene import parse_frame
-from creference_bayes.vision import frame_figures as ff
+from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.vision import plotting as ff
+
+
+def simulate_frame(seed, n_objects):
+    """A simulated street scene of ``n_objects`` objects whose sizes come from their classes' priors."""
+    return simulate_scene(seed, setting="street", n_objects=n_objects, sizes="prior")
 
 
 def _truth_state(scene):
@@ -24,7 +29,7 @@ def _truth_state(scene):
     cam = np.array([g["focal_length_px"], g["pitch_rad"], g["roll_rad"], g["camera_height_m"], 1.0])
     objs = np.array([[t["ground_truth"]["location_m"][0], t["ground_truth"]["location_m"][2], t["ground_truth"]["yaw_rad"],
                       *(t["ground_truth"]["dimensions_m"][k] for k in ("length", "width", "height")),
-                      t["ground_truth"]["ground_m"]] for t in scene["targets"]])
+                      t["ground_truth"].get("ground_m", 0.0)] for t in scene["targets"]])
     return cam, objs
 
 
@@ -41,19 +46,21 @@ def _draws(cam, objs, n=400, seed=0):
     return cams, o
 
 
-@pytest.fixture(scope="module", params=[3, 10, 60])
+@pytest.fixture(scope="module", params=[1, 3, 10, 60])
 def drawn(request):
-    """A simulated street frame of 3, 10 or 60 objects and its three or four figures."""
+    """A simulated street scene of 1, 3, 10 or 60 objects and its figures."""
     m = request.param
     scene = simulate_frame(7, n_objects=m)
-    frame = parse_frame(scene)
+    frame = parse_scene(scene)
+    assert len(frame.targets) == m
     cam, objs = _truth_state(scene)
     draws = _draws(cam, objs)
-    figs = {"boxes": ff.plot_frame_boxes(frame, cam, objs, draws),
-            "top": ff.plot_frame_top_view(frame, cam, objs, draws),
-            "zooms": ff.plot_frame_zooms(frame, cam, objs, draws),
-            "camera": ff.plot_frame_camera(draws[0], cam, np.array([True, True, True, True, False]),
-                                           truth=scene["ground_truth"])}
+    figs = {"boxes": ff.plot_boxes(frame, cam, objs, draws),
+            "top": ff.plot_top_view(frame, cam, objs, draws),
+            "zooms": ff.plot_zooms(frame, cam, objs, draws),
+            "pairs": ff.plot_pairs(ff.posterior_columns(frame, None, cam, objs, draws)),
+            "ranks": ff.plot_ranks(ff.posterior_columns(frame, None, cam, objs, draws, distance=True),
+                                   np.arange(len(draws[0])) % 4)}
     for fig in figs.values():
         if not isinstance(fig.canvas, FigureCanvasAgg):
             FigureCanvasAgg(fig)
@@ -136,7 +143,7 @@ def test_every_object_is_drawn_in_its_own_style(drawn):
     m = drawn["m"]
     ax = _main_axes(drawn["figs"]["boxes"], "u (px)")
     styles = ff.object_styles(m)
-    maps = [c for c in ax.collections if isinstance(c, LineCollection) and c.get_alpha() is None]
+    maps = [c for c in ax.collections if isinstance(c, LineCollection) and c.get_gid() == "map box"]
     assert len(maps) == m
     used = {(tuple(np.round(c.get_color()[0][:3], 3)), str(c.get_linestyle()[0])) for c in maps}
     assert len(used) == m  # no two objects look alike
@@ -146,7 +153,7 @@ def test_every_object_is_drawn_in_its_own_style(drawn):
 
 def test_posterior_boxes_are_visible(drawn):
     ax = _main_axes(drawn["figs"]["boxes"], "u (px)")
-    spread = [c for c in ax.collections if isinstance(c, LineCollection) and c.get_alpha() is not None]
+    spread = [c for c in ax.collections if isinstance(c, LineCollection) and c.get_gid() == "draw boxes"]
     assert len(spread) == drawn["m"]
     for c in spread:
         assert c.get_alpha() >= 0.25 and c.get_linewidth()[0] >= 0.8
@@ -206,11 +213,13 @@ def test_a_figure_can_be_drawn_on_given_axes():
     from matplotlib.figure import Figure
 
     scene = simulate_frame(3, n_objects=4)
-    frame = parse_frame(scene)
+    frame = parse_scene(scene)
     cam, objs = _truth_state(scene)
     fig = Figure(figsize=(8, 4))
     ax = fig.add_subplot()
-    assert ff.plot_frame_boxes(frame, cam, objs, None, ax=ax) is fig
+    assert ff.plot_boxes(frame, cam, objs, None, ax=ax) is fig
     assert [t.get_text() for t in _labels(ax)] == ff.object_labels(frame)
     other = Figure()
-    assert ff.plot_frame_top_view(frame, cam, objs, _draws(cam, objs), fig=other) is other
+    assert ff.plot_top_view(frame, cam, objs, _draws(cam, objs), fig=other) is other
+    given = Figure()
+    assert ff.plot_pairs(ff.posterior_columns(frame, None, cam, objs, _draws(cam, objs)), fig=given) is given
