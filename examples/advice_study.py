@@ -515,7 +515,7 @@ def run_timing(args) -> None:
             d = est["result"].to_dict()
             d["draws"] = {**d["draws"], **_thinned(d["draws"], 400)}
             t0 = time.process_time()
-            b = advise_result(d, scene, seed=[args.seed, k, 12])
+            advise_result(d, scene, seed=[args.seed, k, 12])
             _append(path, {"scene": name, "setting": pool.ground_truth["setting"], "n_objects": len(scene.targets),
                            "n_candidates": len(a.predictions), "scene_s": t_scene,
                            "result_s": time.process_time() - t0, "action": a.action})

@@ -3,7 +3,7 @@ the focal-length prior (scene, EXIF, default), the pose prior, and the sampling 
 
 import json
 import warnings
-from dataclasses import replace
+
 
 import numpy as np
 import pytest

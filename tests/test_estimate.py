@@ -1,6 +1,7 @@
 """The one path (pipeline.py): any scene, in either file format, from the scene to its result."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -127,3 +128,27 @@ def test_bad_options_are_refused_by_name():
         cb.estimate(d, sampling={"min_es": 3})
     with pytest.raises(ValueError, match="paper model .* does not read stated confidences"):
         cb.estimate(d, model="paper", confidence_map="identity")
+
+
+def test_a_version_1_result_converts_with_its_diagnostics_batch_block_and_camera():
+    """A creference-result/1 file (as batches wrote them) reads as this format: its sampler's
+    verdict and its batch block carried over; pitch and roll, which older files left out with a
+    horizon, follow from the horizon and the focal length."""
+
+    from creference_bayes.core.geometry import horizon_from_rotation, rotation_from_pitch_roll
+    from creference_bayes.io.result import result_from_v1
+
+    root = Path(__file__).parent / "data" / "batch_v1"
+    d = json.loads((root / "results" / "s0.json").read_text())
+    scene = cb.load_scene(root / "scenes" / "s0.json")
+    r = result_from_v1(d, scene)
+    assert r["diagnostics"]["converged"] is d["diagnostics"]["converged"]
+    assert r["diagnostics"]["r_hat"] == d["diagnostics"]["r_hat"]
+    assert r["batch"] == d["batch"]
+    assert r["objects"][0]["handedness"] == d["handedness"]
+    pitch, roll, f = np.radians(4.0), np.radians(-2.0), d["map"]["focal_length_px"]
+    horizon = horizon_from_rotation(rotation_from_pitch_roll(pitch, roll), f, scene.principal_point, scene.image_width)
+    scene = cb.parse_scene({**json.loads((root / "scenes" / "s0.json").read_text()), "horizon": horizon.tolist()})
+    del d["map"]["pitch"], d["map"]["roll"]
+    cam = result_from_v1(d, scene)["camera"]["map"]
+    assert (cam["pitch"], cam["roll"]) == pytest.approx((pitch, roll), abs=1e-9)

@@ -31,7 +31,7 @@ TINY = {
                              ["dp/labels/report.md"])],
     "estimate_scene.py": [([], [])],
     "frame_advice_check.py": [(["--seeds", "1", "--annotations", "2", "--pairs", "1"], [])],
-    "frame_speed.py": [(["--counts", "3", "--frames", "1", "--max-steps", "400"], [])],
+    "speed_by_objects.py": [(["--counts", "3", "--scenes", "1", "--max-steps", "400"], [])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],

@@ -338,7 +338,6 @@ def test_the_paper_model_reads_the_pairs_as_bounds_on_each_object():
     """Every pair of references is assessed for the target; the used pairs' bounds enter the paper
     model's cost (a pose far outside them pays for it), and the result counts used and skipped pairs."""
     import creference_bayes as cb
-    from creference_bayes.io.scene import scene_to_dict
     from creference_bayes.pipeline import build_model
 
     scene = make_scene(target=(-1.3, 7.5, 2.0))

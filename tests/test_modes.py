@@ -1,7 +1,6 @@
 """Posteriors with several modes: found before sampling, sampled by every seed alike, and a
 sampler that cannot move between them is reported unconverged (issue 19, "converged must mean it")."""
 
-import copy
 from pathlib import Path
 
 import numpy as np

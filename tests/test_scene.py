@@ -188,6 +188,21 @@ def test_edit_distance_known_answers(a, b, distance):
     assert _edit_distance(b, a) == distance
 
 
+@pytest.mark.parametrize("key, value", [("focal_length_px", -1.0), ("camera_height_m", 0.0), ("pitch_rad", "up")])
+def test_the_cameras_truth_is_checked_in_both_formats(key, value):
+    """A version-2 file's camera truth is held to what version 1 asks of the same keys."""
+    from creference_bayes.io.scene import scene_to_dict
+
+    v2 = scene_to_dict(_parse(_example()))
+    v2["ground_truth"] = {**(v2.get("ground_truth") or {}), key: value}
+    with pytest.raises(SceneError, match=f"ground_truth.{key}"):
+        parse_scene(v2)
+    v1 = _example()
+    v1["ground_truth"][key] = value
+    with pytest.raises(SceneError, match=f"ground_truth.{key}"):
+        parse_scene(v1)
+
+
 def test_ground_truth_may_carry_extra_keys():
     d = _example()
     d["ground_truth"]["notes"] = "measured with a tape"

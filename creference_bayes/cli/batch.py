@@ -100,7 +100,7 @@ def register(subparsers) -> None:
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
                    help="likelihood model (default: %(default)s)")
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
-                   help="size priors of your own classes (docs/frames.md); a scene's own win")
+                   help="size priors of your own classes (docs/overview.md, Class size priors); a scene's own win")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")

@@ -20,6 +20,10 @@ __all__ = ["register", "format_tables", "load_classes", "confidence_map_option",
            "add_camera_options", "check_posterior_values"]
 
 
+def _num(v, spec: str) -> str:
+    return "n/a" if v is None else format(v, spec)
+
+
 def load_classes(path):
     """The size priors of ``--classes FILE`` (None without it), read and checked before any work."""
     if path is None:
@@ -93,7 +97,7 @@ def format_tables(d: dict) -> str:
         lines.append("")
         lines.append(f"posterior: {'converged' if diag['converged'] else 'NOT converged (see the notes below)'} after "
                      f"{diag['iterations']} iterations × {diag['n_chains']} chains (min bulk ESS "
-                     f"{diag['min_ess_bulk']}, max R-hat {diag['max_r_hat']}), {d['seconds']:.1f} s")
+                     f"{_num(diag['min_ess_bulk'], '.0f')}, max R-hat {_num(diag['max_r_hat'], '.3f')}), {d['seconds']:.1f} s")
     refs = _references_line(d.get("references") or {})
     if refs:
         lines.append(refs)
@@ -300,7 +304,7 @@ def register(subparsers) -> None:
                         "docs/scene_format.md)")
     _add_estimate_options(p)
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
-                   help="size priors of your own classes (docs/frames.md); the scene's own win")
+                   help="size priors of your own classes (docs/overview.md, Class size priors); the scene's own win")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",

@@ -70,7 +70,7 @@ def _common(p) -> None:
                         "[,focal_length_px][,image] (a row with an image applies to that image only)")
     p.add_argument("--frames", action="store_true", help=argparse.SUPPRESS)  # deprecated: what every import does
     p.add_argument("--classes", metavar="CLASSES.json",
-                   help="size priors of your own classes (docs/frames.md) for targets without a size, "
+                   help="size priors of your own classes (docs/overview.md, Class size priors) for targets without a size, "
                         "written into the scenes whose targets use them")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 

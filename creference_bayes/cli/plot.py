@@ -18,7 +18,7 @@ from pathlib import Path
 
 from .main import UsageError
 
-__all__ = ["register", "find_scene", "check_result", "scene_mismatch"]
+__all__ = ["register", "find_scene", "check_result"]
 
 
 def register(subparsers) -> None:
@@ -48,53 +48,15 @@ def register(subparsers) -> None:
 
 
 def find_scene(result: dict, result_path: Path, explicit: str | None):
-    """The scene a result (either format) was estimated from: ``explicit`` (``--scene``), else the
-    first of :func:`~creference_bayes.io.result.scene_candidates` that exists; checked against the
-    result (:func:`scene_mismatch`, a one-line error)."""
-    from ..io.result import scene_candidates
-    from ..io.scene import load_scene
+    """The scene a result (either format) was estimated from (:func:`creference_bayes.io.result.find_scene`),
+    its failures as one-line usage errors."""
+    from ..io.result import find_scene as _find
 
-    if explicit:
-        return _checked(result, load_scene(explicit), f"--scene {explicit}")
-    name = result.get("scene")
-    if not name and not result.get("batch"):
-        raise UsageError(f"{result_path}: the result names no scene; pass --scene")
-    for c in scene_candidates(result, result_path):
-        if c.is_file():
-            return _checked(result, load_scene(c), f"scene {str(c)!r} (found by the result's scene name; pass --scene)")
-    raise UsageError(f"scene: {name!r} not found next to the result, in the current directory or among the "
-                     "shipped scenes; pass --scene")
-
-
-def scene_mismatch(result: dict, scene) -> str | None:
-    """What differs between the scene a result records and ``scene``, or None: the target ids, the
-    image size, and the content's hash (``scene_id.sha256``, a ``creference-result/2``'s only: a
-    ``creference-result/1`` hashed its scene another way)."""
-    from ..io.scene import scene_fingerprint
-
-    v1 = result.get("format") == "creference-result/1"
-    recorded = result.get("scene_id") if isinstance(result.get("scene_id"), dict) else {}
-    ids = [result.get("target")] if v1 else [o.get("id") for o in result.get("objects", [])]
-    mine = [t.id for t in scene.targets]
-    size = result.get("image_size") or recorded.get("image_size")
-    diffs = []
-    if ids != mine:
-        say = lambda v: (repr(v[0]) if len(v) == 1 else f"{v[:5]}{'…' if len(v) > 5 else ''}")
-        diffs.append(f"target{'s' if len(mine) > 1 else ''} {say(mine)}, the result's "
-                     f"{'are' if len(ids) > 1 else 'is'} {say(ids)}")
-    if size is not None and list(size) != [scene.image_width, scene.image_height]:
-        diffs.append(f"image {scene.image_width}x{scene.image_height} px, the result's is {size[0]}x{size[1]}")
-    if not diffs and not v1 and "sha256" in recorded and recorded["sha256"] != scene_fingerprint(scene):
-        diffs.append(f"same targets and image size but different content: sha256 {scene_fingerprint(scene)[:12]}…, "
-                     f"the result's is {str(recorded['sha256'])[:12]}…; edited since the estimate?")
-    return "; ".join(diffs) or None
-
-
-def _checked(result: dict, scene, where: str):
-    why = scene_mismatch(result, scene)
-    if why:
-        raise UsageError(f"{where}: not the scene this result was estimated from ({why})")
-    if result.get("format") == "creference-result/1":
+    try:
+        scene = _find(result, result_path, explicit)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if result.get("format") == "creference-result/1" and "batch" not in result:
         print("warning: a creference-result/1 (written by an older version): only its target id and image size "
               "were checked against the scene", file=sys.stderr)
     return scene

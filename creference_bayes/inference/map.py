@@ -636,7 +636,7 @@ def _default(model: Model, temperature: float, n_refine: int):
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     # the best starts, and the best of every other handedness (one object: refine both)
     firsts = {}
-    for k, c in enumerate(candidates):
+    for k, c in enumerate(candidates if model.n_objects == 1 else ()):  # several: flips decide (_flips)
         firsts.setdefault(tuple(c[4]), k)
     chosen = sorted(set(range(min(n_refine, len(candidates)))) | set(firsts.values()))
     best = None

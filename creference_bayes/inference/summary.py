@@ -1,6 +1,8 @@
 """The arviz adapter: the posterior of any scene as an ``arviz.InferenceData``, its diagnostics.
 
-Layout of :func:`to_inference_data` (``chain`` is the sampler's walker, each an independent chain):
+Layout of :func:`to_inference_data`. ``chain`` is what the sampler ran independently: one of its
+ensembles for a scene of one object (each ensemble's walkers' draws, laid end to end), one walker
+for a scene of several (block sweeps):
 
 * ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
   ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,

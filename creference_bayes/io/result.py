@@ -12,6 +12,7 @@ its scene. ``creference-result/1`` files (one target, written before) are still 
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,8 @@ from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT
 from .files import read_text
 
 __all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
-           "stored_draws", "load_result", "result_from_v1", "scene_candidates"]
+           "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_mismatch", "find_scene",
+           "canonical_sha256", "map_checks"]
 
 RESULT_FORMAT = "creference-result/2"
 #: The result formats this package reads.
@@ -302,10 +304,17 @@ def result_from_v1(d: dict, scene) -> dict:
     t = scene.targets[0]
     size = t.dimensions
     m = d["map"]
-    pitch, roll = m.get("pitch", 0.0), m.get("roll", 0.0)
+    pitch, roll = m.get("pitch"), m.get("roll")
+    if (pitch is None or roll is None) and scene.horizon is not None:  # older files: from the horizon
+        from ..core.geometry import horizon_line, pitch_roll_from_horizon
+
+        pitch, roll = (float(v) for v in pitch_roll_from_horizon(horizon_line(scene.horizon), m["focal_length_px"],
+                                                                 scene.principal_point))
+    pitch, roll = pitch or 0.0, roll or 0.0
     camera = {"map": {"focal_length_px": m["focal_length_px"], "pitch": pitch, "roll": roll, "height_m": m["y"],
                       "ref_scale": 0.5}, "free": [], "setup": (d.get("extra") or {}).get("camera") or {}}
-    obj = {"id": t.id, "class": t.cls, "handedness": int((d.get("posterior") or {}).get("handedness", 1)),
+    hand = d.get("handedness", (d.get("posterior") or {}).get("handedness", 1))
+    obj = {"id": t.id, "class": t.cls, "handedness": int(hand),
            "size": "known", "n_annotations": len(t.dimension_lines),
            "map": {"x": m["x"], "y": m["y"], "z": m["z"], "yaw": m["yaw"], "length_m": size[0], "width_m": size[1],
                    "height_m": size[2], "ground_m": 0.0, "distance_m": float(np.hypot(m["x"], m["z"]))}}
@@ -341,6 +350,14 @@ def result_from_v1(d: dict, scene) -> dict:
                                          "width_m": size[1], "height_m": size[2], "ground_m": 0.0}]}
     if d.get("evaluation"):
         obj["evaluation"] = dict(d["evaluation"])
+    diag = d.get("diagnostics")
+    if isinstance(diag, dict):
+        out["diagnostics"] = {"sampler": "emcee", "n_chains": diag.get("n_ensembles"), "warmup": diag.get("warmup_steps"),
+                              "iterations": diag.get("n_steps"), "thin": diag.get("thin"),
+                              "ess_bulk": diag.get("ess_bulk"), "r_hat": diag.get("r_hat"),
+                              "converged": diag.get("converged"), "warnings": list(diag.get("warnings") or [])}
+    if isinstance(d.get("batch"), dict):
+        out["batch"] = dict(d["batch"])
     return out
 
 
@@ -363,3 +380,78 @@ def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
                 Path(str(resources.files("creference_bayes") / "data" / name))]
     me = result_path.resolve()
     return [p for p in out if p.resolve() != me]
+
+
+def canonical_sha256(data) -> str:
+    """SHA-256 (hex) of decoded JSON in its canonical form (sorted keys, no spaces): a batch
+    folder's scene copy is written so, and its result records this, whichever version wrote them."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str | None:
+    """What differs between the scene a result (either format) records and ``scene``, or None: the
+    target ids, the image size, and the content's hash (``scene_id.sha256``: the scene's
+    fingerprint, or ``file_sha256``, the canonical hash of the scene file as read, which a batch
+    copy of either version matches). A ``creference-result/1`` not from a batch hashed its scene
+    another way: its hash is not compared."""
+    from .scene import scene_fingerprint
+
+    v1 = result.get("format") == "creference-result/1"
+    recorded = result.get("scene_id") if isinstance(result.get("scene_id"), dict) else {}
+    ids = [result.get("target")] if v1 else [o.get("id") for o in result.get("objects", [])]
+    mine = [t.id for t in scene.targets]
+    size = result.get("image_size") or recorded.get("image_size")
+    diffs = []
+    if ids != mine:
+        say = lambda v: (repr(v[0]) if len(v) == 1 else f"{v[:5]}{'…' if len(v) > 5 else ''}")
+        diffs.append(f"target{'s' if len(mine) > 1 else ''} {say(mine)}, the result's "
+                     f"{'are' if len(ids) > 1 else 'is'} {say(ids)}")
+    if size is not None and list(size) != [scene.image_width, scene.image_height]:
+        diffs.append(f"image {scene.image_width}x{scene.image_height} px, the result's is {size[0]}x{size[1]}")
+    want = recorded.get("sha256")
+    if not diffs and want is not None and want not in (scene_fingerprint(scene), file_sha256) \
+            and not (v1 and "batch" not in result):
+        diffs.append(f"same targets and image size but different content: sha256 {scene_fingerprint(scene)[:12]}…, "
+                     f"the result's is {str(want)[:12]}…; edited since the estimate?")
+    return "; ".join(diffs) or None
+
+
+def find_scene(result: dict, result_path: str | Path, explicit: str | Path | None = None):
+    """The scene a result (either format) was estimated from: ``explicit``, else the first of
+    :func:`scene_candidates` that exists, checked with :func:`scene_mismatch`.
+
+    Raises
+    ------
+    FileNotFoundError : no candidate exists (the message says where it looked)
+    ValueError : the scene found is not the result's (the message says what differs)
+    """
+    import warnings
+
+    from .scene import SceneWarning, load_scene
+
+    result_path = Path(result_path)
+    if explicit is not None:
+        paths, how = [Path(explicit)], f"--scene {explicit}"
+        if not paths[0].is_file():
+            raise FileNotFoundError(2, "no such file", str(explicit))
+    else:
+        paths, how = scene_candidates(result, result_path), None
+    for path in paths:
+        if path.is_file():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(path)
+            try:
+                file_sha = canonical_sha256(json.loads(read_text(path)))
+            except ValueError:
+                file_sha = None
+            why = scene_mismatch(result, scene, file_sha)
+            if why:
+                where = how or f"scene {str(path)!r} (found by the result's scene name; pass --scene)"
+                raise ValueError(f"{where}: not the scene this result was estimated from ({why})")
+            return scene
+    if not result.get("scene") and not result.get("batch"):
+        raise FileNotFoundError(2, "the result names no scene: pass --scene", str(result_path))
+    raise FileNotFoundError(2, f"its scene {result.get('scene')!r} is not beside it, in the current folder or among "
+                               "the shipped scenes: pass --scene", str(result_path))

@@ -562,6 +562,9 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         targets = (Target(targets[0].id, None, targets[0].dimension_lines, targets[0].dimensions, target_truth),)
     elif gt is not None:
         gt = _free_form(_dict(gt, "ground_truth"), "ground_truth")
+        for key in _CAMERA_TRUTH:  # the camera's truth: numbers, positive but for the angles
+            if gt.get(key) is not None:
+                gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
     for message in sink:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return Scene(targets=targets, references=tuple(r for r, _ in parsed), reference_targets=tuple(o for _, o in parsed),

@@ -43,7 +43,7 @@ Geometry
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -70,7 +70,7 @@ MAX_PITCH = float(np.radians(80.0))
 MAX_ROLL = float(np.radians(45.0))
 #: Spread of an object's ground around the scene's plane, metres: on 51 KITTI frames, the bottoms
 #: of the labelled objects (4 or more a frame) scatter about a fitted plane with a standard
-#: deviation of 0.075 m (90th percentile 0.12 m, largest 0.23 m); see docs/frames.md.
+#: deviation of 0.075 m (90th percentile 0.12 m, largest 0.23 m); see docs/overview.md ("Uneven ground").
 DEFAULT_GROUND_SD_M = 0.08
 #: Tilt of the ground plane from level, radians: the same fits tilt by 1.1° (across) and 0.6°
 #: (along the road) in standard deviation from KITTI's level rectified camera.

@@ -63,7 +63,7 @@ from scipy.special import stdtr
 from ..core.geometry import rotation_from_pitch_roll
 from ..core.metrology import GroundFrame
 from .confidence_map import ConfidenceMap
-from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE, O_X, O_Z, Model
+from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_X, O_Z, Model
 
 __all__ = ["TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_DOF", "REF_LINE_FACTOR",
            "LINE_READINGS", "MIN_RAY_DOWN", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "ReferenceTerm",
@@ -476,8 +476,7 @@ class MetrologyModel(Model):
     def terms(self, cams: np.ndarray, objs: np.ndarray, temperature: float = 1.0):
         """:meth:`~.contract.Model.terms`, the references' likelihood computed once for all three."""
         per, depth = self._annotation_terms(cams, objs)
-        n, m = len(cams), self.n_objects
-        cam, obj, pair = self.horizon_nll(cams), per.sum(axis=-1) + self.behind(depth), np.zeros((n, 0))
+        cam, obj, pair = self.horizon_nll(cams), per.sum(axis=-1) + self.behind(depth), np.zeros((len(cams), 0))
         if len(self.references):
             nll = self.reference_nll_matrix(cams, objs)
             owned = (self.ref_owner >= 0) & ~self._distance

@@ -4,16 +4,11 @@ scene: its kept draws, else the Laplace approximation at its MAP), and the advic
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ...io.files import read_text
-from ...io.result import RESULT_DRAWS, RESULT_FORMAT, result_from_v1, scene_candidates
-from ...io.scene import SceneWarning, load_scene, scene_fingerprint
+from ...io.result import RESULT_DRAWS, RESULT_FORMAT, find_scene, result_from_v1
 from . import Advice, AdviceSettings, advise
 
 __all__ = ["ADVICE_MODEL", "advise_scene", "advise_result", "scene_for_result", "advice_table"]
@@ -73,34 +68,9 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
 
 
 def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Path | None = None):
-    """The scene a result was made from: ``scene_path``, else the batch folder's copy
-    (``batch.scene_copy``), else the file named by ``scene`` next to the result, in the current
-    folder or among the package's shipped scenes; its fingerprint must be the one the result
-    records."""
-    result_path = Path(result_path)
-    for path in [Path(scene_path)] if scene_path is not None else scene_candidates(result, result_path):
-        if path.is_file():
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(path)
-            want = (result.get("scene_id") or {}).get("sha256")
-            if want is not None and want not in (scene_fingerprint(scene), _canonical_sha256(path)):
-                raise ValueError(f"{path}: not the scene of the result (its fingerprint differs: the "
-                                 "scene changed since the estimate; estimate it again)")
-            return _with_batch_image(scene, result)
-    if scene_path is not None:
-        raise FileNotFoundError(2, "no such file", str(scene_path))
-    where = (f"the result's scene {result['scene']!r} is not beside it, in the current folder or "
-             "among the shipped scenes" if result.get("scene") else "the result names no scene")
-    raise FileNotFoundError(2, f"{where}: give it with --scene", str(result_path))
-
-
-def _canonical_sha256(path: Path) -> str:
-    """SHA-256 of a scene file's canonical JSON: a batch folder's copy is written in its canonical
-    form, so this is the fingerprint its result records, whichever version of the package wrote
-    them (a ``creference-scene/1`` copy of a ``creference-result/1``)."""
-    text = json.dumps(json.loads(read_text(path)), sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    """The scene a result was made from (:func:`~creference_bayes.io.result.find_scene`: ``scene_path``,
+    else the batch folder's copy, else the file the result names), its image resolved for a batch copy."""
+    return _with_batch_image(find_scene(result, result_path, scene_path), result)
 
 
 def _with_batch_image(scene, result: dict):

@@ -16,14 +16,13 @@ scene changed: rerun the batch).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 
 from ...io.files import read_text
-from ...io.result import RESULT_FORMAT, RESULT_FORMATS, result_from_v1
+from ...io.result import RESULT_FORMAT, RESULT_FORMATS, canonical_sha256, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
 from .kitti import LabelInput, ObjectLabel, write_labels
 from .quality import IOU_THRESHOLDS
@@ -40,13 +39,6 @@ def _image_group(key: str, result: dict, copy: dict) -> tuple[str, str]:
         return f"scene:{key}", source.stem
     path = PurePath(image) if PurePath(image).is_absolute() else source.parent / image
     return f"image:{Path(path).resolve(strict=False)}", PurePath(image).stem
-
-
-def _fingerprint(copy: dict) -> str:
-    """SHA-256 of a scene copy's canonical JSON: the copy is written in its canonical form, so this
-    is the fingerprint its result records, whichever version of the package wrote them."""
-    text = json.dumps(copy, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
@@ -74,13 +66,12 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = load_scene(copy_path)
-            if _fingerprint(copy) != (result.get("scene_id") or {}).get("sha256"):
+            if canonical_sha256(copy) != (result.get("scene_id") or {}).get("sha256"):
                 skipped.append({"key": key, "reason": "its scene copy is not the scene of the result "
                                                       "(rerun creference batch)"})
                 continue
             if result["format"] != RESULT_FORMAT:
-                result = {**result_from_v1(result, scene), "batch": result["batch"],
-                          "diagnostics": result.get("diagnostics")}
+                result = result_from_v1(result, scene)
         except (OSError, ValueError, KeyError, TypeError, SceneError) as exc:
             skipped.append({"key": key, "reason": f"cannot be read: {' '.join(str(exc).split())}"})
             continue
