@@ -286,7 +286,15 @@ def _predict_case(seed: int, k: int, tiers: list[str], n_objects: int, setting: 
                                          [_second_worker(pool, j, np.random.default_rng([seed, k, 4]))])}
 
 
-def _own_case(seed: int, k: int, sets: tuple[int, ...]):
+OWN_SETS = (1, 2, 3, 5)
+
+
+def _own_setting(sets) -> str:
+    """The records' ``setting`` of an own-model run: "own", or which starting sets it drew from."""
+    return "own" if tuple(sets) == OWN_SETS else "own, sets " + ",".join(map(str, sets))
+
+
+def _own_case(seed: int, k: int, sets: tuple[int, ...] = OWN_SETS):
     """Scene k of the own-model check: the truth from the model's prior (within the box of
     simulation-based calibration), the annotations from its noise model (creference_bayes.bench.sbc),
     a starting point of one of ``sets`` sets and 0–4 references, and the annotations added: the
@@ -310,13 +318,12 @@ def _own_case(seed: int, k: int, sets: tuple[int, ...]):
         return _parse({**d, "targets": [{**d["targets"][0], "dimension_lines": lines[:n_lines]}],
                        "references": references})
 
-    return {"tier": "own", "setting": "own" if tuple(sets) == OWN_SETS else "own, sets " + ",".join(map(str, sets)),
+    return {"tier": "own", "setting": _own_setting(sets),
             "n_t": n_t, "n_r": n_r, "base": scene_of(n_t, refs[:n_r]), "new_is_range": False,
             "added": {"target": scene_of(n_t + 1, refs[:n_r]), "new-ref": scene_of(n_t, refs[:n_r + 1])},
             "repeat": lambda j: scene_of(n_t, refs[:n_r] + [repeat]) if j == 0 else None}
 
 
-OWN_SETS = (1, 2, 3, 5)
 
 
 def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
@@ -382,7 +389,13 @@ def run_own(args) -> None:
     from creference_bayes.bench.sbc import SBC_BOX
 
     _ESTIMATE_KW.update(bounds=SBC_BOX.bounds(), focal_prior="default", location_prior="log-depth")
-    run_predict(args, case_of=lambda seed, k: _own_case(seed, k, args.sets), file="own.jsonl")
+    sets, path = args.sets, Path(args.out) / "own.jsonl"
+    other = {json.loads(x).get("setting") for x in path.read_text().splitlines() if x.strip()} \
+        if path.is_file() else set()
+    if other - {_own_setting(sets)}:
+        sys.exit(f"advice_study.py: {path} holds records of {sorted(other)}, this run's --sets "
+                 f"{','.join(map(str, sets))} makes {_own_setting(sets)!r}: use another --out")
+    run_predict(args, case_of=lambda seed, k: _own_case(seed, k, sets), file="own.jsonl")
 
 
 # ------------------------------------------------------------------------------------------------

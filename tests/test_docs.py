@@ -54,18 +54,25 @@ def test_the_documentation_exists():
     assert {"README.md", "scene_format.md", "result_format.md", "method.md", "user_guide.md"} <= names
 
 
-@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
-def test_every_relative_link_resolves_inside_the_repository(doc):
+def _broken(doc: Path, root: Path = ROOT) -> list[str]:
+    """The relative links of ``doc`` that do not resolve: a file outside ``root`` or missing, or
+    an ``#anchor`` that no heading of the Markdown file it points to has."""
     bad = []
     for target in _links(doc):
         file, _, anchor = target.partition("#")
         dest = (doc.parent / file).resolve() if file else doc
-        if not dest.is_relative_to(ROOT):
+        if not dest.is_relative_to(root):
             bad.append(f"{target}: outside the repository")
         elif not dest.exists():
             bad.append(f"{target}: no such file")
         elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
             bad.append(f"{target}: no heading #{anchor} in {dest.name}")
+    return bad
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_resolves_inside_the_repository(doc):
+    bad = _broken(doc)
     assert not bad, f"{doc.relative_to(ROOT)}: " + "; ".join(bad)
 
 
@@ -76,6 +83,26 @@ def test_the_link_checker_catches_broken_links(tmp_path):
     (tmp_path / "pic.png").write_bytes(b"")
     assert list(_links(page)) == ["#title", "missing.md", "#nope", "pic.png"]
     assert _anchors(page) == {"title"}
+    assert _broken(page, tmp_path) == ["missing.md: no such file", "#nope: no heading #nope in page.md"]
+
+
+def test_the_link_checker_follows_anchors_into_other_pages(tmp_path):
+    """An anchor of another page is checked against that page's headings, by GitHub's slugs:
+    lower case, punctuation and backticks dropped, spaces to hyphens, repeats numbered; a heading
+    in a code block is none."""
+    root = tmp_path / "repo"
+    (root / "docs").mkdir(parents=True)
+    (root / "docs" / "other.md").write_text(
+        "# The JSON (`creference-advice/2`)\n## Speed, as measured\n## Speed, as measured\n"
+        "```\n# not a heading\n```\n")
+    page = root / "docs" / "page.md"
+    page.write_text("[a](other.md#the-json-creference-advice2) [b](other.md#speed-as-measured) "
+                    "[c](other.md#speed-as-measured-1) [d](other.md#not-a-heading) [e](other.md#gone) "
+                    "[f](../../outside.md) [g](../docs/other.md)\n")
+    (tmp_path / "outside.md").write_text("# Outside\n")
+    assert _broken(page, root) == ["other.md#not-a-heading: no heading #not-a-heading in other.md",
+                                       "other.md#gone: no heading #gone in other.md",
+                                       "../../outside.md: outside the repository"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -226,6 +253,22 @@ def test_every_key_of_a_result_is_documented(results):
 
 def test_the_key_collector_skips_only_named_blocks():
     assert _keys({"a": {"b": 1, "ess_bulk": {"t0.x": 1}}, "c": [{"d": 2}]}) == {"a", "b", "ess_bulk", "c", "d"}
+
+
+def test_every_key_of_an_advice_file_is_documented(tmp_path):
+    """docs/advice.md names every key of the creference-advice/2 file `creference advise --out`
+    writes (on the demo's result: posterior draws, one target)."""
+    from creference_bayes.cli.main import main
+
+    assert main(["demo", "--out", str(tmp_path / "result.json"), "--quiet", "--min-ess", "100"]) == 0
+    assert main(["advise", str(tmp_path / "result.json"), "--out", str(tmp_path / "advice.json"), "--quiet",
+                 "--draws", "100", "--futures", "20"]) == 0
+    advice = json.loads((tmp_path / "advice.json").read_text())
+    assert advice["format"] == "creference-advice/2" and advice["predictions"]
+    doc = (ROOT / "docs" / "advice.md").read_text()
+    documented = set(re.findall(r"`([A-Za-z_0-9.]+)`", doc))
+    missing = sorted(k for k in _keys(advice) if k not in documented)
+    assert not missing, f"keys of creference-advice/2 missing from docs/advice.md: {missing}"
 
 
 def test_the_task_fields_import_md_documents_are_the_ones_the_importer_reads():

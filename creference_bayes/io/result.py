@@ -412,7 +412,7 @@ def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str |
     want = recorded.get("sha256")
     if not diffs and want is not None and want not in (scene_fingerprint(scene), file_sha256) \
             and not (v1 and "batch" not in result):
-        diffs.append(f"same targets and image size but different content: sha256 {scene_fingerprint(scene)[:12]}…, "
+        diffs.append(f"same targets and image size but different content (its fingerprint differs): sha256 {scene_fingerprint(scene)[:12]}…, "
                      f"the result's is {str(want)[:12]}…; edited since the estimate?")
     return "; ".join(diffs) or None
 
@@ -452,6 +452,6 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
                 raise ValueError(f"{where}: not the scene this result was estimated from ({why})")
             return scene
     if not result.get("scene") and not result.get("batch"):
-        raise FileNotFoundError(2, "the result names no scene: pass --scene", str(result_path))
-    raise FileNotFoundError(2, f"its scene {result.get('scene')!r} is not beside it, in the current folder or among "
-                               "the shipped scenes: pass --scene", str(result_path))
+        raise FileNotFoundError(2, "the result names no scene: give it with --scene", str(result_path))
+    raise FileNotFoundError(2, f"the result's scene {result.get('scene')!r} is not beside it, in the current folder or among "
+                               "the shipped scenes: give it with --scene", str(result_path))
