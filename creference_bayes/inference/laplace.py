@@ -8,7 +8,7 @@ natural coordinates and the delta-method variance of any per-object quantity. ``
 uses its draws when a result has none; ``creference advise`` uses its variances, and
 how much one more observation changes them.
 
-By blocks (as :meth:`.map.Arrowhead.covariance_blocks`): the camera's marginal covariance
+By blocks: the camera's marginal covariance
 ``Sc`` (5, 5), each object's covariance given the camera ``Ao`` (m, 7, 7) and the shear ``B``
 (m, 7, 5), E[oᵢ | c] = oᵢ* + Bᵢ (c − c*). Fixed parameters have zero variance.
 """

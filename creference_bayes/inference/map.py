@@ -126,22 +126,6 @@ class Arrowhead:
         except np.linalg.LinAlgError:
             return None
 
-    def covariance_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The Laplace approximation by blocks: the camera's marginal covariance (5, 5), each
-        object's covariance given the camera (m, 7, 7), and the shear B (m, 7, 5) with
-        E[o | c] = o* + B (c − c*). With objects coupled by distance references, each object's
-        covariance is the one given the camera *and the other objects* (what a step of one object
-        sees), the camera's and the shear from the whole inverse."""
-        if len(self.pairs):
-            cov = np.linalg.inv(self.dense())
-            Sc = cov[:5, :5]
-            B = (cov[5:, :5] @ np.linalg.inv(Sc)).reshape(-1, 7, 5)
-            return Sc, np.linalg.inv(self.H_oo), B
-        A_inv = np.linalg.inv(self.H_oo)
-        B = -np.einsum("mij,mcj->mic", A_inv, self.H_co)
-        S = self.H_cc - np.einsum("mcj,mjd->cd", self.H_co, -B)
-        return np.linalg.inv(S), A_inv, B
-
 
 @dataclass(frozen=True)
 class MapState:
@@ -210,7 +194,9 @@ def initial_objects(model: Model, cam: np.ndarray, handedness: np.ndarray | None
         cam[C_HEIGHT] = float(np.clip(cam[C_HEIGHT], model.camera_lower[C_HEIGHT], model.camera_upper[C_HEIGHT]))
     objs = np.zeros((model.n_objects, 7))
     objs[:, 0], objs[:, 1], objs[:, 2] = t[:, 0], np.maximum(t[:, 2], 0.2), yaw
-    objs[:, :2] = np.clip(objs[:, :2], model.object_lower[:2], model.object_upper[:2])
+    lo, hi = model.object_lower[:2], model.object_upper[:2]
+    pad = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 0.0)  # inside, so that the working coordinates'
+    objs[:, :2] = np.clip(objs[:, :2], lo + pad, hi - pad)  # round trip and differences stay in the box
     objs[:, O_SIZE] = [o.initial_sizes for o in model.objects]
     if model.ground_sd_m > 0:
         with np.errstate(invalid="ignore"):
@@ -468,12 +454,12 @@ def _lbfgsb(model: Model, flat: FlatState, x0: np.ndarray, temperature: float, *
     lo[flat.circular], hi[flat.circular] = -np.inf, np.inf
     eps = 1e-6
 
-    def fun_grad(z):
-        n = len(z)
-        pts = np.vstack([z, z + eps * np.eye(n), z - eps * np.eye(n)]) * scale
-        f = model.map_objective(*flat.unpack(pts), temperature)
+    def fun_grad(z):  # central differences, one-sided on a bound (the box is the prior's support)
+        up, down = np.minimum(z + eps, hi), np.maximum(z - eps, lo)
+        pts = np.vstack([z, np.where(np.eye(len(z), dtype=bool), up, z), np.where(np.eye(len(z), dtype=bool), down, z)])
+        f = model.map_objective(*flat.unpack(pts * scale), temperature)
         f = np.where(np.isfinite(f), f, 1e300)
-        return f[0], (f[1:n + 1] - f[n + 1:]) / (2 * eps)
+        return f[0], (f[1:len(z) + 1] - f[len(z) + 1:]) / (up - down)
 
     res = minimize(fun_grad, np.clip(x0 / scale, lo, hi), jac=True, method="L-BFGS-B",
                    bounds=list(zip(lo, hi)), options={"ftol": ftol, "gtol": 1e-9, "maxiter": maxiter})

@@ -494,7 +494,3 @@ class MetrologyModel(Model):
                 else np.zeros((len(cams), 0)))
         return {"annotations": -self.annotation_nll(cams, objs), "references": refs,
                 "horizon": -self.horizon_nll(cams)}
-
-    def observed_corners(self) -> np.ndarray:
-        """(m, 4, 2) each object's per-corner median annotation, pixels (to start the optimiser)."""
-        return np.array([np.median(o.annotations, axis=0) for o in self.objects])

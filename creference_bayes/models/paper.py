@@ -78,10 +78,6 @@ class PaperModel(Model):
                 out[:, i] = soft_constraint_cost(xz, c)
         return out
 
-    @property
-    def n_pairs_used(self) -> list[int]:
-        return [0 if c is None else int(c.n_pairs) for c in self.constraints]
-
     def object_nll(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         eq5, behind = self._eq5(cams, objs)
         return eq5 + behind + self._bounds_terms(objs)
