@@ -83,15 +83,15 @@ class SamplerSettings:
     min_ess: float = 400.0
     max_rhat: float = 1.01
     max_steps: int = 20000
-    chunk: int = 100
+    chunk: int = 50
     tries: int = 4
     independence_weight: float | None = None
     n_chains: int = 8
     warmup: int = 600
     max_draws: int = 2000
     n_ensembles: int = 4
-    n_walkers: int = 32
-    stage: int = 100
+    n_walkers: int = 24
+    stage: int = 50
     max_warmup: int = 5000
     tau_multiple: float = 50.0
     tau_tolerance: float = 0.2
@@ -448,7 +448,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
         # main phase: frozen moves, in chunks until converged
         cams_d, objs_d, lp_d = [], [], []
         thin, it, ok, diag = 1, 0, False, None
-        chunk = 4 * s.chunk  # block sweeps: a check every 400 steps at the least
+        chunk = 8 * s.chunk  # block sweeps: a check every 400 steps at the least
         while it < s.max_steps:
             chunk = min(chunk, s.max_steps - it)
             for state in seg.run(state, chunk):
@@ -474,7 +474,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
                 need = max(need, s.min_ess / rate)
                 if diag["max_rhat"] > s.max_rhat:
                     need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
-            chunk = int(np.clip(1.2 * need - it, 4 * s.chunk, 2 * it))
+            chunk = int(np.clip(1.2 * need - it, 8 * s.chunk, 2 * it))
     acc = seg.kernel.accepted
     acceptance = {"camera": float(np.mean(acc["camera"])), "objects": float(np.mean(acc["objects"]))}
     warn = []
