@@ -40,7 +40,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import basinhopping, minimize
+from scipy.optimize import basinhopping, least_squares, minimize
 
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Bounds, Model
 from .coords import CAMERA_LOG, FD_STEPS, WorkingCoords
@@ -608,6 +608,43 @@ def _object_values(model: Model, coords: WorkingCoords, wc, wo, temperature: flo
     return np.where(np.isfinite(v), v, np.inf)
 
 
+def _corner_fits(model: Model, starts, temperature: float) -> list:
+    """For a model whose objective has kinks (the paper's): from each start (value, error, camera,
+    objects, handedness), a least-squares fit of the projected corners to each object's per-corner
+    median annotation (smooth; with exact lines it lands on the truth, where the kinks' V has its
+    tip), then L-BFGS-B on the objective. Returns (value, camera, objects, handedness) of each."""
+    obs = np.array([np.median(o.annotations, axis=0) for o in model.objects])  # (m, 4, 2)
+    out = []
+    for _, _, cam, objs, hand in starts:
+        model.handedness = hand.astype(float)
+        flat = FlatState(model, cam, objs)
+        x0 = flat.pack(cam[None], objs[None])[0]
+        scale = np.maximum(np.abs(x0), 0.1)
+
+        def resid(z):  # (n, d) → (n, r): corner residuals (px), a steep penalty behind the camera
+            uv, depth = model.project(*flat.unpack(np.atleast_2d(z) * scale))
+            n = len(uv)
+            return np.concatenate([(uv - obs).reshape(n, -1), 1e3 * np.minimum(depth - 1e-3, 0.0).reshape(n, -1)], 1)
+
+        def jac(z):  # central differences, every column in one call
+            r = resid(np.vstack([z + 1e-6 * np.eye(len(z)), z - 1e-6 * np.eye(len(z))]))
+            return ((r[:len(z)] - r[len(z):]) / 2e-6).T
+
+        with np.errstate(all="ignore"):
+            try:
+                z = least_squares(lambda z: resid(z)[0], x0 / scale, jac=jac, method="lm", max_nfev=200).x
+            except ValueError:
+                continue
+        if not np.all(np.isfinite(z)):
+            continue
+        x, _ = _lbfgsb(model, flat, z * scale, temperature, ftol=1e-13)
+        c, o = flat.unpack(x)
+        f = float(model.map_objective(c, o, temperature)[0])
+        if np.isfinite(f):
+            out.append((f, c[0], o[0], hand.copy()))
+    return out
+
+
 def _default(model: Model, temperature: float, n_refine: int):
     """The default preset (module docstring): (camera, objects, handedness, info)."""
     candidates = []
@@ -672,6 +709,12 @@ def _default(model: Model, temperature: float, n_refine: int):
         c2, o2 = flat.unpack(x)
         if model.map_objective(c2, o2, temperature)[0] < model.map_objective(cam[None], objs[None], temperature)[0]:
             cam, objs = c2[0], o2[0]
+    if not model.smooth:  # kinks: the best of this and the fits of the projected corners (below)
+        best_fit = (model.map_objective(cam[None], objs[None], temperature)[0], cam, objs, model.handedness.copy())
+        for fit in _corner_fits(model, [candidates[k] for k in chosen], temperature):
+            best_fit = min(best_fit, fit, key=lambda b: b[0])
+        _, cam, objs, hand = best_fit
+        model.handedness = np.asarray(hand, float)
     others = []
     for f_, wc_, wo_, hand_ in sorted(reached, key=lambda r: r[0]):
         if np.isfinite(f_) and not (np.allclose(wc_, wc) and np.allclose(wo_, wo)):
