@@ -116,7 +116,7 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     on = options.pop("on", "xz")
     lines = [r for r in refs if r.kind == "ground"]
     focal_range = None if bounds is None else (bounds.camera_lower[0], bounds.camera_upper[0])
-    reports = [aggregate_references(np.median(o.annotations, axis=0), lines, setup.aggregation_camera, on=on,
+    reports = [aggregate_references(o.corner_median, lines, setup.aggregation_camera, on=on,
                                     focal_range_px=focal_range) for o in objects]
     calibrated = preset == "default"
     options = {"sigma": CALIBRATED_SIGMA_PX if calibrated else options.get("sigma", 100.0), **options}

@@ -152,7 +152,7 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
 
     mu = cam[C_FOCAL]
     R = rotation_from_pitch_roll(cam[C_PITCH], cam[C_ROLL])
-    obs = np.array([np.median(o.annotations, axis=0) for o in model.objects]) - model.principal_point  # (m, 4, 2)
+    obs = np.array([o.corner_median for o in model.objects]) - model.principal_point  # (m, 4, 2)
     sizes = np.array([o.initial_sizes for o in model.objects])
     p = object_corners(sizes, np.full(len(sizes), handedness))  # (m, 4, 3)
     c, s = np.cos(_YAW_GRID), np.sin(_YAW_GRID)
@@ -613,7 +613,7 @@ def _corner_fits(model: Model, starts, temperature: float) -> list:
     objects, handedness), a least-squares fit of the projected corners to each object's per-corner
     median annotation (smooth; with exact lines it lands on the truth, where the kinks' V has its
     tip), then L-BFGS-B on the objective. Returns (value, camera, objects, handedness) of each."""
-    obs = np.array([np.median(o.annotations, axis=0) for o in model.objects])  # (m, 4, 2)
+    obs = np.array([o.corner_median for o in model.objects])  # (m, 4, 2)
     out = []
     for _, _, cam, objs, hand in starts:
         model.handedness = hand.astype(float)

@@ -130,6 +130,7 @@ class ObjectData:
     ----------
     id : the target's id
     annotations : (K, 4, 2) corners t1..t4 of its K annotations, pixels
+    corner_median : (4, 2) their per-corner median, pixels (set from ``annotations``)
     handedness : +1 or −1
     sizes : (3,) known length, width, height (m), or None when the size prior applies
     size_prior : the class's prior (used when ``sizes`` is None)
@@ -148,6 +149,7 @@ class ObjectData:
         if a.ndim != 3 or a.shape[1:] != (4, 2) or len(a) == 0:
             raise ValueError(f"target {self.id!r}: annotations must have shape (K, 4, 2), got {a.shape}")
         object.__setattr__(self, "annotations", a)
+        object.__setattr__(self, "corner_median", np.median(a, axis=0))  # (4, 2) per-corner median, px
         if self.sizes is None and self.size_prior is None:
             raise ValueError(f"target {self.id!r}: needs known sizes or a size prior")
 

@@ -55,7 +55,7 @@ class PaperModel(Model):
         self.constraints: tuple[SoftConstraints | None, ...] = tuple(constraints or (None,) * self.n_objects)
         if len(self.constraints) != self.n_objects:
             raise ValueError(f"constraints: one per object expected, got {len(self.constraints)} for {self.n_objects}")
-        self.observed = np.array([np.median(o.annotations, axis=0) for o in self.objects])  # (m, 4, 2)
+        self.observed = np.array([o.corner_median for o in self.objects])  # (m, 4, 2)
         self._norms = np.linalg.norm(self.observed, axis=-1)
 
     def _eq5(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
