@@ -1,28 +1,31 @@
-"""creference_bayes: 3D location of a target object from rough crowd annotations on one photo.
+"""creference_bayes: 3D locations of objects from rough crowd annotations on one photo.
 
-The C-Reference method (Song et al., CSCW 2020) as a Bayesian estimator: the paper's cost is a
-negative log-posterior over (x, y, z, yaw, focal length); its MAP seeds an emcee ensemble.
+The C-Reference method (Song et al., CSCW 2020) as a Bayesian estimator: the annotations'
+negative log-likelihood and the priors make a posterior over the camera and every annotated
+object; its MAP seeds an emcee run, and the result reports the estimate, credible regions and
+diagnostics. A scene is one photo with one or more targets (a one-target scene is a frame of one).
 
 Layout (each folder uses only the folders below it)::
 
     cli/         the ``creference`` command, one module per command group
-    workflows/   batch runs over a data set, advice on more annotations, confidence maps
+    workflows/   batch runs over a data set, labels, advice on more annotations, confidence maps
     bench/       simulator, benchmark, report, figures, peers (PoseLib), Cramér–Rao bound
-    pipeline.py  estimate(): one scene's target, from scene to Result (the wiring)
-    vision/      OpenCV horizon, matplotlib plots
-    inference/   optimiser presets, log-posterior, emcee adapter, arviz adapter
-    io/          scene and result files
-    models/      the paper model, the metrology model, their shared parameter space
+    pipeline.py  estimate(): a scene, from its file to its Result (the wiring)
+    evaluation/  KITTI's AP3D and the labels' reliability
+    vision/      OpenCV horizon, matplotlib figures
+    inference/   MAP, the emcee adapter (driver and moves), the arviz adapter
+    io/          scene and result files, labels, Label Studio / CVAT import
+    models/      the model contract and its two models (metrology, the paper's), priors
     core/        units, geometry, ground-plane metrology, costs, metrics (NumPy/SciPy only)
 
 Quick start::
 
     import creference_bayes as cb
     result = cb.estimate("scene.json", seed=0)
-    print(result.to_dict()["map"])
+    print(result.to_dict()["objects"][0]["map"])
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 import os as _os
 
@@ -37,25 +40,23 @@ for _var in _THREAD_VARS:
 
 from .core.metrics import (location_percentage_error, percentage_error, range_percentage_error,
                            range_precision)
-from .io.result import MapEstimate, Result
+from .io.result import Result, load_result
 from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
 from .inference import threads as _threads
 from .pipeline import estimate
-from .frame_pipeline import estimate_frame
 
 _threads.USER_SET_THREADS = _USER_SET_THREADS
 
 __all__ = [
     "__version__",
     "estimate",
-    "estimate_frame",
     "load_scene",
     "parse_scene",
+    "load_result",
     "Scene",
     "SceneError",
     "SceneWarning",
     "Result",
-    "MapEstimate",
     "percentage_error",
     "range_percentage_error",
     "location_percentage_error",

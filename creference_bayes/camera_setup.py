@@ -66,10 +66,6 @@ class CameraSetup:
     horizon_estimate: object = None
     aggregation_camera: Camera | None = None
 
-    @property
-    def orientation_free(self) -> bool:
-        return self.orientation == "free"
-
     def to_dict(self) -> dict:
         return {"orientation": self.orientation, **self.terms.to_dict()}
 

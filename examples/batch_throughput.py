@@ -18,7 +18,7 @@ import shutil
 import time
 from pathlib import Path
 
-from creference_bayes.bench.runner import write_scenes
+from creference_bayes.bench.simulate import write_scenes
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
 
@@ -27,7 +27,7 @@ def _numbers(folder: Path) -> dict:
     out = {}
     for p in sorted((folder / "results").glob("*.json")):
         d = json.loads(p.read_text())
-        out[p.stem] = (d["map"], d.get("posterior", {}).get("mean"), d.get("posterior", {}).get("draws"))
+        out[p.stem] = (d["camera"], d["objects"], d.get("draws"))
     return out
 
 
@@ -40,7 +40,7 @@ def main() -> None:
     ap.add_argument("--engines", default="local1,local2,dask2",
                     help="which engines to time, comma-separated (default: %(default)s)")
     ap.add_argument("--min-ess", type=float, default=None,
-                    help="bulk ESS of each estimate (default: the package's, 1000; less for a quick check)")
+                    help="bulk ESS of each estimate (default: the package's, 400; less for a quick check)")
     args = ap.parse_args()
     engines = args.engines.split(",")
     if not engines or any(e not in ("local1", "local2", "dask2") for e in engines):
@@ -58,7 +58,7 @@ def main() -> None:
         t0 = time.perf_counter()
         report = run_batch([scenes], folder, engine, settings)
         seconds = time.perf_counter() - t0
-        n = len(report.keys("done"))
+        n = report.n_targets
         rows.append({"engine": label, "workers": 1 if label.startswith("local 1") else 2, "targets": n,
                      "failed": len(report.keys("failed")), "seconds": seconds,
                      "per_min": 60.0 * n / seconds, "startup_s": extra_s, "folder": folder})

@@ -3,12 +3,12 @@ of their documentation.
 
 Label Studio (its own virtual environment, ``pip install label-studio``): start a server bound to
 127.0.0.1 with its outward calls disabled; for each shipped config (keypoints, vectors) create a
-project (the server validates the config), import tasks made from simulated scenes, create one
-user per worker, post the annotations through the API — those our exporter writes, and one task
-whose results Label Studio's own SDK builds (``label_studio_sdk.label_interface``, without
-``original_width``/``original_height``, as a client may post them) — validate every result with
-the SDK against the config, export through the API, run ``creference import label-studio`` on that
-export and compare with the simulated scenes. The server is stopped by its process id at the end.
+project (the server validates the config), import tasks made from simulated scenes of several
+targets, create one user per worker, post the annotations through the API — those our exporter
+writes, and one task whose results Label Studio's own SDK builds (``label_studio_sdk.label_interface``,
+without ``original_width``/``original_height``, as a client may post them) — validate every result
+with the SDK against the config, export through the API, run ``creference import label-studio`` on
+that export and compare with the simulated scenes. The server is stopped by its process id at the end.
 
 Datumaro (its own virtual environment, ``pip install datumaro``; CVAT's own format library):
 (1) Datumaro builds a dataset from the simulated scenes' shapes and writes it as CVAT for images
@@ -42,22 +42,23 @@ import numpy as np
 from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.io.cvat import cvat_xml
 from creference_bayes.io.labelstudio import label_studio_config, label_studio_task
-from creference_bayes.io.scene import scene_differences
+from creference_bayes.io.scene import parse_scene, scene_differences, scene_to_dict
 
 # ----------------------------------------------------------------------------------------------
 # scenes and comparison
 
 
 def make_scenes(n: int, seed: int) -> list[dict]:
-    """``n`` simulated scenes with distinct target ids (every reference format appears)."""
+    """``n`` simulated scenes of one to three targets (every reference format appears), as
+    ``creference-scene/2`` dicts; the k-th is photo ``img{k}``."""
     rng = np.random.default_rng(seed)
-    scenes = [simulate_scene(rng, tier="high", n_references=5, n_target_annotations=3,
-                             target_id=f"target{k}", format_offset=5 * k) for k in range(n)]
+    scenes = [simulate_scene(rng, tier="high", n_objects=1 + k % 3, n_references=5, n_target_annotations=3,
+                             format_offset=5 * k) for k in range(n)]
     for s in scenes:  # a stated confidence on some references, as workers may give one
         for j, r in enumerate(s["references"]):
             if j % 2 == 0:
                 r["confidence"] = 0.8
-    return scenes
+    return [scene_to_dict(parse_scene(s)) for s in scenes]
 
 
 def run_import(tool: str, export: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -67,12 +68,12 @@ def run_import(tool: str, export: Path, out: Path, *extra: str) -> subprocess.Co
 
 
 def compare_dir(out: Path, scenes: list[dict], atol: float, drop=()) -> dict:
-    found = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.json"))}
+    """Differences between each scene and the file ``img{k}.json`` imported for it."""
     result = {}
-    for s in scenes:
-        tid = s["target"]["id"]
-        got = next((d for d in found.values() if d["target"]["id"] == tid), None)
-        result[tid] = ["not imported"] if got is None else scene_differences(got, s, atol, drop)
+    for k, s in enumerate(scenes):
+        path = out / f"img{k}.json"
+        result[path.stem] = (["not imported"] if not path.exists()
+                             else scene_differences(json.loads(path.read_text()), s, atol, drop))
     return result
 
 
@@ -84,16 +85,28 @@ import json, sys
 from label_studio_sdk.label_interface import LabelInterface
 job = json.load(sys.stdin)
 li = LabelInterface(job["config"])
-points = li.get_control("points")
+
+def field(name, kind, value, region):
+    r = li.get_control(name).label(**{kind: value})
+    r.id = region.id
+    return r._dict()
+
 out = []
 for ann in job["annotations"]:
     res = []
-    for label, (x, y) in zip(job["target_labels"], ann["corners"]):
-        res.append(points.label(label=label, x=x, y=y)._dict())
+    for t in ann["targets"]:
+        if job["lines"] == "keypoints":
+            for label, (x, y) in zip(job["target_labels"], t["corners"]):
+                p = li.get_control("points").label(label=label, x=x, y=y)
+                res += [p._dict(), field("target", "text", [t["id"]], p)]
+        else:
+            v = li.get_control("targets").label(label="target", closed=False,
+                                                vertices=[{"x": x, "y": y} for x, y in t["corners"]])
+            res += [v._dict(), field("target", "text", [t["id"]], v)]
     for ref in ann["references"]:
         if job["lines"] == "keypoints":
-            a = points.label(label="reference start", x=ref["a"][0], y=ref["a"][1])
-            b = points.label(label="reference end", x=ref["b"][0], y=ref["b"][1])
+            a = li.get_control("points").label(label="reference start", x=ref["a"][0], y=ref["a"][1])
+            b = li.get_control("points").label(label="reference end", x=ref["b"][0], y=ref["b"][1])
             a.add_relation(b)
             res += [a._dict(), b._dict()] + a._dict_relations()
         else:
@@ -101,10 +114,7 @@ for ann in job["annotations"]:
                                               vertices=[{"x": ref["a"][0], "y": ref["a"][1]},
                                                         {"x": ref["b"][0], "y": ref["b"][1]}])
             res.append(a._dict())
-        for name, kind, value in ref["fields"]:
-            r = li.get_control(name).label(**{kind: value})
-            r.id = a.id
-            res.append(r._dict())
+        res += [field(name, kind, value, a) for name, kind, value in ref["fields"]]
     out.append(res)
 json.dump(out, sys.stdout)
 '''
@@ -198,14 +208,14 @@ def _percent(p, w, h):
 
 
 def _sdk_job(scene: dict, lines: str) -> dict:
-    """The scene's annotations described for the SDK script: one annotation per item (a set of
-    dimension lines or a reference), each with its worker and seconds."""
+    """The scene's annotations described for the SDK script: one annotation per item (a target's
+    set of dimension lines or a reference), each with its worker and seconds."""
     from creference_bayes.io.labelstudio_results import TARGET_LABELS
 
     w, h = scene["image"]["width"], scene["image"]["height"]
-    anns = [{"corners": [_percent(p, w, h) for p in d["corners"]], "references": [],
+    anns = [{"targets": [{"id": t["id"], "corners": [_percent(p, w, h) for p in d["corners"]]}], "references": [],
              "worker": d.get("worker"), "seconds": d.get("seconds")}
-            for d in scene["target"]["dimension_lines"]]
+            for t in scene["targets"] for d in t["dimension_lines"]]
     for r in scene.get("references", []):
         fields = [("measure", "choices", [r["measure"]]), ("mode", "choices", [r["mode"]])]
         if "range" in r:
@@ -218,7 +228,9 @@ def _sdk_job(scene: dict, lines: str) -> dict:
             fields.append(("confidence_pct", "number", round(100 * r["confidence"], 10)))
         if r.get("object"):
             fields.append(("object", "text", [r["object"]]))
-        anns.append({"corners": [], "worker": r.get("worker"), "seconds": r.get("seconds"),
+        if r.get("target"):
+            fields.append(("target", "text", [r["target"]]))
+        anns.append({"targets": [], "worker": r.get("worker"), "seconds": r.get("seconds"),
                      "references": [{"a": _percent(r["line"][0], w, h), "b": _percent(r["line"][1], w, h),
                                      "fields": fields}]})
     return {"lines": lines, "target_labels": list(TARGET_LABELS), "annotations": anns}
@@ -260,7 +272,7 @@ def check_label_studio(venv: Path, workdir: Path, scenes: list[dict], port: int 
             st, imp = srv.call(f"/api/projects/{pid}/import", tasks_data, "POST")
             rep["import_status"] = st
             st, listed = srv.call(f"/api/projects/{pid}/tasks/?page_size=1000")
-            task_ids = {t["data"]["target_id"]: t["id"] for t in listed}
+            task_ids = {t["data"]["image"]: t["id"] for t in listed}
             posted, to_validate = [], []
             for k, (task, scene) in enumerate(zip(ours, scenes)):
                 if k == len(scenes) - 1:
@@ -277,7 +289,7 @@ def check_label_studio(venv: Path, workdir: Path, scenes: list[dict], port: int 
                     body = {"result": a["result"], "lead_time": a.get("lead_time")}
                     if name:
                         body["completed_by"] = known[name]
-                    st, r = srv.call(f"/api/tasks/{task_ids[task['data']['target_id']]}/annotations/", body, "POST")
+                    st, r = srv.call(f"/api/tasks/{task_ids[task['data']['image']]}/annotations/", body, "POST")
                     posted.append(st)
                     to_validate.append(a["result"])
             rep["annotations_posted"] = {str(s): posted.count(s) for s in sorted(set(posted))}
@@ -346,13 +358,15 @@ def _datumaro_job(scenes: list[dict], out: Path) -> dict:
 
     images = []
     for k, s in enumerate(scenes):
-        t = s["target"]
-        size = {f"{key}_m": str(v) for key, v in t["dimensions_m"].items()}
-        shapes = [{"label": "target", "kind": "points", "points": [c for p in d["corners"] for c in p],
-                   "attributes": {"target_id": t["id"], **size, "worker": d.get("worker", "")}}
-                  for d in t["dimension_lines"]]
+        shapes = []
+        for t in s["targets"]:
+            size = {f"{key}_m": str(v) for key, v in (t.get("dimensions_m") or {}).items()}
+            shapes += [{"label": "target", "kind": "points", "points": [c for p in d["corners"] for c in p],
+                        "attributes": {"target_id": t["id"], "class": t.get("class", ""), **size,
+                                       "worker": d.get("worker", "")}}
+                       for d in t["dimension_lines"]]
         for r in s.get("references", []):
-            attrs = {"target_id": t["id"], "object": r.get("object", ""), "measure": r["measure"],
+            attrs = {"target_id": r.get("target", ""), "object": r.get("object", ""), "measure": r["measure"],
                      "mode": r["mode"], "unit": r.get("unit", ""), "worker": r.get("worker", ""),
                      "value": str(r["value"]) if "value" in r else "",
                      "range_low": str(r["range"][0]) if "range" in r else "",
@@ -374,7 +388,7 @@ def check_datumaro(venv: Path, workdir: Path, scenes: list[dict]) -> dict:
     version = subprocess.run([_venv_python(venv), "-c", "import datumaro; print(datumaro.__version__)"],
                              capture_output=True, text=True).stdout.strip()
     report: dict = {"datumaro_version": version, "checks": {}}
-    drop = ("seconds", "ground_truth")  # what CVAT files cannot carry
+    drop = ("seconds", "ground_truth", "classes")  # what CVAT files cannot carry
     # (1) Datumaro writes CVAT XML from its own dataset model
     out1 = workdir / "datumaro-written"
     files = _in_venv(venv, _DM_WRITE, _datumaro_job(scenes, out1))

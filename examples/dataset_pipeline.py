@@ -53,11 +53,19 @@ def _kitti_corners(line: str, P2: np.ndarray) -> np.ndarray:
     return (uvw[:2] / uvw[2]).T
 
 
+def _targets(folder: Path) -> dict:
+    """Every target of the scene files of ``folder`` by (its scene file's name without extension, its id)."""
+    from creference_bayes.io.scene import load_scene
+
+    return {(p.stem, t.id): t for p in sorted(folder.glob("*.json")) for t in load_scene(p).targets}
+
+
 def _reprojection(labels: Path, scenes: Path) -> list[float]:
     """Per label, the mean distance (px) from each annotated corner t1..t4 (median over
     annotations) to the nearest projected box corner: how well the label sits on the photo."""
     import csv
 
+    targets = _targets(scenes)
     out = []
     with open(labels / "labels.csv", newline="") as f:
         rows = list(csv.DictReader(f))
@@ -67,8 +75,7 @@ def _reprojection(labels: Path, scenes: Path) -> list[float]:
                   if ":" in ln)}
         P2 = calib["P2"].reshape(3, 4)
         line = (labels / "label_2" / f"{row['image']}.txt").read_text().splitlines()[int(row["line"]) - 1]
-        scene = json.loads((scenes / f"{row['scene']}.json").read_text())
-        corners = np.median(np.array([a["corners"] for a in scene["target"]["dimension_lines"]]), axis=0)
+        corners = targets[row["scene"], row["target"]].median_corners
         d = np.linalg.norm(corners[:, None] - _kitti_corners(line, P2)[None], axis=2)  # (4 annotated, 8 box)
         out.append(float(np.mean(d.min(axis=1))))
     return out
@@ -76,14 +83,9 @@ def _reprojection(labels: Path, scenes: Path) -> list[float]:
 
 def _same_scenes(a: Path, b: Path) -> tuple[int, float]:
     """Targets found in both imports, and the largest corner difference between them (px)."""
-    def by_target(folder):
-        return {d["target"]["id"]: d for d in (json.loads(p.read_text()) for p in folder.glob("*.json"))}
-
-    sa, sb = by_target(a), by_target(b)
-    common = sorted(set(sa) & set(sb))
-    diff = max((float(np.max(np.abs(np.array([x["corners"] for x in sa[t]["target"]["dimension_lines"]])
-                                    - np.array([x["corners"] for x in sb[t]["target"]["dimension_lines"]]))))
-                for t in common), default=float("nan"))
+    ta, tb = _targets(a), _targets(b)
+    common = sorted(set(ta) & set(tb))
+    diff = max((float(np.max(np.abs(ta[t].corners - tb[t].corners))) for t in common), default=float("nan"))
     return len(common), diff
 
 
@@ -95,7 +97,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="local batch workers (default %(default)s)")
     ap.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default %(default)s)")
     ap.add_argument("--min-ess", type=float, default=None,
-                    help="the batch's bulk ESS (default: the package's, 1000; less for a quick check)")
+                    help="the batch's bulk ESS (default: the package's, 400; less for a quick check)")
     args = ap.parse_args(argv)
 
     from creference_bayes.bench.simulate import simulate_scene
@@ -107,9 +109,8 @@ def main(argv=None) -> int:
     tiers = ("none", "low", "medium", "high")
     scenes = []
     for i in range(args.n):
-        d = simulate_scene(np.random.default_rng([args.seed, i]), tier=tiers[i % 4], format_offset=5 * i,
-                           target_id=f"object_{i:03d}")
-        d["image"]["path"] = f"frame_{i:03d}.png"  # the annotated photo's name (not needed to estimate)
+        d = simulate_scene(np.random.default_rng([args.seed, i]), tier=tiers[i % 4], format_offset=5 * i)
+        d["image"]["path"] = f"photo_{i:03d}.png"  # the annotated photo's name (not needed to estimate)
         scenes.append(d)
     (out / "label_studio_export.json").write_text(json.dumps(label_studio_tasks(scenes)))
     (out / "cvat_annotations.xml").write_text(cvat_xml(scenes))

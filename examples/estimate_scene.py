@@ -1,4 +1,5 @@
-"""Estimate a scene's target from Python: the MAP and, with ground truth, its location error.
+"""Estimate a scene from Python: the MAP of its camera and of every object, with ground truth
+their location errors.
 
     python examples/estimate_scene.py [SCENE.json] [--seed 0]
 
@@ -15,13 +16,15 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scene", nargs="?", default=None, metavar="SCENE.json",
-                        help="a creference-scene/1 file (default: the shipped example scene)")
+                        help="a scene file, either format (default: the shipped example scene)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     args = parser.parse_args(argv)
-    result = cb.estimate(args.scene or example_scene_path(), seed=args.seed, posterior=False)
-    print("MAP:", {k: round(v, 4) for k, v in result.to_dict()["map"].items()})
-    if result.evaluation is not None:
-        print(f"location error: {result.evaluation.location_pct_error:.2f} %")
+    d = cb.estimate(args.scene or example_scene_path(), seed=args.seed, posterior=False).to_dict()
+    print("camera:", {k: round(v, 4) for k, v in d["camera"]["map"].items()})
+    for o in d["objects"]:
+        error = (o.get("evaluation") or {}).get("location_pct_error")
+        print(f"{o['id']}:", {k: round(v, 4) for k, v in o["map"].items()},
+              "" if error is None else f"location error {error:.2f} %")
 
 
 if __name__ == "__main__":

@@ -20,16 +20,18 @@ from dataclasses import replace
 
 import numpy as np
 
-import creference_bayes as cb
+from creference_bayes.bench.runner import variant
 from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.pipeline import estimate
 
 
 def scene(seed: int, base: int):
     d = simulate_scene(np.random.default_rng([base, seed]), tier="low", roll_deg=5.0, principal_offset=0.05)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        s = cb.parse_scene(d)
-    return replace(s, target=replace(s.target, dimension_lines=s.target.dimension_lines[:5]))
+        s = parse_scene(d)
+    return variant(s, 5, range(len(s.references)))
 
 
 def main(argv=None) -> None:
@@ -53,13 +55,14 @@ def main(argv=None) -> None:
         for name, options in runs.items():
             sc = s if name == "with horizon" else replace(s, horizon=None)
             t0 = time.process_time()
-            r = cb.estimate(sc, seed=i, sampling={"min_ess": args.min_ess}, **options)
-            ev = r.evaluation
-            inside = bool((ev.in_hdi or {}).get("distance_m"))
-            rows[name].append((ev.location_pct_error, inside))
-            cells.append(f"{ev.location_pct_error:.2f} / {'yes' if inside else 'no'} / {time.process_time() - t0:.1f}")
-        print(f"| {i} | {g.extra['setting']} | {np.hypot(g.location_m[0], g.location_m[2]):.1f} | "
-              f"{np.degrees(g.extra['pitch_rad']):.1f} | " + " | ".join(cells) + " |", flush=True)
+            ev = estimate(sc, seed=i, sampling={"min_ess": args.min_ess}, keep_draws=0, **options).to_dict()
+            ev = ev["objects"][0]["evaluation"]
+            inside = bool(ev.get("distance_in_hdi"))
+            rows[name].append((ev["location_pct_error"], inside))
+            cells.append(f"{ev['location_pct_error']:.2f} / {'yes' if inside else 'no'} / {time.process_time() - t0:.1f}")
+        x, _, z = s.targets[0].ground_truth["location_m"]
+        print(f"| {i} | {g['setting']} | {np.hypot(x, z):.1f} | "
+              f"{np.degrees(g['pitch_rad']):.1f} | " + " | ".join(cells) + " |", flush=True)
     print("\n| | median MAP error % | mean % | true distance in the 90 % HDI |\n|---|---|---|---|")
     for name, r in rows.items():
         e = np.array([x[0] for x in r])

@@ -7,7 +7,7 @@
 KITTI_DIR is a folder in KITTI's object layout (``label_2/``, ``calib/``, ``image_2/``). For each
 frame with an image, up to ``--cars-per-frame`` of its cars (chosen with the seed among the objects
 ``creference simulate --from-kitti`` keeps: 2D box ≥ 25 px, truncation ≤ 0.5, occlusion ≤ 2, the
-annotated corners in the image) become single-target scenes (``creference-scene/1``):
+annotated corners in the image) become scenes of one target (``creference-scene/2``):
 
 - the target: the car with its true size (the single-target model's "object of known size") and
   ``--annotations`` sets of dimension lines, the projections of its real corners (P2) moved by
@@ -37,7 +37,6 @@ package (licence CC BY-NC-SA 3.0): this script only reads them from the folder g
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -50,7 +49,7 @@ import numpy as np
 def one_car_scenes(folder: Path, *, cars_per_frame: int, n_annotations: int, noise_px: float,
                    focal: str, seed: int, limit: int | None = None):
     """Yield (scene id, scene dict with the image, the level horizon (2, 2) px) per chosen car."""
-    from creference_bayes.bench.kitti_frames import kitti_frame
+    from creference_bayes.bench.kitti import kitti_scene
     from creference_bayes.bench.simulate import RANGE_PRECISION, measurement_factor
 
     labels = sorted((folder / "label_2").glob("*.txt"))
@@ -61,7 +60,7 @@ def one_car_scenes(folder: Path, *, cars_per_frame: int, n_annotations: int, noi
         if not image.exists():
             continue
         rng = np.random.default_rng([seed, k])
-        frame, _ = kitti_frame(lp, folder / "calib" / lp.name, image.resolve(), rng=rng,
+        frame, _ = kitti_scene(lp, folder / "calib" / lp.name, image.resolve(), rng=rng,
                                n_annotations=n_annotations, noise_px=noise_px, frame_id=lp.stem)
         objs = frame["targets"]
         cars = [i for i, o in enumerate(objs) if o["class"] == "Car"]
@@ -73,8 +72,6 @@ def one_car_scenes(folder: Path, *, cars_per_frame: int, n_annotations: int, noi
         cy = cam["principal_point"][1]
         for i in sorted(int(c) for c in chosen):
             car = objs[i]
-            gt = car["ground_truth"]
-            dims = gt["dimensions_m"]
             refs = []
             for j, o in enumerate(objs):
                 if j == i:
@@ -89,16 +86,13 @@ def one_car_scenes(folder: Path, *, cars_per_frame: int, n_annotations: int, noi
                              "range": [round(stated * (1 - precision / 2), 4), round(stated * (1 + precision / 2), 4)],
                              "line": line.tolist()})
             scene = {
-                "format": "creference-scene/1",
+                "format": "creference-scene/2",
                 "image": {"width": w, "height": h, "path": frame["image"]["path"]},
                 "camera": {"principal_point": cam["principal_point"],
                            "focal_length_px": cam["focal_length_px"] if focal == "known" else None},
-                "target": {"id": f"{lp.stem}-{car['id']}",
-                           "dimensions_m": {"length": dims["length"], "width": dims["width"], "height": dims["height"]},
-                           "dimension_lines": car["dimension_lines"]},
+                "targets": [{**car, "id": f"{lp.stem}-{car['id']}", "dimensions_m": car["ground_truth"]["dimensions_m"]}],
                 "references": refs,
-                "ground_truth": {"location_m": gt["location_m"], "yaw_rad": gt["yaw_rad"],
-                                 "handedness": gt["handedness"], "focal_length_px": cam["focal_length_px"]},
+                "ground_truth": {"focal_length_px": cam["focal_length_px"]},
             }
             yield f"{lp.stem}-{car['id']}", scene, np.array([[0.0, cy], [float(w), cy]])
 
@@ -108,13 +102,13 @@ def run(folder: Path, *, cars_per_frame: int = 2, n_annotations: int = 13, noise
         level_sd_px: float | None = None, say=print) -> list[dict]:
     """Estimate every one-car scene with the image horizon and with the level horizon (and, with
     ``level_sd_px``, the level horizon stated to that many pixels); one row each."""
-    from creference_bayes import estimate
+    from creference_bayes.pipeline import estimate
     from creference_bayes.io.scene import parse_scene
 
     rows = []
     for sid, scene, level in one_car_scenes(folder, cars_per_frame=cars_per_frame, n_annotations=n_annotations,
                                             noise_px=noise_px, focal=focal, seed=seed, limit=limit):
-        loc = np.asarray(scene["ground_truth"]["location_m"])
+        loc = np.asarray(scene["targets"][0]["ground_truth"]["location_m"])
         row = {"scene": sid, "distance_m": float(np.hypot(loc[0], loc[2])), "references": len(scene["references"])}
         for variant in ("image", "level") + (() if level_sd_px is None else ("level_sd",)):
             data = {"image": scene, "level": dict(scene, horizon=level.tolist()),
@@ -122,16 +116,17 @@ def run(folder: Path, *, cars_per_frame: int = 2, n_annotations: int = 13, noise
             t0 = time.process_time()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                res = estimate(parse_scene(data), seed=seed, sampling=sampling)
+                res = estimate(parse_scene(data), seed=seed, sampling=sampling, keep_draws=0)
             d = res.to_dict()
-            ev = d["evaluation"]
+            o = d["objects"][0]
+            ev = o["evaluation"]
             row[variant] = {"map_pct": ev["location_pct_error"], "mean_pct": ev["posterior_location_pct_error"],
-                            "in90": bool(ev["in_hdi"]["distance_m"]), "converged": bool(res.diagnostics.converged),
-                            "hdi_m": d["posterior"]["hdi"]["distance_m"] if "posterior" in d else None,
+                            "in90": bool(ev["distance_in_hdi"]), "converged": bool(res.converged),
+                            "hdi_m": o["posterior"]["hdi"]["distance_m"] if "posterior" in o else None,
                             "seconds": time.process_time() - t0, "warnings": len(caught)}
-            camera = d.get("camera") or {}
-            hz = camera.get("horizon") or {}
-            row[variant]["orientation"] = camera.get("orientation")
+            setup = d["camera"]["setup"]
+            hz = setup.get("horizon") or {}
+            row[variant]["orientation"] = setup.get("orientation")
             row[variant]["horizon_source"] = hz.get("source")
             if variant == "image":  # the larger of the two edges' |row − c_y|, pixels (None: no horizon found)
                 row["horizon_error_px"] = (None if not hz.get("points") else

@@ -1,28 +1,29 @@
-"""The frame model on real street geometry: KITTI frames in, KITTI labels out, AP3D against KITTI.
+"""The model on real street geometry: KITTI images in, KITTI labels out, AP3D against KITTI.
 
     python examples/kitti_study.py KITTI_DIR --out kitti_study/ [--annotations 5] [--noise-px 2]
 
 For a KITTI-layout folder (label_2/, calib/, image_2/) it
 
-1. simulates crowd annotations on the real boxes (``creference simulate --from-kitti``);
-2. estimates every frame jointly (the frame model: MAP and posterior) and every object alone (a
-   one-object frame with its own camera, its class's size prior: MAP);
-3. draws boxes from the frame's Cramér–Rao covariance around the truth (the bound);
-4. writes KITTI labels for each (``joint/``, ``alone/``, ``bound/``: label_2/, calib/,
-   uncertainty/) in KITTI's frame of P2, and evaluates them with ``creference evaluate kitti``'s
-   code against the folder's own label_2.
+1. simulates crowd annotations on the real boxes (``creference simulate --from-kitti``): one scene
+   per image with every annotatable object;
+2. estimates every scene jointly (MAP and posterior, one shared camera) and every object alone (a
+   scene of that object only, with its own camera, its class's size prior: MAP);
+3. draws boxes from the scene's Cramér–Rao covariance around the truth (the bound);
+4. writes KITTI labels for each (``joint/``, ``alone/``, ``bound/``: label_2/, calib/, and
+   uncertainty/ for the joint) in KITTI's frame of P2, and evaluates them with
+   ``creference evaluate kitti``'s code against the folder's own label_2.
 
 Scores: the joint labels carry P(IoU ≥ 0.7) from the posterior; ``--same-score`` gives every method
 the same depth-based score instead (exp(−z / 40 m)), to compare geometry alone. Prints the AP table
 (Car, Pedestrian, Cyclist; R40), the median 3D IoU by distance band, the label quality (mean
 predicted against observed P(IoU ≥ 0.7), Brier score), each method's Car box errors against the
 ground-truth boxes they were matched to (median absolute depth, height / width / length and yaw
-error by distance band) and the time per frame. ``--option KEY=VALUE`` sets a frame model option
-for the joint and the alone estimates. ``--max-frames`` and ``--max-iterations`` make a tiny run
+error by distance band) and the time per image. ``--option KEY=VALUE`` sets a metrology model
+option for the joint and the alone estimates. ``--max-frames`` and ``--max-steps`` make a tiny run
 (the tests).
 
 The bound under other assumptions (``--methods bound`` runs it alone, in seconds):
-``--bound-option KEY=VALUE`` sets a frame model option for the bound's model only (for example
+``--bound-option KEY=VALUE`` sets a model option for the bound's model only (for example
 ``ground_sd_m=0.005``: a flat road); ``--sizes known`` gives every method each object's true size
 (no class prior). Each method's share of fully visible cars (KITTI occlusion 0) at 5–60 m
 whose label reaches IoU 0.7 is printed by band.
@@ -41,14 +42,15 @@ import numpy as np
 
 
 def _model_options(pairs, parser) -> dict:
-    """``KEY=VALUE`` strings → frame model options (numbers, except ``location_prior``)."""
-    from creference_bayes.frame_pipeline import FRAME_OPTIONS
+    """``KEY=VALUE`` strings → metrology model options (numbers, except ``location_prior``)."""
+    from creference_bayes.pipeline import MODEL_OPTIONS
 
+    names = (*MODEL_OPTIONS["metrology"], "location_prior")
     out = {}
     for item in pairs:
         key, sep, value = item.partition("=")
-        if not sep or key not in FRAME_OPTIONS:
-            parser.error(f"--option {item!r}: expected KEY=VALUE with KEY one of {', '.join(FRAME_OPTIONS)}")
+        if not sep or key not in names:
+            parser.error(f"--option {item!r}: expected KEY=VALUE with KEY one of {', '.join(names)}")
         try:
             out[key] = value if key == "location_prior" else float(value)
         except ValueError:
@@ -112,9 +114,8 @@ def _visible_car_shares(gt: dict, gt_dir: Path, objects: list[dict]) -> dict:
     return out
 
 
-def _truth_state(frame, model):
-    from creference_bayes.models.frame import O_SIZE  # noqa: F401
-
+def _truth_state(frame):
+    """The true camera (5,) (its height the objects' median bottom) and objects (m, 7)."""
     objs = []
     for t in frame.targets:
         g = t.ground_truth
@@ -144,7 +145,7 @@ def main(argv=None) -> int:
     p.add_argument("--noise-px", type=float, default=2.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-frames", type=int, default=None)
-    p.add_argument("--max-iterations", type=int, default=20000, help="sampler cap per frame")
+    p.add_argument("--max-steps", type=int, default=20000, help="the sampler's cap on steps per image")
     p.add_argument("--same-score", action="store_true", help="score every method by depth (module docstring)")
     p.add_argument("--camera", choices=("unknown", "known"), default="unknown",
                    help="unknown: only P2's focal length and principal point (the default); known: also the "
@@ -152,12 +153,12 @@ def main(argv=None) -> int:
                         "rig with a measured mounting would give: shows how much of the gap to the goals is "
                         "the camera's scale")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a frame model option for the joint and the alone estimates (repeatable; "
-                        "creference_bayes.frame_pipeline.FRAME_OPTIONS), e.g. target_dof=30")
+                   help="a metrology model option for the joint and the alone estimates (repeatable; "
+                        "creference_bayes.pipeline.MODEL_OPTIONS, and location_prior), e.g. target_dof=30")
     p.add_argument("--methods", default="joint,alone,bound",
                    help="which of joint, alone, bound to run (comma-separated; default all three)")
     p.add_argument("--bound-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a frame model option for the bound's model only (repeatable), e.g. ground_sd_m=0.005")
+                   help="a model option for the bound's model only (repeatable), e.g. ground_sd_m=0.005")
     p.add_argument("--sizes", choices=("prior", "known"), default="prior",
                    help="prior: sizes from the class priors (the default, what a crowd knows); known: every "
                         "method is given each object's true size (creference simulate --from-kitti --sizes known)")
@@ -168,24 +169,25 @@ def main(argv=None) -> int:
     if not methods or set(methods) - {"joint", "alone", "bound"}:
         p.error(f"--methods {args.methods!r}: expected a comma-separated subset of joint, alone, bound")
 
-    from creference_bayes.bench.kitti_frames import kitti_frames
+    from creference_bayes.bench.kitti import kitti_scenes
     from creference_bayes.evaluation.kitti_eval import evaluate_kitti
-    from creference_bayes.frame_pipeline import estimate_frame
-    from creference_bayes.io.frame_scene import load_frame
-    from creference_bayes.workflows.labels.frames import write_frame_labels
+    from creference_bayes.io.kitti import write_label_file
+    from creference_bayes.io.scene import load_scene
+    from creference_bayes.pipeline import estimate
+    from creference_bayes.workflows.labels.kitti import LabelInput, write_labels
 
     out = Path(args.out)
     scenes = out / "scenes"
-    totals = kitti_frames(args.kitti, scenes, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed,
+    totals = kitti_scenes(args.kitti, scenes, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed,
                           sizes=args.sizes)
     paths = sorted(scenes.glob("*.json"))[:args.max_frames]
-    print(f"{totals['frames']} frames, {totals['kept']} objects (left out: {totals['skipped']}); using {len(paths)}")
+    print(f"{totals['scenes']} images, {totals['kept']} objects (left out: {totals['skipped']}); using {len(paths)}")
     rng = np.random.default_rng(args.seed)
     times = []
     for path in paths:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            frame = load_frame(path)
+            frame = load_scene(path)
         name = path.stem
         if args.camera == "known":
             from creference_bayes.models.camera_terms import OrientationPrior
@@ -196,12 +198,13 @@ def main(argv=None) -> int:
         depth_score = lambda z: np.exp(-np.asarray(z) / 40.0)
         if "joint" in methods:
             t0 = time.perf_counter()
-            res = estimate_frame(frame, seed=args.seed, sampling={"max_iterations": args.max_iterations}, **options)
+            res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
             times.append(time.perf_counter() - t0)
             d = res.to_dict()
-            zs = np.array([o["map"]["z"] for o in d["objects"]])
-            write_frame_labels(frame, d, out / "joint", name, res.draws,
-                               scores=depth_score(zs) if args.same_score else None)
+            labels, _ = write_labels(out / "joint", name, [LabelInput(name, d, frame)])
+            if args.same_score:
+                write_label_file(out / "joint" / "label_2" / f"{name}.txt",
+                                 [replace(o.kitti, score=float(depth_score(o.kitti.location[2]))) for o in labels])
             print(f"{name}: {len(frame.targets)} objects, {times[-1]:.1f} s, converged "
                   f"{d['diagnostics']['converged']}", flush=True)
         if "alone" in methods:
@@ -261,28 +264,24 @@ def main(argv=None) -> int:
 
 
 def _alone(frame, name, options, out, depth_score):
-    """Each object of ``frame`` as a one-object frame (its own camera), the MAP, as KITTI labels."""
-    from creference_bayes.frame_pipeline import build_frame_model
-    from creference_bayes.inference.frame_map import optimize_frame
-    from creference_bayes.workflows.labels.frames import kitti_poses
+    """Each object of ``frame`` as a scene of its own (its own camera), the MAP, as KITTI labels."""
+    from creference_bayes.inference.map import optimize
+    from creference_bayes.pipeline import build_model
+    from creference_bayes.workflows.labels.kitti import kitti_poses
 
-    cams, objs_alone = [], []
+    boxes = []
     for t in frame.targets:
-        m = optimize_frame(build_frame_model(replace_targets(frame, [t]), **options)[0])
-        cams.append(m.camera)
-        objs_alone.append(m.objects[0])
+        m = optimize(build_model(replace_targets(frame, [t]), **options)[0])
+        boxes.append(kitti_poses(frame, m.camera[None], m.objects[None])[0, 0])
     # each object with its own camera: still one label file per image
-    boxes = [kitti_poses(frame, c[None], o[None, None])[0, 0] for c, o in zip(cams, objs_alone)]
-    _write_labels(out / "alone", name, frame, boxes, [depth_score(o[1]) for o in objs_alone])
+    _write_labels(out / "alone", name, frame, boxes, [depth_score(b[2]) for b in boxes])
 
 
 def _write_labels(folder: Path, name: str, frame, boxes, scores) -> None:
-    """One image's KITTI label file (``boxes``: per target x, y, z, rotation_y, h, w, l in P2's
+    """One image's KITTI label file (``boxes``: per target x, y, z, rotation_y, l, w, h in P2's
     frame) and its calib under ``folder``."""
     from creference_bayes.io.kitti import kitti_object, write_calib_file, write_label_file
 
-    (folder / "label_2").mkdir(parents=True, exist_ok=True)
-    (folder / "calib").mkdir(parents=True, exist_ok=True)
     write_label_file(folder / "label_2" / f"{name}.txt",
                      [kitti_object(t.cls, b[:4], b[4:7], frame.kitti_p2, frame.image_size, float(sc))
                       for t, b, sc in zip(frame.targets, boxes, scores)])
@@ -290,26 +289,26 @@ def _write_labels(folder: Path, name: str, frame, boxes, scores) -> None:
 
 
 def _bound(frame, name, bound_options, args, out, rng, depth_score):
-    """Boxes drawn from the frame model's Cramér–Rao covariance around the truth, as KITTI labels
+    """Boxes drawn from the model's Cramér–Rao covariance around the truth, as KITTI labels
     (``bound_options`` change the bound's model only)."""
-    from creference_bayes.bench.frame_crb import frame_crb
-    from creference_bayes.frame_pipeline import build_frame_model
-    from creference_bayes.workflows.labels.frames import kitti_poses
+    from creference_bayes.bench.crb import cramer_rao
+    from creference_bayes.models.contract import CAMERA_NAMES, OBJECT_NAMES
+    from creference_bayes.pipeline import build_model
+    from creference_bayes.workflows.labels.kitti import kitti_poses
 
-    model, _ = build_frame_model(frame, **bound_options)
+    model, _ = build_model(frame, **bound_options)
     model.handedness = np.array([t.ground_truth["handedness"] for t in frame.targets], float)
-    cam_t, objs_t = _truth_state(frame, model)
-    bound = frame_crb(model, cam_t, objs_t, args.noise_px)
-    cam_b, objs_b = cam_t.copy(), objs_t.copy()
+    cam_b, objs_b = _truth_state(frame)
+    bound = cramer_rao(model, cam_b, objs_b, args.noise_px)
     if not bound.singular:
-        idx_c = list(np.flatnonzero(model.camera_free))
-        idx_o = [list(np.flatnonzero(model.object_free[i])) for i in range(model.n_objects)]
         delta = rng.multivariate_normal(np.zeros(len(bound.cov)), bound.cov, method="eigh")
-        cam_b[idx_c] += delta[:len(idx_c)]
-        k = len(idx_c)
-        for i, ix in enumerate(idx_o):
-            objs_b[i, ix] += delta[k:k + len(ix)]
-            k += len(ix)
+        for par, d in zip(bound.names, delta):  # "camera.<name>" or "<object index>.<name>"
+            owner, _, key = par.partition(".")
+            if owner == "camera":
+                cam_b[CAMERA_NAMES.index(key)] += d
+            else:
+                objs_b[int(owner), OBJECT_NAMES.index(key)] += d
+        cam_b = model.complete_camera(cam_b[None])[0]
     boxes = kitti_poses(frame, cam_b[None], objs_b[None])[0]
     _write_labels(out / "bound", name, frame, boxes, [depth_score(b[2]) for b in boxes])
 

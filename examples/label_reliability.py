@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from creference_bayes.bench.runner import write_scenes
+from creference_bayes.bench.simulate import write_scenes
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.batch.summary import summary_line
 from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
-from creference_bayes.workflows.labels.report import calibration, write_report
+from creference_bayes.workflows.batch.summary import summary_line
 from creference_bayes.workflows.labels import export_labels
+from creference_bayes.workflows.labels.report import calibration, write_report
 
 
 def main() -> None:
@@ -35,15 +35,15 @@ def main() -> None:
     ap.add_argument("--scheduler", default=None, help="a Dask scheduler address instead")
     ap.add_argument("--bins", type=int, default=5, help="bins of predicted probability (default: %(default)s)")
     ap.add_argument("--min-ess", type=float, default=None,
-                    help="bulk ESS of each estimate (default: the package's, 1000; less for a quick check)")
+                    help="bulk ESS of each estimate (default: the package's, 400; less for a quick check)")
     args = ap.parse_args()
 
     out = Path(args.out)
     scenes = out / "scenes"
-    write_scenes(scenes, args.n, seed=args.seed, tier=args.tier)
+    write_scenes(scenes, args.n, seed=args.seed, tier=args.tier, overwrite=True)
     engine = DaskEngine(args.scheduler) if args.scheduler else LocalEngine(args.workers)
-    report = run_batch([scenes], out / "batch", engine, BatchSettings(seed=args.seed, sampling={} if args.min_ess is None else {"min_ess": args.min_ess}),
-                       progress=True)
+    sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
+    report = run_batch([scenes], out / "batch", engine, BatchSettings(seed=args.seed, sampling=sampling), progress=True)
     print(summary_line(report, out / "batch"))
     export = export_labels(out / "batch", out / "labels")
     paths = write_report(export, out / "labels", batch_dir=out / "batch")

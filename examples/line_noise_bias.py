@@ -39,14 +39,14 @@ import warnings
 
 import numpy as np
 
-from creference_bayes.bench.simulate import TIERS, simulate_scene, true_params
+from creference_bayes.bench.simulate import TIERS, simulate_scene, true_state
 from creference_bayes.camera_setup import setup_camera
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.metrology import ground_lengths, linear_line_variances, segment_reading
 
 
 def _read(lines, pp, truth) -> np.ndarray:
-    """log ℓ of (k, 2, 2) segments at the (1, 7) parameter vector ``truth``, (k,)."""
+    """log ℓ of (k, 2, 2) segments at the (1, 5) true camera ``truth``, (k,)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log(ground_lengths(lines.reshape(-1, 2, 2), pp, truth))[0]
 
@@ -64,9 +64,9 @@ def measure(n: int, tiers: list[str], draws: int, seed: int, corrected: int = 40
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 scene = parse_scene(d)
-            truth = true_params(scene)[None]
+            truth = true_state(scene)[0][None]
             pp = setup_camera(scene).camera.principal_point
-            gt = scene.ground_truth.extra
+            gt = scene.ground_truth
             for ref, line, length in zip(scene.references, gt["reference_lines_px"], gt["reference_lengths_m"]):
                 line = np.asarray(line, float)
                 lin_sd = float(np.sqrt(linear_line_variances(line[None], pp, truth[0], sigma)[0]))  # as the model's
@@ -136,10 +136,10 @@ def estimates(n: int, seed: int, focal_prior=None) -> str:
                         scene = parse_scene(d)
                         if prior is not None:
                             scene = dataclasses.replace(scene, focal_prior=prior)
-                        r = estimate(scene, seed=k, posterior=False, line_reading=reading)
-                    g, m = scene.ground_truth.location_m, r.map.params
-                    logs.append(np.log(np.hypot(m[0], m[2]) / np.hypot(g[0], g[2])))
-                    errors[reading].append(r.evaluation.location_pct_error)
+                        o = estimate(scene, seed=k, posterior=False, line_reading=reading).to_dict()["objects"][0]
+                    g, m = scene.targets[0].ground_truth["location_m"], o["map"]
+                    logs.append(np.log(m["distance_m"] / np.hypot(g[0], g[2])))
+                    errors[reading].append(o["evaluation"]["location_pct_error"])
                 diff = ""
                 if reading == "corrected":
                     dd = np.subtract(errors["corrected"], errors["linear"])

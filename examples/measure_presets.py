@@ -22,12 +22,10 @@ import warnings
 
 import numpy as np
 
-from creference_bayes.camera_setup import setup_camera
-from creference_bayes.core.metrics import location_percentage_error
-from creference_bayes.inference.optimize import PRESETS, optimize_map
-from creference_bayes.pipeline import build_models
-from creference_bayes.io.scene import parse_scene
 from creference_bayes.bench.simulate import TIERS, simulate_scene
+from creference_bayes.inference.map import PRESETS, optimize
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.pipeline import build_model
 
 
 def make_scene(seed: int, tier: str):
@@ -43,13 +41,14 @@ def measure(preset: str, tier: str, seeds) -> dict:
     errors, wall, cpu = [], [], []
     for i, seed in enumerate(seeds):
         scene = make_scene(seed, tier)
-        models = build_models(scene, setup_camera(scene), model="paper", preset=preset,
-                              use_references=False)
+        model, _ = build_model(scene, model="paper", preset=preset, use_references=False)
         c0 = time.process_time()
-        est = optimize_map(models, preset, rng=seed)
+        est = optimize(model, preset=preset, temperature=model.default_temperature, rng=seed)
         cpu.append(time.process_time() - c0)
-        wall.append(est.seconds)
-        errors.append(float(location_percentage_error(est.params[:3], scene.ground_truth.location_m)))
+        wall.append(est.info["seconds"])
+        truth = np.asarray(scene.targets[0].ground_truth["location_m"])
+        found = np.array([est.objects[0, 0], est.camera[3], est.objects[0, 1]])
+        errors.append(float(100 * np.linalg.norm(found - truth) / np.linalg.norm(truth)))
         print(f"  {preset:>16s} {tier:>6s} scene {i + 1}/{len(seeds)}: {errors[-1]:.3g} % in {wall[-1]:.2f} s",
               file=sys.stderr)
     e = np.array(errors)

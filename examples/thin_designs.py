@@ -34,7 +34,6 @@ import numpy as np
 
 from creference_bayes.bench.runner import variant
 from creference_bayes.bench.simulate import simulate_scene
-from creference_bayes.inference.summary import draws_from_inference_data
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
 from creference_bayes.pipeline import estimate
@@ -61,7 +60,7 @@ def _prior_quantile(scene, focal) -> float:
     from creference_bayes.camera_setup import setup_camera
 
     prior = setup_camera(scene, focal_prior=focal).terms.focal
-    z = float(prior.z(scene.ground_truth.focal_length_px))
+    z = float(prior.z(scene.ground_truth["focal_length_px"]))
     return float(stats.norm.cdf(z) if np.isinf(prior.dof) else stats.t.cdf(z, prior.dof))
 
 
@@ -76,24 +75,24 @@ def run(args) -> list[dict]:
     with open(out / "thin.jsonl", "w") as f:
         for k in range(args.n):
             scene = _scene(k)
-            g = scene.ground_truth
-            d_true = float(np.hypot(g.location_m[0], g.location_m[2]))
+            x, _, z = scene.targets[0].ground_truth["location_m"]
+            d_true = float(np.hypot(x, z))
             for n_refs in REFS:
                 t0 = time.process_time()
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     r = estimate(variant(scene, 1, tuple(range(n_refs))), seed=k, focal_prior=focal,
-                                 location_prior=args.location_prior, sampling={"min_ess": args.min_ess})
+                                 location_prior=args.location_prior, sampling={"min_ess": args.min_ess}, keep_draws=0)
                 seconds = time.process_time() - t0
-                dr = draws_from_inference_data(r.inference_data)
-                dist = np.hypot(np.ravel(dr["x"]), np.ravel(dr["z"]))
-                lo, hi = r.posterior.hdi["distance_m"]
+                o = r.to_dict()["objects"][0]
+                dist = np.hypot(r.draws.objects[..., 0, 0], r.draws.objects[..., 0, 1]).ravel()
+                lo, hi = o["posterior"]["hdi"]["distance_m"]
                 rec = {"scene": k, "tier": TIERS[k % 2], "refs": n_refs, "distance": d_true,
                        "quantile": float(np.mean(dist < d_true)),
                        "prior_quantile": _prior_quantile(scene, focal), "hdi": [lo, hi],
-                       "covered": bool(lo <= d_true <= hi), "map_error": r.evaluation.location_pct_error,
-                       "post_error": r.evaluation.posterior_location_pct_error,
-                       "converged": bool(r.diagnostics.converged), "seconds": seconds,
+                       "covered": bool(lo <= d_true <= hi), "map_error": o["evaluation"]["location_pct_error"],
+                       "post_error": o["evaluation"]["posterior_location_pct_error"],
+                       "converged": bool(r.converged), "seconds": seconds,
                        "overflow_warnings": sum("overflow" in str(w.message) for w in caught)}
                 f.write(json.dumps(rec) + "\n")
                 f.flush()

@@ -1,5 +1,5 @@
 """The advice's numerics: pairwise IoU, weighted HDI, the importance weights of a simulated
-annotation (against the models' own costs), the tempered fallback, candidates and their costs."""
+observation (against the models' own posteriors), the tempered fallback, candidates and costs."""
 
 import dataclasses
 
@@ -7,13 +7,17 @@ import arviz as az
 import numpy as np
 import pytest
 
-from creference_bayes.camera_setup import setup_camera
+from creference_bayes.bench.simulate import simulate_scene, true_state
+from creference_bayes.evaluation.iou3d import box_iou_3d
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.models.contract import C_SCALE
+from creference_bayes.models.metrology import ReferenceTerm
+from creference_bayes.pipeline import build_model
 from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
                                                           annotation_seconds, candidates, format_mix)
 from creference_bayes.workflows.advice.iou import iou_3d_pairs
-from creference_bayes.workflows.advice.observe import ModelContext, ReferenceObservation, TargetObservation
-from creference_bayes.workflows.advice.update import location_sd, normalise, tempered_update, weighted_hdi
-from creference_bayes.workflows.labels.quality import box_iou_3d
+from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation, grown
+from creference_bayes.workflows.advice.update import (location_sd, normalise, tempered_update, weighted_hdi)
 
 
 def test_pairwise_iou_matches_shapely():
@@ -30,12 +34,19 @@ def test_pairwise_iou_matches_shapely():
     assert (expected == 0).any() and ((expected > 0) & (expected < 1)).sum() > 100
 
 
-def test_weighted_hdi_with_equal_weights_is_the_sample_hdi():
-    x = np.random.default_rng(1).gamma(3.0, 1.0, 4000)
+def test_weighted_hdi_with_equal_weights_is_the_sample_hdi_and_columns_are_independent():
+    rng = np.random.default_rng(1)
+    x = rng.gamma(3.0, 1.0, 4000)
     width, median = weighted_hdi(x, np.full((1, x.size), 1 / x.size), 0.9)
     lo, hi = az.hdi(x, hdi_prob=0.9)
     assert width[0] == pytest.approx(hi - lo, rel=2e-3)
     assert median[0] == pytest.approx(np.median(x), abs=2e-3)
+    # several quantities at once: each column as on its own, for uneven weights
+    cols = np.column_stack([x[:600], rng.normal(size=600), x[:600] ** 2])
+    w, _ = normalise(3.0 * rng.standard_normal((40, 600)))
+    both = weighted_hdi(cols, w, 0.9)
+    for j in range(3):
+        np.testing.assert_array_equal(np.array(both)[:, :, j], np.array(weighted_hdi(cols[:, j], w, 0.9)))
 
 
 def test_the_location_sd_of_uneven_weights_is_not_short():
@@ -43,22 +54,19 @@ def test_the_location_sd_of_uneven_weights_is_not_short():
     variance from them must be the draws' (3 m², unit normals in x, y, z) on average; the plain
     weighted variance is short by 1/ESS (here 3–4 %)."""
     rng = np.random.default_rng(0)
-    full = np.zeros((1000, 7))
-    full[:, :3] = rng.standard_normal((1000, 3))
+    loc = rng.standard_normal((1000, 3))
     w, ess = normalise(2.0 * rng.standard_normal((400, 1000)))
     assert 20 < np.median(ess) < 60
-    var = location_sd(full, w) ** 2
-    centred = full[:, :3] - full[:, :3].mean(axis=0)
-    truth = np.sum(centred ** 2) / 999
+    var = location_sd(loc, w) ** 2
+    truth = np.sum((loc - loc.mean(axis=0)) ** 2) / 999
     assert np.mean(var) == pytest.approx(truth, rel=0.015)
-    assert location_sd(full, np.full((1, 1000), 1e-3))[0] ** 2 == pytest.approx(truth, rel=1e-9)
+    assert location_sd(loc, np.full((1, 1000), 1e-3))[0] ** 2 == pytest.approx(truth, rel=1e-9)
 
 
 def test_reweighting_a_gaussian_gives_the_conjugate_posterior():
     x = np.random.default_rng(2).normal(0.0, 1.0, 200_000)
     # observation y = 1 with noise sd 1: posterior N(0.5, 0.5); sd 0.5: N(0.8, 0.2)
-    log_w = np.stack([-0.5 * (1.0 - x) ** 2, -0.5 * ((1.0 - x) / 0.5) ** 2])
-    w, ess = normalise(log_w)
+    w, ess = normalise(np.stack([-0.5 * (1.0 - x) ** 2, -0.5 * ((1.0 - x) / 0.5) ** 2]))
     width, median = weighted_hdi(x, w, 0.9)
     np.testing.assert_allclose(width, 2 * 1.6449 * np.sqrt([0.5, 0.2]), rtol=0.01)
     np.testing.assert_allclose(median, [0.5, 0.8], atol=0.01)
@@ -80,8 +88,7 @@ def test_tempered_update_recovers_a_posterior_plain_reweighting_cannot():
     assert ess[0] < 5  # collapsed
     moved, info = tempered_update(log_old, log_new, prior, rng)
     post_var = 1 / (1 + 1 / sd**2)
-    post_mean = mu * post_var / sd**2
-    np.testing.assert_allclose(moved.mean(axis=0), post_mean, atol=0.01)
+    np.testing.assert_allclose(moved.mean(axis=0), mu * post_var / sd**2, atol=0.01)
     np.testing.assert_allclose(moved.std(axis=0), np.sqrt(post_var), rtol=0.25)
     assert info["beta"] == 1.0 and info["stages"] >= 2
 
@@ -90,123 +97,173 @@ def test_tempered_update_recovers_a_posterior_plain_reweighting_cannot():
 # weights against the models
 
 
-def _truth_draws(scene, n, rng, spread=(0.05, 0.02, 0.2, 0.03, 40.0)):
-    """Parameter vectors scattered around the scene's truth (the weights are defined pointwise, so
-    any states will do); derived pitch and roll are filled in by the model."""
-    gt = scene.ground_truth
-    t = np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"], gt.extra["roll_rad"]])
-    out = np.tile(t, (n, 1))
-    out[:, :5] += rng.normal(0, 1, (n, 5)) * np.array(spread)
-    return out
+def _scene(seed, **kw):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return parse_scene(simulate_scene(np.random.default_rng(seed), **kw))
+
+
+def _with_sets(scene, k):
+    """The scene with its targets' first k sets of dimension lines."""
+    return dataclasses.replace(scene, targets=tuple(dataclasses.replace(t, dimension_lines=t.dimension_lines[:k])
+                                                    for t in scene.targets))
+
+
+def _states(scene, model, n, rng):
+    """States scattered around the scene's truth (the weights are defined pointwise, so any states
+    will do); derived parameters are filled in by the model."""
+    cam, objs = true_state(scene)
+    cams = np.tile(cam, (n, 1)) * np.exp(rng.normal(0, [0.05, 0, 0, 0.03, 0.3], (n, 5)))
+    cams[:, 1:3] += rng.normal(0, 0.01, (n, 2))
+    o = np.tile(objs, (n, 1, 1))
+    o[..., :2] += rng.normal(0, 0.1, o[..., :2].shape)
+    o[..., 2] += rng.normal(0, 0.1, o[..., 2].shape)
+    o[..., 6] = np.where(model.object_free[:, 6], o[..., 6], 0.0)
+    return model.complete_camera(cams), o
 
 
 @pytest.fixture(scope="module")
-def context():
-    from creference_bayes.bench.runner import variant
-    from creference_bayes.bench.simulate import simulate_scene
-    from creference_bayes.io.scene import parse_scene
-
-    scene = variant(parse_scene(simulate_scene(np.random.default_rng(5), tier="medium", setting="indoor")),
-                    3, range(4))
-    setup = setup_camera(scene)
-    gt = scene.ground_truth
-    pilot = np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"], gt.extra["roll_rad"]])
-    ctx = ModelContext(scene, setup, gt.extra["handedness"], pilot)
-    draws = ctx.model.expand(_truth_draws(scene, 300, np.random.default_rng(6))[:, ctx.model.free])
-    return ctx, draws
+def frame():
+    """A 3-target outdoor scene (class size priors, three sets each, two references) and its model
+    at the truth, with states around it."""
+    scene = _with_sets(_scene(5, tier="medium", setting="outdoor", n_objects=3, sizes="prior", n_references=2), 3)
+    model, _ = build_model(scene)
+    cam, objs = true_state(scene)
+    model.handedness = np.array([t.ground_truth["handedness"] for t in scene.targets], float)
+    model.set_pilot(cam)
+    cams, o = _states(scene, model, 300, np.random.default_rng(6))
+    return scene, model, cams, o
 
 
-@pytest.mark.parametrize("range_share", [0.0, 1.0])
-def test_reference_weights_are_the_cost_difference_of_the_models(context, range_share):
-    ctx, draws = context
-    ref = ctx.scene.references[1]
-    obs = ReferenceObservation(ctx, ref.line, measure=ref.measure, object=ref.object, range_share=range_share)
-    obs.simulate(np.random.default_rng(7), draws[:6])
-    fast = obs.log_ratio(draws)
-    base = ctx.model.cost(draws)
+def test_a_grown_model_without_more_is_the_model(frame):
+    scene, model, cams, objs = frame
+    np.testing.assert_array_equal(grown(model, {}).neg_log_posterior(cams, objs), model.neg_log_posterior(cams, objs))
+
+
+@pytest.mark.parametrize("kind", ["ground", "ground-range", "size", "distance"])
+def test_reference_weights_are_the_difference_of_the_models_posteriors(frame, kind):
+    scene, model, cams, objs = frame
+    line = np.asarray(scene.references[1].line, float)
+    term = {"size": ReferenceTerm(0, "size", 1, 1, False, owner=1, size_index=0),
+            "distance": ReferenceTerm(0, "distance", 1, 1, False, owner=0, other=2)}.get(
+        kind, ReferenceTerm(0, "ground", 1, 1, False, line=line))
+    obs = ReferenceObservation(model, term, {}, range_share=float(kind == "ground-range"), temperature=2.0)
+    assert obs.usable and not obs.needs_scale
+    obs.simulate(np.random.default_rng(7), cams[:6], objs[:6])
+    fast = obs.log_ratio(cams, objs)
+    base = model.neg_log_posterior(cams, objs, 2.0)
     for i in range(6):
-        brute = -(ctx.model_of(obs.scene_with(i)).cost(draws) - base)
-        diff = fast[i] - brute
-        assert np.ptp(diff) < 1e-8, f"row {i}: not a constant offset ({np.ptp(diff):.2e})"
-    assert obs.is_range.all() == bool(range_share)
+        brute = base - obs.model_with(i).neg_log_posterior(cams, objs, 2.0)
+        assert np.ptp(fast[i] - brute) < 1e-8, f"row {i}: not a constant offset ({np.ptp(fast[i] - brute):.2e})"
+    assert obs.is_range.all() == (kind == "ground-range")
 
 
-def test_target_weights_use_the_new_corner_scale(context):
-    ctx, draws = context
-    obs = TargetObservation(ctx)
-    obs.simulate(np.random.default_rng(8), draws[:4])
-    new = ctx.model_of(obs.scene_with(0))
-    assert new.target_sigma != ctx.model.target_sigma  # the added set changes σ …
-    fixed = dataclasses.replace(ctx.model, annotations=np.concatenate([ctx.model.annotations, obs.corners[:1]]))
-    fixed.set_pilot(ctx.pilot)
-    with_sigma = obs.log_ratio(draws)[0]
-    without = -(fixed.cost(draws) - ctx.model.cost(draws))
-    assert np.ptp(with_sigma - without) > 1e-3  # … and the weights account for it
+def test_a_first_reference_brings_its_crowd_scale_from_the_prior(frame):
+    """A scene without references has no crowd scale: the draws get one from its prior, and the
+    weights are then the new model's posterior over the old one's times that prior."""
+    from creference_bayes.workflows.advice import _scale_prior
+
+    scene, model, cams, objs = frame
+    bare = dataclasses.replace(scene, references=(), reference_targets=())
+    m0, _ = build_model(bare)
+    m0.handedness, m0.pilot = model.handedness, model.pilot
+    obs = ReferenceObservation(m0, ReferenceTerm(0, "ground", 1, 1, False, line=scene.references[1].line), {})
+    assert obs.needs_scale and not m0.camera_free[C_SCALE]
+    c = obs.scale_draws(cams, np.random.default_rng(1))
+    assert np.median(c[:, C_SCALE]) == pytest.approx(0.5, rel=0.2)
+    obs.simulate(np.random.default_rng(2), c[:4], objs[:4])
+    old = m0.neg_log_posterior(c, objs) + _scale_prior(c[:, C_SCALE])
+    for i, row in enumerate(obs.log_ratio(c, objs)):
+        assert np.ptp(row - (old - obs.model_with(i).neg_log_posterior(c, objs))) < 1e-8
 
 
-def test_simulated_target_annotations_scatter_as_the_scenes_sets_do(context):
-    """Three sets: the model's corner scale is their pooled sd, and a simulated set must scatter
-    by that sd (a t₄ of that scale would scatter √2 more than any set seen). One set: the model's
-    stated t₄ scale (5 px), whose sd is √2 · 5 px."""
-    from creference_bayes.core.cost import project_params
+def test_dimension_line_weights_follow_the_new_corner_scales(frame):
+    scene, model, cams, objs = frame
+    obs = DimsObservation(model, 1, {})
+    obs.simulate(np.random.default_rng(8), cams[:3], objs[:3])
+    new = obs.model_with(0)
+    assert new.sigma[1] != model.sigma[1] and np.all(new.sigma[[0, 2]] == model.sigma[[0, 2]])
+    assert new.ref_line_sigma != model.ref_line_sigma  # … and so the references' line noise
+    # the weights are the whole difference of the posteriors, not the new set's likelihood alone
+    base = model.neg_log_posterior(cams, objs)
+    with_sigma = obs.log_ratio(cams, objs, base)[0]
+    fixed = grown(model, {"ref_line_sigma": model.ref_line_sigma}, annotations={1: obs.corners[0]})
+    fixed.sigma = model.sigma.copy()  # the new set's likelihood at the old scales
+    assert np.ptp(with_sigma - (base - fixed.neg_log_posterior(cams, objs))) > 1e-3
 
-    ctx, draws = context
-    rows = np.repeat(draws[:1], 4000, axis=0)
-    proj, _ = project_params(draws[:1], ctx.model.obj_corners, ctx.model.camera.principal_point)
-    assert len(ctx.model.annotations) == 3
-    obs = TargetObservation(ctx)
-    obs.simulate(np.random.default_rng(9), rows)
+
+def test_simulated_dimension_lines_scatter_as_the_scenes_sets_do(frame):
+    """Three sets: the target's corner scale is their sd, and a simulated set must scatter by
+    that sd (a t₄ of that scale would scatter √2 more than any set seen). One set in every target:
+    the model's stated t₄ scale (5 px), whose sd is √2 · 5 px."""
+    scene, model, cams, objs = frame
+    rows, orows = np.repeat(cams[:1], 4000, axis=0), np.repeat(objs[:1], 4000, axis=0)
+    proj = model.project(cams[:1], objs[:1])[0][0, 2]
+    obs = DimsObservation(model, 2, {})
+    obs.simulate(np.random.default_rng(9), rows, orows)
     err = (obs.corners - proj).reshape(-1)
-    assert np.std(err) == pytest.approx(ctx.model.target_sigma, rel=0.1)
-    assert abs(np.median(err)) < 0.05 * ctx.model.target_sigma
-    t = ctx.scene.target
-    one = dataclasses.replace(ctx.scene, target=dataclasses.replace(t, dimension_lines=t.dimension_lines[:1]))
-    ctx1 = ModelContext(one, ctx.setup, ctx.handedness, ctx.pilot)
-    assert ctx1.model.target_sigma == 5.0
-    obs1 = TargetObservation(ctx1)
-    obs1.simulate(np.random.default_rng(9), rows)
-    err1 = (obs1.corners - proj).reshape(-1)
+    assert np.std(err) == pytest.approx(model.sigma[2], rel=0.1)
+    assert abs(np.median(err)) < 0.05 * model.sigma[2]
+    m1, _ = build_model(_with_sets(scene, 1))
+    m1.handedness = model.handedness
+    assert np.all(m1.sigma == 5.0)
+    one = DimsObservation(m1, 2, {})
+    one.simulate(np.random.default_rng(9), rows, orows)
     # bivariate t with ν = 4 and scale σ: each coordinate has variance σ² ν / (ν − 2) = 2σ²
-    assert np.std(err1) == pytest.approx(np.sqrt(2) * 5.0, rel=0.1)
+    assert np.std((one.corners - proj).reshape(-1)) == pytest.approx(np.sqrt(2) * 5.0, rel=0.1)
 
 
 # ------------------------------------------------------------------------------------------------
 # candidates
 
 
-def test_candidates_group_repeated_segments_and_add_distances(make_scene):
-    scene = make_scene(11, tier="low", n_references=3)
+def test_candidates_group_repeated_segments_and_cover_every_target(frame):
+    scene, model, cams, objs = frame
     refs = list(scene.references)
     # a second worker on reference 0's object and measure, drawn a few pixels off and reversed
-    twin = dataclasses.replace(refs[0], index=3, line=refs[0].line[::-1] + 2.0, worker="w-twin")
+    twin = dataclasses.replace(refs[0], index=2, line=refs[0].line[::-1] + 2.0, worker="w-twin")
     # the same object name but a segment far away: another object of that name
-    other = dataclasses.replace(refs[0], index=4, line=refs[0].line + np.array([400.0, 0.0]), worker="w-far")
-    scene = dataclasses.replace(scene, references=tuple(refs) + (twin, other))
-    cands = candidates(scene)
-    assert cands[0].kind == "target"
-    repeats = [c for c in cands if c.kind == "reference" and not c.new_segment]
-    assert [c.based_on for c in repeats][:1] == [(0, 3)]
-    assert any(c.based_on == (4,) for c in repeats)
+    other = dataclasses.replace(refs[0], index=3, line=refs[0].line + np.array([400.0, 0.0]), worker="w-far")
+    # a worker's distance between the first two targets
+    pair = dataclasses.replace(refs[0], index=4, measure="distance", mode="direct", line=None, object=None)
+    scene = dataclasses.replace(scene, references=tuple(refs) + (twin, other, pair),
+                                reference_targets=scene.reference_targets + (None, None, (0, 1)))
+    cands, notes = candidates(scene, model, *true_state(scene))
+    keys = [c.key for c in cands]
+    assert len(set(keys)) == len(keys)
+    repeats = [c for c in cands if c.based_on and not c.new_segment]
+    assert repeats[0].based_on == (0, 2) and any(c.based_on == (3,) for c in repeats)
     for c in cands:
         if c.new_segment:
             assert c.measure == "distance" and c.line[0, 1] == scene.image_height - 1
-            assert scene.references[c.based_on[0]].measure != "distance"
+    ids = [t.id for t in scene.targets]
+    between = [c for c in cands if c.term is not None and c.term.kind == "distance"]
+    assert sum({c.term.owner, c.term.other} == {0, 1} for c in between) == 1  # the scene's own, repeated
+    assert next(c for c in between if {c.term.owner, c.term.other} == {0, 1}).based_on == (4,)
+    for i, tid in enumerate(ids):  # dimension lines, a length (class priors) and a pair distance each
+        assert f"{tid}:dims" in keys and f"{tid}:length" in keys
+        assert f"{tid}:distance" in keys or any(n.startswith(f"{tid}:distance") for n in notes)
+        assert any(c.term is not None and c.term.kind == "distance" and i in (c.term.owner, c.term.other)
+                   for c in cands)
 
 
-def test_seconds_are_the_scenes_medians_else_the_papers(make_scene):
-    scene = make_scene(12, n_references=2, n_target_annotations=3)
-    t = scene.target
+def test_seconds_are_the_scenes_medians_else_the_papers():
+    scene = _with_sets(_scene(12, n_references=2), 3)
+    t = scene.targets[0]
     lines = tuple(dataclasses.replace(d, seconds=s) for d, s in zip(t.dimension_lines, (100.0, None, 300.0)))
-    scene = dataclasses.replace(scene, target=dataclasses.replace(t, dimension_lines=lines),
+    scene = dataclasses.replace(scene, targets=(dataclasses.replace(t, dimension_lines=lines),),
                                 references=tuple(dataclasses.replace(r, seconds=None) for r in scene.references))
-    assert annotation_seconds(scene) == {"target": 200.0, "reference": PAPER_REFERENCE_SECONDS}
-    bare = dataclasses.replace(scene, target=dataclasses.replace(
-        t, dimension_lines=tuple(dataclasses.replace(d, seconds=None) for d in t.dimension_lines)))
-    assert annotation_seconds(bare)["target"] == PAPER_TARGET_SECONDS
+    assert annotation_seconds(scene) == {"dims": 200.0, "reference": PAPER_REFERENCE_SECONDS}
+    bare = _with_sets(scene, 1)
+    bare = dataclasses.replace(bare, targets=(dataclasses.replace(bare.targets[0], dimension_lines=(
+        dataclasses.replace(bare.targets[0].dimension_lines[0], seconds=None),)),))
+    assert annotation_seconds(bare)["dims"] == PAPER_TARGET_SECONDS
 
 
-def test_format_mix_counts_ranges_and_their_precision(make_scene):
-    scene = make_scene(13, n_references=10, format_offset=0)
+def test_format_mix_counts_ranges_and_their_precision():
+    scene = _scene(13, n_references=10, format_offset=0)
     mix = format_mix(scene)
     assert mix.range_share == pytest.approx(sum(r.is_range for r in scene.references) / 10)
     assert 0.0 < mix.range_precision < 2.0

@@ -1,4 +1,5 @@
-"""creference batch: discovery, seeds, resume, failure isolation, the local pool and Dask."""
+"""creference batch: discovery, seeds, resume, failure isolation, the local pool and Dask. A scene
+of one target and a scene of several go the same way: one result, one seed, one copy each."""
 
 import csv
 import json
@@ -8,94 +9,110 @@ import time
 
 import numpy as np
 import pytest
+from conftest import truth_scene
 
-from creference_bayes.bench.runner import write_scenes
-from creference_bayes.cli.main import main
-from creference_bayes.workflows.batch import (BatchSettings, derive_seed, discover_scenes, run_batch,
-                                              run_scene)
+from creference_bayes.io.scene import load_scene, scene_fingerprint
+from creference_bayes.workflows.batch import BatchSettings, derive_seed, discover_scenes, run_batch, run_scene
 from creference_bayes.workflows.batch.engines import LocalEngine
 
 #: Small sampler settings: the tests are about the batch, not the posterior's precision.
-SMALL = BatchSettings(seed=5, sampling={"n_ensembles": 2, "n_walkers": 16, "tau_multiple": 20, "min_ess": 100})
+SMALL = BatchSettings(seed=5, sampling={"min_ess": 50, "max_steps": 500, "warmup": 200})
 INVALID = {"format": "creference-scene/1", "image": {"width": 640}, "target": {}}
+#: key → (seed, targets, truth_scene options)
+SCENES = {"one_a": (1, 1, {"n_refs": 2}), "one_b": (2, 1, {"focal_known": True}),
+          "street": (3, 3, {"sizes_known": False}), "sub/pair": (4, 2, {"horizon": "exact"})}
+KEYS = ["one_a", "one_b", "street", "sub/pair"]
 
 
-def _numbers(result: dict) -> dict:
-    """Every number a user reads from a result (not the timings)."""
-    post = result["posterior"]
-    return {"map": result["map"], "mean": post["mean"], "sd": post["sd"], "hdi": post["hdi"],
-            "draws": post["draws"], "diagnostics": {k: v for k, v in result["diagnostics"].items()}}
-
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    """6 simulated scenes and one invalid one, estimated once by 2 local worker processes."""
-    root = tmp_path_factory.mktemp("batch")
-    scenes = root / "scenes"
-    write_scenes(scenes, 6, seed=11, tier="medium")
-    (scenes / "broken.json").write_text(json.dumps(INVALID))
-    out = root / "out"
-    events = []
-    report = run_batch([scenes], out, LocalEngine(2), SMALL,
-                       on_event=lambda key, status: events.append((key, status)))
-    return {"scenes": scenes, "out": out, "report": report, "events": events}
+def write_scenes(folder, keys=KEYS):
+    """The scenes of :data:`SCENES` (1 px noise, 3 annotations a target) as files below ``folder``."""
+    for key in keys:
+        seed, m, options = SCENES[key]
+        scene, _ = truth_scene(seed, m=m, noise_px=1.0, n_annotations=3, **options)
+        (folder / f"{key}.json").parent.mkdir(parents=True, exist_ok=True)
+        (folder / f"{key}.json").write_text(json.dumps(scene))
 
 
 def _result(out, key):
     return json.loads((out / "results" / f"{key}.json").read_text())
 
 
-def test_batch_estimates_valid_scenes_and_records_the_invalid_one(dataset):
+def _numbers(d: dict) -> dict:
+    """Every number a user reads from a result (not the timings)."""
+    diag = {k: v for k, v in d["diagnostics"].items() if k != "seconds"}
+    return {"camera": d["camera"], "objects": d["objects"], "draws": d["draws"], "diagnostics": diag,
+            "seed": d["batch"]["seed"]}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """4 scenes (1, 1, 3 and 2 targets) and an invalid one, estimated once by 2 local worker processes."""
+    root = tmp_path_factory.mktemp("batch")
+    scenes = root / "scenes"
+    write_scenes(scenes)
+    (scenes / "broken.json").write_text(json.dumps(INVALID))
+    out = root / "out"
+    events = []
+    report = run_batch([scenes], out, LocalEngine(2), SMALL, on_event=lambda key, status: events.append((key, status)))
+    return {"scenes": scenes, "out": out, "report": report, "events": events}
+
+
+def test_batch_estimates_every_scene_alike_and_records_the_invalid_one(dataset):
     out, report = dataset["out"], dataset["report"]
-    keys = [f"scene_{i:04d}" for i in range(6)]
-    assert report.status == {"broken": "failed", **{k: "done" for k in keys}}
-    assert not report.ok
-    assert sorted(k for k, _ in dataset["events"]) == sorted(["broken", *keys])
+    assert report.status == {"broken": "failed", **{k: "done" for k in KEYS}}
+    assert not report.ok and report.n_targets == 1 + 1 + 3 + 2
+    assert sorted(k for k, _ in dataset["events"]) == sorted(["broken", *KEYS])
     err = json.loads((out / "errors" / "broken.json").read_text())
     assert err["stage"] == "load" and "image.height" in err["error"]
     assert not (out / "results" / "broken.json").exists()
-    for key in keys:
+    for key in KEYS:
         res = _result(out, key)
-        scene = json.loads((dataset["scenes"] / f"{key}.json").read_text())
-        copy = json.loads((out / "scenes" / f"{key}.json").read_text())
-        assert copy["target"] == scene["target"] and copy["ground_truth"] == scene["ground_truth"]
+        scene = load_scene(dataset["scenes"] / f"{key}.json")
+        assert res["format"] == "creference-result/2" and len(res["objects"]) == len(scene.targets)
+        assert res["scene_id"]["sha256"] == scene_fingerprint(scene)
+        # the copy is the same scene, and the result knows where it is
+        assert scene_fingerprint(load_scene(out / res["batch"]["scene_copy"])) == res["scene_id"]["sha256"]
         assert res["batch"]["key"] == key and res["batch"]["scene_copy"] == f"scenes/{key}.json"
-        assert res["batch"]["seed"] == derive_seed(5, res["scene_id"]["sha256"])
-        assert res["batch"]["settings"] == SMALL.to_dict()
-        assert res["posterior"]["n_draws"] > 0
+        assert res["batch"]["seed"] == derive_seed(5, scene_fingerprint(scene))
+        assert res["batch"]["settings"] == SMALL.to_dict() and res["provenance"]["sampling"] == SMALL.sampling
+        assert 0 < res["draws"]["n"] <= 400 and len(res["draws"]["objects"]) == len(scene.targets)
     manifest = json.loads((out / "batch.json").read_text())
-    assert [s["status"] for s in manifest["scenes"]] == ["failed"] + ["done"] * 6
+    assert [s["status"] for s in manifest["scenes"]] == ["failed"] + ["done"] * 4
+    assert manifest["settings"] == SMALL.to_dict()
 
 
-def test_summary_csv_has_one_row_per_target_with_the_distance(dataset):
+def test_summary_csv_has_one_row_per_target_with_its_class_distance_and_error(dataset):
     out = dataset["out"]
     rows = list(csv.DictReader((out / "summary.csv").open()))
-    assert [r["scene"] for r in rows] == ["broken"] + [f"scene_{i:04d}" for i in range(6)]
+    assert [(r["scene"], r["target"]) for r in rows] == [
+        ("broken", ""), ("one_a", "t0"), ("one_b", "t0"), ("street", "t0"), ("street", "t1"), ("street", "t2"),
+        ("sub/pair", "t0"), ("sub/pair", "t1")]
     assert rows[0]["status"] == "failed" and "image.height" in rows[0]["error"]
     for row in rows[1:]:
-        res = _result(out, row["scene"])
-        truth = json.loads((dataset["scenes"] / f"{row['scene']}.json").read_text())["ground_truth"]
-        assert row["status"] == "ok" and row["converged"] in ("true", "false")
-        assert float(row["map_distance_m"]) == pytest.approx(math.hypot(res["map"]["x"], res["map"]["z"]), rel=1e-5)
-        lo, hi = float(row["hdi_low_m"]), float(row["hdi_high_m"])
-        assert lo < float(row["mean_distance_m"]) < hi and float(row["sd_distance_m"]) > 0
-        # Eq. 3 from the truth, computed here independently of the package
-        err = 100 * np.linalg.norm(np.subtract([res["map"][k] for k in "xyz"], truth["location_m"])) \
-            / np.linalg.norm(truth["location_m"])
-        assert float(row["location_error_pct"]) == pytest.approx(err, rel=1e-4)
+        target = next(t for t in json.loads((dataset["scenes"] / f"{row['scene']}.json").read_text())["targets"]
+                      if t["id"] == row["target"])
+        obj = next(o for o in _result(out, row["scene"])["objects"] if o["id"] == row["target"])
+        assert row["status"] == "ok" and row["class"] == target["class"] and row["converged"] in ("true", "false")
+        assert float(row["map_distance_m"]) == pytest.approx(math.hypot(obj["map"]["x"], obj["map"]["z"]), rel=1e-5)
+        assert float(row["hdi_low_m"]) < float(row["mean_distance_m"]) < float(row["hdi_high_m"])
+        assert float(row["sd_distance_m"]) > 0
+        # Eq. 3 from the truth, computed here
+        loc = np.array(target["ground_truth"]["location_m"])
+        err = 100 * np.linalg.norm([obj["map"][k] - v for k, v in zip("xyz", loc)]) / np.linalg.norm(loc)
+        assert float(row["location_error_pct"]) == pytest.approx(err, rel=1e-3)
 
 
 def test_resume_after_deleting_two_results_recomputes_exactly_those_two(dataset, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(dataset["out"], out)
-    deleted = ["scene_0001", "scene_0004"]
+    deleted = ["one_b", "street"]
     before = {k: _result(out, k) for k in deleted}
     for k in deleted:
         (out / "results" / f"{k}.json").unlink()
     report = run_batch([dataset["scenes"]], out, LocalEngine(2), SMALL)
     assert sorted(report.keys("done")) == deleted
-    assert sorted(report.keys("skipped")) == sorted(set(f"scene_{i:04d}" for i in range(6)) - set(deleted))
-    assert report.keys("failed") == ["broken"]
+    assert sorted(report.keys("skipped")) == ["one_a", "sub/pair"] and report.keys("failed") == ["broken"]
+    assert report.n_targets == 4
     for k in deleted:
         assert _numbers(_result(out, k)) == _numbers(before[k])
 
@@ -104,50 +121,52 @@ def test_dask_local_cluster_gives_identical_numbers(dataset, tmp_path):
     distributed = pytest.importorskip("distributed")
     from creference_bayes.workflows.batch.engines import DaskEngine
 
+    inputs = [dataset["scenes"] / "one_b.json", dataset["scenes"] / "street.json"]  # one target and three
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
-        report = run_batch([dataset["scenes"]], tmp_path / "dask", DaskEngine(cluster.scheduler_address),
-                           SMALL)
-    assert report.status == dataset["report"].status
+        report = run_batch(inputs, tmp_path / "dask", DaskEngine(cluster.scheduler_address), SMALL)
+    assert report.status == {"one_b": "done", "street": "done"}
     for key in report.keys("done"):
         assert _numbers(_result(tmp_path / "dask", key)) == _numbers(_result(dataset["out"], key))
 
 
-def test_seed_follows_the_content_not_the_name_and_changes_are_recomputed(tmp_path):
-    write_scenes(tmp_path / "a", 1, seed=2, tier="low")
-    src = tmp_path / "a" / "scene_0000.json"
-    (tmp_path / "b").mkdir()
+def test_seed_follows_the_content_and_exactly_the_changed_scenes_are_recomputed(tmp_path):
+    write_scenes(tmp_path / "a", ["one_a", "street"])
+    src = tmp_path / "a" / "one_a.json"
     data = json.loads(src.read_text())
+    (tmp_path / "b").mkdir()
     (tmp_path / "b" / "renamed.json").write_text(json.dumps(data, indent=3))  # same content
     settings = BatchSettings(seed=1, posterior=False)
-    r1 = run_batch([tmp_path / "a", tmp_path / "b"], tmp_path / "out", LocalEngine(1), settings)
-    assert r1.status == {"scene_0000": "done", "renamed": "done"}
-    a, b = _result(tmp_path / "out", "scene_0000"), _result(tmp_path / "out", "renamed")
-    assert a["map"] == b["map"] and a["batch"]["seed"] == b["batch"]["seed"]
-    data["target"]["dimensions_m"]["length"] *= 1.01  # a changed scene is recomputed …
+    inputs = [tmp_path / "a", tmp_path / "b"]
+    r1 = run_batch(inputs, tmp_path / "out", LocalEngine(1), settings)
+    assert r1.status == {"one_a": "done", "street": "done", "renamed": "done"}
+    a, b = _result(tmp_path / "out", "one_a"), _result(tmp_path / "out", "renamed")
+    assert a["objects"] == b["objects"] and a["batch"]["seed"] == b["batch"]["seed"]
+    data["targets"][0]["dimension_lines"][0]["corners"][0][0] += 1.0  # one pixel of one corner …
     src.write_text(json.dumps(data))
-    r2 = run_batch([tmp_path / "a", tmp_path / "b"], tmp_path / "out", LocalEngine(1), settings)
-    assert r2.status == {"scene_0000": "done", "renamed": "skipped"}
-    assert _result(tmp_path / "out", "scene_0000")["batch"]["seed"] != a["batch"]["seed"]
-    r3 = run_batch([tmp_path / "a", tmp_path / "b"], tmp_path / "out", LocalEngine(1),
-                   BatchSettings(seed=2, posterior=False))  # … and every scene when settings change
-    assert r3.status == {"scene_0000": "done", "renamed": "done"}
+    street = tmp_path / "a" / "street.json"
+    street.write_text(json.dumps(json.loads(street.read_text()), indent=4))  # … and the same content, other bytes
+    r2 = run_batch(inputs, tmp_path / "out", LocalEngine(1), settings)
+    assert r2.status == {"one_a": "done", "street": "skipped", "renamed": "skipped"}
+    assert _result(tmp_path / "out", "one_a")["batch"]["seed"] != a["batch"]["seed"]
+    # every scene when a setting changes
+    r3 = run_batch(inputs, tmp_path / "out", LocalEngine(1), BatchSettings(seed=1, posterior=False,
+                                                                           location_prior="flat"))
+    assert set(r3.status.values()) == {"done"}
 
 
 def test_time_limit_fails_the_scene_and_the_batch_goes_on(tmp_path):
-    write_scenes(tmp_path / "s", 3, seed=4, tier="low")
+    write_scenes(tmp_path / "s", ["one_a", "one_b", "street"])
     t0 = time.perf_counter()
     report = run_batch([tmp_path / "s"], tmp_path / "out", LocalEngine(2), BatchSettings(), time_limit=0.2)
-    assert report.keys("failed") == ["scene_0000", "scene_0001", "scene_0002"]
-    err = json.loads((tmp_path / "out" / "errors" / "scene_0002.json").read_text())
-    assert err["stage"] == "time limit"
+    assert report.keys("failed") == ["one_a", "one_b", "street"]
+    assert json.loads((tmp_path / "out" / "errors" / "street.json").read_text())["stage"] == "time limit"
     # abandoned processes are ended, not waited for: far less than three full estimates
     assert time.perf_counter() - t0 < 20
 
 
-def test_run_scene_returns_an_exception_as_a_failure_record():
-    from creference_bayes.bench.simulate import simulate_scene
-
-    job = {"data": simulate_scene(np.random.default_rng(0)), "source": "x.json", "seed": 1,
+def test_run_scene_returns_an_exception_as_a_failure_record(tmp_path):
+    write_scenes(tmp_path, ["one_a"])
+    job = {"scene": load_scene(tmp_path / "one_a.json"), "seed": 1,
            "estimate": {"model": "no-such-model", "posterior": False}}
     res = run_scene(job)
     assert res["ok"] is False and res["stage"] == "estimate"
@@ -177,8 +196,24 @@ def test_derive_seed_depends_on_base_seed_and_content_only():
     assert 0 <= derive_seed(7, "f" * 64) < 2 ** 60
 
 
-def test_cli_batch_exit_status_and_summary_line(tmp_path, capsys):
-    write_scenes(tmp_path / "s", 1, seed=6, tier="low")
+def test_every_setting_that_changes_the_numbers_is_compared_on_a_resume():
+    from creference_bayes.models.size_priors import SizePrior
+
+    base = BatchSettings()
+    kayak = {"Kayak": SizePrior(np.array([3.5, 0.7, 0.4]), np.array([0.1, 0.1, 0.1]))}
+    others = [BatchSettings(location_prior="flat"), BatchSettings(model="paper"), BatchSettings(classes=kayak),
+              BatchSettings(sampling={"max_steps": 300}), BatchSettings(confidence_map="identity")]
+    assert all(s.to_dict() != base.to_dict() for s in others)
+    assert json.loads(json.dumps(others[2].to_dict()))["classes"]["Kayak"]  # recorded as plain JSON
+    assert others[2].estimate_kwargs()["classes"] == kayak
+    with pytest.raises(ValueError, match="min_ess"):
+        BatchSettings(sampling={"min_ess": -1})
+
+
+def test_cli_batch_exit_status_summary_line_and_options(tmp_path, capsys):
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a"])
     out = tmp_path / "out"
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "1", "--no-posterior"]) == 0
     assert "1 scene: 1 estimated, 0 failed" in capsys.readouterr().out
@@ -189,14 +224,8 @@ def test_cli_batch_exit_status_and_summary_line(tmp_path, capsys):
     assert f"zz_bad: SceneError: {tmp_path / 's' / 'zz_bad.json'}: not valid JSON" in captured.err
     assert main(["batch", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "0"]) == 2
-    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--scheduler", "tcp://x:1",
-                 "--workers", "2"]) == 2
-
-
-def test_the_location_prior_is_a_setting_a_resume_compares():
-    # a batch started with one location prior and resumed with another must not mix the two
-    flat, auto = BatchSettings(location_prior="flat"), BatchSettings()
-    assert flat.to_dict() != auto.to_dict()
-    assert flat.estimate_kwargs()["location_prior"] == "flat"
-    assert flat.frame_dict() != auto.frame_dict()  # frames too: log-depth by default, flat on request
-    assert (flat.frame_kwargs()["location_prior"], auto.frame_kwargs()["location_prior"]) == ("flat", "log-depth")
+    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--scheduler", "tcp://x:1", "--workers", "2"]) == 2
+    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--max-steps", "5"]) == 2
+    (tmp_path / "classes.json").write_text('{"Kayak": {"length_m": 3.5}}')
+    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--classes", str(tmp_path / "classes.json")]) == 2
+    assert "classes.json" in capsys.readouterr().err

@@ -9,11 +9,17 @@ import sys
 import time
 
 import pytest
-
-from creference_bayes.bench.runner import write_scenes
+from conftest import truth_scene
 
 CLI = [sys.executable, "-m", "creference_bayes"]
 SMALL = ["--min-ess", "100", "--quiet", "--seed", "3"]
+
+
+def write_scenes(folder, n):
+    """``n`` one-target scenes (1 px noise, 3 annotations) as ``scene_0000.json`` … in ``folder``."""
+    folder.mkdir(parents=True)
+    for k in range(n):
+        (folder / f"scene_{k:04d}.json").write_text(json.dumps(truth_scene(k, noise_px=1.0, n_annotations=3)[0]))
 
 
 def _default_sigint():
@@ -50,7 +56,7 @@ def _check_folder(out, n_scenes):
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs a named pipe")
 def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
     scenes = tmp_path / "scenes"
-    write_scenes(scenes, 2, seed=4, tier="low")
+    write_scenes(scenes, 2)
     os.mkfifo(scenes / "zz_pipe.json")  # reading it blocks: the batch is stopped while reading
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "1", *SMALL],
@@ -74,7 +80,7 @@ def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
 
 def test_interrupt_while_scenes_run_writes_the_summary_and_leaks_nothing(tmp_path):
     scenes = tmp_path / "scenes"
-    write_scenes(scenes, 5, seed=4, tier="low")
+    write_scenes(scenes, 5)
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "2", *SMALL],
                             start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)

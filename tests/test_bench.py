@@ -1,5 +1,6 @@
 """``creference bench --quick``: every estimator appears, the noise-free tier is solved, the tables,
-JSON and figures are written (the run takes about a minute on one core)."""
+JSON and figures are written (the run takes about a minute on one core); scenes of several targets
+go through the same runner."""
 
 import inspect
 import json
@@ -8,7 +9,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from creference_bayes.bench.runner import CONFIGS, bench_scenes, calibration_of
+from creference_bayes.bench.runner import CONFIGS, BenchConfig, bench_scenes, calibration_of, run_bench
 from creference_bayes.cli.main import main
 from creference_bayes.pipeline import estimate
 
@@ -94,7 +95,7 @@ def test_tables_and_figures_are_written(quick):
 def test_scenes_are_deterministic_and_cover_the_formats_equally():
     a = bench_scenes(CONFIGS["quick"], seed=3)
     b = bench_scenes(CONFIGS["quick"], seed=3)
-    assert [s.target.corners.tolist() for _, s in a] == [s.target.corners.tolist() for _, s in b]
+    assert [s.targets[0].corners.tolist() for _, s in a] == [s.targets[0].corners.tolist() for _, s in b]
     full = bench_scenes(CONFIGS["full"], seed=0)
     counts = Counter((r.measure, r.mode, r.is_range) for _, s in full for r in s.references)
     assert len(counts) == 10 and len(set(counts.values())) == 1
@@ -124,3 +125,22 @@ def test_the_error_by_tier_figure_has_few_distinct_series_per_panel(quick):
         assert 2 <= len(labels) <= 8, labels
         looks = {(to_hex(h.get_color()), h.get_marker(), str(h.get_markerfacecolor())) for h in handles}
         assert len(looks) == len(labels), labels  # no two series drawn alike
+
+
+def test_scenes_of_several_targets_go_through_the_same_runner():
+    """The frames size of the bench: every object of a street scene estimated jointly and alone,
+    beside the scene's bound, in one record each; the tables by distance band and object count."""
+    from creference_bayes.bench.report import markdown_report
+
+    config = BenchConfig(name="tiny-frames", frame_counts=(2,), frames_per_count=1, frame_tiers=("low",),
+                         sampler={"min_ess": 50, "max_steps": 600}, camera_studies=False)
+    doc = run_bench(config, seed=1)
+    recs = doc["records"]
+    assert len(recs) == 2 and {r["estimator"] for r in recs} == {"frame"} and {r["n_objects"] for r in recs} == {2}
+    for r in recs:
+        assert r["error"] >= 0 and r["alone_error"] >= 0 and 0 < r["crb"] < 100 and r["distance_m"] > 0
+        assert r["post_error"] is not None and isinstance(r["in_hdi90"], bool)
+    f = doc["summary"]["frames"]
+    assert sum(b["objects"] for b in f["bands"]) == 2 and f["counts"][0]["scenes"] == 1
+    md = markdown_report(doc)
+    assert "joint MAP median %" in md and "objects per scene" in md and "Location error (paper" not in md

@@ -2,15 +2,18 @@
 
 import json
 import math
-import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from creference_bayes.cli.main import example_scene_path, main
 from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.io.result import OBJECT_REPORT
+from creference_bayes.models.contract import CAMERA_NAMES
+from conftest import truth_scene
 
 
 def _write(path: Path, data) -> Path:
@@ -109,25 +112,59 @@ def test_estimate_writes_result_with_evaluation(tmp_path, capsys):
     printed = capsys.readouterr()
     assert "location error against the ground truth: MAP" in printed.out
     data = json.loads(out.read_text())
-    assert data["format"] == "creference-result/1"
-    assert data["scene"] == "scene.json" and data["target"] == "target"
-    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
-    assert all(math.isfinite(v) for v in data["map"].values())
-    err = data["evaluation"]["location_pct_error"]
+    assert data["format"] == "creference-result/2"
+    assert data["scene"] == "scene.json" and [o["id"] for o in data["objects"]] == ["target"]
+    assert set(data["camera"]["map"]) == set(CAMERA_NAMES)
+    assert set(data["objects"][0]["map"]) == set(OBJECT_REPORT)
+    assert all(math.isfinite(v) for v in data["objects"][0]["map"].values())
+    err = data["objects"][0]["evaluation"]["location_pct_error"]
     assert 0 <= err < 1.0  # noise-free scene: the estimate is close to the truth
 
 
 def test_estimate_without_ground_truth_has_no_evaluation(tmp_path, capsys):
     d = _noise_free_scene()
     del d["ground_truth"]
+    for t in d["targets"]:
+        del t["ground_truth"]
     out = tmp_path / "result.json"
     assert main(["estimate", str(_write(tmp_path / "scene.json", d)), "--out", str(out), "--quiet",
                  "--no-posterior"]) == 0
     assert capsys.readouterr().out == ""
     data = json.loads(out.read_text())
-    assert data["format"] == "creference-result/1"
-    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
-    assert "evaluation" not in data
+    assert data["format"] == "creference-result/2"
+    assert "evaluation" not in data["objects"][0] and "evaluation" not in data["camera"]
+
+
+@pytest.mark.parametrize("model, preset", [("paper", "default"), ("metrology", "paper-controlled")])
+def test_every_model_and_preset_takes_a_scene_of_several_objects(tmp_path, capsys, monkeypatch, model, preset):
+    import creference_bayes.inference.map as map_
+
+    monkeypatch.setattr(map_, "_PAPER_RESTARTS", {"paper": 2, "paper-controlled": 2})  # the paper's 100: minutes
+    d, _ = truth_scene(2, m=2, noise_px=1.0, n_annotations=2, n_refs=2)
+    out = tmp_path / "result.json"
+    assert main(["estimate", str(_write(tmp_path / "scene.json", d)), "--model", model, "--preset", preset,
+                 "--no-posterior", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert (data["model"], data["preset"]) == (model, preset) and len(data["objects"]) == 2
+    table = capsys.readouterr().out
+    assert [line.split()[0] for line in table.splitlines() if line[:3] == "  t" and line[3].isdigit()] == ["t0", "t1"]
+
+
+def test_netcdf_holds_the_posterior_of_every_object(tmp_path, capsys):
+    d, _ = truth_scene(4, m=2, noise_px=1.0, n_annotations=3)
+    out, nc = tmp_path / "result.json", tmp_path / "post.nc"
+    assert main(["estimate", str(_write(tmp_path / "scene.json", d)), "--out", str(out), "--netcdf", str(nc),
+                 "--min-ess", "50", "--hdi-prob", "0.8"]) == 0
+    printed = capsys.readouterr().out
+    assert f"wrote {out}" in printed and f"wrote {nc}" in printed and "80% HDI" in printed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["post.nc", "result.json", "scene.json"]  # no temporary
+    from creference_bayes.inference.summary import az
+
+    idata = az.from_netcdf(nc)
+    assert list(idata.posterior["x"].coords["object"].values) == ["t0", "t1"]
+    data = json.loads(out.read_text())
+    assert data["hdi_prob"] == 0.8 and data["draws"]["n"] > 0
+    assert [o["posterior"]["hdi"]["prob"] for o in data["objects"]] == [0.8, 0.8]
 
 
 def test_a_misspelt_key_exits_2_naming_the_suggestion(tmp_path):
@@ -211,22 +248,16 @@ def test_plot_refuses_an_edited_scene(map_result, tmp_path):
     proc = _plot(result, "--scene", edited, "--out", tmp_path / "figs")
     assert proc.returncode == 2
     assert len(proc.stderr.splitlines()) == 1
-    assert "same target and image size but different content" in proc.stderr
+    assert "same targets and image size but different content" in proc.stderr
 
 
-def test_plot_accepts_its_own_scene_and_checks_old_results_on_the_target_only(map_result, tmp_path):
+def test_plot_finds_its_scene_beside_it_and_writes_atomically(map_result, tmp_path):
     folder, scene, result = map_result
-    assert main(["plot", str(result), "--scene", str(scene), "--out", str(tmp_path / "a"), "--quiet"]) == 0
-    assert (tmp_path / "a" / "boxes.png").is_file()
-    old = json.loads(result.read_text())
-    del old["scene_id"]  # as written before results recorded their scene
-    old_path = _write(folder / "old.json", old)
-    proc = _plot(old_path, "--out", tmp_path / "b", "--quiet")  # finds scene.json by name
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stderr.startswith("warning: the result records no scene_id")
-    proc = _plot(old_path, "--scene", _write(tmp_path / "other.json", _noise_free_scene()),
-                 "--out", tmp_path / "c")
-    assert proc.returncode == 2 and "target 'target', the result's is 'tv-stand'" in proc.stderr
+    assert main(["plot", str(result), "--out", str(tmp_path / "a"), "--quiet", "--dpi", "30"]) == 0
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["boxes.png", "pairs.png", "top_view.png"]
+    assert main(["plot", str(result), "--scene", str(scene), "--out", str(tmp_path / "b"), "--quiet",
+                 "--format", "svg"]) == 0
+    assert (tmp_path / "b" / "boxes.svg").read_text().lstrip().startswith("<?xml")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -270,36 +301,51 @@ def test_bench_help_and_readme_agree_on_timings():
         assert words in " ".join(help_text.split())
 
 
-def _fake_result(**extra_params):
-    params = {"x": 1.0, "y": 1.5, "z": 4.0, "yaw": 0.5, "focal_length_px": 1200.0, **extra_params}
-    names = list(params) + ["distance_m"]
-    return {"map": params, "posterior": {
-        "mean": {k: 1.0 for k in names}, "sd": {k: 0.0123 for k in names},
-        "hdi": {"prob": 0.9, **{k: [0.98, 1.02] for k in names}}}}
+def _fake_result(n_objects=2, posterior=True):
+    """A creference-result/2 dict with round numbers (the tables' input)."""
+    cam = {"focal_length_px": 1200.0, "pitch": 0.1, "roll": -0.02, "height_m": 1.5, "ref_scale": 0.5}
+    objects = []
+    for i in range(n_objects):
+        m = {"x": 1.0 + i, "y": 1.5, "z": 4.0, "yaw": 0.5, "length_m": 4.2, "width_m": 1.7, "height_m": 1.5,
+             "ground_m": 0.0, "distance_m": float(np.hypot(1.0 + i, 4.0))}
+        o = {"id": f"car{i}", "class": "Car", "map": m}
+        if posterior:
+            o["posterior"] = {"hdi": {"distance_m": [m["distance_m"] - 0.25, m["distance_m"] + 0.5], "prob": 0.9}}
+        objects.append(o)
+    camera = {"map": cam, "free": ["focal_length_px", "pitch", "height_m"], "setup": {"orientation": "free"}}
+    if posterior:
+        camera["posterior"] = {"mean": {"focal_length_px": 1210.0, "pitch": 0.1, "height_m": 1.51},
+                               "hdi": {"focal_length_px": [1100.0, 1300.0], "pitch": [0.09, 0.11],
+                                       "height_m": [1.4, 1.6], "prob": 0.9}}
+    return {"camera": camera, "objects": objects, "seconds": 1.0, "hdi_prob": 0.9, "references": {}}
 
 
-def test_format_table_has_a_row_per_parameter_of_the_result():
-    from creference_bayes.cli.estimate import format_table
+def test_format_tables_has_a_camera_row_per_quantity_and_an_object_row_per_object():
+    from creference_bayes.cli.estimate import format_tables
 
-    table = format_table(_fake_result(pitch=0.1, roll=-0.02))
-    rows = [line.split()[0] for line in table.splitlines()[2:]]
-    assert rows == ["x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m"]
-    roll = next(line for line in table.splitlines() if line.startswith("roll"))
-    assert roll.split()[1:] == ["rad", "-0.020", "1.000", "0.012", "[0.980,", "1.020]"]
+    lines = format_tables(_fake_result()).splitlines()
+    focal = next(line for line in lines if line.strip().startswith("focal length px"))
+    assert focal.split()[3:] == ["1200.0", "1210.0", "[1100.0,", "1300.0]"]
+    pitch = next(line for line in lines if line.strip().startswith("pitch deg"))
+    assert pitch.split()[2:5] == [f"{np.degrees(0.1):.2f}", f"{np.degrees(0.1):.2f}", f"[{np.degrees(0.09):.2f},"]
+    roll = next(line for line in lines if line.strip().startswith("roll deg"))
+    assert roll.split()[2:] == [f"{np.degrees(-0.02):.2f}", "(fixed)"]
+    rows = [line.split() for line in lines if line.startswith("  car")]
+    assert [r[0] for r in rows] == ["car0", "car1"]
+    assert rows[1][2:5] == [f"{np.hypot(2.0, 4.0):.2f}", "2.00", "4.00"]
+    assert rows[1][-2:] == [f"[{np.hypot(2.0, 4.0) - 0.25:.2f},", f"{np.hypot(2.0, 4.0) + 0.5:.2f}]"]
 
 
-def test_format_table_prints_a_row_with_one_precision_and_aligned_columns():
-    from creference_bayes.cli.estimate import format_table
+def test_format_tables_align_their_columns_with_and_without_a_posterior():
+    from creference_bayes.cli.estimate import format_tables
 
-    table = format_table(_fake_result())
-    lines = table.splitlines()
-
-    def cells(name):
-        line = next(line for line in lines if line.split()[0] == name)
-        return re.sub(r"\[\s+", "[", line).split()[1:]
-
-    assert cells("focal_length_px") == ["px", "1200", "1", "0", "[1,", "1]"]
-    assert cells("x") == ["m", "1.000", "1.000", "0.012", "[0.980,", "1.020]"]
-    hdi = [line.index("[") for line in lines[2:]]
-    assert len(set(hdi)) == 1  # the HDI column starts at the same place in every row
-    assert len({len(line) for line in lines[1:]}) == 1  # every row as wide as the rule under the header
+    for posterior in (True, False):
+        lines = format_tables(_fake_result(3, posterior)).splitlines()
+        cam = lines[2:7]
+        assert all(line[27] != " " and line[28:29] in ("", " ") for line in cam)  # the MAPs end in one column
+        if posterior:
+            hdi = [line.index("[") for line in cam[:4] if "[" in line]
+            assert len(set(hdi)) == 1 and len(hdi) == 3
+        head = next(line for line in lines if line.strip().startswith("target"))
+        rows = [line for line in lines if line.startswith("  car")]
+        assert {len(line) for line in rows} == {len(head)}  # every object row as wide as the header

@@ -1,14 +1,82 @@
-"""Fitting confidence maps (workflows/confidence/fit.py) on statements with a known true map:
-with ground truth, without (marginal likelihood), per group; levels, PAVA, the chosen shape."""
+"""Stated ranges and their truth in scenes of one or more targets (workflows/confidence/data.py),
+fitting confidence maps (fit.py) on statements with a known true map: with ground truth, without
+(marginal likelihood), per group; levels, PAVA, the chosen shape; leave-one-out posteriors (loo.py)."""
+
+import dataclasses
+import warnings
 
 import numpy as np
 import pytest
+from conftest import truth_scene
 from scipy import stats
 
 from creference_bayes.bench.confidence_workers import ConfidentWorkers
-from creference_bayes.workflows.confidence.data import StatedRange
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.workflows.confidence.data import StatedRange, stated_ranges
 from creference_bayes.workflows.confidence.fit import _P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth
-from creference_bayes.workflows.confidence.loo import N_DRAWS, RangePrediction
+from creference_bayes.workflows.confidence.loo import N_DRAWS, RangePrediction, predict_ranges
+
+
+def confident_scene(seed, workers, *, m=3, sizes_known=False, **kw):
+    """A scene of ``m`` targets made from a known state (conftest.truth_scene) whose references are
+    ranges stated with a confidence by ``workers``: two ground segments, the second also relative
+    to t0's length, t(m−1)'s own width and, with two targets or more, the ground distance t0–t1.
+    Returns the scene's dict and each reference's true value in the unit it is stated in (metres,
+    or the ratio to t0's length)."""
+    d, truth = truth_scene(seed, m=m, sizes_known=sizes_known, n_annotations=4, noise_px=2.0, n_refs=2, **kw)
+    objs, rng = truth["objects"], np.random.default_rng([seed, 7])
+    seg = d["references"]
+    refs = [dict(seg[0]), dict(seg[1]), {**seg[1], "mode": "relative", "target": "t0"},
+            {"target": f"t{m - 1}", "measure": "width", "unit": "m"}]
+    values = [seg[0]["value"], seg[1]["value"], seg[1]["value"] / objs[0, 3], objs[m - 1, 4]]
+    if m > 1:
+        refs.append({"targets": ["t0", "t1"], "measure": "distance", "unit": "m"})
+        values.append(float(np.hypot(*(objs[0, :2] - objs[1, :2]))))
+    del refs[2]["unit"]
+    for r, x in zip(refs, values):
+        worker, lo, hi, c = workers.state(rng)
+        r.pop("value", None)
+        r.update(range=[x * lo, x * hi], confidence=c, worker=worker)
+    d["references"] = refs
+    return d, values
+
+
+def _parse(d):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return parse_scene(d)
+
+
+def test_every_kind_of_reference_has_its_truth():
+    """Ground segments under the true camera, a relative one over the target's true length, a
+    target's own size and the distance between two targets from the targets' truth."""
+    d, values = confident_scene(0, ConfidentWorkers.pool("over"))
+    ranges = stated_ranges([("f", _parse(d))])
+    assert [r.index for r in ranges] == list(range(5))
+    np.testing.assert_allclose([r.truth for r in ranges], values, rtol=1e-3)
+    np.testing.assert_allclose([[r.low, r.high] for r in ranges], [r["range"] for r in d["references"]], rtol=1e-12)
+    assert [r.truth_source for r in ranges] == ["segment"] * 3 + ["object"] * 2
+    assert [r.group for r in ranges] == ["length/direct", "length/direct", "length/relative", "width/direct",
+                                         "distance/direct"]
+    stated = [1.1 * v for v in values[:2]] + [1.1 * values[1], 2.0, 9.0]  # metres: the objects' own lengths
+    d["ground_truth"]["reference_lengths_m"] = stated
+    truth = [r.truth for r in stated_ranges([("f", _parse(d))])]
+    np.testing.assert_allclose(truth, stated[:2] + [values[2] * 1.1] + stated[3:], rtol=1e-3)
+    del d["ground_truth"]
+    for t in d["targets"]:
+        t["ground_truth"].pop("dimensions_m")
+    ranges = stated_ranges([("f", _parse(d))])
+    assert [r.truth is None for r in ranges] == [True, True, True, True, False]
+    assert all(r.truth is None for r in stated_ranges([("f", _parse(d))], use_truth=False))
+
+
+def test_a_relative_range_to_a_target_of_known_size_is_read_in_metres():
+    d, values = confident_scene(1, ConfidentWorkers.pool("over"), m=1, sizes_known=True)
+    r = stated_ranges([("s", _parse(d))])[2]
+    length = d["targets"][0]["dimensions_m"]["length"]
+    assert (r.measure, r.mode) == ("length", "relative")
+    np.testing.assert_allclose([r.low, r.high, r.truth], np.array([*d["references"][2]["range"], values[2]]) * length,
+                               rtol=1e-3)
 
 
 def _statements(workers, n, seed, measure="length", mode="direct", scenes=None):
@@ -119,31 +187,28 @@ def test_nothing_to_fit_says_so():
         fit_with_truth(_statements(ConfidentWorkers.pool("over"), 20, seed=0))
 
 
-def test_leave_one_out_draws_match_an_estimate_without_the_range():
-    """The importance-weighted draws of a range's length equal (within Monte Carlo error) the
-    posterior of an estimate made without that range."""
-    import dataclasses
-    import warnings
-
-    from creference_bayes.bench.simulate import simulate_scene
-    from creference_bayes.io.scene import parse_scene
+@pytest.mark.parametrize("j", [4, pytest.param(0, marks=pytest.mark.slow)])
+def test_leave_one_out_draws_match_an_estimate_without_the_range(j):
+    """The importance-weighted draws of what a range measures equal (within Monte Carlo error) the
+    posterior of an estimate made without that range: the distance between the two targets of a
+    frame, and a ground segment."""
     from creference_bayes.models.metrology import ground_lengths
-    from creference_bayes.models.params import PARAM_NAMES
     from creference_bayes.pipeline import estimate
-    from creference_bayes.workflows.confidence.loo import predict_ranges
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        scene = parse_scene(simulate_scene(np.random.default_rng(8), tier="low", n_references=4,
-                                           n_target_annotations=3, confidence=ConfidentWorkers.pool("over")))
-    sampling = {"min_ess": 400}
+    scene = _parse(confident_scene(3, ConfidentWorkers.pool("over"), m=2)[0])
+    sampling = {"min_ess": 100, "n_chains": 4, "warmup": 200}
     preds, info = predict_ranges(scene, "s", seed=1, sampling=sampling)
-    assert info["ranges"] == len(preds) == 4
-    p = preds[0]
-    without = dataclasses.replace(scene, references=scene.references[1:])
-    post = estimate(without, seed=2, confidence_map="none", sampling=sampling).inference_data.posterior
-    draws = np.column_stack([np.asarray(post[k]).ravel() for k in PARAM_NAMES])
-    exact = np.log(ground_lengths(scene.references[0].line[None], scene.principal_point, draws)[:, 0])
+    assert info["ranges"] == len(preds) == 5 and info["skipped"] == 0
+    keep = [i for i in range(5) if i != j]
+    without = dataclasses.replace(scene, references=tuple(scene.references[i] for i in keep),
+                                  reference_targets=tuple(scene.reference_targets[i] for i in keep))
+    r = estimate(without, seed=2, confidence_map="none", sampling=sampling, keep_draws=0)
+    cams, objs = r.draws.cameras.reshape(-1, 5), r.draws.objects.reshape(-1, 2, 7)
+    if j == 4:
+        exact = np.log(np.hypot(objs[:, 0, 0] - objs[:, 1, 0], objs[:, 0, 1] - objs[:, 1, 1]))
+    else:
+        exact = np.log(ground_lengths(scene.references[j].line[None], scene.principal_point, cams)[:, 0])
+    p = preds[j]
+    assert p.range.index == j and (p.line_var > 0) == (j == 0)
     assert abs(np.mean(p.log_length) - exact.mean()) < 0.15 * exact.std() + 1e-3
     assert np.std(p.log_length) == pytest.approx(exact.std(), rel=0.2)
-    assert p.line_var > 0 and not p.refit

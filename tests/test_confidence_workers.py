@@ -12,6 +12,7 @@ from creference_bayes.bench.confidence_workers import STATED_LEVELS, TRUE_MAPS, 
 from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import parse_scene
+from creference_bayes.pipeline import reference_terms
 
 
 def test_without_jitter_the_true_map_is_a_normal_interval_scaled_by_the_width_factor():
@@ -55,11 +56,10 @@ def test_scenes_with_confident_workers():
         scene = parse_scene(d)
     truth = d["ground_truth"]["reference_lengths_m"]
     kinds = set()
-    for r in scene.references:
+    for r, term in zip(scene.references, reference_terms(scene)):  # every range in metres
         assert r.is_range and r.confidence in STATED_LEVELS and r.worker in workers.ids
-        lo, hi = r.length_bounds_m(scene.target)
         sigma = workers.scales[workers.ids.index(r.worker)]
-        assert abs(0.5 * np.log(lo * hi) - np.log(truth[r.index])) < 6 * sigma  # centred near the truth
+        assert abs(0.5 * np.log(term.low * term.high) - np.log(truth[r.index])) < 6 * sigma  # centred near the truth
         kinds.add((r.measure, r.mode))
     assert len(kinds) == 5  # measures and modes still cycle through the formats
     plain = simulate_scene(np.random.default_rng(3), tier="low", n_references=10)

@@ -1,156 +1,115 @@
-"""The Cramér–Rao bound: against the spread of a maximum-likelihood estimator (efficient at small
-noise), its scaling, its reference term and the Student-t equivalence."""
+"""The Cramér–Rao bound over the block model: against the spread of a maximum-likelihood estimator
+(efficient at small noise), its scaling, what references, a horizon and a known focal length add,
+scenes of several targets, and the Student-t equivalence."""
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy import integrate, stats
 from scipy.optimize import least_squares
 
-from creference_bayes.bench.crb import (cramer_rao, cramer_rao_scene, log_length_gradient,
-                                        line_log_sd, measurement_log_sd, projection_jacobian)
-from creference_bayes.core.geometry import (Camera, box_points, dimension_corners, project,
-                                           rotation_from_pitch_roll)
-from creference_bayes.models.metrology import ground_lengths
+from creference_bayes.bench.crb import cramer_rao, measurement_log_sd, scene_bound
+from creference_bayes.bench.runner import variant
+from creference_bayes.bench.simulate import PAPER_NOISE, TIERS, simulate_scene
+from creference_bayes.core.geometry import Camera, box_points, dimension_corners
 from creference_bayes.io.scene import parse_scene
-from creference_bayes.bench.simulate import PAPER_NOISE, simulate_scene, true_params
 
 
-def _scene(seed, **kw):
+def _scene(seed, n=5, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return parse_scene(simulate_scene(np.random.default_rng(seed), **kw))
-
-
-def _truth(scene):
-    g, t = scene.ground_truth, scene.target
-    return true_params(scene), dimension_corners(t.length, t.width, t.height, g.extra["handedness"]), Camera.from_scene(scene)
+        s = parse_scene(simulate_scene(np.random.default_rng(seed), **kw))
+    return variant(s, n, range(len(s.references)))
 
 
 def test_bound_matches_the_spread_of_maximum_likelihood():
-    """At σ = 0.5 px the least-squares (ML) estimator is unbiased and efficient: its sample
-    covariance over 300 noisy draws must match F⁻¹ (sd within 4 Monte Carlo standard errors)."""
-    scene = _scene(2, tier="none")
-    p0, X, cam = _truth(scene)
-    p0 = p0[:5]
-    uv = cam.project(box_points(p0[None], X), p0[None, 4])[0][0]
+    """At σ = 0.5 px least squares (ML) is unbiased and efficient: its covariance over 300 noisy
+    draws (projected through the horizon by core.geometry, an independent path) must match F⁻¹."""
+    scene = _scene(2, tier="none", decimals=None)
+    t, g = scene.targets[0], scene.ground_truth
+    cam = Camera.from_scene(scene)
+    X = dimension_corners(*t.dimensions, t.ground_truth["handedness"])
+    p0 = np.array([*t.ground_truth["location_m"], t.ground_truth["yaw_rad"], g["focal_length_px"]])
+
+    def project(q):
+        return cam.project(box_points(q, X), q[4])[0]
+
     sigma, n, trials = 0.5, 5, 300
     rng = np.random.default_rng(1)
-    est = []
-    for _ in range(trials):
-        obs = uv + rng.normal(0, sigma, (n, 4, 2))
-
-        def resid(q):
-            return (obs - cam.project(box_points(q[None], X), q[None, 4])[0][0]).ravel()
-
-        est.append(least_squares(resid, p0, x_scale=np.array([1, 1, 1, 0.1, 1000.0])).x)
-    sd_mc = np.std(np.array(est), axis=0, ddof=1)
-    crb = cramer_rao(p0, X, cam, sigma_px=sigma, n_annotations=n)
-    sd_crb = np.sqrt(np.diag(crb.cov))
+    est = np.array([least_squares(lambda q, obs=project(p0) + rng.normal(0, sigma, (n, 4, 2)): (obs - project(q)).ravel(),
+                                  p0, x_scale=np.array([1, 1, 1, 0.1, 1000.0])).x for _ in range(trials)])
+    bound = scene_bound(scene, sigma, priors=False)
+    assert bound.names == ("camera.focal_length_px", "camera.height_m", "0.x", "0.z", "0.yaw")
+    sd_crb = np.sqrt(np.diag(bound.cov))
+    sd_mc = np.std(est, axis=0, ddof=1)[[4, 1, 0, 2, 3]]  # (x, y, z, yaw, µ) in the bound's order
     np.testing.assert_allclose(sd_mc, sd_crb, rtol=4 / np.sqrt(2 * trials))
-    assert crb.names == ("x", "y", "z", "yaw", "focal_length_px")
-
-
-def test_free_orientation_costs_information_and_a_horizon_measurement_gives_it_back():
-    """Pitch and roll as parameters can only widen the bound; a precise horizon measurement
-    brings it back to the bound with a known horizon."""
-    s = _scene(3, tier="low")
-    known = cramer_rao_scene(s, references=True)
-    free = cramer_rao_scene(s, references=True, orientation_free=True)
-    measured = cramer_rao_scene(s, references=True, orientation_free=True, horizon_sd_px=1e-4)
-    assert free.names[-2:] == ("pitch", "roll")
-    assert free.rmse_m > known.rmse_m
-    assert measured.rmse_m == pytest.approx(known.rmse_m, rel=1e-3)
+    C = np.cov(est[:, :3].T)  # the location's covariance
+    np.testing.assert_allclose(np.sqrt(np.trace(C)), np.sqrt(np.trace(bound.location_cov[0])), rtol=0.15)
 
 
 def test_scaling_with_noise_and_annotations():
-    p0, X, cam = _truth(_scene(5, tier="none"))
-    a = cramer_rao(p0, X, cam, sigma_px=2.0, n_annotations=5)
-    b = cramer_rao(p0, X, cam, sigma_px=4.0, n_annotations=5)
-    c = cramer_rao(p0, X, cam, sigma_px=4.0, n_annotations=20)
-    assert b.rmse_m == pytest.approx(2 * a.rmse_m, rel=1e-9)
-    assert c.rmse_m == pytest.approx(a.rmse_m, rel=1e-9)
-    assert b.median_pct == pytest.approx(2 * a.median_pct, rel=1e-9)  # same draws, scaled
-    assert 0 < a.median_m < a.rmse_m  # ‖e‖ of a 3D Gaussian: median below RMS
-    zero = cramer_rao(p0, X, cam, sigma_px=0.0, n_annotations=5)
-    assert zero.rmse_pct == 0.0 and not zero.singular
+    scene = _scene(5, tier="none")
+    a = scene_bound(scene, 2.0, priors=False)
+    b = scene_bound(scene, 4.0, priors=False)
+    d = scene_bound(_scene(5, n=13, tier="none"), 4.0 * np.sqrt(13 / 5), priors=False)
+    assert b.rmse_pct[0] == pytest.approx(2 * a.rmse_pct[0], rel=1e-6)
+    assert b.median_pct[0] == pytest.approx(2 * a.median_pct[0], rel=1e-6)  # same draws, scaled
+    assert d.rmse_pct[0] == pytest.approx(b.rmse_pct[0], rel=1e-6)
+    assert 0 < a.median_m[0] < np.sqrt(np.trace(a.location_cov[0]))  # ‖e‖ of a 3D Gaussian: median below RMS
+    zero = scene_bound(scene, 0.0)
+    assert zero.rmse_pct[0] == 0.0 and not zero.singular
 
 
-def test_projection_jacobian_against_a_coarser_difference():
-    """With a horizon (pitch and roll follow from µ: Camera.project is an independent path) and
-    with pitch and roll free (OpenCV-style projection with R from the angles)."""
-    p0, X, cam = _truth(_scene(6, tier="none", principal_offset=0.05))
-    J = projection_jacobian(p0, X, cam)
-    assert J.shape == (8, 7) and np.all(J[:, 5:] == 0)
-    h = np.array([1e-4, 1e-4, 1e-4, 1e-5, 1e-2, 1e-5, 1e-5])
-    for k in range(5):
-        d = np.zeros(7)
-        d[k] = h[k]
-        up = cam.project(box_points((p0 + d)[None], X), (p0 + d)[None, 4])[0][0].ravel()
-        dn = cam.project(box_points((p0 - d)[None], X), (p0 - d)[None, 4])[0][0].ravel()
-        np.testing.assert_allclose(J[:, k], (up - dn) / (2 * h[k]), rtol=1e-4, atol=1e-6)
-    free_cam = Camera(cam.principal_point)
-    Jf = projection_jacobian(p0, X, free_cam, orientation_free=True)
-
-    def proj(q):
-        R = rotation_from_pitch_roll(q[5], q[6])
-        return project(box_points(q[None], X), R[None], q[None, 4], cam.principal_point)[0][0].ravel()
-
-    for k in range(7):
-        d = np.zeros(7)
-        d[k] = h[k]
-        np.testing.assert_allclose(Jf[:, k], (proj(p0 + d) - proj(p0 - d)) / (2 * h[k]), rtol=1e-4, atol=1e-6)
-
-
-def test_ground_lengths_match_backprojection_and_truth():
-    """ground_lengths against Camera.backproject_to_ground (an independent path) and the
-    simulator's true reference lengths."""
-    scene = _scene(9, tier="none", principal_offset=0.05, decimals=None)
-    g = scene.ground_truth
-    cam = Camera.from_scene(scene)
-    lines = np.asarray(g.extra["reference_lines_px"])
-    mu, h = g.focal_length_px, g.extra["camera_height_m"]
-
-    def full(m):
-        pitch, roll = cam.pitch_roll(m)
-        return np.array([[0.0, h, 1.0, 0.0, m, float(pitch), float(roll)]])
-
-    ell = ground_lengths(lines, cam.principal_point, full(mu))[0]
-    P = cam.backproject_to_ground(lines.reshape(-1, 2), mu, h).reshape(-1, 2, 3)
-    np.testing.assert_allclose(ell, np.linalg.norm(P[:, 1] - P[:, 0], axis=1), rtol=1e-10)
-    np.testing.assert_allclose(ell, g.extra["reference_lengths_m"], rtol=1e-8)
-    p = np.array([*g.location_m, g.yaw_rad, mu, 0.0, 0.0])
-    grad = log_length_gradient(lines, cam, p)
-    assert np.allclose(grad[:, [0, 2, 3, 5, 6]], 0) and np.allclose(grad[:, 1], 1 / h)
-    e = 1e-2
-    fd = (np.log(ground_lengths(lines, cam.principal_point, full(mu + e))[0])
-          - np.log(ground_lengths(lines, cam.principal_point, full(mu - e))[0])) / (2 * e)
-    np.testing.assert_allclose(grad[:, 4], fd, rtol=1e-5, atol=1e-12)
-    assert np.all(line_log_sd(lines, cam, p, 5.0) > 0)
-    free = log_length_gradient(lines, Camera(cam.principal_point), full(mu)[0], orientation_free=True)
-    assert np.all(np.abs(free[:, 5]) > 0)  # pitch changes every length
-
-
-def test_references_only_add_information():
-    for seed in range(4):
+def test_references_a_horizon_and_a_known_focal_length_only_add_information():
+    for seed in range(3):
         s = _scene(seed, tier="high")
-        a = cramer_rao_scene(s)
-        b = cramer_rao_scene(s, references=True)
-        assert np.all(np.linalg.eigvalsh(a.cov - b.cov) > -1e-9 * np.abs(a.cov).max())
-        assert b.rmse_m <= a.rmse_m + 1e-12
+        tier = TIERS["high"]
+        refs = dict(reference_log_sd=measurement_log_sd(tier.measurement), reference_sigma_px=tier.reference_px)
+        a, b = scene_bound(s, 10.0, priors=False), scene_bound(s, 10.0, priors=False, **refs)
+        assert np.all(np.linalg.eigvalsh(a.cov[:5, :5] - b.cov[:5, :5]) > -1e-9 * np.abs(a.cov).max())
+        free = scene_bound(replace(s, horizon=None), 10.0, priors=False, **refs)
+        measured = scene_bound(replace(s, horizon_sd_px=2.0), 10.0, priors=False, **refs)
+        assert free.names[1:3] == ("camera.pitch", "camera.roll") and measured.names == free.names
+        assert b.median_pct[0] < measured.median_pct[0] < free.median_pct[0]
+        known = scene_bound(replace(s, focal_length_px=s.ground_truth["focal_length_px"]), 10.0, priors=False, **refs)
+        assert "camera.focal_length_px" not in known.names and known.rmse_pct[0] < b.rmse_pct[0]
+
+
+def test_several_targets_share_the_camera_and_need_the_priors():
+    """A street scene of several targets of unknown size: the Bayesian bound is finite for every
+    one; a known focal length (conditioning on µ) can only narrow every target's location; the
+    data alone cannot fix the scale (sizes, depths and camera height grow together)."""
+    s = _scene(3, setting="street", n_objects=6, sizes="prior", horizon="none", n_references=0,
+               n_target_annotations=5, tier="low")
+    bound = scene_bound(s, 2.0)
+    assert len(bound.median_pct) == len(s.targets) and not bound.singular
+    assert np.all((bound.median_pct > 0) & np.isfinite(bound.median_pct)) and np.all(bound.distance_sd_m > 0)
+    known = scene_bound(replace(s, focal_length_px=s.ground_truth["focal_length_px"]), 2.0)
+    assert np.all(np.trace(known.location_cov, axis1=1, axis2=2) < np.trace(bound.location_cov, axis1=1, axis2=2))
+    data_only = scene_bound(s, 2.0, priors=False)
+    assert data_only.singular or np.all(data_only.median_pct > 100 * bound.median_pct)
+
+
+def test_cramer_rao_takes_the_model_and_the_truth():
+    from creference_bayes.bench.simulate import true_state
+    from creference_bayes.pipeline import build_model
+
+    s = _scene(6, tier="low")
+    model, _ = build_model(s, use_references=False)
+    model.handedness = np.array([s.targets[0].ground_truth["handedness"]], float)
+    camera, objects = true_state(s)
+    a = cramer_rao(model, camera, objects, 2.0, priors=False)
+    assert a.median_pct[0] == pytest.approx(scene_bound(s, 2.0, priors=False).median_pct[0])
+    assert cramer_rao(model, camera, objects, 2.0).rmse_pct[0] <= a.rmse_pct[0]  # the focal prior adds
 
 
 def test_student_t_equivalent_log_sd_is_its_fisher_information():
     """1/I for a t location: compare (ν+3)s²/(ν+1) with ∫ score² p by quadrature."""
     nu, s = PAPER_NOISE["dof"], PAPER_NOISE["scale"]
     dist = stats.t(nu, scale=s)
-
-    def integrand(x):
-        score = (nu + 1) * x / (nu * s**2 + x**2)
-        return score**2 * dist.pdf(x)
-
-    info = integrate.quad(integrand, -np.inf, np.inf)[0]
+    info = integrate.quad(lambda x: ((nu + 1) * x / (nu * s**2 + x**2)) ** 2 * dist.pdf(x), -np.inf, np.inf)[0]
     assert measurement_log_sd("paper") == pytest.approx(1 / np.sqrt(info), rel=1e-6)
     assert measurement_log_sd("40%") == 0.4 and measurement_log_sd("none") == 0.0
     with pytest.raises(ValueError, match="unknown"):

@@ -5,8 +5,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 from creference_bayes.cli.main import main
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"

@@ -23,22 +23,19 @@ TINY = {
     "batch_throughput.py": [(["--n", "2", "--engines", "local2", "--min-ess", "100", "--out", "bt"],
                              ["bt/local_2/summary.csv"])],
     "check_sampler.py": [(["--seeds", "1", "--steps", "400", "--min-ess", "200"], []),
-                         (["--frame", "3", "--seeds", "1", "--steps", "1000", "--min-ess", "200"], []),
-                         (["--frame", "3", "--distances", "2", "--seeds", "1", "--steps", "1000", "--min-ess", "200"],
+                         (["--objects", "3", "--distances", "2", "--seeds", "1", "--steps", "1000", "--min-ess", "200"],
                           [])],
     "confidence_study.py": [(["--quick", "--parts", "a", "--n-a", "10", "--replicates", "2", "--out", "cs"],
                              ["cs/confidence_study.md"])],
     "dataset_pipeline.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "dp"],
                              ["dp/labels/report.md"])],
     "estimate_scene.py": [([], [])],
-    "frame_advice_check.py": [(["--seeds", "1", "--annotations", "2", "--pairs", "1"], [])],
-    "frame_speed.py": [(["--counts", "3", "--frames", "1", "--max-iterations", "400"], [])],
+    "speed_by_objects.py": [(["--counts", "3", "--scenes", "1", "--max-steps", "400"], [])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
     "line_noise_bias.py": [(["--n", "2", "--draws", "200", "--estimates", "1", "--focal-prior", "1650,0.27"], [])],
     "measure_presets.py": [(["--n", "2"], [])],
-    "one_target_frames.py": [(["--per-tier", "1", "--tiers", "low", "--min-ess", "100"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"])],
@@ -160,20 +157,20 @@ def test_the_advice_study_accounts_for_every_estimate(tmp_path):
 
 def _spy_on(study, monkeypatch, *keys) -> dict:
     """Record, for every estimate the advice study makes, its keyword arguments ``keys`` (a tuple),
-    and for every advice its model options; the real functions still run."""
+    and for every advice the model it was given and its model options; the real functions still run."""
     seen = {"estimate": [], "advise": []}
-    real_estimate, real_advise = study.estimate, study.advise_posterior
+    real_estimate, real_advise = study.estimate, study.advise
 
     def spy_estimate(*a, **kw):
         seen["estimate"].append(tuple(kw.get(k) for k in keys))
         return real_estimate(*a, **kw)
 
-    def spy_advise(*a, **kw):
-        seen["advise"].append(kw.get("model_options"))
-        return real_advise(*a, **kw)
+    def spy_advise(model, *a, **kw):
+        seen["advise"].append((model, kw.get("options")))
+        return real_advise(model, *a, **kw)
 
     monkeypatch.setattr(study, "estimate", spy_estimate)
-    monkeypatch.setattr(study, "advise_posterior", spy_advise)
+    monkeypatch.setattr(study, "advise", spy_advise)
     return seen
 
 
@@ -195,30 +192,31 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     case = next(c for c in (study._own_case(0, k) for k in range(12)) if c["n_r"] >= 1)
     base, added = case["base"], case["added"]
     n_t, n_r = case["n_t"], case["n_r"]
-    assert len(base.target.dimension_lines) == n_t and len(base.references) == n_r
-    assert len(added["target"].target.dimension_lines) == n_t + 1
+    assert len(base.targets[0].dimension_lines) == n_t and len(base.references) == n_r
+    assert len(added["target"].targets[0].dimension_lines) == n_t + 1
     assert [r.line.tolist() for r in added["new-ref"].references[:n_r]] == [r.line.tolist() for r in base.references]
-    assert len(added["new-ref"].references) == n_r + 1 and len(added["repeat-ref"].references) == n_r + 1
-    rep, first = added["repeat-ref"].references[-1], base.references[0]
+    assert len(added["new-ref"].references) == n_r + 1
+    repeat = case["repeat"](0)  # a second worker's reading of the first reference, and only of it
+    assert case["repeat"](1) is None and len(repeat.references) == n_r + 1
+    rep, first = repeat.references[-1], base.references[0]
     assert rep.object == first.object and rep.worker != first.worker
-    true_line = np.asarray(base.ground_truth.extra["reference_lines_true_px"][0])
+    true_line = np.asarray(base.ground_truth["reference_lines_true_px"][0])
     assert np.abs(np.asarray(rep.line) - true_line).max() < 60 and np.abs(np.asarray(first.line) - true_line).max() < 60
     assert np.abs(np.asarray(rep.line) - first.line).max() > 0
-    keys = {c.key: c for c in case["cands"]}
-    assert set(keys) == {"target", "new-ref", "repeat-ref"} and 0 in keys["repeat-ref"].based_on
-    assert np.allclose(keys["new-ref"].line, added["new-ref"].references[-1].line)
 
     seen = _spy_on(study, monkeypatch, "bounds", "focal_prior")
     monkeypatch.chdir(tmp_path)
     study.main(["own", "--n", "1", "--min-ess", "100", "--out", "own"])
     box = SBC_BOX.bounds()
-    assert seen["estimate"] and all(np.array_equal(b.lower, box.lower) and np.array_equal(b.upper, box.upper)
-                                    and fp == "default" for b, fp in seen["estimate"])
-    assert seen["advise"] and all(np.array_equal(o["bounds"].upper, box.upper) for o in seen["advise"])
+    same = lambda b: all(np.array_equal(getattr(b, k), getattr(box, k))
+                         for k in ("camera_lower", "camera_upper", "object_lower", "object_upper"))
+    assert seen["estimate"] and all(same(b) and fp == "default" for b, fp in seen["estimate"])
+    assert seen["advise"] and all(same(model.bounds) for model, _ in seen["advise"])
     import json
 
     rec = json.loads((tmp_path / "own" / "own.jsonl").read_text().splitlines()[0])
-    assert isinstance(rec["handedness_kept_true"], bool) and 0.0 <= rec["yaw_quantile"] <= 1.0
+    assert all(isinstance(h, bool) for h in rec["handedness_kept_true"])
+    assert all(0.0 <= q <= 1.0 for q in rec["truth_quantile"])
     bad = subprocess.run([sys.executable, str(script), "own", "--focal-prior", "1650,0.27", "--out", "x"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr
@@ -248,15 +246,12 @@ def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, mo
                              capture_output=True, text=True, timeout=120)
         assert bad.returncode == 2 and "--sets" in bad.stderr and repr(bad_value) in bad.stderr
 
-    def row(kind, pred, real):  # shares of the distance before and after: predicted, realised
-        return {"kind": kind, "measure": None if kind == "target" else "length", "pred_now_m": 2.0,
-                "pred_after_m": 2.0 - pred, "real_before_m": 2.0, "real_after_m": 2.0 - real, "ess": 0.5,
-                "fallbacks": 0, "pred_now_share": 0.5, "pred_after_share": 0.5 - pred,
-                "real_before_share": 0.6, "real_after_share": 0.6 - real}
-    recs = [{"scene": f"s{i:04d}", "n_target": n, "n_refs": 0, "truth_quantile": 0.5, "advice_only_s": 0.1,
-             "n_candidates": 2, "rows": [row("target", p, r), row("new-ref", 0.01, 0.01)]}
-            for i, (n, p, r) in enumerate([(1, 0.06, 0.02), (1, 0.08, 0.01), (1, 0.04, 0.03),
-                                           (3, 0.01, 0.02), (4, 0.02, 0.02), (5, 0.03, 0.02)])]
+    def row(kind, pred, real):  # gains in points of the distance's HDI share: predicted, realised
+        return {"kind": kind, "measure": None if kind == "target" else "length", "pred_gain_pct": pred,
+                "real_gain_pct": real, "real_before_share": [0.6], "ess": 0.5, "fallbacks": 0}
+    recs = [{"scene": f"s{i:04d}", "n_target": n, "n_refs": 0, "truth_quantile": [0.5], "advice_only_s": 0.1,
+             "handedness_kept_true": [True], "n_candidates": 2, "rows": [row("target", p, r), row("new-ref", 1, 1)]}
+            for i, (n, p, r) in enumerate([(1, 6, 2), (1, 8, 1), (1, 4, 3), (3, 1, 2), (4, 2, 2), (5, 3, 2)])]
     (tmp_path / "fake").mkdir()
     (tmp_path / "fake" / "own.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
     text = study.report_predict(tmp_path / "fake", "own.jsonl")
@@ -266,30 +261,6 @@ def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, mo
     assert one[1:4] == ["3", "6.00", "2.00"] and one[4].startswith("0.33 [")
     assert more[1:4] == ["3", "2.00", "2.00"] and more[4].startswith("1.00 [")
     assert "| two |" not in part.split("\n\n")[1]  # fewer than three scenes: no row
-
-
-def test_the_advice_studys_reweight_fills_in_older_predict_records(tmp_path):
-    """``reweight`` reruns the base estimate of a predict record made without the update check
-    and records, for each kind added, the base draws' HDI width as they are and reweighted."""
-    import json
-
-    script = EXAMPLES[0].parent / "advice_study.py"
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    proc = subprocess.run([sys.executable, str(script), "predict", "--n", "1", "--min-ess", "100", "--out", "rw"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-1500:]
-    path = tmp_path / "rw" / "predict.jsonl"
-    rec = json.loads(path.read_text().splitlines()[0])
-    kinds = {row["kind"] for row in rec["rows"]}
-    for row in rec["rows"]:  # as a record from before the check was recorded
-        row.pop("rew_now_m"), row.pop("rew_after_m")
-    path.write_text(json.dumps(rec) + "\n")
-    proc = subprocess.run([sys.executable, str(script), "reweight", "--n", "1", "--min-ess", "100", "--out", "rw"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-1500:]
-    out = json.loads((tmp_path / "rw" / "reweight.jsonl").read_text().splitlines()[0])
-    assert out["scene"] == rec["scene"] and set(out["rows"]) == kinds
-    assert all(now is None or (now > 0 and after > 0) for now, after in out["rows"].values())
 
 
 def test_the_advice_studys_policy_can_rank_by_location_error():
@@ -332,7 +303,7 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
     study._FOCAL_PRIOR = study.FocalPrior(1650.0, 0.27, float("inf"), source="scene")
-    base = study._predict_case(0, 0, ["medium"])["base"]
+    base = study._predict_case(0, 0, ["medium"], 1, None)["base"]
     assert base.focal_prior == study._FOCAL_PRIOR
     from creference_bayes.camera_setup import setup_camera
 
@@ -349,9 +320,8 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
 
 
 def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
-    """``--line-reading corrected`` and ``--ref-scale`` reach every estimate and every advice of the
-    study (their model options), are recorded, and a folder made with other options is refused on
-    resume; a crowd scale that is not positive is a usage error."""
+    """``--line-reading corrected`` reaches every estimate and every advice of the study (their
+    model options), is recorded, and a folder made with another reading is refused on resume."""
     import importlib.util
     import json
 
@@ -359,21 +329,15 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     spec = importlib.util.spec_from_file_location("advice_study_lr", script)
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
-    seen = _spy_on(study, monkeypatch, "line_reading", "ref_scale")
+    seen = _spy_on(study, monkeypatch, "line_reading")
     monkeypatch.chdir(tmp_path)
-    study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--ref-scale", "0.75",
-                "--out", "lr"])
-    assert seen["estimate"] and set(seen["estimate"]) == {("corrected", 0.75)}
-    assert seen["advise"] and all(o == {"line_reading": "corrected", "ref_scale": 0.75} for o in seen["advise"])
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
+    assert seen["estimate"] and set(seen["estimate"]) == {("corrected",)}
+    assert seen["advise"] and all(o == {"line_reading": "corrected"} for _, o in seen["advise"])
     rec = json.loads((tmp_path / "lr" / "predict.jsonl").read_text().splitlines()[0])
-    assert rec["line_reading"] == "corrected" and rec["ref_scale"] == 0.75
+    assert rec["line_reading"] == "corrected"
     with pytest.raises(SystemExit, match="line reading 'corrected'.*'linear'.*another --out"):
-        study.main(["predict", "--n", "1", "--min-ess", "100", "--ref-scale", "0.75", "--out", "lr"])
-    with pytest.raises(SystemExit, match="crowd scale 0.75.*None.*another --out"):
-        study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
-    with pytest.raises(SystemExit) as bad:
-        study.main(["predict", "--ref-scale", "0", "--out", "x"])
-    assert bad.value.code == 2
+        study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
 
 
 def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_with_it():

@@ -160,20 +160,18 @@ def test_merge_collinear_joins_pieces_of_one_line_only():
 
 # -- the pipeline: a scene with an image and no horizon ----------------------------------------------
 
-def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_scene):
+def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_truth_scene):
     from creference_bayes.pipeline import estimate
-    from creference_bayes.io.scene import scene_to_dict
 
-    scene = make_scene(3, tier="none", image_size=(W, H))
-    gt = scene.ground_truth.extra
+    data, truth = make_truth_scene(3, image=(W, H), n_refs=3, n_annotations=3, noise_px=1.0, focal_px=800.0,
+                                   pitch_deg=5.0, roll_deg=2.0, height_m=1.5)
+    gt = data["ground_truth"]
+    pp = np.array(data["camera"]["principal_point"])
     R = rotation_from_pitch_roll(gt["pitch_rad"], gt["roll_rad"])
-    img, true = render(math.degrees(gt["pitch_rad"]), math.degrees(gt["roll_rad"]),
-                       scene.ground_truth.focal_length_px, height=gt["camera_height_m"], seed=5)
-    assert np.allclose(true, horizon_from_rotation(R, scene.ground_truth.focal_length_px,
-                                                   scene.principal_point, W))
+    img, true = render(math.degrees(gt["pitch_rad"]), math.degrees(gt["roll_rad"]), gt["focal_length_px"],
+                       pp=pp, height=gt["camera_height_m"], seed=5)
+    assert np.allclose(true, horizon_from_rotation(R, gt["focal_length_px"], pp, W))
     cv2.imwrite(str(tmp_path / "scene.png"), img)
-    data = scene_to_dict(scene)
-    del data["horizon"]
     data["image"]["path"] = "scene.png"
     (tmp_path / "scene.json").write_text(json.dumps(data))
     with warnings.catch_warnings():
@@ -181,15 +179,15 @@ def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_scen
         result = estimate(tmp_path / "scene.json", posterior=False, seed=0)
     notes = [w for w in result.warnings if "estimated from the image" in w]
     assert len(notes) == 1 and "confidence" in notes[0] and "measurement" in notes[0]
-    d = result.to_dict()
-    est = d["horizon_estimate"]
+    setup = result.to_dict()["camera"]["setup"]
+    est = setup["horizon_estimate"]
     assert horizon_error(np.array(est["points"]), true, W, H) < 0.01
     # the estimate enters as a measurement: pitch and roll are free, with the estimate's sd
-    assert d["camera"]["orientation"] == "free"
-    assert d["camera"]["horizon"]["source"] == "image"
-    assert d["camera"]["horizon"]["sd_px"] == pytest.approx(est["sd_px"]) and est["sd_px"] >= 0.012 * W
-    assert d["camera"]["horizon"]["dof"] == est["dof"] == 1.0  # heavy-tailed, as measured on KITTI
-    assert abs(d["map"]["pitch"] - gt["pitch_rad"]) < np.radians(1.0)
+    assert setup["orientation"] == "free"
+    assert setup["horizon"]["source"] == "image"
+    assert setup["horizon"]["sd_px"] == pytest.approx(est["sd_px"]) and est["sd_px"] >= 0.012 * W
+    assert setup["horizon"]["dof"] == est["dof"] == 1.0  # heavy-tailed, as measured on KITTI
+    assert abs(result.to_dict()["camera"]["map"]["pitch"] - gt["pitch_rad"]) < np.radians(1.0)
     # without an image the pipeline says it estimated pitch and roll with the annotations
     del data["image"]["path"]
     (tmp_path / "level.json").write_text(json.dumps(data))
@@ -197,7 +195,7 @@ def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_scen
         warnings.simplefilter("ignore")
         level = estimate(tmp_path / "level.json", posterior=False, seed=0)
     assert any("no horizon and no image: pitch and roll estimated" in w for w in level.warnings)
-    assert level.to_dict()["camera"]["orientation"] == "free"
+    assert level.to_dict()["camera"]["setup"]["orientation"] == "free"
 
 
 def test_kitti_check_script_measures_the_error_against_p2s_level_horizon(tmp_path):
@@ -237,16 +235,23 @@ def test_kitti_check_script_measures_the_error_against_p2s_level_horizon(tmp_pat
 def test_an_image_horizon_far_off_costs_little_a_stated_one_a_lot():
     """The image estimate is a heavy-tailed (Cauchy) measurement: 30 scales off costs a few nats,
     where a normal one would cost 900."""
-    from creference_bayes.models.camera_terms import HorizonMeasurement
-    from creference_bayes.models.params import FOCAL, PITCH, ROLL
+    from creference_bayes.models.camera_terms import CameraTerms, HorizonMeasurement
+    from creference_bayes.models.contract import C_FOCAL, C_PITCH, Model, ObjectData
 
-    full = np.zeros((2, 7))
-    full[:, FOCAL] = 1000.0
-    full[1, PITCH] = math.atan(300.0 / 1000.0)  # the state's horizon 300 px from the measured one
+    cams = np.zeros((2, 5))
+    cams[:, C_FOCAL] = 1000.0
+    cams[1, C_PITCH] = math.atan(300.0 / 1000.0)  # the state's horizon 300 px from the measured one
     pts = np.array([[0.0, 300.0], [600.0, 300.0]])
-    image = HorizonMeasurement(pts, 10.0, "image", dof=1.0).neg_log(full, (300.0, 300.0))
-    stated = HorizonMeasurement(pts, 10.0, "scene").neg_log(full, (300.0, 300.0))
-    assert image[0] == stated[0] == 0.0
+    obj = [ObjectData("a", np.zeros((1, 4, 2)), 1, (1.0, 1.0, 1.0))]
+
+    def nll(measurement):
+        m = Model((300.0, 300.0), (600, 600), obj, camera_terms=CameraTerms(horizon=measurement),
+                  ground_tilt_sd_rad=0.0)
+        v = m.horizon_nll(cams)
+        return v - v[0]
+
+    image = nll(HorizonMeasurement(pts, 10.0, "image", dof=1.0))
+    stated = nll(HorizonMeasurement(pts, 10.0, "scene"))
     assert stated[1] == pytest.approx(900.0)
     assert image[1] == pytest.approx(1.5 * np.log1p(2 * 30.0**2)) and image[1] < 12
     with pytest.raises(ValueError, match="horizon dof"):
@@ -308,9 +313,10 @@ def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_h
     rows = [line.split() for line in labels.splitlines()]
     for (sid, scene, level), car in zip(scenes, (rows[0], rows[2])):
         h, w, l = map(float, car[8:11])
-        assert scene["target"]["dimensions_m"] == {"length": l, "width": w, "height": h}
-        assert len(scene["target"]["dimension_lines"]) == 3 and scene["camera"]["focal_length_px"] is None
-        np.testing.assert_allclose(scene["ground_truth"]["location_m"], np.array(car[11:14], float) + offset)
+        (target,) = scene["targets"]
+        assert scene["format"] == "creference-scene/2" and target["dimensions_m"] == {"length": l, "width": w, "height": h}
+        assert len(target["dimension_lines"]) == 3 and scene["camera"]["focal_length_px"] is None
+        np.testing.assert_allclose(target["ground_truth"]["location_m"], np.array(car[11:14], float) + offset)
         np.testing.assert_allclose(level, [[0.0, P2[1, 2]], [1242.0, P2[1, 2]]])
         assert "horizon" not in scene and Path(scene["image"]["path"]).exists()
         # the other two objects, each a range on a bottom edge as long as the object (projected by P2)

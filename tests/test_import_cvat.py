@@ -1,54 +1,52 @@
-"""CVAT import/export: a hand-written CVAT for images 1.1 file, the round trip through simulated
-scenes, the shipped label spec, untrusted XML, and the bad-input messages."""
+"""CVAT import/export: a hand-written CVAT for images 1.1 file, images of several targets, round
+trips of scenes of one and several targets, the shipped label spec, untrusted XML, the --targets
+table, --image-dir, and the bad-input messages (naming the image and the shape)."""
 
 import json
 import re
 import zipfile
 from pathlib import Path
 
-import numpy as np
 import pytest
+from test_import_labelstudio import KAYAK, tool_scene
 
-from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.cli import main
 from creference_bayes.io.annotation_tools import REFERENCE_FIELDS, ConversionError, load_target_table
 from creference_bayes.io.cvat import (LABEL_ATTRIBUTES, cvat_label_spec, cvat_xml, read_cvat_xml,
                                       scenes_from_cvat)
+from creference_bayes.models.size_priors import KITTI_SIZE_PRIORS, size_priors_from_dict
 
 DATA = Path(__file__).parent / "data"
 XML = DATA / "cvat_annotations.xml"
 
 
-def _convert(text: str, **kw):
-    return scenes_from_cvat(read_cvat_xml(text.encode()), **kw)
+def _convert(text, **kw):
+    return scenes_from_cvat(read_cvat_xml(text if isinstance(text, bytes) else text.encode()), **kw)
 
 
 def test_xml_file_gives_the_hand_written_scenes(assert_same_scene):
     report = scenes_from_cvat(read_cvat_xml(XML))
     scenes = {s.name: s.scene for s in report.scenes}
-    assert sorted(scenes) == ["living_room_cupboard", "living_room_lamp", "photos_street"]
-    sofa = {"measure": "length", "mode": "direct", "value": 80, "unit": "in", "object": "sofa",
-            "confidence": 0.6, "worker": "w3", "line": [[400, 2700], [1200, 2760]]}
-    horizon = [[0, 1200], [4000, 1260]]
-    assert_same_scene(scenes["living_room_cupboard"], {
-        "format": "creference-scene/1", "image": {"width": 4000, "height": 3000}, "horizon": horizon,
-        "target": {"id": "cupboard", "dimensions_m": {"length": 1.2, "width": 0.5, "height": 2.0},
-                   "dimension_lines": [
-                       {"worker": "w1", "corners": [[1600, 2400], [2000, 2340], [1520, 2280], [1600, 1500]]},
-                       {"worker": "w2", "corners": [[1640.5, 2430.25], [2040, 2370], [1480, 2250], [1640, 1470]]}]},
-        "references": [sofa,  # no target_id, direct: shared by both targets of the image
-                       {"measure": "width", "mode": "relative", "range": [0.9, 1.2],
-                        "line": [[3000, 2850], [3400, 2820]]}]})
-    assert_same_scene(scenes["living_room_lamp"], {
-        "format": "creference-scene/1", "image": {"width": 4000, "height": 3000}, "horizon": horizon,
-        "target": {"id": "lamp", "dimensions_m": {"length": 0.4, "width": 0.4, "height": 1.6},
-                   "dimension_lines": [{"worker": "w1", "corners": [[3000, 2000], [3100, 1990],
-                                                                    [2950, 1980], [3000, 1700]]}]},
-        "references": [sofa]})
+    assert sorted(scenes) == ["living_room", "photos_street"]
+    assert_same_scene(scenes["living_room"], {
+        "format": "creference-scene/2", "image": {"width": 4000, "height": 3000},
+        "horizon": [[0, 1200], [4000, 1260]],
+        "targets": [
+            {"id": "cupboard", "dimensions_m": {"length": 1.2, "width": 0.5, "height": 2.0},
+             "dimension_lines": [
+                 {"worker": "w1", "corners": [[1600, 2400], [2000, 2340], [1520, 2280], [1600, 1500]]},
+                 {"worker": "w2", "corners": [[1640.5, 2430.25], [2040, 2370], [1480, 2250], [1640, 1470]]}]},
+            {"id": "lamp", "dimensions_m": {"length": 0.4, "width": 0.4, "height": 1.6},
+             "dimension_lines": [{"worker": "w1", "corners": [[3000, 2000], [3100, 1990], [2950, 1980], [3000, 1700]]}]}],
+        "references": [
+            {"measure": "length", "mode": "direct", "value": 80, "unit": "in", "object": "sofa",  # no target_id:
+             "confidence": 0.6, "worker": "w3", "line": [[400, 2700], [1200, 2760]]},          # a ground segment
+            {"measure": "width", "mode": "relative", "range": [0.9, 1.2], "target": "cupboard",
+             "line": [[3000, 2850], [3400, 2820]]}]})
     assert_same_scene(scenes["photos_street"], {
-        "format": "creference-scene/1", "image": {"width": 2000, "height": 1000},
-        "target": {"id": "street", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
-                   "dimension_lines": [{"corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]},
+        "format": "creference-scene/2", "image": {"width": 2000, "height": 1000},
+        "targets": [{"id": "street", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
+                     "dimension_lines": [{"corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]}],
         "references": [{"measure": "distance", "mode": "direct", "range": [10, 15], "unit": "ft",
                         "line": [[400, 999], [500, 750]]}]})
     assert [str(e) for e in report.errors] == [
@@ -66,8 +64,7 @@ def test_cli_reads_the_xml_or_the_zip_and_exits_2_on_the_bad_image(tmp_path, cap
     for source in (XML, zpath):
         out = tmp_path / source.suffix[1:]
         assert main(["import", "cvat", str(source), "--out", str(out), "--image-dir", str(tmp_path)]) == 2
-        assert sorted(p.name for p in out.iterdir()) == [
-            "living_room_cupboard.json", "living_room_lamp.json", "photos_street.json"]
+        assert sorted(p.name for p in out.iterdir()) == ["living_room.json", "photos_street.json"]
         street = json.loads((out / "photos_street.json").read_text())
         assert street["image"]["path"] == "../photos/street.png"
     assert "error: image 'bad.jpg', shape 1 (polyline 'reference')" in capsys.readouterr().err
@@ -88,31 +85,83 @@ def test_print_labels_is_the_shipped_spec(capsys):
                 assert a["default_value"] == a["values"][0] == "__undefined__"
             else:
                 assert a["input_type"] == "text" and a["default_value"] == ""
+    (target,) = [lab for lab in spec if lab["name"] == "target"]
+    (cls,) = [a for a in target["attributes"] if a["name"] == "class"]
+    assert set(cls["values"][1:]) == set(KITTI_SIZE_PRIORS)
 
 
 # ----------------------------------------------------------------------------------------------
-# round trip: simulated scenes → CVAT XML → import → the same scenes (to CVAT's 0.01 px)
+# round trips: scenes → CVAT XML → import → the same scenes (to CVAT's 0.01 px)
+
+#: What CVAT cannot carry: the camera, the horizon's sd, seconds, the ground truth.
+_LOST = ("camera", "horizon_sd_px", "seconds", "ground_truth")
+_CLASSES = size_priors_from_dict({"Kayak": KAYAK}, source="file")
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
 def test_round_trip_through_cvat_xml(seed, assert_same_scene):
-    scenes = [simulate_scene(np.random.default_rng(seed * 10 + k), tier="high", n_references=6,
-                             target_id=f"t{k}") for k in range(2)]
-    scenes[1]["horizon"] = scenes[0]["horizon"]  # both targets on one image
-    text = cvat_xml(scenes, image_names=["room.jpg", "room.jpg"])
-    assert len(re.findall(r"<image ", text)) == 1
-    report = _convert(text)
+    scenes = [tool_scene(seed, m=3), tool_scene(seed + 10, m=1), tool_scene(seed + 20, m=5)]
+    text = cvat_xml(scenes, image_names=["a.png", "b/c.png", "d.png"])
+    report = _convert(text, classes=_CLASSES)  # the scene's own classes come back from --classes
     assert report.ok, report.errors
-    back = {s.scene["target"]["id"]: s.scene for s in report.scenes}
-    for s in scenes:
-        # what CVAT cannot carry: seconds, the ground truth (the camera here is the default one)
-        assert_same_scene(back[s["target"]["id"]], s, atol=0.005, drop=("seconds", "ground_truth"))
+    assert [s.name for s in report.scenes] == ["a", "b_c", "d"]
+    for s, want in zip(report.scenes, scenes):
+        assert_same_scene(s.scene, want, atol=0.005, drop=_LOST)
+        if "classes" not in want:
+            assert "classes" not in s.scene
 
 
-def test_export_refuses_scenes_that_disagree_on_their_shared_image():
-    a, b = (simulate_scene(np.random.default_rng(k)) for k in range(2))
+def test_scenes_on_one_image_become_one_scene(assert_same_scene):
+    """Two scene files of one photo (e.g. version-1 files, one per target) share its <image> and
+    import as one scene holding both targets."""
+    a, b = tool_scene(3, m=1), tool_scene(3, m=2)
+    b["targets"] = b["targets"][1:]
+    b["references"] = [r for r in b["references"] if r.get("target") != "t0"]
+    text = cvat_xml([a, b], image_names=["room.jpg", "room.jpg"])
+    assert len(re.findall(r"<image ", text)) == 1
+    (s,) = _convert(text).scenes
+    both = {**a, "targets": a["targets"] + b["targets"], "references": a["references"] + b["references"]}
+    assert_same_scene(s.scene, both, atol=0.005, drop=_LOST)
+
+
+def test_export_refuses_what_it_cannot_write():
+    a, b = tool_scene(0, m=1), tool_scene(1, m=1)
+    b["horizon"][1][1] += 5.0
     with pytest.raises(ValueError, match="disagree on its size or horizon"):
         cvat_xml([a, b], image_names=["x.jpg", "x.jpg"])
+    with pytest.raises(ValueError, match=r"share a target id \(\['t0', 't0'\]\)"):
+        cvat_xml([a, {**a, "references": []}], image_names=["x.jpg", "x.jpg"])
+    a["references"].append({"measure": "height", "mode": "direct", "value": 1.8, "unit": "m", "target": "t0"})
+    with pytest.raises(ValueError, match=r"references\[4\]: a height of 't0' without a line"):
+        cvat_xml([a])
+
+
+# ----------------------------------------------------------------------------------------------
+# images of several targets: classes, sizes, references naming their target
+
+
+def _target(tid, cls="", pts="1000,700;1200,700;900,650;1000,400", size=None):
+    attrs = f'<attribute name="target_id">{tid}</attribute><attribute name="class">{cls}</attribute>'
+    if size:
+        attrs += "".join(f'<attribute name="{k}_m">{v}</attribute>' for k, v in zip(("length", "width", "height"), size))
+    return f'<points label="target" points="{pts}">{attrs}</points>'
+
+
+def test_an_image_of_several_targets_is_one_scene():
+    doc = _doc(_target("car1", "Car"), _target("car1", "Car", "1010,705;1210,700;905,650;1000,405"),
+               _target("post", "", "300,700;320,700;300,690;300,300", size=(0.2, 0.2, 3.0)),
+               _ref("car1", "relative", unit=""), _ref("", "direct", "5", "m"),
+               '<polyline label="horizon" points="0,300;2000,320"></polyline>', name="street.png")
+    report = _convert(doc)
+    assert report.ok, report.errors
+    (s,) = report.scenes
+    assert s.name == "street"
+    d = s.scene
+    assert [(t["id"], t.get("class"), t.get("dimensions_m"), len(t["dimension_lines"])) for t in d["targets"]] == [
+        ("car1", "Car", None, 2), ("post", None, {"length": 0.2, "width": 0.2, "height": 3.0}, 1)]
+    assert d["targets"][0]["dimension_lines"][1]["corners"] == [[1010, 705], [1210, 700], [905, 650], [1000, 405]]
+    assert [(r["mode"], r.get("target")) for r in d["references"]] == [("relative", "car1"), ("direct", None)]
+    assert d["horizon"] == [[0.0, 300.0], [2000.0, 320.0]]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -155,9 +204,13 @@ def _ref(tid="", mode="direct", value="2", unit="m", pts="100,900;300,920"):
     (_doc(_TARGET.format(tid=""), size='width="2000"'), "image 'im.jpg': height is not a number: None"),
     (_doc(_ref()), "image 'im.jpg': references or a horizon but no target shape"),
     (_doc(_TARGET.format(tid="").replace("1000,400", "1000,-900")),
-     "image 'im.jpg', shape 0 (points 'target'): target.dimension_lines[0].corners[3]: point [1000, -900]"),
+     "image 'im.jpg', shape 0 (points 'target'): targets[0].dimension_lines[0].corners[3]: point [1000, -900]"),
     (_doc(_TARGET.format(tid=""), '<polyline label="horizon" points="5,0;5,900"/>'),
      "a vertical horizon line at u = 5 cannot be used"),
+    (_doc(_target("a", "Car"), _target("a", "Van")), "shape 1 (points 'target'): class 'Van' here but 'Car' on shape 0"),
+    (_doc(_target("a", "Spaceship")), "shape 0 (points 'target'): targets[0].class: no size prior for class 'Spaceship'"),
+    (_doc(_target("a", "Car"), _TARGET.format(tid="b"), _ref(tid="b", unit="__undefined__")),
+     "image 'im.jpg', shape 2 (polyline 'reference'): a direct measurement needs a unit"),
 ])
 def test_bad_image_is_reported_with_image_and_shape(doc, message):
     report = _convert(doc)
@@ -166,12 +219,14 @@ def test_bad_image_is_reported_with_image_and_shape(doc, message):
     assert message in str(err), str(err)
 
 
-def test_one_bad_target_does_not_skip_the_other_target_of_its_image():
-    report = _convert(_doc(_TARGET.format(tid="a"), _TARGET.format(tid="b"),
-                           _ref(tid="b", unit="__undefined__")))
-    assert [s.name for s in report.scenes] == ["im_a"]
-    assert str(report.errors[0]).startswith("image 'im.jpg', shape 2 (polyline 'reference'): "
-                                            "a direct measurement needs a unit")
+def test_one_bad_image_does_not_skip_the_others():
+    bad = _doc(_TARGET.format(tid="a"), _ref(tid="a", unit="__undefined__"))
+    good = _doc(_TARGET.format(tid="b"), name="b.jpg")
+    two = bad.replace("</annotations>", good[good.index("<image "):])
+    report = _convert(two)
+    assert [s.name for s in report.scenes] == ["b"]
+    (err,) = report.errors
+    assert str(err).startswith("image 'im.jpg', shape 1 (polyline 'reference'): a direct measurement needs a unit")
 
 
 def test_sizes_from_the_targets_table(tmp_path):
@@ -181,7 +236,7 @@ def test_sizes_from_the_targets_table(tmp_path):
     csv = tmp_path / "t.csv"
     csv.write_text("target_id,length_m,width_m,height_m\nsofa,2.1,0.9,0.8\n")
     (s,) = _convert(_doc(bare), targets=load_target_table(csv)).scenes
-    assert s.scene["target"]["dimensions_m"] == {"length": 2.1, "width": 0.9, "height": 0.8}
+    assert s.scene["targets"][0]["dimensions_m"] == {"length": 2.1, "width": 0.9, "height": 0.8}
 
 
 @pytest.mark.parametrize("table, message", [
@@ -283,7 +338,7 @@ def test_a_targets_row_may_give_only_a_focal_length(tmp_path):
                              "im.jpg,,,,,2100\n")     # the camera of im.jpg, no target
     (s,) = _convert(_doc(_TARGET.format(tid="sofa")), targets=table).scenes
     assert s.scene["camera"] == {"focal_length_px": 2100.0}
-    assert s.scene["target"]["dimensions_m"] == {"length": 1.6, "width": 0.8, "height": 0.75}  # the export's
+    assert s.scene["targets"][0]["dimensions_m"] == {"length": 1.6, "width": 0.8, "height": 0.75}  # the export's
     (s,) = _convert(_doc(_TARGET.format(tid="lamp")), targets=table).scenes  # the image's own row
     assert s.scene["camera"] == {"focal_length_px": 2100.0}
     (s,) = _convert(_doc(_TARGET.format(tid="lamp"), name="other.jpg"), targets=table).scenes
@@ -297,7 +352,7 @@ def test_targets_rows_of_one_photo_must_agree_on_the_focal_length(tmp_path):
     table = _table(tmp_path, "image,target_id,length_m,width_m,height_m,focal_length_px\n"
                              "im.jpg,,,,,2100\nim.jpg,sofa,,,,1900\n")
     (err,) = _convert(_doc(_TARGET.format(tid="sofa")), targets=table).errors
-    assert str(err) == ("image 'im.jpg', target 'sofa': the --targets table gives focal lengths 2100 px "
+    assert str(err) == ("image 'im.jpg': the --targets table gives focal lengths 2100 px "
                         "(t.csv line 2) and 1900 px (t.csv line 3) for one photo (one camera)")
 
 
@@ -372,7 +427,8 @@ def test_a_target_drawn_with_another_shape_is_ignored_with_a_note(tag):
     report = _convert(_doc(_TARGET.format(tid="sofa"), other))
     assert report.ok, report.errors
     (s,) = report.scenes
-    assert s.scene["target"]["id"] == "sofa" and len(s.scene["target"]["dimension_lines"]) == 1
+    (t,) = s.scene["targets"]
+    assert t["id"] == "sofa" and len(t["dimension_lines"]) == 1
     assert f"image 'im.jpg', shape 1: <{tag}> 'target' ignored (a target is drawn as points or a polyline)" \
         in report.notes
 

@@ -1,4 +1,4 @@
-"""Fuzzing the importers: the shipped test exports (and a frame of each tool), mutated at random
+"""Fuzzing the importers: the shipped test exports (and a scene of several targets in each tool), mutated at random
 (values replaced by other types, keys deleted or added, lists cut short, elements duplicated,
 XML attributes and tags changed), must either convert or be refused with the package's own input
 error, ConversionError (which the command line reports in one line with exit status 2), never
@@ -14,29 +14,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from creference_bayes.bench.frame_simulate import simulate_frame
+from test_import_labelstudio import KAYAK, tool_scene
+
 from creference_bayes.io.annotation_tools import ConversionError
 from creference_bayes.io.cvat import cvat_xml, read_cvat_xml, scenes_from_cvat
 from creference_bayes.io.labelstudio import label_studio_tasks, loads_export, scenes_from_label_studio
+from creference_bayes.models.size_priors import size_priors_from_dict
 
 DATA = Path(__file__).parent / "data"
 #: CREFERENCE_FUZZ_EXAMPLES=5000 runs a longer fuzz (and a random one) when looking for crashes.
 _N = int(os.environ.get("CREFERENCE_FUZZ_EXAMPLES", "150"))
 FUZZ = settings(max_examples=_N, deadline=None, derandomize=_N <= 150,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-
-
-def _frame():
-    """A simulated frame of three targets with a ratio to a target, a ground segment and a distance."""
-    f = simulate_frame(5, kind="street", n_objects=3, n_annotations=2, horizon="sd")
-    w, h = f["image"]["width"], f["image"]["height"]
-    f["targets"][0]["dimension_lines"][0]["worker"] = f["targets"][1]["dimension_lines"][0]["worker"] = "w1"
-    f["references"] = [
-        {"measure": "length", "mode": "relative", "value": 2.0, "target": "t0", "worker": "w1",
-         "line": [[0.1 * w, 0.95 * h], [0.3 * w, 0.97 * h]]},
-        {"measure": "width", "mode": "direct", "range": [1.0, 2.0], "unit": "m", "confidence": 0.7,
-         "object": "bench", "line": [[0.5 * w, 0.96 * h], [0.6 * w, 0.97 * h]]}]
-    return f
 
 
 def _second_task_on_one_image(tasks):
@@ -48,10 +37,13 @@ def _second_task_on_one_image(tasks):
 
 
 LS_EXPORT = json.loads((DATA / "label_studio_export.json").read_text())
-LS_FRAMES = (LS_EXPORT + [_second_task_on_one_image(LS_EXPORT)]
-             + label_studio_tasks([_frame()], lines="keypoints") + label_studio_tasks([_frame()], lines="vectors"))
+#: The export, a second task on one of its images, and scenes of three targets (keypoints and vectors).
+LS_SCENES = (LS_EXPORT + [_second_task_on_one_image(LS_EXPORT)]
+             + label_studio_tasks([tool_scene(5)], lines="keypoints", start_id=30)
+             + label_studio_tasks([tool_scene(5)], lines="vectors", start_id=40))
 CVAT_XML = (DATA / "cvat_annotations.xml").read_bytes()
-CVAT_FRAMES = cvat_xml([_frame()], image_names=["drive/000007.png"]).encode()
+CVAT_SCENES = cvat_xml([tool_scene(5)], image_names=["drive/000007.png"]).encode()
+CLASSES = size_priors_from_dict({"Kayak": KAYAK})  # a class of the scene's own: CVAT needs --classes
 
 #: Keys and texts the importers look for, so that added keys and replaced values hit real branches.
 WORDS = ["", "0", "-1", "1e400", "nan", "inf", "2.5", "id", "data", "annotations", "completions", "result",
@@ -158,9 +150,9 @@ def test_mutated_label_studio_exports_convert_or_are_refused(data, image_dir):
 
 @FUZZ
 @given(data=st.data())
-def test_mutated_label_studio_frames_convert_or_are_refused(data, image_dir):
-    text, options = _mutated(LS_FRAMES, data), _options(data, image_dir)
-    _assert_imports_or_refuses(lambda: scenes_from_label_studio(loads_export(text), frames=True, **options))
+def test_mutated_label_studio_scenes_of_several_targets_convert_or_are_refused(data, image_dir):
+    text, options = _mutated(LS_SCENES, data), _options(data, image_dir)
+    _assert_imports_or_refuses(lambda: scenes_from_label_studio(loads_export(text), **options))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -219,8 +211,6 @@ def test_mutated_cvat_xml_converts_or_is_refused(data, image_dir):
 
 @FUZZ
 @given(data=st.data())
-def test_mutated_cvat_frames_convert_or_are_refused(data, image_dir):
-    # the one-target file with --frames, and a frame (its targets have a class) without
-    seed, frames = data.draw(st.sampled_from([(CVAT_XML, True), (CVAT_FRAMES, False)]), label="seed")
-    xml, options = _mutated_xml(seed, data), _options(data, image_dir)
-    _assert_imports_or_refuses(lambda: scenes_from_cvat(read_cvat_xml(xml), frames=frames, **options))
+def test_mutated_cvat_scenes_of_several_targets_convert_or_are_refused(data, image_dir):
+    xml, options = _mutated_xml(CVAT_SCENES, data), _options(data, image_dir)
+    _assert_imports_or_refuses(lambda: scenes_from_cvat(read_cvat_xml(xml), classes=CLASSES, **options))

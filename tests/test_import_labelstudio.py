@@ -1,27 +1,60 @@
-"""Label Studio import/export: a hand-written export in the documented JSON format, the round trip
-through simulated scenes, the shipped configs, and one test per kind of bad input."""
+"""Label Studio import/export: a hand-written export in the documented JSON format, hand-written
+tasks of several targets, round trips of scenes of one and several targets, the shipped configs,
+the --targets table, the tasks of one image made one scene, request tasks, and one test per kind
+of bad input (a message naming the task and the region, never a traceback)."""
 
 import copy
 import json
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import truth_scene
 
-from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.cli import main
-from creference_bayes.io.annotation_tools import REFERENCE_FIELDS, ConversionError
-from creference_bayes.io.labelstudio import (TARGET_LABELS, label_studio_config, label_studio_task,
-                                             label_studio_tasks, read_export, read_users,
-                                             scenes_from_label_studio)
+from creference_bayes.io.annotation_tools import REFERENCE_FIELDS, ConversionError, load_target_table
+from creference_bayes.io.labelstudio import (DATA_FIELDS, TARGET_LABELS, label_studio_config, label_studio_task,
+                                             label_studio_tasks, read_export, read_users, scenes_from_label_studio)
+from creference_bayes.io.scene import load_scene, parse_scene
+from creference_bayes.models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 
 DATA = Path(__file__).parent / "data"
 EXPORT = DATA / "label_studio_export.json"
+KAYAK = {"length_m": 4.0, "width_m": 0.7, "height_m": 0.4, "log_sd": [0.1, 0.1, 0.2]}
 
 
 def _export():
     return json.loads(EXPORT.read_text())
+
+
+def tool_scene(seed=0, m=3):
+    """A scene of ``m`` targets (conftest.truth_scene) holding everything the tools carry: two sets
+    of lines per target (workers w0 and w1; each worker's items take the same time, as a Label
+    Studio annotation's lead_time is shared equally among them), known sizes and class priors
+    (the third target of a class of the scene's own), references of each kind (a ground segment
+    with a confidence and an object, an anonymous one, a ratio to a target, a distance naming a
+    target; in the order a task gives them back: by worker, the anonymous ones last), the
+    horizon with its sd, the camera's and the targets' truth."""
+    d, _ = truth_scene(seed, m=m, n_annotations=2, noise_px=1.0, horizon="sd", n_refs=2)
+    for i, t in enumerate(d["targets"]):
+        for k, dl in enumerate(t["dimension_lines"]):
+            dl["seconds"] = 20.0 + 10.0 * k
+        if i % 2 or i == 2:
+            del t["dimensions_m"]
+        if i == 2:
+            t["class"] = "Kayak"
+            d["classes"] = {"Kayak": KAYAK}
+    w, h = d["image"]["width"], d["image"]["height"]
+    ground, anonymous = d["references"]
+    ground.update(worker="w0", seconds=20.0, confidence=0.7, object="kerb")
+    del anonymous["worker"]
+    d["references"] = [ground, {"measure": "length", "mode": "relative", "value": 2.5, "target": "t0", "worker": "w1",
+                                "seconds": 30.0, "line": [[0.1 * w, 0.95 * h], [0.3 * w, 0.97 * h]]},
+                       anonymous, {"measure": "distance", "mode": "direct", "range": [20, 30], "unit": "ft",
+                                   "target": f"t{m - 1}", "line": [[0.7 * w, h - 1.0], [0.72 * w, 0.8 * h]]}]
+    return d
 
 
 # ----------------------------------------------------------------------------------------------
@@ -31,36 +64,37 @@ def _export():
 def test_export_file_gives_the_hand_computed_scenes(assert_same_scene):
     report = scenes_from_label_studio(_export())
     scenes = {s.name: s.scene for s in report.scenes}
-    assert sorted(scenes) == ["cupboard", "table"]
+    assert sorted(scenes) == ["ab12cd34-room", "street"]  # named after the image
     cupboard = {
-        "format": "creference-scene/1",
+        "format": "creference-scene/2",
         "image": {"width": 4000, "height": 3000},
         "horizon": [[0, 1200], [4000, 1260]],
-        "target": {"id": "cupboard", "dimensions_m": {"length": 1.2, "width": 0.5, "height": 2.0},
-                   "dimension_lines": [
-                       {"worker": "3", "seconds": 120.0,  # lead_time 240 s over 2 items
-                        "corners": [[1600, 2400], [2000, 2340], [1520, 2280], [1600, 1500]]},
-                       {"worker": "6", "corners": [[1640, 2430], [2040, 2370], [1480, 2250], [1640, 1470]]}]},
+        "targets": [{"id": "cupboard", "dimensions_m": {"length": 1.2, "width": 0.5, "height": 2.0},
+                     "dimension_lines": [
+                         {"worker": "3", "seconds": 120.0,  # lead_time 240 s over 2 items
+                          "corners": [[1600, 2400], [2000, 2340], [1520, 2280], [1600, 1500]]},
+                         {"worker": "6", "corners": [[1640, 2430], [2040, 2370], [1480, 2250], [1640, 1470]]}]}],
         "references": [
             {"measure": "length", "mode": "direct", "value": 80, "unit": "in", "object": "sofa",
              "confidence": 0.6, "worker": "3", "seconds": 120.0, "line": [[400, 2700], [1200, 2760]]},
-            {"measure": "width", "mode": "relative", "range": [0.9, 1.2], "worker": "4",
+            {"measure": "width", "mode": "relative", "range": [0.9, 1.2], "worker": "4", "target": "cupboard",
              "seconds": 64.4, "line": [[3000, 2850], [3400, 2820]]}],
     }
     table = {
-        "format": "creference-scene/1",
+        "format": "creference-scene/2",
         "image": {"width": 2000, "height": 1000},          # from data: no original_width in results
         "camera": {"focal_length_px": 1800.0},
         "horizon": [[0, 300], [2000, 300]],
-        "target": {"id": "table", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
-                   "dimension_lines": [{"worker": "ann@example.com", "seconds": 150.0,
-                                        "corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]},
+        "targets": [{"id": "table", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
+                     "dimension_lines": [{"worker": "ann@example.com", "seconds": 150.0,
+                                          "corners": [[1000, 700], [1200, 700], [900, 650], [1000, 400]]}]}],
         "references": [{"measure": "distance", "mode": "direct", "range": [10, 15], "unit": "ft",
                         "worker": "ann@example.com", "seconds": 150.0,
                         "line": [[400, 999], [500, 750]]}],
     }
-    assert_same_scene(scenes["cupboard"], cupboard)
-    assert_same_scene(scenes["table"], table)
+    assert_same_scene(scenes["ab12cd34-room"], cupboard)
+    assert_same_scene(scenes["street"], table)
+    assert scenes["ab12cd34-room"]["references"][1]["target"] == "cupboard"  # written, not only implied
 
 
 def test_export_file_reports_the_bad_task_and_notes_the_unannotated_one():
@@ -76,10 +110,9 @@ def test_cli_writes_the_good_tasks_and_exits_2(tmp_path, capsys):
     assert main(["import", "label-studio", str(EXPORT), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "error: task 19, annotation 301, region 'a1b2': reference line has 3 points, expected 2" in err
-    assert sorted(p.name for p in out.iterdir()) == ["cupboard.json", "table.json"]  # no temp files
-    from creference_bayes.io.scene import load_scene
-
-    assert load_scene(out / "cupboard.json").target.id == "cupboard"
+    assert sorted(p.name for p in out.iterdir()) == ["ab12cd34-room.json", "street.json"]  # no temp files
+    scene = load_scene(out / "ab12cd34-room.json")
+    assert scene.format == "creference-scene/2" and [t.id for t in scene.targets] == ["cupboard"]
 
 
 def test_cli_exit_0_when_every_task_converts(tmp_path):
@@ -89,20 +122,33 @@ def test_cli_exit_0_when_every_task_converts(tmp_path):
     assert main(["import", "label-studio", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0
 
 
+def test_the_deprecated_frames_options_do_nothing_but_say_so(tmp_path, capsys):
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps([t for t in _export() if t["id"] != 19]))
+    assert main(["import", "label-studio", str(path), "--out", str(tmp_path / "a"), "--frames"]) == 0
+    assert "note: --frames is deprecated and does nothing" in capsys.readouterr().err
+    assert main(["import", "label-studio", str(path), "--out", str(tmp_path / "b"), "--quiet"]) == 0
+    for name in ("ab12cd34-room.json", "street.json"):
+        assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text()
+    assert main(["import", "label-studio", "--print-config", "--frame"]) == 0
+    out = capsys.readouterr()
+    assert out.out == label_studio_config("keypoints") and "--frame is deprecated" in out.err
+
+
 def test_image_dir_sets_a_path_relative_to_the_output_folder(tmp_path):
     images = tmp_path / "photos"
     images.mkdir()
     report = scenes_from_label_studio(_export(), image_dir=images, out_dir=tmp_path / "out")
     scenes = {s.name: s.scene for s in report.scenes}
-    assert scenes["cupboard"]["image"]["path"] == "../photos/ab12cd34-room.jpg"
-    assert scenes["table"]["image"]["path"] == "../photos/street.png"
+    assert scenes["ab12cd34-room"]["image"]["path"] == "../photos/ab12cd34-room.jpg"
+    assert scenes["street"]["image"]["path"] == "../photos/street.png"
     tasks = _export()
     tasks[0]["data"]["image"] = "/data/local-files/?d=shoots/day%201/room.jpg"
     tasks[1]["data"]["image_path"] = "given/as/is.png"
     report = scenes_from_label_studio(tasks, image_dir=images, out_dir=tmp_path / "out")
     scenes = {s.name: s.scene for s in report.scenes}
-    assert scenes["cupboard"]["image"]["path"] == "../photos/room.jpg"
-    assert scenes["table"]["image"]["path"] == "given/as/is.png"
+    assert scenes["room"]["image"]["path"] == "../photos/room.jpg"
+    assert scenes["is"]["image"]["path"] == "given/as/is.png"
 
 
 def test_users_file_names_the_workers(tmp_path):
@@ -110,84 +156,284 @@ def test_users_file_names_the_workers(tmp_path):
     users.write_text(json.dumps([{"id": 3, "username": "alice", "email": "a@x.org"},
                                  {"id": 4, "username": "", "email": "bob@x.org"}]))
     report = scenes_from_label_studio(_export(), users=read_users(users))
-    cup = next(s.scene for s in report.scenes if s.name == "cupboard")
-    assert [d["worker"] for d in cup["target"]["dimension_lines"]] == ["alice", "6"]
+    cup = next(s.scene for s in report.scenes if s.name == "ab12cd34-room")
+    assert [d["worker"] for d in cup["targets"][0]["dimension_lines"]] == ["alice", "6"]
     assert [r["worker"] for r in cup["references"]] == ["alice", "bob@x.org"]
 
 
-def test_print_config_is_the_shipped_config(capsys):
-    assert main(["import", "label-studio", "--print-config"]) == 0
-    assert capsys.readouterr().out == label_studio_config("keypoints")
-    assert main(["import", "label-studio", "--print-config", "--lines", "vectors"]) == 0
-    assert capsys.readouterr().out == label_studio_config("vectors")
+# ----------------------------------------------------------------------------------------------
+# the shipped configs
 
 
 @pytest.mark.parametrize("lines", ["keypoints", "vectors"])
-def test_configs_name_what_the_importer_reads(lines):
-    root = ET.fromstring(label_studio_config(lines))
+def test_configs_name_what_the_importer_reads(lines, capsys):
+    assert main(["import", "label-studio", "--print-config", "--lines", lines]) == 0
+    text = capsys.readouterr().out
+    assert text == label_studio_config(lines)
+    root = ET.fromstring(text)
     kp = root.find(".//KeyPointLabels")
-    labels = [e.get("value") for e in kp.findall("Label")]
-    assert labels[:4] == list(TARGET_LABELS) and kp.get("name") == "points"
+    vls = {v.get("name"): v for v in root.iter("VectorLabels")}
     if lines == "keypoints":
-        assert labels[4:] == ["reference start", "reference end", "horizon"]
+        assert kp.get("name") == "points" and not vls
+        assert [e.get("value") for e in kp.findall("Label")] == list(TARGET_LABELS) + [
+            "reference start", "reference end", "horizon"]
     else:
-        vl = root.find(".//VectorLabels")
-        assert vl.get("name") == "lines" and [e.get("value") for e in vl.findall("Label")] == [
-            "reference", "horizon"]
-        assert (vl.get("minPoints"), vl.get("maxPoints")) == ("2", "2")
+        assert kp is None
+        assert [e.get("value") for e in vls["targets"].findall("Label")] == ["target"]
+        assert (vls["targets"].get("minPoints"), vls["targets"].get("maxPoints")) == ("4", "4")
+        assert [e.get("value") for e in vls["lines"].findall("Label")] == ["reference", "horizon"]
+        assert (vls["lines"].get("minPoints"), vls["lines"].get("maxPoints")) == ("2", "2")
     controls = {e.get("name"): e for e in root.iter() if e.get("perRegion") == "true"}
-    assert set(controls) == set(REFERENCE_FIELDS)
-    for e in controls.values():
-        assert e.get("toName") == "image"
-        assert e.get("whenLabelValue") == ("reference start" if lines == "keypoints" else "reference")
+    assert set(controls) == set(REFERENCE_FIELDS) | {"target", "class"}
+    for name in REFERENCE_FIELDS:
+        assert controls[name].get("toName") == "image"
+        assert controls[name].get("whenLabelValue") == ("reference start" if lines == "keypoints" else "reference")
+    classes = [c.get("value") for c in root.find(".//Choices[@name='class']").findall("Choice")]
+    assert set(classes) == set(KITTI_SIZE_PRIORS)
     for e in root.iter("Number"):
         # Label Studio rejects entries that are not a multiple of `step` from `min` (and a decimal
         # step can reject valid ones): no step at all means no such check.
         assert e.get("step") is None
+    comment = text.split("-->")[0]
+    assert [f for f in DATA_FIELDS if f not in comment] == ["creference_scene"]  # written by advise only
 
 
-# ----------------------------------------------------------------------------------------------
-# round trip: simulated scene → Label Studio task → import → the same scene
+def _doc_blocks(name: str) -> list:
+    text = (Path(__file__).resolve().parents[1] / "docs" / name).read_text()
+    return [json.loads(b) for b in re.findall(r"```json\n(.*?)```", text, re.S)]
 
 
 @pytest.mark.parametrize("lines", ["keypoints", "vectors"])
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_round_trip_through_a_task(lines, seed, assert_same_scene):
-    scene = simulate_scene(np.random.default_rng(seed), tier="high", n_references=7,
-                           target_id=f"obj{seed}")
+def test_the_configs_comment_lists_every_documented_task_field(lines):
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "import.md").read_text()
+    fields = set()
+    for m in re.finditer(r"^\| (?:frame )?field \| required \| meaning \|$", doc, re.M):
+        table = doc[m.start():]
+        table = table[:table.index("\n\n")]
+        fields |= set(re.findall(r"^\| `([a-z_]+)`", table, re.M)) | set(re.findall(r"`(target_[a-z]+_m)`", table))
+    assert {"image", "ground_truth", "image_width"} <= fields
+    comment = label_studio_config(lines).split("-->")[0]
+    assert sorted(f for f in fields if f not in comment) == []
+
+
+# ----------------------------------------------------------------------------------------------
+# round trips: a scene → a Label Studio task → import → the same scene
+
+
+@pytest.mark.parametrize("lines", ["keypoints", "vectors"])
+@pytest.mark.parametrize("seed, m", [(0, 1), (1, 4), (2, 3)])
+def test_round_trip_through_a_task(lines, seed, m, assert_same_scene):
+    scene = tool_scene(seed, m)
     task = json.loads(json.dumps(label_studio_task(scene, task_id=5, lines=lines)))  # as a file would
     report = scenes_from_label_studio([task])
-    assert report.ok and report.notes == ()
+    assert report.ok and report.notes == (), (report.errors, report.notes)
     (back,) = report.scenes
-    assert back.name == f"obj{seed}"
-    assert_same_scene(back.scene, scene, atol=1e-9)
+    assert back.name == "task5" and back.scene["format"] == "creference-scene/2"
+    assert_same_scene(back.scene, scene)  # every key: targets, lines, references, camera, classes, truth
 
 
-def test_round_trip_with_a_worker_doing_several_items(assert_same_scene):
-    scene = simulate_scene(np.random.default_rng(4), tier="low", n_references=3, n_target_annotations=3)
-    lines = scene["target"]["dimension_lines"]
-    lines[0]["worker"] = lines[1]["worker"] = "w"       # two target annotations by one worker
-    for r in scene["references"]:
-        r["worker"], r["seconds"] = "w", 183.5          # and all the references too
-    del lines[2]["worker"]                               # an anonymous one
-    scene["references"][0]["confidence"] = 0.7
-    tasks = label_studio_tasks([scene], lines="keypoints")
-    anns = tasks[0]["annotations"]
-    assert [a.get("completed_by") for a in anns] == ["w", "w", None]  # one target per annotation
-    (back,) = scenes_from_label_studio(tasks).scenes
+def test_a_version_1_scene_round_trips_as_a_scene_of_one_target(assert_same_scene):
+    from creference_bayes.cli.main import example_scene_path
+
+    v1 = json.loads(example_scene_path().read_text())
+    assert v1["format"] == "creference-scene/1"
+    (back,) = scenes_from_label_studio(label_studio_tasks([v1], lines="vectors")).scenes
+    assert_same_scene(back.scene, v1)  # its truth split between the target and the camera
+    (t,) = back.scene["targets"]
+    assert (t["id"], t["dimensions_m"]) == (v1["target"]["id"], v1["target"]["dimensions_m"])
+    assert set(t["ground_truth"]) >= {"location_m", "yaw_rad"} and "camera_height_m" in back.scene["ground_truth"]
+
+
+def test_a_worker_doing_several_items_gets_one_annotation_per_set_of_lines(assert_same_scene):
+    scene = tool_scene(4, m=1)
+    lines = scene["targets"][0]["dimension_lines"]
+    lines[1]["worker"], lines[1]["seconds"] = "w0", 20.0  # two sets of lines by one worker
+    lines.append({"corners": (np.array(lines[0]["corners"]) + 2.0).tolist()})  # and an anonymous one
+    anns = label_studio_tasks([scene])[0]["annotations"]
+    # w0's two sets of lines (its reference with the first), the anonymous lines, w1's reference, two anonymous ones
+    assert [a.get("completed_by") for a in anns] == ["w0", "w0", None, "w1", None, None]
+    (back,) = scenes_from_label_studio(label_studio_tasks([scene])).scenes
     assert_same_scene(back.scene, scene)
 
 
 def test_predictions_carry_the_same_results():
-    scene = simulate_scene(np.random.default_rng(0), n_references=2)
+    scene = tool_scene(0, m=2)
     a = label_studio_task(scene)
     p = label_studio_task(scene, as_predictions=True)
     assert "annotations" not in p
     assert [x["result"] for x in p["predictions"]] == [x["result"] for x in a["annotations"]]
 
 
+def test_a_reference_without_a_line_cannot_be_written():
+    scene = tool_scene(1, m=2)
+    scene["references"].append({"measure": "height", "mode": "direct", "value": 1.8, "unit": "m", "target": "t0"})
+    with pytest.raises(ValueError, match=r"references\[4\]: a height of 't0' without a line"):
+        label_studio_task(scene)
+
+
 # ----------------------------------------------------------------------------------------------
-# bad input: each message names the task and the region
+# hand-written tasks of several targets: targets named per region, classes per region
+
+
+def _pt(rid, label, x, y):
+    return {"id": rid, "type": "keypointlabels", "from_name": "points", "to_name": "image",
+            "original_width": 2000, "original_height": 1000, "image_rotation": 0,
+            "value": {"x": x, "y": y, "width": 0.5, "keypointlabels": [label]}}
+
+
+def _ctl(rid, name, typ, value):
+    key = {"textarea": "text", "choices": "choices", "number": "number"}[typ]
+    return {"id": rid, "type": typ, "from_name": name, "to_name": "image",
+            "value": {key: value if typ == "number" else [value]}}
+
+
+def _target_points(prefix, name, x0, cls=None):
+    """Four corner points of one target at x0 % (a 2000 x 1000 image), each naming ``name``."""
+    out = []
+    for i, (dx, y) in enumerate([(0, 80), (10, 78), (-2, 76), (0, 50)]):
+        rid = f"{prefix}{i + 1}"
+        out.append(_pt(rid, TARGET_LABELS[i], x0 + dx, y))
+        if name is not None:
+            out.append(_ctl(rid, "target", "textarea", name))
+    if cls is not None:
+        out.append(_ctl(f"{prefix}1", "class", "choices", cls))
+    return out
+
+
+def _street_task():
+    """Task 41: two cars drawn (one class per region, one from data.targets), a lamp listed but
+    not drawn, a relative reference naming its target."""
+    result = (_target_points("a", "car1", 20, cls="Car") + _target_points("b", "van", 60)
+              + [_pt("rs", "reference start", 10, 95), _pt("re", "reference end", 30, 96),
+                 {"type": "relation", "from_id": "rs", "to_id": "re", "direction": "right", "labels": []},
+                 _ctl("rs", "measure", "choices", "length"), _ctl("rs", "mode", "choices", "relative"),
+                 _ctl("rs", "value", "number", 1.5), _ctl("rs", "target", "textarea", "van")])
+    return {"id": 41, "data": {"image": "/data/upload/3/street.png",
+                               "targets": [{"id": "car1"}, {"id": "van", "class": "Van"},
+                                           {"id": "lamp", "dimensions_m": {"length": 0.3, "width": 0.3,
+                                                                           "height": 4.0}}]},
+            "annotations": [{"id": 7, "completed_by": 5, "lead_time": 30.0, "result": result}]}
+
+
+def test_a_task_with_targets_named_per_region():
+    report = scenes_from_label_studio([_street_task()])
+    assert report.ok, report.errors
+    assert report.notes == ("task 41: target 'lamp' has no dimension lines; left out",)
+    (s,) = report.scenes
+    assert s.name == "street"
+    d = s.scene
+    assert d["format"] == "creference-scene/2" and d["image"] == {"width": 2000, "height": 1000}
+    assert [(t["id"], t.get("class"), t.get("dimensions_m")) for t in d["targets"]] == [
+        ("car1", "Car", None), ("van", "Van", None)]
+    # corners by hand: x % of 2000, y % of 1000; 30 s over three items (two targets, a reference)
+    assert d["targets"][0]["dimension_lines"] == [{"corners": [[400, 800], [600, 780], [360, 760], [400, 500]],
+                                                   "worker": "5", "seconds": 10.0}]
+    assert d["targets"][1]["dimension_lines"][0]["corners"][1] == [1400, 780]
+    assert d["references"] == [{"measure": "length", "mode": "relative", "value": 1.5, "target": "van",
+                                "line": [[200, 950], [600, 960]], "worker": "5", "seconds": 10.0}]
+    scene = parse_scene(d)
+    assert scene.reference_targets == (1,)
+    assert scene.size_prior("Van") == KITTI_SIZE_PRIORS["Van"]
+
+
+def test_without_data_targets_the_regions_make_the_targets():
+    task = _street_task()
+    del task["data"]["targets"]
+    task["annotations"][0]["result"].append(_ctl("b1", "class", "choices", "Truck"))
+    (s,) = scenes_from_label_studio([task]).scenes
+    assert [(t["id"], t["class"]) for t in s.scene["targets"]] == [("car1", "Car"), ("van", "Truck")]
+
+
+def test_unnamed_corners_join_the_annotations_one_named_target():
+    task = _street_task()
+    res = task["annotations"][0]["result"]
+    task["annotations"][0]["result"] = [r for r in res if r.get("id") in ("a1", "a2", "a3", "a4")
+                                        and not (r["id"] != "a1" and r["from_name"] == "target")]
+    (s,) = scenes_from_label_studio([task]).scenes
+    assert [t["id"] for t in s.scene["targets"]] == ["car1"]
+    assert s.scene["targets"][0]["dimension_lines"][0]["corners"][3] == [400, 500]
+
+
+def test_a_task_naming_no_target_has_one_target_named_after_it():
+    task = {"id": 8, "data": {"image": "x.png", "image_width": 2000, "image_height": 1000},
+            "annotations": [{"id": 1, "result": _target_points("a", None, 20, cls="Car")},
+                            {"id": 2, "result": _target_points("b", None, 21)}]}
+    (s,) = scenes_from_label_studio([task]).scenes
+    (t,) = s.scene["targets"]
+    assert (t["id"], t["class"], len(t["dimension_lines"])) == ("task8", "Car", 2)
+
+
+def test_classes_file_supplies_a_class_the_scene_does_not_know():
+    task = _street_task()
+    task["data"]["targets"][1]["class"] = "Kayak"
+    (err,) = scenes_from_label_studio([task]).errors
+    assert "task 41, annotation 7, region 'b1': targets[1].class: no size prior for class 'Kayak'" in str(err)
+    kayak = SizePrior((4.0, 0.7, 0.4), (0.1, 0.1, 0.2), "file")
+    (s,) = scenes_from_label_studio([task], classes={"Kayak": kayak, "Canoe": kayak}).scenes
+    assert s.scene["classes"] == {"Kayak": KAYAK}
+
+
+def _broken(kind):
+    t = _street_task()
+    res = t["annotations"][0]["result"]
+    if kind == "unlisted_target":
+        for r in res:
+            if r.get("id", "").startswith("a") and r["from_name"] == "target":
+                r["value"]["text"] = ["car2"]
+    elif kind == "unnamed_among_several":
+        res.remove(next(r for r in res if r["id"] == "b3" and r["from_name"] == "target"))
+        res.remove(next(r for r in res if r["id"] == "a3" and r["from_name"] == "target"))
+    elif kind == "two_t1_of_one_target":
+        res.append({**copy.deepcopy(res[0]), "id": "a9"})
+        res.append(_ctl("a9", "target", "textarea", "car1"))
+    elif kind == "classes_disagree":
+        res.append(_ctl("a2", "class", "choices", "Tram"))
+    elif kind == "class_conflicts_with_data":
+        res.append(_ctl("b2", "class", "choices", "Car"))
+    elif kind == "class_on_reference":
+        res.append(_ctl("rs", "class", "choices", "Car"))
+    elif kind == "reference_names_nobody":
+        t["data"] = {"image": "street.png"}
+        res.append(_ctl("b1", "class", "choices", "Van"))
+        next(r for r in res if r.get("id") == "rs" and r["from_name"] == "target")["value"]["text"] = ["bus"]
+    elif kind == "relative_without_target":
+        res.remove(next(r for r in res if r.get("id") == "rs" and r["from_name"] == "target"))
+    elif kind == "no_size_no_class":
+        res.remove(next(r for r in res if r["from_name"] == "class"))
+    elif kind == "bad_targets":
+        t["data"]["targets"][1]["dimensions_m"] = {"length": 4}
+    elif kind == "duplicate_ids":
+        t["data"]["targets"][1]["id"] = "car1"
+    return t
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("unlisted_target", "task 41, annotation 7, region 'a1': target 'car2' is not in data.targets"),
+    ("unnamed_among_several", "task 41, annotation 7, region 'a3': a 't3 end of width' point names no target"),
+    ("two_t1_of_one_target", "task 41, annotation 7: two points labelled 't1 bottom corner' (regions 'a1' and "
+                             "'a9'); an annotation draws each target once (target 'car1')"),
+    ("classes_disagree", "task 41, annotation 7, region 'a2': class 'Tram' here but 'Car' on region 'a1'"),
+    ("class_conflicts_with_data", "task 41, annotation 7, region 'b1': class 'Car' for target 'van', which is 'Van'"),
+    ("class_on_reference", "task 41, annotation 7, region 'rs': a reference carries a 'class'"),
+    ("reference_names_nobody", "task 41, annotation 7, region 'rs': references[0].target: no target with id 'bus'"),
+    ("relative_without_target", "task 41, annotation 7, region 'rs': references[0].target: a relative reference "
+                                "in a scene of several targets must name the target"),
+    ("no_size_no_class", "task 41, target 'car1': no size for target 'car1'"),
+    ("bad_targets", "task 41: data.targets[1].dimensions_m must be an object with length, width, height"),
+    ("duplicate_ids", "task 41: data.targets[1].id: duplicate id 'car1'"),
+])
+def test_bad_task_of_several_targets_is_reported_with_task_and_region(kind, message):
+    good = _street_task()
+    good["id"], good["data"]["image"] = 42, "other.png"
+    report = scenes_from_label_studio([_broken(kind), good])
+    assert [s.source for s in report.scenes] == ["task 42"], "the other task is still converted"
+    (err,) = report.errors
+    assert message in str(err), str(err)
+    assert "\n" not in str(err)
+
+
+# ----------------------------------------------------------------------------------------------
+# bad input of the hand-written export: each message names the task and the region
 
 
 def _task():
@@ -203,10 +449,9 @@ def _find(results, rid, from_name=None):
     return next(r for r in results if r.get("id") == rid and (from_name is None or r.get("from_name") == from_name))
 
 
-def _break(**kinds):
+def _break(kind):
     t = _task()
     res = _results(t)
-    kind = next(iter(kinds))
     if kind == "missing_corner":
         res.remove(_find(res, "a3"))
     elif kind == "two_t1":
@@ -281,42 +526,41 @@ def _break(**kinds):
     ("far_outside", "task 17, annotation 101, region 'rs1': references[0].line[1]: point [36000, 2760] is far outside"),
     ("one_horizon_point", "task 17, annotation 101: 1 points labelled 'horizon', expected 2"),
     ("controls_on_a_corner", "task 17, annotation 101, region 'a1': a 't1 bottom corner' point carries reference fields"),
-    ("no_target", "task 17: no annotation draws the target's dimension lines"),
+    ("no_target", "task 17: no annotation draws a target's dimension lines"),
     ("missing_dims", "task 17: data has ['target_length_m', 'target_height_m'] but not ['target_width_m']"),
     ("bad_dims", "task 17: data.target_height_m is not a number: 'two metres'"),
 ])
 def test_bad_task_is_reported_with_task_and_region(kind, message):
     good = _export()[1]
-    report = scenes_from_label_studio([_break(**{kind: True}), good])
-    assert [s.name for s in report.scenes] == ["table"], "the other task is still converted"
+    report = scenes_from_label_studio([_break(kind), good])
+    assert [s.name for s in report.scenes] == ["street"], "the other task is still converted"
     (err,) = report.errors
     assert message in str(err), str(err)
     assert "\n" not in str(err)
 
 
 def test_missing_size_can_come_from_the_targets_table(tmp_path):
-    from creference_bayes.io.annotation_tools import load_target_table
-
     t = _task()
     for k in ("target_length_m", "target_width_m", "target_height_m"):
         del t["data"][k]
+    assert "no size for target 'cupboard'" in str(scenes_from_label_studio([t]).errors[0])
     assert "pass --targets" in str(scenes_from_label_studio([t]).errors[0])
     csv = tmp_path / "targets.csv"
     csv.write_text("target_id,length_m,width_m,height_m,focal_length_px\ncupboard,1.2,0.5,2.0,2100\n")
     (s,) = scenes_from_label_studio([t], targets=load_target_table(csv)).scenes
-    assert s.scene["target"]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
+    assert s.scene["targets"][0]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
     assert s.scene["camera"]["focal_length_px"] == 2100
     csv.write_text("target_id,length_m,width_m,height_m\ncupboard,1.3,0.5,2.0\n")
     err = scenes_from_label_studio([_task()], targets=load_target_table(csv)).errors[0]
     assert "length 1.2 m in the export but 1.3 m in the --targets table" in str(err)
 
 
-def test_duplicate_target_ids_keep_the_first_task():
+def test_two_photos_of_one_name_keep_the_first():
     a, b = _task(), _task()
-    b["id"] = 99
+    b["id"], b["data"]["image"] = 99, "/data/upload/2/ab12cd34-room.jpg"  # another folder, the same name
     report = scenes_from_label_studio([a, b])
     assert [s.source for s in report.scenes] == ["task 17"]
-    assert "task 99: file name 'cupboard.json' is already used by task 17" in str(report.errors[0])
+    assert "task 99: file name 'ab12cd34-room.json' is already used by task 17" in str(report.errors[0])
 
 
 def test_vector_with_three_points_and_closed_vector():
@@ -337,6 +581,15 @@ def test_vector_vertices_follow_prev_point_id():
     verts.reverse()  # stored out of order: the chain of prevPointId still gives the drawing order
     (s,) = scenes_from_label_studio([t]).scenes
     assert s.scene["references"][0]["line"][0] == pytest.approx([400, 999])
+
+
+def test_vertices_without_ids_keep_their_list_order():
+    # Label Studio's SDK writes vertices with "id": null and "prevPointId": null
+    t = _export()[1]
+    for v in t["completions"][0]["result"][4]["value"]["vertices"]:
+        v["id"] = v["prevPointId"] = None
+    (s,) = scenes_from_label_studio([t]).scenes
+    assert np.allclose(s.scene["references"][0]["line"], [[400, 999], [500, 750]])
 
 
 @pytest.mark.parametrize("content, message", [
@@ -366,28 +619,9 @@ def test_cli_needs_an_export_and_an_output_folder(tmp_path, capsys):
     assert "give the export file" in err and "--out DIR is required" in err
 
 
-def test_vertices_without_ids_keep_their_list_order():
-    # Label Studio's SDK writes vertices with "id": null and "prevPointId": null
-    t = _export()[1]
-    for v in t["completions"][0]["result"][4]["value"]["vertices"]:
-        v["id"] = v["prevPointId"] = None
-    (s,) = scenes_from_label_studio([t]).scenes
-    assert np.allclose(s.scene["references"][0]["line"], [[400, 999], [500, 750]])
-
-
-def _doc_blocks(name: str) -> list:
-    import re
-    from pathlib import Path
-
-    text = (Path(__file__).resolve().parents[1] / "docs" / name).read_text()
-    return [json.loads(b) for b in re.findall(r"```json\n(.*?)```", text, re.S)]
-
-
 def test_the_documented_annotation_imports_as_a_references_only_annotation():
     """docs/import.md's example annotation (references only, no target points) converts as it says."""
     from creference_bayes.cli.main import example_scene_path
-    from creference_bayes.io.labelstudio import scenes_from_label_studio
-    from creference_bayes.io.labelstudio_export import label_studio_tasks
 
     documented = next(b for b in _doc_blocks("import.md") if isinstance(b, dict) and "completed_by" in b)
     task = label_studio_tasks([json.loads(example_scene_path().read_text())])[0]
@@ -402,23 +636,6 @@ def test_the_documented_annotation_imports_as_a_references_only_annotation():
     assert ref["line"][0] == pytest.approx([0.287412 * 2880, 0.596782 * 1800], abs=0.01)
 
 
-@pytest.mark.parametrize("lines", ["keypoints", "vectors"])
-def test_the_configs_comment_lists_every_documented_task_field(lines):
-    import re
-    from pathlib import Path
-
-    from creference_bayes.io.labelstudio import label_studio_config
-
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "import.md").read_text()
-    table = doc[doc.index("| field | required | meaning |"):]
-    table = table[:table.index("\n\n")]
-    fields = set(re.findall(r"^\| `([a-z_]+)`", table, re.M)) | set(re.findall(r"`(target_[a-z]+_m)`", table))
-    assert {"image", "target_id", "ground_truth", "image_width"} <= fields
-    comment = label_studio_config(lines).split("-->")[0]
-    missing = sorted(f for f in fields if f not in comment)
-    assert not missing, missing
-
-
 # ----------------------------------------------------------------------------------------------
 # the --targets table: rows keyed by image and target; a focal length without sizes
 
@@ -430,8 +647,6 @@ def _no_dims(task):
 
 
 def test_targets_rows_are_keyed_by_image_and_target(tmp_path):
-    from creference_bayes.io.annotation_tools import load_target_table
-
     a, b = _no_dims(_task()), _no_dims(_task())
     b["id"], b["data"]["image"], b["data"]["target_id"] = 99, "/data/local-files/?d=yard/other.jpg", "cupboard2"
     csv = tmp_path / "t.csv"
@@ -443,30 +658,28 @@ def test_targets_rows_are_keyed_by_image_and_target(tmp_path):
     report = scenes_from_label_studio([a, b], targets=load_target_table(csv))
     assert report.ok, report.errors
     scenes = {s.name: s.scene for s in report.scenes}
-    assert scenes["cupboard"]["target"]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
-    assert "camera" not in scenes["cupboard"]
-    assert scenes["cupboard2"]["target"]["dimensions_m"] == {"length": 0.9, "width": 0.4, "height": 1.0}
-    assert scenes["cupboard2"]["camera"] == {"focal_length_px": 2400.0}
+    assert scenes["ab12cd34-room"]["targets"][0]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
+    assert "camera" not in scenes["ab12cd34-room"]
+    assert scenes["other"]["targets"][0]["dimensions_m"] == {"length": 0.9, "width": 0.4, "height": 1.0}
+    assert scenes["other"]["camera"] == {"focal_length_px": 2400.0}
     assert ("--targets: no image of the export matches t.csv line 5 (image 'elsewhere.jpg'); not used"
             in report.notes)
 
 
-def test_a_focal_length_row_of_a_frame_task_without_sizes(tmp_path):
-    from creference_bayes.io.annotation_tools import load_target_table
-
+def test_a_focal_length_row_without_sizes(tmp_path):
     csv = tmp_path / "t.csv"
     csv.write_text("target_id,length_m,width_m,height_m,focal_length_px\ncupboard,,,,2100\n")
-    (s,) = scenes_from_label_studio([_task()], targets=load_target_table(csv), frames=True).scenes
+    (s,) = scenes_from_label_studio([_task()], targets=load_target_table(csv)).scenes
     assert s.scene["camera"] == {"focal_length_px": 2100.0}
     assert s.scene["targets"][0]["dimensions_m"] == {"length": 1.2, "width": 0.5, "height": 2.0}
 
 
 # ----------------------------------------------------------------------------------------------
-# --frames on the one-target layout: the tasks of one image make one frame
+# the tasks of one image make one scene (a task per target, as docs/import.md lays it out)
 
 
 def _second_target_task():
-    """Task 17's image with another target, 'lamp' (its own task, as docs/import.md lays it out)."""
+    """Task 17's image with another target, 'lamp' (its own task)."""
     t = _task()
     t["id"], t["data"]["target_id"] = 99, "lamp"
     t["data"].update(target_length_m=0.4, target_width_m=0.4, target_height_m=1.6)
@@ -477,8 +690,8 @@ def _second_target_task():
     return t
 
 
-def test_frames_merge_the_tasks_of_one_image():
-    report = scenes_from_label_studio([_task(), _second_target_task()], frames=True)
+def test_the_tasks_of_one_image_make_one_scene():
+    report = scenes_from_label_studio([_task(), _second_target_task()])
     assert report.ok, report.errors
     (s,) = report.scenes
     assert s.name == "ab12cd34-room" and s.source == "task 17, task 99 (one image)"
@@ -488,23 +701,24 @@ def test_frames_merge_the_tasks_of_one_image():
     # x % of 4000 px: a1 at 40 % + 30 %; annotation 101 of task 99 holds one item: 240 s
     assert d["targets"][1]["dimension_lines"] == [
         {"corners": [[2800, 2400], [3200, 2340], [2720, 2280], [2800, 1500]], "worker": "3", "seconds": 240.0}]
+    # task 17's relative reference is a ratio to its own target
     assert [(r["mode"], r.get("target")) for r in d["references"]] == [("direct", None), ("relative", "cupboard")]
     assert d["horizon"] == [[0, 1200], [4000, 1260]]
 
 
-def test_merged_one_target_tasks_split_their_truth_between_target_and_camera():
+def test_one_target_tasks_split_their_truth_between_target_and_camera():
     camera = {"focal_length_px": 3000.0, "camera_height_m": 1.4, "pitch_rad": 0.05, "roll_rad": 0.0}
     first, second = _task(), _second_target_task()
     first["data"]["ground_truth"] = {"location_m": [0.5, 1.4, 5.0], "yaw_rad": 0.3, **camera}
     second["data"]["ground_truth"] = {"location_m": [1.5, 1.4, 6.0], "yaw_rad": -0.2, "handedness": -1, **camera}
-    report = scenes_from_label_studio([first, second], frames=True)
+    report = scenes_from_label_studio([first, second])
     assert report.ok, report.errors
     (s,) = report.scenes
     assert s.scene["ground_truth"] == camera
     assert [t["ground_truth"] for t in s.scene["targets"]] == [
         {"location_m": [0.5, 1.4, 5.0], "yaw_rad": 0.3}, {"location_m": [1.5, 1.4, 6.0], "yaw_rad": -0.2, "handedness": -1}]
     second["data"]["ground_truth"]["camera_height_m"] = 1.6  # one camera: the tasks must agree on it
-    (err,) = scenes_from_label_studio([first, second], frames=True).errors
+    (err,) = scenes_from_label_studio([first, second]).errors
     assert str(err) == ("task 17, task 99 (one image): data.ground_truth.camera_height_m is 1.4 in task 17 but 1.6 "
                         "in task 99 (the tasks of one image share it)")
 
@@ -514,24 +728,97 @@ def test_merged_one_target_tasks_split_their_truth_between_target_and_camera():
      "task 17, task 99 (one image): data.focal_length_px is 2000 in task 17 but 1800 in task 99"),
     (lambda t: t["data"].update(target_id="cupboard"),
      "task 17, task 99 (one image): target 'cupboard' is in task 17 and in task 99"),
+    (lambda t: [r.update(original_width=2000) for r in _results(t)],
+     "task 17, task 99 (one image): the image is 4000x3000 in task 17 but 2000x3000 in task 99"),
 ])
-def test_the_tasks_of_one_frame_must_agree(change, message):
+def test_the_tasks_of_one_image_must_agree(change, message):
     first = _task()
     first["data"]["focal_length_px"] = 2000
     second = _second_target_task()
     change(second)
-    report = scenes_from_label_studio([first, second], frames=True)
+    report = scenes_from_label_studio([first, second])
     assert report.scenes == ()
     (err,) = report.errors
     assert message in str(err), str(err)
 
 
-def test_a_merged_frame_names_the_task_of_a_bad_region():
+def test_a_merged_scene_names_the_task_of_a_bad_region():
     second = _second_target_task()
     _find(_results(second), "a4")["value"]["y"] = 900.0  # far outside the image
-    (err,) = scenes_from_label_studio([_task(), second], frames=True).errors
+    (err,) = scenes_from_label_studio([_task(), second]).errors
     assert str(err).startswith("task 17, task 99 (one image), task 99, annotation 101, region 'a1': "
                                "targets[1].dimension_lines[0]"), str(err)
+
+
+# ----------------------------------------------------------------------------------------------
+# a request task of creference advise: the scene it carries, with the task's answers appended
+
+
+def test_a_request_task_imports_as_its_scene_with_the_answers(assert_same_scene):
+    from creference_bayes.cli.main import example_scene_path
+
+    scene = json.loads(example_scene_path().read_text())  # a version-1 scene, as older requests carry
+    task = {"id": 3, "data": {"image": "/data/upload/1/living.jpg", "creference_scene": scene}}
+    new = copy.deepcopy(scene)
+    new["target"]["dimension_lines"] = [{"worker": "w-new", "corners": (
+        np.array(scene["target"]["dimension_lines"][0]["corners"]) + 1.5).tolist()}]
+    new["references"] = [{**scene["references"][0], "worker": "w-new", "value": 0.8}]
+    new["references"][0].pop("range", None)
+    new["references"][0].pop("seconds", None)
+    task["annotations"] = label_studio_task(new)["annotations"]
+    for ann in task["annotations"]:  # the worker draws the target without naming it
+        ann["result"] = [r for r in ann["result"] if r.get("from_name") != "target"]
+    report = scenes_from_label_studio([task, copy.deepcopy(task)])  # two answers: two scenes of one name
+    assert [str(e) for e in report.errors] == ["task 3: file name 'living.json' is already used by task 3 "
+                                               "(each photo needs a name of its own)"]
+    (s,) = report.scenes
+    want = copy.deepcopy(scene)
+    want["target"]["dimension_lines"] += new["target"]["dimension_lines"]
+    want["references"] += new["references"]
+    assert_same_scene(s.scene, want)
+
+
+# ----------------------------------------------------------------------------------------------
+# the command line: scenes of several targets, estimate on them, --classes
+
+
+def test_cli_imports_scenes_and_estimate_runs_on_them(tmp_path, capsys):
+    scenes = [tool_scene(1, m=3), tool_scene(2, m=1)]
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps(label_studio_tasks(scenes)))
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "ls"), "--quiet"]) == 0
+    assert sorted(p.name for p in (tmp_path / "ls").iterdir()) == ["task1.json", "task2.json"]
+    assert [t.id for t in load_scene(tmp_path / "ls" / "task1.json").targets] == ["t0", "t1", "t2"]
+    capsys.readouterr()
+    out = tmp_path / "result.json"
+    assert main(["estimate", str(tmp_path / "ls" / "task2.json"), "--no-posterior", "--quiet", "--out", str(out)]) == 0
+    assert [o["id"] for o in json.loads(out.read_text())["objects"]] == ["t0"]
+
+
+def test_cli_skips_the_bad_task_writes_the_others_and_exits_2(tmp_path, capsys):
+    good = _street_task()
+    good["id"], good["data"]["image"] = 42, "other.png"
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps([_broken("unlisted_target"), good]))
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o")]) == 2
+    assert "error: task 41, annotation 7, region 'a1': target 'car2'" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["other.json"]
+
+
+def test_cli_classes_option(tmp_path, capsys):
+    task = _street_task()
+    task["data"]["targets"][1]["class"] = "Kayak"
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps([task]))
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    classes = tmp_path / "classes.json"
+    classes.write_text(json.dumps({"Kayak": {"length_m": 4.0, "width_m": 0.7, "height_m": 0.4}}))
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o"), "--quiet",
+                 "--classes", str(classes)]) == 0
+    assert load_scene(tmp_path / "o" / "street.json").classes["Kayak"].median_m == (4.0, 0.7, 0.4)
+    classes.write_text(json.dumps({"Kayak": {"length_m": -4.0, "width_m": 0.7, "height_m": 0.4}}))
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "p"), "--classes", str(classes)]) == 2
+    assert "Kayak.length_m" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------------------------
@@ -559,18 +846,16 @@ def test_a_missing_export_says_it_does_not_exist(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == f"error: {path}: no such file (it does not exist)"
 
 
-@pytest.mark.parametrize("frames, truth", [
-    (False, {"location_m": [1.0, 1.5, 6.0], "yaw_rad": 0.5}),  # a one-target scene's truth
-    (True, {"camera_height_m": 1.5}),                          # a frame's: the camera's
+@pytest.mark.parametrize("truth, path", [
+    ({"location_m": [1.0, 1.5, 6.0], "yaw_rad": 0.5}, "targets[0].ground_truth"),  # a one-target truth
+    ({"camera_height_m": 1.5}, "ground_truth"),                                      # the camera's
 ])
-def test_a_value_no_scene_file_can_hold_is_an_error_not_a_crash(tmp_path, capsys, frames, truth):
+def test_a_value_no_scene_file_can_hold_is_an_error_not_a_crash(tmp_path, capsys, truth, path):
     t = _task()
     t["data"]["ground_truth"] = {**truth, "note": "INF"}
     export = tmp_path / "export.json"
     export.write_text(json.dumps([t]).replace('"INF"', "1e400"))  # JSON's 1e400 reads as infinity
-    argv = ["import", "label-studio", str(export), "--out", str(tmp_path / "o")] + (["--frames"] if frames else [])
-    assert main(argv) == 2
-    assert capsys.readouterr().err.strip() == ("error: task 17, data.ground_truth: ground_truth.note: inf cannot "
-                                               "be written (a scene file holds finite numbers, text, lists and "
-                                               "objects)")
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()  # the scene check or the writability check refuses it
+    assert err.startswith(f"error: task 17, data.ground_truth: {path}.note: ") and "inf" in err and "\n" not in err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

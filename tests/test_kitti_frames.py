@@ -1,4 +1,5 @@
-"""Frames from a KITTI folder and labels back into KITTI's frame (synthetic KITTI files, no data)."""
+"""Scenes from a KITTI folder and labels back into KITTI's frame (synthetic KITTI files, no data):
+simulate --from-kitti → batch → labels → evaluate kitti."""
 
 import json
 import os
@@ -9,9 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from creference_bayes.bench.kitti_frames import kitti_frame, read_p2
-from creference_bayes.io.frame_scene import parse_frame
-from creference_bayes.workflows.labels.frames import kitti_poses, write_frame_labels
+from creference_bayes.bench.kitti import kitti_scene, read_calib, read_p2
+from creference_bayes.io.scene import parse_scene, scene_to_dict
+from creference_bayes.models.contract import CAMERA_NAMES, OBJECT_NAMES
+from creference_bayes.pipeline import build_model
+from creference_bayes.workflows.labels.kitti import LabelInput, kitti_poses, write_labels
 
 P2 = np.array([[721.5377, 0.0, 609.5593, 44.85728], [0.0, 721.5377, 172.854, 0.2163791], [0.0, 0.0, 1.0, 0.002745884]])
 # type trunc occ alpha  l t r b  h w l  x y z  ry
@@ -44,8 +47,14 @@ def kitti_dir(tmp_path):
     return write_kitti_folder(tmp_path / "kitti")
 
 
-def test_frames_from_kitti_keep_what_a_person_could_annotate(kitti_dir):
-    scene, report = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+def _result(camera, objects) -> dict:
+    """A result with this MAP and no posterior (enough to write labels and a calib)."""
+    return {"camera": {"map": dict(zip(CAMERA_NAMES, map(float, camera)))},
+            "objects": [{"map": dict(zip(OBJECT_NAMES, map(float, o)))} for o in objects]}
+
+
+def test_scenes_from_kitti_keep_what_a_person_could_annotate(kitti_dir):
+    scene, report = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                                 rng=0, n_annotations=3, noise_px=0.0)
     assert [t["class"] for t in scene["targets"]] == ["Car", "Pedestrian", "Car"]
     assert report["skipped"]["truncation"] == 1  # the cyclist, truncated 0.8
@@ -55,15 +64,13 @@ def test_frames_from_kitti_keep_what_a_person_could_annotate(kitti_dir):
 
 
 def test_labels_of_the_true_state_are_kittis_own_boxes(kitti_dir):
-    """The frame's conventions (nearest corner, handedness, yaw, P2's offset) there and back."""
+    """The scene's conventions (nearest corner, handedness, yaw, P2's offset) there and back."""
     from creference_bayes.evaluation.kitti_eval import evaluate_kitti
-    from creference_bayes.frame_pipeline import build_frame_model
-    from creference_bayes.models.frame import CAMERA_NAMES
 
-    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+    scene, _ = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                            rng=0, n_annotations=2, noise_px=0.0)
-    frame = parse_frame(scene)
-    model, _ = build_frame_model(frame)
+    frame = parse_scene(scene)
+    model, _ = build_model(frame)
     model.handedness = np.array([t["ground_truth"]["handedness"] for t in scene["targets"]], float)
     objs = np.array([[t["ground_truth"]["location_m"][0], t["ground_truth"]["location_m"][2], t["ground_truth"]["yaw_rad"],
                       *t["ground_truth"]["dimensions_m"].values(), 0.0] for t in scene["targets"]])
@@ -80,10 +87,8 @@ def test_labels_of_the_true_state_are_kittis_own_boxes(kitti_dir):
         np.testing.assert_allclose(b[:3], k["location"], atol=1e-9)
         assert np.cos(b[3] - k["rotation_y"]) == pytest.approx(1.0, abs=1e-9) or \
             np.cos(b[3] - k["rotation_y"]) == pytest.approx(-1.0, abs=1e-9)
-    result = {"camera": {"map": dict(zip(CAMERA_NAMES, cam))},
-              "objects": [{"map": dict(zip(("x", "z", "yaw", "length_m", "width_m", "height_m", "ground_m"), o))}
-                          for o in objs]}
-    write_frame_labels(frame, result, kitti_dir / "out", "000007")
+    objects, sidecar = write_labels(kitti_dir / "out", "000007", [LabelInput("000007", _result(cam, objs), frame)])
+    assert sidecar is None and [o.quality for o in objects] == [None] * 3  # no draws: no uncertainty to write
     ev = evaluate_kitti(kitti_dir / "label_2", kitti_dir / "out" / "label_2")
     # label files hold two decimals (KITTI's own precision)
     assert [o["iou_3d"] for o in ev.objects] == pytest.approx([1.0, 1.0, 1.0], abs=1e-3)
@@ -94,7 +99,7 @@ def test_simulate_from_kitti_on_the_command_line(kitti_dir, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(kitti_dir),
                            "--out", str(out), "--annotations", "2"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert "1 frames with 3 objects" in proc.stdout and "1 by truncation" in proc.stdout
+    assert "3 objects" in proc.stdout and "1 by truncation" in proc.stdout
     data = json.loads((out / "000007.json").read_text())
     assert data["format"] == "creference-scene/2" and len(data["targets"][0]["dimension_lines"]) == 2
     proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(tmp_path),
@@ -108,7 +113,7 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
     out = tmp_path / "study"
     proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
-                           "--max-iterations", "400", "--option", "ground_sd_m=0.05"], capture_output=True, text=True,
+                           "--max-steps", "400", "--option", "ground_sd_m=0.05"], capture_output=True, text=True,
                           timeout=300,
                           env={**os.environ, "MPLBACKEND": "Agg"})
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -127,26 +132,24 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     assert bad.returncode == 2 and "--option 'ground_sd=1'" in bad.stderr
 
 
-def test_frames_from_kitti_with_known_sizes_give_each_object_its_true_size(kitti_dir):
-    from creference_bayes.frame_pipeline import build_frame_model
-
-    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+def test_scenes_from_kitti_with_known_sizes_give_each_object_its_true_size(kitti_dir):
+    scene, _ = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                            rng=0, n_annotations=2, noise_px=0.0, sizes="known")
     # LABELS' rows: h w l of the first car 1.65 1.67 3.64, of the pedestrian 1.89 0.48 1.20
     assert scene["targets"][0]["dimensions_m"] == {"length": 3.64, "width": 1.67, "height": 1.65}
     assert scene["targets"][1]["dimensions_m"] == {"length": 1.20, "width": 0.48, "height": 1.89}
-    frame = parse_frame(scene)
+    frame = parse_scene(scene)
     assert frame.targets[0].dimensions == (3.64, 1.67, 1.65)
-    model, _ = build_frame_model(frame)
-    assert model.sizes_known.all()
+    model, _ = build_model(frame)
+    assert all(o.sizes is not None for o in model.objects)
     # the same draw of annotations either way: only the sizes differ
-    prior, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+    prior, _ = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                            rng=0, n_annotations=2, noise_px=1.0)
-    known, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+    known, _ = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                            rng=0, n_annotations=2, noise_px=1.0, sizes="known")
     assert [t["dimension_lines"] for t in prior["targets"]] == [t["dimension_lines"] for t in known["targets"]]
     with pytest.raises(ValueError, match="sizes: expected one of"):
-        kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt", sizes="true")
+        kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt", sizes="true")
 
 
 def test_simulate_from_kitti_with_known_sizes_on_the_command_line(kitti_dir, tmp_path):
@@ -157,10 +160,6 @@ def test_simulate_from_kitti_with_known_sizes_on_the_command_line(kitti_dir, tmp
     assert proc.returncode == 0, proc.stderr
     data = json.loads((out / "000007.json").read_text())
     assert [t["dimensions_m"]["length"] for t in data["targets"]] == [3.64, 1.20, 3.69]
-    proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--n", "2", "--sizes", "known",
-                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "--sizes known: only with --from-kitti" in proc.stderr
-    assert not (tmp_path / "x").exists()
 
 
 def test_kitti_study_runs_the_bound_alone_under_other_assumptions(kitti_dir, tmp_path):
@@ -184,24 +183,44 @@ def test_kitti_study_runs_the_bound_alone_under_other_assumptions(kitti_dir, tmp
     assert bad.returncode == 2 and "--methods 'joint,best'" in bad.stderr
 
 
-def test_labels_of_a_kitti_frame_carry_the_folders_real_calibration(kitti_dir):
-    """A frame made from a KITTI folder keeps the calib file's other lines, and its labels' calib
+def test_labels_of_a_kitti_scene_carry_the_folders_real_calibration(kitti_dir):
+    """A scene made from a KITTI folder keeps the calib file's other lines, and its labels' calib
     file gives them back (KITTI tools that go through the lidar read Tr_velo_to_cam), with P2."""
-    from creference_bayes.bench.kitti_frames import read_calib
-    from creference_bayes.io.frame_scene import frame_to_dict
-    from creference_bayes.models.frame import CAMERA_NAMES
-
-    scene, _ = kitti_frame(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
+    scene, _ = kitti_scene(kitti_dir / "label_2" / "000007.txt", kitti_dir / "calib" / "000007.txt",
                            rng=0, n_annotations=2, noise_px=1.0)
-    frame = parse_frame(json.loads(json.dumps(scene)))
-    assert parse_frame(frame_to_dict(frame)).kitti_calib == frame.kitti_calib  # round trip
+    frame = parse_scene(json.loads(json.dumps(scene)))
+    assert parse_scene(scene_to_dict(frame)).kitti_calib == frame.kitti_calib  # round trip
     cam = np.array([P2[0, 0], 0.01, 0.0, 1.7, 0.5])
-    result = {"camera": {"map": dict(zip(CAMERA_NAMES, cam))},
-              "objects": [{"map": {"x": 0.0, "z": 10.0 + i, "yaw": 0.1, "length_m": 4.0, "width_m": 1.8,
-                                   "height_m": 1.5, "ground_m": 0.0}} for i in range(len(frame.targets))]}
-    write_frame_labels(frame, result, kitti_dir / "out", "000007")
+    objs = [[0.0, 10.0 + i, 0.1, 4.0, 1.8, 1.5, 0.0] for i in range(len(frame.targets))]
+    write_labels(kitti_dir / "out", "000007", [LabelInput("000007", _result(cam, objs), frame)])
     written = read_calib(kitti_dir / "out" / "calib" / "000007.txt")
     given = read_calib(kitti_dir / "calib" / "000007.txt")
     assert list(written) == ["P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo"]
     for name in given:
         np.testing.assert_allclose(written[name], given[name], rtol=1e-12, err_msg=name)
+
+
+def test_the_kitti_path_on_the_command_line(tmp_path):
+    """simulate --from-kitti → batch → labels → evaluate kitti, on the synthetic KITTI folder."""
+    kitti = write_kitti_folder(tmp_path / "kitti")
+
+    def run(*args):
+        proc = subprocess.run([sys.executable, "-m", "creference_bayes", *map(str, args)], capture_output=True,
+                              text=True, timeout=300, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout
+
+    run("simulate", "--from-kitti", kitti, "--out", "scenes", "--annotations", "3")
+    run("batch", "scenes", "--out", "batch", "--workers", "1", "--max-steps", "300", "--min-ess", "20")
+    out = run("labels", "batch", "--out", "labels")
+    assert "wrote 3 labels for 1 images" in out
+    lines = (tmp_path / "labels" / "label_2" / "000007.txt").read_text().splitlines()
+    assert [ln.split()[0] for ln in lines] == ["Car", "Pedestrian", "Car"]
+    calib = (tmp_path / "labels" / "calib" / "000007.txt").read_text()
+    p2 = np.array([float(v) for v in next(ln for ln in calib.splitlines() if ln.startswith("P2:")).split()[1:]])
+    np.testing.assert_allclose(p2.reshape(3, 4), P2, rtol=1e-9)  # KITTI's own P2: labels in its frame
+    side = json.loads((tmp_path / "labels" / "uncertainty" / "000007.json").read_text())
+    assert "kitti_p2" in side["frame"]["name"] and all("true_iou" in o for o in side["objects"])
+    assert (tmp_path / "labels" / "report.md").is_file() and (tmp_path / "labels" / "quality.png").is_file()
+    out = run("evaluate", "kitti", kitti / "label_2", tmp_path / "labels" / "label_2")
+    assert "AP R40" in out and "Car         0.7  3D" in out

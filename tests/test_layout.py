@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "creference_bayes"
 
 #: Each folder (or top-level module) may import only from its own rank or below.
 LAYERS = {"core": 0, "models": 1, "io": 2, "inference": 3, "vision": 4, "camera_setup": 5,
-          "pipeline": 5, "frame_pipeline": 5, "bench": 6, "evaluation": 6, "workflows": 7, "cli": 8}
+          "pipeline": 5, "bench": 6, "evaluation": 6, "workflows": 7, "cli": 8}
 HEAVY = ("cv2", "emcee", "arviz", "matplotlib", "dask", "poselib", "shapely", "PIL", "tqdm")
 STDLIB = set(sys.stdlib_module_names)
 
@@ -52,6 +52,22 @@ def _imports(path: Path, rel: Path):
 def test_every_module_is_in_a_known_folder():
     unknown = {_layer(rel) for _, rel in _modules()} - set(LAYERS)
     assert not unknown, f"modules outside the layout: {sorted(unknown)}"
+
+
+def test_no_module_or_public_name_is_named_for_one_kind_of_scene():
+    """One unit, one path: a scene of one object and a scene of sixty go through the same modules,
+    so nothing is written twice under a ``frame_`` (or ``target_``) name."""
+    twins = [str(rel) for _, rel in _modules() if rel.stem.startswith(("frame", "target_", "single_"))]
+    names = []
+    for path, rel in _modules():
+        if rel.parts[0] == "evaluation":
+            continue  # KITTI's own word for one of its images
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_") \
+                    and (node.name.startswith("frame_") or node.name.endswith("_frame")):
+                names.append(f"{rel}: {node.name}")
+    assert not twins, f"modules named for a kind of scene: {twins}"
+    assert not names, "public names for a kind of scene:\n" + "\n".join(names)
 
 
 def test_no_module_imports_a_folder_above_it():

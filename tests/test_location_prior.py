@@ -1,116 +1,115 @@
 """The location prior (models/location_prior.py): uniform in log depth, the MAP taken in log
 coordinates, and a thin design's posterior that no longer leans to the far end of the ridge."""
 
-import warnings
+import json
 
 import numpy as np
 import pytest
 
-from creference_bayes.bench.runner import variant
-from creference_bayes.bench.simulate import simulate_scene, true_params
-from creference_bayes.camera_setup import setup_camera
-from creference_bayes.inference.optimize import optimize_map
-from creference_bayes.inference.summary import draws_from_inference_data
+from creference_bayes.inference.map import optimize
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
+from creference_bayes.models.contract import C_FOCAL, O_Z
 from creference_bayes.models.location_prior import LocationPrior
-from creference_bayes.pipeline import build_models, estimate
+from creference_bayes.pipeline import build_model, estimate
 
 
-def _scene(seed, tier="high", n_refs=5):
-    d = simulate_scene(np.random.default_rng([19, seed]), setting="outdoor", tier=tier, distance_range=(15, 60),
-                       n_references=n_refs)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return parse_scene(d)
+def _scene(seed, **kw):
+    from tests.conftest import truth_scene
+
+    d, truth = truth_scene(seed, noise_px=1.0, **kw)
+    return parse_scene(d), truth
 
 
 def test_unknown_location_prior_is_refused():
     with pytest.raises(ValueError, match="location prior: expected one of"):
         LocationPrior("1/d")
     with pytest.raises(ValueError, match="location prior"):
-        estimate(variant(_scene(0), 1, ()), posterior=False, location_prior="uniform")
+        estimate(_scene(0)[0], posterior=False, location_prior="uniform")
 
 
 @pytest.mark.parametrize("model", ["metrology", "paper"])
-def test_flat_prior_keeps_the_map_in_the_parameters(model):
-    scene = variant(_scene(1), 1, (0, 1))
-    m = build_models(scene, setup_camera(scene, location_prior="flat"), model=model)[0]
-    p = true_params(scene)[None] * np.array([[1, 1, 1.3, 1, 1.2, 1, 1]])
-    assert m.map_cost(p) == pytest.approx(m.cost(p))
+def test_flat_prior_takes_the_map_in_the_parameters(model):
+    scene, truth = _scene(1, n_refs=3)
+    m = build_model(scene, model=model, location_prior="flat")[0]
+    m.handedness = truth["handedness"]
+    cams = truth["camera"][None] * np.array([[1.2, 1, 1, 1, 1]])
+    objs = truth["objects"][None] * np.array([1, 1.3, 1, 1, 1, 1, 1])
+    assert m.map_objective(cams, objs) == pytest.approx(m.neg_log_posterior(cams, objs))
 
 
 @pytest.mark.parametrize("model", ["metrology", "paper"])
 def test_log_depth_map_is_the_likelihood_times_the_informative_priors(model):
     """In log coordinates the scale priors (1/z, and 1/µ without a focal prior) and the Jacobian
-    cancel: the MAP's cost differs from the flat-prior cost without a focal prior (the
-    likelihood alone) by a constant, anywhere on the ridge."""
-    scene = variant(_scene(2), 1, (0,))
-    kw = dict(focal_prior="none")
-    logd = build_models(scene, setup_camera(scene, location_prior="log-depth", **kw), model=model)[0]
-    flat = build_models(scene, setup_camera(scene, location_prior="flat", **kw), model=model)[0]
-    rng = np.random.default_rng(0)
-    p = true_params(scene)[None].repeat(6, axis=0)
-    lam = np.exp(rng.uniform(-1, 1, 6))
-    p[:, 2] *= lam
-    p[:, 4] *= lam  # along the depth–focal-length ridge
-    diff = logd.map_cost(p) - flat.cost(p)
+    cancel: the MAP's objective differs from the flat-prior posterior without a focal prior (the
+    likelihood alone) by a constant, anywhere on the depth–focal-length ridge."""
+    scene, truth = _scene(2, depth=(25.0, 50.0))
+    logd = build_model(scene, model=model, location_prior="log-depth", focal_prior="none")[0]
+    flat = build_model(scene, model=model, location_prior="flat", focal_prior="none")[0]
+    for m in (logd, flat):
+        m.handedness = truth["handedness"]
+    lam = np.exp(np.random.default_rng(0).uniform(-1, 1, 6))
+    cams = truth["camera"][None].repeat(6, axis=0)
+    objs = truth["objects"][None].repeat(6, axis=0)
+    cams[:, C_FOCAL] *= lam
+    objs[:, :, O_Z] *= lam[:, None]  # along the ridge
+    diff = logd.map_objective(cams, objs) - flat.neg_log_posterior(cams, objs)
+    assert np.all(np.isfinite(diff))
     assert np.ptp(diff) < 1e-9 * max(1.0, np.abs(diff).max())
     # while the posterior's own density (linear coordinates) is not flat-prior + constant
-    assert np.ptp(logd.cost(p) - flat.cost(p)) > 0.5
+    assert np.ptp(logd.neg_log_posterior(cams, objs) - flat.neg_log_posterior(cams, objs)) > 0.5
 
 
 def test_map_is_the_mode_of_the_sampled_density():
-    """The MAP minimises the cost in (log y, log z, log µ, …): a step in any log coordinate
-    raises it; the linear-coordinate cost is not minimal there (the answer would move)."""
-    scene = variant(_scene(3), 1, ())
-    models = build_models(scene, setup_camera(scene))
-    est = optimize_map(models)
-    m = next(m for m in models if m.handedness == est.handedness)
-    free = np.flatnonzero(m.free)
-    p0 = est.params[None]
-    f0 = m.map_cost(p0)[0]
-    for i in free:
+    """The MAP minimises the objective in (log µ, x, log z, …): a step in any of those raises it,
+    and the linear-coordinate density is not stationary there (its mode lies elsewhere)."""
+    scene, _ = _scene(3, n_refs=4)
+    m = build_model(scene)[0]
+    est = optimize(m)
+    c0, o0 = est.camera[None], est.objects[None]
+    f0 = m.map_objective(c0, o0)[0]
+    steps = [("camera", k) for k in np.flatnonzero(m.camera_free)] + [("object", k) for k in (0, 1, 2)]
+    for block, k in steps:
         for s in (-1, 1):
-            p = p0.copy()
-            p[0, i] = p[0, i] * np.exp(s * 1e-3) if m.bounds.lower[i] > 0 else p[0, i] + s * 1e-3
-            assert m.map_cost(p)[0] >= f0 - 1e-7
-    up, down = p0.copy(), p0.copy()
-    up[0, 2] *= np.exp(1e-4)
-    down[0, 2] *= np.exp(-1e-4)
-    slope = (m.cost(up)[0] - m.cost(down)[0]) / 2e-4  # ∂cost/∂log z: the Jacobian's T = 1
-    assert slope == pytest.approx(1.0, abs=0.05)  # the linear-coordinate mode lies elsewhere
+            c, o = c0.copy(), o0.copy()
+            if block == "camera":
+                c[0, k] = c[0, k] * np.exp(s * 1e-3) if k == C_FOCAL else c[0, k] + s * 1e-3
+            else:
+                o[0, 0, k] = o[0, 0, k] * np.exp(s * 1e-3) if k == O_Z else o[0, 0, k] + s * 1e-3
+            assert m.map_objective(c, o)[0] >= f0 - 1e-6, (block, k, s)
+    up, down = o0.copy(), o0.copy()
+    up[0, 0, O_Z] *= np.exp(1e-4)
+    down[0, 0, O_Z] *= np.exp(-1e-4)
+    slope = (m.neg_log_posterior(c0, up)[0] - m.neg_log_posterior(c0, down)[0]) / 2e-4
+    assert slope == pytest.approx(1.0, abs=0.05)  # ∂(−log p)/∂log z = 1: the Jacobian z
 
 
-def _truth_quantile(scene, location_prior):
-    g = scene.ground_truth
-    prior = FocalPrior(g.focal_length_px, 0.5, np.inf, source="scene")  # a prior centred on the truth
+def _truth_quantile(scene, truth, location_prior):
+    prior = FocalPrior(float(truth["camera"][C_FOCAL]), 0.5, np.inf, source="scene")  # centred on the truth
     r = estimate(scene, seed=1, sampling={"min_ess": 200}, focal_prior=prior, location_prior=location_prior)
-    d = draws_from_inference_data(r.inference_data)
-    dist = np.hypot(np.ravel(d["x"]), np.ravel(d["z"]))
-    return float(np.mean(dist < np.hypot(g.location_m[0], g.location_m[2]))), float(np.quantile(dist, 0.95))
+    objs = r.draws.objects.reshape(-1, 1, 7)
+    dist = np.hypot(objs[:, 0, 0], objs[:, 0, O_Z])
+    return float(np.mean(dist < np.hypot(truth["objects"][0, 0], truth["objects"][0, O_Z])))
 
 
 def test_thin_design_does_not_lean_far():
     """One set of dimension lines, no references, a far target, a focal prior centred on the true
-    µ: with the log-depth prior the truth sits near the posterior's median; the flat prior put it
-    in the lowest tail (the posterior leant to the far end)."""
+    µ: with the log-depth prior the truth sits in the posterior's body; the flat prior puts it in
+    the lower tail (the posterior leans to the far end of the ridge)."""
     q_new, q_flat = [], []
     for seed in (4, 6):
-        scene = variant(_scene(seed, tier="high"), 1, ())
-        q_new.append(_truth_quantile(scene, "log-depth")[0])
-        q_flat.append(_truth_quantile(scene, "flat")[0])
-    assert all(0.2 < q < 0.8 for q in q_new), q_new
-    assert np.mean(q_flat) < np.mean(q_new) - 0.15, (q_flat, q_new)
+        scene, truth = _scene(seed, depth=(30.0, 60.0))
+        q_new.append(_truth_quantile(scene, truth, "log-depth"))
+        q_flat.append(_truth_quantile(scene, truth, "flat"))
+    assert all(0.1 < q < 0.9 for q in q_new), q_new
+    assert np.mean(q_flat) < np.mean(q_new) - 0.1, (q_flat, q_new)
 
 
 def test_cli_option_and_result_record_the_prior(tmp_path):
-    import json
-
     from creference_bayes.cli.main import example_scene_path, main
 
     for choice, kind in (("flat", "flat"), ("auto", "log-depth")):
         out = tmp_path / f"{choice}.json"
         assert main(["estimate", str(example_scene_path()), "--no-posterior", "--quiet",
                      "--location-prior", choice, "--out", str(out)]) == 0
-        assert json.loads(out.read_text())["camera"]["location_prior"] == {"kind": kind}
+        assert json.loads(out.read_text())["provenance"]["location_prior"] == kind

@@ -71,6 +71,12 @@ def make_scene(*, pitch=0.0, roll=0.0, f=1600.0, h=1.4, pp=(W / 2, HT / 2), targ
 
 # -- the paper's cross-ratio and the ζ coordinate agree ------------------------------------------
 
+def _aggregate(scene, camera=None, **kw):
+    """The pairwise aggregation of a one-target scene's references (metres) for its target."""
+    return aggregate_references(scene.targets[0].median_corners, scene.references,
+                                camera or Camera.from_scene(scene), **kw)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_cross_ratio_gives_the_same_depth_ratio_as_zeta(seed):
     rng = np.random.default_rng(seed)
@@ -115,7 +121,7 @@ def test_ground_frame_is_affine_with_the_documented_scales():
 # -- noise-free references recover the target exactly ---------------------------------------------
 
 def _check_exact(scene, x_true, z_true, h, f, rel=1e-6):
-    report = aggregate_references(scene, rules=NO_SENSITIVITY)
+    report = _aggregate(scene, rules=NO_SENSITIVITY)
     assert report.pairs_used == 10 and report.pairs_skipped == 0
     for p in report.pairs:
         assert p.x == pytest.approx(x_true, rel=rel)
@@ -147,7 +153,7 @@ def test_pitched_rolled_camera_is_exact_with_the_foot_point_correction(pitch, ro
     _check_exact(scene, 0.9, 6.5, h=h, f=f)
     # the paper's z = ζ_t V (no correction) is off by h tan(pitch), as the docstring says
     frame = GroundFrame.from_camera(Camera.from_scene(scene))
-    xi_t, zeta_t = target_ground_point(scene.target.median_corners, frame)
+    xi_t, zeta_t = target_ground_point(scene.targets[0].median_corners, frame)
     V = f * h / math.cos(math.radians(pitch)) ** 2
     assert zeta_t * V - 6.5 == pytest.approx(h * math.tan(math.radians(pitch)), rel=1e-6)
 
@@ -180,10 +186,10 @@ def test_range_bounds_contain_the_single_value_solution_and_match_a_sweep(pitch,
     f, h = 1500.0, 1.5
     exact = make_scene(pitch=pitch, roll=2.0, f=f, h=h, target=(1.1, 5.5, 0.2))
     ranged = make_scene(pitch=pitch, roll=2.0, f=f, h=h, target=(1.1, 5.5, 0.2), ranges=[(lo, hi)] * 5)
-    single = aggregate_references(exact, rules=NO_SENSITIVITY)
-    report = aggregate_references(ranged, rules=NO_SENSITIVITY, focal_range_px=focal_range)
+    single = _aggregate(exact, rules=NO_SENSITIVITY)
+    report = _aggregate(ranged, rules=NO_SENSITIVITY, focal_range_px=focal_range)
     frame = GroundFrame.from_camera(Camera.from_scene(ranged))
-    target = target_ground_point(ranged.target.median_corners, frame)
+    target = target_ground_point(ranged.targets[0].median_corners, frame)
     refs = {r.index: r for r in ranged.references}
     checked = 0
     for p, s in zip(report.pairs, single.pairs):
@@ -194,8 +200,8 @@ def test_range_bounds_contain_the_single_value_solution_and_match_a_sweep(pitch,
         assert p.z_bounds[0] <= s.z <= p.z_bounds[1]
         assert p.distance_bounds[0] <= math.hypot(s.x, s.z) <= p.distance_bounds[1]
         g = frame.coordinates(np.concatenate([refs[p.i].line, refs[p.j].line]))
-        xb, zb, share = _sweep_bounds(g[1] - g[0], g[3] - g[2], refs[p.i].length_bounds_m(ranged.target),
-                                      refs[p.j].length_bounds_m(ranged.target), target, frame.d_c,
+        xb, zb, share = _sweep_bounds(g[1] - g[0], g[3] - g[2], (refs[p.i].low, refs[p.i].high),
+                                      (refs[p.j].low, refs[p.j].high), target, frame.d_c,
                                       focal_range)
         assert 0.0 < share
         # (without a focal range the x bound approaches 0 as µ → ∞, beyond the sweep: atol)
@@ -210,7 +216,7 @@ def test_range_bounds_contain_the_single_value_solution_and_match_a_sweep(pitch,
 def test_parallel_and_mirror_image_pairs_are_skipped_as_near_parallel():
     segs = [((-2.0, 4.0), (-1.0, 6.0)), ((1.0, 5.0), (2.0, 7.0)),  # parallel
             ((3.0, 4.0), (2.0, 6.0))]  # mirror image of both: the same |Δx|, |Δz|
-    report = aggregate_references(make_scene(pitch=6.0, segments=segs))
+    report = _aggregate(make_scene(pitch=6.0, segments=segs))
     assert report.pairs_used == 0
     assert report.skipped_reasons == {"near_parallel": 3}
     assert all(p.conditioning < 1e-6 for p in report.pairs)
@@ -220,7 +226,7 @@ def test_inconsistent_lengths_have_no_positive_solution():
     segs = [((-2.0, 4.0), (-0.5, 4.1)), ((1.5, 3.5), (1.6, 7.0))]  # lateral, then depth
     true = [math.hypot(1.5, 0.1), math.hypot(0.1, 3.5)]
     # the depth segment stated shorter than its own lateral offset (0.1 m) forces V² < 0
-    report = aggregate_references(make_scene(segments=segs, lengths=[true[0], 0.05]))
+    report = _aggregate(make_scene(segments=segs, lengths=[true[0], 0.05]))
     assert report.skipped_reasons == {"no_positive_solution": 1}
     assert report.constraints is None
 
@@ -228,9 +234,9 @@ def test_inconsistent_lengths_have_no_positive_solution():
 def test_huge_lengths_are_an_implausible_distance():
     segs = [((-2.0, 4.0), (-0.5, 4.1)), ((1.5, 3.5), (1.6, 7.0))]
     true = np.array([math.hypot(1.5, 0.1), math.hypot(0.1, 3.5)])
-    report = aggregate_references(make_scene(segments=segs, lengths=true * 5000))
+    report = _aggregate(make_scene(segments=segs, lengths=true * 5000))
     assert report.skipped_reasons == {"implausible_distance": 1}
-    ok = aggregate_references(make_scene(segments=segs, lengths=true * 100))
+    ok = _aggregate(make_scene(segments=segs, lengths=true * 100))
     assert ok.pairs_used == 1  # 600 m is far but plausible
 
 
@@ -240,17 +246,17 @@ def test_endpoint_above_the_horizon_is_skipped():
     data_line[1, 1] = 10.0  # far above the horizon (which is near row 760)
     ref = scene.references[0].__class__(**{**scene.references[0].__dict__, "line": data_line})
     scene = scene.__class__(**{**scene.__dict__, "references": (ref,) + scene.references[1:]})
-    report = aggregate_references(scene, rules=NO_SENSITIVITY)
+    report = _aggregate(scene, rules=NO_SENSITIVITY)
     assert report.skipped_reasons == {"endpoint_above_horizon": 4}
     assert report.pairs_used == 6
 
 
 def test_target_above_the_horizon_skips_every_pair():
     scene = make_scene()
-    t = scene.target
+    t = scene.targets[0]
     dl = t.dimension_lines[0].__class__(corners=t.dimension_lines[0].corners - [0.0, 700.0])
     target = t.__class__(**{**t.__dict__, "dimension_lines": (dl,)})
-    report = aggregate_references(scene.__class__(**{**scene.__dict__, "target": target}))
+    report = _aggregate(scene.__class__(**{**scene.__dict__, "targets": (target,)}))
     assert report.skipped_reasons == {"target_above_horizon": 10}
 
 
@@ -260,22 +266,22 @@ def test_target_beyond_the_foot_point_is_behind_the_camera():
     f, h = 400.0, 1.5
     scene = make_scene(pitch=45.0, f=f, h=h, pp=(W / 2, 300.0),
                        segments=[((-1.0, 1.0), (0.0, 1.2)), ((0.5, 1.0), (0.6, 2.5))])
-    t = scene.target
+    t = scene.targets[0]
     corners = np.array([[1400.0, 750.0], [1500.0, 760.0], [1380.0, 780.0], [1400.0, 650.0]])
     target = t.__class__(**{**t.__dict__, "dimension_lines": (t.dimension_lines[0].__class__(corners),)})
-    report = aggregate_references(scene.__class__(**{**scene.__dict__, "target": target}))
+    report = _aggregate(scene.__class__(**{**scene.__dict__, "targets": (target,)}))
     assert report.skipped_reasons == {"behind_camera": 1}
 
 
 def test_pairs_that_amplify_pixel_noise_are_skipped_as_unstable():
     scene = make_scene(target=(-1.3, 7.5, 2.0))
-    report = aggregate_references(scene)
+    report = _aggregate(scene)
     unstable = {(p.i, p.j) for p in report.pairs if p.reason == "unstable"}
     assert (0, 3) in unstable and report.skipped_reasons.get("unstable") == len(unstable)
     # independent check of the sensitivity: move each endpoint of references 0 and 3 by a pixel,
     # re-run the whole aggregation (rule off) and watch the target distance
     def distance(sc):
-        p = next(q for q in aggregate_references(sc, rules=NO_SENSITIVITY).pairs if (q.i, q.j) == (0, 3))
+        p = next(q for q in _aggregate(sc, rules=NO_SENSITIVITY).pairs if (q.i, q.j) == (0, 3))
         return math.hypot(p.x, p.z)
 
     d0, changes = distance(scene), []
@@ -290,7 +296,7 @@ def test_pairs_that_amplify_pixel_noise_are_skipped_as_unstable():
     frame = GroundFrame.from_camera(Camera.from_scene(scene))
     r0, r3 = scene.references[0], scene.references[3]
     sens = pixel_sensitivity(np.stack([r0.line, r3.line]), (r0.low, r3.low), frame,
-                             target_ground_point(scene.target.median_corners, frame))
+                             target_ground_point(scene.targets[0].median_corners, frame))
     assert sens == pytest.approx(max(changes), rel=1e-6)
     assert sens > 0.02
     stable = {(p.i, p.j) for p in report.pairs if p.used}
@@ -299,14 +305,14 @@ def test_pairs_that_amplify_pixel_noise_are_skipped_as_unstable():
 
 def test_fewer_than_two_references_use_no_pair():
     scene = make_scene(segments=[((-2.0, 4.0), (-0.5, 4.1))])
-    report = aggregate_references(scene)
+    report = _aggregate(scene)
     assert (report.pairs_used, report.pairs_skipped, report.constraints) == (0, 0, None)
     assert report.to_dict()["pairs_used"] == 0
 
 
 def test_distance_constraints_and_report_dict():
     scene = make_scene(pitch=8.0, target=(0.8, 6.0, 0.6), ranges=[(0.9, 1.1)] * 5)
-    report = aggregate_references(scene, on="distance")
+    report = _aggregate(scene, on="distance")
     assert isinstance(report.constraints, SoftConstraints) and report.constraints.on == "distance"
     d_true = math.hypot(0.8, 6.0)
     assert np.all(report.constraints.distance_bounds[:, 0] <= d_true)
@@ -314,7 +320,7 @@ def test_distance_constraints_and_report_dict():
     d = report.to_dict()
     assert d["pairs_used"] + d["pairs_skipped"] == 10 and d["on"] == "distance"
     with pytest.raises(ValueError, match="on: expected"):
-        aggregate_references(scene, on="xyz")
+        _aggregate(scene, on="xyz")
 
 
 def test_pair_bounds_of_a_single_value_is_a_point():
@@ -328,23 +334,26 @@ def test_pair_bounds_of_a_single_value_is_a_point():
 
 # -- the pipeline ----------------------------------------------------------------------------------
 
-def test_estimate_builds_constraints_from_references_and_reports_pairs(make_scene):
-    from creference_bayes.camera_setup import setup_camera
-    from creference_bayes.pipeline import build_models, estimate
+def test_the_paper_model_reads_the_pairs_as_bounds_on_each_object():
+    """Every pair of references is assessed for the target; the used pairs' bounds enter the paper
+    model's cost (a pose far outside them pays for it), and the result counts used and skipped pairs."""
+    import creference_bayes as cb
+    from creference_bayes.pipeline import build_model
 
-    scene = make_scene(2, tier="none")
-    result = estimate(scene, posterior=False, seed=0)
-    report = result.references
-    assert report.enabled and report.pairs_used + report.pairs_skipped == 10
-    d = result.to_dict()["references"]
-    assert d["pairs_used"] == report.pairs_used and d["pairs_skipped"] == report.pairs_skipped
-    assert result.evaluation.location_pct_error < 5.0
-    # the constraints enter the paper model's cost: a pose far outside the bounds pays for it
-    far = result.map.params.copy()
-    far[2] *= 3.0
-    setup = setup_camera(scene)
-    with_c = build_models(scene, setup, model="paper", constraints=report.constraints)[0].cost(far)
-    without = build_models(scene, setup, model="paper")[0].cost(far)
-    assert with_c[0] - without[0] > 10.0
-    off = estimate(scene, posterior=False, seed=0, use_references=False)
-    assert not off.references.enabled and off.to_dict()["references"]["pairs_used"] == 0
+    scene = make_scene(target=(-1.3, 7.5, 2.0))
+    result = cb.estimate(scene, model="paper", posterior=False, seed=0)
+    rep = result.to_dict()["references"]["objects"][0]
+    assert rep["pairs_used"] + rep["pairs_skipped"] == 10 and rep["pairs_used"] > 0
+    model, _ = build_model(scene, model="paper")
+    model.handedness = result.model.handedness
+    cam = np.array([[result.to_dict()["camera"]["map"][k] for k in ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")]])
+    objs = np.array([[[result.to_dict()["objects"][0]["map"][k] for k in
+                       ("x", "z", "yaw", "length_m", "width_m", "height_m", "ground_m")]]])
+    far = objs.copy()
+    far[0, 0, 1] *= 3.0
+    bare, _ = build_model(scene, model="paper", use_references=False)
+    bare.handedness = model.handedness
+    penalty = lambda o: (model.object_nll(cam, o) - bare.object_nll(cam, o))[0, 0]
+    assert penalty(far) - penalty(objs) > 10.0
+    assert cb.estimate(scene, model="paper", posterior=False, use_references=False).to_dict()[
+        "references"]["objects"][0]["pairs_used"] == 0

@@ -1,14 +1,12 @@
-"""What a new user met on the frame path (issue 36): each behaviour a user expects, checked
-through the command line or the Python API the way the docs show them."""
+"""What a new user met with scenes of several objects (issue 36): each behaviour a user expects,
+checked through the command line or the Python API the way the docs show them."""
 
 import json
 
-import numpy as np
 import pytest
 
 import creference_bayes as cb
 from creference_bayes.cli.main import main
-from creference_bayes.io.frame_scene import load_frame, parse_frame
 from creference_bayes.io.scene import SceneError
 
 FAST = ["--min-ess", "50", "--quiet"]
@@ -53,24 +51,24 @@ def test_a_classes_file_gives_the_size_prior_to_estimate_batch_and_python(frame_
     assert (tmp_path / "b" / "results" / "kayak.json").is_file()
     from creference_bayes.models.size_priors import size_priors_from_dict
 
-    r = cb.estimate_frame(path, classes=size_priors_from_dict(KAYAK), posterior=False)
+    r = cb.estimate(path, classes=size_priors_from_dict(KAYAK), posterior=False)
     assert r.to_dict()["objects"][0]["map"]["length_m"] > 0
 
 
 def test_a_class_name_in_lower_case_is_the_kitti_class(frame_file, tmp_path):
     """KITTI's evaluation ignores the case of class names; so does the size prior's look-up."""
     path = _with_class(frame_file, tmp_path, "car")
-    frame = load_frame(path)
-    assert frame.size_prior("car") is frame.size_prior("Car") is not None
-    assert frame.targets[0].cls == "car"
+    scene = cb.load_scene(path)
+    assert scene.size_prior("car") is scene.size_prior("Car") is not None
+    assert scene.targets[0].cls == "car"
 
 
 def test_python_estimates_take_any_scene_as_a_path_or_a_dict(frame_file):
     data = json.loads(frame_file.read_text())
     by_path = cb.estimate(str(frame_file), posterior=False, seed=0)
     by_dict = cb.estimate(data, posterior=False, seed=0)
-    by_frame_dict = cb.estimate_frame(data, posterior=False, seed=0)
-    maps = [r.to_dict()["objects"][0]["map"]["distance_m"] for r in (by_path, by_dict, by_frame_dict)]
+    by_scene = cb.estimate(cb.parse_scene(data), posterior=False, seed=0)
+    maps = [r.to_dict()["objects"][0]["map"]["distance_m"] for r in (by_path, by_dict, by_scene)]
     assert maps[0] == maps[1] == maps[2]
 
 
@@ -80,9 +78,8 @@ def test_python_estimates_take_any_scene_as_a_path_or_a_dict(frame_file):
 def test_a_wrong_format_says_what_is_read(frame_file, fmt, words):
     data = json.loads(frame_file.read_text())
     data["format"] = fmt
-    for parse in (cb.parse_scene, parse_frame):
-        with pytest.raises(SceneError, match=words):
-            parse(data)
+    with pytest.raises(SceneError, match=words):
+        cb.parse_scene(data)
 
 
 def test_an_unreadable_file_is_named(capsys):
@@ -93,7 +90,7 @@ def test_an_unreadable_file_is_named(capsys):
 
 def test_plot_and_advise_use_the_batch_folders_scene(tmp_path):
     """A batch result is named like its scene; plot and advise find the batch folder's copy of the
-    scene, for a frame and for a one-target scene alike."""
+    scene, for a scene of several objects and for a one-target scene alike."""
     scenes = tmp_path / "scenes"
     assert main(["simulate", str(scenes / "one"), "--n", "1", "--quiet"]) == 0
     assert main(["simulate", str(scenes / "frames"), "--n", "1", "--objects", "2", "--quiet"]) == 0
@@ -108,7 +105,8 @@ def test_plot_and_advise_use_the_batch_folders_scene(tmp_path):
 
 def test_confidence_fit_names_the_file_it_cannot_read(frame_file, tmp_path, capsys):
     (tmp_path / "in").mkdir()
-    (tmp_path / "in" / "f.json").write_text(frame_file.read_text())
+    (tmp_path / "in" / "a.json").write_text(frame_file.read_text())
+    (tmp_path / "in" / "f.json").write_text('{"format": "creference-scene/2", "image": ')
     assert main(["confidence", "fit", str(tmp_path / "in"), "--out", str(tmp_path / "m.json")]) == 2
     assert str(tmp_path / "in" / "f.json") in capsys.readouterr().err
 
@@ -121,8 +119,13 @@ def test_simulate_from_kitti_refuses_options_it_would_ignore(tmp_path, capsys):
     assert "--objects" in capsys.readouterr().err
 
 
-def test_the_help_says_simulate_writes_frames_too(capsys):
+def test_the_help_says_what_simulate_and_estimate_take_and_write(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     out = "".join(capsys.readouterr().out.split())  # argparse wraps the text anywhere
-    assert "scenesorframeswithgroundtruth(creference-scene/1or/2)" in out
+    assert "syntheticsceneswithgroundtruth(creference-scene/2)" in out
+    with pytest.raises(SystemExit):
+        main(["estimate", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "creference-scene/1 (one target) or creference-scene/2 (one or more" in out
+    assert "creference-result/2" in out and "creference-result/1" not in out

@@ -3,15 +3,14 @@ horizon, the fallback when P4Pf has no real solution, and the install hint witho
 
 import sys
 import warnings
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from creference_bayes.core.geometry import Camera, dimension_corners
-from creference_bayes.models.params import wrap_angle
-from creference_bayes.io.scene import parse_scene
+from creference_bayes.bench.runner import variant
 from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.core.geometry import Camera, dimension_corners
+from creference_bayes.io.scene import parse_scene
 
 pytest.importorskip("poselib")
 from creference_bayes.bench.peers import INSTALL_HINT, estimate_p4pf
@@ -21,19 +20,23 @@ def _scene(seed, n=5, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         s = parse_scene(simulate_scene(np.random.default_rng(seed), **{"decimals": None, **kw}))
-    return replace(s, target=replace(s.target, dimension_lines=s.target.dimension_lines[:n]))
+    return variant(s, n, ())
+
+
+def _truth(s):
+    return s.targets[0].ground_truth
 
 
 def test_noise_free_scenes_are_recovered_exactly():
     hands = set()
     for seed in range(12):
         s = _scene(seed, tier="none", principal_offset=0.05)
-        g = s.ground_truth
+        g = _truth(s)
         p = estimate_p4pf(s)
-        assert p.location_error(g.location_m) < 1e-3
-        assert abs(wrap_angle(p.params[3] - g.yaw_rad)) < 1e-4
-        assert p.params[4] == pytest.approx(g.focal_length_px, rel=1e-5)
-        assert p.handedness == g.extra["handedness"]
+        assert p.location_error(g["location_m"]) < 1e-3
+        assert abs((p.params[3] - g["yaw_rad"] + np.pi) % (2 * np.pi) - np.pi) < 1e-4
+        assert p.params[4] == pytest.approx(s.ground_truth["focal_length_px"], rel=1e-5)
+        assert p.handedness == g["handedness"]
         assert p.rms_px < 1e-3
         hands.add(p.handedness)
     assert hands == {1, -1}
@@ -44,15 +47,15 @@ def test_without_horizon_gravity_comes_from_the_box():
     level = Camera(s.principal_point, None, None)  # the peer may not use the horizon at all
     p = estimate_p4pf(s, camera=level)
     assert p.info["gravity"] == "box"
-    assert p.location_error(s.ground_truth.location_m) < 1e-3
+    assert p.location_error(_truth(s)["location_m"]) < 1e-3
 
 
 def test_rms_is_the_reprojection_error_of_the_returned_pose():
     """Independent check: project the corners with the peer's pose and the pinhole model."""
     s = _scene(2, tier="medium")
     p = estimate_p4pf(s)
-    t = s.target
-    X = dimension_corners(t.length, t.width, t.height, p.handedness)
+    t = s.targets[0]
+    X = dimension_corners(*t.dimensions, p.handedness)
     pc = X @ p.rotation.T + p.translation
     uv = p.params[4] * pc[:, :2] / pc[:, 2:] + s.principal_point
     rms = np.sqrt(np.mean(np.sum((t.corners - uv) ** 2, axis=-1)))
@@ -68,7 +71,7 @@ def test_fallback_when_p4pf_has_no_real_solution():
     p = estimate_p4pf(s)
     assert p.info["fallback"] and p.info["p4pf_solutions"] == 0
     assert p.rms_px < 2 * np.sqrt(2) * 10.0
-    assert p.location_error(s.ground_truth.location_m) < 100
+    assert p.location_error(_truth(s)["location_m"]) < 100
 
 
 def test_missing_poselib_says_what_to_install(monkeypatch):
@@ -79,3 +82,9 @@ def test_missing_poselib_says_what_to_install(monkeypatch):
     with pytest.raises(ImportError, match=r"pip install creference-bayes\[peer\]"):
         peers.estimate_p4pf(_scene(0, tier="none"))
     assert "creference-bayes[peer]" in INSTALL_HINT
+
+
+def test_only_one_target_of_known_size():
+    s = parse_scene(simulate_scene(1, n_objects=2, sizes="prior", setting="street", n_references=0))
+    with pytest.raises(ValueError, match="one target of known size"):
+        estimate_p4pf(s)

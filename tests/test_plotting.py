@@ -1,151 +1,266 @@
-"""Plots (Agg): what they draw, and the ``creference plot`` command."""
+"""Figures of an estimate (Agg) and the ``creference plot`` command, for one object and for several:
+what the figures draw, where their draws come from, and the command's files and messages."""
 
-import io
+import copy
 import json
 
 import numpy as np
 import pytest
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 
-from creference_bayes.vision import plotting
+import creference_bayes as cb
 from creference_bayes.cli.main import main
-from creference_bayes.pipeline import estimate
+from creference_bayes.pipeline import map_state, rebuild_model, result_draws
+from creference_bayes.vision import plotting
+from conftest import truth_scene
+
+
+def _write(path, data):
+    path.write_text(json.dumps(data))
+    return path
 
 
 @pytest.fixture(scope="module")
-def noise_free(tmp_path_factory):
-    """A noise-free scene written to disk, and its estimate (small posterior run)."""
-    import warnings
-
-    from creference_bayes.io.scene import load_scene
-    from creference_bayes.bench.simulate import simulate_scene
-
-    path = tmp_path_factory.mktemp("scene") / "scene.json"
-    path.write_text(json.dumps(simulate_scene(np.random.default_rng(21), tier="none")))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        scene = load_scene(path)
-    result = estimate(scene, seed=0, sampling={"min_ess": 200, "tau_multiple": 20})
-    return path, scene, result
+def one(tmp_path_factory):
+    """A one-target scene (its truth known) on disk and its estimate with a small posterior run."""
+    folder = tmp_path_factory.mktemp("one")
+    scene_dict, truth = truth_scene(5, m=1, noise_px=1.0, n_annotations=4, n_refs=2, horizon="sd")
+    path = _write(folder / "scene.json", scene_dict)
+    scene = cb.load_scene(path)
+    result = cb.estimate(scene, seed=0, sampling={"min_ess": 50})
+    _write(folder / "result.json", result.to_dict())
+    return folder, scene, result, truth
 
 
-def test_map_box_passes_through_the_annotated_corners(noise_free):
-    _, scene, result = noise_free
+@pytest.fixture(scope="module")
+def three(tmp_path_factory):
+    """A scene of three objects of class-prior sizes, on disk, and its MAP-only result beside it."""
+    folder = tmp_path_factory.mktemp("three")
+    scene_dict, truth = truth_scene(1, m=3, sizes_known=False, noise_px=1.0, n_annotations=3)
+    path = _write(folder / "scene.json", scene_dict)
+    scene = cb.load_scene(path)
+    result = cb.estimate(scene, seed=0, posterior=False)
+    _write(folder / "result.json", result.to_dict())
+    return folder, scene, result.to_dict(), truth
+
+
+def _map_boxes(ax):
+    return [c for c in ax.collections if isinstance(c, LineCollection) and c.get_gid() == "map box"]
+
+
+@pytest.mark.parametrize("which", ["one", "three"])
+def test_map_box_bottom_holds_the_models_projected_corners(which, request):
+    """The figures' boxes (models/boxes) and the likelihood's projection (Model.project) are written
+    separately: each MAP box drawn must hold the three ground corners of the model's projection."""
+    folder, scene, result, _ = request.getfixturevalue(which)
+    d = result if isinstance(result, dict) else result.to_dict()
+    model = rebuild_model(d, scene)
+    cam, objs = map_state(d)
+    uv, _ = model.project(model.complete_camera(cam[None]), objs[None])
+    fig = plotting.plot_boxes(scene, cam, objs, None, zoom=False)
+    boxes = _map_boxes(fig.axes[0])
+    assert len(boxes) == len(objs)
+    for i, col in enumerate(boxes):
+        ends = np.vstack(col.get_segments())
+        for corner in uv[0, i, :3]:
+            assert np.min(np.hypot(*(ends - corner).T)) < 1e-6
+
+
+def test_boxes_show_the_annotations_and_each_objects_draws(three):
+    folder, scene, d, _ = three
+    cam, objs = map_state(d)
+    cams, draws, source = result_draws(d, rebuild_model(d, scene), n=200)
+    assert source == "laplace"
+    ax = plotting.plot_boxes(scene, cam, objs, (cams, draws), zoom=False).axes[0]
+    by_gid = {}
+    for c in ax.collections:
+        by_gid.setdefault(c.get_gid(), []).append(c)
+    annotations = sum(len(t.dimension_lines) for t in scene.targets)
+    assert len(by_gid["annotations"][0].get_segments()) == 3 * annotations  # three lines a set
+    assert len(by_gid["median annotations"][0].get_segments()) == 3 * len(scene.targets)
+    assert len(by_gid["draw boxes"]) == len(scene.targets)
+    assert all(c.get_alpha() >= 0.25 and c.get_linewidth()[0] >= 0.8 for c in by_gid["draw boxes"])
+
+
+def test_a_small_object_gets_a_zoom_inset_on_the_photo():
+    far, state = truth_scene(0, m=1, depth=(28.0, 30.0), n_annotations=3, noise_px=2.0)
+    scene = cb.parse_scene(far)
+    ax = plotting.plot_boxes(scene, state["camera"], state["objects"]).axes[0]
+    (inset,) = ax.child_axes
+    (x0, x1), (y1, y0) = inset.get_xlim(), inset.get_ylim()
+    pts = scene.targets[0].corners.reshape(-1, 2)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    assert x0 <= lo[0] and hi[0] <= x1 and y0 <= lo[1] and hi[1] <= y1  # every annotation inside
+    assert (x1 - x0) * plotting.PHOTO_ZOOM_AT_LEAST <= 0.42 * scene.image_width + 1e-6  # magnified enough
+    near, state = truth_scene(0, m=1, depth=(4.0, 4.5))
+    assert plotting.plot_boxes(cb.parse_scene(near), state["camera"], state["objects"]).axes[0].child_axes == []
+
+
+def test_pairs_show_what_varies_with_the_map_truth_and_hdi(one):
+    folder, scene, result, truth = one
     d = result.to_dict()
-    fig = plotting.plot_boxes(d, scene, plotting.draws_from_result(d), zoom=False)
-    assert isinstance(fig, Figure)
-    ax = fig.axes[0]
-    red = [ln for ln in ax.lines if ln.get_color() == plotting._MAP_COLOR]
-    assert len(red) == 12  # the box's edges
-    ends = np.vstack([np.column_stack(ln.get_data()) for ln in red])
-    for corner in scene.target.median_corners:
-        assert np.min(np.linalg.norm(ends - corner, axis=1)) < 1.0
-    blue = [ln for ln in ax.lines if ln.get_color() == plotting._POST_COLOR]
-    assert len(blue) >= 12 * 10
+    cams, objs = result.draws.cameras.reshape(-1, 5), result.draws.objects.reshape(-1, 1, 7)
+    cam, mp = map_state(d)
+    cols = plotting.posterior_columns(scene, d, cam, mp, (cams, objs))
+    names = [c.name for c in cols]
+    free = [f"camera.{k}" for k in d["camera"]["free"] if k != "ref_scale"]
+    assert names[:len(free)] == free  # the camera's free quantities first (a horizon with an sd: pitch, roll free)
+    assert names[len(free):] == [f"{scene.targets[0].id}.{k}" for k in ("x", "z", "yaw")]  # known sizes
+    x = next(c for c in cols if c.name.endswith(".x"))
+    assert x.truth == pytest.approx(truth["objects"][0, 0])
+    assert x.hdi == tuple(d["objects"][0]["posterior"]["hdi"]["x"])
+    fig = plotting.plot_pairs(cols)
+    assert len([a for a in fig.axes if a.get_visible()]) == len(cols) * (len(cols) + 1) // 2
 
 
-def test_pair_and_rank_plots(noise_free):
-    _, _, result = noise_free
+def test_kept_draws_know_their_chains_and_ranks_count_every_draw(one):
+    folder, scene, result, _ = one
     d = result.to_dict()
-    draws = plotting.draws_from_result(d)
-    assert draws["x"].shape[0] == result.diagnostics.n_ensembles
-    fig = plotting.plot_pairs(draws, result=d, truth={"x": 1.0, "z": 5.0})
-    visible = [a for a in fig.axes if a.get_visible()]
-    assert len(visible) == 5 * 6 // 2  # lower triangle of the five parameters
-    fig = plotting.plot_ranks(draws, result=d)
-    assert len([a for a in fig.axes if a.get_visible()]) == 6
-    # each ensemble's rank histogram sums to its number of draws
-    ax = fig.axes[0]
-    counts = [s.get_data().values.sum() for s in ax.patches]
-    assert counts == [draws["x"].shape[1]] * draws["x"].shape[0]
+    chains = plotting.kept_chains(d)
+    C, N = result.draws.cameras.shape[:2]
+    kept = np.asarray(d["draws"]["camera"]["focal_length_px"])
+    # each kept draw is a draw of the chain it is said to come from
+    for k in range(0, len(kept), 37):
+        row = result.draws.cameras[chains[k], :, 0]
+        assert np.min(np.abs(row - kept[k])) < 1e-4
+    assert set(chains) == set(range(C))
+    cams, objs, _ = result_draws(d, result.model)
+    cols = plotting.posterior_columns(scene, d, *map_state(d), (cams, objs), distance=True)
+    fig = plotting.plot_ranks(cols, chains)
+    counts = [s.get_data().values.sum() for s in fig.axes[0].patches]
+    assert counts == [np.sum(chains == c) for c in range(C)]
 
 
-def test_top_view_draws_reference_bounds_and_camera():
-    result = {"map": {"x": 1.0, "y": 1.5, "z": 6.0, "yaw": 0.2, "focal_length_px": 1500.0},
-              "references": {"on": "xz", "pairs": [
-                  {"used": True, "x_bounds": [0.5, 1.5], "z_bounds": [5.0, 7.0]},
-                  {"used": False, "reason": "parallel"},
-                  {"used": True, "x_bounds": [0.8, 1.2], "z_bounds": [5.5, 6.5]}]}}
-    rng = np.random.default_rng(0)
-    draws = {"x": rng.normal(1.0, 0.1, (4, 200)), "z": rng.normal(6.0, 0.3, (4, 200))}
-    fig = plotting.plot_top_view(result, draws, truth={"x": 1.1, "z": 6.2})
-    ax = fig.axes[0]
-    rects = [p for p in ax.patches if isinstance(p, Rectangle) and np.isfinite(p.get_x())]
-    assert sorted((r.get_x(), r.get_y()) for r in rects) == [(0.5, 5.0), (0.8, 5.5)]
-    lo, hi = ax.get_ylim()
+def test_stored_draws_are_used_before_the_laplace_approximation(three):
+    folder, scene, d, _ = three
+    model = rebuild_model(d, scene)
+    _, _, source = result_draws(d, model, n=50)
+    assert source == "laplace"
+    cams = np.tile([700.0, 0.01, 0.0, 1.6, 0.5], (7, 1))
+    objs = np.tile(map_state(d)[1], (7, 1, 1))
+    columns = lambda a: {k: a[:, j].tolist() for j, k in enumerate(("focal_length_px", "pitch", "roll", "height_m",
+                                                                   "ref_scale"))}
+    kept = {"n": 7, "of": 7, "camera": columns(cams),
+            "objects": [{k: objs[:, i, j].tolist() for j, k in enumerate(("x", "z", "yaw", "length_m", "width_m",
+                                                                          "height_m", "ground_m"))} for i in range(3)]}
+    c, o, source = result_draws(dict(d, draws=kept), model)
+    assert source == "posterior" and c.shape == (7, 5) and o.shape == (7, 3, 7)
+    assert np.allclose(c[:, 0], 700.0) and np.allclose(o, objs)
+
+
+def test_top_view_zooms_on_each_object_too_small_to_see(three):
+    folder, scene, d, _ = three
+    cam, objs = map_state(d)
+    cams, draws, _ = result_draws(d, rebuild_model(d, scene), n=500)
+    fig = plotting.plot_top_view(scene, cam, objs, (cams, draws))
+    zoom = plotting.zoom_indices(scene, objs, (cams, draws))
+    panels = [a for a in fig.get_axes() if a.get_visible() and a.get_xlabel() != "x, right (m)"]
+    assert len(panels) == len(zoom)
+    main_ax = next(a for a in fig.get_axes() if a.get_xlabel() == "x, right (m)")
+    lo, hi = main_ax.get_ylim()
     assert lo < 0 < hi  # the camera (origin) is in view
-    fig.savefig(io.BytesIO(), format="png")
+    labels = {t.get_text() for t in main_ax.texts}
+    assert labels == set(plotting.object_labels(scene))
 
 
-def test_plot_command_writes_figures(noise_free, tmp_path):
-    scene_path, _, result = noise_free
-    out = tmp_path / "r.json"
-    result.to_json(out)
-    figs = tmp_path / "figs"
-    assert main(["plot", str(out), "--scene", str(scene_path), "--out", str(figs), "--quiet",
-                 "--dpi", "30"]) == 0
-    assert sorted(p.name for p in figs.iterdir()) == ["boxes.png", "pairs.png", "ranks.png", "top_view.png"]
-    assert all(p.stat().st_size > 3_000 for p in figs.iterdir())
-    # the scene is found next to the result when it is not given
-    from creference_bayes.cli.plot import _find_scene
+# ------------------------------------------------------------------------------------------------
+# creference plot
 
-    (tmp_path / "scene.json").write_text(scene_path.read_text())
-    found = _find_scene(json.loads(out.read_text()), out, None)
-    assert found.source == tmp_path / "scene.json"
+
+def test_plot_a_result_with_posterior_draws_writes_every_figure(one, tmp_path):
+    folder, _, _, _ = one
+    out = tmp_path / "figs"
+    assert main(["plot", str(folder / "result.json"), "--out", str(out), "--quiet", "--dpi", "30"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["boxes.png", "pairs.png", "ranks.png", "top_view.png"]
+    assert all(p.stat().st_size > 2_000 for p in out.iterdir())
+
+
+def test_plot_a_map_only_result_shows_the_laplace_approximation(three, tmp_path, capsys):
+    folder, scene, d, _ = three
+    assert main(["plot", str(folder / "result.json"), "--out", str(tmp_path), "--object", "t2", "--dpi", "40"]) == 0
+    out = capsys.readouterr().out
+    assert "Laplace approximation" in out and "no rank plot" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["boxes.png", "pairs.png", "top_view.png"]
+    assert main(["plot", str(folder / "result.json"), "--out", str(tmp_path), "--object", "car"]) == 2
+    assert "--object car: no such object" in capsys.readouterr().err
+
+
+def test_plot_writes_the_zoom_panels_apart_when_too_many_for_the_top_view(three, tmp_path, monkeypatch):
+    folder, scene, d, _ = three
+    monkeypatch.setattr(plotting, "MAX_ZOOM_PANELS", 0)  # as a crowded scene's: more than fit beside it
+    zoom = plotting.zoom_indices(scene, map_state(d)[1], result_draws(d, rebuild_model(d, scene), n=2000)[:2])
+    assert main(["plot", str(folder / "result.json"), "--out", str(tmp_path), "--quiet", "--dpi", "30"]) == 0
+    assert (tmp_path / "zooms.png").exists() == bool(zoom)
+
+
+def test_plot_refuses_a_scene_that_is_not_the_results(three, one, tmp_path, capsys):
+    folder, scene, d, _ = three
+    code = main(["plot", str(folder / "result.json"), "--scene", str(one[0] / "scene.json"), "--out", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err == (f"error: --scene {one[0] / 'scene.json'}: not the scene this result was estimated from "
+                   "(target 't0', the result's are ['t0', 't1', 't2'])\n")
+    edited = json.loads((folder / "scene.json").read_text())
+    edited["targets"][1]["dimension_lines"][0]["corners"][0][0] += 1.0
+    assert main(["plot", str(folder / "result.json"), "--scene", str(_write(tmp_path / "e.json", edited)),
+                 "--out", str(tmp_path)]) == 2
+    assert "same targets and image size but different content" in capsys.readouterr().err
+    assert not any(tmp_path.glob("*.png"))
+
+
+def test_a_result_missing_a_key_is_a_one_line_error(three, tmp_path, capsys):
+    folder, scene, d, _ = three
+    broken = copy.deepcopy(d)
+    del broken["objects"][1]["map"]["yaw"]
+    path = _write(tmp_path / "result.json", broken)
+    assert main(["plot", str(path), "--scene", str(folder / "scene.json"), "--out", str(tmp_path / "figs")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"error: {path}: objects[1].map.yaw: expected a number, got None"
+    assert not (tmp_path / "figs").exists()
 
 
 def test_plot_command_errors(tmp_path, capsys):
-    bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"format": "something-else"}))
+    bad = _write(tmp_path / "bad.json", {"format": "something-else"})
     assert main(["plot", str(bad)]) == 2
-    assert "format" in capsys.readouterr().err
-    r = tmp_path / "r.json"
-    r.write_text(json.dumps({"format": "creference-result/1", "scene": "nowhere.json",
-                             "map": {"x": 0, "y": 1, "z": 5, "yaw": 0, "focal_length_px": 1000}}))
+    assert "format: expected one of ['creference-result/1', 'creference-result/2']" in capsys.readouterr().err
+    r = _write(tmp_path / "r.json", {"format": "creference-result/1", "scene": "nowhere.json", "target": "t",
+                                     "map": {"x": 0, "y": 1, "z": 5, "yaw": 0, "focal_length_px": 1000}})
     assert main(["plot", str(r)]) == 2
     assert "nowhere.json" in capsys.readouterr().err
 
 
-def test_boxes_without_a_horizon_are_drawn_with_each_draws_camera():
-    """Without a horizon the box must be projected with the estimate's own pitch and roll (not a
-    level camera): the MAP box lands on the annotated corners."""
-    import warnings
-    from dataclasses import replace
-
-    import creference_bayes as cb
-    from creference_bayes.bench.simulate import simulate_scene
-    from creference_bayes.core.geometry import box_vertices, dimension_corners
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        scene = cb.parse_scene(simulate_scene(3, tier="low", roll_deg=5.0))
-    scene = replace(scene, horizon=None)
-    d = cb.estimate(scene, seed=0, posterior=False).to_dict()
-    box = plotting._project_boxes(scene, plotting._params(d["map"], scene))[0]
-    t = scene.target
-    c = dimension_corners(t.length, t.width, t.height, d["handedness"])
-    verts = box_vertices(t.length, t.width, t.height)
-    idx = [int(np.argmin(np.linalg.norm(verts - v, axis=1))) for v in c]  # the annotated corners' vertices
-    assert np.median(np.linalg.norm(box[idx] - t.median_corners, axis=1)) < 5.0
+def _as_v1(d: dict, scene) -> dict:
+    """A result of a one-target scene as ``creference-result/1`` wrote it (docs/result_format.md of
+    version 0.1): the target's MAP with the camera's focal length, pitch and roll, kept draws with
+    their chains, the scene named and recorded by target and image size."""
+    o, cam, cpost = d["objects"][0], d["camera"]["map"], d["camera"]["posterior"]
+    names = ("x", "y", "z", "yaw", "distance_m")
+    summary = {k: {**{n: o["posterior"][k][n] for n in names}, "focal_length_px": cpost[k]["focal_length_px"]}
+               for k in ("mean", "median", "sd", "hdi")}
+    summary["hdi"]["prob"] = cpost["hdi"]["prob"]
+    kept = d["draws"]
+    draws = {k: kept["objects"][0][k] for k in ("x", "z", "yaw")}
+    draws.update(y=kept["camera"]["height_m"], focal_length_px=kept["camera"]["focal_length_px"],
+                 chain=plotting.kept_chains(d).tolist())
+    return {"format": "creference-result/1", "scene": d["scene"], "target": o["id"],
+            "scene_id": {"target": o["id"], "image_size": d["image_size"], "sha256": "0" * 64},
+            "model": "metrology", "preset": "default",
+            "map": {**{k: o["map"][k] for k in names[:4]}, "focal_length_px": cam["focal_length_px"],
+                    "pitch": cam["pitch"], "roll": cam["roll"]},
+            "posterior": {"handedness": o["handedness"], "temperature": 1.0, **summary, "draws": draws}}
 
 
-def test_top_view_zooms_on_a_cloud_too_small_to_see():
-    """A 5 cm cloud 20 m away is a dot at the plot's scale: an inset shows its credible region."""
-    result = {"map": {"x": 3.0, "y": 1.5, "z": 20.0, "yaw": 0.2, "focal_length_px": 1500.0},
-              "posterior": {"hdi": {"prob": 0.9}}}
-    rng = np.random.default_rng(1)
-    small = {"x": rng.normal(3.0, 0.02, (4, 300)), "z": rng.normal(20.0, 0.05, (4, 300))}
-    fig = plotting.plot_top_view(result, small, truth={"x": 3.01, "z": 20.03})
-    main_ax, = fig.axes
-    insets = main_ax.child_axes
-    assert len(insets) == 1
-    (x0, x1), (z0, z1) = insets[0].get_xlim(), insets[0].get_ylim()
-    assert x0 < 2.95 and x1 > 3.05 and z0 < 19.9 and z1 > 20.1  # the cloud's 99 % box
-    assert x1 - x0 < 0.1 * np.ptp(main_ax.get_xlim())  # magnified at least ten times
-    assert insets[0].collections  # the draws and the credible region's contour
-    wide = {"x": rng.normal(3.0, 3.0, (4, 300)), "z": rng.normal(20.0, 6.0, (4, 300))}
-    assert plotting.plot_top_view(result, wide).axes[0].child_axes == []  # visible as it is: no inset
+def test_a_version_1_result_is_plotted_with_its_scene(one, tmp_path, capsys):
+    folder, scene, result, _ = one
+    v1 = _write(folder / "old.json", _as_v1(result.to_dict(), scene))  # beside its scene, which it names
+    assert main(["plot", str(v1), "--out", str(tmp_path), "--dpi", "30"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.startswith("warning: a creference-result/1")
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["boxes.png", "pairs.png", "ranks.png", "top_view.png"]
+    other = _write(tmp_path / "other.json", truth_scene(9, m=2)[0])
+    assert main(["plot", str(v1), "--scene", str(other), "--out", str(tmp_path / "x")]) == 2
+    assert "(targets ['t0', 't1'], the result's is 't0')" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("kind", ["evaluate", "labels"])
@@ -168,6 +283,7 @@ def test_reliability_bin_counts_overlap_no_tick_label(kind):
     else:
         fig = quality_figure(p, 0.5, reliability={0.7: rows})
         panels = fig.axes[1:2]
+    assert isinstance(fig, Figure)
     FigureCanvasAgg(fig)
     fig.draw_without_rendering()
     renderer = fig.canvas.get_renderer()

@@ -6,18 +6,20 @@ import sys
 import numpy as np
 
 from creference_bayes.cli.main import example_scene_path
-from creference_bayes.inference.optimize import optimize_map
+from creference_bayes.inference.map import optimize
 from creference_bayes.io.scene import load_scene
-from creference_bayes.camera_setup import setup_camera
-from creference_bayes.pipeline import build_models
+from creference_bayes.pipeline import build_model
 
 
 class _Recorder:
-    """Stands in for a tqdm bar: records its total and every update."""
+    """Stands in for a tqdm bar: records its total and every update (``made``: every bar made)."""
 
-    def __init__(self, enabled, total=None, **kwargs):
-        self.enabled, self.total, self.n, self.closed = enabled, total, 0, False
+    made: list = []
+
+    def __init__(self, enabled, total=None, desc=None, **kwargs):
+        self.enabled, self.total, self.n, self.closed, self.desc = enabled, total, 0, False, desc
         _Recorder.last = self
+        _Recorder.made.append(self)
 
     def update(self, n=1):
         self.n += n
@@ -42,19 +44,19 @@ def test_paper_restarts_bar_shows_on_stderr_and_changes_nothing(capsys, monkeypa
     import creference_bayes.inference.progress as progress
 
     scene = load_scene(example_scene_path())
-    models = build_models(scene, setup_camera(scene), model="paper", preset="paper")
-    quiet = optimize_map(models, preset="paper", rng=4, restarts=6)
+    model = lambda: build_model(scene, model="paper", preset="paper")[0]  # a fresh one: the MAP sets its pilot
+    quiet = optimize(model(), preset="paper", rng=4, restarts=6)
     assert capsys.readouterr().err == ""
-    shown = optimize_map(models, preset="paper", rng=4, restarts=6, progress_bar=True)
+    shown = optimize(model(), preset="paper", rng=4, restarts=6, progress=True)
     assert "paper restarts" in capsys.readouterr().err
-    np.testing.assert_array_equal(quiet.params, shown.params)
-    assert quiet.n_evaluations == shown.n_evaluations
+    np.testing.assert_array_equal(quiet.camera, shown.camera)
+    np.testing.assert_array_equal(quiet.objects, shown.objects)
 
     monkeypatch.setattr(progress, "progress_bar", _Recorder)
-    counted = optimize_map(models, preset="paper", rng=4, restarts=6, progress_bar=True)
+    counted = optimize(model(), preset="paper", rng=4, restarts=6, progress=True)
     bar = _Recorder.last
     assert bar.total == 6 and bar.n == 6 and bar.closed  # every restart counted, none cut short
-    assert counted.info == quiet.info
+    np.testing.assert_array_equal(quiet.camera, counted.camera)
 
 
 def test_bench_scenes_bar_and_lines(monkeypatch):
@@ -62,21 +64,23 @@ def test_bench_scenes_bar_and_lines(monkeypatch):
     from creference_bayes.bench.runner import BenchConfig, run_bench
 
     tiny = BenchConfig(name="tiny", scenes=(("none", "indoor", 1),), ref_counts=(0,),
-                       posterior_ref_counts=(), paper_restarts=2, pair_scenes=0)
+                       posterior_ref_counts=(), paper_restarts=2, pair_scenes=0, camera_studies=False)
     lines = []
     monkeypatch.setattr(progress, "progress_bar", _Recorder)
+    monkeypatch.setattr(_Recorder, "made", [])  # the bars of this run only
     run_bench(tiny, seed=0, progress=lines.append, progress_bar=True)
-    assert (_Recorder.last.enabled, _Recorder.last.total, _Recorder.last.n) == (True, 1, 1)
-    assert _Recorder.last.closed
+    (bar,) = [b for b in _Recorder.made if b.desc == "bench scenes"]
+    assert (bar.enabled, bar.total, bar.n, bar.closed) == (True, 1, 1, True)
+    assert not any(b.enabled for b in _Recorder.made if b is not bar)  # one bar: the estimators' are off
     assert [line.split(":")[0] for line in lines] == ["none-indoor-00"]
 
 
 def test_progress_bars_never_load_the_notebook_flavour_of_tqdm():
     """tqdm.auto in a Jupyter kernel without ipywidgets warns (TqdmWarning) on import."""
     code = ("import sys\n"
-            "from creference_bayes.inference import sampling\n"
+            "from creference_bayes.inference import ensemble\n"
             "from creference_bayes.inference.progress import progress_bar\n"
-            "with sampling._progress_bar(True, 2) as bar:\n"
+            "with ensemble._progress_bar(True, 2) as bar:\n"
             "    bar.update(2)\n"
             "progress_bar(True, 1, desc='restarts').close()\n"
             "print(sorted(m for m in sys.modules if m in ('tqdm.auto', 'tqdm.autonotebook', 'tqdm.notebook')))\n")

@@ -54,24 +54,21 @@ def test_datumaro_writes_and_reads_cvat_xml(checks, scenes, tmp_path):
         assert c["ok"], (name, c)
 
 
-def test_label_studio_sdk_accepts_the_frame_configs_and_frame_tasks(checks):
-    """Label Studio's SDK validates our frame tasks' results against the shipped frame configs
-    (and reports a class the config does not offer: the check can fail). Any environment with
-    ``label-studio-sdk`` will do: ``CREFERENCE_LABEL_STUDIO_VENV``."""
-    import sys
+def test_label_studio_sdk_accepts_the_configs_and_tasks_of_several_targets(checks):
+    """Label Studio's SDK validates our tasks' results (several targets, each region naming its
+    target) against the shipped configs (and reports a class the config does not offer: the check
+    can fail). Any environment with ``label-studio-sdk`` will do: ``CREFERENCE_LABEL_STUDIO_VENV``."""
+    from test_import_labelstudio import _ctl, _street_task, tool_scene
 
     from creference_bayes.io.labelstudio import label_studio_config, label_studio_task
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from test_import_frames import _ctl, _frame, _frame_task
-
     venv = _venv("CREFERENCE_LABEL_STUDIO_VENV")
     for lines in ("keypoints", "vectors"):
-        results = [a["result"] for a in label_studio_task(_frame(1), lines=lines)["annotations"]]
+        results = [a["result"] for a in label_studio_task(tool_scene(1), lines=lines)["annotations"]]
         if lines == "keypoints":
-            hand = _frame_task()["annotations"][0]["result"]
+            hand = _street_task()["annotations"][0]["result"]
             results += [hand, hand + [_ctl("a2", "class", "choices", "Spaceship")]]
-        errors = checks._in_venv(venv, checks._SDK_VALIDATE, {"config": label_studio_config(lines, frame=True),
+        errors = checks._in_venv(venv, checks._SDK_VALIDATE, {"config": label_studio_config(lines),
                                                               "results": results})
         if lines == "keypoints":
             assert "Invalid value for control 'class'" in " ".join(errors.pop())

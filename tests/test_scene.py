@@ -1,4 +1,5 @@
-"""Loading and validating creference-scene/1 files (formats.md)."""
+"""Loading and validating scene files (formats.md): version 1 (one target) as every scene reads it,
+and the frame format (several targets) in tests/test_scenes_v2.py."""
 
 import copy
 import json
@@ -45,14 +46,15 @@ def test_example_scene_loads():
     scene = load_scene(example_scene_path())
     raw = _example()
     assert scene.image_size == (2880, 1800)
-    assert scene.target.id == raw["target"]["id"]
-    assert scene.target.corners.shape == (len(raw["target"]["dimension_lines"]), 4, 2)
+    assert scene.targets[0].id == raw["target"]["id"]
+    assert scene.targets[0].corners.shape == (len(raw["target"]["dimension_lines"]), 4, 2)
     assert len(scene.references) == len(raw["references"])
     np.testing.assert_array_equal(scene.principal_point, raw["camera"]["principal_point"])
     assert scene.focal_length_px is None
     np.testing.assert_array_equal(scene.horizon, raw["horizon"])
-    np.testing.assert_array_equal(scene.ground_truth.location_m, raw["ground_truth"]["location_m"])
-    assert scene.ground_truth.extra["handedness"] in (1, -1)
+    np.testing.assert_array_equal(scene.targets[0].ground_truth["location_m"], raw["ground_truth"]["location_m"])
+    assert scene.ground_truth["focal_length_px"] == raw["ground_truth"]["focal_length_px"]  # the camera's
+    assert scene.targets[0].ground_truth["handedness"] in (1, -1)
     assert scene.warnings == ()
     assert scene.source == example_scene_path()
 
@@ -86,7 +88,6 @@ def test_direct_values_are_converted_to_metres(unit, metres_per_unit):
     assert (r0.low, r0.high, r0.is_range) == pytest.approx((80 * metres_per_unit,) * 2 + (False,), rel=1e-12)
     assert (r1.low, r1.high, r1.is_range) == pytest.approx((10 * metres_per_unit, 15 * metres_per_unit, True),
                                                            rel=1e-12)
-    assert r0.length_bounds_m(scene.target) == pytest.approx((80 * metres_per_unit,) * 2, rel=1e-12)
 
 
 def test_relative_measures_scale_with_the_target():
@@ -99,8 +100,9 @@ def test_relative_measures_scale_with_the_target():
     scene = _parse(d)
     r0, r1 = scene.references[:2]
     assert (r0.low, r0.high, r0.unit) == (0.5, 2.0, None)  # ratios are kept as ratios
-    assert r0.length_bounds_m(scene.target) == pytest.approx((0.6, 2.4))
-    assert r1.length_bounds_m(scene.target) == pytest.approx((1.5, 1.5))
+    t = scene.targets[0]  # a ratio to the target's own length or width
+    assert (r0.low * t.dimensions[0], r0.high * t.dimensions[0]) == pytest.approx((0.6, 2.4))
+    assert (r1.low * t.dimensions[1], r1.high * t.dimensions[1]) == pytest.approx((1.5, 1.5))
 
 
 def test_median_corners_is_per_corner_median():
@@ -112,7 +114,7 @@ def test_median_corners_is_per_corner_median():
     scene = _parse(d)
     expected = base.copy()  # the median of offsets (0, 10, −4) is 0 ...
     expected[1] = [1210.0, 1190.0]  # ... of (1200, 1210, 1300) 1210, of (1190, 1200, 1000) 1190
-    np.testing.assert_array_equal(scene.target.median_corners, expected)
+    np.testing.assert_array_equal(scene.targets[0].median_corners, expected)
 
 
 def test_unknown_keys_warn_with_their_names():
@@ -172,7 +174,7 @@ def test_a_near_miss_of_a_known_key_is_an_error_naming_the_suggestion(path, typo
 def test_ground_truth_is_free_form_even_for_near_misses():
     d = _example()
     d["ground_truth"]["yaw_radians"] = 0.3  # not checked against yaw_rad: extras are free-form
-    assert _parse(d).ground_truth.extra["yaw_radians"] == 0.3
+    assert _parse(d).targets[0].ground_truth["yaw_radians"] == 0.3
 
 
 @pytest.mark.parametrize("a, b, distance", [
@@ -186,15 +188,34 @@ def test_edit_distance_known_answers(a, b, distance):
     assert _edit_distance(b, a) == distance
 
 
+@pytest.mark.parametrize("key, value", [("focal_length_px", -1.0), ("camera_height_m", 0.0), ("pitch_rad", "up")])
+def test_the_cameras_truth_is_checked_in_both_formats(key, value):
+    """A version-2 file's camera truth is held to what version 1 asks of the same keys."""
+    from creference_bayes.io.scene import scene_to_dict
+
+    v2 = scene_to_dict(_parse(_example()))
+    v2["ground_truth"] = {**(v2.get("ground_truth") or {}), key: value}
+    with pytest.raises(SceneError, match=f"ground_truth.{key}"):
+        parse_scene(v2)
+    v1 = _example()
+    v1["ground_truth"][key] = value
+    with pytest.raises(SceneError, match=f"ground_truth.{key}"):
+        parse_scene(v1)
+
+
 def test_ground_truth_may_carry_extra_keys():
     d = _example()
     d["ground_truth"]["notes"] = "measured with a tape"
     scene = _parse(d)
-    assert scene.ground_truth.extra["notes"] == "measured with a tape"
+    assert scene.targets[0].ground_truth["notes"] == "measured with a tape"
     assert scene.warnings == ()
 
 
 def test_scene_to_dict_round_trips():
+    """A version-1 scene is written as version 2 (the format written) and reads back as the same
+    scene; a version-2 dict round-trips exactly."""
+    from creference_bayes.io.scene import scene_fingerprint
+
     for d in (_example(), simulate_scene(3, tier="high", n_target_annotations=3)):
         d["camera"]["focal_length_px"] = 1500.0
         d["image"]["path"] = "photo.png"
@@ -202,9 +223,16 @@ def test_scene_to_dict_round_trips():
         scene = _parse(d)
         out = scene_to_dict(scene)
         json.dumps(out, allow_nan=False)  # plain JSON types only
-        assert out == d  # every key of these scenes survives unchanged, values exactly
-        again = scene_to_dict(_parse(out))
-        assert again == out
+        assert out["format"] == "creference-scene/2" and len(out["targets"]) == 1
+        again = _parse(out)
+        assert scene_fingerprint(again) == scene_fingerprint(scene)
+        assert _same_targets(again.targets, scene.targets)
+        assert scene_to_dict(again) == out
+
+
+def _same_targets(a, b) -> bool:
+    return all(x.id == y.id and x.dimensions == y.dimensions and np.array_equal(x.corners, y.corners)
+               and x.ground_truth == y.ground_truth for x, y in zip(a, b))
 
 
 def test_scene_to_dict_keeps_image_path_relative_to_the_file(tmp_path):
@@ -358,7 +386,8 @@ INVALID = [
     (_set(("horizon", 1), [0.0, 885.287959567601]), "horizon: zero-length line"),
     (_set(("horizon", 1), [100.0, 5000.0]), "horizon: a horizon steeper than 45 degrees is not supported"),
     (_set(("horizon", 0, 1), -1e9), "horizon[0]: point [0, -1e+09] is far outside the 2880x1800 image"),
-    (_set(("format",), "creference-scene/2"), "format: a 'creference-scene/2' file is a frame"),
+    (_set(("format",), "creference-scene/2"), "target: unknown key; did you mean 'targets'?"),
+    (_set(("format",), "creference-scene/9"), "format: expected 'creference-scene/1' or 'creference-scene/2', got 'creference-scene/9'"),
     (_delete(("format",)), "format: missing required key"),
     (_delete(("image",)), "image: missing required key"),
     (_delete(("image", "width")), "image.width: missing required key"),
@@ -415,7 +444,7 @@ def _bases() -> list[dict]:
     one["camera"]["focal_length_px"] = 1800.0
     two = _example()
     two["target"]["dimension_lines"] = two["target"]["dimension_lines"][:3]
-    return [one, two]
+    return [json.loads(json.dumps(b)) for b in (one, two)]  # no dict shared between two keys
 
 
 BASES = _bases()
@@ -440,7 +469,8 @@ def _path_text(path) -> str:
 
 
 def _is_free(path) -> bool:
-    return len(path) >= 2 and path[0] == "ground_truth" and path[1] in FREE_KEYS
+    truth = path.index("ground_truth") if "ground_truth" in path else None
+    return truth is not None and len(path) > truth + 1 and path[truth + 1] in FREE_KEYS
 
 
 ODD_VALUES = st.one_of(
@@ -506,8 +536,8 @@ def _assert_really_valid(scene: Scene) -> None:
     assert np.all(np.isfinite(scene.principal_point))
     assert 0 <= scene.principal_point[0] <= w and 0 <= scene.principal_point[1] <= h
     assert scene.focal_length_px is None or 0 < scene.focal_length_px < math.inf
-    t = scene.target
-    assert all(0 < x < math.inf for x in (t.length, t.width, t.height))
+    (t,) = scene.targets
+    assert all(0 < x < math.inf for x in t.dimensions)
     c = t.corners
     assert c.shape[1:] == (4, 2) and np.all(np.isfinite(c))
     assert np.all(np.abs(c - [w / 2, h / 2]) <= [w, h])
@@ -522,8 +552,8 @@ def _assert_really_valid(scene: Scene) -> None:
         assert np.all(np.isfinite(r.line)) and np.linalg.norm(r.line[1] - r.line[0]) > 0
         assert np.all(np.abs(r.line - [w / 2, h / 2]) <= [w, h])
         assert r.confidence is None or 0 <= r.confidence <= 1
-    if scene.ground_truth is not None:
-        assert np.all(np.isfinite(scene.ground_truth.location_m)) and scene.ground_truth.location_m[2] > 0
+    if t.ground_truth is not None:
+        assert np.all(np.isfinite(t.ground_truth["location_m"])) and t.ground_truth["location_m"][2] > 0
     json.dumps(scene_to_dict(scene), allow_nan=False)
 
 
@@ -557,7 +587,7 @@ def test_scene_differences_names_each_changed_place_and_ignores_spelling():
     other["references"][1]["range"] = [7.0, 9.9793]
     del other["horizon"]
     got = scene_differences(raw, other, atol=0.001)
-    assert any(g.startswith("scene.target.dimension_lines[0]") for g in got), got
+    assert any(g.startswith("scene.targets[0].dimension_lines[0]") for g in got), got
     assert any(g.startswith("scene.references[1].") for g in got), got
     assert "scene.horizon: only in the first scene" in got
     # within atol, or under a dropped key, nothing is reported

@@ -1,4 +1,5 @@
-"""The simulator against benchmark.md: ranges, tiers, formats, units, noise models, determinism."""
+"""The simulator against benchmark.md: ranges, tiers, formats, units, noise models, several
+targets, determinism; ``creference simulate``."""
 
 import json
 import math
@@ -8,12 +9,13 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from creference_bayes.bench.simulate import (FORMATS, OBJECTS, SETTINGS, TIERS, NoiseTier, measurement_factor, simulate_scene,
+                                             true_state, write_scenes)
 from creference_bayes.cli.main import main
 from creference_bayes.core.geometry import Camera, box_points, dimension_corners
 from creference_bayes.core.metrics import range_precision
 from creference_bayes.io.scene import load_scene, parse_scene
-from creference_bayes.bench.simulate import (FORMATS, SETTINGS, TIERS, measurement_factor,
-                                             simulate_scene)
+from creference_bayes.models.size_priors import KITTI_SIZE_PRIORS
 
 
 def _scene(seed, **kw):
@@ -24,11 +26,11 @@ def _scene(seed, **kw):
 
 
 def test_same_seed_same_scene_and_different_seed_differs():
-    a = simulate_scene(np.random.default_rng(7), tier="high")
-    b = simulate_scene(np.random.default_rng(7), tier="high")
-    c = simulate_scene(np.random.default_rng(8), tier="high")
-    assert json.dumps(a) == json.dumps(b)
-    assert json.dumps(a) != json.dumps(c)
+    a = simulate_scene(np.random.default_rng(7), tier="high", n_objects=3)
+    b = simulate_scene(np.random.default_rng(7), tier="high", n_objects=3)
+    c = simulate_scene(np.random.default_rng(8), tier="high", n_objects=3)
+    assert json.dumps(a) == json.dumps(b) != json.dumps(c)
+    assert a["format"] == "creference-scene/2"
 
 
 @pytest.mark.parametrize("setting", ["indoor", "outdoor"])
@@ -36,24 +38,24 @@ def test_camera_and_distance_ranges(setting):
     cfg = SETTINGS[setting]
     for seed in range(15):
         d, scene = _scene(seed, setting=setting, tier="none")
-        g = d["ground_truth"]
-        x, y, z = g["location_m"]
+        g, t = d["ground_truth"], d["targets"][0]["ground_truth"]
+        x, y, z = t["location_m"]
         assert cfg["distance"][0] <= math.hypot(x, z) <= cfg["distance"][1]
         assert cfg["height"][0] <= g["camera_height_m"] <= cfg["height"][1]
         assert y == pytest.approx(g["camera_height_m"])  # the box stands on the ground
         assert math.radians(cfg["pitch_deg"][0]) <= g["pitch_rad"] <= math.radians(cfg["pitch_deg"][1])
-        assert abs(g["roll_rad"]) <= math.radians(3.0)
-        assert 1000 <= g["focal_length_px"] <= 2600
+        assert abs(g["roll_rad"]) <= math.radians(3.0) and 1000 <= g["focal_length_px"] <= 2600
         assert scene.image_size == (2880, 1800)
         np.testing.assert_allclose(scene.principal_point, [1440, 900])
-        t = scene.target
-        assert 0.024 <= t.length <= 4.64 and 0.06 <= t.width <= 5.25 and 0.24 <= t.height <= 3.83
-        assert len(t.dimension_lines) == 13 and len(scene.references) == 5
+        (target,) = scene.targets
+        length, width, height = target.dimensions
+        assert 0.024 <= length <= 4.64 and 0.06 <= width <= 5.25 and 0.24 <= height <= 3.83
+        assert len(target.dimension_lines) == 13 and len(scene.references) == 5
 
 
 def test_coordinates_are_stored_to_two_decimals_by_default():
     d, _ = _scene(3, tier="low")
-    pts = np.concatenate([np.ravel(a["corners"]) for a in d["target"]["dimension_lines"]]
+    pts = np.concatenate([np.ravel(a["corners"]) for a in d["targets"][0]["dimension_lines"]]
                          + [np.ravel(r["line"]) for r in d["references"]] + [np.ravel(d["horizon"])])
     np.testing.assert_allclose(pts, np.round(pts, 2), atol=1e-9)
     raw, _ = _scene(3, tier="low", decimals=None)
@@ -61,21 +63,23 @@ def test_coordinates_are_stored_to_two_decimals_by_default():
 
 
 def test_noise_free_tier_is_exact():
-    """Tier none: annotations are the true projections; stated lengths are the true lengths."""
+    """Tier none: annotations are the true projections (through the horizon, an independent path);
+    stated lengths are the true lengths (4 significant digits)."""
     for seed in range(6):
         d, scene = _scene(seed, tier="none", principal_offset=0.05, decimals=None)
-        g = scene.ground_truth
-        t = scene.target
-        params = np.array([*g.location_m, g.yaw_rad, g.focal_length_px])
-        corners = dimension_corners(t.length, t.width, t.height, g.extra["handedness"])
-        cam = Camera(scene.principal_point, Camera.from_scene(scene).horizon, None)
-        uv, _ = cam.project(box_points(params[None], corners), params[None, 4])
+        t, g = scene.targets[0], scene.ground_truth
+        truth = t.ground_truth
+        params = np.array([*truth["location_m"], truth["yaw_rad"]])
+        uv, _ = Camera.from_scene(scene).project(box_points(params, dimension_corners(*t.dimensions, truth["handedness"])),
+                                                 g["focal_length_px"])
         for ann in t.corners:
-            np.testing.assert_allclose(ann, uv[0], atol=1e-6)
-        for ref, true_len in zip(scene.references, g.extra["reference_lengths_m"]):
-            lo, hi = ref.length_bounds_m(t)
-            centre = (lo + hi) / 2 if ref.is_range else lo
-            assert centre == pytest.approx(true_len, rel=2e-3)  # stated to 4 significant digits
+            np.testing.assert_allclose(ann, uv, atol=1e-6)
+        for ref, true_len in zip(scene.references, g["reference_lengths_m"]):
+            factor = t.dimensions[("length", "width").index(ref.measure)] if ref.mode == "relative" else 1.0
+            centre = (ref.low + ref.high) / 2 if ref.is_range else ref.low
+            assert centre * factor == pytest.approx(true_len, rel=2e-3)
+        camera, objects = true_state(scene)
+        assert camera[0] == g["focal_length_px"] and objects.shape == (1, 7) and objects[0, 6] == pytest.approx(0)
 
 
 def test_paper_like_measurement_noise_matches_table_2():
@@ -88,9 +92,8 @@ def test_paper_like_measurement_noise_matches_table_2():
 
 @pytest.mark.parametrize("model, sd", [("10%", 0.1), ("40%", 0.4)])
 def test_lognormal_tiers(model, sd):
-    f = measurement_factor(np.random.default_rng(1), model, 100_000)
-    log = np.log(f)
-    assert abs(log.mean()) < 5 * sd / np.sqrt(len(f))
+    log = np.log(measurement_factor(np.random.default_rng(1), model, 100_000))
+    assert abs(log.mean()) < 5 * sd / np.sqrt(len(log))
     assert np.std(log) == pytest.approx(sd, rel=0.02)
     assert measurement_factor(np.random.default_rng(1), "none") == 1.0
     with pytest.raises(ValueError, match="unknown model 'huge'"):
@@ -111,24 +114,51 @@ def test_formats_units_and_range_precision():
     assert ("distance", "relative", False) not in counts
     assert set(units) == {None, "m", "ft", "in", "yd"}  # None: relative values
     assert 20 <= np.median(precision) <= 30  # paper Table 3: medians 18–29 %
+    _, scene = _scene(3, tier="low")  # random formats are distinct within a scene
+    assert len({(r.measure, r.mode, r.is_range) for r in scene.references}) == 5
 
 
-def test_random_formats_are_distinct_within_a_scene():
-    _, scene = _scene(3, tier="low")
-    kinds = [(r.measure, r.mode, r.is_range) for r in scene.references]
-    assert len(set(kinds)) == len(kinds) == 5
+@pytest.mark.parametrize("tier", [TIERS["low"], TIERS["high"], NoiseTier("t3", 5.0, 0.0, "none", dof=3.0)])
+def test_tier_noise_levels(tier):
+    """Target corners scatter with σ_t around the truth (a Student-t tier with heavier tails)."""
+    dev = []
+    for seed in range(8):
+        d, scene = _scene(seed, tier=tier, n_objects=2)
+        for t in scene.targets:
+            dev.append(t.corners - np.asarray(t.ground_truth["corners_px"]))
+    dev = np.concatenate(dev).ravel()
+    assert np.std(dev) == pytest.approx(tier.target_px, rel=0.12)
+    kurtosis = np.mean(dev**4) / np.var(dev) ** 2
+    assert (kurtosis > 4.0) if tier.dof else (abs(kurtosis - 3.0) < 0.5)
 
 
-def test_tier_noise_levels():
-    """Target corners scatter with σ_t around the truth; worker values with the tier's model."""
-    for name in ("low", "medium", "high"):
-        tier = TIERS[name]
-        dev = []
-        for seed in range(8):
-            d, scene = _scene(seed, tier=name)
-            dev.append(scene.target.corners - np.asarray(d["ground_truth"]["target_corners_px"]))
-        dev = np.concatenate(dev).ravel()
-        assert np.std(dev) == pytest.approx(tier.target_px, rel=0.1)
+def test_several_targets_on_a_street():
+    """Street scenes: KITTI-like camera, several targets that do not overlap, sizes left to the
+    shipped class priors, grounds off the plane, no horizon; c1 the bottom corner nearest the camera."""
+    d, scene = _scene(4, setting="street", n_objects=8, sizes="prior", horizon="none", n_references=0,
+                      n_target_annotations=5, tier="low")
+    assert scene.image_size == (1242, 375) and scene.horizon is None and len(scene.targets) == 8
+    assert all(t.dimensions is None and t.cls in KITTI_SIZE_PRIORS for t in scene.targets)
+    ground = [t.ground_truth["ground_m"] for t in scene.targets]
+    assert np.std(ground) > 0.01 and max(map(abs, ground)) < 0.5
+    xz = np.array([[t.ground_truth["location_m"][0], t.ground_truth["location_m"][2]] for t in scene.targets])
+    gaps = np.linalg.norm(xz[:, None] - xz[None], axis=-1) + np.eye(len(xz)) * 1e9
+    assert gaps.min() > 0.6
+    camera, objects = true_state(scene)
+    for t, o in zip(scene.targets, objects):
+        params = np.array([o[0], camera[3] - o[6], o[1], o[2]])
+        c = box_points(params, dimension_corners(*o[3:6], t.ground_truth["handedness"]))[:3]
+        assert np.linalg.norm(c[0, [0, 2]]) <= min(np.linalg.norm(c[1:, [0, 2]], axis=1)) + 1e-9
+
+
+def test_sizes_left_to_the_scenes_own_classes_and_what_a_scene_states():
+    d, scene = _scene(5, setting="indoor", n_objects=3, sizes="prior", tier="medium", horizon="sd",
+                      focal_known=True)
+    assert set(d["classes"]) == set(OBJECTS["indoor"]) and all(t.dimensions is None for t in scene.targets)
+    assert all(scene.size_prior(t.cls) is not None for t in scene.targets)
+    relative = [o for r, o in zip(scene.references, scene.reference_targets) if r.mode == "relative"]
+    assert relative and set(relative) == {0}  # relative to the first target
+    assert scene.horizon_sd_px == 5.0 and scene.focal_length_px == d["ground_truth"]["focal_length_px"]
 
 
 def test_bad_arguments_name_the_problem():
@@ -138,6 +168,8 @@ def test_bad_arguments_name_the_problem():
         simulate_scene(0, setting="space")
     with pytest.raises(ValueError, match="n_target_annotations"):
         simulate_scene(0, n_target_annotations=0)
+    with pytest.raises(ValueError, match="sizes"):
+        simulate_scene(0, sizes="guess")
 
 
 def test_simulate_command_is_deterministic(tmp_path):
@@ -148,7 +180,22 @@ def test_simulate_command_is_deterministic(tmp_path):
     assert files == [f"scene_{i:04d}.json" for i in range(4)]
     for name in files:
         assert (a / name).read_bytes() == (b / name).read_bytes()
-    tiers = [load_scene(a / n).ground_truth.extra["tier"] for n in files]
+    tiers = [load_scene(a / n).ground_truth["tier"] for n in files]
     assert tiers == list(TIERS)  # --tier all cycles through the tiers
     assert main(["simulate", str(tmp_path / "c"), "--n", "2", "--tier", "high", "--quiet"]) == 0
     assert main(["simulate", str(tmp_path / "d"), "--n", "0", "--quiet"]) == 2
+    assert main(["simulate", str(tmp_path / "e"), "--n", "1", "--objects", "4", "--setting", "street", "--sizes", "prior",
+                 "--horizon", "none", "--references", "0", "--annotations", "3", "--noise-px", "1", "--quiet"]) == 0
+    scene = load_scene(tmp_path / "e" / "scene_0000.json")
+    assert len(scene.targets) == 4 and scene.horizon is None and not scene.references
+    assert all(len(t.dimension_lines) == 3 and t.dimensions is None for t in scene.targets)
+    assert main(["simulate", "--from-kitti", str(tmp_path), "--out", str(tmp_path / "k"), "--objects", "5"]) == 2
+
+
+def test_write_scenes_replaces_the_corner_noise(tmp_path):
+    paths = write_scenes(tmp_path / "s", 2, seed=1, tier="high", noise_px=0.0, n_references=1)
+    scene = load_scene(paths[0])
+    t = scene.targets[0]
+    np.testing.assert_allclose(t.corners, np.broadcast_to(t.ground_truth["corners_px"], t.corners.shape), atol=0.006)
+    with pytest.raises(FileExistsError):
+        write_scenes(tmp_path / "s", 1)

@@ -5,10 +5,12 @@ from creference_bayes.cli.main import example_scene_path, main
 
 def test_demo_writes_result(tmp_path, capsys):
     out = tmp_path / "r.json"
-    assert main(["demo", "--out", str(out), "--quiet"]) == 0
+    assert main(["demo", "--out", str(out), "--no-posterior"]) == 0
+    printed = capsys.readouterr().out
+    assert "example scene (synthetic, with ground truth)" in printed and "truth" in printed
     data = json.loads(out.read_text())
-    assert data["format"] == "creference-result/1"
-    assert set(data["map"]) == {"x", "y", "z", "yaw", "focal_length_px", "pitch", "roll"}
+    assert data["format"] == "creference-result/2"
+    assert [o["id"] for o in data["objects"]] == ["tv-stand"]
     # the shipped example has ground truth, so the result is evaluated
-    assert data["evaluation"]["location_pct_error"] < 10.0
+    assert data["objects"][0]["evaluation"]["location_pct_error"] < 10.0
     assert example_scene_path().exists()

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import creference_bayes as cb
-from creference_bayes.bench.runner import write_scenes
+from creference_bayes.bench.simulate import write_scenes
 from creference_bayes.cli.main import build_parser, example_scene_path, main
 from creference_bayes.io.files import atomic_path, atomic_write_json
 from creference_bayes.workflows.advice.inputs import advice_table
@@ -32,7 +32,7 @@ def demo_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("example") / "result.json"
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        assert main(["demo", "--out", str(out), "--min-ess", "200"]) == 0
+        assert main(["demo", "--out", str(out), "--min-ess", "100"]) == 0
     return out, printed.getvalue()
 
 
@@ -44,16 +44,18 @@ def example_result(demo_run):
 def test_the_demo_says_which_true_values_it_did_not_check(demo_run):
     result, printed = demo_run
     line = next(l for l in printed.splitlines() if l.startswith("truth inside the 90% HDI"))
-    fixed = json.loads(result.read_text())["posterior"]["sd"]["roll"] == 0.0
-    assert fixed  # the shipped example has an exact horizon: roll follows from it
-    assert "not checked: roll (no spread in the posterior" in line, line
+    camera = json.loads(result.read_text())["camera"]
+    assert "pitch" not in camera["posterior"]["sd"] and "roll" not in camera["posterior"]["sd"]
+    assert camera["setup"]["orientation"] == "horizon"  # the shipped example has an exact horizon
+    assert "not checked: pitch, roll (no spread in the posterior" in line, line
 
 
 def test_advise_shows_the_estimates_hdi_beside_its_own(example_result, capsys):
     assert main(["advise", str(example_result), "--draws", "50", "--futures", "10"]) == 0
     now = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("now:"))
-    lo, hi = json.loads(example_result.read_text())["posterior"]["hdi"]["distance_m"]
-    assert f"on the 50 draws the advice weighs; the estimate's, on all its draws: {hi - lo:.3g} m" in now, now
+    lo, hi = json.loads(example_result.read_text())["objects"][0]["posterior"]["hdi"]["distance_m"]
+    said = float(now.split("the estimate's, on all its draws: ")[1].split(" m")[0])
+    assert said == pytest.approx(hi - lo, abs=0.006), now
 
 
 # -- errors name the real problem ------------------------------------------------------------
@@ -157,7 +159,8 @@ def test_estimate_accepts_a_scene_dict():
     d = json.loads(example_scene_path().read_text())
     from_dict = cb.estimate(d, posterior=False, seed=1)
     from_file = cb.estimate(example_scene_path(), posterior=False, seed=1)
-    assert from_dict.to_dict()["map"] == from_file.to_dict()["map"]
+    assert from_dict.to_dict()["objects"][0]["map"] == from_file.to_dict()["objects"][0]["map"]
+    assert from_dict.to_dict()["camera"]["map"] == from_file.to_dict()["camera"]["map"]
     assert from_dict.to_dict()["scene"] is None  # as docs/result_format.md says for a dict
     with pytest.raises(cb.SceneError if hasattr(cb, "SceneError") else Exception, match="image"):
         cb.estimate({"format": "creference-scene/1"}, posterior=False)
@@ -190,50 +193,54 @@ def _umask() -> int:
 
 # -- a MAP whose box misses the annotations -------------------------------------------------------
 
-def _map_at(params, handedness):
+def _check(scene, camera, obj, handedness):
+    """The result's warnings about a MAP at ``camera`` (5,) and one object's state (7,)."""
     from types import SimpleNamespace
 
-    return SimpleNamespace(params=np.asarray(params, float), handedness=handedness)
+    from creference_bayes.io.result import map_checks
+    from creference_bayes.pipeline import build_model
+
+    model, setup = build_model(scene)
+    model.handedness = np.array([handedness], float)
+    return map_checks(scene, model, setup, SimpleNamespace(camera=np.asarray(camera, float),
+                                                        objects=np.asarray(obj, float)[None]))
 
 
 def test_a_box_that_misses_the_annotations_is_reported():
-    from creference_bayes.camera_setup import setup_camera
-    from creference_bayes.pipeline import REPROJECTION_WARN_FACTOR, reprojection_check
+    from creference_bayes.io.result import REPROJECTION_WARN_FACTOR
 
     scene = cb.load_scene(example_scene_path())
-    setup = setup_camera(scene)
-    gt = scene.ground_truth
-    truth = [*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"], gt.extra["roll_rad"]]
-    assert reprojection_check(scene, setup, _map_at(truth, -1)) == []  # the simulated truth: handedness -1
+    g, t = scene.ground_truth, scene.targets[0].ground_truth
+    camera = [g["focal_length_px"], g["pitch_rad"], g["roll_rad"], g["camera_height_m"], 0.5]
+    obj = [t["location_m"][0], t["location_m"][2], t["yaw_rad"], *scene.targets[0].dimensions, 0.0]
+    assert _check(scene, camera, obj, t["handedness"]) == []  # the simulated truth
     # the paper's cost with its σ = 100 px prefers this box on the shipped example (preset paper):
     # the other handedness, 31 % off
-    paper = [1.985, 1.313, 3.334, 2.404, 1138.8, 0.077, -0.034]
-    notes = reprojection_check(scene, setup, _map_at(paper, 1))
-    assert len(notes) == 1 and notes[0].startswith("the MAP's box misses the target's annotations"), notes
-    # the spread: 13 annotations around their median; the threshold is a multiple of it
-    c = scene.target.corners
-    spread = np.sqrt(np.sum((c - c.mean(axis=0)) ** 2) / (4 * (len(c) - 1)))
-    assert f"({spread:.1f} px)" in notes[0] and f"over {REPROJECTION_WARN_FACTOR:g} times" in notes[0]
+    notes = _check(scene, [1138.8, 0.077, -0.034, 1.313, 0.5], [1.985, 3.334, 2.404, *scene.targets[0].dimensions, 0.0],
+                   -t["handedness"])
+    assert len(notes) == 1 and notes[0].startswith("target 'tv-stand': the MAP's box misses its annotations"), notes
+    assert f"over {REPROJECTION_WARN_FACTOR:g} times" in notes[0]
+    spread = float(notes[0].split("their own spread (")[1].split(" px)")[0])
     # just inside and just outside the threshold: move the box sideways in the image
-    shift = _sideways(scene, setup, truth, REPROJECTION_WARN_FACTOR * spread)
-    assert reprojection_check(scene, setup, _map_at(shift(0.9), -1)) == []
-    assert reprojection_check(scene, setup, _map_at(shift(1.1), -1)) != []
+    shift = _sideways(scene, camera, obj, t["handedness"], REPROJECTION_WARN_FACTOR * spread)
+    assert _check(scene, camera, shift(0.9), t["handedness"]) == []
+    assert _check(scene, camera, shift(1.1), t["handedness"]) != []
 
 
-def _sideways(scene, setup, truth, pixels):
-    """``at(f)``: params whose projected corners lie ``f × pixels`` (RMS) from the annotations'
-    median, found by bisection on x (projection by core.cost.project_params)."""
-    from creference_bayes.core.cost import project_params
-    from creference_bayes.core.geometry import dimension_corners
+def _sideways(scene, camera, obj, handedness, pixels):
+    """``at(f)``: the object moved along x until its projected corners lie ``f × pixels`` (RMS) from
+    the annotations' median (by bisection; projection by the model)."""
+    from creference_bayes.pipeline import build_model
 
-    t = scene.target
-    obj = dimension_corners(t.length, t.width, t.height, -1)
+    model, _ = build_model(scene)
+    model.handedness = np.array([handedness], float)
+    median = scene.targets[0].median_corners
 
     def rms(dx):
-        p = np.array(truth, float)
-        p[0] += dx
-        uv, _ = project_params(p[None], obj, setup.camera.principal_point)
-        return float(np.sqrt(np.mean(np.sum((uv[0] - t.median_corners) ** 2, axis=-1)))), p
+        o = np.array(obj, float)
+        o[0] += dx
+        uv, _ = model.project(np.asarray(camera, float)[None], o[None, None])
+        return float(np.sqrt(np.mean(np.sum((uv[0, 0] - median) ** 2, axis=-1)))), o
 
     def at(f):
         lo, hi = 0.0, 2.0
@@ -249,4 +256,4 @@ def _sideways(scene, setup, truth, pixels):
 def test_no_false_alarm_on_simulated_scenes(make_scene, tier):
     for seed in range(3):
         result = cb.estimate(make_scene(seed, tier=tier), posterior=False, seed=0)
-        assert not any("misses the target's annotations" in w for w in result.warnings), (tier, seed)
+        assert not any("misses its annotations" in w for w in result.warnings), (tier, seed)

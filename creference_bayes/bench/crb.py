@@ -1,25 +1,28 @@
-"""The Cramér–Rao bound on location error at the true pose (benchmark.md, "the limit").
+"""The Cramér–Rao bound on every target's location error at the true state (benchmark.md, "the limit").
 
-For unbiased estimators of θ = (x, y, z, yaw, µ[, pitch, roll]) (µ dropped when the focal length
-is known; pitch and roll included when there is no exact horizon, otherwise they follow from the
-horizon and µ and the chain rule carries their change into µ's column), the covariance is at least
-F⁻¹, F the Fisher information of the annotations at the true θ:
+For any scene (one target or many) the parameters are the model's free ones (:mod:`~creference_bayes.
+models.contract`: the shared camera and each object's block; pitch and roll derived from an exact
+horizon and µ when the model says so, so that µ's column carries their change; the crowd's scale
+is not a parameter here: the workers' error is given). The covariance of an unbiased estimator is
+at least F⁻¹, F the Fisher information at the truth:
 
-- target annotations: each of n annotations observes the four projected corners C_µ(x_s) with
-  independent Gaussian noise σ_t per pixel coordinate, so F_t = (n / σ_t²) Σᵢ Jᵢᵀ Jᵢ, Jᵢ the
-  (2, k) Jacobian of corner i's projection (central differences; the projection is smooth);
-- references (the metrology model's view, :mod:`~creference_bayes.models.metrology`): each
-  reference measures its segment's real length ℓ_j(µ, h, pitch, roll). A worker's log-error ε with log-sd σ_m and the
-  endpoints' pixel noise σ_r (propagated to log ℓ_j to first order) give, for the linearised
-  Gaussian model, F_r = Σ_j ∇log ℓ_j ∇log ℓ_jᵀ / (σ_m² + σ_line,j²). For the heavy-tailed
-  "paper" workers (log-error s·t_ν) the equivalent σ_m² is 1/I = (ν + 3)s² / (ν + 1), the inverse
-  Fisher information of a Student-t location (the clip of the simulator is ignored);
-- a horizon measured with σ_h pixels per point (when pitch and roll are free): F_h = J_hᵀ J_h / σ_h²,
-  J_h the Jacobian of the two points' offsets from the predicted horizon.
+- dimension lines: each of object i's Kᵢ annotations observes its four projected corners with
+  independent Gaussian noise σ per pixel coordinate, F = Σᵢ (Kᵢ / σ²) Jᵢᵀ Jᵢ, Jᵢ the Jacobian of
+  the corners (central differences; the projection is smooth);
+- references (the metrology model's reading, :meth:`~creference_bayes.models.metrology.
+  MetrologyModel.predicted_log_lengths`): each measures a log-length with a worker's log-error of
+  sd σ_m and, for a line, its endpoints' pixel noise σ_r carried to first order
+  (:func:`~creference_bayes.models.metrology.linear_line_variances`): F = Σⱼ ∇ⱼ ∇ⱼᵀ / (σ_m² + vⱼ).
+  For the heavy-tailed "paper" workers (log-error s·t_ν) the equivalent σ_m² is 1/I = (ν + 3)s² / (ν + 1),
+  the inverse Fisher information of a Student-t location (:func:`measurement_log_sd`);
+- a measured horizon (pitch and roll free): its two points' offsets, with the model's variance;
+- with ``priors``, the Bayesian (van Trees) bound for parameters that are random draws: the
+  Hessian of the negative log-prior at the truth (camera priors, class sizes, ground offsets;
+  never the location prior: the location is the fixed unknown whose error is bounded).
 
-The location's covariance is the (x, y, z) block of F⁻¹. It is reported as the RMS error
-√tr C and as the median of ‖e‖ for e ~ N(0, C) (Monte Carlo with a fixed seed), both in metres and
-as a percentage of the true distance ‖GT‖ (paper Eq. 3), comparable to an estimator's error.
+Each target's location (x, camera height − ground, z) is linear in the parameters; its (3, 3)
+covariance gives the RMS error √tr C and the median of ‖e‖ for e ~ N(0, C) (Monte Carlo, fixed
+seed), reported in percent of the true distance ‖GT‖ (paper Eq. 3), comparable to an estimator's error.
 """
 
 from __future__ import annotations
@@ -28,223 +31,186 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.cost import project_params
-from ..core.geometry import Camera, dimension_corners, horizon_from_rotation, rotation_from_pitch_roll
 from ..models.camera_terms import horizon_offsets
-from ..models.metrology import ground_lengths
-from ..models.params import FOCAL, N_PARAMS, PARAM_NAMES, PITCH, ROLL
+from ..models.contract import C_FOCAL, C_HEIGHT, C_SCALE, CAMERA_NAMES, O_GROUND, O_X, O_Z, OBJECT_NAMES
+from ..models.metrology import linear_line_variances
 
-__all__ = ["CramerRao", "projection_jacobian", "log_length_gradient", "line_log_sd",
-           "measurement_log_sd", "cramer_rao", "cramer_rao_scene"]
+__all__ = ["Bound", "cramer_rao", "scene_bound", "measurement_log_sd"]
 
 #: Draws used for the median of ‖e‖ under N(0, C).
 N_MEDIAN_DRAWS = 20000
-#: Central-difference steps per parameter (x, y, z in m; yaw rad; µ px; pitch, roll rad), relative
-#: to max(1, |θ|).
-_STEP = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-6, 1e-7, 1e-7])
+#: Object parameter → (row of the location (x, y, z), coefficient); y = camera height − ground.
+_LOCATION_ROWS = {O_X: (0, 1.0), O_Z: (2, 1.0), O_GROUND: (1, -1.0)}
 
 
 @dataclass(frozen=True)
-class CramerRao:
+class Bound:
     """The bound for one scene.
 
     Attributes
     ----------
-    cov : (k, k) F⁻¹ over the free parameters ``names`` (inf where F is singular)
-    names : the free parameters
-    location_cov : (3, 3) the (x, y, z) block, m²
-    rmse_m, median_m : √tr C and the median of ‖e‖, metres
-    rmse_pct, median_pct : the same over ‖GT‖, percent (Eq. 3)
+    names : the free parameters (``camera.<name>``, ``<target index>.<name>``)
+    cov : (k, k) F⁻¹ over them (inf where F is singular)
+    location_cov : (m, 3, 3) each target's (x, y, z) block, m²
+    median_pct, rmse_pct : (m,) the median of ‖e‖ and √tr C over ‖GT‖, percent (Eq. 3)
+    median_m, distance_sd_m : (m,) the median of ‖e‖ and the sd of the ground distance, metres
     singular : whether F was singular (the bound is then infinite)
     """
 
-    cov: np.ndarray
     names: tuple[str, ...]
+    cov: np.ndarray
     location_cov: np.ndarray
-    rmse_m: float
-    median_m: float
-    rmse_pct: float
-    median_pct: float
+    median_pct: np.ndarray
+    rmse_pct: np.ndarray
+    median_m: np.ndarray
+    distance_sd_m: np.ndarray
     singular: bool = False
-
-    def to_dict(self) -> dict:
-        return {"names": list(self.names), "rmse_m": self.rmse_m, "median_m": self.median_m,
-                "rmse_pct": self.rmse_pct, "median_pct": self.median_pct, "singular": self.singular,
-                "sd": {n: float(np.sqrt(self.cov[i, i])) for i, n in enumerate(self.names)}}
-
-
-def _steps(params: np.ndarray) -> np.ndarray:
-    return _STEP * np.maximum(1.0, np.abs(params))
-
-
-def _filled(params: np.ndarray, camera: Camera, orientation_free: bool) -> np.ndarray:
-    """(n, 7) vectors with pitch and roll from the camera's horizon and µ unless they are free."""
-    p = np.atleast_2d(np.array(params, float))
-    if not orientation_free:
-        p[:, PITCH], p[:, ROLL] = camera.pitch_roll(p[:, FOCAL])
-    return p
-
-
-def _jacobian(fun, params: np.ndarray, camera: Camera, orientation_free: bool) -> np.ndarray:
-    """Central-difference Jacobian (len(fun), 7) of ``fun((n, 7)) → (n, k)`` at ``params``; the
-    pitch and roll columns are zero unless they are free (their change is in µ's column)."""
-    p = _filled(params, camera, orientation_free)[0]
-    h = _steps(p)
-    pts = _filled(np.vstack([p + np.diag(h), p - np.diag(h)]), camera, orientation_free)
-    f = fun(pts)
-    J = ((f[:N_PARAMS] - f[N_PARAMS:]) / (2.0 * h[:, None])).T
-    if not orientation_free:
-        J[:, [PITCH, ROLL]] = 0.0
-    return J
-
-
-def projection_jacobian(params: np.ndarray, obj_corners: np.ndarray, camera: Camera,
-                        orientation_free: bool = False) -> np.ndarray:
-    """∂(u₁, v₁, …, u₄, v₄)/∂(x, y, z, yaw, µ, pitch, roll) at ``params``, shape (8, 7), pixels
-    per unit (pitch and roll columns zero unless ``orientation_free``)."""
-    pp = camera.principal_point
-    return _jacobian(lambda q: project_params(q, obj_corners, pp)[0].reshape(len(q), -1), params,
-                     camera, orientation_free)
-
-
-def log_length_gradient(lines: np.ndarray, camera: Camera, params: np.ndarray,
-                        orientation_free: bool = False) -> np.ndarray:
-    """∂ log ℓ_j / ∂(x, y, z, yaw, µ, pitch, roll) of ground segments, shape (m, 7) (x, z and yaw
-    columns are zero: a reference does not depend on the target's place)."""
-    lines = np.asarray(lines, float)
-    return _jacobian(lambda q: np.log(ground_lengths(lines, camera.principal_point, q)), params,
-                     camera, orientation_free)
-
-
-def line_log_sd(lines: np.ndarray, camera: Camera, params: np.ndarray, sigma_px: float,
-                orientation_free: bool = False) -> np.ndarray:
-    """SD of log ℓ_j caused by Gaussian noise σ (pixels) on each endpoint coordinate, shape (m,)."""
-    lines = np.asarray(lines, float)
-    if sigma_px == 0 or len(lines) == 0:
-        return np.zeros(len(lines))
-    full, eps = _filled(params, camera, orientation_free), 1e-3
-    var = np.zeros(len(lines))
-    for k in range(4):  # the four endpoint coordinates
-        d = np.zeros(4)
-        d[k] = eps
-        plus = ground_lengths(lines + d.reshape(2, 2), camera.principal_point, full)[0]
-        minus = ground_lengths(lines - d.reshape(2, 2), camera.principal_point, full)[0]
-        var += ((np.log(plus) - np.log(minus)) / (2 * eps)) ** 2
-    return sigma_px * np.sqrt(var)
 
 
 def measurement_log_sd(model: str) -> float:
-    """Equivalent log-sd of a worker's measurement for a simulator noise model (see the module doc)."""
+    """Equivalent log-sd of a worker's measurement for a simulator noise model (module docstring)."""
     from .simulate import PAPER_NOISE
 
-    if model == "none":
-        return 0.0
-    if model in ("10%", "40%"):
-        return 0.1 if model == "10%" else 0.4
+    if model in ("none", "10%", "40%"):
+        return {"none": 0.0, "10%": 0.1, "40%": 0.4}[model]
     if model == "paper":
         nu, s = PAPER_NOISE["dof"], PAPER_NOISE["scale"]
         return float(np.sqrt((nu + 3.0) * s**2 / (nu + 1.0)))
     raise ValueError(f"measurement model: unknown {model!r} (expected none, 10%, 40% or paper)")
 
 
-def cramer_rao(params: np.ndarray, obj_corners: np.ndarray, camera: Camera, *, sigma_px: float,
-               n_annotations: int, reference_lines: np.ndarray | None = None,
-               reference_log_sd: float = 0.0, reference_sigma_px: float = 0.0,
-               focal_known: bool = False, orientation_free: bool = False,
-               horizon_sd_px: float | None = None, image_width: float = 2880.0) -> CramerRao:
-    """The bound at the true ``params`` for the given noise.
+class _Free:
+    """The free parameters at the truth: states moved along them, their finite differences."""
+
+    def __init__(self, model, camera, objects):
+        self.model, self.camera, self.objects = model, model.complete_camera(np.asarray(camera, float)[None])[0], \
+            np.asarray(objects, float)
+        cf = model.camera_free.copy()
+        cf[C_SCALE] = False
+        self.cam = np.flatnonzero(cf)
+        self.obj = [(i, j) for i in range(model.n_objects) for j in np.flatnonzero(model.object_free[i])]
+        self.names = tuple([f"camera.{CAMERA_NAMES[j]}" for j in self.cam]
+                           + [f"{i}.{OBJECT_NAMES[j]}" for i, j in self.obj])
+        values = np.concatenate([self.camera[self.cam], [self.objects[i, j] for i, j in self.obj]])
+        self.scale = np.maximum(1.0, np.abs(values))
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+    def states(self, delta: np.ndarray):
+        """(k, n) moves of the free parameters → completed cameras (k, 5) and objects (k, m, 7)."""
+        delta = np.atleast_2d(delta)
+        cams = np.repeat(self.camera[None], len(delta), axis=0)
+        objs = np.repeat(self.objects[None], len(delta), axis=0)
+        kc = len(self.cam)
+        cams[:, self.cam] += delta[:, :kc]
+        for k, (i, j) in enumerate(self.obj):
+            objs[:, i, j] += delta[:, kc + k]
+        return self.model.complete_camera(cams), objs
+
+    def jacobian(self, fun, step: float = 1e-6) -> np.ndarray:
+        """∂fun/∂free (q, n) of ``fun(cams, objs) → (k, q)`` by central differences."""
+        h = step * self.scale
+        f = fun(*self.states(np.vstack([np.diag(h), -np.diag(h)])))
+        f = f.reshape(2 * self.n, -1)
+        return ((f[:self.n] - f[self.n:]) / (2 * h[:, None])).T
+
+    def hessian(self, fun, step: float = 1e-4) -> np.ndarray:
+        """∂²fun/∂free² (n, n) of a scalar ``fun(cams, objs) → (k,)`` by central differences."""
+        h = step * self.scale
+        E = np.diag(h)
+        a, b = np.triu_indices(self.n)
+        moves = np.concatenate([E[a] + E[b], E[a] - E[b], -E[a] + E[b], -E[a] - E[b]])
+        v = fun(*self.states(moves)).reshape(4, -1)
+        H = np.zeros((self.n, self.n))
+        H[a, b] = (v[0] - v[1] - v[2] + v[3]) / (4 * h[a] * h[b])
+        return H + np.triu(H, 1).T
+
+
+def cramer_rao(model, camera, objects, sigma_px: float, *, reference_log_sd: float | None = None,
+               reference_sigma_px: float = 0.0, priors: bool = True, seed: int = 0) -> Bound:
+    """The bound at the true ``camera`` (5,) and ``objects`` (m, 7) (module docstring).
 
     Parameters
     ----------
-    params : (7,) true x, y, z (m), yaw (rad), µ (px), pitch, roll (rad); (5,) is accepted when
-        the orientation follows from ``camera``'s horizon
-    obj_corners : (4, 3) object-frame corners of the annotated handedness
-    camera : principal point and, unless ``orientation_free``, the horizon
-    sigma_px : σ_t of each corner coordinate, pixels (0 gives a zero bound)
-    n_annotations : annotations of the target
-    reference_lines : (m, 2, 2) true reference segments, pixels, or None for target only
-    reference_log_sd : σ_m, the worker's log-error (see :func:`measurement_log_sd`)
+    model : the scene's model (:mod:`~creference_bayes.models.contract`), its handedness the truth's
+    sigma_px : σ of each corner coordinate, pixels (0 gives a zero bound)
+    reference_log_sd : σ_m of the workers' log-error (:func:`measurement_log_sd`), or None to
+        leave the model's references out
     reference_sigma_px : σ_r, pixel noise of each reference endpoint coordinate
-    focal_known : drop µ from the parameters
-    orientation_free : pitch and roll are parameters (no exact horizon)
-    horizon_sd_px : with ``orientation_free``, a horizon measured with this uncertainty per point
-        (its two points at u = 0 and u = ``image_width``); None for no horizon at all
+    priors : add the priors' information (the Bayesian bound); False for the data alone
+    seed : of the Monte Carlo median
     """
-    p = np.zeros(N_PARAMS)
-    p[:len(params)] = np.asarray(params, float)
-    p = _filled(p, camera, orientation_free)[0]
-    free = np.ones(N_PARAMS, bool)
-    free[FOCAL] = not focal_known
-    free[[PITCH, ROLL]] = orientation_free
-    names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
-    gt_norm = float(np.linalg.norm(p[:3]))
+    free = _Free(model, camera, objects)
+    cam, objs = free.camera, free.objects
+    m, n = model.n_objects, free.n
+    loc = np.column_stack([objs[:, O_X], cam[C_HEIGHT] - objs[:, O_GROUND], objs[:, O_Z]])
+    norm = np.linalg.norm(loc, axis=1)
     if sigma_px == 0:
-        zero = np.zeros((free.sum(), free.sum()))
-        return CramerRao(zero, names, np.zeros((3, 3)), 0.0, 0.0, 0.0, 0.0)
-    J = projection_jacobian(p, obj_corners, camera, orientation_free)[:, free]
-    F = n_annotations / sigma_px**2 * (J.T @ J)
-    if reference_lines is not None and len(reference_lines):
-        lines = np.asarray(reference_lines, float)
-        g = log_length_gradient(lines, camera, p, orientation_free)[:, free]
-        var = reference_log_sd**2 + line_log_sd(lines, camera, p, reference_sigma_px, orientation_free) ** 2
-        var = np.maximum(var, 1e-12)  # exact references: (nearly) infinite information
-        F = F + (g.T / var) @ g
-    if orientation_free and horizon_sd_px is not None:
-        R = rotation_from_pitch_roll(p[PITCH], p[ROLL])
-        pts = horizon_from_rotation(R, p[FOCAL], camera.principal_point, image_width)
-        Jh = _jacobian(lambda q: horizon_offsets(pts, q, camera.principal_point), p, camera, True)[:, free]
-        F = F + Jh.T @ Jh / horizon_sd_px**2
+        zero = np.zeros(m)
+        return Bound(free.names, np.zeros((n, n)), np.zeros((m, 3, 3)), zero, zero, zero, zero)
+    J = free.jacobian(lambda c, o: model.project(c, o)[0]).reshape(m, 8, n)
+    counts = np.array([len(o.annotations) for o in model.objects], float)
+    F = np.einsum("i,ian,iak->nk", counts / sigma_px**2, J, J)
+    refs = getattr(model, "references", ())
+    if reference_log_sd is not None and len(refs):
+        g = free.jacobian(model.predicted_log_lengths)
+        var = np.full(len(refs), reference_log_sd**2)
+        lines = np.array([r.line is not None for r in refs])
+        if lines.any():
+            var[lines] += linear_line_variances(np.array([r.line for r in refs if r.line is not None]),
+                                                model.principal_point, cam, reference_sigma_px)
+        F += (g.T / np.maximum(var, 1e-12)) @ g  # exact references: (nearly) infinite information
+    hz = model.camera_terms.horizon
+    if hz is not None and model.orientation == "free":
+        Jh = free.jacobian(lambda c, o: horizon_offsets(hz.points, c, model.principal_point))
+        F += Jh.T @ Jh / (hz.sd_px**2 + (cam[C_FOCAL] * np.tan(model.ground_tilt_sd_rad)) ** 2)
+    if priors:
+        F += free.hessian(lambda c, o: model.camera_neg_log_prior(c) + np.sum(
+            model.object_neg_log_prior(c, o) - model.location.neg_log(o[..., O_X], o[..., O_Z]), axis=1))
     try:
         cov = np.linalg.inv(F)
-        singular = not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0)
+        np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        singular = True
-    if singular:
-        cov = np.full_like(F, np.inf)
-        return CramerRao(cov, names, np.full((3, 3), np.inf), np.inf, np.inf, np.inf, np.inf, True)
-    C = cov[:3, :3]
-    rmse = float(np.sqrt(np.trace(C)))
-    e = np.random.default_rng(0).multivariate_normal(np.zeros(3), C, N_MEDIAN_DRAWS, method="eigh")
-    med = float(np.median(np.linalg.norm(e, axis=1)))
-    return CramerRao(cov, names, C, rmse, med, 100 * rmse / gt_norm, 100 * med / gt_norm)
+        inf = np.full(m, np.inf)
+        return Bound(free.names, np.full((n, n), np.inf), np.full((m, 3, 3), np.inf), inf, inf, inf, inf, True)
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal((N_MEDIAN_DRAWS, 3))
+    loc_cov, med, dsd = np.zeros((m, 3, 3)), np.zeros(m), np.zeros(m)
+    kc = len(free.cam)
+    for i in range(m):
+        A = np.zeros((3, n))  # (x, y, z) of target i as linear functions of the free parameters
+        for k, (oi, j) in enumerate(free.obj):
+            if oi == i and j in _LOCATION_ROWS:
+                A[_LOCATION_ROWS[j][0], kc + k] = _LOCATION_ROWS[j][1]
+        if C_HEIGHT in free.cam:
+            A[1, list(free.cam).index(C_HEIGHT)] = 1.0
+        C = A @ cov @ A.T
+        w, V = np.linalg.eigh(C)
+        e = (z * np.sqrt(np.maximum(w, 0.0))) @ V.T
+        loc_cov[i], med[i] = C, np.median(np.linalg.norm(e, axis=1))
+        u = np.array([objs[i, O_X], 0.0, objs[i, O_Z]]) / np.hypot(objs[i, O_X], objs[i, O_Z])
+        dsd[i] = float(np.sqrt(u @ C @ u))
+    rmse = np.sqrt(np.trace(loc_cov, axis1=1, axis2=2))
+    return Bound(free.names, cov, loc_cov, 100 * med / norm, 100 * rmse / norm, med, dsd)
 
 
-def cramer_rao_scene(scene, *, n_annotations: int = 5, references: bool = False,
-                     n_references: int | None = None, sigma_px: float | None = None,
-                     orientation_free: bool | None = None, horizon_sd_px: float | None = None) -> CramerRao:
-    """The bound for a simulated scene, from its ground truth and its noise tier.
+def scene_bound(scene, sigma_px: float, *, reference_log_sd: float | None = None, reference_sigma_px: float = 0.0,
+                priors: bool = True, seed: int = 0) -> Bound:
+    """:func:`cramer_rao` of a simulated scene (:mod:`.simulate`) at its ground truth: its true
+    state and handedness, and its references on their true lines; its metrology model decides
+    the free parameters (a focal length stated or not, the horizon exact, measured or absent)."""
+    from dataclasses import replace
 
-    Parameters
-    ----------
-    scene : a :class:`~creference_bayes.scene.Scene` made by :mod:`~.simulate` (its ground truth
-        carries the tier, handedness, camera height and true reference segments)
-    n_annotations : target annotations the estimators get
-    references : include the references (the metrology model's information)
-    n_references : how many of them (default all)
-    sigma_px : override the tier's σ_t
-    orientation_free : pitch and roll unknown (default: when the scene has no horizon)
-    horizon_sd_px : a horizon measured with this uncertainty (with ``orientation_free``)
-    """
-    from .simulate import TIERS, true_params
+    from ..pipeline import build_model
+    from .simulate import true_state
 
-    gt = scene.ground_truth
-    if gt is None or "tier" not in gt.extra:
-        raise ValueError("scene: needs simulated ground truth (ground_truth.tier, handedness, …)")
-    tier = TIERS[gt.extra["tier"]]
-    t = scene.target
-    params = true_params(scene)
-    free_orientation = scene.horizon is None if orientation_free is None else orientation_free
-    corners = dimension_corners(t.length, t.width, t.height, int(gt.extra["handedness"]))
-    lines = None
-    if references:
-        lines = np.asarray(gt.extra["reference_lines_px"], float)[:n_references]
-    camera = Camera.from_scene(scene)
-    if free_orientation:  # the true orientation, not one derived from a horizon
-        camera = Camera(camera.principal_point, None, camera.focal_length_px)
-    return cramer_rao(params, corners, camera, orientation_free=free_orientation,
-                      horizon_sd_px=horizon_sd_px, image_width=scene.image_width,
-                      sigma_px=tier.target_px if sigma_px is None else sigma_px,
-                      n_annotations=n_annotations, reference_lines=lines,
-                      reference_log_sd=measurement_log_sd(tier.measurement),
-                      reference_sigma_px=tier.reference_px,
-                      focal_known=scene.focal_length_px is not None)
+    true_lines = scene.ground_truth.get("reference_lines_px") or []
+    refs = tuple(r if r.line is None or r.index >= len(true_lines) else replace(r, line=np.asarray(true_lines[r.index]))
+                 for r in scene.references)
+    model, _ = build_model(replace(scene, references=refs), use_references=reference_log_sd is not None)
+    model.handedness = np.array([t.ground_truth["handedness"] for t in scene.targets], float)
+    camera, objects = true_state(scene)
+    return cramer_rao(model, camera, objects, sigma_px, reference_log_sd=reference_log_sd,
+                      reference_sigma_px=reference_sigma_px, priors=priors, seed=seed)

@@ -141,7 +141,8 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
 
     Parameters
     ----------
-    scene : :class:`~creference_bayes.scene.Scene` (its target's size and annotations)
+    scene : :class:`~creference_bayes.io.scene.Scene` of one target of known size (its size and
+        annotations)
     annotations : (n, 4, 2) corners to use instead of all of the scene's, pixels
     camera : principal point and horizon (defaults to the scene's)
     refine : least-squares refinement over all corners (step 2 of the module docstring)
@@ -161,7 +162,10 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     pl = _poselib()
     t0 = time.perf_counter()
     camera = camera or Camera.from_scene(scene)
-    t = scene.target
+    if len(scene.targets) != 1 or scene.targets[0].dimensions is None:
+        raise ValueError("p4pf: needs a scene of one target of known size (dimensions_m)")
+    t = scene.targets[0]
+    size = t.dimensions
     ann = np.asarray(t.corners if annotations is None else annotations, float)
     if ann.ndim != 3 or ann.shape[1:] != (4, 2):
         raise ValueError(f"annotations: expected shape (n, 4, 2), got {ann.shape}")
@@ -170,7 +174,7 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     x_all = centred.reshape(-1, 2)
     hyps = {hand: [] for hand in HANDEDNESS}
     for hand in HANDEDNESS:
-        X = dimension_corners(t.length, t.width, t.height, hand)
+        X = dimension_corners(*size, hand)
         for sample in samples:
             poses, focals = pl.p4pf(sample, X, True)
             hyps[hand] += [(pose, float(f)) for pose, f in zip(poses, focals)
@@ -178,16 +182,16 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     n_p4pf = sum(len(h) for h in hyps.values())
     fallback = n_p4pf == 0
     if fallback:
-        size = float(max(scene.image_width, scene.image_height))
+        side = float(max(scene.image_width, scene.image_height))
         for hand in HANDEDNESS:
-            X_all = np.tile(dimension_corners(t.length, t.width, t.height, hand), (len(centred), 1))
-            for f in FALLBACK_FOCALS * size:
+            X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
+            for f in FALLBACK_FOCALS * side:
                 cam = {"model": "SIMPLE_PINHOLE", "width": 0, "height": 0, "params": [float(f), 0.0, 0.0]}
                 pose, _ = pl.estimate_absolute_pose(x_all, X_all, cam, {"max_reproj_error": 1e6}, {})
                 hyps[hand].append((pose, float(f)))
     best, n_hyp = None, 0
     for hand in HANDEDNESS:
-        X_all = np.tile(dimension_corners(t.length, t.width, t.height, hand), (len(centred), 1))
+        X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
         for pose, f in hyps[hand]:
             n_hyp += 1
             R, tr, f_ref, sse = _refine(pl, pose, f, X_all, x_all, refine)

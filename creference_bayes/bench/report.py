@@ -21,6 +21,8 @@ PARAMS = ("x", "y", "z", "yaw", "focal_length_px", "pitch", "roll", "distance_m"
 #: The estimators whose posteriors are checked for calibration.
 CALIBRATED = ("ours-paper", "ours-metrology", "ours-metrology-nohorizon", "ours-metrology-flatfocal")
 N_RANK_BINS = 10
+#: Distance bands (m) of the tables of scenes with several targets.
+BANDS = ((0.0, 20.0), (20.0, 40.0), (40.0, np.inf))
 
 
 def stats(values) -> dict:
@@ -261,13 +263,38 @@ def _exact(doc) -> dict:
             "worse": int(sum(a > b + 0.01 for a, b in zip(w, wo)))}
 
 
+def _frames(doc) -> dict:
+    """Scenes of several targets: per tier and distance band the median errors of the joint MAP,
+    the joint posterior mean and the MAP alone, the bound and the distance's 90 % coverage; per
+    tier and object count the MAP's and the posterior's seconds and the share converged."""
+    recs = _sel(doc["records"], estimator="frame")
+    bands, counts = [], []
+    for tier in dict.fromkeys(r["tier"] for r in recs):
+        for lo, hi in BANDS:
+            sel = [r for r in recs if r["tier"] == tier and lo <= r["distance_m"] < hi]
+            if sel:
+                med = {k: stats([r[k] for r in sel]).get("median") for k in ("error", "post_error", "alone_error", "crb")}
+                bands.append({"tier": tier, "band_m": [lo, hi if np.isfinite(hi) else None], "objects": len(sel), **med,
+                              "ratio": med["error"] / med["crb"], "coverage_90": float(np.mean([r["in_hdi90"] for r in sel]))})
+        for n in sorted({r["n_objects"] for r in recs if r["tier"] == tier}):
+            sel = list({r["scene"]: r for r in recs if r["tier"] == tier and r["n_objects"] == n}.values())
+            post = [r["post_seconds"] for r in sel if r["post_seconds"] is not None]
+            counts.append({"tier": tier, "n_objects": n, "scenes": len(sel), "map_s": stats([r["seconds"] for r in sel]),
+                           "map_max_s": max(r["seconds"] for r in sel), "post_s": stats(post),
+                           "post_max_s": max(post, default=None), "converged": float(np.mean([r["converged"] for r in sel]))})
+    return {"bands": bands, "counts": counts}
+
+
 def summarise(doc: dict) -> dict:
+    out = {"frames": _frames(doc)} if _sel(doc["records"], estimator="frame") else {}
+    if not [r for r in doc["records"] if r["estimator"] != "frame"]:
+        return out
     by_tier = _by_tier(doc)
     return {"by_tier": by_tier, "vs_refs": _vs_refs(doc), "same_time": _same_time(doc), "pairs": _pairs(doc),
             "calibration": _calibration(doc), "sweep": _sweep(doc), "timing": _timing(doc),
             "crb_ratio": _crb_ratio(doc), "better_model": _default_choice(by_tier),
             "horizon": _paired(doc, "ours-metrology-nohorizon"),
-            "focal_prior": _paired(doc, "ours-metrology-flatfocal"), "exact": _exact(doc)}
+            "focal_prior": _paired(doc, "ours-metrology-flatfocal"), "exact": _exact(doc), **out}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -286,14 +313,33 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def _frame_tables(f: dict) -> list[str]:
+    rows = [[b["tier"], f"{b['band_m'][0]:.0f}–{b['band_m'][1]:.0f} m" if b["band_m"][1] is not None
+             else f"≥ {b['band_m'][0]:.0f} m", str(b["objects"]), _f(b["error"], 2), _f(b["post_error"], 2),
+             _f(b["alone_error"], 2), _f(b["crb"], 2), _f(b["ratio"], 2), f"{100 * b['coverage_90']:.0f}%"]
+            for b in f["bands"]]
+    out = ["Several targets per scene: location error (%, median over the objects of a band), each object "
+           "estimated jointly and alone, the scene's Cramér–Rao bound (data and priors), and coverage.", "",
+           _table(["tier", "distance", "objects", "joint MAP median %", "joint mean median %", "alone MAP median %",
+                   "bound median %", "joint / bound", "90 % HDI coverage"], rows), ""]
+    rows = [[c["tier"], str(c["n_objects"]), str(c["scenes"]), _f(c["map_s"].get("median"), 2), _f(c["map_max_s"], 2),
+             _f(c["post_s"].get("median"), 2), _f(c["post_max_s"], 2), f"{100 * c['converged']:.0f}%"] for c in f["counts"]]
+    return out + [_table(["tier", "objects per scene", "scenes", "MAP median s", "MAP max s", "posterior median s",
+                          "posterior max s", "converged"], rows), ""]
+
+
 def markdown_report(doc: dict) -> str:
     """All tables of a bench document as Markdown."""
     s = doc.get("summary") or summarise(doc)
     cfg = doc["config"]
     out = [f"## Benchmark `{cfg['name']}` — seed {doc['seed']}, creference_bayes {doc['version']}, "
            f"{len({r['scene'] for r in doc['records']})} scenes, {doc['seconds']:.0f} s "
-           f"({doc.get('cpu_seconds', float('nan')):.0f} s CPU)",
-           "", "Location error (paper Eq. 3, %) per noise tier: median / mean / p90 (n scenes).", ""]
+           f"({doc.get('cpu_seconds', float('nan')):.0f} s CPU)", ""]
+    if s.get("frames"):
+        out += _frame_tables(s["frames"])
+    if "by_tier" not in s:
+        return "\n".join(out)
+    out += ["Location error (paper Eq. 3, %) per noise tier: median / mean / p90 (n scenes).", ""]
     rows = []
     for label, block in s["by_tier"].items():
         rows.append([label] + [(f"{_f(b['median'])} / {_f(b['mean'])} / {_f(b['p90'])} ({b['n']})" if b["n"] else "–")

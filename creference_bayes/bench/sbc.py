@@ -21,9 +21,10 @@ same truncated prior on both sides. Within the box:
 
 The noise model is the model's: every corner of every set of dimension lines is off by a bivariate
 Student-t (ν = 4, scale :data:`TARGET_SCALE_PX`); every reference is a segment on the ground
-whose stated value is ℓ·exp(s·ε), ε ~ Student-t₂, with the crowd's scale s drawn from the model's
-grid with its prior weights, and whose drawn end points are off by N(0, (2σ)²) per coordinate
-(the model's line noise, σ_line = 2σ).
+whose stated value is ℓ·exp(s·ε), ε ~ Student-t₂, with the crowd's scale s (the camera's
+``ref_scale``) drawn from its log-normal prior (median :data:`~creference_bayes.models.contract.
+REF_SCALE_MEDIAN`, log-sd ``REF_SCALE_LOG_SD``, within the model's bounds), and whose drawn end
+points are off by N(0, (2σ)²) per coordinate (the model's line noise, σ_line = 2σ).
 
 Where the references are. The model reads a reference *given its drawn line*: it has no prior on
 where in the image, or where on the ground, people draw references, so the line's position must
@@ -58,10 +59,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.geometry import box_points, dimension_corners, project, rotation_from_pitch_roll
-from ..io.scene import SCENE_FORMAT
 from ..models.camera_terms import DEFAULT_ORIENTATION_PRIOR, default_focal_prior
-from ..models.metrology import REF_SCALE_GRID, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN, ground_lengths
-from ..models.params import MAX_PITCH, MAX_ROLL, Bounds
+from ..models.contract import (C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE, O_X, O_YAW, O_Z,
+                               REF_SCALE_LOG_SD, REF_SCALE_MEDIAN, Bounds)
+from ..models.metrology import ground_lengths
 from .simulate import OBJECTS
 
 __all__ = ["SBC_BOX", "IMAGE_SIZE", "TARGET_SCALE_PX", "REF_ROWS_PX", "REF_PIXEL_LENGTH", "DESIGNS", "QUANTITIES",
@@ -99,10 +100,9 @@ class SBCBox:
     height: tuple[float, float] = (0.8, 3.0)
 
     def bounds(self) -> Bounds:
-        """The estimate's bounds: the box, yaw free."""
-        assert -MAX_PITCH <= self.pitch[0] and self.pitch[1] <= MAX_PITCH and abs(self.roll[0]) <= MAX_ROLL
-        return Bounds(np.array([self.x[0], self.height[0], self.z[0], -np.pi, self.focal[0], self.pitch[0], self.roll[0]]),
-                      np.array([self.x[1], self.height[1], self.z[1], np.pi, self.focal[1], self.pitch[1], self.roll[1]]))
+        """The estimate's bounds: the box, the model's wide bounds elsewhere (yaw free)."""
+        return Bounds.box(IMAGE_SIZE, x=self.x, z=self.z, focal_px=self.focal, pitch=self.pitch, roll=self.roll,
+                          height=self.height)
 
 
 SBC_BOX = SBCBox()
@@ -117,29 +117,29 @@ def _truncated(draw, lo: float, hi: float, tries: int = 10_000) -> float:
     raise RuntimeError(f"no prior draw within [{lo}, {hi}]")
 
 
-def draw_truth(rng: np.random.Generator, box: SBCBox = SBC_BOX) -> np.ndarray:
-    """(7,) parameters (x, y, z, yaw, µ, pitch, roll) from the model's prior within ``box``."""
-    fp = default_focal_prior(IMAGE_SIZE)
-    op = DEFAULT_ORIENTATION_PRIOR
+def draw_truth(rng: np.random.Generator, box: SBCBox = SBC_BOX) -> tuple[np.ndarray, np.ndarray]:
+    """A camera (5,) and a target (7,) (:mod:`~creference_bayes.models.contract` order) from the
+    model's prior within ``box``; the target's size from the simulator's outdoor objects."""
+    fp, op = default_focal_prior(IMAGE_SIZE), DEFAULT_ORIENTATION_PRIOR
+    lo, hi = box.bounds().camera_lower[C_SCALE], box.bounds().camera_upper[C_SCALE]
     x = rng.uniform(*box.x)
     z = math.exp(rng.uniform(math.log(box.z[0]), math.log(box.z[1])))
     mu = _truncated(lambda: fp.median_px * math.exp(fp.log_sd * rng.standard_t(fp.dof)), *box.focal)
     pitch = _truncated(lambda: rng.normal(op.pitch_mean, op.pitch_sd), *box.pitch)
     roll = _truncated(lambda: rng.normal(op.roll_mean, op.roll_sd), *box.roll)
     h = _truncated(lambda: op.height_median_m * math.exp(op.height_log_sd * rng.normal()), *box.height)
-    return np.array([x, h, z, rng.uniform(-np.pi, np.pi), mu, pitch, roll])
+    scale = _truncated(lambda: REF_SCALE_MEDIAN * math.exp(REF_SCALE_LOG_SD * rng.normal()), lo, hi)
+    names = list(OBJECTS["outdoor"])
+    size = [round(float(rng.uniform(*r)), 4) for r in OBJECTS["outdoor"][names[rng.integers(len(names))]]]
+    return np.array([mu, pitch, roll, h, scale]), np.array([x, z, rng.uniform(-np.pi, np.pi), *size, 0.0])
 
 
 def _reference_line(rng) -> np.ndarray:
     """(2, 2) a reference's true line in the image, pixels, drawn without regard to the parameters
     (module docstring)."""
-    w, _ = IMAGE_SIZE
-    a = np.array([rng.uniform(0.0, w), rng.uniform(*REF_ROWS_PX)])
+    a = np.array([rng.uniform(0.0, IMAGE_SIZE[0]), rng.uniform(*REF_ROWS_PX)])
     ang, length = rng.uniform(-np.pi, np.pi), rng.uniform(*REF_PIXEL_LENGTH)
     return np.array([a, a + length * np.array([math.cos(ang), math.sin(ang)])])
-
-
-_TRIES = 200
 
 
 def _inside(uv: np.ndarray) -> bool:
@@ -147,19 +147,18 @@ def _inside(uv: np.ndarray) -> bool:
     return bool(np.all((uv[:, 0] >= 0) & (uv[:, 0] <= w) & (uv[:, 1] >= 0) & (uv[:, 1] <= h)))
 
 
-def simulate_sbc_scene(rng: np.random.Generator, truth: np.ndarray, n_target: int, n_refs: int) -> dict | None:
-    """A ``creference-scene/1`` scene (dict) from ``truth`` with the model's own noise (module
-    docstring): no horizon, focal length unknown, single-valued references in metres. None when
-    the drawn annotations do not all lie in the image (the caller then draws a new scene: a
-    selection on the data alone, which leaves the posterior given the data, and so the ranks'
-    uniformity, unchanged)."""
-    w, h_img = IMAGE_SIZE
-    pp = np.array([w / 2, h_img / 2])
-    R = rotation_from_pitch_roll(truth[5], truth[6])
-    names = list(OBJECTS["outdoor"])
-    size = tuple(round(float(rng.uniform(*r)), 4) for r in OBJECTS["outdoor"][names[rng.integers(len(names))]])
+def simulate_sbc_scene(rng: np.random.Generator, truth, n_target: int, n_refs: int) -> dict | None:
+    """A ``creference-scene/2`` scene (dict) of one target from ``truth`` (:func:`draw_truth`) with
+    the model's own noise (module docstring): no horizon, focal length unknown, single-valued
+    references in metres. None when the drawn annotations do not all lie in the image (the caller
+    then draws a new scene: a selection on the data alone, which leaves the posterior given the
+    data, and so the ranks' uniformity, unchanged)."""
+    camera, obj = (np.asarray(a, float) for a in truth)
+    pp = np.array(IMAGE_SIZE, float) / 2
     handed = int(rng.choice([1, -1]))
-    corners, _ = project(box_points(truth[:5], dimension_corners(*size, handed)), R, truth[4], pp)
+    pose = np.array([obj[O_X], camera[C_HEIGHT], obj[O_Z], obj[O_YAW]])
+    corners, _ = project(box_points(pose, dimension_corners(*obj[O_SIZE], handed)),
+                         rotation_from_pitch_roll(camera[C_PITCH], camera[C_ROLL]), camera[C_FOCAL], pp)
 
     def t4(shape):  # bivariate Student-t, ν = 4: normal / sqrt(χ²₄ / 4), one χ² per point
         return rng.normal(0.0, TARGET_SCALE_PX, shape) / np.sqrt(rng.chisquare(4.0, shape[:-1] + (1,)) / 4.0)
@@ -167,44 +166,44 @@ def simulate_sbc_scene(rng: np.random.Generator, truth: np.ndarray, n_target: in
     noisy = [corners + t4(corners.shape) for _ in range(n_target)]
     if not all(_inside(c) for c in noisy):
         return None
-    lines = [{"worker": f"t{i + 1:02d}", "corners": c.tolist(), "seconds": 183.5} for i, c in enumerate(noisy)]
-    w_k = np.exp(-0.5 * ((np.log(REF_SCALE_GRID) - math.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2)
-    s = float(rng.choice(REF_SCALE_GRID, p=w_k / w_k.sum()))
     refs, true_lines = [], []
     for j in range(n_refs):
-        for _ in range(_TRIES):  # a line that lies in the image, true and drawn
+        for _ in range(200):  # a line that lies in the image, true and drawn
             line = _reference_line(rng)
-            ref = sbc_reference(rng, truth, line, s, f"r{j + 1:02d}", object=f"segment-{j + 1}")
+            ref = sbc_reference(rng, truth, line, camera[C_SCALE], f"r{j + 1:02d}", object=f"segment-{j + 1}")
             if ref is not None:
                 break
         else:
             return None
         refs.append(ref)
         true_lines.append(line.tolist())
-    return {"format": SCENE_FORMAT, "image": {"width": w, "height": h_img},
+    size = dict(zip(("length", "width", "height"), obj[O_SIZE].tolist()))
+    return {"format": "creference-scene/2", "image": {"width": IMAGE_SIZE[0], "height": IMAGE_SIZE[1]},
             "camera": {"principal_point": pp.tolist(), "focal_length_px": None},
-            "target": {"id": "target", "dimensions_m": dict(zip(("length", "width", "height"), size)),
-                       "dimension_lines": lines},
+            "targets": [{"id": "target", "dimensions_m": size,
+                         "dimension_lines": [{"worker": f"t{i + 1:02d}", "corners": c.tolist(), "seconds": 183.5}
+                                             for i, c in enumerate(noisy)],
+                         "ground_truth": {"location_m": pose[:3].tolist(), "yaw_rad": float(obj[O_YAW]),
+                                          "handedness": handed, "dimensions_m": size}}],
             "references": refs,
-            "ground_truth": {"location_m": truth[:3].tolist(), "yaw_rad": float(truth[3]),
-                             "focal_length_px": float(truth[4]), "camera_height_m": float(truth[1]),
-                             "pitch_rad": float(truth[5]), "roll_rad": float(truth[6]), "handedness": handed,
-                             "crowd_scale": s, "reference_lines_true_px": true_lines}}
+            "ground_truth": {"focal_length_px": float(camera[C_FOCAL]), "camera_height_m": float(camera[C_HEIGHT]),
+                             "pitch_rad": float(camera[C_PITCH]), "roll_rad": float(camera[C_ROLL]),
+                             "crowd_scale": float(camera[C_SCALE]), "reference_lines_true_px": true_lines}}
 
 
-def sbc_reference(rng: np.random.Generator, truth: np.ndarray, true_line: np.ndarray, scale: float, worker: str,
+def sbc_reference(rng: np.random.Generator, truth, true_line: np.ndarray, scale: float, worker: str,
                   object: str = "segment") -> dict | None:
     """One worker's reference on the ground segment under ``true_line`` ((2, 2) pixels) under the
     model's own noise model (module docstring): its drawn line, the true one off by N(0, (2σ)²) px
-    per coordinate, and its stated length, the segment's real length ℓ at ``truth`` times
-    exp(``scale`` · ε), ε ~ Student-t₂. A second call on the same line is a second worker
-    measuring the same thing. None when the true or the drawn line is not in the image."""
-    w, h_img = IMAGE_SIZE
+    per coordinate, and its stated length, the segment's real length ℓ at the true camera
+    (``truth``, :func:`draw_truth`) times exp(``scale`` · ε), ε ~ Student-t₂. A second call on the
+    same line is a second worker measuring the same thing. None when the true or the drawn line is
+    not in the image."""
     true_line = np.asarray(true_line, float)
     uv = true_line + rng.normal(0.0, 2.0 * TARGET_SCALE_PX, true_line.shape)
     if not (_inside(true_line) and _inside(uv)):
         return None
-    length = float(ground_lengths(true_line[None], np.array([w / 2, h_img / 2]), np.asarray(truth, float)[None])[0, 0])
+    length = float(ground_lengths(true_line[None], np.array(IMAGE_SIZE, float) / 2, np.asarray(truth[0], float)[None])[0, 0])
     return {"worker": worker, "object": object, "measure": "length", "mode": "direct",
             "value": length * math.exp(scale * rng.standard_t(2.0)), "unit": "m", "line": uv.tolist(),
             "seconds": 64.4}
@@ -240,8 +239,6 @@ def run_sbc(n_scenes: int = 40, *, designs=tuple(DESIGNS), seed: int = 0, box: S
     """
     import warnings
 
-    from ..inference.summary import draws_from_inference_data
-    from ..io.scene import parse_scene
     from ..pipeline import estimate
 
     unknown = set(designs) - set(DESIGNS)
@@ -256,29 +253,26 @@ def run_sbc(n_scenes: int = 40, *, designs=tuple(DESIGNS), seed: int = 0, box: S
             k = ref_cycle[i % len(ref_cycle)]
             d = None
             while d is None:  # annotations outside the image: a new scene (a selection on the data)
-                truth = draw_truth(rng, box)
-                d = simulate_sbc_scene(rng, truth, n_target, k)
+                camera, obj = draw_truth(rng, box)
+                d = simulate_sbc_scene(rng, (camera, obj), n_target, k)
+            t0 = time.process_time()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                scene = parse_scene(d)
-            t0 = time.process_time()
-            res = estimate(scene, seed=[seed, i], bounds=bounds, temperature=temperature, sampling=sampling,
-                           location_prior="log-depth", focal_prior="default")
+                res = estimate(d, seed=[seed, i], bounds=bounds, temperature=temperature, sampling=sampling,
+                               location_prior="log-depth", focal_prior="default", keep_draws=0)
             seconds = time.process_time() - t0
-            if res.inference_data is None:
-                out.append({"design": name, "scene": i, "refs": k, "ranks": None, "converged": False,
-                            "seconds": seconds})
-                continue
-            d = draws_from_inference_data(res.inference_data)
-            d["distance_m"] = np.hypot(d["x"], d["z"])
-            true = {"distance_m": float(np.hypot(truth[0], truth[2])), "focal_length_px": truth[4],
-                    "pitch": truth[5], "roll": truth[6]}
-            ranks = {q: rank_of_truth(d[q], true[q]) for q in QUANTITIES}
-            out.append({"design": name, "scene": i, "refs": k, "ranks": ranks,
-                        "converged": bool(res.diagnostics.converged), "seconds": seconds,
-                        "truth": {q: float(v) for q, v in true.items()}})
+            rec = {"design": name, "scene": i, "refs": k, "ranks": None, "converged": False, "seconds": seconds}
+            if res.draws is not None:
+                cams, objs = res.draws.cameras, res.draws.objects[..., 0, :]
+                q = {"distance_m": np.hypot(objs[..., O_X], objs[..., O_Z]), "focal_length_px": cams[..., C_FOCAL],
+                     "pitch": cams[..., C_PITCH], "roll": cams[..., C_ROLL]}
+                true = {"distance_m": float(np.hypot(obj[O_X], obj[O_Z])), "focal_length_px": camera[C_FOCAL],
+                        "pitch": camera[C_PITCH], "roll": camera[C_ROLL]}
+                rec.update(ranks={n: rank_of_truth(q[n], true[n]) for n in QUANTITIES}, converged=bool(res.converged),
+                           truth={n: float(v) for n, v in true.items()} | {"ref_scale": float(camera[C_SCALE])})
+            out.append(rec)
             if progress is not None:
-                progress(f"sbc {name} {i}: ranks {ranks}, {seconds:.1f} s")
+                progress(f"sbc {name} {i}: ranks {rec['ranks']}, {seconds:.1f} s")
     return out
 
 

@@ -1,36 +1,54 @@
-"""Synthetic ``creference-scene/1`` scenes with exact ground truth (benchmark.md).
+"""Synthetic scenes with exact ground truth (benchmark.md): one target or many, ``creference-scene/2``.
 
-Cameras have pitch, roll and (optionally) an off-centre principal point; the target and five
-reference objects are boxes standing on the ground. Noise tiers perturb the target's dimension
-lines, the reference lines and the workers' measurements. Everything is drawn from one
-``numpy.random.Generator``: the same seed gives the same scene.
+A scene is one camera and ``n_objects`` targets, boxes standing on the ground, each with noisy
+dimension lines, plus reference objects measured by workers. Settings (:data:`SETTINGS`):
+
+* ``indoor`` and ``outdoor``: the paper's photos (2880 × 1800 px, µ 1000–2600 px, pitch 0–15° or
+  0–10° down), objects of the paper's Table 1 ranges (:data:`OBJECTS`), the benchmark's scenes;
+* ``street``: a car-mounted camera as in KITTI (1242 × 375 px, µ 650–1100 px, pitch ±3°, height
+  1.4–1.9 m), cars, vans, trucks, pedestrians and cyclists 4–60 m away (uniform in log depth),
+  sizes drawn from the KITTI class priors.
+
+Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
+``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
+References cycle through the paper's ten formats (:data:`FORMATS`). Targets' sizes are stated
+(``sizes="known"``) or left to their class's prior (``"prior"``: KITTI's shipped classes, or
+:func:`class_priors` written into the scene). With several targets, each one's ground may lie
+N(0, ``ground_sd_m``²) off the plane. Everything is drawn from one ``numpy.random.Generator``: the
+same seed gives the same scene.
 """
 
 from __future__ import annotations
 
+import errno
+import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from ..core.geometry import (box_points, box_vertices, dimension_corners, horizon_from_rotation,
                              project, rotation_from_pitch_roll)
-from ..io.scene import SCENE_FORMAT
 from ..core.units import UNITS_TO_M
+from ..models.contract import REF_SCALE_MEDIAN
+from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 from .confidence_workers import ConfidentWorkers
 
-__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION",
-           "simulate_scene", "measurement_factor", "true_params"]
+__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
+           "simulate_scene", "measurement_factor", "class_priors", "true_state", "write_scenes"]
 
 
 @dataclass(frozen=True)
 class NoiseTier:
-    """Annotation noise: target corner σ (px), reference endpoint σ (px), measurement model."""
+    """Annotation noise: target corner σ (px; with ``dof`` a Student-t of that standard deviation),
+    reference endpoint σ (px), measurement model (:func:`measurement_factor`)."""
 
     name: str
     target_px: float
     reference_px: float
     measurement: str  # "none", "10%", "40%" or "paper"
+    dof: float | None = None
 
 
 TIERS: dict[str, NoiseTier] = {
@@ -65,21 +83,22 @@ OBJECTS: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
         "kiosk": ((2.0, 3.5), (1.5, 3.0), (2.4, 3.2)),
     },
 }
+#: Share of each KITTI class among street objects (sizes from :data:`KITTI_SIZE_PRIORS`).
+STREET_MIX = {"Car": 0.6, "Van": 0.08, "Truck": 0.04, "Pedestrian": 0.18, "Cyclist": 0.1}
 
-#: Camera and distance ranges per setting (benchmark.md).
+#: Image, camera and distance ranges per setting (benchmark.md; street: KITTI-like).
 SETTINGS = {
-    "indoor": {"height": (1.0, 1.8), "pitch_deg": (0.0, 15.0), "distance": (2.25, 10.0)},
-    "outdoor": {"height": (1.2, 2.5), "pitch_deg": (0.0, 10.0), "distance": (8.0, 45.0)},
+    "indoor": {"image": (2880, 1800), "focal": (1000.0, 2600.0), "height": (1.0, 1.8), "pitch_deg": (0.0, 15.0),
+               "distance": (2.25, 10.0)},
+    "outdoor": {"image": (2880, 1800), "focal": (1000.0, 2600.0), "height": (1.2, 2.5), "pitch_deg": (0.0, 10.0),
+                "distance": (8.0, 45.0)},
+    "street": {"image": (1242, 375), "focal": (650.0, 1100.0), "height": (1.4, 1.9), "pitch_deg": (-3.0, 3.0),
+               "distance": (4.0, 60.0)},
 }
 
 #: The paper's ten measurement formats: (measure, mode, is_range).
 FORMATS = tuple((m, mode, r) for m in ("length", "width", "distance") for mode in ("direct", "relative")
                 for r in (False, True) if not (m == "distance" and mode == "relative"))
-
-
-def _u(rng, lohi):
-    return float(rng.uniform(*lohi))
-
 
 #: "Paper-like" worker measurements: the log of the error factor is ``scale · t_dof``, clipped to
 #: ±log(clip) (no worker is off by more than a factor ``clip``; the clip also keeps the mean
@@ -92,6 +111,7 @@ PAPER_NOISE = {"dof": 2.0, "scale": 0.75, "clip": 20.0}
 #: sd ≈ 20 % (paper Table 3: medians 18–29 %, means 26–37 %, sds 17–29 %), centred on the
 #: worker's (noisy) value.
 RANGE_PRECISION = {"median": 0.25, "log_sd": 0.6}
+_SIZES = ("length", "width", "height")
 
 
 def measurement_factor(rng, model: str, size=None):
@@ -117,20 +137,41 @@ def measurement_factor(rng, model: str, size=None):
     return float(out) if size is None else out
 
 
-def _measure_noise(rng, model: str) -> float:
-    return measurement_factor(rng, model)
+def class_priors(setting: str) -> dict[str, SizePrior]:
+    """The size prior of each class of a setting: KITTI's for ``street``; for ``indoor`` and
+    ``outdoor`` a log-normal over each :data:`OBJECTS` range (median its geometric centre, log-sd
+    that of a uniform over the log-range, at least 0.02)."""
+    if setting == "street":
+        return {k: KITTI_SIZE_PRIORS[k] for k in STREET_MIX}
+    return {name: SizePrior(tuple(math.sqrt(lo * hi) for lo, hi in r),
+                            tuple(max(math.log(hi / lo) / math.sqrt(12.0), 0.02) for lo, hi in r), "simulator")
+            for name, r in OBJECTS[setting].items()}
 
 
-def _place(rng, setting, R, f, pp, h, size, w_img, h_img, dist_range, need_inside, tries=400):
-    """Draw a ground position and yaw so that ``need_inside`` corner set lies in the image."""
+def _draw_object(rng, setting: str) -> tuple[str, tuple[float, float, float]]:
+    """A class and its true size (m): uniform in the :data:`OBJECTS` ranges, or a KITTI prior draw."""
+    if setting == "street":
+        names, p = zip(*STREET_MIX.items())
+        cls = str(rng.choice(names, p=np.array(p) / sum(p)))
+        prior = KITTI_SIZE_PRIORS[cls]
+        return cls, tuple(float(v) for v in np.exp(prior.log_median + rng.normal(0, 1, 3) * np.asarray(prior.log_sd)))
+    names = list(OBJECTS[setting])
+    cls = names[rng.integers(len(names))]
+    return cls, tuple(float(rng.uniform(*r)) for r in OBJECTS[setting][cls])
+
+
+def _place(rng, setting, R, f, pp, y, size, image, dist_range, need_inside, tries=400):
+    """A ground position (bottom centre at height ``y`` below the camera) and yaw whose
+    ``need_inside`` vertices lie in the image: (x, y, z, yaw, f), their pixels and points."""
+    w_img, h_img = image
     for _ in range(tries):
-        d = _u(rng, dist_range)
-        # bearing within the horizontal field of view
-        half_fov = math.atan2(0.45 * w_img, f)
+        if setting == "street":
+            d = math.exp(rng.uniform(math.log(dist_range[0]), math.log(dist_range[1])))
+        else:
+            d = float(rng.uniform(*dist_range))
+        half_fov = math.atan2(0.45 * w_img, f)  # bearing within the horizontal field of view
         bearing = rng.uniform(-half_fov, half_fov)
-        loc = np.array([d * math.sin(bearing), h, d * math.cos(bearing)])
-        yaw = rng.uniform(-math.pi, math.pi)
-        params = np.array([*loc, yaw, f])
+        params = np.array([d * math.sin(bearing), y, d * math.cos(bearing), rng.uniform(-math.pi, math.pi), f])
         verts = box_points(params, box_vertices(*size))
         uv, depth = project(verts, R, f, pp)
         if np.any(depth <= 0.1):
@@ -141,36 +182,38 @@ def _place(rng, setting, R, f, pp, h, size, w_img, h_img, dist_range, need_insid
     raise RuntimeError("could not place an object inside the image")
 
 
-def true_params(scene) -> np.ndarray:
-    """The true parameter vector of a simulated scene, shape (7,), in ``PARAM_NAMES`` order:
-    x, y, z (m), yaw (rad), focal length (px), pitch, roll (rad).
+def _nearest_first(params, size) -> tuple[int, np.ndarray]:
+    """The handedness and yaw (among the box's symmetries) that put corner c1 of the dimension
+    lines on the bottom corner nearest the camera, as a worker draws them."""
+    best = None
+    for s in (1, -1):
+        for k in (0.0, math.pi):
+            p = params.copy()
+            p[3] = (p[3] + k + math.pi) % (2 * math.pi) - math.pi
+            dist = float(np.linalg.norm(box_points(p, dimension_corners(*size, s))[0][[0, 2]]))
+            if best is None or dist < best[0]:
+                best = (dist, s, p)
+    return best[1], best[2]
 
-    Raises ValueError when the scene has no simulated ground truth (pitch and roll in its extras).
-    """
-    gt = scene.ground_truth
-    if gt is None or "pitch_rad" not in gt.extra or "roll_rad" not in gt.extra:
-        raise ValueError("scene: needs simulated ground truth (ground_truth.pitch_rad and roll_rad)")
-    return np.array([*gt.location_m, gt.yaw_rad, gt.focal_length_px, gt.extra["pitch_rad"],
-                     gt.extra["roll_rad"]], dtype=float)
 
-
-def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTier = "none",
-                   n_references: int = 5, n_target_annotations: int = 13,
-                   image_size: tuple[int, int] = (2880, 1800), principal_offset: float = 0.0,
-                   roll_deg: float = 3.0, target_id: str = "target",
-                   format_offset: int | None = None, distance_range: tuple[float, float] | None = None,
-                   single_values: bool = False, decimals: int | None = 2,
-                   confidence: ConfidentWorkers | None = None) -> dict:
+def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTier = "none", n_objects: int = 1,
+                   n_references: int = 5, n_target_annotations: int = 13, sizes: str = "known",
+                   principal_offset: float = 0.0, roll_deg: float = 3.0, format_offset: int | None = None,
+                   distance_range: tuple[float, float] | None = None, single_values: bool = False,
+                   decimals: int | None = 2, confidence: ConfidentWorkers | None = None, ground_sd_m: float = 0.08,
+                   horizon: str = "exact", focal_known: bool = False) -> dict:
     """Draw one synthetic scene.
 
     Parameters
     ----------
     rng : seed or Generator
-    setting : "indoor", "outdoor" or None (two thirds indoor)
+    setting : a key of :data:`SETTINGS`, or None (two thirds indoor, one third outdoor)
     tier : a key of :data:`TIERS` or a :class:`NoiseTier`
-    n_references : reference annotations (one object each), cycling through :data:`FORMATS`
-    n_target_annotations : noisy copies of the target's dimension lines
-    image_size : (width, height) pixels
+    n_objects : targets (fewer when the image cannot hold them side by side; at least one)
+    n_references : reference annotations (one object each), cycling through :data:`FORMATS`;
+        relative ones are relative to the first target
+    n_target_annotations : noisy copies of each target's dimension lines
+    sizes : ``known`` (the targets' sizes are stated) or ``prior`` (left to their class's prior)
     principal_offset : the principal point is moved from the centre by up to this fraction of
         the image size in each axis
     roll_deg : roll is drawn within ±roll_deg degrees
@@ -182,64 +225,80 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     decimals : image coordinates (corners, lines, horizon) are rounded to this many decimals, as
         annotation tools store them (2: 0.01 px); None keeps them exact
     confidence : a :class:`~.confidence_workers.ConfidentWorkers` pool: every reference is then a
-        range with a stated confidence, by a worker of the pool, with the pool's true confidence
-        map (the tier's measurement noise is not used; measure and mode follow the formats as
-        usual). None (default) leaves the scene exactly as without the option
+        range with a stated confidence, by a worker of the pool (the tier's measurement noise is
+        not used); None leaves the scene exactly as without the option
+    ground_sd_m : with several targets, the spread of their ground around the plane, metres
+    horizon : ``exact`` (the true horizon), ``none``, or ``sd`` (moved by N(0, 5 px) at each end
+        and stated with ``horizon_sd_px`` 5)
+    focal_known : state the true focal length
 
     Returns
     -------
-    dict, a ``creference-scene/1`` scene whose ``ground_truth`` carries camera height, pitch,
-    roll, handedness and the true reference lengths as extra keys.
+    dict, a ``creference-scene/2`` scene. Its ``ground_truth`` holds the camera's (focal length,
+    height, pitch, roll), the setting and tier and the references' true lengths and lines; each
+    target's holds its location, yaw, handedness, size, ground offset and true corners.
     """
     rng = np.random.default_rng(rng)
     if isinstance(tier, str):
         if tier not in TIERS:
             raise ValueError(f"tier: expected one of {list(TIERS)}, got {tier!r}")
         tier = TIERS[tier]
-    if n_target_annotations < 1 or n_references < 0:
-        raise ValueError(f"n_target_annotations must be >= 1 and n_references >= 0, got "
-                         f"{n_target_annotations!r} and {n_references!r}")
+    if n_target_annotations < 1 or n_references < 0 or n_objects < 1:
+        raise ValueError(f"n_target_annotations and n_objects must be >= 1 and n_references >= 0, got "
+                         f"{n_target_annotations!r}, {n_objects!r} and {n_references!r}")
+    for name, value, allowed in (("sizes", sizes, ("known", "prior")), ("horizon", horizon, ("exact", "none", "sd"))):
+        if value not in allowed:
+            raise ValueError(f"{name}: expected one of {list(allowed)}, got {value!r}")
     if setting is None:
         setting = "indoor" if rng.uniform() < 2 / 3 else "outdoor"
     if setting not in SETTINGS:
         raise ValueError(f"setting: expected one of {list(SETTINGS)}, got {setting!r}")
     cfg = SETTINGS[setting]
-    w_img, h_img = image_size
-    f = _u(rng, (1000.0, 2600.0))
-    h = _u(rng, cfg["height"])
-    pitch = math.radians(_u(rng, cfg["pitch_deg"]))
+    image = w_img, h_img = cfg["image"]
+    f = float(rng.uniform(*cfg["focal"]))
+    h = float(rng.uniform(*cfg["height"]))
+    pitch = math.radians(rng.uniform(*cfg["pitch_deg"]))
     roll = math.radians(rng.uniform(-roll_deg, roll_deg))
     pp = np.array([w_img / 2, h_img / 2]) * (1 + rng.uniform(-principal_offset, principal_offset, 2))
     R = rotation_from_pitch_roll(pitch, roll)
+    rnd = (lambda a: a) if decimals is None else (lambda a: np.round(a, decimals))
 
-    # target: the annotated corner c1 is the bottom corner nearest the camera
-    catalogue = OBJECTS[setting]
-    names = list(catalogue)
-    tname = names[rng.integers(len(names))]
-    size = tuple(round(_u(rng, r), 4) for r in catalogue[tname])  # as stated in the scene file
-    L, W, H = size
-    params, _, _ = _place(rng, setting, R, f, pp, h, size, w_img, h_img,
-                          cfg["distance"] if distance_range is None else distance_range,
-                          need_inside=np.arange(8))
-    best = None
-    for s in (1, -1):
-        for k in (0.0, math.pi):
-            p = params.copy()
-            p[3] = (p[3] + k + math.pi) % (2 * math.pi) - math.pi
-            c1 = box_points(p, dimension_corners(L, W, H, s))[0]
-            dist = float(np.linalg.norm(c1[[0, 2]]))
-            if best is None or dist < best[0]:
-                best = (dist, s, p)
-    _, handed, params = best
-    corners_true, _ = project(box_points(params, dimension_corners(L, W, H, handed)), R, f, pp)
-    lines = []
-    for i in range(n_target_annotations):
-        noisy = _round(corners_true + rng.normal(0.0, tier.target_px, corners_true.shape), decimals)
-        lines.append({"worker": f"t{i + 1:02d}", "corners": noisy.tolist(),
-                      "seconds": 183.5})
+    targets, placed = [], []
+    for _ in range(20 * n_objects):
+        if len(targets) == n_objects:
+            break
+        i = len(targets)
+        ground = float(rng.normal(0.0, ground_sd_m)) if n_objects > 1 and ground_sd_m > 0 else 0.0
+        cls, size = _draw_object(rng, setting)
+        size = tuple(round(v, 4) for v in size)  # as stated in the scene file
+        try:
+            params, _, _ = _place(rng, setting, R, f, pp, h - ground, size, image,
+                                  cfg["distance"] if distance_range is None else distance_range, np.arange(8))
+        except RuntimeError:
+            if i == 0:
+                raise
+            continue
+        if any(math.hypot(params[0] - p[0], params[2] - p[2]) < 0.6 * (max(size[:2]) + r) for p, r in placed):
+            continue  # boxes must not overlap on the ground
+        placed.append((params, max(size[:2])))
+        handed, params = _nearest_first(params, size)
+        corners, _ = project(box_points(params, dimension_corners(*size, handed)), R, f, pp)
+        lines = []
+        for k in range(n_target_annotations):
+            if tier.dof is None:
+                noise = rng.normal(0.0, tier.target_px, corners.shape)
+            else:  # a Student-t with the tier's standard deviation
+                noise = tier.target_px * math.sqrt((tier.dof - 2) / tier.dof) * rng.standard_t(tier.dof, corners.shape)
+            lines.append({"worker": f"t{k + 1:02d}", "corners": rnd(corners + noise).tolist(), "seconds": 183.5})
+        dims = dict(zip(_SIZES, size))
+        targets.append({"id": "target" if n_objects == 1 else f"t{i}", "class": cls,
+                        **({"dimensions_m": dims} if sizes == "known" else {}), "dimension_lines": lines,
+                        "ground_truth": {"location_m": params[:3].tolist(), "yaw_rad": float(params[3]),
+                                         "handedness": handed, "dimensions_m": dims, "ground_m": ground,
+                                         "corners_px": corners.tolist()}})
 
-    # references
     refs, truths, true_lines = [], [], []
+    first = targets[0]["ground_truth"]["dimensions_m"]
     dmin, dmax = cfg["distance"]
     order = rng.permutation(len(FORMATS))
     if format_offset is not None:
@@ -247,37 +306,31 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     for j in range(n_references):
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
         is_range = (is_range and not single_values) or confidence is not None
-        oname = names[rng.integers(len(names))]
-        osize = tuple(_u(rng, r) for r in catalogue[oname])
-        oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, w_img, h_img,
-                                      (max(1.0, 0.5 * dmin), 1.3 * dmax), need_inside=np.arange(4))
+        oname, osize = _draw_object(rng, setting)
+        oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
+                                      (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
         near = int(np.argmin(np.linalg.norm(overts[:4, [0, 2]], axis=1)))
-        if measure == "length":  # bottom edge along the length from the nearest corner
-            a, b = near, {0: 1, 1: 0, 2: 3, 3: 2}[near]
-            seg_uv, seg_3d = ouv[[a, b]], overts[[a, b]]
-        elif measure == "width":
-            a, b = near, {0: 3, 3: 0, 1: 2, 2: 1}[near]
-            seg_uv, seg_3d = ouv[[a, b]], overts[[a, b]]
+        if measure in ("length", "width"):  # a bottom edge from the nearest corner
+            other = ({0: 1, 1: 0, 2: 3, 3: 2} if measure == "length" else {0: 3, 3: 0, 1: 2, 2: 1})[near]
+            seg_uv, seg_3d = ouv[[near, other]], overts[[near, other]]
         else:  # distance: ground line from the image's bottom edge up to the object's nearest corner
             q_uv = ouv[near]
-            # the pixel on the bottom edge below it (it sees the ground, since pitch >= 0)
             p_uv = np.array([max(float(q_uv[0]), 1.0), float(h_img - 1)])
             p_3d = _backproject(R, f, pp, h, p_uv)
             seg_uv, seg_3d = np.array([p_uv, q_uv]), np.array([p_3d, overts[near]])
         true_len = float(np.linalg.norm(seg_3d[1] - seg_3d[0]))
         if confidence is None:
-            stated = true_len * _measure_noise(rng, tier.measurement)
+            stated = true_len * measurement_factor(rng, tier.measurement)
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
         line = seg_uv + rng.normal(0.0, tier.reference_px, (2, 2))
         line[:, 0] = np.clip(line[:, 0], 0, w_img)
         line[:, 1] = np.clip(line[:, 1], 0, h_img)
-        line = _round(line, decimals)
         ref = {"worker": f"r{j + 1:02d}", "object": oname, "measure": measure, "mode": mode}
         if mode == "relative":
-            base = L if measure == "length" else W
-            value, unit = stated / base, None
+            value, unit = stated / first[measure], None
+            ref["target"] = targets[0]["id"]
         else:
             unit = ["m", "ft", "in", "yd"][rng.integers(4)]
             value = stated / UNITS_TO_M[unit]
@@ -286,41 +339,84 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
             ref.update(worker=worker, confidence=conf,
                        range=[_sig(true_len * f_low * per_metre), _sig(true_len * f_high * per_metre)])
         elif is_range:
-            precision = float(np.exp(rng.normal(math.log(RANGE_PRECISION["median"]),
-                                                RANGE_PRECISION["log_sd"])))
-            precision = min(precision, 1.9)  # keep the low end positive
+            precision = min(float(np.exp(rng.normal(math.log(RANGE_PRECISION["median"]), RANGE_PRECISION["log_sd"]))),
+                            1.9)  # keep the low end positive
             ref["range"] = [_sig(value * (1 - precision / 2)), _sig(value * (1 + precision / 2))]
         else:
             ref["value"] = _sig(value)
         if unit is not None:
             ref["unit"] = unit
-        ref["line"] = line.tolist()
-        ref["seconds"] = 64.4
-        refs.append(ref)
+        refs.append({**ref, "line": rnd(line).tolist(), "seconds": 64.4})
         truths.append(true_len)
         true_lines.append(seg_uv.tolist())
 
-    horizon = _round(horizon_from_rotation(R, f, pp, w_img), decimals)
-    return {
-        "format": SCENE_FORMAT,
-        "image": {"width": int(w_img), "height": int(h_img)},
-        "camera": {"principal_point": pp.tolist(), "focal_length_px": None},
-        "horizon": horizon.tolist(),
-        "target": {"id": target_id,
-                   "dimensions_m": {"length": L, "width": W, "height": H},
-                   "dimension_lines": lines},
-        "references": refs,
-        "ground_truth": {
-            "location_m": params[:3].tolist(), "yaw_rad": float(params[3]), "focal_length_px": f,
-            "camera_height_m": h, "pitch_rad": pitch, "roll_rad": roll, "handedness": handed,
-            "setting": setting, "tier": tier.name, "target_object": tname, "reference_lengths_m": truths,
-            "reference_lines_px": true_lines, "target_corners_px": corners_true.tolist(),
-        },
-    }
+    scene = {"format": "creference-scene/2", "image": {"width": int(w_img), "height": int(h_img)},
+             "camera": {"principal_point": pp.tolist(), "focal_length_px": f if focal_known else None}}
+    if horizon != "none":
+        pts = horizon_from_rotation(R, f, pp, w_img)
+        if horizon == "sd":
+            pts = pts + np.column_stack([np.zeros(2), rng.normal(0, 5.0, 2)])
+            scene["horizon_sd_px"] = 5.0
+        scene["horizon"] = rnd(pts).tolist()
+    if sizes == "prior" and setting != "street":
+        scene["classes"] = {k: v.to_dict() for k, v in class_priors(setting).items()}
+    scene.update(targets=targets, references=refs, ground_truth={
+        "focal_length_px": f, "camera_height_m": h, "pitch_rad": pitch, "roll_rad": roll, "setting": setting,
+        "tier": tier.name, "reference_lengths_m": truths, "reference_lines_px": true_lines})
+    return scene
 
 
-def _round(a: np.ndarray, decimals: int | None) -> np.ndarray:
-    return a if decimals is None else np.round(a, decimals)
+def true_state(scene) -> tuple[np.ndarray, np.ndarray]:
+    """The true camera (5,) and objects (m, 7) of a simulated scene (a parsed
+    :class:`~creference_bayes.io.scene.Scene`), in the model's block order (the crowd scale at its
+    prior median); ValueError when the scene has no simulated ground truth."""
+    g = scene.ground_truth or {}
+    if any(k not in g for k in ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")):
+        raise ValueError("scene: needs simulated ground truth (ground_truth.focal_length_px, camera_height_m, "
+                         "pitch_rad and roll_rad)")
+    camera = np.array([g["focal_length_px"], g["pitch_rad"], g["roll_rad"], g["camera_height_m"], REF_SCALE_MEDIAN])
+    objects = []
+    for t in scene.targets:
+        x, y, z = t.ground_truth["location_m"]
+        d = t.ground_truth["dimensions_m"]
+        objects.append([x, z, t.ground_truth["yaw_rad"], d["length"], d["width"], d["height"], camera[3] - y])
+    return camera, np.array(objects, float)
+
+
+def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str | None = None,
+                 *, overwrite: bool = False, noise_px: float | None = None, **options) -> list[Path]:
+    """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
+
+    ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); ``noise_px`` replaces
+    its corner noise; reference formats cycle so that every ten references cover the ten formats
+    once each. Each file is written whole or not at all. ``options`` go to :func:`simulate_scene`
+    (``n_objects``, ``sizes``, ``confidence``, …).
+
+    Raises
+    ------
+    FileExistsError
+        When ``outdir`` exists and is not empty, unless ``overwrite`` (files of the same name are
+        then replaced; other files are left alone).
+    """
+    from ..io.files import atomic_write_text
+
+    outdir = Path(outdir)
+    if not overwrite and outdir.is_dir() and any(outdir.iterdir()):
+        raise FileExistsError(errno.EEXIST, "folder is not empty (overwrite=True replaces its scenes)", str(outdir))
+    outdir.mkdir(parents=True, exist_ok=True)
+    if tier != "all" and tier not in TIERS:
+        raise ValueError(f"tier: expected one of {[*TIERS, 'all']}, got {tier!r}")
+    tiers = [TIERS[t] for t in (TIERS if tier == "all" else [tier])]
+    if noise_px is not None:
+        tiers = [replace(t, target_px=float(noise_px)) for t in tiers]
+    paths = []
+    for i in range(n):
+        d = simulate_scene(np.random.default_rng([seed, i]), setting=setting, tier=tiers[i % len(tiers)],
+                           format_offset=5 * i, **options)
+        p = outdir / f"scene_{i:04d}.json"
+        atomic_write_text(p, json.dumps(d, indent=1) + "\n")
+        paths.append(p)
+    return paths
 
 
 def _sig(x: float, digits: int = 4) -> float:
@@ -329,8 +425,6 @@ def _sig(x: float, digits: int = 4) -> float:
 
 
 def _backproject(R, f, pp, h, uv):
-    """Ground point (Y = h) seen at pixel ``uv`` by a camera with rotation R (a bare R, no horizon
-    line, so :meth:`~creference_bayes.core.geometry.Camera.backproject_to_ground` does not apply)."""
+    """Ground point (Y = h) seen at pixel ``uv`` by a camera with rotation R."""
     d = np.array([(uv[0] - pp[0]) / f, (uv[1] - pp[1]) / f, 1.0]) @ R
     return d * (h / d[1])
-

@@ -35,35 +35,42 @@ def _settings(args):
 
 
 def _one(args, settings, progress: bool) -> int:
+    import json
+
     from ..io.files import atomic_write_json
+    from ..io.result import RESULT_FORMATS
     from ..io.scene import SceneError, load_scene
-    from ..workflows.advice.inputs import (advice_table, advise_result, advise_scene, load_result,
-                                           scene_for_result)
+    from ..workflows.advice.inputs import advice_table, advise_result, advise_scene, scene_for_result
 
     check_output_file("--out", args.out)
     path = Path(args.input)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
-    result = load_result(path)
     try:
-        if result is not None:
-            scene = scene_for_result(path, result, args.scene)
-            advice = advise_result(result, scene, seed=args.seed, settings=settings, progress=progress)
-            hdi = ((result.get("posterior") or {}).get("hdi") or {}).get("distance_m")
+        d = json.loads(read_text(path))
+    except (UnicodeDecodeError, ValueError):
+        d = None  # not JSON: the scene reader says what is wrong
+    try:
+        if isinstance(d, dict) and d.get("format") in RESULT_FORMATS:
+            scene = scene_for_result(path, d, args.scene)
+            advice = advise_result(d, scene, seed=args.seed, settings=settings, progress=progress)
+            objects = d.get("objects") or [{}]
         else:
             if args.scene is not None:
                 raise UsageError("--scene: only for a result file (INPUT is a scene)")
-            advice, estimated = advise_scene(load_scene(path), seed=args.seed, settings=settings,
-                                             progress=progress)
-            hdi = estimated.posterior.hdi.get("distance_m")
+            advice, estimated = advise_scene(load_scene(path), seed=args.seed, settings=settings, progress=progress)
+            objects = estimated.to_dict()["objects"]
+        hdi = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in objects]
     except SceneError:
         raise
+    except (KeyError, TypeError) as exc:
+        raise UsageError(f"{path}: the model cannot be rebuilt from it ({exc!r})") from None
     except ValueError as exc:
         raise UsageError(" ".join(str(exc).split())) from None
     if args.out is not None:
         atomic_write_json(args.out, advice.to_dict())
     if not args.quiet:
-        print(advice_table(advice, hdi))
+        print(advice_table(advice, hdi if len(hdi) == len(advice.targets) else None))
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0
@@ -84,12 +91,12 @@ def _batch(args, settings, progress: bool) -> int:
     if not args.quiet:
         rows = request_rows(batch, args.budget)
         for r in rows[:10]:
-            print(f"{r['rank']:>4}  {r['key']}  {r['request']}  (+{float(r['gain_pts_per_minute']):.3f} "
+            print(f"{r['rank']:>4}  {r['key']}  {r['target']}  {r['request']}  (+{float(r['gain_pts_per_minute']):.3f} "
                   f"points/min; HDI {r['hdi_now_pct']} % -> {r['hdi_expected_pct']} %)")
         if len(rows) > 10:
             print(f"      … {len(rows) - 10} more in {paths['requests']}")
         stop = len(batch.objects) - len(batch.requests)
-        print(f"{len(batch.objects)} objects advised: {len(rows)} requests "
+        print(f"{len(batch.objects)} targets advised: {len(rows)} requests "
               f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time), {stop} need none; "
               f"{len(batch.skipped)} skipped; wrote {out} (advice.json, requests.csv, "
               f"label_studio_requests.json, cvat_requests.xml)")
@@ -107,41 +114,25 @@ def _run(args) -> int:
         raise UsageError("--budget: only for a batch folder")
     if args.workers != 1:
         raise UsageError("--workers: only for a batch folder")
-    if _is_frame(args.input):
-        from .frame_plot import run_frame_advise
-
-        return run_frame_advise(args, settings)
     return _one(args, settings, progress)
-
-
-def _is_frame(path) -> bool:
-    """A ``creference-scene/2`` frame or its ``creference-result/2``."""
-    import json
-
-    try:
-        d = json.loads(read_text(path))
-    except (OSError, ValueError):
-        return False
-    return isinstance(d, dict) and d.get("format") in ("creference-scene/2", "creference-result/2")
 
 
 def register(subparsers) -> None:
     """Add ``advise`` to the ``creference`` command."""
     p = subparsers.add_parser(
         "advise", help="which annotation to collect next, or whether to stop",
-        description="For the posterior of a target, the expected effect of one more set of target "
-                    "dimension lines and of one more reference on each object already referenced, "
-                    "on the width of the 90 % HDI of the distance, the location's sd and the label "
-                    "quality, per minute of human time (preposterior simulation under the model's "
-                    "noise model); a ranked table and a recommendation. On a batch folder: every "
-                    "object ranked and the request list for the crowd (requests.csv, Label Studio "
-                    "tasks, CVAT XML). On a frame (creference-scene/2 or its creference-result/2): "
-                    "which object and which annotation next, predicted from the Laplace approximation "
-                    "at the MAP (docs/advice.md#frames).")
+        description="For the posterior of a scene (one target or many), the expected effect of each "
+                    "annotation the scene allows (one more set of dimension lines on a target, one more "
+                    "reference on a segment, a distance to a target, a target's length, the distance "
+                    "between two targets) on every target's 90 % HDI of the distance, location sd and "
+                    "label quality, per minute of human time (preposterior simulation over the posterior "
+                    "draws under the model's noise model); a ranked table and a recommendation. On a "
+                    "batch folder: every target ranked and the request list for the crowd (requests.csv, "
+                    "Label Studio tasks, CVAT XML).")
     p.add_argument("input", metavar="INPUT",
-                   help="a scene file (estimated first), a result file of the metrology model, a frame "
-                        "(creference-scene/2) or its result (creference-result/2), or a folder "
-                        "written by creference batch")
+                   help="a scene file (estimated first), a result file of the metrology model (its "
+                        "posterior draws, else the Laplace approximation at its MAP), or a folder written "
+                        "by creference batch")
     p.add_argument("--out", metavar="PATH", default=None,
                    help="a scene or result: write the advice as JSON to PATH; a batch folder: the "
                         "folder for the advice files (default: BATCH_DIR/advice)")
@@ -149,12 +140,13 @@ def register(subparsers) -> None:
                    help="the scene of a result file (default: the batch copy, or the file the "
                         "result names next to it)")
     p.add_argument("--target-hdi-width", type=float, default=0.10, metavar="F",
-                   help="stop when the 90 %% HDI of the distance is at most this share of it "
-                        "(default: %(default)s, i.e. 10 %%)")
+                   help="stop when every target's 90 %% HDI of the distance is at most this share of "
+                        "it (default: %(default)s, i.e. 10 %%)")
     p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
                    help="stop when the best expected gain is below G points of the distance (HDI "
                         "width in percent of the distance) per minute of human time (default: %(default)s)")
-    p.add_argument("--seed", type=seed_value, default=0, help="seed of the estimate and the simulation (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0,
+                   help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--draws", type=int, default=600, metavar="N",
                    help="posterior draws used, thinned evenly (default: %(default)s)")
     p.add_argument("--futures", type=int, default=150, metavar="M",
@@ -163,7 +155,7 @@ def register(subparsers) -> None:
                    help="a batch folder: list requests, best first, until their human time reaches "
                         "this many seconds (default: every object that should get one)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="a batch folder: advise on N objects at once in local processes (default: %(default)s)")
+                   help="a batch folder: advise on N scenes at once in local processes (default: %(default)s)")
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
                    help="how the Label Studio requests draw a segment, as the project's labelling "
                         "config does (default: %(default)s)")

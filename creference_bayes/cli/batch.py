@@ -1,15 +1,14 @@
-"""``creference batch INPUTS... --out DIR``: estimate every scene of a data set, one-target scenes
-and frames (docs/batch.md)."""
+"""``creference batch INPUTS... --out DIR``: estimate every scene of a data set (docs/batch.md)."""
 
 from __future__ import annotations
 
 import math
 import sys
 
-from ..inference.optimize import PRESETS
+from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
-                       confidence_map_option)
+                       confidence_map_option, load_classes)
 from .main import UsageError, seed_value
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -21,23 +20,21 @@ EXIT_FAILED = 1
 def _settings(args):
     from ..workflows.batch import BatchSettings
 
-    from .frame import _load_classes
-
     check_posterior_values(args)
-    frame_sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
-    if args.max_iterations is not None:
-        if args.max_iterations < 20:
-            raise UsageError(f"--max-iterations: expected an integer >= 20, got {args.max_iterations}")
-        # the sampler checks convergence every `chunk` iterations: a smaller cap gets a smaller chunk
-        frame_sampling.update(max_iterations=args.max_iterations, chunk=min(400, args.max_iterations))
+    sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
+    if args.max_steps is not None:
+        if args.max_steps < 10:
+            raise UsageError(f"--max-steps: expected an integer >= 10, got {args.max_steps}")
+        # the sampler checks convergence every `chunk` steps: a smaller cap gets a smaller chunk
+        sampling.update(max_steps=args.max_steps, chunk=min(100, args.max_steps))
     try:
         return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                              posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                              temperature=args.temperature, use_references=not args.no_references,
-                             sampling={} if args.min_ess is None else {"min_ess": args.min_ess},
-                             focal_prior=args.focal_prior, orientation=args.orientation,
-                             location_prior=args.location_prior, confidence_map=confidence_map_option(args.confidence_map, args.model),
-                             frame_sampling=frame_sampling, classes=_load_classes(args.classes) or {})
+                             sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
+                             location_prior=args.location_prior,
+                             confidence_map=confidence_map_option(args.confidence_map, args.model),
+                             classes=load_classes(args.classes) or {})
     except ValueError as exc:  # a sampler setting out of range
         raise UsageError(str(exc)) from None
 
@@ -82,8 +79,8 @@ def register(subparsers) -> None:
     """Add ``batch`` to the ``creference`` command."""
     p = subparsers.add_parser(
         "batch", help="estimate every scene of a data set, locally or on a Dask cluster",
-        description="Estimate every scene file (folders: every *.json below them; one-target "
-                    "creference-scene/1 scenes and creference-scene/2 frames, mixed as they come) into a batch "
+        description="Estimate every scene file (folders: every *.json below them; creference-scene/1 "
+                    "or /2, one target or many) into a batch "
                     "folder: results/, scenes/ (copies), errors/, summary.csv, batch.json. A rerun "
                     "skips scenes whose result is up to date. Exit status 0 when every scene "
                     "succeeded, 1 when some failed, 2 for an invalid command line.")
@@ -99,11 +96,11 @@ def register(subparsers) -> None:
     p.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
                    help="a scene still running after this long is recorded as failed (default: none)")
     p.add_argument("--preset", default="default", choices=PRESETS,
-                   help="optimiser preset of one-target scenes (default: %(default)s)")
+                   help="optimiser preset (default: %(default)s)")
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
-                   help="likelihood model of one-target scenes; frames use the frame model (default: %(default)s)")
+                   help="likelihood model (default: %(default)s)")
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
-                   help="frames: size priors of your own classes (docs/frames.md); a scene's own win")
+                   help="size priors of your own classes (docs/overview.md, Class size priors); a scene's own win")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
@@ -116,8 +113,8 @@ def register(subparsers) -> None:
     g.add_argument("--temperature", type=float, default=None, metavar="T",
                    help="temperature of the posterior (default: the model's)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
-                   help="bulk effective sample size to reach (default: 1000; frames 400)")
-    g.add_argument("--max-iterations", type=int, default=None, metavar="N",
-                   help="frames: cap on the sampler's iterations; a frame that has not converged by "
-                        "then says so in its result (default: 20000)")
+                   help="bulk effective sample size to reach (default: 400)")
+    g.add_argument("--max-steps", type=int, default=None, metavar="N",
+                   help="cap on the sampler's steps; a scene that has not converged by then says so in "
+                        "its result (default: 20000)")
     p.set_defaults(func=_run_batch)

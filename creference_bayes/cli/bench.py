@@ -7,7 +7,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from ..bench.runner import CONFIGS, plain, run_bench, write_scenes
+from ..bench.runner import CONFIGS, plain, run_bench
 from ..bench.simulate import SETTINGS, TIERS
 from ..io.files import atomic_write_text
 from .main import UsageError, seed_value
@@ -19,123 +19,51 @@ __all__ = ["register", "BENCH_TIMES"]
 BENCH_TIMES = {"quick": "under a minute", "full": "about 30 minutes"}
 
 
+def _say(args):
+    return (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+
+
+def _out(args) -> Path:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _check_temperature(args) -> None:
+    if args.temperature is not None and not args.temperature > 0:
+        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
+
+
 def _run_bench_command(args) -> int:
     from ..bench.peers import INSTALL_HINT, poselib_available
     from ..bench.report import markdown_report
 
-    if args.frames:
-        return _run_frame_bench(args)
+    _check_temperature(args)
     if args.sbc:
         return _run_sbc(args)
-    config = CONFIGS["full" if args.full else "quick"]
+    config = CONFIGS[("frames" if args.frames else "full" if args.full else "quick")
+                     + ("-full" if args.frames and args.full else "")]
     if args.paper_restarts is not None:
         if args.paper_restarts < 1:
             raise UsageError(f"--paper-restarts: expected an integer >= 1, got {args.paper_restarts}")
         config = replace(config, paper_restarts=args.paper_restarts)
-    if args.temperature is not None and not args.temperature > 0:
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    if not poselib_available():
-        print(f"note: p4pf skipped ({INSTALL_HINT})", file=sys.stderr)
-    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=say,
+    out = _out(args)
+    note = "" if poselib_available() or not config.scenes else f"p4pf skipped: {INSTALL_HINT}"
+    if note and not args.quiet:
+        print(f"note: {note}", file=sys.stderr)
+    doc = run_bench(config, seed=args.seed, temperature=args.temperature, progress=_say(args),
                     progress_bar=not args.quiet and sys.stderr.isatty())
-    report = markdown_report(doc)
-    if not poselib_available():
-        report += f"\n\np4pf skipped: {INSTALL_HINT}\n"
+    report = markdown_report(doc) + (f"\n\n{note}\n" if note else "")
     atomic_write_text(out / "bench.json", json.dumps(plain(doc), indent=1, allow_nan=False) + "\n")
     atomic_write_text(out / "bench.md", report + "\n")
     paths = []
-    if not args.no_figures:
+    if not args.no_figures and config.scenes:
         from ..bench.figures import write_figures
 
         paths = write_figures(doc, out)
     if not args.quiet:
         print(report)
         print(f"\nwrote {out / 'bench.json'}, {out / 'bench.md'}" + "".join(f", {p}" for p in paths))
-    return 0
-
-
-#: Defaults of ``simulate``'s options that --from-kitti does not take (given otherwise: an error).
-_SIMULATE_DEFAULTS = {"kind": "street"}
-
-
-def _run_simulate_command(args) -> int:
-    if args.outdir is None and args.out_dir is None:
-        raise UsageError("simulate: give the output folder (OUTDIR or --out)")
-    if args.outdir is not None and args.out_dir is not None and args.outdir != args.out_dir:
-        raise UsageError(f"simulate: two output folders, {args.outdir} and --out {args.out_dir}")
-    args.outdir = args.outdir or args.out_dir
-    if args.sizes != "prior" and args.from_kitti is None:
-        raise UsageError(f"--sizes {args.sizes}: only with --from-kitti (simulated frames draw their own sizes)")
-    if args.from_kitti is not None:
-        from .frame import run_kitti_simulate
-
-        given = [f"--{name.replace('_', '-')}" for name in ("n", "objects", "kind", "tier", "setting", "confidence")
-                 if getattr(args, name) not in (None, "all", _SIMULATE_DEFAULTS.get(name))]
-        given += [f"--{name.replace('_', '-')}" for name in ("focal_known",) if getattr(args, name)]
-        given += ["--horizon"] if args.horizon != "none" else []
-        if given:
-            raise UsageError(f"{', '.join(given)}: not with --from-kitti (its frames are KITTI's own images, "
-                             "objects and cameras; --annotations, --noise-px, --sizes and --seed apply)")
-
-        return run_kitti_simulate(args)
-    if args.n is None:
-        raise UsageError("--n: the number of scenes is required (unless --from-kitti)")
-    if args.objects is not None:
-        from .frame import run_frame_simulate
-
-        return run_frame_simulate(args)
-    if args.n < 1:
-        raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
-    out = Path(args.outdir)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"{out}: not a folder")
-    if not args.overwrite and out.is_dir() and any(out.iterdir()):
-        raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite "
-                         "(replaces scene_NNNN.json files of the same name)")
-    options = {}
-    if args.confidence is not None:
-        from ..bench.confidence_workers import TRUE_MAPS, ConfidentWorkers
-
-        try:
-            true_map = args.confidence if args.confidence in TRUE_MAPS else float(args.confidence)
-        except ValueError:
-            raise UsageError(f"--confidence: expected one of {list(TRUE_MAPS)} or a width factor > 0, "
-                             f"got {args.confidence!r}") from None
-        if args.confidence_workers < 1:
-            raise UsageError(f"--confidence-workers: expected an integer >= 1, got {args.confidence_workers}")
-        try:
-            options["confidence"] = ConfidentWorkers.pool(true_map, n_workers=args.confidence_workers,
-                                                          seed=[args.seed, 1])
-        except ValueError as exc:
-            raise UsageError(f"--confidence: {exc}") from None
-    paths = write_scenes(out, args.n, seed=args.seed, tier=args.tier, setting=args.setting,
-                         overwrite=True, **options)
-    if not args.quiet:
-        print(f"wrote {len(paths)} scenes to {args.outdir}")
-    return 0
-
-
-def _run_frame_bench(args) -> int:
-    """``creference bench --frames``: the frame benchmark (docs/benchmark_results.md, "Frames")."""
-    from ..bench.frame_bench import frame_tables, rows_to_json, run_frame_bench
-
-    if args.full:
-        kw = dict(counts=(3, 8, 15), frames=4, tiers=("low", "high"))
-    else:
-        kw = dict(counts=(3, 6), frames=1, tiers=("low",), sampling={"max_iterations": 2000})
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    rows = run_frame_bench(seed=args.seed, progress=say, **kw)
-    table = frame_tables(rows)
-    atomic_write_text(out / "frame_bench.json", json.dumps(rows_to_json(rows), indent=1, allow_nan=False) + "\n")
-    atomic_write_text(out / "frame_bench.md", table + "\n")
-    if not args.quiet:
-        print(table)
-        print(f"\nwrote {out / 'frame_bench.json'}, {out / 'frame_bench.md'}")
     return 0
 
 
@@ -146,13 +74,9 @@ def _run_sbc(args) -> int:
     n = args.sbc_scenes if args.sbc_scenes is not None else (60 if args.full else 4)
     if n < 1:
         raise UsageError(f"--sbc-scenes: expected an integer >= 1, got {n}")
-    if args.temperature is not None and not args.temperature > 0:
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    out = _out(args)
     sampling = {"min_ess": 400} if args.full else {"min_ess": 200, "max_steps": 3000}
-    records = run_sbc(n, seed=args.seed, temperature=args.temperature, sampling=sampling, progress=say)
+    records = run_sbc(n, seed=args.seed, temperature=args.temperature, sampling=sampling, progress=_say(args))
     summary = sbc_summary(records)
     doc = {"n_scenes": n, "seed": args.seed, "temperature": args.temperature, "sampling": sampling,
            "summary": summary, "records": records}
@@ -163,14 +87,87 @@ def _run_sbc(args) -> int:
     if not args.no_figures:
         from ..vision.plotting import plot_sbc_ranks
 
-        fig = plot_sbc_ranks(summary)
         tmp = out / ".sbc_ranks.tmp.png"
-        fig.savefig(tmp, dpi=110)
+        plot_sbc_ranks(summary).savefig(tmp, dpi=110)
         tmp.replace(out / "sbc_ranks.png")
         paths.append(out / "sbc_ranks.png")
     if not args.quiet:
         print(table)
         print(f"\nwrote {out / 'sbc.json'}, {out / 'sbc.md'}" + "".join(f", {p}" for p in paths))
+    return 0
+
+
+#: Options of ``simulate`` that --from-kitti does not take, with their defaults (given otherwise: an error).
+_NOT_FROM_KITTI = {"n": None, "objects": 1, "tier": "all", "setting": None, "confidence": None, "references": 5,
+                   "horizon": "exact", "focal_known": False}
+
+
+def _run_simulate_command(args) -> int:
+    if args.outdir is None and args.out_dir is None:
+        raise UsageError("simulate: give the output folder (OUTDIR or --out)")
+    if args.outdir is not None and args.out_dir is not None and args.outdir != args.out_dir:
+        raise UsageError(f"simulate: two output folders, {args.outdir} and --out {args.out_dir}")
+    out = Path(args.outdir or args.out_dir)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder")
+    if not args.overwrite and out.is_dir() and any(out.iterdir()):
+        raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite "
+                         "(replaces files of the same name)")
+    for name in ("annotations", "objects", "confidence_workers"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise UsageError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
+    if args.references < 0:
+        raise UsageError(f"--references: expected an integer >= 0, got {args.references}")
+    if args.noise_px is not None and not args.noise_px >= 0:
+        raise UsageError(f"--noise-px: expected a number >= 0, got {args.noise_px}")
+    if args.from_kitti is not None:
+        return _run_kitti(args, out)
+    if args.n is None:
+        raise UsageError("--n: the number of scenes is required (unless --from-kitti)")
+    if args.n < 1:
+        raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
+    from ..bench.simulate import write_scenes
+
+    options = {"n_objects": args.objects, "n_references": args.references, "sizes": args.sizes or "known",
+               "n_target_annotations": 13 if args.annotations is None else args.annotations,
+               "horizon": args.horizon, "focal_known": args.focal_known, "noise_px": args.noise_px}
+    if args.confidence is not None:
+        from ..bench.confidence_workers import TRUE_MAPS, ConfidentWorkers
+
+        try:
+            true_map = args.confidence if args.confidence in TRUE_MAPS else float(args.confidence)
+            options["confidence"] = ConfidentWorkers.pool(true_map, n_workers=args.confidence_workers,
+                                                          seed=[args.seed, 1])
+        except ValueError as exc:
+            raise UsageError(f"--confidence: expected one of {list(TRUE_MAPS)} or a width factor > 0 "
+                             f"({exc})") from None
+    paths = write_scenes(out, args.n, seed=args.seed, tier=args.tier, setting=args.setting, overwrite=True, **options)
+    if not args.quiet:
+        print(f"wrote {len(paths)} scenes to {out}")
+    return 0
+
+
+def _run_kitti(args, out: Path) -> int:
+    """``creference simulate --from-kitti DIR --out SCENES``: scenes on KITTI's real geometry."""
+    from ..bench.kitti import kitti_scenes
+
+    given = [f"--{k.replace('_', '-')}" for k, v in _NOT_FROM_KITTI.items() if getattr(args, k) != v]
+    if given:
+        raise UsageError(f"{', '.join(given)}: not with --from-kitti (its scenes are KITTI's own images, objects "
+                         "and cameras; --annotations, --noise-px, --sizes and --seed apply)")
+    src = Path(args.from_kitti)
+    if not (src / "label_2").is_dir() or not (src / "calib").is_dir():
+        raise UsageError(f"--from-kitti {src}: not a KITTI folder (needs label_2/ and calib/)")
+    try:
+        totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
+                              noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
+                              sizes=args.sizes or "prior")
+    except ValueError as exc:  # a malformed label or calib file: its message names file and line
+        raise UsageError(str(exc)) from None
+    if not args.quiet:
+        skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
+        print(f"wrote {totals['scenes']} scenes with {totals['kept']} objects to {out}"
+              + (f" (left out: {skipped})" if skipped else ""))
     return 0
 
 
@@ -199,27 +196,28 @@ def register(subparsers) -> None:
                    help="posterior temperature of the paper model (default: the package's); with --sbc, "
                         "of the metrology model (a T below 1 makes it over-confident: the check must see it)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
-    p.add_argument("--frames", action="store_true",
-                   help="the frame benchmark instead: simulated frames of several objects, joint against one "
-                        "at a time and the frame bound (--quick: 2 frames; --full: 24 frames of 3–15 objects)")
-    p.add_argument("--sbc", action="store_true",
-                   help="simulation-based calibration instead: parameters drawn from the model's prior "
-                        "(within a box of plausible scenes), annotations from its noise model, ranks of "
-                        "the truth among the posterior's draws (distance, focal length, pitch, roll) for "
-                        "thin designs (1 set of lines, 0-2 references) and full ones (5 + 5); writes "
-                        "sbc.md, sbc.json, sbc_ranks.png (--quick: 4 scenes a design; --full: 60)")
+    kind = p.add_mutually_exclusive_group()
+    kind.add_argument("--frames", action="store_true",
+                      help="scenes of several targets instead: simulated street scenes, every object estimated "
+                           "jointly and alone, beside the scene's bound (--quick: 2 scenes; --full: 24 scenes of "
+                           "3–15 objects)")
+    kind.add_argument("--sbc", action="store_true",
+                      help="simulation-based calibration instead: parameters drawn from the model's prior "
+                           "(within a box of plausible scenes), annotations from its noise model, ranks of "
+                           "the truth among the posterior's draws (distance, focal length, pitch, roll) for "
+                           "thin designs (1 set of lines, 0-2 references) and full ones (5 + 5); writes "
+                           "sbc.md, sbc.json, sbc_ranks.png (--quick: 4 scenes a design; --full: 60)")
     p.add_argument("--sbc-scenes", type=int, default=None, metavar="N",
                    help="scenes per design of --sbc (overrides --quick/--full)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run_bench_command)
 
     p = subparsers.add_parser(
-        "simulate", help="write synthetic scenes or frames with ground truth (creference-scene/1 or /2)",
+        "simulate", help="write synthetic scenes with ground truth (creference-scene/2)",
         description="Write N simulated scenes (scene_0000.json, …) with exact ground truth, as the "
-                    "benchmark draws them: a target box, 13 noisy dimension-line annotations, five "
-                    "references in the paper's ten formats and the horizon (creference-scene/1). No photo. "
-                    "With --objects K: frames of K targets each (creference-scene/2); with --from-kitti: "
-                    "frames on the real boxes and cameras of a KITTI folder.")
+                    "benchmark draws them: one target box (or --objects K), 13 noisy dimension-line "
+                    "annotations each, five references in the paper's ten formats and the horizon. No photo. "
+                    "With --from-kitti: scenes on the real boxes and cameras of a KITTI folder.")
     p.add_argument("outdir", metavar="OUTDIR", nargs="?", default=None,
                    help="folder to write into (created; must be empty unless --overwrite)")
     p.add_argument("--out", dest="out_dir", metavar="OUTDIR", default=None, help="the same as OUTDIR")
@@ -228,7 +226,21 @@ def register(subparsers) -> None:
     p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
                    help="noise tier, or all to cycle through them (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),
-                   help="indoor or outdoor (default: two thirds indoor)")
+                   help="indoor, outdoor or street (a KITTI-like car camera; default: two thirds indoor, "
+                        "one third outdoor)")
+    p.add_argument("--objects", type=int, default=1, metavar="K", help="targets per scene (default: %(default)s)")
+    p.add_argument("--annotations", type=int, default=None,
+                   help="dimension-line sets per target (default: 13; 5 with --from-kitti)")
+    p.add_argument("--references", type=int, default=5, help="references per scene (default: %(default)s)")
+    p.add_argument("--noise-px", type=float, default=None,
+                   help="pixel noise per corner instead of the tier's (default: the tier's; 2 with --from-kitti)")
+    p.add_argument("--sizes", choices=("known", "prior"), default=None,
+                   help="known: each target's size is stated; prior: left to its class's size prior "
+                        "(default: known; prior with --from-kitti, as a crowd knows them)")
+    p.add_argument("--horizon", choices=("exact", "none", "sd"), default="exact",
+                   help="the horizon the scene gives: exact, none, or sd (off by 5 px and stated so; "
+                        "default: %(default)s)")
+    p.add_argument("--focal-known", action="store_true", help="write the true focal length into the scene")
     p.add_argument("--confidence", default=None, metavar="MAP",
                    help="every reference is a range stated with a confidence by a pool of workers "
                         "(each with an own error scale) whose true confidence map is calibrated, "
@@ -237,10 +249,10 @@ def register(subparsers) -> None:
                         "no confidence")
     p.add_argument("--confidence-workers", type=int, default=40, metavar="N",
                    help="workers in the pool of --confidence (default: %(default)s)")
+    p.add_argument("--from-kitti", metavar="DIR", default=None,
+                   help="scenes from a KITTI folder (label_2/, calib/, image_2/): simulated dimension lines "
+                        "on the real boxes (docs/kitti.md)")
     p.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty folder, replacing files of the same name")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    from .frame import add_frame_simulate_options
-
-    add_frame_simulate_options(p)
     p.set_defaults(func=_run_simulate_command)

@@ -61,8 +61,8 @@ def _run_fit(args) -> int:
         method = "truth" if len(with_truth) == len(ranges) else "marginal"
     if method == "truth" and not with_truth:
         raise UsageError("--method truth: no range has a known truth (the scenes' ground truth needs "
-                         "reference_lengths_m, or the true camera: focal_length_px, pitch_rad, roll_rad, "
-                         "camera_height_m)")
+                         "reference_lengths_m, the true camera (focal_length_px, pitch_rad, roll_rad, "
+                         "camera_height_m), or the targets' truth for their sizes and distances)")
     options = dict(draws=args.draws, seed=args.seed, interval_prob=args.interval_prob,
                    min_per_level=args.min_per_level, min_group=args.min_group)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
@@ -178,7 +178,7 @@ def register(subparsers) -> None:
     f.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes for the estimates of the marginal method (default: %(default)s)")
     f.add_argument("--min-ess", type=float, default=None, metavar="N",
-                   help="bulk effective sample size of each estimate (default: 1000)")
+                   help="bulk effective sample size of each estimate (default: the sampler's)")
     f.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     f.set_defaults(func=_run_fit)
     r = sub.add_parser(

@@ -1,115 +1,158 @@
-"""``creference estimate SCENE.json`` and ``creference demo``: one scene's target, a table, a result file."""
+"""``creference estimate SCENE.json`` and ``creference demo``: any scene (one target or many), a
+table for the camera and one for the objects, a ``creference-result/2`` file."""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import json
 import sys
 
 import numpy as np
 
 from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
-from ..inference.optimize import PRESETS
+from ..inference.map import PRESETS
+from ..io.files import read_text
+from ..models.location_prior import LOCATION_PRIORS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .main import UsageError, check_output_file, example_scene_path, seed_value
 
-__all__ = ["register", "format_table", "truth_of", "confidence_map_option", "add_confidence_map_option"]
+__all__ = ["register", "format_tables", "load_classes", "confidence_map_option", "add_confidence_map_option",
+           "add_camera_options", "check_posterior_values"]
 
 
-#: Units of the quantities a result may hold; a quantity not listed is shown without a unit.
-UNITS = {"x": "m", "y": "m", "z": "m", "yaw": "rad", "pitch": "rad", "roll": "rad",
-         "focal_length_px": "px", "distance_m": "m"}
-#: Decimals shown per unit (millimetres, milliradians, whole pixels); every number of a row
-#: (MAP, mean, sd, HDI, truth) has its row's decimals. Other units: 4 significant digits of the MAP.
-DECIMALS = {"m": 3, "rad": 3, "px": 0}
+def _num(v, spec: str) -> str:
+    return "n/a" if v is None else format(v, spec)
 
 
-def format_table(result, truth=None) -> str:
-    """A plain-text table of a result: one row per quantity, in the order of the result's ``map``
-    (then the posterior's extra quantities, such as ``distance_m``), whatever parameters it has.
-
-    Parameters
-    ----------
-    result : a :class:`~creference_bayes.io.result.Result` or its ``creference-result/1`` dict
-    truth : optional: a :class:`~creference_bayes.io.scene.Scene` (its ground truth, if any) or
-        a dict name → true value (missing names are left blank)
-    """
-    d = result if isinstance(result, dict) else result.to_dict()
-    if truth is not None and not isinstance(truth, dict):
-        truth = truth_of(truth)
-    post = d.get("posterior")
-    point = dict(d["map"])
-    names = list(point)
-    if post:
-        names += [k for k in post["mean"] if k not in point]
-    if "distance_m" not in names and {"x", "z"} <= set(point):
-        names.append("distance_m")
-    if "distance_m" not in point and {"x", "z"} <= set(point):
-        point["distance_m"] = float(np.hypot(point["x"], point["z"]))
-    cols = ["quantity", "unit", "MAP"]
-    if post:
-        cols += ["mean", "sd", f"{post['hdi']['prob']:.0%} HDI"]
-    if truth is not None:
-        cols.append("truth")
-    rows = []
-    for name in names:
-        unit = UNITS.get(name, "")
-        dec = _decimals(unit, point.get(name))
-        row = [name, unit, _fmt(point.get(name), dec)]
-        if post:
-            lo, hi = post["hdi"].get(name) or (None, None)
-            row += [_fmt(post["mean"].get(name), dec), _fmt(post["sd"].get(name), dec), (_fmt(lo, dec), _fmt(hi, dec))]
-        if truth is not None:
-            row.append(_fmt(truth.get(name), dec))
-        rows.append(row)
-    if post:  # the HDI as "[low, high]" with the lows and the highs aligned
-        i = cols.index(f"{post['hdi']['prob']:.0%} HDI")
-        wl = max(len(r[i][0]) for r in rows)
-        wh = max(len(r[i][1]) for r in rows)
-        for r in rows:
-            lo, hi = r[i]
-            r[i] = f"[{lo.rjust(wl)}, {hi.rjust(wh)}]" if lo or hi else ""
-    widths = [max(len(str(r[i])) for r in rows + [cols]) for i in range(len(cols))]
-    left = {0, 1}  # names and units to the left, numbers to the right
-
-    def line(cells):
-        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
-                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
-
-    return "\n".join([line(cols), "  ".join("-" * w for w in widths)] + [line(r) for r in rows])
-
-
-def _decimals(unit: str, value) -> int:
-    if unit in DECIMALS:
-        return DECIMALS[unit]
-    if value is None or not np.isfinite(value) or value == 0:
-        return 3
-    return int(max(0, 3 - np.floor(np.log10(abs(float(value))))))
-
-
-def _fmt(x, decimals: int = 3) -> str:
-    if x is None:
-        return ""
-    x = float(x)
-    if not np.isfinite(x):
-        return str(x)
-    text = f"{x:.{decimals}f}"
-    return text.lstrip("-") if float(text) == 0 else text
-
-
-def truth_of(scene) -> dict | None:
-    """The scene's ground truth by quantity name (pitch and roll from its extras when given), or
-    None when it has none."""
-    gt = scene.ground_truth
-    if gt is None:
+def load_classes(path):
+    """The size priors of ``--classes FILE`` (None without it), read and checked before any work."""
+    if path is None:
         return None
-    x, y, z = (float(v) for v in gt.location_m)
-    t = {"x": x, "y": y, "z": z, "yaw": gt.yaw_rad, "focal_length_px": gt.focal_length_px,
-         "distance_m": float(np.hypot(x, z))}
-    for name in ("pitch", "roll"):
-        if gt.extra.get(f"{name}_rad") is not None:
-            t[name] = float(gt.extra[f"{name}_rad"])
-    return t
+    from ..models.size_priors import size_priors_from_dict
+
+    try:
+        data = json.loads(read_text(path))
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}") from None
+    try:
+        return size_priors_from_dict(data, f"{path}", "file")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _f(v, nd=2):
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+#: The camera's rows: label, decimals, factor from the result's units.
+_CAMERA_ROWS = {"focal_length_px": ("focal length px", 1, 1.0), "pitch": ("pitch deg", 2, 180 / np.pi),
+                "roll": ("roll deg", 2, 180 / np.pi), "height_m": ("height m", 3, 1.0),
+                "ref_scale": ("crowd scale", 3, 1.0)}
+
+
+def format_tables(d: dict) -> str:
+    """The camera's table, the objects' table (a row each) and, when the scene has ground truth,
+    the errors and which true values lie in their HDI, of a ``creference-result/2`` dict."""
+    cam = d["camera"]
+    post = cam.get("posterior")
+    prob = post["hdi"]["prob"] if post else None
+    truth = (cam.get("evaluation") or {}).get("truth") or {}
+    lines = ["camera", f"  {'':<16}{'MAP':>10}" + (f"{'mean':>10}  {f'{prob:.0%} HDI':<22}" if post else "")
+             + (f"{'' if post else ' ' * 20}{'truth':>10}" if truth else "")]
+    mid = 32 if post else 20  # the width of the mean and HDI columns, or of the notes
+    for key, (label, nd, k) in _CAMERA_ROWS.items():
+        row = f"  {label:<16}{_f(cam['map'][key] * k, nd):>10}"
+        if post and key in post["mean"]:
+            lo, hi = post["hdi"][key]
+            row += f"{_f(post['mean'][key] * k, nd):>10}  {'[' + _f(lo * k, nd) + ', ' + _f(hi * k, nd) + ']':<22}"
+        elif key not in cam["free"]:
+            row += f"  {_why_fixed(key, cam):<{mid - 2}}"
+        else:
+            row += " " * mid
+        if truth.get(key) is not None:
+            row += f"{_f(truth[key] * k, nd):>10}"
+        lines.append(row.rstrip())
+    lines.append("")
+    evaluated = any("evaluation" in o for o in d["objects"])
+    head = f"  {'target':<10}{'class':<11}{'dist m':>8}{'x':>8}{'z':>8}{'yaw°':>7}{'l×w×h m':>16}"
+    head += f"{'dist HDI':>18}" if post else ""
+    head += f"{'err %':>7}" if evaluated else ""
+    lines.append("objects (MAP" + (f"; distance {prob:.0%} HDI" if post else "")
+                 + ("; location error against the truth" if evaluated else "") + ")")
+    lines.append(head)
+    for o in d["objects"]:
+        m = o["map"]
+        size = f"{m['length_m']:.2f}×{m['width_m']:.2f}×{m['height_m']:.2f}"
+        row = (f"  {o['id'][:9]:<10}{str(o['class'] or '-')[:10]:<11}{_f(m['distance_m']):>8}{_f(m['x']):>8}"
+               f"{_f(m['z']):>8}{_f(np.degrees(m['yaw']), 0):>7}{size:>16}")
+        if post:
+            lo, hi = o["posterior"]["hdi"]["distance_m"]
+            row += f"{'[' + _f(lo) + ', ' + _f(hi) + ']':>18}"
+        if evaluated:
+            row += f"{_f(o.get('evaluation', {}).get('location_pct_error'), 1):>7}"
+        lines.append(row)
+    lines += _truth_lines(d)
+    diag = d.get("diagnostics")
+    if diag:
+        lines.append("")
+        lines.append(f"posterior: {'converged' if diag['converged'] else 'NOT converged (see the notes below)'} after "
+                     f"{diag['iterations']} iterations × {diag['n_chains']} chains (min bulk ESS "
+                     f"{_num(diag['min_ess_bulk'], '.0f')}, max R-hat {_num(diag['max_r_hat'], '.3f')}), {d['seconds']:.1f} s")
+    refs = _references_line(d.get("references") or {})
+    if refs:
+        lines.append(refs)
+    return "\n".join(lines)
+
+
+def _why_fixed(key: str, cam: dict) -> str:
+    orientation = (cam.get("setup") or {}).get("orientation")
+    if key in ("pitch", "roll") and orientation in ("horizon", "level"):
+        return "(from the horizon)" if orientation == "horizon" else "(level camera)"
+    return "(not used)" if key == "ref_scale" else "(fixed)"
+
+
+def _truth_lines(d: dict) -> list[str]:
+    """The location error and which true values lie in their HDI (with ground truth)."""
+    evs = [o["evaluation"] for o in d["objects"] if "evaluation" in o]
+    if not evs:
+        return []
+    many = len(d["objects"]) > 1
+    err = lambda key: float(np.median([e[key] for e in evs]))
+    text = f"location error against the ground truth{' (median over the objects)' if many else ''}: " \
+           f"MAP {err('location_pct_error'):.2f} %"
+    if all(e.get("posterior_location_pct_error") is not None for e in evs):
+        text += f", posterior mean {err('posterior_location_pct_error'):.2f} %"
+    out = ["", text + " (distance to the true location, as a share of its distance from the camera)"]
+    cam = d["camera"].get("evaluation") or {}
+    if "in_hdi" not in cam and not any("in_hdi" in e for e in evs):
+        return out
+    prob = d["camera"].get("posterior", {}).get("hdi", {}).get("prob", d.get("hdi_prob", 0.9))
+    inside = [k for k, v in cam.get("in_hdi", {}).items() if v]
+    outside = [k for k, v in cam.get("in_hdi", {}).items() if not v]
+    fixed = [k for k in cam.get("truth", {}) if k not in cam.get("in_hdi", {})]
+    for key in ("x", "y", "z", "yaw", "distance_m"):
+        flags = [e["in_hdi"][key] for e in evs if key in e.get("in_hdi", {})]
+        if flags and not many:
+            (inside if flags[0] else outside).append(key)
+        elif flags:
+            inside.append(f"{key} {sum(flags)} of {len(flags)}")
+    out.append(f"truth inside the {prob:.0%} HDI: {', '.join(inside) or 'none'}"
+               + (f"; outside: {', '.join(outside)}" if outside else "")
+               + (f"; not checked: {', '.join(fixed)} (no spread in the posterior: fixed by the exact horizon "
+                  "or the camera set-up)" if fixed else ""))
+    return out
+
+
+def _references_line(refs: dict) -> str | None:
+    if refs.get("used_as") == "likelihood" and refs.get("n_references"):
+        left = refs.get("left_out") or {}
+        why = f" (left out: {', '.join(f'{k}: {v}' for k, v in left.items())})" if left else ""
+        return f"references: {refs['in_likelihood']} of {refs['n_references']} used as measurements{why}"
+    if refs.get("used_as") == "pairwise bounds":
+        used = sum(o["pairs_used"] for o in refs["objects"])
+        total = used + sum(o["pairs_skipped"] for o in refs["objects"])
+        return f"references: as bounds from {used} of {total} pairs" if total else "references: none"
+    return None
 
 
 def confidence_map_option(value: str | None, model: str):
@@ -141,43 +184,6 @@ def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_CONFIDENCE_MAP}; docs/confidence.md)")
 
 
-def _run_estimate(args) -> int:
-    from ..io.scene import load_scene
-    from ..pipeline import estimate
-    from .frame import is_frame_file, run_frame_estimate
-
-    if is_frame_file(args.scene):
-        return run_frame_estimate(args)
-    scene = load_scene(args.scene)
-    for w in scene.warnings:
-        print(f"warning: {w}", file=sys.stderr)
-    _check_posterior_options(args)
-    cmap = confidence_map_option(args.confidence_map, args.model)
-    result = estimate(scene, preset=args.preset, seed=args.seed, model=args.model, confidence_map=cmap,
-                      use_references=not args.no_references, posterior=not args.no_posterior,
-                      focal_prior=args.focal_prior, orientation=args.orientation,
-                      location_prior=args.location_prior,
-                      temperature=args.temperature, hdi_prob=args.hdi_prob,
-                      sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
-                      progress=not args.quiet and sys.stderr.isatty())
-    if args.netcdf and result.inference_data is None:
-        print(f"warning: no posterior, so {args.netcdf} was not written", file=sys.stderr)
-    elif args.netcdf:
-        result.inference_data.to_netcdf(args.netcdf)
-        result = dataclasses.replace(result, extra={**result.extra, "netcdf": str(args.netcdf)})
-    _report(result, scene, args)
-    return 0
-
-
-def _check_posterior_options(args) -> None:
-    """The posterior options' values, checked before any work is done."""
-    if args.no_posterior and args.netcdf:
-        raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
-    check_output_file("--out", args.out)
-    check_output_file("--netcdf", args.netcdf)
-    check_posterior_values(args)
-
-
 def check_posterior_values(args) -> None:
     """``--hdi-prob``, ``--temperature`` and ``--min-ess`` (shared with ``batch``)."""
     if not 0.0 < args.hdi_prob < 1.0:
@@ -188,84 +194,61 @@ def check_posterior_values(args) -> None:
         raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
 
 
-#: Handedness of the dimension lines, in a word (core/geometry.py: dimension_corners).
-HANDEDNESS_WORDS = {1: "width line counter-clockwise from the length line, seen from above",
-                    -1: "width line clockwise from the length line, seen from above"}
+def _run_estimate(args) -> int:
+    from ..io.files import atomic_path, atomic_write_json
+    from ..io.scene import load_scene
+    from ..pipeline import estimate
+    from ..inference.summary import to_inference_data
 
-
-def _posterior_line(result) -> str:
-    g = result.diagnostics
-    ess = [v for v in g.ess_bulk.values() if v is not None]
-    rhat = [v for v in g.r_hat.values() if v is not None]
-    state = "converged" if g.converged else "NOT converged (see the notes below)"
-    return (f"posterior: {state}; R-hat ≤ {max(rhat, default=float('nan')):.3f}, bulk ESS ≥ "
-            f"{min(ess, default=float('nan')):.0f}; {g.n_walkers} walkers in {g.n_ensembles} "
-            f"ensembles, {g.n_steps} steps (+{g.warmup_steps} warm-up), {g.seconds:.2f} s, "
-            f"temperature {result.posterior.temperature:g}")
-
-
-def _references_line(refs) -> str | None:
-    if refs is None or not hasattr(refs, "pairs_used"):
-        return None
-    if not refs.enabled:
-        return f"references: {refs.n_references} ignored (--no-references)"
-    if refs.n_references == 0:
-        return "references: none"
-    n_pairs = refs.pairs_used + refs.pairs_skipped
-    why = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in refs.skipped_reasons.items())
-    skipped = f" (skipped: {why})" if why else ""
-    if refs.used_as == "likelihood":
-        return (f"references: {refs.in_likelihood} of {refs.n_references} used as measurements; "
-                f"the paper's pairwise method could use {refs.pairs_used} of {n_pairs} pairs{skipped}")
-    return f"references: {refs.n_references}, as bounds from {refs.pairs_used} of {n_pairs} pairs{skipped}"
-
-
-def _report(result, scene, args) -> None:
+    classes = load_classes(args.classes)
+    scene = load_scene(args.scene, classes=classes)
+    for w in scene.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if args.no_posterior and args.netcdf:
+        raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
+    check_output_file("--out", args.out)
+    check_output_file("--netcdf", args.netcdf)
+    check_posterior_values(args)
+    cmap = confidence_map_option(args.confidence_map, args.model)
+    result = estimate(scene, model=args.model, preset=args.preset, seed=args.seed, classes=classes, confidence_map=cmap,
+                      use_references=not args.no_references, posterior=not args.no_posterior,
+                      focal_prior=args.focal_prior, orientation=args.orientation, location_prior=args.location_prior,
+                      temperature=args.temperature, hdi_prob=args.hdi_prob,
+                      sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
+                      progress=not args.quiet and sys.stderr.isatty())
+    d = result.to_dict()
+    if args.out:
+        atomic_write_json(args.out, d, inline_numbers=True)
+    idata = to_inference_data(result) if args.netcdf else None
+    if idata is not None:
+        with atomic_path(args.netcdf) as tmp:
+            idata.to_netcdf(tmp)
+    elif args.netcdf:
+        print(f"warning: no posterior, so {args.netcdf} was not written", file=sys.stderr)
     if not args.quiet:
-        h = result.map.handedness
-        print(f"target {result.target!r}  model {result.model}  preset {result.preset}  "
-              f"MAP in {result.map.seconds:.2f} s")
-        print(f"handedness {h:+d} ({HANDEDNESS_WORDS.get(h, 'unknown')})")
-        print(format_table(result, truth_of(scene)))
-        if result.diagnostics is not None:
-            print(_posterior_line(result))
-        refs = _references_line(result.references)
-        if refs:
-            print(refs)
-        ev = result.evaluation
-        if ev is not None:
-            text = f"location error against the ground truth: MAP {ev.location_pct_error:.2f} %"
-            if ev.posterior_location_pct_error is not None:
-                text += f", posterior mean {ev.posterior_location_pct_error:.2f} %"
-            print(text + " (distance to the true location, as a share of its distance from the camera)")
-            if ev.in_hdi is not None:
-                inside = [k for k, v in ev.in_hdi.items() if v]
-                outside = [k for k, v in ev.in_hdi.items() if not v]
-                truth = truth_of(scene) or {}
-                fixed = [k for k in result.posterior.mean if k in truth and k not in ev.in_hdi]
-                print(f"truth inside the {result.posterior.hdi_prob:.0%} HDI: {', '.join(inside) or 'none'}"
-                      + (f"; outside: {', '.join(outside)}" if outside else "")
-                      + (f"; not checked: {', '.join(fixed)} (no spread in the posterior: fixed by "
-                         "the exact horizon or the camera set-up)" if fixed else ""))
+        print(f"{args.scene}: {len(d['objects'])} object{'s' if len(d['objects']) > 1 else ''}, model {d['model']}, "
+              f"preset {d['preset']}, MAP in {d['map_info']['seconds']:.2f} s")
+        print(format_tables(d))
         printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
         for w in result.warnings:
             if w not in printed:
                 print(f"note: {w}")
-    if args.out:
-        result.to_json(args.out)
-        if not args.quiet:
-            print(f"wrote {args.out}")
+        for path in (args.out, idata is not None and args.netcdf):
+            if path:
+                print(f"wrote {path}")
+    return 0
 
 
 def _run_demo(args) -> int:
     args.scene = str(example_scene_path())
+    args.classes = None
     if not args.quiet:
         print(f"example scene (synthetic, with ground truth): {args.scene}")
     return _run_estimate(args)
 
 
 def add_camera_options(p: argparse.ArgumentParser) -> None:
-    """``--focal-prior`` and ``--orientation`` (shared by ``estimate``, ``demo`` and ``batch``)."""
+    """``--focal-prior``, ``--orientation`` and ``--location-prior`` (``estimate``, ``demo``, ``batch``)."""
     g = p.add_argument_group("camera")
     g.add_argument("--focal-prior", default="auto", choices=FOCAL_PRIORS,
                    help="prior on the focal length when the scene does not give it: auto (the "
@@ -277,17 +260,15 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
                         "with the horizon from the photo as a measurement when there is one), free "
                         "(estimated even with a horizon), level (assume a level camera when there "
                         "is no horizon, the old behaviour) (default: %(default)s)")
-    g.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"),
-                   help="one target: prior on its ground position: uniform in log depth with the MAP in log "
-                        "coordinates, or flat in (x, z) (auto: log-depth with the default preset, flat with "
-                        "the paper presets; inverse-square, 1/d², for comparison; docs/method.md, Priors); "
-                        "frames: log-depth (auto) or flat")
+    g.add_argument("--location-prior", default="auto", choices=("auto",) + LOCATION_PRIORS,
+                   help="prior on each object's ground position: uniform in log depth, or flat in (x, z) (auto: "
+                        "log-depth with the default preset, flat with the paper presets; inverse-square, 1/d², "
+                        "for comparison; docs/method.md, Priors)")
 
 
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/1 file")
-    p.add_argument("--preset", default="default", choices=PRESETS,
-                   help="optimiser preset (default: %(default)s)")
+    p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/2 file")
+    p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
     p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
                    help="likelihood model: the measurement-likelihood extension or the paper's "
                         "cost with pairwise soft constraints (default: %(default)s; see "
@@ -306,23 +287,24 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
                         "model's: 1 for metrology and for the paper presets, 3 for the paper model "
                         "with the default preset)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
-                   help="bulk effective sample size to reach (default: 1000)")
+                   help="bulk effective sample size to reach (default: 400)")
     g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
 
 
 def register(subparsers) -> None:
     """Add ``estimate`` and ``demo`` to the ``creference`` command."""
     p = subparsers.add_parser(
-        "estimate", help="estimate the target of a scene file",
-        description="Estimate the 3D location of a scene's target: the MAP, then (unless "
-                    "--no-posterior) the posterior with credible intervals and diagnostics. "
-                    "Prints a table; --out writes a creference-result/1 file (docs/result_format.md).")
+        "estimate", help="estimate every target of a scene file and its camera",
+        description="Estimate the 3D location of every target of a scene and the camera: the MAP, then "
+                    "(unless --no-posterior) the posterior with credible intervals and diagnostics. "
+                    "Prints a table for the camera and one for the objects; --out writes a "
+                    "creference-result/2 file (docs/result_format.md).")
     p.add_argument("scene", metavar="SCENE.json",
-                   help="a creference-scene/1 file, or a creference-scene/2 frame of several targets "
-                        "(docs/scene_format.md, docs/frames.md)")
+                   help="a scene file: creference-scene/1 (one target) or creference-scene/2 (one or more; "
+                        "docs/scene_format.md)")
     _add_estimate_options(p)
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
-                   help="frames: size priors of your own classes (docs/frames.md); the scene's own win")
+                   help="size priors of your own classes (docs/overview.md, Class size priors); the scene's own win")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",

@@ -1,14 +1,15 @@
 """``creference import label-studio …`` and ``creference import cvat …``: annotation-tool exports →
-one ``creference-scene/1`` file per target, or one ``creference-scene/2`` frame per task / image
-that holds several targets (docs/import.md).
+one ``creference-scene/2`` file per photo (a Label Studio image, whatever its number of tasks, or
+a CVAT image), holding all its targets (docs/import.md).
 
-A task (Label Studio) or image/target (CVAT) that cannot be converted is reported on standard
-error with the task or image and the region, and skipped; the others are written, each file
-atomically. The exit status is 2 when anything was skipped for an error, else 0.
+A task or image that cannot be converted is reported on standard error with the task or image
+and the region, and skipped; the others are written, each file atomically. The exit status is 2
+when anything was skipped for an error, else 0.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import zipfile
@@ -26,34 +27,32 @@ MAX_XML_BYTES = 1 << 30
 def register(subparsers) -> None:
     p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files",
                               description="Convert the annotations of a Label Studio or CVAT project "
-                                          "to scene files: creference-scene/1, one per target, or "
-                                          "creference-scene/2 frames, one per photo holding all its targets.")
+                                          "to scene files (creference-scene/2), one per photo holding "
+                                          "all its targets.")
     sub = p.add_subparsers(dest="tool", required=True, metavar="TOOL",
                            help="the annotation tool the export comes from: label-studio or cvat")
 
-    ls = sub.add_parser("label-studio", help="a Label Studio JSON export → one scene per task",
+    ls = sub.add_parser("label-studio", help="a Label Studio JSON export → one scene per image",
                         description="Convert a Label Studio JSON export (tasks with annotations) to "
-                                    "scene files, one per task: creference-scene/1 for a one-target task, "
-                                    "creference-scene/2 for a task holding several targets (a frame).")
+                                    "scene files, one per image: the tasks of one image make one scene "
+                                    "holding the targets of all of them.")
     ls.add_argument("export", nargs="?", metavar="EXPORT.json", help="the JSON export")
     ls.add_argument("--print-config", action="store_true",
                     help="print the labelling config for a new project and exit")
     ls.add_argument("--lines", choices=["keypoints", "vectors"], default="keypoints",
-                    help="with --print-config: draw reference lines and the horizon as two keypoints "
-                         "(every version; default) or as vectors (recent versions with <VectorLabels>, "
+                    help="with --print-config: draw targets, reference lines and the horizon as keypoints "
+                         "(every version; default) or as lines (recent versions with <VectorLabels>, "
                          "checked with 1.23.2)")
-    ls.add_argument("--frame", action="store_true",
-                    help="with --print-config: the config for frames (one task per photo, every target in it)")
+    ls.add_argument("--frame", action="store_true", help=argparse.SUPPRESS)  # deprecated: the one config
     ls.add_argument("--users", metavar="USERS.json",
                     help="name workers by the users in this file (the JSON of GET /api/users) "
                          "instead of by user id")
     _common(ls)
     ls.set_defaults(func=_run_label_studio)
 
-    cv = sub.add_parser("cvat", help="a CVAT for images 1.1 export → one scene per target",
+    cv = sub.add_parser("cvat", help="a CVAT for images 1.1 export → one scene per image",
                         description="Convert a CVAT for images 1.1 export (annotations.xml, or the "
-                                    "ZIP holding it) to creference-scene/1 files, one per target, or "
-                                    "creference-scene/2 frames, one per image whose targets have a class.")
+                                    "ZIP holding it) to scene files, one per image holding all its targets.")
     cv.add_argument("export", nargs="?", metavar="annotations.xml", help="the XML file or the ZIP")
     cv.add_argument("--print-labels", action="store_true",
                     help="print the label specification (for CVAT's Raw label editor) and exit")
@@ -69,18 +68,24 @@ def _common(p) -> None:
     p.add_argument("--targets", metavar="TARGETS.csv",
                    help="known target sizes and focal lengths: CSV with target_id,length_m,width_m,height_m "
                         "[,focal_length_px][,image] (a row with an image applies to that image only)")
-    p.add_argument("--frames", action="store_true",
-                   help="import every task / image as a creference-scene/2 frame, also those with one "
-                        "target or without classes")
+    p.add_argument("--frames", action="store_true", help=argparse.SUPPRESS)  # deprecated: what every import does
     p.add_argument("--classes", metavar="CLASSES.json",
-                   help="frames: size priors of your own classes (docs/frames.md), written into the "
-                        "frames whose targets use them")
+                   help="size priors of your own classes (docs/overview.md, Class size priors) for targets without a size, "
+                        "written into the scenes whose targets use them")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+
+
+def _deprecated(args, flag: str, what: str) -> None:
+    if getattr(args, flag.strip("-"), False) and not args.quiet:
+        print(f"note: {flag} is deprecated and does nothing: {what}", file=sys.stderr)
 
 
 def _prepare(args):
     from ..io.annotation_tools import ConversionError, load_target_table
+    from .estimate import load_classes
 
+    _deprecated(args, "--frames", "every task / image imports as one creference-scene/2 file, whatever its "
+                                  "number of targets")
     if args.export is None:
         raise UsageError(f"import {args.tool}: give the export file (see --help)")
     if not args.out:
@@ -91,27 +96,22 @@ def _prepare(args):
         table = load_target_table(args.targets) if args.targets else None
     except ConversionError as exc:
         raise UsageError(f"--targets: {exc}") from None
-    classes = None
-    if args.classes:
-        from .frame import _load_classes
-
-        classes = _load_classes(args.classes)
-    return table, classes
+    return table, load_classes(args.classes)
 
 
 def _run_label_studio(args) -> int:
     from ..io.annotation_tools import ConversionError
     from ..io.labelstudio import label_studio_config, read_export, read_users, scenes_from_label_studio
 
+    _deprecated(args, "--frame", "the shipped configs hold any number of targets per task")
     if args.print_config:
-        sys.stdout.write(label_studio_config(args.lines, frame=args.frame))
+        sys.stdout.write(label_studio_config(args.lines))
         return 0
     targets, classes = _prepare(args)
     try:
         users = read_users(args.users) if args.users else None
         report = scenes_from_label_studio(read_export(args.export), image_dir=args.image_dir,
-                                          out_dir=args.out, targets=targets, users=users,
-                                          frames=args.frames, classes=classes)
+                                          out_dir=args.out, targets=targets, users=users, classes=classes)
     except ConversionError as exc:
         raise UsageError(str(exc)) from None
     return _finish(report, args)
@@ -154,7 +154,7 @@ def _run_cvat(args) -> int:
     targets, classes = _prepare(args)
     try:
         report = scenes_from_cvat(_read_cvat(args.export), image_dir=args.image_dir,
-                                  out_dir=args.out, targets=targets, frames=args.frames, classes=classes)
+                                  out_dir=args.out, targets=targets, classes=classes)
     except ConversionError as exc:
         raise UsageError(str(exc)) from None
     return _finish(report, args)

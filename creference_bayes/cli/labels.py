@@ -13,9 +13,9 @@ FORMATS = ("kitti",)
 
 
 def _run_labels(args) -> int:
+    from ..workflows.labels import export_labels
     from ..workflows.labels.quality import IOU_THRESHOLDS
     from ..workflows.labels.report import write_report
-    from ..workflows.labels import export_labels
 
     if not (math.isfinite(args.min_quality) and 0.0 <= args.min_quality <= 1.0):
         raise UsageError(f"--min-quality: expected a probability in [0, 1], got {args.min_quality!r}")
@@ -59,15 +59,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "labels", help="KITTI 3D labels with their uncertainty from a batch folder",
         description="Write per image a KITTI label file (label_2/), its calib file (calib/, "
-                    "P2 = K[R|0] in the gravity-aligned frame; a KITTI frame's own P2) and an uncertainty sidecar "
+                    "P2 = K[R|0] in the gravity-aligned frame; a KITTI scene's own P2) and an uncertainty sidecar "
                     "(uncertainty/, JSON), plus a data-set report (report.md, quality.png, "
                     "labels.csv, needs_annotation.csv).")
     p.add_argument("batch_dir", metavar="BATCH_DIR", help="a folder written by creference batch")
     p.add_argument("--out", required=True, metavar="DIR", help="the label folder (created)")
     p.add_argument("--format", default="kitti", choices=FORMATS, help="label format (default: %(default)s)")
     p.add_argument("--type", default=None, metavar="NAME",
-                   help="KITTI type of every object, e.g. Car (default: a frame object's class, a "
-                        "one-target scene's target id)")
+                   help="KITTI type of every object, e.g. Car (default: each target's class, else its id)")
     p.add_argument("--score-iou", type=float, default=0.7, metavar="T",
                    help="the score is P(IoU >= T), T = 0.5 or 0.7 (default: %(default)s)")
     p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",

@@ -64,7 +64,7 @@ def check_output_file(option: str, value) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="creference",
-        description="3D location of a target object from crowd annotations on one photo "
+        description="3D locations of the annotated objects of one photo from crowd annotations "
                     "(C-Reference), with credible intervals. Start with `creference demo`; the "
                     "user guide is docs/user_guide.md.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")

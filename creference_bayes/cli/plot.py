@@ -1,41 +1,44 @@
-"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate.
+"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate of any scene.
 
-Writes ``top_view.png``, ``pairs.png`` and ``ranks.png`` (these need the posterior) and
-``boxes.png`` (this needs the scene). Posterior draws come from the NetCDF file named in the
-result (``--netcdf`` at estimation) when it exists, else from the draws kept in the JSON.
-The scene is ``--scene``, else the result's ``scene`` name looked up next to the result file, in
-the current directory, then among the package's shipped scenes. Either way it must be the scene
-the result was estimated from: its target id, image size and content hash must match the result's
-``scene_id`` (else a one-line error, exit 2). Results written before ``scene_id`` existed are
-checked on their target id only, with a warning that the scene could not be checked fully.
+Reads a ``creference-result/2`` file (or a ``creference-result/1`` of one target, converted with its
+scene), finds its scene, rebuilds its model and writes ``boxes``, ``top_view``, ``zooms`` (when more
+objects need a zoom panel than fit beside the top view), ``pairs`` (the camera and ``--object``, by
+default the first) and ``ranks`` (posterior draws only) (:func:`~creference_bayes.vision.plotting.scene_figures`).
+The draws are those the result keeps, else the Laplace approximation at its MAP.
 
-A frame's result (``creference-result/2``) gets ``frame_boxes``, ``frame_top_view`` and
-``frame_camera`` instead (:mod:`.frame_plot`, docs/frames.md).
+The scene is ``--scene``, else the one the result names (a batch folder's copy, beside the result, in
+the current folder, among the shipped scenes). It must be the scene the result was estimated from:
+the same target ids, image size and content hash (``scene_id``), else a one-line error (exit 2).
 """
 
 from __future__ import annotations
 
-from importlib import resources
+import sys
 from pathlib import Path
-from ..io.files import read_text
 
-__all__ = ["register"]
+from .main import UsageError
+
+__all__ = ["register", "find_scene", "check_result"]
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "plot", help="plot a result: projected boxes, pair plot, ranks, top view",
-        description="Draw the figures of a result: boxes.png (the MAP and posterior boxes over the "
-                    "photo or a blank canvas; needs the scene), top_view.png (the ground seen from "
-                    "above), pairs.png and ranks.png (need the posterior). See docs/user_guide.md.")
+        "plot", help="plot a result: the boxes on the photo, the top view, pair and rank plots",
+        description="Draw the figures of a result: boxes (the MAP and posterior boxes of every object over "
+                    "the photo or a blank canvas), top_view (the ground seen from above, with a zoom on each "
+                    "small object; zooms, a figure of their own, when there are many), pairs (the camera and "
+                    "the chosen objects) and ranks (the posterior's chains). A result without posterior draws "
+                    "shows the Laplace approximation at its MAP, and has no rank plot. See docs/user_guide.md.")
     p.add_argument("result", metavar="RESULT.json",
-                   help="a creference-result/1 file written by `creference estimate --out`, or a frame's "
-                        "creference-result/2 (then frame_boxes, frame_top_view and frame_camera, and frame_zooms when "
-                        "many objects need a zoom panel; docs/frames.md)")
+                   help="a creference-result/2 file written by `creference estimate --out` or `creference batch` "
+                        "(or a creference-result/1 of an older version)")
     p.add_argument("--scene", metavar="SCENE.json",
                    help="the scene the result was estimated from (default: the result's scene "
                         "name, looked up next to the result, in the current directory, then among "
                         "the shipped scenes); a different scene is refused")
+    p.add_argument("--object", metavar="ID", action="append", default=None,
+                   help="an object whose posterior the pair and rank plots show with the camera's (repeat for "
+                        "several; default: the first)")
     p.add_argument("--out", metavar="DIR", default=".", help="output directory (default: .)")
     p.add_argument("--format", default="png", choices=["png", "pdf", "svg"],
                    help="file format of the figures (default: %(default)s)")
@@ -44,123 +47,93 @@ def register(subparsers) -> None:
     p.set_defaults(func=_run)
 
 
-def _find_scene(result: dict, result_path: Path, explicit: str | None):
-    from .main import UsageError
-    from ..io.result import scene_candidates
-    from ..io.scene import load_scene
+def find_scene(result: dict, result_path: Path, explicit: str | None):
+    """The scene a result (either format) was estimated from (:func:`creference_bayes.io.result.find_scene`),
+    its failures as one-line usage errors."""
+    from ..io.result import find_scene as _find
 
-    if explicit:
-        return _checked(result, load_scene(explicit), "--scene " + str(explicit))
-    name = result.get("scene")
-    if not name and not result.get("batch"):
-        return None
-    candidates = scene_candidates(result, result_path)
-    for c in candidates:
-        if c.is_file():
-            return _checked(result, load_scene(c), f"scene {str(c)!r} (found by the result's "
-                                                   "scene name; pass --scene)")
-    raise UsageError(f"scene: {name!r} not found next to the result, in the current directory or "
-                     "among the shipped scenes; pass --scene")
-
-
-def scene_mismatch(result: dict, scene) -> str | None:
-    """What differs between the scene a result records (``scene_id``) and ``scene``; None if
-    nothing does. A result without ``scene_id`` (written before it existed) is compared on its
-    ``target`` id only."""
-    from ..io.scene import scene_fingerprint
-
-    recorded = result.get("scene_id")
-    if not isinstance(recorded, dict):
-        recorded = {"target": result.get("target")}
-    actual = {"target": scene.target.id, "image_size": [scene.image_width, scene.image_height]}
-    diffs = []
-    if "target" in recorded and recorded["target"] != actual["target"]:
-        diffs.append(f"target {actual['target']!r}, the result's is {recorded['target']!r}")
-    if "image_size" in recorded and list(recorded["image_size"]) != actual["image_size"]:
-        w, h = actual["image_size"]
-        rw, rh = recorded["image_size"]
-        diffs.append(f"image {w}x{h} px, the result's is {rw}x{rh}")
-    if not diffs and "sha256" in recorded and recorded["sha256"] != scene_fingerprint(scene):
-        diffs.append(f"same target and image size but different content: sha256 "
-                     f"{scene_fingerprint(scene)[:12]}…, the result's is {str(recorded['sha256'])[:12]}…; "
-                     "edited since the estimate?")
-    return "; ".join(diffs) or None
-
-
-def _checked(result: dict, scene, where: str):
-    import sys
-
-    from .main import UsageError
-
-    why = scene_mismatch(result, scene)
-    if why:
-        raise UsageError(f"{where}: not the scene this result was estimated from ({why})")
-    if not isinstance(result.get("scene_id"), dict):
-        print("warning: the result records no scene_id (written by an older version): only its target "
-              "id was checked against the scene", file=sys.stderr)
+    try:
+        scene = _find(result, result_path, explicit)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if result.get("format") == "creference-result/1" and "batch" not in result:
+        print("warning: a creference-result/1 (written by an older version): only its target id and image size "
+              "were checked against the scene", file=sys.stderr)
     return scene
+
+
+def check_result(result: dict, path: Path) -> None:
+    """A one-line error naming the first key a ``creference-result/2`` lacks (``objects[0].map.x``, …)."""
+    from ..models.contract import CAMERA_NAMES, OBJECT_NAMES
+
+    def need(obj, key, where, kind=dict):
+        value = obj.get(key) if isinstance(obj, dict) else None
+        if not isinstance(value, kind):
+            raise UsageError(f"{path}: {where}{key}: expected {'a list' if kind is list else 'an object'}, "
+                             f"got {type(value).__name__ if value is not None else 'nothing'}")
+        return value
+
+    cam = need(need(result, "camera", ""), "map", "camera.")
+    need(result, "provenance", "")
+    objects = need(result, "objects", "", list)
+    if not objects:
+        raise UsageError(f"{path}: objects: expected at least one object, got []")
+    for k in CAMERA_NAMES:
+        if not isinstance(cam.get(k), (int, float)):
+            raise UsageError(f"{path}: camera.map.{k}: expected a number, got {cam.get(k)!r}")
+    for i, o in enumerate(objects):
+        mp = need(o, "map", f"objects[{i}].")
+        for k in OBJECT_NAMES:
+            if not isinstance(mp.get(k), (int, float)):
+                raise UsageError(f"{path}: objects[{i}].map.{k}: expected a number, got {mp.get(k)!r}")
 
 
 def _run(args) -> int:
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
+    from ..io.files import atomic_path
+    from ..io.result import load_result, result_from_v1
+    from ..pipeline import rebuild_model, result_draws
     from ..vision import plotting
-    from .main import UsageError
-    from ..io.result import load_result_dict
 
     path = Path(args.result)
-    frame_result = _frame_result(path)
-    if frame_result is not None:
-        from .frame_plot import run_frame_plot
-
-        return run_frame_plot(args, frame_result, path)
     try:
-        result = load_result_dict(path)
+        d = load_result(path)
     except ValueError as exc:  # wrong format key, or not JSON
-        raise UsageError(f"{path}: {exc}") from None
-    scene = _find_scene(result, path, args.scene)
-    idata = _load_netcdf(result, path)
-    draws = plotting.draws_from_result(result, idata)
+        raise UsageError(str(exc)) from None
+    scene = find_scene(d, path, args.scene)
+    chains = None
+    if d["format"] == "creference-result/1":
+        kept = (d.get("posterior") or {}).get("draws") or {}
+        chains = np.asarray(kept["chain"]) if "chain" in kept else None
+        d = result_from_v1(d, scene)
+    check_result(d, path)
+    ids = [o["id"] for o in d["objects"]]
+    unknown = [i for i in args.object or [] if i not in ids]
+    if unknown:
+        raise UsageError(f"--object {unknown[0]}: no such object (objects: {ids[:10]}{'…' if len(ids) > 10 else ''})")
+    try:
+        model = rebuild_model(d, scene)
+        cams, objs, source = result_draws(d, model, n=2000, seed=0)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UsageError(f"{path}: the model cannot be rebuilt from the result ({' '.join(str(exc).split())})") from None
+    if source == "laplace" and not args.quiet:
+        print("note: the result keeps no posterior draws: the spread shown is the Laplace approximation at the MAP, "
+              "and there is no rank plot")
+    chains = plotting.kept_chains(d) if chains is None else chains
+    if source == "posterior" and chains is None and not args.quiet:
+        print("note: the result does not say which chain each of its draws came from: no rank plot")
+    chosen = [ids.index(i) for i in args.object] if args.object else [0]
+    figures = plotting.scene_figures(scene, d, (cams, objs) if len(cams) else None, source=source, chains=chains,
+                                     chosen=chosen)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    truth = plotting._truth(scene) if scene is not None else None
-    figures = {}
-    if scene is not None:
-        figures["boxes"] = plotting.plot_boxes(result, scene, draws)
-    figures["top_view"] = plotting.plot_top_view(result, draws, scene=scene, truth=truth)
-    if draws is not None:
-        figures["pairs"] = plotting.plot_pairs(draws, result=result, truth=truth)
-        figures["ranks"] = plotting.plot_ranks(draws, result=result)
-    elif not args.quiet:
-        print("note: the result has no posterior (estimated with --no-posterior): "
-              "no pair or rank plot")
     for name, fig in figures.items():
         target = out / f"{name}.{args.format}"
-        fig.savefig(target, dpi=args.dpi)
+        with atomic_path(target) as tmp:
+            fig.savefig(tmp, dpi=args.dpi, format=args.format)
         if not args.quiet:
             print(f"wrote {target}")
     return 0
-
-
-def _frame_result(path: Path) -> dict | None:
-    """The document of a ``creference-result/2`` file (a frame), or None for anything else."""
-    import json
-
-    try:
-        d = json.loads(read_text(path))
-    except (OSError, ValueError):
-        return None
-    return d if isinstance(d, dict) and d.get("format") == "creference-result/2" else None
-
-
-def _load_netcdf(result: dict, result_path: Path):
-    name = result.get("netcdf")
-    if not name:
-        return None
-    for p in (Path(name), result_path.parent / Path(name).name):
-        if p.is_file():
-            from ..inference.summary import az
-
-            return az.from_netcdf(p)
-    return None

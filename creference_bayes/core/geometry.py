@@ -213,13 +213,6 @@ class Camera:
         pitch, roll = pitch_roll_from_horizon(self.horizon, focal, self.principal_point)
         return rotation_from_pitch_roll(pitch, roll)
 
-    def pitch_roll(self, focal) -> tuple[np.ndarray, np.ndarray]:
-        """(pitch, roll) in radians for focal length(s) ``focal``; zeros for a level camera."""
-        if self.horizon is None:
-            z = np.zeros_like(np.asarray(focal, float))
-            return z, z
-        return pitch_roll_from_horizon(self.horizon, focal, self.principal_point)
-
     def project(self, points: np.ndarray, focal) -> tuple[np.ndarray, np.ndarray]:
         """Project (..., k, 3) points in G with focal length(s) ``focal``; see :func:`project`."""
         return project(points, self.rotation(focal), focal, self.principal_point)

@@ -432,14 +432,16 @@ def assess_pair(i: int, j: int, line_i: np.ndarray, line_j: np.ndarray, range_i:
     return PairResult(i, j, None, kappa, xb, zb, db, **point)
 
 
-def aggregate_references(scene, camera=None, *, on: str = "xz", rules: SkipRules | None = None,
+def aggregate_references(corners: np.ndarray, references, camera, *, on: str = "xz", rules: SkipRules | None = None,
                          focal_range_px: tuple[float, float] | None = None) -> ReferenceReport:
-    """Every pair of the scene's references → bounds on the target's x and z (Eq. 8–11).
+    """Every pair of references → bounds on a target's x and z (Eq. 8–11).
 
     Parameters
     ----------
-    scene : :class:`~creference_bayes.scene.Scene`
-    camera : :class:`~creference_bayes.geometry.Camera` (its horizon; defaults to the scene's)
+    corners : (4, 2) the target's dimension-line corners t1..t4 (the per-corner median), pixels
+    references : ground segments with their stated real length: objects with ``index``, ``line``
+        ((2, 2) pixels), ``low`` and ``high`` (metres)
+    camera : :class:`~creference_bayes.core.geometry.Camera` (its horizon; level when it has none)
     on : ``"xz"`` to penalise x and z, ``"distance"`` to penalise √(x² + z²)
     rules : :class:`SkipRules` (the module's defaults when None)
     focal_range_px : (low, high) focal lengths (pixels) a solution may imply (e.g. the optimiser's
@@ -451,24 +453,20 @@ def aggregate_references(scene, camera=None, *, on: str = "xz", rules: SkipRules
     """
     if on not in ("xz", "distance"):
         raise ValueError(f"on: expected 'xz' or 'distance', got {on!r}")
-    if camera is None:
-        from .geometry import Camera
-        camera = Camera.from_scene(scene)
     frame = GroundFrame.from_camera(camera)
-    corners = scene.target.median_corners
+    corners = np.asarray(corners, float)
     rules = rules or SkipRules()
     target_ok = bool(np.all(frame.distance(corners[:3]) >= rules.min_horizon_px))
     target = target_ground_point(corners, frame) if target_ok else np.zeros(2)
-    t = scene.target
     pairs = tuple(
-        assess_pair(ri.index, rj.index, ri.line, rj.line, ri.length_bounds_m(t), rj.length_bounds_m(t),
+        assess_pair(ri.index, rj.index, ri.line, rj.line, (ri.low, ri.high), (rj.low, rj.high),
                     frame, target, rules=rules, focal_range_px=focal_range_px) if target_ok
         else PairResult(ri.index, rj.index, "target_above_horizon")
-        for ri, rj in combinations(scene.references, 2))
+        for ri, rj in combinations(references, 2))
     used = [p for p in pairs if p.used]
     constraints = None
     if used:
         constraints = SoftConstraints(
             x_bounds=np.array([p.x_bounds for p in used]), z_bounds=np.array([p.z_bounds for p in used]),
             distance_bounds=np.array([p.distance_bounds for p in used]), on=on)
-    return ReferenceReport(len(scene.references), pairs, constraints, on)
+    return ReferenceReport(len(references), pairs, constraints, on)

@@ -9,22 +9,20 @@ P(IoU ≥ t) matches the IoU it really has (:mod:`.reliability`).
 
 from __future__ import annotations
 
-from ..io.files import read_text
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..io.files import read_text
+from ..io.kitti import SIDECAR_FORMATS
 from ..io.kitti_read import KittiLabels, LabelFileError, kitti_boxes, read_kitti_labels
 from .iou3d import METRICS, overlaps
 from .kitti_ap import CLASSES, DIFFICULTIES, MIN_OVERLAPS, FrameData, average_precision
 from .reliability import brier_score, reliability_table
 
-__all__ = ["SIDECAR_FORMAT", "RELIABILITY_THRESHOLDS", "KittiEvaluation", "label_folder",
-           "read_sidecar_quality", "evaluate_kitti"]
-
-SIDECAR_FORMAT = "creference-kitti-uncertainty/1"
+__all__ = ["RELIABILITY_THRESHOLDS", "KittiEvaluation", "label_folder", "read_sidecar_quality", "evaluate_kitti"]
 #: The thresholds t of the sidecars' P(IoU ≥ t).
 RELIABILITY_THRESHOLDS = (0.5, 0.7)
 
@@ -43,9 +41,9 @@ def read_sidecar_quality(path: Path) -> dict[int, dict[float, float]]:
         doc = json.loads(read_text(path))
     except ValueError as exc:
         raise LabelFileError(f"{path}: not JSON ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("format") != SIDECAR_FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in SIDECAR_FORMATS:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise LabelFileError(f"{path}: format: expected {SIDECAR_FORMAT!r}, got {got!r}")
+        raise LabelFileError(f"{path}: format: expected one of {list(SIDECAR_FORMATS)}, got {got!r}")
     out = {}
     for k, obj in enumerate(doc.get("objects") or []):
         try:

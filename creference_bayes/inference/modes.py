@@ -1,6 +1,6 @@
 """Finding a posterior's separate modes before sampling it, and a mixture fitted around them.
 
-Pure NumPy and SciPy; the tempered exploration runs through :func:`.sampling.explore`.
+Pure NumPy and SciPy; the tempered exploration runs through :func:`.ensemble.explore`.
 
 Why
 ---
@@ -24,7 +24,7 @@ How
 3. **Weigh.** Each maximum gets a Laplace approximation; its mass is estimated as
    exp(log p) · √det(2π Σ). Modes under :data:`MIN_SHARE` of the total are dropped.
 
-The sampler (:func:`.sampling.sample`) then starts its ensembles in different modes (an
+The sampler (:func:`.ensemble.sample`) then starts its ensembles in different modes (an
 over-dispersed start, so R-hat across ensembles tests that they found the same posterior) and
 its independence proposal is a mixture with a component per mode (:func:`fit_mixture`).
 """
@@ -71,7 +71,7 @@ class Mode:
 
 def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=None,
                temperature: float = 3.0, n_steps: int = 150, n_walkers: int = 32,
-               n_climbs: int = 8) -> list[Mode]:
+               n_climbs: int = 8, extra_starts=None) -> list[Mode]:
     """The posterior's modes, the one at ``center`` first (module docstring).
 
     Parameters
@@ -82,15 +82,16 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     rng : numpy Generator
     log_mask : (d,) bool, positive parameters explored as logarithms
     circular : index of a circular coordinate (radians), or None
-    temperature, n_steps, n_walkers : the tempered exploration (:func:`.sampling.explore`)
+    temperature, n_steps, n_walkers : the tempered exploration (:func:`.ensemble.explore`)
     n_climbs : local maximisations from the explored points
+    extra_starts : (k, d) more points to climb from (other local optima the MAP's search found)
 
     Returns
     -------
     list of :class:`Mode`, the one at ``center`` first, then by decreasing share
     """
     from .reparam import Coordinates
-    from .sampling import explore
+    from .ensemble import explore
 
     center = np.asarray(center, float)
     d = len(center)
@@ -98,7 +99,9 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     coords = Coordinates.affine(center, cov, log_mask)
     u, lp_u = explore(log_prob, coords, rng, temperature=temperature, n_steps=n_steps,
                       n_walkers=n_walkers)
-    starts = _spread(u, lp_u, n_climbs)
+    starts = list(_spread(u, lp_u, n_climbs))
+    if extra_starts is not None and len(extra_starts):  # other optima known already (the MAP's)
+        starts += list(coords.forward(np.atleast_2d(np.asarray(extra_starts, float))))
 
     def neg(uu):  # −log p in the whitened coordinates, with the log coordinates' Jacobian
         q = coords.to_q(np.atleast_2d(uu))

@@ -1,11 +1,34 @@
-"""emcee moves that keep several ensembles independent inside one sampler, and an
-independence proposal (see :mod:`.sampling`).
+"""emcee moves: what is particular to a scene's posterior, under one driver (:mod:`.sampler`).
 
-Walkers ``g·K … (g+1)·K − 1`` of the sampler form ensemble ``g``. The red-blue moves
-(:class:`GroupedDEMove`, :class:`GroupedStretchMove`) draw a walker's partners only from the
-other half of its own ensemble, and :class:`IndependenceMove` uses no partner at all, so the
-ensembles never exchange information while all walkers share one vectorised log-probability call.
-Acceptance is vectorised too (emcee's red-blue moves accept walker by walker in Python).
+**Block moves**, for a posterior in blocks (the camera, and one block per object). Given the
+camera, a scene's objects are independent (up to the pair terms of workers' distances between
+them), and the sampler's coordinates (:class:`BlockTarget`) make them close to independent of the
+camera too. A sweep updates every object given the camera, then the camera with every object riding
+along:
+
+* **Objects.** Each object of each walker proposes a move of its block alone and accepts or rejects
+  it on its own terms (valid because, given the camera, the posterior factorises over objects);
+  all objects and walkers are one vectorised evaluation. Objects coupled by a pair term are never
+  moved in the same pass: they are coloured so that no coupled pair shares a colour, one pass per
+  colour, each accepting on its own terms plus the pair terms it touches.
+* **Camera.** The camera proposes a move; in the sheared coordinates every object moves with it
+  along its regression on the camera, and the whole posterior accepts or rejects.
+
+:class:`RandomWalkSweep` proposes random-walk steps (a block's covariance, scaled; the scales adapt
+towards an acceptance of 0.3 while the sampler tunes). :class:`IndependenceSweep` draws ``tries``
+proposals per block from a Student-t (:data:`IND_DOF` degrees of freedom, :data:`IND_SCALE` × the
+block's covariance) around its centre and takes one by independent multiple-try Metropolis
+(:func:`.multiple_try.multiple_try_pick`). Each walker is an independent chain: no block move uses
+another walker's position. The walker's blobs hold the log-density of each block (camera, each
+object, each pair term), which the moves keep up to date.
+
+**Ensemble moves**, for a posterior taken whole (:mod:`.ensemble`). Walkers ``g·K … (g+1)·K − 1``
+of the sampler form ensemble ``g``. The red-blue moves (:class:`GroupedDEMove`,
+:class:`GroupedStretchMove`) draw a walker's partners only from the other half of its own ensemble,
+and :class:`IndependenceMove` (a mixture of multivariate t, multiple tries) uses no partner at all,
+so the ensembles never exchange information while all walkers share one vectorised
+log-probability call. Acceptance is vectorised too (emcee's red-blue moves accept walker by walker
+in Python).
 """
 
 from __future__ import annotations
@@ -13,9 +36,286 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
+from ..models.contract import O_YAW, Model
+from .coords import CAMERA_LOG, WorkingCoords
 from .multiple_try import multiple_try_pick
 
-__all__ = ["GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
+__all__ = ["IND_DOF", "IND_SCALE", "BlockTarget", "BlockKernel", "RandomWalkSweep", "IndependenceSweep", "colours",
+           "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
+
+#: Degrees of freedom and scale of the independence proposals (a Student-t a little wider than the
+#: posterior's Gaussian approximation, so that its tails cover the posterior's).
+IND_DOF = 5.0
+IND_SCALE = 1.3
+
+
+class BlockTarget:
+    """The log-posterior of ``model`` at temperature ``T``, by blocks, in the sampler's coordinates.
+
+    The coordinates are the working coordinates (:mod:`.coords`) with each object measured from its
+    conditional mean given the camera: õᵢ = oᵢ − Bᵢ (c − c₀), ``B`` (m, 7, 5) the regression of the
+    objects on the camera and ``c0`` (5,) a reference camera (the shear has unit Jacobian; B = 0:
+    the working coordinates themselves). A state is a flat vector ``u`` of the free coordinates:
+    the camera's, then each object's; fixed entries come from ``c0`` and ``template`` (m, 7).
+    """
+
+    def __init__(self, model: Model, temperature: float, c0: np.ndarray, B: np.ndarray, template: np.ndarray,
+                 yaw_window: np.ndarray | None = None):
+        self.model, self.T = model, float(temperature)
+        #: (m,) the centre of each object's turn ψ (working yaw): states more than π from it have zero
+        #: density (one turn; a periodic density on the whole line is improper), or None
+        self.yaw_window = yaw_window
+        self.coords = WorkingCoords(model)
+        self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
+        self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
+        self.cf, self.of = model.camera_free, model.object_free
+        self.kc = int(self.cf.sum())
+        self.m = model.n_objects
+        self.P = len(model.pairs)
+        self.ndim = self.kc + int(self.of.sum())
+        self.incidence = np.zeros((self.m, self.P))
+        for p, (i, j) in enumerate(model.pairs):
+            self.incidence[i, p] = self.incidence[j, p] = 1.0
+
+    # -- coordinates -------------------------------------------------------------------------------
+    def split(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, d) → camera working coordinates (n, 5) and sheared object coordinates (n, m, 7)."""
+        u = np.atleast_2d(u)
+        wc = np.repeat(self.c0[None], len(u), axis=0)
+        wc[:, self.cf] = u[:, :self.kc]
+        wt = np.repeat(self.template[None], len(u), axis=0)
+        wt[:, self.of] = u[:, self.kc:]
+        return wc, wt
+
+    def join(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.atleast_2d(wc)[:, self.cf], np.asarray(wt).reshape(len(np.atleast_2d(wc)), -1, 7)[:, self.of]], axis=1)
+
+    def unshear(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
+        """Working object coordinates (n, m, 7) of sheared ones."""
+        return wt + np.einsum("mik,nk->nmi", self.B, wc - self.c0)
+
+    def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
+        wc, wt = self.split(u)
+        return self.coords.from_work(wc, self.unshear(wc, wt))
+
+    def working(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Working coordinates (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
+        wc, wt = self.split(u)
+        return wc, self.unshear(wc, wt)
+
+    # -- the blocks' log-densities -----------------------------------------------------------------
+    def camera(self, wc: np.ndarray) -> np.ndarray:
+        """(n,) log-density of the camera block alone (its terms and the Jacobian of its logs)."""
+        m = self.model
+        cams = self.coords.camera_from_work(wc)
+        with np.errstate(all="ignore"):
+            lp = -m.camera_term(cams, self.T) + np.sum(wc[:, CAMERA_LOG & m.camera_free], axis=1)
+        ok = np.all((cams >= m.camera_lower) & (cams <= m.camera_upper), axis=1) & np.isfinite(lp)
+        return np.where(ok, lp, -np.inf)
+
+    def objects(self, wc: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, m) log-density of each object's block and (n, P) of each pair term."""
+        m = self.model
+        cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
+        with np.errstate(all="ignore"):
+            lp = -m.object_terms(cams, objs, self.T) + jac
+            lp = np.where(self._inside(objs, wt) & np.isfinite(lp), lp, -np.inf)
+            if not self.P:
+                return lp, np.zeros((len(cams), 0))
+            pp = -m.pair_terms(cams, objs, self.T)
+        return lp, np.where(np.isfinite(pp), pp, -np.inf)
+
+    def blocks(self, u: np.ndarray) -> np.ndarray:
+        """(n, 1 + m + P): the camera's, each object's and each pair term's log-density (one
+        evaluation of the model's terms)."""
+        m = self.model
+        wc, wt = self.split(u)
+        cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
+        with np.errstate(all="ignore"):
+            c, o, p = m.terms(cams, objs, self.T)
+            lp_c = -c + np.sum(wc[:, CAMERA_LOG & m.camera_free], axis=1)
+            lp_c = np.where(np.all((cams >= m.camera_lower) & (cams <= m.camera_upper), axis=1) & np.isfinite(lp_c),
+                            lp_c, -np.inf)
+            lp_o = np.where(self._inside(objs, wt) & np.isfinite(-o + jac), -o + jac, -np.inf)
+            lp_p = np.where(np.isfinite(p), -p, -np.inf)
+        return np.column_stack([lp_c, lp_o, lp_p])
+
+    def _inside(self, objs: np.ndarray, wt: np.ndarray) -> np.ndarray:
+        """(n, m) whether each object lies inside the bounds (and its turn inside the yaw window)."""
+        m = self.model
+        inside = (objs >= m.object_lower) & (objs <= m.object_upper)
+        inside[..., O_YAW] = True if self.yaw_window is None else np.abs(wt[..., O_YAW] - self.yaw_window) < np.pi
+        return np.all(inside, axis=-1)
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """(n,) the log-posterior density in these coordinates."""
+        with np.errstate(invalid="ignore"):
+            return self.blocks(u).sum(axis=1)
+
+
+def colours(m: int, pairs: np.ndarray) -> list:
+    """Groups of objects no two of which are coupled (greedy graph colouring), as (m,) masks;
+    ``[None]`` (every object at once) when nothing couples them."""
+    if not len(pairs):
+        return [None]
+    colour = -np.ones(m, int)
+    for i in range(m):
+        taken = {colour[j] for a, b in pairs for j in ((b,) if a == i else (a,) if b == i else ())}
+        colour[i] = next(c for c in range(m) if c not in taken)
+    return [colour == c for c in range(colour.max() + 1)]
+
+
+class BlockKernel:
+    """What the sweeps share: the target, each block's proposal (Cholesky factors ``Lc`` (5, 5) and
+    ``Lo`` (m, 7, 7), random-walk scales, independence centres ``mc`` (5,), ``mt`` (m, 7)), the
+    colouring and the acceptance counts.
+
+    ``adapt``: while True, each random-walk sweep moves its scales by exp(rate · (acceptance − 0.3)),
+    rate = 3 / (t + 10)^0.6 at its t-th call (Robbins–Monro).
+    """
+
+    def __init__(self, target: BlockTarget, Lc: np.ndarray, Lo: np.ndarray, mc: np.ndarray, mt: np.ndarray, *,
+                 tries: int = 4, adapt: bool = False):
+        self.t = target
+        self.Lc, self.Lo = Lc, Lo
+        self.Lci, self.Loi = np.linalg.pinv(Lc), np.linalg.pinv(Lo)
+        self.mc, self.mt = mc, mt
+        self.kc, self.ko = int(target.cf.sum()), target.of.sum(axis=1)
+        self.sc = 2.38 / np.sqrt(max(self.kc, 1))
+        self.so = 2.38 / np.sqrt(np.maximum(self.ko, 1))
+        self.tries, self.adapt, self.calls = int(tries), adapt, 0
+        self.colours = colours(target.m, target.model.pairs)
+        self.accepted = {"camera": [], "objects": []}
+
+    # -- state <-> blocks ---------------------------------------------------------------------------
+    def _unpack(self, state):
+        wc, wt = self.t.split(state.coords)
+        b = np.asarray(state.blobs, float).reshape(len(wc), -1)
+        m = self.t.m
+        return wc, wt, b[:, 0].copy(), b[:, 1:1 + m].copy(), b[:, 1 + m:].copy()
+
+    def _pack(self, state, wc, wt, lp_c, lp_o, lp_p):
+        state.coords = self.t.join(wc, wt)
+        state.blobs = np.column_stack([lp_c, lp_o, lp_p])
+        with np.errstate(invalid="ignore"):
+            state.log_prob = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
+        return state
+
+    # -- proposals ------------------------------------------------------------------------------------
+    @staticmethod
+    def _t(rs, shape):
+        return rs.standard_normal(shape) / np.sqrt(rs.chisquare(IND_DOF, shape[:-1] + (1,)) / IND_DOF)
+
+    def _log_q_obj(self, x):  # (…, m): Student-t log-density (up to constants) of the object proposal
+        w = np.einsum("mij,...mj->...mi", self.Loi, x - self.mt) / IND_SCALE
+        return -0.5 * (IND_DOF + self.ko) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+
+    def _log_q_cam(self, x):
+        w = (x - self.mc) @ self.Lci.T / IND_SCALE
+        return -0.5 * (IND_DOF + self.kc) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+
+    def sweep(self, state, rs, independent: bool):
+        """One sweep (module docstring) of every walker; returns the state and which walkers moved."""
+        wc, wt, lp_c, lp_o, lp_p = self._unpack(state)
+        C, m = wt.shape[:2]
+        inc = self.t.incidence
+        a = np.zeros((C, m), bool)
+        for colour in self.colours:
+            if independent:
+                k = self.tries
+                props = self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, self._t(rs, (C, k, m, 7)))
+                if colour is not None:
+                    props = np.where(colour[None, None, :, None], props, wt[:, None])
+                own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
+                own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
+                new, cur = own, lp_o
+                if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
+                    with np.errstate(invalid="ignore"):
+                        new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
+                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props), 1, -1),
+                                          cur - self._log_q_obj(wt), rs)
+                if colour is not None:
+                    ok &= colour[None, :]
+                take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
+                wt = np.where(ok[..., None], take(props), wt)
+                lp_o = np.where(ok, take(own), lp_o)
+                for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
+                    for end in (i_, k_):
+                        val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
+                        lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
+            else:
+                prop = wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7)))
+                if colour is not None:
+                    prop = np.where(colour[None, :, None], prop, wt)
+                own, pair = self.t.objects(wc, prop)
+                delta = own - lp_o
+                if lp_p.shape[1]:
+                    with np.errstate(invalid="ignore"):
+                        delta = delta + (pair - lp_p) @ inc.T
+                with np.errstate(invalid="ignore"):
+                    ok = np.log(rs.uniform(size=(C, m))) < delta
+                if colour is not None:
+                    ok &= colour[None, :]
+                wt = np.where(ok[..., None], prop, wt)
+                lp_o = np.where(ok, own, lp_o)
+                if lp_p.shape[1]:
+                    lp_p = np.where((ok.astype(float) @ inc) > 0, pair, lp_p)
+            a |= ok
+        b = np.ones(C, bool)
+        if self.kc:
+            if independent:
+                k = self.tries
+                pcs = self.mc + IND_SCALE * self._t(rs, (C, k, 5)) @ self.Lc.T  # (C, k, 5)
+                flat = pcs.reshape(C * k, 5)
+                lpc = self.t.camera(flat)
+                lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
+                with np.errstate(invalid="ignore"):
+                    total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
+                    cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
+                j, b = multiple_try_pick(total - self._log_q_cam(flat).reshape(C, k), cur - self._log_q_cam(wc), rs)
+                sel = np.arange(C) * k + j
+                pc, lpc, lpo, lpp = pcs[np.arange(C), j], lpc[sel], lpo[sel], lpp[sel]
+            else:
+                pc = wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T
+                lpc = self.t.camera(pc)
+                lpo, lpp = self.t.objects(pc, wt)
+                with np.errstate(invalid="ignore"):
+                    b = np.log(rs.uniform(size=C)) < ((lpc + lpo.sum(axis=1) + lpp.sum(axis=1))
+                                                      - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)))
+            wc = np.where(b[:, None], pc, wc)
+            lp_c = np.where(b, lpc, lp_c)
+            lp_o = np.where(b[:, None], lpo, lp_o)
+            lp_p = np.where(b[:, None], lpp, lp_p)
+        if not independent:
+            self.calls += 1
+            if self.adapt:
+                rate = 3.0 / (self.calls + 10) ** 0.6
+                self.so = self.so * np.exp(rate * (a.mean(axis=0) - 0.3))
+                self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
+        self.accepted["objects"].append(a.mean(axis=0))
+        self.accepted["camera"].append(float(b.mean()))
+        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), a.any(axis=1) | b
+
+
+class RandomWalkSweep(emcee.moves.Move):
+    """A random-walk sweep of every block (module docstring)."""
+
+    def __init__(self, kernel: BlockKernel):
+        self.kernel = kernel
+
+    def propose(self, model, state):
+        return self.kernel.sweep(state, model.random, independent=False)
+
+
+class IndependenceSweep(emcee.moves.Move):
+    """An independence sweep of every block, with multiple tries (module docstring)."""
+
+    def __init__(self, kernel: BlockKernel):
+        self.kernel = kernel
+
+    def propose(self, model, state):
+        return self.kernel.sweep(state, model.random, independent=True)
 
 
 def _log_prob(model, q: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
 """What the Label Studio and CVAT converters share: errors that name the task and the region, the
-reference fields a worker fills in, the checks every converted scene passes, and writing scenes.
+reference fields a worker fills in, the ``--targets`` table, the classes block, the check every
+converted scene passes, and writing scenes.
 
 An annotation tool's export is not trusted: every field is type-checked here or in the tool's
 module, and every scene is validated by :func:`~creference_bayes.io.scene.parse_scene` before it
@@ -22,11 +23,12 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..core.units import UNITS_TO_M
+from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
 from .scene import MEASURES, MODES, SceneError, parse_scene
 
-__all__ = ["ConversionError", "TargetScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
-           "reference_from_fields", "number_field", "mean_horizon", "checked_scene",
+__all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
+           "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
            "safe_name", "unique_names", "relative_image_path", "image_file", "open_input",
            "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes", "fmt_number"]
 
@@ -48,8 +50,9 @@ class ConversionError(ValueError):
 
 
 @dataclass(frozen=True)
-class TargetScene:
-    """One converted target: ``name`` (the file stem), the ``creference-scene/1`` dict, where from."""
+class ImportedScene:
+    """One converted photo: ``name`` (the file stem), the ``creference-scene/2`` dict, where from
+    (the task(s) or the image)."""
 
     name: str
     scene: dict
@@ -60,7 +63,7 @@ class TargetScene:
 class ImportReport:
     """Scenes converted, units skipped (with the reason) and notes (things ignored or assumed)."""
 
-    scenes: tuple[TargetScene, ...]
+    scenes: tuple[ImportedScene, ...]
     errors: tuple[ConversionError, ...] = ()
     notes: tuple[str, ...] = ()
 
@@ -226,17 +229,12 @@ def set_camera_and_horizon(scene: dict, camera: dict, data: dict, horizons: list
 
 
 def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
-    """Validate a converted scene with :func:`parse_scene`; a failure becomes a
-    :class:`ConversionError` naming ``where`` and, through ``origins`` (a key-path prefix such as
-    ``references[2]`` → ``region 'a1b2'``), the region the bad value came from."""
-    return checked_with(parse_scene, scene, where, origins)
-
-
-def checked_with(parse, scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
-    """``scene`` after ``parse(scene)`` accepted it (warnings silenced) and it was found writable
-    (JSON with finite numbers only: what :func:`write_scenes` writes); a :class:`SceneError`, or a
-    value that cannot be written, becomes a :class:`ConversionError` naming ``where`` and the region
-    of the longest matching ``origins`` prefix (the last one that matches)."""
+    """``scene`` after :func:`parse_scene` accepted it (warnings silenced) and it was found
+    writable (JSON with finite numbers only: what :func:`write_scenes` writes). A
+    :class:`SceneError`, or a value that cannot be written, becomes a :class:`ConversionError`
+    naming ``where`` and, through ``origins`` (a key-path prefix such as
+    ``targets[1].dimension_lines[0]`` → ``annotation 7, region 'a1'``; the last matching prefix
+    wins), the region the bad value came from."""
     def fail(path, problem):
         origin = None
         for prefix, name in (origins or {}).items():
@@ -247,7 +245,7 @@ def checked_with(parse, scene: dict, where: str, origins: dict[str, str] | None 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            parse(scene)
+            parse_scene(scene)
     except SceneError as exc:
         fail(exc.path, exc.problem)
     bad = _unwritable(scene)
@@ -255,6 +253,19 @@ def checked_with(parse, scene: dict, where: str, origins: dict[str, str] | None 
         fail(bad[0], f"{_short(bad[1])} cannot be written (a scene file holds finite numbers, text, "
                      "lists and objects)")
     return scene
+
+
+def classes_block(targets: list[dict], own: Any, extra: dict[str, SizePrior] | None) -> dict | None:
+    """A scene's ``classes``: its own (from the export, as given) plus the classes of a
+    ``--classes`` file that its size-less targets use and its own do not define."""
+    out = dict(own) if isinstance(own, dict) else own
+    if extra:
+        used = [t["class"] for t in targets if t.get("dimensions_m") is None and t.get("class") in extra]
+        add = {c: {**{f"{k}_m": v for k, v in zip(SIZE_KEYS, extra[c].median_m)}, "log_sd": list(extra[c].log_sd)}
+               for c in dict.fromkeys(used) if not (isinstance(out, dict) and c in out)}
+        if add:
+            out = {**(out or {}), **add}
+    return out or None
 
 
 def _unwritable(obj: Any) -> tuple[str, Any] | None:
@@ -316,7 +327,6 @@ def read_input(path: str | Path) -> bytes:
 
 
 _TABLE_COLUMNS = ("target_id", "length_m", "width_m", "height_m")
-_SIZE_KEYS = ("length", "width", "height")
 
 
 @dataclass(frozen=True, eq=False)  # rows are told apart by identity (a row is used, or not)
@@ -361,7 +371,7 @@ class TargetTable:
         if table is None or isinstance(table, TargetTable):
             return cls(() if table is None else table.rows)
         return cls(TableRow(f"targets[{tid!r}]", None, tid,
-                            {k: row[k] for k in _SIZE_KEYS} if "length" in row else None,
+                            {k: row[k] for k in SIZE_KEYS} if "length" in row else None,
                             row.get("focal_length_px")) for tid, row in table.items())
 
     def row(self, images: list[str], target_id: str | None, where: str) -> TableRow | None:
@@ -380,11 +390,11 @@ class TargetTable:
     def size(self, images: list[str], target_id: str, dims: dict[str, float] | None, where: str,
              required: bool = False) -> dict[str, float] | None:
         """The target's size (m): the export's ``dims`` or its row's (they must agree when both
-        give one), or None (``required``: a :class:`ConversionError`)."""
+        give one), or None (``required``, for a target without a class: a :class:`ConversionError`)."""
         row = self.row(images, target_id, where)
         given = row.size if row is not None else None
         if dims is not None and given is not None:
-            for k in _SIZE_KEYS:
+            for k in SIZE_KEYS:
                 if not math.isclose(dims[k], given[k], rel_tol=1e-9):
                     raise ConversionError(where, f"target {target_id!r}: {k} {dims[k]:g} m in the export "
                                                  f"but {given[k]:g} m in the --targets table ({row.line})")
@@ -392,7 +402,7 @@ class TargetTable:
         if size is None and required:
             hint = " or in the --targets table" if self.rows else " (or pass --targets FILE.csv)"
             raise ConversionError(where, f"no size for target {target_id!r}: give length, width and "
-                                         f"height in metres in the export{hint}")
+                                         f"height in metres in the export{hint}, or its class")
         return None if size is None else dict(size)
 
     def focal(self, images: list[str], target_ids: Iterable[str], where: str) -> float | None:
@@ -453,7 +463,7 @@ def load_target_table(path: str | Path) -> TargetTable:
             if not any(cell.values()):
                 continue
             image, tid = cell.get("image") or None, cell.get("target_id") or None
-            given = {k: cell[f"{k}_m"] for k in _SIZE_KEYS if cell[f"{k}_m"]}
+            given = {k: cell[f"{k}_m"] for k in SIZE_KEYS if cell[f"{k}_m"]}
             if given and len(given) < 3:
                 raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
                                              f"{ {k + '_m': v for k, v in given.items()} }")
@@ -492,7 +502,7 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
     return relative_image_path(found, out_dir)
 
 
-def write_scenes(scenes: Iterable[TargetScene], out_dir: str | Path) -> list[Path]:
+def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path) -> list[Path]:
     """Write each scene to ``out_dir/<name>.json`` atomically (temporary file, then rename)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -504,7 +514,7 @@ def write_scenes(scenes: Iterable[TargetScene], out_dir: str | Path) -> list[Pat
     return paths
 
 
-def unique_names(scenes: list[TargetScene]) -> tuple[list[TargetScene], list[ConversionError]]:
+def unique_names(scenes: list[ImportedScene]) -> tuple[list[ImportedScene], list[ConversionError]]:
     """Drop (and report) a scene whose file name an earlier scene already took."""
     seen: dict[str, str] = {}
     kept, errors = [], []
@@ -512,7 +522,7 @@ def unique_names(scenes: list[TargetScene]) -> tuple[list[TargetScene], list[Con
         key = s.name.lower()  # case-insensitive file systems
         if key in seen:
             errors.append(ConversionError(s.source, f"file name {s.name + '.json'!r} is already used "
-                                                    f"by {seen[key]} (target ids must be unique)"))
+                                                    f"by {seen[key]} (each photo needs a name of its own)"))
             continue
         seen[key] = s.source
         kept.append(s)

@@ -1,15 +1,18 @@
-"""CVAT for images 1.1 XML ↔ ``creference-scene/1``: the shipped label spec, ``annotations.xml`` → one
-scene per target, and scenes → ``annotations.xml`` (docs/import.md is the user's guide).
+"""CVAT for images 1.1 XML ↔ scene files: the shipped label spec, ``annotations.xml`` → one
+``creference-scene/2`` scene per image holding all its targets, and scenes → ``annotations.xml``
+(docs/import.md is the user's guide).
 
 Labels (``creference_bayes/data/cvat_labels.json``): ``target`` — a points shape with the four
 corners t1..t4 in order (common bottom corner, end of length, end of width, top of height);
 ``reference`` — a two-point polyline with the measurement in attributes named as
 :data:`~.annotation_tools.REFERENCE_FIELDS`; ``horizon`` — a two-point polyline. Every shape may
-carry a ``worker`` attribute (CVAT records no per-shape annotator). A shape belongs to the target
-named by its ``target_id`` attribute; on an image with one target the attribute may be empty,
-and a direct reference without one is shared by all targets of its image. The target's size is
-in its shapes' ``length_m``/``width_m``/``height_m`` attributes or in a ``--targets`` table.
-Other shapes (boxes, polygons, …, tags) and other labels are ignored with a note.
+carry a ``worker`` attribute (CVAT records no per-shape annotator). The ``target`` shapes are
+grouped into targets by their ``target_id`` (on an image with a single target it may be empty:
+the target's id is then the image's name); a target's ``class`` and size
+(``length_m``/``width_m``/``height_m``, or the ``--targets`` table; without one its class's size
+prior applies) come from its shapes. A ``reference`` with a ``target_id`` names that target (a
+relative one is a ratio to it); a direct one without is a ground segment of the photo. Other
+shapes (boxes, polygons, …, tags) and other labels are ignored with a note.
 
 The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
 parsing, so no entity can expand.
@@ -26,10 +29,9 @@ from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportReport,
-                               TargetScene, TargetTable, checked_scene, fmt_number, image_file,
-                               mean_horizon, number_field, read_input, reference_from_fields,
-                               safe_name, unique_names)
+from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportedScene, ImportReport,
+                               TargetTable, checked_scene, classes_block, fmt_number, image_file, mean_horizon,
+                               number_field, read_input, reference_from_fields, safe_name, unique_names)
 from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
@@ -76,10 +78,10 @@ def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
 
 
 def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
-                     out_dir: str | Path | None = None, targets: TargetTable | None = None,
-                     frames: bool = False, classes: dict | None = None) -> ImportReport:
-    """Convert a parsed CVAT for images 1.1 document to one scene per target, or one
-    ``creference-scene/2`` frame per image whose targets carry a ``class`` (:mod:`.cvat_frames`).
+                     out_dir: str | Path | None = None, targets: Any = None,
+                     classes: dict | None = None) -> ImportReport:
+    """Convert a parsed CVAT for images 1.1 document to one ``creference-scene/2`` scene per image
+    (module docstring).
 
     Parameters
     ----------
@@ -91,20 +93,18 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
         says when neither exists).
     out_dir : path, optional
         The folder the scenes will be written to; image paths are made relative to it.
-    targets : TargetTable, optional
-        Known sizes and focal lengths by image and target
+    targets : TargetTable or dict, optional
+        Known sizes (m) and focal lengths (px) by image and target
         (:func:`~.annotation_tools.load_target_table`).
-    frames : bool
-        Import every image as a frame, also those whose targets carry no ``class``.
     classes : dict, optional
         Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
-        written into the frames whose size-less targets use them.
+        written into the scenes whose size-less targets use them.
 
     Returns
     -------
     ImportReport
-        An image (or one target of it) that cannot be converted is in ``errors``; its message
-        names the image and the shape (``shape 3`` is the image's fourth shape element).
+        An image that cannot be converted is in ``errors``; its message names the image and the
+        shape (``shape 3`` is the image's fourth shape element).
     """
     notes: list[str] = []
     version = (root.findtext("version") or "").strip()
@@ -115,9 +115,13 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
     table = TargetTable.of(targets)
     scenes, errors = [], []
     for i, image in enumerate(root.findall("image")):
-        found, errs = _image_scenes(image, i, image_dir, out_dir, table, notes, frames, classes)
-        scenes += found
-        errors += errs
+        try:
+            scene = _image_scene(image, i, image_dir, out_dir, table, classes, notes)
+        except ConversionError as exc:
+            errors.append(exc)
+            continue
+        if scene is not None:
+            scenes.append(scene)
     kept, clashes = unique_names(scenes)
     notes += table.notes()
     return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
@@ -170,88 +174,94 @@ def _shape(el: ET.Element, k: int, where: str) -> _Shape:
     return _Shape(swhere, desc, pts, attrs)
 
 
-def _image_scenes(image, i, image_dir, out_dir, table, notes, frames=False, classes=None):
+def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTable, classes: dict | None,
+                 notes: list[str]) -> ImportedScene | None:
+    """The scene of the ``i``-th ``<image>``, or None (no target annotated); raises
+    :class:`ConversionError` naming the image and the shape."""
     name = image.get("name") or f"#{image.get('id', i)}"
     where = f"image {name!r}"
-    try:
-        width = _whole(image.get("width"), where, "width")
-        height = _whole(image.get("height"), where, "height")
-        shapes = {TARGET: [], REFERENCE: [], HORIZON: []}
-        for k, el in enumerate(list(image)):
-            label = el.get("label")
-            if label not in shapes:
-                notes.append(f"{where}, shape {k}: label {label!r} ignored")
-            elif el.tag not in ("points", "polyline"):
-                notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (a {label} is drawn as "
-                             "points or a polyline)")
-            else:
-                shapes[label].append(_shape(el, k, where))
-        if not shapes[TARGET]:
-            if shapes[REFERENCE] or shapes[HORIZON]:
-                raise ConversionError(where, "references or a horizon but no target shape")
-            notes.append(f"{where}: no target annotated; skipped")
-            return [], []
-        image_path = image_file(image_dir, name, out_dir, where, notes) if image_dir is not None else None
-        if frames or any(s.attrs.get("class") for s in shapes[TARGET]):
-            from .cvat_frames import frame_image_scene
-
-            return [frame_image_scene(name, i, width, height, shapes, image_path, table, classes)], []
-        groups = target_groups(shapes[TARGET])
-        horizon = (mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
-                   if shapes[HORIZON] else None)
-        refs_of = {key: [s for s in shapes[REFERENCE] if _belongs(s, key, groups)] for key in groups}
-    except ConversionError as exc:
-        return [], [exc]
-
+    width = _whole(image.get("width"), where, "width")
+    height = _whole(image.get("height"), where, "height")
+    shapes = {TARGET: [], REFERENCE: [], HORIZON: []}
+    for k, el in enumerate(list(image)):
+        label = el.get("label")
+        if label not in shapes:
+            notes.append(f"{where}, shape {k}: label {label!r} ignored")
+        elif el.tag not in ("points", "polyline"):
+            notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (a {label} is drawn as "
+                         "points or a polyline)")
+        else:
+            shapes[label].append(_shape(el, k, where))
+    if not shapes[TARGET]:
+        if shapes[REFERENCE] or shapes[HORIZON]:
+            raise ConversionError(where, "references or a horizon but no target shape")
+        notes.append(f"{where}: no target annotated; skipped")
+        return None
     stem = PurePosixPath(name).stem or f"image{i}"
-    base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
-    scenes, errors = [], []
-    for key, tshapes in groups.items():
-        tid = key or stem
-        twhere = where if key == "" else f"{where}, target {tid!r}"
-        try:
-            refs = refs_of[key]
-            scene = _target_scene(name, tid, tshapes, refs, horizon, width, height, twhere, table)
-            if image_path is not None:
-                scene["image"]["path"] = image_path
-            origins = {f"target.dimension_lines[{j}]": s.desc for j, s in enumerate(tshapes)}
-            origins.update({f"references[{j}]": s.desc for j, s in enumerate(refs)})
-            checked_scene(scene, twhere, origins)
-            scenes.append(TargetScene(safe_name(base if key == "" else f"{base}_{tid}"), scene, twhere))
-        except ConversionError as exc:
-            errors.append(exc)
-    return scenes, errors
-
-
-def target_groups(tshapes: list[_Shape]) -> dict[str, list[_Shape]]:
-    """An image's target shapes by ``target_id``. The id may be empty only on an image with a
-    single target (its id is then the image's name): among named targets, an unnamed shape is most
-    likely one whose id was forgotten, so it is refused rather than made a target of its own."""
     groups: dict[str, list] = {}
-    for s in tshapes:
+    for s in shapes[TARGET]:
         groups.setdefault(s.attrs.get("target_id", ""), []).append(s)
-    if "" in groups and len(groups) > 1:
+    if "" in groups and len(groups) > 1:  # among named targets, most likely a forgotten id
         raise ConversionError(groups[""][0].where, f"this target shape has no target_id, and the image has "
                                                    f"several targets ({sorted(k for k in groups if k)}); "
                                                    "give every target shape its target_id")
-    return groups
-
-
-def _belongs(shape: _Shape, key: str, groups: dict) -> bool:
-    """Whether a reference shape belongs to the target ``key`` (see the module docstring)."""
-    ref_key = shape.attrs.get("target_id", "")
-    if ref_key:
-        if ref_key not in groups:
-            have = sorted(k for k in groups if k) or "none"
-            raise ConversionError(shape.where, f"reference for target {ref_key!r}, but no target shape "
-                                               f"on this image has that target_id (they have {have})")
-        return ref_key == key
-    if len(groups) == 1:
-        return True
-    if shape.attrs.get("mode") == "relative":
-        raise ConversionError(shape.where, "a relative reference needs a target_id on an image with "
-                                           f"several targets ({sorted(groups)})")
-    return True  # a direct reference without target_id: shared by every target of the image
+    ids = {key: key or stem for key in groups}
+    targets, origins = [], {}
+    for j, (key, tshapes) in enumerate(groups.items()):
+        found: dict[str, str] = {}
+        for s in tshapes:
+            cls = s.attrs.get("class", "")
+            if cls and found and cls not in found:
+                a, da = next(iter(found.items()))
+                raise ConversionError(s.where, f"class {cls!r} here but {a!r} on {da} of the same target")
+            if cls:
+                found.setdefault(cls, s.desc)
+        t: dict[str, Any] = {"id": ids[key]}
+        if found:
+            t["class"] = next(iter(found))
+        dims = table.size([name], ids[key], _shape_dims(tshapes), f"{where}, target {ids[key]!r}",
+                          required=not found)
+        if dims is not None:
+            t["dimensions_m"] = dims
+        t["dimension_lines"] = [{"corners": s.pts, **({"worker": s.attrs["worker"]} if s.attrs.get("worker") else {})}
+                                for s in tshapes]
+        targets.append(t)
+        origins[f"targets[{j}]"] = tshapes[0].desc
+        origins.update({f"targets[{j}].dimension_lines[{k}]": s.desc for k, s in enumerate(tshapes)})
+    refs = []
+    for k, s in enumerate(shapes[REFERENCE]):
+        key = s.attrs.get("target_id", "")
+        if key and key not in groups:
+            have = sorted(k2 for k2 in groups if k2) or "none"
+            raise ConversionError(s.where, f"reference for target {key!r}, but no target shape on this "
+                                           f"image has that target_id (they have {have})")
+        if not key and s.attrs.get("mode") == "relative" and len(groups) > 1:
+            raise ConversionError(s.where, "a relative reference needs a target_id on an image with several "
+                                           f"targets ({sorted(groups)})")
+        ref = reference_from_fields({f: s.attrs.get(f) for f in REFERENCE_FIELDS}, s.pts, s.where,
+                                    worker=s.attrs.get("worker") or None)
+        if key:
+            ref["target"] = ids[key]
+        refs.append(ref)
+        origins[f"references[{k}]"] = s.desc
+    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
+    if image_dir is not None:
+        path = image_file(image_dir, name, out_dir, where, notes)
+        if path is not None:
+            scene["image"]["path"] = path
+    focal = table.focal([name], [t["id"] for t in targets], where)
+    if focal is not None:
+        scene["camera"] = {"focal_length_px": focal}
+    if shapes[HORIZON]:
+        scene["horizon"] = mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
+    own = classes_block(targets, None, classes)
+    if own:
+        scene["classes"] = own
+    scene["targets"] = targets
+    if refs:
+        scene["references"] = refs
+    base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
+    return ImportedScene(base, checked_scene(scene, where, origins), where)
 
 
 def _shape_dims(tshapes) -> dict[str, float] | None:
@@ -271,29 +281,6 @@ def _shape_dims(tshapes) -> dict[str, float] | None:
             raise ConversionError(swhere, f"target size {these} differs from {dims} on another shape")
         dims = these
     return dims
-
-
-def _target_scene(name, tid, tshapes, refs, horizon, width, height, where, table) -> dict:
-    size = table.size([name], tid, _shape_dims(tshapes), where, required=True)
-    focal = table.focal([name], [tid], where)
-    lines = []
-    for shape in tshapes:
-        line = {"corners": shape.pts}
-        if shape.attrs.get("worker"):
-            line["worker"] = shape.attrs["worker"]
-        lines.append(line)
-    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    if focal is not None:
-        scene["camera"] = {"focal_length_px": focal}
-    if horizon is not None:
-        scene["horizon"] = horizon
-    scene["target"] = {"id": tid, "dimensions_m": size, "dimension_lines": lines}
-    references = [reference_from_fields({k: s.attrs.get(k) for k in REFERENCE_FIELDS}, s.pts, s.where,
-                                        worker=s.attrs.get("worker") or None)
-                  for s in refs]
-    if references:
-        scene["references"] = references
-    return scene
 
 
 # ----------------------------------------------------------------------------------------------
@@ -323,20 +310,6 @@ def _meta(n_images: int) -> ET.Element:
     return meta
 
 
-def reference_shape(img, r: dict, target_id) -> None:
-    """A scene's reference ``r`` (with a line) as a ``reference`` polyline of ``img``, tied to
-    ``target_id``."""
-    vals = {"target_id": target_id, "object": r.get("object"), "measure": r["measure"],
-            "mode": r["mode"], "unit": r.get("unit"), "worker": r.get("worker")}
-    if "range" in r:
-        vals["range_low"], vals["range_high"] = map(float, r["range"])
-    else:
-        vals["value"] = float(r["value"])
-    if r.get("confidence") is not None:
-        vals["confidence_pct"] = round(100.0 * r["confidence"], 10)
-    _shape_el(img, "polyline", REFERENCE, r["line"], vals)
-
-
 def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
     el = ET.SubElement(parent, tag, {"label": label, "source": "manual", "occluded": "0",
                                      "points": ";".join(f"{u:.2f},{v:.2f}" for u, v in pts),
@@ -349,32 +322,33 @@ def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
 
 
 def cvat_xml(scenes, *, image_names=None) -> str:
-    """CVAT for images 1.1 XML (text) holding the scenes' annotations.
+    """CVAT for images 1.1 XML (text) holding the scenes' annotations (:class:`~.scene.Scene` or
+    scene dicts of either format).
 
-    Scenes on the same image name share one ``<image>``; their horizons must agree. A
-    ``creference-scene/2`` frame has its image to itself (every target with its ``class``). The
-    image name is ``image_names[i]``, else the file name of ``image.path``, else
-    ``<(first) target id>.jpg``.
+    Each target's dimension lines are ``target`` points with its ``target_id``, ``class`` and known
+    size; each reference a ``reference`` polyline (with the ``target_id`` of the target it names);
+    the horizon a ``horizon`` polyline. Scenes on the same image name share one ``<image>`` (their
+    size and horizon must agree, their target ids must differ). The image name is
+    ``image_names[i]``, else the file name of ``image.path``, else ``<first target id>.jpg``.
     Coordinates are written with two decimals, as CVAT writes them. Not representable in CVAT and
-    therefore left out: ``seconds``, the camera, the ground truth, a frame's own ``classes``.
-    """
-    from .frame_import import is_frame
-    from .frame_scene import frame_to_dict, parse_frame
+    therefore left out: ``seconds``, the camera, ``horizon_sd_px``, the ground truth, the scene's
+    own ``classes``.
 
-    scenes = [(frame_to_dict(parse_frame(s) if isinstance(s, dict) else s) if is_frame(s) else
-               scene_to_dict(parse_scene(s) if isinstance(s, dict) else s)) for s in scenes]
+    Raises
+    ------
+    ValueError
+        When scenes sharing an image disagree, and for a reference without a line (a target's own
+        size, a distance between two targets): it has no shape.
+    """
+    scenes = [scene_to_dict(parse_scene(s) if isinstance(s, dict) else s) for s in scenes]
     names = list(image_names) if image_names is not None else [None] * len(scenes)
     if len(names) != len(scenes):
         raise ValueError(f"image_names: expected {len(scenes)} names, got {len(names)}")
     images: dict[str, list] = {}
     for d, name in zip(scenes, names):
-        first = d["targets"][0]["id"] if "targets" in d else d["target"]["id"]
         name = name or (PurePosixPath(d["image"]["path"]).name if d["image"].get("path")
-                        else f"{safe_name(first)}.jpg")
+                        else f"{safe_name(d['targets'][0]['id'])}.jpg")
         images.setdefault(name, []).append(d)
-        if len(images[name]) > 1 and any("targets" in x for x in images[name]):
-            raise ValueError(f"image {name!r}: a frame holds every target of its image; it cannot share "
-                             "the image with another scene")
     root = ET.Element("annotations")
     ET.SubElement(root, "version").text = "1.1"
     root.append(_meta(len(images)))
@@ -383,20 +357,29 @@ def cvat_xml(scenes, *, image_names=None) -> str:
         horizons = {json.dumps(d.get("horizon")) for d in group}
         if any((d["image"]["width"], d["image"]["height"]) != (w, h) for d in group) or len(horizons) > 1:
             raise ValueError(f"scenes on image {name!r} disagree on its size or horizon")
+        ids = [t["id"] for d in group for t in d["targets"]]
+        if len(set(ids)) < len(ids):
+            raise ValueError(f"scenes on image {name!r} share a target id ({ids}); give each target its own")
         img = ET.SubElement(root, "image", {"id": str(i), "name": name, "width": str(w), "height": str(h)})
-        if "targets" in group[0]:
-            from .cvat_frames import frame_image_shapes
-
-            frame_image_shapes(img, group[0])
-            continue
         for d in group:
-            t = d["target"]
-            size = {f"{k}_m": float(v) for k, v in t["dimensions_m"].items()}
-            for dl in t["dimension_lines"]:
-                _shape_el(img, "points", TARGET, dl["corners"],
-                          {"target_id": t["id"], **size, "worker": dl.get("worker")})
-            for r in d.get("references", []):
-                reference_shape(img, r, t["id"])
+            for t in d["targets"]:
+                size = {f"{k}_m": float(v) for k, v in (t.get("dimensions_m") or {}).items()}
+                for dl in t["dimension_lines"]:
+                    _shape_el(img, "points", TARGET, dl["corners"],
+                              {"target_id": t["id"], "class": t.get("class"), **size, "worker": dl.get("worker")})
+            for j, r in enumerate(d.get("references", [])):
+                if "line" not in r:
+                    raise ValueError(f"references[{j}]: a {r['measure']} of {r.get('target') or r.get('targets')!r} "
+                                     "without a line cannot be written as a CVAT shape")
+                vals = {"target_id": r.get("target"), "object": r.get("object"), "measure": r["measure"],
+                        "mode": r["mode"], "unit": r.get("unit"), "worker": r.get("worker")}
+                if "range" in r:
+                    vals["range_low"], vals["range_high"] = map(float, r["range"])
+                else:
+                    vals["value"] = float(r["value"])
+                if r.get("confidence") is not None:
+                    vals["confidence_pct"] = round(100.0 * r["confidence"], 10)
+                _shape_el(img, "polyline", REFERENCE, r["line"], vals)
         if group[0].get("horizon") is not None:
             _shape_el(img, "polyline", HORIZON, group[0]["horizon"], {})
     ET.indent(root)

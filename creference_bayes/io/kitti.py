@@ -22,9 +22,16 @@ import numpy as np
 from ..core.geometry import box_points, box_vertices
 from .files import atomic_write_json, atomic_write_text
 
-__all__ = ["KittiObject", "OCCLUDED_UNKNOWN", "projection_matrix", "project_with", "box_2d",
-           "kitti_object", "format_label", "format_calib", "write_label_file", "write_calib_file",
-           "write_sidecar", "wrap_pi", "VELO_TO_CAM", "CALIB_LINES"]
+__all__ = ["KittiObject", "OCCLUDED_UNKNOWN", "SIDECAR_FORMAT", "SIDECAR_FORMATS", "projection_matrix",
+           "project_with", "box_2d", "kitti_object", "format_label", "format_calib", "write_label_file",
+           "write_calib_file", "write_sidecar", "wrap_pi", "VELO_TO_CAM", "CALIB_LINES"]
+
+#: The uncertainty sidecar beside a label file (docs/labels.md; the layout is documented in
+#: :mod:`creference_bayes.workflows.labels.kitti`).
+SIDECAR_FORMAT = "creference-kitti-uncertainty/2"
+#: The sidecar formats read (``/1``: what earlier versions wrote; each object has ``line`` and
+#: ``quality`` in both).
+SIDECAR_FORMATS = ("creference-kitti-uncertainty/1", SIDECAR_FORMAT)
 
 #: KITTI's occlusion code for "unknown" (the devkit's readme: 0 visible … 2 largely occluded, 3 unknown).
 OCCLUDED_UNKNOWN = 3
@@ -151,6 +158,7 @@ def format_calib(P2: np.ndarray, lines: dict | None = None) -> str:
 
 
 def write_label_file(path: str | Path, objects) -> Path:
+    """Write :func:`format_label` to ``path`` atomically."""
     return atomic_write_text(path, format_label(objects))
 
 
@@ -160,4 +168,5 @@ def write_calib_file(path: str | Path, P2: np.ndarray, lines: dict | None = None
 
 
 def write_sidecar(path: str | Path, doc: dict) -> Path:
-    return atomic_write_json(path, doc)
+    """Write an uncertainty sidecar (:data:`SIDECAR_FORMAT`) to ``path`` atomically."""
+    return atomic_write_json(path, doc, inline_numbers=True)

@@ -1,18 +1,27 @@
-"""Label Studio ↔ scene files: the shipped labelling configs and the JSON export → one scene per
-task (docs/import.md is the user's guide); scenes → tasks is in :mod:`.labelstudio_export`, one
-annotation's results → items in :mod:`.labelstudio_results`, a frame task in
-:mod:`.labelstudio_frames`.
+"""Label Studio ↔ scene files: the shipped labelling configs and the JSON export → one
+``creference-scene/2`` scene per photo (docs/import.md is the user's guide); scenes → tasks is in
+:mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
 
-A one-target task gives a ``creference-scene/1`` scene: its ``data`` gives the image and the
-target's id and size, and each of its annotations is one worker's work on that target (a set of
-dimension lines, reference lines with their measurements, optionally the horizon). A task that
-holds several targets (``data.targets``, or regions that name their target) gives one
-``creference-scene/2`` frame.
+A task's ``data`` gives the image and, optionally, its targets: ``targets``
+(``[{"id", "class", "dimensions_m", "ground_truth"}, …]``), or one target as ``target_id`` and
+``target_length_m``/``target_width_m``/``target_height_m`` (its ``ground_truth`` is then split
+between the target and the camera, as in a ``creference-scene/1`` file); without either the regions
+name the targets, and a task whose regions name none has one target, ``task<id>``. Each
+annotation is one worker's work: the targets' dimension lines (four keypoints or one four-point
+``target`` line each, tied to a target by the per-region ``target`` field; a region that names
+none belongs to the task's only target), reference lines with their measurements, the horizon.
+A target's size comes from the task or the ``--targets`` table; without one its class's size
+prior applies.
 
-Results are matched by their control (``from_name``) and label: keypoints from ``points`` with
-the labels :data:`TARGET_LABELS`, ``reference start`` / ``reference end`` (paired by a relation)
-and ``horizon``; or, with the vector config, two-point vectors from ``lines`` labelled
-``reference`` / ``horizon``. A reference's measurement is in per-region controls (same result id
+The tasks of one image (``data.image``) make one scene holding the targets of all of them (so a
+task per target, all on one photo, is one scene): they must agree on the image's size and on the
+photo's fields (:data:`SHARED_DATA`), and a target is drawn in one task only. A request task of
+``creference advise`` (``data.creference_scene``) is the scene it carries with the task's answers
+appended.
+
+Results are matched by their label (:data:`~.labelstudio_results.TARGET_LABELS`, ``reference
+start`` / ``reference end`` paired by a relation, ``horizon``; vectors labelled ``target``,
+``reference``, ``horizon``). A reference's measurement is in per-region controls (same result id
 as the region) named as :data:`~.annotation_tools.REFERENCE_FIELDS`. Coordinates are percent of
 ``original_width`` / ``original_height`` (or of the task's ``image_width`` / ``image_height``).
 """
@@ -20,44 +29,44 @@ as the region) named as :data:`~.annotation_tools.REFERENCE_FIELDS`. Coordinates
 from __future__ import annotations
 
 import json
+import warnings
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any
+from urllib.parse import parse_qs, unquote, urlparse
 
-from .annotation_tools import (ConversionError, ImportReport, TargetScene, TargetTable, _short,
-                               checked_scene, image_file, number_field, read_input, reference_from_fields,
-                               set_camera_and_horizon, safe_name, unique_names)
-from .labelstudio_export import label_studio_task, label_studio_tasks
-from .labelstudio_frames import FramePart, frame_scene, frame_task_part, url_path
+from ..models.size_priors import SIZE_KEYS
+from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text,
+                               checked_scene, classes_block, image_file, number_field, read_input,
+                               reference_from_fields, safe_name, set_camera_and_horizon, unique_names)
+from .labelstudio_export import CAMERA_DATA, PHOTO_DATA, label_studio_task, label_studio_tasks, task_data
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
-from .scene import SCENE_FORMAT
+from .scene import SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
 
-__all__ = ["TARGET_LABELS", "LINE_TOOLS", "FRAME_TOOLS", "DATA_FIELDS", "FRAME_DATA_FIELDS", "label_studio_config",
-           "read_export", "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task",
-           "label_studio_tasks"]
+__all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
+           "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
+           "url_path"]
 
-#: The shipped configs, by how reference lines and the horizon are drawn.
+#: The shipped configs, by how targets, reference lines and the horizon are drawn.
 LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
-#: The shipped frame configs (every target of a photo in one task), likewise.
-FRAME_TOOLS = {"keypoints": "label_studio_frame_keypoints.xml", "vectors": "label_studio_frame_vectors.xml"}
-#: Task ``data`` fields read by the importer (``image`` is the one the config displays).
-DATA_FIELDS = ("image", "target_id", "target_length_m", "target_width_m", "target_height_m",
-               "image_width", "image_height", "image_path", "focal_length_px", "principal_point",
-               "horizon", "ground_truth")
-#: Task ``data`` fields of a frame task (:mod:`.labelstudio_frames`).
-FRAME_DATA_FIELDS = ("image", "targets", "frame_id", "image_width", "image_height", "image_path",
-                     "focal_length_px", "principal_point", "kitti_p2", "horizon", "horizon_sd_px", "classes",
-                     "ground_truth")
-_DIMS = ("target_length_m", "target_width_m", "target_height_m")
+#: ``data`` fields of the photo (not of one target): the tasks of one image must agree on them.
+SHARED_DATA = ("frame_id", "image_path", *CAMERA_DATA, *PHOTO_DATA)
+#: Task ``data`` fields read by the importer (``image`` is the one the configs display).
+DATA_FIELDS = ("image", "targets", "target_id", "target_length_m", "target_width_m", "target_height_m",
+               "image_width", "image_height", "creference_scene", *SHARED_DATA)
+_DIMS = tuple(f"target_{k}_m" for k in SIZE_KEYS)
+_TARGET_KEYS = {"id", "class", "dimensions_m", "ground_truth"}
+#: A version-1 (one-target) ``ground_truth``'s keys of the camera; the others are the target's.
+_CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
 
-def label_studio_config(lines: str = "keypoints", frame: bool = False) -> str:
-    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` or ``"vectors"``;
-    ``frame`` gives the config for frames (one task per photo, holding all its targets)."""
-    tools = FRAME_TOOLS if frame else LINE_TOOLS
-    if lines not in tools:
-        raise ValueError(f"lines: expected one of {list(tools)}, got {lines!r}")
-    return (resources.files("creference_bayes") / "data" / tools[lines]).read_text("utf-8")
+def label_studio_config(lines: str = "keypoints") -> str:
+    """The shipped labelling config (XML text); ``lines`` is ``"keypoints"`` (every Label Studio
+    version) or ``"vectors"`` (targets, reference lines and the horizon as lines)."""
+    if lines not in LINE_TOOLS:
+        raise ValueError(f"lines: expected one of {list(LINE_TOOLS)}, got {lines!r}")
+    return (resources.files("creference_bayes") / "data" / LINE_TOOLS[lines]).read_text("utf-8")
 
 
 def read_export(path: str | Path) -> Any:
@@ -105,12 +114,10 @@ def read_users(path: str | Path) -> dict[str, str]:
 
 
 def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
-                             out_dir: str | Path | None = None, targets: dict | None = None,
-                             users: dict[str, str] | None = None, frames: bool = False,
-                             classes: dict | None = None) -> ImportReport:
-    """Convert a Label Studio JSON export (the decoded list of tasks) to one scene per task: a
-    ``creference-scene/1`` scene for a one-target task, a ``creference-scene/2`` frame for a task
-    that holds several targets (:mod:`.labelstudio_frames`).
+                             out_dir: str | Path | None = None, targets: Any = None,
+                             users: dict[str, str] | None = None, classes: dict | None = None) -> ImportReport:
+    """Convert a Label Studio JSON export (the decoded list of tasks) to one ``creference-scene/2``
+    scene per image: the tasks of one image make one scene holding their targets (module docstring).
 
     Parameters
     ----------
@@ -121,24 +128,21 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
         (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
     out_dir : path, optional
         The folder the scenes will be written to; image paths are made relative to it.
-    targets : TargetTable, optional
-        Known sizes and focal lengths by image and target
+    targets : TargetTable or dict, optional
+        Known sizes (m) and focal lengths (px) by image and target
         (:func:`~.annotation_tools.load_target_table`).
     users : dict, optional
         Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
         in ``completed_by`` (or the e-mail, when the export expands the user).
-    frames : bool
-        Import every task as a frame, one-target tasks too. The tasks imported as frames are
-        grouped by image (``data.image``): one frame per image, holding the targets of all its tasks.
     classes : dict, optional
         Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
-        written into the frames whose size-less targets use them.
+        written into the scenes whose size-less targets use them.
 
     Returns
     -------
     ImportReport
-        A task that cannot be converted is in ``errors`` (its message names the task and the
-        region) and the others are in ``scenes``.
+        A task or image that cannot be converted is in ``errors`` (its message names the task and
+        the region) and the others are in ``scenes``.
     """
     if isinstance(tasks, dict) and "data" in tasks:
         tasks = [tasks]
@@ -146,37 +150,44 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
         raise ConversionError("(export)", f"expected a list of tasks (Label Studio's JSON export), "
                                           f"got {type(tasks).__name__}")
     table = TargetTable.of(targets)
-    found, frame_parts, errors, notes = [], {}, [], []
+    groups: dict[Any, list[_TaskPart]] = {}
+    errors, notes = [], []
     for i, task in enumerate(tasks):
         try:
-            converted = _task_scene(task, i, image_dir, out_dir, table, users or {}, notes, frames)
+            part = _task_part(task, i, users or {}, notes)
         except ConversionError as exc:
             errors.append(exc)
             continue
-        if isinstance(converted, FramePart):  # the frame of its image, made once all tasks are read
-            image = converted.data.get("image")
-            key = image if isinstance(image, str) and image else i
-            if key not in frame_parts:
-                found.append(key)
-            frame_parts.setdefault(key, []).append(converted)
-        elif converted is not None:
-            found.append(converted)
-
-    def locate(data, where):  # a frame's image.path and the image's names for the table
-        return _image_path(data, image_dir, out_dir, where, notes), _image_names(data)
-
+        if part is not None:  # a request task is a scene of its own
+            image = part.data.get("image")
+            key = image if isinstance(image, str) and image and "creference_scene" not in part.data else i
+            groups.setdefault(key, []).append(part)
     scenes = []
-    for item in found:
-        if isinstance(item, TargetScene):
-            scenes.append(item)
-            continue
+    for parts in groups.values():
         try:
-            scenes.append(frame_scene(frame_parts[item], locate, table, classes, notes))
+            scenes.append(_image_scene(parts, image_dir, out_dir, table, classes, notes))
         except ConversionError as exc:
             errors.append(exc)
     kept, clashes = unique_names(scenes)
     notes += table.notes()
     return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
+
+
+@dataclass
+class _TaskPart:
+    """What one task gives the scene of its image: its drawn targets (id → the target's
+    ``class``, ``dimensions_m``, ``ground_truth``, ``lines`` and their ``origins``), references
+    (and the regions they come from), horizon lines, the image size (px) and the task's ``data``."""
+
+    where: str
+    task: dict
+    index: int
+    data: dict
+    size: tuple[int, int]
+    targets: dict
+    refs: list
+    ref_origins: list
+    horizons: list
 
 
 def _task_name(task: Any, index: int) -> str:
@@ -186,9 +197,8 @@ def _task_name(task: Any, index: int) -> str:
     return f"task at index {index}"
 
 
-def _task_scene(task, index, image_dir, out_dir, table, users, notes,
-                frames=False) -> TargetScene | FramePart | None:
-    """A one-target task's scene, what a frame task gives its image's frame, or None (no annotations)."""
+def _task_part(task: Any, index: int, users: dict, notes: list[str]) -> _TaskPart | None:
+    """What a task gives the scene of its image, or None (no annotations yet)."""
     where = _task_name(task, index)
     if not isinstance(task, dict):
         raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
@@ -207,96 +217,273 @@ def _task_scene(task, index, image_dir, out_dir, table, users, notes,
         return None
     width, height = _image_size(anns, data, where)
     items_list = [annotation_items(ann, k, width, height, where, users, notes) for k, ann in enumerate(anns)]
-    if data.get("creference_scene") is None and (frames or "targets" in data or any(i.frame for i in items_list)):
-        return frame_task_part(task, index, data, items_list, (width, height), where, notes)
-
-    if "target_id" in data:
-        tid = data["target_id"]
-        if isinstance(tid, bool) or not isinstance(tid, (str, int)) or str(tid).strip() == "":
-            raise ConversionError(where, f"data.target_id must be text, got {tid!r}")
-        tid = str(tid).strip()
-    else:
-        tid = f"task{task.get('id', index)}"
-    given = [k for k in _DIMS if data.get(k) not in (None, "")]
-    if given and len(given) < 3:
-        raise ConversionError(where, f"data has {given} but not {[k for k in _DIMS if k not in given]}")
-    dims = ({k[7:-2]: number_field(data[k], where, f"data.{k}", positive=True) for k in _DIMS}
-            if given else None)
-    size = table.size(_image_names(data), tid, dims, where, required=True)
-
-    lines, refs, horizons, origins = [], [], [], {}
+    named = any(d.target is not None for items in items_list for d in items.drawings)
+    declared, data, refs, ref_origins = _declared(data, task, index, named, where)
+    targets = {tid: {**t, "id": tid, "lines": list(t.get("lines", [])), "origins": list(t.get("origins", []))}
+               for tid, t in declared.items()}
+    horizons = []
     for items in items_list:
-        n = (items.corners is not None) + len(items.references)
+        n = len(items.drawings) + len(items.references)
         secs = items.lead_time / n if items.lead_time is not None and n else None
-        if items.corners is not None:
-            origins[f"target.dimension_lines[{len(lines)}]"] = items.name
-            line = {"corners": items.corners}
-            line.update({k2: v for k2, v in (("worker", items.worker), ("seconds", secs)) if v is not None})
-            lines.append(line)
+        for d in items.drawings:
+            dwhere = f"{where}, {items.name}, {d.region}"
+            tid = _resolve(d.target, declared, targets, dwhere)
+            t = targets.setdefault(tid, {"id": tid, "lines": [], "origins": []})
+            if d.cls is not None:
+                if t.get("class") not in (None, d.cls):
+                    raise ConversionError(dwhere, f"class {d.cls!r} for target {t['id']!r}, which is "
+                                                  f"{t['class']!r} elsewhere ({t.get('class_from', 'data.targets')})")
+                t.setdefault("class_from", f"{items.name}, {d.region}")
+                t["class"] = d.cls
+            line: dict[str, Any] = {"corners": d.corners}
+            line.update({k: v for k, v in (("worker", items.worker), ("seconds", secs)) if v is not None})
+            t["lines"].append(line)
+            t["origins"].append(f"{items.name}, {d.region}")
         for rid, fields_, seg in items.references:
-            origins[f"references[{len(refs)}]"] = f"{items.name}, region {rid!r}"
-            refs.append(reference_from_fields(fields_, seg, f"{where}, {items.name}, region {rid!r}",
-                                              worker=items.worker, seconds=secs))
+            rwhere = f"{where}, {items.name}, region {rid!r}"
+            ref = reference_from_fields(fields_, seg, rwhere, worker=items.worker, seconds=secs)
+            name = _text(fields_.get("target"), rwhere, "target")
+            if name is not None:
+                ref["target"] = _resolve(name, declared, targets, rwhere)
+            refs.append(ref)
+            ref_origins.append(f"{items.name}, region {rid!r}")
         horizons.extend(items.horizons)
-    if data.get("creference_scene") is not None:  # a request task of creference advise
-        return _answered_request(data, lines, refs, origins, image_dir, out_dir, where, notes)
-    if not lines:
-        raise ConversionError(where, "no annotation draws the target's dimension lines "
-                                     f"({', '.join(repr(x) for x in TARGET_LABELS)})")
+    drawn = {tid: t for tid, t in targets.items() if t["lines"]}
+    if not drawn:
+        raise ConversionError(where, "no annotation draws a target's dimension lines "
+                                     f"({', '.join(repr(x) for x in TARGET_LABELS)}, or a 'target' line)")
+    notes += [f"{where}: target {tid!r} has no dimension lines; left out" for tid in targets if tid not in drawn]
+    if len(drawn) == 1:  # the relative references of a task that draws one target are ratios to it
+        refs = [{**r, "target": next(iter(drawn))} if r["mode"] == "relative" and "target" not in r else r
+                for r in refs]
+    return _TaskPart(where, task, index, data, (width, height), drawn, refs, ref_origins, horizons)
 
+
+def _declared(data: dict, task: dict, index: int, named: bool, where: str) -> tuple[dict, dict, list, list]:
+    """The targets a task declares, by id (``data.targets``; ``target_id`` and ``target_*_m``; the
+    scene of a request task; else, when no region names a target, ``task<id>``), ``data`` with the
+    photo's fields, and the references (and their origins) the task starts from."""
+    if data.get("creference_scene") is not None:
+        return _request(data, where)
+    if "targets" not in data:
+        if "target_id" not in data and named and not any(data.get(k) not in (None, "") for k in _DIMS):
+            return {}, data, [], []
+        tid = data.get("target_id", f"task{task.get('id', index)}")
+        if isinstance(tid, bool) or not isinstance(tid, (str, int)) or str(tid).strip() == "":
+            raise ConversionError(where, f"data.target_id must be text, got {_short(tid)}")
+        given = [k for k in _DIMS if data.get(k) not in (None, "")]
+        if given and len(given) < 3:
+            raise ConversionError(where, f"data has {given} but not {[k for k in _DIMS if k not in given]}")
+        entry: dict[str, Any] = {"dimensions_m": {k: number_field(data[f"target_{k}_m"], where, f"data.target_{k}_m",
+                                                                  positive=True) for k in SIZE_KEYS} if given else None}
+        truth = data.get("ground_truth")
+        if isinstance(truth, dict) and "location_m" in truth:  # a one-target truth: the target's and the camera's
+            entry["ground_truth"] = {k: v for k, v in truth.items() if k not in _CAMERA_TRUTH}
+            entry["truth_from"] = "data.ground_truth"
+            data = {**data, "ground_truth": {k: v for k, v in truth.items() if k in _CAMERA_TRUTH} or None}
+        return {str(tid).strip(): entry}, data, [], []
+    raw = data["targets"]
+    if not isinstance(raw, list) or not raw:
+        raise ConversionError(where, f"data.targets must be a non-empty list of targets, got {str(raw)[:60]!r}")
+    out: dict[str, dict] = {}
+    for i, t in enumerate(raw):
+        path = f"data.targets[{i}]"
+        if not isinstance(t, dict):
+            raise ConversionError(where, f"{path} must be an object with an id, got {str(t)[:60]!r}")
+        unknown = sorted(set(t) - _TARGET_KEYS)
+        if unknown:
+            raise ConversionError(where, f"{path}: unknown key(s) {unknown} (expected {sorted(_TARGET_KEYS)})")
+        tid = t.get("id")
+        if isinstance(tid, bool) or not isinstance(tid, (str, int)) or str(tid).strip() == "":
+            raise ConversionError(where, f"{path}.id must be text, got {tid!r}")
+        tid = str(tid).strip()
+        if tid in out:
+            raise ConversionError(where, f"{path}.id: duplicate id {tid!r}")
+        entry = {"truth_from": path}
+        if t.get("class") not in (None, ""):
+            if not isinstance(t["class"], str):
+                raise ConversionError(where, f"{path}.class must be text, got {t['class']!r}")
+            entry["class"] = t["class"].strip()
+        dims = t.get("dimensions_m")
+        if dims is not None:
+            if not isinstance(dims, dict) or set(dims) != set(SIZE_KEYS):
+                raise ConversionError(where, f"{path}.dimensions_m must be an object with length, width, "
+                                             f"height (m), got {str(dims)[:60]!r}")
+            entry["dimensions_m"] = {k: number_field(dims[k], where, f"{path}.dimensions_m.{k}", positive=True)
+                                     for k in SIZE_KEYS}
+        if t.get("ground_truth") is not None:
+            entry["ground_truth"] = t["ground_truth"]
+        out[tid] = entry
+    return out, data, [], []
+
+
+def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
+    """A request task (``creference advise``, docs/advice.md) carries the scene it was made for in
+    ``data.creference_scene`` (either format): its targets with their dimension lines, its
+    references and its photo's fields; the task's answers are appended to them."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            base = scene_to_dict(parse_scene(data["creference_scene"]))
+    except SceneError as exc:
+        raise ConversionError(where, f"data.creference_scene: {exc}") from None
+    data = {**{k: v for k, v in data.items() if k not in SHARED_DATA and k != "targets"},
+            **{k: v for k, v in task_data(base).items() if k != "image"}}
+    declared = {}
+    for t in base["targets"]:
+        lines = t["dimension_lines"]
+        declared[t["id"]] = {**{k: t[k] for k in ("class", "dimensions_m", "ground_truth") if k in t},
+                             "lines": lines, "origins": ["data.creference_scene"] * len(lines),
+                             "truth_from": "data.creference_scene"}
+    refs = base.get("references", [])
+    return declared, data, list(refs), ["data.creference_scene"] * len(refs)
+
+
+def _resolve(name: str | None, declared: dict, targets: dict, where: str) -> str:
+    """The id of the target a region names (``name``; None: the task's only target), checked
+    against the declared targets (any id when the task declares none)."""
+    if name is None:
+        if len(declared) == 1:
+            return next(iter(declared))
+        known = sorted(declared or targets)
+        raise ConversionError(where, "this target's region names no target (fill in its 'target' field"
+                                     f"{f'; targets: {known}' if known else ''})")
+    if declared and name not in declared:
+        raise ConversionError(where, f"target {name!r} is not in data.targets (ids: {sorted(declared)})")
+    return name
+
+
+def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable, classes: dict | None,
+                 notes: list[str]) -> ImportedScene:
+    """The scene of one image from the parts of its tasks (module docstring)."""
+    first = parts[0]
+    where = first.where if len(parts) == 1 else f"{', '.join(p.where for p in parts)} (one image)"
+
+    def origin(part, text):  # a merged scene's messages name the task too
+        return text if len(parts) == 1 else f"{part.where}, {text}"
+
+    for part in parts[1:]:
+        if part.size != first.size:
+            raise ConversionError(where, f"the image is {first.size[0]}x{first.size[1]} in {first.where} but "
+                                         f"{part.size[0]}x{part.size[1]} in {part.where}")
+    data = _shared_data(parts, where)
+    image_path, image_names = _image_path(data, image_dir, out_dir, where, notes), _image_names(data)
+    width, height = first.size
+    drawn: dict[str, dict] = {}
+    refs, ref_origins, horizons = [], [], []
+    for part in parts:
+        for tid, t in part.targets.items():
+            if tid in drawn:
+                raise ConversionError(where, f"target {tid!r} is in {drawn[tid]['part'].where} and in "
+                                             f"{part.where}; a target id must be unique among the tasks of its image")
+            drawn[tid] = {**t, "part": part}
+        refs += part.refs
+        ref_origins += [origin(part, o) for o in part.ref_origins]
+        horizons += part.horizons
     scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    image_path = _image_path(data, image_dir, out_dir, where, notes)
     if image_path is not None:
         scene["image"]["path"] = image_path
-    camera = {}
-    focal = data.get("focal_length_px")
-    table_focal = table.focal(_image_names(data), [tid], where)
-    if focal not in (None, ""):
-        camera["focal_length_px"] = number_field(focal, where, "data.focal_length_px", positive=True)
-    elif table_focal is not None:
-        camera["focal_length_px"] = table_focal
-    if data.get("principal_point") is not None:
-        camera["principal_point"] = data["principal_point"]
+    camera = {k: data[k] for k in CAMERA_DATA if data.get(k) is not None}
+    if data.get("focal_length_px") not in (None, ""):
+        camera["focal_length_px"] = number_field(data["focal_length_px"], where, "data.focal_length_px", positive=True)
+    else:
+        camera.pop("focal_length_px", None)
+        table_focal = table.focal(image_names, list(drawn), where)
+        if table_focal is not None:
+            camera["focal_length_px"] = table_focal
     set_camera_and_horizon(scene, camera, data, horizons, width, where, notes)
-    scene["target"] = {"id": tid, "dimensions_m": size, "dimension_lines": lines}
+    if data.get("horizon_sd_px") is not None:
+        scene["horizon_sd_px"] = data["horizon_sd_px"]
+    out_targets, origins = [], {}
+    for i, t in enumerate(drawn.values()):
+        d: dict[str, Any] = {"id": t["id"]}
+        if t.get("class") is not None:
+            d["class"] = t["class"]
+        dims = table.size(image_names, t["id"], t.get("dimensions_m"), f"{where}, target {t['id']!r}",
+                          required=t.get("class") is None)
+        if dims is not None:
+            d["dimensions_m"] = dims
+        d["dimension_lines"] = t["lines"]
+        if t.get("ground_truth") is not None:
+            d["ground_truth"] = t["ground_truth"]
+        out_targets.append(d)
+        part = t["part"]
+        origins[f"targets[{i}]"] = origin(part, t.get("class_from") or t["origins"][0])
+        origins[f"targets[{i}].ground_truth"] = origin(part, t.get("truth_from", "data.targets"))
+        origins.update({f"targets[{i}].dimension_lines[{j}]": origin(part, o) for j, o in enumerate(t["origins"])})
+    own = classes_block(out_targets, data.get("classes"), classes)
+    if own is not None:
+        scene["classes"] = own
+    scene["targets"] = out_targets
     if refs:
         scene["references"] = refs
     if data.get("ground_truth") is not None:
         scene["ground_truth"] = data["ground_truth"]
-    origins.update({"camera": "data.focal_length_px / data.principal_point",
-                    "horizon": "the horizon (data.horizon or annotated)",
-                    "ground_truth": "data.ground_truth"})
-    return TargetScene(safe_name(tid), checked_scene(scene, where, origins), where)
+    origins = {"camera": "data.focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
+               "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
+               "ground_truth": "data.ground_truth", **origins}
+    origins.update({f"references[{k}]": o for k, o in enumerate(ref_origins)})
+    return ImportedScene(_scene_name(data, first.task, first.index, where), checked_scene(scene, where, origins),
+                         where)
 
 
-def _answered_request(data, lines, refs, origins, image_dir, out_dir, where, notes) -> TargetScene:
-    """A request task (``creference advise``, docs/advice.md) carries the scene it was made for
-    in ``data.creference_scene``: its answers are appended to that scene's dimension lines and
-    references, so the task imports as the scene with the new annotations."""
-    import copy
+def _shared_data(parts: list[_TaskPart], where: str) -> dict:
+    """The photo's ``data`` fields (:data:`SHARED_DATA`, and ``image``) from the tasks of one image:
+    each from the tasks that give it, which must agree."""
+    out: dict[str, Any] = {"image": parts[0].data.get("image")}
+    for key in SHARED_DATA:
+        given = [(p.data[key], p.where) for p in parts if p.data.get(key) not in (None, "")]
+        for value, pwhere in given[1:]:
+            path, a, b = f"data.{key}", given[0][0], value
+            while isinstance(a, dict) and isinstance(b, dict) and _canonical(a) != _canonical(b):
+                k = next(k for k in {**a, **b} if _canonical(a.get(k, _ABSENT)) != _canonical(b.get(k, _ABSENT)))
+                path, a, b = f"{path}.{k}", a.get(k, _ABSENT), b.get(k, _ABSENT)  # down to where they differ
+            if _canonical(a) != _canonical(b):
+                show = [("not given" if v is _ABSENT else _short(v)) for v in (a, b)]
+                raise ConversionError(where, f"{path} is {show[0]} in {given[0][1]} but {show[1]} in "
+                                             f"{pwhere} (the tasks of one image share it)")
+        if given:
+            out[key] = given[0][0]
+    return out
 
-    base = data["creference_scene"]
-    if not isinstance(base, dict) or not isinstance(base.get("target"), dict):
-        raise ConversionError(where, "data.creference_scene is not a creference-scene/1 scene")
-    for key, value in (("target.dimension_lines", base["target"].get("dimension_lines")),
-                       ("references", base.get("references"))):
-        if value is not None and not isinstance(value, list):
-            raise ConversionError(where, f"data.creference_scene.{key} is not a list: {_short(value)}")
-    scene = copy.deepcopy(base)
-    target = scene["target"]
-    old_lines, old_refs = list(target.get("dimension_lines") or []), list(scene.get("references") or [])
-    shift = {"target.dimension_lines": len(old_lines), "references": len(old_refs)}
-    moved = {}
-    for key, name in origins.items():  # the answers' key paths move behind the scene's own items
-        head, _, index = key.rpartition("[")
-        moved[f"{head}[{int(index[:-1]) + shift[head]}]"] = name
-    target["dimension_lines"] = old_lines + lines
-    if old_refs or refs:
-        scene["references"] = old_refs + refs
-    image_path = _image_path(data, image_dir, out_dir, where, notes)
-    if image_path is not None:
-        scene.setdefault("image", {})["path"] = image_path
-    return TargetScene(safe_name(str(target.get("id", "target"))), checked_scene(scene, where, moved), where)
+
+_ABSENT = object()
+
+
+def _canonical(value: Any) -> str:
+    """A value as text, for comparing (``_ABSENT``: a key not given)."""
+    if value is _ABSENT:
+        return "(not given)"
+    try:
+        return json.dumps(value, sort_keys=True, default=repr)
+    except (TypeError, ValueError, RecursionError):  # keys of mixed types, a cycle, too deep: by identity
+        return f"{type(value).__name__} at {id(value)}"
+
+
+def _scene_name(data: dict, task: dict, index: int, where: str) -> str:
+    """The scene file's stem: ``data.frame_id``, else the image's file name without its
+    extension, else ``task<id>``."""
+    fid = data.get("frame_id")
+    if isinstance(fid, (str, int)) and not isinstance(fid, bool) and str(fid).strip():
+        return safe_name(str(fid).strip())
+    for key in ("image_path", "image"):
+        url = data.get(key)
+        if isinstance(url, str) and url:
+            stem = PurePosixPath(url_path(url, where)).stem
+            if stem:
+                return safe_name(stem)
+    return safe_name(f"task{task.get('id', index)}")
+
+
+def url_path(url: str, where: str) -> str:
+    """The file an image URL names: for Label Studio's local files (``/data/local-files/?d=dir/a.jpg``)
+    the path ``dir/a.jpg``, else the file name of the URL's path."""
+    try:
+        parsed = urlparse(url)
+        local = parse_qs(parsed.query).get("d")
+    except ValueError as exc:  # e.g. a malformed IPv6 host
+        raise ConversionError(where, f"not a valid URL {_short(url)}: {exc}") from None
+    return local[0] if local else PurePosixPath(unquote(parsed.path)).name
 
 
 def _whole(value: Any, where: str, what: str) -> int:

@@ -2,12 +2,11 @@
 four corners, the reference lines with their per-region fields, the horizon lines (pixels).
 
 Regions are keypoints (``keypointlabels``) or vectors (``vectorlabels``: two-point reference and
-horizon lines, four-point ``target`` lines t1..t4 in the frame config); a per-region control's
-result has the region's id; keypoint reference lines are paired by relations (``from_id`` →
-``to_id``). In a frame (several targets), a target's regions name it with the per-region
-``target`` field and may give its ``class`` (:data:`FRAME_FIELDS`). Nothing in the list is
-trusted: every problem raises a :class:`~.annotation_tools.ConversionError` naming the task and
-the region.
+horizon lines, four-point ``target`` lines t1..t4); a per-region control's result has the region's
+id; keypoint reference lines are paired by relations (``from_id`` → ``to_id``). A target's regions
+may name it with the per-region ``target`` field and give its ``class`` (:data:`TARGET_FIELDS`).
+Nothing in the list is trusted: every problem raises a
+:class:`~.annotation_tools.ConversionError` naming the task and the region.
 """
 
 from __future__ import annotations
@@ -19,17 +18,17 @@ from typing import Any
 from .annotation_tools import REFERENCE_FIELDS, ConversionError, _short, _text, number_field
 
 __all__ = ["TARGET_LABELS", "REF_START", "REF_END", "REFERENCE", "HORIZON", "TARGET", "POINTS", "LINES",
-           "TARGET_LINES", "IMAGE", "CONTROL_VALUE", "FRAME_FIELDS", "Drawing", "AnnotationItems",
+           "TARGET_LINES", "IMAGE", "CONTROL_VALUE", "TARGET_FIELDS", "Drawing", "AnnotationItems",
            "annotation_items", "annotation_result"]
 
 #: Keypoint labels of the target's corners t1..t4, in order.
 TARGET_LABELS = ("t1 bottom corner", "t2 end of length", "t3 end of width", "t4 top of height")
 REF_START, REF_END, REFERENCE, HORIZON = "reference start", "reference end", "reference", "horizon"
-#: The label of a four-point target vector (t1, t2, t3, t4 in drawing order; frame config).
+#: The label of a four-point target vector (t1, t2, t3, t4 in drawing order; vectors config).
 TARGET = "target"
 POINTS, LINES, TARGET_LINES, IMAGE = "points", "lines", "targets", "image"
-#: Per-region fields that tie a region to a target of a frame: its id, and its class.
-FRAME_FIELDS = ("target", "class")
+#: Per-region fields that tie a region to a target: its id, and its class.
+TARGET_FIELDS = ("target", "class")
 #: The key holding a per-region control's value, by result type.
 CONTROL_VALUE = {"number": "number", "choices": "choices", "textarea": "text"}
 
@@ -54,20 +53,16 @@ class Drawing:
 
 @dataclass
 class AnnotationItems:
-    """What one annotation contributes: ``corners`` t1..t4 as a (4, 2) list in pixels (None when
-    it does not draw a target; the first of ``drawings`` when it draws several), ``drawings``
-    every target it draws, ``references`` as (region id, fields, [[u, v], [u, v]]), ``horizons``
-    as two-point lines; ``lead_time`` in seconds; ``name`` for messages."""
+    """What one annotation contributes: ``drawings`` every target it draws (:class:`Drawing`),
+    ``references`` as (region id, fields, [[u, v], [u, v]]) pixels, ``horizons`` as two-point
+    lines; ``lead_time`` in seconds; ``name`` for messages."""
 
     name: str
     worker: str | None
     lead_time: float | None
-    corners: list | None = None
-    references: list = field(default_factory=list)   # (region id, fields, line)
+    references: list = field(default_factory=list)
     horizons: list = field(default_factory=list)
-    drawings: list = field(default_factory=list)     # Drawing
-    #: Whether a region names a target or a class, or draws a target line: a frame's annotation.
-    frame: bool = False
+    drawings: list = field(default_factory=list)
 
 
 def _worker(completed_by: Any, users: dict[str, str]) -> str | None:
@@ -177,7 +172,7 @@ def annotation_items(ann, k, width, height, where, users, notes) -> AnnotationIt
                                        [_pixel(v, width, height, rwhere) for v in _vertices(value, rwhere)])
         elif typ in CONTROL_VALUE:
             name = r.get("from_name")
-            if name not in REFERENCE_FIELDS and name not in FRAME_FIELDS:
+            if name not in REFERENCE_FIELDS and name not in TARGET_FIELDS:
                 notes.append(f"{rwhere}: {typ} '{name}' is not a field the importer knows; ignored")
                 continue
             if name in controls.setdefault(rid, {}):
@@ -238,14 +233,13 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
                                   "belong to no region of this annotation")
         rwhere, label = f"{awhere}, region {rid!r}", regions[rid].label
         if rid in drawn:
-            bad = sorted(k for k in controls[rid] if k not in FRAME_FIELDS)
+            bad = sorted(k for k in controls[rid] if k not in TARGET_FIELDS)
             if bad:
                 kind = "line" if regions[rid].kind == "vector" else "point"
                 raise ConversionError(rwhere, f"a {label!r} {kind} carries reference fields {bad}")
         elif rid in refs:
             if _field(controls[rid], "class", rwhere) is not None:
                 raise ConversionError(rwhere, "a reference carries a 'class' (a class belongs to a target)")
-            items.frame |= _field(controls[rid], "target", rwhere) is not None
         elif controls[rid]:
             raise ConversionError(rwhere, f"a {label!r} point carries reference fields {sorted(controls[rid])}")
 
@@ -291,9 +285,6 @@ def _drawings(regions, controls, corner_points, target_lines, items: AnnotationI
                                                                "annotation")
         items.drawings.append(Drawing(f"region {rid!r}", name, _class_of([rid], controls, awhere),
                                       [list(p) for p in regions[rid].points]))
-    items.frame |= bool(target_lines) or any(d.target is not None or d.cls is not None for d in items.drawings)
-    if items.drawings:
-        items.corners = items.drawings[0].corners
 
 
 def _class_of(rids, controls, awhere) -> str | None:

@@ -1,7 +1,18 @@
-"""The estimate of one target and its ``creference-result/1`` JSON (formats.md)."""
+"""The estimate of a scene, and its file ``creference-result/2`` (docs/result_format.md).
+
+One format for every scene: the shared camera and every target, each with its MAP, its posterior
+summary (mean, median, sd, highest-density intervals) and, given the scene's ground truth, an
+evaluation. The result records how it was made (``provenance``: the model, the preset, its options,
+the camera's treatment, the seed, the sampler settings, the classes given by the user, the bounds;
+``pilot_camera`` and each target's ``handedness``), so
+:func:`creference_bayes.pipeline.rebuild_model` makes the same model again from the result and
+its scene. ``creference-result/1`` files (one target, written before) are still read
+(:func:`result_from_v1`).
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -9,254 +20,345 @@ from typing import Any
 
 import numpy as np
 
-from ..models.params import PARAM_NAMES
-from .files import atomic_write_text
+from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT_REPORT, object_report
 from .files import read_text
 
-__all__ = ["scene_candidates", "RESULT_FORMAT", "MapEstimate", "Evaluation", "PosteriorSummary", "Diagnostics", "Result", "load_result_dict"]
+__all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
+           "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_mismatch", "find_scene",
+           "canonical_sha256", "map_checks"]
 
-RESULT_FORMAT = "creference-result/1"
+RESULT_FORMAT = "creference-result/2"
+#: The result formats this package reads.
+RESULT_FORMATS = ("creference-result/1", RESULT_FORMAT)
+#: Posterior draws a result keeps (``draws``: evenly spaced over every chain's draws), enough for
+#: the labels' P(IoU ≥ t) to about ±0.025 and small enough for a batch of thousands of scenes.
+RESULT_DRAWS = 400
+#: Decimals of the kept draws (10 µm, 10 µrad, 10⁻⁵ px).
+DRAW_DECIMALS = 5
+#: How far the MAP's box may miss its annotations (RMS of its corners from their median, over
+#: this many times the annotations' own spread) before the result says so.
+REPROJECTION_WARN_FACTOR = 3.0
+REPROJECTION_MIN_SPREAD_PX = 1.0
+
+
+def hdi(samples: np.ndarray, prob: float) -> np.ndarray:
+    """Highest-density interval of each column of (N, k) samples: the narrowest window holding
+    ``prob`` of the sorted draws, (k, 2)."""
+    x = np.sort(np.asarray(samples, float), axis=0)
+    n = len(x)
+    w = max(1, min(n - 1, int(np.floor(prob * n))))
+    widths = x[w:] - x[:n - w]
+    i = np.argmin(widths, axis=0)
+    cols = np.arange(x.shape[1])
+    return np.column_stack([x[i, cols], x[i + w, cols]])
+
+
+def _summary(x: np.ndarray, prob: float) -> dict:
+    return {"mean": x.mean(axis=0), "median": np.median(x, axis=0), "sd": x.std(axis=0, ddof=1), "hdi": hdi(x, prob)}
 
 
 @dataclass(frozen=True)
-class MapEstimate:
-    """The optimum of a model's cost.
+class StoredDraws:
+    """Draws read back from a result's ``draws``: cameras (1, n, 5), objects (1, n, m, 7), natural
+    parameters in the order of ``CAMERA_NAMES`` and ``OBJECT_NAMES``."""
 
-    Attributes
-    ----------
-    params : (5,) x, y, z (m), yaw (rad, wrapped to [−π, π)), focal length (px)
-    handedness : +1 or −1, the dimension-line handedness that fits best
-    cost : the model's cost at ``params``
-    preset : the optimiser preset used
-    seconds : wall time of the optimisation
-    n_evaluations : number of cost evaluations (vectorised batches count their rows)
-    info : what happened, per handedness (a plain dict)
+    cameras: np.ndarray
+    objects: np.ndarray
+
+
+def _column(v: np.ndarray):
+    """A kept column: one number when every draw has it (a fixed parameter), else the list."""
+    v = np.round(np.asarray(v, float), DRAW_DECIMALS)
+    return float(v[0]) if np.all(v == v[0]) else v.tolist()
+
+
+def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int) -> dict:
+    """Evenly spaced draws of the chains' draws laid end to end, each with its chain."""
+    n = len(cams)
+    idx = np.unique(np.linspace(0, n - 1, min(n_keep, n)).round().astype(int))
+    return {"n": int(len(idx)), "of": int(n), "chain": (idx // (n // n_chains)).tolist(),
+            "camera": {k: _column(cams[idx, j]) for j, k in enumerate(CAMERA_NAMES)},
+            "objects": [{k: _column(objs[idx, i, j]) for j, k in enumerate(OBJECT_NAMES)}
+                        for i in range(objs.shape[1])]}
+
+
+def stored_draws(d: dict) -> StoredDraws | None:
+    """The draws a result dict keeps (its ``draws``), or None when it has none.
+
+    Raises
+    ------
+    ValueError : ``draws`` is malformed (names the key)
     """
-
-    params: np.ndarray
-    handedness: int
-    cost: float
-    preset: str
-    seconds: float
-    n_evaluations: int
-    info: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        """``{"x": …, "y": …, "z": …, "yaw": …, "focal_length_px": …}`` (formats.md ``map``)."""
-        return {k: float(v) for k, v in zip(PARAM_NAMES, self.params)}
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """Comparison with the scene's ground truth.
-
-    ``location_pct_error`` is Eq. 3 for the MAP (and ``posterior_location_pct_error`` for the
-    posterior mean, when there is a posterior); ``in_hdi`` says whether each true value lies in
-    its credible interval.
-    """
-
-    location_pct_error: float
-    posterior_location_pct_error: float | None = None
-    in_hdi: dict[str, bool] | None = None
-
-    def to_dict(self) -> dict:
-        d: dict[str, Any] = {"location_pct_error": self.location_pct_error}
-        if self.posterior_location_pct_error is not None:
-            d["posterior_location_pct_error"] = self.posterior_location_pct_error
-        if self.in_hdi is not None:
-            d["in_hdi"] = dict(self.in_hdi)
-        return d
-
-
-def _finite_or_none(v):
-    """JSON-safe number: NaN and ±inf become None."""
-    if v is None:
+    kept = d.get("draws")
+    if not kept:
         return None
-    v = float(v)
-    return v if np.isfinite(v) else None
+    try:
+        n = int(kept["n"])
+        col = lambda v: np.broadcast_to(np.asarray(v, float), (n,))
+        cams = np.column_stack([col(kept["camera"][k]) for k in CAMERA_NAMES])
+        objs = np.stack([np.column_stack([col(o[k]) for k in OBJECT_NAMES]) for o in kept["objects"]], axis=1)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"draws: not the draws of a {RESULT_FORMAT} ({' '.join(str(exc).split())})") from None
+    if not (np.all(np.isfinite(cams)) and np.all(np.isfinite(objs))):
+        raise ValueError("draws: expected finite numbers")
+    if objs.shape[1] != len(d.get("objects", ())):
+        raise ValueError(f"draws.objects: {objs.shape[1]} objects, the result has {len(d.get('objects', ()))}")
+    return StoredDraws(cams[None], objs[None])
 
 
-@dataclass(frozen=True)
-class PosteriorSummary:
-    """Summary of the posterior draws (formats.md ``posterior``).
-
-    Attributes
-    ----------
-    mean, median, sd : per quantity (x, y, z m; yaw rad; focal_length_px px; distance_m m).
-        Yaw's mean is the circular mean in [−π, π) and its sd the circular sd √(−2 ln R̄).
-    hdi : per quantity, the highest-density interval [low, high] at ``hdi_prob``; yaw's is an arc
-        around its circular mean whose ends may lie outside [−π, π)
-    hdi_prob : probability of the intervals
-    handedness : the dimension-line handedness the posterior is conditioned on (the MAP's)
-    temperature : T of log p = −cost′/T + log prior
-    n_draws : draws summarised (all ensembles, after burn-in and thinning)
-    draws : a few draws per ensemble (``chain`` index and one list per quantity), for plots
-    """
-
-    mean: dict[str, float]
-    median: dict[str, float]
-    sd: dict[str, float]
-    hdi: dict[str, tuple[float, float]]
-    hdi_prob: float
-    handedness: int
-    temperature: float
-    n_draws: int
-    draws: dict = field(default_factory=dict, repr=False)
-
-    def to_dict(self) -> dict:
-        d = {key: {k: _finite_or_none(v) for k, v in getattr(self, key).items()}
-             for key in ("mean", "median", "sd")}
-        d["hdi"] = {"prob": self.hdi_prob,
-                    **{k: [_finite_or_none(lo), _finite_or_none(hi)] for k, (lo, hi) in self.hdi.items()}}
-        d.update({"handedness": self.handedness, "temperature": self.temperature,
-                  "n_draws": self.n_draws})
-        if self.draws:
-            d["draws"] = self.draws
-        return d
+def _r(v, nd=6):
+    return None if v is None or not np.isfinite(v) else round(float(v), nd)
 
 
-@dataclass(frozen=True)
-class Diagnostics:
-    """Convergence diagnostics of the sampler (formats.md ``diagnostics``).
+def _named(names, values, keep=None) -> dict:
+    return {n: _r(v) for n, v, k in zip(names, values, keep if keep is not None else [True] * len(names)) if k}
 
-    Attributes
-    ----------
-    n_walkers : walkers in all ensembles together;  n_ensembles : independent ensembles
-    n_steps : main-phase steps per walker;  burn_in, thin : steps discarded, thinning kept
-    warmup_steps : steps of the (discarded) adaptive warm-up before the main phase
-    autocorr_time : integrated autocorrelation time per sampled quantity, steps
-    ess_bulk, ess_tail : effective sample sizes (arviz, rank-normalised), per quantity
-    r_hat : rank-normalised split R-hat across ensembles, per quantity
-    acceptance_fraction : mean over walkers
-    converged : chain ≥ 50 τ after burn-in, every R-hat ≤ 1.01, every bulk ESS ≥ the minimum
-    warnings : the reasons when not converged, and anything else worth knowing
-    seconds : wall time of the sampling
-    modes : when the posterior has several modes (found before sampling; the ensembles start
-        in different ones), one dict each: ``distance_m``, ``yaw``, ``log_density_below_map``,
-        ``laplace_share`` and ``draw_share_per_ensemble``
-    """
 
-    n_walkers: int
-    n_ensembles: int
-    n_steps: int
-    burn_in: int
-    thin: int
-    warmup_steps: int
-    autocorr_time: dict[str, float]
-    ess_bulk: dict[str, float | None]
-    ess_tail: dict[str, float | None]
-    r_hat: dict[str, float | None]
-    acceptance_fraction: float
-    converged: bool
-    warnings: tuple[str, ...] = ()
-    seconds: float = 0.0
-    modes: tuple = ()
-
-    def to_dict(self) -> dict:
-        d: dict[str, Any] = {k: getattr(self, k) for k in (
-            "n_walkers", "n_ensembles", "n_steps", "burn_in", "thin", "warmup_steps")}
-        for key in ("autocorr_time", "ess_bulk", "ess_tail", "r_hat"):
-            d[key] = {k: _finite_or_none(v) for k, v in getattr(self, key).items()}
-        d.update({"acceptance_fraction": _finite_or_none(self.acceptance_fraction),
-                  "converged": bool(self.converged), "warnings": list(self.warnings)})
-        if self.modes:
-            d["modes"] = [dict(m) for m in self.modes]
-        return d
+def _posterior_block(names, s: dict, prob: float, keep=None) -> dict:
+    out = {k: _named(names, s[k], keep) for k in ("mean", "median", "sd")}
+    out["hdi"] = {n: [_r(a), _r(b)] for n, (a, b), k in
+                  zip(names, s["hdi"], keep if keep is not None else [True] * len(names)) if k}
+    out["hdi"]["prob"] = prob
+    return out
 
 
 @dataclass(frozen=True)
 class Result:
-    """Everything estimated for one target.
+    """The estimate of one scene (module docstring); :meth:`to_dict` is the file.
 
     Attributes
     ----------
-    target : the target's id
-    model : the model's name (``paper``, ``metrology``)
-    preset : the optimiser preset
-    map : the MAP estimate
-    scene : the scene file's name, if it came from a file
-    posterior : :class:`PosteriorSummary`, or None when not sampled
-    diagnostics : :class:`Diagnostics` of the sampler, or None
-    references : reference aggregation report with ``pairs_used``/``pairs_skipped``, or None
-    evaluation : comparison with ground truth, or None
-    warnings : what the user should know (assumed level camera, not converged, …)
-    extra : anything else worth keeping in the JSON (keys are added, never renamed)
-    scene_id : what identifies the scene the result came from: ``target`` (its id),
-        ``image_size`` ([width, height], pixels) and ``sha256`` (:func:`~.scene.scene_fingerprint`)
+    data : the file's content
+    draws : the posterior draws (:class:`~creference_bayes.inference.sampler.Draws`), or None
+    diagnostics : the sampler's :class:`~creference_bayes.inference.sampler.Diagnostics`, or None
+    warnings : what the user should know
+    model : the model estimated (not in the file; :func:`creference_bayes.inference.summary.to_inference_data`
+        makes the whole posterior's ``arviz.InferenceData`` from it and the draws)
     """
 
-    target: str
-    model: str
-    preset: str
-    map: MapEstimate
-    scene: str | None = None
-    posterior: Any = None
+    data: dict
+    draws: Any = None
     diagnostics: Any = None
-    references: Any = None
-    evaluation: Evaluation | None = None
     warnings: tuple[str, ...] = ()
-    extra: dict = field(default_factory=dict)
-    scene_id: dict | None = None
-    #: the full posterior as an ``arviz.InferenceData`` (not in the JSON; see ``--netcdf``)
-    inference_data: Any = field(default=None, repr=False, compare=False)
-
-    def to_dict(self) -> dict:
-        """The ``creference-result/1`` document."""
-        d: dict[str, Any] = {"format": RESULT_FORMAT, "scene": self.scene, "target": self.target,
-                             "model": self.model, "preset": self.preset, "map": self.map.to_dict(),
-                             "handedness": self.map.handedness}
-        if self.scene_id is not None:
-            d["scene_id"] = dict(self.scene_id)
-        if self.posterior is not None:
-            d["posterior"] = _plain(self.posterior.to_dict() if hasattr(self.posterior, "to_dict") else self.posterior)
-        if self.diagnostics is not None:
-            d["diagnostics"] = _plain(self.diagnostics.to_dict() if hasattr(self.diagnostics, "to_dict") else self.diagnostics)
-        if self.references is not None:
-            d["references"] = _plain(self.references.to_dict() if hasattr(self.references, "to_dict") else self.references)
-        if self.evaluation is not None:
-            d["evaluation"] = _plain(self.evaluation.to_dict())
-        d["warnings"] = list(self.warnings)
-        d["timing_s"] = {"map": self.map.seconds}
-        if self.diagnostics is not None and hasattr(self.diagnostics, "seconds"):
-            d["timing_s"]["posterior"] = self.diagnostics.seconds
-        d.update(_plain(self.extra))
-        return d
-
-    def to_json(self, path: str | Path | None = None, indent: int = 2) -> str:
-        """Serialise; write to ``path`` when given. Returns the JSON text."""
-        text = json.dumps(self.to_dict(), indent=indent, allow_nan=False)
-        if path is not None:
-            atomic_write_text(path, text + "\n")
-        return text
+    model: Any = field(default=None, repr=False, compare=False)
 
     @property
-    def location(self) -> np.ndarray:
-        """MAP location (x, y, z), metres."""
-        return self.map.params[:3].copy()
+    def converged(self) -> bool | None:
+        return None if self.diagnostics is None else bool(self.diagnostics.converged)
+
+    def to_dict(self) -> dict:
+        return self.data
+
+    @classmethod
+    def build(cls, scene, model, setup, map_est, draws, diag, *, hdi_prob: float, provenance: dict,
+              seconds: float, notes=(), keep_draws: int = RESULT_DRAWS) -> "Result":
+        from .scene import scene_fingerprint
+
+        warnings = list(scene.warnings) + list(setup.notes) + list(notes)
+        cf = model.camera_free
+        camera = {"map": _named(CAMERA_NAMES, map_est.camera), "free": [n for n, f in zip(CAMERA_NAMES, cf) if f],
+                  "setup": setup.to_dict()}
+        if setup.horizon_estimate is not None:
+            camera["setup"]["horizon_estimate"] = setup.horizon_estimate.to_dict()
+        objs_map = object_report(map_est.camera, map_est.objects)
+        post_obj = post_cam = kept = None
+        if draws is not None:
+            cams = draws.cameras.reshape(-1, 5)
+            objs = draws.objects.reshape(-1, model.n_objects, 7).copy()
+            yaw0 = map_est.objects[:, O_YAW]
+            objs[..., O_YAW] = yaw0 + (objs[..., O_YAW] - yaw0 + np.pi) % (2 * np.pi) - np.pi
+            table = object_report(cams, objs)  # (N, m, 9)
+            if keep_draws > 0:
+                kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0])
+            post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
+            post_cam = _summary(cams, hdi_prob)
+            camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
+            if not diag.converged:
+                warnings += [f"posterior not converged: {w}" for w in diag.warnings]
+        if scene.ground_truth:
+            camera["evaluation"] = _camera_evaluation(scene.ground_truth, camera.get("posterior"))
+        warnings += map_checks(scene, model, setup, map_est)
+        objects = []
+        for i, (t, o) in enumerate(zip(scene.targets, model.objects)):
+            entry = {"id": t.id, "class": t.cls, "handedness": int(map_est.handedness[i]),
+                     "size": "known" if o.sizes is not None else "class prior",
+                     "n_annotations": len(o.annotations),
+                     "map": {n: _r(v) for n, v in zip(OBJECT_REPORT, objs_map[i])}}
+            if hasattr(model, "sigma") and np.ndim(model.sigma):
+                entry["sigma_px"] = _r(model.sigma[i], 3)
+            if post_obj is not None:
+                entry["posterior"] = _posterior_block(OBJECT_REPORT, post_obj[i], hdi_prob)
+            if t.ground_truth is not None and "location_m" in t.ground_truth:
+                entry["evaluation"] = _evaluate(t.ground_truth, objs_map[i], None if post_obj is None else post_obj[i])
+            objects.append(entry)
+        data = {"format": RESULT_FORMAT, "scene": scene.source.name if scene.source else None,
+                "scene_format": scene.format, "scene_id": {"sha256": scene_fingerprint(scene)},
+                "image_size": [scene.image_width, scene.image_height], "model": model.name,
+                "preset": provenance.get("preset", "default"), "hdi_prob": hdi_prob,
+                "camera": camera, "objects": objects, "references": _references(model),
+                "map_info": {k: _r(v, 4) if isinstance(v, float) else v for k, v in map_est.info.items()},
+                "diagnostics": None if diag is None else diag.to_dict(),
+                "pilot_camera": None if model.pilot is None else [float(v) for v in model.pilot],
+                "provenance": provenance, "seconds": round(seconds, 3), "warnings": warnings}
+        if kept is not None:
+            data["draws"] = kept
+        return cls(data, draws, diag, tuple(warnings), model)
 
 
-def _plain(obj: Any) -> Any:
-    """Convert numpy scalars/arrays inside dicts and lists to JSON-able Python objects."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
+def _references(model) -> dict:
+    """What the references contributed: how many entered the likelihood (and which were left out,
+    why) for the metrology model; for the paper model, each object's pairs used and skipped."""
+    if hasattr(model, "reference_reports"):
+        return {"used_as": "pairwise bounds",
+                "objects": [{"pairs_used": r.pairs_used, "pairs_skipped": r.pairs_skipped,
+                             "skipped_reasons": r.skipped_reasons} for r in model.reference_reports]}
+    status = getattr(model, "reference_status", {})
+    out = {"used_as": "likelihood", "n_references": len(status),
+           "in_likelihood": sum(v == "used" for v in status.values())}
+    left = {str(k): v for k, v in status.items() if v != "used"}
+    if left:
+        out["left_out"] = left
+    if getattr(model, "n_stated_ranges", 0):
+        out["read_with_confidence_map"] = model.n_stated_ranges
+    return out
 
 
-def load_result_dict(path: str | Path) -> dict:
-    """Read a ``creference-result/1`` JSON file (plain dict), checking its format key."""
-    data = json.loads(read_text(path))
-    if not isinstance(data, dict) or data.get("format") != RESULT_FORMAT:
+def map_checks(scene, model, setup, map_est) -> list[str]:
+    """Warnings about the MAP: a box that misses its annotations, and a focal length that the
+    annotations and an informative prior disagree on (a cropped photo?)."""
+    out = []
+    uv, _ = model.project(map_est.camera[None], map_est.objects[None])
+    for i, t in enumerate(scene.targets):
+        med = np.median(t.corners, axis=0)
+        err = float(np.sqrt(np.mean(np.sum((uv[0, i] - med) ** 2, axis=-1))))
+        c = t.corners
+        spread = np.sqrt(np.sum((c - c.mean(axis=0)) ** 2) / (8 * (len(c) - 1))) if len(c) > 1 else 5.0
+        spread = max(np.sqrt(2.0) * spread, REPROJECTION_MIN_SPREAD_PX)
+        if not np.isfinite(err) or err > REPROJECTION_WARN_FACTOR * spread:
+            out.append(f"target {t.id!r}: the MAP's box misses its annotations: its corners are {err:.1f} px (RMS) "
+                       f"from the annotations' median, over {REPROJECTION_WARN_FACTOR:g} times their own spread "
+                       f"({spread:.1f} px); check the dimension lines and the target's size")
+    prior = setup.terms.focal
+    if prior is not None and prior.source != "default" and model.camera_free[C_FOCAL]:
+        lo, hi = prior.interval(0.99)
+        mu = float(map_est.camera[C_FOCAL])
+        if not lo <= mu <= hi:
+            out.append(f"the annotations disagree with the {prior.source} focal length prior: MAP {mu:.0f} px, "
+                       f"prior median {prior.median_px:.0f} px (99 % interval {lo:.0f}–{hi:.0f}); was the image "
+                       "cropped or resized?")
+    return out
+
+
+def _in(v, iv) -> bool:
+    return bool(iv[0] is not None and iv[1] is not None and iv[0] <= v <= iv[1])
+
+
+def _evaluate(truth: dict, map_row: np.ndarray, post: dict | None) -> dict:
+    """Errors against a target's ground truth: Eq. 3 for the MAP and the posterior mean, and
+    whether each true value lies in its HDI."""
+    loc = np.asarray(truth["location_m"], float)
+    out = {"location_pct_error": _r(100 * np.linalg.norm(map_row[:3] - loc) / np.linalg.norm(loc), 4)}
+    if post is not None:
+        out["posterior_location_pct_error"] = _r(100 * np.linalg.norm(post["mean"][:3] - loc) / np.linalg.norm(loc), 4)
+        d = float(np.hypot(loc[0], loc[2]))
+        values = {"x": loc[0], "y": loc[1], "z": loc[2], "distance_m": d}
+        if truth.get("yaw_rad") is not None:
+            values["yaw"] = truth["yaw_rad"]
+        inside = {}
+        for k, v in values.items():
+            a, b = post["hdi"][OBJECT_REPORT.index(k)]
+            if k == "yaw":  # circular: some turn of the true yaw inside
+                v = a + (v - a) % (2 * np.pi)
+            inside[k] = bool(a <= v <= b)
+        out["distance_in_hdi"] = inside["distance_m"]
+        out["in_hdi"] = inside
+    return out
+
+
+def _camera_evaluation(truth: dict, post: dict | None) -> dict:
+    """Whether the camera's true focal length, pitch, roll and height lie in their HDIs."""
+    keys = {"focal_length_px": "focal_length_px", "pitch_rad": "pitch", "roll_rad": "roll", "camera_height_m": "height_m"}
+    out = {"truth": {v: truth[k] for k, v in keys.items() if truth.get(k) is not None}}
+    if post is not None:
+        out["in_hdi"] = {k: _in(v, post["hdi"][k]) for k, v in out["truth"].items() if k in post["hdi"]}
+    return out
+
+
+def load_result(path: str | Path) -> dict:
+    """A result file's content (either format; check with :data:`RESULT_FORMATS`); ``ValueError``
+    naming the file when it is not one."""
+    try:
+        data = json.loads(read_text(path))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a result file (not JSON: {exc})") from None
+    if not isinstance(data, dict) or data.get("format") not in RESULT_FORMATS:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise ValueError(f"format: expected {RESULT_FORMAT!r}, got {got!r}")
+        raise ValueError(f"{path}: format: expected one of {list(RESULT_FORMATS)}, got {got!r}")
     return data
 
 
+def result_from_v1(d: dict, scene) -> dict:
+    """A ``creference-result/1`` dict (one target, as written before) in this format, given its
+    scene: the MAP, the posterior summary, the kept draws and the provenance that
+    :func:`~creference_bayes.pipeline.rebuild_model` needs."""
+    t = scene.targets[0]
+    size = t.dimensions
+    m = d["map"]
+    pitch, roll = m.get("pitch"), m.get("roll")
+    if (pitch is None or roll is None) and scene.horizon is not None:  # older files: from the horizon
+        from ..core.geometry import horizon_line, pitch_roll_from_horizon
+
+        pitch, roll = (float(v) for v in pitch_roll_from_horizon(horizon_line(scene.horizon), m["focal_length_px"],
+                                                                 scene.principal_point))
+    pitch, roll = pitch or 0.0, roll or 0.0
+    camera = {"map": {"focal_length_px": m["focal_length_px"], "pitch": pitch, "roll": roll, "height_m": m["y"],
+                      "ref_scale": 0.5}, "free": [], "setup": (d.get("extra") or {}).get("camera") or {}}
+    hand = d.get("handedness", (d.get("posterior") or {}).get("handedness", 1))
+    obj = {"id": t.id, "class": t.cls, "handedness": int(hand),
+           "size": "known", "n_annotations": len(t.dimension_lines),
+           "map": {"x": m["x"], "y": m["y"], "z": m["z"], "yaw": m["yaw"], "length_m": size[0], "width_m": size[1],
+                   "height_m": size[2], "ground_m": 0.0, "distance_m": float(np.hypot(m["x"], m["z"]))}}
+    out = {"format": RESULT_FORMAT, "scene": d.get("scene"), "scene_format": "creference-scene/1",
+           "scene_id": d.get("scene_id") or {}, "image_size": [scene.image_width, scene.image_height],
+           "model": d.get("model"), "preset": d.get("preset"), "camera": camera, "objects": [obj],
+           "warnings": list(d.get("warnings", [])), "pilot_camera": None,
+           "provenance": {"model": d.get("model"), "preset": d.get("preset"), "options": {},
+                          "orientation": "auto", "focal_prior": "auto", "use_references": True,
+                          "temperature": float((d.get("posterior") or {}).get("temperature", 1.0)),
+                          "location_prior": "log-depth" if d.get("preset") == "default" else "flat"},
+           "converted_from": "creference-result/1"}
+    post = d.get("posterior")
+    if post:
+        prob = post["hdi"]["prob"]
+        out["hdi_prob"] = prob
+        names = {"x": "x", "y": "y", "z": "z", "yaw": "yaw", "distance_m": "distance_m"}
+        obj["posterior"] = {k: {v: post[k].get(n) for n, v in names.items()} for k in ("mean", "median", "sd")}
+        obj["posterior"]["hdi"] = {v: post["hdi"].get(n) for n, v in names.items()} | {"prob": prob}
+        cam_names = {"focal_length_px": "focal_length_px", "pitch": "pitch", "roll": "roll", "y": "height_m"}
+        camera["posterior"] = {k: {v: post[k][n] for n, v in cam_names.items() if n in post[k]} for k in ("mean", "median", "sd")}
+        camera["posterior"]["hdi"] = {v: post["hdi"][n] for n, v in cam_names.items() if n in post["hdi"]} | {"prob": prob}
+        camera["free"] = [v for n, v in cam_names.items() if n in post["sd"] and (post["sd"][n] or 0) > 0]
+        draws = post.get("draws")
+        if draws and "x" in draws:
+            n = len(draws["x"])
+            col = lambda k, default: draws.get(k, [default] * n)
+            out["draws"] = {"n": n, "of": n,
+                            "camera": {"focal_length_px": col("focal_length_px", m["focal_length_px"]),
+                                       "pitch": col("pitch", pitch), "roll": col("roll", roll), "height_m": draws["y"],
+                                       "ref_scale": 0.5},
+                            "objects": [{"x": draws["x"], "z": draws["z"], "yaw": draws["yaw"], "length_m": size[0],
+                                         "width_m": size[1], "height_m": size[2], "ground_m": 0.0}]}
+    if d.get("evaluation"):
+        obj["evaluation"] = dict(d["evaluation"])
+    diag = d.get("diagnostics")
+    if isinstance(diag, dict):
+        out["diagnostics"] = {"sampler": "emcee", "n_chains": diag.get("n_ensembles"), "warmup": diag.get("warmup_steps"),
+                              "iterations": diag.get("n_steps"), "thin": diag.get("thin"),
+                              "ess_bulk": diag.get("ess_bulk"), "r_hat": diag.get("r_hat"),
+                              "converged": diag.get("converged"), "warnings": list(diag.get("warnings") or [])}
+    if isinstance(d.get("batch"), dict):
+        out["batch"] = dict(d["batch"])
+    return out
 
 
 def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
@@ -278,3 +380,78 @@ def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
                 Path(str(resources.files("creference_bayes") / "data" / name))]
     me = result_path.resolve()
     return [p for p in out if p.resolve() != me]
+
+
+def canonical_sha256(data) -> str:
+    """SHA-256 (hex) of decoded JSON in its canonical form (sorted keys, no spaces): a batch
+    folder's scene copy is written so, and its result records this, whichever version wrote them."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str | None:
+    """What differs between the scene a result (either format) records and ``scene``, or None: the
+    target ids, the image size, and the content's hash (``scene_id.sha256``: the scene's
+    fingerprint, or ``file_sha256``, the canonical hash of the scene file as read, which a batch
+    copy of either version matches). A ``creference-result/1`` not from a batch hashed its scene
+    another way: its hash is not compared."""
+    from .scene import scene_fingerprint
+
+    v1 = result.get("format") == "creference-result/1"
+    recorded = result.get("scene_id") if isinstance(result.get("scene_id"), dict) else {}
+    ids = [result.get("target")] if v1 else [o.get("id") for o in result.get("objects", [])]
+    mine = [t.id for t in scene.targets]
+    size = result.get("image_size") or recorded.get("image_size")
+    diffs = []
+    if ids != mine:
+        say = lambda v: (repr(v[0]) if len(v) == 1 else f"{v[:5]}{'…' if len(v) > 5 else ''}")
+        diffs.append(f"target{'s' if len(mine) > 1 else ''} {say(mine)}, the result's "
+                     f"{'are' if len(ids) > 1 else 'is'} {say(ids)}")
+    if size is not None and list(size) != [scene.image_width, scene.image_height]:
+        diffs.append(f"image {scene.image_width}x{scene.image_height} px, the result's is {size[0]}x{size[1]}")
+    want = recorded.get("sha256")
+    if not diffs and want is not None and want not in (scene_fingerprint(scene), file_sha256) \
+            and not (v1 and "batch" not in result):
+        diffs.append(f"same targets and image size but different content (its fingerprint differs): sha256 {scene_fingerprint(scene)[:12]}…, "
+                     f"the result's is {str(want)[:12]}…; edited since the estimate?")
+    return "; ".join(diffs) or None
+
+
+def find_scene(result: dict, result_path: str | Path, explicit: str | Path | None = None):
+    """The scene a result (either format) was estimated from: ``explicit``, else the first of
+    :func:`scene_candidates` that exists, checked with :func:`scene_mismatch`.
+
+    Raises
+    ------
+    FileNotFoundError : no candidate exists (the message says where it looked)
+    ValueError : the scene found is not the result's (the message says what differs)
+    """
+    import warnings
+
+    from .scene import SceneWarning, load_scene
+
+    result_path = Path(result_path)
+    if explicit is not None:
+        paths, how = [Path(explicit)], f"--scene {explicit}"
+        if not paths[0].is_file():
+            raise FileNotFoundError(2, "no such file", str(explicit))
+    else:
+        paths, how = scene_candidates(result, result_path), None
+    for path in paths:
+        if path.is_file():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(path)
+            try:
+                file_sha = canonical_sha256(json.loads(read_text(path)))
+            except ValueError:
+                file_sha = None
+            why = scene_mismatch(result, scene, file_sha)
+            if why:
+                where = how or f"scene {str(path)!r} (found by the result's scene name; pass --scene)"
+                raise ValueError(f"{where}: not the scene this result was estimated from ({why})")
+            return scene
+    if not result.get("scene") and not result.get("batch"):
+        raise FileNotFoundError(2, "the result names no scene: give it with --scene", str(result_path))
+    raise FileNotFoundError(2, f"the result's scene {result.get('scene')!r} is not beside it, in the current folder or among "
+                               "the shipped scenes: give it with --scene", str(result_path))

@@ -1,4 +1,9 @@
-"""Scene dataclasses and the ``creference-scene/1`` loader (../shared/docs/formats.md).
+"""Scene files and the one scene in memory: a photo with one or more annotated targets.
+
+Two file formats are read, forever: ``creference-scene/1`` (one ``target``, formats.md) and
+``creference-scene/2`` (``targets``: every annotated target of the photo, docs/scene_format.md).
+Both become one :class:`Scene` (a one-target scene is a frame of one), validated by one set of
+rules with one set of messages; :func:`scene_to_dict` writes version 2.
 
 Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
 and names the value (``references[2].unit: unknown unit 'furlong' …``); nothing else escapes
@@ -6,14 +11,22 @@ and names the value (``references[2].unit: unknown unit 'furlong' …``); nothin
 errors, unless one is a near miss of a known key of the same object (``refrences``: unknown
 key; did you mean 'references'?, :func:`near_miss`), which would otherwise silently drop what
 the user meant; the others are kept in :attr:`Scene.warnings` and emitted as
-:class:`SceneWarning`. ``ground_truth`` is free-form (extra keys are kept without a warning).
+:class:`SceneWarning`. Ground truth is free-form (extra keys are kept without a warning); the
+known keys are checked.
 
-Optional keys may also be ``null`` (``camera``, ``horizon``, ``references``, ``ground_truth``,
-``camera.principal_point``, ``camera.focal_length_px``), meaning absent. Limits beyond
-formats.md: image sides at most :data:`MAX_IMAGE_SIDE` pixels; annotated points within
-:data:`IMAGE_MARGIN` image sizes of the image; horizon points within :data:`HORIZON_MARGIN`
-image sizes and the horizon no steeper than 45°; the known ground-truth extras
-(``camera_height_m``, ``pitch_rad``, ``roll_rad``, ``handedness``) are checked when present.
+Optional keys may also be ``null`` (meaning absent). Limits beyond formats.md: image sides at most
+:data:`MAX_IMAGE_SIDE` pixels; annotated points within :data:`IMAGE_MARGIN` image sizes of the
+image; horizon points within :data:`HORIZON_MARGIN` image sizes and the horizon no steeper than 45°.
+
+A version-1 file reads as a scene of one target (its id, ``target`` when it has none) with its
+known size; its relative references are relative to that target; its ground truth is split
+between the target (``location_m``, ``yaw_rad``, ``handedness``) and the camera (the rest).
+
+In a version-2 file, each target has an ``id`` (unique), a ``class`` and, optionally, its known
+``dimensions_m`` (without them the class's size prior applies: the scene's own ``classes``, then
+the user's classes file, then the shipped KITTI classes); references may name a ``target``
+(relative to it, or, without a line, a measurement of its own size) or two ``targets`` (the
+ground distance between them).
 """
 
 from __future__ import annotations
@@ -30,33 +43,22 @@ import numpy as np
 
 from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
+from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior, size_priors_from_dict
+from .files import read_bytes
 from .validation import (SceneError, SceneWarning, _check_inside, _check_segment, _dict, _get,
                          _got, _join, _list, _number, _point, _points, _short, _string, _warn_unknown,
                          check_scene_format, near_miss)
-from .files import read_bytes
 
-__all__ = [
-    "SCENE_FORMAT",
-    "SceneError",
-    "SceneWarning",
-    "DimensionLine",
-    "Target",
-    "Reference",
-    "GroundTruth",
-    "Scene",
-    "load_scene",
-    "parse_scene",
-    "scene_to_dict",
-    "scene_fingerprint",
-    "scene_differences",
-    "near_miss",
-    "parse_header",
-    "read_scene_json",
-]
+__all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
+           "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
+           "near_miss", "read_scene_json", "find_size_prior"]
 
-SCENE_FORMAT = "creference-scene/1"
+#: The format :func:`scene_to_dict` writes.
+SCENE_FORMAT = "creference-scene/2"
+SCENE_FORMATS = ("creference-scene/1", SCENE_FORMAT)
 MEASURES = ("length", "width", "distance")
 MODES = ("direct", "relative")
+_SIZE_NAMES = ("length", "width", "height")
 #: Image points may lie outside the image by at most this fraction of its size on each side.
 IMAGE_MARGIN = 0.5
 #: The two horizon points may lie outside the image by at most this many image sizes: a camera
@@ -64,6 +66,11 @@ IMAGE_MARGIN = 0.5
 HORIZON_MARGIN = 20.0
 #: Largest image side accepted, pixels (gigapixel panoramas stay below it).
 MAX_IMAGE_SIDE = 1_000_000
+_TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "target", "references", "ground_truth"},
+             2: {"format", "image", "camera", "horizon", "horizon_sd_px", "classes", "targets", "references",
+                 "ground_truth"}}
+#: Camera ground-truth keys (the rest of a version-1 ``ground_truth`` is the target's).
+_CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
 
 @dataclass(frozen=True)
@@ -77,31 +84,35 @@ class DimensionLine:
 
 @dataclass(frozen=True)
 class Target:
-    """The target box: sizes in metres and one or more dimension-line annotations."""
+    """One target: its id, class (or None), annotations, known sizes (m: length, width, height) or
+    None (its class's size prior applies), and ground truth (``location_m``, ``yaw_rad``,
+    ``dimensions_m``, ``handedness``, …) or None."""
 
     id: str
-    length: float
-    width: float
-    height: float
+    cls: str | None
     dimension_lines: tuple[DimensionLine, ...]
+    dimensions: tuple[float, float, float] | None = None
+    ground_truth: dict | None = None
 
     @property
     def corners(self) -> np.ndarray:
-        """All annotations' corners, shape (n_annotation, 4, 2), pixels."""
+        """(K, 4, 2) every annotation's corners, pixels."""
         return np.stack([d.corners for d in self.dimension_lines])
 
     @property
     def median_corners(self) -> np.ndarray:
-        """Per-corner median over the annotations (paper §7.1.1), shape (4, 2), pixels."""
+        """Per-corner median over the annotations (paper §7.1.1), (4, 2) pixels."""
         return np.median(self.corners, axis=0)
 
 
 @dataclass(frozen=True)
 class Reference:
-    """A worker's rough measurement of another object, with the segment drawn for it.
+    """A worker's rough measurement, with the segment drawn for it (None for a target's own size
+    or the distance between two targets).
 
     ``low`` and ``high`` are the stated value or range, converted to metres for direct
-    measurements and kept as ratios to the target's length or width for relative ones.
+    measurements and kept as ratios to a target's length or width for relative ones; ``stated``
+    is (low, high) exactly as written in the file.
     """
 
     index: int
@@ -109,60 +120,88 @@ class Reference:
     mode: str
     low: float
     high: float
-    line: np.ndarray
+    line: np.ndarray | None
     is_range: bool
     unit: str | None = None
     object: str | None = None
     worker: str | None = None
     confidence: float | None = None
     seconds: float | None = None
-    #: (low, high) exactly as written in the file: in ``unit`` (direct) or as a ratio (relative).
     stated: tuple[float, float] | None = None
-
-    def length_bounds_m(self, target: Target) -> tuple[float, float]:
-        """The real length of ``line`` implied by the annotation, in metres: (low, high)."""
-        if self.mode == "direct":
-            return self.low, self.high
-        base = target.length if self.measure == "length" else target.width
-        return self.low * base, self.high * base
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """Evaluation-only truth: bottom-centre location (m, gravity-aligned frame), yaw (rad), µ (px)."""
-
-    location_m: np.ndarray
-    yaw_rad: float | None = None
-    focal_length_px: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated ``creference-scene/1`` scene. Pixel coordinates: u right, v down, origin top-left."""
+    """A validated scene (module docstring). Pixel coordinates: u right, v down, origin top-left.
+
+    Attributes
+    ----------
+    image_width, image_height : pixels
+    principal_point : (2,) pixels
+    targets : the targets (at least one)
+    references : the workers' references
+    reference_targets : for each reference, the index of the target it names, or None; a pair of
+        indices for a distance between two targets
+    classes : the scene's own size priors (class name → ``SizePrior``)
+    focal_length_px : a known focal length, or None
+    horizon : (2, 2) two points of the horizon, or None;  horizon_sd_px : their uncertainty (0: exact)
+    focal_prior, orientation_prior : the scene's own priors on the camera, or None
+    ground_truth : the camera's truth (``focal_length_px``, ``camera_height_m``, ``pitch_rad``,
+        ``roll_rad``, …) or None
+    image_path, source : the photo and the scene file, or None
+    warnings : what was ignored (unknown keys)
+    format : the file's format
+    kitti_p2, kitti_calib : KITTI's P2 (3, 4) and the calib file's other lines of a scene made
+        from a KITTI folder (labels go back into its frame)
+    """
 
     image_width: int
     image_height: int
-    target: Target
     principal_point: np.ndarray
+    targets: tuple[Target, ...]
+    references: tuple[Reference, ...] = ()
+    reference_targets: tuple[int | tuple[int, int] | None, ...] = ()
+    classes: dict[str, SizePrior] = field(default_factory=dict)
     focal_length_px: float | None = None
     horizon: np.ndarray | None = None
-    references: tuple[Reference, ...] = ()
-    #: Pixel uncertainty of each horizon point (0: the horizon is exact).
     horizon_sd_px: float = 0.0
-    #: The scene's own prior on µ (``camera.focal_length_prior``), or None.
-    focal_prior: FocalPrior | None = None
-    #: The scene's own prior on pitch and roll (``camera.orientation_prior``), or None.
-    orientation_prior: OrientationPrior | None = None
-    ground_truth: GroundTruth | None = None
+    focal_prior: Any = None
+    orientation_prior: Any = None
+    ground_truth: dict | None = None
     image_path: Path | None = None
     source: Path | None = None
     warnings: tuple[str, ...] = ()
+    format: str = SCENE_FORMAT
+    kitti_p2: np.ndarray | None = None
+    kitti_calib: dict | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) in pixels."""
         return self.image_width, self.image_height
+
+    def size_prior(self, cls: str | None, extra: dict[str, SizePrior] | None = None) -> SizePrior | None:
+        """The size prior of a class: the scene's own classes, then ``extra`` (a file given on the
+        command line), then the shipped KITTI classes. Class names match whatever their case
+        (``car`` is KITTI's ``Car``, as KITTI's evaluation reads them)."""
+        return find_size_prior(cls, self.classes, extra)
+
+
+def find_size_prior(cls: str | None, *tables: dict[str, SizePrior] | None) -> SizePrior | None:
+    """The size prior of class ``cls`` from the first of ``tables`` (then the shipped KITTI
+    classes) that has it: an exact name first, else one that differs only in case."""
+    if cls is None:
+        return None
+    tables = [t for t in tables if t] + [KITTI_SIZE_PRIORS]
+    for table in tables:
+        if cls in table:
+            return table[cls]
+    folded = cls.casefold()
+    for table in tables:
+        for name, prior in table.items():
+            if name.casefold() == folded:
+                return prior
+    return None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -182,27 +221,6 @@ def _parse_dimension_line(obj: Any, path: str, w: int, h: int, sink: list[str]) 
         corners=corners,
         worker=_string(obj.get("worker"), _join(path, "worker")),
         seconds=None if seconds is None else _number(seconds, _join(path, "seconds"), nonneg=True),
-    )
-
-
-def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
-    obj = _dict(obj, path)
-    _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, path, sink)
-    dims_path = _join(path, "dimensions_m")
-    dims = _dict(_get(obj, "dimensions_m", path), dims_path)
-    _warn_unknown(dims, {"length", "width", "height"}, dims_path, sink)
-    size = {k: _number(_get(dims, k, dims_path), _join(dims_path, k), positive=True)
-            for k in ("length", "width", "height")}
-    lines_path = _join(path, "dimension_lines")
-    lines = _list(_get(obj, "dimension_lines", path), lines_path)
-    if not lines:
-        raise SceneError(lines_path, "expected at least one annotation, got []")
-    ident = obj.get("id", "target")
-    return Target(
-        id=_string(ident, _join(path, "id"), optional=False),
-        dimension_lines=tuple(_parse_dimension_line(d, _join(lines_path, i), w, h, sink)
-                              for i, d in enumerate(lines)),
-        **size,
     )
 
 
@@ -275,32 +293,6 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
 _GT_EXTRA_NUMBERS = {"camera_height_m": {"positive": True}, "pitch_rad": {}, "roll_rad": {}}
 
 
-def _parse_ground_truth(obj: Any, path: str) -> GroundTruth:
-    obj = _dict(obj, path)
-    lpath = _join(path, "location_m")
-    loc = _list(_get(obj, "location_m", path), lpath)
-    if len(loc) != 3:
-        raise SceneError(lpath, f"expected [x, y, z], got {_short(loc)}")
-    location = np.array([_number(c, _join(lpath, i)) for i, c in enumerate(loc)])
-    if location[2] <= 0:
-        raise SceneError(_join(lpath, 2), f"z must be > 0 (in front of the camera), got {_short(loc[2])}")
-    yaw = obj.get("yaw_rad")
-    focal = obj.get("focal_length_px")
-    extra = {k: v for k, v in obj.items() if k not in {"location_m", "yaw_rad", "focal_length_px"}}
-    for key, kind in _GT_EXTRA_NUMBERS.items():
-        if extra.get(key) is not None:
-            _number(extra[key], _join(path, key), **kind)
-    if extra.get("handedness") is not None and (
-            isinstance(extra["handedness"], bool) or extra["handedness"] not in (1, -1)):
-        raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(extra['handedness'])}")
-    return GroundTruth(
-        location_m=location,
-        yaw_rad=None if yaw is None else _number(yaw, _join(path, "yaw_rad")),
-        focal_length_px=None if focal is None else _number(focal, _join(path, "focal_length_px"), positive=True),
-        extra=extra,
-    )
-
-
 _FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
 #: Default log-sd of a focal-length prior a scene states without one.
 STATED_FOCAL_LOG_SD = 0.1
@@ -350,15 +342,172 @@ def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> Orientatio
     return OrientationPrior(**kw)
 
 
-def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
-    """Validate a decoded scene (a dict) and return a :class:`Scene`.
+def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
+    obj = _dict(obj, path)
+    _warn_unknown(obj, {"id", "class", "dimensions_m", "dimension_lines", "ground_truth"}, path, sink)
+    ident = _string(_get(obj, "id", path), _join(path, "id"), optional=False)
+    cls = _string(obj.get("class"), _join(path, "class"))
+    dims = obj.get("dimensions_m")
+    if dims is not None:
+        dpath = _join(path, "dimensions_m")
+        dims = _dict(dims, dpath)
+        _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
+        dims = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
+    lpath = _join(path, "dimension_lines")
+    lines = _list(_get(obj, "dimension_lines", path), lpath)
+    if not lines:
+        raise SceneError(lpath, "expected at least one annotation, got []")
+    gt = obj.get("ground_truth")
+    if gt is not None:
+        gt = _parse_target_truth(gt, _join(path, "ground_truth"))
+    return Target(ident, cls, tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink)
+                                    for i, d in enumerate(lines)), dims, gt)
+
+
+def _free_form(value: Any, path: str) -> Any:
+    """A free-form value of a ground truth: plain JSON (strings, booleans, null, finite numbers,
+    lists and objects of them), else :class:`SceneError` naming where."""
+    if isinstance(value, dict):
+        return {k: _free_form(v, _join(path, k)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_free_form(v, _join(path, i)) for i, v in enumerate(value)]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        _number(value, path)  # finite
+        return value
+    if value is None or isinstance(value, (str, bool)):
+        return value
+    raise SceneError(path, f"expected a JSON value, got {_short(value)}")
+
+
+def _parse_target_truth(obj: Any, path: str) -> dict:
+    obj = _free_form(_dict(obj, path), path)
+    lpath = _join(path, "location_m")
+    loc = _list(_get(obj, "location_m", path), lpath)
+    if len(loc) != 3:
+        raise SceneError(lpath, f"expected [x, y, z], got {_short(loc)}")
+    out = dict(obj)
+    out["location_m"] = [_number(v, _join(lpath, i)) for i, v in enumerate(loc)]
+    if out["location_m"][2] <= 0:
+        raise SceneError(_join(lpath, 2), f"z must be > 0 (in front of the camera), got {_short(loc[2])}")
+    if obj.get("yaw_rad") is not None:
+        out["yaw_rad"] = _number(obj["yaw_rad"], _join(path, "yaw_rad"))
+    if obj.get("dimensions_m") is not None:
+        dpath = _join(path, "dimensions_m")
+        d = _dict(obj["dimensions_m"], dpath)
+        out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES}
+    if obj.get("handedness") is not None and (isinstance(obj["handedness"], bool) or obj["handedness"] not in (1, -1)):
+        raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(obj['handedness'])}")
+    return out
+
+
+def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids: dict[str, int],
+                           sink: list[str]) -> tuple[Reference, int | None]:
+    obj = _dict(obj, path)
+    if "targets" in obj:
+        return _parse_distance_reference(obj, index, path, w, h, ids, sink)
+    target = obj.get("target")
+    owner = None
+    if target is not None:
+        name = _string(target, _join(path, "target"))
+        if name not in ids:
+            raise SceneError(_join(path, "target"), f"no target with id {_short(name)} (targets: {sorted(ids)})")
+        owner = ids[name]
+    rest = {k: v for k, v in obj.items() if k != "target"}
+    if "line" in rest:
+        ref = _parse_reference(rest, index, path, w, h, sink)
+        if ref.mode == "relative":
+            if owner is None and len(ids) > 1:
+                raise SceneError(_join(path, "target"), "a relative reference in a scene of several targets must "
+                                                        "name the target it is relative to")
+            owner = 0 if owner is None else owner
+        return ref, owner
+    # a measurement of a target's own size: no line
+    if owner is None:
+        raise SceneError(_join(path, "line"), "missing required key (a reference without a line must name a "
+                                              "target whose size it measures)")
+    measure = _get(rest, "measure", path)
+    if measure not in _SIZE_NAMES:
+        raise SceneError(_join(path, "measure"), f"a target's own size is its length, width or height, got {_short(measure)}")
+    if rest.get("mode", "direct") != "direct":
+        raise SceneError(_join(path, "mode"), f"a target's own size must be 'direct' (with a unit), got {_short(rest.get('mode'))}")
+    fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
+    ref = _parse_reference(fake, index, path, w, h, sink)
+    return Reference(index=index, measure=measure, mode="direct", low=ref.low, high=ref.high,
+                     line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
+                     confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), owner
+
+
+def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, ids: dict[str, int],
+                              sink: list[str]) -> tuple[Reference, tuple[int, int]]:
+    """A worker's distance on the ground between two targets (bottom centre to bottom centre):
+    ``{"targets": [id, id], "measure": "distance", "value"/"range", "unit"}``."""
+    tpath = _join(path, "targets")
+    names = _list(obj["targets"], tpath)
+    if len(names) != 2:
+        raise SceneError(tpath, f"a distance is between two targets, got {len(names)} ids ({_short(names)})")
+    owners = []
+    for k, name in enumerate(names):
+        name = _string(name, _join(tpath, k))
+        if name not in ids:
+            raise SceneError(_join(tpath, k), f"no target with id {_short(name)} (targets: {sorted(ids)})")
+        owners.append(ids[name])
+    if owners[0] == owners[1]:
+        raise SceneError(_join(tpath, 1), f"a distance is between two different targets, got {_short(names[1])} twice")
+    for key in ("line", "target"):
+        if key in obj:
+            raise SceneError(_join(path, key), f"a distance between two targets has no {key!r} (it is measured "
+                                               "between their bottom centres)")
+    if obj.get("measure", "distance") != "distance":
+        raise SceneError(_join(path, "measure"), f"a reference naming two targets measures their 'distance', "
+                                                 f"got {_short(obj.get('measure'))}")
+    if obj.get("mode", "direct") != "direct":
+        raise SceneError(_join(path, "mode"), f"a distance must be 'direct' (with a unit), got {_short(obj.get('mode'))}")
+    rest = {k: v for k, v in obj.items() if k != "targets"}
+    fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
+    ref = _parse_reference(fake, index, path, w, h, sink)
+    return Reference(index=index, measure="distance", mode="direct", low=ref.low, high=ref.high,
+                     line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
+                     confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), (owners[0], owners[1])
+
+
+def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
+    """A version-1 ``target``: its id (``target`` when it has none) and its required sizes."""
+    obj = _dict(obj, "target")
+    _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, "target", sink)
+    dpath = "target.dimensions_m"
+    dims = _dict(_get(obj, "dimensions_m", "target"), dpath)
+    _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
+    size = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
+    lines = _list(_get(obj, "dimension_lines", "target"), "target.dimension_lines")
+    if not lines:
+        raise SceneError("target.dimension_lines", "expected at least one annotation, got []")
+    return Target(_string(obj.get("id", "target"), "target.id", optional=False), None,
+                  tuple(_parse_dimension_line(d, _join("target.dimension_lines", i), w, h, sink)
+                        for i, d in enumerate(lines)), size)
+
+
+def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
+    """A version-1 ``ground_truth`` split into the target's (location, yaw, handedness and any
+    other key) and the camera's (:data:`_CAMERA_TRUTH`)."""
+    obj = _free_form(_dict(obj, "ground_truth"), "ground_truth")
+    target = {k: v for k, v in obj.items() if k not in _CAMERA_TRUTH}
+    target = _parse_target_truth({**target, "location_m": _get(obj, "location_m", "ground_truth")}, "ground_truth")
+    camera = {k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}
+    for key in _CAMERA_TRUTH:
+        if key in camera:
+            camera[key] = _number(camera[key], _join("ground_truth", key), positive=key != "pitch_rad" and key != "roll_rad")
+    return target, camera or None
+
+
+def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
+    """Validate a decoded scene file (a dict, either format) and return a :class:`Scene`.
 
     Parameters
     ----------
-    data : dict
-        The decoded JSON.
-    source : path, optional
-        The file it came from; ``image.path`` is resolved relative to it.
+    data : the decoded JSON
+    source : the file it came from; ``image.path`` is resolved relative to it
+    classes : size priors of the user's own classes (a classes file), which a target's class may
+        name besides the scene's own and the shipped KITTI classes
 
     Raises
     ------
@@ -368,34 +517,67 @@ def parse_scene(data: Any, source: str | Path | None = None) -> Scene:
     sink: list[str] = []
     data = _dict(data, "(scene)")
     fmt = check_scene_format(_get(data, "format", ""))
-    if fmt != SCENE_FORMAT:
-        raise SceneError("format", f"a {fmt!r} file is a frame: read it with "
-                                   "creference_bayes.io.frame_scene.load_frame (or estimate it with "
-                                   "creference_bayes.estimate, which takes either)")
-    _warn_unknown(data, {"format", "image", "camera", "horizon", "horizon_sd_px", "target",
-                         "references", "ground_truth"}, "", sink)
-    head = parse_header(data, source, sink)
+    version = SCENE_FORMATS.index(fmt) + 1
+    _warn_unknown(data, _TOP_KEYS[version], "", sink)
+    head = _parse_header(data, source, sink)
     w, h = head["image_width"], head["image_height"]
-    target = _parse_target(_get(data, "target", ""), "target", w, h, sink)
-    refs = data.get("references")
-    refs = [] if refs is None else _list(refs, "references")
-    references = tuple(_parse_reference(r, i, _join("references", i), w, h, sink)
-                       for i, r in enumerate(refs))
+    own_classes = {}
+    if version == 2 and data.get("classes") is not None:
+        try:
+            own_classes = size_priors_from_dict(data["classes"], "classes", "scene")
+        except (ValueError, OverflowError) as exc:
+            path, _, msg = str(exc).partition(": ")
+            raise SceneError(path, msg) from None
+    if version == 1:
+        targets = (_parse_v1_target(_get(data, "target", ""), w, h, sink),)
+    else:
+        raw = _list(_get(data, "targets", ""), "targets")
+        if not raw:
+            raise SceneError("targets", "expected at least one target, got []")
+        targets = tuple(_parse_target(t, _join("targets", i), w, h, sink) for i, t in enumerate(raw))
+    ids: dict[str, int] = {}
+    for i, t in enumerate(targets):
+        if t.id in ids:
+            raise SceneError(_join(_join("targets", i), "id"), f"duplicate id {_short(t.id)} (also targets[{ids[t.id]}])")
+        ids[t.id] = i
+        if t.dimensions is None and t.cls is None:
+            raise SceneError(_join("targets", i), "needs 'dimensions_m' or a 'class' with a size prior")
+        if t.dimensions is None and find_size_prior(t.cls, own_classes, classes) is None:
+            known = sorted(set(own_classes) | set(classes or {}) | set(KITTI_SIZE_PRIORS))
+            raise SceneError(_join(_join("targets", i), "class"),
+                             f"no size prior for class {_short(t.cls)} and no 'dimensions_m' (classes: {known}; "
+                             "add it under 'classes' or give a classes file)")
+    refs_raw = data.get("references")
+    refs_raw = [] if refs_raw is None else _list(refs_raw, "references")
+    if version == 1:
+        parsed = []
+        for i, r in enumerate(refs_raw):
+            ref = _parse_reference(r, i, _join("references", i), w, h, sink)
+            parsed.append((ref, 0 if ref.mode == "relative" else None))
+    else:
+        parsed = [_parse_target_reference(r, i, _join("references", i), w, h, ids, sink) for i, r in enumerate(refs_raw)]
     gt = data.get("ground_truth")
-    ground_truth = None if gt is None else _parse_ground_truth(gt, "ground_truth")
-
+    if gt is not None and version == 1:
+        target_truth, gt = _parse_v1_truth(gt)
+        targets = (Target(targets[0].id, None, targets[0].dimension_lines, targets[0].dimensions, target_truth),)
+    elif gt is not None:
+        gt = _free_form(_dict(gt, "ground_truth"), "ground_truth")
+        for key in _CAMERA_TRUTH:  # the camera's truth: numbers, positive but for the angles
+            if gt.get(key) is not None:
+                gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
     for message in sink:
         warnings.warn(message, SceneWarning, stacklevel=2)
-    return Scene(target=target, references=references, ground_truth=ground_truth, warnings=tuple(sink), **head)
+    return Scene(targets=targets, references=tuple(r for r, _ in parsed), reference_targets=tuple(o for _, o in parsed),
+                 classes=own_classes, ground_truth=gt, warnings=tuple(sink), format=fmt, **head)
 
 
-
-def parse_header(data: dict, source, sink: list[str]) -> dict:
+def _parse_header(data: dict, source, sink: list[str]) -> dict:
     """The parts every scene format shares: ``image``, ``camera`` and ``horizon``/``horizon_sd_px``.
 
     Returns the :class:`Scene` fields they fill (``image_width``, ``image_height``,
     ``principal_point``, ``focal_length_px``, ``horizon``, ``horizon_sd_px``, ``focal_prior``,
-    ``orientation_prior``, ``image_path``, ``source``); raises :class:`SceneError` on bad input.
+    ``orientation_prior``, ``image_path``, ``source``, ``kitti_p2``, ``kitti_calib``); raises
+    :class:`SceneError` on bad input.
     """
     image = _dict(_get(data, "image", ""), "image")
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
@@ -417,8 +599,12 @@ def parse_header(data: dict, source, sink: list[str]) -> dict:
 
     camera = data.get("camera")
     camera = {} if camera is None else _dict(camera, "camera")
-    _warn_unknown(camera, {"principal_point", "focal_length_px", "focal_length_prior",
-                           "orientation_prior"}, "camera", sink)
+    _warn_unknown(camera, {"principal_point", "focal_length_px", "focal_length_prior", "orientation_prior",
+                           "kitti_p2", "kitti_calib"}, "camera", sink)
+    kitti_p2 = _parse_p2(camera.get("kitti_p2"), "camera.kitti_p2")
+    kitti_calib = _parse_calib(camera.get("kitti_calib"), "camera.kitti_calib")
+    if kitti_calib is not None and kitti_p2 is None:
+        raise SceneError("camera.kitti_calib", "KITTI calib lines without 'kitti_p2' (the camera's P2)")
     pp = camera.get("principal_point")
     if pp is None:
         principal = np.array([w / 2.0, h / 2.0])
@@ -448,11 +634,12 @@ def parse_header(data: dict, source, sink: list[str]) -> dict:
         raise SceneError("horizon_sd_px", f"an uncertainty {horizon_sd:g} px without a horizon")
     return dict(image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
                 horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
-                orientation_prior=orientation_prior, image_path=image_path, source=source)
+                orientation_prior=orientation_prior, image_path=image_path, source=source, kitti_p2=kitti_p2,
+                kitti_calib=kitti_calib)
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Load and validate a ``creference-scene/1`` JSON file.
+def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) -> Scene:
+    """Load and validate a scene file (either format; ``classes`` as :func:`parse_scene`).
 
     Raises
     ------
@@ -462,7 +649,7 @@ def load_scene(path: str | Path) -> Scene:
         If ``path`` does not exist.
     """
     path = Path(path)
-    return parse_scene(read_scene_json(path), source=path)
+    return parse_scene(read_scene_json(path), source=path, classes=classes)
 
 
 def read_scene_json(path: Path) -> Any:
@@ -491,43 +678,33 @@ def _reject_constant(name: str) -> Any:
     raise _ConstantError(name)
 
 
-def scene_to_dict(scene: Scene) -> dict:
-    """Serialise a :class:`Scene` back to a ``creference-scene/1`` dict (round-trips :func:`parse_scene`)."""
-    t = scene.target
-    out: dict[str, Any] = {
-        "format": SCENE_FORMAT,
-        "image": {"width": scene.image_width, "height": scene.image_height},
-        "camera": {"principal_point": scene.principal_point.tolist(),
-                   "focal_length_px": scene.focal_length_px},
-        "target": {
-            "id": t.id,
-            "dimensions_m": {"length": t.length, "width": t.width, "height": t.height},
-            "dimension_lines": [
-                {k: v for k, v in (("worker", d.worker), ("corners", d.corners.tolist()),
-                                   ("seconds", d.seconds)) if v is not None}
-                for d in t.dimension_lines
-            ],
-        },
-    }
-    if scene.image_path is not None:
-        out["image"]["path"] = _relative_image_path(scene)
-    if scene.horizon is not None:
-        out["horizon"] = scene.horizon.tolist()
-    if scene.horizon_sd_px:
-        out["horizon_sd_px"] = scene.horizon_sd_px
-    out["camera"].update(camera_priors_to_dict(scene))
-    if scene.references:
-        out["references"] = [_reference_to_dict(r) for r in scene.references]
-    if scene.ground_truth is not None:
-        g = scene.ground_truth
-        gt: dict[str, Any] = {"location_m": g.location_m.tolist()}
-        if g.yaw_rad is not None:
-            gt["yaw_rad"] = g.yaw_rad
-        if g.focal_length_px is not None:
-            gt["focal_length_px"] = g.focal_length_px
-        gt.update(g.extra)
-        out["ground_truth"] = gt
+def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:
+    """``camera.kitti_calib``: the calib file's other lines, name → numbers."""
+    if value is None:
+        return None
+    value = _dict(value, path)
+    out = {}
+    for name, numbers in value.items():
+        if not name or any(c.isspace() or c == ":" for c in name) or name == "P2":
+            raise SceneError(_join(path, name), "expected a calib line's name (no spaces, not P2: that is kitti_p2)")
+        lpath = _join(path, name)
+        out[name] = [_number(v, _join(lpath, i)) for i, v in enumerate(_list(numbers, lpath))]
+        if not out[name]:
+            raise SceneError(lpath, "expected numbers, got []")
     return out
+
+
+def _parse_p2(value: Any, path: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    rows = _list(value, path)
+    if len(rows) != 3:
+        raise SceneError(path, f"expected 3 rows of 4 numbers (KITTI's P2), got {len(rows)} rows")
+    out = np.array([[_number(v, _join(_join(path, i), j)) for j, v in enumerate(_list(r, _join(path, i)))]
+                    for i, r in enumerate(rows)], dtype=object)
+    if out.ndim != 2 or out.shape != (3, 4):
+        raise SceneError(path, f"expected 3 rows of 4 numbers (KITTI's P2), got {_short(value)}")
+    return out.astype(float)
 
 
 def camera_priors_to_dict(scene) -> dict:
@@ -544,16 +721,6 @@ def camera_priors_to_dict(scene) -> dict:
             **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
             "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
     return out
-
-
-def _relative_image_path(scene: Scene) -> str:
-    """``image.path`` as the file gave it: relative to the scene file's folder when possible."""
-    if scene.source is not None:
-        try:
-            return str(scene.image_path.relative_to(scene.source.parent))
-        except ValueError:
-            pass
-    return str(scene.image_path)
 
 
 def _reference_to_dict(r: Reference) -> dict:
@@ -577,38 +744,88 @@ def _reference_to_dict(r: Reference) -> dict:
     return d
 
 
-def scene_fingerprint(scene: Scene) -> str:
-    """SHA-256 (hex) of the scene's content: its canonical ``creference-scene/1`` form.
+def scene_to_dict(scene: Scene) -> dict:
+    """A :class:`Scene` as a ``creference-scene/2`` dict (round-trips :func:`parse_scene`)."""
+    out: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": scene.image_width, "height": scene.image_height},
+                           "camera": {"principal_point": np.asarray(scene.principal_point).tolist()}}
+    if scene.image_path is not None:
+        out["image"]["path"] = str(scene.image_path if scene.source is None else
+                                   _relative(scene.image_path, scene.source.parent))
+    if scene.focal_length_px is not None:
+        out["camera"]["focal_length_px"] = scene.focal_length_px
+    if scene.kitti_p2 is not None:
+        out["camera"]["kitti_p2"] = np.asarray(scene.kitti_p2).tolist()
+    if scene.kitti_calib is not None:
+        out["camera"]["kitti_calib"] = {k: list(v) for k, v in scene.kitti_calib.items()}
+    out["camera"].update(camera_priors_to_dict(scene))
+    if scene.horizon is not None:
+        out["horizon"] = np.asarray(scene.horizon).tolist()
+        if scene.horizon_sd_px:
+            out["horizon_sd_px"] = scene.horizon_sd_px
+    if scene.classes:
+        out["classes"] = {k: {f"{n}_m": v for n, v in zip(_SIZE_NAMES, p.median_m)} | {"log_sd": list(p.log_sd)}
+                          for k, p in scene.classes.items()}
+    out["targets"] = []
+    for t in scene.targets:
+        d: dict[str, Any] = {"id": t.id}
+        if t.cls is not None:
+            d["class"] = t.cls
+        if t.dimensions is not None:
+            d["dimensions_m"] = dict(zip(_SIZE_NAMES, t.dimensions))
+        d["dimension_lines"] = [{k: v for k, v in (("worker", a.worker), ("corners", a.corners.tolist()),
+                                                   ("seconds", a.seconds)) if v is not None}
+                                for a in t.dimension_lines]
+        if t.ground_truth is not None:
+            d["ground_truth"] = t.ground_truth
+        out["targets"].append(d)
+    refs = []
+    for r, owner in zip(scene.references, scene.reference_targets):
+        if r.line is None:
+            d = {"measure": r.measure, "mode": "direct"}
+            low, high = r.stated
+            d.update({"range": [low, high]} if r.is_range else {"value": low})
+            d["unit"] = r.unit
+            for key in ("object", "worker", "confidence", "seconds"):
+                if getattr(r, key) is not None:
+                    d[key] = getattr(r, key)
+        else:
+            d = _reference_to_dict(r)
+        if isinstance(owner, tuple):
+            d["targets"] = [scene.targets[k].id for k in owner]
+        elif owner is not None:
+            d["target"] = scene.targets[owner].id
+        refs.append(d)
+    if refs:
+        out["references"] = refs
+    if scene.ground_truth is not None:
+        out["ground_truth"] = scene.ground_truth
+    return out
 
-    Two scenes with the same annotations, camera, horizon, references and ground truth have the
-    same fingerprint, whatever the key order, whitespace or file name of their files; any change
-    of a value changes it. Results record it (``scene_id.sha256``) so that a result can be checked
-    against a scene, and a batch run can tell whether a scene changed since its result was made.
-    """
+
+def scene_fingerprint(scene: Scene) -> str:
+    """SHA-256 (hex) of a scene's content, its canonical form (:func:`scene_to_dict`): the same
+    whatever the key order, whitespace, file name or format version of its file; any change of a
+    value changes it. Results record it (``scene_id.sha256``) so that a result can be checked
+    against a scene, and a batch can tell whether a scene changed since its result was made."""
     text = json.dumps(scene_to_dict(scene), sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = (),
-                      normalise=None) -> list[str]:
+def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:
     """Where two scenes differ, one line each (an empty list: the same scene).
 
     Both are normalised first (``parse_scene`` then ``scene_to_dict``, warnings silenced), so
     spelling that the format allows either way (defaults, units, key order) does not count.
     Numbers are compared to ``atol`` (pixels or metres, as the key has them) plus 1e-12 relative;
     keys named in ``drop`` (e.g. ``"seconds"``, ``"ground_truth"``) are removed at every depth.
-    Used for round trips through annotation tools. ``normalise`` (a scene dict → its canonical
-    dict) replaces the version-1 normalisation (frames: ``frame_import.frame_differences``).
+    Used for round trips through annotation tools.
     """
     drop = set(drop)
 
     def norm(d):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            if normalise is not None:
-                d = normalise(d)
-            else:
-                d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
+            d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
 
         def strip(x):
             if isinstance(x, dict):
@@ -637,3 +854,10 @@ def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = 
 
     walk(norm(a), norm(b), "scene")
     return out
+
+
+def _relative(path: Path, base: Path) -> Path:
+    try:
+        return path.relative_to(base)
+    except ValueError:
+        return path

@@ -1,9 +1,8 @@
 """What is known about the camera besides the annotations: priors on µ, pitch and roll, and a
 horizon measured with an uncertainty.
 
-Every term is a negative log-density over full parameter vectors (n, 7) (:mod:`.params`); the
-models add :meth:`CameraTerms.neg_log` to their cost (times their temperature, so that it enters
-the posterior untempered).
+The models read these terms as priors and observations of their camera block (cameras (n, 5),
+:mod:`.contract`): priors enter the posterior untempered, the horizon as an observation.
 
 Focal length
     ``log µ ~ Student-t_ν(log m, s)``: heavy tails, so that a wrong prior (a cropped photo, a
@@ -40,7 +39,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .location_prior import LocationPrior
-from .params import FOCAL, PITCH, ROLL
 
 __all__ = ["FULL_FRAME_DIAGONAL_MM", "EXIF_LOG_SD", "DEFAULT_FOCAL_35MM", "DEFAULT_FOCAL_LOG_SD",
            "DEFAULT_FOCAL_DOF", "FocalPrior", "OrientationPrior", "DEFAULT_ORIENTATION_PRIOR",
@@ -157,13 +155,13 @@ class OrientationPrior:
 DEFAULT_ORIENTATION_PRIOR = OrientationPrior()
 
 
-def horizon_offsets(points: np.ndarray, full: np.ndarray, principal_point) -> np.ndarray:
+def horizon_offsets(points: np.ndarray, cams: np.ndarray, principal_point) -> np.ndarray:
     """Signed distances (pixels, positive below) of image points from the predicted horizon.
 
     Parameters
     ----------
     points : (k, 2) pixels
-    full : (n, 7) parameter vectors (µ, pitch and roll are used)
+    cams : (n, 5) cameras (:mod:`.contract` order: µ, pitch and roll are used)
     principal_point : (2,) pixels
 
     Returns
@@ -171,8 +169,8 @@ def horizon_offsets(points: np.ndarray, full: np.ndarray, principal_point) -> np
     (n, k) pixels
     """
     p = np.asarray(points, float) - np.asarray(principal_point, float)
-    full = np.atleast_2d(full)
-    roll, pitch, mu = full[:, ROLL, None], full[:, PITCH, None], full[:, FOCAL, None]
+    cams = np.atleast_2d(cams)
+    mu, pitch, roll = cams[:, 0, None], cams[:, 1, None], cams[:, 2, None]
     return -np.sin(roll) * p[:, 0] + np.cos(roll) * p[:, 1] + mu * np.tan(pitch)
 
 
@@ -196,12 +194,6 @@ class HorizonMeasurement:
         if self.dof is not None:
             _check_positive("horizon dof", self.dof)
         object.__setattr__(self, "points", np.asarray(self.points, float).reshape(2, 2))
-
-    def neg_log(self, full: np.ndarray, principal_point) -> np.ndarray:
-        d = horizon_offsets(self.points, full, principal_point) / self.sd_px
-        if self.dof is None:
-            return 0.5 * np.sum(d**2, axis=1)
-        return 0.5 * (self.dof + 2.0) * np.log1p(np.sum(d**2, axis=1) / self.dof)
 
     def to_dict(self) -> dict:
         out = {"points": self.points.tolist(), "sd_px": self.sd_px, "source": self.source}
@@ -230,21 +222,6 @@ class CameraTerms:
         """Whether the MAP is taken in log coordinates of the positive parameters (the location
         prior decides: :attr:`~.location_prior.LocationPrior.map_in_log_coordinates`)."""
         return self.location is not None and self.location.map_in_log_coordinates
-
-    def neg_log(self, full: np.ndarray, principal_point, *, focal_free: bool,
-                orientation_free: bool) -> np.ndarray | float:
-        """Σ of the applicable terms for (n, 7) vectors: (n,) or 0.0 when none applies."""
-        out = 0.0
-        if self.location is not None and self.location.kind != "flat":
-            out = out + self.location.neg_log(full[:, 0], full[:, 2])
-        if self.focal is not None and focal_free:
-            out = out + self.focal.neg_log(full[:, FOCAL])
-        if orientation_free:
-            if self.orientation is not None:
-                out = out + self.orientation.neg_log(full[:, PITCH], full[:, ROLL], full[:, 1])
-            if self.horizon is not None:
-                out = out + self.horizon.neg_log(full, principal_point)
-        return out
 
     def to_dict(self) -> dict:
         """``{"focal_prior", "orientation_prior", "horizon", "location_prior"}``, each a dict or None."""

@@ -11,7 +11,7 @@ Sources of the shipped numbers
     most monocular detectors). Spreads (standard deviations of log-size): Car from the published
     training-set standard deviations (0.43, 0.10, 0.14 m), the other classes from the per-class
     spread of 51 public KITTI training frames (000000–000050), widened where that sample is small
-    (fewer than 10 objects) so that the prior is not surer than the data behind it. docs/frames.md
+    (fewer than 10 objects) so that the prior is not surer than the data behind it. docs/overview.md
     lists them.
 """
 

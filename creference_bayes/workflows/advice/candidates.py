@@ -1,31 +1,46 @@
-"""Which annotations the advice can weigh for a scene, what each costs, and in which format mix
+"""Which observations the advice can weigh for a scene, what each costs, and in which format mix
 a new reference would come (docs/advice.md, "What can be simulated").
 
-- **One more set of target dimension lines** (always).
-- **One more reference of a measure already drawn on an object**: a second worker draws about the
-  same segment, so the new reference uses the segment already drawn (the per-endpoint median when
-  several workers drew it). References belong to the same drawn segment when they name the same
-  object and measure and their endpoints agree within :data:`SAME_SEGMENT_FRACTION` of the
-  segment's length (at least :data:`SAME_SEGMENT_MIN_PX`), in either direction.
-- **A distance to an object whose length or width is drawn**: the line from the image's bottom
-  edge straight up to the segment's end nearer the bottom (the nearer corner on the ground), as
-  the paper's distance task draws it; skipped when a distance to that point is already drawn.
-- Not simulatable: a length or width of an object that only has a distance (the scene holds no
-  segment along it), and references on objects the scene does not mention.
+For every target:
 
-The cost of each kind is the median of the scene's recorded ``seconds`` for that kind, else the
-paper's average task times (§7.2.2: :data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`).
+- **one more set of its dimension lines** (``ID:dims``);
+- **a worker's distance to it** (``ID:distance``): from the image's bottom edge straight up to its
+  nearest bottom corner at the MAP, as the paper's distance task draws it; left out when the
+  target touches the bottom edge or that corner is outside the image;
+- **its length** (``ID:length``), when its size has a class prior;
+- **its distance to the nearest other target** (``ID~ID2:distance``, bottom centre to bottom
+  centre), in a scene of several, unless the scene has one between them (then it is repeated).
+
+For the references the scene has (grouped by drawn segment: the same object name and measure,
+endpoints within :data:`SAME_SEGMENT_FRACTION` of the segment's length, at least
+:data:`SAME_SEGMENT_MIN_PX`, in either direction; a size or a distance between targets by what
+it measures):
+
+- **one more of the same** (``refK-MEASURE``: a second worker draws about the same segment, so the
+  new reference uses the segment drawn, the per-endpoint median when several drew it);
+- for a length or width segment, **a distance to its object** (``refK-distance``): from the
+  image's bottom edge straight up to the segment's end lower in the image; left out when a
+  distance to that point is drawn already.
+
+The cost of each kind is the median of the scene's recorded ``seconds`` for that kind (sets of
+dimension lines, references), else the paper's average task times (§7.2.2:
+:data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PAPER_TARGET_SECONDS", "PAPER_REFERENCE_SECONDS", "PAPER_RANGE_PRECISION",
-           "SAME_SEGMENT_FRACTION", "SAME_SEGMENT_MIN_PX", "Candidate", "FormatMix", "candidates",
-           "annotation_seconds", "format_mix"]
+from ...models.boxes import image_boxes
+from ...models.contract import O_SIZE, O_X, O_Z
+from ...models.metrology import ReferenceTerm
+from ...pipeline import reference_terms
+
+__all__ = ["PAPER_TARGET_SECONDS", "PAPER_REFERENCE_SECONDS", "PAPER_RANGE_PRECISION", "SAME_SEGMENT_FRACTION",
+           "SAME_SEGMENT_MIN_PX", "Candidate", "FormatMix", "candidates", "annotation_seconds", "format_mix"]
 
 #: The paper's average task times (§7.2.2), seconds.
 PAPER_TARGET_SECONDS = 183.5
@@ -40,27 +55,33 @@ SAME_SEGMENT_MIN_PX = 10.0
 
 @dataclass(frozen=True)
 class Candidate:
-    """One annotation the advice weighs.
+    """One observation the advice weighs.
 
     Attributes
     ----------
-    key : a short unique name (``target``, ``ref1-width``, ``ref1-distance``: ``ref1`` is the
-        first drawn segment, counting from 1, numbered in the order of the scene's references)
-    kind : ``"target"`` (a set of dimension lines) or ``"reference"``
-    measure : ``length``, ``width`` or ``distance`` (None for the target)
-    object : the object's name as the scene gives it (None when it gives none)
-    line : (2, 2) the segment the new reference is drawn on, pixels (None for the target)
-    based_on : indices of the scene's references whose segment it repeats or starts from
-    seconds : what one such annotation costs, seconds
-    new_segment : the segment is not drawn in the scene yet (a distance to the end of a length or
-        width segment); False when it repeats a drawn one
+    key : a short unique name (module docstring)
+    kind : ``"dims"`` (a set of dimension lines) or ``"reference"``
+    target : index of the target it is asked on (its dimension lines, its distance, its size), or
+        None for a reference on another object (it helps every target through the camera)
+    target_id : that target's id, or None
+    measure : ``length``, ``width``, ``height`` or ``distance`` (None for dimension lines)
+    object : the object's name as the scene's references give it (a target's id for its own)
+    line : (2, 2) the segment to measure, pixels (None for dimension lines, sizes and distances
+        between targets)
+    term : the reference as the model reads it (its value left to the simulation), or None
+    based_on : indices of the scene's references it repeats or starts from
+    seconds : what one such observation costs, seconds
+    new_segment : a segment not drawn in the scene yet
     """
 
     key: str
     kind: str
+    target: int | None
+    target_id: str | None
     measure: str | None
     object: str | None
     line: np.ndarray | None
+    term: ReferenceTerm | None
     based_on: tuple[int, ...]
     seconds: float
     new_segment: bool = False
@@ -68,50 +89,50 @@ class Candidate:
     @property
     def description(self) -> str:
         """What to ask the crowd for, in words."""
-        if self.kind == "target":
-            return "one more set of target dimension lines"
         refs = ", ".join(f"references[{i}]" for i in self.based_on)
-        name = self.object or "the object"
-        if self.new_segment:
-            return f"distance to {name} (image bottom to the near end of {refs})"
-        return f"{self.measure} {'to' if self.measure == 'distance' else 'of'} {name} (as {refs})"
+        if self.kind == "dims":
+            return f"one more set of dimension lines on {self.target_id}"
+        if self.term.kind == "distance":
+            as_refs = f" (as {refs})" if refs else ""
+            return f"distance between {self.target_id} and {self.object} (bottom centres){as_refs}"
+        if self.based_on and not self.new_segment:
+            to = "to" if self.measure == "distance" else "of"
+            return f"{self.measure} {to} {self.object or 'the object'} (as {refs})"
+        if self.based_on:
+            return f"distance to {self.object or 'the object'} (image bottom to the near end of {refs})"
+        if self.measure == "distance":
+            return f"distance to {self.target_id} (image bottom to its nearest bottom corner)"
+        return f"{self.measure} of {self.target_id}"
 
     def to_dict(self) -> dict:
-        return {"key": self.key, "kind": self.kind, "measure": self.measure, "object": self.object,
-                "line": None if self.line is None else np.round(self.line, 2).tolist(),
-                "based_on": list(self.based_on), "seconds": self.seconds,
-                "new_segment": self.new_segment, "description": self.description}
+        return {"key": self.key, "kind": self.kind, "target": self.target_id, "measure": self.measure,
+                "object": self.object, "line": None if self.line is None else np.round(self.line, 2).tolist(),
+                "based_on": list(self.based_on), "seconds": self.seconds, "new_segment": self.new_segment,
+                "description": self.description}
 
 
 @dataclass(frozen=True)
 class FormatMix:
-    """How a new reference would be stated, from the scene's references.
-
-    Attributes
-    ----------
-    range_share : share of the scene's references stated as a range (else a single value)
-    range_precision : (high − low) / mid-point of a stated range: the median of the scene's ranges,
-        else :data:`PAPER_RANGE_PRECISION`
-    relative_share : share stated relative to the target (reported; the model converts them to
-        metres with the target's size, so it does not change the simulation)
-    """
+    """How a new reference would be stated, from the scene's references: ``range_share`` of them as
+    a range (else a single value) of precision (high − low) / mid-point ``range_precision`` (the
+    median of the scene's ranges, else :data:`PAPER_RANGE_PRECISION`); ``relative_share`` stated
+    relative to a target (reported only: the model converts them, so the simulation is the same)."""
 
     range_share: float
     range_precision: float
     relative_share: float
 
     def to_dict(self) -> dict:
-        return {"range_share": self.range_share, "range_precision": self.range_precision,
-                "relative_share": self.relative_share}
+        return dataclasses.asdict(self)
 
 
 def annotation_seconds(scene) -> dict[str, float]:
-    """Cost per kind, seconds: ``{"target": …, "reference": …}`` (module docstring)."""
+    """Cost per kind, seconds: ``{"dims": …, "reference": …}`` (module docstring)."""
     def median(values, default):
         values = [v for v in values if v is not None and v > 0]
         return float(np.median(values)) if values else default
 
-    return {"target": median([d.seconds for d in scene.target.dimension_lines], PAPER_TARGET_SECONDS),
+    return {"dims": median([d.seconds for t in scene.targets for d in t.dimension_lines], PAPER_TARGET_SECONDS),
             "reference": median([r.seconds for r in scene.references], PAPER_REFERENCE_SECONDS)}
 
 
@@ -120,9 +141,8 @@ def format_mix(scene) -> FormatMix:
     refs = scene.references
     if not refs:
         return FormatMix(0.0, PAPER_RANGE_PRECISION, 0.0)
-    ranges = [r for r in refs if r.is_range]
-    prec = [(r.high - r.low) / (0.5 * (r.high + r.low)) for r in ranges]
-    return FormatMix(range_share=len(ranges) / len(refs),
+    prec = [(r.high - r.low) / (0.5 * (r.high + r.low)) for r in refs if r.is_range]
+    return FormatMix(range_share=len(prec) / len(refs),
                      range_precision=float(np.median(prec)) if prec else PAPER_RANGE_PRECISION,
                      relative_share=sum(r.mode == "relative" for r in refs) / len(refs))
 
@@ -133,67 +153,91 @@ def _tolerance(line: np.ndarray) -> float:
 
 def _aligned(line: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
     """``line`` with its endpoints in the order of ``ref`` when it is the same segment, else None."""
-    tol = _tolerance(ref)
     for cand in (line, line[::-1]):
-        if np.all(np.hypot(*(cand - ref).T) <= tol):
+        if np.all(np.hypot(*(cand - ref).T) <= _tolerance(ref)):
             return cand
     return None
 
 
-@dataclass
-class _Group:
-    object: str | None
-    measure: str
-    lines: list
-    indices: list
-
-    @property
-    def line(self) -> np.ndarray:
-        return np.median(np.stack(self.lines), axis=0)
-
-
-def _groups(scene) -> list[_Group]:
-    groups: list[_Group] = []
-    for r in scene.references:
-        line = np.asarray(r.line, float)
+def _groups(scene, terms) -> list[dict]:
+    """The scene's references grouped by what they measure (module docstring), in scene order."""
+    groups: list[dict] = []
+    for r, term in zip(scene.references, terms):
+        line = None if r.line is None else np.asarray(r.line, float)
+        what = (term.kind, term.owner, term.other, term.size_index, r.measure, r.object)
         for g in groups:
-            if r.object is not None and g.object == r.object and g.measure == r.measure:
-                aligned = _aligned(line, g.lines[0])
-                if aligned is not None:
-                    g.lines.append(aligned)
-                    g.indices.append(r.index)
-                    break
+            if g["what"] == what and (line is None or (r.object is not None and
+                                                       (aligned := _aligned(line, g["lines"][0])) is not None)):
+                if line is not None:
+                    g["lines"].append(aligned)
+                g["indices"].append(r.index)
+                break
         else:
-            groups.append(_Group(r.object, r.measure, [line], [r.index]))
+            groups.append({"what": what, "term": term, "measure": r.measure, "object": r.object,
+                           "lines": [] if line is None else [line], "indices": [r.index]})
     return groups
 
 
-def candidates(scene) -> list[Candidate]:
-    """The annotations the advice can weigh for ``scene`` (module docstring), the target first."""
+def _bottom_line(scene, end: np.ndarray) -> np.ndarray | None:
+    """The paper's distance segment from the image's bottom edge straight up to ``end``, or None
+    when ``end`` is within :data:`SAME_SEGMENT_MIN_PX` of that edge."""
+    bottom = np.array([min(max(end[0], 0.0), float(scene.image_width)), scene.image_height - 1.0])
+    return None if np.hypot(*(end - bottom)) < SAME_SEGMENT_MIN_PX else np.array([bottom, end])
+
+
+def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[list[Candidate], list[str]]:
+    """The observations the advice can weigh for ``scene`` (module docstring) and notes on those
+    left out, given its ``model`` and the MAP ``camera`` (5,), ``objects`` (m, 7)."""
     secs = annotation_seconds(scene)
-    out = [Candidate("target", "target", None, None, None, (), secs["target"])]
-    groups = _groups(scene)
-    distance_ends = [(g.object, _object_end(g.line)) for g in groups if g.measure == "distance"]
+    ids = [t.id for t in scene.targets]
+    out, notes = [], []
+    terms = reference_terms(scene)
+    groups = _groups(scene, terms)
+    ground = lambda line: ReferenceTerm(0, "ground", 1.0, 1.0, False, line=line)  # noqa: E731
+    reference = lambda key, target, **kw: out.append(Candidate(  # noqa: E731
+        key, "reference", target, None if target is None else ids[target], seconds=secs["reference"], **kw))
+    for g in groups:
+        g["line"] = np.median(np.stack(g["lines"]), axis=0) if g["lines"] else None
+    distance_ends = [(g["object"], g["line"][int(np.argmin(g["line"][:, 1]))])  # the end at the object
+                     for g in groups if g["line"] is not None and g["measure"] == "distance"]
     for k, g in enumerate(groups, start=1):
-        line = g.line
-        out.append(Candidate(f"ref{k}-{g.measure}", "reference", g.measure, g.object, line,
-                             tuple(g.indices), secs["reference"]))
-        if g.measure == "distance":
+        term, line = g["term"], g["line"]
+        owner = term.owner if term.kind != "ground" else None
+        name = ids[term.other] if term.kind == "distance" else g["object"] or (None if owner is None else ids[owner])
+        reference(f"ref{k}-{g['measure']}", owner, measure=g["measure"], object=name, line=line,
+                  term=dataclasses.replace(term, line=line), based_on=tuple(g["indices"]))
+        if line is None or g["measure"] == "distance":
             continue
         near = line[int(np.argmax(line[:, 1]))]  # the end lower in the image: nearer on the ground
-        bottom = np.array([min(max(near[0], 0.0), float(scene.image_width)), scene.image_height - 1.0])
-        if np.hypot(*(near - bottom)) < SAME_SEGMENT_MIN_PX:
-            continue  # the object touches the bottom edge: no distance to draw
-        tol = _tolerance(np.array([bottom, near]))
-        if any(obj == g.object and obj is not None and np.hypot(*(end - near)) <= tol
-               for obj, end in distance_ends):
-            continue  # that distance is drawn already (its own candidate repeats it)
-        distance_ends.append((g.object, near))
-        out.append(Candidate(f"ref{k}-distance", "reference", "distance", g.object,
-                             np.array([bottom, near]), tuple(g.indices), secs["reference"], True))
-    return out
-
-
-def _object_end(line: np.ndarray) -> np.ndarray:
-    """The end of a distance line at the object: the one farther from the image's bottom edge."""
-    return line[int(np.argmin(line[:, 1]))]
+        seg = _bottom_line(scene, near)
+        if seg is None or any(obj == g["object"] and obj is not None and np.hypot(*(end - near)) <= _tolerance(seg)
+                              for obj, end in distance_ends):
+            continue  # the object touches the bottom edge, or that distance is drawn already
+        distance_ends.append((g["object"], near))
+        reference(f"ref{k}-distance", None, measure="distance", object=g["object"], line=seg, term=ground(seg),
+                  based_on=tuple(g["indices"]), new_segment=True)
+    ground_xz = objects[:, [O_X, O_Z]]
+    pairs = {tuple(sorted((g["term"].owner, g["term"].other))) for g in groups if g["term"].kind == "distance"}
+    for i, tid in enumerate(ids):
+        out.append(Candidate(f"{tid}:dims", "dims", i, tid, None, tid, None, None, (), secs["dims"]))
+        box = image_boxes(camera[None], objects[i][None], scene.principal_point)[0, :4]  # bottom face
+        near = box[int(np.nanargmax(box[:, 1]))] if np.any(np.isfinite(box[:, 1])) else None
+        seg = None if near is None or not (0 <= near[0] <= scene.image_width) else _bottom_line(scene, near)
+        if seg is None:
+            notes.append(f"{tid}:distance: left out: its nearest bottom corner is outside the image or on its "
+                         "bottom edge")
+        else:
+            reference(f"{tid}:distance", i, measure="distance", object=tid, line=seg, term=ground(seg),
+                      based_on=(), new_segment=True)
+        if model.object_free[i, O_SIZE].any():
+            reference(f"{tid}:length", i, measure="length", object=tid, line=None,
+                      term=ReferenceTerm(0, "size", 1.0, 1.0, False, owner=i, size_index=0), based_on=())
+        if len(ids) > 1:
+            gap = np.hypot(*(ground_xz - ground_xz[i]).T)
+            gap[i] = np.inf
+            j = int(np.argmin(gap))
+            if (min(i, j), max(i, j)) not in pairs:
+                pairs.add((min(i, j), max(i, j)))
+                reference(f"{tid}~{ids[j]}:distance", i, measure="distance", object=ids[j], line=None,
+                          term=ReferenceTerm(0, "distance", 1.0, 1.0, False, owner=i, other=j), based_on=())
+    return out, notes

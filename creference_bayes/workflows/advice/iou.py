@@ -2,7 +2,7 @@
 
 The advice needs the IoU of an exported box with every posterior draw for each of a few hundred
 simulated futures: tens of thousands of pairs per candidate annotation, too many for shapely's
-polygon objects (:mod:`creference_bayes.workflows.labels.quality` uses shapely for the labels themselves, and the tests check
+polygon objects (:mod:`creference_bayes.evaluation.iou3d` uses shapely for the labels themselves, and the tests check
 this module against it). Both footprints are convex quadrilaterals, so their intersection is the
 convex polygon whose corners are the corners of each footprint inside the other and the crossings
 of their edges; its area follows from those points sorted by angle around their centroid.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..labels.quality import footprints
+from ...evaluation.iou3d import footprints
 
 __all__ = ["convex_intersection_area", "iou_3d_pairs"]
 
@@ -101,7 +101,7 @@ def iou_3d_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     a, b : (P, 7) x, y, z, yaw, length, width, height (metres, radians; bottom centre, y down,
-        as :func:`~creference_bayes.workflows.labels.quality.box_iou_3d`)
+        as :func:`~creference_bayes.evaluation.iou3d.box_iou_3d`)
 
     Returns
     -------

@@ -1,75 +1,75 @@
 """The request list as files a labelling tool takes: Label Studio tasks and CVAT for images XML
 (docs/advice.md, "Sending the requests to the crowd").
 
-- **Label Studio**: one task per request. Its ``data`` holds what the importer reads (the image,
-  the target's id and size, the camera, the horizon: as :func:`~creference_bayes.io.labelstudio.label_studio_task`
-  writes them), the request (``request``: the instruction in words, ``request_kind``,
-  ``request_measure``, ``request_object``, ``request_line_px``, ``request_key``), and the whole
-  current scene (``creference_scene``) so that the answers can be put back into it. The task
-  carries no annotations (Label Studio's community edition takes a task with an annotation out of
-  the labelling queue); a reference request carries the segment to measure as a prediction
-  (keypoints or a vector, with its measure and object filled in), which the worker completes with
-  the value. Exported back, an answered task imports (``creference import label-studio``) as the
+- **Label Studio**: one task per request. Its ``data`` holds what the importer reads (the scene's
+  task data, :func:`~creference_bayes.io.labelstudio_export.task_data`), the request (``request``:
+  the instruction in words, ``request_kind``, ``request_measure``, ``request_object``,
+  ``request_target``, ``request_line_px``, ``request_key``) and the whole current scene
+  (``creference_scene``) so that the answers can be put back into it. The task carries no
+  annotations (Label Studio's community edition takes a task with an annotation out of the
+  labelling queue); a reference request on a segment carries it as a prediction (keypoints or a
+  vector, with its measure, object and target filled in), which the worker completes with the
+  value. Exported back, an answered task imports (``creference import label-studio``) as the
   scene in ``creference_scene`` with the answers appended.
 - **CVAT**: the scenes' annotations (:func:`~creference_bayes.io.cvat.cvat_xml`) plus, for a
-  reference request, a ``reference`` polyline on the segment with ``target_id``, ``object`` and
-  ``measure`` set and the value left empty for the worker (``worker`` = ``requested``); a target
-  request adds nothing (the worker draws a new ``target`` points shape). Exported back, the XML
-  imports (``creference import cvat``) as the scene with the new annotation.
+  reference request on a segment, a ``reference`` polyline on it with ``target_id``, ``object``
+  and ``measure`` set and the value left empty for the worker (``worker`` = ``requested``); other
+  requests add nothing (the worker draws a new ``target`` shape, or a reference as the request's
+  text says). Exported back, the XML imports (``creference import cvat``) as the scene with the
+  new annotation.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from pathlib import PurePath
 
 from ...io.cvat import LABEL_ATTRIBUTES, cvat_xml
-from ...io.labelstudio import label_studio_task
+from ...io.labelstudio_export import task_data
 from ...io.labelstudio_results import CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE
 from ...io.scene import scene_to_dict
 
-__all__ = ["REQUEST_WORKER", "request_fields", "label_studio_requests", "cvat_requests"]
+__all__ = ["REQUEST_WORKER", "request_fields", "label_studio_requests", "cvat_requests", "image_name"]
 
 #: The ``worker`` of a pre-drawn request shape (CVAT) or prediction (Label Studio).
 REQUEST_WORKER = "requested"
 _POINT_SIZE = 0.5
 
 
+def image_name(scene, key: str) -> str:
+    """The image's file name (``<key>.jpg`` when the scene names none)."""
+    return PurePath(str(scene.image_path)).name if scene.image_path is not None else f"{PurePath(key).name}.jpg"
+
+
 def request_fields(key: str, candidate) -> dict:
     """The task ``data`` fields that describe one request."""
-    return {"request": candidate.description, "request_kind": candidate.kind,
-            "request_measure": candidate.measure, "request_object": candidate.object,
+    return {"request": candidate.description, "request_kind": candidate.kind, "request_measure": candidate.measure,
+            "request_object": candidate.object, "request_target": candidate.target_id,
             "request_line_px": None if candidate.line is None else [[round(float(u), 2), round(float(v), 2)]
                                                                    for u, v in candidate.line],
             "request_key": key, "request_candidate": candidate.key}
 
 
-def _control(rid: str, name: str, typ: str, value) -> dict:
-    return {"id": rid, "type": typ, "from_name": name, "to_name": IMAGE,
-            "value": {CONTROL_VALUE[typ]: [value]}}
-
-
 def _segment_results(rid: str, candidate, width: int, height: int, lines: str) -> list[dict]:
     """The segment to measure, as Label Studio results (keypoints + relation, or a vector)."""
-    (a, b) = candidate.line
     common = {"to_name": IMAGE, "original_width": width, "original_height": height, "image_rotation": 0}
+    xy = lambda p: {"x": 100.0 * p[0] / width, "y": 100.0 * p[1] / height}  # noqa: E731
     if lines == "keypoints":
         out = [{"id": f"{rid}_{tag}", "type": "keypointlabels", "from_name": POINTS, **common,
-                "value": {"x": 100.0 * p[0] / width, "y": 100.0 * p[1] / height, "width": _POINT_SIZE,
-                          "keypointlabels": [label]}}
-               for tag, label, p in (("s", REF_START, a), ("e", REF_END, b))]
-        out.append({"type": "relation", "from_id": f"{rid}_s", "to_id": f"{rid}_e", "direction": "right",
-                    "labels": []})
-        region = f"{rid}_s"
+                "value": {**xy(p), "width": _POINT_SIZE, "keypointlabels": [label]}}
+               for tag, label, p in (("s", REF_START, candidate.line[0]), ("e", REF_END, candidate.line[1]))]
+        out.append({"type": "relation", "from_id": f"{rid}_s", "to_id": f"{rid}_e", "direction": "right", "labels": []})
+        rid = f"{rid}_s"
     else:
-        verts = [{"id": f"{rid}_v{i}", "x": 100.0 * p[0] / width, "y": 100.0 * p[1] / height,
-                  "prevPointId": None if i == 0 else f"{rid}_v0", "isBezier": False}
-                 for i, p in enumerate((a, b))]
+        verts = [{"id": f"{rid}_v{i}", **xy(p), "prevPointId": None if i == 0 else f"{rid}_v0", "isBezier": False}
+                 for i, p in enumerate(candidate.line)]
         out = [{"id": rid, "type": "vectorlabels", "from_name": LINES, **common,
                 "value": {"vertices": verts, "closed": False, "vectorlabels": [REFERENCE]}}]
-        region = rid
-    out.append(_control(region, "measure", "choices", candidate.measure))
-    if candidate.object:
-        out.append(_control(region, "object", "textarea", candidate.object))
+    for name, typ, value in (("measure", "choices", candidate.measure), ("object", "textarea", candidate.object),
+                             ("target", "textarea", candidate.target_id)):
+        if value:
+            out.append({"id": rid, "type": typ, "from_name": name, "to_name": IMAGE,
+                        "value": {CONTROL_VALUE[typ]: [value]}})
     return out
 
 
@@ -78,37 +78,30 @@ def label_studio_requests(requests, *, lines: str = "keypoints", start_id: int =
     tasks = []
     for k, (key, scene, cand) in enumerate(requests):
         task_id = start_id + k
-        data = dict(label_studio_task(scene, task_id=task_id, lines=lines)["data"])
-        data.update(request_fields(key, cand))
-        data["creference_scene"] = scene_to_dict(scene)
-        task = {"id": task_id, "data": data}
-        if cand.kind == "reference":
+        d = scene_to_dict(scene)
+        task = {"id": task_id, "data": {**task_data(d), **request_fields(key, cand), "creference_scene": d}}
+        if cand.kind == "reference" and cand.line is not None:
             task["predictions"] = [{"model_version": "creference-advice", "result": _segment_results(
                 f"request{task_id}", cand, scene.image_width, scene.image_height, lines)}]
         tasks.append(task)
     return tasks
 
 
-def _image_name(scene, key: str) -> str:
-    from pathlib import PurePath
-
-    if scene.image_path is not None:
-        return PurePath(str(scene.image_path)).name
-    return f"{PurePath(key).name}.jpg"
-
-
 def cvat_requests(requests) -> str:
-    """CVAT for images 1.1 XML for ``requests``, a list of (key, scene, candidate) (module docstring)."""
-    scenes = [scene for _, scene, _ in requests]
-    names = [_image_name(scene, key) for key, scene, _ in requests]
-    root = ET.fromstring(cvat_xml(scenes, image_names=names).split("\n", 1)[1])
+    """CVAT for images 1.1 XML for ``requests``, a list of (key, scene, candidate) (module docstring):
+    one image per scene, with every request on it."""
+    scenes = {}
+    for key, scene, _ in requests:
+        scenes.setdefault(key, scene)
+    names = {key: image_name(scene, key) for key, scene in scenes.items()}
+    root = ET.fromstring(cvat_xml(list(scenes.values()), image_names=list(names.values())).split("\n", 1)[1])
     images = {img.get("name"): img for img in root.findall("image")}
-    for (key, scene, cand), name in zip(requests, names):
-        if cand.kind != "reference":
+    for key, scene, cand in requests:
+        if cand.kind != "reference" or cand.line is None:
             continue
-        values = {"target_id": scene.target.id, "object": cand.object, "measure": cand.measure,
+        values = {"target_id": cand.target_id or scene.targets[0].id, "object": cand.object, "measure": cand.measure,
                   "worker": REQUEST_WORKER}
-        el = ET.SubElement(images[name], "polyline", {
+        el = ET.SubElement(images[names[key]], "polyline", {
             "label": "reference", "source": "manual", "occluded": "0", "z_order": "0",
             "points": ";".join(f"{u:.2f},{v:.2f}" for u, v in cand.line)})
         for attr in LABEL_ATTRIBUTES["reference"]:

@@ -46,7 +46,8 @@ def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[np.ndarray, np.ndarray]:
-    """Shortest interval holding ``prob`` of the weight, and the weighted median, per row.
+    """Shortest interval holding ``prob`` of the weight, and the weighted median, per row of
+    weights and column of values.
 
     Each draw's weight is spread evenly around it (draw i sits at the cumulative weight
     W_{i-1} + w_i / 2) and the distribution function is interpolated linearly between draws, so
@@ -58,47 +59,63 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
 
     Parameters
     ----------
-    values : (N,) draws of one quantity
+    values : (N,) draws of one quantity, or (N, k) of k quantities
     weights : (M, N) normalised weights (zeros allowed)
     prob : in (0, 1)
 
     Returns
     -------
-    width (M,), median (M,) in the unit of ``values``
+    width, median: (M,) for (N,) values, (M, k) for (N, k), in the unit of ``values``
     """
     values = np.asarray(values, float)
+    vals = values[:, None] if values.ndim == 1 else values
     w = np.atleast_2d(np.asarray(weights, float))
-    order = np.argsort(values)
-    v = values[order]
-    w = w[:, order]
-    m, n = w.shape
+    big_m, n = w.shape
+    k = vals.shape[1]
+    order = np.argsort(vals, axis=0).T                                  # (k, N)
+    v = np.take_along_axis(vals.T, order, axis=1)                       # (k, N) sorted
+    w = w[:, order].transpose(1, 0, 2).reshape(k * big_m, n)            # row t·M + i: weights i, quantity t
+    rows = len(w)
+    vbase = np.arange(rows) // big_m * n                                # row r's sorted values: v[r // M]
+    vflat = v.ravel()
     # positions of the draws on the weight axis, strictly increasing within a row
     c = np.cumsum(w, axis=1) - 0.5 * w + np.arange(n) * 1e-15
-    base = (np.arange(m) * n)[:, None]
     flat = c.ravel()
+    shifted = (c + 2.0 * np.arange(rows)[:, None]).ravel()  # rows apart on one axis (c is within [0, 1])
 
-    def at(p):  # the value at weight positions p (M, K), interpolated between draws
-        j = np.clip(np.array([np.searchsorted(c[i], p[i]) for i in range(m)]), 1, n - 1)
-        c0, c1 = flat[base + j - 1], flat[base + j]
+    def at(r, p):  # the values of rows r at weight positions p (1-D), interpolated between draws
+        j = np.clip(np.searchsorted(shifted, p + 2.0 * r) - r * n, 1, n - 1)
+        c0, c1 = flat[r * n + j - 1], flat[r * n + j]
         t = np.clip((p - c0) / np.maximum(c1 - c0, 1e-300), 0.0, 1.0)
-        return v[j - 1] + t * (v[j] - v[j - 1])
+        v0 = vflat[vbase[r] + j - 1]
+        return v0 + t * (vflat[vbase[r] + j] - v0)
 
-    # the width is piecewise linear in the start, so the shortest interval starts or ends at a draw
-    starts_ok = c + prob <= c[:, -1:]
-    ends_ok = c - prob >= c[:, :1]
-    width = np.minimum(
-        np.where(starts_ok, at(np.where(starts_ok, c + prob, c[:, :1])) - v[None, :], np.inf).min(axis=1),
-        np.where(ends_ok, v[None, :] - at(np.where(ends_ok, c - prob, c[:, :1])), np.inf).min(axis=1))
-    width = np.where(np.isfinite(width), width, v[-1] - v[0])  # too few draws to hold prob
-    median = at(np.full((m, 1), 0.5))[:, 0]
-    return width, median
+    def shortest(r, i, widths):  # the least of ``widths`` per row (rows r, each row's in a run)
+        out = np.full(rows, np.inf)
+        if len(r):
+            first = np.flatnonzero(np.diff(r, prepend=-1))
+            out[r[first]] = np.minimum.reduceat(widths, first)
+        return out
+
+    # the width is piecewise linear in the start, so the shortest interval starts or ends at a draw:
+    # from each draw that can start one (c + prob within the row), and to each that can end one
+    r, i = np.nonzero(c + prob <= c[:, -1:])
+    width = shortest(r, i, at(r, c[r, i] + prob) - vflat[vbase[r] + i])
+    r, i = np.nonzero(c - prob >= c[:, :1])
+    width = np.minimum(width, shortest(r, i, vflat[vbase[r] + i] - at(r, c[r, i] - prob)))
+    every = np.arange(rows)
+    width = np.where(np.isfinite(width), width, vflat[vbase + n - 1] - vflat[vbase])  # too few draws to hold prob
+    median = at(every, np.full(rows, 0.5))
+    width, median = width.reshape(k, big_m).T, median.reshape(k, big_m).T
+    return (width[:, 0], median[:, 0]) if values.ndim == 1 else (width, median)
 
 
 def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
                  n_shuffles: int = SHUFFLES) -> tuple[np.ndarray, np.ndarray]:
-    """The HDI of ``values`` (N,) as each row of ``weights`` (M, N) would see it if it said
-    nothing about them: the row shuffled over the draws (the same effective sample size), the
-    width and the width over the median averaged over ``n_shuffles`` shuffles.
+    """The HDI of ``values`` ((N,) or (N, k), as :func:`weighted_hdi`) as each row of ``weights``
+    (M, N) would see it if it said nothing about them: the row shuffled over the draws (the same
+    effective sample size), the width and the width over the median averaged over ``n_shuffles``
+    shuffles.
 
     A shortest interval estimated from weighted draws is too narrow, the more so the fewer the
     effective draws (about 6 % at 50 effective draws of 1000): a row's HDI set against the
@@ -107,26 +124,26 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
 
     Returns
     -------
-    width (M,) in the unit of ``values``, share (M,) width over the median
+    width in the unit of ``values``, share (width over the median); (M,) or (M, k)
     """
     w = np.atleast_2d(np.asarray(weights, float))
-    width = np.zeros(len(w))
-    share = np.zeros(len(w))
+    width = share = 0.0
     for _ in range(n_shuffles):
         shuffled = np.take_along_axis(w, np.argsort(rng.random(w.shape), axis=1), axis=1)
         wd, median = weighted_hdi(values, shuffled, prob)
-        width += wd / n_shuffles
-        share += wd / median / n_shuffles
+        width = width + wd / n_shuffles
+        share = share + wd / median / n_shuffles
     return width, share
 
 
-def location_sd(full: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """√(var x + var y + var z) per row of weights (M,), metres; ``full`` (N, 7) draws.
+def location_sd(loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """√(var x + var y + var z) per row of weights (M,), metres; ``loc`` (N, 3) draws of a bottom
+    centre.
 
     The weighted variance is divided by 1 − Σw², which makes it unbiased for independent draws
     whatever the weights (the plain weighted variance is short by that factor: by 1/ESS, about
     2 % at the 50 effective draws a set of dimension lines added to one set can leave)."""
-    loc = np.asarray(full, float)[:, :3]
+    loc = np.asarray(loc, float)
     w = np.atleast_2d(weights)
     mean = w @ loc                       # (M, 3)
     second = w @ (loc * loc)
@@ -134,13 +151,14 @@ def location_sd(full: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.sqrt(spread / np.maximum(1.0 - np.sum(w * w, axis=1), 1e-12))
 
 
-def mean_boxes(full: np.ndarray, weights: np.ndarray, sizes) -> np.ndarray:
-    """The weighted posterior-mean box per row (M, 7): mean x, y, z, circular mean yaw, ``sizes``."""
-    full = np.asarray(full, float)
+def mean_boxes(boxes: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The weighted posterior-mean box per row (M, 7) of (N, 7) box draws (x, y, z, yaw, length,
+    width, height): the mean of all but the yaw, whose mean is circular."""
+    boxes = np.asarray(boxes, float)
     w = np.atleast_2d(weights)
-    loc = w @ full[:, :3]
-    yaw = np.arctan2(w @ np.sin(full[:, 3]), w @ np.cos(full[:, 3]))
-    return np.column_stack([loc, yaw, np.broadcast_to(np.asarray(sizes, float), (len(w), 3))])
+    out = w @ boxes
+    out[:, 3] = np.arctan2(w @ np.sin(boxes[:, 3]), w @ np.cos(boxes[:, 3]))
+    return out
 
 
 def systematic_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
@@ -150,19 +168,20 @@ def systematic_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
     return np.searchsorted(c, (rng.uniform() + np.arange(n)) / n)
 
 
-def p_iou(full: np.ndarray, weights: np.ndarray, sizes, threshold: float, rng, n_pairs: int = 64) -> np.ndarray:
-    """P(IoU(mean box, true box) ≥ threshold) per row of weights (M,).
+def p_iou(boxes: np.ndarray, weights: np.ndarray, threshold: float, rng, n_pairs: int = 64) -> np.ndarray:
+    """P(IoU(mean box, true box) ≥ threshold) per row of weights and object, (M, k), from (N, k, 7)
+    box draws of k objects.
 
     The true box is a posterior draw; each row's share is estimated from ``n_pairs`` draws
-    resampled (systematically) by its weights, which keeps the cost at M × ``n_pairs`` IoUs.
+    resampled (systematically) by its weights, which keeps the cost at M × k × ``n_pairs`` IoUs.
     """
-    full = np.asarray(full, float)
+    boxes = np.asarray(boxes, float)
     w = np.atleast_2d(weights)
-    boxes = mean_boxes(full, w, sizes)
-    idx = np.stack([systematic_resample(row, n_pairs, rng) for row in w])   # (M, n_pairs)
-    draws = np.column_stack([full[:, :4], np.broadcast_to(np.asarray(sizes, float), (len(full), 3))])
-    iou = iou_3d_pairs(np.repeat(boxes, n_pairs, axis=0), draws[idx.ravel()])
-    return (iou.reshape(len(w), n_pairs) >= threshold).mean(axis=1)
+    idx = np.stack([systematic_resample(row, n_pairs, rng) for row in w])       # (M, n_pairs)
+    means = np.stack([mean_boxes(boxes[:, j], w) for j in range(boxes.shape[1])], axis=1)  # (M, k, 7)
+    truth = boxes[idx]                                                           # (M, n_pairs, k, 7)
+    iou = iou_3d_pairs(np.repeat(means[:, None], n_pairs, axis=1).reshape(-1, 7), truth.reshape(-1, 7))
+    return (iou.reshape(len(w), n_pairs, -1) >= threshold).mean(axis=1)
 
 
 def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: int = 8,

@@ -1,18 +1,16 @@
 """Estimate every scene of a data set: discovery, seeds, resume, failure isolation (docs/batch.md).
 
-A scene file is the unit: a ``creference-scene/1`` scene (one target, :func:`~creference_bayes.estimate`)
-or a ``creference-scene/2`` frame (every target of a photo with one shared camera,
-:func:`~creference_bayes.frame_pipeline.estimate_frame`); a batch may mix them.
+A scene file is the unit (a scene of one or many targets, either format,
+:func:`~creference_bayes.estimate`): one result, one seed, one copy, one error record.
 
 The batch folder::
 
-    DIR/results/KEY.json   creference-result/1 of the scene (creference-result/2 of a frame), plus
-                           a ``batch`` block (key, source, seed, settings): written atomically, the
-                           mark that the scene is done
-    DIR/scenes/KEY.json    a copy of the scene (canonical form, same fingerprint as the original):
-                           what ``creference labels`` needs (sizes, camera, horizon, truth)
+    DIR/results/KEY.json   the scene's creference-result/2, plus a ``batch`` block (key, source,
+                           seed, settings): written atomically, the mark that the scene is done
+    DIR/scenes/KEY.json    a copy of the scene (canonical creference-scene/2, same fingerprint as
+                           the original): what ``creference labels`` needs (sizes, camera, truth)
     DIR/errors/KEY.json    why the scene failed (invalid input, an exception, the time limit)
-    DIR/summary.csv        one row per target: a scene's one, each of a frame's (summary.py)
+    DIR/summary.csv        one row per target (summary.py)
     DIR/batch.json         the run's settings and every scene's status
 
 KEY is the scene file's path relative to the folder given on the command line, without
@@ -25,9 +23,7 @@ are the same whatever the engine, the worker count or the order.
 
 from __future__ import annotations
 
-from ...io.files import read_text
 import hashlib
-import json
 import time
 import warnings
 from collections import deque
@@ -37,17 +33,16 @@ from typing import Callable
 
 from ... import __version__
 from ...io.files import atomic_write_json
-from ...io.frame_scene import FRAME_FORMAT, frame_fingerprint, load_frame
-from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint
+from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
 from ...pipeline import DEFAULT_MODEL
-from .files import ERROR_FORMAT, layout, record_error, scene_copy, up_to_date
+from .files import ERROR_FORMAT, layout, record_error, up_to_date
 from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
 __all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
            "discover_scenes", "derive_seed", "run_scene", "run_batch", "layout"]
 
-BATCH_FORMAT = "creference-batch/1"
+BATCH_FORMAT = "creference-batch/2"
 
 
 @dataclass(frozen=True)
@@ -59,17 +54,12 @@ class BatchSettings:
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
     model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation,
     location_prior : as :func:`~creference_bayes.estimate`
-    sampling : sampler settings (``SamplerSettings`` fields, e.g. ``{"min_ess": 500}``)
+    sampling : sampler settings (:class:`~creference_bayes.inference.sampler.SamplerSettings`
+        fields, e.g. ``{"min_ess": 400, "max_steps": 20000}``)
     confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
         :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
         actually used (a file's by its content, wherever it lies)
-    frame_sampling : frames: sampler settings (``FrameSamplerSettings`` fields, e.g.
-        ``{"min_ess": 400, "max_iterations": 20000}``)
-    classes : frames: size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
-
-    ``model``, ``preset``, ``sampling`` and ``confidence_map`` apply to one-target scenes only,
-    ``frame_sampling`` and ``classes`` to frames only: a frame's result is up to date when the
-    settings that apply to frames (:meth:`frame_dict`) are those it was made with, and so on.
+    classes : size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
     """
 
     seed: int = 0
@@ -84,46 +74,23 @@ class BatchSettings:
     orientation: str = "auto"
     location_prior: str = "auto"
     confidence_map: object = "default"
-    frame_sampling: dict = field(default_factory=dict)
     classes: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        from ...inference.frame_sampler import FrameSamplerSettings
+        from ...inference.sampler import SamplerSettings
 
-        FrameSamplerSettings.from_options(self.frame_sampling)  # a ValueError naming the option
+        SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
 
     def to_dict(self) -> dict:
-        """The settings of one-target scenes, as their results record them (``batch.settings``)."""
-        d = asdict(replace(self, confidence_map=None, frame_sampling={}, classes={}))
-        del d["frame_sampling"], d["classes"]
+        """The settings as the results record them (``batch.settings``) and a rerun compares them."""
+        from ...io.result import RESULT_DRAWS
+
+        d = asdict(replace(self, confidence_map=None, classes={}))
         d["sampling"] = dict(sorted(self.sampling.items()))
         d["confidence_map"] = self._map_identity()
+        d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
+        d["keep_draws"] = RESULT_DRAWS
         return d
-
-    def frame_dict(self) -> dict:
-        """The settings of frames, as their results record them (``batch.settings``)."""
-        from ...io.frame_result import RESULT_DRAWS
-
-        return {"kind": "frame", "seed": self.seed, "posterior": self.posterior, "hdi_prob": self.hdi_prob,
-                "temperature": 1.0 if self.temperature is None else self.temperature,
-                "use_references": self.use_references, "sampling": dict(sorted(self.frame_sampling.items())),
-                "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "classes": {k: self.classes[k].to_dict() for k in sorted(self.classes)}, "keep_draws": RESULT_DRAWS,
-                "location_prior": self.frame_location_prior()}
-
-    def frame_location_prior(self) -> str:
-        """The frames' location prior: ``location_prior`` unless ``auto`` (then the frame default)."""
-        from ...models.frame import FRAME_LOCATION_PRIORS
-
-        return FRAME_LOCATION_PRIORS[0] if self.location_prior == "auto" else self.location_prior
-
-    def frame_kwargs(self) -> dict:
-        """Keyword arguments of :func:`~creference_bayes.frame_pipeline.estimate_frame`."""
-        return {"posterior": self.posterior, "hdi_prob": self.hdi_prob,
-                "temperature": 1.0 if self.temperature is None else self.temperature,
-                "use_references": self.use_references, "sampling": dict(self.frame_sampling) or None,
-                "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "classes": dict(self.classes) or None, "location_prior": self.frame_location_prior()}
 
     def _map_identity(self) -> dict:
         """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
@@ -136,11 +103,13 @@ class BatchSettings:
         return d
 
     def estimate_kwargs(self) -> dict:
+        """Keyword arguments of :func:`~creference_bayes.estimate`."""
         return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "location_prior": self.location_prior, "confidence_map": self.confidence_map}
+                "location_prior": self.location_prior, "confidence_map": self.confidence_map,
+                "classes": dict(self.classes) or None}
 
 
 @dataclass(frozen=True)
@@ -205,9 +174,8 @@ class BatchReport:
     errors: dict[str, str]
     seconds: float
     engine: str
-    computed_seconds: float = 0.0
-    #: targets estimated in this run (a frame counts its objects); None: one per estimated scene
-    n_targets: int | None = None
+    #: targets estimated in this run (every target of every scene estimated)
+    n_targets: int = 0
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -218,8 +186,7 @@ class BatchReport:
 
     @property
     def targets_per_minute(self) -> float | None:
-        n = len(self.keys("done")) if self.n_targets is None else self.n_targets
-        return 60.0 * n / self.seconds if n and self.seconds > 0 else None
+        return 60.0 * self.n_targets / self.seconds if self.n_targets and self.seconds > 0 else None
 
 
 def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings = BatchSettings(), *,
@@ -252,7 +219,7 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
             raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
-        idents = {"scene": settings.to_dict(), "frame": settings.frame_dict()}
+        ident = settings.to_dict()
     except BaseException:
         engine.close(abandon=True)
         raise
@@ -262,13 +229,13 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     errors: dict[str, str] = {}
     bar = runner = None
     try:
-        todo = _prepare(scenes, out, settings, idents, status, errors)
+        todo = _prepare(scenes, out, settings, ident, status, errors)
         if on_event:
             for key in (k for k, s in status.items() if s in ("failed", "skipped")):
                 on_event(key, status[key])
         n_invalid = sum(s == "failed" for s in status.values())
         bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
-        runner = Runner(out, engine, idents, time_limit, status, errors, bar, on_event)
+        runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
         runner.run(todo)
     finally:
         if bar is not None:
@@ -277,57 +244,36 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
-                             computed_seconds=runner.seconds if runner is not None else 0.0,
-                             n_targets=runner.n_targets if runner is not None else None)
+                             n_targets=runner.n_targets if runner is not None else 0)
         write_summary(out, scenes, report)
         atomic_write_json(out / "batch.json", {
-            "format": BATCH_FORMAT, "creference_version": __version__, "settings": idents["scene"],
-            "frame_settings": idents["frame"],
+            "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
             "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
             "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
                         **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
     return report
 
 
-def _read(path: Path, classes: dict | None = None):
-    """(kind, scene, decoded data, fingerprint) of a scene file: ``"frame"`` for a
-    ``creference-scene/2`` file, else ``"scene"`` (whose loader reports any problem)."""
-    try:
-        data = json.loads(read_text(path, "utf-8-sig"))
-    except ValueError:
-        data = None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SceneWarning)
-        if isinstance(data, dict) and data.get("format") == FRAME_FORMAT:
-            frame = load_frame(path, classes=classes)
-            return "frame", frame, data, frame_fingerprint(frame)
-        scene = load_scene(path)
-    if data is None:
-        data = json.loads(read_text(path, "utf-8-sig"))
-    return "scene", scene, data, scene_fingerprint(scene)
-
-
-def _prepare(scenes, out: Path, settings: BatchSettings, idents: dict, status: dict, errors: dict) -> deque:
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict) -> deque:
     """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
     todo = deque()
     for si in scenes:
         paths = layout(out, si.key)
         try:
-            kind, scene, data, fingerprint = _read(si.path, settings.classes)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)  # the result reports them
+                scene = load_scene(si.path, classes=settings.classes or None)
         except (SceneError, OSError, ValueError) as exc:
             errors[si.key] = one_line(exc)
             status[si.key] = "failed"
             record_error(paths, si, "load", errors[si.key])
             continue
-        if up_to_date(paths, fingerprint, idents[kind]):
+        fingerprint = scene_fingerprint(scene)
+        if up_to_date(paths, fingerprint, ident):
             status[si.key] = "skipped"
             if not paths["scene"].exists():
-                atomic_write_json(paths["scene"], scene_copy(scene))
+                atomic_write_json(paths["scene"], scene_to_dict(scene))
             continue
-        seed = derive_seed(settings.seed, fingerprint)
-        kwargs = settings.frame_kwargs() if kind == "frame" else settings.estimate_kwargs()
-        todo.append((si, scene, {"kind": kind, "data": data, "source": str(si.path), "seed": seed,
-                                 "estimate": kwargs}))
+        todo.append((si, {"scene": scene, "seed": derive_seed(settings.seed, fingerprint),
+                          "estimate": settings.estimate_kwargs()}))
     return todo
-
-

@@ -3,16 +3,14 @@ a result or an error is recorded (atomically, the scene copy before its result).
 
 from __future__ import annotations
 
-from ...io.files import read_text
 import json
 from pathlib import Path
 
 from ... import __version__
-from ...io.files import atomic_write_json
-from ...io.frame_scene import FrameScene, frame_to_dict
+from ...io.files import atomic_write_json, read_text
 from ...io.scene import scene_to_dict
 
-__all__ = ["ERROR_FORMAT", "layout", "up_to_date", "record_error", "record_result", "scene_copy"]
+__all__ = ["ERROR_FORMAT", "layout", "up_to_date", "record_error", "record_result"]
 
 ERROR_FORMAT = "creference-batch-error/1"
 
@@ -22,12 +20,6 @@ def layout(out: str | Path, key: str) -> dict[str, Path]:
     out = Path(out)
     return {"result": out / "results" / f"{key}.json", "scene": out / "scenes" / f"{key}.json",
             "error": out / "errors" / f"{key}.json"}
-
-
-def scene_copy(scene) -> dict:
-    """The canonical form of a scene (``creference-scene/1``) or a frame (``creference-scene/2``):
-    the batch folder's copy, with the same fingerprint as the original."""
-    return frame_to_dict(scene) if isinstance(scene, FrameScene) else scene_to_dict(scene)
 
 
 def up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:
@@ -53,7 +45,7 @@ def record_error(paths: dict, si, stage: str, error: str, tb: str | None = None)
 
 def record_result(paths: dict, si, scene, result: dict, seed: int, settings: dict) -> None:
     """Write the scene copy, then the result with its ``batch`` block; drop an old error record."""
-    atomic_write_json(paths["scene"], scene_copy(scene))  # first the copy, then the result
+    atomic_write_json(paths["scene"], scene_to_dict(scene))  # first the copy, then the result
     result["batch"] = {"key": si.key, "source": str(si.path.resolve()),
                        "scene_copy": f"scenes/{si.key}.json",
                        "seed": seed, "settings": settings, "creference_version": __version__}

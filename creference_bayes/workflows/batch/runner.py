@@ -6,10 +6,8 @@ from __future__ import annotations
 import concurrent.futures as cf
 import time
 import traceback
-import warnings
 from collections import deque
 
-from ...io.scene import SceneWarning, parse_scene
 from ...pipeline import estimate
 from .files import layout, record_error, record_result
 
@@ -19,31 +17,14 @@ __all__ = ["run_scene", "one_line", "Runner", "progress_bar"]
 def run_scene(job: dict) -> dict:
     """Estimate one scene (runs in a worker: a local process or a Dask worker thread).
 
-    ``job`` holds the ``kind`` (``"scene"``: one target; ``"frame"``: a ``creference-scene/2``
-    frame), the decoded scene (``data``), its file (``source``), the scene's ``seed`` and the
-    settings' ``estimate`` keyword arguments. Never raises for a bad scene or a failed estimate:
-    returns ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
+    ``job`` holds the ``scene`` (a :class:`~creference_bayes.io.scene.Scene`), its ``seed`` and the
+    settings' ``estimate`` keyword arguments. Never raises for a failed estimate: returns
+    ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
     """
-    t0 = time.perf_counter()
-    stage = "load"
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)  # reported in the result's warnings
-            if job.get("kind") == "frame":
-                from ...frame_pipeline import estimate_frame
-                from ...io.frame_scene import parse_frame
-
-                frame = parse_frame(job["data"], source=job["source"], classes=job["estimate"].get("classes"))
-                stage = "estimate"
-                result = estimate_frame(frame, seed=job["seed"], **job["estimate"])
-            else:
-                scene = parse_scene(job["data"], source=job["source"])
-                stage = "estimate"
-                result = estimate(scene, seed=job["seed"], **job["estimate"])
-        return {"ok": True, "result": result.to_dict(), "seconds": time.perf_counter() - t0}
+        return {"ok": True, "result": estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()}
     except Exception as exc:  # isolate the failure: the batch goes on
-        return {"ok": False, "stage": stage, "error": one_line(exc),
-                "traceback": traceback.format_exc(), "seconds": time.perf_counter() - t0}
+        return {"ok": False, "stage": "estimate", "error": one_line(exc), "traceback": traceback.format_exc()}
 
 
 def one_line(exc: BaseException) -> str:
@@ -62,36 +43,31 @@ def progress_bar(total: int, failed: int, enabled: bool):
 class Runner:
     """Keeps ``engine.slots()`` jobs in flight, records each outcome as it arrives."""
 
-    def __init__(self, out, engine, idents, time_limit, status, errors, bar, on_event):
-        self.out, self.engine, self.idents, self.time_limit = out, engine, idents, time_limit
+    def __init__(self, out, engine, settings, time_limit, status, errors, bar, on_event):
+        self.out, self.engine, self.settings, self.time_limit = out, engine, settings, time_limit
         self.status, self.errors, self.bar, self.on_event = status, errors, bar, on_event
-        self.running: dict[cf.Future, tuple] = {}  # future -> (scene input, scene, job, start)
+        self.running: dict[cf.Future, tuple] = {}  # future -> (scene input, job, start)
         self.abandoned: set[cf.Future] = set()  # over the time limit, maybe running: hold a slot
         self.n_failed = sum(s == "failed" for s in status.values())
-        self.seconds = 0.0
-        self.n_targets = 0  # estimated in this run (a frame counts its objects)
+        self.n_targets = 0  # estimated in this run
 
     def run(self, todo: deque) -> None:
-        t0 = time.perf_counter()
-        try:
-            while todo or self.running:
-                self._fill(todo)
-                done, _ = cf.wait(set(self.running) | self.abandoned, timeout=self._timeout(),
-                                  return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    self._collect(fut)
-                self._enforce_time_limit()
-                if todo and self.abandoned and not self.running and self.engine.can_stop_tasks:
-                    self.engine.renew()  # only abandoned tasks hold the slots: end them
-                    self.abandoned.clear()
-        finally:
-            self.seconds = time.perf_counter() - t0
+        while todo or self.running:
+            self._fill(todo)
+            done, _ = cf.wait(set(self.running) | self.abandoned, timeout=self._timeout(),
+                              return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                self._collect(fut)
+            self._enforce_time_limit()
+            if todo and self.abandoned and not self.running and self.engine.can_stop_tasks:
+                self.engine.renew()  # only abandoned tasks hold the slots: end them
+                self.abandoned.clear()
 
     def _fill(self, todo: deque) -> None:
         while todo and len(self.running) + len(self.abandoned) < self.engine.slots():
-            si, scene, job = todo.popleft()
+            si, job = todo.popleft()
             fut = self.engine.executor.submit(run_scene, job)
-            self.running[fut] = (si, scene, job, time.monotonic())
+            self.running[fut] = (si, job, time.monotonic())
 
     def _timeout(self) -> float | None:
         if self.time_limit is None or not self.running:
@@ -105,7 +81,7 @@ class Runner:
             return
         if fut not in self.running:  # already failed with a broken pool
             return
-        si, scene, job, _ = self.running.pop(fut)
+        si, job, _ = self.running.pop(fut)
         try:
             res = fut.result()
         except cf.BrokenExecutor as exc:  # a worker process died: every task in the pool is lost
@@ -123,9 +99,8 @@ class Runner:
             self._finish(si, False, "worker", one_line(exc), traceback.format_exc())
             return
         if res["ok"]:
-            record_result(layout(self.out, si.key), si, scene, res["result"], job["seed"],
-                          self.idents[job.get("kind", "scene")])
-            self.n_targets += len(res["result"].get("objects") or [None])
+            record_result(layout(self.out, si.key), si, job["scene"], res["result"], job["seed"], self.settings)
+            self.n_targets += len(res["result"]["objects"])
             self._finish(si, True)
         else:
             self._finish(si, False, res["stage"], res["error"], res.get("traceback"))

@@ -1,23 +1,20 @@
-"""The batch's summary table (``summary.csv``, one row per target: a scene's one target, each
-object of a frame) and its closing line."""
+"""The batch's summary table (``summary.csv``, one row per target of every scene) and its closing line."""
 
 from __future__ import annotations
 
-from ...io.files import read_text
 import csv
 import io
 import json
-import math
 from pathlib import Path
 
-from ...io.files import atomic_write_text
+from ...io.files import atomic_write_text, read_text
 
 __all__ = ["SUMMARY_COLUMNS", "summary_rows", "write_summary", "summary_line"]
 
 #: Columns of ``summary.csv``. Distances are the ground distance √(x² + z²) from the camera's foot
 #: point, metres; errors are Eq. 3's location error, percent, present only with ground truth.
-#: ``class`` is a frame object's class (empty for a one-target scene); ``converged`` is the
-#: scene's (a frame's sampler converges for all its objects or not at all).
+#: ``class`` is the target's class (empty without one); ``converged`` is the scene's (its sampler
+#: converges for all its targets or not at all).
 SUMMARY_COLUMNS = ("scene", "target", "class", "image", "status", "map_distance_m", "mean_distance_m",
                    "sd_distance_m", "hdi_low_m", "hdi_high_m", "hdi_prob", "converged",
                    "location_error_pct", "posterior_location_error_pct", "n_warnings", "warnings",
@@ -32,24 +29,16 @@ def _read(path: Path) -> dict | None:
 
 
 def _rows(out: Path, key: str, status: str, error: str | None) -> list[dict]:
-    row = dict.fromkeys(SUMMARY_COLUMNS, "")
-    row.update(scene=key, status={"done": "ok", "skipped": "ok"}.get(status, status))
+    """The rows of one scene: one per target of its result, or one naming its error."""
+    base = dict.fromkeys(SUMMARY_COLUMNS, "")
+    base.update(scene=key, status={"done": "ok", "skipped": "ok"}.get(status, status))
     copy = _read(out / "scenes" / f"{key}.json") or {}
     image = (copy.get("image") or {}).get("path")
-    row["image"] = Path(image).name if image else ""
+    base["image"] = Path(image).name if image else ""
     if status not in ("done", "skipped"):
-        row["error"] = error or ""
-        return [row]
+        return [dict(base, error=error or "")]
     d = _read(out / "results" / f"{key}.json") or {}
-    if d.get("format") == "creference-result/2":
-        return _frame_rows(row, d)
-    return [_scene_row(row, d)]
-
-
-def _frame_rows(base: dict, d: dict) -> list[dict]:
-    """One row per object of a ``creference-result/2``."""
-    diag = d.get("diagnostics")
-    warns = d.get("warnings", [])
+    diag, warns = d.get("diagnostics"), d.get("warnings", [])
     rows = []
     for o in d.get("objects", []):
         row = dict(base, target=o.get("id", ""), **{"class": o.get("class") or ""})
@@ -67,29 +56,7 @@ def _frame_rows(base: dict, d: dict) -> list[dict]:
         row["posterior_location_error_pct"] = _num(ev.get("posterior_location_pct_error"))
         row.update(n_warnings=len(warns), warnings=" | ".join(warns))
         rows.append(row)
-    return rows
-
-
-def _scene_row(row: dict, d: dict) -> dict:
-    """The row of a ``creference-result/1`` (one target)."""
-    m, post = d.get("map", {}), d.get("posterior")
-    row["target"] = d.get("target", "")
-    if "x" in m and "z" in m:
-        row["map_distance_m"] = _num(math.hypot(m["x"], m["z"]))
-    if post:
-        row["mean_distance_m"] = _num(post["mean"].get("distance_m"))
-        row["sd_distance_m"] = _num(post["sd"].get("distance_m"))
-        lo, hi = post["hdi"].get("distance_m", [None, None])
-        row.update(hdi_low_m=_num(lo), hdi_high_m=_num(hi), hdi_prob=post["hdi"].get("prob", ""))
-    diag = d.get("diagnostics")
-    if diag is not None:
-        row["converged"] = str(bool(diag.get("converged"))).lower()
-    ev = d.get("evaluation") or {}
-    row["location_error_pct"] = _num(ev.get("location_pct_error"))
-    row["posterior_location_error_pct"] = _num(ev.get("posterior_location_pct_error"))
-    warns = d.get("warnings", [])
-    row.update(n_warnings=len(warns), warnings=" | ".join(warns))
-    return row
+    return rows or [base]
 
 
 def _num(v) -> str:
@@ -97,7 +64,7 @@ def _num(v) -> str:
 
 
 def summary_rows(out: str | Path, scenes, report) -> list[dict]:
-    """One row per target of the batch (a frame's objects in their order; one row for a scene that
+    """One row per target of the batch (a scene's targets in their order; one row for a scene that
     failed), scenes in the order of the inputs."""
     out = Path(out)
     return [row for si in scenes for row in _rows(out, si.key, report.status[si.key], report.errors.get(si.key))]

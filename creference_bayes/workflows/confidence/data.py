@@ -1,35 +1,41 @@
-"""The ranges with a stated confidence in a data set, and what is known about their truth.
+"""The ranges stated with a confidence in a data set of scenes, and what is known of their truth.
 
-A range's *truth* is the real length it should have held:
+A range is taken as the model reads its reference (:func:`~creference_bayes.pipeline.reference_terms`):
+in metres, or as a ratio to a target's length or width when it is relative to a target of unknown
+size. Its *truth*, in the same unit, is
 
-- the object's true dimension, when the scene's ground truth gives it
-  (``ground_truth.reference_lengths_m``, as the simulator writes it); this is what the worker was
-  asked about, and what a confidence map is about. The drawn segment is a second, separate
-  error (the line's pixel noise), which the metrology model already adds to each reference's
-  scale; scoring against the drawn segment would count it twice;
-- else the drawn segment's real length under the true camera (ground truth with focal length,
-  pitch, roll and camera height: :func:`~creference_bayes.models.metrology.ground_lengths`), the
-  best available for a real photo with a calibrated camera. It includes the drawing error, so the
-  realised coverage is a little lower than the worker's own (most for lines close to the horizon);
-- else none: the range can only enter a fit without ground truth.
+- the measured object's true length when the ground truth states it (``reference_lengths_m``,
+  metres, one per reference, in the scene's truth or a version-1 file's, as the simulator writes
+  it): what the worker was asked about. The drawn segment's own error is the line noise the
+  metrology model adds to each reference; scoring against the segment would count it twice;
+- else, for a target's own size or the distance between two targets, the targets' truth
+  (``dimensions_m`` or their known size; ``location_m``, bottom centres in the gravity-aligned
+  camera frame: the distance is √(Δx² + Δz²));
+- else, for a drawn segment, its real length under the true camera (``focal_length_px``,
+  ``pitch_rad``, ``roll_rad``, ``camera_height_m``: :func:`~creference_bayes.models.metrology.ground_lengths`),
+  the best there is for a real photo. It includes the drawing error, so the realised coverage is
+  a little lower than the worker's own (most for lines close to the horizon);
 
-Scenes come from files and folders (every ``*.json`` below a folder), as for ``creference batch``.
+divided by the target's true size for a relative range; else there is none (the range can enter
+a fit without ground truth only). Scenes come from files and folders, as for ``creference batch``.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from ...io.scene import Scene, SceneError, SceneWarning, load_scene
 from ...models.confidence_map import group_key
 from ...models.metrology import ground_lengths
-from ..batch import discover_scenes
+from ...pipeline import reference_terms
 
-__all__ = ["StatedRange", "load_scenes", "true_lengths", "stated_ranges", "range_counts"]
+__all__ = ["StatedRange", "load_scenes", "reference_truths", "stated_ranges", "range_counts"]
+
+_SIZES = ("length", "width", "height")
 
 
 @dataclass(frozen=True)
@@ -43,10 +49,10 @@ class StatedRange:
     worker : the worker's id, or None
     measure, mode : the reference's measure and mode
     confidence : the stated confidence c in [0, 1]
-    low, high : the range, metres
-    truth : the real length it should hold, metres, or None (module docstring)
-    truth_source : ``"object"`` (the object's true dimension), ``"segment"`` (the drawn segment
-        under the true camera) or None
+    low, high : the range, in the unit the model reads it (module docstring)
+    truth : the real value it should hold, same unit, or None
+    truth_source : ``"object"`` (the measured object's own truth) or ``"segment"`` (the drawn
+        segment under the true camera), or None
     """
 
     scene: str
@@ -80,14 +86,14 @@ class StatedRange:
         return None if self.truth is None else bool(self.low <= self.truth <= self.high)
 
     def to_dict(self) -> dict:
-        return {"scene": self.scene, "index": self.index, "worker": self.worker, "measure": self.measure,
-                "mode": self.mode, "confidence": self.confidence, "low": self.low, "high": self.high,
-                "truth": self.truth, "truth_source": self.truth_source}
+        return asdict(self)
 
 
 def load_scenes(inputs) -> list[tuple[str, Scene]]:
     """(key, scene) of every scene file of ``inputs`` (files and folders); an invalid scene raises
     :class:`~creference_bayes.io.scene.SceneError` with its file's path."""
+    from ..batch import discover_scenes
+
     out = []
     for si in discover_scenes(inputs):
         with warnings.catch_warnings():
@@ -101,60 +107,81 @@ def load_scenes(inputs) -> list[tuple[str, Scene]]:
     return out
 
 
-def true_lengths(scene: Scene) -> tuple[np.ndarray | None, str | None]:
-    """(m,) the truth of every reference of ``scene`` (module docstring) and its source, or
-    (None, None)."""
-    gt = scene.ground_truth
-    if gt is None or not scene.references:
-        return None, None
-    lengths = gt.extra.get("reference_lengths_m")
-    if isinstance(lengths, list) and len(lengths) == len(scene.references):
-        try:
-            a = np.array(lengths, float)
-        except (TypeError, ValueError):
-            a = None
-        if a is not None and np.all(np.isfinite(a) & (a > 0)):
-            return a, "object"
-    needed = (gt.focal_length_px, gt.extra.get("pitch_rad"), gt.extra.get("roll_rad"), gt.extra.get("camera_height_m"))
-    if any(v is None for v in needed):
-        return None, None
-    f, pitch, roll, h = (float(v) for v in needed)
-    full = np.array([0.0, h, 1.0, 0.0, f, pitch, roll])
-    lines = np.stack([r.line for r in scene.references])
-    return ground_lengths(lines, scene.principal_point, full)[0], "segment"
+def _positive(v) -> float | None:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def _true_size(target, k: int) -> float | None:
+    """A target's true length, width or height (``k`` 0–2), metres: its truth, else its known size."""
+    dims = (target.ground_truth or {}).get("dimensions_m") or {}
+    known = None if target.dimensions is None else target.dimensions[k]
+    return _positive(dims.get(_SIZES[k], known)) if isinstance(dims, dict) else _positive(known)
+
+
+def _true_distance(a, b) -> float | None:
+    try:
+        (xa, _, za), (xb, _, zb) = ((t.ground_truth or {})["location_m"] for t in (a, b))
+    except (KeyError, TypeError, ValueError):
+        return None
+    return _positive(math.hypot(xa - xb, za - zb))
+
+
+def reference_truths(scene: Scene, terms=None) -> list[tuple[float | None, str | None]]:
+    """(truth, source) of every reference of ``scene`` (module docstring; the source is
+    ``"object"`` or ``"segment"``), in the unit of its
+    :class:`~creference_bayes.models.metrology.ReferenceTerm` (``terms``: the scene's by default)."""
+    terms = reference_terms(scene) if terms is None else terms
+    gt = scene.ground_truth or {}
+    stated = None
+    for truth in (gt, *(t.ground_truth or {} for t in scene.targets)):  # a version-1 file's is its target's
+        v = truth.get("reference_lengths_m")
+        if stated is None and isinstance(v, list) and len(v) == len(scene.references) and all(map(_positive, v)):
+            stated = v
+    camera = [_positive(gt.get("focal_length_px", scene.focal_length_px)), gt.get("pitch_rad"), gt.get("roll_rad"),
+              _positive(gt.get("camera_height_m")), 0.0]
+    out = []
+    for t in terms:
+        value, source = None, "object"
+        if stated is not None:
+            value = float(stated[t.index])
+        elif t.kind == "size":
+            value = _true_size(scene.targets[t.owner], t.size_index)
+        elif t.kind == "distance":
+            value = _true_distance(scene.targets[t.owner], scene.targets[t.other])
+        elif None not in camera:
+            value = _positive(ground_lengths(t.line[None], scene.principal_point, np.array(camera, float))[0, 0])
+            source = "segment"
+        if value is not None and t.kind == "relative":
+            size = _true_size(scene.targets[t.owner], t.size_index)
+            value = None if size is None else value / size
+        out.append((None, None) if value is None else (value, source))
+    return out
 
 
 def stated_ranges(scenes, *, use_truth: bool = True) -> list[StatedRange]:
     """Every range with a confidence in ``scenes`` ((key, Scene) pairs), with its truth when
-    known (and ``use_truth``). Relative ranges are converted to metres with the target's size;
-    ranges whose ends are equal are left out (the model reads them without the map)."""
+    known (and ``use_truth``). Ranges whose ends are equal are left out (the model reads them
+    without the map)."""
     out = []
     for key, scene in scenes:
-        truth, source = true_lengths(scene) if use_truth else (None, None)
-        for r in scene.references:
-            if not r.is_range or r.confidence is None:
-                continue
-            low, high = r.length_bounds_m(scene.target)
-            if not high > low:  # read as a single value by the model: no interval to score
-                continue
-            t = None if truth is None else float(truth[r.index])
-            out.append(StatedRange(key, r.index, r.worker, r.measure, r.mode, float(r.confidence),
-                                   float(low), float(high), t, source if t is not None else None))
+        terms = reference_terms(scene)
+        truths = reference_truths(scene, terms) if use_truth else [(None, None)] * len(terms)
+        for r, t, (truth, source) in zip(scene.references, terms, truths):
+            if t.is_range and t.confidence is not None and t.high > t.low:
+                out.append(StatedRange(key, t.index, r.worker, t.measure, t.mode, float(t.confidence),
+                                       float(t.low), float(t.high), truth, source))
     return out
 
 
 def range_counts(scenes) -> dict[str, int]:
     """How many references of each kind the scenes hold (for the reports' notes)."""
-    counts = {"scenes": 0, "references": 0, "ranges_with_confidence": 0, "values_with_confidence": 0,
-              "without_confidence": 0}
-    for _, scene in scenes:
-        counts["scenes"] += 1
-        for r in scene.references:
-            counts["references"] += 1
-            if r.confidence is None:
-                counts["without_confidence"] += 1
-            elif r.is_range:
-                counts["ranges_with_confidence"] += 1
-            else:
-                counts["values_with_confidence"] += 1
-    return counts
+    refs = [r for _, scene in scenes for r in scene.references]
+    stated = [r for r in refs if r.confidence is not None]
+    return {"scenes": len(scenes), "references": len(refs),
+            "ranges_with_confidence": sum(r.is_range for r in stated),
+            "values_with_confidence": sum(not r.is_range for r in stated),
+            "without_confidence": len(refs) - len(stated)}

@@ -62,11 +62,6 @@ def assign_levels(conf, max_levels: int = MAX_LEVELS) -> tuple[np.ndarray, np.nd
     return np.array([conf[idx == k].mean() for k in range(len(used))]), idx
 
 
-def _bootstrap_weights(n_scenes: int, n_boot: int, rng) -> np.ndarray:
-    """(B, S) how often each scene is drawn in each bootstrap sample."""
-    return rng.multinomial(n_scenes, np.full(n_scenes, 1.0 / n_scenes), size=n_boot).astype(float)
-
-
 def _scene_index(ranges) -> tuple[np.ndarray, int]:
     keys = {}
     idx = np.array([keys.setdefault(r.scene, len(keys)) for r in ranges])
@@ -87,11 +82,6 @@ def _groups(ranges, min_group: int) -> dict[str, list[int]]:
     for i, r in enumerate(ranges):
         by.setdefault(r.group, []).append(i)
     return {g: ix for g, ix in sorted(by.items()) if len(ix) >= min_group and len(by) > 1}
-
-
-def _check(ranges, what: str) -> None:
-    if not ranges:
-        raise ValueError(f"no range with a stated confidence{what}: nothing to fit")
 
 
 # -- with ground truth ------------------------------------------------------------------------------
@@ -143,7 +133,8 @@ def fit_with_truth(ranges, *, draws: int = 1000, seed=0, interval_prob: float = 
     ConfidenceMap (``kind`` "fitted", ``fit["method"]`` "truth")
     """
     ranges = [r for r in ranges if r.truth is not None]
-    _check(ranges, " and a known truth")
+    if not ranges:
+        raise ValueError("no range with a stated confidence and a known truth: nothing to fit")
     rng = np.random.default_rng(seed)
     _, n_scenes = _scene_index(ranges)
     covered = np.array([r.covered for r in ranges])
@@ -243,11 +234,12 @@ def fit_marginal(predictions, *, draws: int = 1000, seed=0, interval_prob: float
     ConfidenceMap (``kind`` "fitted", ``fit["method"]`` "marginal")
     """
     preds = list(predictions)
-    _check(preds, "")
+    if not preds:
+        raise ValueError("no range with a stated confidence: nothing to fit")
     rng = np.random.default_rng(seed)
     ranges = [p.range for p in preds]
     scene_idx, n_scenes = _scene_index(ranges)
-    W = _bootstrap_weights(n_scenes, draws, rng)
+    W = rng.multinomial(n_scenes, np.full(n_scenes, 1.0 / n_scenes), size=draws).astype(float)  # (B, S)
     conf = np.array([r.confidence for r in ranges])
     fits, ll = {}, {}
     for dof in dof_grid:

@@ -1,53 +1,56 @@
-"""What the rest of a scene says about each stated range's true length (for a fit without truth).
+"""What the rest of a scene says about each stated range's true value (for a fit without truth).
 
-For a range j, the posterior of its real length given all the *other* annotations (the target's
-and the other references) is what a worker's range can be scored against when no ground truth
-exists. It is computed from one posterior per scene:
+For a range j, the posterior of what it measures given all the *other* annotations of its scene
+(every target's dimension lines and the other references, whatever their kind: ground segments,
+relative ones, a target's own size, the distance between two targets) is what a worker's range
+can be scored against when no ground truth exists. It is computed from one posterior per scene:
 
 1. estimate the scene with every reference, confidences ignored (the map ``none``: the other
    references then need no confidence map, so nothing the fit is to find is assumed);
-2. for each range, weight the draws by 1 / its likelihood term (leave-one-out importance
-   sampling, Pareto-smoothed: :mod:`~creference_bayes.inference.loo`); when the smoothed weights
-   are unreliable (Pareto k̂ > 0.7: the range moved the posterior a lot), estimate the scene
-   again without it;
-3. push the (weighted) draws through ``ground_lengths`` of the range's drawn line, and resample
-   them to :data:`N_DRAWS` equally weighted draws of log ℓ_j.
+2. for each range, weight the draws by 1 / its likelihood term: draws from p(θ | all) weighted so
+   become draws from p(θ | all but j). Pareto smoothing (Vehtari et al. 2024) stabilises the
+   largest weights, and its shape k̂ says whether they can be trusted; when not
+   (k̂ > :data:`PARETO_K_MAX`: the range moved the posterior a lot), the scene is estimated again
+   without it;
+3. take what the range measures at each draw (the model's reading of it:
+   :meth:`~creference_bayes.models.metrology.MetrologyModel.predicted_log_lengths`), and resample
+   to :data:`N_DRAWS` equally weighted draws of its log.
 
-The range's line noise at the MAP (σ_line² |∇ log ℓ_j|², the metrology model's) goes with it: a
-worker's range is about the object, the drawn line adds its own error.
+The range's line noise at the pilot (σ_line² |∇ log ℓ_j|², the metrology model's; 0 without a
+line) goes with it: a worker's range is about the object, the drawn line adds its own error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 import warnings
 
 import numpy as np
 
-from ...camera_setup import setup_camera
-from ...inference.loo import PARETO_K_MAX, psis_weights
-from ...io.scene import Scene, parse_scene, scene_to_dict
-from ...models.metrology import ground_lengths
-from ...models.params import PARAM_NAMES
-from ...pipeline import build_models, estimate
+from ...io.scene import Scene
+from ...pipeline import estimate
 from .data import StatedRange, stated_ranges
 
-__all__ = ["N_DRAWS", "RangePrediction", "predict_ranges", "predict_scene_job", "scene_job", "predict_data_set"]
+__all__ = ["N_DRAWS", "PARETO_K_MAX", "RangePrediction", "psis_weights", "predict_ranges", "predict_data_set"]
 
 #: Draws of log ℓ kept per range.
 N_DRAWS = 400
+#: Above this Pareto shape the smoothed weights are unreliable (Vehtari et al. 2024).
+PARETO_K_MAX = 0.7
 
 
 @dataclasses.dataclass(frozen=True)
 class RangePrediction:
-    """A stated range and the leave-one-out posterior of its real length.
+    """A stated range and the leave-one-out posterior of what it measures.
 
     Attributes
     ----------
     range : the :class:`~creference_bayes.workflows.confidence.data.StatedRange`
-    log_length : (N_DRAWS,) equally weighted draws of log ℓ_j given the other annotations
-    line_var : σ_line² |∇ log ℓ_j|², the line's own noise in log-length (variance)
+    log_length : (N_DRAWS,) equally weighted draws of its log given the other annotations, in the
+        range's unit
+    line_var : σ_line² |∇ log ℓ_j|², the line's own noise in log-length (variance; 0 without a line)
     pareto_k : the Pareto shape of its leave-one-out weights
     refit : whether the scene was estimated again without the range (k̂ too large)
     """
@@ -68,10 +71,29 @@ class RangePrediction:
                    float(d["pareto_k"]), bool(d["refit"]))
 
 
-def _draws(result) -> np.ndarray:
-    """(n, 7) full parameter vectors of a result's posterior draws."""
-    post = result.inference_data.posterior
-    return np.column_stack([np.asarray(post[name]).ravel() for name in PARAM_NAMES])
+def psis_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised Pareto-smoothed importance weights and their Pareto shapes.
+
+    Parameters
+    ----------
+    log_ratios : (n_obs, n_draws) log importance ratios (for leave-one-out: minus each
+        observation's log-likelihood term at each draw)
+
+    Returns
+    -------
+    weights : (n_obs, n_draws), each row summing to 1
+    k : (n_obs,) Pareto shape estimates
+    """
+    import arviz as az
+
+    lr = np.atleast_2d(np.asarray(log_ratios, float))
+    if not np.all(np.isfinite(lr)):
+        raise ValueError("log_ratios: expected finite numbers")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # arviz warns about k̂ itself; the caller decides
+        lw, k = az.psislw(lr.copy(), reff=1.0)
+    w = np.exp(lw - lw.max(axis=1, keepdims=True))
+    return w / w.sum(axis=1, keepdims=True), np.atleast_1d(np.asarray(k, float))
 
 
 def _resample(values: np.ndarray, weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -82,9 +104,19 @@ def _resample(values: np.ndarray, weights: np.ndarray, rng: np.random.Generator)
     return values[np.minimum(np.searchsorted(cum, u), len(values) - 1)]
 
 
+def _posterior(scene: Scene, rng, sampling, key: str):
+    """(model, cameras (n, 5), objects (n, m, 7), converged) of the scene's posterior, map ``none``."""
+    result = estimate(scene, seed=rng, confidence_map="none", sampling=sampling, keep_draws=0)
+    if result.draws is None:
+        raise RuntimeError(f"{key}: the posterior could not be sampled ({'; '.join(result.warnings)})")
+    m = result.model
+    cams = m.complete_camera(result.draws.cameras.reshape(-1, 5))
+    return m, cams, result.draws.objects.reshape(len(cams), m.n_objects, 7), bool(result.converged)
+
+
 def predict_ranges(scene: Scene, key: str = "scene", *, seed=0, sampling: dict | None = None) -> tuple[
         list[RangePrediction], dict]:
-    """The leave-one-out length posterior of every usable range with a confidence in ``scene``.
+    """The leave-one-out posterior of every usable range with a confidence in ``scene``.
 
     Parameters
     ----------
@@ -95,64 +127,48 @@ def predict_ranges(scene: Scene, key: str = "scene", *, seed=0, sampling: dict |
 
     Returns
     -------
-    predictions, info (``ranges``, ``refits``, ``skipped`` (ranges above the horizon),
-    ``converged``)
+    predictions, info (``ranges``, ``refits``, ``skipped`` (ranges the model leaves out: an
+    endpoint above an exact horizon), ``converged``)
     """
     rng = np.random.default_rng(seed)
-    ranges = {r.index: r for r in stated_ranges([(key, scene)], use_truth=False)}
+    ranges = stated_ranges([(key, scene)], use_truth=False)
     info = {"ranges": len(ranges), "refits": 0, "skipped": 0, "converged": True}
     if not ranges:
         return [], info
-    result = estimate(scene, seed=rng, confidence_map="none", sampling=sampling)
-    if result.inference_data is None:
-        raise RuntimeError(f"{key}: the posterior could not be sampled ({'; '.join(result.warnings)})")
-    info["converged"] = bool(result.diagnostics.converged)
-    setup = setup_camera(scene)
-    models = build_models(scene, setup, model="metrology")
-    model = next(m for m in models if m.handedness == result.map.handedness)
-    model.set_pilot(result.map.params)
-    draws = _draws(result)
-    full_nll = model.reference_nll(draws)
-    line_var = dict(zip(model.reference_indices.tolist(), model.line_variances.tolist()))
+    model, cams, objs, info["converged"] = _posterior(scene, rng, sampling, key)
+    column = {t.index: j for j, t in enumerate(model.references)}
+    loglik = model.pointwise_log_likelihood(cams, objs)["references"]  # (n, k)
+    pred = model.predicted_log_lengths(cams, objs)
     out = []
-    for index, r in ranges.items():
-        if index not in line_var:  # above the horizon: the model does not use it
+    for r in ranges:
+        j = column.get(r.index)
+        if j is None:
             info["skipped"] += 1
             continue
-        without = dataclasses.replace(scene, references=tuple(x for x in scene.references if x.index != index))
-        reduced = next(m for m in build_models(without, setup, model="metrology")
-                       if m.handedness == result.map.handedness)
-        reduced.set_pilot(result.map.params)
-        weights, k = psis_weights((full_nll - reduced.reference_nll(draws))[None])
-        these, w, refit = draws, weights[0], False
-        if not k[0] <= PARETO_K_MAX:
-            refit = True
+        weights, k = psis_weights(-loglik[:, j])
+        these, w, refit = pred[:, j], weights[0], not k[0] <= PARETO_K_MAX
+        if refit:
             info["refits"] += 1
-            again = estimate(without, seed=rng, confidence_map="none", sampling=sampling)
-            these, w = _draws(again), None
-        line = scene.references[index].line[None]
-        log_len = np.log(ground_lengths(line, scene.principal_point, these)[:, 0])
-        w = np.full(len(log_len), 1.0 / len(log_len)) if w is None else w
-        out.append(RangePrediction(r, _resample(log_len, w, rng), float(line_var[index]), float(k[0]), refit))
+            keep = [i for i, x in enumerate(scene.references) if x.index != r.index]
+            without = dataclasses.replace(scene, references=tuple(scene.references[i] for i in keep),
+                                          reference_targets=tuple(scene.reference_targets[i] for i in keep))
+            _, c2, o2, _ = _posterior(without, rng, sampling, key)
+            these = model.predicted_log_lengths(c2, o2)[:, j]
+            w = np.full(len(these), 1.0 / len(these))
+        out.append(RangePrediction(r, _resample(these, w, rng), float(model.ref_line_var[j]), float(k[0]), refit))
     return out, info
 
 
-def predict_scene_job(job: dict) -> dict:
-    """:func:`predict_ranges` for a process pool: ``job`` holds the scene's ``key``, its
-    ``data`` (scene dict), ``seed`` and ``sampling``; returns plain dicts (or the error)."""
+def _predict_job(job: tuple) -> tuple:
+    """:func:`predict_ranges` for a process pool: ``job`` is (key, scene, seed, sampling); returns
+    (key, predictions, info) or (key, None, the error): one scene's failure does not stop the others."""
+    key, scene, seed, sampling = job
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            scene = parse_scene(job["data"])
-            preds, info = predict_ranges(scene, job["key"], seed=job["seed"], sampling=job.get("sampling"))
-        return {"ok": True, "key": job["key"], "predictions": [p.to_dict() for p in preds], "info": info}
-    except Exception as exc:  # one scene's failure is reported, the others go on
-        return {"ok": False, "key": job["key"], "error": f"{type(exc).__name__}: {exc}"}
-
-
-def scene_job(key: str, scene: Scene, seed: int, sampling: dict | None = None) -> dict:
-    """The job of :func:`predict_scene_job` for a scene."""
-    return {"key": key, "data": scene_to_dict(scene), "seed": seed, "sampling": sampling}
+            return (key, *predict_ranges(scene, key, seed=seed, sampling=sampling))
+    except Exception as exc:
+        return key, None, f"{type(exc).__name__}: {exc}"
 
 
 def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, workers: int = 1,
@@ -177,35 +193,20 @@ def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, wor
     from ..batch import derive_seed
     from ..batch.engines import LocalEngine
 
-    jobs = [scene_job(k, s, derive_seed(seed, scene_fingerprint(s)), sampling) for k, s in scenes
+    jobs = [(k, s, derive_seed(seed, scene_fingerprint(s)), sampling) for k, s in scenes
             if any(r.is_range and r.confidence is not None for r in s.references)]
-    results: dict[str, dict] = {}
-    bar = tqdm(total=len(jobs), unit="scene", desc="leave-one-out", disable=not progress, file=sys.stderr)
-    try:
-        if workers <= 1:
-            for job in jobs:
-                results[job["key"]] = predict_scene_job(job)
-                bar.update(1)
-        else:
-            import concurrent.futures as cf
-
-            with LocalEngine(workers) as engine:
-                futures = [engine.executor.submit(predict_scene_job, job) for job in jobs]
-                for fut in cf.as_completed(futures):
-                    res = fut.result()
-                    results[res["key"]] = res
-                    bar.update(1)
-    finally:
-        bar.close()
-    preds, totals, errors = [], {"scenes": len(jobs), "ranges": 0, "refits": 0, "skipped": 0,
-                                 "not_converged": 0}, {}
-    for job in jobs:
-        res = results[job["key"]]
-        if not res["ok"]:
-            errors[job["key"]] = res["error"]
+    with contextlib.ExitStack() as stack:
+        run = map if workers <= 1 else stack.enter_context(LocalEngine(workers)).executor.map
+        done = list(tqdm(run(_predict_job, jobs), total=len(jobs), unit="scene", desc="leave-one-out",
+                         disable=not progress, file=sys.stderr))
+    preds, errors = [], {}
+    totals = {"scenes": len(jobs), "ranges": 0, "refits": 0, "skipped": 0, "not_converged": 0}
+    for key, found, info in done:
+        if found is None:
+            errors[key] = info
             continue
-        preds += [RangePrediction.from_dict(d) for d in res["predictions"]]
+        preds += found
         for k in ("ranges", "refits", "skipped"):
-            totals[k] += res["info"][k]
-        totals["not_converged"] += not res["info"]["converged"]
+            totals[k] += info[k]
+        totals["not_converged"] += not info["converged"]
     return preds, totals, errors

@@ -43,9 +43,6 @@ class ReliabilityRow:
     low: float
     high: float
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
 class ScoreRow:
@@ -63,9 +60,6 @@ class ScoreRow:
     recal_coverage: float | None = None
     recal_score_mean: float | None = None
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
 class WorkerRow:
@@ -78,9 +72,6 @@ class WorkerRow:
     low: float
     high: float
     score_mean: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -95,8 +86,7 @@ class ConfidenceReport:
 
     def to_dict(self) -> dict:
         return {"format": "creference-confidence-report/1", "counts": self.counts, "map": self.map_label,
-                "reliability": [r.to_dict() for r in self.reliability],
-                "scores": [r.to_dict() for r in self.scores], "workers": [w.to_dict() for w in self.workers]}
+                **{k: [asdict(r) for r in getattr(self, k)] for k in ("reliability", "scores", "workers")}}
 
 
 def _wilson(k: int, n: int) -> tuple[float, float]:

@@ -30,7 +30,7 @@ def label_rows(objects) -> list[dict]:
         rows.append({"image": o.name, "line": e["line"], "scene": o.key, "target": o.target,
                      "type": o.kitti.type, "p_iou_ge_0.5": q["p_iou_ge_0.5"], "p_iou_ge_0.7": q["p_iou_ge_0.7"],
                      "iou_mean": q["iou_mean"], "true_iou": o.true_iou,
-                     "distance_sd_m": e["posterior_sd"].get("distance_m"),
+                     "distance_sd_m": ((e.get("posterior") or {}).get("sd") or {}).get("distance_m"),
                      "converged": e["evidence"]["converged"], "dimension_lines": e["evidence"]["dimension_lines"],
                      "references": e["evidence"]["references"], "calib_mismatch_px": e["calib_mismatch_px"]})
     return rows

@@ -1,0 +1,188 @@
+"""The Laplace approximation of a scene's posterior at its MAP, in working coordinates.
+
+The posterior is close to a Gaussian in the working coordinates of
+:mod:`.coords` (each object anchored to the image), so a Gaussian fitted at the MAP there
+(the negative log-posterior's arrowhead Hessian, :func:`.map.derivatives`, including the
+Jacobian of the change of coordinates as the sampler's density does) gives cheap, curved draws in
+natural coordinates and the delta-method variance of any per-object quantity. ``creference plot``
+uses its draws when a result has none; ``creference advise`` uses its variances, and
+how much one more observation changes them.
+
+By blocks: the camera's marginal covariance
+``Sc`` (5, 5), each object's covariance given the camera ``Ao`` (m, 7, 7) and the shear ``B``
+(m, 7, 5), E[oᵢ | c] = oᵢ* + Bᵢ (c − c*). Fixed parameters have zero variance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..models.contract import Model
+from .coords import FD_STEPS, WorkingCoords
+from .map import Arrowhead, derivatives
+
+__all__ = ["Laplace", "laplace", "laplace_blocks", "block_variances", "work_gradients"]
+
+
+@dataclass(frozen=True)
+class Laplace:
+    """A scene's Laplace approximation (module docstring).
+
+    Attributes
+    ----------
+    model : the model
+    camera : (5,) the MAP camera;  objects : (m, 7) the MAP objects (natural coordinates)
+    wc : (5,);  wo : (m, 7) the MAP in working coordinates
+    hessian : the arrowhead Hessian there
+    Sc : (5, 5);  Ao : (m, 7, 7);  B : (m, 7, 5) the covariance by blocks
+    ok : False when the Hessian was not positive definite (then its blocks were repaired:
+        :func:`laplace_blocks`)
+    """
+
+    model: Model
+    camera: np.ndarray
+    objects: np.ndarray
+    wc: np.ndarray
+    wo: np.ndarray
+    hessian: Arrowhead
+    Sc: np.ndarray
+    Ao: np.ndarray
+    B: np.ndarray
+    ok: bool
+
+    def draws(self, n: int, rng=None) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` draws (fewer when some fall above the horizon): cameras (k, 5), objects (k, m, 7),
+        natural coordinates."""
+        rng = np.random.default_rng(rng)
+        m = self.model.n_objects
+        Lc = _chol(self.Sc, self.model.camera_free)
+        Lo = np.array([_chol(self.Ao[i], self.model.object_free[i]) for i in range(m)])
+        dc = rng.standard_normal((n, 5)) @ Lc.T
+        do = np.einsum("mij,nmj->nmi", Lo, rng.standard_normal((n, m, 7))) + np.einsum("mic,nc->nmi", self.B, dc)
+        cams, objs = WorkingCoords(self.model).from_work(self.wc[None] + dc, self.wo[None] + do)
+        ok = np.all(np.isfinite(objs), axis=(1, 2)) & self.model.in_bounds(cams, objs)
+        return cams[ok], objs[ok]
+
+
+def laplace(model: Model, camera: np.ndarray, objects: np.ndarray, *,
+                  temperature: float = 1.0) -> Laplace:
+    """The Laplace approximation at the MAP ``camera`` (5,) and ``objects`` (m, 7) (natural
+    coordinates; the model's handedness must be the MAP's)."""
+    camera = model.complete_camera(np.asarray(camera, float)[None])[0]
+    objects = np.asarray(objects, float)
+    wc, wo = (a[0] for a in WorkingCoords(model).to_work(camera[None], objects[None]))
+    H = derivatives(model, wc, wo, temperature, with_jacobian=True)
+    Sc, Ao, B, ok = laplace_blocks(model, H)
+    return Laplace(model, camera, objects, wc, wo, H, Sc, Ao, B, ok)
+
+
+def laplace_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(``Sc``, ``Ao``, ``B``, ok) of an arrowhead Hessian ``H`` (module docstring), zero on fixed
+    parameters. A block that is not positive definite (an object's, or the camera's Schur
+    complement: a MAP in natural coordinates need not be a mode of the working-coordinate
+    density) has its negative eigenvalues replaced by their absolute values (at least 1e-9 of its
+    largest), and ok is False."""
+    m = model.n_objects
+    if len(H.pairs):
+        return _dense_blocks(model, H)
+    H_oo = H.H_oo.copy()
+    ok = True
+    for i in range(m):
+        H_oo[i], good = _positive(H_oo[i], model.object_free[i])
+        ok &= good
+    Ao = np.linalg.inv(H_oo)
+    B = -np.einsum("mij,mcj->mic", Ao, H.H_co)
+    S = H.H_cc + np.einsum("mcj,mjd->cd", H.H_co, B)
+    S, good = _positive(S, model.camera_free)
+    ok &= good
+    Sc = np.linalg.inv(S)
+    Sc = Sc * np.outer(model.camera_free, model.camera_free)
+    Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
+    B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
+    return Sc, Ao, B, bool(ok)
+
+
+def _dense_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """:func:`laplace_blocks` when distance references couple objects: from the whole inverse,
+    each object's covariance given the camera alone (the other objects integrated out), so that
+    a quantity of one object has its marginal variance (:func:`block_variances`)."""
+    free = np.concatenate([model.camera_free, model.object_free.ravel()])
+    A, ok = _positive(H.dense(), free)
+    cov = np.linalg.inv(A)
+    Scc = cov[:5, :5] * np.outer(model.camera_free, model.camera_free)
+    idx = np.flatnonzero(model.camera_free)
+    inv = np.zeros((5, 5))
+    if idx.size:
+        inv[np.ix_(idx, idx)] = np.linalg.inv(Scc[np.ix_(idx, idx)])
+    m = model.n_objects
+    Soc = cov[5:, :5].reshape(m, 7, 5)
+    B = np.einsum("mic,cd->mid", Soc, inv)
+    Soo = np.array([cov[5 + 7 * i:12 + 7 * i, 5 + 7 * i:12 + 7 * i] for i in range(m)])
+    Ao = Soo - np.einsum("mic,mjc->mij", B, Soc)
+    Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
+    B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
+    return Scc, Ao, B, bool(ok)
+
+
+def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``A`` with the eigenvalues of its free block made positive (module docstring of
+    :func:`laplace_blocks`); True when they already were."""
+    idx = np.flatnonzero(free)
+    if not idx.size:
+        return A, True
+    sub = A[np.ix_(idx, idx)]
+    sub = 0.5 * (sub + sub.T)
+    finite = bool(np.all(np.isfinite(sub)))
+    if not finite:  # the inverse diagonal where it is finite
+        sub = np.diag(np.where(np.isfinite(np.diag(sub)), np.abs(np.diag(sub)), 1.0))
+    w, V = np.linalg.eigh(sub)
+    floor = 1e-9 * max(float(np.abs(w).max()), 1e-300)
+    good = finite and bool(w.min() > floor)
+    if good:
+        return A, True
+    out = A.copy()
+    out[np.ix_(idx, idx)] = (V * np.maximum(np.abs(w), floor)) @ V.T
+    return out, False
+
+
+def block_variances(Sc: np.ndarray, Ao: np.ndarray, B: np.ndarray, g_c: np.ndarray, g_o: np.ndarray) -> np.ndarray:
+    """Variances (m,) of per-object quantities fᵢ(c, oᵢ) with working-coordinate gradients
+    ``g_c`` (m, 5) and ``g_o`` (m, 7), under the block covariance (``Sc``, ``Ao``, ``B``):
+    var fᵢ = g_oᵀ Aoᵢ g_o + (g_c + Bᵢᵀ g_o)ᵀ Sc (g_c + Bᵢᵀ g_o)."""
+    own = np.einsum("mi,mij,mj->m", g_o, Ao, g_o)
+    via = g_c + np.einsum("mic,mi->mc", B, g_o)
+    return own + np.einsum("mc,cd,md->m", via, Sc, via)
+
+
+def work_gradients(model: Model, wc: np.ndarray, wo: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference gradients of per-object quantities in working coordinates.
+
+    ``f(cams (n, 5), objs (n, m, 7)) -> (n, m, q)`` in natural coordinates; every coordinate is
+    perturbed in every object at once (object i's quantity sees only its own block and the
+    camera). Returns ``g_c`` (m, q, 5) and ``g_o`` (m, q, 7); fixed parameters give zero.
+    """
+    h = FD_STEPS
+    E = np.diag(h)
+    P = np.concatenate([E, -E])  # (24, 12)
+    WC = wc[None] + P[:, :5] * model.camera_free
+    WO = wo[None] + P[:, None, 5:] * model.object_free[None]
+    cams, objs = WorkingCoords(model).from_work(WC, WO)
+    F = np.asarray(f(cams, objs), float)  # (24, m, q)
+    d = (F[:12] - F[12:]) / (2 * h[:, None, None])  # (12, m, q)
+    g = np.transpose(d, (1, 2, 0))  # (m, q, 12)
+    return g[..., :5] * model.camera_free, g[..., 5:] * model.object_free[:, None, :]
+
+
+def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """A Cholesky factor of ``cov`` on its free rows and columns (zero elsewhere)."""
+    out = np.zeros_like(cov)
+    idx = np.flatnonzero(free)
+    if not idx.size:
+        return out
+    sub = cov[np.ix_(idx, idx)]
+    sub = 0.5 * (sub + sub.T)
+    w, V = np.linalg.eigh(sub)
+    out[np.ix_(idx, idx)] = V * np.sqrt(np.maximum(w, 0.0))
+    return out

@@ -1,0 +1,524 @@
+"""The posterior of any scene: an emcee run from the MAP, to convergence.
+
+The emcee adapter. :class:`emcee.EnsembleSampler` drives every run; what is particular to the
+scene's posterior is in its moves (:mod:`.moves`): a sweep over the camera block and one block per
+object, by random-walk or by multiple-try independence proposals, chosen by the model's block
+structure (a one-object scene has two blocks, a street frame sixty-one), never by what kind of
+scene it is. Its walkers are independent chains (no move uses another walker's position), so
+R-hat across them is meaningful.
+
+* **Coordinates.** Working coordinates (:mod:`.coords`), then a *shear*: each object's block is
+  measured from its conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), with Bᵢ the
+  regression of object i on the camera (from the Laplace approximation at the MAP,
+  :mod:`.laplace`, then re-estimated from the warm-up draws). In (c, õ) the blocks are close to
+  independent, so updating them in turn mixes as if they were.
+* **Start.** Over-dispersed draws (1.2 ×) from the Laplace approximation; walkers that start at
+  zero density start at the MAP.
+* **Warm-up.** ``warmup`` steps, the moves tuning their random-walk scales towards an acceptance of
+  0.3; at 40 % and 70 % of it the covariances, the shear and the independence proposals' centres
+  are re-estimated from the second half of the draws since the last re-estimate (blended 80/20
+  with the Laplace approximation, so a short warm-up cannot make them singular). Then everything is
+  frozen: the main phase is an ordinary Markov chain. Warm-up draws are discarded.
+* **Stopping.** The main phase runs in chunks, each long enough for the slowest quantity to reach
+  the target at its current rate, until every free parameter's and every object distance's bulk
+  ESS reaches ``min_ess`` and its rank-normalised split R-hat across the walkers is at most
+  ``max_rhat`` (:mod:`.diagnostics`, the estimators arviz implements, checked against it), or
+  ``max_iterations``; ``converged`` says which. The ranked check sorts every column of every draw,
+  so it runs only when the raw split R-hat is within 3× of the threshold; the rule that decides is
+  always the ranked one.
+
+Everything random comes from ``rng``: the same seed gives the same draws.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import emcee
+import numpy as np
+
+from ..models.contract import CAMERA_NAMES, O_YAW, OBJECT_NAMES, Model
+from .diagnostics import ess_bulk_rhat, rhat_split_raw
+from .laplace import laplace_blocks
+from .map import MapState, derivatives
+from .coords import HorizonDistance, WorkingCoords
+from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
+from .options import settings_from_options
+
+__all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample"]
+
+
+class SamplingError(RuntimeError):
+    """The sampler cannot start (the MAP has zero posterior density)."""
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Settings of :func:`sample` (unknown keys of a user's dict are rejected: :meth:`from_options`).
+
+    Both move sets
+        min_ess : bulk effective sample size every free parameter (and every object's distance)
+            must reach;  max_rhat : largest rank-normalised split R-hat accepted;  max_steps : cap on
+            main-phase steps (the result then says it has not converged);  chunk : steps between
+            convergence checks (at least);  tries : tries per independence proposal (multiple-try
+            Metropolis; 1: plain);  independence_weight : the share of steps that are independence
+            moves (None: 0.5 for block sweeps, 0.8 for the ensemble moves)
+    Block moves (several objects)
+        n_chains : walkers, each an independent chain;  warmup : warm-up steps;  max_draws : draws
+        kept per chain (older ones thinned when exceeded)
+    Ensemble moves (one object; :mod:`.ensemble`)
+        n_ensembles, n_walkers : independent ensembles and the walkers of each;  stage : the first
+        warm-up stage's length (later ones double);  max_warmup : cap on warm-up steps;
+        tau_multiple, tau_tolerance : the chain after burn-in is at least this many
+        autocorrelation times long, and τ has settled to this fraction;  retune_tau, max_retunes :
+        a first main chunk with τ above this becomes another warm-up stage, at most this often;
+        adapt : fit the straightening map and the independence proposal during warm-up;
+        min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
+        proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
+        inflation and mixture components;  mode_search, explore_temperature, explore_steps : look
+        for other modes before sampling (:mod:`.modes`), by a tempered exploration
+    """
+
+    min_ess: float = 400.0
+    max_rhat: float = 1.01
+    max_steps: int = 20000
+    chunk: int = 50
+    tries: int = 4
+    independence_weight: float | None = None
+    n_chains: int = 8
+    warmup: int = 600
+    max_draws: int = 2000
+    n_ensembles: int = 4
+    n_walkers: int = 24
+    stage: int = 50
+    max_warmup: int = 5000
+    tau_multiple: float = 50.0
+    tau_tolerance: float = 0.2
+    retune_tau: float = 20.0
+    max_retunes: int = 2
+    adapt: bool = True
+    min_independence_acceptance: float = 0.15
+    proposal_df: float = 6.0
+    proposal_scale: float = 1.2
+    proposal_components: int = 3
+    mode_search: bool = True
+    explore_temperature: float = 3.0
+    explore_steps: int = 150
+
+    def __post_init__(self):
+        whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+        checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
+                  ("chunk", whole(self.chunk) and self.chunk >= 10, "an integer ≥ 10"),
+                  ("max_steps", whole(self.max_steps) and self.max_steps >= self.chunk, "an integer ≥ chunk"),
+                  ("tries", whole(self.tries) and self.tries >= 1, "an integer ≥ 1"),
+                  ("independence_weight", self.independence_weight is None or 0.0 <= self.independence_weight < 1.0,
+                   "a number in [0, 1)"),
+                  ("n_chains", whole(self.n_chains) and self.n_chains >= 2, "an integer ≥ 2"),
+                  ("warmup", whole(self.warmup) and self.warmup >= 50, "an integer ≥ 50"),
+                  ("max_draws", whole(self.max_draws) and self.max_draws >= 100, "an integer ≥ 100"),
+                  ("n_ensembles", whole(self.n_ensembles) and self.n_ensembles >= 2, "an integer ≥ 2"),
+                  ("n_walkers", whole(self.n_walkers) and self.n_walkers >= 8 and self.n_walkers % 2 == 0,
+                   "an even integer ≥ 8"),
+                  ("stage", whole(self.stage) and self.stage >= 10, "an integer ≥ 10"),
+                  ("max_warmup", whole(self.max_warmup) and self.max_warmup >= self.stage, "an integer ≥ stage"),
+                  ("tau_multiple", self.tau_multiple > 0, "a number > 0"),
+                  ("tau_tolerance", self.tau_tolerance > 0, "a number > 0"),
+                  ("retune_tau", self.retune_tau > 0, "a number > 0"),
+                  ("max_retunes", whole(self.max_retunes) and self.max_retunes >= 0, "an integer ≥ 0"),
+                  ("adapt", isinstance(self.adapt, bool), "true or false"),
+                  ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
+                  ("proposal_df", self.proposal_df > 0, "a number > 0"),
+                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+                  ("proposal_components", whole(self.proposal_components) and self.proposal_components >= 1,
+                   "an integer ≥ 1"),
+                  ("mode_search", isinstance(self.mode_search, bool), "true or false"),
+                  ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
+                  ("explore_steps", whole(self.explore_steps) and self.explore_steps >= 10, "an integer ≥ 10")]
+        for name, ok, expected in checks:
+            if not ok:
+                raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_options(cls, options: dict | None) -> "SamplerSettings":
+        return settings_from_options(cls, options)
+
+
+@dataclass(frozen=True)
+class Draws:
+    """Posterior draws in natural parameters: cameras (chain, draw, 5), objects (chain, draw, m, 7)
+    and the log-density of each (chain, draw) in the sampler's coordinates."""
+
+    cameras: np.ndarray
+    objects: np.ndarray
+    log_prob: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """How the sampler did: per free parameter bulk ESS and R-hat (dicts keyed by
+    ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates, ``converged`` and the
+    reasons when it is not, seconds."""
+
+    n_chains: int
+    warmup: int
+    iterations: int
+    thin: int
+    ess_bulk: dict
+    r_hat: dict
+    acceptance: dict
+    converged: bool
+    warnings: tuple[str, ...] = ()
+    seconds: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        r = lambda d: {k: (None if v is None or not np.isfinite(v) else round(float(v), 4)) for k, v in d.items()}
+        return {"sampler": "emcee", "n_chains": self.n_chains, "warmup": self.warmup, "iterations": self.iterations,
+                "thin": self.thin, "min_ess_bulk": _extreme(self.ess_bulk, min, 1),
+                "max_r_hat": _extreme(self.r_hat, max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
+                "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
+                "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
+                **({"modes": self.info["mode_report"]} if self.info.get("mode_report") else {})}
+
+
+def _extreme(d, pick, nd):
+    v = [x for x in d.values() if x is not None and np.isfinite(x)]
+    return round(float(pick(v)), nd) if v else None
+
+
+def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Cholesky factor of ``cov`` on its free rows and columns, zero elsewhere."""
+    out = np.zeros_like(cov)
+    idx = np.flatnonzero(free)
+    if idx.size == 0:
+        return out
+    sub = cov[np.ix_(idx, idx)]
+    sub = 0.5 * (sub + sub.T)
+    for jitter in (0.0, 1e-10, 1e-8, 1e-6, 1e-4):
+        try:
+            L = np.linalg.cholesky(sub + jitter * np.diag(np.maximum(np.diag(sub), 1e-12)))
+            break
+        except np.linalg.LinAlgError:
+            continue
+    else:
+        L = np.diag(np.sqrt(np.maximum(np.abs(np.diag(sub)), 1e-12)))
+    out[np.ix_(idx, idx)] = L
+    return out
+
+
+def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
+    """Covariances and shear from warm-up draws (pooled over chains; working coordinates),
+    blended with the Laplace ones (80 % / 20 %); and the independence centres."""
+    cf, of = model.camera_free, model.object_free
+    C = wc.reshape(-1, 5)
+    O = wo.reshape(-1, model.n_objects, 7)
+    cm, om = C.mean(axis=0), O.mean(axis=0)
+    dc, do = C - cm, O - om
+    n = len(C)
+    Scc = np.where(np.outer(cf, cf), dc.T @ dc / (n - 1), 0.0)
+    Soo = np.einsum("nmi,nmj->mij", do, do) / (n - 1)
+    Soc = np.einsum("nmi,nc->mic", do, dc) / (n - 1)
+    idx = np.flatnonzero(cf)
+    inv = np.zeros((5, 5))
+    if idx.size:
+        inv[np.ix_(idx, idx)] = np.linalg.pinv(Scc[np.ix_(idx, idx)])
+    B = np.einsum("mic,cd->mid", Soc, inv) * of[:, :, None] * cf[None, None, :]
+    cond = Soo - np.einsum("mic,mjc->mij", B, Soc)
+    return 0.8 * Scc + 0.2 * Sc0, 0.8 * cond + 0.2 * Ao0, 0.8 * B + 0.2 * B0, cm
+
+
+class _Run:
+    """One segment of the run: a target in the current shear, its kernel and an EnsembleSampler."""
+
+    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt):
+        m = model.n_objects
+        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
+        Lc = _chol(Sc, model.camera_free)
+        Lo = np.array([_chol(Ao[i], model.object_free[i]) for i in range(m)])
+        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt)
+        w = 0.5 if s.independence_weight is None else s.independence_weight
+        moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
+        if w > 0:
+            moves.append((IndependenceSweep(self.kernel), w))
+        self.sampler = emcee.EnsembleSampler(s.n_chains, self.target.ndim, self.target, moves=moves, vectorize=True)
+
+    def state(self, wc: np.ndarray, wo: np.ndarray, random_state) -> emcee.State:
+        """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear."""
+        t = self.target
+        wt = wo - np.einsum("mik,nk->nmi", t.B, wc - t.c0)
+        u = t.join(wc, wt)
+        blobs = t.blocks(u)
+        with np.errstate(invalid="ignore"):
+            return emcee.State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
+
+    def run(self, state: emcee.State, steps: int):
+        """Yield the state after each of ``steps`` steps."""
+        yield from self.sampler.sample(state, iterations=steps, store=False, skip_initial_state_check=True)
+
+
+def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None = None, rng=None,
+           temperature: float = 1.0, progress: bool = False) -> tuple[Draws, Diagnostics]:
+    """Sample the posterior of ``model`` from its MAP (module docstring): by block moves when the
+    model has several object blocks, whole by ensemble moves when it has one.
+
+    Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
+    when the MAP has zero posterior density.
+    """
+    s = settings or SamplerSettings()
+    rng = np.random.default_rng(rng)
+    if model.n_objects == 1:
+        return _sample_whole(model, map_est, s, rng, temperature, progress)
+    return _sample_blocks(model, map_est, s, rng, temperature, progress)
+
+
+def _interior(lower: np.ndarray, upper: np.ndarray, v: np.ndarray, margin: float = 1e-7) -> np.ndarray:
+    """``v`` pulled inside its bounds by ``margin`` of their span: a MAP on a bound stays inside
+    after the round trip through the sampled coordinates."""
+    span = np.where(np.isfinite(upper - lower), upper - lower, 0.0)
+    return np.clip(v, lower + margin * span, upper - margin * span)
+
+
+def _laplace_start(model: Model, map_est: MapState, temperature: float):
+    """The MAP in working coordinates (wc0 (5,), wo0 (m, 7)) and the Laplace approximation there by
+    blocks (Sc, Ao, B, ok: :func:`~.laplace.laplace_blocks`)."""
+    cams, objs = _interior(model.camera_lower, model.camera_upper, map_est.camera), \
+        _interior(model.object_lower, model.object_upper, map_est.objects)
+    wc0, wo0 = (a[0] for a in WorkingCoords(model).to_work(cams[None], objs[None]))
+    return (wc0, wo0) + laplace_blocks(model, derivatives(model, wc0, wo0, temperature, with_jacobian=True))
+
+
+def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress) -> tuple[Draws, Diagnostics]:
+    """One object block: the whole free vector of working coordinates by the ensemble moves
+    (:mod:`.ensemble`), after a search for other modes (:mod:`.modes`)."""
+    from .ensemble import SamplingError as _Failed, sample as ensemble_sample
+    from .modes import MIN_SHARE, find_modes
+
+    t0 = time.perf_counter()
+    wc0, wo0, Sc, Ao, B, laplace_ok = _laplace_start(model, map_est, temperature)
+    target = BlockTarget(model, temperature, wc0, np.zeros_like(B), wo0, yaw_window=wo0[:, O_YAW])
+    center = target.join(wc0[None], wo0[None])[0]
+    cf, of = model.camera_free, model.object_free
+    # the Laplace covariance of the free coordinates, whole: camera, then the object given it
+    full = np.zeros((12, 12))
+    full[:5, :5] = Sc
+    full[5:, :5] = B[0] @ Sc
+    full[:5, 5:] = full[5:, :5].T
+    full[5:, 5:] = Ao[0] + B[0] @ Sc @ B[0].T
+    free = np.concatenate([cf, of[0]])
+    cov = full[np.ix_(free, free)]
+    yaw = int(np.sum(cf)) + int(np.sum(of[0, :O_YAW]))
+    circular = yaw if of[0, O_YAW] else None
+
+    # with pitch free, pitch is sampled as the log of the object's distance below the horizon
+    hd = HorizonDistance.of(model)
+    to_u = (lambda q: q) if hd is None else hd.inverse
+    log_prob = target if hd is None else (lambda q: target(hd.inverse(q)) + hd.log_jacobian(q))
+
+    def in_q(u, cov_u):  # a point and its covariance, in the sampled coordinates
+        if hd is None:
+            return u, cov_u
+        J = np.column_stack([(hd.forward(u + 1e-6 * e) - hd.forward(u - 1e-6 * e))[0] / 2e-6 for e in np.eye(len(u))])
+        return hd.forward(u[None])[0], J @ cov_u @ J.T
+
+    def distance(q):  # the object's ground distance: the stopping rule watches it too
+        _, objs = target.natural(to_u(q))
+        return np.hypot(objs[:, 0, 0], objs[:, 0, 1])[:, None]
+
+    center, cov = in_q(center, cov)
+    try:
+        modes = []
+        if s.mode_search:
+            side = np.random.default_rng(np.random.SeedSequence(rng.bit_generator.seed_seq.entropy, spawn_key=tuple(
+                rng.bit_generator.seed_seq.spawn_key) + (2**31 + 19,), pool_size=rng.bit_generator.seed_seq.pool_size))
+            laplace_q = lambda c: in_q(to_u(c[None])[0], _whole_cov(model, target, to_u(c[None])[0], temperature, free))[1]
+            others = [target.join(*(a for a in WorkingCoords(model).to_work(c[None], o[None])))[0]
+                      for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
+            others = [in_q(u_, cov)[0] for u_ in others if np.abs(u_[circular] - center[circular]) < np.pi] \
+                if circular is not None else [in_q(u_, cov)[0] for u_ in others]
+            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, log_mask=np.zeros(len(center), bool),
+                               circular=circular, temperature=s.explore_temperature, n_steps=s.explore_steps,
+                               extra_starts=np.array(others) if others else None)
+        better = None
+        if len(modes) > 1:  # a denser mode than the MAP's becomes the centre; modes with no mass go
+            lp = log_prob(np.array([m.center for m in modes]))
+            if lp.max() > lp[0] + 1.0:
+                better = modes[int(np.argmax(lp))]
+                modes = [better] + [m for m in modes if m is not better and m.share >= MIN_SHARE]
+                center, cov = better.center, better.cov
+        chains = ensemble_sample(log_prob, center, cov, settings=s, rng=rng, progress=progress,
+                                 modes=[(m.center, m.cov) for m in modes[1:]], derived=distance)
+    except _Failed as exc:
+        raise SamplingError(str(exc)) from None
+    u = to_u(chains.draws().reshape(-1, chains.chain.shape[-1])).reshape(chains.draws().shape)
+    lp = chains.draws(chains.log_prob)
+    g, n, d = u.shape
+    cams, objs = target.natural(u.reshape(-1, d))
+    draws = Draws(cams.reshape(g, n, 5), objs.reshape(g, n, 1, 7), lp)
+    arr, names = _columns(model, draws.cameras.transpose(1, 0, 2), draws.objects.transpose(1, 0, 2, 3), map_est)
+    eb, rh = ess_bulk_rhat(arr)
+    ok = bool(chains.converged)
+    why = [] if ok else [f"stopped at the step cap ({chains.n_steps} steps) before the chain was {s.tau_multiple:g} "
+                         f"autocorrelation times long with bulk ESS ≥ {s.min_ess:g} and R-hat ≤ {s.max_rhat:g}"]
+    if not laplace_ok:
+        why.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
+    info = {k: v for k, v in chains.info.items() if k in ("warmup_stages", "retunes", "modes", "proposal_components",
+                                                            "log_prob_calls", "nonfinite")}
+    if better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
+        c, o = target.natural(to_u(better.center[None]))
+        info["denser_mode"] = (c[0], o[0])
+    info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
+                 "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
+    return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
+                              dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist())),
+                              {"all": float(np.mean(chains.acceptance_fraction))}, ok, tuple(why),
+                              time.perf_counter() - t0, info)
+
+
+def _whole_cov(model, target: BlockTarget, u: np.ndarray, temperature: float, free: np.ndarray) -> np.ndarray:
+    """The Laplace covariance of the free working coordinates at a state ``u`` (another mode)."""
+    wc, wo = target.working(u[None])
+    Sc, Ao, B, _ = laplace_blocks(model, derivatives(model, wc[0], wo[0], temperature, with_jacobian=True))
+    full = np.zeros((12, 12))
+    full[:5, :5] = Sc
+    full[5:, :5] = B[0] @ Sc
+    full[:5, 5:] = full[5:, :5].T
+    full[5:, 5:] = Ao[0] + B[0] @ Sc @ B[0].T
+    return full[np.ix_(free, free)]
+
+
+def _mode_report(modes, target: BlockTarget, to_u, shares=None) -> list[dict] | None:
+    """Where each mode found before sampling is (its object's distance and yaw), how far below the
+    MAP's its log-density is, its Laplace share of the mass and the share of each ensemble's draws
+    nearest to it (they should agree); None with one mode."""
+    if len(modes) < 2:
+        return None
+    centers = to_u(np.array([m.center for m in modes]))
+    _, objs = target.natural(centers)
+    lp = target(centers)
+    return [{"distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])), "yaw": float(objs[k, 0, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
+             "draw_share_per_ensemble": None if shares is None else [float(g[k]) for g in shares]}
+            for k, m in enumerate(modes)]
+
+
+def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progress) -> tuple[Draws, Diagnostics]:
+    """Several object blocks: block sweeps (:mod:`.moves`) across independent chains."""
+    t0 = time.perf_counter()
+    m, C = model.n_objects, s.n_chains
+    cf, of = model.camera_free, model.object_free
+    wc0, wo0, Sc0, Ao0, B0, laplace_ok = _laplace_start(model, map_est, temperature)
+    Sc, Ao, B = Sc0, Ao0, B0
+    # start: over-dispersed draws from the Laplace approximation, in working coordinates
+    Lc = _chol(Sc, cf)
+    Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
+    dc = 1.2 * rng.standard_normal((C, 5)) @ Lc.T
+    wc = wc0 + dc
+    wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
+    random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True)
+    state = seg.state(wc, wo, random_state)
+    bad = ~np.isfinite(state.log_prob)
+    wc[bad], wo[bad] = wc0, wo0
+    state = seg.state(wc, wo, random_state)
+    if not np.all(np.isfinite(state.log_prob)):
+        raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
+
+    from .progress import progress_bar
+
+    with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
+        done, hist = 0, []
+        for mark in (int(0.4 * s.warmup), int(0.7 * s.warmup), s.warmup):  # warm-up segments
+            for state in seg.run(state, mark - done):
+                hist.append(seg.target.working(state.coords))
+            bar.update(mark - done)
+            done = mark
+            if mark == s.warmup:
+                break
+            keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
+            wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
+            Sc, Ao, B, mc = _reestimate(model, wcs, wos, Sc0, Ao0, B0)
+            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            wc, wo = seg.target.working(state.coords)
+            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True)
+            seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
+            state = seg.state(wc, wo, state.random_state)
+            hist = []
+        seg.kernel.adapt = False
+        # main phase: frozen moves, in chunks until converged
+        cams_d, objs_d, lp_d = [], [], []
+        thin, it, ok, diag = 1, 0, False, None
+        chunk = 8 * s.chunk  # block sweeps: a check every 400 steps at the least
+        while it < s.max_steps:
+            chunk = min(chunk, s.max_steps - it)
+            for state in seg.run(state, chunk):
+                it += 1
+                if it % thin == 0:
+                    cams, objs = seg.target.natural(state.coords)
+                    cams_d.append(cams)
+                    objs_d.append(objs)
+                    lp_d.append(np.array(state.log_prob))
+                if len(cams_d) >= 2 * s.max_draws:
+                    cams_d, objs_d, lp_d, thin = cams_d[1::2], objs_d[1::2], lp_d[1::2], thin * 2
+            bar.update(chunk)
+            arr, names = _columns(model, np.array(cams_d), np.array(objs_d), map_est)
+            with np.errstate(all="ignore"):  # a cheap look first (module docstring)
+                raw = float(np.nanmax(np.append(rhat_split_raw(arr), 1.0)))
+            need = it * (raw - 1.0) / (3.0 * (s.max_rhat - 1.0)) if s.max_rhat > 1.0 else it
+            if raw <= 1.0 + 3.0 * (s.max_rhat - 1.0) or it >= s.max_steps or diag is None:
+                diag = _diagnose(arr, names, s)
+                if diag["ok"]:
+                    ok = True
+                    break
+                rate = max(diag["min_ess"], 1.0) / it
+                need = max(need, s.min_ess / rate)
+                if diag["max_rhat"] > s.max_rhat:
+                    need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
+            chunk = int(np.clip(1.2 * need - it, 8 * s.chunk, 2 * it))
+    acc = seg.kernel.accepted
+    acceptance = {"camera": float(np.mean(acc["camera"])), "objects": float(np.mean(acc["objects"]))}
+    warn = []
+    if not ok:
+        warn.append(f"not converged after {it} steps: " + "; ".join(diag["why"]))
+    if not laplace_ok:
+        warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
+    draws = Draws(np.transpose(np.array(cams_d), (1, 0, 2)), np.transpose(np.array(objs_d), (1, 0, 2, 3)),
+                  np.transpose(np.array(lp_d)))
+    return draws, Diagnostics(C, s.warmup, it, thin, diag["ess_bulk"], diag["r_hat"], acceptance, ok, tuple(warn),
+                              time.perf_counter() - t0, {"laplace_positive_definite": bool(laplace_ok)})
+
+
+def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState) -> tuple[np.ndarray, list[str]]:
+    """The quantities checked: every free parameter (yaw unwrapped around the MAP) and each
+    object's ground distance, as (chain, draw, k), with their names."""
+    cols, names = [], []
+    cams = np.transpose(cams, (1, 0, 2))  # (chain, draw, 5)
+    objs = np.transpose(objs, (1, 0, 2, 3))
+    for j in np.flatnonzero(model.camera_free):
+        cols.append(cams[..., j])
+        names.append(f"camera.{CAMERA_NAMES[j]}")
+    for i, o in enumerate(model.objects):
+        for j in np.flatnonzero(model.object_free[i]):
+            x = objs[..., i, j]
+            if j == O_YAW:
+                x = map_est.objects[i, O_YAW] + (x - map_est.objects[i, O_YAW] + np.pi) % (2 * np.pi) - np.pi
+            cols.append(x)
+            names.append(f"{o.id}.{OBJECT_NAMES[j]}")
+        cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
+        names.append(f"{o.id}.distance_m")
+    return np.stack(cols, axis=-1), names
+
+
+def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings) -> dict:
+    """Bulk ESS and rank-normalised R-hat of every column of ``arr``; whether the stopping rule
+    is met."""
+    eb, rh = ess_bulk_rhat(arr)
+    why = []
+    if np.nanmin(eb) < s.min_ess:
+        k = int(np.nanargmin(eb))
+        why.append(f"bulk ESS of {names[k]} {eb[k]:.0f} < {s.min_ess:g}")
+    if np.nanmax(rh) > s.max_rhat:
+        k = int(np.nanargmax(rh))
+        why.append(f"R-hat of {names[k]} {rh[k]:.3f} > {s.max_rhat:g}")
+    return {"ok": not why, "why": why, "min_ess": float(np.nanmin(eb)), "max_rhat": float(np.nanmax(rh)),
+            "ess_bulk": dict(zip(names, eb.tolist())), "r_hat": dict(zip(names, rh.tolist()))}

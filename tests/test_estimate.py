@@ -1,0 +1,154 @@
+"""The one path (pipeline.py): any scene, in either file format, from the scene to its result."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import creference_bayes as cb
+from conftest import truth_scene
+from creference_bayes.inference.summary import to_inference_data
+from creference_bayes.io.result import RESULT_FORMAT, load_result, stored_draws
+from creference_bayes.pipeline import map_state, rebuild_model, result_draws
+
+FAST = {"min_ess": 100}
+
+
+def _timeless(d):
+    """A result dict without its timings (every ``seconds``)."""
+    if isinstance(d, dict):
+        return {k: _timeless(v) for k, v in d.items() if k != "seconds"}
+    return [_timeless(v) for v in d] if isinstance(d, list) else d
+
+
+def _as_version_1(d: dict) -> dict:
+    """The same one-target scene written as ``creference-scene/1``."""
+    t = d["targets"][0]
+    truth = dict(t["ground_truth"])
+    truth.pop("dimensions_m"), truth.pop("ground_m")
+    truth.update(d["ground_truth"])
+    return {"format": "creference-scene/1", "image": d["image"], "camera": d["camera"],
+            "target": {"id": t["id"], "dimensions_m": t["dimensions_m"], "dimension_lines": t["dimension_lines"]},
+            "references": d.get("references", []), "ground_truth": truth}
+
+
+def test_a_one_object_frame_and_the_same_scene_as_version_1_give_the_same_posterior():
+    d, _ = truth_scene(3, n_annotations=3, noise_px=2.0, n_refs=2)
+    a = cb.estimate(d, seed=5, sampling=FAST)
+    b = cb.estimate(_as_version_1(d), seed=5, sampling=FAST)
+    assert b.to_dict()["scene_format"] == "creference-scene/1"
+    np.testing.assert_array_equal(a.draws.objects, b.draws.objects)
+    np.testing.assert_array_equal(a.draws.cameras, b.draws.cameras)
+    for key in ("map", "posterior", "evaluation"):
+        assert a.to_dict()["objects"][0][key] == b.to_dict()["objects"][0][key]
+    assert a.to_dict()["camera"] == b.to_dict()["camera"]
+
+
+@pytest.mark.parametrize("m", [1, 3])
+def test_the_same_seed_gives_the_same_result_and_it_rebuilds_its_model(m, tmp_path):
+    d, _ = truth_scene(4, m=m, n_annotations=2, noise_px=2.0, n_refs=2, sizes_known=m == 1)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(d))
+    a, b = (cb.estimate(path, seed=11, sampling=FAST) for _ in range(2))
+    assert _timeless(a.to_dict()) == _timeless(b.to_dict())
+    doc = json.loads(json.dumps(a.to_dict(), allow_nan=False))
+    assert doc["format"] == RESULT_FORMAT and load_result_path(tmp_path, doc)["format"] == RESULT_FORMAT
+    model = rebuild_model(doc, path)
+    cam, objs = map_state(doc)
+    assert np.array_equal(model.handedness, np.array([o["handedness"] for o in doc["objects"]], float))
+    T = doc["provenance"]["temperature"]
+    assert model.map_objective(cam[None], objs[None], T)[0] == pytest.approx(a.model.map_objective(cam[None], objs[None], T)[0])
+    cams, objects, source = result_draws(doc, model)
+    assert source == "posterior" and objects.shape == (doc["draws"]["n"], m, 7)
+
+
+def load_result_path(tmp_path, doc):
+    p = tmp_path / "result.json"
+    p.write_text(json.dumps(doc))
+    return load_result(p)
+
+
+def test_the_posterior_of_a_noise_free_scene_holds_the_truth_and_is_narrow():
+    d, truth = truth_scene(5, m=2, n_annotations=2, n_refs=2)
+    r = cb.estimate(d, seed=0, sampling=FAST)
+    for o, t in zip(r.to_dict()["objects"], truth["objects"]):
+        lo, hi = o["posterior"]["hdi"]["distance_m"]
+        assert lo <= np.hypot(t[0], t[1]) <= hi and (hi - lo) / (hi + lo) < 0.01
+        assert o["evaluation"]["distance_in_hdi"]
+
+
+def test_every_result_has_its_inference_data(tmp_path):
+    """log_likelihood per observation, observed data, one posterior variable per quantity; the
+    NetCDF file reads back."""
+    d, _ = truth_scene(6, m=2, n_annotations=2, noise_px=1.0, n_refs=3, sizes_known=False)
+    r = cb.estimate(d, seed=0, sampling=FAST)
+    idata = to_inference_data(r)
+    assert set(idata.groups()) >= {"posterior", "log_likelihood", "sample_stats", "observed_data"}
+    post = idata.posterior
+    assert post["distance_m"].dims == ("chain", "draw", "object") and list(post["object"].values) == ["t0", "t1"]
+    assert idata.log_likelihood["annotations"].shape[-2:] == (2, 2)
+    assert idata.log_likelihood["references"].shape[-1] == 3
+    path = tmp_path / "post.nc"
+    idata.to_netcdf(path)
+    import arviz as az
+
+    back = az.from_netcdf(path)
+    np.testing.assert_allclose(back.posterior["x"].values, post["x"].values)
+    assert to_inference_data(cb.estimate(d, posterior=False)) is None
+
+
+def test_the_result_keeps_draws_that_read_back():
+    d, _ = truth_scene(7, m=3, n_annotations=2, noise_px=2.0, sizes_known=False)
+    r = cb.estimate(d, seed=0, sampling=FAST, keep_draws=50)
+    kept = stored_draws(r.to_dict())
+    assert kept.objects.shape == (1, 50, 3, 7)
+    assert stored_draws(cb.estimate(d, seed=0, posterior=False).to_dict()) is None
+
+
+def test_both_models_and_every_preset_take_any_scene():
+    d, _ = truth_scene(8, m=2, n_annotations=2, noise_px=2.0, n_refs=3)
+    for kw in ({"model": "paper"}, {"model": "paper", "preset": "paper", "restarts": 4},
+               {"model": "metrology", "preset": "paper-controlled", "restarts": 4}):
+        doc = cb.estimate(d, seed=0, posterior=False, **kw).to_dict()
+        assert doc["model"] == kw["model"] and doc["preset"] == kw.get("preset", "default")
+        assert all(np.isfinite(o["map"]["distance_m"]) for o in doc["objects"])
+    assert cb.estimate(d, seed=0, posterior=False, model="paper").to_dict()["references"]["used_as"] == "pairwise bounds"
+
+
+def test_bad_options_are_refused_by_name():
+    d, _ = truth_scene(9)
+    with pytest.raises(ValueError, match="unknown model"):
+        cb.estimate(d, model="magic")
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['sigmaa'\]"):
+        cb.estimate(d, model="paper", sigmaa=2.0)
+    with pytest.raises(ValueError, match="temperature"):
+        cb.estimate(d, temperature=0.0)
+    with pytest.raises(ValueError, match=r"sampling: unknown option\(s\) \['min_es'\]"):
+        cb.estimate(d, sampling={"min_es": 3})
+    with pytest.raises(ValueError, match="paper model .* does not read stated confidences"):
+        cb.estimate(d, model="paper", confidence_map="identity")
+
+
+def test_a_version_1_result_converts_with_its_diagnostics_batch_block_and_camera():
+    """A creference-result/1 file (as batches wrote them) reads as this format: its sampler's
+    verdict and its batch block carried over; pitch and roll, which older files left out with a
+    horizon, follow from the horizon and the focal length."""
+
+    from creference_bayes.core.geometry import horizon_from_rotation, rotation_from_pitch_roll
+    from creference_bayes.io.result import result_from_v1
+
+    root = Path(__file__).parent / "data" / "batch_v1"
+    d = json.loads((root / "results" / "s0.json").read_text())
+    scene = cb.load_scene(root / "scenes" / "s0.json")
+    r = result_from_v1(d, scene)
+    assert r["diagnostics"]["converged"] is d["diagnostics"]["converged"]
+    assert r["diagnostics"]["r_hat"] == d["diagnostics"]["r_hat"]
+    assert r["batch"] == d["batch"]
+    assert r["objects"][0]["handedness"] == d["handedness"]
+    pitch, roll, f = np.radians(4.0), np.radians(-2.0), d["map"]["focal_length_px"]
+    horizon = horizon_from_rotation(rotation_from_pitch_roll(pitch, roll), f, scene.principal_point, scene.image_width)
+    scene = cb.parse_scene({**json.loads((root / "scenes" / "s0.json").read_text()), "horizon": horizon.tolist()})
+    del d["map"]["pitch"], d["map"]["roll"]
+    cam = result_from_v1(d, scene)["camera"]["map"]
+    assert (cam["pitch"], cam["roll"]) == pytest.approx((pitch, roll), abs=1e-9)

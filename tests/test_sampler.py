@@ -1,0 +1,456 @@
+"""The emcee adapter (inference/sampler.py, ensemble.py, moves.py) against analytic targets, its
+seeding and robustness, and the block moves on real scenes."""
+
+import emcee
+import numpy as np
+import pytest
+from scipy import stats
+
+from creference_bayes.inference.autocorr import integrated_time
+from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
+from creference_bayes.inference.ensemble import SamplingError, sample
+from creference_bayes.inference.sampler import SamplerSettings
+from creference_bayes.inference.summary import az
+
+MEAN = np.array([1.0, -2.0, 0.5])
+COV = np.array([[1.0, 0.8, 0.1], [0.8, 2.0, -0.3], [0.1, -0.3, 0.25]])
+PREC = np.linalg.inv(COV)
+
+
+def gaussian(p):
+    d = p - MEAN
+    return -0.5 * np.einsum("ni,ij,nj->n", d, PREC, d)
+
+
+def _draws(chains):
+    return chains.draws()  # (n_ens, n_draws, d)
+
+
+def _ess(x):
+    return float(az.ess(x, method="bulk"))
+
+
+def _check_moments(x, mean, sd, n_sigma=4.0):
+    """Sample mean and sd of (chain, draw) draws against the truth, within Monte Carlo error."""
+    ess = _ess(x)
+    assert ess > 500
+    assert abs(x.mean() - mean) < n_sigma * sd / np.sqrt(ess), (x.mean(), mean, ess)
+    # se of a sample sd ≈ sd·√((κ − 1)/(4·ESS)), κ the kurtosis (3 for a Gaussian)
+    kurt = stats.kurtosis(x.ravel(), fisher=False)
+    assert abs(x.std() - sd) < n_sigma * sd * np.sqrt((kurt - 1) / (4 * ess)), (x.std(), sd, ess)
+
+
+def test_recovers_correlated_gaussian():
+    chains = sample(gaussian, MEAN + 0.1, np.eye(3) * 0.01, rng=1)
+    assert chains.converged
+    d = _draws(chains)
+    for i in range(3):
+        _check_moments(d[..., i], MEAN[i], np.sqrt(COV[i, i]))
+    corr = np.corrcoef(d.reshape(-1, 3).T)[0, 1]
+    assert abs(corr - 0.8 / np.sqrt(2.0)) < 0.03
+
+
+def test_log_coordinates_keep_the_density():
+    """x ~ LogNormal(1, 0.5) sampled in log space: the Jacobian must be accounted for."""
+    def log_prob(p):
+        x, y = p[:, 0], p[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lx = np.log(x)
+            out = -lx - (lx - 1.0) ** 2 / (2 * 0.25) - 0.5 * y**2
+        return np.where(x > 0, out, -np.inf)
+
+    chains = sample(log_prob, [np.e, 0.0], np.diag([0.01, 0.01]), rng=2, log_mask=[True, False])
+    d = _draws(chains)
+    _check_moments(np.log(d[..., 0]), 1.0, 0.5)
+    _check_moments(d[..., 1], 0.0, 1.0)
+
+
+def test_recovers_a_curved_banana():
+    """x1 ~ N(0, 1), x2 | x1 ~ N(x1², 0.1²): E[x2] = 1, sd(x2) = √2.01."""
+    def log_prob(p):
+        return -0.5 * p[:, 0] ** 2 - 0.5 * ((p[:, 1] - p[:, 0] ** 2) / 0.1) ** 2
+
+    chains = sample(log_prob, [0.0, 0.0], np.diag([1e-4, 1e-4]), rng=3)
+    d = _draws(chains)
+    _check_moments(d[..., 0], 0.0, 1.0)
+    _check_moments(d[..., 1], 1.0, np.sqrt(2.01))
+
+
+def test_same_seed_same_draws():
+    settings = SamplerSettings(min_ess=100, tau_multiple=10, stage=20, max_steps=200)
+    a = sample(gaussian, MEAN, COV, rng=7, settings=settings)
+    b = sample(gaussian, MEAN, COV, rng=7, settings=settings)
+    c = sample(gaussian, MEAN, COV, rng=8, settings=settings)
+    assert np.array_equal(a.chain, b.chain)
+    assert np.array_equal(a.log_prob, b.log_prob)
+    assert not np.array_equal(a.chain[-1], c.chain[-1])
+
+
+def test_nan_and_inf_log_prob_are_zero_density():
+    """NaN for x0 > 1 and +inf for x0 < −3: both are rejected, never a crash; what remains is a
+    normal truncated to [−3, 1]."""
+    def log_prob(p):
+        out = -0.5 * np.sum(p**2, axis=1)
+        out[p[:, 0] > 1.0] = np.nan
+        out[p[:, 0] < -3.0] = np.inf
+        return out
+
+    chains = sample(log_prob, [0.0, 0.0], np.eye(2), rng=4)
+    d = _draws(chains)
+    assert d[..., 0].max() <= 1.0 and d[..., 0].min() >= -3.0
+    assert chains.info["nonfinite"] > 0
+    t = stats.truncnorm(-3.0, 1.0)
+    _check_moments(d[..., 0], t.mean(), t.std())
+
+
+def test_start_with_zero_density_is_a_clear_error():
+    with pytest.raises(SamplingError, match="starting point"):
+        sample(lambda p: np.full(len(p), np.nan), [0.0, 0.0])
+
+
+def test_a_start_at_the_apex_of_a_thin_wedge_still_finds_its_walkers():
+    """The support is a wedge 1e-4 rad wide whose apex is 1e-7 from the start (a MAP on two
+    bounds the coordinates couple): no Gaussian redraw lands in it, but pulling the points
+    towards the start does; every walker has a finite log-probability."""
+    from creference_bayes.inference.ensemble import _SafeLogProb, _initial_points
+
+    def log_prob(p):
+        x, y = p[:, 0], p[:, 1]
+        inside = (x > 0) & (y > 0) & (np.abs(x - y) < 1e-4 * (x + y))
+        return np.where(inside, -0.5 * (x**2 + y**2), -np.inf)
+
+    centre = np.array([1e-7, 1e-7])
+    pts = _initial_points(_SafeLogProb(log_prob), [(centre, np.eye(2))], [np.random.default_rng(0)], 16)
+    assert pts.shape == (16, 2) and np.all(np.isfinite(log_prob(pts)))
+    assert len(np.unique(pts, axis=0)) == 16
+    with pytest.raises(SamplingError, match="halvings"):
+        _initial_points(_SafeLogProb(log_prob), [(centre, np.eye(2))], [np.random.default_rng(0)], 16,
+                        max_halvings=0)
+
+
+def test_settings_reject_unknown_and_bad_options():
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['walkers'\]"):
+        SamplerSettings.from_options({"walkers": 10})
+    with pytest.raises(ValueError, match="sampling.n_walkers: expected an even integer"):
+        SamplerSettings(n_walkers=7)
+    with pytest.raises(ValueError, match="n_walkers: expected ≥ 2·ndim"):
+        sample(lambda p: -np.sum(p**2, 1), np.zeros(5), settings=SamplerSettings(n_walkers=8))
+
+
+@pytest.mark.parametrize("move", [GroupedDEMove(2), GroupedStretchMove(2)])
+def test_grouped_moves_use_only_their_own_ensemble(move):
+    """Ensemble 0 sits near 0 and ensemble 1 near 1000: a proposal built from the other
+    ensemble's walkers would land hundreds away."""
+    rs = np.random.RandomState(0)
+    coords = np.vstack([rs.normal(0.0, 1.0, (16, 3)), rs.normal(1000.0, 1.0, (16, 3))])
+    seen = []
+
+    def log_prob(q):
+        seen.append(q.copy())
+        return np.zeros(len(q))
+
+    model = emcee.model.Model(log_prob, None, map, rs)
+    state = emcee.State(coords.copy(), log_prob=np.zeros(32))
+    move.propose(model, state)
+    q = np.vstack(seen)
+    near0 = np.abs(q).max(axis=1) < 50
+    near1000 = np.abs(q - 1000).max(axis=1) < 50
+    assert np.all(near0 | near1000)
+    assert near0.sum() == near1000.sum() == 16
+
+
+def test_integrated_time_matches_emcee_and_ar1():
+    """The vectorised estimator equals emcee's, and τ of an AR(1) chain is (1 + φ)/(1 − φ)."""
+    rng = np.random.default_rng(5)
+    phi, n = 0.8, 20000
+    x = np.zeros((n, 8, 2))
+    e = rng.standard_normal((n, 8, 2))
+    for t in range(1, n):
+        x[t] = phi * x[t - 1] + e[t]
+    ours = integrated_time(x)
+    theirs = emcee.autocorr.integrated_time(x, quiet=True)
+    np.testing.assert_allclose(ours, theirs, rtol=1e-8)
+    np.testing.assert_allclose(ours, (1 + phi) / (1 - phi), rtol=0.1)
+
+
+def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
+    """u ↔ p round-trips, and log |∂p/∂u| (central differences) is Σ log p over the log
+    coordinates plus one constant: the shear adds no density term."""
+    from creference_bayes.inference.reparam import Coordinates
+
+    rng = np.random.default_rng(6)
+    x1 = rng.standard_normal(5000)
+    p = np.column_stack([x1, x1**2 + 0.1 * rng.standard_normal(5000),
+                         np.exp(0.3 * rng.standard_normal(5000) + 0.2 * x1)])
+    c = Coordinates.fit(p, [False, False, True])
+    assert c.shear is not None and any(t is not None for t in c.shear)
+    np.testing.assert_allclose(c.inverse(c.forward(p)), p, atol=1e-10)
+    u = rng.standard_normal((20, 3)) * 3  # also beyond the fitted range
+    np.testing.assert_allclose(c.forward(c.inverse(u)), u, atol=1e-8)
+    h = 1e-6
+    consts = []
+    for ui in u:
+        J = np.column_stack([(c.inverse((ui + h * e)[None]) - c.inverse((ui - h * e)[None]))[0] / (2 * h)
+                             for e in np.eye(3)])
+        q = c.to_q(ui[None])
+        consts.append(np.log(abs(np.linalg.det(J))) - c.log_jacobian(q)[0])
+    assert np.ptp(consts) < 1e-5
+
+
+def test_warm_up_judges_whitening_by_median_and_quartiles_not_by_moments():
+    """A heavy-tailed but well whitened stage counts as settled (the standard deviation of a
+    t₂.₅ sample is far above 1.33 however good the map); a shifted or too wide one does not."""
+    from creference_bayes.inference.ensemble import _location_spread, _stable
+
+    rng = np.random.default_rng(0)
+    heavy = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)
+    heavy /= np.subtract(*np.percentile(heavy, [75, 25], axis=0)) / 1.349  # unit quartile spread
+    assert heavy.std(axis=0).max() > 1.33  # what the old moment-based check saw
+    again = stats.t.rvs(2.5, size=(4000, 5), random_state=rng)  # the sample the map was fitted to
+    again /= np.subtract(*np.percentile(again, [75, 25], axis=0)) / 1.349
+    assert _stable(heavy, reference=_location_spread(again))
+    normal = rng.standard_normal((4000, 5))
+    assert _stable(normal)
+    assert not _stable(normal + np.array([0, 0, 0.5, 0, 0]))
+    assert not _stable(normal * np.array([1, 1, 1, 1.6, 1]))
+    assert not _stable(normal * np.array([1, 0.6, 1, 1, 1]))
+
+
+def test_warm_up_compares_a_stage_with_the_sample_its_map_was_fitted_to():
+    """A skewed posterior whitened by its mean and covariance keeps quartiles unlike a normal's
+    in the best of maps (the warm-up then ran to its 5000-step cap on every such posterior): a
+    stage is judged against the fitted sample's own median and quantile ranges. A stage from
+    the same posterior passes; one whose tails widened 1.8× with the same quartiles does not."""
+    from creference_bayes.inference.ensemble import _location_spread, _stable
+
+    rng = np.random.default_rng(3)
+
+    def skewed(n):
+        x = rng.gamma(0.5, size=(n, 5))
+        return (x - 0.5) / np.sqrt(0.5)  # mean 0, sd 1, as a whitening by moments leaves it
+
+    fitted, stage = skewed(6000), skewed(6000)
+    assert not _stable(stage)  # against a normal's median and quartiles
+    assert _stable(stage, reference=_location_spread(fitted))
+    wide = stage.copy()  # coordinate 2's tails stretched away from its quartiles, 2.5×
+    q25, q75 = np.percentile(wide[:, 2], [25, 75])
+    x = wide[:, 2]
+    wide[:, 2] = np.where(x > q75, q75 + 2.5 * (x - q75), np.where(x < q25, q25 - 2.5 * (q25 - x), x))
+    c_wide, s_wide = _location_spread(wide)
+    c_ref, s_ref = _location_spread(fitted)
+    assert abs(s_wide[0, 2] / s_ref[0, 2] - 1) < 0.15 and s_wide[1, 2] / s_ref[1, 2] > 1.5
+    assert not _stable(wide, reference=_location_spread(fitted))
+
+
+def test_integrated_time_of_a_walker_that_never_moved_is_one():
+    """A constant column (a derived roll that µ does not change) has τ = 1, not the chain's
+    length: its mean differs from its value in the last bit (0.1 over 300 steps: 5e-16), and
+    that residue used to read as perfect correlation, holding a converged run to the step cap."""
+    rng = np.random.default_rng(0)
+    x = np.stack([np.full((300, 32), 0.1), rng.standard_normal((300, 32))], axis=-1)
+    assert (x[:, :, 0] - x[:, :, 0].mean(axis=0))[0, 0] != 0.0  # the residue is there
+    tau = integrated_time(x)
+    assert tau[0] == 1.0
+    assert tau[1] == pytest.approx(1.0, abs=0.3)
+
+
+@pytest.mark.parametrize("tries", [1, 4])
+def test_the_multiple_try_independence_move_keeps_its_target(tries):
+    """Walkers started from exact Gamma(3) draws stay Gamma(3)-distributed under the
+    independence move with a mismatched t proposal (invariance), and more tries are accepted
+    more often."""
+    from creference_bayes.inference.moves import IndependenceMove
+
+    n = 20000
+    target = stats.gamma(3.0)
+    x0 = target.rvs(size=(n, 1), random_state=np.random.default_rng(1))
+    move = IndependenceMove(np.array([2.0]), np.array([[1.2]]), df=6.0, tries=tries)
+    log_prob = lambda x: np.where(x[:, 0] > 0, target.logpdf(np.maximum(x[:, 0], 1e-300)), -np.inf)  # noqa: E731
+    sampler = emcee.EnsembleSampler(n, 1, log_prob, moves=[move], vectorize=True)
+    state = emcee.State(x0, random_state=np.random.RandomState(2).get_state())
+    sampler.run_mcmc(state, 10, skip_initial_state_check=True)
+    x = sampler.get_chain()[-1, :, 0]
+    assert stats.kstest(x, target.cdf).pvalue > 1e-3
+    assert abs(x.mean() - 3.0) < 4 * np.sqrt(3.0 / n)
+    assert move.acceptance > (0.75 if tries == 4 else 0.4)
+    if tries == 1:
+        assert move.acceptance < 0.75
+
+
+def test_a_warm_up_stage_already_whitened_ends_early():
+    """A stage run in coordinates that already whiten the posterior, with the proposal accepted
+    often, is judged from 2 · warmup steps on and stops there instead of running its doubled
+    length, and the draws are still the target's (the saving on the SBC scenes' slowest
+    estimates: 8.7–10.6 s → 6.4–7.1 s).
+
+    Where exactly it stops is the sampler's path, not the behaviour: the stage is judged every
+    chunk from 2 · warmup on, and a judgement of a short stage fails by Monte Carlo noise now and
+    then (40 streams of the sampler's random numbers: 38 stopped at 2 · warmup = 40 steps, two at
+    60, against schedules of 160–640 steps). So: not before 2 · warmup, and at most half of its
+    scheduled 2 · stages[-2] (a stage that runs its schedule, the behaviour broken, fails)."""
+    C = np.diag([1.0, 4.0, 0.25, 9.0, 1.0])
+    Ci = np.linalg.inv(C)
+
+    def log_prob(p):
+        return -0.5 * np.einsum("ij,jk,ik->i", p, Ci, p)
+
+    settings = SamplerSettings(stage=20, chunk=10, min_ess=400)
+    chains = sample(log_prob, np.zeros(5), 1e-10 * np.eye(5), settings=settings, rng=0)
+    stages = chains.info["warmup_stages"]
+    assert 2 * settings.stage <= stages[-1] <= stages[-2], stages  # scheduled 2 · stages[-2], cut
+    assert chains.converged
+    draws = chains.chain[chains.burn_in:].reshape(-1, 5)
+    assert np.allclose(draws.var(axis=0), np.diag(C), rtol=0.15)
+    assert np.allclose(draws.mean(axis=0), 0.0, atol=0.1 * np.sqrt(np.diag(C)))
+
+
+LUMP_MEAN, LUMP_WEIGHT, LUMP_SD = np.array([2.5, 2.5, 0.0, 0.0, 0.0]), 0.1, 0.35
+
+
+def _lumpy(p):
+    """N(0, I) in five dimensions with a narrow lump of a tenth of the mass beside it (no deep
+    valley between: a mode search merges the two, as it did on a thin pole's yaw)."""
+    main = np.log(1 - LUMP_WEIGHT) - 0.5 * np.sum(p**2, axis=1)
+    lump = (np.log(LUMP_WEIGHT) - 5 * np.log(LUMP_SD)
+            - 0.5 * np.sum((p - LUMP_MEAN) ** 2, axis=1) / LUMP_SD**2)
+    return np.logaddexp(main, lump)
+
+
+def _in_lump(x):
+    return np.sum((x - LUMP_MEAN) ** 2, axis=1) < np.sum(x**2, axis=1)
+
+
+def test_a_lump_beside_the_mode_gets_a_proposal_component_of_its_own():
+    """Fitted to a sample of the lumpy density, the default proposal is a mixture (k-means
+    components and the whole sample's t) that offers the lump far more often than one t does,
+    and never offers any point less than DEFENSIVE_WEIGHT as often as that t."""
+    from creference_bayes.inference.ensemble import DEFENSIVE_WEIGHT, _fit_proposal
+
+    rng = np.random.default_rng(4)
+    n = 4000
+    lump = rng.random(n) < LUMP_WEIGHT
+    u = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
+                 rng.standard_normal((n, 5)))
+    mixture = _fit_proposal(u, SamplerSettings(), rng=np.random.default_rng(5))
+    single = _fit_proposal(u, SamplerSettings(proposal_components=1))
+    assert single.n_components == 1 and mixture.n_components >= 3
+    at = np.vstack([LUMP_MEAN, np.zeros(5)])
+    gain = mixture.log_q(at) - single.log_q(at)  # both normalised alike (log_q drops the same constant)
+    assert gain[0] > np.log(3.0), gain          # the lump: offered over three times as often
+    far = rng.standard_normal((2000, 5)) * 4.0  # anywhere, tails included
+    assert np.all(mixture.log_q(far) - single.log_q(far) >= np.log(DEFENSIVE_WEIGHT) - 1e-9)
+
+
+def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
+    """On the lumpy density the sampler with the default mixture proposal finds the lump's true
+    share (the nearest-centre share of exact draws) and mixes faster along the axis through it
+    than with a single t (mean τ over three seeds)."""
+    rng = np.random.default_rng(0)
+    n = 400000
+    lump = rng.random(n) < LUMP_WEIGHT
+    exact = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
+                     rng.standard_normal((n, 5)))
+    share = _in_lump(exact).mean()
+    taus = {}
+    for k in (1, 3):
+        taus[k] = []
+        for seed in range(3):
+            chains = sample(_lumpy, np.zeros(5), 0.01 * np.eye(5), rng=seed,
+                            settings=SamplerSettings(min_ess=400, proposal_components=k))
+            assert chains.converged
+            taus[k].append(chains.autocorr_time[0])
+            if k == 3:
+                x = chains.chain[chains.burn_in:].reshape(-1, 5)
+                ess = x.shape[0] / chains.autocorr_time[0]
+                assert abs(_in_lump(x).mean() - share) < 4 * np.sqrt(share * (1 - share) / ess)
+    assert np.mean(taus[3]) < 0.8 * np.mean(taus[1]), taus
+
+
+def test_diagnostics_match_arviz():
+    from creference_bayes.inference.diagnostics import ess_bulk, rhat_rank
+
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(4, 301, 5)), axis=1) * 0.1 + rng.normal(size=(4, 301, 5))
+    x[..., 4] = np.round(x[..., 4], 1)  # ties
+    for j in range(5):
+        assert ess_bulk(x)[j] == pytest.approx(float(az.ess(x[..., j], method="bulk")), rel=1e-8)
+        assert rhat_rank(x)[j] == pytest.approx(float(az.rhat(x[..., j])), rel=1e-8)
+
+
+@pytest.mark.parametrize("tries", [1, 4])
+def test_a_multiple_try_step_keeps_its_target_distribution(tries):
+    """Chains started from exact draws of a skewed target and moved by independent multiple-try
+    steps from a poorly matched proposal must still hold that target (invariance), and more tries
+    must accept more often."""
+    from creference_bayes.inference.multiple_try import multiple_try_pick
+
+    rng = np.random.default_rng(3)
+    target, proposal = stats.gamma(3.0), stats.norm(4.0, 2.5)  # proposal off-centre, too wide
+    n = 40000
+    x = target.rvs(size=n, random_state=rng)
+    accepted = []
+    for _ in range(15):
+        y = proposal.rvs(size=(n, tries), random_state=rng)
+        log_w = np.where(y > 0, target.logpdf(np.maximum(y, 1e-300)), -np.inf) - proposal.logpdf(y)
+        j, ok = multiple_try_pick(log_w, target.logpdf(x) - proposal.logpdf(x), rng)
+        x = np.where(ok, y[np.arange(n), j], x)
+        accepted.append(ok.mean())
+    assert stats.kstest(x, target.cdf).pvalue > 1e-3
+    assert abs(x.mean() - 3.0) < 4 * np.sqrt(3.0 / n)
+    accept = np.mean(accepted)
+    assert (accept > 0.8) if tries == 4 else (0.5 < accept < 0.8)
+
+
+def test_coupled_objects_never_share_a_colour():
+    from creference_bayes.inference.moves import colours
+
+    assert colours(4, np.zeros((0, 2), int)) == [None]
+    pairs = np.array([[0, 1], [1, 2], [2, 0], [3, 4]])
+    got = colours(6, pairs)
+    assert np.all(np.sum(got, axis=0) == 1)  # every object in exactly one colour
+    for c in got:
+        assert not any(c[i] and c[j] for i, j in pairs)
+    assert len(got) == 3  # a triangle needs three
+
+
+def _scene_model(seed, **kw):
+    from conftest import truth_scene
+    from creference_bayes.inference.map import optimize
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.pipeline import build_model
+
+    d, truth = truth_scene(seed, **kw)
+    model, _ = build_model(parse_scene(d))
+    return model, optimize(model), truth
+
+
+def test_the_move_set_follows_the_block_structure():
+    """One object block: the whole vector by ensemble moves (4 ensembles as chains); several: block
+    sweeps (each walker a chain). Either way the same seed gives the same draws."""
+    from creference_bayes.inference.sampler import sample as sample_scene
+
+    tiny = SamplerSettings(min_ess=50)
+    for m, chains in ((1, tiny.n_ensembles), (3, tiny.n_chains)):
+        model, est, _ = _scene_model(2, m=m, n_annotations=2, noise_px=2.0)
+        a, da = sample_scene(model, est, settings=tiny, rng=4)
+        b, _ = sample_scene(model, est, settings=tiny, rng=4)
+        assert a.objects.shape[0] == chains and a.objects.shape[2] == m
+        np.testing.assert_array_equal(a.objects, b.objects)
+        assert set(da.ess_bulk) == set(da.r_hat) and all(k.endswith(".distance_m") or "." in k for k in da.ess_bulk)
+
+
+def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_is_gaussian():
+    """Five objects of known size, many precise annotations: the posterior is close to Gaussian in
+    the working coordinates, so the draws' distance sd must agree with the Laplace approximation's
+    (delta method) to within Monte Carlo error and the approximation's own error (20 %)."""
+    from creference_bayes.inference.laplace import laplace
+    from creference_bayes.inference.sampler import sample as sample_scene
+
+    model, est, _ = _scene_model(5, m=5, n_annotations=6, noise_px=1.0, n_refs=3)
+    draws, diag = sample_scene(model, est, settings=SamplerSettings(min_ess=300), rng=0)
+    assert diag.converged
+    d = np.hypot(draws.objects[..., 0], draws.objects[..., 1]).reshape(-1, 5)
+    _, objs = laplace(model, est.camera, est.objects).draws(20000, 1)
+    dl = np.hypot(objs[..., 0], objs[..., 1])
+    np.testing.assert_allclose(d.std(axis=0), dl.std(axis=0), rtol=0.2)
+    np.testing.assert_allclose(d.mean(axis=0), dl.mean(axis=0), rtol=0.01)
