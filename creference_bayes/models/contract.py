@@ -485,3 +485,12 @@ class Model:
             return float(self.focal_length_px)
         f = self.camera_terms.focal
         return float(f.median_px) if f is not None else 30.0 / 43.27 * float(np.hypot(*self.image_size))
+
+    def simulate_annotations(self, camera: np.ndarray, objects: np.ndarray, n_annotations: int,
+                             noise_px: float, rng=None) -> np.ndarray:
+        """Dimension lines drawn around the projection of a true state: (m, K, 4, 2) pixels, every
+        corner moved by N(0, noise_px²) per coordinate and rounded to 0.01 px."""
+        rng = np.random.default_rng(rng)
+        uv, _ = self.project(self.complete_camera(np.asarray(camera, float)[None]), np.asarray(objects, float)[None])
+        noisy = uv[0][:, None] + rng.normal(0.0, noise_px, (self.n_objects, n_annotations, 4, 2))
+        return np.round(noisy, 2)
