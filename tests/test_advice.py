@@ -496,3 +496,20 @@ def test_request_files_carry_the_segment_and_import_back(example, tmp_path):
     got = report.scenes[0].scene
     assert len(got["references"]) == len(scene.references) + 1
     assert got["references"][-1]["value"] == 12.5 and got["references"][-1]["measure"] == "distance"
+
+
+def test_the_advice_says_how_many_draws_it_weighed(example, tmp_path, capsys):
+    """A result file keeps fewer draws than ``--draws`` asks for: the table and the file give the
+    number actually weighed, not the setting."""
+    scene, result = example
+    (tmp_path / "example_scene.json").write_text(example_scene_path().read_text())
+    res = tmp_path / "result.json"
+    d = result.to_dict()
+    n_kept = d["draws"]["n"]
+    res.write_text(json.dumps(d))
+    out = tmp_path / "advice.json"
+    assert main(["advise", str(res), "--draws", "5000", "--futures", "10", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    weighed = json.loads(out.read_text())["draws_weighed"]
+    assert weighed == n_kept < 5000
+    assert f"on the {weighed} draws the advice weighs" in text

@@ -160,6 +160,7 @@ class Advice:
     seconds: float = 0.0
     source: str = "posterior"
     format_mix: dict = field(default_factory=dict)
+    n_weighed: int = 0  #: the draws the advice weighed (at most ``settings.n_draws``: all there were)
 
     @property
     def best(self) -> Prediction | None:
@@ -187,7 +188,7 @@ class Advice:
                 "requests": [None if p is None else p.candidate.key for p in self.requests()],
                 "predictions": [p.to_dict() for p in self.predictions], "format_mix": dict(self.format_mix),
                 "notes": list(self.notes), "settings": self.settings.to_dict(), "seed": self.seed,
-                "seconds": self.seconds}
+                "draws_weighed": self.n_weighed, "seconds": self.seconds}
 
 
 class _Draws:
@@ -276,7 +277,8 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     action, reason = _recommend(now, predictions, settings, [t.id for t in scene.targets])
     return Advice(targets=tuple(t.id for t in scene.targets), now=now, predictions=tuple(predictions), action=action,
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
-                  notes=tuple(notes), seconds=time.perf_counter() - t0, source=source, format_mix=mix.to_dict())
+                  notes=tuple(notes), seconds=time.perf_counter() - t0, source=source, format_mix=mix.to_dict(),
+                  n_weighed=n)
 
 
 def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, settings, rng, temperature) -> Prediction:

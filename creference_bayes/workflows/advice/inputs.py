@@ -98,7 +98,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
              f"({'posterior draws' if advice.source == 'posterior' else 'draws of the Laplace approximation'})"]
     for i, tid in enumerate(ids):
         full = "" if estimate_hdi is None or estimate_hdi[i] is None else \
-            (f" (on the {s.n_draws} draws the advice weighs; the estimate's, on all its draws: "
+            (f" (on the {advice.n_weighed or s.n_draws} draws the advice weighs; the estimate's, on all its draws: "
              f"{estimate_hdi[i][1] - estimate_hdi[i][0]:.3g} m)")
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
