@@ -193,7 +193,7 @@ def one_path_figure() -> Figure:
          "moves chosen by the model's block structure, never by the kind of scene", face=core)
     hw = (w0 - 0.45) / 2
     _box(ax, x0 + 0.15, yp + 0.12, hw, 0.9, "one object",
-         "ensemble moves on the whole vector:\n4 independent ensembles × 32 walkers", face=sub, title_size=10,
+         "ensemble moves on the whole vector:\n4 independent ensembles × 24 walkers", face=sub, title_size=10,
          body_size=9.2)
     _box(ax, x0 + 0.3 + hw, yp + 0.12, hw, 0.9, "several objects",
          "block sweeps (camera, then every object):\nrandom walk and multiple-try independence, 8 chains",
