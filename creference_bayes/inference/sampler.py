@@ -448,7 +448,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
         # main phase: frozen moves, in chunks until converged
         cams_d, objs_d, lp_d = [], [], []
         thin, it, ok, diag = 1, 0, False, None
-        chunk = 8 * s.chunk  # block sweeps: a check every 400 steps at the least
+        chunk = 8 * s.chunk  # block sweeps: checks at least 8 chunks apart (400 steps by default)
         while it < s.max_steps:
             chunk = min(chunk, s.max_steps - it)
             for state in seg.run(state, chunk):

@@ -428,7 +428,7 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
     """
     import warnings
 
-    from .scene import SceneWarning, load_scene
+    from .scene import SceneWarning, parse_scene, read_scene_json
 
     result_path = Path(result_path)
     if explicit is not None:
@@ -439,13 +439,11 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
         paths, how = scene_candidates(result, result_path), None
     for path in paths:
         if path.is_file():
+            data = read_scene_json(path)  # read once: the scene and the file's fingerprint
+            file_sha = canonical_sha256(data)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(path)
-            try:
-                file_sha = canonical_sha256(json.loads(read_text(path)))
-            except ValueError:
-                file_sha = None
+                scene = parse_scene(data, source=path)
             why = scene_mismatch(result, scene, file_sha)
             if why:
                 where = how or f"scene {str(path)!r} (found by the result's scene name; pass --scene)"
