@@ -288,11 +288,6 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     )
 
 
-#: Extra ground-truth keys that the simulator writes and the benchmark reads: validated when
-#: present (other extra keys are kept as they are).
-_GT_EXTRA_NUMBERS = {"camera_height_m": {"positive": True}, "pitch_rad": {}, "roll_rad": {}}
-
-
 _FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
 #: Default log-sd of a focal-length prior a scene states without one.
 STATED_FOCAL_LOG_SD = 0.1
