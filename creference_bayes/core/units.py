@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["UNITS_TO_M", "to_metres"]
+__all__ = ["UNITS_TO_M"]
 
 #: Metres per unit.
 UNITS_TO_M: dict[str, float] = {
@@ -12,17 +12,3 @@ UNITS_TO_M: dict[str, float] = {
     "in": 0.0254,
     "yd": 0.9144,
 }
-
-
-def to_metres(value: float, unit: str) -> float:
-    """Convert ``value`` in ``unit`` to metres.
-
-    Raises
-    ------
-    ValueError
-        If ``unit`` is not one of :data:`UNITS_TO_M`.
-    """
-    try:
-        return float(value) * UNITS_TO_M[unit]
-    except KeyError:
-        raise ValueError(f"unknown unit {unit!r} (expected one of {sorted(UNITS_TO_M)})") from None

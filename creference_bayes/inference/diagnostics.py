@@ -1,9 +1,9 @@
 """Bulk ESS and rank-normalised split R-hat for many parameters at once (NumPy only).
 
-The frame sampler checks convergence of 40–200 quantities every few hundred iterations; arviz
-computes them one variable at a time (seconds for a frame). These are the same estimators
+The block sweeps check convergence of 40–200 quantities every few hundred iterations; arviz
+computes them one variable at a time (seconds for a scene). These are the same estimators
 (Vehtari, Gelman, Simpson, Carpenter and Bürkner 2021, as arviz implements them), vectorised over
-parameters: tests/test_frame_sampler.py checks them against arviz to 1e-8.
+parameters: tests/test_sampler.py checks them against arviz to 1e-8.
 
 Arrays are (chain, draw, k).
 """

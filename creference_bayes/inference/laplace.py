@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.contract import Model
-from .coords import FD_STEPS, WorkingCoords
+from .coords import WorkingCoords
 from .map import Arrowhead, derivatives
 
-__all__ = ["Laplace", "laplace", "laplace_blocks", "block_variances", "work_gradients"]
+__all__ = ["Laplace", "laplace", "laplace_blocks"]
 
 
 @dataclass(frozen=True)
@@ -107,7 +107,7 @@ def laplace_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, 
 def _dense_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """:func:`laplace_blocks` when distance references couple objects: from the whole inverse,
     each object's covariance given the camera alone (the other objects integrated out), so that
-    a quantity of one object has its marginal variance (:func:`block_variances`)."""
+    a quantity of one object has its marginal variance."""
     free = np.concatenate([model.camera_free, model.object_free.ravel()])
     A, ok = _positive(H.dense(), free)
     cov = np.linalg.inv(A)
@@ -145,34 +145,6 @@ def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:
     out = A.copy()
     out[np.ix_(idx, idx)] = (V * np.maximum(np.abs(w), floor)) @ V.T
     return out, False
-
-
-def block_variances(Sc: np.ndarray, Ao: np.ndarray, B: np.ndarray, g_c: np.ndarray, g_o: np.ndarray) -> np.ndarray:
-    """Variances (m,) of per-object quantities fᵢ(c, oᵢ) with working-coordinate gradients
-    ``g_c`` (m, 5) and ``g_o`` (m, 7), under the block covariance (``Sc``, ``Ao``, ``B``):
-    var fᵢ = g_oᵀ Aoᵢ g_o + (g_c + Bᵢᵀ g_o)ᵀ Sc (g_c + Bᵢᵀ g_o)."""
-    own = np.einsum("mi,mij,mj->m", g_o, Ao, g_o)
-    via = g_c + np.einsum("mic,mi->mc", B, g_o)
-    return own + np.einsum("mc,cd,md->m", via, Sc, via)
-
-
-def work_gradients(model: Model, wc: np.ndarray, wo: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
-    """Central-difference gradients of per-object quantities in working coordinates.
-
-    ``f(cams (n, 5), objs (n, m, 7)) -> (n, m, q)`` in natural coordinates; every coordinate is
-    perturbed in every object at once (object i's quantity sees only its own block and the
-    camera). Returns ``g_c`` (m, q, 5) and ``g_o`` (m, q, 7); fixed parameters give zero.
-    """
-    h = FD_STEPS
-    E = np.diag(h)
-    P = np.concatenate([E, -E])  # (24, 12)
-    WC = wc[None] + P[:, :5] * model.camera_free
-    WO = wo[None] + P[:, None, 5:] * model.object_free[None]
-    cams, objs = WorkingCoords(model).from_work(WC, WO)
-    F = np.asarray(f(cams, objs), float)  # (24, m, q)
-    d = (F[:12] - F[12:]) / (2 * h[:, None, None])  # (12, m, q)
-    g = np.transpose(d, (1, 2, 0))  # (m, q, 12)
-    return g[..., :5] * model.camera_free, g[..., 5:] * model.object_free[:, None, :]
 
 
 def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-__all__ = ["Mode", "find_modes", "fit_mixture", "assign"]
+__all__ = ["Mode", "find_modes", "fit_mixture"]
 
 #: Two local maxima closer than this (in the MAP's Laplace-whitened units) are one mode.
 SAME_MODE = 1.0
@@ -253,9 +253,3 @@ def _log_resp(u, weights, means, covs) -> np.ndarray:
         logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
     logs = np.column_stack(logs)
     return logs - logsumexp(logs, axis=1, keepdims=True)
-
-
-def assign(u: np.ndarray, centers: np.ndarray, covs: np.ndarray) -> np.ndarray:
-    """(n,) index of the mode each point belongs to (largest Gaussian density, equal weights)."""
-    k = len(centers)
-    return np.argmax(_log_resp(u, np.full(k, 1.0 / k), centers, covs), axis=1)

@@ -1,7 +1,7 @@
 """Independent multiple-try Metropolis (I-MTM): the acceptance step, on NumPy only.
 
-Shared by the frame sampler's independence steps (:mod:`.frame_sampler`) and the single-target
-sampler's independence move (:class:`.moves.IndependenceMove`).
+Shared by the block sweeps' independence steps (:class:`.moves.IndependenceSweep`) and the ensemble's
+independence move (:class:`.moves.IndependenceMove`).
 """
 
 from __future__ import annotations

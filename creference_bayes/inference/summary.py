@@ -30,7 +30,7 @@ with _warnings.catch_warnings():
     _warnings.simplefilter("ignore", FutureWarning)  # arviz 0.23 announces its refactor on import
     import arviz as az
 
-__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "draws_from_inference_data", "convergence", "summary_table", "az"]
+__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "summary_table", "az"]
 
 #: The per-object quantities of the posterior group, in order (the results' own report).
 OBJECT_VARS = OBJECT_REPORT
@@ -82,21 +82,6 @@ def to_inference_data(result, attrs: dict | None = None) -> "az.InferenceData | 
         _warnings.simplefilter("ignore", FutureWarning)
         return az.from_dict(posterior=post, sample_stats=stats, log_likelihood=log_lik, observed_data=observed,
                             coords={"object": [o.id for o in model.objects]}, dims=dims, attrs=meta)
-
-
-def draws_from_inference_data(idata) -> dict[str, np.ndarray]:
-    """Named arrays (chain, draw[, object]) from an InferenceData's posterior group."""
-    return {k: np.asarray(v) for k, v in idata.posterior.data_vars.items()}
-
-
-def convergence(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """arviz's bulk ESS, tail ESS and rank-normalised split R-hat of every column of ``draws``
-    (chain, draw, k), each (k,); constant columns get NaN."""
-    ds = az.convert_to_dataset({"p": np.asarray(draws, float)})
-    ess_b = az.ess(ds, method="bulk")["p"].values
-    ess_t = az.ess(ds, method="tail")["p"].values
-    rhat = az.rhat(ds)["p"].values
-    return np.asarray(ess_b, float), np.asarray(ess_t, float), np.asarray(rhat, float)
 
 
 def summary_table(idata, hdi_prob: float = 0.9):

@@ -107,6 +107,14 @@ def number_field(value: Any, where: str, what: str, *, positive: bool = False,
     return x
 
 
+def _whole(value: Any, where: str, what: str) -> int:
+    """A positive whole number of pixels from a tool's field."""
+    x = number_field(value, where, what, positive=True)
+    if x != int(x):
+        raise ConversionError(where, f"{what} must be whole pixels, got {x:g}")
+    return int(x)
+
+
 def _text(value: Any, where: str, what: str) -> str | None:
     """A filled-in text field, or None when empty or unset."""
     if value is None:

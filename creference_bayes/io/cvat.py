@@ -33,7 +33,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportedScene, ImportReport,
-                               TargetTable, checked_scene, classes_block, fmt_number, image_file, mean_horizon,
+                               TargetTable, _whole, checked_scene, classes_block, fmt_number, image_file, mean_horizon,
                                number_field, read_input, reference_from_fields, safe_name, unique_names)
 from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
 
@@ -129,13 +129,6 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
     kept, clashes = unique_names(scenes)
     notes += table.notes()
     return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
-
-
-def _whole(value: Any, where: str, what: str) -> int:
-    x = number_field(value, where, what, positive=True)
-    if x != int(x):
-        raise ConversionError(where, f"{what} must be whole pixels, got {x:g}")
-    return int(x)
 
 
 def _points(text: Any, where: str) -> list[list[float]]:

@@ -38,7 +38,7 @@ from typing import Any
 from urllib.parse import parse_qs, unquote, urlparse
 
 from ..models.size_priors import SIZE_KEYS
-from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text,
+from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text, _whole,
                                checked_scene, classes_block, image_file, number_field, read_input,
                                reference_from_fields, safe_name, set_camera_and_horizon, unique_names)
 from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
@@ -128,17 +128,10 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
     image_dir : path, optional
         Where the images are: ``image.path`` is the file of the task's ``image`` URL in this folder
         (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
-    out_dir : path, optional
-        The folder the scenes will be written to; image paths are made relative to it.
-    targets : TargetTable or dict, optional
-        Known sizes (m) and focal lengths (px) by image and target
-        (:func:`~.annotation_tools.load_target_table`).
+    out_dir, targets, classes : as :func:`~.cvat.scenes_from_cvat`
     users : dict, optional
         Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
         in ``completed_by`` (or the e-mail, when the export expands the user).
-    classes : dict, optional
-        Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
-        written into the scenes whose size-less targets use them.
 
     Returns
     -------
@@ -504,13 +497,6 @@ def url_path(url: str, where: str) -> str:
     except ValueError as exc:  # e.g. a malformed IPv6 host
         raise ConversionError(where, f"not a valid URL {_short(url)}: {exc}") from None
     return local[0] if local else PurePosixPath(unquote(parsed.path)).name
-
-
-def _whole(value: Any, where: str, what: str) -> int:
-    x = number_field(value, where, what, positive=True)
-    if x != int(x):
-        raise ConversionError(where, f"{what} must be whole pixels, got {x:g}")
-    return int(x)
 
 
 def _image_size(anns: list, data: dict, where: str) -> tuple[int, int]:

@@ -35,7 +35,7 @@ import hashlib
 import json
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -291,11 +291,6 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     )
 
 
-#: Extra ground-truth keys that the simulator writes and the benchmark reads: validated when
-#: present (other extra keys are kept as they are).
-_GT_EXTRA_NUMBERS = {"camera_height_m": {"positive": True}, "pitch_rad": {}, "roll_rad": {}}
-
-
 _FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
 #: Default log-sd of a focal-length prior a scene states without one.
 STATED_FOCAL_LOG_SD = 0.1
@@ -433,11 +428,15 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
         raise SceneError(_join(path, "measure"), f"a target's own size is its length, width or height, got {_short(measure)}")
     if rest.get("mode", "direct") != "direct":
         raise SceneError(_join(path, "mode"), f"a target's own size must be 'direct' (with a unit), got {_short(rest.get('mode'))}")
+    return _lineless(rest, measure, index, path, w, h, sink), owner
+
+
+def _lineless(rest: dict, measure: str, index: int, path: str, w: int, h: int, sink: list[str]) -> Reference:
+    """A direct reference without a line (a target's own size, a distance between two targets):
+    its value, range, unit and fields read as :func:`_parse_reference` reads a line's."""
     fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
     ref = _parse_reference(fake, index, path, w, h, sink)
-    return Reference(index=index, measure=measure, mode="direct", low=ref.low, high=ref.high,
-                     line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
-                     confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), owner
+    return replace(ref, measure=measure, line=None)
 
 
 def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, ids: dict[str, int],
@@ -466,11 +465,7 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
     if obj.get("mode", "direct") != "direct":
         raise SceneError(_join(path, "mode"), f"a distance must be 'direct' (with a unit), got {_short(obj.get('mode'))}")
     rest = {k: v for k, v in obj.items() if k != "targets"}
-    fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
-    ref = _parse_reference(fake, index, path, w, h, sink)
-    return Reference(index=index, measure="distance", mode="direct", low=ref.low, high=ref.high,
-                     line=None, is_range=ref.is_range, unit=ref.unit, object=ref.object, worker=ref.worker,
-                     confidence=ref.confidence, seconds=ref.seconds, stated=ref.stated), (owners[0], owners[1])
+    return _lineless(rest, "distance", index, path, w, h, sink), (owners[0], owners[1])
 
 
 def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
