@@ -43,6 +43,9 @@ def test_the_mountings_spread_between_frames_is_estimated():
     assert 0.035 < est.tau["log_height"] < 0.065
     assert abs(math.exp(est.center["log_height"]) - 1.65) < 0.03
     assert pool_rig(_frames(per_frame, p, name="log_height"), "focal") == {}  # focal pools no mounting
+    # frames that agree exactly still leave the vehicle its least spread (rig.MIN_SPREAD: 3 % of height)
+    still = pool_rig(_frames(np.full(30, math.log(1.65)), p[:30], name="log_height"), "mounting")["cam"]
+    assert still.tau["log_height"] == pytest.approx(0.03)
 
 
 def test_a_frames_prior_comes_from_the_other_frames_only():

@@ -19,8 +19,8 @@ roll. Two-pass empirical Bayes:
      more than their precisions allow (a frame's likelihood that the normal describes badly must
      not make the rig over-sure);
    - the mounting varies from frame to frame around the camera's (a moving vehicle pitches, the road
-     is uneven): qᵢ ~ N(M, τ²) with τ² from the DerSimonian–Laird moment estimator, and the frame's
-     prior N(M₋ᵢ, τ² + V₋ᵢ).
+     is uneven): qᵢ ~ N(M, τ²) with τ² from the DerSimonian–Laird moment estimator (at least
+     :data:`MIN_SPREAD`), and the frame's prior N(M₋ᵢ, τ² + V₋ᵢ).
 
 A frame's camera is its scene's ``camera.id``; a scene without one whose photo has EXIF make and
 model is named by them (:func:`~creference_bayes.vision.exif.camera_id_from_exif`); a frame with
@@ -49,6 +49,12 @@ POOLED = {"none": (), "focal": ("log_focal",), "mounting": ("log_focal", "log_he
 _CAMERA_COLUMNS = {"log_focal": "focal_length_px", "pitch": "pitch", "roll": "roll", "log_height": "height_m"}
 #: a frame whose likelihood precision is below this share of its posterior precision tells nothing
 MIN_INFORMATION = 0.1
+#: the least spread of the mounting from frame to frame (log h; pitch and roll in radians): a camera
+#: on a moving vehicle is not still (braking and the road's changing slope pitch it by tenths of a
+#: degree, the suspension and the road's camber move it by centimetres), and with a few dozen frames
+#: the moment estimator of the spread is often exactly 0, which would make every frame's prior as
+#: narrow as the pooled mean's uncertainty
+MIN_SPREAD = {"log_height": 0.03, "pitch": math.radians(0.5), "roll": math.radians(0.5)}
 
 
 @dataclass(frozen=True)
@@ -139,8 +145,8 @@ def shared_likelihood(key: str, camera_id: str | None, result: dict) -> SharedLi
     return SharedLikelihood(key, camera_id, mean, precision)
 
 
-def _combine(m: np.ndarray, p: np.ndarray, kind: str) -> tuple[float, float, float]:
-    """(M, V, τ) of likelihoods N(mᵢ, 1/pᵢ) (module docstring)."""
+def _combine(m: np.ndarray, p: np.ndarray, kind: str, floor: float = 0.0) -> tuple[float, float, float]:
+    """(M, V, τ) of likelihoods N(mᵢ, 1/pᵢ) (module docstring); τ at least ``floor``."""
     w = p.sum()
     center = float((p * m).sum() / w)
     n = len(m)
@@ -148,6 +154,7 @@ def _combine(m: np.ndarray, p: np.ndarray, kind: str) -> tuple[float, float, flo
     if kind == "shared":
         return center, (1.0 / w) * max(1.0, q / (n - 1) if n > 1 else 1.0), 0.0
     tau2 = max(0.0, (q - (n - 1)) / (w - (p**2).sum() / w)) if n > 1 else 0.0
+    tau2 = max(tau2, floor**2)
     ws = 1.0 / (1.0 / p + tau2)
     center = float((ws * m).sum() / ws.sum())
     return center, float(1.0 / ws.sum()), math.sqrt(tau2)
@@ -172,7 +179,7 @@ def pool_rig(frames: list[SharedLikelihood], rig: str, *, leave_out: str | None 
                 continue
             m = np.array([f.mean[name] for f in have])
             p = np.array([f.precision[name] for f in have])
-            center[name], var[name], tau[name] = _combine(m, p, QUANTITIES[name][2])
+            center[name], var[name], tau[name] = _combine(m, p, QUANTITIES[name][2], MIN_SPREAD.get(name, 0.0))
             count[name] = len(have)
         if center:
             out[cam] = RigEstimate(cam, center, var, tau, count, tuple(f.key for f in group))
