@@ -104,12 +104,12 @@ def rig_batch(tmp_path_factory):
         if seed < 4:
             scene["camera"]["id"] = "rig-A"
         (root / "in" / f"f{seed}.json").write_text(json.dumps(scene))
-    settings = BatchSettings(seed=2, sampling={"min_ess": 50, "max_steps": 500, "warmup": 200}, rig="focal")
+    settings = BatchSettings(seed=2, sampling={"min_ess": 50, "max_steps": 500, "warmup": 200}, rig="mounting")
     report = run_batch([root / "in"], root / "out", LocalEngine(2), settings)
     return root, settings, report
 
 
-def test_batch_pools_the_focal_length_of_one_camera(rig_batch):
+def test_batch_pools_the_focal_length_and_mounting_of_one_camera(rig_batch):
     root, settings, report = rig_batch
     assert report.ok and len(report.keys("done")) == 5
     out = root / "out"
@@ -125,6 +125,14 @@ def test_batch_pools_the_focal_length_of_one_camera(rig_batch):
         # three other frames know the focal length better than the default prior did
         assert rig["focal_length_px"]["log_sd"] < first["camera"]["setup"]["focal_prior"]["log_sd"]
         assert abs(math.log(rig["focal_length_px"]["median"] / 1400.0)) < 4 * rig["focal_length_px"]["log_sd"]
+        # the mounting: the frames' shared height (1.6 m) and pitch (6°), each with a spread
+        height, pitch = rig["height_m"], rig["pitch_deg"]
+        assert height["spread_log_sd"] >= 0.03 and pitch["spread_sd"] >= 0.5
+        prior = copy["camera"]["orientation_prior"]
+        assert prior["height_median_m"] == pytest.approx(height["median"], rel=1e-3)
+        assert prior["pitch_mean_deg"] == pytest.approx(pitch["mean"], abs=1e-3)
+        assert prior["pitch_sd_deg"] < 15.0 / 4  # far narrower than the default prior's 15°
+        assert abs(math.log(height["median"] / 1.6)) < 4 * math.hypot(height["log_sd"], height["spread_log_sd"])
     alone = json.loads((out / "results" / "f4.json").read_text())
     assert "rig" not in alone and alone["camera"]["setup"]["focal_prior"]["source"] == "default"
 
