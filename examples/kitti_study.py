@@ -152,6 +152,15 @@ def main(argv=None) -> int:
                         "camera's height (the objects' median bottom, ±2 %%) and a level pose (±0.5°), as a "
                         "rig with a measured mounting would give: shows how much of the gap to the goals is "
                         "the camera's scale")
+    p.add_argument("--focal", choices=("known", "unknown"), default="known",
+                   help="known: P2's focal length is given (the default); unknown: left out of every scene (a "
+                        "street camera nobody calibrated; creference simulate --from-kitti --focal-unknown)")
+    p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
+                   help="pool what frames of one camera share before the joint labels (creference batch --rig): "
+                        "the focal length, or also the mounting (height, pitch, roll); default: each frame alone")
+    p.add_argument("--split", choices=("all", "even", "odd"), default="all",
+                   help="use every frame, or only those with an even or odd number (tune on one half, report on "
+                        "the other; pooling uses only the frames in use)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a metrology model option for the joint and the alone estimates (repeatable; "
                         "creference_bayes.pipeline.MODEL_OPTIONS, and location_prior), e.g. target_dof=30")
@@ -179,11 +188,27 @@ def main(argv=None) -> int:
     out = Path(args.out)
     scenes = out / "scenes"
     totals = kitti_scenes(args.kitti, scenes, n_annotations=args.annotations, noise_px=args.noise_px, seed=args.seed,
-                          sizes=args.sizes)
-    paths = sorted(scenes.glob("*.json"))[:args.max_frames]
+                          sizes=args.sizes, focal_known=args.focal == "known")
+    paths = sorted(scenes.glob("*.json"))
+    if args.split != "all":
+        paths = [p for p in paths if int(p.stem) % 2 == (args.split == "odd")]
+    paths = paths[:args.max_frames]
     print(f"{totals['scenes']} images, {totals['kept']} objects (left out: {totals['skipped']}); using {len(paths)}")
     rng = np.random.default_rng(args.seed)
     times = []
+    rig_frames, rigs, first_pass = [], {}, {}
+    if args.rig != "none" and "joint" in methods:  # pass one: every frame alone, for its camera's rig
+        from creference_bayes.workflows.batch.rig import shared_likelihood
+
+        for path in paths:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                frame = load_scene(path)
+            t0 = time.perf_counter()
+            res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
+            first_pass[path.stem] = time.perf_counter() - t0
+            rig_frames.append(shared_likelihood(path.stem, frame.camera_id, res.to_dict()))
+        print(f"rig pass one: {len(paths)} frames, median {np.median(list(first_pass.values())):.1f} s", flush=True)
     for path in paths:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -197,9 +222,14 @@ def main(argv=None) -> int:
                 pitch_sd=float(np.radians(0.5)), roll_sd=float(np.radians(0.5)), height_median_m=h, height_log_sd=0.02))
         depth_score = lambda z: np.exp(-np.asarray(z) / 40.0)
         if "joint" in methods:
+            if rig_frames:
+                from creference_bayes.workflows.batch.rig import apply_rig, rig_report
+
+                frame, est = apply_rig(frame, rig_frames, args.rig, name)
+                rigs[name] = rig_report(est)
             t0 = time.perf_counter()
             res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
-            times.append(time.perf_counter() - t0)
+            times.append(time.perf_counter() - t0 + first_pass.get(name, 0.0))
             d = res.to_dict()
             labels, _ = write_labels(out / "joint", name, [LabelInput(name, d, frame)])
             if args.same_score:
@@ -246,21 +276,60 @@ def main(argv=None) -> int:
         for band, row in _box_errors(gt_labels, gt, out / method / "label_2", report[method]["objects"]).items():
             print(f"{method:<8}{band:>8}  depth {row[0]:5.1f}  h/w/l {row[1]:4.1f} {row[2]:4.1f} {row[3]:4.1f}"
                   f"  yaw {row[4]:4.1f}  n {row[5]}")
-    rel = report["joint"]["reliability"].get("p_iou_ge_0.7") if "joint" in report else None
-    if rel:
-        print(f"\nlabel quality (joint): mean predicted P(IoU ≥ 0.7) {rel['mean_predicted']:.2f}, observed "
+    for thr in ("0.5", "0.7"):
+        rel = report["joint"]["reliability"].get(f"p_iou_ge_{thr}") if "joint" in report else None
+        if not rel:
+            continue
+        print(f"\nlabel quality (joint): mean predicted P(IoU ≥ {thr}) {rel['mean_predicted']:.2f}, observed "
               f"{rel['observed_share']:.2f}, Brier {rel['brier']:.3f} over {rel['count']} labels")
-        print("predicted P(IoU ≥ 0.7) bin: labels, mean predicted, observed share ± 2 se, within 2 se")
+        print(f"predicted P(IoU ≥ {thr}) bin: labels, mean predicted, observed share ± 2 se, within 2 se")
         for r in rel["rows"]:
             if r["count"]:
                 ok = abs(r["observed_share"] - r["mean_predicted"]) <= 2 * r["se"]
                 print(f"  {r['low']:.1f}–{r['high']:.1f}: {r['count']:4d}, {r['mean_predicted']:.2f}, "
                       f"{r['observed_share']:.2f} ± {2 * r['se']:.2f}, {'yes' if ok else 'NO'}")
     if times:
-        print(f"time per frame: median {np.median(times):.1f} s, max {np.max(times):.1f} s")
-    (out / "study.json").write_text(json.dumps({"times": times, **{k: {"ap": v["ap"], "reliability": v["reliability"]}
+        print(f"time per frame: median {np.median(times):.1f} s, max {np.max(times):.1f} s"
+              + (" (both passes)" if rig_frames else ""))
+    if rigs:
+        _print_rigs(rigs, paths, out)
+    (out / "study.json").write_text(json.dumps({"times": times, "rigs": rigs, **{k: {"ap": v["ap"], "reliability": v["reliability"]}
                                                                     for k, v in report.items()}}, indent=1))
     return 0
+
+
+def _print_rigs(rigs: dict, paths, out: Path) -> None:
+    """Each camera's pooled focal length, height and pitch (the median over its frames' leave-one-out
+    rigs) against KITTI's P2 and the objects' median bottom (the height's truth, roughly)."""
+    import json as _json
+
+    print("\nrig by camera (median of the frames' leave-one-out rigs; truth: P2's focal length, the objects' median "
+          "bottom y)")
+    by_cam: dict = {}
+    for path in paths:
+        r = rigs.get(path.stem)
+        if r is None:
+            continue
+        scene = _json.loads(path.read_text())
+        truth_f = scene["ground_truth"].get("focal_length_px")
+        truth_h = float(np.median([t["ground_truth"]["location_m"][1] for t in scene["targets"]]))
+        by_cam.setdefault(r["camera_id"], []).append((r, truth_f, truth_h))
+    for cam, rows in sorted(by_cam.items()):
+        f = [r["focal_length_px"]["median"] for r, *_ in rows if "focal_length_px" in r]
+        fsd = [r["focal_length_px"]["log_sd"] for r, *_ in rows if "focal_length_px" in r]
+        line = f"  {cam}: {len(rows)} frames"
+        if f:
+            line += f", focal {np.median(f):.1f} px (log-sd {np.median(fsd):.3f}; P2 {rows[0][1]:.1f})"
+        h = [r["height_m"]["median"] for r, *_ in rows if "height_m" in r]
+        if h:
+            hs = [r["height_m"]["spread_log_sd"] for r, *_ in rows if "height_m" in r]
+            line += (f", height {np.median(h):.2f} m (spread log-sd {np.median(hs):.3f}; objects' median "
+                     f"{np.median([t for *_, t in rows]):.2f} m)")
+        p = [r["pitch_deg"]["mean"] for r, *_ in rows if "pitch_deg" in r]
+        if p:
+            ps = [r["pitch_deg"]["spread_sd"] for r, *_ in rows if "pitch_deg" in r]
+            line += f", pitch {np.median(p):+.2f}° (spread {np.median(ps):.2f}°)"
+        print(line)
 
 
 def _alone(frame, name, options, out, depth_score):

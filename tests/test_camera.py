@@ -17,7 +17,7 @@ from creference_bayes.core.geometry import horizon_from_rotation, rotation_from_
 from creference_bayes.io.scene import SceneError, parse_scene, scene_to_dict
 from creference_bayes.models.camera_terms import (FULL_FRAME_DIAGONAL_MM, FocalPrior, OrientationPrior,
                                                   horizon_offsets)
-from creference_bayes.vision.exif import focal_from_exif
+from creference_bayes.vision.exif import camera_id_from_exif, focal_from_exif
 
 
 def _scene_dict(seed=3, **kw):
@@ -186,6 +186,48 @@ def test_exif_focal_length_routes(tmp_path):
     (tmp_path / "d.jpg").write_bytes(b"not an image")
     assert focal_from_exif(tmp_path / "d.jpg", (2880, 1800)) is None
     assert focal_from_exif(tmp_path / "missing.jpg", (2880, 1800)) is None
+
+
+def _camera_jpeg(path, make=None, model=None, focal=None, serial=None):
+    """A small JPEG with the EXIF tags that name a camera: Make, Model (IFD0), FocalLength and
+    BodySerialNumber (the Exif IFD)."""
+    img = Image.new("RGB", (64, 48), (120, 120, 120))
+    exif = Image.Exif()
+    for tag, value in ((0x010F, make), (0x0110, model)):
+        if value is not None:
+            exif[tag] = value
+    ifd = exif.get_ifd(0x8769)
+    for tag, value in ((0x920A, focal), (0xA431, serial)):
+        if value is not None:
+            ifd[tag] = value
+    img.save(path, exif=exif)
+    return path
+
+
+def test_camera_id_from_exif_make_model_and_focal_length(tmp_path):
+    def cid(name, **tags):
+        return camera_id_from_exif(_camera_jpeg(tmp_path / f"{name}.jpg", **tags))
+
+    assert cid("a", make="Canon", model="Canon EOS 80D", focal=35.0) == "exif:Canon EOS 80D 35mm"
+    assert cid("b", make="Apple", model="iPhone 12", focal=4.2) == "exif:Apple iPhone 12 4.2mm"
+    # NUL padding and blanks cleaned; the make dropped when the model starts with its first word
+    assert cid("c", make="NIKON CORPORATION", model="NIKON  D750\0\0", focal=50.0) == "exif:NIKON D750 50mm"
+    # two bodies of one model are two cameras; another focal length of a zoom is another camera
+    assert cid("d", make="Canon", model="Canon EOS 80D", focal=35.0, serial="012345") == \
+        "exif:Canon EOS 80D #012345 35mm"
+    assert cid("e", make="Canon", model="Canon EOS 80D", focal=50.0) != cid("a2", make="Canon",
+                                                                         model="Canon EOS 80D", focal=35.0)
+    assert cid("f", make="SONY", model="ILCE-7M3") == "exif:SONY ILCE-7M3"  # no focal length tag
+    # None: no model, no EXIF at all, not an image, no file
+    assert cid("g", make="Apple", focal=4.2) is None
+    assert cid("h") is None
+    (tmp_path / "i.jpg").write_bytes(b"not an image")
+    assert camera_id_from_exif(tmp_path / "i.jpg") is None
+    assert camera_id_from_exif(tmp_path / "missing.jpg") is None
+    # the id is one a scene file takes as its camera.id
+    d = _scene_dict()
+    d["camera"] = {**d.get("camera", {}), "id": cid("j", make="Canon", model="Canon EOS 80D", focal=35.0)}
+    assert _parse(d).camera_id == "exif:Canon EOS 80D 35mm"
 
 
 def test_pipeline_uses_exif_and_warns_when_the_annotations_disagree(tmp_path):

@@ -77,7 +77,7 @@ def test_print_labels_is_the_shipped_spec(capsys):
     assert {lab["name"]: tuple(a["name"] for a in lab["attributes"]) for lab in spec} == LABEL_ATTRIBUTES
     assert set(REFERENCE_FIELDS) < set(LABEL_ATTRIBUTES["reference"])
     assert {lab["name"]: lab["type"] for lab in spec} == {"target": "points", "reference": "polyline",
-                                                          "horizon": "polyline"}
+                                                          "horizon": "polyline", "camera": "tag"}
     for lab in spec:
         for a in lab["attributes"]:
             # an unset select must stay unset (CVAT's sentinel), not default to its first value
@@ -471,3 +471,66 @@ def test_a_broken_zip_names_the_file(tmp_path, capsys):
     assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"error: {path}: cannot read the ZIP: "), err
+
+
+# ----------------------------------------------------------------------------------------------
+# the camera's name: a `camera` tag's camera_id → camera.id (frames of one camera: creference batch --rig)
+
+
+def _camera(value, extra=""):
+    attr = "" if value is None else f'<attribute name="camera_id">{value}</attribute>'
+    return f'<tag label="camera" source="manual">{attr}{extra}</tag>'
+
+
+def test_a_camera_tag_is_the_scene_camera_id(tmp_path):
+    report = _convert(_doc(_TARGET.format(tid="sofa"), _camera("  dashcam left ")))
+    assert report.ok, report.errors
+    (s,) = report.scenes
+    assert s.scene["camera"] == {"id": "dashcam left"}
+    # with a focal length from the --targets table, and the same id on a second tag
+    table = _table(tmp_path, "image,target_id,length_m,width_m,height_m,focal_length_px\nim.jpg,,,,,2100\n")
+    (s,) = _convert(_doc(_camera("cam1"), _TARGET.format(tid="sofa"), _camera("cam1")), targets=table).scenes
+    assert s.scene["camera"] == {"id": "cam1", "focal_length_px": 2100.0}
+    (s,) = _convert(_doc(_TARGET.format(tid="sofa"))).scenes  # no tag: no camera id
+    assert "camera" not in s.scene
+
+
+@pytest.mark.parametrize("tags, message", [
+    ((_camera(""),), "image 'im.jpg', shape 1 (tag 'camera'): a camera tag with an empty camera_id ''"),
+    ((_camera("  "),), "image 'im.jpg', shape 1 (tag 'camera'): a camera tag with an empty camera_id ''"),
+    ((_camera("__undefined__"),),
+     "image 'im.jpg', shape 1 (tag 'camera'): a camera tag with an empty camera_id '__undefined__'"),
+    ((_camera(None),), "image 'im.jpg', shape 1 (tag 'camera'): a camera tag with no camera_id attribute"),
+    ((_camera("a", '<attribute name="camera_id">b</attribute>'),),
+     "image 'im.jpg', shape 1 (tag 'camera'): attribute 'camera_id' is given twice"),
+    ((_camera("cam1"), _camera("cam2")),
+     "image 'im.jpg': camera_id 'cam1' on shape 1 (tag 'camera') but 'cam2' on shape 2 (tag 'camera'): "
+     "one photo has one camera"),
+])
+def test_a_bad_camera_tag_names_the_image_the_tag_and_the_value(tags, message):
+    bad = _doc(_TARGET.format(tid="a"), *tags)
+    good = _doc(_TARGET.format(tid="b"), name="b.jpg")
+    report = _convert(bad.replace("</annotations>", good[good.index("<image "):]))
+    assert [s.name for s in report.scenes] == ["b"], "the other image is still converted"
+    (err,) = report.errors
+    assert str(err).startswith(message), str(err)
+
+
+def test_a_camera_label_on_a_shape_is_ignored_with_a_note():
+    box = '<box label="camera" xtl="1" ytl="2" xbr="3" ybr="4"><attribute name="camera_id">x</attribute></box>'
+    report = _convert(_doc(_TARGET.format(tid="sofa"), box))
+    assert report.ok, report.errors
+    assert "camera" not in report.scenes[0].scene
+    assert "image 'im.jpg', shape 1: <box> 'camera' ignored (the camera is a tag on the image)" in report.notes
+
+
+def test_the_camera_id_round_trips_through_cvat_xml():
+    a, b = tool_scene(0, m=1), tool_scene(1, m=1)
+    a["camera"] = {**a.get("camera", {}), "id": "rig/front"}
+    text = cvat_xml([a, b], image_names=["a.png", "b.png"])
+    assert text.count('<tag label="camera"') == 1
+    sa, sb = _convert(text, classes=_CLASSES).scenes
+    assert sa.scene["camera"] == {"id": "rig/front"} and "camera" not in sb.scene
+    with pytest.raises(ValueError, match="disagree on its camera id"):
+        cvat_xml([a, {**a, "camera": {"id": "rig/rear"}, "targets": [{**a["targets"][0], "id": "u0"}],
+                      "references": []}], image_names=["x.png", "x.png"])

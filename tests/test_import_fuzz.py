@@ -36,13 +36,19 @@ def _second_task_on_one_image(tasks):
     return t
 
 
+def _with_camera_id(scene, camera_id="rig/front"):
+    """The scene with its camera's name (a task's data.camera_id, a CVAT camera tag)."""
+    return {**scene, "camera": {**scene.get("camera", {}), "id": camera_id}}
+
+
 LS_EXPORT = json.loads((DATA / "label_studio_export.json").read_text())
-#: The export, a second task on one of its images, and scenes of three targets (keypoints and vectors).
+#: The export, a second task on one of its images, and scenes of three targets (keypoints and vectors;
+#: the first with its camera's name).
 LS_SCENES = (LS_EXPORT + [_second_task_on_one_image(LS_EXPORT)]
-             + label_studio_tasks([tool_scene(5)], lines="keypoints", start_id=30)
+             + label_studio_tasks([_with_camera_id(tool_scene(5))], lines="keypoints", start_id=30)
              + label_studio_tasks([tool_scene(5)], lines="vectors", start_id=40))
 CVAT_XML = (DATA / "cvat_annotations.xml").read_bytes()
-CVAT_SCENES = cvat_xml([tool_scene(5)], image_names=["drive/000007.png"]).encode()
+CVAT_SCENES = cvat_xml([_with_camera_id(tool_scene(5))], image_names=["drive/000007.png"]).encode()
 CLASSES = size_priors_from_dict({"Kayak": KAYAK})  # a class of the scene's own: CVAT needs --classes
 
 #: Keys and texts the importers look for, so that added keys and replaced values hit real branches.
@@ -54,7 +60,7 @@ WORDS = ["", "0", "-1", "1e400", "nan", "inf", "2.5", "id", "data", "annotations
          "ground_truth", "frame_id", "dimensions_m", "t1 bottom corner", "t4 top of height", "reference start",
          "reference end", "reference", "measure", "mode", "direct", "relative", "unit", "m", "range_low",
          "range_high", "confidence_pct", "was_cancelled", "lead_time", "completed_by", "creference_scene",
-         "__undefined__", "Car", "Misc", "/data/local-files/?d=a/b.png", "http://[::1"]
+         "__undefined__", "Car", "Misc", "camera_id", "camera", "/data/local-files/?d=a/b.png", "http://[::1"]
 LEAVES = st.one_of(st.none(), st.booleans(), st.integers(-10**4, 10**4), st.integers(), st.just(10**400),
                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8), st.sampled_from(WORDS))
 VALUES = st.recursive(LEAVES, lambda inner: st.one_of(
@@ -161,7 +167,7 @@ def test_mutated_label_studio_scenes_of_several_targets_convert_or_are_refused(d
 
 ATTRIBUTE_NAMES = ["name", "width", "height", "label", "points", "id", "target_id", "class", "length_m",
                    "width_m", "height_m", "measure", "mode", "value", "range_low", "range_high", "unit",
-                   "confidence_pct", "worker", "object"]
+                   "confidence_pct", "worker", "object", "camera_id"]
 TEXTS = st.one_of(st.sampled_from(WORDS + ATTRIBUTE_NAMES + ["1,2;3,4", "1,2;3,4;5,6;7,8", "0,0;0,0", "1;2",
                                                            "1e999,2;3,4", "nan,1;2,3", "2000", "4000.5"]),
                   st.text(max_size=10), st.integers().map(str), st.floats().map(str))

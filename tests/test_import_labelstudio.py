@@ -859,3 +859,64 @@ def test_a_value_no_scene_file_can_hold_is_an_error_not_a_crash(tmp_path, capsys
     err = capsys.readouterr().err.strip()  # the scene check or the writability check refuses it
     assert err.startswith(f"error: task 17, data.ground_truth: {path}.note: ") and "inf" in err and "\n" not in err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+# ----------------------------------------------------------------------------------------------
+# the camera's name: data.camera_id → camera.id (frames of one camera: creference batch --rig)
+
+
+def test_a_task_camera_id_is_the_scene_camera_id():
+    t = _task()
+    t["data"]["camera_id"] = "  dashcam-left "
+    report = scenes_from_label_studio([t, _export()[1]])
+    assert report.ok, report.errors
+    room, street = report.scenes
+    assert room.scene["camera"]["id"] == "dashcam-left"  # stripped
+    assert "id" not in street.scene.get("camera", {})  # a task without one: no camera id
+    t["data"]["camera_id"] = None  # null is "not given"
+    (room,) = scenes_from_label_studio([t]).scenes
+    assert "id" not in room.scene.get("camera", {})
+
+
+def test_the_tasks_of_one_image_share_the_camera_id():
+    first, second = _task(), _second_target_task()
+    first["data"]["camera_id"] = "cam A"
+    (s,) = scenes_from_label_studio([first, second]).scenes  # the task that gives it names the camera
+    assert s.scene["camera"]["id"] == "cam A"
+    second["data"]["camera_id"] = "cam A"
+    (s,) = scenes_from_label_studio([first, second]).scenes
+    assert s.scene["camera"]["id"] == "cam A"
+    second["data"]["camera_id"] = "cam B"
+    report = scenes_from_label_studio([first, second])
+    assert report.scenes == ()
+    (err,) = report.errors
+    assert str(err) == ("task 17, task 99 (one image): data.camera_id is 'cam A' in task 17 but 'cam B' in "
+                        "task 99 (the tasks of one image share it)")
+
+
+@pytest.mark.parametrize("value, problem", [
+    (7, "must be the camera's name (text), got 7"),
+    (True, "must be the camera's name (text), got True"),
+    (["cam"], "must be the camera's name (text), got ['cam']"),
+    ({"id": "cam"}, "must be the camera's name (text), got {'id': 'cam'}"),
+    ("", "is empty text ''"),
+    ("  \t", "is blank text (only whitespace)"),
+])
+def test_a_bad_camera_id_names_the_task_and_the_value(value, problem):
+    t = _task()
+    t["data"]["camera_id"] = value
+    report = scenes_from_label_studio([t, _export()[1]])
+    assert [s.name for s in report.scenes] == ["street"], "the other task is still converted"
+    (err,) = report.errors
+    assert str(err) == (f"task 17: data.camera_id {problem}: give the camera's name, or leave the field out "
+                        "(or null) for a photo of no known camera")
+
+
+def test_the_camera_id_round_trips_through_a_task(assert_same_scene):
+    d = tool_scene(3)
+    d["camera"] = {**d.get("camera", {}), "id": "rig/front"}
+    task = label_studio_task(d, task_id=5)
+    assert task["data"]["camera_id"] == "rig/front"
+    (s,) = scenes_from_label_studio([task]).scenes
+    assert s.scene["camera"]["id"] == "rig/front"
+    assert parse_scene(s.scene).camera_id == "rig/front"

@@ -224,3 +224,29 @@ def test_the_kitti_path_on_the_command_line(tmp_path):
     assert (tmp_path / "labels" / "report.md").is_file() and (tmp_path / "labels" / "quality.png").is_file()
     out = run("evaluate", "kitti", kitti / "label_2", tmp_path / "labels" / "label_2")
     assert "AP R40" in out and "Car         0.7  3D" in out
+
+
+def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp_path):
+    """Three frames with the same P2 and the focal length left out of the scenes: every scene names
+    the same camera, and ``--rig focal`` gives each frame a focal-length prior from the two others
+    (the study prints it against P2's and records it in study.json)."""
+    import shutil
+
+    for name in ("000008", "000009"):
+        shutil.copy(kitti_dir / "label_2" / "000007.txt", kitti_dir / "label_2" / f"{name}.txt")
+        shutil.copy(kitti_dir / "calib" / "000007.txt", kitti_dir / "calib" / f"{name}.txt")
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    out = tmp_path / "study"
+    proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
+                           "--max-steps", "400", "--methods", "joint", "--focal", "unknown", "--rig", "focal"],
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    scenes = [json.loads(p.read_text()) for p in sorted((out / "scenes").glob("*.json"))]
+    assert len(scenes) == 3 and all("focal_length_px" not in s["camera"] for s in scenes)
+    assert len({s["camera"]["id"] for s in scenes}) == 1 and scenes[0]["camera"]["id"].startswith("kitti-")
+    assert all(s["ground_truth"]["focal_length_px"] == pytest.approx(P2[0, 0]) for s in scenes)
+    rigs = json.loads((out / "study.json").read_text())["rigs"]
+    informed = [r for r in rigs.values() if r is not None]
+    assert informed and all(r["frames"] == 2 and r["focal_length_px"]["frames"] >= 1 for r in informed)
+    assert f"P2 {P2[0, 0]:.1f}" in proc.stdout
+    assert len(list((out / "joint" / "label_2").glob("*.txt"))) == 3

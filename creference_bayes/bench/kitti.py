@@ -29,6 +29,8 @@ location in the camera frame of P2 (``location_m``, the rectified frame moved by
 
 from __future__ import annotations
 
+import hashlib
+
 from pathlib import Path
 
 import numpy as np
@@ -100,9 +102,11 @@ def _corners(loc, ry, dims_hwl, hand_corner):
 
 
 def kitti_scene(label_path, calib_path, image_path=None, *, rng=None, n_annotations: int = 5,
-                noise_px: float = 2.0, frame_id: str | None = None, sizes: str = "prior") -> tuple[dict, dict]:
+                noise_px: float = 2.0, frame_id: str | None = None, sizes: str = "prior",
+                focal_known: bool = True) -> tuple[dict, dict]:
     """One scene (a ``creference-scene/2`` dict) and a report of which objects were kept and why
-    the others were not; ``sizes`` one of :data:`SIZES`."""
+    the others were not; ``sizes`` one of :data:`SIZES`; ``focal_known`` False leaves P2's focal
+    length out of the camera block (a street camera nobody calibrated: it stays in the ground truth)."""
     if sizes not in SIZES:
         raise ValueError(f"sizes: expected one of {list(SIZES)}, got {sizes!r}")
     rng = np.random.default_rng(rng)
@@ -159,16 +163,24 @@ def kitti_scene(label_path, calib_path, image_path=None, *, rng=None, n_annotati
                                        "occluded": int(labels.occluded[i]), "line": int(labels.line[i])}},
         })
     scene = {"format": "creference-scene/2", "image": {"width": int(w), "height": int(h)},
-             "camera": {"principal_point": [float(P2[0, 2]), float(P2[1, 2])], "focal_length_px": float(P2[0, 0]),
+             "camera": {"id": kitti_camera_id(P2), "principal_point": [float(P2[0, 2]), float(P2[1, 2])],
+                        **({"focal_length_px": float(P2[0, 0])} if focal_known else {}),
                         "kitti_p2": P2.tolist(), "kitti_calib": calib},
-             "targets": targets, "ground_truth": {"frame": frame_id}}
+             "targets": targets, "ground_truth": {"frame": frame_id, "focal_length_px": float(P2[0, 0])}}
     if image_path is not None:
         scene["image"]["path"] = str(image_path)
     return scene, {"kept": len(targets), "skipped": skipped}
 
 
+def kitti_camera_id(P2: np.ndarray) -> str:
+    """The camera id of a KITTI calibration: ``kitti-`` and 10 hex digits of P2's SHA-256 (P2 as
+    the calib file gives it, 12 significant digits), so that the same P2 gives the same id."""
+    text = " ".join(f"{v:.12g}" for v in np.asarray(P2, float).ravel())
+    return "kitti-" + hashlib.sha256(text.encode()).hexdigest()[:10]
+
+
 def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, seed: int = 0,
-                 progress=None, sizes: str = "prior") -> dict:
+                 progress=None, sizes: str = "prior", focal_known: bool = True) -> dict:
     """Write one scene per label file of ``folder`` into ``out`` (``<id>.json``); returns the totals
     of kept and skipped objects. Images without an annotatable object are not written."""
     from ..io.files import atomic_write_json
@@ -183,7 +195,7 @@ def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
         calib = folder / "calib" / lp.name
         image = folder / "image_2" / (lp.stem + ".png")
         scene, rep = kitti_scene(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k], n_annotations=n_annotations, noise_px=noise_px,
-                                 frame_id=lp.stem, sizes=sizes)
+                                 frame_id=lp.stem, sizes=sizes, focal_known=focal_known)
         for key, v in rep["skipped"].items():
             totals["skipped"][key] = totals["skipped"].get(key, 0) + v
         if rep["kept"]:

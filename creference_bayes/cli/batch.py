@@ -21,6 +21,9 @@ def _settings(args):
     from ..workflows.batch import BatchSettings
 
     check_posterior_values(args)
+    if args.rig != "none" and args.no_posterior:
+        raise UsageError(f"--rig {args.rig}: needs the posterior (each frame's draws say what it knows of its "
+                         "camera); leave out --no-posterior")
     sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
     if args.max_steps is not None:
         if args.max_steps < 10:
@@ -34,7 +37,7 @@ def _settings(args):
                              sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
                              location_prior=args.location_prior,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
-                             classes=load_classes(args.classes) or {})
+                             classes=load_classes(args.classes) or {}, rig=args.rig)
     except ValueError as exc:  # a sampler setting out of range
         raise UsageError(str(exc)) from None
 
@@ -105,6 +108,12 @@ def register(subparsers) -> None:
     add_confidence_map_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     add_camera_options(p)
+    p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
+                   help="what the frames of one camera (the scenes' camera.id) share, learnt from all of them: "
+                        "focal (its focal length), mounting (also its height, pitch and roll, with a spread "
+                        "from frame to frame), or none (every frame alone; the default). Two passes: "
+                        "DIR/first_pass/ holds every frame alone, DIR/results/ the frames with their camera's "
+                        "rig (docs/batch.md)")
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true",
                    help="the MAP only (creference labels then has no uncertainty to export)")

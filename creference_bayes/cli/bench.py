@@ -120,6 +120,9 @@ def _run_simulate_command(args) -> int:
         raise UsageError(f"--references: expected an integer >= 0, got {args.references}")
     if args.noise_px is not None and not args.noise_px >= 0:
         raise UsageError(f"--noise-px: expected a number >= 0, got {args.noise_px}")
+    if args.focal_unknown and args.from_kitti is None:
+        raise UsageError("--focal-unknown: only with --from-kitti (a simulated scene leaves the focal length out "
+                         "unless --focal-known)")
     if args.from_kitti is not None:
         return _run_kitti(args, out)
     if args.n is None:
@@ -161,7 +164,7 @@ def _run_kitti(args, out: Path) -> int:
     try:
         totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
                               noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
-                              sizes=args.sizes or "prior")
+                              sizes=args.sizes or "prior", focal_known=not args.focal_unknown)
     except ValueError as exc:  # a malformed label or calib file: its message names file and line
         raise UsageError(str(exc)) from None
     if not args.quiet:
@@ -241,6 +244,9 @@ def register(subparsers) -> None:
                    help="the horizon the scene gives: exact, none, or sd (off by 5 px and stated so; "
                         "default: %(default)s)")
     p.add_argument("--focal-known", action="store_true", help="write the true focal length into the scene")
+    p.add_argument("--focal-unknown", action="store_true",
+                   help="with --from-kitti: leave P2's focal length out of the scenes (a street camera nobody "
+                        "calibrated; every scene still names its camera, camera.id)")
     p.add_argument("--confidence", default=None, metavar="MAP",
                    help="every reference is a range stated with a confidence by a pool of workers "
                         "(each with an own error scale) whose true confidence map is calibrated, "

@@ -11,8 +11,11 @@ grouped into targets by their ``target_id`` (on an image with a single target it
 the target's id is then the image's name); a target's ``class`` and size
 (``length_m``/``width_m``/``height_m``, or the ``--targets`` table; without one its class's size
 prior applies) come from its shapes. A ``reference`` with a ``target_id`` names that target (a
-relative one is a ratio to it); a direct one without is a ground segment of the photo. Other
-shapes (boxes, polygons, …, tags) and other labels are ignored with a note.
+relative one is a ratio to it); a direct one without is a ground segment of the photo. A
+``camera`` tag on the image (a tag, CVAT's image-level annotation) names the photo's camera in
+its ``camera_id`` attribute: the scene's ``camera.id`` (frames with the same id share a camera,
+``creference batch --rig``). Other shapes (boxes, polygons, …, other tags) and other labels are
+ignored with a note.
 
 The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
 parsing, so no entity can expand.
@@ -36,12 +39,13 @@ from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
-TARGET, REFERENCE, HORIZON = "target", "reference", "horizon"
+TARGET, REFERENCE, HORIZON, CAMERA = "target", "reference", "horizon", "camera"
 #: Attributes of each label, in the order they are written.
 LABEL_ATTRIBUTES = {
     TARGET: ("target_id", "class", "length_m", "width_m", "height_m", "worker"),
     REFERENCE: ("target_id",) + REFERENCE_FIELDS + ("worker",),
     HORIZON: ("worker",),
+    CAMERA: ("camera_id",),
 }
 _SELECTS = ("class", "measure", "mode", "unit")
 _N_POINTS = {TARGET: 4, REFERENCE: 2, HORIZON: 2}
@@ -176,9 +180,14 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
     width = _whole(image.get("width"), where, "width")
     height = _whole(image.get("height"), where, "height")
     shapes = {TARGET: [], REFERENCE: [], HORIZON: []}
+    cameras = []
     for k, el in enumerate(list(image)):
         label = el.get("label")
-        if label not in shapes:
+        if label == CAMERA and el.tag == "tag":
+            cameras.append((k, el))
+        elif label == CAMERA:
+            notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (the camera is a tag on the image)")
+        elif label not in shapes:
             notes.append(f"{where}, shape {k}: label {label!r} ignored")
         elif el.tag not in ("points", "polyline"):
             notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (a {label} is drawn as "
@@ -242,9 +251,11 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
         path = image_file(image_dir, name, out_dir, where, notes)
         if path is not None:
             scene["image"]["path"] = path
+    camera_id = _camera_id(cameras, where)
     focal = table.focal([name], [t["id"] for t in targets], where)
-    if focal is not None:
-        scene["camera"] = {"focal_length_px": focal}
+    camera = {k: v for k, v in (("id", camera_id), ("focal_length_px", focal)) if v is not None}
+    if camera:
+        scene["camera"] = camera
     if shapes[HORIZON]:
         scene["horizon"] = mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
     own = classes_block(targets, None, classes)
@@ -255,6 +266,28 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
         scene["references"] = refs
     base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
     return ImportedScene(base, checked_scene(scene, where, origins), where)
+
+
+def _camera_id(cameras: list, where: str) -> str | None:
+    """The camera's name from the image's ``camera`` tags (``(index, element)``): their
+    ``camera_id`` attribute, which must be filled in and the same on every such tag; None without
+    a tag."""
+    found: dict[str, str] = {}
+    for k, el in cameras:
+        desc = f"shape {k} (tag {CAMERA!r})"
+        values = [(a.text or "").strip() for a in el.findall("attribute") if a.get("name") == "camera_id"]
+        if len(values) > 1:
+            raise ConversionError(f"{where}, {desc}", "attribute 'camera_id' is given twice")
+        if not values or values[0] in MISSING:
+            got = "no camera_id attribute" if not values else f"an empty camera_id {values[0]!r}"
+            raise ConversionError(f"{where}, {desc}", f"a camera tag with {got}: fill in the camera's name "
+                                                      "(or delete the tag)")
+        if found and values[0] not in found:
+            other, odesc = next(iter(found.items()))
+            raise ConversionError(where, f"camera_id {other!r} on {odesc} but {values[0]!r} on {desc}: one photo "
+                                         "has one camera")
+        found.setdefault(values[0], desc)
+    return next(iter(found), None)
 
 
 def _shape_dims(tshapes) -> dict[str, float] | None:
@@ -320,18 +353,19 @@ def cvat_xml(scenes, *, image_names=None) -> str:
 
     Each target's dimension lines are ``target`` points with its ``target_id``, ``class`` and known
     size; each reference a ``reference`` polyline (with the ``target_id`` of the target it names);
-    the horizon a ``horizon`` polyline. Scenes on the same image name share one ``<image>`` (their
-    size and horizon must agree, their target ids must differ). The image name is
-    ``image_names[i]``, else the file name of ``image.path``, else ``<first target id>.jpg``.
-    Coordinates are written with two decimals, as CVAT writes them. Not representable in CVAT and
-    therefore left out: ``seconds``, the camera, ``horizon_sd_px``, the ground truth, the scene's
-    own ``classes``.
+    the horizon a ``horizon`` polyline; the camera's ``id`` a ``camera`` tag with its ``camera_id``.
+    Scenes on the same image name share one ``<image>`` (their size, horizon and camera id must
+    agree, their target ids must differ). The image name is ``image_names[i]``, else the file name
+    of ``image.path``, else ``<first target id>.jpg``. Coordinates are written with two decimals,
+    as CVAT writes them. Not representable in CVAT and therefore left out: ``seconds``, the rest of
+    the camera, ``horizon_sd_px``, the ground truth, the scene's own ``classes``.
 
     Raises
     ------
     ValueError
-        When scenes sharing an image disagree, and for a reference without a line (a target's own
-        size, a distance between two targets): it has no shape.
+        When scenes sharing an image disagree (on its size, horizon or camera id), and for a
+        reference without a line (a target's own size, a distance between two targets): it has no
+        shape.
     """
     scenes = [scene_to_dict(parse_scene(s) if isinstance(s, dict) else s) for s in scenes]
     names = list(image_names) if image_names is not None else [None] * len(scenes)
@@ -348,8 +382,12 @@ def cvat_xml(scenes, *, image_names=None) -> str:
     for i, (name, group) in enumerate(images.items()):
         w, h = group[0]["image"]["width"], group[0]["image"]["height"]
         horizons = {json.dumps(d.get("horizon")) for d in group}
+        camera_ids = {(d.get("camera") or {}).get("id") for d in group}
         if any((d["image"]["width"], d["image"]["height"]) != (w, h) for d in group) or len(horizons) > 1:
             raise ValueError(f"scenes on image {name!r} disagree on its size or horizon")
+        if len(camera_ids) > 1:
+            raise ValueError(f"scenes on image {name!r} disagree on its camera id "
+                             f"({sorted(map(repr, camera_ids))}); one photo has one camera")
         ids = [t["id"] for d in group for t in d["targets"]]
         if len(set(ids)) < len(ids):
             raise ValueError(f"scenes on image {name!r} share a target id ({ids}); give each target its own")
@@ -375,5 +413,9 @@ def cvat_xml(scenes, *, image_names=None) -> str:
                 _shape_el(img, "polyline", REFERENCE, r["line"], vals)
         if group[0].get("horizon") is not None:
             _shape_el(img, "polyline", HORIZON, group[0]["horizon"], {})
+        camera_id = next(iter(camera_ids))
+        if camera_id is not None:
+            tag = ET.SubElement(img, "tag", {"label": CAMERA, "source": "manual"})
+            ET.SubElement(tag, "attribute", {"name": "camera_id"}).text = camera_id
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

@@ -15,7 +15,8 @@ prior applies.
 
 The tasks of one image (``data.image``) make one scene holding the targets of all of them (so a
 task per target, all on one photo, is one scene): they must agree on the image's size and on the
-photo's fields (:data:`SHARED_DATA`), and a target is drawn in one task only. A request task of
+photo's fields (:data:`SHARED_DATA`, among them the camera's name ``camera_id``, the scene's
+``camera.id``), and a target is drawn in one task only. A request task of
 ``creference advise`` (``data.creference_scene``) is the scene it carries with the task's answers
 appended.
 
@@ -40,7 +41,8 @@ from ..models.size_priors import SIZE_KEYS
 from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text, _whole,
                                checked_scene, classes_block, image_file, number_field, read_input,
                                reference_from_fields, safe_name, set_camera_and_horizon, unique_names)
-from .labelstudio_export import CAMERA_DATA, PHOTO_DATA, label_studio_task, label_studio_tasks, task_data
+from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
+                                 task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
 from .scene import SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
 
@@ -51,7 +53,7 @@ __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_s
 #: The shipped configs, by how targets, reference lines and the horizon are drawn.
 LINE_TOOLS = {"keypoints": "label_studio_keypoints.xml", "vectors": "label_studio_vectors.xml"}
 #: ``data`` fields of the photo (not of one target): the tasks of one image must agree on them.
-SHARED_DATA = ("frame_id", "image_path", *CAMERA_DATA, *PHOTO_DATA)
+SHARED_DATA = ("frame_id", "image_path", CAMERA_ID, *CAMERA_DATA, *PHOTO_DATA)
 #: Task ``data`` fields read by the importer (``image`` is the one the configs display).
 DATA_FIELDS = ("image", "targets", "target_id", "target_length_m", "target_width_m", "target_height_m",
                "image_width", "image_height", "creference_scene", *SHARED_DATA)
@@ -212,6 +214,7 @@ def _task_part(task: Any, index: int, users: dict, notes: list[str]) -> _TaskPar
     items_list = [annotation_items(ann, k, width, height, where, users, notes) for k, ann in enumerate(anns)]
     named = any(d.target is not None for items in items_list for d in items.drawings)
     declared, data, refs, ref_origins = _declared(data, task, index, named, where)
+    data = _camera_id(data, where)
     targets = {tid: {**t, "id": tid, "lines": list(t.get("lines", [])), "origins": list(t.get("origins", []))}
                for tid, t in declared.items()}
     horizons = []
@@ -310,6 +313,21 @@ def _declared(data: dict, task: dict, index: int, named: bool, where: str) -> tu
     return out, data, [], []
 
 
+def _camera_id(data: dict, where: str) -> dict:
+    """``data`` with its ``camera_id`` (the camera's name: the scene's ``camera.id``) checked and
+    stripped; a value that is not text, or empty text, is a :class:`ConversionError` naming the
+    task and the value."""
+    value = data.get(CAMERA_ID)
+    if value is None:
+        return data
+    if not isinstance(value, str) or not value.strip():
+        problem = (f"must be the camera's name (text), got {_short(value)}" if not isinstance(value, str)
+                   else "is empty text ''" if not value else "is blank text (only whitespace)")
+        raise ConversionError(where, f"data.{CAMERA_ID} {problem}: give the camera's name, or leave the field out "
+                                     "(or null) for a photo of no known camera")
+    return {**data, CAMERA_ID: value.strip()}
+
+
 def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
     """A request task (``creference advise``, docs/advice.md) carries the scene it was made for in
     ``data.creference_scene`` (either format): its targets with their dimension lines, its
@@ -377,6 +395,8 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
     if image_path is not None:
         scene["image"]["path"] = image_path
     camera = {k: data[k] for k in CAMERA_DATA if data.get(k) is not None}
+    if data.get(CAMERA_ID) is not None:
+        camera = {"id": data[CAMERA_ID], **camera}
     if data.get("focal_length_px") not in (None, ""):
         camera["focal_length_px"] = number_field(data["focal_length_px"], where, "data.focal_length_px", positive=True)
     else:
@@ -412,7 +432,7 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
         scene["references"] = refs
     if data.get("ground_truth") is not None:
         scene["ground_truth"] = data["ground_truth"]
-    origins = {"camera": "data.focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
+    origins = {"camera": "data.camera_id / focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
                "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
                "ground_truth": "data.ground_truth", **origins}
     origins.update({f"references[{k}]": o for k, o in enumerate(ref_origins)})

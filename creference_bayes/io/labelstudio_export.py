@@ -11,12 +11,15 @@ from .labelstudio_results import (CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, 
                                   TARGET, TARGET_LABELS, TARGET_LINES)
 from .scene import Scene, parse_scene, scene_to_dict
 
-__all__ = ["label_studio_task", "label_studio_tasks", "task_data", "CAMERA_DATA", "PHOTO_DATA"]
+__all__ = ["label_studio_task", "label_studio_tasks", "task_data", "CAMERA_ID", "CAMERA_DATA", "PHOTO_DATA"]
 
 #: The configs' names, by how lines are drawn (the same keys as ``LINE_TOOLS``).
 _LINE_TOOLS = ("keypoints", "vectors")
 #: Drawn size of an exported keypoint, percent of the image width (Label Studio's ``value.width``).
 _POINT_SIZE = 0.5
+#: The ``data`` field of the camera's name, the scene's ``camera.id`` (frames with the same id share
+#: a camera: ``creference batch --rig``).
+CAMERA_ID = "camera_id"
 #: A scene's ``camera`` keys, carried as task ``data`` fields of the same name.
 CAMERA_DATA = ("focal_length_px", "principal_point", "kitti_p2", "kitti_calib", "focal_length_prior",
                "orientation_prior")
@@ -27,8 +30,8 @@ PHOTO_DATA = ("horizon", "horizon_sd_px", "classes", "ground_truth")
 def task_data(d: dict, image_url: str | None = None) -> dict:
     """The task ``data`` of a scene (a ``creference-scene/2`` dict, as ``scene_to_dict`` writes
     it): ``image`` (``image_url``, else the scene's image path), the image size, ``targets`` (id,
-    class, known size in metres, ground truth), the camera (:data:`CAMERA_DATA`) and the photo's
-    fields (:data:`PHOTO_DATA`)."""
+    class, known size in metres, ground truth), the camera (:data:`CAMERA_DATA`, and its ``id`` as
+    :data:`CAMERA_ID`) and the photo's fields (:data:`PHOTO_DATA`)."""
     data: dict[str, Any] = {"image": image_url or d["image"].get("path", ""), "image_width": d["image"]["width"],
                             "image_height": d["image"]["height"],
                             "targets": [{k: t[k] for k in ("id", "class", "dimensions_m", "ground_truth") if k in t}
@@ -36,6 +39,8 @@ def task_data(d: dict, image_url: str | None = None) -> dict:
     if d["image"].get("path"):
         data["image_path"] = d["image"]["path"]
     camera = d.get("camera") or {}
+    if camera.get("id") is not None:
+        data[CAMERA_ID] = camera["id"]
     data.update({k: camera[k] for k in CAMERA_DATA if camera.get(k) is not None})
     data.update({k: d[k] for k in PHOTO_DATA if d.get(k) is not None})
     return data

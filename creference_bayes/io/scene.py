@@ -153,6 +153,8 @@ class Scene:
     format : the file's format
     kitti_p2, kitti_calib : KITTI's P2 (3, 4) and the calib file's other lines of a scene made
         from a KITTI folder (labels go back into its frame)
+    camera_id : which camera took the photo (``camera.id``), or None: frames with the same id share
+        the camera's focal length and mounting (``creference batch --rig``)
     """
 
     image_width: int
@@ -174,6 +176,7 @@ class Scene:
     format: str = SCENE_FORMAT
     kitti_p2: np.ndarray | None = None
     kitti_calib: dict | None = None
+    camera_id: str | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -571,7 +574,7 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
 
     Returns the :class:`Scene` fields they fill (``image_width``, ``image_height``,
     ``principal_point``, ``focal_length_px``, ``horizon``, ``horizon_sd_px``, ``focal_prior``,
-    ``orientation_prior``, ``image_path``, ``source``, ``kitti_p2``, ``kitti_calib``); raises
+    ``orientation_prior``, ``image_path``, ``source``, ``kitti_p2``, ``kitti_calib``, ``camera_id``); raises
     :class:`SceneError` on bad input.
     """
     image = _dict(_get(data, "image", ""), "image")
@@ -594,8 +597,11 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
 
     camera = data.get("camera")
     camera = {} if camera is None else _dict(camera, "camera")
-    _warn_unknown(camera, {"principal_point", "focal_length_px", "focal_length_prior", "orientation_prior",
+    _warn_unknown(camera, {"id", "principal_point", "focal_length_px", "focal_length_prior", "orientation_prior",
                            "kitti_p2", "kitti_calib"}, "camera", sink)
+    camera_id = _string(camera.get("id"), "camera.id")
+    if camera_id is not None and not camera_id.strip():
+        raise SceneError("camera.id", f"expected a camera's name, got {camera_id!r}")
     kitti_p2 = _parse_p2(camera.get("kitti_p2"), "camera.kitti_p2")
     kitti_calib = _parse_calib(camera.get("kitti_calib"), "camera.kitti_calib")
     if kitti_calib is not None and kitti_p2 is None:
@@ -630,7 +636,7 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
     return dict(image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
                 horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
                 orientation_prior=orientation_prior, image_path=image_path, source=source, kitti_p2=kitti_p2,
-                kitti_calib=kitti_calib)
+                kitti_calib=kitti_calib, camera_id=camera_id)
 
 
 def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) -> Scene:
@@ -743,6 +749,8 @@ def scene_to_dict(scene: Scene) -> dict:
     """A :class:`Scene` as a ``creference-scene/2`` dict (round-trips :func:`parse_scene`)."""
     out: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": scene.image_width, "height": scene.image_height},
                            "camera": {"principal_point": np.asarray(scene.principal_point).tolist()}}
+    if scene.camera_id is not None:
+        out["camera"]["id"] = scene.camera_id
     if scene.image_path is not None:
         out["image"]["path"] = str(scene.image_path if scene.source is None else
                                    _relative(scene.image_path, scene.source.parent))

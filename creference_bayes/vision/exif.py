@@ -14,10 +14,14 @@ Both assume the scene's image is the full frame the camera recorded, possibly re
 narrows the field of view and makes µ too small. That is why the prior built from it has a
 width (``EXIF_LOG_SD`` in :mod:`~creference_bayes.models.camera_terms`) and heavy tails, and why
 the pipeline warns when the annotations disagree with it.
+
+:func:`camera_id_from_exif` names the camera that took a photo (make, model, body serial number,
+focal length), for frames with no ``camera.id`` of their own.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,10 +29,11 @@ import numpy as np
 
 from ..models.camera_terms import FULL_FRAME_DIAGONAL_MM
 
-__all__ = ["ExifFocal", "focal_from_exif"]
+__all__ = ["ExifFocal", "focal_from_exif", "camera_id_from_exif"]
 
 _EXIF_IFD = 0x8769
 _F35, _FOCAL, _FP_XRES, _FP_UNIT, _EXIF_WIDTH = 0xA405, 0x920A, 0xA20E, 0xA210, 0xA002
+_MAKE, _MODEL, _SERIAL = 0x010F, 0x0110, 0xA431  # IFD0's Make and Model; the Exif IFD's BodySerialNumber
 _UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}  # inch, cm, mm, µm
 
 
@@ -85,3 +90,58 @@ def focal_from_exif(path: str | Path, image_size: tuple[int, int]) -> ExifFocal 
     mu = focal * xres / _UNIT_MM[unit] * (width / exif_width)
     return ExifFocal(mu, "focal_plane", {"FocalLength": focal, "FocalPlaneXResolution": xres,
                                          "FocalPlaneResolutionUnit": unit, "ExifImageWidth": exif_width})
+
+
+def _exif_text(value) -> str | None:
+    """An EXIF text tag as clean text (NUL padding and runs of blanks removed), or None when
+    missing or empty."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if not isinstance(value, str):
+        return None
+    text = re.sub(r"\s+", " ", value.replace("\0", " ")).strip()
+    return text or None
+
+
+def camera_id_from_exif(path: str | Path) -> str | None:
+    """A name for the camera that took the photo at ``path``, from its EXIF tags, to stand for a
+    scene's ``camera.id`` when the scene gives none: frames with the same name share a camera.
+
+    The name is ``"exif:"`` followed by the make and model, the body's serial number when the
+    camera records one (``#`` and the number), and the focal length in millimetres::
+
+        exif:Canon EOS 80D 35mm
+        exif:Canon EOS 80D #0123456789 35mm
+        exif:Apple iPhone 12 4.2mm
+
+    The make is left out when the model already starts with it (``Canon`` + ``Canon EOS 80D`` is
+    ``Canon EOS 80D``, ``NIKON CORPORATION`` + ``NIKON D750`` is ``NIKON D750``), and the focal
+    length (rounded to 0.01 mm) when the file does not give it. The focal length is part of the
+    name because a zoom lens at another focal length is another camera for the estimate; the
+    serial number, because two bodies of one model are two cameras (mounted apart). Two bodies of
+    one model *without* a serial number in EXIF get the same name: give such frames a
+    ``camera.id`` of their own when they are not on one mounting.
+
+    Returns None when the photo has no ``Model`` tag, or cannot be read as an image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            sub = dict(exif.get_ifd(_EXIF_IFD)) if exif else {}
+    except (OSError, UnidentifiedImageError, ValueError):
+        return None
+    make, model = _exif_text(exif.get(_MAKE)), _exif_text(exif.get(_MODEL))
+    if model is None:
+        return None
+    words = [model]
+    if make is not None and not model.lower().startswith(make.split()[0].lower()):
+        words.insert(0, make)
+    serial = _exif_text(sub.get(_SERIAL))
+    if serial is not None:
+        words.append(f"#{serial}")
+    focal = _number(sub.get(_FOCAL))
+    if focal is not None:
+        words.append(f"{round(focal, 2):g}mm")
+    return "exif:" + " ".join(words)

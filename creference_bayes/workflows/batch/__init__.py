@@ -60,6 +60,9 @@ class BatchSettings:
         :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
         actually used (a file's by its content, wherever it lies)
     classes : size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
+    rig : what the frames of one camera (``camera.id``) share: ``none`` (every frame alone),
+        ``focal`` (the focal length) or ``mounting`` (also the camera's height, pitch and roll), pooled
+        by two passes (:mod:`.rig`)
     """
 
     seed: int = 0
@@ -75,11 +78,15 @@ class BatchSettings:
     location_prior: str = "auto"
     confidence_map: object = "default"
     classes: dict = field(default_factory=dict)
+    rig: str = "none"
 
     def __post_init__(self):
         from ...inference.sampler import SamplerSettings
+        from .rig import RIG_CHOICES
 
         SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
+        if self.rig not in RIG_CHOICES:
+            raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {self.rig!r}")
 
     def to_dict(self) -> dict:
         """The settings as the results record them (``batch.settings``) and a rerun compares them."""
@@ -90,6 +97,8 @@ class BatchSettings:
         d["confidence_map"] = self._map_identity()
         d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
         d["keep_draws"] = RESULT_DRAWS
+        if self.rig == "none":  # results made before the rig existed stay up to date
+            del d["rig"]
         return d
 
     def _map_identity(self) -> dict:
@@ -208,9 +217,11 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
 
     Returns
     -------
-    BatchReport; the folder also holds ``summary.csv`` and ``batch.json``
+    BatchReport; the folder also holds ``summary.csv`` and ``batch.json``. With ``settings.rig``
+    other than ``none`` the frames are first estimated alone into ``out/first_pass`` (a batch folder
+    of its own), then each frame again into ``out`` with its camera's rig (:mod:`.rig`); its result
+    then has a ``rig`` block. The report is the second pass's; its time counts both.
     """
-    from .summary import write_summary
 
     t_start = time.perf_counter()
     out = Path(out)
@@ -219,17 +230,61 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
             raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
-        ident = settings.to_dict()
     except BaseException:
         engine.close(abandon=True)
         raise
+    run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
+    if settings.rig == "none":
+        return _run_pass(scenes, out, settings, **run)
+    from .rig import apply_rig, rig_report
+
+    first = out / "first_pass"  # every frame alone: a batch folder of its own, resumed like any
+    try:
+        _run_pass(scenes, first, replace(settings, rig="none"), close=False, **run)
+        frames = _rig_frames(scenes, first)
+    except BaseException:
+        engine.close(abandon=True)
+        raise
+
+    def with_rig(key, scene):
+        scene, est = apply_rig(scene, frames, settings.rig, key)
+        return scene, rig_report(est)
+
+    return _run_pass(scenes, out, settings, transform=with_rig, **run)
+
+
+def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
+    """Each first-pass result's likelihood of what its camera shares (:mod:`.rig`)."""
+    from ...io.result import load_result
+    from .rig import camera_id_of, shared_likelihood
+
+    frames = []
+    for si in scenes:
+        paths = layout(folder, si.key)
+        if not paths["result"].exists():  # failed: its camera's rig comes from the others
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)
+            camera_id = camera_id_of(load_scene(paths["scene"]))
+        frames.append(shared_likelihood(si.key, camera_id, load_result(paths["result"])))
+    return frames
+
+
+def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
+              t_start: float, transform=None, close: bool = True) -> BatchReport:
+    """Estimate ``scenes`` into ``out`` (``transform(KEY, scene)`` → (scene, rig block) first, if
+    given); writes summary.csv and batch.json whatever ends the run; closes the engine if ``close``."""
+    from .summary import write_summary
+
+    out.mkdir(parents=True, exist_ok=True)
+    ident = settings.to_dict()
     # From here on, whatever ends the run (an interrupt while the scenes are read, while they
     # run, a bug), the folder gets its summary.csv and batch.json.
     status = {si.key: "not run" for si in scenes}
     errors: dict[str, str] = {}
     bar = runner = None
     try:
-        todo = _prepare(scenes, out, settings, ident, status, errors)
+        todo = _prepare(scenes, out, settings, ident, status, errors, transform)
         if on_event:
             for key in (k for k, s in status.items() if s in ("failed", "skipped")):
                 on_event(key, status[key])
@@ -241,7 +296,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         if bar is not None:
             bar.close()
         interrupted = any(s == "not run" for s in status.values())
-        engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
+        if close or interrupted:
+            engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
                              n_targets=runner.n_targets if runner is not None else 0)
@@ -254,7 +310,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     return report
 
 
-def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict) -> deque:
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict,
+             transform=None) -> deque:
     """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
     todo = deque()
     for si in scenes:
@@ -268,6 +325,9 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
             status[si.key] = "failed"
             record_error(paths, si, "load", errors[si.key])
             continue
+        rig = None
+        if transform is not None:
+            scene, rig = transform(si.key, scene)
         fingerprint = scene_fingerprint(scene)
         if up_to_date(paths, fingerprint, ident):
             status[si.key] = "skipped"
@@ -275,5 +335,5 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
                 atomic_write_json(paths["scene"], scene_to_dict(scene))
             continue
         todo.append((si, {"scene": scene, "seed": derive_seed(settings.seed, fingerprint),
-                          "estimate": settings.estimate_kwargs()}))
+                          "estimate": settings.estimate_kwargs(), "rig": rig}))
     return todo

@@ -22,7 +22,10 @@ def run_scene(job: dict) -> dict:
     ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
     """
     try:
-        return {"ok": True, "result": estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()}
+        result = estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()
+        if job.get("rig"):  # the rig the frame's camera priors came from (rig.py)
+            result["rig"] = job["rig"]
+        return {"ok": True, "result": result}
     except Exception as exc:  # isolate the failure: the batch goes on
         return {"ok": False, "stage": "estimate", "error": one_line(exc), "traceback": traceback.format_exc()}
 

@@ -246,7 +246,8 @@ def image_labels(members: list[LabelInput], name: str, *, type_name: str | None 
               "principal_point": [float(v) for v in members[ref].scene.principal_point],
               "focal_length_px": float(cam[C_FOCAL]), "pitch_rad": float(cam[C_PITCH]), "roll_rad": float(cam[C_ROLL]),
               "draws": {"n": len(pick), **{k: np.round(pick[:, j], 6).tolist() for j, k in enumerate(CAMERA_NAMES)
-                                           if k in res["camera"]["free"]}}}
+                                           if k in res["camera"]["free"]}},
+              **({"rig": res["rig"]} if res.get("rig") else {})}  # the camera's rig (creference batch --rig)
     doc = {"format": SIDECAR_FORMAT, "image": name, "scenes": [m.key for m in members],
            "label_file": f"label_2/{name}.txt", "calib_file": f"calib/{name}.txt",
            "frame": KITTI_FRAME if members[ref].scene.kitti_p2 is not None else GRAVITY_FRAME, "camera": camera,

@@ -1,0 +1,166 @@
+"""The camera rig (workflows/batch/rig.py, ``creference batch --rig``): frames of one camera pool
+what they share; each frame is re-estimated with the others' evidence."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import truth_scene
+
+from creference_bayes.io.result import CAMERA_NAMES, OBJECT_NAMES
+from creference_bayes.io.scene import SceneError, parse_scene
+from creference_bayes.workflows.batch import BatchSettings, run_batch
+from creference_bayes.workflows.batch.engines import LocalEngine
+from creference_bayes.workflows.batch.rig import SharedLikelihood, apply_rig, shared_likelihood, pool_rig
+
+
+def _frames(values, precisions, camera="cam", name="log_focal"):
+    return [SharedLikelihood(f"f{i}", camera, {name: float(m)}, {name: float(p)})
+            for i, (m, p) in enumerate(zip(values, precisions))]
+
+
+def test_a_shared_focal_length_is_recovered_and_its_spread_is_honest():
+    rng = np.random.default_rng(3)
+    truth = math.log(800.0)
+    p = rng.uniform(5.0, 100.0, 40)  # log-sd 0.1 to 0.45 per frame
+    est = pool_rig(_frames(truth + rng.normal(0, 1 / np.sqrt(p)), p), "focal")["cam"]
+    assert abs(est.center["log_focal"] - truth) < 4 * math.sqrt(est.var["log_focal"])
+    assert est.var["log_focal"] <= 2.0 / p.sum()  # frames that agree: about the precisions' sum
+    # frames that disagree beyond their stated precision (a likelihood the normal describes badly):
+    # the rig widens instead of becoming over-sure
+    m = truth + rng.normal(0, 1 / np.sqrt(p)) + rng.normal(0, 0.3, len(p))
+    wide = pool_rig(_frames(m, p), "focal")["cam"]
+    assert wide.var["log_focal"] > 3.0 / p.sum()
+    assert abs(wide.center["log_focal"] - truth) < 4 * math.sqrt(wide.var["log_focal"])
+
+
+def test_the_mountings_spread_between_frames_is_estimated():
+    rng = np.random.default_rng(5)
+    per_frame = math.log(1.65) + rng.normal(0, 0.05, 300)  # a vehicle's camera height, 5 % frame to frame
+    p = np.full(300, 1 / 0.03**2)
+    est = pool_rig(_frames(per_frame + rng.normal(0, 0.03, 300), p, name="log_height"), "mounting")["cam"]
+    assert 0.035 < est.tau["log_height"] < 0.065
+    assert abs(math.exp(est.center["log_height"]) - 1.65) < 0.03
+    assert pool_rig(_frames(per_frame, p, name="log_height"), "focal") == {}  # focal pools no mounting
+    # frames that agree exactly still leave the vehicle its least spread (rig.MIN_SPREAD: 3 % of height)
+    still = pool_rig(_frames(np.full(30, math.log(1.65)), p[:30], name="log_height"), "mounting")["cam"]
+    assert still.tau["log_height"] == pytest.approx(0.03)
+
+
+def test_a_frames_prior_comes_from_the_other_frames_only():
+    scene = parse_scene(truth_scene(0)[0] | {"camera": {"id": "cam", "principal_point": [1483.2, 864.0]}})
+    frames = _frames([6.6, 6.7, 6.68], [50.0, 50.0, 50.0])
+    a, est = apply_rig(scene, frames, "focal", "f0")
+    moved = [SharedLikelihood("f0", "cam", {"log_focal": 9.0}, {"log_focal": 500.0})] + frames[1:]
+    b, _ = apply_rig(scene, moved, "focal", "f0")
+    assert a.focal_prior == b.focal_prior and a.focal_prior.source == "rig"
+    assert est.keys == ("f1", "f2")
+    other = parse_scene(truth_scene(0)[0] | {"camera": {"id": "another", "principal_point": [1483.2, 864.0]}})
+    assert apply_rig(other, frames, "focal", "f0") == (other, None)  # no frame of its camera
+
+
+def _result_with_draws(log_focal: np.ndarray, prior: dict) -> dict:
+    n = len(log_focal)
+    cam = {"focal_length_px": np.exp(log_focal).tolist(), "pitch": 0.1, "roll": 0.0, "height_m": 1.6, "ref_scale": 0.5}
+    return {"camera": {"free": ["focal_length_px"], "setup": {"focal_prior": prior}},
+            "objects": [{}], "draws": {"n": n, "camera": {k: cam[k] for k in CAMERA_NAMES},
+                                       "objects": [{k: 1.0 for k in OBJECT_NAMES}]}}
+
+
+def test_the_prior_a_frame_used_is_divided_out():
+    # posterior = likelihood N(a, 1/p) × log-normal prior N(b, s²) on log µ
+    a, p, b, s = math.log(700.0), 1 / 0.15**2, math.log(900.0), 0.3
+    post_p = p + 1 / s**2
+    post_m = (p * a + b / s**2) / post_p
+    draws = np.random.default_rng(1).normal(post_m, 1 / math.sqrt(post_p), 20000)
+    f = shared_likelihood("k", "cam", _result_with_draws(draws, {"median_px": 900.0, "log_sd": s, "dof": None}))
+    assert f.mean["log_focal"] == pytest.approx(a, abs=0.01)
+    assert f.precision["log_focal"] == pytest.approx(p, rel=0.1)
+    # a frame whose posterior is its prior tells nothing and is left out of the pool
+    flat = np.random.default_rng(2).normal(b, s, 20000)
+    assert shared_likelihood("k", "cam", _result_with_draws(flat, {"median_px": 900.0, "log_sd": s, "dof": None})).mean == {}
+
+
+def test_scene_camera_id_round_trips_and_is_validated():
+    d = truth_scene(0)[0]
+    d["camera"] = {"id": "kitti-1", "principal_point": [1483.2, 864.0]}
+    from creference_bayes.io.scene import scene_to_dict
+
+    assert parse_scene(scene_to_dict(parse_scene(d))).camera_id == "kitti-1"
+    for bad in (3, " "):
+        d["camera"]["id"] = bad
+        with pytest.raises(SceneError, match="camera.id"):
+            parse_scene(d)
+
+
+@pytest.fixture(scope="module")
+def rig_batch(tmp_path_factory):
+    """Four frames of one camera (the same focal length, height, pitch), one frame of no named camera."""
+    root = tmp_path_factory.mktemp("rig")
+    (root / "in").mkdir()
+    for seed in range(5):
+        scene, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=3, sizes_known=False, focal_px=1400.0)
+        if seed < 4:
+            scene["camera"]["id"] = "rig-A"
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(scene))
+    settings = BatchSettings(seed=2, sampling={"min_ess": 50, "max_steps": 500, "warmup": 200}, rig="mounting")
+    report = run_batch([root / "in"], root / "out", LocalEngine(2), settings)
+    return root, settings, report
+
+
+def test_batch_pools_the_focal_length_and_mounting_of_one_camera(rig_batch):
+    root, settings, report = rig_batch
+    assert report.ok and len(report.keys("done")) == 5
+    out = root / "out"
+    for k in range(4):
+        res = json.loads((out / "results" / f"f{k}.json").read_text())
+        first = json.loads((out / "first_pass" / "results" / f"f{k}.json").read_text())
+        rig = res["rig"]
+        assert rig["camera_id"] == "rig-A" and rig["frames"] == 3
+        assert res["camera"]["setup"]["focal_prior"]["source"] == "rig"
+        # the frame's second pass used the rig: its copy of the scene carries it for `labels`
+        copy = json.loads((out / "scenes" / f"f{k}.json").read_text())
+        assert copy["camera"]["focal_length_prior"]["median_px"] == pytest.approx(rig["focal_length_px"]["median"], rel=1e-3)
+        # three other frames know the focal length better than the default prior did
+        assert rig["focal_length_px"]["log_sd"] < first["camera"]["setup"]["focal_prior"]["log_sd"]
+        assert abs(math.log(rig["focal_length_px"]["median"] / 1400.0)) < 4 * rig["focal_length_px"]["log_sd"]
+        # the mounting: the frames' shared height (1.6 m) and pitch (6°), each with a spread
+        height, pitch = rig["height_m"], rig["pitch_deg"]
+        assert height["spread_log_sd"] >= 0.03 and pitch["spread_sd"] >= 0.5
+        prior = copy["camera"]["orientation_prior"]
+        assert prior["height_median_m"] == pytest.approx(height["median"], rel=1e-3)
+        assert prior["pitch_mean_deg"] == pytest.approx(pitch["mean"], abs=1e-3)
+        assert prior["pitch_sd_deg"] < 15.0 / 4  # far narrower than the default prior's 15°
+        assert abs(math.log(height["median"] / 1.6)) < 4 * math.hypot(height["log_sd"], height["spread_log_sd"])
+    alone = json.loads((out / "results" / "f4.json").read_text())
+    assert "rig" not in alone and alone["camera"]["setup"]["focal_prior"]["source"] == "default"
+
+
+def test_a_rig_batch_resumes(rig_batch):
+    root, settings, _ = rig_batch
+    again = run_batch([root / "in"], root / "out", LocalEngine(1), settings)
+    assert again.keys("skipped") == [f"f{k}" for k in range(5)]
+
+
+def test_cli_rig_needs_the_posterior(tmp_path, capsys):
+    from creference_bayes.cli.main import main
+
+    (tmp_path / "s.json").write_text(json.dumps(truth_scene(0)[0]))
+    assert main(["batch", str(tmp_path / "s.json"), "--out", str(tmp_path / "o"), "--rig", "focal",
+                 "--no-posterior"]) == 2
+    assert "--rig focal: needs the posterior" in capsys.readouterr().err
+
+
+def test_a_frame_without_a_camera_id_is_named_by_its_photos_exif(tmp_path):
+    from test_camera import _camera_jpeg
+
+    d = truth_scene(0)[0]
+    d["image"]["path"] = str(_camera_jpeg(tmp_path / "a.jpg", make="Canon", model="Canon EOS 80D", focal=35.0))
+    scene = parse_scene(d)
+    assert scene.camera_id is None
+    frames = [SharedLikelihood(f"f{i}", "exif:Canon EOS 80D 35mm", {"log_focal": 7.2}, {"log_focal": 40.0})
+              for i in range(3)]
+    pooled, est = apply_rig(scene, frames, "focal", "f9")
+    assert pooled.camera_id == "exif:Canon EOS 80D 35mm" and est.keys == ("f0", "f1", "f2")
+    assert pooled.focal_prior.median_px == pytest.approx(math.exp(7.2))
