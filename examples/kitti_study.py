@@ -177,6 +177,8 @@ def main(argv=None) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not methods or set(methods) - {"joint", "alone", "bound"}:
         p.error(f"--methods {args.methods!r}: expected a comma-separated subset of joint, alone, bound")
+    if args.rig != "none" and "joint" not in methods:
+        p.error(f"--rig {args.rig}: pools the joint estimates' cameras; add joint to --methods")
 
     from creference_bayes.bench.kitti import kitti_scenes
     from creference_bayes.evaluation.kitti_eval import evaluate_kitti

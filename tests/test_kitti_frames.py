@@ -250,3 +250,6 @@ def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp
     assert informed and all(r["frames"] == 2 and r["focal_length_px"]["frames"] >= 1 for r in informed)
     assert f"P2 {P2[0, 0]:.1f}" in proc.stdout
     assert len(list((out / "joint" / "label_2").glob("*.txt"))) == 3
+    bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--methods",
+                          "bound", "--rig", "focal"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--rig focal: pools the joint" in bad.stderr
