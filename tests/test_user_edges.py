@@ -257,3 +257,26 @@ def test_no_false_alarm_on_simulated_scenes(make_scene, tier):
     for seed in range(3):
         result = cb.estimate(make_scene(seed, tier=tier), posterior=False, seed=0)
         assert not any("misses its annotations" in w for w in result.warnings), (tier, seed)
+
+
+def test_a_class_size_beyond_any_float_and_a_pathologically_deep_value_are_named():
+    """An integer too large for a float in a class prior, and a value nested too deeply to print,
+    give a SceneError naming the key (not OverflowError or RecursionError)."""
+    from conftest import truth_scene
+
+    from creference_bayes.io.scene import SceneError, parse_scene
+
+    d = truth_scene(0, sizes_known=False)[0]
+    d["classes"] = {"Car": {"length_m": 10**400, "width_m": 1.8, "height_m": 1.5}}
+    with pytest.raises(SceneError, match=r"classes\.Car\.length_m: expected a number > 0, got 1000"):
+        parse_scene(d)
+    d["classes"] = {"Car": {"length_m": 4.0, "width_m": 1.8, "height_m": 1.5, "log_sd": [0.1, 10**400, 0.1]}}
+    with pytest.raises(SceneError, match=r"classes\.Car\.log_sd: expected a number > 0 or three of them"):
+        parse_scene(d)
+    d = truth_scene(0)[0]
+    deep = []
+    for _ in range(100_000):
+        deep = [deep]
+    d["horizon"] = deep
+    with pytest.raises(SceneError, match="horizon: .*nested too deeply to print"):
+        parse_scene(d)

@@ -42,7 +42,12 @@ def _type_name(value: Any) -> str:
 
 def _short(value: Any) -> str:
     """``repr(value)``, cut to :data:`MAX_REPR` characters (a message stays one short line)."""
-    text = repr(value)
+    try:
+        text = repr(value)
+    except RecursionError:  # nested too deeply to print (decoded JSON has no cycles)
+        return f"a {type(value).__name__} nested too deeply to print"
+    except ValueError:  # an integer of more digits than Python prints
+        text = f"an integer of about {value.bit_length() * 0.30103:.0f} digits"
     return text if len(text) <= MAX_REPR else text[:MAX_REPR - 3] + "..."
 
 

@@ -18,6 +18,7 @@ Sources of the shipped numbers
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +89,16 @@ KITTI_SIZE_PRIORS: dict[str, SizePrior] = {
 }
 
 
+def _positive_number(v) -> bool:
+    """A finite number > 0 (an integer too large for a float is not: it would overflow)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v) and v > 0
+    except OverflowError:
+        return False
+
+
 def size_priors_from_dict(data, path: str = "classes", source: str = "scene") -> dict[str, SizePrior]:
     """Classes from a ``{"Name": {"length_m", "width_m", "height_m", "log_sd"}}`` mapping.
 
@@ -107,13 +118,12 @@ def size_priors_from_dict(data, path: str = "classes", source: str = "scene") ->
         med = []
         for key in SIZE_KEYS:
             v = spec.get(f"{key}_m")
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{p}.{key}_m: expected a number > 0, got {v!r}")
+            if not _positive_number(v):
+                raise ValueError(f"{p}.{key}_m: expected a number > 0, got {reprlib.repr(v)}")
             med.append(float(v))
         sd = spec.get("log_sd", 0.2)
         sd = [sd] * 3 if isinstance(sd, (int, float)) and not isinstance(sd, bool) else sd
-        if not (isinstance(sd, list) and len(sd) == 3 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in sd)):
-            raise ValueError(f"{p}.log_sd: expected a number > 0 or three of them, got {spec.get('log_sd')!r}")
+        if not (isinstance(sd, list) and len(sd) == 3 and all(_positive_number(v) for v in sd)):
+            raise ValueError(f"{p}.log_sd: expected a number > 0 or three of them, got {reprlib.repr(spec.get('log_sd'))}")
         out[str(name)] = SizePrior(tuple(med), tuple(float(v) for v in sd), str(spec.get("source", source)))
     return out
