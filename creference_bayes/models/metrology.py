@@ -295,12 +295,13 @@ class MetrologyModel(Model):
         super().__init__(principal_point, image_size, objects, **kw)
         self.camera_lower[C_HEIGHT] = max(self.camera_lower[C_HEIGHT], MIN_CAMERA_HEIGHT_M)
         m, kmax = self.n_objects, max(len(o.annotations) for o in self.objects)
-        self.ann = np.zeros((m, kmax, 4, 2))
+        ann = np.zeros((m, kmax, 4, 2))
         self.ann_mask = np.zeros((m, kmax))
         for i, o in enumerate(self.objects):
-            self.ann[i, :len(o.annotations)] = o.annotations
+            ann[i, :len(o.annotations)] = o.annotations
             self.ann_mask[i, :len(o.annotations)] = 1.0
-        self._ann_u, self._ann_v = np.ascontiguousarray(self.ann[..., 0]), np.ascontiguousarray(self.ann[..., 1])
+        # the annotations' u and v apart, (m, K, 4) each: what the likelihood's hot loop reads
+        self._ann_u, self._ann_v = np.ascontiguousarray(ann[..., 0]), np.ascontiguousarray(ann[..., 1])
         if target_sigma is None:
             self.sigma = target_sigmas([o.annotations for o in self.objects])
         elif np.isfinite(target_sigma) and target_sigma > 0:

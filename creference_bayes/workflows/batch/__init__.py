@@ -236,18 +236,18 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
     if settings.rig == "none":
         return _run_pass(scenes, out, settings, **run)
-    from .rig import apply_rig, rig_report
+    from .rig import RigPool, apply_rig, rig_report
 
     first = out / "first_pass"  # every frame alone: a batch folder of its own, resumed like any
     try:
         _run_pass(scenes, first, replace(settings, rig="none"), close=False, **run)
-        frames = _rig_frames(scenes, first)
+        pool = RigPool(_rig_frames(scenes, first), settings.rig)
     except BaseException:
         engine.close(abandon=True)
         raise
 
     def with_rig(key, scene):
-        scene, est = apply_rig(scene, frames, settings.rig, key)
+        scene, est = apply_rig(scene, pool, settings.rig, key)
         return scene, rig_report(est)
 
     return _run_pass(scenes, out, settings, transform=with_rig, **run)
