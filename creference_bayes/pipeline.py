@@ -96,7 +96,7 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
                          location_prior=location_prior)
     bounds = bounds if bounds is not None else preset_bounds(preset, scene.image_size)
     objects = [ObjectData(t.id, t.corners, 1, t.dimensions,
-                          None if t.dimensions is not None else scene.size_prior(t.cls, classes), t.cls)
+                          None if t.dimensions is not None else t.size_prior or scene.size_prior(t.cls, classes), t.cls)
                for t in scene.targets]
     refs = reference_terms(scene) if use_references else []
     common = dict(camera_terms=setup.terms, orientation=setup.orientation, focal_length_px=scene.focal_length_px,

@@ -335,7 +335,7 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
     if case_of is None:
         def case_of(seed, k):
             return _predict_case(seed, k, args.tiers.split(","), args.objects, args.setting)
-    settings = AdviceSettings()
+    settings = AdviceSettings(objective="hdi")  # this study measures the HDI advice
     with _bar(args.n, file.split(".")[0]) as bar:
         for k in range(args.n):
             bar.update(1)
@@ -472,7 +472,7 @@ def run_policy(args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "policy.jsonl"
     done = _done(path)
-    settings = AdviceSettings(min_gain=0.0)
+    settings = AdviceSettings(min_gain=0.0, objective="hdi")  # this study measures the HDI advice
     if path.is_file():
         other = {json.loads(x).get("rank_by", "hdi") for x in path.read_text().splitlines() if x.strip()}
         if other - {args.rank_by}:

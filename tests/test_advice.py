@@ -71,7 +71,7 @@ def test_the_same_seed_gives_the_same_advice(example):
 
 
 def test_advice_is_ranked_and_recommends_by_its_settings(example):
-    s = dict(n_draws=200, n_futures=40)
+    s = dict(n_draws=200, n_futures=40, objective="hdi")
     a = _advise(example, seed=1, settings=AdviceSettings(**s, target_hdi_width=0.0, min_gain=0.0))
     rates = [p.gain_per_minute for p in a.predictions]
     assert rates == sorted(rates, reverse=True)
@@ -413,12 +413,12 @@ def batch_dir(example, frame, tmp_path_factory):
 def test_cli_on_a_batch_writes_the_ranked_request_files(batch_dir, tmp_path, capsys):
     out = tmp_path / "advice"
     assert main(["advise", str(batch_dir), "--out", str(out), "--draws", "200", "--futures", "20",
-                 "--target-hdi-width", "0", "--min-gain", "0", "--budget", "400"]) == 0
+                 "--rank", "hdi", "--target-hdi-width", "0", "--min-gain", "0", "--budget", "400"]) == 0
     assert "5 targets advised" in capsys.readouterr().out
     d = json.loads((out / "advice.json").read_text())
     assert [s["key"] for s in d["scenes"]] and len(d["ranking"]) == 5 and not d["skipped"]
     text = (out / "requests.csv").read_text()
-    assert text.startswith("rank,key,target,image,kind,measure,object,request,line_px,seconds")
+    assert text.startswith("rank,key,target,image,camera,frames,kind,measure,object,request,line_px,seconds")
     rows = list(csv.DictReader(io.StringIO(text)))  # a segment's "x,y;x,y" is a quoted field
     assert rows
     cum = [float(r["cumulative_seconds"]) for r in rows]
@@ -426,7 +426,9 @@ def test_cli_on_a_batch_writes_the_ranked_request_files(batch_dir, tmp_path, cap
     gains = [float(r["gain_pts_per_minute"]) for r in rows]
     assert gains == sorted(gains, reverse=True)
     assert all(r["line_px"].count(";") == 1 for r in rows if r["line_px"])
-    assert len(json.loads((out / "label_studio_requests.json").read_text())) == len(rows)
+    # the crowd's requests go to the labelling tools; a size or a mounting goes into the scene
+    crowd = [r for r in rows if r["kind"] in ("dims", "reference")]
+    assert len(json.loads((out / "label_studio_requests.json").read_text())) == len(crowd)
     ET.fromstring((out / "cvat_requests.xml").read_text().split("\n", 1)[1])
 
 

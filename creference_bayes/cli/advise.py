@@ -14,7 +14,7 @@ __all__ = ["register"]
 
 
 def _settings(args):
-    from ..workflows.advice import AdviceSettings
+    from ..workflows.advice import KINDS, AdviceSettings
 
     if not (math.isfinite(args.target_hdi_width) and 0.0 <= args.target_hdi_width < 1.0):
         raise UsageError(f"--target-hdi-width: expected a share of the distance in [0, 1) "
@@ -30,8 +30,18 @@ def _settings(args):
         raise UsageError(f"--workers: expected an integer >= 1, got {args.workers}")
     if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
         raise UsageError(f"--budget: expected a number of seconds > 0, got {args.budget!r}")
-    return AdviceSettings(n_draws=args.draws, n_futures=args.futures, target_hdi_width=args.target_hdi_width,
-                          min_gain=args.min_gain)
+    if not (math.isfinite(args.score_iou) and 0.0 < args.score_iou < 1.0):
+        raise UsageError(f"--score-iou: expected an IoU threshold in (0, 1), got {args.score_iou!r}")
+    if not (math.isfinite(args.min_quality) and 0.0 < args.min_quality <= 1.0):
+        raise UsageError(f"--min-quality: expected a probability in (0, 1], got {args.min_quality!r}")
+    if not (math.isfinite(args.min_good_per_hour) and args.min_good_per_hour >= 0.0):
+        raise UsageError(f"--min-good-per-hour: expected a number >= 0, got {args.min_good_per_hour!r}")
+    kinds = tuple(k.strip() for k in args.requests.split(",") if k.strip())
+    if not kinds or any(k not in KINDS for k in kinds):
+        raise UsageError(f"--requests: expected some of {', '.join(KINDS)} separated by commas, got {args.requests!r}")
+    return AdviceSettings(kinds=kinds, n_draws=args.draws, n_futures=args.futures, target_hdi_width=args.target_hdi_width,
+                          min_gain=args.min_gain, iou_threshold=args.score_iou, min_quality=args.min_quality,
+                          objective=args.rank, min_good_per_hour=args.min_good_per_hour)
 
 
 def _one(args, settings, progress: bool) -> int:
@@ -91,13 +101,19 @@ def _batch(args, settings, progress: bool) -> int:
     if not args.quiet:
         rows = request_rows(batch, args.budget)
         for r in rows[:10]:
-            print(f"{r['rank']:>4}  {r['key']}  {r['target']}  {r['request']}  (+{float(r['gain_pts_per_minute']):.3f} "
-                  f"points/min; HDI {r['hdi_now_pct']} % -> {r['hdi_expected_pct']} %)")
+            where = f"{r['key']}  {r['target']}" if r["kind"] != "mounting" else \
+                f"camera {r['camera'] or r['key']} ({r['frames']} frame{'s' if r['frames'] != 1 else ''})"
+            gain = (f"+{float(r['good_gain']):.2f} good labels, {float(r['good_per_hour']):.2f}/h"
+                    if settings.objective == "labels" else f"+{float(r['gain_pts_per_minute']):.3f} points/min")
+            print(f"{r['rank']:>4}  {where}  {r['request']}  ({gain})")
         if len(rows) > 10:
             print(f"      … {len(rows) - 10} more in {paths['requests']}")
-        stop = len(batch.objects) - len(batch.requests)
-        print(f"{len(batch.objects)} targets advised: {len(rows)} requests "
-              f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time), {stop} need none; "
+        good = sum(bool(o.advice.good[o.target]) for o in batch.objects)
+        stuck = sum(o.advice.verdicts()[o.target]["verdict"] == "none" for o in batch.objects)
+        print(f"{len(batch.objects)} targets advised: {good} labels good (P(IoU >= {settings.iou_threshold:g}) >= "
+              f"{settings.min_quality:g}), {stuck} that no single request lifts; {len(rows)} requests "
+              f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time, "
+              f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good); "
               f"{len(batch.skipped)} skipped; wrote {out} (advice.json, requests.csv, "
               f"label_studio_requests.json, cvat_requests.xml)")
         for s in batch.skipped:
@@ -105,7 +121,34 @@ def _batch(args, settings, progress: bool) -> int:
     return 0
 
 
+def _apply(args) -> int:
+    import csv
+
+    from ..workflows.advice.answers import apply_answers
+
+    if not Path(args.input).is_dir():
+        raise UsageError("--apply: INPUT must be the batch folder the requests are of")
+    path = Path(args.apply)
+    if not path.is_file():
+        raise FileNotFoundError(2, "no such file", str(path))
+    rows = list(csv.DictReader(read_text(path).splitlines()))
+    if rows and "answer" not in rows[0]:
+        raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
+    try:
+        done = apply_answers(args.input, rows)
+    except ValueError as exc:
+        raise UsageError(" ".join(str(exc).split())) from None
+    if not args.quiet:
+        for source, what in done:
+            print(f"{source}: {what}")
+        print(f"{len(done)} answer{'s' if len(done) != 1 else ''} put into {len({s for s, _ in done})} scene file(s); "
+              f"run creference batch on them again: it re-estimates the frames that changed")
+    return 0
+
+
 def _run(args) -> int:
+    if args.apply is not None:
+        return _apply(args)
     settings = _settings(args)
     progress = not args.quiet and sys.stderr.isatty()
     if Path(args.input).is_dir():
@@ -122,13 +165,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "advise", help="which annotation to collect next, or whether to stop",
         description="For the posterior of a scene (one target or many), the expected effect of each "
-                    "annotation the scene allows (one more set of dimension lines on a target, one more "
+                    "request the scene allows (one more set of dimension lines on a target, one more "
                     "reference on a segment, a distance to a target, a target's length, the distance "
-                    "between two targets) on every target's 90 % HDI of the distance, location sd and "
-                    "label quality, per minute of human time (preposterior simulation over the posterior "
-                    "draws under the model's noise model); a ranked table and a recommendation. On a "
-                    "batch folder: every target ranked and the request list for the crowd (requests.csv, "
-                    "Label Studio tasks, CVAT XML).")
+                    "between two targets, a target's size from a catalogue, the camera's mounting) on "
+                    "every target's label quality P(IoU >= T), 90 % HDI of the distance and location sd "
+                    "(preposterior simulation over the posterior draws under the model's noise model); "
+                    "ranked by the labels expected to become good per human hour, with a verdict per "
+                    "target and a recommendation. On a batch folder: every target's verdict and a plan "
+                    "within --budget (requests.csv, Label Studio tasks, CVAT XML).")
     p.add_argument("input", metavar="INPUT",
                    help="a scene file (estimated first), a result file of the metrology model (its "
                         "posterior draws, else the Laplace approximation at its MAP), or a folder written "
@@ -139,12 +183,26 @@ def register(subparsers) -> None:
     p.add_argument("--scene", metavar="SCENE", default=None,
                    help="the scene of a result file (default: the batch copy, or the file the "
                         "result names next to it)")
+    p.add_argument("--score-iou", type=float, default=0.7, metavar="T",
+                   help="a label's quality is P(IoU >= T) (default: %(default)s)")
+    p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",
+                   help="a label is good when its P(IoU >= T) >= Q, as creference labels --min-quality "
+                        "(default: %(default)s)")
+    p.add_argument("--rank", choices=("labels", "hdi"), default="labels",
+                   help="rank requests by the labels expected to become good per human hour, or by the "
+                        "narrowing of the distances' HDIs per minute (default: %(default)s)")
+    p.add_argument("--min-good-per-hour", type=float, default=1.0, metavar="N",
+                   help="--rank labels: stop when the best request makes fewer than N labels good per "
+                        "human hour (default: %(default)s)")
+    p.add_argument("--requests", default="dims,reference,size,mounting", metavar="KINDS",
+                   help="the kinds of request to weigh, of dims, reference, size, mounting, separated by "
+                        "commas (default: all)")
     p.add_argument("--target-hdi-width", type=float, default=0.10, metavar="F",
-                   help="stop when every target's 90 %% HDI of the distance is at most this share of "
-                        "it (default: %(default)s, i.e. 10 %%)")
+                   help="--rank hdi: stop when every target's 90 %% HDI of the distance is at most this "
+                        "share of it (default: %(default)s, i.e. 10 %%)")
     p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
-                   help="stop when the best expected gain is below G points of the distance (HDI "
-                        "width in percent of the distance) per minute of human time (default: %(default)s)")
+                   help="--rank hdi: stop when the best expected gain is below G points of the distance "
+                        "(HDI width in percent of the distance) per minute of human time (default: %(default)s)")
     p.add_argument("--seed", type=seed_value, default=0,
                    help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--draws", type=int, default=600, metavar="N",
@@ -159,5 +217,9 @@ def register(subparsers) -> None:
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
                    help="how the Label Studio requests draw a segment, as the project's labelling "
                         "config does (default: %(default)s)")
+    p.add_argument("--apply", metavar="REQUESTS_CSV", default=None,
+                   help="a batch folder: put the answered size and mounting requests of REQUESTS_CSV "
+                        "(its answer column) into the scene files the batch was made from, and advise "
+                        "nothing")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run)

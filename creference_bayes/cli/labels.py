@@ -29,7 +29,7 @@ def _run_labels(args) -> int:
     if not export.objects:
         raise UsageError(f"{args.batch_dir}: nothing labelled, nothing written: {_why_none(export)}")
     paths = write_report(export, args.out, min_quality=args.min_quality, score_iou=args.score_iou,
-                         batch_dir=args.batch_dir, figure=not args.no_figure)
+                         batch_dir=args.batch_dir, figure=not args.no_figure, advice_path=args.advice)
     key = f"p_iou_ge_{args.score_iou:g}"
     low = sum(o.quality.to_dict()[key] < args.min_quality for o in export.objects)
     if not args.quiet:
@@ -73,6 +73,9 @@ def register(subparsers) -> None:
                    help="objects whose score is below Q are listed for more annotations (default: %(default)s)")
     p.add_argument("--draws", type=int, default=100, metavar="N",
                    help="posterior draws per object in the sidecar (default: %(default)s)")
+    p.add_argument("--advice", default=None, metavar="PATH",
+                   help="the advice whose verdicts needs_annotation.csv carries (default: "
+                        "BATCH_DIR/advice/advice.json, as creference advise BATCH_DIR writes it)")
     p.add_argument("--no-figure", action="store_true", help="do not write quality.png")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=_run_labels)

@@ -85,14 +85,16 @@ class DimensionLine:
 @dataclass(frozen=True)
 class Target:
     """One target: its id, class (or None), annotations, known sizes (m: length, width, height) or
-    None (its class's size prior applies), and ground truth (``location_m``, ``yaw_rad``,
-    ``dimensions_m``, ``handedness``, …) or None."""
+    None (a size prior applies), ground truth (``location_m``, ``yaw_rad``, ``dimensions_m``,
+    ``handedness``, …) or None, and its own size prior (a size known up to a spread, as a catalogue
+    gives it), which takes the place of its class's, or None."""
 
     id: str
     cls: str | None
     dimension_lines: tuple[DimensionLine, ...]
     dimensions: tuple[float, float, float] | None = None
     ground_truth: dict | None = None
+    size_prior: SizePrior | None = None
 
     @property
     def corners(self) -> np.ndarray:
@@ -342,7 +344,7 @@ def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> Orientatio
 
 def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, path)
-    _warn_unknown(obj, {"id", "class", "dimensions_m", "dimension_lines", "ground_truth"}, path, sink)
+    _warn_unknown(obj, {"id", "class", "dimensions_m", "size_prior", "dimension_lines", "ground_truth"}, path, sink)
     ident = _string(_get(obj, "id", path), _join(path, "id"), optional=False)
     cls = _string(obj.get("class"), _join(path, "class"))
     dims = obj.get("dimensions_m")
@@ -358,8 +360,17 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
     gt = obj.get("ground_truth")
     if gt is not None:
         gt = _parse_target_truth(gt, _join(path, "ground_truth"))
+    prior = obj.get("size_prior")
+    if prior is not None:
+        if dims is not None:
+            raise SceneError(_join(path, "size_prior"), "a target with 'dimensions_m' (a known size) takes no size prior")
+        try:
+            prior = size_priors_from_dict({"size_prior": prior}, path, source="scene")["size_prior"]
+        except ValueError as exc:  # its message begins with the key path
+            where, _, what = str(exc).partition(": ")
+            raise SceneError(where, what) from None
     return Target(ident, cls, tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink)
-                                    for i, d in enumerate(lines)), dims, gt)
+                                    for i, d in enumerate(lines)), dims, gt, prior)
 
 
 def _free_form(value: Any, path: str) -> Any:
@@ -538,9 +549,9 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         if t.id in ids:
             raise SceneError(_join(_join("targets", i), "id"), f"duplicate id {_short(t.id)} (also targets[{ids[t.id]}])")
         ids[t.id] = i
-        if t.dimensions is None and t.cls is None:
-            raise SceneError(_join("targets", i), "needs 'dimensions_m' or a 'class' with a size prior")
-        if t.dimensions is None and find_size_prior(t.cls, own_classes, classes) is None:
+        if t.dimensions is None and t.cls is None and t.size_prior is None:
+            raise SceneError(_join("targets", i), "needs 'dimensions_m', a 'size_prior' or a 'class' with a size prior")
+        if t.dimensions is None and t.size_prior is None and find_size_prior(t.cls, own_classes, classes) is None:
             known = sorted(set(own_classes) | set(classes or {}) | set(KITTI_SIZE_PRIORS))
             raise SceneError(_join(_join("targets", i), "class"),
                              f"no size prior for class {_short(t.cls)} and no 'dimensions_m' (classes: {known}; "
@@ -775,6 +786,9 @@ def scene_to_dict(scene: Scene) -> dict:
             d["class"] = t.cls
         if t.dimensions is not None:
             d["dimensions_m"] = dict(zip(_SIZE_NAMES, t.dimensions))
+        if t.size_prior is not None:
+            d["size_prior"] = {f"{n}_m": v for n, v in zip(_SIZE_NAMES, t.size_prior.median_m)} | {
+                "log_sd": list(t.size_prior.log_sd), "source": t.size_prior.source}
         d["dimension_lines"] = [{k: v for k, v in (("worker", a.worker), ("corners", a.corners.tolist()),
                                                    ("seconds", a.seconds)) if v is not None}
                                 for a in t.dimension_lines]

@@ -18,11 +18,25 @@ target, now and expected after each observation:
   distance: the gain and the precision target use the share, so targets near and far compare
   fairly);
 - the posterior sd of its location, √(var x + var y + var z), metres;
-- the label quality P(IoU ≥ ``iou_threshold``) of its posterior-mean box.
+- the label quality P(IoU ≥ ``iou_threshold``): now, the label's as ``creference labels`` states
+  it (its MAP box against the draws); after an observation, the posterior-mean box's of the
+  reweighted draws (a future has no MAP), moved by the difference of the two now.
 
-The gain of an observation is the narrowing of every target's HDI share, in percentage points
-of its distance, summed over the scene's targets (for one target, its own), per minute of the
-observation's cost; the observations are ranked by it. Weights whose effective sample size
+Two gains are computed for every observation; ``settings.objective`` says which ranks them:
+
+- **labels** (the default): the expected number of the scene's labels that become good, a label
+  being good when its P(IoU ≥ ``iou_threshold``) ≥ ``min_quality`` (as ``creference labels
+  --score-iou --min-quality`` has it), per human hour. Per future, a target's P(IoU ≥ t) is
+  estimated from ``iou_pairs`` resampled draws, so whether it reaches the bar is taken as the
+  chance a binomial share of that many reaches it (:func:`good_probability`), less the chance the
+  same estimator gives under the future's weights shuffled over the draws (its level: as many
+  effective draws, nothing of what the observation says), over one minus it: no change is no
+  gain. Labels that are good now count for nothing (the advice says they are good);
+- **hdi**: the narrowing of every target's HDI share, in percentage points of its distance, summed
+  over the scene's targets, per minute.
+
+:meth:`Advice.verdicts` says per target what would lift its label to the bar, and when no single
+request would. Weights whose effective sample size
 collapses (fewer than :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION` of the
 draws) are replaced by a tempered resample-move run to the new posterior
 (:func:`~.update.tempered_update`, in the sampler's working coordinates), counted in ``fallbacks``.
@@ -30,6 +44,7 @@ draws) are replaced by a tempered resample-move run to the new posterior
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -38,11 +53,17 @@ import numpy as np
 
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_SIZE, O_X, O_YAW, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix
-from .observe import DimsObservation, ReferenceObservation
+from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
+from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation
 from .update import (MIN_ESS, MIN_ESS_FRACTION, location_sd, normalise, p_iou, shuffled_hdi, tempered_update,
                      weighted_hdi)
 
-__all__ = ["AdviceSettings", "Outlook", "Prediction", "Advice", "advise"]
+__all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_probability"]
+
+#: What the advice ranks requests by (:class:`AdviceSettings`).
+OBJECTIVES = ("labels", "hdi")
+#: The kinds of request (:class:`~.candidates.Candidate`).
+KINDS = ("dims", "reference", "size", "mounting")
 
 
 @dataclass(frozen=True)
@@ -60,6 +81,14 @@ class AdviceSettings:
         per minute of human time
     iou_threshold : label quality is P(IoU ≥ this)
     iou_pairs : resampled draws per simulated future for the label quality
+    objective : how requests are ranked and when to stop: ``"labels"`` (expected labels that
+        become good, a label being good when its P(IoU ≥ ``iou_threshold``) ≥ ``min_quality``, per
+        human hour) or ``"hdi"`` (narrowing of the distances' HDIs per minute)
+    min_quality : the label quality a good label has (``labels --min-quality``)
+    min_good_per_hour : with the labels objective, stop when the best request is expected to make
+        fewer labels good than this per human hour
+    kinds : the kinds of request to weigh (of :data:`KINDS`: a team whose crowd draws no
+        references leaves ``reference`` out)
     """
 
     n_draws: int = 600
@@ -69,6 +98,10 @@ class AdviceSettings:
     min_gain: float = 0.5
     iou_threshold: float = 0.7
     iou_pairs: int = 16
+    objective: str = "labels"
+    min_quality: float = 0.5
+    min_good_per_hour: float = 1.0
+    kinds: tuple[str, ...] = ("dims", "reference", "size", "mounting")
 
     def __post_init__(self):
         for key, ok, what in (
@@ -78,10 +111,18 @@ class AdviceSettings:
                 ("target_hdi_width", self.target_hdi_width >= 0.0, "a share >= 0"),
                 ("min_gain", self.min_gain >= 0.0, "a number >= 0"),
                 ("iou_threshold", 0.0 < self.iou_threshold < 1.0, "a number in (0, 1)"),
-                ("iou_pairs", self.iou_pairs >= 1, "an integer >= 1")):
+                ("iou_pairs", self.iou_pairs >= 1, "an integer >= 1"),
+                ("min_quality", 0.0 < self.min_quality <= 1.0, "a probability in (0, 1]"),
+                ("min_good_per_hour", self.min_good_per_hour >= 0.0, "a number >= 0")):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and ok):
                 raise ValueError(f"{key}: expected {what}, got {value!r}")
+        bad = [k for k in self.kinds if k not in KINDS]
+        if bad or not self.kinds:
+            raise ValueError(f"kinds: expected some of {list(KINDS)}, got {list(self.kinds)!r}")
+        object.__setattr__(self, "kinds", tuple(self.kinds))
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {self.objective!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -98,7 +139,7 @@ class Outlook:
     hdi_share : that width over the posterior median distance
     distance_m : posterior median distance, metres
     location_sd_m : √(var x + var y + var z), metres
-    p_iou : P(IoU ≥ threshold) of the posterior-mean box
+    p_iou : P(IoU ≥ threshold) of the label (module docstring)
     """
 
     hdi_width_m: np.ndarray
@@ -125,6 +166,10 @@ class Prediction:
     gain_per_minute : ``gain_pct`` per minute of the observation's cost
     ess_median : median effective sample size of the reweighted draws, as a share of the draws
     fallbacks : simulated futures whose weights collapsed and were recomputed (of ``n_futures``)
+    p_good : (m,) each target's chance that its label is good after it (module docstring)
+    good_gain : the expected number of labels below the bar now that reach it
+    good_gain_se : its Monte Carlo standard error
+    good_per_hour : ``good_gain`` per human hour of the observation's cost
     """
 
     candidate: Candidate
@@ -134,11 +179,21 @@ class Prediction:
     gain_per_minute: float
     ess_median: float
     fallbacks: int
+    p_good: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    good_gain: float = 0.0
+    good_gain_se: float = 0.0
+    good_per_hour: float = 0.0
 
     def to_dict(self) -> dict:
         return {"candidate": self.candidate.to_dict(), "expected": self.expected.to_dict(),
                 "gain_pct": self.gain_pct, "gain_se_pct": self.gain_se_pct, "gain_per_minute": self.gain_per_minute,
+                "p_good": [round(float(x), 6) for x in self.p_good], "good_gain": self.good_gain,
+                "good_gain_se": self.good_gain_se, "good_per_hour": self.good_per_hour,
                 "ess_median": self.ess_median, "fallbacks": self.fallbacks}
+
+    def score(self, objective: str) -> float:
+        """What the requests are ranked by: good labels per hour, or HDI points per minute."""
+        return self.good_per_hour if objective == "labels" else self.gain_per_minute
 
 
 @dataclass(frozen=True)
@@ -166,18 +221,64 @@ class Advice:
     def best(self) -> Prediction | None:
         return self.predictions[0] if self.predictions else None
 
+    @property
+    def good(self) -> np.ndarray:
+        """(m,) whether each target's label is good now: P(IoU ≥ ``iou_threshold``) ≥ ``min_quality``."""
+        return self.now.p_iou >= self.settings.min_quality
+
+    def _needs(self, i: int) -> bool:
+        if self.settings.objective == "labels":
+            return not self.good[i]
+        return self.now.hdi_share[i] > self.settings.target_hdi_width
+
+    def _worth(self, p: Prediction) -> bool:
+        s = self.settings
+        return p.good_per_hour >= s.min_good_per_hour if s.objective == "labels" else p.gain_per_minute >= s.min_gain
+
     def requests(self) -> list[Prediction | None]:
         """Each target's request: the best-ranked observation asked on it or on no target (a
-        reference elsewhere, which helps every target), each at most once; None for a target whose
-        precision target is met or whose best gain is below ``min_gain``."""
+        reference elsewhere or the mounting, which help every target), each at most once; None for
+        a target that needs none (its label is good, or with the HDI objective its precision
+        target is met) or whose best request is not worth its time (``min_good_per_hour``,
+        ``min_gain``)."""
         taken, out = set(), []
-        for i, share in enumerate(self.now.hdi_share):
-            pick = None if share <= self.settings.target_hdi_width else next(
+        for i in range(len(self.targets)):
+            pick = None if not self._needs(i) else next(
                 (p for p in self.predictions if p.candidate.target in (i, None) and p.candidate.key not in taken), None)
-            pick = pick if pick is not None and pick.gain_per_minute >= self.settings.min_gain else None
+            pick = pick if pick is not None and self._worth(pick) else None
             if pick is not None:
                 taken.add(pick.candidate.key)
             out.append(pick)
+        return out
+
+    def verdicts(self) -> list[dict]:
+        """Per target, what would lift its label to the bar (``min_quality``): ``verdict`` is
+        ``good`` (it is already), ``lift`` (a request that is more likely than not to lift it:
+        ``best``) or ``none`` (no single request is); ``p_now``, the best request's ``p_expected``
+        (expected P(IoU ≥ t) after it) and ``chance`` (that it reaches the bar), and ``text``."""
+        s, out = self.settings, []
+        t, q = f"P(IoU ≥ {s.iou_threshold:g})", s.min_quality
+        for i, tid in enumerate(self.targets):
+            p_now = float(self.now.p_iou[i])
+            row = {"target": tid, "p_now": p_now, "verdict": "good", "best": None, "p_expected": None,
+                   "chance": None, "text": f"good: {t} {p_now:.2f} ≥ {q:g}"}
+            mine = [p for p in self.predictions if p.candidate.target in (i, None) and len(p.p_good)]
+            if not self.good[i] and mine:
+                best = max(mine, key=lambda p: (float(p.p_good[i]), -p.candidate.seconds))
+                dims = next((p for p in mine if p.candidate.kind == "dims" and p.candidate.target == i), None)
+                chance, p_exp = float(best.p_good[i]), float(best.expected.p_iou[i])
+                lifts = chance >= 0.5
+                row.update(verdict="lift" if lifts else "none", best=best.candidate.key, p_expected=p_exp,
+                           chance=chance)
+                head = (f"{best.candidate.description} would lift it" if lifts else
+                        f"no single request lifts it; the best, {best.candidate.description}, gives")
+                row["text"] = f"{head}: {t} {p_now:.2f} → {p_exp:.2f} (chance {chance:.2f} of ≥ {q:g})"
+                if dims is not None and dims is not best:
+                    row["text"] += (f"; more dimension lines: {t} {p_now:.2f} → {float(dims.expected.p_iou[i]):.2f} "
+                                    f"(chance {float(dims.p_good[i]):.2f})")
+            elif not self.good[i]:
+                row.update(verdict="none", text=f"below the bar ({t} {p_now:.2f} < {q:g}); no request can be simulated")
+            out.append(row)
         return out
 
     def to_dict(self) -> dict:
@@ -186,6 +287,7 @@ class Advice:
                 "source": self.source, "action": self.action, "reason": self.reason,
                 "recommended": best.candidate.key if self.action == "collect" and best else None,
                 "requests": [None if p is None else p.candidate.key for p in self.requests()],
+                "verdicts": self.verdicts(),
                 "predictions": [p.to_dict() for p in self.predictions], "format_mix": dict(self.format_mix),
                 "notes": list(self.notes), "settings": self.settings.to_dict(), "seed": self.seed,
                 "draws_weighed": self.n_weighed, "seconds": self.seconds}
@@ -253,11 +355,17 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     outer = np.unique(np.linspace(0, n - 1, min(settings.n_futures, n)).round().astype(int))
     # the present from every draw (one row: the label quality against all of them)
     now = Outlook(**{k: v[0] for k, v in draws.outlooks(np.full((1, n), 1.0 / n), settings, rng, n).items()})
+    # the label's quality as creference labels states it (its MAP box against the draws); a future's
+    # is its posterior-mean box's, moved by what separates the two now
+    label_p = _label_quality(scene, camera_map, objects_map, cams, objs, settings.iou_threshold)
+    shift = label_p - now.p_iou
+    now = dataclasses.replace(now, p_iou=label_p)
     base = model.neg_log_posterior(draws.cams, draws.objs, temperature)
     notes = []
     if candidates is None:
         candidates, notes = scene_candidates(scene, model, np.asarray(camera_map, float),
                                              np.asarray(objects_map, float))
+        candidates = [c for c in candidates if c.kind in settings.kinds]
     mix = format_mix(scene)
     seeds = rng.integers(2**63, size=len(candidates))
     predictions = []
@@ -265,15 +373,18 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         for cand, s in zip(candidates, seeds):
             m = (mixes or {}).get(cand.key, mix)
             obs = (DimsObservation(model, cand.target, options, temperature) if cand.kind == "dims" else
+                   SizeObservation(model, cand.target, CATALOGUE_LOG_SD) if cand.kind == "size" else
+                   MountingObservation(model, MOUNTING_SD) if cand.kind == "mounting" else
                    ReferenceObservation(model, cand.term, options, range_share=m.range_share,
                                         range_precision=m.range_precision, temperature=temperature))
             if not obs.usable:
                 notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
             else:
-                predictions.append(_predict(obs, cand, draws, outer, base, now, settings, np.random.default_rng(s),
-                                            temperature))
+                predictions.append(_predict(obs, cand, draws, outer, base, now, shift, settings,
+                                            np.random.default_rng(s), temperature))
             bar.update(1)
-    predictions.sort(key=lambda p: -p.gain_per_minute)
+    predictions.sort(key=lambda p: (-p.score(settings.objective), -p.score("hdi" if settings.objective == "labels"
+                                                                           else "labels"), p.candidate.key))
     action, reason = _recommend(now, predictions, settings, [t.id for t in scene.targets])
     return Advice(targets=tuple(t.id for t in scene.targets), now=now, predictions=tuple(predictions), action=action,
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
@@ -281,13 +392,37 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                   n_weighed=n)
 
 
-def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, settings, rng, temperature) -> Prediction:
+def good_probability(p_hat: np.ndarray, n_pairs: int, min_quality: float) -> np.ndarray:
+    """The chance that a label is good (its P(IoU ≥ t) ≥ ``min_quality``) given ``p_hat``, that
+    probability estimated from ``n_pairs`` resampled draws: the Jeffreys posterior of a binomial
+    share, k = p_hat · n successes of n, above ``min_quality``. Counting p_hat ≥ ``min_quality``
+    instead would turn the estimate's noise (sd up to 0.12 at 16 pairs) into labels gained or lost."""
+    from scipy.special import betainc
+
+    k = np.asarray(p_hat, float) * n_pairs
+    return 1.0 - betainc(k + 0.5, n_pairs - k + 0.5, min_quality)
+
+
+def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float) -> np.ndarray:
+    """(m,) each label's P(IoU ≥ ``threshold``) as ``creference labels`` computes it: its box at
+    the MAP against the boxes of all the draws (not only those weighed), in the labels' frame."""
+    from ..labels.kitti import kitti_poses
+    from ..labels.quality import box_iou_3d
+
+    box = kitti_poses(scene, np.asarray(camera_map, float)[None], np.asarray(objects_map, float)[None])[0]
+    samples = kitti_poses(scene, cams, objs)
+    return np.array([np.mean(box_iou_3d(box[i], samples[:, i]) >= threshold) for i in range(len(box))])
+
+
+def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, settings, rng,
+             temperature) -> Prediction:
     cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
     obs.simulate(rng, cams[outer], draws.objs[outer])
     log_w = obs.log_ratio(cams, draws.objs, base)
     log_w[np.arange(len(outer)), outer] = -np.inf  # leave the simulating draw out
     weights, ess = normalise(log_w)
     rows = draws.outlooks(weights, settings, rng)
+    weighed_p = rows["p_iou"].copy()  # the labels' chances are read off the reweighted draws (below)
     n = len(cams)
     collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
     for i in collapsed:  # recompute those futures with the fallback
@@ -303,13 +438,31 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, settings, rng,
     rows["hdi_width_m"] = rows["hdi_width_m"] * np.where(same[:, None], now.hdi_width_m / width, 1.0)
     rows["hdi_share"] = rows["hdi_share"] * np.where(same[:, None], now.hdi_share / share, 1.0)
     expected = Outlook(**{k: v.mean(axis=0) for k, v in rows.items()})
+    expected = dataclasses.replace(expected, p_iou=np.clip(expected.p_iou + shift, 0.0, 1.0))
     gains = 100.0 * np.sum(now.hdi_share - rows["hdi_share"], axis=1)
     gain = float(np.mean(gains))
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
     se_inner = _split_se(draws.dist, weights[same], settings.hdi_prob, rng)
+    # labels below the bar now that reach it: each one's chance, the present's level taken out
+    # (module docstring). Both from the reweighted draws, collapsed futures included: a fallback's
+    # draws are resampled and moved, with duplicates the level cannot have, which raised every
+    # label's estimated quality in a frame of many (on KITTI frames 3x the good labels realised).
+    p_good = good_probability(weighed_p, settings.iou_pairs, settings.min_quality)   # (M, m)
+    # the level: the same estimator under each future's weights shuffled over the draws (as many
+    # effective draws, nothing of what the observation says)
+    shuffled = p_iou(draws.boxes, rng.permuted(weights, axis=1), settings.iou_threshold, rng, settings.iou_pairs)
+    baseline = good_probability(shuffled, settings.iou_pairs, settings.min_quality).mean(axis=0)
+    below = now.p_iou < settings.min_quality
+    chance = (p_good - baseline) / np.maximum(1.0 - baseline, 0.05)
+    chance = np.where(below, chance, p_good)
+    good_gains = np.sum(chance[:, below], axis=1)
+    good_gain = float(np.mean(good_gains))
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,
-                      ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)))
+                      ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)),
+                      p_good=np.clip(chance.mean(axis=0), 0.0, 1.0),
+                      good_gain=good_gain, good_gain_se=float(np.std(good_gains, ddof=1) / np.sqrt(len(good_gains))),
+                      good_per_hour=good_gain / (cand.seconds / 3600.0) if cand.seconds > 0 else math.inf)
 
 
 def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
@@ -321,9 +474,9 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     random walk's mixing time grows with the dimension; 8 was chosen for one target)."""
     from ...inference.coords import CAMERA_LOG, WorkingCoords
 
-    new = obs.model_with(i)
-    coords = WorkingCoords(new)
-    cf, of = new.camera_free, new.object_free
+    new = obs.model_with(i) if hasattr(obs, "model_with") else None
+    coords = WorkingCoords(new or obs.model)
+    cf, of = (new or obs.model).camera_free, (new or obs.model).object_free
     logs = CAMERA_LOG & cf
     wc, wo = coords.to_work(cams, objs)
 
@@ -343,9 +496,14 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
             return np.where(np.isfinite(out), out, -np.inf)
         return f
 
+    old = density(obs.model, obs.needs_scale)
+    if new is None:  # an answer that enters as a prior (a size, a mounting): the old density and its own
+        def target(x):
+            return old(x) + obs.log_ratio(*coords.from_work(*unpack(x)), values=obs.values[i:i + 1])[0]
+    else:
+        target = density(new, False)
     x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
-    moved, _ = tempered_update(density(obs.model, obs.needs_scale), density(new, False), x, rng,
-                               n_moves=int(min(32, max(8, x.shape[1]))))
+    moved, _ = tempered_update(old, target, x, rng, n_moves=int(min(32, max(8, x.shape[1]))))
     return coords.from_work(*unpack(moved))
 
 
@@ -381,6 +539,8 @@ def _split_se(dist: np.ndarray, weights: np.ndarray, prob: float, rng, n_splits:
 
 
 def _recommend(now: Outlook, predictions: list[Prediction], settings: AdviceSettings, ids) -> tuple[str, str]:
+    if settings.objective == "labels":
+        return _recommend_labels(now, predictions, settings, ids)
     share, goal = 100.0 * now.hdi_share, 100.0 * settings.target_hdi_width
     widest = int(np.argmax(share))
     which = "" if len(ids) == 1 else f" (widest: {ids[widest]})"
@@ -396,3 +556,25 @@ def _recommend(now: Outlook, predictions: list[Prediction], settings: AdviceSett
     return "collect", (f"collect {best.candidate.description} next: expected HDI {share[widest]:.1f} % → "
                        f"{100 * best.expected.hdi_share[widest]:.1f} % of the distance{which}, "
                        f"{best.gain_per_minute:.2f} points per minute")
+
+
+def _recommend_labels(now: Outlook, predictions: list[Prediction], settings: AdviceSettings, ids):
+    t, q = f"P(IoU ≥ {settings.iou_threshold:g})", settings.min_quality
+    below = np.flatnonzero(now.p_iou < q)
+    if not len(below):
+        low = int(np.argmin(now.p_iou))
+        return "stop", (f"label quality met: every label has {t} ≥ {q:g} (lowest {now.p_iou[low]:.2f}"
+                        f"{'' if len(ids) == 1 else f', {ids[low]}'})")
+    if not predictions:
+        return "stop", "no annotation of this scene can be simulated"
+    best = predictions[0]
+    said = f"{len(below)} of {len(ids)} label{'s' if len(ids) != 1 else ''} below {t} {q:g}"
+    if best.good_per_hour < settings.min_good_per_hour:
+        return "stop", (f"{said}; the best request, {best.candidate.description}, is expected to make "
+                        f"{best.good_gain:.2f} of them good ({best.good_per_hour:.2f} per human hour, below the "
+                        f"minimum {settings.min_good_per_hour:g}): see the verdicts for what would lift them")
+    i = int(below[np.argmax(best.p_good[below])]) if len(best.p_good) else int(below[0])
+    on = "" if len(ids) == 1 else f"{ids[i]}: "
+    return "collect", (f"collect {best.candidate.description} next: expected {best.good_gain:.2f} more good "
+                       f"label{'s' if best.good_gain != 1 else ''} ({best.good_per_hour:.2f} per human hour; {said}); "
+                       f"{on}{t} {now.p_iou[i]:.2f} → {best.expected.p_iou[i]:.2f}")

@@ -1,19 +1,22 @@
-"""The advice for a data set: every target of every scene of a batch folder, ranked by the
-expected gain per minute of its best next observation, and the request list for the crowd
-(docs/advice.md, "A data set").
+"""The advice for a data set: every target of every frame of a batch folder, its verdict and its
+best next request, and a plan within a budget of human time (docs/advice.md, "A data set").
 
 Written to ``OUT`` (default ``BATCH_DIR/advice``)::
 
-    advice.json                 every scene's advice (creference-advice/2) and the targets' ranking
-    requests.csv                one request per target that should get one, best first
-    label_studio_requests.json  the requests as Label Studio tasks
-    cvat_requests.xml           the requests as CVAT for images 1.1 annotations
+    advice.json                 every frame's advice (creference-advice/2) and the targets' ranking
+                                with their verdicts
+    requests.csv                the plan: the requests, best value per human second first
+    label_studio_requests.json  its line and reference requests as Label Studio tasks
+    cvat_requests.xml           the same as CVAT for images 1.1 annotations
 
-A target's request is the best-ranked observation of its scene that is asked on it or on no
-target (a reference elsewhere that helps every target), each at most once per scene
-(:meth:`~creference_bayes.workflows.advice.Advice.requests`). Targets whose precision target is
-met, or whose best gain is below ``min_gain``, get none. After the
-requests are collected and the scenes estimated again, the advice is worth recomputing.
+A target's request is the best-ranked observation of its frame that is asked on it or on no
+target, each at most once per frame
+(:meth:`~creference_bayes.workflows.advice.Advice.requests`); a target whose label is good (or,
+with the hdi objective, whose precision target is met), or whose best request is not worth its
+time, gets none. The camera's mounting is planned once per camera (:meth:`BatchAdvice.plan`).
+Sizes and mountings are answered into the scenes (:mod:`.answers`); lines and references come
+back through the importers. After the answers are in, ``creference batch`` re-estimates the
+frames that changed and the advice is worth recomputing.
 """
 
 from __future__ import annotations
@@ -32,20 +35,21 @@ from . import Advice, AdviceSettings, Prediction
 from .inputs import advise_result, scene_for_result
 from .requests import image_name
 
-__all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "BatchAdvice", "object_seed", "advise_batch", "request_rows",
+__all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "Request", "BatchAdvice", "object_seed", "advise_batch", "request_rows",
            "write_batch_advice"]
 
-#: Columns of ``requests.csv``. Shares are of the target's ground distance (percent); gains are
-#: summed over the scene's targets (points).
-REQUEST_COLUMNS = ("rank", "key", "target", "image", "kind", "measure", "object", "request", "line_px", "seconds",
-                   "cumulative_seconds", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute",
-                   "p_iou_now", "p_iou_expected")
+#: Columns of ``requests.csv``. Shares are of the target's ground distance (percent); HDI gains are
+#: summed over the scene's targets (points); ``good_gain`` is the expected number of labels that
+#: become good (over every frame of the camera, for a mounting).
+REQUEST_COLUMNS = ("rank", "key", "target", "image", "camera", "frames", "kind", "measure", "object", "request",
+                   "line_px", "seconds", "cumulative_seconds", "good_gain", "good_per_hour", "p_iou_now",
+                   "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "answer")
 
 
 @dataclass(frozen=True)
 class ObjectAdvice:
-    """One target of the batch: its scene's key, image name, scene and advice, its index, and its
-    request (None when it should get none)."""
+    """One target of the batch: its scene's key, image name, scene and advice, its index, its
+    request (None when it should get none) and the fingerprint of the scene its result is of."""
 
     key: str
     image: str
@@ -53,11 +57,30 @@ class ObjectAdvice:
     advice: Advice
     target: int
     request: Prediction | None
+    fingerprint: str | None = None
 
     @property
     def score(self) -> float:
-        """The request's expected gain per minute (−∞ without one)."""
-        return self.request.gain_per_minute if self.request is not None else -np.inf
+        """What its request is ranked by (the advice's objective; −∞ without one)."""
+        return self.request.score(self.advice.settings.objective) if self.request is not None else -np.inf
+
+
+@dataclass(frozen=True)
+class Request:
+    """One request of the plan: a target's (``objects``: its :class:`ObjectAdvice`) or a camera's
+    mounting (``objects``: one per frame of that camera; ``camera`` its id, None for a frame that
+    names no camera), its ``value`` (expected good labels, or HDI points with the hdi objective)
+    and ``seconds``."""
+
+    objects: tuple[ObjectAdvice, ...]
+    prediction: Prediction
+    value: float
+    seconds: float
+    camera: str | None = None
+
+    @property
+    def rate(self) -> float:
+        return self.value / self.seconds if self.seconds > 0 else np.inf
 
 
 @dataclass(frozen=True)
@@ -70,6 +93,49 @@ class BatchAdvice:
     @property
     def requests(self) -> tuple[ObjectAdvice, ...]:
         return tuple(o for o in self.objects if o.request is not None)
+
+    def plan(self, budget_s: float | None = None) -> list[Request]:
+        """The requests to send, best value per human second first, while their human time stays
+        within ``budget_s`` (a request that does not fit is passed over for cheaper ones after it).
+
+        A target's request is its scene's choice (:meth:`~creference_bayes.workflows.advice.Advice.requests`);
+        the mounting is asked once per camera, its value summed over every frame of that camera (a
+        frame that names no camera is a camera of its own). Each request is valued as if it were
+        the only one (the plan is greedy: a frame's requests are not weighed together)."""
+        items, cameras = [], {}
+        for o in self.requests:
+            if o.request.candidate.kind != "mounting":
+                items.append(Request((o,), o.request, _value(o.advice, o.request), o.request.candidate.seconds,
+                                     o.scene.camera_id))
+        seen = set()
+        for o in self.objects:
+            if o.key in seen:
+                continue
+            seen.add(o.key)
+            p = next((p for p in o.advice.predictions if p.candidate.kind == "mounting"), None)
+            if p is not None:
+                cameras.setdefault(o.scene.camera_id or f"frame:{o.key}", []).append((o, p))
+        for camera, frames in cameras.items():
+            value = sum(_value(o.advice, p) for o, p in frames)
+            r = Request(tuple(o for o, _ in frames), frames[0][1], value, frames[0][1].candidate.seconds,
+                        None if camera.startswith("frame:") else camera)
+            settings = frames[0][0].advice.settings
+            worth = (value * 3600.0 / r.seconds >= settings.min_good_per_hour if settings.objective == "labels"
+                     else value * 60.0 / r.seconds >= settings.min_gain)
+            if worth and value > 0:
+                items.append(r)
+        items.sort(key=lambda r: (-r.rate, r.objects[0].key, r.objects[0].target))
+        out, total = [], 0.0
+        for r in items:
+            if budget_s is not None and total + r.seconds > budget_s:
+                continue
+            total += r.seconds
+            out.append(r)
+        return out
+
+
+def _value(advice: Advice, p: Prediction) -> float:
+    return p.good_gain if advice.settings.objective == "labels" else p.gain_pct
 
 
 def object_seed(seed: int, key: str) -> list[int]:
@@ -87,7 +153,8 @@ def _advise_one(path: Path, key: str, seed, settings):
         if "batch" not in result:
             raise ValueError("not a result of creference batch")
         scene = scene_for_result(path, result)
-        return scene, advise_result(result, scene, seed=object_seed(seed, key), settings=settings)
+        return scene, advise_result(result, scene, seed=object_seed(seed, key), settings=settings), \
+            (result.get("scene_id") or {}).get("sha256")
     except (OSError, ValueError, KeyError, TypeError) as exc:
         return " ".join(str(exc).split())
 
@@ -133,32 +200,44 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
         if isinstance(outcome[key], str):
             skipped.append({"key": key, "reason": outcome[key]})
             continue
-        scene, advice = outcome[key]
-        objects += [ObjectAdvice(key, image_name(scene, key), scene, advice, i, p)
+        scene, advice, fingerprint = outcome[key]
+        objects += [ObjectAdvice(key, image_name(scene, key), scene, advice, i, p, fingerprint)
                     for i, p in enumerate(advice.requests())]
     objects.sort(key=lambda o: (o.request is None, -o.score, o.key, o.target))
     return BatchAdvice(tuple(objects), tuple(skipped))
 
 
 def request_rows(batch: BatchAdvice, budget_s: float | None = None) -> list[dict]:
-    """The rows of ``requests.csv``: the requests in ranked order, while their cumulative human
-    time stays within ``budget_s`` (all of them without a budget)."""
+    """The rows of ``requests.csv``: the plan (:meth:`BatchAdvice.plan`) in order. A mounting's row
+    has no key or target: it is for every frame of its ``camera`` (``frames`` of them)."""
     rows, total = [], 0.0
-    for o in batch.requests:
-        p, now, i = o.request, o.advice.now, o.target
-        c = p.candidate
-        if budget_s is not None and total + c.seconds > budget_s:
-            break
-        total += c.seconds
+    for r in batch.plan(budget_s):
+        o, p = r.objects[0], r.prediction
+        c, now = p.candidate, o.advice.now
+        total += r.seconds
+        one = c.kind != "mounting"
+        i = o.target
         rows.append({
-            "rank": len(rows) + 1, "key": o.key, "target": o.advice.targets[i], "image": o.image, "kind": c.kind,
-            "measure": c.measure or "", "object": c.object or "", "request": c.description,
+            "rank": len(rows) + 1, "key": o.key if one or r.camera is None else "",
+            "target": o.advice.targets[i] if one else "", "image": o.image if one or r.camera is None else "",
+            "camera": r.camera or "", "frames": len(r.objects), "kind": c.kind, "measure": c.measure or "",
+            "object": c.object or "", "request": c.description,
             "line_px": "" if c.line is None else ";".join(f"{u:.2f},{v:.2f}" for u, v in c.line),
-            "seconds": f"{c.seconds:g}", "cumulative_seconds": f"{total:g}",
-            "hdi_now_pct": f"{100 * now.hdi_share[i]:.2f}", "hdi_expected_pct": f"{100 * p.expected.hdi_share[i]:.2f}",
-            "gain_pts": f"{p.gain_pct:.3f}", "gain_pts_per_minute": f"{p.gain_per_minute:.4f}",
-            "p_iou_now": f"{now.p_iou[i]:.3f}", "p_iou_expected": f"{p.expected.p_iou[i]:.3f}"})
+            "seconds": f"{r.seconds:g}", "cumulative_seconds": f"{total:g}",
+            "good_gain": f"{sum(q.good_gain for q in _predictions(r)):.3f}",
+            "good_per_hour": f"{sum(q.good_gain for q in _predictions(r)) * 3600.0 / r.seconds:.3f}",
+            "p_iou_now": f"{now.p_iou[i]:.3f}" if one else "", "p_iou_expected": f"{p.expected.p_iou[i]:.3f}" if one else "",
+            "hdi_now_pct": f"{100 * now.hdi_share[i]:.2f}" if one else "",
+            "hdi_expected_pct": f"{100 * p.expected.hdi_share[i]:.2f}" if one else "",
+            "gain_pts": f"{p.gain_pct:.3f}", "gain_pts_per_minute": f"{p.gain_per_minute:.4f}", "answer": ""})
     return rows
+
+
+def _predictions(r: Request) -> list[Prediction]:
+    """The request's prediction in each of its frames."""
+    if r.prediction.candidate.kind != "mounting":
+        return [r.prediction]
+    return [next(p for p in o.advice.predictions if p.candidate.kind == "mounting") for o in r.objects]
 
 
 def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float | None = None,
@@ -169,19 +248,23 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = request_rows(batch, budget_s)
-    chosen = {(r["key"], r["target"]) for r in rows}
-    requested = [(o.key, o.scene, o.request.candidate) for o in batch.requests
-                 if (o.key, o.advice.targets[o.target]) in chosen]
+    # the crowd's requests (lines and references) go to the labelling tools; a size or a mounting
+    # is put into the scene (:mod:`.answers`)
+    requested = [(o.key, o.scene, r.prediction.candidate) for r in batch.plan(budget_s) for o in r.objects[:1]
+                 if r.prediction.candidate.kind in ("dims", "reference")]
     paths = {"advice": out / "advice.json", "requests": out / "requests.csv",
              "label_studio": out / "label_studio_requests.json", "cvat": out / "cvat_requests.xml"}
     scenes = {}
     for o in batch.objects:
-        scenes.setdefault(o.key, {"key": o.key, "image": o.image, **o.advice.to_dict()})
+        scenes.setdefault(o.key, {"key": o.key, "image": o.image, "scene_sha256": o.fingerprint,
+                                  **o.advice.to_dict()})
     atomic_write_json(paths["advice"], {
         "format": "creference-batch-advice/2", "budget_s": budget_s, "scenes": list(scenes.values()),
         "ranking": [{"key": o.key, "target": o.advice.targets[o.target],
                      "request": None if o.request is None else o.request.candidate.key,
-                     "gain_pts_per_minute": None if o.request is None else o.request.gain_per_minute}
+                     "good_per_hour": None if o.request is None else o.request.good_per_hour,
+                     "gain_pts_per_minute": None if o.request is None else o.request.gain_per_minute,
+                     **{k: v for k, v in o.advice.verdicts()[o.target].items() if k != "target"}}
                     for o in batch.objects],
         "skipped": list(batch.skipped)})
     buf = io.StringIO()

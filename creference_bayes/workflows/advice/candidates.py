@@ -9,7 +9,12 @@ For every target:
   target touches the bottom edge or that corner is outside the image;
 - **its length** (``ID:length``), when its size has a class prior;
 - **its distance to the nearest other target** (``ID~ID2:distance``, bottom centre to bottom
-  centre), in a scene of several, unless the scene has one between them (then it is repeated).
+  centre), in a scene of several, unless the scene has one between them (then it is repeated);
+- **its size from a catalogue** (``ID:size``: a worker names the make and model), when its size has
+  a prior (:mod:`.answers`).
+
+And once for the scene, **the camera's mounting** (``camera:mounting``: height, pitch and roll from
+the rig's calibration, :mod:`.answers`), which a batch asks once per camera.
 
 For the references the scene has (grouped by drawn segment: the same object name and measure,
 endpoints within :data:`SAME_SEGMENT_FRACTION` of the segment's length, at least
@@ -24,7 +29,9 @@ it measures):
 
 The cost of each kind is the median of the scene's recorded ``seconds`` for that kind (sets of
 dimension lines, references), else the paper's average task times (§7.2.2:
-:data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`).
+:data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`); a size and a mounting cost
+:data:`~.answers.SIZE_SECONDS` and :data:`~.answers.MOUNTING_SECONDS` (where those come from is
+said there).
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ from ...models.boxes import image_boxes
 from ...models.contract import O_SIZE, O_X, O_Z
 from ...models.metrology import ReferenceTerm
 from ...pipeline import reference_terms
+from .answers import MOUNTING_SD, MOUNTING_SECONDS, SIZE_SECONDS
+from .observe import MountingObservation
 
 __all__ = ["PAPER_TARGET_SECONDS", "PAPER_REFERENCE_SECONDS", "PAPER_RANGE_PRECISION", "SAME_SEGMENT_FRACTION",
            "SAME_SEGMENT_MIN_PX", "Candidate", "FormatMix", "candidates", "annotation_seconds", "format_mix"]
@@ -60,9 +69,11 @@ class Candidate:
     Attributes
     ----------
     key : a short unique name (module docstring)
-    kind : ``"dims"`` (a set of dimension lines) or ``"reference"``
+    kind : ``"dims"`` (a set of dimension lines), ``"reference"``, ``"size"`` (from a catalogue) or
+        ``"mounting"`` (the camera's, from its calibration)
     target : index of the target it is asked on (its dimension lines, its distance, its size), or
-        None for a reference on another object (it helps every target through the camera)
+        None for a reference on another object or the mounting (they help every target through
+        the camera)
     target_id : that target's id, or None
     measure : ``length``, ``width``, ``height`` or ``distance`` (None for dimension lines)
     object : the object's name as the scene's references give it (a target's id for its own)
@@ -92,6 +103,10 @@ class Candidate:
         refs = ", ".join(f"references[{i}]" for i in self.based_on)
         if self.kind == "dims":
             return f"one more set of dimension lines on {self.target_id}"
+        if self.kind == "size":
+            return f"the size of {self.target_id} from a catalogue (a worker names its make and model)"
+        if self.kind == "mounting":
+            return "the camera's mounting (height, pitch, roll) from its calibration"
         if self.term.kind == "distance":
             as_refs = f" (as {refs})" if refs else ""
             return f"distance between {self.target_id} and {self.object} (bottom centres){as_refs}"
@@ -232,6 +247,8 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
         if model.object_free[i, O_SIZE].any():
             reference(f"{tid}:length", i, measure="length", object=tid, line=None,
                       term=ReferenceTerm(0, "size", 1.0, 1.0, False, owner=i, size_index=0), based_on=())
+        if model.object_free[i, O_SIZE].any() and model.objects[i].size_prior is not None:
+            out.append(Candidate(f"{tid}:size", "size", i, tid, "size", tid, None, None, (), SIZE_SECONDS))
         if len(ids) > 1:
             gap = np.hypot(*(ground_xz - ground_xz[i]).T)
             gap[i] = np.inf
@@ -240,4 +257,7 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
                 pairs.add((min(i, j), max(i, j)))
                 reference(f"{tid}~{ids[j]}:distance", i, measure="distance", object=ids[j], line=None,
                           term=ReferenceTerm(0, "distance", 1.0, 1.0, False, owner=i, other=j), based_on=())
+    if MountingObservation(model, MOUNTING_SD).usable:  # else the camera's pose is fixed (an exact horizon)
+        out.append(Candidate("camera:mounting", "mounting", None, None, "mounting", None, None, None, (),
+                             MOUNTING_SECONDS))
     return out, notes

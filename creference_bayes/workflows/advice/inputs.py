@@ -103,28 +103,31 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
                      f"location sd {now.location_sd_m[i]:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
-    head = ("rank", "annotation", "cost s", "HDI after", "gain pts", "pts/min", "loc sd m",
-            f"P(IoU>={s.iou_threshold:g})", "ESS", "fallbacks")
+    head = ("rank", "annotation", "cost s", "good labels", "good/h", f"P(IoU>={s.iou_threshold:g})", "HDI after",
+            "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks")
     table = []
     for k, p in enumerate(advice.predictions[:rows], start=1):
         e, c = p.expected, p.candidate
-        i = c.target if c.target is not None else int(np.argmax(now.hdi_share - e.hdi_share))
+        if c.target is not None:
+            i = c.target
+        elif s.objective == "labels" and len(p.p_good):
+            i = int(np.argmax(np.where(advice.good, -np.inf, p.p_good)))
+        else:
+            i = int(np.argmax(now.hdi_share - e.hdi_share))
         on = "" if len(ids) == 1 else f"{ids[i]}: "
-        table.append((str(k), c.description, f"{c.seconds:.0f}",
-                      f"{on}{e.hdi_width_m[i]:.3g} m {100 * e.hdi_share[i]:.1f} %",
+        table.append((str(k), c.description, f"{c.seconds:.0f}", f"{p.good_gain:+.2f} ±{p.good_gain_se:.2f}",
+                      f"{p.good_per_hour:+.2f}", f"{on}{now.p_iou[i]:.2f} → {e.p_iou[i]:.2f}",
+                      f"{e.hdi_width_m[i]:.3g} m {100 * e.hdi_share[i]:.1f} %",
                       f"{p.gain_pct:+.2f} ±{p.gain_se_pct:.2f}", f"{p.gain_per_minute:+.3f}",
-                      f"{e.location_sd_m[i]:.3g}", f"{e.p_iou[i]:.2f}", f"{100 * p.ess_median:.0f} %",
-                      str(p.fallbacks)))
+                      f"{e.location_sd_m[i]:.3g}", f"{100 * p.ess_median:.0f} %", str(p.fallbacks)))
     widths = [max(len(r[i]) for r in table + [head]) for i in range(len(head))]
     lines.append("")
     for r in [head] + table:
         lines.append("  ".join(c.ljust(w) if i == 1 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
     if len(advice.predictions) > rows:
         lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
-    if len(ids) > 1:
-        lines += ["", "per target: " + "; ".join(
-            f"{tid}: {'nothing (target met or gain too small)' if p is None else p.candidate.description}"
-            f"{'' if p is None else f' ({p.gain_per_minute:+.3f} pts/min)'}" for tid, p in zip(ids, advice.requests()))]
+    lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
+    lines += [f"  {v['target']}: {v['text']}" for v in advice.verdicts()]
     lines += ["", recommendation_line(advice.action, advice.reason)]
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes each on "

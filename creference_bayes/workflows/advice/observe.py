@@ -21,6 +21,13 @@ i-th simulated observation (docs/advice.md, "How the advice is computed"):
   without references has no crowd scale yet: its draws are given one from the scale's prior,
   independent of the rest, which is the old posterior in the new model's parameters.
 
+- **A size from a catalogue** (:class:`SizeObservation`) and **the camera's mounting from its
+  calibration** (:class:`MountingObservation`): at the simulating draw, the draw's log-size (or
+  log-height, pitch and roll) plus normal noise of the answer's spread (:mod:`.answers`). The
+  answer enters the scene as a prior multiplied into the one it had (:mod:`.answers`), so the
+  ratio is its normal log-density at each draw (not tempered: a prior); quantities the model
+  holds fixed (a known size; pitch and roll under an exact horizon) are left out.
+
 Held fixed: the pilot (the line noise is taken at the current MAP; a re-estimate would take it at
 its own first optimum) and the camera set-up (horizon, priors).
 """
@@ -31,10 +38,11 @@ import dataclasses
 
 import numpy as np
 
-from ...models.contract import C_SCALE, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
+from ...models.contract import C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
 from ...models.metrology import MetrologyModel, ReferenceTerm, t_interval
 
-__all__ = ["grown", "simulation_scale", "DimsObservation", "ReferenceObservation"]
+__all__ = ["grown", "simulation_scale", "DimsObservation", "ReferenceObservation", "SizeObservation",
+           "MountingObservation"]
 
 #: Largest simulated error of a stated length, in log-length (a factor 10⁴).
 _MAX_LOG_ERROR = float(np.log(1e4))
@@ -179,3 +187,69 @@ class ReferenceObservation:
             ranged = np.log(np.maximum(t_interval(nu, lo, (self.log_high[:, None] - pred) * inv), 0.0))
         out = np.where(self.is_range[:, None], ranged, single) / self.temperature
         return np.where(np.isfinite(out), out, -np.inf)
+
+
+class _PriorObservation:
+    """An answer that enters as a normal prior on some quantities q(draw) (module docstring):
+    subclasses give :meth:`quantities` (N, d) and :attr:`sd` (d,)."""
+
+    needs_scale = False
+    sd = np.zeros(0)
+
+    def __init__(self, model: MetrologyModel):
+        self.model = model
+        self.values = np.zeros((0, len(self.sd)))
+
+    @property
+    def usable(self) -> bool:
+        return len(self.sd) > 0
+
+    def quantities(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
+        """One answer per draw (M, 5), (M, m, 7); kept in :attr:`values` (M, d)."""
+        q = self.quantities(cams, objs)
+        self.values = q + self.sd * rng.standard_normal(q.shape)
+
+    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None, values=None) -> np.ndarray:
+        """(M, N) the simulated answers' (or ``values``') log-densities at the draws."""
+        values = self.values if values is None else values
+        z = (values[:, None, :] - self.quantities(cams, objs)[None]) / self.sd
+        with np.errstate(invalid="ignore"):
+            out = -0.5 * np.sum(z * z, axis=-1)
+        return np.where(np.isfinite(out), out, -np.inf)
+
+
+class SizeObservation(_PriorObservation):
+    """Target ``i``'s size from a catalogue, log-sd ``log_sd`` (module docstring)."""
+
+    def __init__(self, model: MetrologyModel, i: int, log_sd: float):
+        self.i = int(i)
+        self.free = np.asarray(model.object_free[self.i, O_SIZE], bool)
+        self.sd = np.full(int(self.free.sum()), float(log_sd))
+        super().__init__(model)
+
+    def quantities(self, cams, objs):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(objs[:, self.i, O_SIZE][:, self.free])
+
+
+class MountingObservation(_PriorObservation):
+    """The camera's height, pitch and roll from its calibration, spreads ``sd`` ({"log_height",
+    "pitch", "roll"}; module docstring)."""
+
+    def __init__(self, model: MetrologyModel, sd: dict):
+        cf = model.camera_free
+        self.parts = [(C_HEIGHT, "log_height")] if model.use_height_prior and cf[C_HEIGHT] else []
+        if model.orientation == "free":
+            self.parts += [(c, n) for c, n in ((C_PITCH, "pitch"), (C_ROLL, "roll")) if cf[c]]
+        self.sd = np.array([sd[n] for _, n in self.parts], float)
+        super().__init__(model)
+
+    def quantities(self, cams, objs):
+        cols = [cams[:, c] for c, _ in self.parts]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if self.parts and self.parts[0][0] == C_HEIGHT:
+                cols[0] = np.log(cols[0])
+        return np.stack(cols, axis=1) if cols else np.zeros((len(cams), 0))

@@ -14,11 +14,56 @@ import numpy as np
 from ...io.files import atomic_path, atomic_write_text
 from .quality import IOU_THRESHOLDS, reliability_table
 
-__all__ = ["LABEL_COLUMNS", "label_rows", "calibration", "write_report"]
+__all__ = ["LABEL_COLUMNS", "NEEDS_COLUMNS", "label_rows", "advice_verdicts", "calibration", "write_report"]
 
 LABEL_COLUMNS = ("image", "line", "scene", "target", "type", "p_iou_ge_0.5", "p_iou_ge_0.7",
                  "iou_mean", "true_iou", "distance_sd_m", "converged", "dimension_lines",
                  "references", "calib_mismatch_px")
+#: ``needs_annotation.csv``: the label's columns and the advice's verdict on it (``creference
+#: advise BATCH_DIR`` with the same threshold and quality): ``lift`` (``best_request`` is more
+#: likely than not to lift it), ``none`` (no single request is) or empty without an advice.
+NEEDS_COLUMNS = LABEL_COLUMNS + ("verdict", "best_request", "p_expected", "chance", "advice")
+
+
+def advice_verdicts(batch_dir: str | Path, *, score_iou: float, min_quality: float,
+                    advice_path: str | Path | None = None) -> tuple[dict, str | None]:
+    """The verdicts of ``creference advise BATCH_DIR`` (``BATCH_DIR/advice/advice.json``, or
+    ``advice_path``) by (scene key, target id), and a note when there is none to use: no advice,
+    an advice for another bar (``iou_threshold``, ``min_quality``) or of results since re-estimated
+    (the scene's fingerprint differs from its result's)."""
+    import json
+
+    from ...io.files import read_text
+
+    path = Path(advice_path) if advice_path is not None else Path(batch_dir) / "advice" / "advice.json"
+    rerun = (f"run `creference advise {batch_dir} --score-iou {score_iou:g} --min-quality {min_quality:g}` "
+             "for what would lift them")
+    if not path.is_file():
+        return {}, rerun
+    try:
+        d = json.loads(read_text(path))
+        scenes = d["scenes"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return {}, f"the advice {path} cannot be read ({exc}); {rerun}"
+    out, stale = {}, 0
+    for sc in scenes:
+        s = sc.get("settings") or {}
+        if (s.get("iou_threshold"), s.get("min_quality")) != (float(score_iou), float(min_quality)):
+            return {}, (f"the advice {path} is for P(IoU ≥ {s.get('iou_threshold')}) ≥ {s.get('min_quality')}; "
+                        f"{rerun}")
+        result = Path(batch_dir) / "results" / f"{sc['key']}.json"
+        try:
+            now = json.loads(read_text(result)).get("scene_id", {}).get("sha256")
+        except (OSError, ValueError):
+            now = None
+        if now is None or now != sc.get("scene_sha256"):
+            stale += 1
+            continue
+        for v in sc.get("verdicts") or []:
+            out[(sc["key"], v["target"])] = v
+    note = None if not stale else (f"{stale} frame(s) were re-estimated since the advice {path} was made: "
+                                   f"their verdicts are left out; {rerun}")
+    return out, note
 
 
 def label_rows(objects) -> list[dict]:
@@ -75,15 +120,24 @@ def _table(header: list[str], rows: list[list]) -> list[str]:
 
 
 def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou: float = 0.7,
-                 batch_dir: str | Path | None = None, figure: bool = True) -> dict[str, Path]:
-    """Write the report files into ``out``; returns their paths by name."""
+                 batch_dir: str | Path | None = None, figure: bool = True,
+                 advice_path: str | Path | None = None) -> dict[str, Path]:
+    """Write the report files into ``out``; returns their paths by name. The labels below
+    ``min_quality`` carry the verdicts of the batch's advice (:func:`advice_verdicts`)."""
     out = Path(out)
     key = f"p_iou_ge_{score_iou:g}"
     score_label = f"P(IoU ≥ {score_iou:g})"
     rows = label_rows(export.objects)
     low = sorted((r for r in rows if r[key] < min_quality), key=lambda r: (r[key], r["image"], r["line"]))
+    verdicts, advice_note = ({}, None) if batch_dir is None else advice_verdicts(
+        batch_dir, score_iou=score_iou, min_quality=min_quality, advice_path=advice_path)
+    for r in low:
+        v = verdicts.get((r["scene"], r["target"]))
+        if v is not None:
+            r.update(verdict=v["verdict"], best_request=v["best"], p_expected=v["p_expected"], chance=v["chance"],
+                     advice=v["text"])
     paths = {"labels_csv": atomic_write_text(out / "labels.csv", _csv(rows, LABEL_COLUMNS)),
-             "needs_annotation_csv": atomic_write_text(out / "needs_annotation.csv", _csv(low, LABEL_COLUMNS))}
+             "needs_annotation_csv": atomic_write_text(out / "needs_annotation.csv", _csv(low, NEEDS_COLUMNS))}
     calib = calibration(export.objects)
     if figure and rows:
         from ...vision.label_figures import quality_figure
@@ -93,12 +147,12 @@ def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou
             fig.savefig(tmp, dpi=110)
         paths["figure"] = out / "quality.png"
     text = _markdown(export, rows, low, calib, min_quality=min_quality, key=key, score_label=score_label,
-                     batch_dir=batch_dir, figure="figure" in paths)
+                     batch_dir=batch_dir, figure="figure" in paths, advice_note=advice_note)
     paths["report"] = atomic_write_text(out / "report.md", text)
     return paths
 
 
-def _markdown(export, rows, low, calib, *, min_quality, key, score_label, batch_dir, figure) -> str:
+def _markdown(export, rows, low, calib, *, min_quality, key, score_label, batch_dir, figure, advice_note=None) -> str:
     n = len(rows)
     lines = ["# Label quality report", ""]
     src = f" from the batch folder `{batch_dir}`" if batch_dir is not None else ""
@@ -131,11 +185,16 @@ def _markdown(export, rows, low, calib, *, min_quality, key, score_label, batch_
     if not low:
         lines.append("None.")
     else:
-        lines += [f"{len(low)} of {n} objects (also in `needs_annotation.csv`), worst first:", ""]
+        lines += [f"{len(low)} of {n} objects (also in `needs_annotation.csv`), worst first; the verdict is "
+                  f"the advice's (`creference advise`): which request would lift the label to the bar, or "
+                  f"that no single request would.", ""]
+        if advice_note:
+            lines += [f"No verdicts: {advice_note}." if not any(r.get("verdict") for r in low)
+                      else f"Note: {advice_note}.", ""]
         lines += _table(["image", "line", "scene", "target", "P(IoU ≥ 0.5)", "P(IoU ≥ 0.7)",
-                         "distance sd (m)", "converged", "dimension lines", "references"],
+                         "distance sd (m)", "dimension lines", "references", "verdict"],
                         [[r["image"], r["line"], r["scene"], r["target"], r["p_iou_ge_0.5"], r["p_iou_ge_0.7"],
-                          r["distance_sd_m"], r["converged"], r["dimension_lines"], r["references"]] for r in low])
+                          r["distance_sd_m"], r["dimension_lines"], r["references"], r.get("advice")] for r in low])
     if calib:
         n_truth = sum(r["count"] for r in next(iter(calib.values())))
         lines += ["", f"## Calibration against ground truth ({n_truth} objects)", "",

@@ -1,0 +1,197 @@
+"""Answers to the advice's requests, put into a scene: one more set of dimension lines, a target's
+size from a catalogue, the camera's mounting from its calibration (docs/advice.md, "The loop").
+
+Lines and references come back through the importers (a Label Studio or CVAT export, imported
+again, gives the scenes with the new annotations). A size or a mounting is not drawn: it is
+written in ``requests.csv``'s ``answer`` column and put into the scene files by
+:func:`apply_answers` (``creference advise BATCH_DIR --apply requests.csv``), as a prior the
+estimate then uses:
+
+- a size: the target's own ``size_prior`` (docs/scene_format.md), the product of the size prior
+  it had (its class's) and the catalogue's size with spread :data:`CATALOGUE_LOG_SD`;
+- a mounting: the camera's ``orientation_prior``, the product of the one it had and the
+  calibration's height, pitch and roll with spreads :data:`MOUNTING_SD`.
+
+The advice weighs a request by the same product (:mod:`.observe`), so what it predicts is what the
+estimate will do with the answer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+
+import numpy as np
+
+from ...models.camera_terms import DEFAULT_ORIENTATION_PRIOR
+from ...models.size_priors import SizePrior
+
+__all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "ANSWER_FORMS",
+           "with_dimension_lines", "with_size", "with_mounting", "apply_answers"]
+
+#: A size from a catalogue (a worker names the make and model): the spread of its log-length,
+#: -width and -height. Our assumption, not a measurement: one model name covers trims and years
+#: whose sizes differ by a few percent, and a worker sometimes names a sibling model.
+CATALOGUE_LOG_SD = 0.03
+#: Human seconds for a size from a catalogue: the paper has no such task; its nearest is the
+#: reference task (one worker, one object, one statement), 64.4 s on average (§7.2.2).
+SIZE_SECONDS = 64.4
+#: A mounting from the rig's calibration: the spread of log height, pitch and roll (radians) it
+#: leaves per frame. A vehicle's camera keeps its height to about 2 % and its pitch and roll to
+#: about 0.5° from frame to frame (the spreads examples/kitti_study.py's ``--camera known`` uses).
+MOUNTING_SD = {"log_height": 0.02, "pitch": math.radians(0.5), "roll": math.radians(0.5)}
+#: Human seconds for a camera's mounting: an engineer reading the rig's calibration, once per
+#: camera. Our assumption (15 minutes); every frame of that camera shares the answer.
+MOUNTING_SECONDS = 900.0
+
+
+def _target(scene, target_id: str) -> int:
+    ids = [t.id for t in scene.targets]
+    if target_id not in ids:
+        raise ValueError(f"target: no target {target_id!r} in the scene (targets: {ids})")
+    return ids.index(target_id)
+
+
+def _product(mean0, sd0, mean1, sd1):
+    """The product of two normal densities: its mean and sd."""
+    w0, w1 = 1.0 / np.square(sd0), 1.0 / np.square(sd1)
+    return (w0 * mean0 + w1 * mean1) / (w0 + w1), 1.0 / np.sqrt(w0 + w1)
+
+
+def with_dimension_lines(scene, target_id: str, corners, *, worker: str | None = None, seconds: float | None = None):
+    """``scene`` with one more set of dimension lines on ``target_id``: ``corners`` (4, 2) pixels,
+    the corner and the far ends of the length, width and height lines (docs/scene_format.md)."""
+    from ...io.scene import DimensionLine
+
+    i = _target(scene, target_id)
+    corners = np.asarray(corners, float)
+    if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
+        raise ValueError(f"corners: expected (4, 2) finite pixels, got {corners.tolist()!r}")
+    t = scene.targets[i]
+    t = dataclasses.replace(t, dimension_lines=(*t.dimension_lines, DimensionLine(corners, worker, seconds)))
+    return dataclasses.replace(scene, targets=scene.targets[:i] + (t,) + scene.targets[i + 1:])
+
+
+def with_size(scene, target_id: str, size_m, *, log_sd: float = CATALOGUE_LOG_SD, classes=None):
+    """``scene`` with a size of ``target_id`` from a catalogue: ``size_m`` (length, width, height)
+    metres, known to ``log_sd`` in log-size. Its size prior becomes the product of the one it had
+    (its own, else its class's: the scene's classes, ``classes``, the shipped ones) and this."""
+    i = _target(scene, target_id)
+    t = scene.targets[i]
+    size = np.asarray(size_m, float)
+    if size.shape != (3,) or not np.all(np.isfinite(size) & (size > 0)):
+        raise ValueError(f"size_m: expected (length, width, height) > 0 metres, got {np.ravel(size_m).tolist()!r}")
+    if not (math.isfinite(log_sd) and log_sd > 0):
+        raise ValueError(f"log_sd: expected a number > 0, got {log_sd!r}")
+    if t.dimensions is not None:
+        raise ValueError(f"target {target_id!r}: its size is known already (dimensions_m)")
+    prior = t.size_prior or scene.size_prior(t.cls, classes)
+    mean, sd = np.log(size), np.full(3, float(log_sd))
+    if prior is not None:
+        mean, sd = _product(np.log(prior.median_m), np.asarray(prior.log_sd), mean, sd)
+    t = dataclasses.replace(t, size_prior=SizePrior(tuple(np.exp(mean)), tuple(sd), source="catalogue"))
+    return dataclasses.replace(scene, targets=scene.targets[:i] + (t,) + scene.targets[i + 1:])
+
+
+def with_mounting(scene, height_m: float, pitch_rad: float, roll_rad: float = 0.0, *, sd: dict | None = None):
+    """``scene`` with its camera's mounting from a calibration: height above the ground (metres),
+    pitch (radians, > 0 looks down) and roll, with spreads ``sd`` (default :data:`MOUNTING_SD`).
+    Its orientation prior becomes the product of the one it had (else the default) and this."""
+    sd = {**MOUNTING_SD, **(sd or {})}
+    for key, v in (("height_m", height_m), ("pitch_rad", pitch_rad), ("roll_rad", roll_rad)):
+        if not (isinstance(v, numbers.Real) and math.isfinite(v)) or (key == "height_m" and v <= 0):
+            raise ValueError(f"{key}: expected a finite number{' > 0' if key == 'height_m' else ''}, got {v!r}")
+    p = scene.orientation_prior or DEFAULT_ORIENTATION_PRIOR
+    log_h, h_sd = _product(math.log(p.height_median_m), p.height_log_sd, math.log(height_m), sd["log_height"])
+    pitch, pitch_sd = _product(p.pitch_mean, p.pitch_sd, pitch_rad, sd["pitch"])
+    roll, roll_sd = _product(p.roll_mean, p.roll_sd, roll_rad, sd["roll"])
+    prior = dataclasses.replace(p, height_median_m=float(math.exp(log_h)), height_log_sd=float(h_sd),
+                                pitch_mean=float(pitch), pitch_sd=float(pitch_sd), roll_mean=float(roll),
+                                roll_sd=float(roll_sd))
+    return dataclasses.replace(scene, orientation_prior=prior)
+
+
+#: ``requests.csv``'s ``answer`` column, per kind: what to write there.
+ANSWER_FORMS = {"size": "length,width,height in metres (the catalogue's)",
+                "mounting": "height in metres,pitch in degrees,roll in degrees (the calibration's; pitch > 0 looks down)"}
+
+
+def _numbers(text: str, n: int, where: str) -> list[float]:
+    parts = [p.strip() for p in str(text).replace(";", ",").split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{where}: expected {n} numbers separated by commas, got {text!r}")
+    return values
+
+
+def apply_answers(batch_dir, rows) -> list[tuple[str, str]]:
+    """Put the answered size and mounting requests of ``rows`` (``requests.csv``'s rows, dicts; a
+    row is answered when its ``answer`` is filled in, :data:`ANSWER_FORMS`) into the scene files
+    the batch ``batch_dir`` was made from (each result's ``batch.source``), each file rewritten
+    atomically once. A mounting with a ``camera`` goes to every frame of that camera. Returns
+    (scene file, what was put in) per answer. ``creference batch`` then re-estimates the frames
+    whose scenes changed. Raises ValueError naming the row and the value on a bad answer; nothing
+    is written then."""
+    import json
+    from pathlib import Path
+
+    from ...io.files import atomic_write_json, read_text
+    from ...io.scene import load_scene, scene_to_dict
+
+    root = Path(batch_dir) / "results"
+    frames = {}  # key -> (source path, camera id)
+    for path in sorted(root.rglob("*.json")):
+        key = path.relative_to(root).with_suffix("").as_posix()
+        if any(part.startswith(".") for part in key.split("/")):
+            continue
+        d = json.loads(read_text(path))
+        frames[key] = Path((d.get("batch") or {})["source"]), None
+    scenes, done = {}, []
+
+    def scene_of(key, where):
+        if key not in frames:
+            raise ValueError(f"{where}: key {key!r} is not a result of {batch_dir}")
+        source = frames[key][0]
+        if source not in scenes:
+            scenes[source] = load_scene(source)
+        return source
+
+    for n, row in enumerate(rows, start=1):
+        kind, answer = row.get("kind"), (row.get("answer") or "").strip()
+        where = f"requests row {row.get('rank', n)} ({kind})"
+        if kind not in ANSWER_FORMS or not answer:
+            continue
+        if kind == "size":
+            source = scene_of(row.get("key"), where)
+            size = _numbers(answer, 3, where)
+            try:
+                scenes[source] = with_size(scenes[source], row.get("target"), size)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            done.append((str(source), f"{row.get('target')}: size {size} m"))
+            continue
+        height, pitch, roll = _numbers(answer, 3, where)
+        if row.get("camera"):
+            keys = []
+            for key in frames:
+                source = scene_of(key, where)
+                if scenes[source].camera_id == row["camera"]:
+                    keys.append(key)
+            if not keys:
+                raise ValueError(f"{where}: no frame of camera {row['camera']!r} in {batch_dir}")
+        else:
+            keys = [row.get("key")]
+        for key in keys:
+            source = scene_of(key, where)
+            try:
+                scenes[source] = with_mounting(scenes[source], height, math.radians(pitch), math.radians(roll))
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            done.append((str(source), f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°"))
+    for source in {s for s, _ in done}:
+        atomic_write_json(Path(source), scene_to_dict(scenes[Path(source)]))
+    return done

@@ -1,0 +1,316 @@
+"""Advice that serves the labels: answers put into a scene (a size from a catalogue, a camera's
+mounting), their simulated observations against the models the answers make, the good-labels
+objective, the verdicts, the batch plan (a mounting once per camera) and the labels' report
+carrying the verdicts."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import truth_scene
+
+from creference_bayes.cli.main import main
+from creference_bayes.io.scene import parse_scene, scene_to_dict
+from creference_bayes.pipeline import build_model
+from creference_bayes.workflows.advice import AdviceSettings, good_probability
+from creference_bayes.workflows.advice.answers import (CATALOGUE_LOG_SD, MOUNTING_SD, with_dimension_lines,
+                                                       with_mounting, with_size)
+from creference_bayes.workflows.advice.observe import MountingObservation, SizeObservation
+
+
+@pytest.fixture(scope="module")
+def frame():
+    """Three targets of class priors, no horizon, the focal length known."""
+    d, truth = truth_scene(5, m=3, noise_px=2.0, n_annotations=2, sizes_known=False, focal_known=True,
+                           depth=(8.0, 35.0))
+    return parse_scene(d), truth
+
+
+def test_a_catalogue_size_multiplies_the_class_prior(frame):
+    scene, _ = frame
+    t = scene.targets[1]
+    prior = scene.size_prior(t.cls)
+    answered = with_size(scene, t.id, (4.0, 1.8, 1.5), log_sd=0.03)
+    got = answered.targets[1].size_prior
+    for k, size in enumerate((4.0, 1.8, 1.5)):
+        w0, w1 = prior.log_sd[k] ** -2, 0.03 ** -2
+        assert got.log_sd[k] == pytest.approx((w0 + w1) ** -0.5)
+        assert math.log(got.median_m[k]) == pytest.approx((w0 * math.log(prior.median_m[k]) + w1 * math.log(size))
+                                                          / (w0 + w1))
+    assert answered.targets[0] == scene.targets[0] and got.source == "catalogue"
+    # the scene file keeps it, and the estimate uses it in place of the class's
+    again = parse_scene(json.loads(json.dumps(scene_to_dict(answered))))
+    assert again.targets[1].size_prior.median_m == pytest.approx(got.median_m)
+    model, _ = build_model(again)
+    assert model.objects[1].size_prior.log_sd == pytest.approx(got.log_sd)
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"size_prior": {"length_m": 4, "width_m": 1.8, "height_m": -1, "log_sd": 0.03}}, "size_prior.height_m"),
+    ({"size_prior": {"length_m": 4, "width_m": 1.8, "height_m": 1.5, "log_sd": 0.03},
+      "dimensions_m": {"length": 4, "width": 1.8, "height": 1.5}}, "takes no size prior"),
+])
+def test_a_bad_size_prior_is_named(frame, bad, message):
+    d = scene_to_dict(frame[0])
+    d["targets"][0].update(bad)
+    with pytest.raises(ValueError, match=message):
+        parse_scene(d)
+
+
+def test_answers_name_what_is_wrong(frame):
+    scene, _ = frame
+    with pytest.raises(ValueError, match="no target 'nope'"):
+        with_size(scene, "nope", (4, 2, 1.5))
+    with pytest.raises(ValueError, match="size_m"):
+        with_size(scene, scene.targets[0].id, (4, 0, 1.5))
+    with pytest.raises(ValueError, match="height_m"):
+        with_mounting(scene, -1.0, 0.0)
+    with pytest.raises(ValueError, match="corners"):
+        with_dimension_lines(scene, scene.targets[0].id, np.zeros((3, 2)))
+    more = with_dimension_lines(scene, scene.targets[2].id, scene.targets[2].corners[0] + 1.0)
+    assert len(more.targets[2].dimension_lines) == len(scene.targets[2].dimension_lines) + 1
+
+
+def _draws(model, truth, n, rng):
+    """States scattered around the truth (not a posterior: the identities hold at any state)."""
+    cams = np.repeat(truth["camera"][None], n, axis=0) * np.exp(0.03 * rng.standard_normal((n, 5)))
+    cams[:, 1:3] = truth["camera"][1:3] + np.radians(1.0) * rng.standard_normal((n, 2))
+    objs = np.repeat(truth["objects"][None], n, axis=0)
+    objs[..., 3:6] *= np.exp(0.05 * rng.standard_normal(objs[..., 3:6].shape))
+    objs[..., :2] += 0.3 * rng.standard_normal(objs[..., :2].shape)
+    return model.complete_camera(cams), objs
+
+
+def test_the_simulated_answers_are_what_the_answered_scenes_estimate_with(frame):
+    """The advice's ratio of a size or a mounting is, at every state, the answered scene's
+    log-posterior less the present's, up to a constant: what the advice predicts is what the
+    estimate does with the answer."""
+    scene, truth = frame
+    rng = np.random.default_rng(0)
+    model, _ = build_model(scene)
+    model.handedness = np.asarray(truth["handedness"], float)
+    cams, objs = _draws(model, truth, 50, rng)
+    base = model.neg_log_posterior(cams, objs)
+    size = SizeObservation(model, 1, CATALOGUE_LOG_SD)
+    size.simulate(rng, cams[:3], objs[:3])
+    mount = MountingObservation(model, MOUNTING_SD)
+    assert [n for _, n in mount.parts] == ["log_height", "pitch", "roll"]
+    mount.simulate(rng, cams[:3], objs[:3])
+    for k in range(3):
+        answered = [with_size(scene, scene.targets[1].id, np.exp(size.values[k])),
+                    with_mounting(scene, float(np.exp(mount.values[k, 0])), *map(float, mount.values[k, 1:]))]
+        for obs, new_scene in zip((size, mount), answered):
+            new, _ = build_model(new_scene)
+            new.handedness = model.handedness
+            diff = base - new.neg_log_posterior(cams, objs)
+            ratio = obs.log_ratio(cams, objs)[k]
+            assert np.ptp(diff - ratio) < 1e-6 * max(1.0, np.ptp(ratio))
+
+
+def test_the_good_probability_is_a_smoothed_count():
+    p = np.linspace(0, 1, 17)
+    g = good_probability(p, 16, 0.5)
+    assert np.all(np.diff(g) > 0) and g[0] < 0.01 and g[-1] > 0.99
+    assert good_probability(np.array([0.5]), 10_000, 0.5)[0] == pytest.approx(0.5, abs=0.02)
+
+
+@pytest.fixture(scope="module")
+def advised(frame):
+    from creference_bayes.workflows.advice.inputs import advise_scene
+
+    advice, result = advise_scene(frame[0], seed=1, settings=AdviceSettings(n_draws=200, n_futures=40),
+                                  sampling={"min_ess": 200})
+    return advice, result
+
+
+def test_the_labels_objective_ranks_and_says_what_would_lift_each_label(advised):
+    advice, result = advised
+    kinds = {p.candidate.kind for p in advice.predictions}
+    assert {"dims", "size", "mounting"} <= kinds
+    rates = [p.good_per_hour for p in advice.predictions]
+    assert rates == sorted(rates, reverse=True)
+    for p in advice.predictions:
+        assert p.good_per_hour == pytest.approx(p.good_gain * 3600.0 / p.candidate.seconds)
+        assert len(p.p_good) == 3 and np.all((p.p_good >= 0) & (p.p_good <= 1))
+    verdicts = advice.verdicts()
+    assert [v["target"] for v in verdicts] == list(advice.targets)
+    for v, good in zip(verdicts, advice.good):
+        assert (v["verdict"] == "good") == bool(good)
+        if v["verdict"] == "lift":
+            assert v["chance"] >= 0.5 and v["best"] in {p.candidate.key for p in advice.predictions}
+        if v["verdict"] == "none":
+            assert "no single request lifts it" in v["text"]
+    assert advice.to_dict()["verdicts"] == verdicts
+
+
+def test_the_present_quality_is_the_labels(frame, advised):
+    from creference_bayes.io.result import stored_draws
+    from creference_bayes.pipeline import map_state
+    from creference_bayes.workflows.labels.kitti import kitti_poses
+    from creference_bayes.workflows.labels.quality import label_quality
+
+    advice, result = advised
+    d = result.to_dict()
+    camera, objs = map_state(d)
+    kept = stored_draws(d)
+    box = kitti_poses(frame[0], camera[None], objs[None])[0]
+    samples = kitti_poses(frame[0], kept.cameras[0], kept.objects[0])
+    assert len(samples) > advice.n_weighed  # all the result's draws, not only those the advice weighs
+    for i in range(3):
+        assert advice.now.p_iou[i] == label_quality(box[i], samples[:, i]).p_iou[0.7]
+
+
+def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, monkeypatch):
+    """Weights that scatter the draws but say nothing: no label becomes good. Counting the
+    futures' noisy P(IoU ≥ t) against the bar without the present's level (the estimator's own
+    smoothing) gave every target near the bar a gain."""
+    from creference_bayes.workflows import advice as advice_module
+    from creference_bayes.workflows.advice.inputs import advise_result
+
+    class Nothing:
+        usable, needs_scale = True, False
+
+        def __init__(self, model, *args):
+            self.model = model
+
+        def simulate(self, rng, cams, objs):
+            self.m, self.rng = len(cams), rng
+
+        def log_ratio(self, cams, objs, base):
+            return 0.5 * self.rng.standard_normal((self.m, len(cams)))
+
+    monkeypatch.setattr(advice_module, "DimsObservation", Nothing)
+    _, result = advised
+    scene = frame[0]
+    a = advise_result(result, scene, seed=3, settings=AdviceSettings(n_draws=400, n_futures=100, min_quality=0.3))
+    dims = [p for p in a.predictions if p.candidate.kind == "dims"]
+    assert len(dims) == 3
+    for p in dims:
+        assert abs(p.good_gain) < 3 * p.good_gain_se + 0.05
+
+
+@pytest.fixture(scope="module")
+def advised_batch(tmp_path_factory):
+    """Three frames: two of one named camera, one of none; a short posterior each."""
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    root = tmp_path_factory.mktemp("advised")
+    (root / "in").mkdir()
+    for seed in range(3):
+        scene, _ = truth_scene(seed + 10, m=2, noise_px=2.0, n_annotations=2, sizes_known=False, focal_known=True,
+                               depth=(8.0, 35.0))
+        if seed < 2:
+            scene["camera"]["id"] = "rig-B"
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(scene))
+    run_batch([root / "in"], root / "out", LocalEngine(1),
+              BatchSettings(seed=0, sampling={"min_ess": 100, "max_steps": 400, "warmup": 200}))
+    assert main(["advise", str(root / "out"), "--draws", "100", "--futures", "20", "--min-good-per-hour", "0",
+                 "--quiet"]) == 0
+    return root
+
+
+def test_the_plan_asks_a_mounting_once_per_camera(advised_batch):
+    from creference_bayes.workflows.advice.batch import advise_batch, request_rows
+
+    out = advised_batch / "out"
+    rows = list(csv.DictReader((out / "advice" / "requests.csv").open()))
+    mountings = [r for r in rows if r["kind"] == "mounting"]
+    assert len([r for r in mountings if r["camera"] == "rig-B"]) == 1
+    assert all(r["frames"] == "2" for r in mountings if r["camera"] == "rig-B")
+    assert all(r["frames"] == "1" and r["key"] == "f2" for r in mountings if not r["camera"])
+    rates = [float(r["good_per_hour"]) for r in rows]
+    assert rates == sorted(rates, reverse=True)
+    # the camera's value is its frames' predictions summed
+    batch = advise_batch(out, settings=AdviceSettings(n_draws=100, n_futures=20, min_good_per_hour=0.0))
+    plan = batch.plan()
+    cam = [r for r in plan if r.camera == "rig-B" and r.prediction.candidate.kind == "mounting"]
+    if cam:
+        frames = {o.key: o for o in batch.objects}
+        per_frame = [next(p.good_gain for p in frames[k].advice.predictions if p.candidate.kind == "mounting")
+                     for k in ("f0", "f1")]
+        assert cam[0].value == pytest.approx(sum(per_frame))
+    # a team that asks only for lines gets only lines
+    only = advise_batch(out, settings=AdviceSettings(n_draws=100, n_futures=20, min_good_per_hour=0.0,
+                                                     kinds=("dims",)))
+    assert {p.candidate.kind for o in only.objects for p in o.advice.predictions} == {"dims"}
+    # a budget keeps the plan within it, best value per second first
+    budget = min(r.seconds for r in plan) + 1.0
+    cut = request_rows(batch, budget)
+    assert sum(float(r["seconds"]) for r in cut) <= budget and len(cut) >= 1
+
+
+def test_needs_annotation_carries_the_advices_verdicts(advised_batch, tmp_path):
+    out = advised_batch / "out"
+    assert main(["labels", str(out), "--out", str(tmp_path / "labels"), "--min-quality", "1.0", "--quiet",
+                 "--no-figure"]) == 0
+    rows = list(csv.DictReader((tmp_path / "labels" / "needs_annotation.csv").open()))
+    advice = json.loads((out / "advice" / "advice.json").read_text())
+    # the advice was made for P(IoU >= 0.7) >= 0.5, the labels ask for >= 1.0: no verdicts, and why
+    assert rows and not any(r["verdict"] for r in rows)
+    assert "is for P(IoU ≥ 0.7) ≥ 0.5" in (tmp_path / "labels" / "report.md").read_text()
+    assert main(["labels", str(out), "--out", str(tmp_path / "same"), "--quiet", "--no-figure"]) == 0
+    rows = list(csv.DictReader((tmp_path / "same" / "needs_annotation.csv").open()))
+    verdicts = {(s["key"], v["target"]): v for s in advice["scenes"] for v in s["verdicts"]}
+    for r in rows:
+        v = verdicts[(r["scene"], r["target"])]
+        assert r["verdict"] == v["verdict"] and r["advice"] == v["text"]
+        # the two commands agree on which labels are below the bar
+        assert v["verdict"] != "good"
+    below = {k for k, v in verdicts.items() if v["verdict"] != "good"}
+    assert below == {(r["scene"], r["target"]) for r in rows}
+
+
+def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_again(advised_batch, capsys):
+    """Last in this file: it changes the batch the tests above read."""
+    from creference_bayes.io.scene import load_scene
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    out = advised_batch / "out"
+    path = out / "advice" / "requests.csv"
+    rows = list(csv.DictReader(path.open()))
+    fields = list(rows[0])
+    size = {"rank": "1", "key": "f2", "target": "t0", "kind": "size", "camera": "", "answer": "4.0, 1.8, 1.5"}
+    mount = {"rank": "2", "key": "", "target": "", "kind": "mounting", "camera": "rig-B", "answer": "1.6,6,1"}
+    bad = dict(size, rank="3", answer="4.0,1.8")
+    def apply(answers):
+        with (advised_batch / "answers.csv").open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows({k: r.get(k, "") for k in fields} for r in answers)
+        return main(["advise", str(out), "--apply", str(advised_batch / "answers.csv"), "--quiet"])
+
+    before = {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
+    assert apply([bad]) == 2  # a usage error, and nothing written
+    assert "requests row 3 (size): expected 3 numbers" in capsys.readouterr().err
+    assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
+    assert apply([size]) == 0
+    f2 = load_scene(advised_batch / "in" / "f2.json")
+    assert f2.targets[0].size_prior.source == "catalogue" and f2.targets[1].size_prior is None
+    # batch re-estimates the one frame whose scene changed
+    again = run_batch([advised_batch / "in"], out, LocalEngine(1),
+                      BatchSettings(seed=0, sampling={"min_ess": 100, "max_steps": 400, "warmup": 200}))
+    assert again.keys("done") == ["f2"] and sorted(again.keys("skipped")) == ["f0", "f1"]
+    # a camera's mounting goes to every frame of it
+    assert apply([mount]) == 0
+    for k in (0, 1):
+        p = load_scene(advised_batch / "in" / f"f{k}.json").orientation_prior
+        assert p.height_median_m == pytest.approx(1.6, rel=0.03) and math.degrees(p.pitch_sd) < 0.55
+        assert math.degrees(p.pitch_mean) == pytest.approx(6.0, abs=0.1)
+    assert load_scene(advised_batch / "in" / "f2.json").orientation_prior is None
+
+
+def test_bad_advice_settings_are_named(capsys):
+    with pytest.raises(ValueError, match="kinds: expected some of"):
+        AdviceSettings(kinds=("dims", "catalogue"))
+    with pytest.raises(ValueError, match="min_quality"):
+        AdviceSettings(min_quality=0.0)
+    with pytest.raises(ValueError, match="objective"):
+        AdviceSettings(objective="boxes")
+    for args, message in ((["--requests", "dims,foo"], "--requests: expected some of"),
+                          (["--min-quality", "1.5"], "--min-quality"), (["--score-iou", "1"], "--score-iou")):
+        assert main(["advise", "nothing.json", *args]) == 2
+        assert message in capsys.readouterr().err
