@@ -127,6 +127,13 @@ class AdviceSettings:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def worth(self, value: float, seconds: float) -> bool:
+        """Whether a request of ``value`` (:meth:`Prediction.value`) is worth ``seconds`` of human
+        time: ``min_good_per_hour`` good labels per hour, or ``min_gain`` HDI points per minute."""
+        if self.objective == "labels":
+            return value * 3600.0 >= self.min_good_per_hour * seconds
+        return value * 60.0 >= self.min_gain * seconds
+
 
 @dataclass(frozen=True)
 class Outlook:
@@ -191,6 +198,10 @@ class Prediction:
                 "good_gain_se": self.good_gain_se, "good_per_hour": self.good_per_hour,
                 "ess_median": self.ess_median, "fallbacks": self.fallbacks}
 
+    def value(self, objective: str) -> float:
+        """What it brings: good labels, or HDI points summed over the targets."""
+        return self.good_gain if objective == "labels" else self.gain_pct
+
     def score(self, objective: str) -> float:
         """What the requests are ranked by: good labels per hour, or HDI points per minute."""
         return self.good_per_hour if objective == "labels" else self.gain_per_minute
@@ -232,8 +243,7 @@ class Advice:
         return self.now.hdi_share[i] > self.settings.target_hdi_width
 
     def _worth(self, p: Prediction) -> bool:
-        s = self.settings
-        return p.good_per_hour >= s.min_good_per_hour if s.objective == "labels" else p.gain_per_minute >= s.min_gain
+        return self.settings.worth(p.value(self.settings.objective), p.candidate.seconds)
 
     def requests(self) -> list[Prediction | None]:
         """Each target's request: the best-ranked observation asked on it or on no target (a
@@ -262,7 +272,7 @@ class Advice:
             p_now = float(self.now.p_iou[i])
             row = {"target": tid, "p_now": p_now, "verdict": "good", "best": None, "p_expected": None,
                    "chance": None, "text": f"good: {t} {p_now:.2f} ≥ {q:g}"}
-            mine = [p for p in self.predictions if p.candidate.target in (i, None) and len(p.p_good)]
+            mine = [p for p in self.predictions if p.candidate.target in (i, None)]
             if not self.good[i] and mine:
                 best = max(mine, key=lambda p: (float(p.p_good[i]), -p.candidate.seconds))
                 dims = next((p for p in mine if p.candidate.kind == "dims" and p.candidate.target == i), None)
@@ -573,7 +583,7 @@ def _recommend_labels(now: Outlook, predictions: list[Prediction], settings: Adv
         return "stop", (f"{said}; the best request, {best.candidate.description}, is expected to make "
                         f"{best.good_gain:.2f} of them good ({best.good_per_hour:.2f} per human hour, below the "
                         f"minimum {settings.min_good_per_hour:g}): see the verdicts for what would lift them")
-    i = int(below[np.argmax(best.p_good[below])]) if len(best.p_good) else int(below[0])
+    i = int(below[np.argmax(best.p_good[below])])
     on = "" if len(ids) == 1 else f"{ids[i]}: "
     return "collect", (f"collect {best.candidate.description} next: expected {best.good_gain:.2f} more good "
                        f"label{'s' if best.good_gain != 1 else ''} ({best.good_per_hour:.2f} per human hour; {said}); "

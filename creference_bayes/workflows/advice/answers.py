@@ -143,19 +143,19 @@ def apply_answers(batch_dir, rows) -> list[tuple[str, str]]:
     from ...io.scene import load_scene, scene_to_dict
 
     root = Path(batch_dir) / "results"
-    frames = {}  # key -> (source path, camera id)
+    frames = {}  # key -> the scene file the frame was made from
     for path in sorted(root.rglob("*.json")):
         key = path.relative_to(root).with_suffix("").as_posix()
         if any(part.startswith(".") for part in key.split("/")):
             continue
         d = json.loads(read_text(path))
-        frames[key] = Path((d.get("batch") or {})["source"]), None
+        frames[key] = Path((d.get("batch") or {})["source"])
     scenes, done = {}, []
 
     def scene_of(key, where):
         if key not in frames:
             raise ValueError(f"{where}: key {key!r} is not a result of {batch_dir}")
-        source = frames[key][0]
+        source = frames[key]
         if source not in scenes:
             scenes[source] = load_scene(source)
         return source

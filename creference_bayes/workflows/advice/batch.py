@@ -68,15 +68,19 @@ class ObjectAdvice:
 @dataclass(frozen=True)
 class Request:
     """One request of the plan: a target's (``objects``: its :class:`ObjectAdvice`) or a camera's
-    mounting (``objects``: one per frame of that camera; ``camera`` its id, None for a frame that
-    names no camera), its ``value`` (expected good labels, or HDI points with the hdi objective)
-    and ``seconds``."""
+    mounting (``objects``: one per frame of that camera, ``predictions`` its prediction in each;
+    ``camera`` its id, None for a frame that names no camera), its ``value`` (expected good
+    labels, or HDI points with the hdi objective, :meth:`~.Prediction.value`) and ``seconds``."""
 
     objects: tuple[ObjectAdvice, ...]
-    prediction: Prediction
+    predictions: tuple[Prediction, ...]
     value: float
     seconds: float
     camera: str | None = None
+
+    @property
+    def prediction(self) -> Prediction:
+        return self.predictions[0]
 
     @property
     def rate(self) -> float:
@@ -105,8 +109,8 @@ class BatchAdvice:
         items, cameras = [], {}
         for o in self.requests:
             if o.request.candidate.kind != "mounting":
-                items.append(Request((o,), o.request, _value(o.advice, o.request), o.request.candidate.seconds,
-                                     o.scene.camera_id))
+                items.append(Request((o,), (o.request,), o.request.value(o.advice.settings.objective),
+                                     o.request.candidate.seconds, o.scene.camera_id))
         seen = set()
         for o in self.objects:
             if o.key in seen:
@@ -116,14 +120,12 @@ class BatchAdvice:
             if p is not None:
                 cameras.setdefault(o.scene.camera_id or f"frame:{o.key}", []).append((o, p))
         for camera, frames in cameras.items():
-            value = sum(_value(o.advice, p) for o, p in frames)
-            r = Request(tuple(o for o, _ in frames), frames[0][1], value, frames[0][1].candidate.seconds,
-                        None if camera.startswith("frame:") else camera)
             settings = frames[0][0].advice.settings
-            worth = (value * 3600.0 / r.seconds >= settings.min_good_per_hour if settings.objective == "labels"
-                     else value * 60.0 / r.seconds >= settings.min_gain)
-            if worth and value > 0:
-                items.append(r)
+            value = sum(p.value(settings.objective) for _, p in frames)
+            seconds = frames[0][1].candidate.seconds
+            if value > 0 and settings.worth(value, seconds):
+                items.append(Request(tuple(o for o, _ in frames), tuple(p for _, p in frames), value, seconds,
+                                     None if camera.startswith("frame:") else camera))
         items.sort(key=lambda r: (-r.rate, r.objects[0].key, r.objects[0].target))
         out, total = [], 0.0
         for r in items:
@@ -132,10 +134,6 @@ class BatchAdvice:
             total += r.seconds
             out.append(r)
         return out
-
-
-def _value(advice: Advice, p: Prediction) -> float:
-    return p.good_gain if advice.settings.objective == "labels" else p.gain_pct
 
 
 def object_seed(seed: int, key: str) -> list[int]:
@@ -210,13 +208,18 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
 def request_rows(batch: BatchAdvice, budget_s: float | None = None) -> list[dict]:
     """The rows of ``requests.csv``: the plan (:meth:`BatchAdvice.plan`) in order. A mounting's row
     has no key or target: it is for every frame of its ``camera`` (``frames`` of them)."""
+    return _rows(batch.plan(budget_s))
+
+
+def _rows(plan: list[Request]) -> list[dict]:
     rows, total = [], 0.0
-    for r in batch.plan(budget_s):
+    for r in plan:
         o, p = r.objects[0], r.prediction
         c, now = p.candidate, o.advice.now
         total += r.seconds
         one = c.kind != "mounting"
         i = o.target
+        good = sum(q.good_gain for q in r.predictions)
         rows.append({
             "rank": len(rows) + 1, "key": o.key if one or r.camera is None else "",
             "target": o.advice.targets[i] if one else "", "image": o.image if one or r.camera is None else "",
@@ -224,20 +227,12 @@ def request_rows(batch: BatchAdvice, budget_s: float | None = None) -> list[dict
             "object": c.object or "", "request": c.description,
             "line_px": "" if c.line is None else ";".join(f"{u:.2f},{v:.2f}" for u, v in c.line),
             "seconds": f"{r.seconds:g}", "cumulative_seconds": f"{total:g}",
-            "good_gain": f"{sum(q.good_gain for q in _predictions(r)):.3f}",
-            "good_per_hour": f"{sum(q.good_gain for q in _predictions(r)) * 3600.0 / r.seconds:.3f}",
+            "good_gain": f"{good:.3f}", "good_per_hour": f"{good * 3600.0 / r.seconds:.3f}",
             "p_iou_now": f"{now.p_iou[i]:.3f}" if one else "", "p_iou_expected": f"{p.expected.p_iou[i]:.3f}" if one else "",
             "hdi_now_pct": f"{100 * now.hdi_share[i]:.2f}" if one else "",
             "hdi_expected_pct": f"{100 * p.expected.hdi_share[i]:.2f}" if one else "",
             "gain_pts": f"{p.gain_pct:.3f}", "gain_pts_per_minute": f"{p.gain_per_minute:.4f}", "answer": ""})
     return rows
-
-
-def _predictions(r: Request) -> list[Prediction]:
-    """The request's prediction in each of its frames."""
-    if r.prediction.candidate.kind != "mounting":
-        return [r.prediction]
-    return [next(p for p in o.advice.predictions if p.candidate.kind == "mounting") for o in r.objects]
 
 
 def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float | None = None,
@@ -247,10 +242,11 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = request_rows(batch, budget_s)
+    plan = batch.plan(budget_s)
+    rows = _rows(plan)
     # the crowd's requests (lines and references) go to the labelling tools; a size or a mounting
     # is put into the scene (:mod:`.answers`)
-    requested = [(o.key, o.scene, r.prediction.candidate) for r in batch.plan(budget_s) for o in r.objects[:1]
+    requested = [(r.objects[0].key, r.objects[0].scene, r.prediction.candidate) for r in plan
                  if r.prediction.candidate.kind in ("dims", "reference")]
     paths = {"advice": out / "advice.json", "requests": out / "requests.csv",
              "label_studio": out / "label_studio_requests.json", "cvat": out / "cvat_requests.xml"}

@@ -194,7 +194,6 @@ class _PriorObservation:
     subclasses give :meth:`quantities` (N, d) and :attr:`sd` (d,)."""
 
     needs_scale = False
-    sd = np.zeros(0)
 
     def __init__(self, model: MetrologyModel):
         self.model = model
@@ -203,9 +202,6 @@ class _PriorObservation:
     @property
     def usable(self) -> bool:
         return len(self.sd) > 0
-
-    def quantities(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
 
     def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
         """One answer per draw (M, 5), (M, m, 7); kept in :attr:`values` (M, d)."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
 from ...io.files import read_text
@@ -85,13 +85,15 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
 
 @dataclass(frozen=True)
 class LabelExport:
-    """What :func:`export_labels` wrote: the objects, the images' names, the skipped results and
-    the scenes that failed in the batch."""
+    """What :func:`export_labels` wrote: the objects, the images' names, the skipped results, the
+    scenes that failed in the batch and, per labelled scene's key, the fingerprint of the scene its
+    result is of (``scene_id.sha256``)."""
 
     objects: list[ObjectLabel]
     images: list[str]
     skipped: list[dict]
     failed_scenes: list[dict]
+    fingerprints: dict = field(default_factory=dict)
 
 
 def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | None = None,
@@ -142,4 +144,5 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
             failed.append({"key": d["key"], "error": d["error"]})
         except (OSError, ValueError, KeyError):
             continue
-    return LabelExport(objects, sorted(names), skipped, failed)
+    return LabelExport(objects, sorted(names), skipped, failed,
+                       {inp.key: (inp.result.get("scene_id") or {}).get("sha256") for inp in inputs})

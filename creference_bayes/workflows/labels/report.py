@@ -25,12 +25,12 @@ LABEL_COLUMNS = ("image", "line", "scene", "target", "type", "p_iou_ge_0.5", "p_
 NEEDS_COLUMNS = LABEL_COLUMNS + ("verdict", "best_request", "p_expected", "chance", "advice")
 
 
-def advice_verdicts(batch_dir: str | Path, *, score_iou: float, min_quality: float,
+def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: float, min_quality: float,
                     advice_path: str | Path | None = None) -> tuple[dict, str | None]:
     """The verdicts of ``creference advise BATCH_DIR`` (``BATCH_DIR/advice/advice.json``, or
     ``advice_path``) by (scene key, target id), and a note when there is none to use: no advice,
     an advice for another bar (``iou_threshold``, ``min_quality``) or of results since re-estimated
-    (the scene's fingerprint differs from its result's)."""
+    (the fingerprint it records differs from ``fingerprints[key]``, the labelled result's)."""
     import json
 
     from ...io.files import read_text
@@ -51,11 +51,7 @@ def advice_verdicts(batch_dir: str | Path, *, score_iou: float, min_quality: flo
         if (s.get("iou_threshold"), s.get("min_quality")) != (float(score_iou), float(min_quality)):
             return {}, (f"the advice {path} is for P(IoU ≥ {s.get('iou_threshold')}) ≥ {s.get('min_quality')}; "
                         f"{rerun}")
-        result = Path(batch_dir) / "results" / f"{sc['key']}.json"
-        try:
-            now = json.loads(read_text(result)).get("scene_id", {}).get("sha256")
-        except (OSError, ValueError):
-            now = None
+        now = fingerprints.get(sc["key"])
         if now is None or now != sc.get("scene_sha256"):
             stale += 1
             continue
@@ -130,7 +126,7 @@ def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou
     rows = label_rows(export.objects)
     low = sorted((r for r in rows if r[key] < min_quality), key=lambda r: (r[key], r["image"], r["line"]))
     verdicts, advice_note = ({}, None) if batch_dir is None else advice_verdicts(
-        batch_dir, score_iou=score_iou, min_quality=min_quality, advice_path=advice_path)
+        batch_dir, export.fingerprints, score_iou=score_iou, min_quality=min_quality, advice_path=advice_path)
     for r in low:
         v = verdicts.get((r["scene"], r["target"]))
         if v is not None:
