@@ -29,6 +29,11 @@ against fixed designs, on KITTI frames (docs/advice.md).
 4. A Markdown table per design (human seconds, good and truly good labels before → after, good
    labels gained per human hour; for ``advised`` the predicted gain, the sum of the executed
    requests' ``good_gain``, beside the realised one), also written to ``DIR/advice_study.json``.
+5. Predicted against realised per design (``accuracy`` in the JSON): a fixed design's prediction is
+   the advice's ``good_gain`` summed over the requests it answers, each weighed alone (the advice
+   weighs one request at a time, a design answers them all at once), with the ratio's 90 %
+   interval from resampling the frames; and the advised plan's gain on the futures its requests
+   were chosen by beside the one it states from the others.
 
 The advised plan stops where no request is worth ``--min-good-per-hour`` (advise's default), so it
 may spend less than ``S``: compare good labels per human hour, or pass 0 to spend it all.
@@ -136,6 +141,72 @@ def advised_plan(round0: Path, out: Path, scenes: dict, budget_s: float, args) -
     return list(dict.fromkeys(plan)), rows
 
 
+def _good_by_frame(labels_csv: Path, args) -> dict:
+    """Good labels per frame of a ``labels.csv``."""
+    with open(labels_csv, newline="") as f:
+        rows = list(csv.DictReader(f))
+    out = {}
+    for r in rows:
+        out[r["scene"]] = out.get(r["scene"], 0) + (float(r[f"p_iou_ge_{args.score_iou:g}"]) >= args.min_quality)
+    return out
+
+
+def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]:
+    """Predicted against realised good labels gained, per design and frame: a fixed design's
+    prediction is the sum of the advice's ``good_gain`` over the requests it answers, each weighed
+    alone (the advice weighs one request at a time; a design answers all at once), the advised
+    plan's the sum over its rows. With the ratio's 90 % interval from resampling frames."""
+    advice = json.loads((out / "advice" / "advice.json").read_text())
+    with open(out / "advice" / "requests.csv", newline="") as f:
+        planned = list(csv.DictReader(f))
+    pred = {d: {} for d in ("advised", "dims", "sizes", "mounting")}
+    ranked = {}  # the advised requests' gain on the futures they were chosen by
+    kind_design = {"dims": "dims", "size": "sizes", "mounting": "mounting"}
+    chosen = {(r["key"], f"{r['target']}:{r['kind']}" if r["kind"] != "mounting" else "camera:mounting")
+              for r in planned if r["kind"] != "mounting" or not r["camera"]}
+    cameras = {r["camera"] for r in planned if r["kind"] == "mounting" and r["camera"]}
+    for sc in advice["scenes"]:
+        for p in sc.get("predictions") or []:
+            c, g = p["candidate"], float(p["good_gain"])
+            if c["kind"] in kind_design:
+                d = pred[kind_design[c["kind"]]]
+                d[sc["key"]] = d.get(sc["key"], 0.0) + g
+            if (sc["key"], c["key"]) in chosen or (c["kind"] == "mounting" and camera_of.get(sc["key"]) in cameras):
+                pred["advised"][sc["key"]] = pred["advised"].get(sc["key"], 0.0) + g
+                ranked[sc["key"]] = ranked.get(sc["key"], 0.0) + (g if p.get("rank_good_gain") is None else float(p["rank_good_gain"]))
+    before = _good_by_frame(out / "round0" / "labels" / "labels.csv", args)
+    frames = sorted(before)
+    rng = np.random.default_rng(0)
+    rows = []
+    for name, by_frame in pred.items():
+        if not (out / name / "labels" / "labels.csv").exists():
+            continue
+        after = _good_by_frame(out / name / "labels" / "labels.csv", args)
+        p = np.array([by_frame.get(k, 0.0) for k in frames])
+        r = np.array([after.get(k, 0) - before[k] for k in frames], float)
+        idx = rng.integers(len(frames), size=(n_boot, len(frames)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = r[idx].sum(axis=1) / p[idx].sum(axis=1)
+        lo, hi = np.nanquantile(ratios, [0.05, 0.95]) if np.isfinite(ratios).any() else (np.nan, np.nan)
+        rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
+                     "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
+                     "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": [float(lo), float(hi)]})
+    return rows
+
+
+def print_accuracy(rows: list[dict]) -> None:
+    print("\n| design | predicted gain (sum of single requests) | realised gain | realised / predicted | 90 % interval (frames resampled) |")
+    print("|---|---|---|---|---|")
+    for a in rows:
+        ratio = "-" if a["ratio"] is None else f"{a['ratio']:.2f}"
+        print(f"| {a['design']} | {a['predicted']:.1f} | {a['realised']:.0f} | {ratio} | "
+              f"{a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f} |")
+    for a in rows:
+        if a["predicted_on_ranking_futures"] is not None:
+            print(f"\nadvised: {a['predicted_on_ranking_futures']:.1f} good labels on the futures the requests were "
+                  f"chosen by, {a['predicted']:.1f} on the others (stated), {a['realised']:.0f} realised")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("kitti", type=Path, help="a KITTI folder (label_2/, calib/, image_2/)")
@@ -232,6 +303,8 @@ def main(argv=None) -> int:
         pred = f"{d['predicted_good_gain']:.1f}" if name == "advised" else ""
         print(f"| {name} | {d['human_s']:g} | {before['good']} → {d['good_after']} | {before['truly_good']} → "
               f"{d['truly_good_after']} | {rate} | {pred} | {d['good_gain']} |")
+    report["accuracy"] = accuracy(out, {k: s.camera_id for k, s in scenes.items()}, args)
+    print_accuracy(report["accuracy"])
     adv = report["designs"]["advised"]
     print(f"\nadvised: {adv['requests']} requests within {budget:g} s, {adv['not_realised']} not realised "
           f"(references, {adv['not_realised_s']:g} s)")

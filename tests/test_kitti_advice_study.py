@@ -76,3 +76,12 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
     scene = json.loads((out / "dims" / "scenes" / "000007.json").read_text())
     assert all(len(t["dimension_lines"]) == 2 for t in scene["targets"])
     assert "| design | human s |" in proc.stdout and "| mounting | 900 |" in proc.stdout
+    # predicted against realised per design: a fixed design's prediction is its requests' gains summed
+    advice = json.loads((out / "advice" / "advice.json").read_text())
+    sizes = sum(p["good_gain"] for sc in advice["scenes"] for p in sc["predictions"] if p["candidate"]["kind"] == "size")
+    accuracy = {a["design"]: a for a in report["accuracy"]}
+    assert list(accuracy) == ["advised", "dims", "sizes", "mounting"]
+    assert accuracy["sizes"]["predicted"] == pytest.approx(sizes)
+    assert accuracy["sizes"]["realised"] == designs["sizes"]["good_gain"]
+    assert accuracy["advised"]["predicted"] == pytest.approx(adv["predicted_good_gain"], abs=0.01)
+    assert "realised / predicted" in proc.stdout
