@@ -221,7 +221,7 @@ def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_obj
     _, ess = normalise(obs.log_ratio(cams, objs, before.model.neg_log_posterior(cams, objs)))
     i = int(np.argmin(ess))
     assert ess[i] < advice_module.MIN_ESS  # a future the advice recomputes by the fallback
-    _, moved, _ = _moved(obs, i, cams, objs, np.random.default_rng(4), 1.0)
+    _, moved = _moved(obs, i, cams, objs, np.random.default_rng(4), 1.0)
     t = scene.targets[0]
     more = dataclasses.replace(scene, targets=(dataclasses.replace(t, dimension_lines=t.dimension_lines + (
         DimensionLine(obs.corners[i]),)),) + scene.targets[1:])

@@ -191,10 +191,9 @@ def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, mo
 
 def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised, monkeypatch):
     """Weights that collapse (every future goes to the fallback) and a fallback that returns the
-    present's draws: no label becomes good. The fallback's draws are set against the level of
-    their ancestors' multiplicities (here one each); against the collapsed weights' shuffled level
-    (a handful of draws, whose labels look far better than those of all of them) every label
-    would lose."""
+    present's draws: no label becomes good. The fallback's equally weighted draws are set against
+    the present's level; against the collapsed weights' shuffled level (a handful of draws, whose
+    labels look far better than those of all of them) every label would lose."""
     from creference_bayes.workflows import advice as advice_module
     from creference_bayes.workflows.advice.inputs import advise_result
 
@@ -212,7 +211,7 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
 
     def present(obs, i, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
         order = rng.permutation(len(cams))
-        return cams[order], objs[order], order
+        return cams[order], objs[order]
 
     monkeypatch.setattr(advice_module, "DimsObservation", Nothing)
     monkeypatch.setattr(advice_module, "_moved", present)

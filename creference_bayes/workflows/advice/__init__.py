@@ -31,7 +31,7 @@ Two gains are computed for every observation; ``settings.objective`` says which 
   chance a binomial share of that many reaches it (:func:`good_probability`), less the chance the
   same estimator gives on draws that know nothing of the observation (its level: the future's
   weights shuffled over the draws, as many effective draws; for a future whose weights collapsed,
-  read on the fallback's draws, the multiplicities of their ancestors shuffled over the draws),
+  read on the fallback's equally weighted draws, the present's level, :func:`level_of_present`),
   over one minus it: no change is no gain. Labels that are good now count for nothing (the advice
   says they are good). The requests are ranked and chosen on half of the simulated futures
   (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the other half, so
@@ -385,7 +385,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     # the label's quality as creference labels states it (its MAP box against the draws); a future's
     # is its posterior-mean box's, moved by what separates the two now
     label_p = _label_quality(scene, camera_map, objects_map, cams, objs, settings.iou_threshold)
-    shift = label_p - now.p_iou
+    raw_p, shift = now.p_iou, label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
     base = model.neg_log_posterior(draws.cams, draws.objs, temperature)
     notes = []
@@ -408,7 +408,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                 notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
             else:
                 predictions.append(_predict(obs, cand, draws, outer, base, now, shift, settings,
-                                            np.random.default_rng(s), temperature))
+                                            np.random.default_rng(s), temperature, raw_p))
             bar.update(1)
     predictions.sort(key=lambda p: (-p.score(settings.objective), -p.score("hdi" if settings.objective == "labels"
                                                                            else "labels"), p.candidate.key))
@@ -430,6 +430,16 @@ def good_probability(p_hat: np.ndarray, n_pairs: int, min_quality: float) -> np.
     return 1.0 - betainc(k + 0.5, n_pairs - k + 0.5, min_quality)
 
 
+def level_of_present(p: np.ndarray, n_pairs: int, min_quality: float) -> np.ndarray:
+    """(m,) the expected :func:`good_probability` of a share estimated from ``n_pairs`` draws of a
+    posterior whose P(IoU ≥ t) is ``p`` (m,): its mean over k ~ Binomial(``n_pairs``, p)."""
+    from scipy.stats import binom
+
+    k = np.arange(n_pairs + 1)
+    pmf = binom.pmf(k[None, :], n_pairs, np.clip(np.asarray(p, float), 0.0, 1.0)[:, None])     # (m, n+1)
+    return pmf @ good_probability(k / n_pairs, n_pairs, min_quality)
+
+
 def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float) -> np.ndarray:
     """(m,) each label's P(IoU ≥ ``threshold``) as ``creference labels`` computes it: its box at
     the MAP against the boxes of all the draws (not only those weighed), in the labels' frame."""
@@ -442,7 +452,7 @@ def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float)
 
 
 def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, settings, rng,
-             temperature) -> Prediction:
+             temperature, raw_now_p: np.ndarray) -> Prediction:
     cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
     obs.simulate(rng, cams[outer], draws.objs[outer])
     log_w = obs.log_ratio(cams, draws.objs, base)
@@ -451,11 +461,9 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     rows = draws.outlooks(weights, settings, rng)
     n = len(cams)
     collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
-    lineage = np.zeros((len(collapsed), n))  # each fallback's draws: how many descend from each draw
-    for j, i in enumerate(collapsed):  # recompute those futures with the fallback
-        moved_cams, moved_objs, ancestors = _moved(obs, i, cams, draws.objs, rng, temperature)
-        one = _Draws(moved_cams, moved_objs).outlooks(np.full((1, n), 1.0 / n), settings, rng)
-        lineage[j] = np.bincount(ancestors, minlength=n) / n
+    for i in collapsed:  # recompute those futures with the fallback
+        one = _Draws(*_moved(obs, i, cams, draws.objs, rng, temperature)).outlooks(np.full((1, n), 1.0 / n),
+                                                                                  settings, rng)
         for k in rows:
             rows[k][i] = one[k][0]
     # Each future against the present at its own weights (module docstring): scaled by the present
@@ -472,19 +480,20 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
     se_inner = _split_se(draws.dist, weights[same], settings.hdi_prob, rng)
     # labels below the bar now that reach it: each one's chance, less the level the same estimator
-    # gives on draws that know nothing of the observation (module docstring): its weights shuffled
-    # over the draws, for a collapsed future (read on the fallback's draws) the multiplicities of
-    # the fallback's ancestors. Reading a collapsed future on its few reweighted draws instead picks
-    # the sparse tails of the posterior, whose draws lie far apart: on KITTI frames that made one
-    # more set of lines on every object look like a loss of 3.9 good labels where 8 were gained;
-    # against the present's level, the fallback's duplicates flattered every label (sizes: 10.4
-    # good labels predicted, 7 realised).
+    # gives on draws that know nothing of the observation (module docstring): for a reweighted
+    # future, its weights shuffled over the draws (as many effective draws); for a collapsed one,
+    # read on the fallback's equally weighted draws, the present's draws (level_of_present). Reading
+    # a collapsed future on its few reweighted draws instead picks the sparse tails of the posterior,
+    # whose draws lie far apart: on KITTI frames that made one more set of lines on every object
+    # look like a loss of 3.9 good labels where 8 were gained. (A level from the fallback's ancestors'
+    # multiplicities instead was tried: it under-stated the lines, 2.7 against 8.)
     p_good = good_probability(rows["p_iou"], settings.iou_pairs, settings.min_quality)   # (M, m)
-    level = np.zeros_like(p_good)
-    for rows_of, w in ((same, weights[same]), (~same, lineage)):  # each kind's level, averaged over its futures
-        if len(w):  # (a ratio of noisy levels is biased)
-            shuffled = p_iou(draws.boxes, rng.permuted(w, axis=1), settings.iou_threshold, rng, settings.iou_pairs)
-            level[rows_of] = good_probability(shuffled, settings.iou_pairs, settings.min_quality).mean(axis=0)
+    present = level_of_present(raw_now_p, settings.iou_pairs, settings.min_quality)
+    level = np.repeat(present[None], len(outer), axis=0)
+    if np.any(same):  # the reweighted futures' level, averaged over them (a ratio of noisy levels is biased)
+        shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
+                         settings.iou_pairs)
+        level[same] = good_probability(shuffled, settings.iou_pairs, settings.min_quality).mean(axis=0)
     below = now.p_iou < settings.min_quality
     chance = np.where(below, (p_good - level) / np.maximum(1.0 - level, 0.05), p_good)
     # The requests are ranked on one half of the futures and their gains stated from the other: the
@@ -510,8 +519,7 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     (:mod:`~creference_bayes.inference.coords`: each object anchored to the image, so that the
     blocks barely correlate and random-walk moves go further than in natural coordinates), over
     the new model's free parameters; ``max(8, d)`` moves a stage for d of them, at most 32 (a
-    random walk's mixing time grows with the dimension; 8 was chosen for one target). Returns the
-    moved cameras (N, 5) and objects (N, m, 7), and (N,) the draw each one descends from."""
+    random walk's mixing time grows with the dimension; 8 was chosen for one target)."""
     from ...inference.coords import CAMERA_LOG, WorkingCoords
 
     new = obs.model_with(i) if hasattr(obs, "model_with") else None
@@ -543,8 +551,8 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     else:
         target = density(new, False)
     x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
-    moved, info = tempered_update(old, target, x, rng, n_moves=int(min(32, max(8, x.shape[1]))))
-    return (*coords.from_work(*unpack(moved)), info["ancestors"])
+    moved, _ = tempered_update(old, target, x, rng, n_moves=int(min(32, max(8, x.shape[1]))))
+    return coords.from_work(*unpack(moved))
 
 
 def _scale_prior(s: np.ndarray) -> np.ndarray:

@@ -202,12 +202,10 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
 
     Returns
     -------
-    (N, d) draws of the new posterior (equally weighted), and ``info`` (stages, acceptance, beta;
-    ``ancestors``: (N,) the index of the draw each one descends from through the resampling)
+    (N, d) draws of the new posterior (equally weighted), and ``info`` (stages, acceptance)
     """
     x = np.array(particles, float)
     n, d = x.shape
-    ancestors = np.arange(n)
     lo, ln = log_old(x), log_new(x)
     base_cov = np.cov(x.T).reshape(d, d)
     jitter = 1e-8 * np.diag(np.diag(base_cov)) + 1e-300 * np.eye(d)
@@ -218,7 +216,7 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
         nxt = _next_beta(delta, beta, ess_fraction * n)
         w, _ = normalise(((nxt - beta) * delta)[None])
         idx = systematic_resample(w[0], n, rng)
-        x, lo, ln, beta, ancestors = x[idx], lo[idx], ln[idx], nxt, ancestors[idx]
+        x, lo, ln, beta = x[idx], lo[idx], ln[idx], nxt
         stages += 1
         unique = len(np.unique(idx))
         cov = np.cov(x.T).reshape(d, d) if unique > d else np.diag(np.diag(base_cov)) * unique / n
@@ -233,7 +231,7 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
             rate = acc.mean()
             accepted, tried = accepted + acc.sum(), tried + n
             step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
-    return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta, "ancestors": ancestors}
+    return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta}
 
 
 def _bridge(lo: np.ndarray, ln: np.ndarray, beta: float) -> np.ndarray:
