@@ -160,13 +160,8 @@ def test_the_present_quality_is_the_labels(frame, advised):
         assert advice.now.p_iou[i] == label_quality(box[i], samples[:, i]).p_iou[0.7]
 
 
-def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, monkeypatch):
-    """Weights that scatter the draws but say nothing: no label becomes good. Counting the
-    futures' noisy P(IoU ≥ t) against the bar without the present's level (the estimator's own
-    smoothing) gave every target near the bar a gain."""
-    from creference_bayes.workflows import advice as advice_module
-    from creference_bayes.workflows.advice.inputs import advise_result
-
+def _says_nothing(spread: float):
+    """An observation whose log-weights are noise of sd ``spread``, nothing of the draws."""
     class Nothing:
         usable, needs_scale = True, False
 
@@ -177,9 +172,19 @@ def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, mo
             self.m, self.rng = len(cams), rng
 
         def log_ratio(self, cams, objs, base):
-            return 0.5 * self.rng.standard_normal((self.m, len(cams)))
+            return spread * self.rng.standard_normal((self.m, len(cams)))
 
-    monkeypatch.setattr(advice_module, "DimsObservation", Nothing)
+    return Nothing
+
+
+def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, monkeypatch):
+    """Weights that scatter the draws but say nothing: no label becomes good. Counting the
+    futures' noisy P(IoU ≥ t) against the bar without the present's level (the estimator's own
+    smoothing) gave every target near the bar a gain."""
+    from creference_bayes.workflows import advice as advice_module
+    from creference_bayes.workflows.advice.inputs import advise_result
+
+    monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(0.5))
     _, result = advised
     scene = frame[0]
     a = advise_result(result, scene, seed=3, settings=AdviceSettings(n_draws=400, n_futures=100, min_quality=0.3))
@@ -197,23 +202,11 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
     from creference_bayes.workflows import advice as advice_module
     from creference_bayes.workflows.advice.inputs import advise_result
 
-    class Nothing:
-        usable, needs_scale = True, False
-
-        def __init__(self, model, *args):
-            self.model = model
-
-        def simulate(self, rng, cams, objs):
-            self.m, self.rng = len(cams), rng
-
-        def log_ratio(self, cams, objs, base):
-            return 20.0 * self.rng.standard_normal((self.m, len(cams)))
-
     def present(obs, i, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
         order = rng.permutation(len(cams))
         return cams[order], objs[order]
 
-    monkeypatch.setattr(advice_module, "DimsObservation", Nothing)
+    monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(20.0))
     monkeypatch.setattr(advice_module, "_moved", present)
     _, result = advised
     a = advise_result(result, frame[0], seed=3, settings=AdviceSettings(n_draws=400, n_futures=60, min_quality=0.3))
