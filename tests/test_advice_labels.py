@@ -116,6 +116,16 @@ def test_the_good_probability_is_a_smoothed_count():
     assert good_probability(np.array([0.5]), 10_000, 0.5)[0] == pytest.approx(0.5, abs=0.02)
 
 
+def test_the_presents_level_is_the_estimators_mean_on_the_presents_draws():
+    from creference_bayes.workflows.advice import level_of_present
+
+    p = np.array([0.1, 0.45, 0.5, 0.8])
+    k = np.random.default_rng(0).binomial(16, p, size=(200_000, 4))
+    mc = good_probability(k / 16, 16, 0.5).mean(axis=0)
+    np.testing.assert_allclose(level_of_present(p, 16, 0.5), mc, atol=3e-3)
+    assert np.all(np.diff(level_of_present(p, 16, 0.5)) > 0)
+
+
 @pytest.fixture(scope="module")
 def advised(frame):
     from creference_bayes.workflows.advice.inputs import advise_scene
