@@ -385,7 +385,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     # the label's quality as creference labels states it (its MAP box against the draws); a future's
     # is its posterior-mean box's, moved by what separates the two now
     label_p = _label_quality(scene, camera_map, objects_map, cams, objs, settings.iou_threshold)
-    raw_p, shift = now.p_iou, label_p - now.p_iou
+    shift = label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
     base = model.neg_log_posterior(draws.cams, draws.objs, temperature)
     notes = []
@@ -408,7 +408,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                 notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
             else:
                 predictions.append(_predict(obs, cand, draws, outer, base, now, shift, settings,
-                                            np.random.default_rng(s), temperature, raw_p))
+                                            np.random.default_rng(s), temperature))
             bar.update(1)
     predictions.sort(key=lambda p: (-p.score(settings.objective), -p.score("hdi" if settings.objective == "labels"
                                                                            else "labels"), p.candidate.key))
@@ -452,7 +452,7 @@ def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float)
 
 
 def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, settings, rng,
-             temperature, raw_now_p: np.ndarray) -> Prediction:
+             temperature) -> Prediction:
     cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
     obs.simulate(rng, cams[outer], draws.objs[outer])
     log_w = obs.log_ratio(cams, draws.objs, base)
@@ -488,7 +488,7 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     # look like a loss of 3.9 good labels where 8 were gained. (A level from the fallback's ancestors'
     # multiplicities instead was tried: it under-stated the lines, 2.7 against 8.)
     p_good = good_probability(rows["p_iou"], settings.iou_pairs, settings.min_quality)   # (M, m)
-    present = level_of_present(raw_now_p, settings.iou_pairs, settings.min_quality)
+    present = level_of_present(now.p_iou - shift, settings.iou_pairs, settings.min_quality)  # the estimator's present
     level = np.repeat(present[None], len(outer), axis=0)
     if np.any(same):  # the reweighted futures' level, averaged over them (a ratio of noisy levels is biased)
         shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
