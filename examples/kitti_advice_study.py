@@ -123,11 +123,13 @@ class Truth:
 def advised_plan(round0: Path, out: Path, scenes: dict, budget_s: float, args) -> tuple[list, list[dict]]:
     """``creference advise`` on round 0: the answers to give (key, kind, target) and every request
     row (``realised`` says whether it was answered)."""
-    creference("advise", round0, "--out", out, "--budget", f"{budget_s:g}", "--seed", args.seed, "--score-iou",
+    proc = creference("advise", round0, "--out", out, "--budget", f"{budget_s:g}", "--seed", args.seed, "--score-iou",
                args.score_iou, "--min-quality", args.min_quality, "--quiet", "--requests", "dims,size,mounting",
                *(["--draws", args.draws] if args.draws else []), *(["--futures", args.futures] if args.futures else []),
                *([] if args.min_good_per_hour is None else ["--min-good-per-hour", args.min_good_per_hour]),
                *(["--workers", args.workers] if args.workers else []))
+    if not (out / "requests.csv").exists():
+        raise SystemExit(f"creference advise wrote no requests.csv:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
     with open(out / "requests.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     plan = []

@@ -40,10 +40,11 @@ Two gains are computed for every observation; ``settings.objective`` says which 
   over the scene's targets, per minute.
 
 :meth:`Advice.verdicts` says per target what would lift its label to the bar, and when no single
-request would. Weights whose effective sample size
-collapses (fewer than :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION` of the
-draws) are replaced by a tempered resample-move run to the new posterior
-(:func:`~.update.tempered_update`, in the sampler's working coordinates), counted in ``fallbacks``.
+request would. Weights whose effective sample size collapses (fewer than :data:`~.update.MIN_ESS`
+or :data:`~.update.MIN_ESS_FRACTION` of the draws) are replaced by the draws moved to the new
+posterior in the sampler's working coordinates (:func:`_moved`: an annotation by a tempered
+resample-move run, an answer that enters as a normal prior by the ensemble Kalman update), counted
+in ``fallbacks``.
 """
 
 from __future__ import annotations
@@ -59,8 +60,8 @@ from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_SIZE, O_X, O_YAW, 
 from .candidates import Candidate, candidates as scene_candidates, format_mix
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
 from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation
-from .update import (MIN_ESS, MIN_ESS_FRACTION, location_sd, normalise, p_iou, shuffled_hdi, tempered_update,
-                     weighted_hdi)
+from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, normalise, p_iou, shuffled_hdi,
+                     tempered_update, weighted_hdi)
 
 __all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_probability"]
 
@@ -514,12 +515,20 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
 
 
 def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
-    """The draws moved to the posterior after the i-th simulated observation by the tempered update
-    (:func:`~.update.tempered_update`), in the working coordinates of the sampler
+    """The draws moved to the posterior after the i-th simulated observation, in the working
+    coordinates of the sampler
     (:mod:`~creference_bayes.inference.coords`: each object anchored to the image, so that the
     blocks barely correlate and random-walk moves go further than in natural coordinates), over
-    the new model's free parameters; ``max(8, d)`` moves a stage for d of them, at most 32 (a
-    random walk's mixing time grows with the dimension; 8 was chosen for one target)."""
+    the new model's free parameters.
+
+    An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
+    update and then random-walk Metropolis steps (:func:`~.update.kalman_update`); an annotation,
+    by the tempered update (:func:`~.update.tempered_update`). Either takes ``max(8, d)`` random-walk
+    steps (a stage) for d parameters, at most 32 (a random walk's mixing time grows with the
+    dimension; 8 was chosen for one target). After a size answer on a simulated frame of 12 objects
+    the tempered update's draws spread every object's distance 4–21 % less than the frame estimated
+    again with the answer; the Kalman update's are within 12 % (tests/test_advice_labels.py,
+    docs/advice.md)."""
     from ...inference.coords import CAMERA_LOG, WorkingCoords
 
     new = obs.model_with(i) if hasattr(obs, "model_with") else None
@@ -544,14 +553,16 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
             return np.where(np.isfinite(out), out, -np.inf)
         return f
 
-    old = density(obs.model, obs.needs_scale)
-    if new is None:  # an answer that enters as a prior (a size, a mounting): the old density and its own
-        def target(x):
-            return old(x) + obs.log_ratio(*coords.from_work(*unpack(x)), values=obs.values[i:i + 1])[0]
-    else:
-        target = density(new, False)
     x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
-    moved, _ = tempered_update(old, target, x, rng, n_moves=int(min(32, max(8, x.shape[1]))))
+    old, n_moves = density(obs.model, obs.needs_scale), int(min(32, max(8, x.shape[1])))
+    if new is None:  # an answer that enters as a normal prior (a size, a mounting): the Kalman update
+        def target(y):
+            return old(y) + obs.log_ratio(*coords.from_work(*unpack(y)), values=obs.values[i:i + 1])[0]
+
+        moved = kalman_update(x, lambda y: obs.quantities(*coords.from_work(*unpack(y))), obs.values[i], obs.sd, rng,
+                              log_density=target, n_moves=n_moves)
+    else:
+        moved, _ = tempered_update(old, density(new, False), x, rng, n_moves=n_moves)
     return coords.from_work(*unpack(moved))
 
 

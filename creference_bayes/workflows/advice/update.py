@@ -15,7 +15,7 @@ import numpy as np
 from .iou import iou_3d_pairs
 
 __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
-           "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update"]
+           "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "kalman_update"]
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
 #: not trusted: that simulated future is recomputed by :func:`tempered_update`. (Until 2026-11-26
@@ -220,25 +220,104 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
         stages += 1
         unique = len(np.unique(idx))
         cov = np.cov(x.T).reshape(d, d) if unique > d else np.diag(np.diag(base_cov)) * unique / n
-        chol = np.linalg.cholesky(cov + jitter)
-        for _ in range(n_moves):
-            prop = x + step * rng.standard_normal((n, d)) @ chol.T
-            plo, pln = log_old(prop), log_new(prop)
-            cur, new = _bridge(lo, ln, beta), _bridge(plo, pln, beta)
-            with np.errstate(invalid="ignore"):
-                acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(new), new - cur, -np.inf)
-            x[acc], lo[acc], ln[acc] = prop[acc], plo[acc], pln[acc]
-            rate = acc.mean()
-            accepted, tried = accepted + acc.sum(), tried + n
-            step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
+        x, parts, step, acc = _random_walk(lambda p: np.stack([log_old(p), log_new(p)]), x, np.stack([lo, ln]),
+                                           np.array([1.0 - beta, beta]), np.linalg.cholesky(cov + jitter), step,
+                                           rng, n_moves)
+        lo, ln = parts
+        accepted, tried = accepted + acc, tried + n * n_moves
     return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta}
 
 
-def _bridge(lo: np.ndarray, ln: np.ndarray, beta: float) -> np.ndarray:
-    """log p_β = (1 − β) log p_old + β log p_new, −∞ wherever either is (no 0 · ∞)."""
+def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndarray, rng, *, steps: int = 4,
+                  log_density=None, n_moves: int = 0) -> np.ndarray:
+    """Move draws of the current posterior to the one after a normal observation of some of their
+    quantities: ``value`` = q(θ) + noise of spread ``sd``, by the ensemble Kalman update with
+    perturbed observations, in ``steps`` steps of the observation with its variance multiplied by
+    ``steps`` (an ensemble smoother with multiple data assimilation, Emerick & Reynolds 2013), then
+    ``n_moves`` random-walk Metropolis steps that leave the new posterior ``log_density`` invariant.
+
+    Each step moves every draw by the gain times (the observation perturbed by its own noise less
+    the draw's q): for a normal posterior and a linear q the draws come out as draws of the
+    conjugate posterior, and no draw is duplicated or dropped. Splitting the observation into
+    steps, each with q taken anew, follows a q that is not linear in the draws' coordinates; the
+    Metropolis steps correct what is not normal (a posterior cut off by the horizon, say). A draw
+    that a step would move where q or the new posterior is not defined stays where it was for that
+    step.
+
+    Used for answers that enter as a normal prior (a size, a mounting), where the tempered update's
+    few random-walk steps in a frame's many dimensions leave the draws too close together
+    (docs/advice.md, "How the advice is computed").
+
+    Parameters
+    ----------
+    particles : (N, d) draws of the current posterior
+    observe : callable (N, d) → (N, p), the observed quantities q of each draw
+    value : (p,) the observation
+    sd : (p,) its spread, in the unit of q
+    rng : numpy Generator
+    steps : how many steps the observation is split into
+    log_density : callable (N, d) → (N,), the new posterior's unnormalised log-density, −∞ outside
+        its support (needed for ``n_moves`` > 0)
+    n_moves : Metropolis steps after the update (proposals with the moved draws' covariance)
+
+    Returns
+    -------
+    (N, d) draws of the new posterior, equally weighted
+    """
+    x = np.array(particles, float)
+    n, d = x.shape
+    var = steps * np.square(np.asarray(sd, float))
+    q = np.asarray(observe(x), float)
+    if not np.all(np.isfinite(q)):
+        raise ValueError("kalman_update: an observed quantity of a draw is not finite")
+    for _ in range(steps):
+        dx, dq = x - x.mean(axis=0), q - q.mean(axis=0)
+        gain = np.linalg.solve(dq.T @ dq / (n - 1) + np.diag(var), dq.T @ dx / (n - 1)).T   # (d, p)
+        perturbed = value + np.sqrt(var) * rng.standard_normal(q.shape)
+        x_new = x + (perturbed - q) @ gain.T
+        with np.errstate(all="ignore"):
+            q_new = np.asarray(observe(x_new), float)
+        # a draw moved where its quantity or the new posterior is not defined (an object pushed over
+        # the horizon, say) stays where it was for this step
+        stay = ~np.all(np.isfinite(q_new), axis=1)
+        if log_density is not None:
+            stay |= ~np.isfinite(log_density(x_new))
+        x_new[stay], q_new[stay] = x[stay], q[stay]
+        x, q = x_new, q_new
+    if n_moves > 0:
+        cov = np.cov(x.T).reshape(d, d)
+        chol = np.linalg.cholesky(cov + 1e-8 * np.diag(np.diag(cov)) + 1e-300 * np.eye(d))
+        x, _, _, _ = _random_walk(lambda p: log_density(p)[None], x, log_density(x)[None], np.ones(1), chol,
+                                  2.38 / np.sqrt(d), rng, n_moves)
+    return x
+
+
+def _random_walk(density, x, parts, coef, chol, step, rng, n_moves):
+    """``n_moves`` random-walk Metropolis steps leaving log p = Σ coef_k · part_k invariant (−∞
+    wherever a part is), Gaussian proposals step · chol · ε, the step adapted to the acceptance;
+    ``density`` (n, d) → the parts (k, n). Returns the draws, their parts, the step and the number
+    of moves accepted."""
+    n = len(x)
+    accepted = 0
+    for _ in range(n_moves):
+        prop = x + step * rng.standard_normal(x.shape) @ chol.T
+        new = density(prop)
+        with np.errstate(invalid="ignore"):
+            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(_combine(new, coef)),
+                                                          _combine(new, coef) - _combine(parts, coef), -np.inf)
+        x[acc], parts[:, acc] = prop[acc], new[:, acc]
+        rate = acc.mean()
+        accepted += int(acc.sum())
+        step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
+    return x, parts, step, accepted
+
+
+def _combine(parts: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """Σ coef_k · part_k over the rows of ``parts`` (k, n), −∞ wherever a part is (no 0 · ∞): for
+    the tempered update log p_β = (1 − β) log p_old + β log p_new."""
     with np.errstate(invalid="ignore"):
-        out = (1.0 - beta) * lo + beta * ln
-    return np.where(np.isfinite(lo) & np.isfinite(ln), out, -np.inf)
+        out = coef @ np.where(np.isfinite(parts), parts, 0.0)
+    return np.where(np.all(np.isfinite(parts), axis=0), out, -np.inf)
 
 
 def _next_beta(delta: np.ndarray, beta: float, ess_goal: float) -> float:
