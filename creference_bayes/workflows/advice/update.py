@@ -1,6 +1,7 @@
 """The cheap update behind the advice: posterior draws reweighted by a simulated annotation, the
-effective-sample-size check, a tempered resample-move fallback when the weights collapse, and
-the weighted summaries the advice reports (NumPy only).
+effective-sample-size check, the fallbacks when the weights collapse (a tempered resample-move
+run; the ensemble Kalman update for an answer that enters as a normal prior), and the weighted
+summaries the advice reports (NumPy only).
 
 For M simulated annotations and N current draws the weights form an (M, N) matrix: row i is the
 posterior after the i-th simulated annotation, as importance weights p(new_i | θ_j) on the draws
@@ -18,7 +19,8 @@ __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi
            "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "kalman_update"]
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
-#: not trusted: that simulated future is recomputed by :func:`tempered_update`. (Until 2026-11-26
+#: not trusted: that simulated future is recomputed by :func:`tempered_update` (an annotation) or
+#: :func:`kalman_update` (a size, a mounting). (Until 2026-11-26
 #: 30 and 5 %: with the HDI's small-sample narrowing taken out by :func:`shuffled_hdi`, plain
 #: reweighting down to 10 effective draws predicted a second set of dimension lines better than
 #: the tempered update did, docs/advice.md.)
@@ -264,6 +266,8 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
     -------
     (N, d) draws of the new posterior, equally weighted
     """
+    if n_moves > 0 and log_density is None:
+        raise ValueError("kalman_update: n_moves > 0 needs the new posterior's log_density")
     x = np.array(particles, float)
     n, d = x.shape
     var = steps * np.square(np.asarray(sd, float))
@@ -302,9 +306,9 @@ def _random_walk(density, x, parts, coef, chol, step, rng, n_moves):
     for _ in range(n_moves):
         prop = x + step * rng.standard_normal(x.shape) @ chol.T
         new = density(prop)
+        log_p = _combine(new, coef)
         with np.errstate(invalid="ignore"):
-            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(_combine(new, coef)),
-                                                          _combine(new, coef) - _combine(parts, coef), -np.inf)
+            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(log_p), log_p - _combine(parts, coef), -np.inf)
         x[acc], parts[:, acc] = prop[acc], new[:, acc]
         rate = acc.mean()
         accepted += int(acc.sum())
