@@ -189,10 +189,11 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
         idx = rng.integers(len(frames), size=(n_boot, len(frames)))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratios = r[idx].sum(axis=1) / p[idx].sum(axis=1)
-        lo, hi = np.nanquantile(ratios, [0.05, 0.95]) if np.isfinite(ratios).any() else (np.nan, np.nan)
+        ratios = ratios[np.isfinite(ratios)]   # resamples whose predicted gain is 0 have no ratio
+        interval = [float(q) for q in np.quantile(ratios, [0.05, 0.95])] if len(ratios) else None
         rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
                      "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
-                     "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": [float(lo), float(hi)]})
+                     "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": interval})
     return rows
 
 
@@ -201,8 +202,8 @@ def print_accuracy(rows: list[dict]) -> None:
     print("|---|---|---|---|---|")
     for a in rows:
         ratio = "-" if a["ratio"] is None else f"{a['ratio']:.2f}"
-        print(f"| {a['design']} | {a['predicted']:.1f} | {a['realised']:.0f} | {ratio} | "
-              f"{a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f} |")
+        interval = "-" if a["ratio_90"] is None else f"{a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f}"
+        print(f"| {a['design']} | {a['predicted']:.1f} | {a['realised']:.0f} | {ratio} | {interval} |")
     for a in rows:
         if a["predicted_on_ranking_futures"] is not None:
             print(f"\nadvised: {a['predicted_on_ranking_futures']:.1f} good labels on the futures the requests were "
