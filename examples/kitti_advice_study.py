@@ -78,7 +78,7 @@ def estimate_and_label(scenes: list[Path], batch: Path, labels: Path, args) -> d
     status = [s["status"] for s in json.loads((batch / "batch.json").read_text())["scenes"]]
     with open(labels / "labels.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    good = [r for r in rows if float(r[f"p_iou_ge_{args.score_iou:g}"]) >= args.min_quality]
+    good = [r for r in rows if _is_good(r, args)]
     true = [r for r in good if r["true_iou"] and float(r["true_iou"]) >= args.score_iou]
     return {"labels": len(rows), "good": len(good), "truly_good": len(true),
             "true_iou_ge": sum(bool(r["true_iou"]) and float(r["true_iou"]) >= args.score_iou for r in rows),
@@ -143,13 +143,18 @@ def advised_plan(round0: Path, out: Path, scenes: dict, budget_s: float, args) -
     return list(dict.fromkeys(plan)), rows
 
 
+def _is_good(row: dict, args) -> bool:
+    """A ``labels.csv`` row is good: its P(IoU ≥ --score-iou) ≥ --min-quality."""
+    return float(row[f"p_iou_ge_{args.score_iou:g}"]) >= args.min_quality
+
+
 def _good_by_frame(labels_csv: Path, args) -> dict:
     """Good labels per frame of a ``labels.csv``."""
     with open(labels_csv, newline="") as f:
         rows = list(csv.DictReader(f))
     out = {}
     for r in rows:
-        out[r["scene"]] = out.get(r["scene"], 0) + (float(r[f"p_iou_ge_{args.score_iou:g}"]) >= args.min_quality)
+        out[r["scene"]] = out.get(r["scene"], 0) + _is_good(r, args)
     return out
 
 

@@ -504,13 +504,12 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     good_gains = np.sum(chance[:, below], axis=1)
     rank, told = slice(0, None, 2), slice(1, None, 2)
     good_gain = float(np.mean(good_gains[told]))
-    per_hour = (lambda g: g / (cand.seconds / 3600.0) if cand.seconds > 0 else math.inf)
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,
                       ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)),
                       p_good=np.clip(chance[told].mean(axis=0), 0.0, 1.0),
                       good_gain=good_gain, good_gain_se=float(np.std(good_gains[told], ddof=1) / np.sqrt(len(good_gains[told]))),
-                      good_per_hour=per_hour(good_gain), rank_p_good=np.clip(chance[rank].mean(axis=0), 0.0, 1.0),
+                      good_per_hour=good_gain * 3600.0 / cand.seconds if cand.seconds > 0 else math.inf, rank_p_good=np.clip(chance[rank].mean(axis=0), 0.0, 1.0),
                       rank_good_gain=float(np.mean(good_gains[rank])))
 
 
