@@ -28,10 +28,11 @@ against fixed designs, on KITTI frames (docs/advice.md).
    advised plan and the fixed designs get the same answer to the same question.
 4. A Markdown table per design (human seconds, good and truly good labels before → after, good
    labels gained per human hour; for ``advised`` the predicted gain, the sum of the executed
-   requests' ``good_gain``, beside the realised one), also written to ``DIR/advice_study.json``.
-5. Predicted against realised per design (``accuracy`` in the JSON): a fixed design's prediction is
-   the advice's ``good_gain`` summed over the requests it answers, each weighed alone (the advice
-   weighs one request at a time, a design answers them all at once), with the ratio's 90 %
+   requests' ``good_gain`` in the plan, beside the realised one), also written to
+   ``DIR/advice_study.json``.
+5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
+   requests' chances combined as the plan combines them (each target below the bar lifted with
+   chance 1 − Π(1 − p)), beside the sum of each request's gain weighed alone, with the ratio's 90 %
    interval from resampling the frames; and the advised plan's gain on the futures its requests
    were chosen by beside the one it states from the others.
 
@@ -158,29 +159,46 @@ def _good_by_frame(labels_csv: Path, args) -> dict:
     return out
 
 
+def _combined(chances: list, below: np.ndarray) -> float:
+    """Labels expected to become good when requests are answered together: each target below the
+    bar lifted with chance 1 − Π(1 − p) over the requests' ``p_good`` (the plan's rule,
+    ``BatchAdvice.plan``: a label becomes good once)."""
+    if not chances:
+        return 0.0
+    return float(np.sum(1.0 - np.prod(1.0 - np.array(chances)[:, below], axis=0)))
+
+
 def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]:
-    """Predicted against realised good labels gained, per design and frame: a fixed design's
-    prediction is the sum of the advice's ``good_gain`` over the requests it answers, each weighed
-    alone (the advice weighs one request at a time; a design answers all at once), the advised
-    plan's the sum over its rows. With the ratio's 90 % interval from resampling frames."""
+    """Predicted against realised good labels gained, per design and frame. A design's prediction
+    is its requests' chances combined per frame (:func:`_combined`); ``predicted_alone`` sums each
+    request's ``good_gain`` weighed alone instead (the advice weighs one request at a time, a design
+    answers them all at once). With the ratio's 90 % interval from resampling frames."""
     advice = json.loads((out / "advice" / "advice.json").read_text())
     with open(out / "advice" / "requests.csv", newline="") as f:
         planned = list(csv.DictReader(f))
-    pred = {d: {} for d in ("advised", "dims", "sizes", "mounting")}
-    ranked = {}  # the advised requests' gain on the futures they were chosen by
     kind_design = {"dims": "dims", "size": "sizes", "mounting": "mounting"}
     chosen = {(r["key"], f"{r['target']}:{r['kind']}" if r["kind"] != "mounting" else "camera:mounting")
               for r in planned if r["kind"] != "mounting" or not r["camera"]}
     cameras = {r["camera"] for r in planned if r["kind"] == "mounting" and r["camera"]}
+    pred = {d: {} for d in ("advised", "dims", "sizes", "mounting")}
+    alone = {d: {} for d in pred}
+    ranked = {}  # the advised requests' gain on the futures they were chosen by
     for sc in advice["scenes"]:
+        k = sc["key"]
+        below = np.asarray(sc["now"]["p_iou"]) < sc["settings"]["min_quality"]
+        told, rank = {d: [] for d in pred}, []
         for p in sc.get("predictions") or []:
-            c, g = p["candidate"], float(p["good_gain"])
-            if c["kind"] in kind_design:
-                d = pred[kind_design[c["kind"]]]
-                d[sc["key"]] = d.get(sc["key"], 0.0) + g
-            if (sc["key"], c["key"]) in chosen or (c["kind"] == "mounting" and camera_of.get(sc["key"]) in cameras):
-                pred["advised"][sc["key"]] = pred["advised"].get(sc["key"], 0.0) + g
-                ranked[sc["key"]] = ranked.get(sc["key"], 0.0) + (g if p.get("rank_good_gain") is None else float(p["rank_good_gain"]))
+            c = p["candidate"]
+            designs = [kind_design[c["kind"]]] if c["kind"] in kind_design else []
+            if (k, c["key"]) in chosen or (c["kind"] == "mounting" and camera_of.get(k) in cameras):
+                designs.append("advised")
+                rank.append(p["rank_p_good"] if p.get("rank_p_good") is not None else p["p_good"])
+            for d in designs:
+                told[d].append(p["p_good"])
+                alone[d][k] = alone[d].get(k, 0.0) + float(p["good_gain"])
+        for d in pred:
+            pred[d][k] = _combined(told[d], below)
+        ranked[k] = _combined(rank, below)
     before = _good_by_frame(out / "round0" / "labels" / "labels.csv", args)
     frames = sorted(before)
     rng = np.random.default_rng(0)
@@ -197,18 +215,20 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
         ratios = ratios[np.isfinite(ratios)]   # resamples whose predicted gain is 0 have no ratio
         interval = [float(q) for q in np.quantile(ratios, [0.05, 0.95])] if len(ratios) else None
         rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
+                     "predicted_alone": float(sum(alone[name].values())),
                      "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
                      "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": interval})
     return rows
 
 
 def print_accuracy(rows: list[dict]) -> None:
-    print("\n| design | predicted gain (sum of single requests) | realised gain | realised / predicted | 90 % interval (frames resampled) |")
-    print("|---|---|---|---|---|")
+    print("\n| design | predicted gain (requests combined) | sum of single requests | realised gain | realised / predicted | 90 % interval (frames resampled) |")
+    print("|---|---|---|---|---|---|")
     for a in rows:
         ratio = "-" if a["ratio"] is None else f"{a['ratio']:.2f}"
         interval = "-" if a["ratio_90"] is None else f"{a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f}"
-        print(f"| {a['design']} | {a['predicted']:.1f} | {a['realised']:.0f} | {ratio} | {interval} |")
+        print(f"| {a['design']} | {a['predicted']:.1f} | {a['predicted_alone']:.1f} | {a['realised']:.0f} | {ratio} | "
+              f"{interval} |")
     for a in rows:
         if a["predicted_on_ranking_futures"] is not None:
             print(f"\nadvised: {a['predicted_on_ranking_futures']:.1f} good labels on the futures the requests were "

@@ -210,8 +210,9 @@ def register(subparsers) -> None:
     p.add_argument("--futures", type=int, default=150, metavar="M",
                    help="simulated outcomes per annotation (default: %(default)s)")
     p.add_argument("--budget", type=float, default=None, metavar="SECONDS",
-                   help="a batch folder: list requests, best first, until their human time reaches "
-                        "this many seconds (default: every object that should get one)")
+                   help="a batch folder: plan requests, most value added per human second first, "
+                        "within this many seconds of human time (default: every request worth "
+                        "its time)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="a batch folder: advise on N scenes at once in local processes (default: %(default)s)")
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),

@@ -5,15 +5,17 @@ Written to ``OUT`` (default ``BATCH_DIR/advice``)::
 
     advice.json                 every frame's advice (creference-advice/2) and the targets' ranking
                                 with their verdicts
-    requests.csv                the plan: the requests, best value per human second first
+    requests.csv                the plan: the requests, most added value per human second first
     label_studio_requests.json  its line and reference requests as Label Studio tasks
     cvat_requests.xml           the same as CVAT for images 1.1 annotations
 
-A target's request is the best-ranked observation of its frame that is asked on it or on no
-target, each at most once per frame
+Each target's ranking row names its request: the best-ranked observation of its frame that is
+asked on it or on no target, each at most once per frame
 (:meth:`~creference_bayes.workflows.advice.Advice.requests`); a target whose label is good (or,
 with the hdi objective, whose precision target is met), or whose best request is not worth its
-time, gets none. The camera's mounting is planned once per camera (:meth:`BatchAdvice.plan`).
+time, gets none. The plan (:meth:`BatchAdvice.plan`) may ask more than one observation on a
+target, each valued by what it adds to those already asked; the camera's mounting is planned once
+per camera.
 Sizes and mountings are answered into the scenes (:mod:`.answers`); lines and references come
 back through the importers. After the answers are in, ``creference batch`` re-estimates the
 frames that changed and the advice is worth recomputing.
@@ -22,7 +24,9 @@ frames that changed and the advice is worth recomputing.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
+import heapq
 import io
 import json
 from dataclasses import dataclass
@@ -40,7 +44,8 @@ __all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "Request", "BatchAdvice", "object_
 
 #: Columns of ``requests.csv``. Shares are of the target's ground distance (percent); HDI gains are
 #: summed over the scene's targets (points); ``good_gain`` is the expected number of labels that
-#: become good (over every frame of the camera, for a mounting).
+#: become good by it beyond the requests above it (over every frame of the camera, for a mounting;
+#: with the hdi objective, by it alone).
 REQUEST_COLUMNS = ("rank", "key", "target", "image", "camera", "frames", "kind", "measure", "object", "request",
                    "line_px", "seconds", "cumulative_seconds", "good_gain", "good_per_hour", "p_iou_now",
                    "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "answer")
@@ -67,16 +72,19 @@ class ObjectAdvice:
 
 @dataclass(frozen=True)
 class Request:
-    """One request of the plan: a target's (``objects``: its :class:`ObjectAdvice`) or a camera's
-    mounting (``objects``: one per frame of that camera, ``predictions`` its prediction in each;
-    ``camera`` its id, None for a frame that names no camera), its ``value`` (expected good
-    labels, or HDI points with the hdi objective, :meth:`~.Prediction.value`) and ``seconds``."""
+    """One request of the plan: a target's (``objects``: the :class:`ObjectAdvice` of the target it
+    is on, or most helps) or a camera's mounting (``objects``: one per frame of that camera,
+    ``predictions`` its prediction in each; ``camera`` its id, None for a frame that names no
+    camera), its ``value`` (what the plan chose it by, :meth:`BatchAdvice.plan`), ``seconds`` and
+    ``gain``: the good labels it is expected to add to the requests above it in the plan (stated
+    from the futures it was not chosen by), or with the hdi objective its good labels alone."""
 
     objects: tuple[ObjectAdvice, ...]
     predictions: tuple[Prediction, ...]
     value: float
     seconds: float
     camera: str | None = None
+    gain: float = 0.0
 
     @property
     def prediction(self) -> Prediction:
@@ -85,6 +93,17 @@ class Request:
     @property
     def rate(self) -> float:
         return self.value / self.seconds if self.seconds > 0 else np.inf
+
+
+@dataclass(frozen=True)
+class _Item:
+    """A request the plan may take (its ``value`` alone) and, with the labels objective, each
+    target's chance to be lifted by it, keyed by (frame key, target index), on the futures it is
+    ranked by and on those its gain is stated from."""
+
+    request: Request
+    rank: dict
+    told: dict
 
 
 @dataclass(frozen=True)
@@ -99,41 +118,108 @@ class BatchAdvice:
         return tuple(o for o in self.objects if o.request is not None)
 
     def plan(self, budget_s: float | None = None) -> list[Request]:
-        """The requests to send, best value per human second first, while their human time stays
-        within ``budget_s`` (a request that does not fit is passed over for cheaper ones after it).
+        """The requests to send, greedy by value per human second, while that value is worth its
+        time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
+        request that does not fit is passed over for cheaper ones after it).
 
-        A target's request is its scene's choice (:meth:`~creference_bayes.workflows.advice.Advice.requests`);
-        the mounting is asked once per camera, its value summed over every frame of that camera (a
-        frame that names no camera is a camera of its own). Each request is valued as if it were
-        the only one (the plan is greedy: a frame's requests are not weighed together)."""
-        items, cameras = [], {}
-        for o in self.requests:
-            if o.request.candidate.kind != "mounting":
-                items.append(Request((o,), (o.request,), o.request.value(o.advice.settings.objective),
-                                     o.request.candidate.seconds, o.scene.camera_id))
-        seen = set()
-        for o in self.objects:
-            if o.key in seen:
-                continue
-            seen.add(o.key)
-            p = next((p for p in o.advice.predictions if p.candidate.kind == "mounting"), None)
-            if p is not None:
-                cameras.setdefault(o.scene.camera_id or f"frame:{o.key}", []).append((o, p))
-        for camera, frames in cameras.items():
-            settings = frames[0][0].advice.settings
-            value = sum(p.value(settings.objective) for _, p in frames)
-            seconds = frames[0][1].candidate.seconds
-            if value > 0 and settings.worth(value, seconds):
-                items.append(Request(tuple(o for o, _ in frames), tuple(p for _, p in frames), value, seconds,
-                                     None if camera.startswith("frame:") else camera))
-        items.sort(key=lambda r: (-r.rate, r.objects[0].key, r.objects[0].target))
+        With the labels objective every observation of every frame may be asked, and each is
+        valued by the good labels it adds to the requests already in the plan: a target below the
+        bar that requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance
+        1 − Π(1 − pᵢ) (a label becomes good once, however many requests would each do it). Summing
+        each request's gain alone counted one car many times: on the odd KITTI development frames a
+        frame of 13 cars was stated 8.0 labels for its plan's 14 requests, 4.1 combined, 2
+        realised (docs/advice.md). The plan's values only fall as it grows, so each is recomputed
+        when it comes up (lazy greedy). With the hdi objective the plan takes each target's request
+        (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
+
+        The mounting is asked once per camera, its chances (or HDI points) over every frame of
+        that camera (a frame that names no camera is a camera of its own)."""
+        items = self._items()
+        if not items:
+            return []
+        settings = items[0].request.objects[0].advice.settings
+        labels = settings.objective == "labels"
+        left_rank, left_told = {}, {}
+
+        def rate(it: _Item) -> tuple[float, float]:
+            v = sum((p * left_rank.get(t, 1.0) for t, p in it.rank.items()), 0.0) if labels else it.request.value
+            return v, (v / it.request.seconds if it.request.seconds > 0 else np.inf)
+
+        def order(it: _Item) -> tuple:
+            o = it.request.objects[0]
+            return o.key, o.target, it.request.prediction.candidate.key
+
+        heap = [(-rate(it)[1], order(it), n) for n, it in enumerate(items)]
+        heapq.heapify(heap)
         out, total = [], 0.0
-        for r in items:
-            if budget_s is not None and total + r.seconds > budget_s:
+        while heap:
+            _, key, n = heapq.heappop(heap)
+            it = items[n]
+            v, r = rate(it)
+            if heap and (-r, key) > heap[0][:2]:  # its value fell below the next one's: later
+                heapq.heappush(heap, (-r, key, n))
                 continue
-            total += r.seconds
-            out.append(r)
+            seconds = it.request.seconds
+            if v <= 0 or not settings.worth(v, seconds):  # values only fall: never again
+                continue
+            if budget_s is not None and total + seconds > budget_s:
+                continue
+            total += seconds
+            if labels:
+                gain = sum((p * left_told.get(t, 1.0) for t, p in it.told.items()), 0.0)
+                for left, chances in ((left_rank, it.rank), (left_told, it.told)):
+                    for t, p in chances.items():
+                        left[t] = left.get(t, 1.0) * (1.0 - p)
+            else:
+                gain = sum(q.good_gain for q in it.request.predictions)
+            out.append(dataclasses.replace(it.request, value=v, gain=gain))
         return out
+
+    def _items(self) -> list[_Item]:
+        """Every request the plan may take (:meth:`plan`)."""
+        frames = {}
+        for o in self.objects:
+            frames.setdefault(o.key, {})[o.target] = o
+        items, cameras = [], {}
+        for key, targets in frames.items():
+            first = next(iter(targets.values()))
+            objective = first.advice.settings.objective
+            below = np.flatnonzero(~first.advice.good)
+
+            def chances(p: Prediction, stated: bool, key=key, below=below, labels=objective == "labels") -> dict:
+                q = p.p_good if stated else p.ranking_p_good()
+                return {(key, int(i)): float(q[i]) for i in below if q[i] > 0} if labels else {}
+
+            if objective == "labels":
+                pairs = [(targets[_shown(p, below)], p) for p in first.advice.predictions
+                         if p.candidate.kind != "mounting"]
+            else:
+                pairs = [(o, o.request) for o in targets.values()
+                         if o.request is not None and o.request.candidate.kind != "mounting"]
+            for o, p in pairs:
+                items.append(_Item(Request((o,), (p,), p.value(objective), p.candidate.seconds, o.scene.camera_id),
+                                   chances(p, False), chances(p, True)))
+            p = next((p for p in first.advice.predictions if p.candidate.kind == "mounting"), None)
+            if p is not None:
+                cameras.setdefault(first.scene.camera_id or f"frame:{key}", []).append(
+                    (first, p, p.value(objective), chances(p, False), chances(p, True)))
+        for camera, of in cameras.items():
+            request = Request(tuple(f[0] for f in of), tuple(f[1] for f in of), sum(f[2] for f in of),
+                              of[0][1].candidate.seconds, None if camera.startswith("frame:") else camera)
+            items.append(_Item(request, {k: v for f in of for k, v in f[3].items()},
+                               {k: v for f in of for k, v in f[4].items()}))
+        return items
+
+
+def _shown(p: Prediction, below: np.ndarray) -> int:
+    """The target a request is listed under: the one it is asked on, or the one below the bar it
+    most likely lifts (a reference elsewhere)."""
+    if p.candidate.target is not None:
+        return p.candidate.target
+    if not len(below):
+        return 0
+    q = p.ranking_p_good()
+    return int(below[np.argmax(q[below])])
 
 
 def object_seed(seed: int, key: str) -> list[int]:
@@ -219,7 +305,7 @@ def _rows(plan: list[Request]) -> list[dict]:
         total += r.seconds
         one = c.kind != "mounting"
         i = o.target
-        good = sum(q.good_gain for q in r.predictions)
+        good = r.gain
         rows.append({
             "rank": len(rows) + 1, "key": o.key if one or r.camera is None else "",
             "target": o.advice.targets[i] if one else "", "image": o.image if one or r.camera is None else "",
