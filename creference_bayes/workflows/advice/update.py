@@ -302,14 +302,14 @@ def _random_walk(density, x, parts, coef, chol, step, rng, n_moves):
     ``density`` (n, d) → the parts (k, n). Returns the draws, their parts, the step and the number
     of moves accepted."""
     n = len(x)
-    accepted = 0
+    accepted, cur = 0, _combine(parts, coef)
     for _ in range(n_moves):
         prop = x + step * rng.standard_normal(x.shape) @ chol.T
         new = density(prop)
         log_p = _combine(new, coef)
         with np.errstate(invalid="ignore"):
-            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(log_p), log_p - _combine(parts, coef), -np.inf)
-        x[acc], parts[:, acc] = prop[acc], new[:, acc]
+            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(log_p), log_p - cur, -np.inf)
+        x[acc], parts[:, acc], cur[acc] = prop[acc], new[:, acc], log_p[acc]
         rate = acc.mean()
         accepted += int(acc.sum())
         step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
