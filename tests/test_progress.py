@@ -80,7 +80,7 @@ def test_progress_bars_never_load_the_notebook_flavour_of_tqdm():
     code = ("import sys\n"
             "from creference_bayes.inference import ensemble\n"
             "from creference_bayes.inference.progress import progress_bar\n"
-            "with ensemble._progress_bar(True, 2) as bar:\n"
+            "with progress_bar(True, 2, desc='sampling', unit='step') as bar:\n"
             "    bar.update(2)\n"
             "progress_bar(True, 1, desc='restarts').close()\n"
             "print(sorted(m for m in sys.modules if m in ('tqdm.auto', 'tqdm.autonotebook', 'tqdm.notebook')))\n")

@@ -4,50 +4,32 @@ The emcee adapter. It knows nothing of cameras or boxes: it samples any vectoris
 ``log_prob((n, ndim)) → (n,)`` from a starting point and a covariance (the MAP and its Laplace
 approximation). :mod:`.sampler` uses it for a scene with one object block.
 
-How it samples
+How it samples (docs/method.md, "One object: the whole vector by ensemble moves")
 --------------
-* **Independent ensembles.** The walkers of one affine-invariant ensemble move using each other's
-  positions, so they are not independent chains and R-hat over them means little. The sampler runs
-  ``n_ensembles`` ensembles of ``n_walkers`` walkers each. To evaluate the log-probability of all
-  walkers of all ensembles in one vectorised call, they share one :class:`emcee.EnsembleSampler`
-  whose moves (:mod:`.moves`: grouped differential evolution and stretch) draw the complementary
-  walkers only from the walker's own ensemble; the ensembles never exchange information, so each is an
-  independent Markov chain and R-hat across them is meaningful. (They share one random stream;
-  disjoint draws from one stream are independent.)
-* **Start.** Each ensemble's walkers are drawn from N(centre, cov) with the ensemble's own
-  generator (spawned from ``rng``); points of log-probability −∞ are redrawn.
-* **Warm-up and reparametrisation.** The paper's cost makes thin, slightly curved ridges (the
-  |‖t‖ − ‖C‖| terms pin four combinations of the parameters to about a pixel, and depth trades
-  against focal length). Ensemble moves are affine-invariant, so they are slow on curved ridges
-  only. During warm-up (stages of 100, 100, 200, 400, … steps) the sampler fits a map to the
-  walkers (:class:`~.reparam.Coordinates`: log z and log µ, a whitening, then a triangular
-  polynomial shear that straightens the ridge, uⱼ = wⱼ − fⱼ(w₀…wⱼ₋₁), whose Jacobian determinant
-  is 1; the density is corrected for the logarithms) and an independence proposal (in the
-  straightened space, a mixture of up to three multivariate t components fitted by EM from
-  k-means centres, with the whole sample's t kept as a fourth: :func:`_fit_proposal`), until a
-  stage run in the map fitted before it looks like the sample that map was fitted to (median,
-  quartile and 5–95 % ranges, robust to a heavy-tailed posterior; compared with the fitted
-  sample's own, since a skewed posterior keeps them unlike a normal's in the best of maps) and
-  the proposal is accepted often enough. A stage is judged every ``chunk`` steps on the second half
-  of what it has run, and ends as soon as it passes after at least 2 · ``stage`` steps: the
-  stage that confirms a good map need not run its doubled length (on the SBC scenes' slowest
-  estimates that was 1 600 of 5 000 warm-up steps). Warm-up draws are discarded;
-  the map and the proposal are then frozen, so the main phase is an ordinary (non-adaptive)
-  Markov chain. If its first chunk shows a large τ, that chunk is turned into one more warm-up
-  stage (at most twice).
-* **Main phase.** A mixture of moves (emcee picks one per step): the independence proposal
-  (:class:`~.moves.IndependenceMove`, one log-probability call for all walkers; 80 % of steps;
-  ``tries`` (4) proposals per walker, one picked by multiple-try Metropolis)
-  and the grouped differential-evolution and stretch moves (robust where the proposal fits
-  badly). It runs in chunks until the chain after burn-in is at
-  least ``tau_multiple`` (50) integrated autocorrelation times long, τ has settled (changed by
-  less than ``tau_tolerance`` since the previous check), the estimated bulk ESS reaches
-  ``min_ess`` and the rank-normalised split R-hat across the ensembles is at most ``max_rhat``,
-  or ``max_steps`` is reached. Burn-in is 2·max τ and thinning ½·min τ
-  (emcee's advice).
+* **Independent ensembles.** ``n_ensembles`` ensembles of ``n_walkers`` walkers share one
+  :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but their moves
+  (:mod:`.moves`) draw partners only from the walker's own ensemble, so each ensemble is an
+  independent Markov chain and R-hat across them is meaningful.
+* **Start.** Each ensemble's walkers are drawn from N(centre, cov) with its own generator
+  (spawned from ``rng``); points of log-probability −∞ are redrawn.
+* **Warm-up.** In stages (``stage`` steps, later ones doubled) the sampler fits a map to the
+  walkers (:class:`~.reparam.Coordinates`: logarithms, a whitening and a unit-Jacobian shear that
+  straightens curved ridges) and an independence proposal (:func:`_fit_proposal`), until a stage
+  run in the map fitted before it looks like the sample the map was fitted to (:func:`_stable`)
+  and the proposal is accepted often enough. A stage is judged every ``chunk`` steps on the
+  second half of what it has run, and ends once it passes after 2 · ``stage`` steps. Warm-up
+  draws are discarded; the map and the proposal are then frozen. A first main chunk with a large
+  τ becomes one more warm-up stage (at most ``max_retunes`` times).
+* **Main phase.** The independence proposal (:class:`~.moves.IndependenceMove`, ``tries``
+  proposals per walker by multiple-try Metropolis) on 80 % of steps, the grouped
+  differential-evolution and stretch moves on the rest. It runs in chunks until the chain after
+  burn-in is ``tau_multiple`` autocorrelation times long, τ has settled (within
+  ``tau_tolerance``), the estimated bulk ESS reaches ``min_ess`` and the rank-normalised split
+  R-hat across the ensembles is at most ``max_rhat``, or ``max_steps``. Burn-in is 2·max τ and
+  thinning ½·min τ (emcee's advice).
 * **Seeding.** Everything random comes from ``rng``: the same seed gives identical draws.
-* **Robustness.** A log-probability that returns NaN or ±∞ is treated as −∞ (the state is
-  rejected); such values are counted in ``Chains.info["nonfinite"]``.
+* **Robustness.** A log-probability of NaN or ±∞ is taken as −∞ (the state is rejected) and
+  counted in ``Chains.info["nonfinite"]``.
 """
 
 from __future__ import annotations
@@ -182,9 +164,8 @@ def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200,
 
     Points of log-probability −∞ are redrawn (the cloud halved every 20 tries); those still
     outside after ``max_tries`` are pulled towards the centre, halving their offset up to
-    ``max_halvings`` times. A centre just inside two bounds that the coordinates couple (x and
-    y at their box's limits, both ∝ z / µ in the image offsets) leaves a wedge of directions
-    too thin for any redraw to hit, but every point near enough the centre is inside."""
+    ``max_halvings`` times (a centre just inside two coupled bounds leaves a wedge too thin for
+    redraws to hit)."""
     out = []
     for k, g in enumerate(rngs):
         center, cov = starts[k % len(starts)]
@@ -230,15 +211,9 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
     (``rng`` seeds them), or a single multivariate t when that is 1 or the mixture keeps one
     component. The k-means and EM fits use :data:`MIXTURE_POINTS` of the sample, evenly thinned.
     The mixture fitted to k-means centres keeps the single t as a component of weight
-    :data:`DEFENSIVE_WEIGHT` (a defensive mixture: the proposal's density is nowhere below that
-    share of the single t's, so no tail is offered less than a fifth as often as by the single t
-    alone, where an independence step's weight p/q could strand a walker).
-
-    Why: a posterior with a lump that the mode search merges with the MAP (no valley on the
-    straight line between them) gets a component of its own. On a thin pole whose yaw has a
-    second lump of 7 % of the mass some 70° from the MAP's, the single t reached it so rarely
-    that the yaw's τ was 46 steps (2467 steps, 5.5 s); with the mixture it is about 4 (1.7 s;
-    docs/method.md, "Sampling and summaries")."""
+    :data:`DEFENSIVE_WEIGHT` (a defensive mixture: no tail is offered much less often than by the
+    single t, where an independence step's weight p/q could strand a walker). The mixture gives a
+    lump that the mode search merged with the MAP a component of its own (docs/method.md)."""
     if settings.independence_weight == 0.0:
         return None
     defensive, fit_to = False, u
@@ -304,24 +279,14 @@ def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
     coordinate's centre is within 0.3 (0.5 with ``loose``) of the reference's, in whitened
     units, and each of its spreads within a factor 1.33 (2) of the reference's.
 
-    Centre and spreads are the median and quantile ranges, not the mean and standard
-    deviation: a heavy-tailed posterior (a far target's depth over a decade) gives a polynomial
-    map fitted to one stage's tails a standard deviation well over 1.33 on the next stage's
-    tails however well it fits the bulk, and the warm-up then ran to its cap (5000 steps where
-    400 did; tests/test_sampling.py). They are compared with the fitted sample's own, not with a
-    normal's: the map whitens the mean and the covariance, so a skewed or heavy-tailed
-    posterior's quartile spread stays below 1 (0.6 on an advice-study scene whose proposal was
-    accepted 74 % of the time) and its median off 0 in the best of maps, and the warm-up ran to
-    its 5000-step cap on every such posterior, a stage that no refit could pass. The 5–95 %
-    range watches the tails: a stage whose walkers are still spreading along a wide posterior
-    (a far target seen once: 70–800 m) can keep its quartiles and widen its tails by 1.8×, and
-    a map frozen then left the main phase with τ ≈ 1000 steps.
+    Quantiles, not moments: a heavy-tailed posterior's standard deviation never settles however
+    well the map fits the bulk. Compared with the fitted sample's own, not a normal's: a skewed
+    posterior's quartiles stay unlike a normal's in the best of maps. The 5–95 % range catches
+    walkers still spreading along a wide posterior.
 
-    ``loose`` (several modes): the share of the walkers in each mode, and so the sample's mean
-    and spread, fluctuate from stage to stage while the mixture proposal moves them between
-    modes; the mixture, not the affine map, does the work there, so the tolerance is wider, and
-    the mean and standard deviation are kept (a mixture's median sits in its heaviest mode, far
-    from the whitened centre: on the Label Studio table the warm-up ran 5000 steps, not 400)."""
+    ``loose`` (several modes): the walkers' shares of the modes fluctuate between stages and the
+    mixture proposal, not the map, does the work, so the tolerance is wider and the mean and
+    standard deviation are used (a mixture's median sits in its heaviest mode)."""
     centre, sd = _location_spread(u, loose)
     ref_centre, ref_sd = (0.0, 1.0) if reference is None else reference
     m_max, sd_max = (0.5, 2.0) if loose else (0.3, 1.33)
@@ -402,7 +367,9 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
     info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
                   "reparametrised": False, "modes": len(starts)}
-    with _progress_bar(progress, 3 * s.stage + 10 * s.chunk) as bar:
+    from .progress import progress_bar
+
+    with progress_bar(progress, 3 * s.stage + 10 * s.chunk, desc="sampling", unit="step") as bar:
         coords = Coordinates.affine(center, cov, log_mask)
         coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
                                                 centers, fit_rng)
@@ -438,7 +405,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
     proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
     while not stable and n_warm < s.max_warmup:
         stage = min(stage, s.max_warmup - n_warm)
-        sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
+        sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
         done = 0
         while done < stage:  # in chunks: a stage already whitened ends early (below)
             state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
@@ -483,17 +450,15 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
     posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
     and the proposal are refitted to it and the main phase starts again (at most
     ``max_retunes`` times; the discarded chunks count as warm-up). Afterwards the chain grows
-    towards the length the current τ asks for, at most doubling at a time (a high estimate of
-    τ from a short chain no longer commits the run to thousands of steps it does not need).
+    towards the length the current τ asks for, at most doubling at a time.
     """
     nw, d = pos.shape
-    sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate, 0)
+    sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
     chain, watched = np.zeros((0, nw, d)), None  # watched: the chain and its derived columns
     n, n_target, burn, tau, tau_prev = 0, s.chunk, None, np.full(d, np.nan), np.inf
     info["stopped"], info["retunes"] = "max_steps", 0
     while n < s.max_steps:
-        # towards the expected length, but at most doubling the chain at a time: one high
-        # estimate of τ from a short chain must not commit the run to tens of thousands of steps
+        # at most doubling: a high τ from a short chain must not commit the run to many steps
         step = int(min(max(s.chunk, min(n_target - n, n)), s.max_steps - n))
         state = sampler.run_mcmc(state, step, skip_initial_state_check=True)
         new = coords.inverse(sampler.get_chain(discard=n))
@@ -515,7 +480,7 @@ def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: d
             else:
                 info["retunes"] += 1
                 info["warmup_stages"].append(n)
-                sampler, state = _run(safe, coords, _moves(s, proposal), chain[-1], state.random_state, 0)
+                sampler, state = _run(safe, coords, _moves(s, proposal), chain[-1], state.random_state)
                 chain, watched = np.zeros((0, nw, d)), None
                 n, n_target, burn, tau_prev = 0, s.chunk, None, np.inf
                 continue
@@ -593,17 +558,8 @@ def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_s
             temperature * sampler.get_log_prob(discard=half).ravel())
 
 
-def _run(safe, coords, moves, pos, rstate, n_steps):
-    """A fresh EnsembleSampler in ``coords``, run ``n_steps`` from parameters ``pos``."""
+def _run(safe, coords, moves, pos, rstate):
+    """A fresh EnsembleSampler in ``coords`` and its state at parameters ``pos``."""
     nw, d = pos.shape
     sampler = emcee.EnsembleSampler(nw, d, _InSpace(safe, coords), moves=moves, vectorize=True)
-    state = emcee.State(coords.forward(pos), random_state=rstate)
-    if n_steps:
-        state = sampler.run_mcmc(state, n_steps, skip_initial_state_check=True)
-    return sampler, state
-
-
-def _progress_bar(enabled: bool, total: int):
-    from .progress import progress_bar
-
-    return progress_bar(enabled, total, desc="sampling", unit="step")
+    return sampler, emcee.State(coords.forward(pos), random_state=rstate)

@@ -301,21 +301,19 @@ class BlockKernel:
 class RandomWalkSweep(emcee.moves.Move):
     """A random-walk sweep of every block (module docstring)."""
 
+    independent = False
+
     def __init__(self, kernel: BlockKernel):
         self.kernel = kernel
 
     def propose(self, model, state):
-        return self.kernel.sweep(state, model.random, independent=False)
+        return self.kernel.sweep(state, model.random, independent=self.independent)
 
 
-class IndependenceSweep(emcee.moves.Move):
+class IndependenceSweep(RandomWalkSweep):
     """An independence sweep of every block, with multiple tries (module docstring)."""
 
-    def __init__(self, kernel: BlockKernel):
-        self.kernel = kernel
-
-    def propose(self, model, state):
-        return self.kernel.sweep(state, model.random, independent=True)
+    independent = True
 
 
 def _log_prob(model, q: np.ndarray) -> np.ndarray:
@@ -352,7 +350,12 @@ def _grouped_propose(move, model, state, n_groups: int):
     return state, accepted
 
 
-class GroupedDEMove(emcee.moves.Move):
+class _Grouped(emcee.moves.Move):
+    def propose(self, model, state):
+        return _grouped_propose(self, model, state, self.n_groups)
+
+
+class GroupedDEMove(_Grouped):
     """Differential evolution (ter Braak 2006; emcee's ``DEMove``) within each ensemble.
 
     Proposal x' = x + γ (x_a − x_b), with a ≠ b two walkers of the complementary half of the
@@ -372,11 +375,8 @@ class GroupedDEMove(emcee.moves.Move):
         gamma = g0 * (1.0 + self.sigma * random.randn(g, ns, 1))
         return s + gamma * (c[gi, i1] - c[gi, i2]), np.zeros((g, ns))
 
-    def propose(self, model, state):
-        return _grouped_propose(self, model, state, self.n_groups)
 
-
-class GroupedStretchMove(emcee.moves.Move):
+class GroupedStretchMove(_Grouped):
     """The Goodman & Weare stretch move (emcee's ``StretchMove``) within each ensemble."""
 
     def __init__(self, n_groups: int, a: float = 2.0):
@@ -388,9 +388,6 @@ class GroupedStretchMove(emcee.moves.Move):
         j = random.randint(c.shape[1], size=(g, ns))
         cj = c[np.arange(g)[:, None], j]
         return cj - (cj - s) * zz[..., None], (d - 1.0) * np.log(zz)
-
-    def propose(self, model, state):
-        return _grouped_propose(self, model, state, self.n_groups)
 
 
 class IndependenceMove(emcee.moves.MHMove):

@@ -299,14 +299,8 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     target = BlockTarget(model, temperature, wc0, np.zeros_like(B), wo0, yaw_window=wo0[:, O_YAW])
     center = target.join(wc0[None], wo0[None])[0]
     cf, of = model.camera_free, model.object_free
-    # the Laplace covariance of the free coordinates, whole: camera, then the object given it
-    full = np.zeros((12, 12))
-    full[:5, :5] = Sc
-    full[5:, :5] = B[0] @ Sc
-    full[:5, 5:] = full[5:, :5].T
-    full[5:, 5:] = Ao[0] + B[0] @ Sc @ B[0].T
     free = np.concatenate([cf, of[0]])
-    cov = full[np.ix_(free, free)]
+    cov = _joint_cov(Sc, Ao, B, free)
     yaw = int(np.sum(cf)) + int(np.sum(of[0, :O_YAW]))
     circular = yaw if of[0, O_YAW] else None
 
@@ -379,6 +373,12 @@ def _whole_cov(model, target: BlockTarget, u: np.ndarray, temperature: float, fr
     """The Laplace covariance of the free working coordinates at a state ``u`` (another mode)."""
     wc, wo = target.working(u[None])
     Sc, Ao, B, _ = laplace_blocks(model, derivatives(model, wc[0], wo[0], temperature, with_jacobian=True))
+    return _joint_cov(Sc, Ao, B, free)
+
+
+def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
+    """The Laplace covariance of one object's scene's free coordinates, whole (camera, then the
+    object given it), from its blocks."""
     full = np.zeros((12, 12))
     full[:5, :5] = Sc
     full[5:, :5] = B[0] @ Sc
