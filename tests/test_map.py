@@ -68,7 +68,7 @@ def test_flat_state_round_trips_the_free_parameters():
     m, est, _ = _fit(6, m=3, sizes_known=False, n_refs=2)
     flat = FlatState(m, est.camera, est.objects)
     x = flat.pack(est.camera[None], est.objects[None])
-    assert x.shape == (1, m.n_free)
+    assert x.shape == (1, m.camera_free.sum() + m.object_free.sum())
     cams, objs = flat.unpack(x)
     np.testing.assert_allclose(cams[0], est.camera)
     np.testing.assert_allclose(objs[0], est.objects)

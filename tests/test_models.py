@@ -240,18 +240,3 @@ def test_the_crowd_scale_follows_the_references():
         r["value"] *= float(np.exp(rng.choice([-1.5, 1.5])))
     wild = cb.estimate(d, seed=0, sampling={"min_ess": 100}).to_dict()["camera"]["posterior"]["median"]["ref_scale"]
     assert exact < 0.05 < 0.5 < wild
-
-
-def test_the_contracts_simulation_draws_the_likelihoods_noise_around_the_projection():
-    """``Model.simulate_annotations``: exact lines are the projection (to 0.01 px); with noise the
-    corners scatter around it with the stated sd, independently per corner and coordinate."""
-    model, truth = _model(3, m=2, n_annotations=2, noise_px=2.0, n_refs=0, sizes_known=True)
-    cam, objs = truth["camera"], truth["objects"]
-    uv, _ = model.project(model.complete_camera(np.asarray(cam, float)[None]), np.asarray(objs, float)[None])
-    exact = model.simulate_annotations(cam, objs, 3, 0.0, rng=0)
-    assert exact.shape == (2, 3, 4, 2)
-    np.testing.assert_allclose(exact, np.broadcast_to(uv[0][:, None], exact.shape), atol=0.005 + 1e-9)
-    noisy = model.simulate_annotations(cam, objs, 500, 2.0, rng=1) - uv[0][:, None]
-    assert abs(noisy.mean()) < 0.05 and noisy.std() == pytest.approx(2.0, rel=0.03)
-    assert np.array_equal(model.simulate_annotations(cam, objs, 4, 2.0, rng=5),
-                          model.simulate_annotations(cam, objs, 4, 2.0, rng=5))

@@ -52,9 +52,8 @@ Skipped pairs are counted with a reason (:data:`SKIP_REASONS`), never returned a
 endpoint on or above the horizon; κ < :data:`MIN_CONDITIONING`; no positive solution; the target
 behind the camera; a distance bound over :data:`MAX_DISTANCE_M` (the paper's 10 km); and, beyond
 the paper, *unstable* pairs, where a one-pixel move of one endpoint changes the target distance by
-more than :data:`MAX_PIXEL_SENSITIVITY`. The κ rule alone lets most noisy near-parallel pairs
-through (on the aggregation study's parallel pair with 10 px of line noise only 7 % of draws fall
-under κ 0.1, and 70 % of the solvable rest are off by over 100 %).
+more than :data:`MAX_PIXEL_SENSITIVITY` (the κ rule alone lets most noisy near-parallel pairs
+through).
 """
 
 from __future__ import annotations
@@ -341,8 +340,8 @@ class SkipRules:
     min_horizon_px : points closer than this to the horizon (or above it) are unusable, pixels
     max_pixel_sensitivity : skip pairs where moving one reference endpoint by one pixel changes
         the target's ground distance (at the centres of the stated ranges) by more than this
-        fraction; None turns the rule off. Noisy, nearly parallel pairs pass the κ rule yet
-        amplify annotation noise wildly; this catches them (see examples/aggregation_study.py).
+        fraction; None turns the rule off (it catches noisy, nearly parallel pairs that pass
+        the κ rule)
     """
 
     min_conditioning: float = MIN_CONDITIONING

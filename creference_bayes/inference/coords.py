@@ -12,9 +12,7 @@ camera places the object exactly: the ray through (u, v) meets the object's grou
 ``height − ground``) at (x, z), and the sizes follow from z. So when the camera moves (a little
 more pitch, a larger µ, a higher camera), every object moves with it in the way that keeps its
 image, and an object's coordinates barely correlate with the camera's: the posterior is close to
-a product of blocks, which is what the blocked sampler needs. (Plain coordinates tie a far object's
-depth to the pitch through 1 / (its distance below the horizon), a curve no linear correction
-follows.) Known sizes stay fixed in metres.
+a product of blocks, which is what the blocked sampler needs. Known sizes stay fixed in metres.
 
 The Jacobian of (u, v) → (x, z) on the plane y = y₀ is y₀² / (µ² d_y³), d = Rᵀ K⁻¹ (u, v, 1) the
 viewing ray (a homography's Jacobian); each size contributes its value.
@@ -113,14 +111,13 @@ class HorizonDistance:
     height, the focal length and the pitch trade against each other through the object's distance
     below the horizon in the image, D = −sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)
     (pixels, at its bottom centre (u, v)): z ≈ h µ / D. In (log h, log µ, log D) that ridge is
-    straight, which the ensemble sampler's affine coordinates follow, while in pitch it bends (a
-    target 40 m away seen once: hundreds of steps of autocorrelation). ∂pitch/∂log D =
-    D cos²(pitch) / µ.
+    straight, as the ensemble sampler's affine coordinates need. ∂pitch/∂log D = D cos²(pitch) / µ.
 
     Parameters
     ----------
     model : the model (pitch and roll free)
-    layout : indices of log µ (None when µ is known), pitch, roll, u and v in the flat vector
+    i_focal, i_pitch, i_roll, i_u, i_v : indices of log µ (None when µ is known), pitch, roll, u
+        and v in the flat vector
     """
 
     def __init__(self, model: Model, i_focal: int | None, i_pitch: int, i_roll: int, i_u: int, i_v: int):

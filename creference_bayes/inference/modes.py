@@ -4,12 +4,9 @@ Pure NumPy and SciPy; the tempered exploration runs through :func:`.ensemble.exp
 
 Why
 ---
-With one set of dimension lines the target's corners are heavy-tailed (Student-t) observations:
-giving up one corner as an outlier and moving the target along its viewing ray fits almost as
-well, so the posterior can have a second, broad mode (on the example table scene, 5.1 m at the
-MAP and a plateau at 9–15 m holding about a third of the mass, 8 nats lower but much wider).
-A sampler started at the MAP and tuned to what it finds there can miss such a mode entirely, and
-then every convergence check passes: each ensemble agrees with the others on the wrong answer.
+With heavy-tailed corners, giving up one corner as an outlier and moving the target along its
+viewing ray fits almost as well, so the posterior can have a second, broad mode. A sampler started
+at the MAP can miss it entirely while every convergence check passes.
 
 How
 ---
@@ -158,12 +155,9 @@ def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:
 
 def _pass_height(neg, a: np.ndarray, b: np.ndarray, n: int = 5) -> float:
     """The highest −log p met on the way from ``a`` to ``b`` along a bending path: the largest,
-    over n evenly spaced planes orthogonal to the segment, of the least −log p in each plane.
-
-    Maxima along one far, curved ridge (a wide posterior's depth–focal-length ridge: points
-    60–200 whitened units apart) see a deep "valley" on the straight line between them that is
-    only the ridge's bend; a true valley (a second basin, the outlier-corner mode) stays deep
-    in every plane between the two.
+    over n evenly spaced planes orthogonal to the segment, of the least −log p in each plane
+    (maxima along one curved ridge see a "valley" on the straight line that is only its bend; a
+    true valley stays deep in every plane).
     """
     e = (b - a) / np.linalg.norm(b - a)
     basis = np.linalg.svd(np.eye(len(a)) - np.outer(e, e))[0][:, :len(a) - 1]  # ⟂ e

@@ -317,12 +317,9 @@ class IndependenceSweep(RandomWalkSweep):
 
 
 def _log_prob(model, q: np.ndarray) -> np.ndarray:
-    """Vectorised log-probability of proposals ``q``, shape (n,).
-
-    Calls the wrapped function directly: emcee's ``compute_log_prob`` converts the result walker
-    by walker in Python (to look for blobs), which costs more than the vectorised cost itself.
-    The wrapped function (``sampling._InSpace``) already maps NaN and ±∞ to −∞.
-    """
+    """Vectorised log-probability of proposals ``q``, shape (n,): the wrapped function
+    (``ensemble._InSpace``, which maps NaN and ±∞ to −∞) called directly, as emcee's
+    ``compute_log_prob`` converts the result walker by walker in Python."""
     return np.asarray(model.log_prob_fn(q), float)
 
 

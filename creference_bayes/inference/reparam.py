@@ -1,11 +1,8 @@
 """Sampler coordinates: a map from parameters to a space where the posterior is nearly round.
 
-Pure NumPy; used by the sampler (:mod:`.sampling`), which learns the map from its warm-up.
-
-The paper's posterior lives on thin, curved ridges: the |‖t‖ − ‖C‖| terms of Eq. 5 pin four
-combinations of (x, y, z, yaw, µ) to about a pixel, and depth trades against focal length over a
-long range. Affine-invariant ensemble moves do not care how thin a ridge is, only how curved. The
-map straightens it in three steps:
+Pure NumPy; the ensemble sampler (:mod:`.ensemble`) learns the map from its warm-up. The
+posterior lives on thin, curved ridges; affine-invariant ensemble moves do not care how thin a
+ridge is, only how curved. The map straightens it:
 
 1. q = p, with ``log`` applied to the coordinates marked positive (z and µ: their ridges are
    nearly straight in log space and their long tails are compressed); log |∂p/∂q| = Σ qᵢ over those;
@@ -14,12 +11,10 @@ map straightens it in three steps:
 3. v with vⱼ = wⱼ − fⱼ(w₀ … wⱼ₋₁), fⱼ a quadratic form in the preceding coordinates plus a cubic
    term in w₀, fitted by least squares: a triangular shear, whose Jacobian determinant is 1 for
    *any* fⱼ, so it is always a bijection and needs no density correction. fⱼ is evaluated on its
-   arguments clipped to the fitted sample's range widened by one range on each side: the
-   warm-up rarely reaches far into the tails, where a real curvature continues, but a polynomial
-   must not explode. The whitening, and which of its axes comes first (the one the others bend
-   along), are chosen to minimise the determinant of the sheared sample's covariance: the map
-   preserves volume, so the smaller that determinant, the more of the curvature the shear has
-   taken out;
+   arguments clipped to the fitted sample's range widened by one range on each side (a
+   polynomial must not explode in the tails). The whitening, and which of its axes comes first,
+   minimise the determinant of the sheared sample's covariance (the map preserves volume, so
+   the smaller it is, the more curvature the shear took out);
 4. u = B (v − c): a final whitening.
 
 Steps 2–4 have a constant Jacobian; only step 1 contributes to the density (:meth:`log_jacobian`).

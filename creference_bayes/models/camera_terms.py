@@ -17,12 +17,10 @@ Pitch, roll and the camera height (only when pitch and roll are free parameters,
     (:data:`DEFAULT_ORIENTATION_PRIOR`): photos are mostly taken near level, seldom tilted by
     more than a few degrees, looking down by up to a few tens of degrees, from about eye or car
     height (0.5–5.3 m within two standard deviations; a balcony or a drone needs the scene's
-    ``camera.orientation_prior``). The height's prior is a log-normal rather than a heavy-tailed
-    one on purpose: a density over h with polynomial tails in log h, times the Jacobian 1/h,
-    grows without bound as h → 0 and pulled weakly identified MAPs onto the lowest height allowed.
-    Without a horizon the target and the references trade the camera's pitch against its
-    height and the depth; without this prior the posterior's tail runs to cameras tens of metres
-    up. With an exact horizon the height is pinned by the data and no prior is applied.
+    ``camera.orientation_prior``). Without a horizon the data trade pitch against height and
+    depth, and the posterior's tail would run to cameras tens of metres up. The height's prior is
+    log-normal on purpose: polynomial tails in log h times the Jacobian 1/h grow without bound as
+    h → 0. With an exact horizon the data pin the height and no prior is applied.
 Horizon measurement
     A horizon line known only up to σ pixels (estimated from the image, or stated with
     ``horizon_sd_px``): each of its two points lies at a signed distance N(0, σ²) from the horizon
@@ -216,12 +214,6 @@ class CameraTerms:
     orientation: OrientationPrior | None = None
     horizon: HorizonMeasurement | None = None
     location: LocationPrior | None = None
-
-    @property
-    def map_in_log_coordinates(self) -> bool:
-        """Whether the MAP is taken in log coordinates of the positive parameters (the location
-        prior decides: :attr:`~.location_prior.LocationPrior.map_in_log_coordinates`)."""
-        return self.location is not None and self.location.map_in_log_coordinates
 
     def to_dict(self) -> dict:
         """``{"focal_prior", "orientation_prior", "horizon", "location_prior"}``, each a dict or None."""

@@ -26,13 +26,7 @@ scale, widened by the line's own noise. g is kept within [:data:`COVERAGE_FLOOR`
 :data:`COVERAGE_CEIL`] there: a stated 100 % would otherwise be an exact constraint, a stated 0 %
 an infinitely wide one.
 
-The file format (``creference-confidence-map/1``, JSON; docs/confidence.md)::
-
-    {"format": "creference-confidence-map/1", "kind": "fitted", "dof": null, "interval_prob": 0.95,
-     "pooled": {"levels": [0.5, 0.7, 0.9], "coverage": [0.3, 0.4, 0.6],
-                "low": [...], "high": [...], "sd": [...], "n": [120, 118, 131]},
-     "groups": {"distance/direct": {...same keys...}},
-     "fit": {"method": "truth", ...}}
+The file format is ``creference-confidence-map/1`` (JSON; docs/confidence.md).
 
 NumPy/SciPy and the standard library only.
 """

@@ -27,8 +27,8 @@ What every model shares, here: the geometry (:meth:`Model.project`), the bounds 
 masks, the priors (:meth:`Model.camera_neg_log_prior`, :meth:`Model.object_neg_log_prior`: focal
 length, pitch and roll, camera height, crowd scale, class sizes, ground offsets, the location
 prior), the posterior assembled from them, ``log p = log-likelihood / T + log-prior`` (the
-temperature widens what the annotations say and never the priors), the objective of the MAP,
-starting cameras and simulated annotations. Given the camera, objects are independent except
+temperature widens what the annotations say and never the priors), the objective of the MAP and
+starting cameras. Given the camera, objects are independent except
 through the pair terms: the optimiser and the sampler use that structure
 (:mod:`creference_bayes.inference`).
 
@@ -68,12 +68,10 @@ O_GROUND = 6
 #: Largest pitch and roll a camera may have, radians (beyond them the ground is not in view).
 MAX_PITCH = float(np.radians(80.0))
 MAX_ROLL = float(np.radians(45.0))
-#: Spread of an object's ground around the scene's plane, metres: on 51 KITTI frames, the bottoms
-#: of the labelled objects (4 or more a frame) scatter about a fitted plane with a standard
-#: deviation of 0.075 m (90th percentile 0.12 m, largest 0.23 m); see docs/overview.md ("Uneven ground").
+#: Spread of an object's ground around the scene's plane, metres (KITTI's labelled objects scatter
+#: about a fitted plane by 0.075 m; docs/overview.md, "Uneven ground").
 DEFAULT_GROUND_SD_M = 0.08
-#: Tilt of the ground plane from level, radians: the same fits tilt by 1.1° (across) and 0.6°
-#: (along the road) in standard deviation from KITTI's level rectified camera.
+#: Tilt of the ground plane from level, radians (the same KITTI fits: 1.1° across, 0.6° along).
 DEFAULT_GROUND_TILT_SD_RAD = float(np.radians(1.0))
 #: The crowd's error scale in log-length: log-normal prior, median and log-sd (models that use one).
 REF_SCALE_MEDIAN = 0.5
@@ -286,10 +284,6 @@ class Model:
     def n_objects(self) -> int:
         return len(self.objects)
 
-    @property
-    def n_free(self) -> int:
-        return int(self.camera_free.sum() + self.object_free.sum())
-
     def complete_camera(self, cams: np.ndarray) -> np.ndarray:
         """(n, 5) camera vectors with the fixed and derived entries filled in (µ when known, pitch
         and roll from an exact horizon or level, the crowd scale when it is not estimated)."""
@@ -477,7 +471,7 @@ class Model:
             return (self.neg_log_posterior(cams, objs, temperature) - self.map_log_jacobian(objs).sum(axis=-1)
                     - self.camera_log_jacobian(cams))
 
-    # -- starting points and simulation --------------------------------------------------------------
+    # -- starting points --------------------------------------------------------------
     def focal_guess(self) -> float:
         """A focal length to start from, pixels: the known one, the prior's median, else a 30 mm
         equivalent lens."""
@@ -485,12 +479,3 @@ class Model:
             return float(self.focal_length_px)
         f = self.camera_terms.focal
         return float(f.median_px) if f is not None else 30.0 / 43.27 * float(np.hypot(*self.image_size))
-
-    def simulate_annotations(self, camera: np.ndarray, objects: np.ndarray, n_annotations: int,
-                             noise_px: float, rng=None) -> np.ndarray:
-        """Dimension lines drawn around the projection of a true state: (m, K, 4, 2) pixels, every
-        corner moved by N(0, noise_px²) per coordinate and rounded to 0.01 px."""
-        rng = np.random.default_rng(rng)
-        uv, _ = self.project(self.complete_camera(np.asarray(camera, float)[None]), np.asarray(objects, float)[None])
-        noisy = uv[0][:, None] + rng.normal(0.0, noise_px, (self.n_objects, n_annotations, 4, 2))
-        return np.round(noisy, 2)

@@ -428,18 +428,13 @@ class MetrologyModel(Model):
                 ll = np.where(self._stated[None], stated, ll)
         return np.where(np.isfinite(ll), -ll, 1e300)
 
-    def _reference_parts(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(camera part (n,), per object part (n, m)) of the references' negative log-likelihood;
-        distance references (which couple two objects) are in neither (:meth:`pair_nll`)."""
-        n, m = len(cams), self.n_objects
-        obj_part = np.zeros((n, m))
-        if not len(self.references):
-            return np.zeros(n), obj_part
-        nll = self.reference_nll_matrix(cams, objs)
+    def _split_nll(self, nll: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Add each object's own references' negative log-likelihood (of ``nll`` (n, k)) to ``obj``
+        (n, m) in place; returns the camera's part (n,) and the distance references' (n, P)."""
         owned = (self.ref_owner >= 0) & ~self._distance
         for j in np.flatnonzero(owned):
-            obj_part[:, self.ref_owner[j]] += nll[:, j]
-        return nll[:, ~owned & ~self._distance].sum(axis=1), obj_part
+            obj[:, self.ref_owner[j]] += nll[:, j]
+        return nll[:, ~owned & ~self._distance].sum(axis=1), nll[:, self._distance]
 
     # -- the contract ----------------------------------------------------------------------------
     def _annotation_terms(self, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -468,7 +463,9 @@ class MetrologyModel(Model):
         per, depth = self._annotation_terms(cams, objs)
         out = per.sum(axis=-1) + self.behind(depth)
         if len(self.references):
-            out = out + self._reference_parts(cams, objs)[1]
+            part = np.zeros(out.shape)
+            self._split_nll(self.reference_nll_matrix(cams, objs), part)
+            out = out + part
         return out
 
     def camera_nll(self, cams: np.ndarray) -> np.ndarray:
@@ -488,12 +485,8 @@ class MetrologyModel(Model):
         per, depth = self._annotation_terms(cams, objs)
         cam, obj, pair = self.horizon_nll(cams), per.sum(axis=-1) + self.behind(depth), np.zeros((len(cams), 0))
         if len(self.references):
-            nll = self.reference_nll_matrix(cams, objs)
-            owned = (self.ref_owner >= 0) & ~self._distance
-            for j in np.flatnonzero(owned):
-                obj[:, self.ref_owner[j]] += nll[:, j]
-            cam = cam + nll[:, ~owned & ~self._distance].sum(axis=1)
-            pair = nll[:, self._distance]
+            cam_part, pair = self._split_nll(self.reference_nll_matrix(cams, objs), obj)
+            cam = cam + cam_part
         return (cam / temperature + self.camera_neg_log_prior(cams),
                 obj / temperature + self.object_neg_log_prior(cams, objs), pair / temperature)
 

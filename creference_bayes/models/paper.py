@@ -23,10 +23,8 @@ from .contract import O_X, O_Z, Model
 
 __all__ = ["CALIBRATED_SIGMA_PX", "CALIBRATED_TEMPERATURE", "PaperModel"]
 
-#: σ (pixels) and temperature T of the paper model's posterior with the ``default`` preset.
-#: With the paper's σ = 100 px no temperature calibrates it (best: 62 % of true distances inside
-#: the 90 % region, at T = 1); σ = 2 px, T = 3 gives 79–92 % inside the 90 % regions and 54–58 %
-#: inside the 50 % ones, with the MAP's error unchanged (docs/benchmark_results.md, calibration
+#: σ (pixels) and temperature T of the paper model's posterior with the ``default`` preset: with
+#: the paper's σ = 100 px no temperature calibrates it (docs/benchmark_results.md, calibration
 #: sweep). The ``paper`` presets keep the paper's σ = 100 px and T = 1.
 CALIBRATED_SIGMA_PX = 2.0
 CALIBRATED_TEMPERATURE = 3.0

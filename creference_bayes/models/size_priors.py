@@ -60,13 +60,6 @@ class SizePrior:
     def log_median(self) -> np.ndarray:
         return np.log(np.asarray(self.median_m))
 
-    def neg_log(self, sizes: np.ndarray) -> np.ndarray:
-        """−log p(sizes) up to a constant, a density over the sizes themselves (the Jacobian 1/size
-        included). ``sizes`` (..., 3) metres → (...)."""
-        s = np.maximum(np.asarray(sizes, float), 1e-300)
-        z = (np.log(s) - self.log_median) / np.asarray(self.log_sd)
-        return np.sum(0.5 * z * z + np.log(s), axis=-1)
-
     def to_dict(self) -> dict:
         return {**{f"{k}_m": v for k, v in zip(SIZE_KEYS, self.median_m)},
                 "log_sd": list(self.log_sd), "source": self.source}
