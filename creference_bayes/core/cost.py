@@ -1,7 +1,7 @@
 """The paper's costs, vectorised over a batch of parameter vectors (method.md §2, §3, §5).
 
 Parameter vectors are ``(x, y, z, yaw, focal_length_px, pitch, roll)``: metres, metres, metres,
-radians, pixels, radians, radians (models/params.py); a batch has shape (n, 7) and every cost
+radians, pixels, radians, radians; a batch has shape (n, 7) and every cost
 returns shape (n,). The camera rotation is built from the vectors' pitch and roll
 (:func:`~.geometry.rotation_from_pitch_roll`), so the costs need only the principal point.
 """
@@ -21,8 +21,6 @@ __all__ = [
     "BEHIND_CAMERA_PENALTY",
     "SoftConstraints",
     "target_cost",
-    "reprojection_residuals",
-    "project_params",
     "sigmoid_penalty",
     "soft_constraint_cost",
 ]
@@ -37,39 +35,6 @@ PAPER_CAP = 50.0
 BEHIND_CAMERA_PENALTY = 1e6
 
 
-def reprojection_residuals(params: np.ndarray, observed: np.ndarray, obj_corners: np.ndarray,
-                           camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projected corners and their offsets from the annotation.
-
-    Parameters
-    ----------
-    params : (n, 7)
-    observed : (4, 2) annotated corners t1..t4, pixels
-    obj_corners : (4, 3) object-frame corners matching t1..t4 (:func:`~.geometry.dimension_corners`)
-
-    Returns
-    -------
-    projected : (n, 4, 2) pixels
-    residual : (n, 4, 2) ``observed − projected``, pixels
-    depth : (n, 4) camera-frame depth of each corner, metres
-    """
-    params = np.atleast_2d(params)
-    projected, depth = project_params(params, obj_corners, camera.principal_point)
-    return projected, observed - projected, depth
-
-
-def project_params(params: np.ndarray, obj_points: np.ndarray, principal_point) -> tuple[np.ndarray, np.ndarray]:
-    """Object points placed at each pose and projected with each camera of (n, 7) vectors.
-
-    Returns
-    -------
-    uv : (n, k, 2) pixels;  depth : (n, k) camera-frame depth, metres
-    """
-    params = np.atleast_2d(params)
-    R = rotation_from_pitch_roll(params[:, 5], params[:, 6])
-    return project(box_points(params, obj_points), R, params[:, 4], principal_point)
-
-
 def target_cost(params: np.ndarray, observed: np.ndarray, obj_corners: np.ndarray,
                 camera: Camera, sigma: float = PAPER_SIGMA_PX) -> np.ndarray:
     """Eq. 5: Σᵢ −log N(‖tᵢ − C_µ(x_s)ᵢ‖; 0, σ²) + | ‖tᵢ‖ − ‖C_µ(x_s)ᵢ‖ |.
@@ -77,12 +42,20 @@ def target_cost(params: np.ndarray, observed: np.ndarray, obj_corners: np.ndarra
     The second term compares the norms of raw pixel coordinates (origin top-left), as the paper
     prints it. Corners behind the camera add :data:`BEHIND_CAMERA_PENALTY` per metre.
 
+    Parameters
+    ----------
+    params : (n, 7) or (7,)
+    observed : (4, 2) annotated corners t1..t4, pixels
+    obj_corners : (4, 3) object-frame corners matching t1..t4 (:func:`~.geometry.dimension_corners`)
+
     Returns
     -------
     (n,) cost, dimensionless (a negative log-density up to the temperature)
     """
-    projected, resid, depth = reprojection_residuals(params, observed, obj_corners, camera)
-    r2 = np.sum(resid**2, axis=-1)
+    params = np.atleast_2d(params)
+    R = rotation_from_pitch_roll(params[:, 5], params[:, 6])
+    projected, depth = project(box_points(params, obj_corners), R, params[:, 4], camera.principal_point)
+    r2 = np.sum((observed - projected) ** 2, axis=-1)
     nll = 0.5 * r2 / sigma**2 + np.log(sigma * np.sqrt(2.0 * np.pi))
     norm_gap = np.abs(np.linalg.norm(observed, axis=-1) - np.linalg.norm(projected, axis=-1))
     behind = BEHIND_CAMERA_PENALTY * np.sum(np.maximum(0.0, 1e-3 - depth), axis=-1)

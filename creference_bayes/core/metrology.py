@@ -1,6 +1,7 @@
 """Single-view metrology on the ground plane: reference pairs → bounds on x and z (paper §5.2.2).
 
-This is method.md §4: the exact, coordinate form of the paper's cross-ratio construction.
+The exact, coordinate form of the paper's cross-ratio construction (docs/method.md, "The paper
+model", for the derivation).
 
 Ground coordinates
 ------------------
@@ -10,41 +11,24 @@ the horizon and ``e_h`` the horizon's unit direction pointing right,
 
     ζ(p) = 1 / dist(p),        ξ(p) = ((p − v_c)·e_h) / dist(p).
 
-For a camera at height h with pitch p (any roll) and focal length µ, a ground point (X, h, Z) of
-the gravity-aligned frame G maps to (derivation: de-roll the image about c, then
-``dist = µ h / (cos p · Zc)`` with the camera depth ``Zc = Z cos p + h sin p``)::
-
-    X = H ξ                          H = h / cos p
-    Z = V (ζ − ζ_f)                  V = µ h / cos² p,   ζ_f = sin p cos p / µ
-
-ζ_f is the ζ of the camera's foot point (the image of the nadir). Both H and V are unknown, but
-ζ_f is not an extra unknown: with d_c = dist(c) = µ tan p, ``(V/H)² = µ² + d_c²`` and
-``ζ_f = d_c / (V/H)² = d_c H² / V²``. Hence, exactly and without µ,
+A ground point is X = H ξ, Z = V (ζ − ζ_f) with H = h / cos p, V = µ h / cos² p and, with
+d_c = dist(c) = µ tan p, ζ_f = d_c H² / V². Hence, exactly and without µ,
 
     x = ξ_t H,        z = V ζ_t − d_c H² / V.
 
-The paper's Eq. 8 (``z = αV``) drops the second term; its error is ``h tan p`` (0.40 m for a
-1.5 m camera pitched 15° down), independent of the distance. This module applies the correction,
-so for noise-free input x and z are exact for any pitch, roll and principal point. A level
-camera (d_c = 0) has H = h, V = µh and no correction. As a by-product each pair yields
-µ = √((V/H)² − d_c²) and h = µ H² / V (reported per pair).
+The paper's Eq. 8 (``z = αV``) drops the second term (an error of ``h tan p``); this module
+applies it, so for noise-free input x and z are exact for any pitch, roll and principal point.
+Each pair also yields µ = √((V/H)² − d_c²) and h = µ H² / V (reported per pair).
 
 Pair solve
 ----------
-A reference from p to q with real length ℓ gives ℓ² = (bH)² + (βV)², b = Δξ, β = Δζ (Eq. 9);
-two references give a 2×2 linear system in (H², V²). Its conditioning is measured by
-``κ = |b₁²β₂² − b₂²β₁²| / (b₁²β₂² + b₂²β₁²)`` ∈ [0, 1], invariant to the units of ξ and ζ; with
-φ the real angle of a segment from the depth axis, κ = |tan²φ₁ − tan²φ₂| / (tan²φ₁ + tan²φ₂). So
-κ = 0 for parallel segments and also for mirror-image ones (φ₂ = −φ₁): only squares enter.
-
-Ranges: (H², V²) is linear in (ℓ₁², ℓ₂²), so the rectangle of stated squared lengths maps to a
-parallelogram, clipped to the physical region H² > 0, V² > d_c² H² (µ² > 0), and, when a focal
-range [µ₋, µ₊] is given, to (d_c² + µ₋²) H² ≤ V² ≤ (d_c² + µ₊²) H² (all linear in (H², V²); this
-keeps absurd cameras, µ → 0, from stretching the bounds). x is monotone in H²,
-and z and the ground distance have no critical point inside the region (∂z/∂V² > 0), so their
-extremes lie on the region's boundary: the code evaluates the boundary's vertices and
-:data:`EDGE_SAMPLES` points along each edge (exact at the vertices, which is exact overall for a
-level camera, where x, z and the squared distance are monotone/linear along each edge).
+A reference with real length ℓ gives ℓ² = (bH)² + (βV)², b = Δξ, β = Δζ (Eq. 9); two give a 2×2
+linear system in (H², V²), conditioned by ``κ = |b₁²β₂² − b₂²β₁²| / (b₁²β₂² + b₂²β₁²)`` ∈ [0, 1]
+(0 for parallel and for mirror-image segments: only squares enter). The rectangle of stated
+squared lengths maps to a parallelogram in (H², V²), clipped to H² > 0, V² > d_c² H² and, with a
+focal range [µ₋, µ₊], (d_c² + µ₋²) H² ≤ V² ≤ (d_c² + µ₊²) H². x, z and the ground distance have
+no critical point inside it, so their extremes are sought on its boundary: its vertices and
+:data:`EDGE_SAMPLES` points along each edge.
 
 Skip rules
 ----------

@@ -104,19 +104,15 @@ class Chains:
         """Walkers per ensemble."""
         return self.chain.shape[2]
 
-    def kept(self, values: np.ndarray | None = None) -> np.ndarray:
-        """Post-burn-in, thinned steps: (n_kept, n_ensembles, n_walkers, ...)."""
-        v = self.chain if values is None else values
-        return v[self.burn_in::self.thin]
-
     def draws(self, values: np.ndarray | None = None) -> np.ndarray:
-        """Kept draws per ensemble, walker-major: (n_ensembles, n_walkers · n_kept, ...).
+        """Post-burn-in, thinned draws per ensemble, walker-major: (n_ensembles, n_walkers · n_kept,
+        ...).
 
         Each walker's kept steps are contiguous, so the order along the draw axis is a
         concatenation of walker chains (what autocorrelation-based ESS estimates expect).
         """
-        k = self.kept(values)
-        k = np.moveaxis(k, 0, 2)  # (n_ens, n_walk, n_kept, ...)
+        v = self.chain if values is None else values
+        k = np.moveaxis(v[self.burn_in::self.thin], 0, 2)  # kept: (n_ens, n_walk, n_kept, ...)
         return k.reshape(k.shape[0], k.shape[1] * k.shape[2], *k.shape[3:])
 
 

@@ -1,34 +1,27 @@
 """The MAP of a scene: every object's pose and size and the shared camera, jointly.
 
-Presets (:data:`PRESETS`):
+Presets (:data:`PRESETS`; docs/method.md, "Finding the MAP", step by step):
 
 ``default``
-    1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown; roll 0, or the
-       measured horizon's), every object is placed by a closed-form solve: for a fixed yaw and
-       handedness, the projection equations of its four annotated corners (per-corner median) are
-       linear in its bottom centre (x, y, z) given the camera (method.md §6), so a 5° yaw grid ×
-       both handednesses is one batched least-squares solve per object. The objects' y gives the
-       camera height (the median over objects, their ground offsets the rest). The camera whose
-       objects fit best starts.
-    2. **Joint Newton.** Levenberg–Marquardt steps on the objective in working coordinates
-       (:mod:`.coords`: each object anchored to the image). Given the camera the objects are
-       independent, so the Hessian is an *arrowhead*: a camera block, one block per object and
-       their couplings. Its derivatives come from one batched set of finite differences whose cost
-       does not grow with the number of objects, and the step is solved through the Schur
+    1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown), every object
+       is placed by a closed-form solve (its corners' projection equations are linear in its
+       bottom centre for a fixed yaw and handedness: a 5° yaw grid × both handednesses is one
+       batched least-squares solve). The camera whose objects fit best starts.
+    2. **Joint Newton.** Levenberg–Marquardt steps in working coordinates (:mod:`.coords`). Given
+       the camera the objects are independent, so the Hessian is an *arrowhead*; its derivatives
+       come from one batched set of finite differences and the step is solved through the Schur
        complement of the camera block: O(m) work for m objects.
-    3. **Continuation.** When annotations agree to a pixel or better, the cost is so sharp that far
-       from the optimum only the Student-t tails are felt; a first pass with σ raised to 3 px finds
-       the basin, the second refines with the real σ.
-    4. **Pilot.** A model's quantities fixed at a first optimum (the references' line noise) are
-       set there and the optimum refined from it.
-    5. **Polish.** A model whose objective has kinks (the paper's, ``smooth = False``) is finished
-       by L-BFGS-B from there.
+    3. **Continuation.** With annotations that agree to a pixel or better, a first pass with σ
+       raised to 3 px finds the basin (far from the optimum only the t-tails are felt).
+    4. **Pilot.** A model's quantities fixed at a first optimum are set there and the optimum
+       refined from it; then each object's other handedness is tried (:func:`_flips`).
+    5. **Polish.** A model whose objective has kinks (the paper's, ``smooth = False``), or a
+       Newton end point short of the optimum, is finished by L-BFGS-B.
 ``paper``, ``paper-controlled``
     The paper's optimiser (§5.1.1, §6.1, §7.1): L-BFGS-B (``ftol`` 1e-8, finite-difference
     gradient) inside monotonic basin hopping whose steps are uniform random restarts within the
-    paper's bounds (:func:`preset_bounds`); 200 (system study) or 100 (controlled study) restarts,
-    split between the handednesses the closed-form start gives and their opposite, so that the
-    total work is the paper's.
+    paper's bounds (:func:`preset_bounds`); 200 or 100 restarts, split between the handednesses
+    the closed-form start gives and their opposite.
 
 The result carries the arrowhead Hessian at the optimum (:class:`Arrowhead`), which the sampler
 uses for its proposals and its camera–object shear.
@@ -563,13 +556,12 @@ MAX_FLIPS = 4
 
 
 def _flips(model: Model, wc, wo, f: float, temperature: float):
-    """The other handedness of each object, tried at the optimum. (Which corner a worker started
-    from decides it; the closed-form start judges it on the per-corner median alone, which one
-    careless set of lines can mislead.) Every object is placed again with its handedness flipped
-    and fitted with the camera held (objects are independent given the camera); those whose fit
-    comes within :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest
-    first) are flipped one at a time and everything refined from there, each kept when the whole
-    objective improves. Returns (wc, wo, value, iterations)."""
+    """The other handedness of each object, tried at the optimum (the per-corner median that chose
+    it can be misled by one careless set of lines). Every object is placed again with its
+    handedness flipped and fitted with the camera held; those whose fit comes within
+    :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest first) are flipped
+    one at a time and everything refined from there, each kept when the whole objective improves.
+    Returns (wc, wo, value, iterations)."""
     coords = WorkingCoords(model)
     cams, objs = coords.from_work(wc[None], wo[None])
     h0 = model.handedness.copy()

@@ -1,34 +1,21 @@
 """emcee moves: what is particular to a scene's posterior, under one driver (:mod:`.sampler`).
 
 **Block moves**, for a posterior in blocks (the camera, and one block per object). Given the
-camera, a scene's objects are independent (up to the pair terms of workers' distances between
-them), and the sampler's coordinates (:class:`BlockTarget`) make them close to independent of the
-camera too. A sweep updates every object given the camera, then the camera with every object riding
-along:
+camera the objects are independent (up to pair terms), and the sampler's coordinates
+(:class:`BlockTarget`) make them close to independent of the camera too. A sweep updates every
+object given the camera, each accepted on its own terms (all objects and walkers in one vectorised
+evaluation; objects coupled by a pair term are coloured apart and moved in separate passes), then
+the camera, every object riding along its regression on it, accepted by the whole posterior.
+:class:`RandomWalkSweep` proposes random-walk steps (scales adapted towards an acceptance of 0.3
+while the sampler tunes); :class:`IndependenceSweep` draws ``tries`` Student-t proposals per block
+(:data:`IND_DOF`, :data:`IND_SCALE`) and takes one by multiple-try Metropolis
+(:func:`.multiple_try.multiple_try_pick`). No block move uses another walker, and the walker's
+blobs hold each block's log-density (camera, each object, each pair term).
 
-* **Objects.** Each object of each walker proposes a move of its block alone and accepts or rejects
-  it on its own terms (valid because, given the camera, the posterior factorises over objects);
-  all objects and walkers are one vectorised evaluation. Objects coupled by a pair term are never
-  moved in the same pass: they are coloured so that no coupled pair shares a colour, one pass per
-  colour, each accepting on its own terms plus the pair terms it touches.
-* **Camera.** The camera proposes a move; in the sheared coordinates every object moves with it
-  along its regression on the camera, and the whole posterior accepts or rejects.
-
-:class:`RandomWalkSweep` proposes random-walk steps (a block's covariance, scaled; the scales adapt
-towards an acceptance of 0.3 while the sampler tunes). :class:`IndependenceSweep` draws ``tries``
-proposals per block from a Student-t (:data:`IND_DOF` degrees of freedom, :data:`IND_SCALE` × the
-block's covariance) around its centre and takes one by independent multiple-try Metropolis
-(:func:`.multiple_try.multiple_try_pick`). Each walker is an independent chain: no block move uses
-another walker's position. The walker's blobs hold the log-density of each block (camera, each
-object, each pair term), which the moves keep up to date.
-
-**Ensemble moves**, for a posterior taken whole (:mod:`.ensemble`). Walkers ``g·K … (g+1)·K − 1``
-of the sampler form ensemble ``g``. The red-blue moves (:class:`GroupedDEMove`,
-:class:`GroupedStretchMove`) draw a walker's partners only from the other half of its own ensemble,
-and :class:`IndependenceMove` (a mixture of multivariate t, multiple tries) uses no partner at all,
-so the ensembles never exchange information while all walkers share one vectorised
-log-probability call. Acceptance is vectorised too (emcee's red-blue moves accept walker by walker
-in Python).
+**Ensemble moves**, for a posterior taken whole (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1``
+form ensemble ``g``. :class:`GroupedDEMove` and :class:`GroupedStretchMove` draw a walker's partners
+only from the other half of its own ensemble, and :class:`IndependenceMove` uses none, so the
+ensembles never exchange information while sharing one vectorised log-probability call.
 """
 
 from __future__ import annotations

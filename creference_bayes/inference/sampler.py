@@ -1,31 +1,26 @@
 """The posterior of any scene: an emcee run from the MAP, to convergence.
 
-The emcee adapter. :class:`emcee.EnsembleSampler` drives every run; what is particular to the
-scene's posterior is in its moves (:mod:`.moves`): a sweep over the camera block and one block per
-object, by random-walk or by multiple-try independence proposals, chosen by the model's block
-structure (a one-object scene has two blocks, a street frame sixty-one), never by what kind of
-scene it is. Its walkers are independent chains (no move uses another walker's position), so
-R-hat across them is meaningful.
+The emcee adapter (docs/method.md, "Sampling and summaries"). :class:`emcee.EnsembleSampler`
+drives every run; how it moves follows the model's block structure, never the kind of scene: one
+object block is sampled whole by the ensemble moves of :mod:`.ensemble`; several by sweeps over the
+camera block and one block per object (:mod:`.moves`), by random-walk or multiple-try independence
+proposals, whose walkers are independent chains (so R-hat across them is meaningful).
 
-* **Coordinates.** Working coordinates (:mod:`.coords`), then a *shear*: each object's block is
-  measured from its conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), with Bᵢ the
-  regression of object i on the camera (from the Laplace approximation at the MAP,
-  :mod:`.laplace`, then re-estimated from the warm-up draws). In (c, õ) the blocks are close to
-  independent, so updating them in turn mixes as if they were.
+Block sweeps:
+
+* **Coordinates.** Working coordinates (:mod:`.coords`), each object's block measured from its
+  conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the
+  camera (from the Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws).
 * **Start.** Over-dispersed draws (1.2 ×) from the Laplace approximation; walkers that start at
   zero density start at the MAP.
-* **Warm-up.** ``warmup`` steps, the moves tuning their random-walk scales towards an acceptance of
-  0.3; at 40 % and 70 % of it the covariances, the shear and the independence proposals' centres
-  are re-estimated from the second half of the draws since the last re-estimate (blended 80/20
-  with the Laplace approximation, so a short warm-up cannot make them singular). Then everything is
-  frozen: the main phase is an ordinary Markov chain. Warm-up draws are discarded.
-* **Stopping.** The main phase runs in chunks, each long enough for the slowest quantity to reach
-  the target at its current rate, until every free parameter's and every object distance's bulk
-  ESS reaches ``min_ess`` and its rank-normalised split R-hat across the walkers is at most
-  ``max_rhat`` (:mod:`.diagnostics`, the estimators arviz implements, checked against it), or
-  ``max_iterations``; ``converged`` says which. The ranked check sorts every column of every draw,
-  so it runs only when the raw split R-hat is within 3× of the threshold; the rule that decides is
-  always the ranked one.
+* **Warm-up.** ``warmup`` steps, the random-walk scales tuned towards an acceptance of 0.3; at
+  40 % and 70 % of it the covariances, the shear and the independence centres are re-estimated
+  from the second half of the draws since the last re-estimate (blended 80/20 with the Laplace
+  approximation, so that a short warm-up cannot make them singular). Then everything is frozen.
+* **Stopping.** The main phase runs in chunks until every free parameter's and every object
+  distance's bulk ESS reaches ``min_ess`` and its rank-normalised split R-hat is at most
+  ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
+  split R-hat is within 3× of the threshold; the rule that decides is always the ranked one.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
 """

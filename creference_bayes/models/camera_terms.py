@@ -1,33 +1,23 @@
 """What is known about the camera besides the annotations: priors on µ, pitch and roll, and a
-horizon measured with an uncertainty.
-
-The models read these terms as priors and observations of their camera block (cameras (n, 5),
-:mod:`.contract`): priors enter the posterior untempered, the horizon as an observation.
+horizon measured with an uncertainty (docs/method.md, "Priors"). The models read them as priors
+(untempered) and observations of their camera block (cameras (n, 5), :mod:`.contract`).
 
 Focal length
     ``log µ ~ Student-t_ν(log m, s)``: heavy tails, so that a wrong prior (a cropped photo, a
-    mis-read EXIF tag) is overruled by the annotations instead of dragging them. The density is
-    over µ itself (the Jacobian 1/µ is included), since the sampler's coordinates are µ's.
-    Sources, in order of precedence (the pipeline decides): the scene's
-    ``camera.focal_length_prior``; the image's EXIF (35 mm-equivalent focal length, or focal
-    length and focal-plane resolution; log-sd :data:`EXIF_LOG_SD`); otherwise a weakly
-    informative default from the fields of view of real cameras (:func:`default_focal_prior`).
-Pitch, roll and the camera height (only when pitch and roll are free parameters, i.e. no exact horizon)
+    mis-read EXIF tag) is overruled by the annotations. The density is over µ itself (the Jacobian
+    1/µ included). Sources, in order: the scene's ``camera.focal_length_prior``; the image's EXIF
+    (log-sd :data:`EXIF_LOG_SD`); a weakly informative default (:func:`default_focal_prior`).
+Pitch, roll and the camera height (only when pitch and roll are free, i.e. no exact horizon)
     By default pitch ~ N(0°, 15°), roll ~ N(0°, 10°) and log h ~ N(log 1.6 m, 0.6)
-    (:data:`DEFAULT_ORIENTATION_PRIOR`): photos are mostly taken near level, seldom tilted by
-    more than a few degrees, looking down by up to a few tens of degrees, from about eye or car
-    height (0.5–5.3 m within two standard deviations; a balcony or a drone needs the scene's
+    (:data:`DEFAULT_ORIENTATION_PRIOR`; a balcony or a drone needs the scene's
     ``camera.orientation_prior``). Without a horizon the data trade pitch against height and
     depth, and the posterior's tail would run to cameras tens of metres up. The height's prior is
     log-normal on purpose: polynomial tails in log h times the Jacobian 1/h grow without bound as
     h → 0. With an exact horizon the data pin the height and no prior is applied.
 Horizon measurement
-    A horizon line known only up to σ pixels (estimated from the image, or stated with
-    ``horizon_sd_px``): each of its two points lies at a signed distance N(0, σ²) from the horizon
-    that (µ, pitch, roll) predicts. The predicted horizon is the image of the plane at infinity
-    orthogonal to gravity; for R = Rz(roll)·Rx(pitch) (core/geometry.py) a pixel (u, v) lies at
-    signed distance ``−sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)`` from it, positive
-    below (the same convention as :func:`~creference_bayes.core.geometry.horizon_line`).
+    A horizon known up to σ pixels: each of its two points lies at a signed distance N(0, σ²) from
+    the horizon (µ, pitch, roll) predict, ``−sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)``
+    for a pixel (u, v), positive below (:func:`~creference_bayes.core.geometry.horizon_line`).
 """
 
 from __future__ import annotations

@@ -1,17 +1,14 @@
 """Confidence maps: how often a worker's range at a stated confidence c holds the truth, g(c).
 
-A worker who gives a range [lo, hi] with a confidence c claims that the range is a central
-c-interval of their belief about the length. People's stated intervals are over-confident (their
-"90 %" intervals hold the truth far less often than 90 %), by an amount that differs by task and
-person, so the package reads the range at the *calibrated* coverage g(c) instead of c:
+A range [lo, hi] stated with confidence c claims to be a central c-interval of the worker's
+belief. Stated intervals are over-confident, so the package reads the range at the *calibrated*
+coverage g(c) (docs/confidence.md):
 
 - ``identity``: g(c) = c, workers taken at their word;
 - a fitted map (``creference confidence fit``): g at a few stated levels, with an uncertainty per
-  level, monotone (non-decreasing) between them (PCHIP interpolation, which keeps monotone data
-  monotone), constant beyond the outermost levels; optionally one curve per measure and mode
-  (``"length/direct"``, …) with the pooled curve for the others;
-- ``none`` (no map, ``None`` in Python): the confidence is ignored (the crowd-scale treatment of
-  :mod:`.metrology`).
+  level, PCHIP between them (monotone data stay monotone), constant beyond; optionally one curve
+  per measure and mode (``"length/direct"``, …) with the pooled curve for the others;
+- ``none`` (``None`` in Python): the confidence is ignored (the crowd scale of :mod:`.metrology`).
 
 In log-length the range is a central interval of half-width w = (log hi − log lo)/2 around the
 log-centre m = (log hi + log lo)/2; read at coverage p = g(c) through a symmetric distribution D
@@ -19,12 +16,10 @@ with scale s, P(|ε| < w/s) = p gives
 
     s = w / q_D((1 + p)/2),
 
-q_D the quantile of D: the standard normal (``dof`` None, the textbook reading of a stated
-interval, and the identity map's) or a Student-t with ``dof`` degrees of freedom (a fitted map
-chooses it from the data). The metrology model then treats m as a measurement of log ℓ with that
-scale, widened by the line's own noise. g is kept within [:data:`COVERAGE_FLOOR`,
-:data:`COVERAGE_CEIL`] there: a stated 100 % would otherwise be an exact constraint, a stated 0 %
-an infinitely wide one.
+q_D the quantile of D: the standard normal (``dof`` None) or a Student-t with ``dof`` degrees of
+freedom (a fitted map chooses it). The metrology model treats m as a measurement of log ℓ with
+that scale. g is kept within [:data:`COVERAGE_FLOOR`, :data:`COVERAGE_CEIL`]: a stated 100 % would
+otherwise be an exact constraint, a stated 0 % an infinitely wide one.
 
 The file format is ``creference-confidence-map/1`` (JSON; docs/confidence.md).
 

@@ -14,23 +14,14 @@ and one **object** block per target,
 *fixed* (a known focal length, a known size, no crowd scale to estimate, …); pitch and roll may be
 *derived* from an exact horizon and µ (:meth:`Model.complete_camera`).
 
-What a model implements (:class:`Model` does the rest):
-
-* the log-likelihood of each observation: :meth:`Model.object_nll` (each object's own
-  observations given the camera, (n, m)), :meth:`Model.camera_nll` (observations of the camera
-  alone, (n,)), :meth:`Model.pair_nll` (observations that couple two objects, (n, P)) and
-  :meth:`Model.pointwise_log_likelihood` (every observation on its own, for the result's
-  ``log_likelihood``);
-* optionally :meth:`Model.set_pilot` (quantities fixed at a first optimum).
-
-What every model shares, here: the geometry (:meth:`Model.project`), the bounds and the free
-masks, the priors (:meth:`Model.camera_neg_log_prior`, :meth:`Model.object_neg_log_prior`: focal
-length, pitch and roll, camera height, crowd scale, class sizes, ground offsets, the location
-prior), the posterior assembled from them, ``log p = log-likelihood / T + log-prior`` (the
-temperature widens what the annotations say and never the priors), the objective of the MAP and
-starting cameras. Given the camera, objects are independent except
-through the pair terms: the optimiser and the sampler use that structure
-(:mod:`creference_bayes.inference`).
+A model implements the log-likelihood of each observation: :meth:`Model.object_nll` (each
+object's own, given the camera, (n, m)), :meth:`Model.camera_nll` (the camera's alone, (n,)),
+:meth:`Model.pair_nll` (those coupling two objects, (n, P)) and
+:meth:`Model.pointwise_log_likelihood` (each on its own); optionally :meth:`Model.set_pilot`.
+:class:`Model` does the rest: geometry, bounds and free masks, the priors, the posterior
+``log p = log-likelihood / T + log-prior`` (the temperature never widens the priors), the MAP's
+objective and starting cameras. Given the camera, objects are independent except through the
+pair terms, which the optimiser and the sampler exploit (:mod:`creference_bayes.inference`).
 
 Geometry
     The gravity-aligned camera frame has x right, y down, z forward; the reference ground plane is

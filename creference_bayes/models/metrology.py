@@ -1,54 +1,34 @@
-"""The ``metrology`` model: every annotation a measurement (method.md §7), for any number of objects.
-
-It implements the model contract (:mod:`.contract`): the camera block and one block per object,
-the likelihood of each observation given them.
+"""The ``metrology`` model: every annotation a measurement (method.md, "The metrology model"), for
+any number of objects. It implements the model contract (:mod:`.contract`).
 
 Dimension lines
     Every corner of every annotation of an object is a bivariate Student-t (ν = :data:`TARGET_DOF`)
-    around the projected corner, with the object's scale σᵢ: the spread of its own annotations, or
-    the scene's pooled spread when it has a single annotation (:func:`target_sigmas`). All
-    annotations enter jointly (no per-corner median); the heavy tails keep one careless annotation
-    from dragging the fit.
+    around the projected corner, with the object's scale σᵢ (:func:`target_sigmas`). All
+    annotations enter jointly; the heavy tails keep one careless annotation from dragging the fit.
 References (:class:`ReferenceTerm`)
-    Given µ, the camera's pitch and roll and its height h, every annotated ground segment has a
-    definite real length: its endpoints' viewing rays meet the ground at two points, and
-
-        ℓ(µ, pitch, roll, h) = h · ‖ d_p / d_p,y − d_q / d_q,y ‖
-
-    with d = Rᵀ K⁻¹ (u, v, 1) the ray of a pixel (:func:`ground_lengths`). A worker's value or
-    range is a measurement of such a length (``ground``), of a segment's length divided by a
-    target's length or width (``relative``), of a target's own length, width or height (``size``;
-    no line) or of the ground distance between the bottom centres of two targets (``distance``;
-    no line, the one term that couples two objects given the camera). Each is a Student-t
-    (ν = :data:`REF_DOF`, the heavy tails of the paper's crowd: Table 2's median error ≈ 60 %)
-    measurement in log-length, a single value by its density, a range by the probability of the
-    interval (interval-censored), with the crowd's error scale ``ref_scale`` (a camera parameter,
-    log-normal prior of median :data:`~.contract.REF_SCALE_MEDIAN` and log-sd
-    :data:`~.contract.REF_SCALE_LOG_SD`: a scene whose references agree with each other and with the
-    targets puts it low and lets them pin the depth–focal-length ridge; wild guesses put it high
-    and the targets decide).
+    Given µ, pitch, roll and the camera height h, a ground segment has a definite real length,
+    ℓ = h · ‖ d_p / d_p,y − d_q / d_q,y ‖ with d = Rᵀ K⁻¹ (u, v, 1) the ray of a pixel
+    (:func:`ground_lengths`). A worker's value or range measures such a length (``ground``), its
+    ratio to a target's length or width (``relative``), a target's own size (``size``) or the
+    ground distance between two targets (``distance``, the one term coupling two objects). Each is
+    a Student-t (ν = :data:`REF_DOF`) measurement in log-length, a range interval-censored, with
+    the crowd's error scale ``ref_scale`` (a camera parameter, log-normal prior:
+    :data:`~.contract.REF_SCALE_MEDIAN`, :data:`~.contract.REF_SCALE_LOG_SD`).
 Line noise
-    The drawn segment is itself noisy, and a segment close to the horizon turns a few pixels into
-    a large length error, so each reference's scale is widened by its line noise:
-    s_j² = s² + v_j, v_j = σ_line² Σ_i (∂ log ℓ_j / ∂p_i)² over its four endpoint coordinates, with
-    σ_line = :data:`REF_LINE_FACTOR` × the median σᵢ unless given. A segment only a few σ_line long
-    also reads *long*; with ``line_reading="corrected"`` the model reads log ℓ_j − shift_j, the
-    reading inverted for that median bias (:func:`segment_reading`). Both are taken once, at a
-    *pilot* camera (:meth:`MetrologyModel.set_pilot`: the optimiser sets it at its first optimum),
-    and then held fixed: recomputed at every state, each term's normaliser −log s_j would reward
-    states where the lines look insensitive, whatever the workers said.
+    Each reference's scale is widened by its line noise, s_j² = s² + v_j, v_j = σ_line² |∇ log ℓ_j|²
+    over its endpoint coordinates, σ_line = :data:`REF_LINE_FACTOR` × the median σᵢ unless given;
+    with ``line_reading="corrected"`` the reading's median bias is removed too
+    (:func:`segment_reading`). Both are taken once, at a *pilot* camera
+    (:meth:`MetrologyModel.set_pilot`), and held fixed: recomputed at every state, the normaliser
+    −log s_j would reward states where the lines look insensitive.
 Stated confidence
-    With a confidence map g (:mod:`.confidence_map`), a range [lo, hi] stated with a confidence c is
-    read as the worker's central interval at the calibrated coverage g(c): its log-centre is a
-    measurement of the log-length with its own scale s_c = w / q_D((1 + g(c))/2) (w the log
-    half-width), outside the crowd's scale (the worker has said how accurate they are), widened by
-    line noise like the others.
+    With a confidence map g (:mod:`.confidence_map`), a range stated with confidence c is read as
+    the worker's central interval at coverage g(c): its log-centre measures the log-length with
+    its own scale s_c = w / q_D((1 + g(c))/2) (w the log half-width), widened by line noise.
 The horizon
-    With an exact horizon, references with an endpoint on or above it measure nothing and are left
-    out (:attr:`MetrologyModel.reference_status`); when pitch and roll are free, a ray at or above
-    the state's horizon is taken to meet the ground very far away (:data:`MIN_RAY_DOWN`), so such a
-    state explains the worker's value badly but finitely. A measured horizon is the contract's
-    camera observation.
+    With an exact horizon, references with an endpoint on or above it are left out
+    (:attr:`MetrologyModel.reference_status`); with pitch and roll free, a ray at or above the
+    state's horizon meets the ground very far away (:data:`MIN_RAY_DOWN`): bad but finite.
 
 It is a proper likelihood: the posterior's temperature is 1.
 """
@@ -455,10 +435,6 @@ class MetrologyModel(Model):
         per = 0.5 * (nu + 2.0) * (c[..., 0] + c[..., 1] + c[..., 2] + c[..., 3]) + 4.0 * np.log(self.sigma**2)[None, :, None]
         return per * self.ann_mask[None], depth
 
-    def annotation_nll(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
-        """The dimension lines' negative log-likelihood per annotation, (n, m, K)."""
-        return self._annotation_terms(cams, objs)[0]
-
     def object_nll(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         per, depth = self._annotation_terms(cams, objs)
         out = per.sum(axis=-1) + self.behind(depth)
@@ -495,5 +471,5 @@ class MetrologyModel(Model):
         cams = self.complete_camera(cams)
         refs = (-self.reference_nll_matrix(cams, objs) if len(self.references)
                 else np.zeros((len(cams), 0)))
-        return {"annotations": -self.annotation_nll(cams, objs), "references": refs,
+        return {"annotations": -self._annotation_terms(cams, objs)[0], "references": refs,
                 "horizon": -self.horizon_nll(cams)}
