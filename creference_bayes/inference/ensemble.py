@@ -323,14 +323,12 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     progress : show a progress bar (tqdm) on standard error
     modes : further modes of the posterior besides ``center`` (:func:`.modes.find_modes`), a
         sequence of (centre (ndim,), covariance (ndim, ndim)). Ensemble g then starts in mode
-        g mod (1 + len(modes)), ``center`` being mode 0 (an over-dispersed start: R-hat across
-        the ensembles then tells whether they found the same posterior), the independence
-        proposal is a mixture with a component per mode, and the sampler coordinates are
-        affine (no shear: one polynomial cannot straighten two modes)
-    derived : callable (n, ndim) → (n, k), quantities of the parameters that the result will
-        report (the target's distance), or None. The stopping rule then wants the chain
-        ``tau_multiple`` autocorrelation times of these too, not only of the parameters (a
-        derived quantity can mix more slowly than any parameter); their τ goes to
+        g mod (1 + len(modes)), ``center`` being mode 0 (so R-hat across the ensembles tells
+        whether they found the same posterior), the independence proposal has a component per
+        mode, and the coordinates are affine (one polynomial cannot straighten two modes)
+    derived : callable (n, ndim) → (n, k), quantities the result will report (the target's
+        distance), or None; the stopping rule wants ``tau_multiple`` autocorrelation times of
+        these too (they can mix more slowly than any parameter); their τ goes to
         ``Chains.info["derived_tau"]``
 
     Returns

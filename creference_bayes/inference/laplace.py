@@ -1,16 +1,13 @@
 """The Laplace approximation of a scene's posterior at its MAP, in working coordinates.
 
-The posterior is close to a Gaussian in the working coordinates of
-:mod:`.coords` (each object anchored to the image), so a Gaussian fitted at the MAP there
-(the negative log-posterior's arrowhead Hessian, :func:`.map.derivatives`, including the
-Jacobian of the change of coordinates as the sampler's density does) gives cheap, curved draws in
-natural coordinates and the delta-method variance of any per-object quantity. ``creference plot``
-uses its draws when a result has none; ``creference advise`` uses its variances, and
-how much one more observation changes them.
+The posterior is close to a Gaussian in the working coordinates of :mod:`.coords`, so a Gaussian
+fitted at the MAP there (the arrowhead Hessian, :func:`.map.derivatives`, with the Jacobian of the
+coordinates as the sampler's density has it) gives cheap, curved draws in natural coordinates and
+the delta-method variance of any per-object quantity (``creference plot`` and ``advise`` use them).
 
-By blocks: the camera's marginal covariance
-``Sc`` (5, 5), each object's covariance given the camera ``Ao`` (m, 7, 7) and the shear ``B``
-(m, 7, 5), E[oᵢ | c] = oᵢ* + Bᵢ (c − c*). Fixed parameters have zero variance.
+By blocks: the camera's marginal covariance ``Sc`` (5, 5), each object's covariance given the
+camera ``Ao`` (m, 7, 7) and the shear ``B`` (m, 7, 5), E[oᵢ | c] = oᵢ* + Bᵢ (c − c*). Fixed
+parameters have zero variance.
 """
 
 from __future__ import annotations

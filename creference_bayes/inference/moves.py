@@ -83,8 +83,7 @@ class BlockTarget:
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
-        wc, wt = self.split(u)
-        return self.coords.from_work(wc, self.unshear(wc, wt))
+        return self.coords.from_work(*self.working(u))
 
     def working(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Working coordinates (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
@@ -94,20 +93,16 @@ class BlockTarget:
     # -- the blocks' log-densities -----------------------------------------------------------------
     def camera(self, wc: np.ndarray) -> np.ndarray:
         """(n,) log-density of the camera block alone (its terms and the Jacobian of its logs)."""
-        m = self.model
         cams = self.coords.camera_from_work(wc)
         with np.errstate(all="ignore"):
-            lp = -m.camera_term(cams, self.T) + np.sum(wc[:, CAMERA_LOG & m.camera_free], axis=1)
-        ok = np.all((cams >= m.camera_lower) & (cams <= m.camera_upper), axis=1) & np.isfinite(lp)
-        return np.where(ok, lp, -np.inf)
+            return self._camera_lp(cams, wc, self.model.camera_term(cams, self.T))
 
     def objects(self, wc: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n, m) log-density of each object's block and (n, P) of each pair term."""
         m = self.model
         cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
         with np.errstate(all="ignore"):
-            lp = -m.object_terms(cams, objs, self.T) + jac
-            lp = np.where(self._inside(objs, wt) & np.isfinite(lp), lp, -np.inf)
+            lp = self._objects_lp(objs, wt, m.object_terms(cams, objs, self.T), jac)
             if not self.P:
                 return lp, np.zeros((len(cams), 0))
             pp = -m.pair_terms(cams, objs, self.T)
@@ -121,12 +116,20 @@ class BlockTarget:
         cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
         with np.errstate(all="ignore"):
             c, o, p = m.terms(cams, objs, self.T)
-            lp_c = -c + np.sum(wc[:, CAMERA_LOG & m.camera_free], axis=1)
-            lp_c = np.where(np.all((cams >= m.camera_lower) & (cams <= m.camera_upper), axis=1) & np.isfinite(lp_c),
-                            lp_c, -np.inf)
-            lp_o = np.where(self._inside(objs, wt) & np.isfinite(-o + jac), -o + jac, -np.inf)
             lp_p = np.where(np.isfinite(p), -p, -np.inf)
-        return np.column_stack([lp_c, lp_o, lp_p])
+            return np.column_stack([self._camera_lp(cams, wc, c), self._objects_lp(objs, wt, o, jac), lp_p])
+
+    def _camera_lp(self, cams: np.ndarray, wc: np.ndarray, term: np.ndarray) -> np.ndarray:
+        """(n,) the camera block's log-density from its term (−∞ outside the bounds)."""
+        m = self.model
+        lp = -term + np.sum(wc[:, CAMERA_LOG & m.camera_free], axis=1)
+        ok = np.all((cams >= m.camera_lower) & (cams <= m.camera_upper), axis=1) & np.isfinite(lp)
+        return np.where(ok, lp, -np.inf)
+
+    def _objects_lp(self, objs: np.ndarray, wt: np.ndarray, terms: np.ndarray, jac: np.ndarray) -> np.ndarray:
+        """(n, m) each object block's log-density from its terms and Jacobian (−∞ outside)."""
+        lp = -terms + jac
+        return np.where(self._inside(objs, wt) & np.isfinite(lp), lp, -np.inf)
 
     def _inside(self, objs: np.ndarray, wt: np.ndarray) -> np.ndarray:
         """(n, m) whether each object lies inside the bounds (and its turn inside the yaw window)."""
@@ -389,10 +392,8 @@ class IndependenceMove(emcee.moves.MHMove):
     df : ν
     weights : (k,) mixture weights (default: one component)
     tries : proposals per walker and step. With more than one, the step is independent
-        multiple-try Metropolis (:func:`.multiple_try.multiple_try_pick`): one is picked in
-        proportion to p/q and accepted with the multiple-try ratio, which keeps the posterior
-        invariant and is accepted far more often where the proposal fits the posterior loosely
-        (a far, thin target's skewed, heavy-tailed ridge). All tries of all walkers go to the
+        multiple-try Metropolis (:func:`.multiple_try.multiple_try_pick`), accepted far more
+        often where the proposal fits the posterior loosely; all tries of all walkers go to the
         log-probability in one call. ``tries=1`` is the ordinary independence step.
     """
 

@@ -52,20 +52,11 @@ def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = 
                  unit: str = "it", initial: int = 0, leave: bool = False, postfix: dict | None = None):
     """A tqdm bar on standard error that disappears when done, or a disabled (silent) one.
 
-    Parameters
-    ----------
-    enabled : show the bar
-    total : expected number of updates (None: unknown)
-    desc : the label before the bar
-    unit : what one update counts
-    initial : updates already done
-    leave : keep the finished bar on the screen
-    postfix : values shown after the bar (``set_postfix`` changes them)
-
-    Returns
-    -------
-    ``tqdm.std.tqdm`` (or, when not ``enabled``, a :class:`SilentBar`), usable as a context
-    manager; ``update(n)`` advances it.
+    ``enabled``: show the bar; ``total``: expected number of updates (None: unknown); ``desc``: the
+    label before the bar; ``unit``: what one update counts; ``initial``: updates already done;
+    ``leave``: keep the finished bar on the screen; ``postfix``: values shown after the bar
+    (``set_postfix`` changes them). Returns a ``tqdm.std.tqdm`` (or, when not ``enabled``, a
+    :class:`SilentBar`), usable as a context manager; ``update(n)`` advances it.
     """
     if not enabled:
         return SilentBar(total, initial)

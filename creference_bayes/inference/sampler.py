@@ -28,7 +28,7 @@ Everything random comes from ``rng``: the same seed gives the same draws.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import emcee
 import numpy as np
@@ -39,7 +39,6 @@ from .laplace import laplace_blocks
 from .map import MapState, derivatives
 from .coords import HorizonDistance, WorkingCoords
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
-from .options import settings_from_options
 
 __all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample"]
 
@@ -103,6 +102,7 @@ class SamplerSettings:
 
     def __post_init__(self):
         whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+        positive = lambda *keys: [(k, getattr(self, k) > 0, "a number > 0") for k in keys]
         checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
                   ("chunk", whole(self.chunk) and self.chunk >= 10, "an integer ≥ 10"),
                   ("max_steps", whole(self.max_steps) and self.max_steps >= self.chunk, "an integer ≥ chunk"),
@@ -117,14 +117,11 @@ class SamplerSettings:
                    "an even integer ≥ 8"),
                   ("stage", whole(self.stage) and self.stage >= 10, "an integer ≥ 10"),
                   ("max_warmup", whole(self.max_warmup) and self.max_warmup >= self.stage, "an integer ≥ stage"),
-                  ("tau_multiple", self.tau_multiple > 0, "a number > 0"),
-                  ("tau_tolerance", self.tau_tolerance > 0, "a number > 0"),
-                  ("retune_tau", self.retune_tau > 0, "a number > 0"),
+                  *positive("tau_multiple", "tau_tolerance", "retune_tau"),
                   ("max_retunes", whole(self.max_retunes) and self.max_retunes >= 0, "an integer ≥ 0"),
                   ("adapt", isinstance(self.adapt, bool), "true or false"),
                   ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
-                  ("proposal_df", self.proposal_df > 0, "a number > 0"),
-                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
+                  *positive("proposal_df", "proposal_scale"),
                   ("proposal_components", whole(self.proposal_components) and self.proposal_components >= 1,
                    "an integer ≥ 1"),
                   ("mode_search", isinstance(self.mode_search, bool), "true or false"),
@@ -136,7 +133,14 @@ class SamplerSettings:
 
     @classmethod
     def from_options(cls, options: dict | None) -> "SamplerSettings":
-        return settings_from_options(cls, options)
+        """``cls(**options)``; unknown keys are rejected with a :class:`ValueError` naming them
+        (and the fields' own checks name a bad value)."""
+        options = dict(options or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
+        return cls(**options)
 
 
 @dataclass(frozen=True)
