@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.inference.autocorr import integrated_time
+from creference_bayes.inference.ensemble import integrated_time
 from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
 from creference_bayes.inference.ensemble import SamplingError, sample
 from creference_bayes.inference.sampler import SamplerSettings
@@ -382,7 +382,7 @@ def test_a_multiple_try_step_keeps_its_target_distribution(tries):
     """Chains started from exact draws of a skewed target and moved by independent multiple-try
     steps from a poorly matched proposal must still hold that target (invariance), and more tries
     must accept more often."""
-    from creference_bayes.inference.multiple_try import multiple_try_pick
+    from creference_bayes.inference.moves import multiple_try_pick
 
     rng = np.random.default_rng(3)
     target, proposal = stats.gamma(3.0), stats.norm(4.0, 2.5)  # proposal off-centre, too wide

@@ -9,7 +9,7 @@ the camera, every object riding along its regression on it, accepted by the whol
 :class:`RandomWalkSweep` proposes random-walk steps (scales adapted towards an acceptance of 0.3
 while the sampler tunes); :class:`IndependenceSweep` draws ``tries`` Student-t proposals per block
 (:data:`IND_DOF`, :data:`IND_SCALE`) and takes one by multiple-try Metropolis
-(:func:`.multiple_try.multiple_try_pick`). No block move uses another walker, and the walker's
+(:func:`multiple_try_pick`). No block move uses another walker, and the walker's
 blobs hold each block's log-density (camera, each object, each pair term).
 
 **Ensemble moves**, for a posterior taken whole (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1``
@@ -25,15 +25,42 @@ import numpy as np
 
 from ..models.contract import O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
-from .multiple_try import multiple_try_pick
 
-__all__ = ["IND_DOF", "IND_SCALE", "BlockTarget", "BlockKernel", "RandomWalkSweep", "IndependenceSweep", "colours",
-           "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
+__all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "RandomWalkSweep",
+           "IndependenceSweep", "colours", "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
 
 #: Degrees of freedom and scale of the independence proposals (a Student-t a little wider than the
 #: posterior's Gaussian approximation, so that its tails cover the posterior's).
 IND_DOF = 5.0
 IND_SCALE = 1.3
+
+
+def multiple_try_pick(log_w_tries: np.ndarray, log_w_current: np.ndarray,
+                      rng) -> tuple[np.ndarray, np.ndarray]:
+    """One independent multiple-try Metropolis step (I-MTM; Martino 2018, "A review of multiple
+    try MCMC algorithms for signal processing", Digital Signal Processing 75, section 4.1).
+
+    Given k tries y₁…y_k drawn independently from a proposal q and the current state x, with
+    importance weights w = π / q (``log_w_tries`` (…, k), ``log_w_current`` (…)), pick try j with
+    probability w(y_j) / Σ w and accept it with probability
+    min(1, Σⱼ w(yⱼ) / (Σⱼ w(yⱼ) − w(y_picked) + w(x))). The chain keeps π invariant; with k = 1
+    this is the ordinary independence Metropolis–Hastings step. Tries of zero density (−inf or
+    NaN) have zero weight. Returns (picked index (…), accepted (…) bool).
+    """
+    log_w_tries = np.asarray(log_w_tries, float)
+    log_w_tries = np.where(np.isnan(log_w_tries), -np.inf, log_w_tries)
+    top = np.max(log_w_tries, axis=-1)
+    top = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(invalid="ignore", under="ignore", over="ignore"):
+        w = np.exp(log_w_tries - top[..., None])
+        w_cur = np.exp(np.asarray(log_w_current, float) - top)
+    total = w.sum(axis=-1)
+    u = rng.uniform(size=total.shape) * total
+    j = np.minimum(np.sum(np.cumsum(w, axis=-1) <= u[..., None], axis=-1), w.shape[-1] - 1)
+    picked = np.take_along_axis(w, j[..., None], axis=-1)[..., 0]
+    with np.errstate(invalid="ignore", over="ignore"):
+        ok = (total > 0) & (rng.uniform(size=total.shape) * (total - picked + w_cur) < total)
+    return j, ok
 
 
 class BlockTarget:
@@ -392,7 +419,7 @@ class IndependenceMove(emcee.moves.MHMove):
     df : ν
     weights : (k,) mixture weights (default: one component)
     tries : proposals per walker and step. With more than one, the step is independent
-        multiple-try Metropolis (:func:`.multiple_try.multiple_try_pick`), accepted far more
+        multiple-try Metropolis (:func:`multiple_try_pick`), accepted far more
         often where the proposal fits the posterior loosely; all tries of all walkers go to the
         log-probability in one call. ``tries=1`` is the ordinary independence step.
     """
