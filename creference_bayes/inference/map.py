@@ -654,14 +654,11 @@ def _default(model: Model, temperature: float, n_refine: int):
     for k, c in enumerate(candidates if model.n_objects == 1 else ()):  # several: flips decide (_flips)
         firsts.setdefault(tuple(c[4]), k)
     chosen = sorted(set(range(min(n_refine, len(candidates)))) | set(firsts.values()))
-    best = None
-    iters = refined = 0
+    iters = 0
     reached = []
     sigma = np.array(model.sigma, float)
     for k in chosen:
         value, err, cam, objs, hand = candidates[k]
-        if refined >= n_refine + len(firsts) and best is not None and np.isfinite(best[0]):
-            break
         model.handedness = hand.astype(float)
         wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
         if np.any(sigma < _SMOOTH_SIGMA_PX) or not model.smooth:  # continuation: a smoother cost
@@ -673,11 +670,8 @@ def _default(model: Model, temperature: float, n_refine: int):
             model.sigma, model.softness_px = sigma, 0.0
         wc, wo, f, it = _newton(model, wc, wo, temperature)
         iters += it
-        refined += 1
         reached.append((f, wc, wo, hand))
-        if best is None or f < best[0]:
-            best = (f, wc, wo, hand)
-    f, wc, wo, hand = best
+    f, wc, wo, hand = min(reached, key=lambda r: r[0])  # the first of the best
     if not np.isfinite(f):
         raise RuntimeError(f"no start of the optimiser reached a finite posterior density "
                            f"({len(candidates)} starts tried)")
