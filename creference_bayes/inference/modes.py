@@ -66,7 +66,7 @@ class Mode:
     share: float
 
 
-def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=None,
+def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
                temperature: float = 3.0, n_steps: int = 150, n_walkers: int = 32,
                n_climbs: int = 8, extra_starts=None) -> list[Mode]:
     """The posterior's modes, the one at ``center`` first (module docstring).
@@ -77,7 +77,6 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
     center, cov : (d,), (d, d) the MAP and its Laplace covariance
     laplace : callable, (d,) point → (d, d) Laplace covariance there
     rng : numpy Generator
-    log_mask : (d,) bool, positive parameters explored as logarithms
     circular : index of a circular coordinate (radians), or None
     temperature, n_steps, n_walkers : the tempered exploration (:func:`.ensemble.explore`)
     n_climbs : local maximisations from the explored points
@@ -92,8 +91,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, log_mask=None, circular=N
 
     center = np.asarray(center, float)
     d = len(center)
-    log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool)
-    coords = Coordinates.affine(center, cov, log_mask)
+    coords = Coordinates.affine(center, cov)
     u, lp_u = explore(log_prob, coords, rng, temperature=temperature, n_steps=n_steps,
                       n_walkers=n_walkers)
     starts = list(_spread(u, lp_u, n_climbs))

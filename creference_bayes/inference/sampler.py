@@ -329,7 +329,7 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
                       for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
             others = [in_q(u_, cov)[0] for u_ in others if np.abs(u_[circular] - center[circular]) < np.pi] \
                 if circular is not None else [in_q(u_, cov)[0] for u_ in others]
-            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, log_mask=np.zeros(len(center), bool),
+            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side,
                                circular=circular, temperature=s.explore_temperature, n_steps=s.explore_steps,
                                extra_starts=np.array(others) if others else None)
         better = None
