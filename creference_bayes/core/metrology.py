@@ -96,7 +96,7 @@ class GroundFrame:
 
     @classmethod
     def from_camera(cls, camera) -> "GroundFrame":
-        """The frame of a :class:`~creference_bayes.geometry.Camera` (level when it has no horizon)."""
+        """The frame of a :class:`~creference_bayes.core.geometry.Camera` (level when it has no horizon)."""
         pp = np.asarray(camera.principal_point, float)
         line = np.array([0.0, 1.0, -pp[1]]) if camera.horizon is None else np.asarray(camera.horizon, float)
         return cls(line, pp)

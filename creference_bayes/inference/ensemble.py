@@ -160,18 +160,12 @@ class Chains:
         return k.reshape(k.shape[0], k.shape[1] * k.shape[2], *k.shape[3:])
 
 
-# ------------------------------------------------------------------------------------------------
-# the driver
-
-
 class _SafeLogProb:
     """Wraps a vectorised log-probability: NaN and ±∞ become −∞, and are counted."""
 
     def __init__(self, log_prob):
         self.log_prob = log_prob
-        self.nonfinite = 0
-        self.calls = 0
-        self.evaluations = 0
+        self.nonfinite = self.calls = self.evaluations = 0
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.atleast_2d(p)
