@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, usage_errors
 
 __all__ = ["register", "find_scene", "check_result"]
 
@@ -52,10 +52,8 @@ def find_scene(result: dict, result_path: Path, explicit: str | None):
     its failures as one-line usage errors."""
     from ..io.result import find_scene as _find
 
-    try:
+    with usage_errors():
         scene = _find(result, result_path, explicit)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     if result.get("format") == "creference-result/1" and "batch" not in result:
         print("warning: a creference-result/1 (written by an older version): only its target id and image size "
               "were checked against the scene", file=sys.stderr)
@@ -99,10 +97,8 @@ def _run(args) -> int:
     from ..vision import plotting
 
     path = Path(args.result)
-    try:
+    with usage_errors():  # wrong format key, or not JSON
         d = load_result(path)
-    except ValueError as exc:  # wrong format key, or not JSON
-        raise UsageError(str(exc)) from None
     scene = find_scene(d, path, args.scene)
     chains = None
     if d["format"] == "creference-result/1":

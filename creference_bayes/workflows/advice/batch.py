@@ -122,15 +122,12 @@ class BatchAdvice:
         time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
         request that does not fit is passed over for cheaper ones after it).
 
-        With the labels objective every observation of every frame may be asked, and each is
-        valued by the good labels it adds to the requests already in the plan: a target below the
-        bar that requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance
-        1 − Π(1 − pᵢ) (a label becomes good once, however many requests would each do it). Summing
-        each request's gain alone counted one car many times: on the odd KITTI development frames a
-        frame of 13 cars was stated 8.0 labels for its plan's 14 requests, 4.1 combined, 2
-        realised (docs/advice.md). The plan's values only fall as it grows, so each is recomputed
-        when it comes up (lazy greedy). With the hdi objective the plan takes each target's request
-        (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
+        With the labels objective every observation of every frame may be asked, each valued by
+        the good labels it adds to the requests already planned: a target below the bar that
+        requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance 1 − Π(1 − pᵢ) (a
+        label becomes good once; docs/advice.md). Values only fall as the plan grows, so each is
+        recomputed when it comes up (lazy greedy). With the hdi objective the plan takes each
+        target's request (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
 
         The mounting is asked once per camera, its chances (or HDI points) over every frame of
         that camera (a frame that names no camera is a camera of its own)."""

@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 __all__ = ["RIG_CHOICES", "QUANTITIES", "SharedLikelihood", "RigEstimate", "RigPool", "camera_id_of",
-           "shared_likelihood", "pool_rig", "rig_priors", "apply_rig", "rig_report"]
+           "shared_likelihood", "rig_priors", "apply_rig", "rig_report"]
 
 #: ``--rig`` values: what frames of one camera share
 RIG_CHOICES = ("none", "focal", "mounting")
@@ -199,14 +199,6 @@ class RigPool:
         if not center:
             return None
         return RigEstimate(camera_id, center, var, tau, count, tuple(x for x in keys if x != leave_out))
-
-
-def pool_rig(frames: list[SharedLikelihood], rig: str, *, leave_out: str | None = None) -> dict[str, RigEstimate]:
-    """Each camera's pooled quantities (``rig`` one of :data:`RIG_CHOICES`), from the frames that
-    name a camera, without the frame ``leave_out`` (:meth:`RigPool.estimate`)."""
-    pool = RigPool(frames, rig)
-    found = {cam: pool.estimate(cam, leave_out) for cam in pool.cameras}
-    return {cam: est for cam, est in found.items() if est is not None}
 
 
 def rig_priors(est: RigEstimate, base_orientation=None):
