@@ -1,14 +1,7 @@
-"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate of any scene.
-
-Reads a ``creference-result/2`` file (or a ``creference-result/1`` of one target, converted with its
-scene), finds its scene, rebuilds its model and writes ``boxes``, ``top_view``, ``zooms`` (when more
-objects need a zoom panel than fit beside the top view), ``pairs`` (the camera and ``--object``, by
-default the first) and ``ranks`` (posterior draws only) (:func:`~creference_bayes.vision.plotting.scene_figures`).
-The draws are those the result keeps, else the Laplace approximation at its MAP.
-
-The scene is ``--scene``, else the one the result names (a batch folder's copy, beside the result, in
-the current folder, among the shipped scenes). It must be the scene the result was estimated from:
-the same target ids, image size and content hash (``scene_id``), else a one-line error (exit 2).
+"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate of any scene
+(:func:`~creference_bayes.vision.plotting.scene_figures`), from the draws the result keeps, else the
+Laplace approximation at its MAP. The scene must be the one the result was estimated from (the same
+target ids, image size and content hash), else a one-line error (exit 2).
 """
 
 from __future__ import annotations

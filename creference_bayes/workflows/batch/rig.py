@@ -50,10 +50,8 @@ _CAMERA_COLUMNS = {"log_focal": "focal_length_px", "pitch": "pitch", "roll": "ro
 #: a frame whose likelihood precision is below this share of its posterior precision tells nothing
 MIN_INFORMATION = 0.1
 #: the least spread of the mounting from frame to frame (log h; pitch and roll in radians): a camera
-#: on a moving vehicle is not still (braking and the road's changing slope pitch it by tenths of a
-#: degree, the suspension and the road's camber move it by centimetres), and with a few dozen frames
-#: the moment estimator of the spread is often exactly 0, which would make every frame's prior as
-#: narrow as the pooled mean's uncertainty
+#: on a moving vehicle is never still, and with a few dozen frames the moment estimator is often
+#: exactly 0, which would make every frame's prior as narrow as the pooled mean's uncertainty
 MIN_SPREAD = {"log_height": 0.03, "pitch": math.radians(0.5), "roll": math.radians(0.5)}
 
 
