@@ -110,10 +110,6 @@ class BatchAdvice:
     objects: tuple[ObjectAdvice, ...]
     skipped: tuple[dict, ...] = ()
 
-    @property
-    def requests(self) -> tuple[ObjectAdvice, ...]:
-        return tuple(o for o in self.objects if o.request is not None)
-
     def plan(self, budget_s: float | None = None) -> list[Request]:
         """The requests to send, greedy by value per human second, while that value is worth its
         time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
