@@ -29,10 +29,9 @@ __version__ = "0.2.0"
 
 import os as _os
 
-# Every array this package factors is tiny (4x4 solves, 8x4 batches, 5x5 Hessians); a threaded
-# BLAS only adds overhead there (measured: 0.93 s vs 0.13 s per MAP on 2 cores). Applies only when
-# numpy is not imported yet and the user has not chosen a thread count; estimate() also limits an
-# already-loaded BLAS to one thread while it runs (inference/threads.py), unless the user chose.
+# Every array this package factors is tiny (4x4 solves, 5x5 Hessians): a threaded BLAS only adds
+# overhead. Applies when numpy is not imported yet and the user has not chosen a thread count;
+# estimate() also limits an already-loaded BLAS to one thread while it runs (inference/threads.py).
 _THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _USER_SET_THREADS = any(_var in _os.environ for _var in _THREAD_VARS)
 for _var in _THREAD_VARS:
@@ -47,18 +46,6 @@ from .pipeline import estimate
 
 _threads.USER_SET_THREADS = _USER_SET_THREADS
 
-__all__ = [
-    "__version__",
-    "estimate",
-    "load_scene",
-    "parse_scene",
-    "load_result",
-    "Scene",
-    "SceneError",
-    "SceneWarning",
-    "Result",
-    "percentage_error",
-    "range_percentage_error",
-    "location_percentage_error",
-    "range_precision",
-]
+__all__ = ["__version__", "estimate", "load_scene", "parse_scene", "load_result", "Scene", "SceneError",
+           "SceneWarning", "Result", "percentage_error", "range_percentage_error",
+           "location_percentage_error", "range_precision"]

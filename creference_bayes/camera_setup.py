@@ -4,21 +4,19 @@ estimate and passed to every model.
 The decision, in :func:`setup_camera`:
 
 - **Orientation** (``orientation="auto"``): a horizon given without an uncertainty fixes pitch and
-  roll for every µ (the package's behaviour before pitch and roll were parameters); a horizon with
-  ``horizon_sd_px`` > 0 is a *measurement*: pitch and roll become parameters with the orientation
-  prior, and the horizon a likelihood term; no horizon but an image: the horizon estimated from
-  the image is such a measurement, with the estimator's own uncertainty (``HorizonEstimate.sd_px``);
-  no horizon at all: pitch and roll are parameters with their prior alone, identified by the
-  target's dimension lines and the references. ``orientation="level"`` assumes a level camera
-  when there is no horizon (the old behaviour, kept for comparison); ``"free"`` makes pitch and
-  roll parameters even with an exact horizon (which then enters with :data:`GIVEN_HORIZON_SD_PX`).
+  roll for every µ; a horizon with ``horizon_sd_px`` > 0 is a *measurement*: pitch and roll become
+  parameters with the orientation prior, and the horizon a likelihood term; no horizon but an
+  image: the horizon estimated from the image is such a measurement, with the estimator's own
+  uncertainty (``HorizonEstimate.sd_px``); no horizon at all: pitch and roll are parameters with
+  their prior alone, identified by the dimension lines and the references. ``"level"`` assumes a
+  level camera when there is no horizon (kept for comparison); ``"free"`` makes pitch and roll
+  parameters even with an exact horizon (which then enters with :data:`GIVEN_HORIZON_SD_PX`).
 - **Focal-length prior** (``focal_prior="auto"``, only when µ is not known): the scene's
   ``camera.focal_length_prior``, else the image's EXIF, else the weak default
   (:func:`~creference_bayes.models.camera_terms.default_focal_prior`); ``"default"`` skips the
   first two, ``"none"`` keeps the flat prior within the bounds.
 - **Location prior** (``location_prior``): ``"log-depth"`` (uniform in log depth, the MAP in log
-  coordinates: :mod:`~creference_bayes.models.location_prior`) or ``"flat"`` (the paper presets'
-  and earlier versions').
+  coordinates: :mod:`~creference_bayes.models.location_prior`) or ``"flat"`` (the paper presets').
 """
 
 from __future__ import annotations

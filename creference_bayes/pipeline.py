@@ -226,12 +226,14 @@ def _bounds_dict(b) -> dict:
 
 
 def _bounds_from(d):
+    """The bounds a result records, its unbounded ends (written as null) infinite."""
     from .models.contract import Bounds
 
     if not d:
         return None
-    return Bounds(*(np.array([np.inf if v is None else v for v in d[k]], float) * 1.0
-                    for k in ("camera_lower", "camera_upper", "object_lower", "object_upper")))
+    keys = ("camera_lower", "camera_upper", "object_lower", "object_upper")
+    return Bounds(*(np.array([(-np.inf if k == "object_lower" else np.inf) if v is None else v for v in d[k]],
+                             float) for k in keys))
 
 
 def rebuild_model(result, scene: Scene | str | Path):
@@ -247,16 +249,12 @@ def rebuild_model(result, scene: Scene | str | Path):
     cmap = prov.get("confidence_map") or {"name": "none"}
     confidence_map = ConfidenceMap.from_dict(cmap["map"]) if cmap["name"] == "file" else \
         ConfidenceMap.identity(cmap.get("dof")) if cmap["name"] == "identity" else "none"
-    bounds = _bounds_from(prov.get("bounds"))
-    if bounds is not None:  # unbounded ends were written as null
-        bounds = type(bounds)(bounds.camera_lower, bounds.camera_upper,
-                              np.where(np.isinf(bounds.object_lower), -np.inf, bounds.object_lower), bounds.object_upper)
     model, _ = build_model(scene, model=prov.get("model", DEFAULT_MODEL), preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
                            location_prior=prov.get("location_prior", "flat"), classes=classes,
-                           use_references=prov["use_references"], confidence_map=confidence_map, bounds=bounds,
-                           **prov["options"])
+                           use_references=prov["use_references"], confidence_map=confidence_map,
+                           bounds=_bounds_from(prov.get("bounds")), **prov["options"])
     model.handedness = np.array([o["handedness"] for o in d["objects"]], float)
     if d.get("pilot_camera") is not None:
         model.set_pilot(np.array(d["pilot_camera"], float))

@@ -12,7 +12,7 @@ from creference_bayes.io.result import CAMERA_NAMES, OBJECT_NAMES
 from creference_bayes.io.scene import SceneError, parse_scene
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import LocalEngine
-from creference_bayes.workflows.batch.rig import SharedLikelihood, apply_rig, shared_likelihood, pool_rig
+from creference_bayes.workflows.batch.rig import RigPool, SharedLikelihood, apply_rig, shared_likelihood
 
 
 def _frames(values, precisions, camera="cam", name="log_focal"):
@@ -24,13 +24,13 @@ def test_a_shared_focal_length_is_recovered_and_its_spread_is_honest():
     rng = np.random.default_rng(3)
     truth = math.log(800.0)
     p = rng.uniform(5.0, 100.0, 40)  # log-sd 0.1 to 0.45 per frame
-    est = pool_rig(_frames(truth + rng.normal(0, 1 / np.sqrt(p)), p), "focal")["cam"]
+    est = RigPool(_frames(truth + rng.normal(0, 1 / np.sqrt(p)), p), "focal").estimate("cam")
     assert abs(est.center["log_focal"] - truth) < 4 * math.sqrt(est.var["log_focal"])
     assert est.var["log_focal"] <= 2.0 / p.sum()  # frames that agree: about the precisions' sum
     # frames that disagree beyond their stated precision (a likelihood the normal describes badly):
     # the rig widens instead of becoming over-sure
     m = truth + rng.normal(0, 1 / np.sqrt(p)) + rng.normal(0, 0.3, len(p))
-    wide = pool_rig(_frames(m, p), "focal")["cam"]
+    wide = RigPool(_frames(m, p), "focal").estimate("cam")
     assert wide.var["log_focal"] > 3.0 / p.sum()
     assert abs(wide.center["log_focal"] - truth) < 4 * math.sqrt(wide.var["log_focal"])
 
@@ -39,12 +39,15 @@ def test_the_mountings_spread_between_frames_is_estimated():
     rng = np.random.default_rng(5)
     per_frame = math.log(1.65) + rng.normal(0, 0.05, 300)  # a vehicle's camera height, 5 % frame to frame
     p = np.full(300, 1 / 0.03**2)
-    est = pool_rig(_frames(per_frame + rng.normal(0, 0.03, 300), p, name="log_height"), "mounting")["cam"]
+    frames = _frames(per_frame + rng.normal(0, 0.03, 300), p, name="log_height")
+    est = RigPool(frames, "mounting").estimate("cam")
     assert 0.035 < est.tau["log_height"] < 0.065
     assert abs(math.exp(est.center["log_height"]) - 1.65) < 0.03
-    assert pool_rig(_frames(per_frame, p, name="log_height"), "focal") == {}  # focal pools no mounting
+    # focal pools no mounting
+    assert RigPool(_frames(per_frame, p, name="log_height"), "focal").estimate("cam") is None
     # frames that agree exactly still leave the vehicle its least spread (rig.MIN_SPREAD: 3 % of height)
-    still = pool_rig(_frames(np.full(30, math.log(1.65)), p[:30], name="log_height"), "mounting")["cam"]
+    frames = _frames(np.full(30, math.log(1.65)), p[:30], name="log_height")
+    still = RigPool(frames, "mounting").estimate("cam")
     assert still.tau["log_height"] == pytest.approx(0.03)
 
 

@@ -7,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from .main import UsageError, check_output_file, seed_value
+from .main import UsageError, check_output_file, require, seed_value, usage_errors
 from ..io.files import read_text
 
 __all__ = ["register"]
@@ -16,26 +16,20 @@ __all__ = ["register"]
 def _settings(args):
     from ..workflows.advice import KINDS, AdviceSettings
 
-    if not (math.isfinite(args.target_hdi_width) and 0.0 <= args.target_hdi_width < 1.0):
-        raise UsageError(f"--target-hdi-width: expected a share of the distance in [0, 1) "
-                         f"(0.1 for 10 %), got {args.target_hdi_width!r}")
-    if not (math.isfinite(args.min_gain) and args.min_gain >= 0.0):
-        raise UsageError(f"--min-gain: expected a number >= 0 (points of the distance per minute), "
-                         f"got {args.min_gain!r}")
-    if args.draws < 50:
-        raise UsageError(f"--draws: expected an integer >= 50, got {args.draws}")
-    if args.futures < 10:
-        raise UsageError(f"--futures: expected an integer >= 10, got {args.futures}")
-    if args.workers < 1:
-        raise UsageError(f"--workers: expected an integer >= 1, got {args.workers}")
-    if args.budget is not None and not (math.isfinite(args.budget) and args.budget > 0):
-        raise UsageError(f"--budget: expected a number of seconds > 0, got {args.budget!r}")
-    if not (math.isfinite(args.score_iou) and 0.0 < args.score_iou < 1.0):
-        raise UsageError(f"--score-iou: expected an IoU threshold in (0, 1), got {args.score_iou!r}")
-    if not (math.isfinite(args.min_quality) and 0.0 < args.min_quality <= 1.0):
-        raise UsageError(f"--min-quality: expected a probability in (0, 1], got {args.min_quality!r}")
-    if not (math.isfinite(args.min_good_per_hour) and args.min_good_per_hour >= 0.0):
-        raise UsageError(f"--min-good-per-hour: expected a number >= 0, got {args.min_good_per_hour!r}")
+    # (a NaN fails every comparison; the unbounded ones also refuse infinity)
+    require(0.0 <= args.target_hdi_width < 1.0, "--target-hdi-width",
+            "a share of the distance in [0, 1) (0.1 for 10 %)", args.target_hdi_width)
+    require(math.isfinite(args.min_gain) and args.min_gain >= 0.0, "--min-gain",
+            "a number >= 0 (points of the distance per minute)", args.min_gain)
+    require(args.draws >= 50, "--draws", "an integer >= 50", args.draws)
+    require(args.futures >= 10, "--futures", "an integer >= 10", args.futures)
+    require(args.workers >= 1, "--workers", "an integer >= 1", args.workers)
+    require(args.budget is None or (math.isfinite(args.budget) and args.budget > 0), "--budget",
+            "a number of seconds > 0", args.budget)
+    require(0.0 < args.score_iou < 1.0, "--score-iou", "an IoU threshold in (0, 1)", args.score_iou)
+    require(0.0 < args.min_quality <= 1.0, "--min-quality", "a probability in (0, 1]", args.min_quality)
+    require(math.isfinite(args.min_good_per_hour) and args.min_good_per_hour >= 0.0, "--min-good-per-hour",
+            "a number >= 0", args.min_good_per_hour)
     kinds = tuple(k.strip() for k in args.requests.split(",") if k.strip())
     if not kinds or any(k not in KINDS for k in kinds):
         raise UsageError(f"--requests: expected some of {', '.join(KINDS)} separated by commas, got {args.requests!r}")
@@ -92,11 +86,9 @@ def _batch(args, settings, progress: bool) -> int:
     if args.scene is not None:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
-    try:
+    with usage_errors(one_line=True):
         batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
                              progress=progress)
-    except ValueError as exc:
-        raise UsageError(" ".join(str(exc).split())) from None
     paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines)
     if not args.quiet:
         rows = request_rows(batch, args.budget)
@@ -134,10 +126,8 @@ def _apply(args) -> int:
     rows = list(csv.DictReader(read_text(path).splitlines()))
     if rows and "answer" not in rows[0]:
         raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
-    try:
+    with usage_errors(one_line=True):
         done = apply_answers(args.input, rows)
-    except ValueError as exc:
-        raise UsageError(" ".join(str(exc).split())) from None
     if not args.quiet:
         for source, what in done:
             print(f"{source}: {what}")

@@ -9,7 +9,7 @@ from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
                        confidence_map_option, load_classes)
-from .main import UsageError, seed_value
+from .main import UsageError, require, seed_value, usage_errors
 
 __all__ = ["register", "EXIT_FAILED"]
 
@@ -26,11 +26,10 @@ def _settings(args):
                          "camera); leave out --no-posterior")
     sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
     if args.max_steps is not None:
-        if args.max_steps < 10:
-            raise UsageError(f"--max-steps: expected an integer >= 10, got {args.max_steps}")
+        require(args.max_steps >= 10, "--max-steps", "an integer >= 10", args.max_steps)
         # the sampler checks convergence every `chunk` steps: a smaller cap gets a smaller chunk
         sampling.update(max_steps=args.max_steps, chunk=min(100, args.max_steps))
-    try:
+    with usage_errors():  # a sampler setting out of range
         return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                              posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                              temperature=args.temperature, use_references=not args.no_references,
@@ -38,8 +37,6 @@ def _settings(args):
                              location_prior=args.location_prior,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
                              classes=load_classes(args.classes) or {}, rig=args.rig)
-    except ValueError as exc:  # a sampler setting out of range
-        raise UsageError(str(exc)) from None
 
 
 def _engine(args):
@@ -49,12 +46,9 @@ def _engine(args):
         if args.workers is not None:
             raise UsageError("--workers: with --scheduler the Dask workers decide (start them with "
                              "`dask worker ADDRESS --nworkers N --nthreads 1`)")
-        try:
+        with usage_errors("--scheduler: ", ConnectionError):
             return DaskEngine(args.scheduler)
-        except ConnectionError as exc:
-            raise UsageError(f"--scheduler: {exc}") from None
-    if args.workers is not None and args.workers < 1:
-        raise UsageError(f"--workers: expected an integer >= 1, got {args.workers}")
+    require(args.workers is None or args.workers >= 1, "--workers", "an integer >= 1", args.workers)
     return LocalEngine(args.workers)
 
 
@@ -63,14 +57,13 @@ def _run_batch(args) -> int:
     from ..workflows.batch.summary import summary_line
 
     settings = _settings(args)
-    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
-        raise UsageError(f"--time-limit: expected a number of seconds > 0, got {args.time_limit!r}")
+    limit = args.time_limit
+    require(limit is None or (math.isfinite(limit) and limit > 0), "--time-limit", "a number of seconds > 0",
+            limit)
     engine = _engine(args)
-    try:
+    with usage_errors():  # no scene found, two scenes with one name (the engine is closed)
         report = run_batch(args.inputs, args.out, engine, settings, time_limit=args.time_limit,
                            progress=not args.quiet and sys.stderr.isatty())
-    except ValueError as exc:  # no scene found, two scenes with one name (the engine is closed)
-        raise UsageError(str(exc)) from None
     if not args.quiet:
         for key, error in report.errors.items():
             print(f"failed: {key}: {error}", file=sys.stderr)

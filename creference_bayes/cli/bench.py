@@ -10,7 +10,7 @@ from pathlib import Path
 from ..bench.runner import CONFIGS, plain, run_bench
 from ..bench.simulate import SETTINGS, TIERS
 from ..io.files import atomic_write_text
-from .main import UsageError, seed_value
+from .main import UsageError, require, seed_value, usage_errors
 
 __all__ = ["register", "BENCH_TIMES"]
 
@@ -30,8 +30,8 @@ def _out(args) -> Path:
 
 
 def _check_temperature(args) -> None:
-    if args.temperature is not None and not args.temperature > 0:
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature}")
+    t = args.temperature
+    require(t is None or t > 0, "--temperature", "a number > 0", t)
 
 
 def _run_bench_command(args) -> int:
@@ -44,8 +44,7 @@ def _run_bench_command(args) -> int:
     config = CONFIGS[("frames" if args.frames else "full" if args.full else "quick")
                      + ("-full" if args.frames and args.full else "")]
     if args.paper_restarts is not None:
-        if args.paper_restarts < 1:
-            raise UsageError(f"--paper-restarts: expected an integer >= 1, got {args.paper_restarts}")
+        require(args.paper_restarts >= 1, "--paper-restarts", "an integer >= 1", args.paper_restarts)
         config = replace(config, paper_restarts=args.paper_restarts)
     out = _out(args)
     note = "" if poselib_available() or not config.scenes else f"p4pf skipped: {INSTALL_HINT}"
@@ -72,8 +71,7 @@ def _run_sbc(args) -> int:
     from ..bench.sbc import run_sbc, sbc_markdown, sbc_summary
 
     n = args.sbc_scenes if args.sbc_scenes is not None else (60 if args.full else 4)
-    if n < 1:
-        raise UsageError(f"--sbc-scenes: expected an integer >= 1, got {n}")
+    require(n >= 1, "--sbc-scenes", "an integer >= 1", n)
     out = _out(args)
     sampling = {"min_ess": 400} if args.full else {"min_ess": 200, "max_steps": 3000}
     records = run_sbc(n, seed=args.seed, temperature=args.temperature, sampling=sampling, progress=_say(args))
@@ -114,12 +112,10 @@ def _run_simulate_command(args) -> int:
         raise UsageError(f"{out}: the folder is not empty; choose another or pass --overwrite "
                          "(replaces files of the same name)")
     for name in ("annotations", "objects", "confidence_workers"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise UsageError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
-    if args.references < 0:
-        raise UsageError(f"--references: expected an integer >= 0, got {args.references}")
-    if args.noise_px is not None and not args.noise_px >= 0:
-        raise UsageError(f"--noise-px: expected a number >= 0, got {args.noise_px}")
+        value = getattr(args, name)
+        require(value is None or value >= 1, f"--{name.replace('_', '-')}", "an integer >= 1", value)
+    require(args.references >= 0, "--references", "an integer >= 0", args.references)
+    require(args.noise_px is None or args.noise_px >= 0, "--noise-px", "a number >= 0", args.noise_px)
     if args.focal_unknown and args.from_kitti is None:
         raise UsageError("--focal-unknown: only with --from-kitti (a simulated scene leaves the focal length out "
                          "unless --focal-known)")
@@ -127,8 +123,7 @@ def _run_simulate_command(args) -> int:
         return _run_kitti(args, out)
     if args.n is None:
         raise UsageError("--n: the number of scenes is required (unless --from-kitti)")
-    if args.n < 1:
-        raise UsageError(f"--n: expected an integer >= 1, got {args.n}")
+    require(args.n >= 1, "--n", "an integer >= 1", args.n)
     from ..bench.simulate import write_scenes
 
     options = {"n_objects": args.objects, "n_references": args.references, "sizes": args.sizes or "known",
@@ -161,12 +156,10 @@ def _run_kitti(args, out: Path) -> int:
     src = Path(args.from_kitti)
     if not (src / "label_2").is_dir() or not (src / "calib").is_dir():
         raise UsageError(f"--from-kitti {src}: not a KITTI folder (needs label_2/ and calib/)")
-    try:
+    with usage_errors():  # a malformed label or calib file: its message names file and line
         totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
                               noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
                               sizes=args.sizes or "prior", focal_known=not args.focal_unknown)
-    except ValueError as exc:  # a malformed label or calib file: its message names file and line
-        raise UsageError(str(exc)) from None
     if not args.quiet:
         skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
         print(f"wrote {totals['scenes']} scenes with {totals['kept']} objects to {out}"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .main import UsageError, seed_value
+from .main import UsageError, require, seed_value, usage_errors
 
 __all__ = ["register", "METHODS", "format_map"]
 
@@ -34,12 +34,10 @@ def format_map(cmap) -> str:
 
 def _check_fit_options(args) -> None:
     for name in ("draws", "min_per_level", "min_group", "workers"):
-        if getattr(args, name) < 1:
-            raise UsageError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
-    if not 0.0 < args.interval_prob < 1.0:
-        raise UsageError(f"--interval-prob: expected a probability in (0, 1), got {args.interval_prob!r}")
-    if args.min_ess is not None and not args.min_ess >= 1:
-        raise UsageError(f"--min-ess: expected a number >= 1, got {args.min_ess!r}")
+        value = getattr(args, name)
+        require(value >= 1, f"--{name.replace('_', '-')}", "an integer >= 1", value)
+    require(0.0 < args.interval_prob < 1.0, "--interval-prob", "a probability in (0, 1)", args.interval_prob)
+    require(args.min_ess is None or args.min_ess >= 1, "--min-ess", "a number >= 1", args.min_ess)
 
 
 def _run_fit(args) -> int:
@@ -48,10 +46,8 @@ def _run_fit(args) -> int:
     from ..workflows.confidence.fit import fit_marginal, fit_with_truth
 
     _check_fit_options(args)
-    try:
+    with usage_errors():  # no scene files, two with one name
         scenes = load_scenes(args.inputs)
-    except ValueError as exc:  # no scene files, two with one name
-        raise UsageError(str(exc)) from None
     ranges = stated_ranges(scenes)
     if not ranges:
         raise UsageError(f"no range with a stated confidence in {len(scenes)} scene(s): nothing to fit")
@@ -66,7 +62,7 @@ def _run_fit(args) -> int:
     options = dict(draws=args.draws, seed=args.seed, interval_prob=args.interval_prob,
                    min_per_level=args.min_per_level, min_group=args.min_group)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
-    try:
+    with usage_errors():
         if method == "truth":
             say(f"fitting with ground truth: {len(with_truth)} ranges ({len(ranges) - len(with_truth)} "
                 "without a truth left out)")
@@ -85,8 +81,6 @@ def _run_fit(args) -> int:
             cmap = fit_marginal(preds, **options)
             cmap.fit.update(scenes_failed=len(errors), ranges_above_horizon=totals["skipped"],
                             scenes_not_converged=totals["not_converged"])
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     atomic_write_json(args.out, cmap.to_dict())
     if not args.quiet:
         print(format_map(cmap))
@@ -100,24 +94,14 @@ def _run_report(args) -> int:
     from ..workflows.confidence.data import load_scenes, range_counts, stated_ranges
     from ..workflows.confidence.report import confidence_report, markdown_report
 
-    if args.min_answers < 1:
-        raise UsageError(f"--min-answers: expected an integer >= 1, got {args.min_answers}")
-    maps = {}
-    for path in args.map or []:
-        try:
-            maps[Path(path).stem] = ConfidenceMap.load(path)
-        except ConfidenceMapError as exc:
-            raise UsageError(f"--map: {exc}") from None
-    try:
-        scenes = load_scenes(args.inputs)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    require(args.min_answers >= 1, "--min-answers", "an integer >= 1", args.min_answers)
+    with usage_errors("--map: ", ConfidenceMapError):
+        maps = {Path(path).stem: ConfidenceMap.load(path) for path in args.map or []}
     first = next(iter(maps.items()), (None, None))
-    try:
+    with usage_errors():
+        scenes = load_scenes(args.inputs)
         rep = confidence_report(stated_ranges(scenes), range_counts(scenes), cmap=first[1],
                                 min_answers=args.min_answers, map_label=first[0])
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     figures = []

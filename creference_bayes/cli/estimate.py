@@ -14,7 +14,7 @@ from ..inference.map import PRESETS
 from ..io.files import read_text
 from ..models.location_prior import LOCATION_PRIORS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .main import UsageError, check_output_file, example_scene_path, seed_value
+from .main import UsageError, check_output_file, example_scene_path, require, seed_value, usage_errors
 
 __all__ = ["register", "format_tables", "load_classes", "confidence_map_option", "add_confidence_map_option",
            "add_camera_options", "check_posterior_values"]
@@ -34,10 +34,8 @@ def load_classes(path):
         data = json.loads(read_text(path))
     except json.JSONDecodeError as exc:
         raise UsageError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}") from None
-    try:
+    with usage_errors():
         return size_priors_from_dict(data, f"{path}", "file")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
 
 
 def _f(v, nd=2):
@@ -167,10 +165,8 @@ def confidence_map_option(value: str | None, model: str):
                          f"stated confidences, got {value!r} (use --model metrology, or none)")
     if value in MAP_NAMES:
         return value
-    try:
+    with usage_errors("--confidence-map: ", ConfidenceMapError):
         return ConfidenceMap.load(value)
-    except ConfidenceMapError as exc:
-        raise UsageError(f"--confidence-map: {exc}") from None
 
 
 def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
@@ -186,12 +182,10 @@ def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
 
 def check_posterior_values(args) -> None:
     """``--hdi-prob``, ``--temperature`` and ``--min-ess`` (shared with ``batch``)."""
-    if not 0.0 < args.hdi_prob < 1.0:
-        raise UsageError(f"--hdi-prob: expected a probability in (0, 1), got {args.hdi_prob!r}")
-    if args.temperature is not None and not (np.isfinite(args.temperature) and args.temperature > 0):
-        raise UsageError(f"--temperature: expected a number > 0, got {args.temperature!r}")
-    if args.min_ess is not None and not args.min_ess >= 1:
-        raise UsageError(f"--min-ess: expected a number ≥ 1, got {args.min_ess!r}")
+    require(0.0 < args.hdi_prob < 1.0, "--hdi-prob", "a probability in (0, 1)", args.hdi_prob)
+    t = args.temperature
+    require(t is None or (np.isfinite(t) and t > 0), "--temperature", "a number > 0", t)
+    require(args.min_ess is None or args.min_ess >= 1, "--min-ess", "a number ≥ 1", args.min_ess)
 
 
 def _run_estimate(args) -> int:

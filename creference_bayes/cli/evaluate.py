@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, require, usage_errors
 
 __all__ = ["register", "format_table"]
 
@@ -43,13 +43,10 @@ def _run_kitti(args) -> int:
     from ..evaluation.kitti_eval import evaluate_kitti
     from ..io.files import atomic_path, atomic_write_json
 
-    if args.bins < 1:
-        raise UsageError(f"--bins: expected an integer >= 1, got {args.bins!r}")
-    try:
+    require(args.bins >= 1, "--bins", "an integer >= 1", args.bins)
+    with usage_errors():
         ev = evaluate_kitti(args.gt_label_dir, args.label_dir, count_unlabelled=args.count_unlabelled,
                             n_bins=args.bins)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     written = []
     if args.out is not None:
         out = Path(args.out)

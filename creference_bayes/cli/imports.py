@@ -16,7 +16,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
-from .main import EXIT_INVALID, UsageError
+from .main import EXIT_INVALID, UsageError, usage_errors
 
 __all__ = ["register"]
 
@@ -92,10 +92,8 @@ def _prepare(args):
         raise UsageError(f"import {args.tool}: --out DIR is required")
     if args.image_dir is not None and not Path(args.image_dir).is_dir():
         raise UsageError(f"--image-dir: {args.image_dir!r} is not a folder")
-    try:
+    with usage_errors("--targets: ", ConversionError):
         table = load_target_table(args.targets) if args.targets else None
-    except ConversionError as exc:
-        raise UsageError(f"--targets: {exc}") from None
     return table, load_classes(args.classes)
 
 
@@ -108,12 +106,10 @@ def _run_label_studio(args) -> int:
         sys.stdout.write(label_studio_config(args.lines))
         return 0
     targets, classes = _prepare(args)
-    try:
+    with usage_errors(types=ConversionError):
         users = read_users(args.users) if args.users else None
         report = scenes_from_label_studio(read_export(args.export), image_dir=args.image_dir,
                                           out_dir=args.out, targets=targets, users=users, classes=classes)
-    except ConversionError as exc:
-        raise UsageError(str(exc)) from None
     return _finish(report, args)
 
 
@@ -152,11 +148,9 @@ def _run_cvat(args) -> int:
         print(json.dumps(cvat_label_spec(), indent=2))
         return 0
     targets, classes = _prepare(args)
-    try:
+    with usage_errors(types=ConversionError):
         report = scenes_from_cvat(_read_cvat(args.export), image_dir=args.image_dir,
                                   out_dir=args.out, targets=targets, classes=classes)
-    except ConversionError as exc:
-        raise UsageError(str(exc)) from None
     return _finish(report, args)
 
 

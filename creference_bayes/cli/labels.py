@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import math
-
-from .main import UsageError
+from .main import UsageError, require, usage_errors
 
 __all__ = ["register", "FORMATS"]
 
@@ -17,15 +15,11 @@ def _run_labels(args) -> int:
     from ..workflows.labels.quality import IOU_THRESHOLDS
     from ..workflows.labels.report import write_report
 
-    if not (math.isfinite(args.min_quality) and 0.0 <= args.min_quality <= 1.0):
-        raise UsageError(f"--min-quality: expected a probability in [0, 1], got {args.min_quality!r}")
-    if args.score_iou not in IOU_THRESHOLDS:
-        raise UsageError(f"--score-iou: expected one of {list(IOU_THRESHOLDS)}, got {args.score_iou!r}")
-    try:
+    require(0.0 <= args.min_quality <= 1.0, "--min-quality", "a probability in [0, 1]", args.min_quality)
+    require(args.score_iou in IOU_THRESHOLDS, "--score-iou", f"one of {list(IOU_THRESHOLDS)}", args.score_iou)
+    with usage_errors():
         export = export_labels(args.batch_dir, args.out, type_name=args.type, score_iou=args.score_iou,
                                n_draws=args.draws)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     if not export.objects:
         raise UsageError(f"{args.batch_dir}: nothing labelled, nothing written: {_why_none(export)}")
     paths = write_report(export, args.out, min_quality=args.min_quality, score_iou=args.score_iou,

@@ -9,6 +9,7 @@ on standard error, without a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import os
@@ -20,7 +21,8 @@ from pathlib import Path
 from .. import __version__
 from ..io.scene import SceneError, SceneWarning
 
-__all__ = ["main", "build_parser", "example_scene_path", "seed_value", "check_output_file", "UsageError", "EXIT_INVALID"]
+__all__ = ["main", "build_parser", "example_scene_path", "seed_value", "check_output_file", "require",
+           "usage_errors", "UsageError", "EXIT_INVALID"]
 
 #: Modules that add sub-commands, in the order of the help text.
 COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes.cli.plot",
@@ -51,6 +53,22 @@ def seed_value(text: str) -> int:
     if seed < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return seed
+
+
+def require(ok: bool, option: str, expected: str, value) -> None:
+    """Unless ``ok``, the one-line usage error ``OPTION: expected EXPECTED, got VALUE`` (its repr)."""
+    if not ok:
+        raise UsageError(f"{option}: expected {expected}, got {value!r}")
+
+
+@contextlib.contextmanager
+def usage_errors(prefix: str = "", types=(ValueError,), one_line: bool = False):
+    """The library's ``types`` errors raised in the block as usage errors: ``prefix`` and the message
+    (``one_line``: its lines joined by single spaces)."""
+    try:
+        yield
+    except types as exc:
+        raise UsageError(prefix + (" ".join(str(exc).split()) if one_line else str(exc))) from None
 
 
 def check_output_file(option: str, value) -> None:

@@ -1,14 +1,7 @@
-"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate of any scene.
-
-Reads a ``creference-result/2`` file (or a ``creference-result/1`` of one target, converted with its
-scene), finds its scene, rebuilds its model and writes ``boxes``, ``top_view``, ``zooms`` (when more
-objects need a zoom panel than fit beside the top view), ``pairs`` (the camera and ``--object``, by
-default the first) and ``ranks`` (posterior draws only) (:func:`~creference_bayes.vision.plotting.scene_figures`).
-The draws are those the result keeps, else the Laplace approximation at its MAP.
-
-The scene is ``--scene``, else the one the result names (a batch folder's copy, beside the result, in
-the current folder, among the shipped scenes). It must be the scene the result was estimated from:
-the same target ids, image size and content hash (``scene_id``), else a one-line error (exit 2).
+"""``creference plot RESULT.json [--scene SCENE] [--out DIR]``: the figures of an estimate of any scene
+(:func:`~creference_bayes.vision.plotting.scene_figures`), from the draws the result keeps, else the
+Laplace approximation at its MAP. The scene must be the one the result was estimated from (the same
+target ids, image size and content hash), else a one-line error (exit 2).
 """
 
 from __future__ import annotations
@@ -16,7 +9,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .main import UsageError
+from .main import UsageError, usage_errors
 
 __all__ = ["register", "find_scene", "check_result"]
 
@@ -52,10 +45,8 @@ def find_scene(result: dict, result_path: Path, explicit: str | None):
     its failures as one-line usage errors."""
     from ..io.result import find_scene as _find
 
-    try:
+    with usage_errors():
         scene = _find(result, result_path, explicit)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     if result.get("format") == "creference-result/1" and "batch" not in result:
         print("warning: a creference-result/1 (written by an older version): only its target id and image size "
               "were checked against the scene", file=sys.stderr)
@@ -99,10 +90,8 @@ def _run(args) -> int:
     from ..vision import plotting
 
     path = Path(args.result)
-    try:
+    with usage_errors():  # wrong format key, or not JSON
         d = load_result(path)
-    except ValueError as exc:  # wrong format key, or not JSON
-        raise UsageError(str(exc)) from None
     scene = find_scene(d, path, args.scene)
     chains = None
     if d["format"] == "creference-result/1":

@@ -1,50 +1,35 @@
-"""Whether one more annotation is worth its human time, and which (docs/advice.md).
+"""Whether one more annotation is worth its human time, and which (docs/advice.md, "How the advice
+is computed").
 
 For the posterior draws of a scene (one target or many), each observation the scene allows
 (:mod:`.candidates`) is weighed by preposterior simulation under the model's own noise model
-(:mod:`.observe`): a draw is taken as the truth, the new observation is simulated from it, the
-other draws are reweighted by its likelihood (leave-one-out: the simulating draw is left out), and
-the posterior after it is summarised; the average over draws is the expected posterior after that
-observation. Each future's HDI is set against the present's as the same weights see it: a
-shortest interval estimated from weighted draws is too narrow, the more so the fewer the
-effective draws (about 6 % at some 50 effective draws of 1000, and a second set of dimension
-lines from one set typically keeps 5–10 % of 600), which would count as a narrowing of every
-future whose weights are uneven. So each future's width is scaled by the present on all draws
-over the present under that future's weights shuffled over the draws (the same effective sample,
-nothing of what the observation says; :func:`~.update.shuffled_hdi`). What is reported, per
-target, now and expected after each observation:
+(:mod:`.observe`): a draw is taken as the truth, the observation is simulated from it and the other
+draws are reweighted by its likelihood (leave-one-out); the average over draws is the expected
+posterior after it. A shortest interval from weighted draws is too narrow, the more so the fewer
+the effective draws, so each future's HDI is scaled by the present on all draws over the present
+under that future's weights shuffled over the draws (:func:`~.update.shuffled_hdi`). Reported per
+target, now and expected after each observation: the width of the ``hdi_prob`` HDI of its ground
+distance (metres, and as a share of the distance, so targets near and far compare fairly), the
+posterior sd of its location √(var x + var y + var z) (metres), and the label quality
+P(IoU ≥ ``iou_threshold``) (now: the MAP box against the draws, as ``creference labels`` states it;
+after: the reweighted posterior-mean box's, moved by the difference of the two now).
 
-- the width of the ``hdi_prob`` HDI of its ground distance (metres, and as a share of the
-  distance: the gain and the precision target use the share, so targets near and far compare
-  fairly);
-- the posterior sd of its location, √(var x + var y + var z), metres;
-- the label quality P(IoU ≥ ``iou_threshold``): now, the label's as ``creference labels`` states
-  it (its MAP box against the draws); after an observation, the posterior-mean box's of the
-  reweighted draws (a future has no MAP), moved by the difference of the two now.
+``settings.objective`` says which gain ranks the requests:
 
-Two gains are computed for every observation; ``settings.objective`` says which ranks them:
-
-- **labels** (the default): the expected number of the scene's labels that become good, a label
-  being good when its P(IoU ≥ ``iou_threshold``) ≥ ``min_quality`` (as ``creference labels
-  --score-iou --min-quality`` has it), per human hour. Per future, a target's P(IoU ≥ t) is
-  estimated from ``iou_pairs`` resampled draws, so whether it reaches the bar is taken as the
-  chance a binomial share of that many reaches it (:func:`good_probability`), less the chance the
-  same estimator gives on draws that know nothing of the observation (its level: the future's
-  weights shuffled over the draws, as many effective draws; for a future whose weights collapsed,
-  read on the fallback's equally weighted draws, the present's level, :func:`level_of_present`),
-  over one minus it: no change is no gain. Labels that are good now count for nothing (the advice
-  says they are good). The requests are ranked and chosen on half of the simulated futures
-  (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the other half, so
-  that the chosen requests' stated gains are not flattered by the noise that made them look best;
+- **labels** (the default): the expected number of labels below the bar now (P(IoU ≥ t) <
+  ``min_quality``) that become good, per human hour. A future's P(IoU ≥ t) is estimated from
+  ``iou_pairs`` resampled draws, so reaching the bar is a binomial share's chance
+  (:func:`good_probability`), less the level the same estimator gives on draws that know nothing
+  of the observation (:func:`level_of_present`), over one minus it. Requests are ranked on half of
+  the futures (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the
+  other half, so that the chosen requests' gains are not flattered by the noise that chose them;
 - **hdi**: the narrowing of every target's HDI share, in percentage points of its distance, summed
-  over the scene's targets, per minute.
+  over the targets, per minute.
 
-:meth:`Advice.verdicts` says per target what would lift its label to the bar, and when no single
-request would. Weights whose effective sample size collapses (fewer than :data:`~.update.MIN_ESS`
-or :data:`~.update.MIN_ESS_FRACTION` of the draws) are replaced by the draws moved to the new
-posterior in the sampler's working coordinates (:func:`_moved`: an annotation by a tempered
-resample-move run, an answer that enters as a normal prior by the ensemble Kalman update), counted
-in ``fallbacks``.
+:meth:`Advice.verdicts` says per target what would lift its label to the bar. Futures whose
+effective sample size collapses (below :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION`
+of the draws) are recomputed on draws moved to the new posterior (:func:`_moved`), counted in
+``fallbacks``.
 """
 
 from __future__ import annotations
@@ -483,13 +468,9 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
     se_inner = _split_se(draws.dist, weights[same], settings.hdi_prob, rng)
     # labels below the bar now that reach it: each one's chance, less the level the same estimator
-    # gives on draws that know nothing of the observation (module docstring): for a reweighted
-    # future, its weights shuffled over the draws (as many effective draws); for a collapsed one,
-    # read on the fallback's equally weighted draws, the present's draws (level_of_present). Reading
-    # a collapsed future on its few reweighted draws instead picks the sparse tails of the posterior,
-    # whose draws lie far apart: on KITTI frames that made one more set of lines on every object
-    # look like a loss of 3.9 good labels where 8 were gained. (A level from the fallback's ancestors'
-    # multiplicities instead was tried: it under-stated the lines, 2.7 against 8.)
+    # gives on draws that know nothing of the observation (module docstring): a reweighted future's
+    # weights shuffled over the draws; a collapsed one read on the fallback's equally weighted
+    # draws, the present's (level_of_present): its few reweighted draws lie in the sparse tails.
     p_good = good_probability(rows["p_iou"], settings.iou_pairs, settings.min_quality)   # (M, m)
     present = level_of_present(now.p_iou - shift, settings.iou_pairs, settings.min_quality)  # the estimator's present
     level = np.repeat(present[None], len(outer), axis=0)
@@ -499,12 +480,8 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
         level[same] = good_probability(shuffled, settings.iou_pairs, settings.min_quality).mean(axis=0)
     below = now.p_iou < settings.min_quality
     chance = np.where(below, (p_good - level) / np.maximum(1.0 - level, 0.05), p_good)
-    # The requests are ranked on one half of the futures and their gains stated from the other: the
-    # request that looks best on noisy futures is flattered by that noise. (On the odd KITTI
-    # development frames the plan's requests made 9.9 good labels on the half they were chosen by
-    # and 9.5 on the other: small there, and it costs nothing.) A gain is the sum of its targets'
-    # chances, each a share in [0, 1], so that the plan (batch.BatchAdvice.plan), which combines
-    # the chances of requests on one target, values a request alone as this does.
+    # Ranked on one half of the futures, gains stated from the other (module docstring). A gain is
+    # the sum of its targets' chances, each in [0, 1], as the plan (batch.BatchAdvice.plan) values it.
     rank, told = slice(0, None, 2), slice(1, None, 2)
     p_told, p_rank = (np.clip(chance[half].mean(axis=0), 0.0, 1.0) for half in (told, rank))
     good_gain = float(np.sum(p_told[below]))
@@ -518,20 +495,14 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
 
 
 def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
-    """The draws moved to the posterior after the i-th simulated observation, in the working
-    coordinates of the sampler
-    (:mod:`~creference_bayes.inference.coords`: each object anchored to the image, so that the
-    blocks barely correlate and random-walk moves go further than in natural coordinates), over
-    the new model's free parameters.
+    """The draws moved to the posterior after the i-th simulated observation, over the new model's
+    free parameters, in the sampler's working coordinates (:mod:`~creference_bayes.inference.coords`:
+    the blocks barely correlate, so random-walk moves go further).
 
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
-    update and then random-walk Metropolis steps (:func:`~.update.kalman_update`); an annotation,
-    by the tempered update (:func:`~.update.tempered_update`). Either takes ``max(8, d)`` random-walk
-    steps (a stage) for d parameters, at most 32 (a random walk's mixing time grows with the
-    dimension; 8 was chosen for one target). After a size answer on a simulated frame of 12 objects
-    the tempered update's draws spread every object's distance 4–21 % less than the frame estimated
-    again with the answer; the Kalman update's are within 12 % (tests/test_advice_labels.py,
-    docs/advice.md)."""
+    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/advice.md); an
+    annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
+    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d)."""
     from ...inference.coords import CAMERA_LOG, WorkingCoords
 
     new = obs.model_with(i) if hasattr(obs, "model_with") else None

@@ -31,8 +31,7 @@ __all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS"
            "with_dimension_lines", "with_size", "with_mounting", "apply_answers"]
 
 #: A size from a catalogue (a worker names the make and model): the spread of its log-length,
-#: -width and -height. Our assumption, not a measurement: one model name covers trims and years
-#: whose sizes differ by a few percent, and a worker sometimes names a sibling model.
+#: -width and -height. Our assumption: one model name covers trims and years a few percent apart.
 CATALOGUE_LOG_SD = 0.03
 #: Human seconds for a size from a catalogue: the paper has no such task; its nearest is the
 #: reference task (one worker, one object, one statement), 64.4 s on average (§7.2.2).
@@ -142,14 +141,11 @@ def apply_answers(batch_dir, rows) -> list[tuple[str, str]]:
     from ...io.files import atomic_write_json, read_text
     from ...io.scene import load_scene, scene_to_dict
 
-    root = Path(batch_dir) / "results"
-    frames = {}  # key -> the scene file the frame was made from
-    for path in sorted(root.rglob("*.json")):
-        key = path.relative_to(root).with_suffix("").as_posix()
-        if any(part.startswith(".") for part in key.split("/")):
-            continue
-        d = json.loads(read_text(path))
-        frames[key] = Path((d.get("batch") or {})["source"])
+    from ..batch.files import result_paths
+
+    # key -> the scene file the frame was made from
+    frames = {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
+              for key, path in result_paths(batch_dir).items()}
     scenes, done = {}, []
 
     def scene_of(key, where):

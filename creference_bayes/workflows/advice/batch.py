@@ -9,16 +9,12 @@ Written to ``OUT`` (default ``BATCH_DIR/advice``)::
     label_studio_requests.json  its line and reference requests as Label Studio tasks
     cvat_requests.xml           the same as CVAT for images 1.1 annotations
 
-Each target's ranking row names its request: the best-ranked observation of its frame that is
-asked on it or on no target, each at most once per frame
-(:meth:`~creference_bayes.workflows.advice.Advice.requests`); a target whose label is good (or,
-with the hdi objective, whose precision target is met), or whose best request is not worth its
-time, gets none. The plan (:meth:`BatchAdvice.plan`) may ask more than one observation on a
-target, each valued by what it adds to those already asked; the camera's mounting is planned once
-per camera.
-Sizes and mountings are answered into the scenes (:mod:`.answers`); lines and references come
-back through the importers. After the answers are in, ``creference batch`` re-estimates the
-frames that changed and the advice is worth recomputing.
+Each target's ranking row names its request
+(:meth:`~creference_bayes.workflows.advice.Advice.requests`); the plan (:meth:`BatchAdvice.plan`)
+may ask more than one observation on a target, each valued by what it adds to those already
+asked, and the camera's mounting once per camera. Sizes and mountings are answered into the
+scenes (:mod:`.answers`); lines and references come back through the importers; ``creference
+batch`` then re-estimates the frames that changed.
 """
 
 from __future__ import annotations
@@ -35,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ...io.files import atomic_write_json, atomic_write_text
+from ..batch.files import result_paths
 from . import Advice, AdviceSettings, Prediction
 from .inputs import advise_result, scene_for_result
 from .requests import image_name
@@ -113,24 +110,17 @@ class BatchAdvice:
     objects: tuple[ObjectAdvice, ...]
     skipped: tuple[dict, ...] = ()
 
-    @property
-    def requests(self) -> tuple[ObjectAdvice, ...]:
-        return tuple(o for o in self.objects if o.request is not None)
-
     def plan(self, budget_s: float | None = None) -> list[Request]:
         """The requests to send, greedy by value per human second, while that value is worth its
         time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
         request that does not fit is passed over for cheaper ones after it).
 
-        With the labels objective every observation of every frame may be asked, and each is
-        valued by the good labels it adds to the requests already in the plan: a target below the
-        bar that requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance
-        1 − Π(1 − pᵢ) (a label becomes good once, however many requests would each do it). Summing
-        each request's gain alone counted one car many times: on the odd KITTI development frames a
-        frame of 13 cars was stated 8.0 labels for its plan's 14 requests, 4.1 combined, 2
-        realised (docs/advice.md). The plan's values only fall as it grows, so each is recomputed
-        when it comes up (lazy greedy). With the hdi objective the plan takes each target's request
-        (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
+        With the labels objective every observation of every frame may be asked, each valued by
+        the good labels it adds to the requests already planned: a target below the bar that
+        requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance 1 − Π(1 − pᵢ) (a
+        label becomes good once; docs/advice.md). Values only fall as the plan grows, so each is
+        recomputed when it comes up (lazy greedy). With the hdi objective the plan takes each
+        target's request (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
 
         The mounting is asked once per camera, its chances (or HDI points) over every frame of
         that camera (a frame that names no camera is a camera of its own)."""
@@ -255,14 +245,9 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
     from ...inference.progress import progress_bar
 
     settings = settings or AdviceSettings()
-    root = Path(batch_dir) / "results"
-    if not root.is_dir():
+    if not (Path(batch_dir) / "results").is_dir():
         raise FileNotFoundError(2, "not a batch folder (no results/ inside)", str(batch_dir))
-    jobs = {}
-    for path in sorted(root.rglob("*.json")):
-        key = path.relative_to(root).with_suffix("").as_posix()
-        if not any(part.startswith(".") for part in key.split("/")):  # a killed write's temporary file
-            jobs[key] = (path, key, seed, settings)
+    jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir).items()}
     outcome = {}
     with progress_bar(progress, len(jobs), desc="advice", unit="scene") as bar:
         if workers > 1 and len(jobs) > 1:

@@ -1,37 +1,21 @@
 """Which observations the advice can weigh for a scene, what each costs, and in which format mix
-a new reference would come (docs/advice.md, "What can be simulated").
+a new reference would come (docs/advice.md, "What can be simulated", lists every kind).
 
-For every target:
+Per target: one more set of its dimension lines (``ID:dims``); a worker's distance to it
+(``ID:distance``, from the image's bottom edge straight up to its nearest bottom corner at the
+MAP, as the paper's distance task draws it; left out when that corner is outside the image or on
+its bottom edge); its length (``ID:length``) and its size from a catalogue (``ID:size``,
+:mod:`.answers`) when its size has a prior; its distance to the nearest other target
+(``ID~ID2:distance``, bottom centres) unless the scene has one. Once for the scene: the camera's
+mounting (``camera:mounting``, :mod:`.answers`). Per group of the scene's references (the same
+object and measure, endpoints within :data:`SAME_SEGMENT_FRACTION` of the segment's length, at
+least :data:`SAME_SEGMENT_MIN_PX`, either direction): one more of the same (``refK-MEASURE``, on
+the per-endpoint median segment) and, for a length or width segment, a distance to its object
+(``refK-distance``, up to the segment's lower end) unless one is drawn already.
 
-- **one more set of its dimension lines** (``ID:dims``);
-- **a worker's distance to it** (``ID:distance``): from the image's bottom edge straight up to its
-  nearest bottom corner at the MAP, as the paper's distance task draws it; left out when the
-  target touches the bottom edge or that corner is outside the image;
-- **its length** (``ID:length``), when its size has a class prior;
-- **its distance to the nearest other target** (``ID~ID2:distance``, bottom centre to bottom
-  centre), in a scene of several, unless the scene has one between them (then it is repeated);
-- **its size from a catalogue** (``ID:size``: a worker names the make and model), when its size has
-  a prior (:mod:`.answers`).
-
-And once for the scene, **the camera's mounting** (``camera:mounting``: height, pitch and roll from
-the rig's calibration, :mod:`.answers`), which a batch asks once per camera.
-
-For the references the scene has (grouped by drawn segment: the same object name and measure,
-endpoints within :data:`SAME_SEGMENT_FRACTION` of the segment's length, at least
-:data:`SAME_SEGMENT_MIN_PX`, in either direction; a size or a distance between targets by what
-it measures):
-
-- **one more of the same** (``refK-MEASURE``: a second worker draws about the same segment, so the
-  new reference uses the segment drawn, the per-endpoint median when several drew it);
-- for a length or width segment, **a distance to its object** (``refK-distance``): from the
-  image's bottom edge straight up to the segment's end lower in the image; left out when a
-  distance to that point is drawn already.
-
-The cost of each kind is the median of the scene's recorded ``seconds`` for that kind (sets of
-dimension lines, references), else the paper's average task times (§7.2.2:
-:data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`); a size and a mounting cost
-:data:`~.answers.SIZE_SECONDS` and :data:`~.answers.MOUNTING_SECONDS` (where those come from is
-said there).
+A kind costs the median of the scene's recorded ``seconds`` for it, else the paper's average task
+times (§7.2.2: :data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`); a size and a
+mounting cost :data:`~.answers.SIZE_SECONDS` and :data:`~.answers.MOUNTING_SECONDS`.
 """
 
 from __future__ import annotations

@@ -83,11 +83,6 @@ def _with_batch_image(scene, result: dict):
     return dataclasses.replace(scene, image_path=candidate) if candidate.is_file() else scene
 
 
-def recommendation_line(action: str, reason: str) -> str:
-    """``recommendation: …`` with the action said once (a reason may begin with it)."""
-    return f"recommendation: {reason if reason.startswith(action) else f'{action}: {reason}'}"
-
-
 def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
     """The advice as text: every target's present, the best ``rows`` observations (best first),
     the recommendation. ``estimate_hdi``: the estimate's own HDIs of the distances ((m, 2) metres,
@@ -128,7 +123,8 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
         lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
     lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
     lines += [f"  {v['target']}: {v['text']}" for v in advice.verdicts()]
-    lines += ["", recommendation_line(advice.action, advice.reason)]
+    said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
+    lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes each on "
                  f"{s.n_draws} draws at most; {advice.seconds:.1f} s)")

@@ -1,35 +1,27 @@
 """Simulating one more observation under the model's own noise model, and its importance weights.
 
-Both kinds take the *current* model of the scene (the metrology model, the MAP's handedness and
-pilot) and give, for M simulated observations and N posterior draws (cameras (N, 5), objects
+Each kind takes the *current* model of the scene (the metrology model, the MAP's handedness and
+pilot) and gives, for M simulated observations and N posterior draws (cameras (N, 5), objects
 (N, m, 7)), the (M, N) log-ratios log p_new − log p_old of the posteriors with and without the
 i-th simulated observation (docs/advice.md, "How the advice is computed"):
 
 - **A set of dimension lines on target i** (:class:`DimsObservation`): its four corners projected
   at the simulating draw plus bivariate Student-t(ν) noise that scatters as the scene's sets do
-  (:func:`simulation_scale`), stored to 0.01 px. Adding a set changes the corner scales σ (they
-  are estimated from the sets' spread) and with them the pixel noise of every reference line, so
-  the ratio is the difference of the full negative log-posteriors of the models with and without
-  the set (:func:`grown`).
-- **A reference** (:class:`ReferenceObservation`, any :class:`~creference_bayes.models.metrology.ReferenceTerm`:
-  a ground segment, a length relative to a target, a target's own size, the distance between two
-  targets): at the simulating draw, log v = the model's reading of it (log ℓ, less the shift of
-  a corrected reading) + √(s² + v_line)·ε, ε ~ t(ν), with s the draw's crowd scale and v_line the
-  segment's line noise at the pilot; stated as a range with the scene's share of ranges and its
-  median precision. A reference changes nothing else in the model, so the ratio is its own
-  likelihood at each draw (exact: the tests check it against the models' difference). A scene
-  without references has no crowd scale yet: its draws are given one from the scale's prior,
-  independent of the rest, which is the old posterior in the new model's parameters.
+  (:func:`simulation_scale`), stored to 0.01 px. A set changes the corner scales σ and with them
+  every reference line's noise, so the ratio is the difference of the full negative
+  log-posteriors with and without it (:func:`grown`).
+- **A reference** (:class:`ReferenceObservation`, any
+  :class:`~creference_bayes.models.metrology.ReferenceTerm`): at the simulating draw, log v = the
+  model's reading of it + √(s² + v_line)·ε, ε ~ t(ν), s the draw's crowd scale, v_line the
+  segment's line noise at the pilot; stated as a range with the scene's share of ranges and median
+  precision. It changes nothing else, so the ratio is its own likelihood. A scene without
+  references has no crowd scale yet: its draws get one from the scale's prior.
+- **A size from a catalogue** (:class:`SizeObservation`) and **the camera's mounting**
+  (:class:`MountingObservation`): the draw's log-size (or log-height, pitch and roll) plus normal
+  noise of the answer's spread; the answer enters as a prior (:mod:`.answers`), so the ratio is
+  its normal log-density (not tempered); quantities the model holds fixed are left out.
 
-- **A size from a catalogue** (:class:`SizeObservation`) and **the camera's mounting from its
-  calibration** (:class:`MountingObservation`): at the simulating draw, the draw's log-size (or
-  log-height, pitch and roll) plus normal noise of the answer's spread (:mod:`.answers`). The
-  answer enters the scene as a prior multiplied into the one it had (:mod:`.answers`), so the
-  ratio is its normal log-density at each draw (not tempered: a prior); quantities the model
-  holds fixed (a known size; pitch and roll under an exact horizon) are left out.
-
-Held fixed: the pilot (the line noise is taken at the current MAP; a re-estimate would take it at
-its own first optimum) and the camera set-up (horizon, priors).
+Held fixed: the pilot (the line noise at the current MAP) and the camera set-up (horizon, priors).
 """
 
 from __future__ import annotations
@@ -75,14 +67,10 @@ def simulation_scale(model: MetrologyModel, i: int, options: dict) -> float:
     """The Student-t scale (pixels) a simulated set of dimension lines on target ``i`` is drawn
     with: one that scatters as the scene's sets do.
 
-    A stated corner scale (the default 5 px when no target has two sets, or the estimate's
-    ``target_sigma``) is a t scale and is used as it is. A scale estimated from the sets' spread
-    (target i's own, or the scene's pooled one) is their standard deviation, which the model
-    takes as its t scale (a wider likelihood: docs/method.md); a t(ν) of that scale scatters
-    √(ν / (ν − 2)) times more than the sets did (√2 at ν = 4). Drawn with it, a future set is
-    noisier than any seen and the advice under-predicted what one more brings (on the model's
-    own scenes from two sets on: 0.49 points predicted against 1.86 realised from three or more,
-    docs/advice.md); so the scale is the sd · √((ν − 2) / ν), whose t(ν) has that sd.
+    A stated corner scale (the default 5 px, or the estimate's ``target_sigma``) is a t scale and
+    is used as it is. A scale estimated from the sets' spread is their sd, and a t(ν) of that scale
+    scatters √(ν / (ν − 2)) times more than the sets did, which made the advice under-predict
+    what one more set brings (docs/advice.md); so the scale is sd · √((ν − 2) / ν).
     """
     sigma, nu = float(model.sigma[i]), float(model.target_dof)
     from_spread = options.get("target_sigma") is None and any(len(o.annotations) > 1 for o in model.objects)

@@ -1,22 +1,16 @@
 """The request list as files a labelling tool takes: Label Studio tasks and CVAT for images XML
-(docs/advice.md, "Sending the requests to the crowd").
+(docs/advice.md, "Sending the requests to the crowd", says how the answers come back).
 
-- **Label Studio**: one task per request. Its ``data`` holds what the importer reads (the scene's
-  task data, :func:`~creference_bayes.io.labelstudio_export.task_data`), the request (``request``:
-  the instruction in words, ``request_kind``, ``request_measure``, ``request_object``,
-  ``request_target``, ``request_line_px``, ``request_key``) and the whole current scene
-  (``creference_scene``) so that the answers can be put back into it. The task carries no
-  annotations (Label Studio's community edition takes a task with an annotation out of the
-  labelling queue); a reference request on a segment carries it as a prediction (keypoints or a
-  vector, with its measure, object and target filled in), which the worker completes with the
-  value. Exported back, an answered task imports (``creference import label-studio``) as the
-  scene in ``creference_scene`` with the answers appended.
+- **Label Studio**: one task per request, without annotations (the community edition takes a task
+  with one out of the labelling queue). Its ``data`` holds the scene's task data
+  (:func:`~creference_bayes.io.labelstudio_export.task_data`), the request's fields
+  (:func:`request_fields`) and the whole current scene (``creference_scene``), into which the
+  importer puts the answers. A reference request on a segment carries the segment as a
+  prediction (keypoints or a vector, with its measure, object and target filled in).
 - **CVAT**: the scenes' annotations (:func:`~creference_bayes.io.cvat.cvat_xml`) plus, for a
   reference request on a segment, a ``reference`` polyline on it with ``target_id``, ``object``
-  and ``measure`` set and the value left empty for the worker (``worker`` = ``requested``); other
-  requests add nothing (the worker draws a new ``target`` shape, or a reference as the request's
-  text says). Exported back, the XML imports (``creference import cvat``) as the scene with the
-  new annotation.
+  and ``measure`` set, the value left empty and ``worker`` = ``requested``; other requests add
+  nothing (the request's text says what to draw).
 """
 
 from __future__ import annotations

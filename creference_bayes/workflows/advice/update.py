@@ -20,10 +20,7 @@ __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
 #: not trusted: that simulated future is recomputed by :func:`tempered_update` (an annotation) or
-#: :func:`kalman_update` (a size, a mounting). (Until 2026-11-26
-#: 30 and 5 %: with the HDI's small-sample narrowing taken out by :func:`shuffled_hdi`, plain
-#: reweighting down to 10 effective draws predicted a second set of dimension lines better than
-#: the tempered update did, docs/advice.md.)
+#: :func:`kalman_update` (a size, a mounting) (docs/advice.md).
 MIN_ESS = 10.0
 MIN_ESS_FRACTION = 0.01
 #: Shuffles :func:`shuffled_hdi` averages over.
@@ -53,11 +50,8 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
 
     Each draw's weight is spread evenly around it (draw i sits at the cumulative weight
     W_{i-1} + w_i / 2) and the distribution function is interpolated linearly between draws, so
-    the interval's ends and the median move continuously with the weights. Counting whole draws
-    instead (the interval from draw a to the first draw b with W_b − W_{a-1} ≥ ``prob``)
-    overshoots ``prob`` by up to a draw's weight, more for uneven weights than for even ones: the
-    advice's reweighted futures and its equal-weight present then differ by an amount that has
-    nothing to do with the annotation (docs/advice.md, "How the advice is computed").
+    the interval's ends and the median move continuously with the weights (counting whole draws
+    overshoots ``prob`` more for uneven weights than for even ones).
 
     Parameters
     ----------
@@ -119,10 +113,8 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     effective sample size), the width and the width over the median averaged over ``n_shuffles``
     shuffles.
 
-    A shortest interval estimated from weighted draws is too narrow, the more so the fewer the
-    effective draws (about 6 % at 50 effective draws of 1000): a row's HDI set against the
-    equal-weight HDI of all draws would count that as a narrowing. Scaling the row's HDI by
-    (equal-weight HDI) / (this) takes it out.
+    A shortest interval from weighted draws is too narrow, the more so the fewer the effective
+    draws; scaling a row's HDI by (equal-weight HDI) / (this) takes that out.
 
     Returns
     -------
@@ -143,8 +135,7 @@ def location_sd(loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
     centre.
 
     The weighted variance is divided by 1 − Σw², which makes it unbiased for independent draws
-    whatever the weights (the plain weighted variance is short by that factor: by 1/ESS, about
-    2 % at the 50 effective draws a set of dimension lines added to one set can leave)."""
+    whatever the weights."""
     loc = np.asarray(loc, float)
     w = np.atleast_2d(weights)
     mean = w @ loc                       # (M, 3)
@@ -238,17 +229,12 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
     ``steps`` (an ensemble smoother with multiple data assimilation, Emerick & Reynolds 2013), then
     ``n_moves`` random-walk Metropolis steps that leave the new posterior ``log_density`` invariant.
 
-    Each step moves every draw by the gain times (the observation perturbed by its own noise less
-    the draw's q): for a normal posterior and a linear q the draws come out as draws of the
-    conjugate posterior, and no draw is duplicated or dropped. Splitting the observation into
-    steps, each with q taken anew, follows a q that is not linear in the draws' coordinates; the
-    Metropolis steps correct what is not normal (a posterior cut off by the horizon, say). A draw
-    that a step would move where q or the new posterior is not defined stays where it was for that
-    step.
-
-    Used for answers that enter as a normal prior (a size, a mounting), where the tempered update's
-    few random-walk steps in a frame's many dimensions leave the draws too close together
-    (docs/advice.md, "How the advice is computed").
+    For a normal posterior and a linear q the draws come out as draws of the conjugate posterior,
+    none duplicated or dropped; the steps, each with q taken anew, follow a q that is not linear,
+    and the Metropolis steps correct what is not normal (a posterior cut off by the horizon). A draw
+    that a step would move where q or the new posterior is not defined stays where it was. Used for
+    answers that enter as a normal prior, where the tempered update's few random-walk steps in a
+    frame's many dimensions leave the draws too close together (docs/advice.md).
 
     Parameters
     ----------

@@ -38,10 +38,9 @@ def default_workers() -> int:
 def _init_worker(parent_pid: int, interval: float = 1.0) -> None:
     """Pool initializer: leave Ctrl-C to the batch process, and end with it.
 
-    Ctrl-C in a terminal reaches every process of the group; the batch process handles it (it
-    records what finished and ends the pool), so the workers ignore it. A pool's workers would
-    also outlive a batch process killed with SIGKILL (nothing runs its clean-up), finishing
-    their scene for nobody and then waiting for tasks forever: a thread ends them instead.
+    Ctrl-C reaches every process of the group; the batch process handles it (it records what
+    finished and ends the pool), so the workers ignore it. Workers would outlive a batch process
+    killed with SIGKILL and wait for tasks forever: a thread ends them instead.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 

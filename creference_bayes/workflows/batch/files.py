@@ -10,7 +10,7 @@ from ... import __version__
 from ...io.files import atomic_write_json, read_text
 from ...io.scene import scene_to_dict
 
-__all__ = ["ERROR_FORMAT", "layout", "up_to_date", "record_error", "record_result"]
+__all__ = ["ERROR_FORMAT", "layout", "result_paths", "up_to_date", "record_error", "record_result"]
 
 ERROR_FORMAT = "creference-batch-error/1"
 
@@ -20,6 +20,14 @@ def layout(out: str | Path, key: str) -> dict[str, Path]:
     out = Path(out)
     return {"result": out / "results" / f"{key}.json", "scene": out / "scenes" / f"{key}.json",
             "error": out / "errors" / f"{key}.json"}
+
+
+def result_paths(batch_dir: str | Path) -> dict[str, Path]:
+    """KEY → path of every result in a batch folder's ``results/``, sorted; the hidden temporary
+    file of a write that was killed (io/files.py) left out."""
+    root = Path(batch_dir) / "results"
+    paths = {p.relative_to(root).with_suffix("").as_posix(): p for p in sorted(root.rglob("*.json"))}
+    return {k: p for k, p in paths.items() if not any(part.startswith(".") for part in k.split("/"))}
 
 
 def up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:

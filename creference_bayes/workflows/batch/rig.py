@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 __all__ = ["RIG_CHOICES", "QUANTITIES", "SharedLikelihood", "RigEstimate", "RigPool", "camera_id_of",
-           "shared_likelihood", "pool_rig", "rig_priors", "apply_rig", "rig_report"]
+           "shared_likelihood", "rig_priors", "apply_rig", "rig_report"]
 
 #: ``--rig`` values: what frames of one camera share
 RIG_CHOICES = ("none", "focal", "mounting")
@@ -50,10 +50,8 @@ _CAMERA_COLUMNS = {"log_focal": "focal_length_px", "pitch": "pitch", "roll": "ro
 #: a frame whose likelihood precision is below this share of its posterior precision tells nothing
 MIN_INFORMATION = 0.1
 #: the least spread of the mounting from frame to frame (log h; pitch and roll in radians): a camera
-#: on a moving vehicle is not still (braking and the road's changing slope pitch it by tenths of a
-#: degree, the suspension and the road's camber move it by centimetres), and with a few dozen frames
-#: the moment estimator of the spread is often exactly 0, which would make every frame's prior as
-#: narrow as the pooled mean's uncertainty
+#: on a moving vehicle is never still, and with a few dozen frames the moment estimator is often
+#: exactly 0, which would make every frame's prior as narrow as the pooled mean's uncertainty
 MIN_SPREAD = {"log_height": 0.03, "pitch": math.radians(0.5), "roll": math.radians(0.5)}
 
 
@@ -199,14 +197,6 @@ class RigPool:
         if not center:
             return None
         return RigEstimate(camera_id, center, var, tau, count, tuple(x for x in keys if x != leave_out))
-
-
-def pool_rig(frames: list[SharedLikelihood], rig: str, *, leave_out: str | None = None) -> dict[str, RigEstimate]:
-    """Each camera's pooled quantities (``rig`` one of :data:`RIG_CHOICES`), from the frames that
-    name a camera, without the frame ``leave_out`` (:meth:`RigPool.estimate`)."""
-    pool = RigPool(frames, rig)
-    found = {cam: pool.estimate(cam, leave_out) for cam in pool.cameras}
-    return {cam: est for cam, est in found.items() if est is not None}
 
 
 def rig_priors(est: RigEstimate, base_orientation=None):

@@ -24,6 +24,7 @@ from pathlib import Path, PurePath
 from ...io.files import read_text
 from ...io.result import RESULT_FORMAT, RESULT_FORMATS, canonical_sha256, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
+from ..batch.files import result_paths
 from .kitti import LabelInput, ObjectLabel, write_labels
 from .quality import IOU_THRESHOLDS
 
@@ -53,10 +54,7 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     if not (batch_dir / "results").is_dir():
         raise FileNotFoundError(2, "not a batch folder (no results/ inside)", str(batch_dir))
     inputs, skipped = [], []
-    for path in sorted((batch_dir / "results").rglob("*.json")):
-        key = path.relative_to(batch_dir / "results").with_suffix("").as_posix()
-        if any(part.startswith(".") for part in key.split("/")):
-            continue  # a temporary file left by a write that was killed (io/files.py)
+    for key, path in result_paths(batch_dir).items():
         try:
             result = json.loads(read_text(path))
             if result.get("format") not in RESULT_FORMATS or "batch" not in result:

@@ -14,19 +14,11 @@ along gravity, z forward) and a calib with P2 = K [R | 0] from the MAP camera, R
 camera of the scene whose focal length is best known, and ``calib_mismatch_px`` says how far each
 box's corners move between its own scene's P2 and the image's.
 
-The sidecar, ``creference-kitti-uncertainty/2`` (:data:`~creference_bayes.io.kitti.SIDECAR_FORMAT`;
-docs/labels.md): ``image``, ``scenes``, ``label_file``, ``calib_file``, ``frame`` (which frame
-the labels are in), ``camera`` (the camera of P2: its scene, MAP, free parameters, posterior
-summary, principal point, focal length, pitch and roll, and ``draws`` of the free parameters),
-``score`` and ``objects``, one per label line: ``line`` (1-based), ``scene``, ``target``, ``class``,
-``type``, ``size`` (``known`` or ``class prior``), ``label`` (the box as written: ``location``,
-``rotation_y``, ``dimensions_hwl``), ``point_label`` (``map``), ``map`` and ``posterior`` (the
-result's, in its own terms), ``covariance`` (of the draws' boxes in the labels' frame, rotation_y
-unwrapped around its circular mean), ``quality`` (``p_iou_ge_0.5``, ``p_iou_ge_0.7``, ``iou_mean``,
-``iou_median``, ``n_draws``), ``draws`` (evenly spaced boxes in the labels' frame: ``x``, ``y``,
-``z``, ``rotation_y`` and, when estimated, ``length``, ``width``, ``height``; the same draws as the
-camera's), ``evidence``, ``calib_mismatch_px`` and, with ground truth, ``true_iou``.
-(``creference-kitti-uncertainty/1`` was two different layouts, one-target and frame.)
+The sidecar, ``creference-kitti-uncertainty/2`` (:data:`~creference_bayes.io.kitti.SIDECAR_FORMAT`),
+holds the image, its scenes and files, the frame of the labels, the camera of P2 (MAP, posterior
+summary and draws) and one entry per label line (its box, MAP and posterior, covariance in the
+labels' frame, quality, evenly spaced draws, ``calib_mismatch_px`` and, with ground truth,
+``true_iou``); every key is listed in docs/labels.md.
 """
 
 from __future__ import annotations
