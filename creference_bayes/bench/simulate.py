@@ -2,12 +2,9 @@
 
 A scene is one camera and ``n_objects`` targets, boxes standing on the ground, each with noisy
 dimension lines, plus reference objects measured by workers. Settings (:data:`SETTINGS`):
-
-* ``indoor`` and ``outdoor``: the paper's photos (2880 × 1800 px, µ 1000–2600 px, pitch 0–15° or
-  0–10° down), objects of the paper's Table 1 ranges (:data:`OBJECTS`), the benchmark's scenes;
-* ``street``: a car-mounted camera as in KITTI (1242 × 375 px, µ 650–1100 px, pitch ±3°, height
-  1.4–1.9 m), cars, vans, trucks, pedestrians and cyclists 4–60 m away (uniform in log depth),
-  sizes drawn from the KITTI class priors.
+``indoor`` and ``outdoor`` (the paper's photos and Table 1 objects, :data:`OBJECTS`; the
+benchmark's scenes) and ``street`` (a car-mounted camera as in KITTI; cars, vans, trucks,
+pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors).
 
 Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
 ``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
@@ -101,15 +98,12 @@ FORMATS = tuple((m, mode, r) for m in ("length", "width", "distance") for mode i
                 for r in (False, True) if not (m == "distance" and mode == "relative"))
 
 #: "Paper-like" worker measurements: the log of the error factor is ``scale · t_dof``, clipped to
-#: ±log(clip) (no worker is off by more than a factor ``clip``; the clip also keeps the mean
-#: finite: exp of an unclipped t has no mean). Measured on 10⁶ draws: median absolute error
-#: 56 %, mean 160 % (paper Table 2: medians 50–68 %, means 55–291 %; benchmark.md asks for a
-#: median of 50–65 % and a mean of 100–250 %). tests/test_simulate.py checks these.
+#: ±log(clip) (the clip keeps the mean finite). Median absolute error 56 %, mean 160 %, like the
+#: paper's Table 2 (tests/test_simulate.py checks these).
 PAPER_NOISE = {"dof": 2.0, "scale": 0.75, "clip": 20.0}
 
-#: Stated ranges: precision (Eq. 4) log-normal with median 25 % and log-sd 0.6, i.e. mean ≈ 30 %,
-#: sd ≈ 20 % (paper Table 3: medians 18–29 %, means 26–37 %, sds 17–29 %), centred on the
-#: worker's (noisy) value.
+#: Stated ranges: precision (Eq. 4) log-normal, median 25 %, log-sd 0.6 (mean ≈ 30 %, sd ≈ 20 %,
+#: like the paper's Table 3), centred on the worker's (noisy) value.
 RANGE_PRECISION = {"median": 0.25, "log_sd": 0.6}
 _SIZES = ("length", "width", "height")
 
