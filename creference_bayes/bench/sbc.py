@@ -132,8 +132,7 @@ def simulate_sbc_scene(rng: np.random.Generator, truth, n_target: int, n_refs: i
     """A ``creference-scene/2`` scene (dict) of one target from ``truth`` (:func:`draw_truth`) with
     the model's own noise (module docstring): no horizon, focal length unknown, single-valued
     references in metres. None when the drawn annotations do not all lie in the image (the caller
-    then draws a new scene: a selection on the data alone, which leaves the posterior given the
-    data, and so the ranks' uniformity, unchanged)."""
+    then draws a new scene)."""
     camera, obj = (np.asarray(a, float) for a in truth)
     pp = np.array(IMAGE_SIZE, float) / 2
     handed = int(rng.choice([1, -1]))
@@ -174,12 +173,11 @@ def simulate_sbc_scene(rng: np.random.Generator, truth, n_target: int, n_refs: i
 
 def sbc_reference(rng: np.random.Generator, truth, true_line: np.ndarray, scale: float, worker: str,
                   object: str = "segment") -> dict | None:
-    """One worker's reference on the ground segment under ``true_line`` ((2, 2) pixels) under the
-    model's own noise model (module docstring): its drawn line, the true one off by N(0, (2σ)²) px
-    per coordinate, and its stated length, the segment's real length ℓ at the true camera
-    (``truth``, :func:`draw_truth`) times exp(``scale`` · ε), ε ~ Student-t₂. A second call on the
-    same line is a second worker measuring the same thing. None when the true or the drawn line is
-    not in the image."""
+    """One worker's reference on the ground segment under ``true_line`` ((2, 2) pixels) with the
+    model's own noise (module docstring): the drawn line is the true one off by N(0, (2σ)²) px per
+    coordinate, the stated length ℓ·exp(``scale`` · ε), ε ~ t₂, ℓ the segment's real length at the
+    true camera (``truth``, :func:`draw_truth`). A second call on the same line is a second worker
+    measuring the same thing. None when the true or the drawn line is not in the image."""
     true_line = np.asarray(true_line, float)
     uv = true_line + rng.normal(0.0, 2.0 * TARGET_SCALE_PX, true_line.shape)
     if not (_inside(true_line) and _inside(uv)):
@@ -233,7 +231,7 @@ def run_sbc(n_scenes: int = 40, *, designs=tuple(DESIGNS), seed: int = 0, box: S
             rng = np.random.default_rng([seed, list(DESIGNS).index(name), i])
             k = ref_cycle[i % len(ref_cycle)]
             d = None
-            while d is None:  # annotations outside the image: a new scene (a selection on the data)
+            while d is None:  # annotations outside the image: a new scene
                 camera, obj = draw_truth(rng, box)
                 d = simulate_sbc_scene(rng, (camera, obj), n_target, k)
             t0 = time.process_time()

@@ -46,13 +46,10 @@ def reliability_figure(rows, maps: dict | None = None, *, true_map=None, fig: Fi
         ax.errorbar(lv, cov, yerr=yerr, fmt="o", color="#d62728", capsize=3, ms=5,
                     label="realised coverage (95 % Wilson)")
         axn.bar(lv, [r.n for r in rows], width=0.025, color="#d62728", alpha=0.7)
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
-    ax.set_ylabel("share of ranges holding the truth")
-    ax.set_title("reliability of stated ranges")
+    ax.set(xlim=(0, 1), ylim=(0, 1), ylabel="share of ranges holding the truth",
+           title="reliability of stated ranges")
     ax.legend(loc="upper left", fontsize="small")
-    axn.set_xlabel("stated confidence c")
-    axn.set_ylabel("ranges")
+    axn.set(xlabel="stated confidence c", ylabel="ranges")
     return fig
 
 
@@ -77,10 +74,7 @@ def workers_figure(rows, fig: Figure | None = None) -> Figure:
                     fmt="none", ecolor="#bbbbbb", lw=0.8)
         ax.scatter(s, cov, s=12 + 88 * n / n.max(), color="#1f77b4", alpha=0.8, zorder=3,
                    label=f"{len(rows)} workers (area ∝ ranges, up to {int(n.max())})")
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
-    ax.set_xlabel("worker's mean stated confidence")
-    ax.set_ylabel("worker's realised coverage")
-    ax.set_title("workers")
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="worker's mean stated confidence",
+           ylabel="worker's realised coverage", title="workers")
     ax.legend(loc="upper left", fontsize="small")
     return fig

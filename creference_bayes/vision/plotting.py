@@ -360,11 +360,7 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
     if draws is not None:
         ax.plot([], [], color="0.2", lw=0.9, alpha=0.3, label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
     ax.plot([], [], color="k", lw=1.1, label="annotations (thin: each set; thick: their median)")
-    ax.set_xlim(0, w)
-    ax.set_ylim(h, 0)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
+    ax.set(xlim=(0, w), ylim=(h, 0), aspect="equal", xlabel="u (px)", ylabel="v (px)")
     what = f"{m} objects" if m > 1 else labels[0]
     ax.set_title(f"{what}: boxes at the MAP" + (f" and {draws_label}" if draws is not None else ""))
     legend = ax.legend(loc="lower left", fontsize=8, framealpha=0.85)
@@ -413,10 +409,7 @@ def _photo_inset(ax, pts: np.ndarray, w: int, h: int):
                                             linestyles=col.get_linestyles(), alpha=col.get_alpha(),
                                             zorder=col.get_zorder()), autolim=False)
     x0, y0 = c[0] - size / 2, c[1] - size * h / w / 2
-    inset.set_xlim(x0, x0 + size)
-    inset.set_ylim(y0 + size * h / w, y0)
-    inset.set_xticks([])
-    inset.set_yticks([])
+    inset.set(xlim=(x0, x0 + size), ylim=(y0 + size * h / w, y0), xticks=[], yticks=[])
     inset.set_title(f"zoom ×{0.42 * w / size:.0f}", fontsize=8, pad=2)
     ax.indicate_inset_zoom(inset, edgecolor="0.3")
     return inset
@@ -519,11 +512,8 @@ def plot_top_view(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *,
         if truths[i] is not None:
             _draw_footprint(ax, truths[i], _TRUTH_COLOR, ls="--", lw=1.0, fill=False)
     _draw_camera(ax, scene, camera, 0.025 * span)
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x, right (m)")
-    ax.set_ylabel("z, forward (m)")
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), aspect="equal", xlabel="x, right (m)",
+           ylabel="z, forward (m)")
     ax.grid(alpha=0.3)
     _legend_entries(ax, clouds=bool(clouds), truth=any(t is not None for t in truths), draws_label=draws_label,
                     prob=prob, centre="bottom centre at the MAP (zoom panels)" if beside else None, camera=True)
@@ -608,9 +598,7 @@ def _zoom_panel(ax, obj, cloud, truth, style, label, prob, rng) -> None:
     p = _panel_points(obj, cloud, truth)
     c = (p.min(axis=0) + p.max(axis=0)) / 2
     half = 0.55 * max(np.ptp(p[:, 0]), np.ptp(p[:, 1]), 0.5)
-    ax.set_xlim(c[0] - half, c[0] + half)
-    ax.set_ylim(c[1] - half, c[1] + half)
-    ax.set_aspect("equal")
+    ax.set(xlim=(c[0] - half, c[0] + half), ylim=(c[1] - half, c[1] + half), aspect="equal")
     ax.tick_params(labelsize=6)
     ax.grid(alpha=0.3)
     ax.set_title(f"{label}, {np.hypot(obj[0], obj[1]):.0f} m", fontsize=7, color=color)
@@ -790,8 +778,7 @@ def plot_ranks(columns: list[Column], chains: np.ndarray, *, bins: int | None = 
             ax.stairs(counts, edges, baseline=None, label=f"chain {c}", lw=1.3)
         ax.axhline(per_chain / bins, color="k", ls=":", lw=1)
         ax.set_title(col.label, fontsize=9)
-        ax.set_xticks([])
-        ax.set_ylim(0, 2 * per_chain / bins)
+        ax.set(xticks=[], ylim=(0, 2 * per_chain / bins))
     for ax in axes[len(columns):]:
         ax.set_visible(False)
     if len(ids) <= 8:
