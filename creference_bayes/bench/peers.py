@@ -167,6 +167,7 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     centred = ann - camera.principal_point
     samples = [np.median(centred, axis=0)] + ([c for c in centred] if len(centred) > 1 else [])
     x_all = centred.reshape(-1, 2)
+    X_all = {hand: np.tile(dimension_corners(*size, hand), (len(centred), 1)) for hand in HANDEDNESS}
     hyps = {hand: [] for hand in HANDEDNESS}
     for hand in HANDEDNESS:
         X = dimension_corners(*size, hand)
@@ -179,17 +180,15 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     if fallback:
         side = float(max(scene.image_width, scene.image_height))
         for hand in HANDEDNESS:
-            X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
             for f in FALLBACK_FOCALS * side:
                 cam = {"model": "SIMPLE_PINHOLE", "width": 0, "height": 0, "params": [float(f), 0.0, 0.0]}
-                pose, _ = pl.estimate_absolute_pose(x_all, X_all, cam, {"max_reproj_error": 1e6}, {})
+                pose, _ = pl.estimate_absolute_pose(x_all, X_all[hand], cam, {"max_reproj_error": 1e6}, {})
                 hyps[hand].append((pose, float(f)))
     best, n_hyp = None, 0
     for hand in HANDEDNESS:
-        X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
         for pose, f in hyps[hand]:
             n_hyp += 1
-            R, tr, f_ref, sse = _refine(pl, pose, f, X_all, x_all, refine)
+            R, tr, f_ref, sse = _refine(pl, pose, f, X_all[hand], x_all, refine)
             if best is None or sse < best[0]:
                 best = (sse, hand, np.asarray(R), np.asarray(tr), f_ref)
     if best is None:

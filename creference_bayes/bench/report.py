@@ -236,11 +236,9 @@ def _paired(doc, estimator: str, against: str = "ours-metrology") -> dict:
         block = {}
         for name in (against, estimator):
             rows = [r for r in _sel(recs, estimator=name, n_target=nt, n_refs=k) if r["tier"] in NOISY]
-            cov = [r["coverage"]["distance_m"] for r in rows if "distance_m" in r.get("coverage", {})]
             block[name] = {"error": stats([r["error"] for r in rows]),
                            "post_error": stats([r.get("post_error") for r in rows]),
-                           "coverage": {"n": len(cov), "50": float(np.mean([c["50"] for c in cov])) if cov else None,
-                                        "90": float(np.mean([c["90"] for c in cov])) if cov else None}}
+                           "coverage": _coverage(rows).get("distance_m", {"n": 0, "50": None, "90": None})}
         out[k] = block
     return out
 

@@ -1,7 +1,6 @@
 """Figures of an estimate of any scene (matplotlib): every object's box on the photo, the ground
 seen from above with a zoom on each small object, pair plots of the posterior (the camera and the
-chosen objects) and rank plots of its chains; and the rank histograms of simulation-based
-calibration.
+chosen objects), rank plots of its chains, and the rank histograms of simulation-based calibration.
 
 Every figure takes the scene (:class:`~creference_bayes.io.scene.Scene`), the MAP as model arrays
 (camera (5,), objects (m, 7), :mod:`~creference_bayes.models.contract` order) and draws as model
@@ -9,10 +8,9 @@ arrays (cameras (n, 5), objects (n, m, 7)) or None; it draws on the ``ax``/``fig
 on a new :class:`matplotlib.figure.Figure` (no pyplot state) and returns the figure.
 :func:`scene_figures` makes every figure of a result at once (``creference plot``).
 
-Each object has a style of its own (:func:`object_styles`): one of :data:`OBJECT_COLORS`, with a
-line style of its own once the colours have all been used. Its label (``id (class)``; the id alone,
-with a key below the figure, when there are more than :data:`FULL_LABELS_UP_TO` objects) is placed
-near the object where it overlaps no other label, with a leader line when it had to move away.
+Each object has its own colour and line style (:func:`object_styles`) and a label (``id (class)``,
+or the id alone with a key below the figure beyond :data:`FULL_LABELS_UP_TO` objects) placed near
+it where it overlaps no other label, with a leader line when it had to move away.
 """
 
 from __future__ import annotations
@@ -148,12 +146,9 @@ def _hdr_levels(x, z, prob, bins=40):
     from scipy.ndimage import gaussian_filter
 
     x, z = np.asarray(x, float), np.asarray(z, float)
-    rng = []
-    for v in (x, z):
-        lo, hi = np.quantile(v, [0.005, 0.995])
-        pad = 0.3 * max(hi - lo, 1e-9)
-        rng.append([lo - pad, hi + pad])
-    H, xe, ze = np.histogram2d(x, z, bins=bins, range=rng)
+    lo, hi = np.quantile(np.column_stack([x, z]), [0.005, 0.995], axis=0)
+    pad = 0.3 * np.maximum(hi - lo, 1e-9)
+    H, xe, ze = np.histogram2d(x, z, bins=bins, range=np.column_stack([lo - pad, hi + pad]))
     H = gaussian_filter(H, 1.5)
     flat = np.sort(H.ravel())[::-1]
     cum = np.cumsum(flat) / max(len(x), 1)
@@ -164,10 +159,6 @@ def _hdr_levels(x, z, prob, bins=40):
 def _central(cloud, q: float) -> np.ndarray:
     """(2, 2) the (x, z) quantiles ``q`` and 1 − ``q`` of a cloud of bottom centres."""
     return np.column_stack([np.quantile(cloud[0], [q, 1 - q]), np.quantile(cloud[1], [q, 1 - q])])
-
-
-def _pick(n_draws: int, k: int, rng) -> np.ndarray:
-    return np.random.default_rng(rng).choice(n_draws, size=min(k, n_draws), replace=False)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -342,7 +333,7 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
                                      colors="k", linewidths=1.1, zorder=2.5, gid="median annotations"), autolim=False)
     if draws is not None:
         cams, objs = draws
-        pick = _pick(len(cams), n_boxes, rng)
+        pick = np.random.default_rng(rng).choice(len(cams), size=min(n_boxes, len(cams)), replace=False)
         for i in range(m):
             segs = _box_segments(image_boxes(cams[pick], objs[pick, i], scene.principal_point))
             ax.add_collection(LineCollection(segs, colors=styles[i]["color"], linewidths=0.9, alpha=0.3, zorder=2,
