@@ -440,7 +440,7 @@ def estimate_horizon(image, *, principal_point=None, scene_size: tuple[int, int]
         if far.sum() < 4 or np.array_equal(far, use):
             break
         use = far
-    line, line_cov, kept, assumed_level, vps, vertical, n_support = fit
+    line, line_cov, assumed_level, vps, vertical = fit
     pix = _to_pixels(vps, centre, scale)
     rows = _border_rows(line, T_inv, w)
     jac = np.array([(_border_rows(line + e, T_inv, w) - rows) / 1e-7 for e in 1e-7 * np.eye(3)]).T
@@ -466,14 +466,13 @@ def _horizon_pass(seg, size, centre, scale, seed, n_hypotheses, inlier_px):
     if not horizontal:
         return "no horizontal vanishing point"
     supports = [len(i) for i in inliers]
-    line, line_cov, kept, assumed_level = _fit_horizon(vps, covs, supports, horizontal, vertical)
+    line, line_cov, assumed_level = _fit_horizon(vps, covs, supports, horizontal, vertical)
     if abs(line[1]) > 0 and abs(math.degrees(math.atan(line[0] / line[1]))) > MAX_ROLL_DEG:
         # far more often a vanishing point in the wrong family than a tilted camera: take it level
-        line, line_cov, kept, assumed_level = _fit_horizon(vps, covs, supports, horizontal[:1], None)
+        line, line_cov, assumed_level = _fit_horizon(vps, covs, supports, horizontal[:1], None)
     if abs(line[1]) < abs(line[0]):
         return "the vanishing points give a horizon steeper than 45 degrees"
-    n_support = sum(supports[k] for k in kept if k is not None)
-    return line, line_cov, kept, assumed_level, vps, vertical, n_support
+    return line, line_cov, assumed_level, vps, vertical
 
 
 def _border_rows(line: np.ndarray, T_inv: np.ndarray, width: float) -> np.ndarray:
@@ -502,19 +501,16 @@ def _fit_horizon(vps, covs, supports, horizontal, vertical, max_chi2: float = 16
 
     Returns
     -------
-    line (3,), its covariance (3, 3), the indices kept (None for the vertical constraint),
-    assumed_level
+    line (3,), its covariance (3, 3), assumed_level
     """
     J = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    points = [(k, vps[k], covs[k], supports[k]) for k in horizontal]
+    points = [(vps[k], covs[k], supports[k]) for k in horizontal]
     if vertical is not None:
-        points.append((None, J @ vps[vertical], J @ covs[vertical] @ J.T, supports[vertical]))
+        points.append((J @ vps[vertical], J @ covs[vertical] @ J.T, supports[vertical]))
     assumed_level = len(points) == 1
     if assumed_level:  # a level horizon: the point at infinity (1, 0, 0), nearly certain
-        points.append((None, np.array([1.0, 0.0, 0.0]), 1e-8 * np.eye(3), 0))
-    P = np.array([p[1] for p in points])
-    C = np.array([p[2] for p in points])
-    support = np.array([p[3] for p in points], float)
+        points.append((np.array([1.0, 0.0, 0.0]), 1e-8 * np.eye(3), 0))
+    P, C, support = (np.array(v, float) for v in zip(*points))
 
     def chi2(line):
         return (P @ line) ** 2 / np.maximum(np.einsum("i,kij,j->k", line, C, line), 1e-300)
@@ -536,7 +532,7 @@ def _fit_horizon(vps, covs, supports, horizontal, vertical, max_chi2: float = 16
         line = vec[:, 0]
         wts = 1.0 / np.maximum(np.einsum("i,kij,j->k", line, C[keep], line), 1e-300)
     cov = sum(np.outer(vec[:, k], vec[:, k]) / max(lam[k], 1e-300) for k in (1, 2))
-    return line, cov, [points[k][0] for k in keep], assumed_level
+    return line, cov, assumed_level
 
 
 def horizon_error(estimated: np.ndarray, true: np.ndarray, width: float, height: float) -> float:
