@@ -42,9 +42,7 @@ def _reliability_panel(ax, t: float, rows: list[dict], title: str | None = None)
     """Observed share against mean predicted P(IoU ≥ t) per bin, with the ±2 se band of a
     calibrated forecast; each bin's count is written above the panel, at the bin's centre (on a
     secondary axis, where it overlaps neither the data nor the tick labels)."""
-    pred = np.array([r["mean_predicted"] for r in rows])
-    obs = np.array([r["observed_share"] for r in rows])
-    se = np.array([r["se"] for r in rows])
+    pred, obs, se = (np.array([r[k] for r in rows]) for k in ("mean_predicted", "observed_share", "se"))
     ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
     yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
     ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,

@@ -516,12 +516,7 @@ def plot_top_view(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *,
     if not full:
         _key(left, scene, styles, fs, main_w + 0.8, outside=True)
     if cols:
-        axes = np.atleast_1d(right.subplots(rows, cols, squeeze=False)).ravel()
-        for a, i in zip(axes, beside):
-            _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i],
-                        object_labels(scene)[i], prob, rng)
-        for a in axes[len(beside):]:
-            a.set_visible(False)
+        _zoom_panels(right, rows, cols, beside, scene, objects, clouds, truths, styles, prob, rng)
         right.suptitle("zoom on each small object\n(own scale)" if cols == 1 else "zoom on each small object (own scale)",
                        fontsize=9)
     _place_labels(ax, objects[:, :2], labels, colors, fontsize=fs, obstacles=[_footprint(o) for o in objects])
@@ -547,12 +542,7 @@ def plot_zooms(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, in
     panel = float(min(2.3, (MAX_FIGURE_IN - 1.2) / rows, MAX_FIGURE_IN / cols))
     if fig is None:
         fig = Figure(figsize=(max(panel * cols + 0.3, 4.6), panel * rows + 1.6), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
-    full = object_labels(scene)
-    for a, i in zip(axes, indices):
-        _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i], full[i], prob, rng)
-    for a in axes[len(indices):]:
-        a.set_visible(False)
+    _zoom_panels(fig, rows, cols, indices, scene, objects, clouds, truths, styles, prob, rng)
     proxy = fig.add_axes([0, 0, 0, 0])
     proxy.set_visible(False)
     _legend_entries(proxy, clouds=bool(clouds), truth=any(truths[i] is not None for i in indices),
@@ -576,6 +566,16 @@ def _panel_points(obj, cloud, truth) -> np.ndarray:
 def _object_extent(obj, cloud, truth) -> float:
     p = _panel_points(obj, cloud, truth)
     return float(max(np.ptp(p[:, 0]), np.ptp(p[:, 1])))
+
+
+def _zoom_panels(fig, rows, cols, indices, scene, objects, clouds, truths, styles, prob, rng) -> None:
+    """A grid of ``rows`` × ``cols`` zoom panels on ``fig``, one per object of ``indices``."""
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    full = object_labels(scene)
+    for a, i in zip(axes, indices):
+        _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i], full[i], prob, rng)
+    for a in axes[len(indices):]:
+        a.set_visible(False)
 
 
 def _zoom_panel(ax, obj, cloud, truth, style, label, prob, rng) -> None:
