@@ -68,17 +68,11 @@ def ground_truth_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarra
     """(n,) 0 counted, 1 ignored (neighbouring class, or too small, occluded or truncated), −1
     another class (incl. DontCare)."""
     cls = cls.lower()
-    out = np.full(len(frame.gt_type), -1, int)
-    for i, t in enumerate(frame.gt_type):
-        t = t.lower()
-        if t == cls:
-            hard = (frame.gt_occlusion[i] > MAX_OCCLUSION[difficulty]
-                    or frame.gt_truncation[i] > MAX_TRUNCATION[difficulty]
-                    or frame.gt_height_px[i] < MIN_HEIGHT[difficulty])
-            out[i] = 1 if hard else 0
-        elif NEIGHBOURS.get(cls) == t:
-            out[i] = 1
-    return out
+    types = np.array([t.lower() for t in frame.gt_type], str)
+    hard = ((np.asarray(frame.gt_occlusion) > MAX_OCCLUSION[difficulty])
+            | (np.asarray(frame.gt_truncation) > MAX_TRUNCATION[difficulty])
+            | (np.asarray(frame.gt_height_px) < MIN_HEIGHT[difficulty]))
+    return np.where(types == cls, hard.astype(int), np.where(types == NEIGHBOURS.get(cls), 1, -1))
 
 
 def detection_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarray:
