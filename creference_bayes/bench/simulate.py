@@ -159,10 +159,8 @@ def _place(rng, setting, R, f, pp, y, size, image, dist_range, need_inside, trie
     ``need_inside`` vertices lie in the image: (x, y, z, yaw, f), their pixels and points."""
     w_img, h_img = image
     for _ in range(tries):
-        if setting == "street":
-            d = math.exp(rng.uniform(math.log(dist_range[0]), math.log(dist_range[1])))
-        else:
-            d = float(rng.uniform(*dist_range))
+        d = (math.exp(rng.uniform(math.log(dist_range[0]), math.log(dist_range[1]))) if setting == "street"
+             else float(rng.uniform(*dist_range)))
         half_fov = math.atan2(0.45 * w_img, f)  # bearing within the horizontal field of view
         bearing = rng.uniform(-half_fov, half_fov)
         params = np.array([d * math.sin(bearing), y, d * math.cos(bearing), rng.uniform(-math.pi, math.pi), f])
@@ -301,8 +299,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
         is_range = (is_range and not single_values) or confidence is not None
         oname, osize = _draw_object(rng, setting)
-        oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
-                                      (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
+        _, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
+                                (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
         near = int(np.argmin(np.linalg.norm(overts[:4, [0, 2]], axis=1)))
         if measure in ("length", "width"):  # a bottom edge from the nearest corner
             other = ({0: 1, 1: 0, 2: 3, 3: 2} if measure == "length" else {0: 3, 3: 0, 1: 2, 2: 1})[near]
@@ -318,9 +316,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
-        line = seg_uv + rng.normal(0.0, tier.reference_px, (2, 2))
-        line[:, 0] = np.clip(line[:, 0], 0, w_img)
-        line[:, 1] = np.clip(line[:, 1], 0, h_img)
+        line = np.clip(seg_uv + rng.normal(0.0, tier.reference_px, (2, 2)), 0, [w_img, h_img])
         ref = {"worker": f"r{j + 1:02d}", "object": oname, "measure": measure, "mode": mode}
         if mode == "relative":
             value, unit = stated / first[measure], None
