@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .report import TIER_ORDER as TIERS
+from .report import _sel, estimator_rows
+
 __all__ = ["error_by_tier", "error_vs_refs", "same_time", "pairs", "calibration", "sweep", "timing",
            "write_figures"]
-
-TIERS = ("none", "low", "medium", "high")
 
 
 def _plt():
@@ -40,8 +41,6 @@ _FAMILY_COLOURS = {"paper": "C0", "p4pf": "C7", "ours-paper": "C1", "ours-metrol
 def _tier_panels(doc: dict) -> list[tuple[str, list]]:
     """The rows of :func:`~.report.estimator_rows` split into two readable panels: the estimators
     with the references, and the metrology MAP's camera studies (the other rows are in bench.md)."""
-    from .report import estimator_rows
-
     rows = estimator_rows(doc)
     nref = max(doc["config"]["ref_counts"])
 
@@ -74,8 +73,6 @@ def error_by_tier(doc: dict, fig=None):
     """Median location error per tier (bars: interquartile range), log scale, in two panels of a
     few distinct series each: colour = estimator family, marker = MAP (●) / posterior mean (◆) /
     Cramér–Rao bound (▬), open marker = no references."""
-    from .report import _sel
-
     panels = _tier_panels(doc)
     fig = _figure(fig, (12, 6.4))
     axes = fig.subplots(1, len(panels), sharey=True)

@@ -256,11 +256,9 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
     from .peers import estimate_p4pf, poselib_available
 
     if poselib_available():
-        from ..core.metrics import location_percentage_error
-
         p = estimate_p4pf(variant(scene, nt, ()))
         recs.append(_record(sid, scene, "p4pf", n_target=nt, n_refs=0, seconds=p.seconds, fallback=p.info["fallback"],
-                            error=float(location_percentage_error(p.params[:3], scene.targets[0].ground_truth["location_m"]))))
+                            error=p.location_error(scene.targets[0].ground_truth["location_m"])))
 
     for model in MODELS:  # ours
         for n_ann, k in [(nt, k) for k in config.ref_counts] + [(config.n_target_baseline, 0)]:
