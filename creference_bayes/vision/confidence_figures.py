@@ -40,8 +40,7 @@ def reliability_figure(rows, maps: dict | None = None, *, true_map=None, fig: Fi
         ax.plot(cc, curve(cc), color=colour, lw=1.6,
                 label=f"{label} ({cmap.interval_prob:.0%} band)")
     if rows:
-        lv = np.array([r.level for r in rows])
-        cov = np.array([r.coverage for r in rows])
+        lv, cov = (np.array([getattr(r, k) for r in rows]) for k in ("level", "coverage"))
         yerr = np.vstack([cov - [r.low for r in rows], [r.high for r in rows] - cov])
         ax.errorbar(lv, cov, yerr=yerr, fmt="o", color="#d62728", capsize=3, ms=5,
                     label="realised coverage (95 % Wilson)")
@@ -67,8 +66,7 @@ def workers_figure(rows, fig: Figure | None = None) -> Figure:
     ax = fig.subplots()
     ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
     if rows:
-        s = np.array([r.stated for r in rows])
-        cov = np.array([r.coverage for r in rows])
+        s, cov = (np.array([getattr(r, k) for r in rows]) for k in ("stated", "coverage"))
         n = np.array([r.n for r in rows], float)
         ax.errorbar(s, cov, yerr=np.vstack([cov - [r.low for r in rows], [r.high for r in rows] - cov]),
                     fmt="none", ecolor="#bbbbbb", lw=0.8)
