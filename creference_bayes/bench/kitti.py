@@ -180,8 +180,8 @@ def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
         calib = folder / "calib" / lp.name
         image = folder / "image_2" / (lp.stem + ".png")
         scene, rep = kitti_scene(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k],
-                                 n_annotations=n_annotations, noise_px=noise_px, frame_id=lp.stem, sizes=sizes,
-                                 focal_known=focal_known)
+                                 n_annotations=n_annotations, noise_px=noise_px, frame_id=lp.stem,
+                                 sizes=sizes, focal_known=focal_known)
         for key, v in rep["skipped"].items():
             totals["skipped"][key] = totals["skipped"].get(key, 0) + v
         if rep["kept"]:
