@@ -72,7 +72,7 @@ def ground_truth_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarra
     hard = ((np.asarray(frame.gt_occlusion) > MAX_OCCLUSION[difficulty])
             | (np.asarray(frame.gt_truncation) > MAX_TRUNCATION[difficulty])
             | (np.asarray(frame.gt_height_px) < MIN_HEIGHT[difficulty]))
-    return np.where(types == cls, hard.astype(int), np.where(types == NEIGHBOURS.get(cls), 1, -1))
+    return np.where(types == cls, hard.astype(int), np.where(types == NEIGHBOURS.get(cls, ""), 1, -1))
 
 
 def detection_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarray:
