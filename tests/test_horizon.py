@@ -276,7 +276,7 @@ def test_a_horizon_tilted_beyond_the_limit_is_taken_level_through_the_best_point
 
     seg = np.vstack([towards(near, 14), towards(far, 8)])
     scale = 0.5 * float(np.hypot(w, h))
-    line, _, _, assumed_level, vps, _, _ = _horizon_pass(seg, (w, h), centre, scale, 0, 600, 1.5)
+    line, _, assumed_level, vps, _ = _horizon_pass(seg, (w, h), centre, scale, 0, 600, 1.5)
     assert len(vps) >= 2  # both points were found
     tilt = math.degrees(math.atan(line[0] / line[1]))
     assert abs(tilt) < 0.5 and assumed_level

@@ -1,28 +1,25 @@
 """The Cramér–Rao bound on every target's location error at the true state (benchmark.md, "the limit").
 
 For any scene (one target or many) the parameters are the model's free ones (:mod:`~creference_bayes.
-models.contract`: the shared camera and each object's block; pitch and roll derived from an exact
-horizon and µ when the model says so, so that µ's column carries their change; the crowd's scale
-is not a parameter here: the workers' error is given). The covariance of an unbiased estimator is
-at least F⁻¹, F the Fisher information at the truth:
+models.contract`; pitch and roll derived from an exact horizon and µ when the model says so; the
+crowd's scale is not a parameter: the workers' error is given). An unbiased estimator's covariance
+is at least F⁻¹, F the Fisher information at the truth, summed over:
 
-- dimension lines: each of object i's Kᵢ annotations observes its four projected corners with
-  independent Gaussian noise σ per pixel coordinate, F = Σᵢ (Kᵢ / σ²) Jᵢᵀ Jᵢ, Jᵢ the Jacobian of
-  the corners (central differences; the projection is smooth);
+- dimension lines: object i's Kᵢ annotations observe its four projected corners with Gaussian
+  noise σ per coordinate, F = Σᵢ (Kᵢ / σ²) Jᵢᵀ Jᵢ (Jᵢ by central differences);
 - references (the metrology model's reading, :meth:`~creference_bayes.models.metrology.
-  MetrologyModel.predicted_log_lengths`): each measures a log-length with a worker's log-error of
-  sd σ_m and, for a line, its endpoints' pixel noise σ_r carried to first order
+  MetrologyModel.predicted_log_lengths`): each a log-length with a worker's log-error of sd σ_m
+  plus, for a line, its endpoints' pixel noise σ_r to first order
   (:func:`~creference_bayes.models.metrology.linear_line_variances`): F = Σⱼ ∇ⱼ ∇ⱼᵀ / (σ_m² + vⱼ).
-  For the heavy-tailed "paper" workers (log-error s·t_ν) the equivalent σ_m² is 1/I = (ν + 3)s² / (ν + 1),
-  the inverse Fisher information of a Student-t location (:func:`measurement_log_sd`);
+  For "paper" workers (log-error s·t_ν) σ_m² = (ν + 3)s² / (ν + 1), the inverse Fisher
+  information of a Student-t location (:func:`measurement_log_sd`);
 - a measured horizon (pitch and roll free): its two points' offsets, with the model's variance;
-- with ``priors``, the Bayesian (van Trees) bound for parameters that are random draws: the
-  Hessian of the negative log-prior at the truth (camera priors, class sizes, ground offsets;
-  never the location prior: the location is the fixed unknown whose error is bounded).
+- with ``priors``, the Bayesian (van Trees) bound: the Hessian of the negative log-prior at the
+  truth (never the location prior: the location is the fixed unknown whose error is bounded).
 
 Each target's location (x, camera height − ground, z) is linear in the parameters; its (3, 3)
-covariance gives the RMS error √tr C and the median of ‖e‖ for e ~ N(0, C) (Monte Carlo, fixed
-seed), reported in percent of the true distance ‖GT‖ (paper Eq. 3), comparable to an estimator's error.
+covariance C gives the RMS error √tr C and the median of ‖e‖, e ~ N(0, C) (Monte Carlo, fixed
+seed), in percent of the true distance (paper Eq. 3), comparable to an estimator's error.
 """
 
 from __future__ import annotations

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .report import TIER_ORDER as TIERS
+from .report import _sel, estimator_rows
+
 __all__ = ["error_by_tier", "error_vs_refs", "same_time", "pairs", "calibration", "sweep", "timing",
            "write_figures"]
-
-TIERS = ("none", "low", "medium", "high")
 
 
 def _plt():
@@ -22,6 +23,16 @@ def _plt():
     return plt
 
 
+def _figure(fig, size):
+    """``fig``, or a new figure of ``size`` inches."""
+    return fig or _plt().figure(figsize=size)
+
+
+def _laid_out(fig):
+    fig.tight_layout()
+    return fig
+
+
 #: The families of estimators by colour (tab10, far apart), for :func:`error_by_tier`.
 _FAMILY_COLOURS = {"paper": "C0", "p4pf": "C7", "ours-paper": "C1", "ours-metrology": "C3",
                    "ours-metrology-nohorizon": "C4", "ours-metrology-flatfocal": "C2", "crb": "k"}
@@ -30,8 +41,6 @@ _FAMILY_COLOURS = {"paper": "C0", "p4pf": "C7", "ours-paper": "C1", "ours-metrol
 def _tier_panels(doc: dict) -> list[tuple[str, list]]:
     """The rows of :func:`~.report.estimator_rows` split into two readable panels: the estimators
     with the references, and the metrology MAP's camera studies (the other rows are in bench.md)."""
-    from .report import estimator_rows
-
     rows = estimator_rows(doc)
     nref = max(doc["config"]["ref_counts"])
 
@@ -64,11 +73,8 @@ def error_by_tier(doc: dict, fig=None):
     """Median location error per tier (bars: interquartile range), log scale, in two panels of a
     few distinct series each: colour = estimator family, marker = MAP (●) / posterior mean (◆) /
     Cramér–Rao bound (▬), open marker = no references."""
-    from .report import _sel
-
-    plt = _plt()
     panels = _tier_panels(doc)
-    fig = fig or plt.figure(figsize=(12, 6.4))
+    fig = _figure(fig, (12, 6.4))
     axes = fig.subplots(1, len(panels), sharey=True)
     for ax, (title, rows) in zip(np.atleast_1d(axes), panels):
         width = 0.8 / max(len(rows), 1)
@@ -92,8 +98,7 @@ def error_by_tier(doc: dict, fig=None):
         ax.set_xticks(range(len(TIERS)), list(TIERS))
         for j in range(1, len(TIERS)):
             ax.axvline(j - 0.5, color="0.85", lw=0.8)
-        ax.set_yscale("log")
-        ax.set_xlabel("noise tier")
+        ax.set(yscale="log", xlabel="noise tier")
         ax.set_title(title, fontsize=9)
         ax.grid(True, which="major", axis="y", alpha=0.3)
         handles, labels = ax.get_legend_handles_labels()
@@ -103,15 +108,13 @@ def error_by_tier(doc: dict, fig=None):
     np.atleast_1d(axes)[0].set_ylabel("location error, % (Eq. 3)")
     fig.suptitle("Location error by noise tier: median (marker) and interquartile range (bar); "
                  "errors below 1e-4 % drawn at 1e-4 %; open marker: no references", fontsize=10)
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def error_vs_refs(summary: dict, fig=None):
     """Mean (solid) and median (dashed) error against the number of references (Fig. 10)."""
-    plt = _plt()
-    fig = fig or plt.figure(figsize=(11, 4.5))
-    cmap = plt.get_cmap("tab10")
+    fig = _figure(fig, (11, 4.5))
+    cmap = _plt().get_cmap("tab10")
     for p, setting in enumerate(("indoor", "outdoor")):
         ax = fig.add_subplot(1, 2, p + 1)
         block = summary["vs_refs"].get(setting, {})
@@ -122,21 +125,17 @@ def error_vs_refs(summary: dict, fig=None):
             style = dict(color=cmap(i), marker="o" if len(ks) > 1 else "s", ms=5)
             ax.plot(ks, mean, "-", label=f"{name} (mean)", **style)
             ax.plot(ks, med, "--", alpha=0.7, **style)
-        ax.set_yscale("log")
-        ax.set_xlabel("number of references")
-        ax.set_ylabel("location error, %")
-        ax.set_title(f"{setting}: mean (solid), median (dashed)")
+        ax.set(yscale="log", xlabel="number of references", ylabel="location error, %",
+               title=f"{setting}: mean (solid), median (dashed)")
         ax.grid(True, alpha=0.3)
         if p == 1:
             ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def same_time(summary: dict, fig=None):
     """Analysis 2: 10 target annotations against 5 target + 5 references (mean and median)."""
-    plt = _plt()
-    fig = fig or plt.figure(figsize=(7.5, 4.2))
+    fig = _figure(fig, (7.5, 4.2))
     ax = fig.add_subplot(111)
     st = summary["same_time"]
     names = [k for k in st if k != "human_seconds"]
@@ -150,19 +149,16 @@ def same_time(summary: dict, fig=None):
         ax.bar(x + off, means, 0.38, label=f"{label}: mean", alpha=0.8)
         ax.scatter(x + off, meds, color="k", marker="_", s=300, zorder=3)
     ax.set_xticks(x, ticks)
-    ax.set_yscale("log")
-    ax.set_ylabel("location error, % (bar: mean, line: median)")
-    ax.set_title("Same human time (paper Analysis 2)")
+    ax.set(yscale="log", ylabel="location error, % (bar: mean, line: median)",
+           title="Same human time (paper Analysis 2)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def pairs(summary: dict, fig=None):
     """Fig. 11: mean error with two references, skipped against used pairs, per pair type."""
-    plt = _plt()
     blocks = summary["pairs"]
-    fig = fig or plt.figure(figsize=(11, 4.2))
+    fig = _figure(fig, (11, 4.2))
     for p, (model, block) in enumerate(blocks.items()):
         ax = fig.add_subplot(1, len(blocks), p + 1)
         kinds = list(block)
@@ -175,12 +171,10 @@ def pairs(summary: dict, fig=None):
                 if n:
                     ax.annotate(str(n), (xi, v), ha="center", va="bottom", fontsize=7)
         ax.set_xticks(x, kinds, rotation=30, ha="right", fontsize=8)
-        ax.set_yscale("log")
-        ax.set_ylabel("mean location error, %")
-        ax.set_title(f"ours-{model}, 2 references (n above bars)")
+        ax.set(yscale="log", ylabel="mean location error, %",
+               title=f"ours-{model}, 2 references (n above bars)")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def _coverage_bars(ax, x, values, label: str):
@@ -193,10 +187,9 @@ def _coverage_bars(ax, x, values, label: str):
 
 def calibration(summary: dict, fig=None):
     """Coverage of the 50 % and 90 % HDIs per parameter, and rank histograms, per model."""
-    plt = _plt()
     cal = summary["calibration"]
     params = ("x", "y", "z", "yaw", "focal_length_px", "distance_m")
-    fig = fig or plt.figure(figsize=(13, 3.2 * len(cal)))
+    fig = _figure(fig, (13, 3.2 * len(cal)))
     for m, (model, c) in enumerate(cal.items()):
         ax = fig.add_subplot(len(cal), 1 + len(params), m * (1 + len(params)) + 1)
         x = np.arange(len(params))
@@ -213,43 +206,37 @@ def calibration(summary: dict, fig=None):
             a.set_title(f"rank of true {p}", fontsize=8)
             a.set_xticks([])
             a.tick_params(labelsize=7)
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def sweep(summary: dict, fig=None):
     """Coverage of the ground distance's 50 % and 90 % HDIs for each (σ, T) of the paper model."""
-    plt = _plt()
     sw = summary["sweep"]
-    fig = fig or plt.figure(figsize=(8, 4))
+    fig = _figure(fig, (8, 4))
     ax = fig.add_subplot(111)
     keys = list(sw)
     x = np.arange(len(keys))
     _coverage_bars(ax, x, lambda lvl: [sw[k]["all"].get("distance_m", {}).get(lvl, np.nan) for k in keys],
                    "{} % HDI")
     ax.set_xticks(x, [k.replace(", ", "\n") for k in keys], fontsize=8)
-    ax.set_ylabel("share of scenes with the true distance inside")
-    ax.set_title("Paper model posterior: coverage against σ (Eq. 5) and temperature T")
+    ax.set(ylabel="share of scenes with the true distance inside",
+           title="Paper model posterior: coverage against σ (Eq. 5) and temperature T")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
+    return _laid_out(fig)
 
 
 def timing(summary: dict, fig=None):
     """Median time per target, and its ratio to the ``paper`` preset."""
-    plt = _plt()
     t = summary["timing"]
-    fig = fig or plt.figure(figsize=(7.5, 3.8))
+    fig = _figure(fig, (7.5, 3.8))
     ax = fig.add_subplot(111)
     names = list(t)
     ax.barh(names, [t[n]["seconds"] for n in names], color="tab:gray")
     for i, n in enumerate(names):
         ax.annotate(f" ×{t[n]['ratio']:.3g}", (t[n]["seconds"], i), va="center", fontsize=8)
-    ax.set_xscale("log")
-    ax.set_xlabel("seconds per target (median); label: ratio to the paper preset")
-    ax.set_title("Time per target")
-    fig.tight_layout()
-    return fig
+    ax.set(xscale="log", xlabel="seconds per target (median); label: ratio to the paper preset",
+           title="Time per target")
+    return _laid_out(fig)
 
 
 def write_figures(doc: dict, outdir) -> list[Path]:

@@ -1,36 +1,27 @@
-"""Scenes from a KITTI folder: simulated crowd annotations on real street geometry.
+"""Scenes from a KITTI folder: simulated crowd annotations on real street geometry (docs/kitti.md).
 
-``creference simulate --from-kitti DIR --out SCENES`` reads a KITTI-layout folder (``label_2/``
-and ``calib/``, and ``image_2/`` when present) and writes one ``creference-scene/2`` scene per
-image, every annotatable object a target. Each object a person could annotate gets K sets of dimension lines: the projections (with
-the image's own P2) of its real box's corners moved by Gaussian noise of ``noise_px`` per
-coordinate and rounded to 0.01 px, its class's size prior instead of its true size.
+``creference simulate --from-kitti DIR --out SCENES`` reads a KITTI-layout folder (``label_2/``,
+``calib/``, and ``image_2/`` when present) and writes one ``creference-scene/2`` scene per image.
+Every object a person could annotate is a target: KITTI's classes other than DontCare whose 2D box
+is at least 25 px high, truncated at most 0.5 and occluded at most 2 (the devkit's "hard" limits),
+and whose four annotated corners lie in the image, at least 1 m in front of the camera. It gets K
+sets of dimension lines, drawn as a worker draws them (from the box's bottom corner nearest the
+camera: length, width, then height): the projections with the image's P2 of its real box's
+corners, moved by Gaussian noise of ``noise_px`` per coordinate and rounded to 0.01 px.
 
-Which objects: KITTI's classes other than DontCare (Car, Van, Truck, Pedestrian, Person_sitting,
-Cyclist, Tram, Misc) whose 2D box is at least 25 px high, truncated at most 0.5 and occluded at
-most 2 (partly occluded) — the devkit's "hard" limits, the loosest it evaluates — and whose four
-annotated corners lie in the image, at least 1 m in front of the camera.
-
-How a worker draws them: from the box's bottom corner nearest to the camera, the length line along
-the object's length, the width line along its width, the height line up.
-
-What a user with a calibrated camera knows is given: the focal length and principal point of P2
-(``camera.focal_length_px``, ``camera.principal_point``), P2 itself (``camera.kitti_p2``, so
-that labels go back into KITTI's frame) and the calib file's other lines (``camera.kitti_calib``,
-written back beside the labels, so that KITTI tools that go through the lidar find the real
-``Tr_velo_to_cam``); what a user does not know is not: the camera's height,
-pitch and roll, the horizon (estimated from the photo when ``image_2`` is there) and the sizes.
-``sizes="known"`` (``--sizes known``) writes each object's true size into the scene instead: the
-method's original premise, a target of known size, for labels of objects whose make is known and
-to see what the class priors cost (docs/kitti.md).
-Ground truth (for evaluation only) is in the scene: each target's KITTI label (``kitti``) and its
-location in the camera frame of P2 (``location_m``, the rectified frame moved by P2's offset).
+The scene gives what a user with a calibrated camera knows: P2's focal length and principal point,
+P2 itself (``camera.kitti_p2``, so that labels go back into KITTI's frame) and the calib file's
+other lines (``camera.kitti_calib``, written back beside the labels for tools that need the real
+``Tr_velo_to_cam``); not the camera's height, pitch and roll, the horizon (estimated from the photo
+when there is one) or the sizes (the class priors apply), unless ``sizes="known"`` (each object's
+true size: a target of known size, the method's original premise). Ground truth (for evaluation
+only): each target's KITTI label (``kitti``) and its location in the camera frame of P2
+(``location_m``, the rectified frame moved by P2's offset).
 """
 
 from __future__ import annotations
 
 import hashlib
-
 from pathlib import Path
 
 import numpy as np
@@ -123,14 +114,11 @@ def kitti_scene(label_path, calib_path, image_path=None, *, rng=None, n_annotati
         if cls not in ANNOTATABLE:
             skipped["class"] += cls != "DontCare"
             continue
-        if labels.height_px[i] < MIN_HEIGHT_PX:
-            skipped["height"] += 1
-            continue
-        if labels.truncated[i] > MAX_TRUNCATION:
-            skipped["truncation"] += 1
-            continue
-        if labels.occluded[i] > MAX_OCCLUSION:
-            skipped["occlusion"] += 1
+        why = next((k for k, bad in (("height", labels.height_px[i] < MIN_HEIGHT_PX),
+                                     ("truncation", labels.truncated[i] > MAX_TRUNCATION),
+                                     ("occlusion", labels.occluded[i] > MAX_OCCLUSION)) if bad), None)
+        if why is not None:
+            skipped[why] += 1
             continue
         loc, ry = labels.location[i], float(labels.rotation_y[i])
         hwl = labels.dimensions[i]
@@ -139,11 +127,8 @@ def kitti_scene(label_path, calib_path, image_path=None, *, rng=None, n_annotati
                    key=lambda ab: np.linalg.norm(_corners(loc, ry, hwl, ab)[0] + offset))
         pts = _corners(loc, ry, hwl, best)
         X = pts @ K.T + P2[:, 3]
-        if np.any(X[:, 2] < 1.0):
-            skipped["outside"] += 1
-            continue
-        uv = X[:, :2] / X[:, 2:]
-        if np.any(uv < 0) or np.any(uv[:, 0] > w - 1) or np.any(uv[:, 1] > h - 1):
+        uv = X[:, :2] / np.maximum(X[:, 2:], 1.0)  # the same where kept (depth ≥ 1 m)
+        if np.any(X[:, 2] < 1.0) or np.any(uv < 0) or np.any(uv[:, 0] > w - 1) or np.any(uv[:, 1] > h - 1):
             skipped["outside"] += 1
             continue
         noisy = np.round(uv[None] + rng.normal(0.0, noise_px, (n_annotations, 4, 2)), 2)
@@ -194,8 +179,9 @@ def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
     for k, lp in enumerate(labels):
         calib = folder / "calib" / lp.name
         image = folder / "image_2" / (lp.stem + ".png")
-        scene, rep = kitti_scene(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k], n_annotations=n_annotations, noise_px=noise_px,
-                                 frame_id=lp.stem, sizes=sizes, focal_known=focal_known)
+        scene, rep = kitti_scene(lp, calib, image.resolve() if image.exists() else None, rng=[seed, k],
+                                 n_annotations=n_annotations, noise_px=noise_px, frame_id=lp.stem,
+                                 sizes=sizes, focal_known=focal_known)
         for key, v in rep["skipped"].items():
             totals["skipped"][key] = totals["skipped"].get(key, 0) + v
         if rep["kept"]:

@@ -3,24 +3,19 @@
 The target's dimension lines give four 2D–3D correspondences in the object frame (c1..c4 of
 :func:`~creference_bayes.core.geometry.dimension_corners`), exactly P4Pf's minimal problem. The peer:
 
-1. solves P4Pf (PoseLib, Larsson et al.) on the per-corner median of the annotations and on each
-   annotation alone, for both handednesses (every real solution is a hypothesis). Four points
-   give eight equations for seven unknowns, so with noisy corners P4Pf often has no real solution
-   at all; then (and only then) the hypotheses come from PoseLib's calibrated absolute-pose
-   estimator (P3P in LO-RANSAC over all corners) at each focal length of a log-spaced grid
-   (:data:`FALLBACK_FOCALS`), and ``info["fallback"]`` says so;
-2. refines each hypothesis by least squares over all annotations' corners: PoseLib's
-   ``refine_absolute_pose`` for the pose at a given focal length, inside a bounded 1D search over
-   log µ (PoseLib 2.0.5's Python API refines the pose only);
-3. keeps the hypothesis with the smallest reprojection error in pixels.
+1. solves P4Pf on the per-corner median of the annotations and on each annotation alone, for both
+   handednesses (every real solution is a hypothesis). With noisy corners P4Pf (eight equations,
+   seven unknowns) often has no real solution; then only, the hypotheses come from PoseLib's
+   calibrated absolute pose (P3P in LO-RANSAC) at each focal length of :data:`FALLBACK_FOCALS`,
+   and ``info["fallback"]`` says so;
+2. refines each by least squares over all annotations' corners: ``refine_absolute_pose`` at a
+   given focal length inside a bounded 1D search over log µ (PoseLib's API refines the pose only);
+3. keeps the hypothesis with the smallest reprojection error.
 
-Its pose is in the camera frame; the location is reported in the gravity-aligned frame G of the
-rest of the package. With a horizon, G's rotation is the camera's R(µ) from the horizon and the
-peer's own µ (the same information every estimator gets). Without one, gravity is the box's
-vertical axis as the peer estimated it. The peer uses no references.
-
-PoseLib is an optional dependency (the ``peer`` extra); importing this module works without it,
-calling :func:`estimate_p4pf` raises an ImportError that says what to install.
+The location is reported in the gravity-aligned frame G: with a horizon, G's rotation is R(µ) from
+the horizon and the peer's µ; without one, gravity is the box's vertical axis as the peer estimated
+it. The peer uses no references. PoseLib is optional (the ``peer`` extra): importing this module
+works without it, :func:`estimate_p4pf` then raises an ImportError that says what to install.
 """
 
 from __future__ import annotations
@@ -172,6 +167,7 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     centred = ann - camera.principal_point
     samples = [np.median(centred, axis=0)] + ([c for c in centred] if len(centred) > 1 else [])
     x_all = centred.reshape(-1, 2)
+    X_all = {hand: np.tile(dimension_corners(*size, hand), (len(centred), 1)) for hand in HANDEDNESS}
     hyps = {hand: [] for hand in HANDEDNESS}
     for hand in HANDEDNESS:
         X = dimension_corners(*size, hand)
@@ -184,17 +180,15 @@ def estimate_p4pf(scene, *, annotations: np.ndarray | None = None, camera: Camer
     if fallback:
         side = float(max(scene.image_width, scene.image_height))
         for hand in HANDEDNESS:
-            X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
             for f in FALLBACK_FOCALS * side:
                 cam = {"model": "SIMPLE_PINHOLE", "width": 0, "height": 0, "params": [float(f), 0.0, 0.0]}
-                pose, _ = pl.estimate_absolute_pose(x_all, X_all, cam, {"max_reproj_error": 1e6}, {})
+                pose, _ = pl.estimate_absolute_pose(x_all, X_all[hand], cam, {"max_reproj_error": 1e6}, {})
                 hyps[hand].append((pose, float(f)))
     best, n_hyp = None, 0
     for hand in HANDEDNESS:
-        X_all = np.tile(dimension_corners(*size, hand), (len(centred), 1))
         for pose, f in hyps[hand]:
             n_hyp += 1
-            R, tr, f_ref, sse = _refine(pl, pose, f, X_all, x_all, refine)
+            R, tr, f_ref, sse = _refine(pl, pose, f, X_all[hand], x_all, refine)
             if best is None or sse < best[0]:
                 best = (sse, hand, np.asarray(R), np.asarray(tr), f_ref)
     if best is None:

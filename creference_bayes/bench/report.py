@@ -118,14 +118,11 @@ def _pairs(doc) -> dict:
     out = {}
     for model in ("paper", "metrology"):
         recs = _sel(doc["records"], estimator=f"pair-{model}")
-        block = {}
-        for kind in sorted({r["pair"] for r in recs}):
-            block[kind] = {g: stats([r["error"] for r in recs if r["pair"] == kind and r["skipped"] == flag])
-                           for g, flag in (("skipped", True), ("used", False))}
-        block["all"] = {g: stats([r["error"] for r in recs if r["skipped"] == flag])
-                        for g, flag in (("skipped", True), ("used", False))}
         if recs:
-            out[model] = block
+            out[model] = {kind: {g: stats([r["error"] for r in recs
+                                           if kind in ("all", r["pair"]) and r["skipped"] == flag])
+                                 for g, flag in (("skipped", True), ("used", False))}
+                          for kind in sorted({r["pair"] for r in recs}) + ["all"]}
     return out
 
 
@@ -239,11 +236,9 @@ def _paired(doc, estimator: str, against: str = "ours-metrology") -> dict:
         block = {}
         for name in (against, estimator):
             rows = [r for r in _sel(recs, estimator=name, n_target=nt, n_refs=k) if r["tier"] in NOISY]
-            cov = [r["coverage"]["distance_m"] for r in rows if "distance_m" in r.get("coverage", {})]
             block[name] = {"error": stats([r["error"] for r in rows]),
                            "post_error": stats([r.get("post_error") for r in rows]),
-                           "coverage": {"n": len(cov), "50": float(np.mean([c["50"] for c in cov])) if cov else None,
-                                        "90": float(np.mean([c["90"] for c in cov])) if cov else None}}
+                           "coverage": _coverage(rows).get("distance_m", {"n": 0, "50": None, "90": None})}
         out[k] = block
     return out
 
@@ -307,6 +302,19 @@ def _f(x, nd=1) -> str:
     return f"{x:.{nd}f}"
 
 
+def _mean_median(b: dict, n: bool = False) -> str:
+    return f"{_f(b['mean'])} / {_f(b['median'])}" + (f" ({b['n']})" if n else "")
+
+
+def _cov(b: dict) -> str:
+    """A coverage block's 50 % / 90 % shares, in percent."""
+    return f"{_f(100 * b['50'], 0)} / {_f(100 * b['90'], 0)}"
+
+
+def _cov_row(block: dict, keys) -> list[str]:
+    return [_cov(block[k]) if k in block else "–" for k in keys]
+
+
 def _table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -340,10 +348,8 @@ def markdown_report(doc: dict) -> str:
     if "by_tier" not in s:
         return "\n".join(out)
     out += ["Location error (paper Eq. 3, %) per noise tier: median / mean / p90 (n scenes).", ""]
-    rows = []
-    for label, block in s["by_tier"].items():
-        rows.append([label] + [(f"{_f(b['median'])} / {_f(b['mean'])} / {_f(b['p90'])} ({b['n']})" if b["n"] else "–")
-                               for b in (block[t] for t in TIER_ORDER)])
+    rows = [[label] + [f"{_f(b['median'])} / {_f(b['mean'])} / {_f(b['p90'])} ({b['n']})" if b["n"] else "–"
+                       for b in (block[t] for t in TIER_ORDER)] for label, block in s["by_tier"].items()]
     out += [_table(["estimator"] + list(TIER_ORDER), rows), ""]
 
     out += ["Error / Cramér–Rao bound: median over scenes of the ratio of the estimator's error to the median "
@@ -361,7 +367,7 @@ def markdown_report(doc: dict) -> str:
         if not block:
             continue
         out += [f"Error against the number of references, {setting} (mean / median %, Fig. 10).", ""]
-        rows = [[name] + [(f"{_f(row[k]['mean'])} / {_f(row[k]['median'])}" if k in row else "") for k in range(6)]
+        rows = [[name] + [_mean_median(row[k]) if k in row else "" for k in range(6)]
                 for name, row in block.items()]
         out += [_table(["estimator"] + [str(k) for k in range(6)], rows), ""]
 
@@ -370,8 +376,7 @@ def markdown_report(doc: dict) -> str:
     out += [f"Same human time (Analysis 2): {cfg['n_target_baseline']} target annotations "
             f"({hs['baseline']:.1f} s) against {cfg['n_target']} target + 5 reference annotations "
             f"({hs['c-reference']:.1f} s; task times 183.5 s and 64.4 s).", ""]
-    rows = [[name, f"{_f(v['baseline']['mean'])} / {_f(v['baseline']['median'])} ({v['baseline']['n']})",
-             f"{_f(v['c-reference']['mean'])} / {_f(v['c-reference']['median'])} ({v['c-reference']['n']})",
+    rows = [[name, _mean_median(v["baseline"], True), _mean_median(v["c-reference"], True),
              _f(v["mean_reduction_pct"]), _f(v["median_reduction_pct"])]
             for name, v in st.items() if name != "human_seconds"]
     out += [_table(["estimator", "10 target: mean / median % (n)", "5 + 5 refs: mean / median % (n)",
@@ -380,40 +385,29 @@ def markdown_report(doc: dict) -> str:
     if s["pairs"]:
         out += ["Skipped against used reference pairs (Fig. 11; two references alone; "
                 "\"skipped\" = the paper's pair solve has no valid solution). Mean / median % (n).", ""]
-        rows = []
-        for model, block in s["pairs"].items():
-            for kind, g in block.items():
-                rows.append([f"ours-{model}", kind] + [
-                    (f"{_f(g[k]['mean'])} / {_f(g[k]['median'])} ({g[k]['n']})" if g[k]["n"] else "–")
-                    for k in ("skipped", "used")])
+        rows = [[f"ours-{model}", kind] + [_mean_median(g[k], True) if g[k]["n"] else "–"
+                                           for k in ("skipped", "used")]
+                for model, block in s["pairs"].items() for kind, g in block.items()]
         out += [_table(["model", "pair", "skipped", "used"], rows), ""]
 
     for model, c in s["calibration"].items():
         out += [f"Calibration, ours-{model} (T = {c['temperature']:g}): share of scenes whose truth lies in "
                 f"the 50 % / 90 % HDI (converged runs: {100 * c['converged']:.0f} %).", ""]
-        rows = [["all noisy"] + [f"{_f(100 * c['all'][p]['50'], 0)} / {_f(100 * c['all'][p]['90'], 0)}"
-                           if p in c["all"] else "–" for p in PARAMS]]
-        for t in TIER_ORDER:
-            b = c["by_tier"].get(t, {})
-            rows.append([t] + [f"{_f(100 * b[p]['50'], 0)} / {_f(100 * b[p]['90'], 0)}" if p in b else "–"
-                               for p in PARAMS])
+        rows = [["all noisy"] + _cov_row(c["all"], PARAMS)]
+        rows += [[t] + _cov_row(c["by_tier"].get(t, {}), PARAMS) for t in TIER_ORDER]
         out += [_table(["tier"] + list(PARAMS), rows), ""]
 
     if s["sweep"]:
         out += ["Calibration sweep of the paper model's posterior (σ of Eq. 5 and temperature T; 5 refs): "
                 "coverage 50 % / 90 % per parameter over the noisy tiers, and median MAP / posterior-mean "
                 "error over all tiers.", ""]
-        rows = []
-        for key, v in s["sweep"].items():
-            rows.append([key] + [f"{_f(100 * v['all'][p]['50'], 0)} / {_f(100 * v['all'][p]['90'], 0)}"
-                                 if p in v["all"] else "–" for p in PARAMS]
-                        + [f"{_f(v['map_error'].get('median'), 2)} / {_f(v['post_error'].get('median'), 2)}"])
+        rows = [[key] + _cov_row(v["all"], PARAMS)
+                + [f"{_f(v['map_error'].get('median'), 2)} / {_f(v['post_error'].get('median'), 2)}"]
+                for key, v in s["sweep"].items()]
         out += [_table(["σ, T"] + list(PARAMS) + ["error MAP / mean %"], rows), ""]
         out += ["Distance coverage 50 % / 90 % by tier in the sweep:", ""]
-        rows = [[key] + [f"{_f(100 * v['by_tier'][t]['distance_m']['50'], 0)} / "
-                         f"{_f(100 * v['by_tier'][t]['distance_m']['90'], 0)}"
-                         if "distance_m" in v["by_tier"].get(t, {}) else "–" for t in TIER_ORDER]
-                for key, v in s["sweep"].items()]
+        rows = [[key] + _cov_row({t: b["distance_m"] for t, b in v["by_tier"].items() if "distance_m" in b},
+                                 TIER_ORDER) for key, v in s["sweep"].items()]
         out += [_table(["σ, T"] + list(TIER_ORDER), rows), ""]
 
     for key, title in (("horizon", "Without the horizon (pitch and roll estimated) against with it, same scenes, "
@@ -430,7 +424,7 @@ def markdown_report(doc: dict) -> str:
                 e, pe, c = v["error"], v["post_error"], v["coverage"]
                 rows.append([name, str(k), f"{_f(e.get('median'), 2)} / {_f(e.get('mean'), 2)} / {_f(e.get('p90'), 2)}",
                              f"{_f(pe.get('median'), 2)} / {_f(pe.get('mean'), 2)}" if pe.get("n") else "–",
-                             f"{_f(100 * c['50'], 0)} / {_f(100 * c['90'], 0)} ({c['n']})" if c["n"] else "–"])
+                             f"{_cov(c)} ({c['n']})" if c["n"] else "–"])
         out += [_table(["estimator", "refs", "MAP error", "posterior-mean error", "coverage 50 / 90"], rows), ""]
 
     ex = s.get("exact") or {}

@@ -1,30 +1,19 @@
-"""The benchmark (benchmark.md): the paper's method, a peer, our models and the Cramér–Rao bound,
-side by side on the same simulated scenes in one process. One runner, four sizes
-(``creference bench --quick|--full|--frames|--sbc``; the command line is :mod:`creference_bayes.cli.bench`,
-``--sbc`` is :mod:`.sbc`).
+"""The benchmark (docs/benchmark_results.md, "What was run"): the paper's method, a peer, our models
+and the Cramér–Rao bound on the same simulated scenes in one process, in four sizes
+(``creference bench --quick|--full|--frames|--sbc``; command line :mod:`creference_bayes.cli.bench`,
+``--sbc`` is :mod:`.sbc`). Tables: :mod:`.report`; figures: :mod:`.figures`.
 
-One-target scenes (``quick``, ``full``; 13 target annotations and 5 references are simulated,
-estimators get the first 5 annotations, as in the paper's §7.1, and the first k references):
+One-target scenes (``quick``, ``full``) have 13 target annotations and 5 references; estimators
+get the first 5 annotations (the paper's §7.1) and the first k references. Estimators: ``paper``
+(preset ``paper``, 5 references; fewer restarts in ``quick``, labelled so), ``p4pf``
+(:mod:`.peers`), ``ours-paper`` and ``ours-metrology`` (MAP with k = 0…5 references, posterior
+for the configured k), ``crb-target`` and ``crb-refs`` (:mod:`.crb`), the camera studies
+(``-nohorizon`` with its bound, ``-flatfocal``), the same-human-time comparison (Analysis 2),
+every pair of references alone (Fig. 11), a calibration sweep of the paper model over σ and T,
+and noise-free scenes with 20 exact references (``exact-metrology``).
 
-- ``paper``: the paper's method as published (preset ``paper``: basin hopping with random
-  restarts, σ = 100, its bounds, per-corner median, pairwise sigmoid bounds), with 5 references;
-  in ``quick`` with fewer restarts, labelled so;
-- ``p4pf``: PoseLib's P4Pf with least-squares refinement on the target corners (:mod:`.peers`);
-- ``ours-paper`` and ``ours-metrology``: the package's MAP (preset ``default``) of each model with
-  k = 0…5 references, and its posterior (mean, credible regions, ranks of the truth) for the
-  configured k;
-- ``crb-target`` and ``crb-refs``: the Cramér–Rao bound with target annotations only, and with
-  the 5 references as the metrology model sees them (:mod:`.crb`);
-- the camera studies: the metrology model without the scene's horizon (``-nohorizon``, with its
-  bound) and with a flat focal-length prior (``-flatfocal``);
-- the same-human-time comparison (10 target annotations against 5 + 5 references, the paper's
-  Analysis 2), every pair of references alone (skipped against used pairs, Fig. 11), a
-  calibration sweep of the paper model's posterior over σ (Eq. 5) and T, and noise-free scenes
-  with 20 exact references (``exact-metrology``).
-
-Several targets (``frames``): simulated street scenes of 3–15 objects (:data:`FRAME_TIERS`), every
-object estimated jointly (MAP and posterior) and alone (the same annotations as a scene of one,
-its own camera, MAP), beside the scene's Bayesian bound. Tables: :mod:`.report`; figures: :mod:`.figures`.
+Several targets (``frames``): street scenes of 3–15 objects (:data:`FRAME_TIERS`), every object
+estimated jointly (MAP and posterior) and alone (MAP), beside the scene's Bayesian bound.
 """
 
 from __future__ import annotations
@@ -267,11 +256,9 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
     from .peers import estimate_p4pf, poselib_available
 
     if poselib_available():
-        from ..core.metrics import location_percentage_error
-
         p = estimate_p4pf(variant(scene, nt, ()))
         recs.append(_record(sid, scene, "p4pf", n_target=nt, n_refs=0, seconds=p.seconds, fallback=p.info["fallback"],
-                            error=float(location_percentage_error(p.params[:3], scene.targets[0].ground_truth["location_m"]))))
+                            error=p.location_error(scene.targets[0].ground_truth["location_m"])))
 
     for model in MODELS:  # ours
         for n_ann, k in [(nt, k) for k in config.ref_counts] + [(config.n_target_baseline, 0)]:

@@ -1,48 +1,29 @@
-"""Simulation-based calibration of the metrology model's posterior (Talts et al. 2018).
+"""Simulation-based calibration of the metrology model's posterior (Talts et al. 2018;
+docs/benchmark_results.md, "Simulation-based calibration").
 
 For each scene: draw the parameters from the model's own prior, simulate the annotations from the
 model's own noise model, estimate, and record the rank of each true value among L thinned
-posterior draws. If the posterior is the Bayesian posterior of the model that made the data, each
-rank is uniform on {0, …, L}, whatever the scenes; a posterior too narrow piles the ranks at the
-ends, one too wide in the middle, one biased on one side.
+posterior draws. A calibrated posterior gives ranks uniform on {0, …, L}; one too narrow piles
+them at the ends, one too wide in the middle, a biased one on one side.
 
-The prior, and the box. The model's prior is improper in places (flat in x; uniform in log depth
-over the wide default bounds; pitch, roll, µ and the camera height proper but heavy-tailed, and
-extending to cameras that see no ground), so the parameters are drawn from it truncated to a box
-of plausible scenes (:data:`SBC_BOX`), and the estimate is given the same box as its bounds: the
-same truncated prior on both sides. Within the box:
+The prior is improper in places, so the parameters are drawn from it truncated to a box of
+plausible scenes (:data:`SBC_BOX`) and the estimate gets the same box as its bounds. Within it:
+x uniform, z log-uniform (the ``log-depth`` location prior), yaw uniform; µ from the default focal
+prior; pitch ~ N(0°, 15°), roll ~ N(0°, 10°), log h ~ N(log 1.6 m, 0.6) (no horizon); the target's
+size from the simulator's outdoor objects (given to the estimate).
 
-- x uniform, z log-uniform (the ``log-depth`` location prior, p(x, z) ∝ 1/z), yaw uniform;
-- µ from the default focal-length prior (log µ ~ Student-t₃(log m, 0.5), m a 30 mm-equivalent
-  lens); pitch ~ N(0°, 15°), roll ~ N(0°, 10°), log h ~ N(log 1.6 m, 0.6): the default pose
-  prior (no horizon: pitch and roll are parameters);
-- the target's size from the simulator's outdoor objects (it is given to the estimate, not
-  estimated).
-
-The noise model is the model's: every corner of every set of dimension lines is off by a bivariate
-Student-t (ν = 4, scale :data:`TARGET_SCALE_PX`); every reference is a segment on the ground
-whose stated value is ℓ·exp(s·ε), ε ~ Student-t₂, with the crowd's scale s (the camera's
-``ref_scale``) drawn from its log-normal prior (median :data:`~creference_bayes.models.contract.
-REF_SCALE_MEDIAN`, log-sd ``REF_SCALE_LOG_SD``, within the model's bounds), and whose drawn end
-points are off by N(0, (2σ)²) per coordinate (the model's line noise, σ_line = 2σ).
-
-Where the references are. The model reads a reference *given its drawn line*: it has no prior on
-where in the image, or where on the ground, people draw references, so the line's position must
-say nothing about the camera. The true line is therefore drawn in the image, independently of
-the parameters (an end point uniform in the lower part of the image, :data:`REF_ROWS_PX`, a
-direction uniform and a length uniform in :data:`REF_PIXEL_LENGTH`), and its real length ℓ is
-what the ground under it measures at the true parameters (the model's own reading,
-:func:`~creference_bayes.models.metrology.ground_lengths`). Segments placed on the ground first
-(a prior over where objects stand) make where their lines fall in the image evidence about the
-pitch that the model does not use: with them the ranks of the pitch piled at the low end (one
-set of lines and four references, 100 scenes: χ² and KS p 0.001), while they are uniform with
-the lines placed in the image (KS p 0.61; docs/benchmark_results.md).
-
-Scenes whose annotations do not all lie in the image are drawn again: a selection on the data
-alone, which leaves the posterior given the data, and so the uniformity of the ranks, unchanged. What the model only
-approximates: with several sets of dimension lines it plugs in the spread of the annotations for
-σ (their pooled standard deviation, √2 times the t₄ scale); the line noise enters through
-derivatives at a pilot estimate. The check measures those approximations too.
+Noise is the model's: every annotation corner off by a bivariate Student-t (ν = 4, scale
+:data:`TARGET_SCALE_PX`); every reference a ground segment stated as ℓ·exp(s·ε), ε ~ t₂, s the
+crowd scale drawn from its log-normal prior (:data:`~creference_bayes.models.contract.
+REF_SCALE_MEDIAN`, ``REF_SCALE_LOG_SD``), its drawn end points off by N(0, (2σ)²) per coordinate.
+The model reads a reference given its drawn line, with no prior on where people draw lines, so the
+true line is drawn in the image independently of the parameters (:data:`REF_ROWS_PX`,
+:data:`REF_PIXEL_LENGTH`) and ℓ is what the ground under it measures at the truth
+(:func:`~creference_bayes.models.metrology.ground_lengths`); lines placed on the ground first
+would tell the pitch something the model does not use. Scenes whose annotations leave the image
+are drawn again (a selection on the data alone: the ranks stay uniform).
+The check also measures what the model only approximates: the σ it plugs in from the spread of
+several sets of lines, and line noise taken through derivatives at a pilot estimate.
 
 Designs: ``thin`` (one set of dimension lines, 0, 1 or 2 references in turn) and ``full``
 (5 + 5). Quantities: the ground distance d, µ, pitch and roll. Per design and quantity: the rank
@@ -151,8 +132,7 @@ def simulate_sbc_scene(rng: np.random.Generator, truth, n_target: int, n_refs: i
     """A ``creference-scene/2`` scene (dict) of one target from ``truth`` (:func:`draw_truth`) with
     the model's own noise (module docstring): no horizon, focal length unknown, single-valued
     references in metres. None when the drawn annotations do not all lie in the image (the caller
-    then draws a new scene: a selection on the data alone, which leaves the posterior given the
-    data, and so the ranks' uniformity, unchanged)."""
+    then draws a new scene)."""
     camera, obj = (np.asarray(a, float) for a in truth)
     pp = np.array(IMAGE_SIZE, float) / 2
     handed = int(rng.choice([1, -1]))
@@ -193,12 +173,11 @@ def simulate_sbc_scene(rng: np.random.Generator, truth, n_target: int, n_refs: i
 
 def sbc_reference(rng: np.random.Generator, truth, true_line: np.ndarray, scale: float, worker: str,
                   object: str = "segment") -> dict | None:
-    """One worker's reference on the ground segment under ``true_line`` ((2, 2) pixels) under the
-    model's own noise model (module docstring): its drawn line, the true one off by N(0, (2σ)²) px
-    per coordinate, and its stated length, the segment's real length ℓ at the true camera
-    (``truth``, :func:`draw_truth`) times exp(``scale`` · ε), ε ~ Student-t₂. A second call on the
-    same line is a second worker measuring the same thing. None when the true or the drawn line is
-    not in the image."""
+    """One worker's reference on the ground segment under ``true_line`` ((2, 2) pixels) with the
+    model's own noise (module docstring): the drawn line is the true one off by N(0, (2σ)²) px per
+    coordinate, the stated length ℓ·exp(``scale`` · ε), ε ~ t₂, ℓ the segment's real length at the
+    true camera (``truth``, :func:`draw_truth`). A second call on the same line is a second worker
+    measuring the same thing. None when the true or the drawn line is not in the image."""
     true_line = np.asarray(true_line, float)
     uv = true_line + rng.normal(0.0, 2.0 * TARGET_SCALE_PX, true_line.shape)
     if not (_inside(true_line) and _inside(uv)):
@@ -252,7 +231,7 @@ def run_sbc(n_scenes: int = 40, *, designs=tuple(DESIGNS), seed: int = 0, box: S
             rng = np.random.default_rng([seed, list(DESIGNS).index(name), i])
             k = ref_cycle[i % len(ref_cycle)]
             d = None
-            while d is None:  # annotations outside the image: a new scene (a selection on the data)
+            while d is None:  # annotations outside the image: a new scene
                 camera, obj = draw_truth(rng, box)
                 d = simulate_sbc_scene(rng, (camera, obj), n_target, k)
             t0 = time.process_time()

@@ -2,12 +2,9 @@
 
 A scene is one camera and ``n_objects`` targets, boxes standing on the ground, each with noisy
 dimension lines, plus reference objects measured by workers. Settings (:data:`SETTINGS`):
-
-* ``indoor`` and ``outdoor``: the paper's photos (2880 × 1800 px, µ 1000–2600 px, pitch 0–15° or
-  0–10° down), objects of the paper's Table 1 ranges (:data:`OBJECTS`), the benchmark's scenes;
-* ``street``: a car-mounted camera as in KITTI (1242 × 375 px, µ 650–1100 px, pitch ±3°, height
-  1.4–1.9 m), cars, vans, trucks, pedestrians and cyclists 4–60 m away (uniform in log depth),
-  sizes drawn from the KITTI class priors.
+``indoor`` and ``outdoor`` (the paper's photos and Table 1 objects, :data:`OBJECTS`; the
+benchmark's scenes) and ``street`` (a car-mounted camera as in KITTI; cars, vans, trucks,
+pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors).
 
 Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
 ``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
@@ -101,15 +98,12 @@ FORMATS = tuple((m, mode, r) for m in ("length", "width", "distance") for mode i
                 for r in (False, True) if not (m == "distance" and mode == "relative"))
 
 #: "Paper-like" worker measurements: the log of the error factor is ``scale · t_dof``, clipped to
-#: ±log(clip) (no worker is off by more than a factor ``clip``; the clip also keeps the mean
-#: finite: exp of an unclipped t has no mean). Measured on 10⁶ draws: median absolute error
-#: 56 %, mean 160 % (paper Table 2: medians 50–68 %, means 55–291 %; benchmark.md asks for a
-#: median of 50–65 % and a mean of 100–250 %). tests/test_simulate.py checks these.
+#: ±log(clip) (the clip keeps the mean finite). Median absolute error 56 %, mean 160 %, like the
+#: paper's Table 2 (tests/test_simulate.py checks these).
 PAPER_NOISE = {"dof": 2.0, "scale": 0.75, "clip": 20.0}
 
-#: Stated ranges: precision (Eq. 4) log-normal with median 25 % and log-sd 0.6, i.e. mean ≈ 30 %,
-#: sd ≈ 20 % (paper Table 3: medians 18–29 %, means 26–37 %, sds 17–29 %), centred on the
-#: worker's (noisy) value.
+#: Stated ranges: precision (Eq. 4) log-normal, median 25 %, log-sd 0.6 (mean ≈ 30 %, sd ≈ 20 %,
+#: like the paper's Table 3), centred on the worker's (noisy) value.
 RANGE_PRECISION = {"median": 0.25, "log_sd": 0.6}
 _SIZES = ("length", "width", "height")
 
@@ -165,10 +159,8 @@ def _place(rng, setting, R, f, pp, y, size, image, dist_range, need_inside, trie
     ``need_inside`` vertices lie in the image: (x, y, z, yaw, f), their pixels and points."""
     w_img, h_img = image
     for _ in range(tries):
-        if setting == "street":
-            d = math.exp(rng.uniform(math.log(dist_range[0]), math.log(dist_range[1])))
-        else:
-            d = float(rng.uniform(*dist_range))
+        d = (math.exp(rng.uniform(math.log(dist_range[0]), math.log(dist_range[1]))) if setting == "street"
+             else float(rng.uniform(*dist_range)))
         half_fov = math.atan2(0.45 * w_img, f)  # bearing within the horizontal field of view
         bearing = rng.uniform(-half_fov, half_fov)
         params = np.array([d * math.sin(bearing), y, d * math.cos(bearing), rng.uniform(-math.pi, math.pi), f])
@@ -307,8 +299,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
         is_range = (is_range and not single_values) or confidence is not None
         oname, osize = _draw_object(rng, setting)
-        oparams, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
-                                      (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
+        _, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
+                                (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
         near = int(np.argmin(np.linalg.norm(overts[:4, [0, 2]], axis=1)))
         if measure in ("length", "width"):  # a bottom edge from the nearest corner
             other = ({0: 1, 1: 0, 2: 3, 3: 2} if measure == "length" else {0: 3, 3: 0, 1: 2, 2: 1})[near]
@@ -324,9 +316,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
-        line = seg_uv + rng.normal(0.0, tier.reference_px, (2, 2))
-        line[:, 0] = np.clip(line[:, 0], 0, w_img)
-        line[:, 1] = np.clip(line[:, 1], 0, h_img)
+        line = np.clip(seg_uv + rng.normal(0.0, tier.reference_px, (2, 2)), 0, [w_img, h_img])
         ref = {"worker": f"r{j + 1:02d}", "object": oname, "measure": measure, "mode": mode}
         if mode == "relative":
             value, unit = stated / first[measure], None

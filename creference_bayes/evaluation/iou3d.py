@@ -91,15 +91,6 @@ def overlaps(a: np.ndarray, b: np.ndarray, metric: str = "3d", normalise: str = 
 
 
 def box_iou_3d(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """3D IoU of one box with each of ``boxes``.
-
-    Parameters
-    ----------
-    box : (7,) x, y, z, yaw, length, width, height (metres, radians)
-    boxes : (n, 7) the same
-
-    Returns
-    -------
-    (n,) IoU in [0, 1]
-    """
+    """(n,) 3D IoU in [0, 1] of one ``box`` (7,) with each of ``boxes`` (n, 7), both
+    x, y, z, yaw, length, width, height (metres, radians)."""
     return overlaps(np.asarray(box, float).reshape(1, 7), boxes, "3d")[0]

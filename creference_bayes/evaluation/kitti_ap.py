@@ -1,28 +1,17 @@
 """KITTI's average precision, following the official devkit's ``evaluate_object`` step by step
-(NumPy only: the overlaps come in precomputed; docs/evaluation.md).
+(NumPy only: the overlaps come in precomputed; docs/evaluation.md, "The devkit's rules").
 
-Per class and difficulty:
-
-1. Ground truth of the class counts when its 2D box is at least ``MIN_HEIGHT`` pixels tall and
-   its occlusion and truncation are at most ``MAX_OCCLUSION`` and ``MAX_TRUNCATION``; the other
-   boxes of the class, and the neighbouring class (Van for Car, Person_sitting for Pedestrian),
-   are *ignored*: a detection matched to them is neither a true nor a false positive.
-2. Detections of the class count; those whose 2D box is lower than the minimum height (whatever
-   their class) are ignored; other classes are not looked at.
-3. Recall thresholds: every ground truth box takes the highest-scoring detection that overlaps it
-   by more than the class's minimum overlap; the scores of the true positives, sorted, are
-   sampled at 41 evenly spaced recall levels 0, 1/40, …, 1 (``get_thresholds``).
-4. For each sampled score, detections scoring below it are dropped; every ground truth box takes
-   the detection that overlaps it most (a counted one before an ignored one), unmatched counted
-   ground truth is a miss, unmatched counted detections are false positives, except those that
-   overlap a DontCare region by more than the minimum overlap (intersection over the
-   detection's own volume or area).
-5. Precision at each sample, made non-increasing from the right (the maximum to its right); AP
-   R40 is the mean of the 40 samples at recall 1/40 … 1, AP R11 the mean of the 11 at recall
-   0, 0.1, … 1; both in percent.
-
-A class is evaluated only when some detection has its name (as the devkit does). Names compare
-case-insensitively.
+Per class and difficulty: ground truth of the class counts when its 2D box is tall enough and it
+is occluded and truncated little enough; the rest of the class and the neighbouring class (Van for
+Car, Person_sitting for Pedestrian) are *ignored* (a detection matched to them is neither a true
+nor a false positive), as are detections lower than the minimum height. Every counted box takes
+its best-scoring overlapping detection; the true positives' sorted scores, sampled at 41 recall
+levels (:func:`get_thresholds`), are the thresholds. At each, every box takes the detection that
+overlaps it most (a counted one first); unmatched counted boxes are misses, unmatched counted
+detections false positives unless they overlap a DontCare region (over their own size). Precision
+is made non-increasing from the right; AP R40 is the mean of the 40 samples at recall 1/40 … 1,
+AP R11 of the 11 at 0, 0.1, … 1, in percent. A class is evaluated only when some detection has
+its name; names compare case-insensitively.
 """
 
 from __future__ import annotations
@@ -79,17 +68,11 @@ def ground_truth_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarra
     """(n,) 0 counted, 1 ignored (neighbouring class, or too small, occluded or truncated), −1
     another class (incl. DontCare)."""
     cls = cls.lower()
-    out = np.full(len(frame.gt_type), -1, int)
-    for i, t in enumerate(frame.gt_type):
-        t = t.lower()
-        if t == cls:
-            hard = (frame.gt_occlusion[i] > MAX_OCCLUSION[difficulty]
-                    or frame.gt_truncation[i] > MAX_TRUNCATION[difficulty]
-                    or frame.gt_height_px[i] < MIN_HEIGHT[difficulty])
-            out[i] = 1 if hard else 0
-        elif NEIGHBOURS.get(cls) == t:
-            out[i] = 1
-    return out
+    types = np.array([t.lower() for t in frame.gt_type], str)
+    hard = ((np.asarray(frame.gt_occlusion) > MAX_OCCLUSION[difficulty])
+            | (np.asarray(frame.gt_truncation) > MAX_TRUNCATION[difficulty])
+            | (np.asarray(frame.gt_height_px) < MIN_HEIGHT[difficulty]))
+    return np.where(types == cls, hard.astype(int), np.where(types == NEIGHBOURS.get(cls, ""), 1, -1))
 
 
 def detection_flags(frame: FrameData, cls: str, difficulty: int) -> np.ndarray:

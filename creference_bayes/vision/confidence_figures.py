@@ -40,19 +40,15 @@ def reliability_figure(rows, maps: dict | None = None, *, true_map=None, fig: Fi
         ax.plot(cc, curve(cc), color=colour, lw=1.6,
                 label=f"{label} ({cmap.interval_prob:.0%} band)")
     if rows:
-        lv = np.array([r.level for r in rows])
-        cov = np.array([r.coverage for r in rows])
+        lv, cov = (np.array([getattr(r, k) for r in rows]) for k in ("level", "coverage"))
         yerr = np.vstack([cov - [r.low for r in rows], [r.high for r in rows] - cov])
         ax.errorbar(lv, cov, yerr=yerr, fmt="o", color="#d62728", capsize=3, ms=5,
                     label="realised coverage (95 % Wilson)")
         axn.bar(lv, [r.n for r in rows], width=0.025, color="#d62728", alpha=0.7)
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
-    ax.set_ylabel("share of ranges holding the truth")
-    ax.set_title("reliability of stated ranges")
+    ax.set(xlim=(0, 1), ylim=(0, 1), ylabel="share of ranges holding the truth",
+           title="reliability of stated ranges")
     ax.legend(loc="upper left", fontsize="small")
-    axn.set_xlabel("stated confidence c")
-    axn.set_ylabel("ranges")
+    axn.set(xlabel="stated confidence c", ylabel="ranges")
     return fig
 
 
@@ -70,17 +66,13 @@ def workers_figure(rows, fig: Figure | None = None) -> Figure:
     ax = fig.subplots()
     ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
     if rows:
-        s = np.array([r.stated for r in rows])
-        cov = np.array([r.coverage for r in rows])
+        s, cov = (np.array([getattr(r, k) for r in rows]) for k in ("stated", "coverage"))
         n = np.array([r.n for r in rows], float)
         ax.errorbar(s, cov, yerr=np.vstack([cov - [r.low for r in rows], [r.high for r in rows] - cov]),
                     fmt="none", ecolor="#bbbbbb", lw=0.8)
         ax.scatter(s, cov, s=12 + 88 * n / n.max(), color="#1f77b4", alpha=0.8, zorder=3,
                    label=f"{len(rows)} workers (area ∝ ranges, up to {int(n.max())})")
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
-    ax.set_xlabel("worker's mean stated confidence")
-    ax.set_ylabel("worker's realised coverage")
-    ax.set_title("workers")
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="worker's mean stated confidence",
+           ylabel="worker's realised coverage", title="workers")
     ax.legend(loc="upper left", fontsize="small")
     return fig

@@ -10,10 +10,10 @@ Two routes, in order:
    µ = f × pixels/mm, scaled from the EXIF image width (``ExifImageWidth``, 0xA002, else the
    file's own width) to the scene's width.
 
-Both assume the scene's image is the full frame the camera recorded, possibly resized: a crop
-narrows the field of view and makes µ too small. That is why the prior built from it has a
-width (``EXIF_LOG_SD`` in :mod:`~creference_bayes.models.camera_terms`) and heavy tails, and why
-the pipeline warns when the annotations disagree with it.
+Both assume the scene's image is the full frame the camera recorded, possibly resized (a crop
+makes µ too small): hence the width and heavy tails of the prior built from it (``EXIF_LOG_SD`` in
+:mod:`~creference_bayes.models.camera_terms`) and the pipeline's warning when the annotations
+disagree with it.
 
 :func:`camera_id_from_exif` names the camera that took a photo (make, model, body serial number,
 focal length), for frames with no ``camera.id`` of their own.
@@ -61,21 +61,28 @@ def _number(value) -> float | None:
     return v if np.isfinite(v) and v > 0 else None
 
 
+def _read_exif(path):
+    """(IFD0's tags, the Exif IFD's tags, the file's width), or None when not readable as an image."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            return exif, dict(exif.get_ifd(_EXIF_IFD)) if exif else {}, im.size[0]
+    except (OSError, UnidentifiedImageError, ValueError):
+        return None
+
+
 def focal_from_exif(path: str | Path, image_size: tuple[int, int]) -> ExifFocal | None:
     """µ (pixels) for an image of ``image_size`` (width, height) from the EXIF of ``path``.
 
     Returns None when the file has no usable tags or cannot be read as an image (the caller
     reports an unreadable image elsewhere).
     """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            file_width = im.size[0]
-    except (OSError, UnidentifiedImageError, ValueError):
+    read = _read_exif(path)
+    if read is None:
         return None
-    sub = dict(exif.get_ifd(_EXIF_IFD)) if exif else {}
+    exif, sub, file_width = read
     tags = {**{k: v for k, v in exif.items() if isinstance(k, int)}, **sub} if exif else {}
     width, height = image_size
     f35 = _number(tags.get(_F35))
@@ -107,31 +114,19 @@ def camera_id_from_exif(path: str | Path) -> str | None:
     """A name for the camera that took the photo at ``path``, from its EXIF tags, to stand for a
     scene's ``camera.id`` when the scene gives none: frames with the same name share a camera.
 
-    The name is ``"exif:"`` followed by the make and model, the body's serial number when the
-    camera records one (``#`` and the number), and the focal length in millimetres::
-
-        exif:Canon EOS 80D 35mm
-        exif:Canon EOS 80D #0123456789 35mm
-        exif:Apple iPhone 12 4.2mm
-
-    The make is left out when the model already starts with it (``Canon`` + ``Canon EOS 80D`` is
-    ``Canon EOS 80D``, ``NIKON CORPORATION`` + ``NIKON D750`` is ``NIKON D750``), and the focal
-    length (rounded to 0.01 mm) when the file does not give it. The focal length is part of the
-    name because a zoom lens at another focal length is another camera for the estimate; the
-    serial number, because two bodies of one model are two cameras (mounted apart). Two bodies of
-    one model *without* a serial number in EXIF get the same name: give such frames a
-    ``camera.id`` of their own when they are not on one mounting.
+    The name is ``"exif:"``, the make (left out when the model starts with it) and model, ``#`` and
+    the body's serial number when recorded, and the focal length in millimetres (rounded to
+    0.01 mm, when given), e.g. ``exif:Canon EOS 80D #0123456789 35mm``, ``exif:Apple iPhone 12
+    4.2mm``. A zoom lens at another focal length is another camera for the estimate, and two bodies
+    of one model are two cameras; two bodies without a serial number get the same name (give such
+    frames a ``camera.id`` of their own when they are not on one mounting).
 
     Returns None when the photo has no ``Model`` tag, or cannot be read as an image.
     """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            sub = dict(exif.get_ifd(_EXIF_IFD)) if exif else {}
-    except (OSError, UnidentifiedImageError, ValueError):
+    read = _read_exif(path)
+    if read is None:
         return None
+    exif, sub, _ = read
     make, model = _exif_text(exif.get(_MAKE)), _exif_text(exif.get(_MODEL))
     if model is None:
         return None

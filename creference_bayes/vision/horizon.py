@@ -1,51 +1,37 @@
-"""The horizon from an image (OpenCV adapter): segments → vanishing points → horizon.
+"""The horizon from an image (OpenCV adapter): segments → vanishing points → horizon
+(docs/method.md, "The horizon from a photo").
 
-1. Line segments: OpenCV's LSD detector (``cv2.createLineSegmentDetector``) when the installed
-   OpenCV has it (builds 4.1–4.5.3 shipped a stub that raises), else probabilistic Hough
-   (``cv2.HoughLinesP``) on Canny edges. Chains of nearly collinear pieces (a tiled floor's grid
-   line broken at every tile corner) are merged and refitted: a long line's direction is far
-   more precise than its pieces', which matters because distant vanishing points are set by
-   small angles.
-   Each merged chain gets a noise scale σ from its pieces' scatter (:func:`merge_collinear`).
-2. Vanishing points by sequential RANSAC (seeded): a hypothesis is the intersection of two
-   segments' lines (drawn with probability ∝ length); a segment supports it when its endpoint
-   residual ½ length · sin(angle to the point) is under ``inlier_px`` (or 3σ); the score is the
-   supporting length. The best point is refined by robust (Cauchy) iteratively reweighted least
-   squares on the residuals in units of σ, which also gives its covariance; its supporters are
-   removed and the search repeated (at most 4 points, each with at least 6 segments).
-3. The vertical vanishing point is the best-supported one beyond one image height from the
-   principal point within 30° of the image's vertical axis (or at infinity that way); the rest are
-   horizontal. The vertical one enters the horizon fit as the horizon's point at infinity (the
-   horizon is perpendicular to the direction from the principal point to it). Among the points,
-   the pair whose line agrees (χ² ≤ 16 under the covariances) with the most others wins, ties
-   broken by segment support; the line is refitted on the agreeing points by weighted total least
-   squares. One horizontal point and no vertical one: the horizon is taken level through it. A
-   horizon tilted more than :data:`MAX_ROLL_DEG` is taken level through the best-supported
-   horizontal point instead (on the KITTI frames all six such tilts, 12–32°, were a far vanishing
-   point put in the wrong family; the rule halved the 90th-percentile error).
-4. Two refining passes repeat 2–3 without the segments lying within :data:`NEAR_HORIZON` of the
-   image height of the current horizon: near the horizon every ground direction looks nearly
-   horizontal, so those segments blur different families' vanishing points together (on the
-   synthetic test scenes this cut the 90th-percentile error from about 2–3 % to 0.6 % of the
-   height). A pass that fails keeps the previous one.
+1. Line segments: OpenCV's LSD detector where the installed OpenCV has it (4.1–4.5.3 ship a stub
+   that raises), else probabilistic Hough on Canny edges. Chains of nearly collinear pieces are
+   merged and refitted (a long line's direction is far more precise than its pieces', and distant
+   vanishing points are set by small angles), each with a noise scale σ (:func:`merge_collinear`).
+2. Vanishing points by seeded sequential RANSAC: a hypothesis is the intersection of two
+   segments' lines (drawn ∝ length); a segment supports it when its endpoint residual
+   ½ length · sin(angle to the point) is under ``inlier_px`` (or 3σ); the score is the supporting
+   length. The best point is refined by Cauchy-weighted IRLS on the residuals in units of σ (which
+   gives its covariance), its supporters removed, and the search repeated.
+3. The vertical point is the best-supported one beyond one image height from the principal point
+   within 30° of the vertical axis; it enters the fit as the horizon's point at infinity. The pair
+   of points whose line agrees (χ² ≤ 16) with the most others wins and the line is refitted on the
+   agreeing points by weighted total least squares. One horizontal point and no vertical one: the
+   horizon is taken level through it. A horizon tilted more than :data:`MAX_ROLL_DEG` is taken
+   level through the best-supported horizontal point (such tilts are nearly always a far vanishing
+   point put in the wrong family).
+4. :data:`HORIZON_PASSES` refining passes repeat 2–3 without the segments within
+   :data:`NEAR_HORIZON` of the image height of the current horizon (there every ground direction
+   looks nearly horizontal and blurs the families together); a pass that fails keeps the previous.
 
 Uncertainty. ``sigma_rows_px`` is the statistical standard error of the horizon's rows at the
-image borders, from the vanishing points' covariances. It does not see systematic errors (segment
-biases, a wrongly classified point, a scene that is not built of right angles, ground that is not
-level), which on real street photos are often larger, and sometimes much larger (a vanishing point
-put in the wrong family tilts the horizon by tens of degrees). The estimate therefore enters the
-model as a heavy-tailed measurement: the offsets of the true horizon from its two points follow a
-bivariate Student-t with :data:`HORIZON_DOF` degrees of freedom (a Cauchy) and scale ``sd_px``,
-the statistical part combined in quadrature with a systematic part of
-:data:`SYSTEMATIC_FRACTION` of the image's larger side (doubled when the horizon was assumed
-level). Both were chosen on the errors on 51 real KITTI street photos (docs/method.md, "The
-horizon from a photo"; ``examples/horizon_kitti_check.py``).
+image borders, from the vanishing points' covariances; it does not see systematic errors, often
+larger on real photos. The estimate therefore enters the model as a heavy-tailed measurement: the
+true horizon's offsets from its two points follow a bivariate Student-t with :data:`HORIZON_DOF`
+degrees of freedom and scale ``sd_px``, the statistical part combined in quadrature with
+:data:`SYSTEMATIC_FRACTION` of the image's larger side (doubled when the horizon was assumed level).
 ``confidence`` is the probability, under that distribution, that the horizon lies within 1 % of
 the image height of the estimate at a border.
 
 Computation is in normalised coordinates (centred on the principal point, scaled by half the image
-diagonal), in which vanishing points are unit homogeneous 3-vectors, so points at infinity need no
-special case.
+diagonal), where vanishing points are unit homogeneous 3-vectors: points at infinity need no case.
 """
 
 from __future__ import annotations
@@ -72,15 +58,14 @@ MIN_SIGMA_PX = 0.3
 NEAR_HORIZON = 0.2
 HORIZON_PASSES = 2
 #: A fitted horizon tilted more than this (degrees) is replaced by a level one through the
-#: best-supported horizontal vanishing point (on the KITTI frames every such tilt was an error).
+#: best-supported horizontal vanishing point.
 MAX_ROLL_DEG = 10.0
-#: Systematic error scale of an estimated horizon, as a fraction of the image's larger side
-#: (module docstring; about 1° of pitch for common focal lengths). Chosen on 51 KITTI frames
-#: with :data:`HORIZON_DOF` so that the stated 90 % interval holds 90 % of them
+#: Systematic error scale of an estimated horizon, as a fraction of the image's larger side (about
+#: 1° of pitch): with :data:`HORIZON_DOF`, the stated 90 % interval holds 90 % of 51 KITTI frames
 #: (examples/horizon_kitti_check.py; docs/method.md, "The horizon from a photo").
 SYSTEMATIC_FRACTION = 0.012
-#: Degrees of freedom of the bivariate Student-t of the horizon's error (1: a Cauchy; the KITTI
-#: frames' larger edge errors have a median of 8 % of the height and a 90th percentile of 46 %).
+#: Degrees of freedom of the bivariate Student-t of the horizon's error (1: a Cauchy, for the
+#: heavy tail of real photos' errors).
 HORIZON_DOF = 1.0
 
 
@@ -131,11 +116,9 @@ class HorizonEstimate:
 
 
 def read_gray(path: str | Path) -> np.ndarray:
-    """An image file as an (h, w) uint8 array, without OpenCV's own messages on standard error.
-
-    The file is read by Python (so a missing file, a folder or a permission problem is an
-    ``OSError`` naming the path, with no OpenCV ``[ WARN ] … findDecoder`` line) and decoded by
-    ``cv2.imdecode`` with OpenCV's logging silenced for the call.
+    """An image file as an (h, w) uint8 array, without OpenCV's own messages on standard error:
+    read by Python (a missing file, a folder or a permission problem is an ``OSError`` naming the
+    path) and decoded by ``cv2.imdecode`` with OpenCV's logging silenced.
 
     Raises
     ------
@@ -449,8 +432,7 @@ def estimate_horizon(image, *, principal_point=None, scene_size: tuple[int, int]
                 return HorizonEstimate(None, 0.0, len(seg), used, reason=attempt)
             break  # keep the previous pass
         fit = attempt
-        # the next pass leaves out segments near this horizon: there every ground direction looks
-        # alike, so they blur the vanishing points of different families together
+        # the next pass leaves out segments near this horizon (module docstring, step 4)
         px_line = fit[0] @ T_inv
         px_line = px_line / np.hypot(*px_line[:2])
         ends = np.abs(np.stack([seg[:, :2], seg[:, 2:4]]) @ px_line[:2] + px_line[2])
@@ -458,7 +440,7 @@ def estimate_horizon(image, *, principal_point=None, scene_size: tuple[int, int]
         if far.sum() < 4 or np.array_equal(far, use):
             break
         use = far
-    line, line_cov, kept, assumed_level, vps, vertical, n_support = fit
+    line, line_cov, assumed_level, vps, vertical = fit
     pix = _to_pixels(vps, centre, scale)
     rows = _border_rows(line, T_inv, w)
     jac = np.array([(_border_rows(line + e, T_inv, w) - rows) / 1e-7 for e in 1e-7 * np.eye(3)]).T
@@ -484,15 +466,13 @@ def _horizon_pass(seg, size, centre, scale, seed, n_hypotheses, inlier_px):
     if not horizontal:
         return "no horizontal vanishing point"
     supports = [len(i) for i in inliers]
-    line, line_cov, kept, assumed_level = _fit_horizon(vps, covs, supports, horizontal, vertical)
+    line, line_cov, assumed_level = _fit_horizon(vps, covs, supports, horizontal, vertical)
     if abs(line[1]) > 0 and abs(math.degrees(math.atan(line[0] / line[1]))) > MAX_ROLL_DEG:
-        # a horizon tilted this much is far more often a vanishing point put in the wrong family
-        # than a tilted camera: take it level through the best-supported horizontal point
-        line, line_cov, kept, assumed_level = _fit_horizon(vps, covs, supports, horizontal[:1], None)
+        # far more often a vanishing point in the wrong family than a tilted camera: take it level
+        line, line_cov, assumed_level = _fit_horizon(vps, covs, supports, horizontal[:1], None)
     if abs(line[1]) < abs(line[0]):
         return "the vanishing points give a horizon steeper than 45 degrees"
-    n_support = sum(supports[k] for k in kept if k is not None)
-    return line, line_cov, kept, assumed_level, vps, vertical, n_support
+    return line, line_cov, assumed_level, vps, vertical
 
 
 def _border_rows(line: np.ndarray, T_inv: np.ndarray, width: float) -> np.ndarray:
@@ -513,29 +493,24 @@ def _vertical_index(vps: np.ndarray, far: float) -> int | None:
 def _fit_horizon(vps, covs, supports, horizontal, vertical, max_chi2: float = 16.0, n_iter: int = 10):
     """Weighted fit of the horizon line through the horizontal points (normalised coordinates).
 
-    The vertical point v enters as the horizon's point at infinity J v, J a quarter turn (the
-    horizon is perpendicular to the direction from the principal point to v). With three or more
-    points, the pair whose line is consistent (χ² ≤ ``max_chi2``) with the most other points is
-    chosen, ties broken by their segment support (RANSAC over pairs, so a spurious point cannot
-    drag the line), and the line is refitted on those points, minimising Σ (l·p)² / (lᵀ C l) over
-    unit l by reweighting. With one horizontal point and no vertical one the horizon is taken
-    level through it.
+    The vertical point v enters as the horizon's point at infinity J v, J a quarter turn. The pair
+    whose line is consistent (χ² ≤ ``max_chi2``) with the most points wins, ties broken by segment
+    support (so a spurious point cannot drag the line), and the line is refitted on those points,
+    minimising Σ (l·p)² / (lᵀ C l) over unit l by reweighting. One horizontal point and no vertical
+    one: the horizon is taken level through it.
 
     Returns
     -------
-    line (3,), its covariance (3, 3), the indices kept (None for the vertical constraint),
-    assumed_level
+    line (3,), its covariance (3, 3), assumed_level
     """
     J = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    points = [(k, vps[k], covs[k], supports[k]) for k in horizontal]
+    points = [(vps[k], covs[k], supports[k]) for k in horizontal]
     if vertical is not None:
-        points.append((None, J @ vps[vertical], J @ covs[vertical] @ J.T, supports[vertical]))
+        points.append((J @ vps[vertical], J @ covs[vertical] @ J.T, supports[vertical]))
     assumed_level = len(points) == 1
     if assumed_level:  # a level horizon: the point at infinity (1, 0, 0), nearly certain
-        points.append((None, np.array([1.0, 0.0, 0.0]), 1e-8 * np.eye(3), 0))
-    P = np.array([p[1] for p in points])
-    C = np.array([p[2] for p in points])
-    support = np.array([p[3] for p in points], float)
+        points.append((np.array([1.0, 0.0, 0.0]), 1e-8 * np.eye(3), 0))
+    P, C, support = (np.array(v, float) for v in zip(*points))
 
     def chi2(line):
         return (P @ line) ** 2 / np.maximum(np.einsum("i,kij,j->k", line, C, line), 1e-300)
@@ -557,7 +532,7 @@ def _fit_horizon(vps, covs, supports, horizontal, vertical, max_chi2: float = 16
         line = vec[:, 0]
         wts = 1.0 / np.maximum(np.einsum("i,kij,j->k", line, C[keep], line), 1e-300)
     cov = sum(np.outer(vec[:, k], vec[:, k]) / max(lam[k], 1e-300) for k in (1, 2))
-    return line, cov, [points[k][0] for k in keep], assumed_level
+    return line, cov, assumed_level
 
 
 def horizon_error(estimated: np.ndarray, true: np.ndarray, width: float, height: float) -> float:

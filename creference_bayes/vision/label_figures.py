@@ -31,9 +31,7 @@ def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.
     ax.hist(scores, bins=np.linspace(0, 1, 21), color="#1f77b4", edgecolor="white")
     ax.axvline(threshold, color="#d62728", ls="--",
                label=f"minimum {threshold:g}: {int(np.sum(scores < threshold))} of {scores.size} below")
-    ax.set_xlabel(f"label quality {score_label}")
-    ax.set_ylabel("objects")
-    ax.set_xlim(0, 1)
+    ax.set(xlabel=f"label quality {score_label}", ylabel="objects", xlim=(0, 1))
     ax.legend(loc="upper left", fontsize="small")
     for ax, (t, rows) in zip(axes[1:], (reliability or {}).items()):
         _reliability_panel(ax, t, rows)
@@ -44,24 +42,20 @@ def _reliability_panel(ax, t: float, rows: list[dict], title: str | None = None)
     """Observed share against mean predicted P(IoU ≥ t) per bin, with the ±2 se band of a
     calibrated forecast; each bin's count is written above the panel, at the bin's centre (on a
     secondary axis, where it overlaps neither the data nor the tick labels)."""
-    pred = np.array([r["mean_predicted"] for r in rows])
-    obs = np.array([r["observed_share"] for r in rows])
-    se = np.array([r["se"] for r in rows])
+    pred, obs, se = (np.array([r[k] for r in rows]) for k in ("mean_predicted", "observed_share", "se"))
     ax.plot([0, 1], [0, 1], color="grey", lw=1, label="calibrated")
     yerr = np.vstack([np.minimum(2 * se, pred), np.minimum(2 * se, 1 - pred)])  # within [0, 1]
     ax.errorbar(pred, pred, yerr=yerr, fmt="none", ecolor="grey", capsize=3,
                 label="±2 se if calibrated")
     ax.plot(pred, obs, "o-", color="#d62728", label="observed", clip_on=False, zorder=3)
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
+    ax.set(xlim=(0, 1), ylim=(0, 1))
     counts = ax.secondary_xaxis("top")
     centres = [(r["low"] + r["high"]) / 2 for r in rows]
     counts.set_xticks(centres, [str(r["count"]) for r in rows])
     narrow = min((r["high"] - r["low"] for r in rows), default=0.1)
     counts.tick_params(length=3, labelsize=7 if narrow >= 0.1 else 6, pad=2.5)
     counts.set_xlabel("labels in each bin", fontsize=7, labelpad=2)
-    ax.set_xlabel(f"predicted P(IoU ≥ {t:g})")
-    ax.set_ylabel(f"share with true IoU ≥ {t:g}")
+    ax.set(xlabel=f"predicted P(IoU ≥ {t:g})", ylabel=f"share with true IoU ≥ {t:g}")
     if title:
         ax.set_title(title, fontsize="medium")
     ax.legend(loc="best", fontsize="small")

@@ -1,7 +1,6 @@
 """Figures of an estimate of any scene (matplotlib): every object's box on the photo, the ground
 seen from above with a zoom on each small object, pair plots of the posterior (the camera and the
-chosen objects) and rank plots of its chains; and the rank histograms of simulation-based
-calibration.
+chosen objects), rank plots of its chains, and the rank histograms of simulation-based calibration.
 
 Every figure takes the scene (:class:`~creference_bayes.io.scene.Scene`), the MAP as model arrays
 (camera (5,), objects (m, 7), :mod:`~creference_bayes.models.contract` order) and draws as model
@@ -9,10 +8,9 @@ arrays (cameras (n, 5), objects (n, m, 7)) or None; it draws on the ``ax``/``fig
 on a new :class:`matplotlib.figure.Figure` (no pyplot state) and returns the figure.
 :func:`scene_figures` makes every figure of a result at once (``creference plot``).
 
-Each object has a style of its own (:func:`object_styles`): one of :data:`OBJECT_COLORS`, with a
-line style of its own once the colours have all been used. Its label (``id (class)``; the id alone,
-with a key below the figure, when there are more than :data:`FULL_LABELS_UP_TO` objects) is placed
-near the object where it overlaps no other label, with a leader line when it had to move away.
+Each object has its own colour and line style (:func:`object_styles`) and a label (``id (class)``,
+or the id alone with a key below the figure beyond :data:`FULL_LABELS_UP_TO` objects) placed near
+it where it overlaps no other label, with a leader line when it had to move away.
 """
 
 from __future__ import annotations
@@ -45,10 +43,8 @@ _CENTRE_COLOR = "k"
 #: What the draws are, by where they came from (:func:`~creference_bayes.pipeline.result_draws`).
 DRAWS_LABELS = {"posterior": "posterior draws", "laplace": "draws of the Laplace approximation"}
 
-#: One strong colour per object: each has a relative luminance of at most 0.3 (a contrast of at
-#: least 3:1 against white, so that a label or a thin line in it reads on a light background), and
-#: any two differ by a CIE76 ΔE of at least 24. Grey and black are left out (the legends' and the
-#: truth's).
+#: One strong colour per object: relative luminance at most 0.3 (3:1 contrast on white), any two
+#: at least 24 apart (CIE76 ΔE); no grey or black (the legends' and the truth's).
 OBJECT_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#d95f02", "#8c564b", "#c51b7d", "#00838f",
                  "#6b6b00", "#3f3f9f", "#b8860b")
 #: The line style of an object's boxes and footprint: solid for the first round through the colours,
@@ -88,8 +84,11 @@ def short_labels(scene) -> list[str]:
     return ids if max((len(s) for s in ids), default=0) <= 6 else [str(i + 1) for i in range(len(ids))]
 
 
-def _label_fontsize(m: int) -> float:
-    return 8.0 if m <= FULL_LABELS_UP_TO else 7.0 if m <= 30 else 6.0
+def _labelling(scene, m: int):
+    """Styles, whether labels are full (``id (class)``), the labels and their font size."""
+    full = m <= FULL_LABELS_UP_TO
+    fs = 8.0 if full else 7.0 if m <= 30 else 6.0
+    return object_styles(m), full, object_labels(scene) if full else short_labels(scene), fs
 
 
 def _key(ax_or_fig, scene, styles, fontsize: float, width_in: float, *, outside: bool):
@@ -147,12 +146,9 @@ def _hdr_levels(x, z, prob, bins=40):
     from scipy.ndimage import gaussian_filter
 
     x, z = np.asarray(x, float), np.asarray(z, float)
-    rng = []
-    for v in (x, z):
-        lo, hi = np.quantile(v, [0.005, 0.995])
-        pad = 0.3 * max(hi - lo, 1e-9)
-        rng.append([lo - pad, hi + pad])
-    H, xe, ze = np.histogram2d(x, z, bins=bins, range=rng)
+    lo, hi = np.quantile(np.column_stack([x, z]), [0.005, 0.995], axis=0)
+    pad = 0.3 * np.maximum(hi - lo, 1e-9)
+    H, xe, ze = np.histogram2d(x, z, bins=bins, range=np.column_stack([lo - pad, hi + pad]))
     H = gaussian_filter(H, 1.5)
     flat = np.sort(H.ravel())[::-1]
     cum = np.cumsum(flat) / max(len(x), 1)
@@ -160,8 +156,9 @@ def _hdr_levels(x, z, prob, bins=40):
     return H, xe, ze, level
 
 
-def _pick(n_draws: int, k: int, rng) -> np.ndarray:
-    return np.random.default_rng(rng).choice(n_draws, size=min(k, n_draws), replace=False)
+def _central(cloud, q: float) -> np.ndarray:
+    """(2, 2) the (x, z) quantiles ``q`` and 1 − ``q`` of a cloud of bottom centres."""
+    return np.column_stack([np.quantile(cloud[0], [q, 1 - q]), np.quantile(cloud[1], [q, 1 - q])])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -204,13 +201,11 @@ _DIRECTIONS = np.deg2rad([90, 65, 115, 40, 140, 15, 165, 0, 180, -20, -160, -45,
 
 def _place_labels(ax, anchors, texts, colors, *, fontsize: float, obstacles=(), avoid=(),
                   soft_weight: float = 4.0) -> list:
-    """Write each text near its anchor (data coordinates) so that no two texts overlap and every
-    text lies inside the axes: the free place nearest to the anchor, preferring above it and places
-    that cover neither an obstacle (point sets in data coordinates: the objects' boxes or
-    footprints; covering one costs as much as ``soft_weight`` text heights farther away) nor another
-    anchor; ``avoid`` holds artists (a legend) no text may cover. A text
-    that had to move away from its anchor gets a leader line. The texts stay out of the layout: the
-    figure is laid out first (constrained layout), and then the texts are placed in its pixels.
+    """Write each text near its anchor (data coordinates), no two overlapping, all inside the axes:
+    the free place nearest the anchor, preferring above it and places covering neither another
+    anchor nor an obstacle (point sets in data coordinates; covering one costs ``soft_weight`` text
+    heights of distance); no text covers an artist of ``avoid`` (a legend). A text moved away from
+    its anchor gets a leader line. The figure is laid out first, then the texts placed in its pixels.
 
     Returns the :class:`~matplotlib.text.Annotation` of each text (None where the anchor is not finite).
     """
@@ -308,17 +303,12 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
                draws_label: str = "posterior draws", zoom: bool = True, rng=0, ax=None) -> Figure:
     """The photo (or a blank canvas of its size) with the workers' annotations (thin black: each
     set of dimension lines; thick: their per-corner median), the horizon when the scene gives one,
-    every object's MAP box (its colour and line style, labelled with its id and class) and
-    ``n_boxes`` boxes per object from the draws, each projected with its draw's own camera. With
-    more than :data:`FULL_LABELS_UP_TO` objects the labels are the ids and a key below the image
-    gives each object's class. With ``zoom``, an inset magnifies the objects and their annotations
+    every object's labelled MAP box and ``n_boxes`` boxes per object from the draws, each projected
+    with its draw's own camera. With ``zoom``, an inset magnifies the objects and their annotations
     when they are small in the photo (at least :data:`PHOTO_ZOOM_AT_LEAST` times)."""
     w, h = scene.image_width, scene.image_height
     m = len(objects)
-    styles = object_styles(m)
-    full = m <= FULL_LABELS_UP_TO
-    labels = object_labels(scene) if full else short_labels(scene)
-    fs = _label_fontsize(m)
+    styles, full, labels, fs = _labelling(scene, m)
     own = ax is None
     if own:
         # inches per pixel: the image 12 in wide (16 in from 40 objects on), at most 10 in high
@@ -343,7 +333,7 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
                                      colors="k", linewidths=1.1, zorder=2.5, gid="median annotations"), autolim=False)
     if draws is not None:
         cams, objs = draws
-        pick = _pick(len(cams), n_boxes, rng)
+        pick = np.random.default_rng(rng).choice(len(cams), size=min(n_boxes, len(cams)), replace=False)
         for i in range(m):
             segs = _box_segments(image_boxes(cams[pick], objs[pick, i], scene.principal_point))
             ax.add_collection(LineCollection(segs, colors=styles[i]["color"], linewidths=0.9, alpha=0.3, zorder=2,
@@ -361,11 +351,7 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
     if draws is not None:
         ax.plot([], [], color="0.2", lw=0.9, alpha=0.3, label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
     ax.plot([], [], color="k", lw=1.1, label="annotations (thin: each set; thick: their median)")
-    ax.set_xlim(0, w)
-    ax.set_ylim(h, 0)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
+    ax.set(xlim=(0, w), ylim=(h, 0), aspect="equal", xlabel="u (px)", ylabel="v (px)")
     what = f"{m} objects" if m > 1 else labels[0]
     ax.set_title(f"{what}: boxes at the MAP" + (f" and {draws_label}" if draws is not None else ""))
     legend = ax.legend(loc="lower left", fontsize=8, framealpha=0.85)
@@ -414,10 +400,7 @@ def _photo_inset(ax, pts: np.ndarray, w: int, h: int):
                                             linestyles=col.get_linestyles(), alpha=col.get_alpha(),
                                             zorder=col.get_zorder()), autolim=False)
     x0, y0 = c[0] - size / 2, c[1] - size * h / w / 2
-    inset.set_xlim(x0, x0 + size)
-    inset.set_ylim(y0 + size * h / w, y0)
-    inset.set_xticks([])
-    inset.set_yticks([])
+    inset.set(xlim=(x0, x0 + size), ylim=(y0 + size * h / w, y0), xticks=[], yticks=[])
     inset.set_title(f"zoom ×{0.42 * w / size:.0f}", fontsize=8, pad=2)
     ax.indicate_inset_zoom(inset, edgecolor="0.3")
     return inset
@@ -446,7 +429,7 @@ def _geometry(scene, objects, draws):
         objs = draws[1]
         for i in range(m):
             clouds.append((objs[:, i, 0], objs[:, i, 1]))
-            pts.append(np.column_stack([np.quantile(objs[:, i, 0], [0.01, 0.99]), np.quantile(objs[:, i, 1], [0.01, 0.99])]))
+            pts.append(_central(clouds[-1], 0.01))
     pts = np.vstack(pts)
     span = max(np.ptp(pts[:, 0]), np.ptp(pts[:, 1]), 1.0)
     return truths, clouds, pts, span
@@ -478,18 +461,13 @@ def _legend_entries(ax, *, clouds: bool, truth: bool, draws_label: str, prob: fl
 def plot_top_view(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, prob: float = 0.9,
                   draws_label: str = "posterior draws", rng=0, max_zoom: int | None = None, fig=None) -> Figure:
     """The ground seen from above: the camera and its field of view, every object's footprint at
-    the MAP (its colour and line style), its posterior cloud of bottom centres and their ``prob``
-    credible region, and the true footprint (dashed, black) when the scene has one. Objects whose
-    cloud is smaller than :data:`ZOOM_BELOW` of the plotted span (:func:`zoom_indices`)
-    get a zoom panel of their own (right), each at its own scale, when there are at most
-    ``max_zoom`` of them (default :data:`MAX_ZOOM_PANELS`); with more, the title says so and
-    :func:`plot_zooms` draws them."""
+    the MAP, its posterior cloud of bottom centres and their ``prob`` credible region, and the true
+    footprint (dashed, black) when known. The objects of :func:`zoom_indices` get a zoom panel
+    each (right, own scale) when there are at most ``max_zoom`` (default :data:`MAX_ZOOM_PANELS`);
+    with more, the title says so and :func:`plot_zooms` draws them."""
     m = len(objects)
-    styles = object_styles(m)
+    styles, full, labels, fs = _labelling(scene, m)
     colors = [s["color"] for s in styles]
-    full = m <= FULL_LABELS_UP_TO
-    labels = object_labels(scene) if full else short_labels(scene)
-    fs = _label_fontsize(m)
     truths, clouds, pts, span = _geometry(scene, objects, draws)
     zoom = zoom_indices(scene, objects, draws)
     beside = zoom if len(zoom) <= (MAX_ZOOM_PANELS if max_zoom is None else max_zoom) else []
@@ -525,11 +503,8 @@ def plot_top_view(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *,
         if truths[i] is not None:
             _draw_footprint(ax, truths[i], _TRUTH_COLOR, ls="--", lw=1.0, fill=False)
     _draw_camera(ax, scene, camera, 0.025 * span)
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x, right (m)")
-    ax.set_ylabel("z, forward (m)")
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), aspect="equal", xlabel="x, right (m)",
+           ylabel="z, forward (m)")
     ax.grid(alpha=0.3)
     _legend_entries(ax, clouds=bool(clouds), truth=any(t is not None for t in truths), draws_label=draws_label,
                     prob=prob, centre="bottom centre at the MAP (zoom panels)" if beside else None, camera=True)
@@ -541,12 +516,7 @@ def plot_top_view(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *,
     if not full:
         _key(left, scene, styles, fs, main_w + 0.8, outside=True)
     if cols:
-        axes = np.atleast_1d(right.subplots(rows, cols, squeeze=False)).ravel()
-        for a, i in zip(axes, beside):
-            _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i],
-                        object_labels(scene)[i], prob, rng)
-        for a in axes[len(beside):]:
-            a.set_visible(False)
+        _zoom_panels(right, rows, cols, beside, scene, objects, clouds, truths, styles, prob, rng)
         right.suptitle("zoom on each small object\n(own scale)" if cols == 1 else "zoom on each small object (own scale)",
                        fontsize=9)
     _place_labels(ax, objects[:, :2], labels, colors, fontsize=fs, obstacles=[_footprint(o) for o in objects])
@@ -572,12 +542,7 @@ def plot_zooms(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, in
     panel = float(min(2.3, (MAX_FIGURE_IN - 1.2) / rows, MAX_FIGURE_IN / cols))
     if fig is None:
         fig = Figure(figsize=(max(panel * cols + 0.3, 4.6), panel * rows + 1.6), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
-    full = object_labels(scene)
-    for a, i in zip(axes, indices):
-        _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i], full[i], prob, rng)
-    for a in axes[len(indices):]:
-        a.set_visible(False)
+    _zoom_panels(fig, rows, cols, indices, scene, objects, clouds, truths, styles, prob, rng)
     proxy = fig.add_axes([0, 0, 0, 0])
     proxy.set_visible(False)
     _legend_entries(proxy, clouds=bool(clouds), truth=any(truths[i] is not None for i in indices),
@@ -592,33 +557,39 @@ def plot_zooms(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, in
     return fig
 
 
+def _panel_points(obj, cloud, truth) -> np.ndarray:
+    """The points an object's zoom panel shows: its footprint, its cloud's central 99 %, its truth."""
+    pts = [_footprint(obj)] + ([] if cloud is None else [_central(cloud, 0.005)])
+    return np.vstack(pts + ([] if truth is None else [_footprint(truth)]))
+
+
 def _object_extent(obj, cloud, truth) -> float:
-    pts = [_footprint(obj)]
-    if cloud is not None:
-        pts.append(np.column_stack([np.quantile(cloud[0], [0.005, 0.995]), np.quantile(cloud[1], [0.005, 0.995])]))
-    if truth is not None:
-        pts.append(_footprint(truth))
-    p = np.vstack(pts)
+    p = _panel_points(obj, cloud, truth)
     return float(max(np.ptp(p[:, 0]), np.ptp(p[:, 1])))
+
+
+def _zoom_panels(fig, rows, cols, indices, scene, objects, clouds, truths, styles, prob, rng) -> None:
+    """A grid of ``rows`` × ``cols`` zoom panels on ``fig``, one per object of ``indices``."""
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    full = object_labels(scene)
+    for a, i in zip(axes, indices):
+        _zoom_panel(a, objects[i], clouds[i] if clouds else None, truths[i], styles[i], full[i], prob, rng)
+    for a in axes[len(indices):]:
+        a.set_visible(False)
 
 
 def _zoom_panel(ax, obj, cloud, truth, style, label, prob, rng) -> None:
     color = style["color"]
-    pts = [_footprint(obj)]
     if cloud is not None:
         _cloud(ax, *cloud, color, prob, rng=rng)
-        pts.append(np.column_stack([np.quantile(cloud[0], [0.005, 0.995]), np.quantile(cloud[1], [0.005, 0.995])]))
     _draw_footprint(ax, obj, color, ls=style["ls"])
     ax.plot(obj[0], obj[1], "x", color=_CENTRE_COLOR, ms=6, mew=1.5, zorder=5)
     if truth is not None:
         _draw_footprint(ax, truth, _TRUTH_COLOR, ls="--", lw=1.0, fill=False)
-        pts.append(_footprint(truth))
-    p = np.vstack(pts)
+    p = _panel_points(obj, cloud, truth)
     c = (p.min(axis=0) + p.max(axis=0)) / 2
     half = 0.55 * max(np.ptp(p[:, 0]), np.ptp(p[:, 1]), 0.5)
-    ax.set_xlim(c[0] - half, c[0] + half)
-    ax.set_ylim(c[1] - half, c[1] + half)
-    ax.set_aspect("equal")
+    ax.set(xlim=(c[0] - half, c[0] + half), ylim=(c[1] - half, c[1] + half), aspect="equal")
     ax.tick_params(labelsize=6)
     ax.grid(alpha=0.3)
     ax.set_title(f"{label}, {np.hypot(obj[0], obj[1]):.0f} m", fontsize=7, color=color)
@@ -639,8 +610,6 @@ def _draw_camera(ax, scene, camera, size: float) -> None:
     ax.plot([0, far * (scene.image_width - cx) / f], [0, far], color="#555555", lw=0.8, ls=":")
     tri = np.array([[0, 0], [-0.6, -1.0], [0.6, -1.0]]) * size
     ax.add_patch(Polygon(tri, closed=True, color="k"))
-
-
 
 
 # ------------------------------------------------------------------------------------------------
@@ -800,8 +769,7 @@ def plot_ranks(columns: list[Column], chains: np.ndarray, *, bins: int | None = 
             ax.stairs(counts, edges, baseline=None, label=f"chain {c}", lw=1.3)
         ax.axhline(per_chain / bins, color="k", ls=":", lw=1)
         ax.set_title(col.label, fontsize=9)
-        ax.set_xticks([])
-        ax.set_ylim(0, 2 * per_chain / bins)
+        ax.set(xticks=[], ylim=(0, 2 * per_chain / bins))
     for ax in axes[len(columns):]:
         ax.set_visible(False)
     if len(ids) <= 8:
@@ -811,9 +779,9 @@ def plot_ranks(columns: list[Column], chains: np.ndarray, *, bins: int | None = 
 
 
 def kept_chains(result: dict) -> np.ndarray | None:
-    """The chain of each draw a ``creference-result/2`` keeps (``draws``: evenly spaced over the
-    chains' draws laid end to end, :data:`~creference_bayes.io.result.RESULT_DRAWS`), from the
-    sampler's ``diagnostics.n_chains`` when ``draws.chain`` is missing); None when the result does not say."""
+    """The chain of each draw a ``creference-result/2`` keeps (``draws.chain``, else from
+    ``diagnostics.n_chains``: the kept draws are evenly spaced over the chains laid end to end,
+    :data:`~creference_bayes.io.result.RESULT_DRAWS`); None when the result does not say."""
     kept, diag = result.get("draws") or {}, result.get("diagnostics") or {}
     if isinstance(kept.get("chain"), list) and len(kept["chain"]) == kept.get("n"):
         return np.asarray(kept["chain"], int)
