@@ -25,11 +25,11 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
-from .scene import MEASURES, MODES, SceneError, parse_scene
+from .scene import MEASURES, MODES, SceneError, parse_scene, prior_entry
 
 __all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
-           "safe_name", "unique_names", "relative_image_path", "image_file", "open_input",
+           "safe_name", "unique_names", "image_file", "size_fields", "open_input",
            "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes", "fmt_number"]
 
 #: The per-reference fields, as named in the shipped Label Studio config and CVAT label spec.
@@ -105,6 +105,16 @@ def number_field(value: Any, where: str, what: str, *, positive: bool = False,
     if (lo is not None and x < lo) or (hi is not None and x > hi):
         raise ConversionError(where, f"{what} must be in [{lo:g}, {hi:g}], got {x:g}")
     return x
+
+
+def size_fields(cells: dict, where: str) -> dict[str, float] | None:
+    """A target's size (m) from the text fields ``length_m``, ``width_m``, ``height_m`` (all three
+    or none filled in), or None."""
+    given = {k: cells[f"{k}_m"] for k in SIZE_KEYS if cells.get(f"{k}_m")}
+    if given and len(given) < 3:
+        raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
+                                     f"{ {k + '_m': v for k, v in given.items()} }")
+    return {k: number_field(v, where, f"{k}_m", positive=True) for k, v in given.items()} or None
 
 
 def _whole(value: Any, where: str, what: str) -> int:
@@ -269,8 +279,7 @@ def classes_block(targets: list[dict], own: Any, extra: dict[str, SizePrior] | N
     out = dict(own) if isinstance(own, dict) else own
     if extra:
         used = [t["class"] for t in targets if t.get("dimensions_m") is None and t.get("class") in extra]
-        add = {c: {**{f"{k}_m": v for k, v in zip(SIZE_KEYS, extra[c].median_m)}, "log_sd": list(extra[c].log_sd)}
-               for c in dict.fromkeys(used) if not (isinstance(out, dict) and c in out)}
+        add = {c: prior_entry(extra[c]) for c in dict.fromkeys(used) if not (isinstance(out, dict) and c in out)}
         if add:
             out = {**(out or {}), **add}
     return out or None
@@ -471,11 +480,7 @@ def load_target_table(path: str | Path) -> TargetTable:
             if not any(cell.values()):
                 continue
             image, tid = cell.get("image") or None, cell.get("target_id") or None
-            given = {k: cell[f"{k}_m"] for k in SIZE_KEYS if cell[f"{k}_m"]}
-            if given and len(given) < 3:
-                raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
-                                             f"{ {k + '_m': v for k, v in given.items()} }")
-            size = {k: number_field(v, where, f"{k}_m", positive=True) for k, v in given.items()} or None
+            size = size_fields(cell, where)
             focal = (number_field(cell["focal_length_px"], where, "focal_length_px", positive=True)
                      if cell.get("focal_length_px") else None)
             if tid is None and (image is None or size is not None):
@@ -494,7 +499,8 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
     """A scene's ``image.path`` for the image the export names ``name`` (a relative path such as
     ``street/000007.png``), in ``image_dir``: ``DIR/street/000007.png`` when that file exists, else
     the name with its leading folders dropped (``DIR/000007.png``). When no such file exists, a
-    note names the image and the path is ``DIR/<file name>``; None when ``name`` has no file name."""
+    note names the image and the path is ``DIR/<file name>``; None when ``name`` has no file name.
+    The path is relative to ``out_dir`` when there is one (and it can be)."""
     if "\0" in name:
         raise ConversionError(where, f"the image's name {_short(name)} holds a NUL character")
     parts = [p for p in PurePosixPath(name).parts if p not in ("/", ".", "..")]
@@ -507,7 +513,12 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
         found = candidates[-1]
         notes.append(f"{where}: no image file {' or '.join(str(c) for c in candidates)}; image.path set to "
                      f"{str(found)!r} all the same (estimate cannot use the photo until it is there)")
-    return relative_image_path(found, out_dir)
+    if out_dir is None:
+        return str(found)
+    try:
+        return os.path.relpath(found.resolve(), Path(out_dir).resolve())
+    except ValueError:  # another drive (Windows)
+        return str(found.resolve())
 
 
 def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path) -> list[Path]:
@@ -535,13 +546,3 @@ def unique_names(scenes: list[ImportedScene]) -> tuple[list[ImportedScene], list
         seen[key] = s.source
         kept.append(s)
     return kept, errors
-
-
-def relative_image_path(image: str | Path, out_dir: str | Path | None) -> str:
-    """``image`` as the scene's ``image.path``: relative to the output folder when possible."""
-    if out_dir is None:
-        return str(image)
-    try:
-        return os.path.relpath(Path(image).resolve(), Path(out_dir).resolve())
-    except ValueError:  # another drive (Windows)
-        return str(Path(image).resolve())

@@ -2,29 +2,18 @@
 ``creference-scene/2`` scene per photo (docs/import.md is the user's guide); scenes → tasks is in
 :mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
 
-A task's ``data`` gives the image and, optionally, its targets: ``targets``
-(``[{"id", "class", "dimensions_m", "ground_truth"}, …]``), or one target as ``target_id`` and
-``target_length_m``/``target_width_m``/``target_height_m`` (its ``ground_truth`` is then split
-between the target and the camera, as in a ``creference-scene/1`` file); without either the regions
-name the targets, and a task whose regions name none has one target, ``task<id>``. Each
-annotation is one worker's work: the targets' dimension lines (four keypoints or one four-point
-``target`` line each, tied to a target by the per-region ``target`` field; a region that names
-none belongs to the task's only target), reference lines with their measurements, the horizon.
-A target's size comes from the task or the ``--targets`` table; without one its class's size
-prior applies.
+A task's ``data`` gives the image and, optionally, its targets: ``targets`` (``[{"id", "class",
+"dimensions_m", "ground_truth"}, …]``), or one target as ``target_id`` and ``target_*_m`` (its
+``ground_truth`` split between target and camera, as in ``creference-scene/1``); else the regions
+name the targets (their per-region ``target`` field; a region that names none belongs to the
+task's only target, ``task<id>`` when none is named). Each annotation is one worker's work. A
+target's size comes from the task or the ``--targets`` table, else its class's size prior.
 
-The tasks of one image (``data.image``) make one scene holding the targets of all of them (so a
-task per target, all on one photo, is one scene): they must agree on the image's size and on the
-photo's fields (:data:`SHARED_DATA`, among them the camera's name ``camera_id``, the scene's
-``camera.id``), and a target is drawn in one task only. A request task of
-``creference advise`` (``data.creference_scene``) is the scene it carries with the task's answers
-appended.
-
-Results are matched by their label (:data:`~.labelstudio_results.TARGET_LABELS`, ``reference
-start`` / ``reference end`` paired by a relation, ``horizon``; vectors labelled ``target``,
-``reference``, ``horizon``). A reference's measurement is in per-region controls (same result id
-as the region) named as :data:`~.annotation_tools.REFERENCE_FIELDS`. Coordinates are percent of
-``original_width`` / ``original_height`` (or of the task's ``image_width`` / ``image_height``).
+The tasks of one image (``data.image``) make one scene: they must agree on the image's size and
+the photo's fields (:data:`SHARED_DATA`), and a target is drawn in one task only. A request task of
+``creference advise`` (``data.creference_scene``) is the scene it carries with the answers added.
+Coordinates are percent of ``original_width`` / ``original_height`` (or of the task's
+``image_width`` / ``image_height``).
 """
 
 from __future__ import annotations
@@ -44,7 +33,7 @@ from .annotation_tools import (ConversionError, ImportedScene, ImportReport, Tar
 from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
-from .scene import SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
+from .scene import _CAMERA_TRUTH, SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -59,8 +48,6 @@ DATA_FIELDS = ("image", "targets", "target_id", "target_length_m", "target_width
                "image_width", "image_height", "creference_scene", *SHARED_DATA)
 _DIMS = tuple(f"target_{k}_m" for k in SIZE_KEYS)
 _TARGET_KEYS = {"id", "class", "dimensions_m", "ground_truth"}
-#: A version-1 (one-target) ``ground_truth``'s keys of the camera; the others are the target's.
-_CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
 
 def label_studio_config(lines: str = "keypoints") -> str:
@@ -118,26 +105,18 @@ def read_users(path: str | Path) -> dict[str, str]:
 def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
                              out_dir: str | Path | None = None, targets: Any = None,
                              users: dict[str, str] | None = None, classes: dict | None = None) -> ImportReport:
-    """Convert a Label Studio JSON export (the decoded list of tasks) to one ``creference-scene/2``
-    scene per image: the tasks of one image make one scene holding their targets (module docstring).
+    """Convert a Label Studio JSON export (``tasks``: the decoded list of tasks with ``data`` and
+    ``annotations``, ``completions`` before 1.0) to one ``creference-scene/2`` scene per image: the
+    tasks of one image make one scene holding their targets (module docstring).
 
-    Parameters
-    ----------
-    tasks : list
-        The export: tasks with ``data`` and ``annotations`` (``completions`` before 1.0).
-    image_dir : path, optional
-        Where the images are: ``image.path`` is the file of the task's ``image`` URL in this folder
-        (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
-    out_dir, targets, classes : as :func:`~.cvat.scenes_from_cvat`
-    users : dict, optional
-        Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
-        in ``completed_by`` (or the e-mail, when the export expands the user).
+    ``image_dir``: where the images are; ``image.path`` is the file of the task's ``image`` URL in
+    this folder (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
+    ``out_dir``, ``targets``, ``classes``: as :func:`~.cvat.scenes_from_cvat`. ``users``: worker
+    names by user id (:func:`read_users`); otherwise a worker is named by the user id in
+    ``completed_by`` (or the e-mail, when the export expands the user).
 
-    Returns
-    -------
-    ImportReport
-        A task or image that cannot be converted is in ``errors`` (its message names the task and
-        the region) and the others are in ``scenes``.
+    Returns an :class:`ImportReport`: a task or image that cannot be converted is in ``errors`` (its
+    message names the task and the region), the others are in ``scenes``.
     """
     if isinstance(tasks, dict) and "data" in tasks:
         tasks = [tasks]

@@ -111,13 +111,13 @@ def _r(v, nd=6):
 
 
 def _named(names, values, keep=None) -> dict:
-    return {n: _r(v) for n, v, k in zip(names, values, keep if keep is not None else [True] * len(names)) if k}
+    """``names`` → rounded ``values`` (``keep``: which of them; None: all)."""
+    return {n: _r(v) if np.ndim(v) == 0 else [_r(x) for x in v]
+            for n, v, k in zip(names, values, [True] * len(names) if keep is None else keep) if k}
 
 
 def _posterior_block(names, s: dict, prob: float, keep=None) -> dict:
-    out = {k: _named(names, s[k], keep) for k in ("mean", "median", "sd")}
-    out["hdi"] = {n: [_r(a), _r(b)] for n, (a, b), k in
-                  zip(names, s["hdi"], keep if keep is not None else [True] * len(names)) if k}
+    out = {k: _named(names, s[k], keep) for k in ("mean", "median", "sd", "hdi")}
     out["hdi"]["prob"] = prob
     return out
 

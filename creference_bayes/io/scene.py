@@ -1,37 +1,20 @@
 """Scene files and the one scene in memory: a photo with one or more annotated targets.
 
-Two file formats are read, forever: ``creference-scene/1`` (one ``target``, formats.md) and
-``creference-scene/2`` (``targets``: every annotated target of the photo, docs/scene_format.md).
-Both become one :class:`Scene` (a one-target scene is a frame of one), validated by one set of
-rules with one set of messages; :func:`scene_to_dict` writes version 2.
+``creference-scene/1`` (one ``target``) and ``creference-scene/2`` (``targets``) files
+(docs/scene_format.md) both become one :class:`Scene`, validated by one set of rules;
+:func:`scene_to_dict` writes version 2. A version-1 file is a scene of one target (id ``target``
+when it has none) whose ground truth is split between the target and the camera.
 
 Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
-and names the value (``references[2].unit: unknown unit 'furlong' …``); nothing else escapes
-:func:`parse_scene` (a property test mutates valid scenes to check it). Unknown keys are not
-errors, unless one is a near miss of a known key of the same object (``refrences``: unknown
-key; did you mean 'references'?, :func:`near_miss`), which would otherwise silently drop what
-the user meant; the others are kept in :attr:`Scene.warnings` and emitted as
-:class:`SceneWarning`. Ground truth is free-form (extra keys are kept without a warning); the
-known keys are checked.
-
-Optional keys may also be ``null`` (meaning absent). Limits beyond formats.md: image sides at most
-:data:`MAX_IMAGE_SIDE` pixels; annotated points within :data:`IMAGE_MARGIN` image sizes of the
-image; horizon points within :data:`HORIZON_MARGIN` image sizes and the horizon no steeper than 45°.
-
-A version-1 file reads as a scene of one target (its id, ``target`` when it has none) with its
-known size; its relative references are relative to that target; its ground truth is split
-between the target (``location_m``, ``yaw_rad``, ``handedness``) and the camera (the rest).
-
-In a version-2 file, each target has an ``id`` (unique), a ``class`` and, optionally, its known
-``dimensions_m`` (without them the class's size prior applies: the scene's own ``classes``, then
-the user's classes file, then the shipped KITTI classes); references may name a ``target``
-(relative to it, or, without a line, a measurement of its own size) or two ``targets`` (the
-ground distance between them).
+and names the value; nothing else escapes :func:`parse_scene`. An unknown key is an error when it
+is a near miss of a known key (:func:`near_miss`: it would silently drop what the user meant),
+else a :class:`SceneWarning` kept in :attr:`Scene.warnings`. Ground truth is free-form; its known
+keys are checked. Optional keys may be ``null`` (absent). Limits beyond the format:
+:data:`MAX_IMAGE_SIDE`, :data:`IMAGE_MARGIN`, :data:`HORIZON_MARGIN`, a horizon no steeper than 45°.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import warnings
@@ -43,22 +26,21 @@ import numpy as np
 
 from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
-from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior, size_priors_from_dict
+from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior, size_priors_from_dict
 from .files import read_bytes
-from .validation import (SceneError, SceneWarning, _check_inside, _check_segment, _dict, _get,
-                         _got, _join, _list, _number, _point, _points, _short, _string, _warn_unknown,
-                         check_scene_format, near_miss)
+from .result import canonical_sha256
+from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside, _check_segment, _dict,
+                         _get, _got, _join, _list, _number, _point, _points, _short, _string,
+                         _warn_unknown, check_scene_format, near_miss)
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
            "near_miss", "read_scene_json", "find_size_prior"]
 
 #: The format :func:`scene_to_dict` writes.
-SCENE_FORMAT = "creference-scene/2"
-SCENE_FORMATS = ("creference-scene/1", SCENE_FORMAT)
+SCENE_FORMAT = SCENE_FORMATS[-1]
 MEASURES = ("length", "width", "distance")
 MODES = ("direct", "relative")
-_SIZE_NAMES = ("length", "width", "height")
 #: Image points may lie outside the image by at most this fraction of its size on each side.
 IMAGE_MARGIN = 0.5
 #: The two horizon points may lie outside the image by at most this many image sizes: a camera
@@ -342,6 +324,22 @@ def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> Orientatio
     return OrientationPrior(**kw)
 
 
+def _parse_dims(obj: Any, dpath: str, sink: list[str]) -> tuple[float, float, float]:
+    """A target's ``dimensions_m`` object: (length, width, height) metres."""
+    obj = _dict(obj, dpath)
+    _warn_unknown(obj, set(SIZE_KEYS), dpath, sink)
+    return tuple(_number(_get(obj, k, dpath), _join(dpath, k), positive=True) for k in SIZE_KEYS)
+
+
+def _parse_lines(obj: dict, path: str, w: int, h: int, sink: list[str]) -> tuple[DimensionLine, ...]:
+    """A target's ``dimension_lines`` (at least one)."""
+    lpath = _join(path, "dimension_lines")
+    lines = _list(_get(obj, "dimension_lines", path), lpath)
+    if not lines:
+        raise SceneError(lpath, "expected at least one annotation, got []")
+    return tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink) for i, d in enumerate(lines))
+
+
 def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, path)
     _warn_unknown(obj, {"id", "class", "dimensions_m", "size_prior", "dimension_lines", "ground_truth"}, path, sink)
@@ -349,14 +347,8 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
     cls = _string(obj.get("class"), _join(path, "class"))
     dims = obj.get("dimensions_m")
     if dims is not None:
-        dpath = _join(path, "dimensions_m")
-        dims = _dict(dims, dpath)
-        _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
-        dims = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
-    lpath = _join(path, "dimension_lines")
-    lines = _list(_get(obj, "dimension_lines", path), lpath)
-    if not lines:
-        raise SceneError(lpath, "expected at least one annotation, got []")
+        dims = _parse_dims(dims, _join(path, "dimensions_m"), sink)
+    lines = _parse_lines(obj, path, w, h, sink)
     gt = obj.get("ground_truth")
     if gt is not None:
         gt = _parse_target_truth(gt, _join(path, "ground_truth"))
@@ -369,8 +361,7 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
         except ValueError as exc:  # its message begins with the key path
             where, _, what = str(exc).partition(": ")
             raise SceneError(where, what) from None
-    return Target(ident, cls, tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink)
-                                    for i, d in enumerate(lines)), dims, gt, prior)
+    return Target(ident, cls, lines, dims, gt, prior)
 
 
 def _free_form(value: Any, path: str) -> Any:
@@ -403,7 +394,7 @@ def _parse_target_truth(obj: Any, path: str) -> dict:
     if obj.get("dimensions_m") is not None:
         dpath = _join(path, "dimensions_m")
         d = _dict(obj["dimensions_m"], dpath)
-        out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES}
+        out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in SIZE_KEYS}
     if obj.get("handedness") is not None and (isinstance(obj["handedness"], bool) or obj["handedness"] not in (1, -1)):
         raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(obj['handedness'])}")
     return out
@@ -435,7 +426,7 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
         raise SceneError(_join(path, "line"), "missing required key (a reference without a line must name a "
                                               "target whose size it measures)")
     measure = _get(rest, "measure", path)
-    if measure not in _SIZE_NAMES:
+    if measure not in SIZE_KEYS:
         raise SceneError(_join(path, "measure"), f"a target's own size is its length, width or height, got {_short(measure)}")
     if rest.get("mode", "direct") != "direct":
         raise SceneError(_join(path, "mode"), f"a target's own size must be 'direct' (with a unit), got {_short(rest.get('mode'))}")
@@ -483,16 +474,9 @@ def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
     """A version-1 ``target``: its id (``target`` when it has none) and its required sizes."""
     obj = _dict(obj, "target")
     _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, "target", sink)
-    dpath = "target.dimensions_m"
-    dims = _dict(_get(obj, "dimensions_m", "target"), dpath)
-    _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
-    size = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
-    lines = _list(_get(obj, "dimension_lines", "target"), "target.dimension_lines")
-    if not lines:
-        raise SceneError("target.dimension_lines", "expected at least one annotation, got []")
+    size = _parse_dims(_get(obj, "dimensions_m", "target"), "target.dimensions_m", sink)
     return Target(_string(obj.get("id", "target"), "target.id", optional=False), None,
-                  tuple(_parse_dimension_line(d, _join("target.dimension_lines", i), w, h, sink)
-                        for i, d in enumerate(lines)), size)
+                  _parse_lines(obj, "target", w, h, sink), size)
 
 
 def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
@@ -501,11 +485,15 @@ def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
     obj = _free_form(_dict(obj, "ground_truth"), "ground_truth")
     target = {k: v for k, v in obj.items() if k not in _CAMERA_TRUTH}
     target = _parse_target_truth({**target, "location_m": _get(obj, "location_m", "ground_truth")}, "ground_truth")
-    camera = {k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}
+    return target, _camera_truth({k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}) or None
+
+
+def _camera_truth(gt: dict) -> dict:
+    """``gt`` with the camera's truth (:data:`_CAMERA_TRUTH`) checked: numbers, positive but for the angles."""
     for key in _CAMERA_TRUTH:
-        if key in camera:
-            camera[key] = _number(camera[key], _join("ground_truth", key), positive=key != "pitch_rad" and key != "roll_rad")
-    return target, camera or None
+        if gt.get(key) is not None:
+            gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
+    return gt
 
 
 def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
@@ -570,10 +558,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         target_truth, gt = _parse_v1_truth(gt)
         targets = (Target(targets[0].id, None, targets[0].dimension_lines, targets[0].dimensions, target_truth),)
     elif gt is not None:
-        gt = _free_form(_dict(gt, "ground_truth"), "ground_truth")
-        for key in _CAMERA_TRUTH:  # the camera's truth: numbers, positive but for the angles
-            if gt.get(key) is not None:
-                gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
+        gt = _camera_truth(_free_form(_dict(gt, "ground_truth"), "ground_truth"))
     for message in sink:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return Scene(targets=targets, references=tuple(r for r, _ in parsed), reference_targets=tuple(o for _, o in parsed),
@@ -748,12 +733,18 @@ def _reference_to_dict(r: Reference) -> dict:
         d["value"] = low
     if r.unit is not None:
         d["unit"] = r.unit
-    d["line"] = r.line.tolist()
+    if r.line is not None:
+        d["line"] = r.line.tolist()
     for key in ("object", "worker", "confidence", "seconds"):
         value = getattr(r, key)
         if value is not None:
             d[key] = value
     return d
+
+
+def prior_entry(p: SizePrior) -> dict:
+    """A size prior as a ``classes`` entry (``length_m``, ``width_m``, ``height_m``, ``log_sd``)."""
+    return {k: v for k, v in p.to_dict().items() if k != "source"}
 
 
 def scene_to_dict(scene: Scene) -> dict:
@@ -777,18 +768,16 @@ def scene_to_dict(scene: Scene) -> dict:
         if scene.horizon_sd_px:
             out["horizon_sd_px"] = scene.horizon_sd_px
     if scene.classes:
-        out["classes"] = {k: {f"{n}_m": v for n, v in zip(_SIZE_NAMES, p.median_m)} | {"log_sd": list(p.log_sd)}
-                          for k, p in scene.classes.items()}
+        out["classes"] = {k: prior_entry(p) for k, p in scene.classes.items()}
     out["targets"] = []
     for t in scene.targets:
         d: dict[str, Any] = {"id": t.id}
         if t.cls is not None:
             d["class"] = t.cls
         if t.dimensions is not None:
-            d["dimensions_m"] = dict(zip(_SIZE_NAMES, t.dimensions))
+            d["dimensions_m"] = dict(zip(SIZE_KEYS, t.dimensions))
         if t.size_prior is not None:
-            d["size_prior"] = {f"{n}_m": v for n, v in zip(_SIZE_NAMES, t.size_prior.median_m)} | {
-                "log_sd": list(t.size_prior.log_sd), "source": t.size_prior.source}
+            d["size_prior"] = t.size_prior.to_dict()
         d["dimension_lines"] = [{k: v for k, v in (("worker", a.worker), ("corners", a.corners.tolist()),
                                                    ("seconds", a.seconds)) if v is not None}
                                 for a in t.dimension_lines]
@@ -797,16 +786,7 @@ def scene_to_dict(scene: Scene) -> dict:
         out["targets"].append(d)
     refs = []
     for r, owner in zip(scene.references, scene.reference_targets):
-        if r.line is None:
-            d = {"measure": r.measure, "mode": "direct"}
-            low, high = r.stated
-            d.update({"range": [low, high]} if r.is_range else {"value": low})
-            d["unit"] = r.unit
-            for key in ("object", "worker", "confidence", "seconds"):
-                if getattr(r, key) is not None:
-                    d[key] = getattr(r, key)
-        else:
-            d = _reference_to_dict(r)
+        d = _reference_to_dict(r)
         if isinstance(owner, tuple):
             d["targets"] = [scene.targets[k].id for k in owner]
         elif owner is not None:
@@ -824,8 +804,7 @@ def scene_fingerprint(scene: Scene) -> str:
     whatever the key order, whitespace, file name or format version of its file; any change of a
     value changes it. Results record it (``scene_id.sha256``) so that a result can be checked
     against a scene, and a batch can tell whether a scene changed since its result was made."""
-    text = json.dumps(scene_to_dict(scene), sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return canonical_sha256(scene_to_dict(scene))
 
 
 def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:
