@@ -146,22 +146,10 @@ def _text(value: Any, where: str, what: str) -> str | None:
 
 def reference_from_fields(fields: dict, line: list, where: str, *, worker: str | None = None,
                           seconds: float | None = None) -> dict:
-    """A scene reference from the fields a worker filled in for one reference line.
-
-    Parameters
-    ----------
-    fields : dict
-        Some of :data:`REFERENCE_FIELDS`; unset fields are absent, None or empty.
-        ``confidence_pct`` is in percent (0–100), as workers enter it.
-    line : [[u, v], [u, v]]
-        The line's end points, pixels.
-    where : str
-        Names the task and region in error messages.
-
-    Returns
-    -------
-    dict, a ``references[]`` entry of ``creference-scene/1``.
-    """
+    """A scene's ``references[]`` entry from the ``fields`` a worker filled in for one reference
+    line (some of :data:`REFERENCE_FIELDS`; unset ones absent, None or empty; ``confidence_pct`` in
+    percent, 0–100, as workers enter it), its end points ``line`` ([[u, v], [u, v]] pixels), and
+    its ``worker`` and ``seconds``; ``where`` names the task and region in error messages."""
     measure = _text(fields.get("measure"), where, "measure")
     if measure is None:
         raise ConversionError(where, f"reference has no measure (expected one of {list(MEASURES)})")
@@ -216,11 +204,8 @@ def reference_from_fields(fields: dict, line: list, where: str, *, worker: str |
 
 
 def mean_horizon(lines: Iterable, width: int, where: str) -> list[list[float]]:
-    """One horizon from several annotated ones: each line through its two points is evaluated at
-    the image's left and right edges (u = 0 and u = width) and the heights are averaged.
-
-    Returns ``[[0, v_left], [width, v_right]]`` (pixels).
-    """
+    """One horizon ``[[0, v_left], [width, v_right]]`` (pixels) from several annotated ones: each
+    line through its two points is evaluated at u = 0 and u = width and the heights are averaged."""
     lefts, rights = [], []
     for pts in lines:
         (u0, v0), (u1, v1) = pts

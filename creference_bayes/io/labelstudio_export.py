@@ -58,13 +58,8 @@ def label_studio_task(scene: Scene | dict, *, task_id: int = 1, lines: str = "ke
     ``target`` field: four keypoints, or with ``lines="vectors"`` one four-point ``target`` line;
     a reference keeps its ``target``. Coordinates are percent of the image size, at full float
     precision. With ``as_predictions`` the annotations are written as ``predictions`` (pre-labels
-    shown to workers).
-
-    Raises
-    ------
-    ValueError
-        For an unknown ``lines``, and for a reference without a line (a target's own size, a
-        distance between two targets): a task holds drawn regions only.
+    shown to workers). ``ValueError`` for an unknown ``lines``, and for a reference without a line
+    (a target's own size, a distance between two targets): a task holds drawn regions only.
     """
     if lines not in _LINE_TOOLS:
         raise ValueError(f"lines: expected one of {list(_LINE_TOOLS)}, got {lines!r}")

@@ -215,17 +215,28 @@ _REFERENCE_KEYS = {"worker", "object", "measure", "mode", "value", "range", "uni
                    "confidence", "seconds"}
 
 
+def _choice(obj: dict, key: str, path: str, options: tuple[str, ...]) -> str:
+    """The required text ``obj[key]``, one of ``options``."""
+    value = _get(obj, key, path)
+    if not isinstance(value, str) or value not in options:
+        raise SceneError(_join(path, key), f"unknown {key} {_short(value)} (expected one of {list(options)})")
+    return value
+
+
+def _target_index(name: Any, path: str, ids: dict[str, int]) -> int:
+    """The index of the target whose id a reference names."""
+    name = _string(name, path)
+    if name not in ids:
+        raise SceneError(path, f"no target with id {_short(name)} (targets: {sorted(ids)})")
+    return ids[name]
+
+
 def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
                      sink: list[str]) -> Reference:
     obj = _dict(obj, path)
     _warn_unknown(obj, _REFERENCE_KEYS, path, sink)
-    measure = _get(obj, "measure", path)
-    if not isinstance(measure, str) or measure not in MEASURES:
-        raise SceneError(_join(path, "measure"),
-                         f"unknown measure {_short(measure)} (expected one of {list(MEASURES)})")
-    mode = _get(obj, "mode", path)
-    if not isinstance(mode, str) or mode not in MODES:
-        raise SceneError(_join(path, "mode"), f"unknown mode {_short(mode)} (expected one of {list(MODES)})")
+    measure = _choice(obj, "measure", path, MEASURES)
+    mode = _choice(obj, "mode", path, MODES)
     if measure == "distance" and mode == "relative":
         raise SceneError(_join(path, "mode"),
                          "'relative' is not valid for measure 'distance' (paper §4.1.3)")
@@ -406,12 +417,7 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
     if "targets" in obj:
         return _parse_distance_reference(obj, index, path, w, h, ids, sink)
     target = obj.get("target")
-    owner = None
-    if target is not None:
-        name = _string(target, _join(path, "target"))
-        if name not in ids:
-            raise SceneError(_join(path, "target"), f"no target with id {_short(name)} (targets: {sorted(ids)})")
-        owner = ids[name]
+    owner = None if target is None else _target_index(target, _join(path, "target"), ids)
     rest = {k: v for k, v in obj.items() if k != "target"}
     if "line" in rest:
         ref = _parse_reference(rest, index, path, w, h, sink)
@@ -449,12 +455,7 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
     names = _list(obj["targets"], tpath)
     if len(names) != 2:
         raise SceneError(tpath, f"a distance is between two targets, got {len(names)} ids ({_short(names)})")
-    owners = []
-    for k, name in enumerate(names):
-        name = _string(name, _join(tpath, k))
-        if name not in ids:
-            raise SceneError(_join(tpath, k), f"no target with id {_short(name)} (targets: {sorted(ids)})")
-        owners.append(ids[name])
+    owners = [_target_index(name, _join(tpath, k), ids) for k, name in enumerate(names)]
     if owners[0] == owners[1]:
         raise SceneError(_join(tpath, 1), f"a distance is between two different targets, got {_short(names[1])} twice")
     for key in ("line", "target"):
@@ -497,19 +498,12 @@ def _camera_truth(gt: dict) -> dict:
 
 
 def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
-    """Validate a decoded scene file (a dict, either format) and return a :class:`Scene`.
+    """Validate a decoded scene file (``data``, a dict, either format) and return a :class:`Scene`;
+    :class:`SceneError` on the first invalid key, naming its path and value.
 
-    Parameters
-    ----------
-    data : the decoded JSON
-    source : the file it came from; ``image.path`` is resolved relative to it
-    classes : size priors of the user's own classes (a classes file), which a target's class may
-        name besides the scene's own and the shipped KITTI classes
-
-    Raises
-    ------
-    SceneError
-        On the first invalid key, naming its path and value.
+    ``source``: the file it came from (``image.path`` is resolved relative to it). ``classes``: size
+    priors of the user's own classes (a classes file), which a target's class may name besides the
+    scene's own and the shipped KITTI classes.
     """
     sink: list[str] = []
     data = _dict(data, "(scene)")
@@ -566,13 +560,8 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
 
 
 def _parse_header(data: dict, source, sink: list[str]) -> dict:
-    """The parts every scene format shares: ``image``, ``camera`` and ``horizon``/``horizon_sd_px``.
-
-    Returns the :class:`Scene` fields they fill (``image_width``, ``image_height``,
-    ``principal_point``, ``focal_length_px``, ``horizon``, ``horizon_sd_px``, ``focal_prior``,
-    ``orientation_prior``, ``image_path``, ``source``, ``kitti_p2``, ``kitti_calib``, ``camera_id``); raises
-    :class:`SceneError` on bad input.
-    """
+    """The :class:`Scene` fields (by name) of the parts every scene format shares: ``image``,
+    ``camera`` and ``horizon``/``horizon_sd_px``; :class:`SceneError` on bad input."""
     image = _dict(_get(data, "image", ""), "image")
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
     width_f = _number(_get(image, "width", "image"), "image.width", positive=True)
@@ -637,14 +626,8 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
 
 def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) -> Scene:
     """Load and validate a scene file (either format; ``classes`` as :func:`parse_scene`).
-
-    Raises
-    ------
-    SceneError
-        If the file is not valid JSON or not a valid scene; the message names the key path.
-    FileNotFoundError
-        If ``path`` does not exist.
-    """
+    Raises :class:`SceneError` (naming the key path) if the file is not valid JSON or not a valid
+    scene, ``FileNotFoundError`` if ``path`` does not exist."""
     path = Path(path)
     return parse_scene(read_scene_json(path), source=path, classes=classes)
 
