@@ -25,12 +25,12 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
-from .scene import MEASURES, MODES, SceneError, parse_scene, prior_entry
+from .scene import MEASURES, MODES, SCENE_FORMAT, SceneError, parse_scene, prior_entry
 
 __all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
            "safe_name", "unique_names", "image_file", "size_fields", "open_input",
-           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes", "fmt_number"]
+           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes"]
 
 #: The per-reference fields, as named in the shipped Label Studio config and CVAT label spec.
 REFERENCE_FIELDS = ("object", "measure", "mode", "value", "range_low", "range_high", "unit",
@@ -217,18 +217,16 @@ def mean_horizon(lines: Iterable, width: int, where: str) -> list[list[float]]:
     return [[0.0, float(np.mean(lefts))], [float(width), float(np.mean(rights))]]
 
 
-def set_camera_and_horizon(scene: dict, camera: dict, data: dict, horizons: list, width: float, where: str,
-                           notes: list) -> None:
-    """The scene's ``camera`` block (when not empty) and horizon: the task's ``data.horizon``
-    before the annotated horizon lines (their mean; a note says when they are ignored)."""
+def scene_dict(size: tuple[int, int], image_path: str | None, camera: dict, **parts) -> dict:
+    """A ``creference-scene/2`` dict with its keys in the file's order: ``image`` (``size`` in
+    pixels, and its ``path`` unless None), ``camera`` unless empty, then ``parts`` (``horizon``,
+    ``classes``, ``targets``, ``references``, …) in the order given, but for those that are None."""
+    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": size[0], "height": size[1]}}
+    if image_path is not None:
+        scene["image"]["path"] = image_path
     if camera:
         scene["camera"] = camera
-    if data.get("horizon") is not None:
-        scene["horizon"] = data["horizon"]
-        if horizons:
-            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
-    elif horizons:
-        scene["horizon"] = mean_horizon(horizons, width, where)
+    return scene | {k: v for k, v in parts.items() if v is not None}
 
 
 def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
@@ -299,11 +297,6 @@ def safe_name(text: str) -> str:
     """A file stem from a target id or image name: other characters become ``_``."""
     name = _UNSAFE.sub("_", str(text)).strip("._") or "target"
     return name[:120]
-
-
-def fmt_number(x: float) -> str:
-    """A number as short text that reads back to the same float where it matters (15 digits)."""
-    return f"{float(x):.15g}"
 
 
 def open_input(path: str | Path):

@@ -28,10 +28,10 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportedScene, ImportReport,
-                               TargetTable, _whole, checked_scene, classes_block, fmt_number, image_file, mean_horizon,
-                               number_field, read_input, reference_from_fields, safe_name, size_fields,
-                               unique_names)
-from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
+                               TargetTable, _whole, checked_scene, classes_block, image_file, mean_horizon,
+                               number_field, read_input, reference_from_fields, safe_name, scene_dict,
+                               size_fields, unique_names)
+from .scene import parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
@@ -230,24 +230,14 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
             ref["target"] = ids[key]
         refs.append(ref)
         origins[f"references[{k}]"] = s.desc
-    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    if image_dir is not None:
-        path = image_file(image_dir, name, out_dir, where, notes)
-        if path is not None:
-            scene["image"]["path"] = path
+    path = None if image_dir is None else image_file(image_dir, name, out_dir, where, notes)
     camera_id = _camera_id(cameras, where)
     focal = table.focal([name], [t["id"] for t in targets], where)
     camera = {k: v for k, v in (("id", camera_id), ("focal_length_px", focal)) if v is not None}
-    if camera:
-        scene["camera"] = camera
-    if shapes[HORIZON]:
-        scene["horizon"] = mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
+    horizon = mean_horizon([s.pts for s in shapes[HORIZON]], width, where) if shapes[HORIZON] else None
     own = classes_block(targets, None, classes)
-    if own:
-        scene["classes"] = own
-    scene["targets"] = targets
-    if refs:
-        scene["references"] = refs
+    scene = scene_dict((width, height), path, camera, horizon=horizon, classes=own, targets=targets,
+                       references=refs or None)
     base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
     return ImportedScene(base, checked_scene(scene, where, origins), where)
 
@@ -319,7 +309,7 @@ def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
     for name in LABEL_ATTRIBUTES[label]:
         value = values.get(name)
         text = ("__undefined__" if name in _SELECTS else "") if value is None else (
-            fmt_number(value) if isinstance(value, float) else str(value))
+            f"{value:.15g}" if isinstance(value, float) else str(value))  # 15 digits read back the same
         ET.SubElement(el, "attribute", {"name": name}).text = text
 
 

@@ -29,11 +29,11 @@ from urllib.parse import parse_qs, unquote, urlparse
 from ..models.size_priors import SIZE_KEYS
 from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text, _whole,
                                checked_scene, classes_block, image_file, number_field, read_input,
-                               reference_from_fields, safe_name, set_camera_and_horizon, unique_names)
+                               mean_horizon, reference_from_fields, safe_name, scene_dict, unique_names)
 from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
-from .scene import _CAMERA_TRUTH, SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
+from .scene import _CAMERA_TRUTH, SceneError, parse_scene, scene_to_dict
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -358,7 +358,6 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
                                          f"{part.size[0]}x{part.size[1]} in {part.where}")
     data = _shared_data(parts, where)
     image_path, image_names = _image_path(data, image_dir, out_dir, where, notes), _image_names(data)
-    width, height = first.size
     drawn: dict[str, dict] = {}
     refs, ref_origins, horizons = [], [], []
     for part in parts:
@@ -370,9 +369,6 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
         refs += part.refs
         ref_origins += [origin(part, o) for o in part.ref_origins]
         horizons += part.horizons
-    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    if image_path is not None:
-        scene["image"]["path"] = image_path
     camera = {k: data[k] for k in CAMERA_DATA if data.get(k) is not None}
     if data.get(CAMERA_ID) is not None:
         camera = {"id": data[CAMERA_ID], **camera}
@@ -383,34 +379,26 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
         table_focal = table.focal(image_names, list(drawn), where)
         if table_focal is not None:
             camera["focal_length_px"] = table_focal
-    set_camera_and_horizon(scene, camera, data, horizons, width, where, notes)
-    if data.get("horizon_sd_px") is not None:
-        scene["horizon_sd_px"] = data["horizon_sd_px"]
+    horizon = data.get("horizon")
+    if horizon is not None and horizons:
+        notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
+    elif horizons:
+        horizon = mean_horizon(horizons, first.size[0], where)
     out_targets, origins = [], {}
     for i, t in enumerate(drawn.values()):
-        d: dict[str, Any] = {"id": t["id"]}
-        if t.get("class") is not None:
-            d["class"] = t["class"]
         dims = table.size(image_names, t["id"], t.get("dimensions_m"), f"{where}, target {t['id']!r}",
                           required=t.get("class") is None)
-        if dims is not None:
-            d["dimensions_m"] = dims
-        d["dimension_lines"] = t["lines"]
-        if t.get("ground_truth") is not None:
-            d["ground_truth"] = t["ground_truth"]
-        out_targets.append(d)
+        d = {"id": t["id"], "class": t.get("class"), "dimensions_m": dims, "dimension_lines": t["lines"],
+             "ground_truth": t.get("ground_truth")}
+        out_targets.append({k: v for k, v in d.items() if v is not None})
         part = t["part"]
         origins[f"targets[{i}]"] = origin(part, t.get("class_from") or t["origins"][0])
         origins[f"targets[{i}].ground_truth"] = origin(part, t.get("truth_from", "data.targets"))
         origins.update({f"targets[{i}].dimension_lines[{j}]": origin(part, o) for j, o in enumerate(t["origins"])})
-    own = classes_block(out_targets, data.get("classes"), classes)
-    if own is not None:
-        scene["classes"] = own
-    scene["targets"] = out_targets
-    if refs:
-        scene["references"] = refs
-    if data.get("ground_truth") is not None:
-        scene["ground_truth"] = data["ground_truth"]
+    scene = scene_dict(first.size, image_path, camera, horizon=horizon,
+                       horizon_sd_px=data.get("horizon_sd_px"),
+                       classes=classes_block(out_targets, data.get("classes"), classes), targets=out_targets,
+                       references=refs or None, ground_truth=data.get("ground_truth"))
     origins = {"camera": "data.camera_id / focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
                "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
                "ground_truth": "data.ground_truth", **origins}

@@ -180,15 +180,9 @@ def find_size_prior(cls: str | None, *tables: dict[str, SizePrior] | None) -> Si
     if cls is None:
         return None
     tables = [t for t in tables if t] + [KITTI_SIZE_PRIORS]
-    for table in tables:
-        if cls in table:
-            return table[cls]
-    folded = cls.casefold()
-    for table in tables:
-        for name, prior in table.items():
-            if name.casefold() == folded:
-                return prior
-    return None
+    found = [t[cls] for t in tables if cls in t]
+    found += [p for t in tables for name, p in t.items() if name.casefold() == cls.casefold()]
+    return found[0] if found else None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -434,14 +428,16 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
     measure = _get(rest, "measure", path)
     if measure not in SIZE_KEYS:
         raise SceneError(_join(path, "measure"), f"a target's own size is its length, width or height, got {_short(measure)}")
-    if rest.get("mode", "direct") != "direct":
-        raise SceneError(_join(path, "mode"), f"a target's own size must be 'direct' (with a unit), got {_short(rest.get('mode'))}")
     return _lineless(rest, measure, index, path, w, h, sink), owner
 
 
 def _lineless(rest: dict, measure: str, index: int, path: str, w: int, h: int, sink: list[str]) -> Reference:
     """A direct reference without a line (a target's own size, a distance between two targets):
     its value, range, unit and fields read as :func:`_parse_reference` reads a line's."""
+    if rest.get("mode", "direct") != "direct":
+        what = "a distance" if measure == "distance" else "a target's own size"
+        raise SceneError(_join(path, "mode"), f"{what} must be 'direct' (with a unit), "
+                                              f"got {_short(rest['mode'])}")
     fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
     ref = _parse_reference(fake, index, path, w, h, sink)
     return replace(ref, measure=measure, line=None)
@@ -465,8 +461,6 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
     if obj.get("measure", "distance") != "distance":
         raise SceneError(_join(path, "measure"), f"a reference naming two targets measures their 'distance', "
                                                  f"got {_short(obj.get('measure'))}")
-    if obj.get("mode", "direct") != "direct":
-        raise SceneError(_join(path, "mode"), f"a distance must be 'direct' (with a unit), got {_short(obj.get('mode'))}")
     rest = {k: v for k, v in obj.items() if k != "targets"}
     return _lineless(rest, "distance", index, path, w, h, sink), (owners[0], owners[1])
 
@@ -635,27 +629,20 @@ def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) ->
 def read_scene_json(path: Path) -> Any:
     """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
     JSON with finite numbers."""
+    def reject(name):
+        raise SceneError(str(path), f"non-standard JSON constant {name} (numbers must be finite)")
+
     path = Path(path)
     raw = read_bytes(path)
     try:
-        data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
+        data = json.loads(raw.decode("utf-8-sig"), parse_constant=reject)
     except UnicodeDecodeError as exc:
         raise SceneError(str(path), f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
     except json.JSONDecodeError as exc:
         raise SceneError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except _ConstantError as exc:
-        raise SceneError(str(path), f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
     except RecursionError:
         raise SceneError(str(path), "JSON nested too deeply") from None
     return data
-
-
-class _ConstantError(Exception):
-    pass
-
-
-def _reject_constant(name: str) -> Any:
-    raise _ConstantError(name)
 
 
 def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:
@@ -685,22 +672,6 @@ def _parse_p2(value: Any, path: str) -> np.ndarray | None:
     if out.ndim != 2 or out.shape != (3, 4):
         raise SceneError(path, f"expected 3 rows of 4 numbers (KITTI's P2), got {_short(value)}")
     return out.astype(float)
-
-
-def camera_priors_to_dict(scene) -> dict:
-    """The ``camera`` block's ``focal_length_prior`` and ``orientation_prior`` of a scene or a
-    frame (those it has), as the file gives them."""
-    out: dict[str, Any] = {}
-    if scene.focal_prior is not None:
-        fp = scene.focal_prior
-        out["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
-                                     **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
-    if scene.orientation_prior is not None:
-        op = scene.orientation_prior
-        out["orientation_prior"] = {
-            **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
-            "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
-    return out
 
 
 def _reference_to_dict(r: Reference) -> dict:
@@ -745,7 +716,15 @@ def scene_to_dict(scene: Scene) -> dict:
         out["camera"]["kitti_p2"] = np.asarray(scene.kitti_p2).tolist()
     if scene.kitti_calib is not None:
         out["camera"]["kitti_calib"] = {k: list(v) for k, v in scene.kitti_calib.items()}
-    out["camera"].update(camera_priors_to_dict(scene))
+    fp, op = scene.focal_prior, scene.orientation_prior
+    if fp is not None:
+        out["camera"]["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
+                                               **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
+    if op is not None:
+        angles = ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")
+        out["camera"]["orientation_prior"] = {**{f"{k}_deg": math.degrees(getattr(op, k)) for k in angles},
+                                              "height_median_m": op.height_median_m,
+                                              "height_log_sd": op.height_log_sd}
     if scene.horizon is not None:
         out["horizon"] = np.asarray(scene.horizon).tolist()
         if scene.horizon_sd_px:
