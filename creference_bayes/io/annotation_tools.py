@@ -15,7 +15,6 @@ import io
 import math
 import os
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterable
@@ -25,7 +24,7 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
-from .scene import MEASURES, MODES, SCENE_FORMAT, SceneError, parse_scene, prior_entry
+from .scene import MEASURES, MODES, SCENE_FORMAT, SceneError, parse_quietly, prior_entry
 
 __all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
@@ -244,9 +243,7 @@ def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None
         raise ConversionError(f"{where}, {origin}" if origin else where, f"{path}: {problem}") from None
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            parse_scene(scene)
+        parse_quietly(scene)
     except SceneError as exc:
         fail(exc.path, exc.problem)
     bad = _unwritable(scene)

@@ -3,14 +3,14 @@
 (docs/import.md is the user's guide).
 
 Labels (``creference_bayes/data/cvat_labels.json``): ``target``, a points shape of the corners
-t1..t4 in order, grouped into targets by ``target_id`` (may be empty on an image of one target,
-whose id is then the image's name), with the target's ``class`` and size (``length_m``/
-``width_m``/``height_m``, or the ``--targets`` table; else its class's size prior);
-``reference``, a two-point polyline with the measurement in attributes named as
-:data:`~.annotation_tools.REFERENCE_FIELDS` and the ``target_id`` it names, if any; ``horizon``,
-a two-point polyline; a ``camera`` tag on the image, whose ``camera_id`` is the scene's
-``camera.id``. Every shape may carry a ``worker`` attribute (CVAT records no per-shape
-annotator). Other shapes and labels are ignored with a note.
+t1..t4 in order (common bottom corner, end of length, end of width, top of height), grouped into
+targets by ``target_id`` (may be empty on an image of one target, whose id is then the image's
+name), with the target's ``class`` and size (``length_m``/``width_m``/``height_m``, or the
+``--targets`` table; else its class's size prior); ``reference``, a two-point polyline with the
+measurement in attributes named as :data:`~.annotation_tools.REFERENCE_FIELDS` and the
+``target_id`` it names, if any; ``horizon``, a two-point polyline; a ``camera`` tag on the image,
+whose ``camera_id`` is the scene's ``camera.id``. Every shape may carry a ``worker`` attribute
+(CVAT records no per-shape annotator). Other shapes and labels are ignored with a note.
 
 The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
 parsing, so no entity can expand.

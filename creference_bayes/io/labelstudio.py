@@ -19,7 +19,6 @@ Coordinates are percent of ``original_width`` / ``original_height`` (or of the t
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path, PurePosixPath
@@ -33,7 +32,7 @@ from .annotation_tools import (ConversionError, ImportedScene, ImportReport, Tar
 from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
-from .scene import _CAMERA_TRUTH, SceneError, parse_scene, scene_to_dict
+from .scene import _CAMERA_TRUTH, SceneError, parse_quietly, scene_to_dict
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -312,9 +311,7 @@ def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
     ``data.creference_scene`` (either format): its targets with their dimension lines, its
     references and its photo's fields; the task's answers are appended to them."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            base = scene_to_dict(parse_scene(data["creference_scene"]))
+        base = scene_to_dict(parse_quietly(data["creference_scene"]))
     except SceneError as exc:
         raise ConversionError(where, f"data.creference_scene: {exc}") from None
     data = {**{k: v for k, v in data.items() if k not in SHARED_DATA and k != "targets"},

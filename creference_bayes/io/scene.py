@@ -553,6 +553,13 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
                  classes=own_classes, ground_truth=gt, warnings=tuple(sink), format=fmt, **head)
 
 
+def parse_quietly(data: Any) -> Scene:
+    """:func:`parse_scene` with its warnings silenced."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return parse_scene(data)
+
+
 def _parse_header(data: dict, source, sink: list[str]) -> dict:
     """The :class:`Scene` fields (by name) of the parts every scene format shares: ``image``,
     ``camera`` and ``horizon``/``horizon_sd_px``; :class:`SceneError` on bad input."""
@@ -781,9 +788,7 @@ def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = 
     drop = set(drop)
 
     def norm(d):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
+        d = scene_to_dict(d if isinstance(d, Scene) else parse_quietly(d))
 
         def strip(x):
             if isinstance(x, dict):
