@@ -15,7 +15,6 @@ import io
 import math
 import os
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterable
@@ -25,12 +24,12 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
-from .scene import MEASURES, MODES, SceneError, parse_scene
+from .scene import MEASURES, MODES, SCENE_FORMAT, SceneError, parse_quietly, prior_entry
 
 __all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
-           "safe_name", "unique_names", "relative_image_path", "image_file", "open_input",
-           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes", "fmt_number"]
+           "safe_name", "unique_names", "image_file", "size_fields", "open_input",
+           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes"]
 
 #: The per-reference fields, as named in the shipped Label Studio config and CVAT label spec.
 REFERENCE_FIELDS = ("object", "measure", "mode", "value", "range_low", "range_high", "unit",
@@ -107,6 +106,16 @@ def number_field(value: Any, where: str, what: str, *, positive: bool = False,
     return x
 
 
+def size_fields(cells: dict, where: str) -> dict[str, float] | None:
+    """A target's size (m) from the text fields ``length_m``, ``width_m``, ``height_m`` (all three
+    or none filled in), or None."""
+    given = {k: cells[f"{k}_m"] for k in SIZE_KEYS if cells.get(f"{k}_m")}
+    if given and len(given) < 3:
+        raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
+                                     f"{ {k + '_m': v for k, v in given.items()} }")
+    return {k: number_field(v, where, f"{k}_m", positive=True) for k, v in given.items()} or None
+
+
 def _whole(value: Any, where: str, what: str) -> int:
     """A positive whole number of pixels from a tool's field."""
     x = number_field(value, where, what, positive=True)
@@ -136,22 +145,10 @@ def _text(value: Any, where: str, what: str) -> str | None:
 
 def reference_from_fields(fields: dict, line: list, where: str, *, worker: str | None = None,
                           seconds: float | None = None) -> dict:
-    """A scene reference from the fields a worker filled in for one reference line.
-
-    Parameters
-    ----------
-    fields : dict
-        Some of :data:`REFERENCE_FIELDS`; unset fields are absent, None or empty.
-        ``confidence_pct`` is in percent (0–100), as workers enter it.
-    line : [[u, v], [u, v]]
-        The line's end points, pixels.
-    where : str
-        Names the task and region in error messages.
-
-    Returns
-    -------
-    dict, a ``references[]`` entry of ``creference-scene/1``.
-    """
+    """A scene's ``references[]`` entry from the ``fields`` a worker filled in for one reference
+    line (some of :data:`REFERENCE_FIELDS`; unset ones absent, None or empty; ``confidence_pct`` in
+    percent, 0–100, as workers enter it), its end points ``line`` ([[u, v], [u, v]] pixels), and
+    its ``worker`` and ``seconds``; ``where`` names the task and region in error messages."""
     measure = _text(fields.get("measure"), where, "measure")
     if measure is None:
         raise ConversionError(where, f"reference has no measure (expected one of {list(MEASURES)})")
@@ -206,11 +203,8 @@ def reference_from_fields(fields: dict, line: list, where: str, *, worker: str |
 
 
 def mean_horizon(lines: Iterable, width: int, where: str) -> list[list[float]]:
-    """One horizon from several annotated ones: each line through its two points is evaluated at
-    the image's left and right edges (u = 0 and u = width) and the heights are averaged.
-
-    Returns ``[[0, v_left], [width, v_right]]`` (pixels).
-    """
+    """One horizon ``[[0, v_left], [width, v_right]]`` (pixels) from several annotated ones: each
+    line through its two points is evaluated at u = 0 and u = width and the heights are averaged."""
     lefts, rights = [], []
     for pts in lines:
         (u0, v0), (u1, v1) = pts
@@ -222,18 +216,16 @@ def mean_horizon(lines: Iterable, width: int, where: str) -> list[list[float]]:
     return [[0.0, float(np.mean(lefts))], [float(width), float(np.mean(rights))]]
 
 
-def set_camera_and_horizon(scene: dict, camera: dict, data: dict, horizons: list, width: float, where: str,
-                           notes: list) -> None:
-    """The scene's ``camera`` block (when not empty) and horizon: the task's ``data.horizon``
-    before the annotated horizon lines (their mean; a note says when they are ignored)."""
+def scene_dict(size: tuple[int, int], image_path: str | None, camera: dict, **parts) -> dict:
+    """A ``creference-scene/2`` dict with its keys in the file's order: ``image`` (``size`` in
+    pixels, and its ``path`` unless None), ``camera`` unless empty, then ``parts`` (``horizon``,
+    ``classes``, ``targets``, ``references``, …) in the order given, but for those that are None."""
+    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": size[0], "height": size[1]}}
+    if image_path is not None:
+        scene["image"]["path"] = image_path
     if camera:
         scene["camera"] = camera
-    if data.get("horizon") is not None:
-        scene["horizon"] = data["horizon"]
-        if horizons:
-            notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
-    elif horizons:
-        scene["horizon"] = mean_horizon(horizons, width, where)
+    return scene | {k: v for k, v in parts.items() if v is not None}
 
 
 def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None) -> dict:
@@ -251,9 +243,7 @@ def checked_scene(scene: dict, where: str, origins: dict[str, str] | None = None
         raise ConversionError(f"{where}, {origin}" if origin else where, f"{path}: {problem}") from None
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            parse_scene(scene)
+        parse_quietly(scene)
     except SceneError as exc:
         fail(exc.path, exc.problem)
     bad = _unwritable(scene)
@@ -269,8 +259,7 @@ def classes_block(targets: list[dict], own: Any, extra: dict[str, SizePrior] | N
     out = dict(own) if isinstance(own, dict) else own
     if extra:
         used = [t["class"] for t in targets if t.get("dimensions_m") is None and t.get("class") in extra]
-        add = {c: {**{f"{k}_m": v for k, v in zip(SIZE_KEYS, extra[c].median_m)}, "log_sd": list(extra[c].log_sd)}
-               for c in dict.fromkeys(used) if not (isinstance(out, dict) and c in out)}
+        add = {c: prior_entry(extra[c]) for c in dict.fromkeys(used) if not (isinstance(out, dict) and c in out)}
         if add:
             out = {**(out or {}), **add}
     return out or None
@@ -305,11 +294,6 @@ def safe_name(text: str) -> str:
     """A file stem from a target id or image name: other characters become ``_``."""
     name = _UNSAFE.sub("_", str(text)).strip("._") or "target"
     return name[:120]
-
-
-def fmt_number(x: float) -> str:
-    """A number as short text that reads back to the same float where it matters (15 digits)."""
-    return f"{float(x):.15g}"
 
 
 def open_input(path: str | Path):
@@ -471,11 +455,7 @@ def load_target_table(path: str | Path) -> TargetTable:
             if not any(cell.values()):
                 continue
             image, tid = cell.get("image") or None, cell.get("target_id") or None
-            given = {k: cell[f"{k}_m"] for k in SIZE_KEYS if cell[f"{k}_m"]}
-            if given and len(given) < 3:
-                raise ConversionError(where, f"give all of length_m, width_m and height_m or none, got "
-                                             f"{ {k + '_m': v for k, v in given.items()} }")
-            size = {k: number_field(v, where, f"{k}_m", positive=True) for k, v in given.items()} or None
+            size = size_fields(cell, where)
             focal = (number_field(cell["focal_length_px"], where, "focal_length_px", positive=True)
                      if cell.get("focal_length_px") else None)
             if tid is None and (image is None or size is not None):
@@ -494,7 +474,8 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
     """A scene's ``image.path`` for the image the export names ``name`` (a relative path such as
     ``street/000007.png``), in ``image_dir``: ``DIR/street/000007.png`` when that file exists, else
     the name with its leading folders dropped (``DIR/000007.png``). When no such file exists, a
-    note names the image and the path is ``DIR/<file name>``; None when ``name`` has no file name."""
+    note names the image and the path is ``DIR/<file name>``; None when ``name`` has no file name.
+    The path is relative to ``out_dir`` when there is one (and it can be)."""
     if "\0" in name:
         raise ConversionError(where, f"the image's name {_short(name)} holds a NUL character")
     parts = [p for p in PurePosixPath(name).parts if p not in ("/", ".", "..")]
@@ -507,7 +488,12 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
         found = candidates[-1]
         notes.append(f"{where}: no image file {' or '.join(str(c) for c in candidates)}; image.path set to "
                      f"{str(found)!r} all the same (estimate cannot use the photo until it is there)")
-    return relative_image_path(found, out_dir)
+    if out_dir is None:
+        return str(found)
+    try:
+        return os.path.relpath(found.resolve(), Path(out_dir).resolve())
+    except ValueError:  # another drive (Windows)
+        return str(found.resolve())
 
 
 def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path) -> list[Path]:
@@ -535,13 +521,3 @@ def unique_names(scenes: list[ImportedScene]) -> tuple[list[ImportedScene], list
         seen[key] = s.source
         kept.append(s)
     return kept, errors
-
-
-def relative_image_path(image: str | Path, out_dir: str | Path | None) -> str:
-    """``image`` as the scene's ``image.path``: relative to the output folder when possible."""
-    if out_dir is None:
-        return str(image)
-    try:
-        return os.path.relpath(Path(image).resolve(), Path(out_dir).resolve())
-    except ValueError:  # another drive (Windows)
-        return str(Path(image).resolve())

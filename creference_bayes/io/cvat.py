@@ -2,20 +2,15 @@
 ``creference-scene/2`` scene per image holding all its targets, and scenes → ``annotations.xml``
 (docs/import.md is the user's guide).
 
-Labels (``creference_bayes/data/cvat_labels.json``): ``target`` — a points shape with the four
-corners t1..t4 in order (common bottom corner, end of length, end of width, top of height);
-``reference`` — a two-point polyline with the measurement in attributes named as
-:data:`~.annotation_tools.REFERENCE_FIELDS`; ``horizon`` — a two-point polyline. Every shape may
-carry a ``worker`` attribute (CVAT records no per-shape annotator). The ``target`` shapes are
-grouped into targets by their ``target_id`` (on an image with a single target it may be empty:
-the target's id is then the image's name); a target's ``class`` and size
-(``length_m``/``width_m``/``height_m``, or the ``--targets`` table; without one its class's size
-prior applies) come from its shapes. A ``reference`` with a ``target_id`` names that target (a
-relative one is a ratio to it); a direct one without is a ground segment of the photo. A
-``camera`` tag on the image (a tag, CVAT's image-level annotation) names the photo's camera in
-its ``camera_id`` attribute: the scene's ``camera.id`` (frames with the same id share a camera,
-``creference batch --rig``). Other shapes (boxes, polygons, …, other tags) and other labels are
-ignored with a note.
+Labels (``creference_bayes/data/cvat_labels.json``): ``target``, a points shape of the corners
+t1..t4 in order (common bottom corner, end of length, end of width, top of height), grouped into
+targets by ``target_id`` (may be empty on an image of one target, whose id is then the image's
+name), with the target's ``class`` and size (``length_m``/``width_m``/``height_m``, or the
+``--targets`` table; else its class's size prior); ``reference``, a two-point polyline with the
+measurement in attributes named as :data:`~.annotation_tools.REFERENCE_FIELDS` and the
+``target_id`` it names, if any; ``horizon``, a two-point polyline; a ``camera`` tag on the image,
+whose ``camera_id`` is the scene's ``camera.id``. Every shape may carry a ``worker`` attribute
+(CVAT records no per-shape annotator). Other shapes and labels are ignored with a note.
 
 The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
 parsing, so no entity can expand.
@@ -33,9 +28,10 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportedScene, ImportReport,
-                               TargetTable, _whole, checked_scene, classes_block, fmt_number, image_file, mean_horizon,
-                               number_field, read_input, reference_from_fields, safe_name, unique_names)
-from .scene import SCENE_FORMAT, parse_scene, scene_to_dict
+                               TargetTable, _whole, checked_scene, classes_block, image_file, mean_horizon,
+                               number_field, read_input, reference_from_fields, safe_name, scene_dict,
+                               size_fields, unique_names)
+from .scene import parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
@@ -84,31 +80,19 @@ def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
 def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
                      out_dir: str | Path | None = None, targets: Any = None,
                      classes: dict | None = None) -> ImportReport:
-    """Convert a parsed CVAT for images 1.1 document to one ``creference-scene/2`` scene per image
-    (module docstring).
+    """Convert a parsed CVAT for images 1.1 document (``root``, the ``<annotations>`` of
+    :func:`read_cvat_xml`) to one ``creference-scene/2`` scene per image (module docstring).
 
-    Parameters
-    ----------
-    root : Element
-        ``<annotations>`` from :func:`read_cvat_xml`.
-    image_dir : path, optional
-        Where the images are; ``image.path`` is the image's file in this folder
-        (:func:`~.annotation_tools.image_file`: its name in the task, else its file name; a note
-        says when neither exists).
-    out_dir : path, optional
-        The folder the scenes will be written to; image paths are made relative to it.
-    targets : TargetTable or dict, optional
-        Known sizes (m) and focal lengths (px) by image and target
-        (:func:`~.annotation_tools.load_target_table`).
-    classes : dict, optional
-        Size priors of classes of your own (name → :class:`~..models.size_priors.SizePrior`),
-        written into the scenes whose size-less targets use them.
+    ``image_dir``: where the images are; ``image.path`` is the image's file in this folder
+    (:func:`~.annotation_tools.image_file`). ``out_dir``: the folder the scenes will be written to;
+    image paths are made relative to it. ``targets``: known sizes (m) and focal lengths (px) by
+    image and target, a :class:`~.annotation_tools.TargetTable`
+    (:func:`~.annotation_tools.load_target_table`) or a dict. ``classes``: size priors of classes of
+    your own (name → :class:`~..models.size_priors.SizePrior`), written into the scenes whose
+    size-less targets use them.
 
-    Returns
-    -------
-    ImportReport
-        An image that cannot be converted is in ``errors``; its message names the image and the
-        shape (``shape 3`` is the image's fourth shape element).
+    Returns an :class:`ImportReport`: an image that cannot be converted is in ``errors``, its
+    message naming the image and the shape (``shape 3`` is the image's fourth shape element).
     """
     notes: list[str] = []
     version = (root.findtext("version") or "").strip()
@@ -246,24 +230,14 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
             ref["target"] = ids[key]
         refs.append(ref)
         origins[f"references[{k}]"] = s.desc
-    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    if image_dir is not None:
-        path = image_file(image_dir, name, out_dir, where, notes)
-        if path is not None:
-            scene["image"]["path"] = path
+    path = None if image_dir is None else image_file(image_dir, name, out_dir, where, notes)
     camera_id = _camera_id(cameras, where)
     focal = table.focal([name], [t["id"] for t in targets], where)
     camera = {k: v for k, v in (("id", camera_id), ("focal_length_px", focal)) if v is not None}
-    if camera:
-        scene["camera"] = camera
-    if shapes[HORIZON]:
-        scene["horizon"] = mean_horizon([s.pts for s in shapes[HORIZON]], width, where)
+    horizon = mean_horizon([s.pts for s in shapes[HORIZON]], width, where) if shapes[HORIZON] else None
     own = classes_block(targets, None, classes)
-    if own:
-        scene["classes"] = own
-    scene["targets"] = targets
-    if refs:
-        scene["references"] = refs
+    scene = scene_dict((width, height), path, camera, horizon=horizon, classes=own, targets=targets,
+                       references=refs or None)
     base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
     return ImportedScene(base, checked_scene(scene, where, origins), where)
 
@@ -295,16 +269,11 @@ def _shape_dims(tshapes) -> dict[str, float] | None:
     three or none; shapes that give them must agree), or None."""
     dims = None
     for shape in tshapes:
-        swhere, attrs = shape.where, shape.attrs
-        given = {k: attrs.get(f"{k}_m", "") for k in ("length", "width", "height")}
-        if not any(given.values()):
+        these = size_fields(shape.attrs, shape.where)
+        if these is None:
             continue
-        if not all(given.values()):
-            raise ConversionError(swhere, f"give all of length_m, width_m and height_m or none, got "
-                                          f"{ {k + '_m': v for k, v in given.items() if v} }")
-        these = {k: number_field(v, swhere, f"{k}_m", positive=True) for k, v in given.items()}
         if dims is not None and any(not math.isclose(dims[k], these[k], rel_tol=1e-9) for k in dims):
-            raise ConversionError(swhere, f"target size {these} differs from {dims} on another shape")
+            raise ConversionError(shape.where, f"target size {these} differs from {dims} on another shape")
         dims = these
     return dims
 
@@ -322,17 +291,14 @@ def _meta(n_images: int) -> ET.Element:
     labels = ET.SubElement(task, "labels")
     for spec in cvat_label_spec():
         lab = ET.SubElement(labels, "label")
-        ET.SubElement(lab, "name").text = spec["name"]
-        ET.SubElement(lab, "color").text = spec["color"]
-        ET.SubElement(lab, "type").text = spec["type"]
+        for key in ("name", "color", "type"):
+            ET.SubElement(lab, key).text = spec[key]
         attrs = ET.SubElement(lab, "attributes")
         for a in spec["attributes"]:
             ae = ET.SubElement(attrs, "attribute")
-            ET.SubElement(ae, "name").text = a["name"]
-            ET.SubElement(ae, "mutable").text = "True" if a["mutable"] else "False"
-            ET.SubElement(ae, "input_type").text = a["input_type"]
-            ET.SubElement(ae, "default_value").text = a["default_value"]
-            ET.SubElement(ae, "values").text = "\n".join(a["values"])
+            texts = {**a, "mutable": str(bool(a["mutable"])), "values": "\n".join(a["values"])}
+            for key in ("name", "mutable", "input_type", "default_value", "values"):
+                ET.SubElement(ae, key).text = texts[key]
     return meta
 
 
@@ -343,29 +309,23 @@ def _shape_el(parent, tag: str, label: str, pts, values: dict) -> None:
     for name in LABEL_ATTRIBUTES[label]:
         value = values.get(name)
         text = ("__undefined__" if name in _SELECTS else "") if value is None else (
-            fmt_number(value) if isinstance(value, float) else str(value))
+            f"{value:.15g}" if isinstance(value, float) else str(value))  # 15 digits read back the same
         ET.SubElement(el, "attribute", {"name": name}).text = text
 
 
 def cvat_xml(scenes, *, image_names=None) -> str:
     """CVAT for images 1.1 XML (text) holding the scenes' annotations (:class:`~.scene.Scene` or
-    scene dicts of either format).
+    scene dicts of either format), with the labels of the module docstring.
 
-    Each target's dimension lines are ``target`` points with its ``target_id``, ``class`` and known
-    size; each reference a ``reference`` polyline (with the ``target_id`` of the target it names);
-    the horizon a ``horizon`` polyline; the camera's ``id`` a ``camera`` tag with its ``camera_id``.
     Scenes on the same image name share one ``<image>`` (their size, horizon and camera id must
     agree, their target ids must differ). The image name is ``image_names[i]``, else the file name
-    of ``image.path``, else ``<first target id>.jpg``. Coordinates are written with two decimals,
-    as CVAT writes them. Not representable in CVAT and therefore left out: ``seconds``, the rest of
-    the camera, ``horizon_sd_px``, the ground truth, the scene's own ``classes``.
+    of ``image.path``, else ``<first target id>.jpg``. Coordinates have two decimals, as CVAT
+    writes them. Left out (CVAT cannot hold them): ``seconds``, the rest of the camera,
+    ``horizon_sd_px``, the ground truth, the scene's own ``classes``.
 
-    Raises
-    ------
-    ValueError
-        When scenes sharing an image disagree (on its size, horizon or camera id), and for a
-        reference without a line (a target's own size, a distance between two targets): it has no
-        shape.
+    Raises ``ValueError`` when scenes sharing an image disagree (on its size, horizon or camera
+    id), and for a reference without a line (a target's own size, a distance between two targets):
+    it has no shape.
     """
     scenes = [scene_to_dict(parse_scene(s) if isinstance(s, dict) else s) for s in scenes]
     names = list(image_names) if image_names is not None else [None] * len(scenes)

@@ -64,8 +64,7 @@ def box_2d(uv: np.ndarray, depth: np.ndarray, width: int, height: int) -> tuple[
     truncation: the share of the unclipped box outside the image (1 when a corner is behind the camera)."""
     left, top = uv.min(axis=0)
     right, bottom = uv.max(axis=0)
-    clipped = np.array([np.clip(left, 0, width - 1), np.clip(top, 0, height - 1),
-                        np.clip(right, 0, width - 1), np.clip(bottom, 0, height - 1)])
+    clipped = np.clip([left, top, right, bottom], 0, [width - 1, height - 1, width - 1, height - 1])
     if np.any(depth <= 0):
         return clipped, 1.0
     area = max(right - left, 1e-12) * max(bottom - top, 1e-12)

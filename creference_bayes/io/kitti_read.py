@@ -74,19 +74,12 @@ class KittiLabels:
 
 
 def read_kitti_labels(path: str | Path, *, scores: bool) -> KittiLabels:
-    """Read one label file.
+    """Read one label file ``path``: with ``scores``, detections or labels (16 values a line, the
+    last a score), else ground truth (15 values; a 16th, if present, is ignored).
 
-    Parameters
-    ----------
-    path : the ``.txt`` file
-    scores : True for detections or labels (16 values a line, the last a score), False for
-        ground truth (15 values; a 16th, if present, is ignored)
-
-    Raises
-    ------
-    FileNotFoundError : no such file
-    LabelFileError : a line with the wrong number of values, a value that is not a finite number,
-        an occlusion that is not an integer, or a box (other than DontCare) without a positive size
+    Raises ``FileNotFoundError`` (no such file) and :class:`LabelFileError` (a line with the wrong
+    number of values, a value that is not a finite number, an occlusion that is not an integer, or
+    a box other than DontCare without a positive size).
     """
     path = Path(path)
     text = read_text(path)

@@ -2,35 +2,23 @@
 ``creference-scene/2`` scene per photo (docs/import.md is the user's guide); scenes → tasks is in
 :mod:`.labelstudio_export`, one annotation's results → items in :mod:`.labelstudio_results`.
 
-A task's ``data`` gives the image and, optionally, its targets: ``targets``
-(``[{"id", "class", "dimensions_m", "ground_truth"}, …]``), or one target as ``target_id`` and
-``target_length_m``/``target_width_m``/``target_height_m`` (its ``ground_truth`` is then split
-between the target and the camera, as in a ``creference-scene/1`` file); without either the regions
-name the targets, and a task whose regions name none has one target, ``task<id>``. Each
-annotation is one worker's work: the targets' dimension lines (four keypoints or one four-point
-``target`` line each, tied to a target by the per-region ``target`` field; a region that names
-none belongs to the task's only target), reference lines with their measurements, the horizon.
-A target's size comes from the task or the ``--targets`` table; without one its class's size
-prior applies.
+A task's ``data`` gives the image and, optionally, its targets: ``targets`` (``[{"id", "class",
+"dimensions_m", "ground_truth"}, …]``), or one target as ``target_id`` and ``target_*_m`` (its
+``ground_truth`` split between target and camera, as in ``creference-scene/1``); else the regions
+name the targets (their per-region ``target`` field; a region that names none belongs to the
+task's only target, ``task<id>`` when none is named). Each annotation is one worker's work. A
+target's size comes from the task or the ``--targets`` table, else its class's size prior.
 
-The tasks of one image (``data.image``) make one scene holding the targets of all of them (so a
-task per target, all on one photo, is one scene): they must agree on the image's size and on the
-photo's fields (:data:`SHARED_DATA`, among them the camera's name ``camera_id``, the scene's
-``camera.id``), and a target is drawn in one task only. A request task of
-``creference advise`` (``data.creference_scene``) is the scene it carries with the task's answers
-appended.
-
-Results are matched by their label (:data:`~.labelstudio_results.TARGET_LABELS`, ``reference
-start`` / ``reference end`` paired by a relation, ``horizon``; vectors labelled ``target``,
-``reference``, ``horizon``). A reference's measurement is in per-region controls (same result id
-as the region) named as :data:`~.annotation_tools.REFERENCE_FIELDS`. Coordinates are percent of
-``original_width`` / ``original_height`` (or of the task's ``image_width`` / ``image_height``).
+The tasks of one image (``data.image``) make one scene: they must agree on the image's size and
+the photo's fields (:data:`SHARED_DATA`), and a target is drawn in one task only. A request task of
+``creference advise`` (``data.creference_scene``) is the scene it carries with the answers added.
+Coordinates are percent of ``original_width`` / ``original_height`` (or of the task's
+``image_width`` / ``image_height``).
 """
 
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path, PurePosixPath
@@ -40,11 +28,11 @@ from urllib.parse import parse_qs, unquote, urlparse
 from ..models.size_priors import SIZE_KEYS
 from .annotation_tools import (ConversionError, ImportedScene, ImportReport, TargetTable, _short, _text, _whole,
                                checked_scene, classes_block, image_file, number_field, read_input,
-                               reference_from_fields, safe_name, set_camera_and_horizon, unique_names)
+                               mean_horizon, reference_from_fields, safe_name, scene_dict, unique_names)
 from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studio_task, label_studio_tasks,
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
-from .scene import SCENE_FORMAT, SceneError, parse_scene, scene_to_dict
+from .scene import _CAMERA_TRUTH, SceneError, parse_quietly, scene_to_dict
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -59,8 +47,6 @@ DATA_FIELDS = ("image", "targets", "target_id", "target_length_m", "target_width
                "image_width", "image_height", "creference_scene", *SHARED_DATA)
 _DIMS = tuple(f"target_{k}_m" for k in SIZE_KEYS)
 _TARGET_KEYS = {"id", "class", "dimensions_m", "ground_truth"}
-#: A version-1 (one-target) ``ground_truth``'s keys of the camera; the others are the target's.
-_CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
 
 def label_studio_config(lines: str = "keypoints") -> str:
@@ -118,26 +104,18 @@ def read_users(path: str | Path) -> dict[str, str]:
 def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
                              out_dir: str | Path | None = None, targets: Any = None,
                              users: dict[str, str] | None = None, classes: dict | None = None) -> ImportReport:
-    """Convert a Label Studio JSON export (the decoded list of tasks) to one ``creference-scene/2``
-    scene per image: the tasks of one image make one scene holding their targets (module docstring).
+    """Convert a Label Studio JSON export (``tasks``: the decoded list of tasks with ``data`` and
+    ``annotations``, ``completions`` before 1.0) to one ``creference-scene/2`` scene per image: the
+    tasks of one image make one scene holding their targets (module docstring).
 
-    Parameters
-    ----------
-    tasks : list
-        The export: tasks with ``data`` and ``annotations`` (``completions`` before 1.0).
-    image_dir : path, optional
-        Where the images are: ``image.path`` is the file of the task's ``image`` URL in this folder
-        (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
-    out_dir, targets, classes : as :func:`~.cvat.scenes_from_cvat`
-    users : dict, optional
-        Worker names by user id (:func:`read_users`); otherwise a worker is named by the user id
-        in ``completed_by`` (or the e-mail, when the export expands the user).
+    ``image_dir``: where the images are; ``image.path`` is the file of the task's ``image`` URL in
+    this folder (:func:`~.annotation_tools.image_file`; unless the task gives ``image_path``).
+    ``out_dir``, ``targets``, ``classes``: as :func:`~.cvat.scenes_from_cvat`. ``users``: worker
+    names by user id (:func:`read_users`); otherwise a worker is named by the user id in
+    ``completed_by`` (or the e-mail, when the export expands the user).
 
-    Returns
-    -------
-    ImportReport
-        A task or image that cannot be converted is in ``errors`` (its message names the task and
-        the region) and the others are in ``scenes``.
+    Returns an :class:`ImportReport`: a task or image that cannot be converted is in ``errors`` (its
+    message names the task and the region), the others are in ``scenes``.
     """
     if isinstance(tasks, dict) and "data" in tasks:
         tasks = [tasks]
@@ -333,9 +311,7 @@ def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
     ``data.creference_scene`` (either format): its targets with their dimension lines, its
     references and its photo's fields; the task's answers are appended to them."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            base = scene_to_dict(parse_scene(data["creference_scene"]))
+        base = scene_to_dict(parse_quietly(data["creference_scene"]))
     except SceneError as exc:
         raise ConversionError(where, f"data.creference_scene: {exc}") from None
     data = {**{k: v for k, v in data.items() if k not in SHARED_DATA and k != "targets"},
@@ -379,7 +355,6 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
                                          f"{part.size[0]}x{part.size[1]} in {part.where}")
     data = _shared_data(parts, where)
     image_path, image_names = _image_path(data, image_dir, out_dir, where, notes), _image_names(data)
-    width, height = first.size
     drawn: dict[str, dict] = {}
     refs, ref_origins, horizons = [], [], []
     for part in parts:
@@ -391,9 +366,6 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
         refs += part.refs
         ref_origins += [origin(part, o) for o in part.ref_origins]
         horizons += part.horizons
-    scene: dict[str, Any] = {"format": SCENE_FORMAT, "image": {"width": width, "height": height}}
-    if image_path is not None:
-        scene["image"]["path"] = image_path
     camera = {k: data[k] for k in CAMERA_DATA if data.get(k) is not None}
     if data.get(CAMERA_ID) is not None:
         camera = {"id": data[CAMERA_ID], **camera}
@@ -404,34 +376,26 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
         table_focal = table.focal(image_names, list(drawn), where)
         if table_focal is not None:
             camera["focal_length_px"] = table_focal
-    set_camera_and_horizon(scene, camera, data, horizons, width, where, notes)
-    if data.get("horizon_sd_px") is not None:
-        scene["horizon_sd_px"] = data["horizon_sd_px"]
+    horizon = data.get("horizon")
+    if horizon is not None and horizons:
+        notes.append(f"{where}: data.horizon used; {len(horizons)} annotated horizon line(s) ignored")
+    elif horizons:
+        horizon = mean_horizon(horizons, first.size[0], where)
     out_targets, origins = [], {}
     for i, t in enumerate(drawn.values()):
-        d: dict[str, Any] = {"id": t["id"]}
-        if t.get("class") is not None:
-            d["class"] = t["class"]
         dims = table.size(image_names, t["id"], t.get("dimensions_m"), f"{where}, target {t['id']!r}",
                           required=t.get("class") is None)
-        if dims is not None:
-            d["dimensions_m"] = dims
-        d["dimension_lines"] = t["lines"]
-        if t.get("ground_truth") is not None:
-            d["ground_truth"] = t["ground_truth"]
-        out_targets.append(d)
+        d = {"id": t["id"], "class": t.get("class"), "dimensions_m": dims, "dimension_lines": t["lines"],
+             "ground_truth": t.get("ground_truth")}
+        out_targets.append({k: v for k, v in d.items() if v is not None})
         part = t["part"]
         origins[f"targets[{i}]"] = origin(part, t.get("class_from") or t["origins"][0])
         origins[f"targets[{i}].ground_truth"] = origin(part, t.get("truth_from", "data.targets"))
         origins.update({f"targets[{i}].dimension_lines[{j}]": origin(part, o) for j, o in enumerate(t["origins"])})
-    own = classes_block(out_targets, data.get("classes"), classes)
-    if own is not None:
-        scene["classes"] = own
-    scene["targets"] = out_targets
-    if refs:
-        scene["references"] = refs
-    if data.get("ground_truth") is not None:
-        scene["ground_truth"] = data["ground_truth"]
+    scene = scene_dict(first.size, image_path, camera, horizon=horizon,
+                       horizon_sd_px=data.get("horizon_sd_px"),
+                       classes=classes_block(out_targets, data.get("classes"), classes), targets=out_targets,
+                       references=refs or None, ground_truth=data.get("ground_truth"))
     origins = {"camera": "data.camera_id / focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
                "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
                "ground_truth": "data.ground_truth", **origins}

@@ -58,13 +58,8 @@ def label_studio_task(scene: Scene | dict, *, task_id: int = 1, lines: str = "ke
     ``target`` field: four keypoints, or with ``lines="vectors"`` one four-point ``target`` line;
     a reference keeps its ``target``. Coordinates are percent of the image size, at full float
     precision. With ``as_predictions`` the annotations are written as ``predictions`` (pre-labels
-    shown to workers).
-
-    Raises
-    ------
-    ValueError
-        For an unknown ``lines``, and for a reference without a line (a target's own size, a
-        distance between two targets): a task holds drawn regions only.
+    shown to workers). ``ValueError`` for an unknown ``lines``, and for a reference without a line
+    (a target's own size, a distance between two targets): a task holds drawn regions only.
     """
     if lines not in _LINE_TOOLS:
         raise ValueError(f"lines: expected one of {list(_LINE_TOOLS)}, got {lines!r}")
@@ -132,20 +127,22 @@ def _chunks(items) -> list[list]:
     return [c for c in chunks if c]
 
 
+def _region(rid, typ, from_name, w, h, value) -> dict:
+    return {"id": rid, "type": typ, "from_name": from_name, "to_name": IMAGE,
+            "original_width": w, "original_height": h, "image_rotation": 0, "value": value}
+
+
 def _point_result(rid, label, p, w, h):
-    return {"id": rid, "type": "keypointlabels", "from_name": POINTS, "to_name": IMAGE,
-            "original_width": w, "original_height": h, "image_rotation": 0,
-            "value": {"x": 100.0 * p[0] / w, "y": 100.0 * p[1] / h, "width": _POINT_SIZE,
-                      "keypointlabels": [label]}}
+    return _region(rid, "keypointlabels", POINTS, w, h, {"x": 100.0 * p[0] / w, "y": 100.0 * p[1] / h,
+                                                          "width": _POINT_SIZE, "keypointlabels": [label]})
 
 
 def _vector_result(rid, label, from_name, points, w, h) -> dict:
     verts = [{"id": f"{rid}_v{i}", "x": 100.0 * p[0] / w, "y": 100.0 * p[1] / h,
               "prevPointId": None if i == 0 else f"{rid}_v{i - 1}", "isBezier": False}
              for i, p in enumerate(points)]
-    return {"id": rid, "type": "vectorlabels", "from_name": from_name, "to_name": IMAGE,
-            "original_width": w, "original_height": h, "image_rotation": 0,
-            "value": {"vertices": verts, "closed": False, "vectorlabels": [label]}}
+    return _region(rid, "vectorlabels", from_name, w, h,
+                   {"vertices": verts, "closed": False, "vectorlabels": [label]})
 
 
 def _control(rid, name, typ, value):

@@ -238,21 +238,17 @@ def _roles(regions, controls, relations, items: AnnotationItems, where: str, awh
                 kind = "line" if regions[rid].kind == "vector" else "point"
                 raise ConversionError(rwhere, f"a {label!r} {kind} carries reference fields {bad}")
         elif rid in refs:
-            if _field(controls[rid], "class", rwhere) is not None:
+            if _text(controls[rid].get("class"), rwhere, "class") is not None:
                 raise ConversionError(rwhere, "a reference carries a 'class' (a class belongs to a target)")
         elif controls[rid]:
             raise ConversionError(rwhere, f"a {label!r} point carries reference fields {sorted(controls[rid])}")
-
-
-def _field(fields: dict, name: str, where: str) -> str | None:
-    return _text(fields.get(name), where, name)
 
 
 def _drawings(regions, controls, corner_points, target_lines, items: AnnotationItems, awhere: str) -> None:
     """Group the corner points by the target they name (module docstring) and add every target
     drawn (points or a target line) to ``items.drawings``."""
     def name_of(rid):
-        return _field(controls.get(rid, {}), "target", f"{awhere}, region {rid!r}")
+        return _text(controls.get(rid, {}).get("target"), f"{awhere}, region {rid!r}", "target")
 
     named = list(dict.fromkeys(n for n in (name_of(r) for r, _ in corner_points) if n is not None))
     groups: dict[str | None, dict[int, str]] = {}
@@ -291,7 +287,7 @@ def _class_of(rids, controls, awhere) -> str | None:
     """The class the regions of one drawn target give (they must agree), or None."""
     found: dict[str, str] = {}
     for rid in rids:
-        cls = _field(controls.get(rid, {}), "class", f"{awhere}, region {rid!r}")
+        cls = _text(controls.get(rid, {}).get("class"), f"{awhere}, region {rid!r}", "class")
         if cls is not None:
             found.setdefault(cls, rid)
     if len(found) > 1:

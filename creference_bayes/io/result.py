@@ -83,12 +83,8 @@ def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int) 
 
 
 def stored_draws(d: dict) -> StoredDraws | None:
-    """The draws a result dict keeps (its ``draws``), or None when it has none.
-
-    Raises
-    ------
-    ValueError : ``draws`` is malformed (names the key)
-    """
+    """The draws a result dict keeps (its ``draws``), or None when it has none; ``ValueError``
+    (naming the key) when ``draws`` is malformed."""
     kept = d.get("draws")
     if not kept:
         return None
@@ -111,13 +107,13 @@ def _r(v, nd=6):
 
 
 def _named(names, values, keep=None) -> dict:
-    return {n: _r(v) for n, v, k in zip(names, values, keep if keep is not None else [True] * len(names)) if k}
+    """``names`` → rounded ``values`` (``keep``: which of them; None: all)."""
+    return {n: _r(v) if np.ndim(v) == 0 else [_r(x) for x in v]
+            for n, v, k in zip(names, values, [True] * len(names) if keep is None else keep) if k}
 
 
 def _posterior_block(names, s: dict, prob: float, keep=None) -> dict:
-    out = {k: _named(names, s[k], keep) for k in ("mean", "median", "sd")}
-    out["hdi"] = {n: [_r(a), _r(b)] for n, (a, b), k in
-                  zip(names, s["hdi"], keep if keep is not None else [True] * len(names)) if k}
+    out = {k: _named(names, s[k], keep) for k in ("mean", "median", "sd", "hdi")}
     out["hdi"]["prob"] = prob
     return out
 
@@ -249,10 +245,6 @@ def map_checks(scene, model, setup, map_est) -> list[str]:
     return out
 
 
-def _in(v, iv) -> bool:
-    return bool(iv[0] is not None and iv[1] is not None and iv[0] <= v <= iv[1])
-
-
 def _evaluate(truth: dict, map_row: np.ndarray, post: dict | None) -> dict:
     """Errors against a target's ground truth: Eq. 3 for the MAP and the posterior mean, and
     whether each true value lies in its HDI."""
@@ -280,7 +272,9 @@ def _camera_evaluation(truth: dict, post: dict | None) -> dict:
     keys = {"focal_length_px": "focal_length_px", "pitch_rad": "pitch", "roll_rad": "roll", "camera_height_m": "height_m"}
     out = {"truth": {v: truth[k] for k, v in keys.items() if truth.get(k) is not None}}
     if post is not None:
-        out["in_hdi"] = {k: _in(v, post["hdi"][k]) for k, v in out["truth"].items() if k in post["hdi"]}
+        hdi_ = post["hdi"]
+        out["in_hdi"] = {k: bool(None not in hdi_[k] and hdi_[k][0] <= v <= hdi_[k][1])
+                         for k, v in out["truth"].items() if k in hdi_}
     return out
 
 
@@ -331,12 +325,13 @@ def result_from_v1(d: dict, scene) -> dict:
     if post:
         prob = post["hdi"]["prob"]
         out["hdi_prob"] = prob
-        names = {"x": "x", "y": "y", "z": "z", "yaw": "yaw", "distance_m": "distance_m"}
-        obj["posterior"] = {k: {v: post[k].get(n) for n, v in names.items()} for k in ("mean", "median", "sd")}
-        obj["posterior"]["hdi"] = {v: post["hdi"].get(n) for n, v in names.items()} | {"prob": prob}
+        stats = ("mean", "median", "sd", "hdi")
+        names = ("x", "y", "z", "yaw", "distance_m")
+        obj["posterior"] = {k: {n: post[k].get(n) for n in names} for k in stats}
         cam_names = {"focal_length_px": "focal_length_px", "pitch": "pitch", "roll": "roll", "y": "height_m"}
-        camera["posterior"] = {k: {v: post[k][n] for n, v in cam_names.items() if n in post[k]} for k in ("mean", "median", "sd")}
-        camera["posterior"]["hdi"] = {v: post["hdi"][n] for n, v in cam_names.items() if n in post["hdi"]} | {"prob": prob}
+        camera["posterior"] = {k: {v: post[k][n] for n, v in cam_names.items() if n in post[k]}
+                               for k in stats}
+        obj["posterior"]["hdi"]["prob"] = camera["posterior"]["hdi"]["prob"] = prob
         camera["free"] = [v for n, v in cam_names.items() if n in post["sd"] and (post["sd"][n] or 0) > 0]
         draws = post.get("draws")
         if draws and "x" in draws:
@@ -419,13 +414,9 @@ def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str |
 
 def find_scene(result: dict, result_path: str | Path, explicit: str | Path | None = None):
     """The scene a result (either format) was estimated from: ``explicit``, else the first of
-    :func:`scene_candidates` that exists, checked with :func:`scene_mismatch`.
-
-    Raises
-    ------
-    FileNotFoundError : no candidate exists (the message says where it looked)
-    ValueError : the scene found is not the result's (the message says what differs)
-    """
+    :func:`scene_candidates` that exists, checked with :func:`scene_mismatch`. Raises
+    ``FileNotFoundError`` when no candidate exists (the message says where it looked) and
+    ``ValueError`` when the scene found is not the result's (the message says what differs)."""
     import warnings
 
     from .scene import SceneWarning, parse_scene, read_scene_json

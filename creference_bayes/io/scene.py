@@ -1,37 +1,20 @@
 """Scene files and the one scene in memory: a photo with one or more annotated targets.
 
-Two file formats are read, forever: ``creference-scene/1`` (one ``target``, formats.md) and
-``creference-scene/2`` (``targets``: every annotated target of the photo, docs/scene_format.md).
-Both become one :class:`Scene` (a one-target scene is a frame of one), validated by one set of
-rules with one set of messages; :func:`scene_to_dict` writes version 2.
+``creference-scene/1`` (one ``target``) and ``creference-scene/2`` (``targets``) files
+(docs/scene_format.md) both become one :class:`Scene`, validated by one set of rules;
+:func:`scene_to_dict` writes version 2. A version-1 file is a scene of one target (id ``target``
+when it has none) whose ground truth is split between the target and the camera.
 
 Every invalid input raises :class:`SceneError`, a one-line message that starts with the key path
-and names the value (``references[2].unit: unknown unit 'furlong' …``); nothing else escapes
-:func:`parse_scene` (a property test mutates valid scenes to check it). Unknown keys are not
-errors, unless one is a near miss of a known key of the same object (``refrences``: unknown
-key; did you mean 'references'?, :func:`near_miss`), which would otherwise silently drop what
-the user meant; the others are kept in :attr:`Scene.warnings` and emitted as
-:class:`SceneWarning`. Ground truth is free-form (extra keys are kept without a warning); the
-known keys are checked.
-
-Optional keys may also be ``null`` (meaning absent). Limits beyond formats.md: image sides at most
-:data:`MAX_IMAGE_SIDE` pixels; annotated points within :data:`IMAGE_MARGIN` image sizes of the
-image; horizon points within :data:`HORIZON_MARGIN` image sizes and the horizon no steeper than 45°.
-
-A version-1 file reads as a scene of one target (its id, ``target`` when it has none) with its
-known size; its relative references are relative to that target; its ground truth is split
-between the target (``location_m``, ``yaw_rad``, ``handedness``) and the camera (the rest).
-
-In a version-2 file, each target has an ``id`` (unique), a ``class`` and, optionally, its known
-``dimensions_m`` (without them the class's size prior applies: the scene's own ``classes``, then
-the user's classes file, then the shipped KITTI classes); references may name a ``target``
-(relative to it, or, without a line, a measurement of its own size) or two ``targets`` (the
-ground distance between them).
+and names the value; nothing else escapes :func:`parse_scene`. An unknown key is an error when it
+is a near miss of a known key (:func:`near_miss`: it would silently drop what the user meant),
+else a :class:`SceneWarning` kept in :attr:`Scene.warnings`. Ground truth is free-form; its known
+keys are checked. Optional keys may be ``null`` (absent). Limits beyond the format:
+:data:`MAX_IMAGE_SIDE`, :data:`IMAGE_MARGIN`, :data:`HORIZON_MARGIN`, a horizon no steeper than 45°.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import warnings
@@ -43,22 +26,21 @@ import numpy as np
 
 from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
-from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior, size_priors_from_dict
+from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior, size_priors_from_dict
 from .files import read_bytes
-from .validation import (SceneError, SceneWarning, _check_inside, _check_segment, _dict, _get,
-                         _got, _join, _list, _number, _point, _points, _short, _string, _warn_unknown,
-                         check_scene_format, near_miss)
+from .result import canonical_sha256
+from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside, _check_segment, _dict,
+                         _get, _got, _join, _list, _number, _point, _points, _short, _string,
+                         _warn_unknown, check_scene_format, near_miss)
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
            "near_miss", "read_scene_json", "find_size_prior"]
 
 #: The format :func:`scene_to_dict` writes.
-SCENE_FORMAT = "creference-scene/2"
-SCENE_FORMATS = ("creference-scene/1", SCENE_FORMAT)
+SCENE_FORMAT = SCENE_FORMATS[-1]
 MEASURES = ("length", "width", "distance")
 MODES = ("direct", "relative")
-_SIZE_NAMES = ("length", "width", "height")
 #: Image points may lie outside the image by at most this fraction of its size on each side.
 IMAGE_MARGIN = 0.5
 #: The two horizon points may lie outside the image by at most this many image sizes: a camera
@@ -198,15 +180,9 @@ def find_size_prior(cls: str | None, *tables: dict[str, SizePrior] | None) -> Si
     if cls is None:
         return None
     tables = [t for t in tables if t] + [KITTI_SIZE_PRIORS]
-    for table in tables:
-        if cls in table:
-            return table[cls]
-    folded = cls.casefold()
-    for table in tables:
-        for name, prior in table.items():
-            if name.casefold() == folded:
-                return prior
-    return None
+    found = [t[cls] for t in tables if cls in t]
+    found += [p for t in tables for name, p in t.items() if name.casefold() == cls.casefold()]
+    return found[0] if found else None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -233,17 +209,28 @@ _REFERENCE_KEYS = {"worker", "object", "measure", "mode", "value", "range", "uni
                    "confidence", "seconds"}
 
 
+def _choice(obj: dict, key: str, path: str, options: tuple[str, ...]) -> str:
+    """The required text ``obj[key]``, one of ``options``."""
+    value = _get(obj, key, path)
+    if not isinstance(value, str) or value not in options:
+        raise SceneError(_join(path, key), f"unknown {key} {_short(value)} (expected one of {list(options)})")
+    return value
+
+
+def _target_index(name: Any, path: str, ids: dict[str, int]) -> int:
+    """The index of the target whose id a reference names."""
+    name = _string(name, path)
+    if name not in ids:
+        raise SceneError(path, f"no target with id {_short(name)} (targets: {sorted(ids)})")
+    return ids[name]
+
+
 def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
                      sink: list[str]) -> Reference:
     obj = _dict(obj, path)
     _warn_unknown(obj, _REFERENCE_KEYS, path, sink)
-    measure = _get(obj, "measure", path)
-    if not isinstance(measure, str) or measure not in MEASURES:
-        raise SceneError(_join(path, "measure"),
-                         f"unknown measure {_short(measure)} (expected one of {list(MEASURES)})")
-    mode = _get(obj, "mode", path)
-    if not isinstance(mode, str) or mode not in MODES:
-        raise SceneError(_join(path, "mode"), f"unknown mode {_short(mode)} (expected one of {list(MODES)})")
+    measure = _choice(obj, "measure", path, MEASURES)
+    mode = _choice(obj, "mode", path, MODES)
     if measure == "distance" and mode == "relative":
         raise SceneError(_join(path, "mode"),
                          "'relative' is not valid for measure 'distance' (paper §4.1.3)")
@@ -342,6 +329,22 @@ def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> Orientatio
     return OrientationPrior(**kw)
 
 
+def _parse_dims(obj: Any, dpath: str, sink: list[str]) -> tuple[float, float, float]:
+    """A target's ``dimensions_m`` object: (length, width, height) metres."""
+    obj = _dict(obj, dpath)
+    _warn_unknown(obj, set(SIZE_KEYS), dpath, sink)
+    return tuple(_number(_get(obj, k, dpath), _join(dpath, k), positive=True) for k in SIZE_KEYS)
+
+
+def _parse_lines(obj: dict, path: str, w: int, h: int, sink: list[str]) -> tuple[DimensionLine, ...]:
+    """A target's ``dimension_lines`` (at least one)."""
+    lpath = _join(path, "dimension_lines")
+    lines = _list(_get(obj, "dimension_lines", path), lpath)
+    if not lines:
+        raise SceneError(lpath, "expected at least one annotation, got []")
+    return tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink) for i, d in enumerate(lines))
+
+
 def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, path)
     _warn_unknown(obj, {"id", "class", "dimensions_m", "size_prior", "dimension_lines", "ground_truth"}, path, sink)
@@ -349,14 +352,8 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
     cls = _string(obj.get("class"), _join(path, "class"))
     dims = obj.get("dimensions_m")
     if dims is not None:
-        dpath = _join(path, "dimensions_m")
-        dims = _dict(dims, dpath)
-        _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
-        dims = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
-    lpath = _join(path, "dimension_lines")
-    lines = _list(_get(obj, "dimension_lines", path), lpath)
-    if not lines:
-        raise SceneError(lpath, "expected at least one annotation, got []")
+        dims = _parse_dims(dims, _join(path, "dimensions_m"), sink)
+    lines = _parse_lines(obj, path, w, h, sink)
     gt = obj.get("ground_truth")
     if gt is not None:
         gt = _parse_target_truth(gt, _join(path, "ground_truth"))
@@ -369,8 +366,7 @@ def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Targe
         except ValueError as exc:  # its message begins with the key path
             where, _, what = str(exc).partition(": ")
             raise SceneError(where, what) from None
-    return Target(ident, cls, tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink)
-                                    for i, d in enumerate(lines)), dims, gt, prior)
+    return Target(ident, cls, lines, dims, gt, prior)
 
 
 def _free_form(value: Any, path: str) -> Any:
@@ -403,7 +399,7 @@ def _parse_target_truth(obj: Any, path: str) -> dict:
     if obj.get("dimensions_m") is not None:
         dpath = _join(path, "dimensions_m")
         d = _dict(obj["dimensions_m"], dpath)
-        out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES}
+        out["dimensions_m"] = {k: _number(_get(d, k, dpath), _join(dpath, k), positive=True) for k in SIZE_KEYS}
     if obj.get("handedness") is not None and (isinstance(obj["handedness"], bool) or obj["handedness"] not in (1, -1)):
         raise SceneError(_join(path, "handedness"), f"expected 1 or -1, {_got(obj['handedness'])}")
     return out
@@ -415,12 +411,7 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
     if "targets" in obj:
         return _parse_distance_reference(obj, index, path, w, h, ids, sink)
     target = obj.get("target")
-    owner = None
-    if target is not None:
-        name = _string(target, _join(path, "target"))
-        if name not in ids:
-            raise SceneError(_join(path, "target"), f"no target with id {_short(name)} (targets: {sorted(ids)})")
-        owner = ids[name]
+    owner = None if target is None else _target_index(target, _join(path, "target"), ids)
     rest = {k: v for k, v in obj.items() if k != "target"}
     if "line" in rest:
         ref = _parse_reference(rest, index, path, w, h, sink)
@@ -435,16 +426,18 @@ def _parse_target_reference(obj: Any, index: int, path: str, w: int, h: int, ids
         raise SceneError(_join(path, "line"), "missing required key (a reference without a line must name a "
                                               "target whose size it measures)")
     measure = _get(rest, "measure", path)
-    if measure not in _SIZE_NAMES:
+    if measure not in SIZE_KEYS:
         raise SceneError(_join(path, "measure"), f"a target's own size is its length, width or height, got {_short(measure)}")
-    if rest.get("mode", "direct") != "direct":
-        raise SceneError(_join(path, "mode"), f"a target's own size must be 'direct' (with a unit), got {_short(rest.get('mode'))}")
     return _lineless(rest, measure, index, path, w, h, sink), owner
 
 
 def _lineless(rest: dict, measure: str, index: int, path: str, w: int, h: int, sink: list[str]) -> Reference:
     """A direct reference without a line (a target's own size, a distance between two targets):
     its value, range, unit and fields read as :func:`_parse_reference` reads a line's."""
+    if rest.get("mode", "direct") != "direct":
+        what = "a distance" if measure == "distance" else "a target's own size"
+        raise SceneError(_join(path, "mode"), f"{what} must be 'direct' (with a unit), "
+                                              f"got {_short(rest['mode'])}")
     fake = {**rest, "measure": "length", "mode": "direct", "line": [[0, h - 1], [1, h - 1]]}
     ref = _parse_reference(fake, index, path, w, h, sink)
     return replace(ref, measure=measure, line=None)
@@ -458,12 +451,7 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
     names = _list(obj["targets"], tpath)
     if len(names) != 2:
         raise SceneError(tpath, f"a distance is between two targets, got {len(names)} ids ({_short(names)})")
-    owners = []
-    for k, name in enumerate(names):
-        name = _string(name, _join(tpath, k))
-        if name not in ids:
-            raise SceneError(_join(tpath, k), f"no target with id {_short(name)} (targets: {sorted(ids)})")
-        owners.append(ids[name])
+    owners = [_target_index(name, _join(tpath, k), ids) for k, name in enumerate(names)]
     if owners[0] == owners[1]:
         raise SceneError(_join(tpath, 1), f"a distance is between two different targets, got {_short(names[1])} twice")
     for key in ("line", "target"):
@@ -473,8 +461,6 @@ def _parse_distance_reference(obj: dict, index: int, path: str, w: int, h: int, 
     if obj.get("measure", "distance") != "distance":
         raise SceneError(_join(path, "measure"), f"a reference naming two targets measures their 'distance', "
                                                  f"got {_short(obj.get('measure'))}")
-    if obj.get("mode", "direct") != "direct":
-        raise SceneError(_join(path, "mode"), f"a distance must be 'direct' (with a unit), got {_short(obj.get('mode'))}")
     rest = {k: v for k, v in obj.items() if k != "targets"}
     return _lineless(rest, "distance", index, path, w, h, sink), (owners[0], owners[1])
 
@@ -483,16 +469,9 @@ def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
     """A version-1 ``target``: its id (``target`` when it has none) and its required sizes."""
     obj = _dict(obj, "target")
     _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, "target", sink)
-    dpath = "target.dimensions_m"
-    dims = _dict(_get(obj, "dimensions_m", "target"), dpath)
-    _warn_unknown(dims, set(_SIZE_NAMES), dpath, sink)
-    size = tuple(_number(_get(dims, k, dpath), _join(dpath, k), positive=True) for k in _SIZE_NAMES)
-    lines = _list(_get(obj, "dimension_lines", "target"), "target.dimension_lines")
-    if not lines:
-        raise SceneError("target.dimension_lines", "expected at least one annotation, got []")
+    size = _parse_dims(_get(obj, "dimensions_m", "target"), "target.dimensions_m", sink)
     return Target(_string(obj.get("id", "target"), "target.id", optional=False), None,
-                  tuple(_parse_dimension_line(d, _join("target.dimension_lines", i), w, h, sink)
-                        for i, d in enumerate(lines)), size)
+                  _parse_lines(obj, "target", w, h, sink), size)
 
 
 def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
@@ -501,27 +480,24 @@ def _parse_v1_truth(obj: Any) -> tuple[dict | None, dict | None]:
     obj = _free_form(_dict(obj, "ground_truth"), "ground_truth")
     target = {k: v for k, v in obj.items() if k not in _CAMERA_TRUTH}
     target = _parse_target_truth({**target, "location_m": _get(obj, "location_m", "ground_truth")}, "ground_truth")
-    camera = {k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}
+    return target, _camera_truth({k: obj[k] for k in _CAMERA_TRUTH if obj.get(k) is not None}) or None
+
+
+def _camera_truth(gt: dict) -> dict:
+    """``gt`` with the camera's truth (:data:`_CAMERA_TRUTH`) checked: numbers, positive but for the angles."""
     for key in _CAMERA_TRUTH:
-        if key in camera:
-            camera[key] = _number(camera[key], _join("ground_truth", key), positive=key != "pitch_rad" and key != "roll_rad")
-    return target, camera or None
+        if gt.get(key) is not None:
+            gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
+    return gt
 
 
 def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
-    """Validate a decoded scene file (a dict, either format) and return a :class:`Scene`.
+    """Validate a decoded scene file (``data``, a dict, either format) and return a :class:`Scene`;
+    :class:`SceneError` on the first invalid key, naming its path and value.
 
-    Parameters
-    ----------
-    data : the decoded JSON
-    source : the file it came from; ``image.path`` is resolved relative to it
-    classes : size priors of the user's own classes (a classes file), which a target's class may
-        name besides the scene's own and the shipped KITTI classes
-
-    Raises
-    ------
-    SceneError
-        On the first invalid key, naming its path and value.
+    ``source``: the file it came from (``image.path`` is resolved relative to it). ``classes``: size
+    priors of the user's own classes (a classes file), which a target's class may name besides the
+    scene's own and the shipped KITTI classes.
     """
     sink: list[str] = []
     data = _dict(data, "(scene)")
@@ -570,24 +546,23 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         target_truth, gt = _parse_v1_truth(gt)
         targets = (Target(targets[0].id, None, targets[0].dimension_lines, targets[0].dimensions, target_truth),)
     elif gt is not None:
-        gt = _free_form(_dict(gt, "ground_truth"), "ground_truth")
-        for key in _CAMERA_TRUTH:  # the camera's truth: numbers, positive but for the angles
-            if gt.get(key) is not None:
-                gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
+        gt = _camera_truth(_free_form(_dict(gt, "ground_truth"), "ground_truth"))
     for message in sink:
         warnings.warn(message, SceneWarning, stacklevel=2)
     return Scene(targets=targets, references=tuple(r for r, _ in parsed), reference_targets=tuple(o for _, o in parsed),
                  classes=own_classes, ground_truth=gt, warnings=tuple(sink), format=fmt, **head)
 
 
-def _parse_header(data: dict, source, sink: list[str]) -> dict:
-    """The parts every scene format shares: ``image``, ``camera`` and ``horizon``/``horizon_sd_px``.
+def parse_quietly(data: Any) -> Scene:
+    """:func:`parse_scene` with its warnings silenced."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return parse_scene(data)
 
-    Returns the :class:`Scene` fields they fill (``image_width``, ``image_height``,
-    ``principal_point``, ``focal_length_px``, ``horizon``, ``horizon_sd_px``, ``focal_prior``,
-    ``orientation_prior``, ``image_path``, ``source``, ``kitti_p2``, ``kitti_calib``, ``camera_id``); raises
-    :class:`SceneError` on bad input.
-    """
+
+def _parse_header(data: dict, source, sink: list[str]) -> dict:
+    """The :class:`Scene` fields (by name) of the parts every scene format shares: ``image``,
+    ``camera`` and ``horizon``/``horizon_sd_px``; :class:`SceneError` on bad input."""
     image = _dict(_get(data, "image", ""), "image")
     _warn_unknown(image, {"width", "height", "path"}, "image", sink)
     width_f = _number(_get(image, "width", "image"), "image.width", positive=True)
@@ -652,14 +627,8 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
 
 def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) -> Scene:
     """Load and validate a scene file (either format; ``classes`` as :func:`parse_scene`).
-
-    Raises
-    ------
-    SceneError
-        If the file is not valid JSON or not a valid scene; the message names the key path.
-    FileNotFoundError
-        If ``path`` does not exist.
-    """
+    Raises :class:`SceneError` (naming the key path) if the file is not valid JSON or not a valid
+    scene, ``FileNotFoundError`` if ``path`` does not exist."""
     path = Path(path)
     return parse_scene(read_scene_json(path), source=path, classes=classes)
 
@@ -667,27 +636,20 @@ def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) ->
 def read_scene_json(path: Path) -> Any:
     """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
     JSON with finite numbers."""
+    def reject(name):
+        raise SceneError(str(path), f"non-standard JSON constant {name} (numbers must be finite)")
+
     path = Path(path)
     raw = read_bytes(path)
     try:
-        data = json.loads(raw.decode("utf-8-sig"), parse_constant=_reject_constant)
+        data = json.loads(raw.decode("utf-8-sig"), parse_constant=reject)
     except UnicodeDecodeError as exc:
         raise SceneError(str(path), f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
     except json.JSONDecodeError as exc:
         raise SceneError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except _ConstantError as exc:
-        raise SceneError(str(path), f"non-standard JSON constant {exc.args[0]} (numbers must be finite)") from None
     except RecursionError:
         raise SceneError(str(path), "JSON nested too deeply") from None
     return data
-
-
-class _ConstantError(Exception):
-    pass
-
-
-def _reject_constant(name: str) -> Any:
-    raise _ConstantError(name)
 
 
 def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:
@@ -719,22 +681,6 @@ def _parse_p2(value: Any, path: str) -> np.ndarray | None:
     return out.astype(float)
 
 
-def camera_priors_to_dict(scene) -> dict:
-    """The ``camera`` block's ``focal_length_prior`` and ``orientation_prior`` of a scene or a
-    frame (those it has), as the file gives them."""
-    out: dict[str, Any] = {}
-    if scene.focal_prior is not None:
-        fp = scene.focal_prior
-        out["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
-                                     **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
-    if scene.orientation_prior is not None:
-        op = scene.orientation_prior
-        out["orientation_prior"] = {
-            **{f"{k}_deg": math.degrees(getattr(op, k)) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")},
-            "height_median_m": op.height_median_m, "height_log_sd": op.height_log_sd}
-    return out
-
-
 def _reference_to_dict(r: Reference) -> dict:
     if r.stated is not None:
         low, high = r.stated
@@ -748,12 +694,18 @@ def _reference_to_dict(r: Reference) -> dict:
         d["value"] = low
     if r.unit is not None:
         d["unit"] = r.unit
-    d["line"] = r.line.tolist()
+    if r.line is not None:
+        d["line"] = r.line.tolist()
     for key in ("object", "worker", "confidence", "seconds"):
         value = getattr(r, key)
         if value is not None:
             d[key] = value
     return d
+
+
+def prior_entry(p: SizePrior) -> dict:
+    """A size prior as a ``classes`` entry (``length_m``, ``width_m``, ``height_m``, ``log_sd``)."""
+    return {k: v for k, v in p.to_dict().items() if k != "source"}
 
 
 def scene_to_dict(scene: Scene) -> dict:
@@ -771,24 +723,30 @@ def scene_to_dict(scene: Scene) -> dict:
         out["camera"]["kitti_p2"] = np.asarray(scene.kitti_p2).tolist()
     if scene.kitti_calib is not None:
         out["camera"]["kitti_calib"] = {k: list(v) for k, v in scene.kitti_calib.items()}
-    out["camera"].update(camera_priors_to_dict(scene))
+    fp, op = scene.focal_prior, scene.orientation_prior
+    if fp is not None:
+        out["camera"]["focal_length_prior"] = {"median_px": fp.median_px, "log_sd": fp.log_sd,
+                                               **({} if math.isinf(fp.dof) else {"dof": fp.dof})}
+    if op is not None:
+        angles = ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")
+        out["camera"]["orientation_prior"] = {**{f"{k}_deg": math.degrees(getattr(op, k)) for k in angles},
+                                              "height_median_m": op.height_median_m,
+                                              "height_log_sd": op.height_log_sd}
     if scene.horizon is not None:
         out["horizon"] = np.asarray(scene.horizon).tolist()
         if scene.horizon_sd_px:
             out["horizon_sd_px"] = scene.horizon_sd_px
     if scene.classes:
-        out["classes"] = {k: {f"{n}_m": v for n, v in zip(_SIZE_NAMES, p.median_m)} | {"log_sd": list(p.log_sd)}
-                          for k, p in scene.classes.items()}
+        out["classes"] = {k: prior_entry(p) for k, p in scene.classes.items()}
     out["targets"] = []
     for t in scene.targets:
         d: dict[str, Any] = {"id": t.id}
         if t.cls is not None:
             d["class"] = t.cls
         if t.dimensions is not None:
-            d["dimensions_m"] = dict(zip(_SIZE_NAMES, t.dimensions))
+            d["dimensions_m"] = dict(zip(SIZE_KEYS, t.dimensions))
         if t.size_prior is not None:
-            d["size_prior"] = {f"{n}_m": v for n, v in zip(_SIZE_NAMES, t.size_prior.median_m)} | {
-                "log_sd": list(t.size_prior.log_sd), "source": t.size_prior.source}
+            d["size_prior"] = t.size_prior.to_dict()
         d["dimension_lines"] = [{k: v for k, v in (("worker", a.worker), ("corners", a.corners.tolist()),
                                                    ("seconds", a.seconds)) if v is not None}
                                 for a in t.dimension_lines]
@@ -797,16 +755,7 @@ def scene_to_dict(scene: Scene) -> dict:
         out["targets"].append(d)
     refs = []
     for r, owner in zip(scene.references, scene.reference_targets):
-        if r.line is None:
-            d = {"measure": r.measure, "mode": "direct"}
-            low, high = r.stated
-            d.update({"range": [low, high]} if r.is_range else {"value": low})
-            d["unit"] = r.unit
-            for key in ("object", "worker", "confidence", "seconds"):
-                if getattr(r, key) is not None:
-                    d[key] = getattr(r, key)
-        else:
-            d = _reference_to_dict(r)
+        d = _reference_to_dict(r)
         if isinstance(owner, tuple):
             d["targets"] = [scene.targets[k].id for k in owner]
         elif owner is not None:
@@ -824,8 +773,7 @@ def scene_fingerprint(scene: Scene) -> str:
     whatever the key order, whitespace, file name or format version of its file; any change of a
     value changes it. Results record it (``scene_id.sha256``) so that a result can be checked
     against a scene, and a batch can tell whether a scene changed since its result was made."""
-    text = json.dumps(scene_to_dict(scene), sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return canonical_sha256(scene_to_dict(scene))
 
 
 def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = ()) -> list[str]:
@@ -840,9 +788,7 @@ def scene_differences(a: Any, b: Any, atol: float = 1e-9, drop: Iterable[str] = 
     drop = set(drop)
 
     def norm(d):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            d = scene_to_dict(d if isinstance(d, Scene) else parse_scene(d))
+        d = scene_to_dict(d if isinstance(d, Scene) else parse_quietly(d))
 
         def strip(x):
             if isinstance(x, dict):

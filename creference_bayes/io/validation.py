@@ -36,10 +36,6 @@ class SceneWarning(UserWarning):
     """Something in a scene was ignored or assumed (unknown keys, for example)."""
 
 
-def _type_name(value: Any) -> str:
-    return "null" if value is None else type(value).__name__
-
-
 def _short(value: Any) -> str:
     """``repr(value)``, cut to :data:`MAX_REPR` characters (a message stays one short line)."""
     try:
@@ -52,14 +48,12 @@ def _short(value: Any) -> str:
 
 
 def _got(value: Any) -> str:
-    return f"got {_type_name(value)} {_short(value)}"
+    return f"got {'null' if value is None else type(value).__name__} {_short(value)}"
 
 
-def _get(obj: dict, key: str, path: str, required: bool = True) -> Any:
+def _get(obj: dict, key: str, path: str) -> Any:
     if key not in obj:
-        if required:
-            raise SceneError(_join(path, key), "missing required key")
-        return None
+        raise SceneError(_join(path, key), "missing required key")
     return obj[key]
 
 
@@ -191,16 +185,16 @@ def _warn_unknown(obj: dict, known: set[str], path: str, sink: list[str]) -> Non
 SCENE_FORMATS = ("creference-scene/1", "creference-scene/2")
 
 
-def check_scene_format(value: Any, expected=SCENE_FORMATS) -> str:
+def check_scene_format(value: Any) -> str:
     """The ``format`` of a scene, or :class:`SceneError` saying what was expected and, for a result
     file or a newer version of the format, what to do."""
-    shown = " or ".join(repr(f) for f in expected)
+    shown = " or ".join(repr(f) for f in SCENE_FORMATS)
     if isinstance(value, str) and value.startswith("creference-result/"):
         raise SceneError("format", f"expected a scene ({shown}), got the result file format {value!r}: "
                                    "give the scene the result was made from")
     if isinstance(value, str) and value.startswith("creference-scene/") and value not in SCENE_FORMATS:
         raise SceneError("format", f"expected {shown}, got {value!r}: a format version this release of "
                                    "creference_bayes does not know (a newer release may)")
-    if value not in expected:
+    if value not in SCENE_FORMATS:
         raise SceneError("format", f"expected {shown}, got {_short(value)}")
     return value
