@@ -12,6 +12,7 @@ import pytest
 from conftest import truth_scene
 
 CLI = [sys.executable, "-m", "creference_bayes"]
+ENV = {**os.environ, "PYTHONFAULTHANDLER": "1"}
 SMALL = ["--min-ess", "100", "--quiet", "--seed", "3"]
 
 
@@ -40,9 +41,16 @@ def _wait_for(predicate, proc, timeout=120.0):
 
 
 def _interrupt(proc) -> str:
-    """Ctrl-C as a terminal sends it: SIGINT to the whole process group."""
+    """Ctrl-C as a terminal sends it: SIGINT to the whole process group. A batch still running a
+    minute later is aborted, and the test fails with where its threads were (the children run
+    with ``PYTHONFAULTHANDLER``, which prints them on SIGABRT)."""
     os.killpg(proc.pid, signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGABRT)
+        _, err = proc.communicate(timeout=30)
+        pytest.fail(f"the batch did not end within 60 s of Ctrl-C; where it was:\n{err[-6000:]}")
     return err
 
 
@@ -60,7 +68,7 @@ def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
     os.mkfifo(scenes / "zz_pipe.json")  # reading it blocks: the batch is stopped while reading
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "1", *SMALL],
-                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint, env=ENV)
     _wait_for(out.is_dir, proc)
 
     def reading_the_pipe():  # a writer can open a FIFO without blocking only once a reader has
@@ -83,7 +91,7 @@ def test_interrupt_while_scenes_run_writes_the_summary_and_leaks_nothing(tmp_pat
     write_scenes(scenes, 5)
     out = tmp_path / "out"
     proc = subprocess.Popen(CLI + ["batch", str(scenes), "--out", str(out), "--workers", "2", *SMALL],
-                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+                            start_new_session=True, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint, env=ENV)
     results = out / "results"
     _wait_for(lambda: results.is_dir() and any(results.glob("*.json")), proc)
     err = _interrupt(proc)
