@@ -106,7 +106,7 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
 
         cmap = resolve_confidence_map(confidence_map)
         return MetrologyModel(scene.principal_point, scene.image_size, objects, refs, confidence_map=cmap,
-                              **common, **options), setup
+                              corner_scale=scene.corner_scale, **common, **options), setup
     if not (confidence_map is None or isinstance(confidence_map, str) and confidence_map in ("default", "none")):
         raise ValueError("confidence_map: the paper model turns ranges into bounds and does not read stated "
                          "confidences (use the metrology model, or 'none')")

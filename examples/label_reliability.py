@@ -7,16 +7,27 @@ histogram and reliability diagrams) with the data-set report.
 
     python examples/label_reliability.py --n 200 --workers 2 --out label_reliability_out
 
+With ``--kitti DIR`` the scenes are a KITTI folder's real boxes (``creference simulate
+--from-kitti``) with ``--noise-px`` of corner error; with ``--twice-every N`` the objects of every
+Nth scene are annotated twice and the others once (a team checking a sample), and the mean stated
+and observed quality is printed for the objects annotated once and for the others. ``--own-scale``
+runs the batch so (docs/batch.md, "The crowd's corner scale"):
+
+    python examples/label_reliability.py --kitti KITTI/ --noise-px 8 --twice-every 4 --out lr_pooled
+    python examples/label_reliability.py --kitti KITTI/ --noise-px 8 --twice-every 4 --own-scale --out lr_own
+
 The batch is resumable: rerun the same command to finish an interrupted run.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
 
+from creference_bayes.bench.kitti import kitti_scenes
 from creference_bayes.bench.simulate import write_scenes
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
@@ -36,14 +47,32 @@ def main() -> None:
     ap.add_argument("--bins", type=int, default=5, help="bins of predicted probability (default: %(default)s)")
     ap.add_argument("--min-ess", type=float, default=None,
                     help="bulk ESS of each estimate (default: the package's, 400; less for a quick check)")
+    ap.add_argument("--kitti", metavar="DIR", help="scenes from a KITTI folder's boxes instead (--n ignored)")
+    ap.add_argument("--noise-px", type=float, default=2.0, help="with --kitti: corner error, px (default: %(default)s)")
+    ap.add_argument("--twice-every", type=int, default=None, metavar="N",
+                    help="with --kitti: every Nth scene's objects annotated twice, the others once "
+                         "(default: five sets everywhere)")
+    ap.add_argument("--own-scale", action="store_true", help="each frame's corner scale from its own annotations only")
     args = ap.parse_args()
 
     out = Path(args.out)
     scenes = out / "scenes"
-    write_scenes(scenes, args.n, seed=args.seed, tier=args.tier, overwrite=True)
+    if args.kitti:
+        kitti_scenes(args.kitti, scenes, n_annotations=5 if args.twice_every is None else 2, noise_px=args.noise_px,
+                     seed=args.seed)
+        if args.twice_every is not None:
+            for k, path in enumerate(sorted(scenes.glob("*.json"))):
+                if k % args.twice_every:  # the others keep their first set only
+                    d = json.loads(path.read_text())
+                    for t in d["targets"]:
+                        t["dimension_lines"] = t["dimension_lines"][:1]
+                    path.write_text(json.dumps(d))
+    else:
+        write_scenes(scenes, args.n, seed=args.seed, tier=args.tier, overwrite=True)
     engine = DaskEngine(args.scheduler) if args.scheduler else LocalEngine(args.workers)
     sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
-    report = run_batch([scenes], out / "batch", engine, BatchSettings(seed=args.seed, sampling=sampling), progress=True)
+    settings = BatchSettings(seed=args.seed, sampling=sampling, pool_scale=not args.own_scale)
+    report = run_batch([scenes], out / "batch", engine, settings, progress=True)
     print(summary_line(report, out / "batch"))
     export = export_labels(out / "batch", out / "labels")
     paths = write_report(export, out / "labels", batch_dir=out / "batch")
@@ -54,6 +83,18 @@ def main() -> None:
         hit = np.array([o.true_iou >= t for o in export.objects if o.true_iou is not None])
         print(f"P(IoU >= {t:g}): mean predicted {pred.mean():.3f}, observed share {hit.mean():.3f}, "
               f"Brier score {np.mean((pred - hit) ** 2):.3f}")
+        if args.twice_every is not None:
+            sets = {(p.stem, t["id"]): len(t["dimension_lines"]) for p in scenes.glob("*.json")
+                    for t in json.loads(p.read_text())["targets"]}
+            for name, once in (("annotated once", True), ("annotated twice", False)):
+                objs = [o for o in export.objects if o.true_iou is not None and (sets[o.key, o.target] == 1) == once]
+                if not objs:
+                    continue
+                p = np.array([o.quality.p_iou[t] for o in objs])
+                h = np.array([o.true_iou >= t for o in objs])
+                se = np.sqrt(np.sum(p * (1 - p))) / len(p)
+                print(f"  {name}: {len(objs)} objects, mean predicted {p.mean():.3f}, observed share {h.mean():.3f} "
+                      f"({(h.mean() - p.mean()) / se:+.1f} se)")
         print("| predicted | objects | mean predicted | observed share | ±2 se |")
         print("|---|---|---|---|---|")
         for r in rows:

@@ -253,6 +253,22 @@ def test_a_result_without_draws_is_advised_from_the_laplace_approximation(frame)
         assert p.gain_pct == pytest.approx(100 * np.sum(a.now.hdi_share - p.expected.hdi_share), abs=1e-9)
 
 
+def test_the_advice_says_when_the_crowds_corner_scale_is_only_assumed(frame, make_truth_scene):
+    """One set on every object and no corner scale from a batch: new lines are weighed at 5 px, and
+    the advice says so; two sets (the frame) or a scale the batch wrote: no such note."""
+    from dataclasses import replace
+
+    d, _ = make_truth_scene(4, m=2, noise_px=2.0, n_annotations=1, sizes_known=False)
+    once = parse_scene(d)
+    settings = AdviceSettings(n_draws=50, n_futures=10, kinds=("dims",))
+    for scene, said in ((once, True), (replace(once, corner_scale=(2.0, 64.0)), False), (frame[0], False)):
+        result = cb.estimate(scene, seed=0, posterior=False)
+        notes = advise_result(result.to_dict(), scene, seed=0, settings=settings).notes
+        assert any("corner scale is assumed (5 px)" in n for n in notes) == said
+        if scene.corner_scale is not None:
+            assert result.to_dict()["objects"][0]["sigma_px"] == 2.0
+
+
 def test_the_laplace_draws_match_the_laplace_covariance(frame):
     from creference_bayes.inference.laplace import laplace
 

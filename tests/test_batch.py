@@ -6,6 +6,7 @@ import json
 import math
 import shutil
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -229,3 +230,30 @@ def test_cli_batch_exit_status_summary_line_and_options(tmp_path, capsys):
     (tmp_path / "classes.json").write_text('{"Kayak": {"length_m": 3.5}}')
     assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--classes", str(tmp_path / "classes.json")]) == 2
     assert "classes.json" in capsys.readouterr().err
+
+
+def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_path):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    many, _ = truth_scene(11, m=2, noise_px=2.0, n_annotations=4)
+    once, _ = truth_scene(12, m=2, noise_px=2.0, n_annotations=1)
+    (scenes / "many.json").write_text(json.dumps(many))
+    (scenes / "once.json").write_text(json.dumps(once))
+    sets = [np.array([ann["corners"] if isinstance(ann, dict) else ann for ann in t["dimension_lines"]], float)
+            for t in many["targets"]]
+    ss = sum(np.sum((a - a.mean(axis=0)) ** 2) for a in sets)
+    dof = sum(8 * (len(a) - 1) for a in sets)
+    settings = BatchSettings(seed=1, posterior=False)
+    run_batch([scenes], tmp_path / "pooled", LocalEngine(1), settings)
+    copy = json.loads((tmp_path / "pooled" / "scenes" / "once.json").read_text())
+    # two significant digits: at most a 5 % step
+    assert copy["corner_scale"]["sd_px"] == pytest.approx(np.sqrt(ss / dof), rel=0.05)
+    assert copy["corner_scale"]["dof"] == dof  # 48: two digits already
+    assert "corner_scale" not in json.loads((tmp_path / "pooled" / "scenes" / "many.json").read_text())
+    got = [o["sigma_px"] for o in _result(tmp_path / "pooled", "once")["objects"]]
+    assert got == pytest.approx([copy["corner_scale"]["sd_px"]] * 2, abs=1e-3)
+    own = [o["sigma_px"] for o in _result(tmp_path / "pooled", "many")["objects"]]
+    assert own == pytest.approx([np.sqrt(np.sum((a - a.mean(0)) ** 2) / (8 * (len(a) - 1))) for a in sets], abs=1e-3)
+    run_batch([scenes], tmp_path / "alone", LocalEngine(1), replace(settings, pool_scale=False))
+    assert [o["sigma_px"] for o in _result(tmp_path / "alone", "once")["objects"]] == [5.0, 5.0]
+    assert _result(tmp_path / "alone", "many")["objects"] == _result(tmp_path / "pooled", "many")["objects"]

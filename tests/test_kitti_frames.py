@@ -3,6 +3,7 @@ simulate --from-kitti → batch → labels → evaluate kitti."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -253,3 +254,23 @@ def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--methods",
                           "bound", "--rig", "focal"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--rig focal: pools the joint" in bad.stderr
+
+
+def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti_dir, tmp_path):
+    """examples/label_reliability.py --kitti --twice-every 2: the first frame's objects have two sets,
+    the second frame's one, which takes the first frame's corner scale (--own-scale: its own)."""
+    for sub in ("label_2", "calib"):
+        shutil.copy(kitti_dir / sub / "000007.txt", kitti_dir / sub / "000008.txt")
+    script = Path(__file__).resolve().parents[1] / "examples" / "label_reliability.py"
+    for flags, pooled in (([], True), (["--own-scale"], False)):
+        out = tmp_path / f"lr{len(flags)}"
+        proc = subprocess.run([sys.executable, str(script), "--kitti", str(kitti_dir), "--noise-px", "4",
+                               "--twice-every", "2", "--min-ess", "100", "--workers", "1", "--out", str(out), *flags],
+                              capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        assert "annotated once: 3 objects" in proc.stdout and "annotated twice: 3 objects" in proc.stdout
+        twice = json.loads((out / "scenes" / "000007.json").read_text())
+        assert [len(t["dimension_lines"]) for t in twice["targets"]] == [2, 2, 2]
+        copy = json.loads((out / "batch" / "scenes" / "000008.json").read_text())
+        assert ("corner_scale" in copy) == pooled
+        assert [len(t["dimension_lines"]) for t in copy["targets"]] == [1, 1, 1]

@@ -117,6 +117,17 @@ def test_target_scales_pool_over_objects_with_one_annotation():
     assert target_sigmas([one])[0] == 5.0
 
 
+def test_the_data_sets_corner_scale_joins_the_pool_of_objects_annotated_once():
+    rng = np.random.default_rng(1)
+    a = rng.normal(0, 2.0, (3, 4, 2))
+    one = rng.normal(0, 2.0, (1, 4, 2))
+    assert target_sigmas([one], corner_scale=(3.0, 40.0))[0] == pytest.approx(3.0)
+    s = target_sigmas([a, one], corner_scale=(3.0, 40.0))
+    ss = np.sum((a - a.mean(0)) ** 2)
+    assert s[0] == pytest.approx(np.sqrt(ss / 16))  # its own annotations: the data set does not enter
+    assert s[1] == pytest.approx(np.sqrt((ss + 40.0 * 9.0) / (16 + 40)))
+
+
 def test_a_reference_above_an_exact_horizon_is_left_out():
     d, truth = truth_scene(5, horizon="exact", n_refs=1)
     d["references"].append({"measure": "length", "mode": "direct", "value": 2.0, "unit": "m",

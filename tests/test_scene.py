@@ -230,6 +230,19 @@ def test_scene_to_dict_round_trips():
         assert scene_to_dict(again) == out
 
 
+def test_corner_scale_round_trips_and_names_its_bad_key():
+    d = _example()
+    d["corner_scale"] = {"sd_px": 2.5, "dof": 48}
+    scene = _parse(d)
+    assert scene.corner_scale == (2.5, 48.0)
+    assert scene_to_dict(scene)["corner_scale"] == {"sd_px": 2.5, "dof": 48.0}
+    for bad, key in (({"sd_px": 0, "dof": 8}, "corner_scale.sd_px"), ({"sd_px": 2.0}, "corner_scale.dof"),
+                     ([2.0, 8], "corner_scale")):
+        d["corner_scale"] = bad
+        with pytest.raises(SceneError, match=re.escape(key)):
+            _parse(d)
+
+
 def _same_targets(a, b) -> bool:
     return all(x.id == y.id and x.dimensions == y.dimensions and np.array_equal(x.corners, y.corners)
                and x.ground_truth == y.ground_truth for x, y in zip(a, b))

@@ -36,7 +36,8 @@ def _settings(args):
                              sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
                              location_prior=args.location_prior,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
-                             classes=load_classes(args.classes) or {}, rig=args.rig)
+                             classes=load_classes(args.classes) or {}, rig=args.rig,
+                             pool_scale=not args.own_scale)
 
 
 def _engine(args):
@@ -107,6 +108,10 @@ def register(subparsers) -> None:
                         "from frame to frame), or none (every frame alone; the default). Two passes: "
                         "DIR/first_pass/ holds every frame alone, DIR/results/ the frames with their camera's "
                         "rig (docs/batch.md)")
+    p.add_argument("--own-scale", action="store_true",
+                   help="a frame's corner scale (the crowd's pixel error) from its own annotations only; by "
+                        "default an object annotated once takes it from every object of the batch annotated "
+                        "more than once (docs/batch.md)")
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true",
                    help="the MAP only (creference labels then has no uncertainty to export)")

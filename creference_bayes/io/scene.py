@@ -48,9 +48,10 @@ IMAGE_MARGIN = 0.5
 HORIZON_MARGIN = 20.0
 #: Largest image side accepted, pixels (gigapixel panoramas stay below it).
 MAX_IMAGE_SIDE = 1_000_000
-_TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "target", "references", "ground_truth"},
-             2: {"format", "image", "camera", "horizon", "horizon_sd_px", "classes", "targets", "references",
-                 "ground_truth"}}
+_TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "target", "references",
+                 "ground_truth"},
+             2: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "classes", "targets",
+                 "references", "ground_truth"}}
 #: Camera ground-truth keys (the rest of a version-1 ``ground_truth`` is the target's).
 _CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
@@ -139,6 +140,8 @@ class Scene:
         from a KITTI folder (labels go back into its frame)
     camera_id : which camera took the photo (``camera.id``), or None: frames with the same id share
         the camera's focal length and mounting (``creference batch --rig``)
+    corner_scale : (sd px, degrees of freedom): the crowd's corner scale that other frames of the
+        data set show (``corner_scale``; ``creference batch`` writes it), or None
     """
 
     image_width: int
@@ -161,6 +164,7 @@ class Scene:
     kitti_p2: np.ndarray | None = None
     kitti_calib: dict | None = None
     camera_id: str | None = None
+    corner_scale: tuple[float, float] | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -619,8 +623,14 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
     horizon_sd = 0.0 if horizon_sd is None else _number(horizon_sd, "horizon_sd_px", nonneg=True)
     if horizon_sd > 0 and horizon is None:
         raise SceneError("horizon_sd_px", f"an uncertainty {horizon_sd:g} px without a horizon")
+    corner_scale = data.get("corner_scale")
+    if corner_scale is not None:
+        corner_scale = _dict(corner_scale, "corner_scale")
+        _warn_unknown(corner_scale, {"sd_px", "dof"}, "corner_scale", sink)
+        corner_scale = (_number(_get(corner_scale, "sd_px", "corner_scale"), "corner_scale.sd_px", positive=True),
+                        _number(_get(corner_scale, "dof", "corner_scale"), "corner_scale.dof", positive=True))
     return dict(image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
-                horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
+                corner_scale=corner_scale, horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
                 orientation_prior=orientation_prior, image_path=image_path, source=source, kitti_p2=kitti_p2,
                 kitti_calib=kitti_calib, camera_id=camera_id)
 
@@ -736,6 +746,8 @@ def scene_to_dict(scene: Scene) -> dict:
         out["horizon"] = np.asarray(scene.horizon).tolist()
         if scene.horizon_sd_px:
             out["horizon_sd_px"] = scene.horizon_sd_px
+    if scene.corner_scale is not None:
+        out["corner_scale"] = {"sd_px": scene.corner_scale[0], "dof": scene.corner_scale[1]}
     if scene.classes:
         out["classes"] = {k: prior_entry(p) for k, p in scene.classes.items()}
     out["targets"] = []

@@ -116,14 +116,17 @@ class ReferenceTerm:
             raise ValueError(f"reference {self.index}: a {self.kind} reference names a target and a size")
 
 
-def target_sigmas(annotation_sets) -> np.ndarray:
+def target_sigmas(annotation_sets, corner_scale: tuple[float, float] | None = None) -> np.ndarray:
     """Corner scale σᵢ (pixels) of each object: the pooled standard deviation of its own
     annotations around their per-corner mean when it has two or more; with a single annotation,
-    the scene's pooled spread over the objects that have several (the same crowd on the same photo),
-    or :data:`DEFAULT_TARGET_SIGMA_PX` when none has. At least :data:`MIN_TARGET_SIGMA_PX`."""
+    the pooled spread over the scene's objects that have several (the same crowd on the same photo)
+    and ``corner_scale`` = (sd px, degrees of freedom), what other frames of the data set found
+    (``creference batch``), or :data:`DEFAULT_TARGET_SIGMA_PX` when neither has any. At least
+    :data:`MIN_TARGET_SIGMA_PX`."""
     ss = np.array([np.sum((a - a.mean(axis=0)) ** 2) for a in annotation_sets])
     dof = np.array([8.0 * (len(a) - 1) for a in annotation_sets])
-    pooled = np.sqrt(ss.sum() / dof.sum()) if dof.sum() > 0 else DEFAULT_TARGET_SIGMA_PX
+    sd, n = (0.0, 0.0) if corner_scale is None else (float(corner_scale[0]), float(corner_scale[1]))
+    pooled = np.sqrt((ss.sum() + n * sd**2) / (dof.sum() + n)) if dof.sum() + n > 0 else DEFAULT_TARGET_SIGMA_PX
     own = np.sqrt(ss / np.where(dof > 0, dof, 1.0))
     return np.maximum(np.where(dof > 0, own, pooled), MIN_TARGET_SIGMA_PX)
 
@@ -253,6 +256,8 @@ class MetrologyModel(Model):
     references : the workers' measurements (:class:`ReferenceTerm`)
     target_dof, ref_dof : Student-t degrees of freedom
     target_sigma : one corner scale for every object, pixels (None: :func:`target_sigmas`)
+    corner_scale : (sd px, degrees of freedom) of the crowd's corner scale from other frames, pooled
+        for the objects with a single annotation (:func:`target_sigmas`), or None
     ref_line_sigma : pixel noise of reference lines (None: :data:`REF_LINE_FACTOR` × the median σᵢ)
     confidence_map : how ranges stated with a confidence are read, or None (confidences ignored)
     line_reading : one of :data:`LINE_READINGS`
@@ -263,7 +268,8 @@ class MetrologyModel(Model):
 
     def __init__(self, principal_point, image_size, objects, references=(), *, target_dof: float = TARGET_DOF,
                  ref_dof: float = REF_DOF, target_sigma: float | None = None, ref_line_sigma: float | None = None,
-                 confidence_map: ConfidenceMap | None = None, line_reading: str = "linear", **kw):
+                 corner_scale: tuple[float, float] | None = None, confidence_map: ConfidenceMap | None = None,
+                 line_reading: str = "linear", **kw):
         if line_reading not in LINE_READINGS:
             raise ValueError(f"line_reading: expected one of {list(LINE_READINGS)}, got {line_reading!r}")
         for key, v in (("target_dof", target_dof), ("ref_dof", ref_dof)):
@@ -283,7 +289,7 @@ class MetrologyModel(Model):
         # the annotations' u and v apart, (m, K, 4) each: what the likelihood's hot loop reads
         self._ann_u, self._ann_v = np.ascontiguousarray(ann[..., 0]), np.ascontiguousarray(ann[..., 1])
         if target_sigma is None:
-            self.sigma = target_sigmas([o.annotations for o in self.objects])
+            self.sigma = target_sigmas([o.annotations for o in self.objects], corner_scale)
         elif np.isfinite(target_sigma) and target_sigma > 0:
             self.sigma = np.full(m, float(target_sigma))
         else:

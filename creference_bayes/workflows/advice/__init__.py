@@ -381,6 +381,13 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         candidates, notes = scene_candidates(scene, model, np.asarray(camera_map, float),
                                              np.asarray(objects_map, float))
         candidates = [c for c in candidates if c.kind in settings.kinds]
+    if (any(c.kind == "dims" for c in candidates) and "target_sigma" not in options and scene.corner_scale is None
+            and all(len(t.corners) == 1 for t in scene.targets)):
+        from ...models.metrology import DEFAULT_TARGET_SIGMA_PX
+
+        notes.append(f"the crowd's corner scale is assumed ({DEFAULT_TARGET_SIGMA_PX:g} px): no object has two sets of "
+                     "lines, here or (creference batch) elsewhere in the data set, and what new lines are worth "
+                     "depends on it")
     mix = format_mix(scene)
     seeds = rng.integers(2**63, size=len(candidates))
     predictions = []

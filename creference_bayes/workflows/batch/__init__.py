@@ -63,6 +63,8 @@ class BatchSettings:
     rig : what the frames of one camera (``camera.id``) share: ``none`` (every frame alone),
         ``focal`` (the focal length) or ``mounting`` (also the camera's height, pitch and roll), pooled
         by two passes (:mod:`.rig`)
+    pool_scale : a frame whose objects are not all annotated twice takes the crowd's corner scale
+        from the other frames too (:func:`corner_scales`); False: from its own annotations only
     """
 
     seed: int = 0
@@ -79,6 +81,7 @@ class BatchSettings:
     confidence_map: object = "default"
     classes: dict = field(default_factory=dict)
     rig: str = "none"
+    pool_scale: bool = True
 
     def __post_init__(self):
         from ...inference.sampler import SamplerSettings
@@ -97,6 +100,7 @@ class BatchSettings:
         d["confidence_map"] = self._map_identity()
         d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
         d["keep_draws"] = RESULT_DRAWS
+        del d["pool_scale"]  # what it changes, the scene's corner_scale, is in the scene's fingerprint
         if self.rig == "none":  # results made before the rig existed stay up to date
             del d["rig"]
         return d
@@ -230,10 +234,12 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
             raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
+        scales = corner_scales(scenes, settings.classes) if settings.pool_scale else {}
     except BaseException:
         engine.close(abandon=True)
         raise
-    run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
+    run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start,
+               scales=scales)
     if settings.rig == "none":
         return _run_pass(scenes, out, settings, **run)
     from .rig import RigPool, apply_rig, rig_report
@@ -251,6 +257,35 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         return scene, rig_report(est)
 
     return _run_pass(scenes, out, settings, transform=with_rig, **run)
+
+
+def corner_scales(scenes: list[SceneInput], classes=None) -> dict[str, tuple[float, float]]:
+    """The crowd's corner scale each frame gets from the others: KEY → (sd px, degrees of freedom),
+    pooled over the other frames' objects annotated more than once (a set's 8 coordinates around
+    their per-corner mean, as :func:`~creference_bayes.models.metrology.target_sigmas`), for the
+    frames with an object annotated once and no ``corner_scale`` of their own. Both numbers are
+    rounded to two significant digits (steps of at most 5 %, about the sd's own uncertainty from a
+    few hundred degrees of freedom), so that a few frames more or less leave the others up to date.
+    Unreadable scenes count for nothing (the batch reports them)."""
+    import numpy as np
+
+    from ...models.metrology import MIN_TARGET_SIGMA_PX
+
+    own = {}
+    for si in scenes:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(si.path, classes=classes or None)
+        except (SceneError, OSError, ValueError):
+            continue
+        sets = [np.asarray(t.corners, float) for t in scene.targets]
+        own[si.key] = (sum(float(np.sum((a - a.mean(axis=0)) ** 2)) for a in sets), 8.0 * sum(len(a) - 1 for a in sets),
+                       scene.corner_scale is None and any(len(a) == 1 for a in sets))
+    total_ss, total_dof = sum(v[0] for v in own.values()), sum(v[1] for v in own.values())
+    return {key: (max(float(f"{np.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
+                  float(f"{total_dof - dof:.2g}"))
+            for key, (ss, dof, needs) in own.items() if needs and total_dof - dof > 0}
 
 
 def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
@@ -271,9 +306,10 @@ def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
 
 
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
-              t_start: float, transform=None, close: bool = True) -> BatchReport:
-    """Estimate ``scenes`` into ``out`` (``transform(KEY, scene)`` → (scene, rig block) first, if
-    given); writes summary.csv and batch.json whatever ends the run; closes the engine if ``close``."""
+              t_start: float, scales: dict, transform=None, close: bool = True) -> BatchReport:
+    """Estimate ``scenes`` into ``out`` (with the corner scale ``scales[KEY]`` from the other frames,
+    then ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and
+    batch.json whatever ends the run; closes the engine if ``close``."""
     from .summary import write_summary
 
     out.mkdir(parents=True, exist_ok=True)
@@ -284,7 +320,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     errors: dict[str, str] = {}
     bar = runner = None
     try:
-        todo = _prepare(scenes, out, settings, ident, status, errors, transform)
+        todo = _prepare(scenes, out, settings, ident, status, errors, scales, transform)
         if on_event:
             for key in (k for k, s in status.items() if s in ("failed", "skipped")):
                 on_event(key, status[key])
@@ -310,7 +346,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     return report
 
 
-def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict,
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict, scales: dict,
              transform=None) -> deque:
     """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
     todo = deque()
@@ -325,6 +361,8 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
             status[si.key] = "failed"
             record_error(paths, si, "load", errors[si.key])
             continue
+        if si.key in scales:
+            scene = replace(scene, corner_scale=scales[si.key])
         rig = None
         if transform is not None:
             scene, rig = transform(si.key, scene)
