@@ -6,7 +6,6 @@ import json
 import math
 import shutil
 import time
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -254,6 +253,10 @@ def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_p
     assert got == pytest.approx([copy["corner_scale"]["sd_px"]] * 2, abs=1e-3)
     own = [o["sigma_px"] for o in _result(tmp_path / "pooled", "many")["objects"]]
     assert own == pytest.approx([np.sqrt(np.sum((a - a.mean(0)) ** 2) / (8 * (len(a) - 1))) for a in sets], abs=1e-3)
-    run_batch([scenes], tmp_path / "alone", LocalEngine(1), replace(settings, pool_scale=False))
+    from creference_bayes.cli.main import main  # --own-scale: each frame from its own annotations
+
+    assert main(["batch", str(scenes), "--out", str(tmp_path / "alone"), "--workers", "1", "--seed", "1",
+                 "--no-posterior", "--own-scale", "--quiet"]) == 0
+    assert "corner_scale" not in json.loads((tmp_path / "alone" / "scenes" / "once.json").read_text())
     assert [o["sigma_px"] for o in _result(tmp_path / "alone", "once")["objects"]] == [5.0, 5.0]
     assert _result(tmp_path / "alone", "many")["objects"] == _result(tmp_path / "pooled", "many")["objects"]
