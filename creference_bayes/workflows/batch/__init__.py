@@ -234,12 +234,10 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
             raise ValueError(f"time_limit: expected a number of seconds > 0, got {time_limit!r}")
         scenes = discover_scenes(inputs, exclude=out)
         out.mkdir(parents=True, exist_ok=True)
-        scales = corner_scales(scenes, settings.classes) if settings.pool_scale else {}
     except BaseException:
         engine.close(abandon=True)
         raise
-    run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start,
-               scales=scales)
+    run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
     if settings.rig == "none":
         return _run_pass(scenes, out, settings, **run)
     from .rig import RigPool, apply_rig, rig_report
@@ -259,33 +257,27 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     return _run_pass(scenes, out, settings, transform=with_rig, **run)
 
 
-def corner_scales(scenes: list[SceneInput], classes=None) -> dict[str, tuple[float, float]]:
-    """The crowd's corner scale each frame gets from the others: KEY → (sd px, degrees of freedom),
-    pooled over the other frames' objects annotated more than once (a set's 8 coordinates around
-    their per-corner mean, as :func:`~creference_bayes.models.metrology.target_sigmas`), for the
-    frames with an object annotated once and no ``corner_scale`` of their own. Both numbers are
-    rounded to two significant digits (steps of at most 5 %, about the sd's own uncertainty from a
-    few hundred degrees of freedom), so that a few frames more or less leave the others up to date.
-    Unreadable scenes count for nothing (the batch reports them)."""
+def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
+    """The crowd's corner scale each scene gets from the others: (sd px, degrees of freedom) pooled
+    over the other scenes' objects annotated more than once (a set's 8 coordinates around their
+    per-corner mean, as :func:`~creference_bayes.models.metrology.target_sigmas`), for the scenes
+    with an object annotated once and no ``corner_scale`` of their own; None for the others. Both
+    numbers are rounded to two significant digits (steps of at most 5 %, about the sd's own
+    uncertainty from a few hundred degrees of freedom), so that a few frames more or less leave the
+    others up to date."""
     import numpy as np
 
     from ...models.metrology import MIN_TARGET_SIGMA_PX
 
-    own = {}
-    for si in scenes:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(si.path, classes=classes or None)
-        except (SceneError, OSError, ValueError):
-            continue
+    own = []
+    for scene in scenes:
         sets = [np.asarray(t.corners, float) for t in scene.targets]
-        own[si.key] = (sum(float(np.sum((a - a.mean(axis=0)) ** 2)) for a in sets), 8.0 * sum(len(a) - 1 for a in sets),
-                       scene.corner_scale is None and any(len(a) == 1 for a in sets))
-    total_ss, total_dof = sum(v[0] for v in own.values()), sum(v[1] for v in own.values())
-    return {key: (max(float(f"{np.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
-                  float(f"{total_dof - dof:.2g}"))
-            for key, (ss, dof, needs) in own.items() if needs and total_dof - dof > 0}
+        own.append((sum(float(np.sum((a - a.mean(axis=0)) ** 2)) for a in sets), 8.0 * sum(len(a) - 1 for a in sets),
+                    scene.corner_scale is None and any(len(a) == 1 for a in sets)))
+    total_ss, total_dof = sum(v[0] for v in own), sum(v[1] for v in own)
+    return [(max(float(f"{np.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
+             float(f"{total_dof - dof:.2g}")) if needs and total_dof - dof > 0 else None
+            for ss, dof, needs in own]
 
 
 def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
@@ -306,10 +298,10 @@ def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
 
 
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
-              t_start: float, scales: dict, transform=None, close: bool = True) -> BatchReport:
-    """Estimate ``scenes`` into ``out`` (with the corner scale ``scales[KEY]`` from the other frames,
-    then ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and
-    batch.json whatever ends the run; closes the engine if ``close``."""
+              t_start: float, transform=None, close: bool = True) -> BatchReport:
+    """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
+    ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and batch.json
+    whatever ends the run; closes the engine if ``close``."""
     from .summary import write_summary
 
     out.mkdir(parents=True, exist_ok=True)
@@ -320,7 +312,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     errors: dict[str, str] = {}
     bar = runner = None
     try:
-        todo = _prepare(scenes, out, settings, ident, status, errors, scales, transform)
+        todo = _prepare(scenes, out, settings, ident, status, errors, transform)
         if on_event:
             for key in (k for k, s in status.items() if s in ("failed", "skipped")):
                 on_event(key, status[key])
@@ -346,23 +338,26 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     return report
 
 
-def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict, scales: dict,
+def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: dict, errors: dict,
              transform=None) -> deque:
-    """Read every scene: record the invalid ones, skip the up-to-date ones, queue the others."""
-    todo = deque()
+    """Read every scene: record the invalid ones, give the others the crowd's corner scale of the
+    rest (``settings.pool_scale``, :func:`corner_scales`), skip the up-to-date ones, queue the others."""
+    loaded = []
     for si in scenes:
-        paths = layout(out, si.key)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)  # the result reports them
-                scene = load_scene(si.path, classes=settings.classes or None)
+                loaded.append((si, load_scene(si.path, classes=settings.classes or None)))
         except (SceneError, OSError, ValueError) as exc:
             errors[si.key] = one_line(exc)
             status[si.key] = "failed"
-            record_error(paths, si, "load", errors[si.key])
-            continue
-        if si.key in scales:
-            scene = replace(scene, corner_scale=scales[si.key])
+            record_error(layout(out, si.key), si, "load", errors[si.key])
+    scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    todo = deque()
+    for (si, scene), scale in zip(loaded, scales):
+        paths = layout(out, si.key)
+        if scale is not None:
+            scene = replace(scene, corner_scale=scale)
         rig = None
         if transform is not None:
             scene, rig = transform(si.key, scene)
