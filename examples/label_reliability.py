@@ -29,6 +29,7 @@ import numpy as np
 
 from creference_bayes.bench.kitti import kitti_scenes
 from creference_bayes.bench.simulate import write_scenes
+from creference_bayes.io.files import atomic_write_json
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import DaskEngine, LocalEngine
 from creference_bayes.workflows.batch.summary import summary_line
@@ -66,7 +67,7 @@ def main() -> None:
                     d = json.loads(path.read_text())
                     for t in d["targets"]:
                         t["dimension_lines"] = t["dimension_lines"][:1]
-                    path.write_text(json.dumps(d))
+                    atomic_write_json(path, d)
     else:
         write_scenes(scenes, args.n, seed=args.seed, tier=args.tier, overwrite=True)
     engine = DaskEngine(args.scheduler) if args.scheduler else LocalEngine(args.workers)
