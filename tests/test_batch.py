@@ -247,7 +247,7 @@ def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_p
     copy = json.loads((tmp_path / "pooled" / "scenes" / "once.json").read_text())
     # two significant digits: at most a 5 % step
     assert copy["corner_scale"]["sd_px"] == pytest.approx(np.sqrt(ss / dof), rel=0.05)
-    assert copy["corner_scale"]["dof"] == dof  # 48: two digits already
+    assert dof == 48 and copy["corner_scale"]["dof"] == 50  # one significant digit
     assert "corner_scale" not in json.loads((tmp_path / "pooled" / "scenes" / "many.json").read_text())
     got = [o["sigma_px"] for o in _result(tmp_path / "pooled", "once")["objects"]]
     assert got == pytest.approx([copy["corner_scale"]["sd_px"]] * 2, abs=1e-3)

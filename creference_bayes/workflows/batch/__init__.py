@@ -261,10 +261,10 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
     """The crowd's corner scale each scene gets from the others: (sd px, degrees of freedom) pooled
     over the other scenes' objects annotated more than once (a set's 8 coordinates around their
     per-corner mean, as :func:`~creference_bayes.models.metrology.target_sigmas`), for the scenes
-    with an object annotated once and no ``corner_scale`` of their own; None for the others. Both
-    numbers are rounded to two significant digits (steps of at most 5 %, about the sd's own
-    uncertainty from a few hundred degrees of freedom), so that a few frames more or less leave the
-    others up to date."""
+    with an object annotated once and no ``corner_scale`` of their own; None for the others. The sd
+    is rounded to two significant digits (steps of at most 5 %, about its own uncertainty from a few
+    hundred degrees of freedom) and the degrees of freedom to one (they only weigh the pool against
+    a frame's own sets), so that a few frames more or less leave the others up to date."""
     import numpy as np
 
     from ...models.metrology import MIN_TARGET_SIGMA_PX
@@ -276,7 +276,7 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
                     scene.corner_scale is None and any(len(a) == 1 for a in sets)))
     total_ss, total_dof = sum(v[0] for v in own), sum(v[1] for v in own)
     return [(max(float(f"{np.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
-             float(f"{total_dof - dof:.2g}")) if needs and total_dof - dof > 0 else None
+             float(f"{total_dof - dof:.1g}")) if needs and total_dof - dof > 0 else None
             for ss, dof, needs in own]
 
 
