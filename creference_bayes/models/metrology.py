@@ -47,7 +47,7 @@ from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_X, O_Z, Mod
 
 __all__ = ["TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_DOF", "REF_LINE_FACTOR",
            "LINE_READINGS", "MIN_RAY_DOWN", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "ReferenceTerm",
-           "MetrologyModel", "target_sigmas", "ground_lengths", "linear_line_variances", "segment_reading",
+           "MetrologyModel", "corner_spread", "target_sigmas", "ground_lengths", "linear_line_variances", "segment_reading",
            "t_interval"]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -116,6 +116,13 @@ class ReferenceTerm:
             raise ValueError(f"reference {self.index}: a {self.kind} reference names a target and a size")
 
 
+def corner_spread(annotation_sets) -> tuple[np.ndarray, np.ndarray]:
+    """Each object's sum of squared corner deviations from its per-corner mean (px²) and its
+    degrees of freedom (8 coordinates per annotation beyond the first)."""
+    ss = np.array([np.sum((np.asarray(a, float) - np.mean(a, axis=0)) ** 2) for a in annotation_sets])
+    return ss, np.array([8.0 * (len(a) - 1) for a in annotation_sets])
+
+
 def target_sigmas(annotation_sets, corner_scale: tuple[float, float] | None = None) -> np.ndarray:
     """Corner scale σᵢ (pixels) of each object: the pooled standard deviation of its own
     annotations around their per-corner mean when it has two or more; with a single annotation,
@@ -123,8 +130,7 @@ def target_sigmas(annotation_sets, corner_scale: tuple[float, float] | None = No
     and ``corner_scale`` = (sd px, degrees of freedom), what other frames of the data set found
     (``creference batch``), or :data:`DEFAULT_TARGET_SIGMA_PX` when neither has any. At least
     :data:`MIN_TARGET_SIGMA_PX`."""
-    ss = np.array([np.sum((a - a.mean(axis=0)) ** 2) for a in annotation_sets])
-    dof = np.array([8.0 * (len(a) - 1) for a in annotation_sets])
+    ss, dof = corner_spread(annotation_sets)
     sd, n = (0.0, 0.0) if corner_scale is None else (float(corner_scale[0]), float(corner_scale[1]))
     pooled = np.sqrt((ss.sum() + n * sd**2) / (dof.sum() + n)) if dof.sum() + n > 0 else DEFAULT_TARGET_SIGMA_PX
     own = np.sqrt(ss / np.where(dof > 0, dof, 1.0))

@@ -24,6 +24,7 @@ are the same whatever the engine, the worker count or the order.
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 import warnings
 from collections import deque
@@ -260,22 +261,19 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
 def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
     """The crowd's corner scale each scene gets from the others: (sd px, degrees of freedom) pooled
     over the other scenes' objects annotated more than once (a set's 8 coordinates around their
-    per-corner mean, as :func:`~creference_bayes.models.metrology.target_sigmas`), for the scenes
+    per-corner mean, :func:`~creference_bayes.models.metrology.corner_spread`), for the scenes
     with an object annotated once and no ``corner_scale`` of their own; None for the others. The sd
     is rounded to two significant digits (steps of at most 5 %, about its own uncertainty from a few
     hundred degrees of freedom) and the degrees of freedom to one (they only weigh the pool against
     a frame's own sets), so that a few frames more or less leave the others up to date."""
-    import numpy as np
-
-    from ...models.metrology import MIN_TARGET_SIGMA_PX
+    from ...models.metrology import MIN_TARGET_SIGMA_PX, corner_spread
 
     own = []
     for scene in scenes:
-        sets = [np.asarray(t.corners, float) for t in scene.targets]
-        own.append((sum(float(np.sum((a - a.mean(axis=0)) ** 2)) for a in sets), 8.0 * sum(len(a) - 1 for a in sets),
-                    scene.corner_scale is None and any(len(a) == 1 for a in sets)))
+        ss, dof = corner_spread([t.corners for t in scene.targets])
+        own.append((float(ss.sum()), float(dof.sum()), scene.corner_scale is None and bool((dof == 0).any())))
     total_ss, total_dof = sum(v[0] for v in own), sum(v[1] for v in own)
-    return [(max(float(f"{np.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
+    return [(max(float(f"{math.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
              float(f"{total_dof - dof:.1g}")) if needs and total_dof - dof > 0 else None
             for ss, dof, needs in own]
 
