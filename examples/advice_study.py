@@ -64,7 +64,8 @@ from pathlib import Path
 
 import numpy as np
 
-from creference_bayes.bench.simulate import RANGE_PRECISION, TIERS, measurement_factor, simulate_scene
+from creference_bayes.bench.simulate import (CAMERA_POPULATIONS, RANGE_PRECISION, TIERS, measurement_factor,
+                                             simulate_scene)
 from creference_bayes.core.units import UNITS_TO_M
 from creference_bayes.io.scene import Reference, SceneWarning, parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
@@ -85,6 +86,8 @@ KINDS = ("target", "new-ref", "repeat-ref")
 
 #: The focal-length prior every simulated scene states (``--focal-prior``); None: the default.
 _FOCAL_PRIOR: FocalPrior | None = None
+#: Where the simulated scenes' cameras come from (``--cameras``; simulate_scene's ``cameras``).
+_CAMERAS = "setting"
 #: Metrology model settings of every estimate and advice (``--line-reading``).
 _MODEL_OPTIONS: dict = {}
 #: Further settings of every estimate (``own``: the box of the model's own scenes as the bounds).
@@ -107,7 +110,8 @@ def _parse(d):
 
 def _scene(seed: int, k: int, tier: str, setting: str | None, n_objects: int = 1):
     return _parse(simulate_scene(np.random.default_rng([seed, k]), tier=tier, setting=setting, n_objects=n_objects,
-                                 n_target_annotations=N_TARGET_POOL, n_references=N_REF_POOL, format_offset=k))
+                                 n_target_annotations=N_TARGET_POOL, n_references=N_REF_POOL, format_offset=k,
+                                 cameras=_CAMERAS))
 
 
 def _variant(pool, n_t: int, refs, extra=()):
@@ -242,22 +246,25 @@ def _reweighted(est, kind, scene_after, settings):
 
 
 def _done(path: Path) -> set:
-    """Scenes already recorded in ``path``; a folder of records made with another focal prior or
-    line reading is refused (a resumed run must not mix them)."""
+    """Scenes already recorded in ``path``; a folder of records made with another focal prior,
+    line reading or camera population is refused (a resumed run must not mix them)."""
     if not path.is_file():
         return set()
     recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    mine = (None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(), _MODEL_OPTIONS.get("line_reading", "linear"))
+    mine = (None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(), _MODEL_OPTIONS.get("line_reading", "linear"),
+            _CAMERAS)
     for r in recs:
-        if (r.get("focal_prior"), r.get("line_reading", "linear")) != mine:
-            sys.exit(f"advice_study.py: {path} holds records made with focal prior {r.get('focal_prior')} and "
-                     f"line reading {r.get('line_reading', 'linear')!r}, this run has {mine}: use another --out")
+        theirs = (r.get("focal_prior"), r.get("line_reading", "linear"), r.get("cameras", "setting"))
+        if theirs != mine:
+            said = ["focal prior {}, line reading {!r} and cameras {!r}".format(*x) for x in (theirs, mine)]
+            sys.exit(f"advice_study.py: {path} holds records made with {said[0]}, this run has {said[1]}: "
+                     "use another --out")
     return {r["scene"] for r in recs}
 
 
 def _append(path: Path, record: dict) -> None:
     record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
-              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear")}
+              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"), "cameras": _CAMERAS}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
 
@@ -775,6 +782,10 @@ def main(argv=None) -> None:
                             "1650,0.27 to match the simulator's cameras; default: the package's default prior")
         s.add_argument("--line-reading", choices=("linear", "corrected"), default="linear",
                        help="how the metrology model reads reference segments (default: %(default)s)")
+        if name in ("predict", "timing", "policy"):
+            s.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
+                           help="the simulator's cameras: each setting's ranges (setting) or real ones, phones to "
+                                "street cameras (real; bench/simulate.py's REAL_CAMERAS)")
         if name in ("predict", "timing"):
             s.add_argument("--objects", type=int, default=1, help="targets per scene (default: %(default)s)")
             s.add_argument("--setting", choices=("indoor", "outdoor", "street"), default=None,
@@ -789,7 +800,8 @@ def main(argv=None) -> None:
                            help="collect the annotation with the largest expected narrowing of the distance's HDI "
                                 "(hdi, the advice's ranking) or drop of the location's sd (location) per second")
     args = p.parse_args(argv)
-    global _FOCAL_PRIOR
+    global _FOCAL_PRIOR, _CAMERAS
+    _CAMERAS = getattr(args, "cameras", "setting")
     _MODEL_OPTIONS.clear()
     _ESTIMATE_KW.clear()
     if getattr(args, "line_reading", "linear") != "linear":

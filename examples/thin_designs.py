@@ -17,6 +17,8 @@ Usage::
     python examples/thin_designs.py --n 40 --out thin_flat --location-prior flat
     python examples/thin_designs.py --n 40 --out thin_m --focal-prior 1650,0.27   # a focal prior
                                                                  # matched to the simulator's µ
+    python examples/thin_designs.py --n 40 --out thin_real --cameras real  # real cameras (phones,
+                                                                 # zoom, action and street cameras)
 
 Records go to ``OUT/thin.jsonl`` (one line per estimate), the table to ``OUT/thin.md``. Tens of
 estimates a minute on one core; run it under the shared lock (``flock /tmp/bench.lock …``).
@@ -33,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from creference_bayes.bench.runner import variant
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.simulate import CAMERA_POPULATIONS, simulate_scene
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
 from creference_bayes.pipeline import estimate
@@ -42,9 +44,9 @@ TIERS = ("medium", "high")
 REFS = (0, 1, 2)
 
 
-def _scene(k: int):
+def _scene(k: int, cameras: str = "setting"):
     d = simulate_scene(np.random.default_rng([19, k]), setting="outdoor", tier=TIERS[k % 2],
-                       distance_range=(15.0, 60.0))
+                       distance_range=(15.0, 60.0), cameras=cameras)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return parse_scene(d)
@@ -74,7 +76,10 @@ def run(args) -> list[dict]:
     records = []
     with open(out / "thin.jsonl", "w") as f:
         for k in range(args.n):
-            scene = _scene(k)
+            scene = _scene(k, args.cameras)
+            if args.focal_35mm:  # a prior in 35 mm-equivalent terms, on this scene's image
+                mm, log_sd, dof = (float(v) for v in args.focal_35mm.split(","))
+                focal = FocalPrior.from_35mm(mm, scene.image_size, log_sd=log_sd, dof=dof, source="scene")
             x, _, z = scene.targets[0].ground_truth["location_m"]
             d_true = float(np.hypot(x, z))
             for n_refs in REFS:
@@ -88,6 +93,7 @@ def run(args) -> list[dict]:
                 dist = np.hypot(r.draws.objects[..., 0, 0], r.draws.objects[..., 0, 1]).ravel()
                 lo, hi = o["posterior"]["hdi"]["distance_m"]
                 rec = {"scene": k, "tier": TIERS[k % 2], "refs": n_refs, "distance": d_true,
+                       "camera": scene.ground_truth.get("camera_kind", "outdoor"),
                        "quantile": float(np.mean(dist < d_true)),
                        "prior_quantile": _prior_quantile(scene, focal), "hdi": [lo, hi],
                        "covered": bool(lo <= d_true <= hi), "map_error": o["evaluation"]["location_pct_error"],
@@ -100,14 +106,16 @@ def run(args) -> list[dict]:
     return records
 
 
-def table(records: list[dict]) -> str:
-    """The Markdown table of the records, one row per design and one for all."""
-    head = ("| refs | estimates | mean quantile (focal prior alone) | deciles of the quantile, % (0–0.1 … 0.9–1) | 90 % HDI covers | "
+def table(records: list[dict], by: str = "refs") -> str:
+    """The Markdown table of the records, one row per design (``by="refs"``) or camera kind
+    (``by="camera"``), and one for all."""
+    head = (f"| {by} | estimates | mean quantile (focal prior alone) | deciles of the quantile, % (0–0.1 … 0.9–1) | 90 % HDI covers | "
             "median HDI / distance | MAP error % median / mean | posterior-mean error % median / mean | "
             "converged | CPU s p99 / max |\n|---|---|---|---|---|---|---|---|---|---|")
     rows = []
-    for refs in [*REFS, "all"]:
-        s = [r for r in records if refs == "all" or r["refs"] == refs]
+    groups = REFS if by == "refs" else sorted({r["camera"] for r in records})
+    for refs in [*groups, "all"]:
+        s = [r for r in records if refs == "all" or r[by] == refs]
         if not s:
             continue
         q = np.array([r["quantile"] for r in s])
@@ -132,8 +140,14 @@ def main(argv=None) -> None:
     p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"))
     p.add_argument("--focal-prior", default=None, metavar="MEDIAN_PX,LOG_SD",
                    help="a log-normal focal-length prior instead of the default")
+    p.add_argument("--focal-35mm", default=None, metavar="MM,LOG_SD,DOF",
+                   help="a Student-t focal-length prior in 35 mm-equivalent terms (DOF inf: log-normal) instead "
+                        "of the default, e.g. 30,0.5,3 (the default's own numbers)")
+    p.add_argument("--cameras", default="setting", choices=CAMERA_POPULATIONS,
+                   help="the simulator's outdoor cameras (setting) or real ones, street cameras included (real)")
     args = p.parse_args(argv)
-    text = table(run(args))
+    records = run(args)
+    text = table(records) + ("" if args.cameras == "setting" else "\nBy camera:\n\n" + table(records, "camera"))
     (Path(args.out) / "thin.md").write_text(text)
     print(text)
 

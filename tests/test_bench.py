@@ -47,6 +47,24 @@ def test_every_estimator_appears(quick):
     assert all(r["restarts"] == CONFIGS["quick"].paper_restarts for r in paper)
 
 
+def test_real_cameras_reach_the_bench_scenes_and_their_noise_free_scenes_are_solved(tmp_path):
+    from dataclasses import replace
+
+    from creference_bayes.bench.simulate import REAL_CAMERAS
+
+    scenes = bench_scenes(replace(CONFIGS["quick"], cameras="real"))
+    assert len(scenes) == len(bench_scenes(CONFIGS["quick"]))
+    kinds = {s.ground_truth["camera_kind"] for _, s in scenes}
+    assert kinds and kinds <= set(REAL_CAMERAS)
+    assert all(s.image_size == tuple(REAL_CAMERAS[s.ground_truth["camera_kind"]]["image"]) for _, s in scenes)
+    none = [s for sid, s in scenes if s.ground_truth["tier"] == "none"]
+    assert none
+    for scene in none:  # exact annotations (stored to 0.01 px) on a real camera's image
+        r = estimate(scene, seed=0).to_dict()
+        assert r["objects"][0]["evaluation"]["location_pct_error"] < 0.5, scene.ground_truth["camera_kind"]
+    assert main(["bench", "--sbc", "--cameras", "real", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+
+
 def test_noise_free_tier_is_solved(quick):
     _, doc = quick
     default_model = inspect.signature(estimate).parameters["model"].default

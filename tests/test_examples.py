@@ -14,7 +14,8 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"
 #: A tiny run of each example: its arguments, and files (relative to its working folder) it must
 #: write. Each one runs in a few seconds; together under a minute on one core.
 TINY = {
-    "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--focal-prior", "1650,0.27", "--out", "as"],
+    "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--focal-prior", "1650,0.27", "--cameras", "real",
+                          "--out", "as"],
                          ["as/predict.jsonl"]),
                         (["own", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/own.jsonl"]),
                         (["report", "--out", "as"], ["as/advice_study.md"])],
@@ -38,7 +39,8 @@ TINY = {
     "measure_presets.py": [(["--n", "2"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
-    "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"])],
+    "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
+                        (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real"], ["tr/thin.md"])],
 }
 #: Longer runs of the parts the tiny runs leave out (marked slow).
 SLOW = {

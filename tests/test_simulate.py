@@ -9,8 +9,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from creference_bayes.bench.simulate import (FORMATS, OBJECTS, SETTINGS, TIERS, NoiseTier, measurement_factor, simulate_scene,
-                                             true_state, write_scenes)
+from creference_bayes.bench.simulate import (FORMATS, OBJECTS, REAL_CAMERAS, SETTINGS, TIERS, NoiseTier, draw_camera,
+                                             measurement_factor, simulate_scene, true_state, write_scenes)
 from creference_bayes.cli.main import main
 from creference_bayes.core.geometry import Camera, box_points, dimension_corners
 from creference_bayes.core.metrics import range_precision
@@ -51,6 +51,58 @@ def test_camera_and_distance_ranges(setting):
         length, width, height = target.dimensions
         assert 0.024 <= length <= 4.64 and 0.06 <= width <= 5.25 and 0.24 <= height <= 3.83
         assert len(target.dimension_lines) == 13 and len(scene.references) == 5
+
+
+@pytest.mark.parametrize("setting", ["indoor", "outdoor", "street"])
+def test_real_cameras_have_their_kinds_image_focal_length_and_mounting(setting):
+    full_frame_diagonal = math.hypot(36.0, 24.0)  # mm
+    vehicles = {"KITTI", "nuScenes front", "Cityscapes"}
+    kinds = Counter()
+    for seed in range(12):
+        d, scene = _scene(seed, setting=setting, tier="none", cameras="real", n_objects=2 if setting == "street" else 1,
+                          sizes="prior" if setting == "street" else "known")
+        g = d["ground_truth"]
+        cam = REAL_CAMERAS[g["camera_kind"]]
+        kinds[g["camera_kind"]] += 1
+        assert setting in cam["share"]
+        assert scene.image_size == tuple(cam["image"])
+        if "focal_px" in cam:  # a named rig: its calibrated focal length and its own mounting
+            assert g["focal_length_px"] == cam["focal_px"]
+            assert cam["height"][0] <= g["camera_height_m"] <= cam["height"][1]
+            assert math.radians(cam["pitch_deg"][0]) <= g["pitch_rad"] <= math.radians(cam["pitch_deg"][1])
+        else:  # a 35 mm-equivalent range on its own image, the setting's mounting
+            mm = g["focal_length_px"] * full_frame_diagonal / math.hypot(*cam["image"])
+            assert cam["equiv_mm"][0] - 1e-9 <= mm <= cam["equiv_mm"][1] + 1e-9
+            assert SETTINGS[setting]["height"][0] <= g["camera_height_m"] <= SETTINGS[setting]["height"][1]
+        t = d["targets"][0]["ground_truth"]
+        assert t["location_m"][2] > 0  # in front of the camera, inside its image
+        assert np.all((np.array(t["corners_px"]) >= 0) & (np.array(t["corners_px"]) <= cam["image"]))
+    if setting == "street":
+        assert set(kinds) <= vehicles
+    if setting == "indoor":
+        assert not set(kinds) & vehicles
+
+
+def test_a_real_camera_whose_view_no_target_fits_is_drawn_again():
+    # with this seed the first camera is a phone's 5x telephoto (13422 px) pitched 9.3 deg down, whose
+    # view holds no ground 15-60 m away: a photographer would have framed the subject another way
+    d = simulate_scene(np.random.default_rng([19, 30]), setting="outdoor", tier="medium", cameras="real",
+                       distance_range=(15.0, 60.0))
+    x, _, z = d["targets"][0]["ground_truth"]["location_m"]
+    assert 15.0 <= math.hypot(x, z) <= 60.0
+    assert len(d["references"]) == 5
+
+
+def test_real_cameras_are_drawn_by_their_shares():
+    rng = np.random.default_rng(3)
+    n = 3000
+    for setting in ("indoor", "outdoor", "street"):
+        got = Counter(draw_camera(rng, setting, "real")["kind"] for _ in range(n))
+        share = {k: c["share"][setting] for k, c in REAL_CAMERAS.items() if setting in c["share"]}
+        total = sum(share.values())
+        for kind, w in share.items():
+            p = w / total
+            assert abs(got[kind] / n - p) < 4 * math.sqrt(p * (1 - p) / n), (setting, kind)
 
 
 def test_coordinates_are_stored_to_two_decimals_by_default():
@@ -170,6 +222,8 @@ def test_bad_arguments_name_the_problem():
         simulate_scene(0, n_target_annotations=0)
     with pytest.raises(ValueError, match="sizes"):
         simulate_scene(0, sizes="guess")
+    with pytest.raises(ValueError, match="cameras: expected one of.*'phones'"):
+        simulate_scene(0, cameras="phones")
 
 
 def test_simulate_command_is_deterministic(tmp_path):
@@ -190,6 +244,12 @@ def test_simulate_command_is_deterministic(tmp_path):
     assert len(scene.targets) == 4 and scene.horizon is None and not scene.references
     assert all(len(t.dimension_lines) == 3 and t.dimensions is None for t in scene.targets)
     assert main(["simulate", "--from-kitti", str(tmp_path), "--out", str(tmp_path / "k"), "--objects", "5"]) == 2
+    assert main(["simulate", "--from-kitti", str(tmp_path), "--out", str(tmp_path / "k"), "--cameras", "real"]) == 2
+    assert main(["simulate", str(tmp_path / "r"), "--n", "3", "--cameras", "real", "--setting", "street", "--objects", "2",
+                 "--sizes", "prior", "--quiet"]) == 0
+    for name in sorted(p.name for p in (tmp_path / "r").iterdir()):
+        g = load_scene(tmp_path / "r" / name).ground_truth
+        assert g["focal_length_px"] == REAL_CAMERAS[g["camera_kind"]]["focal_px"]
 
 
 def test_write_scenes_replaces_the_corner_noise(tmp_path):

@@ -342,7 +342,8 @@ def markdown_report(doc: dict) -> str:
     cfg = doc["config"]
     out = [f"## Benchmark `{cfg['name']}` — seed {doc['seed']}, creference_bayes {doc['version']}, "
            f"{len({r['scene'] for r in doc['records']})} scenes, {doc['seconds']:.0f} s "
-           f"({doc.get('cpu_seconds', float('nan')):.0f} s CPU)", ""]
+           f"({doc.get('cpu_seconds', float('nan')):.0f} s CPU)"
+           + (f", {cfg['cameras']} cameras" if cfg.get("cameras", "setting") != "setting" else ""), ""]
     if s.get("frames"):
         out += _frame_tables(s["frames"])
     if "by_tier" not in s:

@@ -67,6 +67,8 @@ class BenchConfig:
     exact_scenes : noise-free scenes with 20 exact references, estimated with and without them
     frame_counts, frames_per_count, frame_tiers : scenes of several targets: objects per scene,
         scenes per count and tier, tiers (:data:`FRAME_TIERS`)
+    cameras : where every scene's camera comes from: ``setting`` (each setting's ranges) or
+        ``real`` (:data:`~.simulate.REAL_CAMERAS`, :func:`~.simulate.draw_camera`)
     """
 
     name: str
@@ -86,6 +88,7 @@ class BenchConfig:
     frame_counts: tuple[int, ...] = ()
     frames_per_count: int = 0
     frame_tiers: tuple[str, ...] = ()
+    cameras: str = "setting"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -137,7 +140,7 @@ def bench_scenes(config: BenchConfig, seed: int = 0) -> list[tuple[str, Scene]]:
     out = []
     for k, (t, _, s, i) in enumerate(sorted(order)):
         d = simulate_scene(np.random.default_rng([seed, t, s, i]), setting=setting_names[s], tier=tier_names[t],
-                           format_offset=5 * k)
+                           format_offset=5 * k, cameras=config.cameras)
         out.append((f"{tier_names[t]}-{setting_names[s]}-{i:02d}", _parse(d)))
     return out
 
@@ -300,7 +303,7 @@ def _run_scene(sid: str, scene: Scene, config: BenchConfig, seed: int, temperatu
     return recs
 
 
-def _exact_records(n: int, seed: int, say) -> list[dict]:
+def _exact_records(n: int, seed: int, say, cameras: str = "setting") -> list[dict]:
     """Noise-free outdoor scenes as annotation tools store them (0.01 px: targets 25–45 m away,
     pitch, roll up to 5°, an off-centre principal point, 13 exact annotations and 20 exact
     single-valued references), the default estimator's MAP with and without the references
@@ -309,7 +312,7 @@ def _exact_records(n: int, seed: int, say) -> list[dict]:
     for i in range(n):
         scene = _parse(simulate_scene(np.random.default_rng([seed, 99, i]), setting="outdoor", tier="none",
                                       n_references=20, principal_offset=0.08, roll_deg=5.0,
-                                      distance_range=(25.0, 45.0), single_values=True))
+                                      distance_range=(25.0, 45.0), single_values=True, cameras=cameras))
         sid, nt, errors = f"exact-outdoor-{i:02d}", len(scene.targets[0].dimension_lines), {}
         for k in (0, len(scene.references)):
             errors[k] = _fields(_estimate(variant(scene, nt, range(k)), "metrology", "default", seed), scene)["error"]
@@ -328,7 +331,8 @@ def _frame_records(config: BenchConfig, seed: int, say, tick) -> list[dict]:
         for n in config.frame_counts:
             for k in range(config.frames_per_count):
                 scene = _parse(simulate_scene([seed, n, k, len(tier)], setting="street", tier=noise, n_objects=n,
-                                              n_references=0, n_target_annotations=5, sizes="prior", horizon="none"))
+                                              n_references=0, n_target_annotations=5, sizes="prior", horizon="none",
+                                              cameras=config.cameras))
                 sid = f"frame-{tier}-{n}-{k}"
                 d = _estimate(scene, "metrology", "default", k, posterior=True, sampling=config.sampler).to_dict()
                 bound = scene_bound(scene, noise.target_px)
@@ -384,7 +388,7 @@ def run_bench(config: BenchConfig | str = "quick", seed: int = 0, *, temperature
                                   sweep=bool(config.paper_posterior_grid) and seen[tier] <= config.sweep_scenes,
                                   baseline=seen[tier] <= config.paper_baseline_scenes, say=say)
             bar.update(1)
-        records += _exact_records(config.exact_scenes, seed, say)
+        records += _exact_records(config.exact_scenes, seed, say, config.cameras)
         records += _frame_records(config, seed, say, lambda: bar.update(1))
     from .report import summarise
 

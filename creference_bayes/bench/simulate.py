@@ -4,7 +4,9 @@ A scene is one camera and ``n_objects`` targets, boxes standing on the ground, e
 dimension lines, plus reference objects measured by workers. Settings (:data:`SETTINGS`):
 ``indoor`` and ``outdoor`` (the paper's photos and Table 1 objects, :data:`OBJECTS`; the
 benchmark's scenes) and ``street`` (a car-mounted camera as in KITTI; cars, vans, trucks,
-pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors).
+pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors). A setting's
+camera comes from its own ranges, or (``cameras="real"``) from a population of real cameras
+(:data:`REAL_CAMERAS`: phones, zoom, action and car-mounted cameras, each with its image size).
 
 Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
 ``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
@@ -28,12 +30,13 @@ import numpy as np
 from ..core.geometry import (box_points, box_vertices, dimension_corners, horizon_from_rotation,
                              project, rotation_from_pitch_roll)
 from ..core.units import UNITS_TO_M
+from ..models.camera_terms import FULL_FRAME_DIAGONAL_MM
 from ..models.contract import REF_SCALE_MEDIAN
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 from .confidence_workers import ConfidentWorkers
 
-__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
-           "simulate_scene", "measurement_factor", "class_priors", "true_state", "write_scenes"]
+__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
+           "simulate_scene", "draw_camera", "measurement_factor", "class_priors", "true_state", "write_scenes"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,58 @@ SETTINGS = {
     "street": {"image": (1242, 375), "focal": (650.0, 1100.0), "height": (1.4, 1.9), "pitch_deg": (-3.0, 3.0),
                "distance": (4.0, 60.0)},
 }
+
+#: Real cameras (``simulate_scene(cameras="real")``): per kind, the setting shares it is drawn with,
+#: its image (width, height) px and its focal length, either a 35 mm-equivalent range (mm,
+#: log-uniform; µ = mm / 43.27 × the image diagonal) or the calibrated µ of a named rig (px), and
+#: for a vehicle's camera its mounting (height m, pitch °) instead of the setting's. Sources: the
+#: makers' stated equivalents of current phones (main 23–28 mm, ultra-wide 13–16 mm, 2×–5×
+#: telephoto 48–120 mm), the common 24–105 mm zoom range of interchangeable-lens cameras and
+#: compacts, the linear mode of action cameras (16–24 mm); the calibration files of KITTI (P2,
+#: 721.5 px on 1242 × 375), nuScenes' front camera (1266 px on 1600 × 900) and Cityscapes (2262 px
+#: on 2048 × 1024). The shares are our assumption of who photographs what: phones most photos,
+#: vehicle cameras a fifth of the outdoor ones and all the street ones.
+REAL_CAMERAS = {
+    "phone main": {"share": {"indoor": 0.6, "outdoor": 0.45}, "image": (4032, 3024), "equiv_mm": (23.0, 28.0)},
+    "phone ultra-wide": {"share": {"indoor": 0.1, "outdoor": 0.08}, "image": (4032, 3024), "equiv_mm": (13.0, 16.0)},
+    "phone telephoto": {"share": {"indoor": 0.05, "outdoor": 0.08}, "image": (4032, 3024), "equiv_mm": (48.0, 120.0)},
+    "zoom camera": {"share": {"indoor": 0.2, "outdoor": 0.14}, "image": (6000, 4000), "equiv_mm": (24.0, 105.0)},
+    "action camera": {"share": {"indoor": 0.05, "outdoor": 0.05}, "image": (1920, 1080), "equiv_mm": (16.0, 24.0)},
+    "KITTI": {"share": {"outdoor": 0.08, "street": 0.4}, "image": (1242, 375), "focal_px": 721.5,
+              "height": (1.6, 1.7), "pitch_deg": (-1.0, 1.0)},
+    "nuScenes front": {"share": {"outdoor": 0.06, "street": 0.3}, "image": (1600, 900), "focal_px": 1266.0,
+                       "height": (1.45, 1.6), "pitch_deg": (-1.0, 1.0)},
+    "Cityscapes": {"share": {"outdoor": 0.06, "street": 0.3}, "image": (2048, 1024), "focal_px": 2262.0,
+                   "height": (1.15, 1.3), "pitch_deg": (-1.0, 3.0)},
+}
+#: Where the bench's cameras come from: each setting's own ranges (:data:`SETTINGS`), or
+#: :data:`REAL_CAMERAS`.
+CAMERA_POPULATIONS = ("setting", "real")
+
+
+def draw_camera(rng, setting: str, cameras: str = "setting") -> dict:
+    """A camera for ``setting``: ``{"kind", "image": (w, h) px, "focal_px", "height_m", "pitch_deg"}``.
+    ``cameras="setting"`` draws from the setting's ranges (:data:`SETTINGS`); ``"real"`` a kind of
+    :data:`REAL_CAMERAS` by its share in the setting, then its focal length, and its mounting if it
+    has one (else the setting's height and pitch)."""
+    if cameras not in CAMERA_POPULATIONS:
+        raise ValueError(f"cameras: expected one of {list(CAMERA_POPULATIONS)}, got {cameras!r}")
+    cfg = SETTINGS[setting]
+    if cameras == "setting":
+        return {"kind": setting, "image": cfg["image"], "focal_px": float(rng.uniform(*cfg["focal"])),
+                "height_m": float(rng.uniform(*cfg["height"])), "pitch_deg": float(rng.uniform(*cfg["pitch_deg"]))}
+    kinds = [k for k, c in REAL_CAMERAS.items() if setting in c["share"]]
+    share = np.array([REAL_CAMERAS[k]["share"][setting] for k in kinds])
+    kind = kinds[int(rng.choice(len(kinds), p=share / share.sum()))]
+    cam = REAL_CAMERAS[kind]
+    if "focal_px" in cam:
+        f = float(cam["focal_px"])
+    else:
+        f = math.exp(rng.uniform(*np.log(cam["equiv_mm"]))) / FULL_FRAME_DIAGONAL_MM * math.hypot(*cam["image"])
+    return {"kind": kind, "image": cam["image"], "focal_px": f,
+            "height_m": float(rng.uniform(*cam.get("height", cfg["height"]))),
+            "pitch_deg": float(rng.uniform(*cam.get("pitch_deg", cfg["pitch_deg"])))}
+
 
 #: The paper's ten measurement formats: (measure, mode, is_range).
 FORMATS = tuple((m, mode, r) for m in ("length", "width", "distance") for mode in ("direct", "relative")
@@ -193,7 +248,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
                    principal_offset: float = 0.0, roll_deg: float = 3.0, format_offset: int | None = None,
                    distance_range: tuple[float, float] | None = None, single_values: bool = False,
                    decimals: int | None = 2, confidence: ConfidentWorkers | None = None, ground_sd_m: float = 0.08,
-                   horizon: str = "exact", focal_known: bool = False) -> dict:
+                   horizon: str = "exact", focal_known: bool = False, cameras: str = "setting") -> dict:
     """Draw one synthetic scene.
 
     Parameters
@@ -223,6 +278,9 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     horizon : ``exact`` (the true horizon), ``none``, or ``sd`` (moved by N(0, 5 px) at each end
         and stated with ``horizon_sd_px`` 5)
     focal_known : state the true focal length
+    cameras : ``setting`` (the setting's image, focal length and mounting ranges, :data:`SETTINGS`)
+        or ``real`` (a camera of :data:`REAL_CAMERAS`, :func:`draw_camera`; its kind is in the
+        ground truth's ``camera_kind``)
 
     Returns
     -------
@@ -246,48 +304,51 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     if setting not in SETTINGS:
         raise ValueError(f"setting: expected one of {list(SETTINGS)}, got {setting!r}")
     cfg = SETTINGS[setting]
-    image = w_img, h_img = cfg["image"]
-    f = float(rng.uniform(*cfg["focal"]))
-    h = float(rng.uniform(*cfg["height"]))
-    pitch = math.radians(rng.uniform(*cfg["pitch_deg"]))
-    roll = math.radians(rng.uniform(-roll_deg, roll_deg))
-    pp = np.array([w_img / 2, h_img / 2]) * (1 + rng.uniform(-principal_offset, principal_offset, 2))
-    R = rotation_from_pitch_roll(pitch, roll)
     rnd = (lambda a: a) if decimals is None else (lambda a: np.round(a, decimals))
+    # a real camera's photographer frames the subject: another camera when no target fits its view
+    for _ in range(20 if cameras == "real" else 1):
+        cam = draw_camera(rng, setting, cameras)
+        image = w_img, h_img = cam["image"]
+        f, h, pitch = cam["focal_px"], cam["height_m"], math.radians(cam["pitch_deg"])
+        roll = math.radians(rng.uniform(-roll_deg, roll_deg))
+        pp = np.array([w_img / 2, h_img / 2]) * (1 + rng.uniform(-principal_offset, principal_offset, 2))
+        R = rotation_from_pitch_roll(pitch, roll)
 
-    targets, placed = [], []
-    for _ in range(20 * n_objects):
-        if len(targets) == n_objects:
+        targets, placed = [], []
+        for _ in range(20 * n_objects):
+            if len(targets) == n_objects:
+                break
+            i = len(targets)
+            ground = float(rng.normal(0.0, ground_sd_m)) if n_objects > 1 and ground_sd_m > 0 else 0.0
+            cls, size = _draw_object(rng, setting)
+            size = tuple(round(v, 4) for v in size)  # as stated in the scene file
+            try:
+                params, _, _ = _place(rng, setting, R, f, pp, h - ground, size, image,
+                                      cfg["distance"] if distance_range is None else distance_range, np.arange(8))
+            except RuntimeError:  # this object does not fit this camera's view (a telephoto, a near kiosk)
+                continue
+            if any(math.hypot(params[0] - p[0], params[2] - p[2]) < 0.6 * (max(size[:2]) + r) for p, r in placed):
+                continue  # boxes must not overlap on the ground
+            placed.append((params, max(size[:2])))
+            handed, params = _nearest_first(params, size)
+            corners, _ = project(box_points(params, dimension_corners(*size, handed)), R, f, pp)
+            lines = []
+            for k in range(n_target_annotations):
+                if tier.dof is None:
+                    noise = rng.normal(0.0, tier.target_px, corners.shape)
+                else:  # a Student-t with the tier's standard deviation
+                    noise = tier.target_px * math.sqrt((tier.dof - 2) / tier.dof) * rng.standard_t(tier.dof, corners.shape)
+                lines.append({"worker": f"t{k + 1:02d}", "corners": rnd(corners + noise).tolist(), "seconds": 183.5})
+            dims = dict(zip(_SIZES, size))
+            targets.append({"id": "target" if n_objects == 1 else f"t{i}", "class": cls,
+                            **({"dimensions_m": dims} if sizes == "known" else {}), "dimension_lines": lines,
+                            "ground_truth": {"location_m": params[:3].tolist(), "yaw_rad": float(params[3]),
+                                             "handedness": handed, "dimensions_m": dims, "ground_m": ground,
+                                             "corners_px": corners.tolist()}})
+        if targets:
             break
-        i = len(targets)
-        ground = float(rng.normal(0.0, ground_sd_m)) if n_objects > 1 and ground_sd_m > 0 else 0.0
-        cls, size = _draw_object(rng, setting)
-        size = tuple(round(v, 4) for v in size)  # as stated in the scene file
-        try:
-            params, _, _ = _place(rng, setting, R, f, pp, h - ground, size, image,
-                                  cfg["distance"] if distance_range is None else distance_range, np.arange(8))
-        except RuntimeError:
-            if i == 0:
-                raise
-            continue
-        if any(math.hypot(params[0] - p[0], params[2] - p[2]) < 0.6 * (max(size[:2]) + r) for p, r in placed):
-            continue  # boxes must not overlap on the ground
-        placed.append((params, max(size[:2])))
-        handed, params = _nearest_first(params, size)
-        corners, _ = project(box_points(params, dimension_corners(*size, handed)), R, f, pp)
-        lines = []
-        for k in range(n_target_annotations):
-            if tier.dof is None:
-                noise = rng.normal(0.0, tier.target_px, corners.shape)
-            else:  # a Student-t with the tier's standard deviation
-                noise = tier.target_px * math.sqrt((tier.dof - 2) / tier.dof) * rng.standard_t(tier.dof, corners.shape)
-            lines.append({"worker": f"t{k + 1:02d}", "corners": rnd(corners + noise).tolist(), "seconds": 183.5})
-        dims = dict(zip(_SIZES, size))
-        targets.append({"id": "target" if n_objects == 1 else f"t{i}", "class": cls,
-                        **({"dimensions_m": dims} if sizes == "known" else {}), "dimension_lines": lines,
-                        "ground_truth": {"location_m": params[:3].tolist(), "yaw_rad": float(params[3]),
-                                         "handedness": handed, "dimensions_m": dims, "ground_m": ground,
-                                         "corners_px": corners.tolist()}})
+    if not targets:
+        raise RuntimeError(f"could not place a target inside the {w_img}x{h_img} image (focal length {f:.0f} px)")
 
     refs, truths, true_lines = [], [], []
     first = targets[0]["ground_truth"]["dimensions_m"]
@@ -298,9 +359,15 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     for j in range(n_references):
         measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
         is_range = (is_range and not single_values) or confidence is not None
-        oname, osize = _draw_object(rng, setting)
-        _, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
-                                (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
+        for attempt in range(20):  # another object when one does not fit the view
+            oname, osize = _draw_object(rng, setting)
+            try:
+                _, ouv, overts = _place(rng, setting, R, f, pp, h, osize, image,
+                                        (max(1.0, 0.5 * dmin), 1.3 * dmax), np.arange(4))
+                break
+            except RuntimeError:
+                if attempt == 19:
+                    raise
         near = int(np.argmin(np.linalg.norm(overts[:4, [0, 2]], axis=1)))
         if measure in ("length", "width"):  # a bottom edge from the nearest corner
             other = ({0: 1, 1: 0, 2: 3, 3: 2} if measure == "length" else {0: 3, 3: 0, 1: 2, 2: 1})[near]
@@ -352,7 +419,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         scene["classes"] = {k: v.to_dict() for k, v in class_priors(setting).items()}
     scene.update(targets=targets, references=refs, ground_truth={
         "focal_length_px": f, "camera_height_m": h, "pitch_rad": pitch, "roll_rad": roll, "setting": setting,
-        "tier": tier.name, "reference_lengths_m": truths, "reference_lines_px": true_lines})
+        **({"camera_kind": cam["kind"]} if cameras == "real" else {}), "tier": tier.name, "reference_lengths_m": truths, "reference_lines_px": true_lines})
     return scene
 
 

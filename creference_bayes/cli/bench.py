@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..bench.runner import CONFIGS, plain, run_bench
-from ..bench.simulate import SETTINGS, TIERS
+from ..bench.simulate import CAMERA_POPULATIONS, SETTINGS, TIERS
 from ..io.files import atomic_write_text
 from .main import UsageError, require, seed_value, usage_errors
 
@@ -40,12 +40,15 @@ def _run_bench_command(args) -> int:
 
     _check_temperature(args)
     if args.sbc:
+        if args.cameras != "setting":
+            raise UsageError(f"--cameras {args.cameras}: not with --sbc (it draws its cameras from the model's prior)")
         return _run_sbc(args)
     config = CONFIGS[("frames" if args.frames else "full" if args.full else "quick")
                      + ("-full" if args.frames and args.full else "")]
     if args.paper_restarts is not None:
         require(args.paper_restarts >= 1, "--paper-restarts", "an integer >= 1", args.paper_restarts)
         config = replace(config, paper_restarts=args.paper_restarts)
+    config = replace(config, cameras=args.cameras)
     out = _out(args)
     note = "" if poselib_available() or not config.scenes else f"p4pf skipped: {INSTALL_HINT}"
     if note and not args.quiet:
@@ -97,7 +100,7 @@ def _run_sbc(args) -> int:
 
 #: Options of ``simulate`` that --from-kitti does not take, with their defaults (given otherwise: an error).
 _NOT_FROM_KITTI = {"n": None, "objects": 1, "tier": "all", "setting": None, "confidence": None, "references": 5,
-                   "horizon": "exact", "focal_known": False}
+                   "horizon": "exact", "focal_known": False, "cameras": "setting"}
 
 
 def _run_simulate_command(args) -> int:
@@ -128,7 +131,8 @@ def _run_simulate_command(args) -> int:
 
     options = {"n_objects": args.objects, "n_references": args.references, "sizes": args.sizes or "known",
                "n_target_annotations": 13 if args.annotations is None else args.annotations,
-               "horizon": args.horizon, "focal_known": args.focal_known, "noise_px": args.noise_px}
+               "horizon": args.horizon, "focal_known": args.focal_known, "noise_px": args.noise_px,
+               "cameras": args.cameras}
     if args.confidence is not None:
         from ..bench.confidence_workers import TRUE_MAPS, ConfidentWorkers
 
@@ -205,6 +209,10 @@ def register(subparsers) -> None:
                            "sbc.md, sbc.json, sbc_ranks.png (--quick: 4 scenes a design; --full: 60)")
     p.add_argument("--sbc-scenes", type=int, default=None, metavar="N",
                    help="scenes per design of --sbc (overrides --quick/--full)")
+    p.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
+                   help="the scenes' cameras: each setting's ranges (setting, the documented runs) or real ones: "
+                        "phones, zoom, action and vehicle cameras (real; not with --sbc, which draws its "
+                        "cameras from the prior)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run_bench_command)
 
@@ -237,6 +245,9 @@ def register(subparsers) -> None:
                    help="the horizon the scene gives: exact, none, or sd (off by 5 px and stated so; "
                         "default: %(default)s)")
     p.add_argument("--focal-known", action="store_true", help="write the true focal length into the scene")
+    p.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
+                   help="each setting's camera ranges (setting, the default) or real cameras: phones, zoom, action "
+                        "and vehicle cameras, each with its own image size (real)")
     p.add_argument("--focal-unknown", action="store_true",
                    help="with --from-kitti: leave P2's focal length out of the scenes (a street camera nobody "
                         "calibrated; every scene still names its camera, camera.id)")
