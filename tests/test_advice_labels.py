@@ -219,6 +219,38 @@ def test_the_present_quality_is_the_labels(frame, advised):
         assert advice.now.p_iou[i] == label_quality(box[i], samples[:, i]).p_iou[0.7]
 
 
+def test_the_advice_weighs_boxes_in_the_labels_frame(frame):
+    """On a KITTI frame the labels' boxes are in the camera's frame. Draws that differ only in the
+    camera's pitch, with every object's place turned with it (the image sees the same boxes), give
+    the same labels; the advice must say so (in the ground's frame the boxes would scatter by
+    tenths of a metre and seem uncertain)."""
+    from creference_bayes.core.geometry import rotation_from_pitch_roll
+    from creference_bayes.models.contract import C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_X, O_Z
+    from creference_bayes.workflows.advice import _Draws
+    from creference_bayes.workflows.labels.kitti import kitti_poses
+
+    scene, truth = frame
+    p2 = np.hstack([np.diag([1500.0, 1500.0, 1.0]), np.array([[40.0], [0.2], [0.003]])])
+    scene = dataclasses.replace(scene, kitti_p2=p2)
+    cam0, objs0 = truth["camera"], truth["objects"]
+    rng = np.random.default_rng(4)
+    n = 200
+    cams = np.repeat(cam0[None], n, axis=0)
+    cams[:, C_PITCH] += np.radians(rng.normal(0.0, 1.0, n))  # 1 degree of pitch, all else seen alike
+    objs = np.repeat(objs0[None], n, axis=0)
+    world0 = np.stack([objs0[:, O_X], cam0[C_HEIGHT] - objs0[:, O_GROUND], objs0[:, O_Z]], axis=-1)
+    in_camera = world0 @ rotation_from_pitch_roll(cam0[C_PITCH], cam0[C_ROLL]).T
+    for k in range(n):
+        world = in_camera @ rotation_from_pitch_roll(cams[k, C_PITCH], cams[k, C_ROLL])  # R_k^T applied per row
+        objs[k, :, O_X], objs[k, :, O_Z] = world[:, 0], world[:, 2]
+        objs[k, :, O_GROUND] = cams[k, C_HEIGHT] - world[:, 1]
+    boxes = kitti_poses(scene, cams, objs)
+    assert np.ptp(boxes[..., :3], axis=0).max() < 1e-6  # the labels' boxes do not move
+    assert np.ptp(objs[..., O_GROUND], axis=0).max() > 0.3  # the ground's frame does
+    p = _Draws(cams, objs, scene).outlooks(np.full((1, n), 1.0 / n), AdviceSettings(), rng, n)["p_iou"][0]
+    np.testing.assert_allclose(p, 1.0)
+
+
 def _says_nothing(spread: float):
     """An observation whose log-weights are noise of sd ``spread``, nothing of the draws."""
     class Nothing:
