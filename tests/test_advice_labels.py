@@ -15,7 +15,7 @@ from conftest import truth_scene
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import parse_scene, scene_to_dict
 from creference_bayes.pipeline import build_model
-from creference_bayes.workflows.advice import AdviceSettings, good_probability
+from creference_bayes.workflows.advice import AdviceSettings, good_chance
 from creference_bayes.workflows.advice.answers import (CATALOGUE_LOG_SD, MOUNTING_SD, with_dimension_lines,
                                                        with_mounting, with_size)
 from creference_bayes.workflows.advice.observe import MountingObservation, SizeObservation
@@ -110,11 +110,30 @@ def test_the_simulated_answers_are_what_the_answered_scenes_estimate_with(frame)
             assert np.ptp(diff - ratio) < 1e-6 * max(1.0, np.ptp(ratio))
 
 
-def test_the_good_probability_is_a_smoothed_count():
-    p = np.linspace(0, 1, 17)
-    g = good_probability(p, 16, 0.5)
-    assert np.all(np.diff(g) > 0) and g[0] < 0.01 and g[-1] > 0.99
-    assert good_probability(np.array([0.5]), 10_000, 0.5)[0] == pytest.approx(0.5, abs=0.02)
+def test_a_labels_chance_is_its_futures_spread_at_the_bar_without_the_estimators_noise():
+    """Futures whose true P(IoU ≥ 0.7) is p, each read from 16 resampled draws (a binomial share).
+    The chance the label is good is the share of futures at or above the bar once the reading's
+    noise is taken out: near 1 when every future is at 0.67 (counting the noisy reads against the
+    bar and taking off the present's level, as the advice did, gave about 0.6 there and on KITTI
+    frames stated 5.2 of the 9 labels at 0.4-0.5 that a size all lifted), near 0 when every future
+    is at 0.4, and the true share when the futures differ."""
+    rng = np.random.default_rng(0)
+    n = np.full(75, 16.0)
+
+    def chances(p):  # 200 targets whose futures are all at p, or drawn from p(size) when callable
+        true = p(rng, (75, 200)) if callable(p) else np.full((75, 200), p)
+        return good_chance(rng.binomial(16, true) / 16, n, np.full(200, 0.5))
+
+    assert np.median(chances(0.67)) > 0.99 and np.mean(chances(0.67)) > 0.97
+    assert np.median(chances(0.4)) < 0.01 and np.mean(chances(0.4)) < 0.05
+    assert 0.4 < np.mean(chances(0.52)) < 0.9 and 0.1 < np.mean(chances(0.48)) < 0.6
+    spread = chances(lambda r, shape: r.beta(6.0, 4.0, shape))    # P(beta(6, 4) ≥ 0.5) = 0.746
+    assert abs(np.mean(spread) - 0.746) < 0.05
+    mixed = chances(lambda r, shape: np.where(r.uniform(size=shape) < 0.5, 0.3, 0.8))
+    assert abs(np.mean(mixed) - 0.5) < 0.12   # two clusters, approximated by one beta
+    # the bar is per label; a bar at or below 0 is always met, one above 1 never
+    two = good_chance(rng.binomial(16, 0.6, size=(75, 2)) / 16, n, np.array([0.0, 1.01]))
+    np.testing.assert_allclose(two, [1.0, 0.0], atol=1e-9)
 
 
 @pytest.fixture(scope="module")
@@ -163,16 +182,6 @@ def test_an_answers_fallback_moves_the_draws_to_the_answered_estimate(crowded, k
     assert np.all(np.abs(dist_moved.mean(0) - dist_new.mean(0)) < 0.3 * dist_new.std(0))
     ratio = dist_moved.std(0) / dist_new.std(0)
     assert np.all(np.abs(ratio - 1.0) < 0.12) and abs(np.mean(ratio) - 1.0) < 0.05
-
-
-def test_the_presents_level_is_the_estimators_mean_on_the_presents_draws():
-    from creference_bayes.workflows.advice import level_of_present
-
-    p = np.array([0.1, 0.45, 0.5, 0.8])
-    k = np.random.default_rng(0).binomial(16, p, size=(200_000, 4))
-    mc = good_probability(k / 16, 16, 0.5).mean(axis=0)
-    np.testing.assert_allclose(level_of_present(p, 16, 0.5), mc, atol=3e-3)
-    assert np.all(np.diff(level_of_present(p, 16, 0.5)) > 0)
 
 
 @pytest.fixture(scope="module")

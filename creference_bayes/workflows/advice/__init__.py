@@ -17,13 +17,16 @@ now).
 
 ``settings.objective`` says which gain ranks the requests:
 
-- **labels** (the default): the expected number of labels below the bar now (P(IoU ≥ t) <
-  ``min_quality``) that become good, per human hour. A future's P(IoU ≥ t) is estimated from
-  ``iou_pairs`` resampled draws, so reaching the bar is a binomial share's chance
-  (:func:`good_probability`), less the level the same estimator gives on draws that know nothing
-  of the observation (:func:`level_of_present`), over one minus it. Requests are ranked on half of
-  the futures (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the
-  other half, so that the chosen requests' gains are not flattered by the noise that chose them;
+- **labels** (the default): the expected number of the scene's labels that become good, a label
+  being good when its P(IoU ≥ ``iou_threshold``) ≥ ``min_quality`` (as ``creference labels
+  --score-iou --min-quality`` has it), per human hour. Per future, a target's P(IoU ≥ t) is
+  estimated from ``iou_pairs`` resampled draws (less, for reweighted draws, the bias the same
+  weights shuffled over the draws show); a label's chance of reaching the bar is the share of its
+  futures at or above it once that estimate's binomial noise is taken out (:func:`good_chance`),
+  so that neither the noise nor a change that says nothing counts. Labels that are good now count
+  for nothing (the advice says they are good). Requests are ranked on half of the futures
+  (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the other half, so
+  that the chosen requests' gains are not flattered by the noise that chose them;
 - **hdi**: the narrowing of every target's HDI share, in percentage points of its distance, summed
   over the targets, per minute.
 
@@ -49,12 +52,14 @@ from .observe import DimsObservation, MountingObservation, ReferenceObservation,
 from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, normalise, p_iou, shuffled_hdi,
                      tempered_update, weighted_hdi)
 
-__all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_probability"]
+__all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_chance"]
 
 #: What the advice ranks requests by (:class:`AdviceSettings`).
 OBJECTIVES = ("labels", "hdi")
 #: The kinds of request (:class:`~.candidates.Candidate`).
 KINDS = ("dims", "reference", "size", "mounting")
+#: Resamples of the futures behind a good-label gain's standard error.
+_BOOTSTRAPS = 20
 
 
 @dataclass(frozen=True)
@@ -422,25 +427,41 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                   n_weighed=n)
 
 
-def good_probability(p_hat: np.ndarray, n_pairs: int, min_quality: float) -> np.ndarray:
-    """The chance that a label is good (its P(IoU ≥ t) ≥ ``min_quality``) given ``p_hat``, that
-    probability estimated from ``n_pairs`` resampled draws: the Jeffreys posterior of a binomial
-    share, k = p_hat · n successes of n, above ``min_quality``. Counting p_hat ≥ ``min_quality``
-    instead would turn the estimate's noise (sd up to 0.12 at 16 pairs) into labels gained or lost."""
-    from scipy.special import betainc
+def good_chance(p_hat: np.ndarray, n_eff: np.ndarray, bar: np.ndarray) -> np.ndarray:
+    """(c,) the chance that a label's P(IoU ≥ t), read as ``p_hat`` (M, c) over M simulated
+    futures from shares of ``n_eff`` (M,) effective draws each, is at least ``bar`` (c,).
 
-    k = np.asarray(p_hat, float) * n_pairs
-    return 1.0 - betainc(k + 0.5, n_pairs - k + 0.5, min_quality)
+    The futures' shares scatter by what the observation would say and by the estimator's own
+    binomial noise (an sd up to 0.12 at 16 draws). Counting each against the bar would count that
+    noise as labels lost above the bar and gained below it, so per column the spread of the
+    futures' true P(IoU ≥ t) is fitted as a beta distribution by the beta-binomial likelihood of
+    the shares (k = p_hat · n_eff of n_eff), and the chance is that beta's mass at or above
+    ``bar``. Its concentration is capped at Σ n_eff − 1, where its spread is the standard error
+    of the futures' mean: a label at the bar is not called good or bad on a mean known to a few
+    points.
+    """
+    from scipy.optimize import minimize
+    from scipy.special import betainc, digamma, gammaln
 
+    p = np.clip(np.atleast_2d(np.asarray(p_hat, float)), 0.0, 1.0)
+    n = np.asarray(n_eff, float).reshape(-1, 1) * np.ones_like(p)
+    k, m_fut = p * n, p.shape[0]
+    mu = np.clip(p.mean(axis=0), 0.02, 0.98)
 
-def level_of_present(p: np.ndarray, n_pairs: int, min_quality: float) -> np.ndarray:
-    """(m,) the expected :func:`good_probability` of a share estimated from ``n_pairs`` draws of a
-    posterior whose P(IoU ≥ t) is ``p`` (m,): its mean over k ~ Binomial(``n_pairs``, p)."""
-    from scipy.stats import binom
+    def nll(theta):
+        a, b = np.exp(theta.reshape(2, -1))
+        ll = (gammaln(k + a) + gammaln(n - k + b) - gammaln(n + a + b)).sum(axis=0) \
+            - m_fut * (gammaln(a) + gammaln(b) - gammaln(a + b))
+        da = (digamma(k + a) - digamma(n + a + b)).sum(axis=0) - m_fut * (digamma(a) - digamma(a + b))
+        db = (digamma(n - k + b) - digamma(n + a + b)).sum(axis=0) - m_fut * (digamma(b) - digamma(a + b))
+        return -ll.sum(), -np.concatenate([da * a, db * b])
 
-    k = np.arange(n_pairs + 1)
-    pmf = binom.pmf(k[None, :], n_pairs, np.clip(np.asarray(p, float), 0.0, 1.0)[:, None])     # (m, n+1)
-    return pmf @ good_probability(k / n_pairs, n_pairs, min_quality)
+    start = np.log(np.concatenate([mu * 20.0, (1.0 - mu) * 20.0]))
+    fit = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=[(np.log(1e-3), np.log(1e6))] * len(start))
+    a, b = np.exp(fit.x.reshape(2, -1))
+    cap = np.maximum(n.sum(axis=0) - 1.0, 1.0)
+    scale = np.minimum(1.0, cap / (a + b))
+    return 1.0 - betainc(a * scale, b * scale, np.clip(np.asarray(bar, float), 0.0, 1.0))
 
 
 def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float) -> np.ndarray:
@@ -482,29 +503,31 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     gain = float(np.mean(gains))
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
     se_inner = _split_se(draws.dist, weights[same], settings.hdi_prob, rng)
-    # labels below the bar now that reach it: each one's chance, less the level the same estimator
-    # gives on draws that know nothing of the observation (module docstring): a reweighted future's
-    # weights shuffled over the draws; a collapsed one read on the fallback's equally weighted
-    # draws, the present's (level_of_present): its few reweighted draws lie in the sparse tails.
-    p_good = good_probability(rows["p_iou"], settings.iou_pairs, settings.min_quality)   # (M, m)
-    present = level_of_present(now.p_iou - shift, settings.iou_pairs, settings.min_quality)  # the estimator's present
-    level = np.repeat(present[None], len(outer), axis=0)
-    if np.any(same):  # the reweighted futures' level, averaged over them (a ratio of noisy levels is biased)
+    # labels below the bar now that reach it (module docstring). A reweighted future's share is read
+    # on its few effective draws around their own mean box, which flatters it: less the bias the
+    # same weights shuffled over the draws show (nothing of the observation). A recomputed future's
+    # draws are equally weighted, as the present's are. Then each label's chance is the fitted
+    # spread of its futures' P(IoU ≥ t) at or above the bar (:func:`good_chance`), the label's
+    # (its MAP box's) quality being its mean box's moved by ``shift``.
+    p_hat = rows["p_iou"].copy()
+    n_eff = np.full(len(outer), float(settings.iou_pairs))
+    if np.any(same):
         shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
                          settings.iou_pairs)
-        level[same] = good_probability(shuffled, settings.iou_pairs, settings.min_quality).mean(axis=0)
+        p_hat[same] -= shuffled.mean(axis=0) - (now.p_iou - shift)
+        n_eff[same] = 1.0 / (1.0 / settings.iou_pairs + 1.0 / ess[same])
     below = now.p_iou < settings.min_quality
-    chance = np.where(below, (p_good - level) / np.maximum(1.0 - level, 0.05), p_good)
-    # Ranked on one half of the futures, gains stated from the other (module docstring). A gain is
-    # the sum of its targets' chances, each in [0, 1], as the plan (batch.BatchAdvice.plan) values it.
+    bar = settings.min_quality - shift
     rank, told = slice(0, None, 2), slice(1, None, 2)
-    p_told, p_rank = (np.clip(chance[half].mean(axis=0), 0.0, 1.0) for half in (told, rank))
+    p_told, p_rank = (good_chance(p_hat[half], n_eff[half], bar) for half in (told, rank))
     good_gain = float(np.sum(p_told[below]))
-    good_gains = np.sum(chance[told][:, below], axis=1)
+    futures = np.flatnonzero(np.arange(len(outer)) % 2 == 1)  # the told half, resampled for the se
+    boots = [good_chance(p_hat[idx][:, below], n_eff[idx], bar[below]).sum()
+             for idx in rng.choice(futures, size=(_BOOTSTRAPS, len(futures)))] if np.any(below) else [0.0, 0.0]
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,
                       ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)), p_good=p_told,
-                      good_gain=good_gain, good_gain_se=float(np.std(good_gains, ddof=1) / np.sqrt(len(good_gains))),
+                      good_gain=good_gain, good_gain_se=float(np.std(boots, ddof=1)),
                       good_per_hour=good_gain * 3600.0 / cand.seconds if cand.seconds > 0 else math.inf,
                       rank_p_good=p_rank, rank_good_gain=float(np.sum(p_rank[below])))
 
