@@ -260,6 +260,28 @@ def test_the_advice_weighs_boxes_in_the_labels_frame(frame):
     np.testing.assert_allclose(p, 1.0)
 
 
+def test_when_no_request_lifts_a_label_its_verdict_names_the_one_that_moves_it_most(advised):
+    """Chances of a few millionths are nothing: the verdict then names the request whose expected
+    quality is highest, not the one whose simulated outcomes happened to leave a crumb of chance."""
+    advice, _ = advised
+    i = 0
+    mine = [p for p in advice.predictions if p.candidate.target in (i, None)]
+    top = max(mine, key=lambda p: float(p.expected.p_iou[i]))
+    crumb = min(mine, key=lambda p: float(p.expected.p_iou[i]))
+    assert top is not crumb
+
+    def with_chance(p, c):
+        q = np.zeros(len(advice.targets))
+        q[i] = c
+        return dataclasses.replace(p, p_good=q, rank_p_good=q, good_gain=c, rank_good_gain=c)
+
+    preds = tuple(with_chance(p, 5e-6 if p is crumb else 0.0) for p in advice.predictions)
+    low = np.minimum(advice.now.p_iou, 0.1)  # every label below the bar
+    hopeless = dataclasses.replace(advice, predictions=preds, now=dataclasses.replace(advice.now, p_iou=low))
+    row = hopeless.verdicts()[i]
+    assert row["verdict"] == "none" and row["best"] == top.candidate.key
+
+
 def _says_nothing(spread: float):
     """An observation whose log-weights are noise of sd ``spread``, nothing of the draws."""
     class Nothing:

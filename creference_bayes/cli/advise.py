@@ -103,7 +103,7 @@ def _batch(args, settings, progress: bool) -> int:
         good = sum(bool(o.advice.good[o.target]) for o in batch.objects)
         stuck = sum(o.advice.verdicts()[o.target]["verdict"] == "none" for o in batch.objects)
         print(f"{len(batch.objects)} targets advised: {good} labels good (P(IoU >= {settings.iou_threshold:g}) >= "
-              f"{settings.min_quality:g}), {stuck} that no single request lifts; {len(rows)} requests "
+              f"{settings.min_quality:g}), {stuck} that no single request lifts; {len(rows)} request{'s' * (len(rows) != 1)} "
               f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time, "
               f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good); "
               f"{len(batch.skipped)} skipped; wrote {out} (advice.json, requests.csv, "

@@ -285,7 +285,8 @@ class Advice:
                    "chance": None, "text": f"good: {t} {p_now:.2f} ≥ {q:g}"}
             mine = [p for p in self.predictions if p.candidate.target in (i, None)]
             if not self.good[i] and mine:
-                best = max(mine, key=lambda p: (float(p.ranking_p_good()[i]), -p.candidate.seconds))
+                best = max(mine, key=lambda p: (round(float(p.ranking_p_good()[i]), 3), float(p.expected.p_iou[i]),
+                                                -p.candidate.seconds))
                 dims = next((p for p in mine if p.candidate.kind == "dims" and p.candidate.target == i), None)
                 chance, p_exp = float(best.p_good[i]), float(best.expected.p_iou[i])
                 lifts = chance >= 0.5
@@ -418,8 +419,10 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                 predictions.append(_predict(obs, cand, draws, outer, base, now, shift, settings,
                                             np.random.default_rng(s), temperature))
             bar.update(1)
-    predictions.sort(key=lambda p: (-p.score(settings.objective), -p.score("hdi" if settings.objective == "labels"
-                                                                           else "labels"), p.candidate.key))
+    # to three decimals, so that chances of a few millionths (nothing, read from simulated
+    # outcomes) do not decide the order: the other objective does
+    predictions.sort(key=lambda p: (-round(p.score(settings.objective), 3),
+                                    -p.score("hdi" if settings.objective == "labels" else "labels"), p.candidate.key))
     action, reason = _recommend(now, predictions, settings, [t.id for t in scene.targets])
     return Advice(targets=tuple(t.id for t in scene.targets), now=now, predictions=tuple(predictions), action=action,
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
