@@ -489,8 +489,8 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     n = len(cams)
     collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
     for i in collapsed:  # recompute those futures with the fallback
-        one = _Draws(*_moved(obs, i, cams, draws.objs, rng, temperature), draws.scene).outlooks(np.full((1, n), 1.0 / n),
-                                                                                  settings, rng)
+        moved = _Draws(*_moved(obs, i, cams, draws.objs, rng, temperature), draws.scene)
+        one = moved.outlooks(np.full((1, n), 1.0 / n), settings, rng)
         for k in rows:
             rows[k][i] = one[k][0]
     # Each future against the present at its own weights (module docstring): scaled by the present
