@@ -71,15 +71,15 @@ def run(args) -> list[dict]:
     if args.focal_prior:
         median, log_sd = (float(v) for v in args.focal_prior.split(","))
         focal = FocalPrior(median, log_sd, np.inf, source="scene")
+    equiv = tuple(float(v) for v in args.focal_35mm.split(",")) if args.focal_35mm else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     records = []
     with open(out / "thin.jsonl", "w") as f:
         for k in range(args.n):
             scene = _scene(k, args.cameras)
-            if args.focal_35mm:  # a prior in 35 mm-equivalent terms, on this scene's image
-                mm, log_sd, dof = (float(v) for v in args.focal_35mm.split(","))
-                focal = FocalPrior.from_35mm(mm, scene.image_size, log_sd=log_sd, dof=dof, source="scene")
+            if equiv:  # a prior in 35 mm-equivalent terms (mm, log-sd, dof), on this scene's image
+                focal = FocalPrior.from_35mm(equiv[0], scene.image_size, log_sd=equiv[1], dof=equiv[2], source="scene")
             x, _, z = scene.targets[0].ground_truth["location_m"]
             d_true = float(np.hypot(x, z))
             for n_refs in REFS:

@@ -524,7 +524,7 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     rank, told = slice(0, None, 2), slice(1, None, 2)
     p_told, p_rank = (good_chance(p_hat[half], n_eff[half], bar) for half in (told, rank))
     good_gain = float(np.sum(p_told[below]))
-    futures = np.flatnonzero(np.arange(len(outer)) % 2 == 1)  # the told half, resampled for the se
+    futures = np.arange(len(outer))[told]  # the told half, resampled for the se
     boots = [good_chance(p_hat[idx][:, below], n_eff[idx], bar[below]).sum()
              for idx in rng.choice(futures, size=(_BOOTSTRAPS, len(futures)))] if np.any(below) else [0.0, 0.0]
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
