@@ -4,6 +4,7 @@ against fixed designs, on KITTI frames (docs/advice.md).
     python examples/kitti_advice_study.py KITTI_DIR --out DIR [--split all|even|odd] [--start-k 1]
         [--noise-px 2] [--budget-s S] [--max-frames N] [--max-steps N] [--seed 0]
         [--score-iou 0.7] [--min-quality 0.5]
+    python examples/kitti_advice_study.py KITTI_DIR --out DIR --tables-only
 
 1. Frames as examples/kitti_study.py makes them (``creference simulate --from-kitti``: one scene per
    image, the class size priors, P2's focal length given), with ``--start-k`` sets of dimension
@@ -33,8 +34,11 @@ against fixed designs, on KITTI frames (docs/advice.md).
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
    requests' chances combined as the plan combines them (each target below the bar lifted with
    chance 1 − Π(1 − p)), beside the sum of each request's gain weighed alone, with the ratio's 90 %
-   interval from resampling the frames; and the advised plan's gain on the futures its requests
-   were chosen by beside the one it states from the others.
+   interval from resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
+   (``BAND_EDGES``), with the realised count's 90 % interval if the predicted chances are right,
+   and the net change of the labels already good; and the advised plan's gain on the
+   futures its requests were chosen by beside the one it states from the others.
+   ``--tables-only`` computes these again from an earlier run's folder, estimating nothing.
 
 The advised plan stops where no request is worth ``--min-good-per-hour`` (advise's default), so it
 may spend less than ``S``: compare good labels per human hour, or pass 0 to spend it all.
@@ -149,30 +153,44 @@ def _is_good(row: dict, args) -> bool:
     return float(row[f"p_iou_ge_{args.score_iou:g}"]) >= args.min_quality
 
 
-def _good_by_frame(labels_csv: Path, args) -> dict:
-    """Good labels per frame of a ``labels.csv``."""
+def _good_by_target(labels_csv: Path, args) -> dict:
+    """Whether each label of a ``labels.csv`` is good, by (scene, target)."""
     with open(labels_csv, newline="") as f:
-        rows = list(csv.DictReader(f))
-    out = {}
-    for r in rows:
-        out[r["scene"]] = out.get(r["scene"], 0) + _is_good(r, args)
-    return out
+        return {(r["scene"], r["target"]): _is_good(r, args) for r in csv.DictReader(f)}
 
 
-def _combined(chances: list, below: np.ndarray) -> float:
-    """Labels expected to become good when requests are answered together: each target below the
-    bar lifted with chance 1 − Π(1 − p) over the requests' ``p_good`` (the plan's rule,
+def _lifted(chances: list, below: np.ndarray) -> np.ndarray:
+    """Per target, the chance of becoming good when requests are answered together: 1 − Π(1 − p)
+    over the requests' ``p_good`` for a target below the bar, 0 for one above it (the plan's rule,
     ``BatchAdvice.plan``: a label becomes good once)."""
     if not chances:
-        return 0.0
-    return float(np.sum(1.0 - np.prod(1.0 - np.array(chances)[:, below], axis=0)))
+        return np.zeros(len(below))
+    return np.where(below, 1.0 - np.prod(1.0 - np.array(chances), axis=0), 0.0)
+
+
+#: The bands of a label's round-0 P(IoU ≥ T) the predictions are checked in; the last, from the
+#: bar up, holds the labels already good (predicted to stay so: their realised change is a loss).
+BAND_EDGES = (0.0, 0.1, 0.3)
+
+
+def _interval(r: np.ndarray, p: np.ndarray, idx: np.ndarray):
+    """90 % interval of Σ r / Σ p over the frame resamples ``idx`` (None when no resample predicts)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = r[idx].sum(axis=1) / p[idx].sum(axis=1)
+    ratios = ratios[np.isfinite(ratios)]   # resamples whose predicted gain is 0 have no ratio
+    return [float(q) for q in np.quantile(ratios, [0.05, 0.95])] if len(ratios) else None
 
 
 def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]:
-    """Predicted against realised good labels gained, per design and frame. A design's prediction
-    is its requests' chances combined per frame (:func:`_combined`); ``predicted_alone`` sums each
-    request's ``good_gain`` weighed alone instead (the advice weighs one request at a time, a design
-    answers them all at once). With the ratio's 90 % interval from resampling frames."""
+    """Predicted against realised good labels gained, per design, over the frames and in each band
+    of the labels' round-0 P(IoU ≥ T) (:data:`BAND_EDGES`). A design's prediction is its requests'
+    chances combined per target (:func:`_lifted`); ``predicted_alone`` sums each request's
+    ``good_gain`` weighed alone instead (the advice weighs one request at a time, a design answers
+    them all at once). The ratio's 90 % interval resamples frames (the labels of a frame share its
+    camera, so they are not independent). In a band below the bar, ``expected_90`` is the 90 %
+    interval of the realised count if each label became good with its predicted chance, and the
+    band ``agrees`` when the realised count lies in it; the band of labels already good has no
+    prediction (the advice counts no losses), only its net change."""
     advice = json.loads((out / "advice" / "advice.json").read_text())
     with open(out / "advice" / "requests.csv", newline="") as f:
         planned = list(csv.DictReader(f))
@@ -180,12 +198,15 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
     chosen = {(r["key"], f"{r['target']}:{r['kind']}" if r["kind"] != "mounting" else "camera:mounting")
               for r in planned if r["kind"] != "mounting" or not r["camera"]}
     cameras = {r["camera"] for r in planned if r["kind"] == "mounting" and r["camera"]}
-    pred = {d: {} for d in ("advised", "dims", "sizes", "mounting")}
+    pred = {d: {} for d in ("advised", "dims", "sizes", "mounting")}  # design -> frame -> per target
     alone = {d: {} for d in pred}
     ranked = {}  # the advised requests' gain on the futures they were chosen by
+    now = {}     # frame -> (target ids, round-0 P(IoU ≥ T))
     for sc in advice["scenes"]:
         k = sc["key"]
-        below = np.asarray(sc["now"]["p_iou"]) < sc["settings"]["min_quality"]
+        p_now = np.asarray(sc["now"]["p_iou"], float)
+        now[k] = (list(sc["targets"]), p_now)
+        below = p_now < sc["settings"]["min_quality"]
         told, rank = {d: [] for d in pred}, []
         for p in sc.get("predictions") or []:
             c = p["candidate"]
@@ -197,38 +218,67 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
                 told[d].append(p["p_good"])
                 alone[d][k] = alone[d].get(k, 0.0) + float(p["good_gain"])
         for d in pred:
-            pred[d][k] = _combined(told[d], below)
-        ranked[k] = _combined(rank, below)
-    before = _good_by_frame(out / "round0" / "labels" / "labels.csv", args)
-    frames = sorted(before)
-    rng = np.random.default_rng(0)
+            pred[d][k] = _lifted(told[d], below)
+        ranked[k] = float(_lifted(rank, below).sum())
+    good0 = _good_by_target(out / "round0" / "labels" / "labels.csv", args)
+    frames = sorted(now)
+    edges = [*BAND_EDGES, args.min_quality]
+    names = [f"{lo:g}–{hi:g}" for lo, hi in zip(edges[:-1], edges[1:])] + [f"≥ {args.min_quality:g} (good)"]
+    band = {k: np.digitize(now[k][1], edges[1:]) for k in frames}  # 0 .. len(names) - 1
+    idx = np.random.default_rng(0).integers(len(frames), size=(n_boot, len(frames)))
     rows = []
     for name, by_frame in pred.items():
         if not (out / name / "labels" / "labels.csv").exists():
             continue
-        after = _good_by_frame(out / name / "labels" / "labels.csv", args)
-        p = np.array([by_frame.get(k, 0.0) for k in frames])
-        r = np.array([after.get(k, 0) - before[k] for k in frames], float)
-        idx = rng.integers(len(frames), size=(n_boot, len(frames)))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratios = r[idx].sum(axis=1) / p[idx].sum(axis=1)
-        ratios = ratios[np.isfinite(ratios)]   # resamples whose predicted gain is 0 have no ratio
-        interval = [float(q) for q in np.quantile(ratios, [0.05, 0.95])] if len(ratios) else None
+        good1 = _good_by_target(out / name / "labels" / "labels.csv", args)
+        # per frame and band: predicted and realised (net) good labels gained
+        f_, b_, p_, r_ = [], [], [], []  # per label: frame, band, predicted chance, realised (net) gain
+        for i, k in enumerate(frames):
+            ids = now[k][0]
+            f_ += [i] * len(ids)
+            b_ += list(band[k])
+            p_ += list(by_frame.get(k, np.zeros(len(ids))))
+            r_ += [good1.get((k, t), False) - good0.get((k, t), False) for t in ids]
+        f_, b_, p_, r_ = np.array(f_), np.array(b_), np.array(p_, float), np.array(r_, float)
+        p, r = np.bincount(f_, p_, len(frames)), np.bincount(f_, r_, len(frames))
+        outcomes = np.random.default_rng(1).random((n_boot, len(p_))) < p_  # the labels as predicted
+        bands = []
+        for b, label in enumerate(names):
+            m = b_ == b
+            pb, rb = float(p_[m].sum()), float(r_[m].sum())
+            row = {"band": label, "labels": int(m.sum()), "predicted": pb, "realised": rb}
+            if b < len(names) - 1:
+                lo, hi = (float(q) for q in np.quantile(outcomes[:, m].sum(axis=1), [0.05, 0.95]))
+                row.update(expected_90=[lo, hi], agrees=bool(lo <= rb <= hi))
+            bands.append(row)
         rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
                      "predicted_alone": float(sum(alone[name].values())),
                      "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
-                     "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": interval})
+                     "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": _interval(r, p, idx),
+                     "bands": bands})
     return rows
 
 
+def _ratio(a: dict) -> str:
+    ratio = "-" if a["ratio"] is None else f"{a['ratio']:.2f}"
+    return ratio + ("" if a["ratio_90"] is None else f" ({a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f})")
+
+
 def print_accuracy(rows: list[dict]) -> None:
-    print("\n| design | predicted gain (requests combined) | sum of single requests | realised gain | realised / predicted | 90 % interval (frames resampled) |")
-    print("|---|---|---|---|---|---|")
+    print("\n| design | predicted gain (requests combined) | sum of single requests | realised gain | realised / predicted (90 % interval, frames resampled) |")
+    print("|---|---|---|---|---|")
     for a in rows:
-        ratio = "-" if a["ratio"] is None else f"{a['ratio']:.2f}"
-        interval = "-" if a["ratio_90"] is None else f"{a['ratio_90'][0]:.2f} to {a['ratio_90'][1]:.2f}"
-        print(f"| {a['design']} | {a['predicted']:.1f} | {a['predicted_alone']:.1f} | {a['realised']:.0f} | {ratio} | "
-              f"{interval} |")
+        print(f"| {a['design']} | {a['predicted']:.1f} | {a['predicted_alone']:.1f} | {a['realised']:.0f} | {_ratio(a)} |")
+    print("\nBy the label's round-0 P(IoU ≥ T): labels, predicted → realised good labels gained (the realised "
+          "count's 90 % interval if the predicted chances are right; ✗ outside it); the good ones: labels, net change\n")
+    names = [b["band"] for b in rows[0]["bands"]] if rows else []
+    print("| design | " + " | ".join(names) + " |")
+    print("|---" * (len(names) + 1) + "|")
+    for a in rows:
+        cells = [f"{b['labels']}: {b['predicted']:.1f} → {b['realised']:.0f} "
+                 f"({b['expected_90'][0]:.0f}–{b['expected_90'][1]:.0f}){'' if b['agrees'] else ' ✗'}"
+                 if "expected_90" in b else f"{b['labels']}: {b['realised']:+.0f}" for b in a["bands"]]
+        print(f"| {a['design']} | " + " | ".join(cells) + " |")
     for a in rows:
         if a["predicted_on_ranking_futures"] is not None:
             print(f"\nadvised: {a['predicted_on_ranking_futures']:.1f} good labels on the futures the requests were "
@@ -255,7 +305,13 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--score-iou", type=float, choices=(0.5, 0.7), default=0.7)
     p.add_argument("--min-quality", type=float, default=0.5)
+    p.add_argument("--tables-only", action="store_true",
+                   help="compute and print the tables of an earlier run in --out again (nothing estimated)")
     args = p.parse_args(argv)
+    if args.tables_only:
+        if not (args.out / "advice_study.json").exists():
+            p.error(f"--tables-only: {args.out / 'advice_study.json'} does not exist (run the study first)")
+        return tables_again(args.out)
     if args.start_k < 1:
         p.error(f"--start-k: expected an integer >= 1, got {args.start_k}")
 
@@ -322,8 +378,17 @@ def main(argv=None) -> int:
         print(f"{name}: {after['estimated']} scenes estimated again, {after['unchanged']} unchanged; "
               f"{after['batch_s']:.0f} s", flush=True)
 
-    print(f"\n{len(scenes)} frames, {len(targets)} objects; good: P(IoU ≥ {args.score_iou:g}) ≥ {args.min_quality:g}; "
-          f"truly good: also IoU ≥ {args.score_iou:g} with KITTI's box\n")
+    report["accuracy"] = accuracy(out, {k: s.camera_id for k, s in scenes.items()}, args)
+    return finish(report, out, args)
+
+
+def finish(report: dict, out: Path, args) -> int:
+    """Print the tables of a run's ``report`` and write it to ``out/advice_study.json``."""
+    from creference_bayes.io.files import atomic_write_json
+
+    before = report["round0"]
+    print(f"\n{len(report['frames'])} frames, {report['objects']} objects; good: P(IoU ≥ {args.score_iou:g}) ≥ "
+          f"{args.min_quality:g}; truly good: also IoU ≥ {args.score_iou:g} with KITTI's box\n")
     print("| design | human s | good | truly good | good gained per human h | predicted gain | realised gain |")
     print("|---|---|---|---|---|---|---|")
     for name, d in report["designs"].items():
@@ -331,14 +396,23 @@ def main(argv=None) -> int:
         pred = f"{d['predicted_good_gain']:.1f}" if name == "advised" else ""
         print(f"| {name} | {d['human_s']:g} | {before['good']} → {d['good_after']} | {before['truly_good']} → "
               f"{d['truly_good_after']} | {rate} | {pred} | {d['good_gain']} |")
-    report["accuracy"] = accuracy(out, {k: s.camera_id for k, s in scenes.items()}, args)
     print_accuracy(report["accuracy"])
     adv = report["designs"]["advised"]
-    print(f"\nadvised: {adv['requests']} requests within {budget:g} s, {adv['not_realised']} not realised "
+    print(f"\nadvised: {adv['requests']} requests within {report['budget_s']:g} s, {adv['not_realised']} not realised "
           f"(references, {adv['not_realised_s']:g} s)")
     atomic_write_json(out / "advice_study.json", report)
     print(f"wrote {out / 'advice_study.json'}")
     return 0
+
+
+def tables_again(out: Path) -> int:
+    """``--tables-only``: the accuracy of an earlier run in ``out`` computed again from its folders
+    (its own settings; nothing estimated), its tables printed and its JSON rewritten."""
+    report = json.loads((out / "advice_study.json").read_text())
+    args = argparse.Namespace(**report["settings"])
+    camera_of = {k: _load_frame(out / "frames" / f"{k}.json", "unknown").camera_id for k in report["frames"]}
+    report["accuracy"] = accuracy(out, camera_of, args)
+    return finish(report, out, args)
 
 
 if __name__ == "__main__":

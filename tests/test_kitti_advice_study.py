@@ -90,3 +90,29 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
     assert accuracy["sizes"]["realised"] == designs["sizes"]["good_gain"]
     assert accuracy["advised"]["predicted"] == pytest.approx(adv["predicted_good_gain"], abs=0.01)
     assert "realised / predicted" in proc.stdout
+    # and in bands of the round-0 P(IoU >= 0.7): 0-0.1, 0.1-0.3, 0.3-0.5 and the good ones (>= 0.5),
+    # which no request is predicted to lift
+    p_now = np.asarray(advice["scenes"][0]["now"]["p_iou"])
+    counts = [np.sum(p_now < 0.1), np.sum((p_now >= 0.1) & (p_now < 0.3)), np.sum((p_now >= 0.3) & (p_now < 0.5)),
+              np.sum(p_now >= 0.5)]
+    for a in accuracy.values():
+        assert [b["labels"] for b in a["bands"]] == counts, a["design"]
+        assert sum(b["predicted"] for b in a["bands"]) == pytest.approx(a["predicted"])
+        assert sum(b["realised"] for b in a["bands"]) == a["realised"]
+        assert a["bands"][-1]["predicted"] == 0.0 and a["bands"][-1]["band"] == "≥ 0.5 (good)"
+        for b in a["bands"][:3]:  # the realised count's interval if the chances are right: within 0..labels
+            lo, hi = b["expected_90"]
+            assert 0 <= lo <= b["predicted"] + 1e-9 <= hi + 1 and hi <= b["labels"]
+            assert b["agrees"] == (lo <= b["realised"] <= hi)
+    in_band = [np.sum(1.0 - np.prod([1.0 - np.asarray(p["p_good"])[(p_now >= lo) & (p_now < hi)] for p in sizes],
+                                    axis=0)) for lo, hi in ((0, 0.1), (0.1, 0.3), (0.3, 0.5))]
+    assert [b["predicted"] for b in accuracy["sizes"]["bands"][:3]] == pytest.approx(in_band)
+    assert "| design | 0–0.1 | 0.1–0.3 | 0.3–0.5 | ≥ 0.5 (good) |" in proc.stdout
+    # --tables-only: the same tables again from the folder, nothing estimated
+    mtime = (out / "sizes" / "batch" / "batch.json").stat().st_mtime_ns
+    again = subprocess.run([sys.executable, str(SCRIPT), str(kitti_dir), "--out", str(out), "--tables-only"],
+                           capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert json.loads((out / "advice_study.json").read_text())["accuracy"] == report["accuracy"]
+    assert again.stdout[again.stdout.index("| design | human s |"):] == proc.stdout[proc.stdout.index("| design | human s |"):]
+    assert (out / "sizes" / "batch" / "batch.json").stat().st_mtime_ns == mtime
