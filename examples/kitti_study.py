@@ -22,6 +22,10 @@ error by distance band) and the time per image. ``--option KEY=VALUE`` sets a me
 option for the joint and the alone estimates. ``--max-frames`` and ``--max-steps`` make a tiny run
 (the tests).
 
+``--focal unknown --focal-sd S`` gives every frame P2's focal length as a log-normal prior of
+log-sd S instead of a rig: what a camera pooled over many frames would give, to measure how well
+the focal length must be known.
+
 The bound under other assumptions (``--methods bound`` runs it alone, in seconds):
 ``--bound-option KEY=VALUE`` sets a model option for the bound's model only (for example
 ``ground_sd_m=0.005``: a flat road); ``--sizes known`` gives every method each object's true size
@@ -155,6 +159,10 @@ def main(argv=None) -> int:
     p.add_argument("--focal", choices=("known", "unknown"), default="known",
                    help="known: P2's focal length is given (the default); unknown: left out of every scene (a "
                         "street camera nobody calibrated; creference simulate --from-kitti --focal-unknown)")
+    p.add_argument("--focal-sd", type=float, default=None, metavar="LOG_SD",
+                   help="with --focal unknown: give every frame P2's focal length as a log-normal prior of this "
+                        "log-sd (0.02: ±2 %%), as a camera pooled over many frames would: how well the focal "
+                        "length must be known (docs/kitti.md); not with --rig")
     p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
                    help="pool what frames of one camera share before the joint labels (creference batch --rig): "
                         "the focal length, or also the mounting (height, pitch, roll); default: each frame alone")
@@ -179,6 +187,12 @@ def main(argv=None) -> int:
         p.error(f"--methods {args.methods!r}: expected a comma-separated subset of joint, alone, bound")
     if args.rig != "none" and "joint" not in methods:
         p.error(f"--rig {args.rig}: pools the joint estimates' cameras; add joint to --methods")
+    if args.focal_sd is not None:
+        if not (np.isfinite(args.focal_sd) and args.focal_sd > 0):
+            p.error(f"--focal-sd: expected a log-sd > 0, got {args.focal_sd}")
+        if args.focal != "unknown" or args.rig != "none":
+            p.error("--focal-sd: gives the focal length's prior in place of a rig; use it with --focal unknown "
+                    "and without --rig")
 
     from creference_bayes.bench.kitti import kitti_scenes
     from creference_bayes.evaluation.kitti_eval import evaluate_kitti
@@ -203,7 +217,7 @@ def main(argv=None) -> int:
 
         frames = []
         for path in paths:
-            frame = _load_frame(path, args.camera)
+            frame = _load_frame(path, args.camera)  # (no --focal-sd with a rig)
             t0 = time.perf_counter()
             res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
             first_pass[path.stem] = time.perf_counter() - t0
@@ -211,7 +225,7 @@ def main(argv=None) -> int:
         rig_pool = RigPool(frames, args.rig)  # grouped by camera once
         print(f"rig pass one: {len(paths)} frames, median {np.median(list(first_pass.values())):.1f} s", flush=True)
     for path in paths:
-        frame = _load_frame(path, args.camera)
+        frame = _load_frame(path, args.camera, args.focal_sd)
         name = path.stem
         depth_score = lambda z: np.exp(-np.asarray(z) / 40.0)
         if "joint" in methods:
@@ -291,11 +305,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def _load_frame(path: Path, camera: str):
+def _load_frame(path: Path, camera: str, focal_sd: float | None = None):
     """A study scene; with ``--camera known`` the mounting a measured rig gives (the image's true
-    camera height as a prior of ±2 %, a level pose ±0.5°)."""
+    camera height as a prior of ±2 %, a level pose ±0.5°); with ``focal_sd`` P2's focal length (the
+    scene's ground truth) as a log-normal prior of that log-sd."""
     from creference_bayes.io.scene import load_scene
-    from creference_bayes.models.camera_terms import OrientationPrior
+    from creference_bayes.models.camera_terms import FocalPrior, OrientationPrior
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -304,6 +319,9 @@ def _load_frame(path: Path, camera: str):
         h = float(np.median([t.ground_truth["location_m"][1] for t in frame.targets]))
         frame = replace(frame, orientation_prior=OrientationPrior(
             pitch_sd=float(np.radians(0.5)), roll_sd=float(np.radians(0.5)), height_median_m=h, height_log_sd=0.02))
+    if focal_sd is not None:
+        frame = replace(frame, focal_prior=FocalPrior(float(frame.ground_truth["focal_length_px"]), focal_sd, np.inf,
+                                                      source="study"))
     return frame
 
 

@@ -256,6 +256,38 @@ def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp
     assert bad.returncode == 2 and "--rig focal: pools the joint" in bad.stderr
 
 
+def test_kitti_study_gives_p2s_focal_length_as_a_prior_of_the_asked_width(kitti_dir, tmp_path):
+    """``--focal unknown --focal-sd S``: a frame's focal length is not given, and its prior is P2's
+    value at log-sd S (a log-normal), as a camera pooled over many frames would give; it is a usage
+    error with --rig, without --focal unknown, or with a width that is not > 0."""
+    import importlib.util
+    import warnings
+
+    from creference_bayes.bench.kitti import kitti_scenes
+    from creference_bayes.pipeline import estimate
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    spec = importlib.util.spec_from_file_location("kitti_study", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    kitti_scenes(kitti_dir, tmp_path / "s", n_annotations=1, focal_known=False)
+    frame = study._load_frame(tmp_path / "s" / "000007.json", "unknown", 0.02)
+    assert frame.focal_length_px is None
+    assert frame.focal_prior.median_px == pytest.approx(P2[0, 0]) and frame.focal_prior.log_sd == 0.02
+    assert np.isinf(frame.focal_prior.dof)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        setup = estimate(frame, posterior=False).to_dict()["camera"]["setup"]["focal_prior"]
+    assert setup["median_px"] == pytest.approx(P2[0, 0]) and setup["log_sd"] == 0.02 and setup["dof"] is None
+    assert study._load_frame(tmp_path / "s" / "000007.json", "unknown").focal_prior is None
+    for flags, said in ((["--focal", "unknown", "--focal-sd", "0.02", "--rig", "focal"], "without --rig"),
+                        (["--focal-sd", "0.02"], "with --focal unknown"),
+                        (["--focal", "unknown", "--focal-sd", "0"], "expected a log-sd > 0, got 0.0")):
+        bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"),
+                              "--methods", "joint", *flags], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and said in bad.stderr, (flags, bad.stderr)
+
+
 def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti_dir, tmp_path):
     """examples/label_reliability.py --kitti --twice-every 2: the first frame's objects have two sets,
     the second frame's one, which takes the first frame's corner scale (--own-scale: its own)."""
