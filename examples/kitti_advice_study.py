@@ -231,7 +231,6 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
         if not (out / name / "labels" / "labels.csv").exists():
             continue
         good1 = _good_by_target(out / name / "labels" / "labels.csv", args)
-        # per frame and band: predicted and realised (net) good labels gained
         f_, b_, p_, r_ = [], [], [], []  # per label: frame, band, predicted chance, realised (net) gain
         for i, k in enumerate(frames):
             ids = now[k][0]
