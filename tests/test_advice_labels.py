@@ -282,6 +282,25 @@ def test_when_no_request_lifts_a_label_its_verdict_names_the_one_that_moves_it_m
     assert row["verdict"] == "none" and row["best"] == top.candidate.key
 
 
+def test_good_labels_per_hour_rank_to_three_decimals_and_hdi_points_as_they_are():
+    """rank_key: crumbs of chance (good labels per hour a millionth apart) do not order requests,
+    the HDI gain does; HDI points per minute order requests however small they are."""
+    from types import SimpleNamespace
+
+    from creference_bayes.workflows.advice import rank_key
+
+    def pred(key, labels_per_hour, hdi_per_minute):
+        return SimpleNamespace(candidate=SimpleNamespace(key=key),
+                               score=lambda objective: labels_per_hour if objective == "labels" else hdi_per_minute)
+
+    crumb, wider = pred("a", 2e-5, 0.01), pred("b", 1e-5, 0.5)
+    assert sorted([crumb, wider], key=rank_key("labels")) == [wider, crumb]
+    assert sorted([pred("a", 0.30, 0.5), pred("b", 0.31, 0.1)], key=rank_key("labels"))[0].candidate.key == "b"
+    small, smaller = pred("a", 0.9, 0.0027), pred("b", 0.0, 0.0031)
+    assert sorted([small, smaller], key=rank_key("hdi")) == [smaller, small]
+    assert sorted([pred("b", 0.0, 0.003), pred("a", 0.0, 0.003)], key=rank_key("hdi"))[0].candidate.key == "a"
+
+
 def _says_nothing(spread: float):
     """An observation whose log-weights are noise of sd ``spread``, nothing of the draws."""
     class Nothing:
