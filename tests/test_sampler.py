@@ -344,7 +344,10 @@ def test_a_lump_beside_the_mode_gets_a_proposal_component_of_its_own():
 def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     """On the lumpy density the sampler with the default mixture proposal finds the lump's true
     share (the nearest-centre share of exact draws) and mixes faster along the axis through it
-    than with a single t (mean τ over three seeds)."""
+    than with a single t: the geometric mean of τ over 36 seeds is lower. One seed's τ scatters
+    by a factor of 2–4 (and runs differ by machine: a chain is chaotic in its last bits), so a few
+    seeds decide nothing; over 60 seeds the ratio was 0.64, and its log has an sd of about 0.15
+    over 36 (3 sd from 1)."""
     rng = np.random.default_rng(0)
     n = 400000
     lump = rng.random(n) < LUMP_WEIGHT
@@ -354,7 +357,7 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     taus = {}
     for k in (1, 3):
         taus[k] = []
-        for seed in range(3):
+        for seed in range(36):
             chains = sample(_lumpy, np.zeros(5), 0.01 * np.eye(5), rng=seed,
                             settings=SamplerSettings(min_ess=400, proposal_components=k))
             assert chains.converged
@@ -363,7 +366,7 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
                 x = chains.chain[chains.burn_in:].reshape(-1, 5)
                 ess = x.shape[0] / chains.autocorr_time[0]
                 assert abs(_in_lump(x).mean() - share) < 4 * np.sqrt(share * (1 - share) / ess)
-    assert np.mean(taus[3]) < 0.8 * np.mean(taus[1]), taus
+    assert np.mean(np.log(taus[3])) < np.mean(np.log(taus[1])), taus
 
 
 def test_diagnostics_match_arviz():
