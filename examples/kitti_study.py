@@ -287,8 +287,10 @@ def main(argv=None) -> int:
         rel = report["joint"]["reliability"].get(f"p_iou_ge_{thr}") if "joint" in report else None
         if not rel:
             continue
+        diff, se = _frame_se(report["joint"]["objects"], float(thr))
         print(f"\nlabel quality (joint): mean predicted P(IoU ≥ {thr}) {rel['mean_predicted']:.2f}, observed "
-              f"{rel['observed_share']:.2f}, Brier {rel['brier']:.3f} over {rel['count']} labels")
+              f"{rel['observed_share']:.2f}, Brier {rel['brier']:.3f} over {rel['count']} labels; predicted − "
+              f"observed {diff:+.3f}, se by frame {se:.3f} ({diff / se if se > 0 else float('nan'):+.1f} se)")
         print(f"predicted P(IoU ≥ {thr}) bin: labels, mean predicted, observed share ± 2 se, within 2 se")
         for r in rel["rows"]:
             if r["count"]:
@@ -303,6 +305,20 @@ def main(argv=None) -> int:
     (out / "study.json").write_text(json.dumps({"times": times, "rigs": rigs, **{k: {"ap": v["ap"], "reliability": v["reliability"]}
                                                                     for k, v in report.items()}}, indent=1))
     return 0
+
+
+def _frame_se(objects: list[dict], t: float) -> tuple[float, float]:
+    """The mean of (predicted P(IoU ≥ t) − whether the label reached t) over the labels that state
+    it, and its standard error with the labels of one image as a cluster (they share its camera,
+    so their errors are not independent): √(Σ_frames (Σ_labels (d − mean))²) / n."""
+    rows = [o for o in objects if o.get(f"p_iou_ge_{t:g}") is not None]
+    if not rows:
+        return float("nan"), float("nan")
+    d = np.array([o[f"p_iou_ge_{t:g}"] - float(o["iou_3d"] >= t) for o in rows])
+    frames = np.array([o["image"] for o in rows])
+    mean = float(d.mean())
+    sums = [float((d[frames == f] - mean).sum()) for f in np.unique(frames)]
+    return mean, float(np.sqrt(np.sum(np.square(sums))) / len(d))
 
 
 def _load_frame(path: Path, camera: str, focal_sd: float | None = None):

@@ -125,6 +125,7 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
         assert len(rows) == 3, (method, rows)  # the three annotatable objects, one row each
     study = json.loads((out / "study.json").read_text())
     assert len(study["times"]) == 1 and "AP3D R40" in proc.stdout
+    assert "se by frame" in proc.stdout, proc.stdout  # the quality gap with its standard error
     # the Car box errors: one row per method and band that holds a car, each naming its count
     errors = [line for line in proc.stdout.splitlines() if " depth " in line and " n " in line]
     assert {line.split()[0] for line in errors} == {"joint", "alone", "bound"}, proc.stdout
@@ -306,3 +307,28 @@ def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti
         copy = json.loads((out / "batch" / "scenes" / "000008.json").read_text())
         assert ("corner_scale" in copy) == pooled
         assert [len(t["dimension_lines"]) for t in copy["targets"]] == [1, 1, 1]
+
+
+def test_kitti_study_states_the_quality_gap_with_a_standard_error_by_frame():
+    """The labels of one image share its camera: the standard error of the mean gap between stated
+    and reached quality treats each image as one cluster. With one label an image it is the usual
+    standard error of a mean; copying every image's label k times leaves it unchanged, where the
+    labels-as-independent standard error would shrink by √k."""
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    spec = importlib.util.spec_from_file_location("kitti_study", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    p = [0.9, 0.2, 0.6, 0.4, 0.7]
+    iou = [0.8, 0.6, 0.3, 0.2, 0.75]
+    one = [{"image": f"{i:06d}", "p_iou_ge_0.5": q, "iou_3d": v} for i, (q, v) in enumerate(zip(p, iou))]
+    d = np.array(p) - (np.array(iou) >= 0.5)
+    mean, se = study._frame_se(one, 0.5)
+    assert mean == pytest.approx(d.mean())
+    assert se == pytest.approx(np.sqrt(np.sum((d - d.mean()) ** 2)) / len(d))
+    copied = [dict(o) for o in one for _ in range(4)]
+    mean4, se4 = study._frame_se(copied, 0.5)
+    assert mean4 == pytest.approx(mean) and se4 == pytest.approx(se)
+    # labels without a stated quality are left out, not counted as misses
+    assert study._frame_se(one + [{"image": "000009", "p_iou_ge_0.5": None, "iou_3d": 0.0}], 0.5) == pytest.approx((mean, se))
