@@ -232,7 +232,8 @@ def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_obj
     assert np.any((np.abs(dist_new.mean(0) - dist.mean(0)) > 0.2 * dist.std(0))
                   | (np.abs(dist_new.std(0) / dist.std(0) - 1) > 0.15))
     # … and the moved draws followed (600 of them, of which a few hundred distinct after the moves)
-    np.testing.assert_allclose(dist_moved.mean(0), dist_new.mean(0), atol=0.15 * dist_new.std(0).min())
+    # (each target's mean within 0.15 of its own sd: a near target's sd is a fraction of a far one's)
+    assert np.all(np.abs(dist_moved.mean(0) - dist_new.mean(0)) <= 0.15 * dist_new.std(0))
     np.testing.assert_allclose(dist_moved.std(0), dist_new.std(0), rtol=0.15)
 
 

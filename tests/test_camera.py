@@ -57,7 +57,7 @@ def test_focal_prior_sources():
     d = _scene_dict()
     default = setup_camera(_parse(d)).terms.focal
     assert default.source == "default"
-    assert default.median_px == pytest.approx(30.0 / FULL_FRAME_DIAGONAL_MM * np.hypot(2880, 1800))
+    assert default.median_px == pytest.approx(26.0 / FULL_FRAME_DIAGONAL_MM * np.hypot(2880, 1800))  # a 26 mm lens: 2041 px
     assert setup_camera(_parse(d), focal_prior="none").terms.focal is None
     stated = _parse({**d, "camera": {**d["camera"], "focal_length_prior": {"equivalent_35mm_mm": 26, "log_sd": 0.05}}})
     fp = setup_camera(stated).terms.focal
@@ -268,3 +268,19 @@ def test_without_a_horizon_the_posterior_widens_and_still_holds_the_truth():
     assert width(without) > width(with_h)
     assert without["objects"][0]["evaluation"]["distance_in_hdi"] and without["camera"]["evaluation"]["in_hdi"]["pitch"]
     assert without["diagnostics"]["converged"], without["diagnostics"]["warnings"]
+
+
+def test_the_default_focal_prior_is_centred_on_the_population_of_real_cameras():
+    """The default's median and scale are those of the photos of REAL_CAMERAS (its sources are in
+    bench/simulate.py): 35 mm-equivalent focal lengths drawn as the bench draws them."""
+    import math
+
+    from creference_bayes.bench.simulate import draw_camera
+    from creference_bayes.models.camera_terms import DEFAULT_FOCAL_35MM, DEFAULT_FOCAL_LOG_SD
+
+    rng = np.random.default_rng(7)
+    for setting in ("indoor", "outdoor"):
+        cams = [draw_camera(rng, setting, "real") for _ in range(3000)]
+        log_mm = np.log([c["focal_px"] / math.hypot(*c["image"]) * FULL_FRAME_DIAGONAL_MM for c in cams])
+        assert abs(np.median(log_mm) - np.log(DEFAULT_FOCAL_35MM)) < 0.04, (setting, np.exp(np.median(log_mm)))
+        assert abs(log_mm.std() - DEFAULT_FOCAL_LOG_SD) < 0.08, (setting, log_mm.std())

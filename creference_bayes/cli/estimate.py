@@ -247,7 +247,7 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--focal-prior", default="auto", choices=FOCAL_PRIORS,
                    help="prior on the focal length when the scene does not give it: auto (the "
                         "scene's camera.focal_length_prior, else the photo's EXIF, else a weak "
-                        "default around a 30 mm-equivalent lens), default (the weak default), "
+                        "default around a 26 mm-equivalent lens), default (the weak default), "
                         "none (flat within the bounds) (default: %(default)s)")
     g.add_argument("--orientation", default="auto", choices=ORIENTATIONS,
                    help="camera pitch and roll: auto (from an exact horizon; otherwise estimated, "

@@ -37,11 +37,15 @@ FULL_FRAME_DIAGONAL_MM = float(np.hypot(36.0, 24.0))
 #: log-sd of a focal-length prior read from EXIF: the tag is exact for the lens, but a crop, a
 #: digital zoom or a resize with a crop changes the field of view (about ±10 %).
 EXIF_LOG_SD = 0.1
-#: The weakly informative default: 35 mm-equivalent focal length 30 mm (between a phone's main
-#: camera, 24–28 mm, and a standard lens, 50 mm), log-sd 0.5 and 3 degrees of freedom, so that
-#: 13 mm (an ultra-wide phone camera) and 85 mm (a portrait lens) lie within about 1.6 and 2.1
-#: scales and a 300 mm telephoto is still possible.
-DEFAULT_FOCAL_35MM = 30.0
+#: The weakly informative default: 35 mm-equivalent focal length 26 mm, the median of a population
+#: of real cameras (``REAL_CAMERAS`` in :mod:`creference_bayes.bench.simulate`: phones' main,
+#: ultra-wide and telephoto cameras, zoom and action cameras, and the car-mounted cameras of KITTI,
+#: nuScenes and Cityscapes, with their sources; its log-sd is 0.46–0.47 for photos and 0.24 for
+#: street cameras), log-sd 0.5 and 3 degrees of freedom, so that 13 mm (an ultra-wide phone camera)
+#: and 85 mm (a portrait lens) lie within about 1.4 and 2.4 scales and a 300 mm telephoto is still
+#: possible. KITTI's camera (24 mm on its 1242 × 375 images) sits 0.16 scales below the median.
+#: Until 2026-11-27 the median was 30 mm.
+DEFAULT_FOCAL_35MM = 26.0
 DEFAULT_FOCAL_LOG_SD = 0.5
 DEFAULT_FOCAL_DOF = 3.0
 
