@@ -315,10 +315,10 @@ def _frame_se(objects: list[dict], t: float) -> tuple[float, float]:
     if not rows:
         return float("nan"), float("nan")
     d = np.array([o[f"p_iou_ge_{t:g}"] - float(o["iou_3d"] >= t) for o in rows])
-    frames = np.array([o["image"] for o in rows])
+    _, frame = np.unique([o["image"] for o in rows], return_inverse=True)
     mean = float(d.mean())
-    sums = [float((d[frames == f] - mean).sum()) for f in np.unique(frames)]
-    return mean, float(np.sqrt(np.sum(np.square(sums))) / len(d))
+    sums = np.bincount(frame, d - mean)  # per frame
+    return mean, float(np.sqrt(np.sum(sums**2)) / len(d))
 
 
 def _load_frame(path: Path, camera: str, focal_sd: float | None = None):
