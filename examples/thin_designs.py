@@ -9,7 +9,8 @@ used, which is where the truth would fall if the annotations said nothing along 
 depth–focal-length ridge) and the share of scenes in each decile of it (10 % each), the 90 % HDI's
 coverage of the distance, the median HDI width over the distance, the MAP's and the posterior
 mean's location errors, the share converged and the CPU seconds per estimate (99th percentile
-and maximum).
+and maximum). Under the table, over all designs: 95 % intervals of the mean quantile and of the
+coverage from a bootstrap over scenes (a scene's three designs share its camera and target).
 
 Usage::
 
@@ -17,7 +18,7 @@ Usage::
     python examples/thin_designs.py --n 40 --out thin_flat --location-prior flat
     python examples/thin_designs.py --n 40 --out thin_m --focal-prior 1650,0.27   # a focal prior
                                                                  # matched to the simulator's µ
-    python examples/thin_designs.py --n 40 --out thin_real --cameras real  # real cameras (phones,
+    python examples/thin_designs.py --n 120 --out thin_real --cameras real  # real cameras (phones,
                                                                  # zoom, action and street cameras)
 
 Records go to ``OUT/thin.jsonl`` (one line per estimate), the table to ``OUT/thin.md``. Tens of
@@ -36,6 +37,7 @@ import numpy as np
 
 from creference_bayes.bench.runner import variant
 from creference_bayes.bench.simulate import CAMERA_POPULATIONS, simulate_scene
+from creference_bayes.evaluation.reliability import cluster_bootstrap
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
 from creference_bayes.pipeline import estimate
@@ -132,6 +134,15 @@ def table(records: list[dict], by: str = "refs") -> str:
     return "\n".join([head, *rows]) + f"\n\noverflow warnings: {warn}\n"
 
 
+def scene_bootstrap(records: list[dict]) -> str:
+    """The 95 % bootstrap intervals of the mean quantile and of the 90 % HDI's coverage over all
+    estimates, resampling whole scenes (the designs of one scene share its camera and target, so
+    they are not independent draws)."""
+    lo, hi = cluster_bootstrap([[r["quantile"], r["covered"]] for r in records], [r["scene"] for r in records])
+    return (f"all designs, 95 % bootstrap over the {len({r['scene'] for r in records})} scenes: mean quantile "
+            f"{lo[0]:.2f}–{hi[0]:.2f}, 90 % HDI coverage {100 * lo[1]:.0f}–{100 * hi[1]:.0f} %")
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=40, help="scenes (each estimated with 0, 1 and 2 references)")
@@ -147,7 +158,8 @@ def main(argv=None) -> None:
                    help="the simulator's outdoor cameras (setting) or real ones, street cameras included (real)")
     args = p.parse_args(argv)
     records = run(args)
-    text = table(records) + ("" if args.cameras == "setting" else "\nBy camera:\n\n" + table(records, "camera"))
+    text = (table(records) + f"\n{scene_bootstrap(records)}\n"
+            + ("" if args.cameras == "setting" else "\nBy camera:\n\n" + table(records, "camera")))
     (Path(args.out) / "thin.md").write_text(text)
     print(text)
 

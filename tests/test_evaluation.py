@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from creference_bayes.cli.main import main
 from creference_bayes.evaluation.iou3d import overlaps
 from creference_bayes.evaluation.kitti_ap import FrameData, average_precision, get_thresholds
-from creference_bayes.evaluation.reliability import brier_score
+from creference_bayes.evaluation.reliability import brier_score, cluster_bootstrap
 from creference_bayes.io.kitti_read import LabelFileError, read_kitti_labels
 
 # x, y (bottom), z, rotation_y, length, width, height
@@ -212,6 +212,43 @@ def test_brier_score_by_hand():
     assert brier_score([0.9, 0.8], [True, False]) == pytest.approx((0.01 + 0.64) / 2)
     with pytest.raises(ValueError, match="probabilities"):
         brier_score([1.5], [True])
+
+
+def test_cluster_bootstrap_with_one_value_per_cluster_is_the_ordinary_interval_of_a_mean():
+    x = np.random.default_rng(3).normal(2.0, 1.5, size=400)
+    lo, hi = cluster_bootstrap(x, np.arange(400))
+    # the normal-theory 95 % interval of a mean: ±1.96 sd / √n
+    half = 1.96 * x.std(ddof=1) / np.sqrt(len(x))
+    assert lo < x.mean() < hi
+    assert (hi - lo) / 2 == pytest.approx(half, rel=0.15)
+
+
+def test_cluster_bootstrap_counts_a_cluster_once_however_many_rows_it_has():
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=60)
+    # every value repeated 10 times in its cluster: the same interval as one row each
+    assert cluster_bootstrap(np.repeat(x, 10), np.repeat(np.arange(60), 10)) == pytest.approx(
+        cluster_bootstrap(x, np.arange(60)))
+    # the same 600 rows taken as independent: an interval about √10 times narrower, which is the
+    # over-confidence the clustering removes
+    lo_c, hi_c = cluster_bootstrap(np.repeat(x, 10), np.repeat(np.arange(60), 10))
+    lo_i, hi_i = cluster_bootstrap(np.repeat(x, 10), np.arange(600))
+    assert (hi_c - lo_c) / (hi_i - lo_i) == pytest.approx(np.sqrt(10), rel=0.25)
+
+
+def test_cluster_bootstrap_takes_columns_and_bools_and_names_bad_input():
+    covered = np.array([True, False, True, True])
+    q = np.array([0.2, 0.97, 0.5, 0.6])
+    lo, hi = cluster_bootstrap(np.c_[covered, q], ["a", "a", "b", "c"], n_boot=500)
+    assert lo.shape == hi.shape == (2,)
+    assert 0.0 <= lo[0] <= 0.75 <= hi[0] <= 1.0  # the share covered, 3 of 4
+    assert lo[1] <= q.mean() <= hi[1]
+    with pytest.raises(ValueError, match="clusters"):
+        cluster_bootstrap([1.0, 2.0], ["a"])
+    with pytest.raises(ValueError, match="finite"):
+        cluster_bootstrap([1.0, np.nan], ["a", "b"])
+    with pytest.raises(ValueError, match="level.*1.5"):
+        cluster_bootstrap([1.0, 2.0], ["a", "b"], level=1.5)
 
 
 # ------------------------------------------------------------------------------------------------

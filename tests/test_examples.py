@@ -32,6 +32,8 @@ TINY = {
                              ["dp/labels/report.md"])],
     "estimate_scene.py": [([], [])],
     "speed_by_objects.py": [(["--counts", "3", "--scenes", "1", "--max-steps", "400"], [])],
+    "frame_calibration.py": [(["--frames", "1", "--counts", "3", "--tiers", "low", "--min-ess", "100", "--out", "fc"],
+                              ["fc/frames.jsonl", "fc/frames.md"])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
@@ -363,3 +365,38 @@ def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_wit
     # the model's reading (less its shift) is centred where the raw one is not
     fixed = [r["corrected_shift"] for r in noisy if r["measure"] == "width"]
     assert abs(np.median(fixed)) < 0.5 * np.median(widths)
+
+
+def test_frame_calibration_reads_each_true_value_against_its_own_draws():
+    """Each quantity's quantile comes from its own column of the draws: with draws set just above
+    the truth in some columns and just below it in the others, each quantile is 0 or 1 as set."""
+    import importlib.util
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from creference_bayes.models.contract import O_GROUND, O_SIZE, O_X, O_Z
+    from creference_bayes.bench.simulate import true_state
+
+    spec = importlib.util.spec_from_file_location("frame_calibration", EXAMPLES[0].parent / "frame_calibration.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    scene = study._frame(5, "low", 3, 0)
+    cam, objs = true_state(scene)
+    cams = np.repeat(cam[None, None], 40, axis=1)  # (1 chain, 40 draws, 5)
+    obj = np.repeat(objs[None, None], 40, axis=1)
+    up, down = 1.001, 0.999  # above or below the truth, in every draw
+    cams[..., 0] *= up  # the focal length: its truth below every draw, quantile 0
+    cams[..., 3] *= down  # the height: quantile 1
+    obj[..., O_X] *= up
+    obj[..., O_Z] *= up  # the distance grows: quantile 0
+    obj[..., O_SIZE.start] *= down  # length: 1
+    obj[..., O_SIZE.start + 1] *= up  # width: 0
+    obj[..., O_SIZE.start + 2] *= down  # height: 1
+    obj[..., O_GROUND] = np.abs(obj[..., O_GROUND]) + 1.0  # above any truth: 0
+    result = SimpleNamespace(draws=SimpleNamespace(cameras=cams, objects=obj))
+    recs = study.frame_records(scene, result, "f")
+    assert len(recs) == 3
+    for r in recs:
+        assert (r["focal_length_px"], r["camera_height_m"]) == (0.0, 1.0)
+        assert (r["distance_m"], r["length_m"], r["width_m"], r["height_m"], r["ground_m"]) == (0.0, 1.0, 0.0, 1.0, 0.0)
