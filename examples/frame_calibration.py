@@ -45,13 +45,20 @@ def _frame(seed: int, tier: str, n: int, k: int):
         return parse_scene(d)
 
 
+def _quantile(draws, truth) -> float | None:
+    """The share of draws below the true value; None for a quantity the model holds fixed (every
+    draw the same, as the ground offset of a frame's only object), which has nothing to check."""
+    draws = np.asarray(draws, float)
+    return None if np.ptp(draws) == 0 else float(np.mean(draws < truth))
+
+
 def frame_records(scene, result, frame: str) -> list[dict]:
     """One record per object: the quantile of each true value in the posterior draws (the share of
-    draws below it), the camera's repeated on each of its objects."""
+    draws below it; None when the quantity is fixed), the camera's repeated on each of its objects."""
     cams = result.draws.cameras.reshape(-1, result.draws.cameras.shape[-1])
     objs = result.draws.objects.reshape(-1, *result.draws.objects.shape[-2:])
     g = scene.ground_truth
-    cam = {name: float(np.mean(cams[:, c] < g[name]))
+    cam = {name: _quantile(cams[:, c], g[name])
            for name, c in zip(CAMERA_QUANTITIES, (C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL))}
     out = []
     for i, t in enumerate(scene.targets):
@@ -64,7 +71,7 @@ def frame_records(scene, result, frame: str) -> list[dict]:
                  "height_m": (sizes[:, 2], tg["dimensions_m"]["height"]),
                  "ground_m": (objs[:, i, O_GROUND], tg["ground_m"])}
         out.append({"frame": frame, "object": t.id, "cls": t.cls, "distance": float(np.hypot(x, z)),
-                    **cam, **{name: float(np.mean(draws < v)) for name, (draws, v) in truth.items()}})
+                    **cam, **{name: _quantile(draws, v) for name, (draws, v) in truth.items()}})
     return out
 
 
@@ -101,7 +108,10 @@ def table(records: list[dict]) -> str:
     for r in records:  # the camera's quantities: once per frame
         first.setdefault(r["frame"], r)
     for name in (*CAMERA_QUANTITIES, *OBJECT_QUANTITIES):
-        s = list(first.values()) if name in CAMERA_QUANTITIES else records
+        s = [r for r in (first.values() if name in CAMERA_QUANTITIES else records) if r[name] is not None]
+        if not s:
+            rows.append(f"| {name} | 0 (held fixed) | | | | |")
+            continue
         q = np.array([r[name] for r in s])
         covered = (q > 0.05) & (q < 0.95)
         lo, hi = cluster_bootstrap(np.c_[covered, q], [r["frame"] for r in s])

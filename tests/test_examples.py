@@ -383,8 +383,9 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws():
     spec.loader.exec_module(study)
     scene = study._frame(5, "low", 3, 0)
     cam, objs = true_state(scene)
-    cams = np.repeat(cam[None, None], 40, axis=1)  # (1 chain, 40 draws, 5)
-    obj = np.repeat(objs[None, None], 40, axis=1)
+    spread = 1.0 + 1e-5 * np.arange(40)  # 40 draws that differ a little (a fixed quantity's draws do not)
+    cams = cam[None, None] * spread[None, :, None]  # (1 chain, 40 draws, 5)
+    obj = objs[None, None] * spread[None, :, None, None]
     up, down = 1.001, 0.999  # above or below the truth, in every draw
     cams[..., 0] *= up  # the focal length: its truth below every draw, quantile 0
     cams[..., 3] *= down  # the height: quantile 1
@@ -400,3 +401,11 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws():
     for r in recs:
         assert (r["focal_length_px"], r["camera_height_m"]) == (0.0, 1.0)
         assert (r["distance_m"], r["length_m"], r["width_m"], r["height_m"], r["ground_m"]) == (0.0, 1.0, 0.0, 1.0, 0.0)
+    # a quantity the model holds fixed (the ground offset of a frame's only object) is not checked
+    one = study._frame(5, "low", 1, 0)
+    cam, objs = true_state(one)
+    fixed = SimpleNamespace(draws=SimpleNamespace(cameras=cam[None, None] * spread[None, :, None] * up,
+                                                  objects=objs[None, None] * spread[None, :, None, None]))
+    (rec,) = study.frame_records(one, fixed, "g")
+    assert rec["ground_m"] is None and rec["focal_length_px"] == 0.0
+    assert "| ground_m | 0 (held fixed) |" in study.table([{**rec, "converged": True}])
