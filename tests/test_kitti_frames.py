@@ -251,6 +251,8 @@ def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp
     informed = [r for r in rigs.values() if r is not None]
     assert informed and all(r["frames"] == 2 and r["focal_length_px"]["frames"] >= 1 for r in informed)
     assert f"P2 {P2[0, 0]:.1f}" in proc.stdout
+    # each frame's focal length against P2's, by objects per frame (three frames of three objects)
+    assert "the frames' focal lengths against P2" in proc.stdout and "2-3 objects:   3," in proc.stdout
     assert len(list((out / "joint" / "label_2").glob("*.txt"))) == 3
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--methods",
                           "bound", "--rig", "focal"], capture_output=True, text=True, timeout=60)
@@ -332,3 +334,20 @@ def test_kitti_study_states_the_quality_gap_with_a_standard_error_by_frame():
     assert mean4 == pytest.approx(mean) and se4 == pytest.approx(se)
     # labels without a stated quality are left out, not counted as misses
     assert study._frame_se(one + [{"image": "000009", "p_iou_ge_0.5": None, "iou_3d": 0.0}], 0.5) == pytest.approx((mean, se))
+
+
+def test_kitti_study_tables_the_frames_focal_lengths_by_objects_per_frame():
+    """Rows (objects, posterior median ÷ P2, quantile of P2, P2 in the HDI) go to their band by the
+    number of objects, and every band states its frames, median ratio, mean quantile and HDI count."""
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    spec = importlib.util.spec_from_file_location("kitti_study", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    rows = [(1, 0.8, 0.9, False), (1, 1.0, 0.5, True), (5, 1.1, 0.2, True)]
+    text = study._focal_table(rows)
+    assert "     1 objects:   2, 0.900, 0.70, 1 of 2" in text
+    assert "   4-7 objects:   1, 1.100, 0.20, 1 of 1" in text
+    assert "   all objects:   3, 1.000, 0.53, 2 of 3" in text
+    assert "2-3 objects" not in text and "8+ objects" not in text  # no frames there
