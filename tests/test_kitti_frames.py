@@ -351,3 +351,26 @@ def test_kitti_study_tables_the_frames_focal_lengths_by_objects_per_frame():
     assert "   4-7 objects:   1, 1.100, 0.20, 1 of 1" in text
     assert "   all objects:   3, 1.000, 0.53, 2 of 3" in text
     assert "2-3 objects" not in text and "8+ objects" not in text  # no frames there
+
+
+def test_the_kitti_page_fits_each_frames_ground_plane(tmp_path):
+    """docs/kitti.md's ground snippet, run as printed on a folder of two frames whose objects stand
+    exactly on planes rising 1 cm per metre ahead: no spread around the plane, a slope of
+    atan(0.01) = 0.57° in both; a frame of four objects (too few) and DontCare rows are left out."""
+    import re
+
+    block = re.findall(r"```python\n(.*?)```", (Path(__file__).resolve().parents[1] / "docs" / "kitti.md").read_text(),
+                       re.S)
+    (snippet,) = [b for b in block if "ground plane" in b]
+    labels = tmp_path / "kitti" / "label_2"
+    labels.mkdir(parents=True)
+    for name, n, height in (("000000", 6, 1.65), ("000001", 5, 1.5), ("000002", 4, 1.7)):
+        rows = [f"Car 0.00 0 0.00 1 1 2 2 1.5 1.6 3.9 {x:.2f} {height + 0.01 * z:.4f} {z:.2f} 0.00"
+                for x, z in zip([-6.0, 4.0, -2.0, 6.0, -4.0, 2.0][:n], np.linspace(8, 40, n))]
+        rows.append("DontCare -1 -1 -10 1 1 2 2 -1 -1 -1 -1000 -1000 -1000 -10")
+        (labels / f"{name}.txt").write_text("\n".join(rows) + "\n")
+    code = snippet.replace('KITTI = "../shared/kitti_dev"', f'KITTI = {str(tmp_path / "kitti")!r}')
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("2 frames, 11 objects: sd of the objects' ground around their frame's plane 0.000 m")
+    assert "slope along the view +0.57 ± 0.00 deg" in done.stdout
