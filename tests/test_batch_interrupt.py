@@ -54,6 +54,27 @@ def _interrupt(proc) -> str:
     return err
 
 
+def _wait_until_blocked_in_read(proc, timeout=10.0):
+    """Wait until the batch sleeps in the pipe's read(), where a signal interrupts it.
+
+    A writer can open the FIFO as soon as the batch waits in open(); a SIGINT that arrives after
+    that open() returns but before the read() starts is handled by Python's C-level handler
+    between the two calls, and the read() that follows then blocks with the KeyboardInterrupt
+    still pending: no Python code runs until data arrives (2 of 12 runs hung so on a 2-core
+    machine). Where the kernel does not say (no /proc, or an older kernel whose pipe waits all
+    read the same), wait a second instead.
+    """
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            if "pipe_read" in open(f"/proc/{proc.pid}/wchan").read():
+                return
+        except OSError:
+            break
+        time.sleep(0.02)
+    time.sleep(1.0)
+
+
 def _check_folder(out, n_scenes):
     batch = json.loads((out / "batch.json").read_text())
     assert len(batch["scenes"]) == n_scenes
@@ -78,6 +99,7 @@ def test_interrupt_while_the_scenes_are_read_still_writes_the_summary(tmp_path):
             return None
 
     writer = _wait_for(reading_the_pipe, proc)  # held open (no EOF): the batch stays blocked
+    _wait_until_blocked_in_read(proc)
     try:
         err = _interrupt(proc)
     finally:
