@@ -81,10 +81,8 @@ def run(args) -> list[dict]:
     records = []
     sampling = {"min_ess": args.min_ess} if args.min_ess else None
     with open(out / "frames.jsonl", "w") as f:
-        for tier in args.tiers.split(","):
-            if tier not in FRAME_TIERS:
-                raise SystemExit(f"--tiers: expected names of {list(FRAME_TIERS)}, got {tier!r}")
-            for n in (int(v) for v in args.counts.split(",")):
+        for tier in args.tiers:
+            for n in args.counts:
                 for k in range(args.frames):
                     scene = _frame(args.seed, tier, n, k)
                     result = estimate(scene, seed=k, sampling=sampling, keep_draws=0)
@@ -130,6 +128,16 @@ def main(argv=None) -> None:
     p.add_argument("--min-ess", type=int, default=None, help="bulk ESS of each posterior (default: the package's)")
     p.add_argument("--out", default="frame_calibration", help="output folder (default: %(default)s)")
     args = p.parse_args(argv)
+    args.tiers = [t.strip() for t in args.tiers.split(",")]
+    if not args.tiers or set(args.tiers) - set(FRAME_TIERS):
+        p.error(f"--tiers: expected names of {list(FRAME_TIERS)}, comma-separated; got {','.join(args.tiers)!r}")
+    raw = args.counts
+    try:
+        args.counts = [int(v) for v in raw.split(",")]
+    except ValueError:
+        args.counts = []
+    if not args.counts or min(args.counts) < 1 or args.frames < 1:
+        p.error(f"--counts and --frames: expected whole numbers ≥ 1, got --counts {raw!r} --frames {args.frames}")
     records = run(args)
     text = table(records)
     atomic_write_text(Path(args.out) / "frames.md", text)

@@ -240,7 +240,7 @@ def main(argv=None) -> int:
             res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
             times.append(time.perf_counter() - t0 + first_pass.get(name, 0.0))
             d = res.to_dict()
-            focal_rows.append(_focal_row(frame, res))
+            focal_rows.append(_focal_row(frame, res, d))
             labels, _ = write_labels(out / "joint", name, [LabelInput(name, d, frame)])
             if args.same_score:
                 write_label_file(out / "joint" / "label_2" / f"{name}.txt",
@@ -327,15 +327,15 @@ def _frame_se(objects: list[dict], t: float) -> tuple[float, float]:
     return mean, float(np.sqrt(np.sum(sums**2)) / len(d))
 
 
-def _focal_row(frame, res) -> tuple[int, float, float, bool] | None:
+def _focal_row(frame, res, d: dict) -> tuple[int, float, float, bool] | None:
     """A joint frame's estimated focal length against P2's (the scene's ground truth): (objects,
     posterior median ÷ P2, the quantile of P2 in the draws, P2 in the 90 % HDI); None when the
-    focal length was given."""
+    focal length was given. ``d`` is ``res.to_dict()``."""
     truth = (frame.ground_truth or {}).get("focal_length_px")
     if frame.focal_length_px is not None or truth is None or res.draws is None:
         return None
     draws = res.draws.cameras[..., 0].ravel()
-    lo, hi = res.to_dict()["camera"]["posterior"]["hdi"]["focal_length_px"]
+    lo, hi = d["camera"]["posterior"]["hdi"]["focal_length_px"]
     return len(frame.targets), float(np.median(draws) / truth), float(np.mean(draws < truth)), bool(lo <= truth <= hi)
 
 

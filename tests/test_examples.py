@@ -367,7 +367,7 @@ def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_wit
     assert abs(np.median(fixed)) < 0.5 * np.median(widths)
 
 
-def test_frame_calibration_reads_each_true_value_against_its_own_draws():
+def test_frame_calibration_reads_each_true_value_against_its_own_draws(tmp_path, capsys):
     """Each quantity's quantile comes from its own column of the draws: with draws set just above
     the truth in some columns and just below it in the others, each quantile is 0 or 1 as set."""
     import importlib.util
@@ -409,3 +409,10 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws():
     (rec,) = study.frame_records(one, fixed, "g")
     assert rec["ground_m"] is None and rec["focal_length_px"] == 0.0
     assert "| ground_m | 0 (held fixed) |" in study.table([{**rec, "converged": True}])
+    # bad options are usage errors that name the value, before anything is written
+    for flags, said in ((["--tiers", "lo"], "got 'lo'"), (["--counts", "3,a"], "got --counts '3,a'"),
+                        (["--frames", "0"], "--frames 0")):
+        with pytest.raises(SystemExit) as stop:
+            study.main([*flags, "--out", str(tmp_path / "never_written")])
+        assert stop.value.code == 2 and said in capsys.readouterr().err
+    assert not (tmp_path / "never_written").exists()
