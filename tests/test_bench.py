@@ -162,3 +162,31 @@ def test_scenes_of_several_targets_go_through_the_same_runner():
     assert sum(b["objects"] for b in f["bands"]) == 2 and f["counts"][0]["scenes"] == 1
     md = markdown_report(doc)
     assert "joint MAP median %" in md and "objects per scene" in md and "Location error (paper" not in md
+
+
+def test_the_frames_coverage_states_its_interval_over_scenes_not_objects():
+    """The objects of a scene share its camera, so a band's coverage counts scenes: 9 of 10 objects
+    covered in 2 scenes says little, 9 of 10 scenes of one object each say more (Clopper–Pearson
+    9 of 10: 0.555–0.997), and 12 scenes with every object covered still leave room below 100 %
+    (0.025^(1/12) = 0.735), where a bootstrap would say 100–100."""
+    from creference_bayes.bench.report import _frames, markdown_report
+
+    def rec(scene, covered, n):
+        return {"estimator": "frame", "scene": scene, "tier": "low", "n_objects": n, "distance_m": 25.0,
+                "error": 3.0, "post_error": 3.0, "alone_error": 9.0, "crb": 4.0, "in_hdi90": covered,
+                "seconds": 0.1, "post_seconds": 1.0, "converged": True}
+
+    two = [rec("a", True, 9) for _ in range(9)] + [rec("b", False, 1)]
+    ten = [rec(f"s{k}", k > 0, 1) for k in range(10)]
+    every = [rec(f"s{k}", True, 3) for k in range(12) for _ in range(3)]
+    (band_two,) = _frames({"records": two})["bands"]
+    (band_ten,) = _frames({"records": ten})["bands"]
+    (band_every,) = _frames({"records": every})["bands"]
+    assert band_two["coverage_90"] == band_ten["coverage_90"] == 0.9 and band_every["coverage_90"] == 1.0
+    assert band_ten["coverage_90_interval"] == pytest.approx([0.555, 0.997], abs=0.001)
+    lo2, hi2 = band_two["coverage_90_interval"]
+    assert lo2 < 0.2 and hi2 > 0.999  # two scenes: hardly anything
+    assert band_every["coverage_90_interval"] == pytest.approx([0.735, 1.0], abs=0.001)
+    doc = {"records": every, "summary": {"frames": _frames({"records": every})}, "config": {"name": "t"}, "seed": 0,
+           "version": "x", "seconds": 1.0}
+    assert "| 100% (74–100) |" in markdown_report(doc)
