@@ -19,9 +19,9 @@ the same depth-based score instead (exp(−z / 40 m)), to compare geometry alone
 predicted against observed P(IoU ≥ 0.7), Brier score), each method's Car box errors against the
 ground-truth boxes they were matched to (median absolute depth, height / width / length and yaw
 error by distance band), with ``--focal unknown`` each frame's estimated focal length against P2's
-by the number of objects in the frame, and the time per image. ``--option KEY=VALUE`` sets a metrology model
-option for the joint and the alone estimates. ``--max-frames`` and ``--max-steps`` make a tiny run
-(the tests).
+by the number of objects in the frame, and the time per image. ``--option KEY=VALUE`` sets a
+metrology model option for the joint and the alone estimates. ``--max-frames`` and ``--max-steps``
+make a tiny run (the tests).
 
 ``--focal unknown --focal-sd S`` gives every frame P2's focal length as a log-normal prior of
 log-sd S instead of a rig: what a camera pooled over many frames would give, to measure how well
