@@ -19,30 +19,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from creference_bayes.bench.runner import FRAME_TIERS
-from creference_bayes.bench.simulate import simulate_scene
+from creference_bayes.bench.runner import FRAME_TIERS, frame_scene
 from creference_bayes.evaluation.reliability import cluster_bootstrap
 from creference_bayes.io.files import atomic_write_text
-from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_X, O_Z
 from creference_bayes.pipeline import estimate
 
 #: The quantities checked: camera ones (one per frame) and object ones (one per object).
 CAMERA_QUANTITIES = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 OBJECT_QUANTITIES = ("distance_m", "length_m", "width_m", "height_m", "ground_m")
-
-
-def _frame(seed: int, tier: str, n: int, k: int):
-    d = simulate_scene([seed, n, k, len(tier)], setting="street", tier=FRAME_TIERS[tier], n_objects=n,
-                       n_references=0, n_target_annotations=5, sizes="prior", horizon="none")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return parse_scene(d)
 
 
 def _quantile(draws, truth) -> float | None:
@@ -84,7 +73,7 @@ def run(args) -> list[dict]:
         for tier in args.tiers:
             for n in args.counts:
                 for k in range(args.frames):
-                    scene = _frame(args.seed, tier, n, k)
+                    scene = frame_scene(tier, n, k, args.seed)
                     result = estimate(scene, seed=k, sampling=sampling, keep_draws=0)
                     recs = frame_records(scene, result, f"{tier}-{n}-{k}")
                     for r in recs:
