@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from creference_bayes.bench.runner import FRAME_TIERS, frame_scene
+from creference_bayes.bench.runner import FRAME_TIERS, street_scene
 from creference_bayes.evaluation.reliability import cluster_bootstrap
 from creference_bayes.io.files import atomic_write_text
 from creference_bayes.models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_X, O_Z
@@ -73,7 +73,7 @@ def run(args) -> list[dict]:
         for tier in args.tiers:
             for n in args.counts:
                 for k in range(args.frames):
-                    scene = frame_scene(tier, n, k, args.seed)
+                    scene = street_scene(tier, n, k, args.seed)
                     result = estimate(scene, seed=k, sampling=sampling, keep_draws=0)
                     recs = frame_records(scene, result, f"{tier}-{n}-{k}")
                     for r in recs:

@@ -381,7 +381,7 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws(tmp_path,
     spec = importlib.util.spec_from_file_location("frame_calibration", EXAMPLES[0].parent / "frame_calibration.py")
     study = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(study)
-    scene = study.frame_scene("low", 3, 0, 5)
+    scene = study.street_scene("low", 3, 0, 5)
     cam, objs = true_state(scene)
     spread = 1.0 + 1e-5 * np.arange(40)  # 40 draws that differ a little (a fixed quantity's draws do not)
     cams = cam[None, None] * spread[None, :, None]  # (1 chain, 40 draws, 5)
@@ -402,7 +402,7 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws(tmp_path,
         assert (r["focal_length_px"], r["camera_height_m"]) == (0.0, 1.0)
         assert (r["distance_m"], r["length_m"], r["width_m"], r["height_m"], r["ground_m"]) == (0.0, 1.0, 0.0, 1.0, 0.0)
     # a quantity the model holds fixed (the ground offset of a frame's only object) is not checked
-    one = study.frame_scene("low", 1, 0, 5)
+    one = study.street_scene("low", 1, 0, 5)
     cam, objs = true_state(one)
     fixed = SimpleNamespace(draws=SimpleNamespace(cameras=cam[None, None] * spread[None, :, None] * up,
                                                   objects=objs[None, None] * spread[None, :, None, None]))

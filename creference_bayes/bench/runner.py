@@ -32,7 +32,7 @@ from ..io.result import hdi
 from ..io.scene import Scene, parse_scene
 from .simulate import SETTINGS, TIERS, NoiseTier, simulate_scene
 
-__all__ = ["BenchConfig", "CONFIGS", "FRAME_TIERS", "bench_scenes", "frame_scene", "variant", "calibration_of", "run_bench", "plain"]
+__all__ = ["BenchConfig", "CONFIGS", "FRAME_TIERS", "bench_scenes", "street_scene", "variant", "calibration_of", "run_bench", "plain"]
 
 BENCH_FORMAT = "creference-bench/1"
 CREDIBLE_LEVELS = (0.5, 0.9)
@@ -321,7 +321,7 @@ def _exact_records(n: int, seed: int, say, cameras: str = "setting") -> list[dic
     return recs
 
 
-def frame_scene(tier: str, n_objects: int, k: int, seed: int = 0, cameras: str = "setting") -> Scene:
+def street_scene(tier: str, n_objects: int, k: int, seed: int = 0, cameras: str = "setting") -> Scene:
     """The bench's ``k``-th street scene of ``n_objects`` targets in a :data:`FRAME_TIERS` tier: 5
     sets of dimension lines per object, no references, no focal length and no horizon given, sizes
     left to the class priors; deterministic for ``seed``."""
@@ -339,7 +339,7 @@ def _frame_records(config: BenchConfig, seed: int, say, tick) -> list[dict]:
         noise = FRAME_TIERS[tier]
         for n in config.frame_counts:
             for k in range(config.frames_per_count):
-                scene = frame_scene(tier, n, k, seed, cameras=config.cameras)
+                scene = street_scene(tier, n, k, seed, cameras=config.cameras)
                 sid = f"frame-{tier}-{n}-{k}"
                 d = _estimate(scene, "metrology", "default", k, posterior=True, sampling=config.sampler).to_dict()
                 bound = scene_bound(scene, noise.target_px)
