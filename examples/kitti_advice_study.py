@@ -33,10 +33,11 @@ against fixed designs, on KITTI frames (docs/advice.md).
    ``DIR/advice_study.json``.
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
    requests' chances combined as the plan combines them (each target below the bar lifted with
-   chance 1 − Π(1 − p)), beside the sum of each request's gain weighed alone, with the ratio's 90 %
-   interval from resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
-   (``BAND_EDGES``), with the realised count's 90 % interval if the predicted chances are right,
-   and the net change of the labels already good; and the advised plan's gain on the
+   chance 1 − Π(1 − p), each good one kept with chance Π p), the labels lifted less those dropped,
+   beside the sum of each request's gain weighed alone, with the ratio's 90 % interval from
+   resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
+   (``BAND_EDGES``; the last, the labels already good, predicted to lose), with the realised
+   count's 90 % interval if the predicted chances are right; and the advised plan's gain on the
    futures its requests were chosen by beside the one it states from the others.
    ``--tables-only`` computes these again from an earlier run's folder, estimating nothing.
 
@@ -160,16 +161,19 @@ def _good_by_target(labels_csv: Path, args) -> dict:
 
 
 def _lifted(chances: list, below: np.ndarray) -> np.ndarray:
-    """Per target, the chance of becoming good when requests are answered together: 1 − Π(1 − p)
-    over the requests' ``p_good`` for a target below the bar, 0 for one above it (the plan's rule,
-    ``BatchAdvice.plan``: a label becomes good once)."""
+    """Per target, the expected change of its goodness when requests are answered together: for
+    a target below the bar, its chance of becoming good, 1 − Π(1 − p) over the requests'
+    ``p_good``; for one good now, minus its chance of falling below the bar, 1 − Π p (the plan's
+    rules, ``BatchAdvice.plan``: a label becomes good once, and stays good if every request keeps
+    it so). 0 for every target of a frame no request is asked in (it is not estimated again)."""
     if not chances:
         return np.zeros(len(below))
-    return np.where(below, 1.0 - np.prod(1.0 - np.array(chances), axis=0), 0.0)
+    chances = np.array(chances)
+    return np.where(below, 1.0 - np.prod(1.0 - chances, axis=0), -(1.0 - np.prod(chances, axis=0)))
 
 
 #: The bands of a label's round-0 P(IoU ≥ T) the predictions are checked in; the last, from the
-#: bar up, holds the labels already good (predicted to stay so: their realised change is a loss).
+#: bar up, holds the labels already good (predicted to fall with the chance :func:`_lifted` gives).
 BAND_EDGES = (0.0, 0.1, 0.3)
 
 
@@ -189,8 +193,11 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
     them all at once). The ratio's 90 % interval resamples frames (the labels of a frame share its
     camera, so they are not independent). In a band below the bar, ``expected_90`` is the 90 %
     interval of the realised count if each label became good with its predicted chance, and the
-    band ``agrees`` when the realised count lies in it; the band of labels already good has no
-    prediction (the advice counts no losses), only its net change."""
+    band ``agrees`` when the realised count lies in it; the band of labels already good has as
+    prediction is its labels' chances of falling, negative, and its count's interval runs from
+    minus the labels that may fall to 0. ``lifted`` and ``dropped`` split a design's predicted and
+    realised net change into the labels below the bar that became good and the good ones that
+    fell."""
     advice = json.loads((out / "advice" / "advice.json").read_text())
     with open(out / "advice" / "requests.csv", newline="") as f:
         planned = list(csv.DictReader(f))
@@ -240,17 +247,19 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
             r_ += [good1.get((k, t), False) - good0.get((k, t), False) for t in ids]
         f_, b_, p_, r_ = np.array(f_), np.array(b_), np.array(p_, float), np.array(r_, float)
         p, r = np.bincount(f_, p_, len(frames)), np.bincount(f_, r_, len(frames))
-        outcomes = np.random.default_rng(1).random((n_boot, len(p_))) < p_  # the labels as predicted
+        # the labels as predicted: each below the bar lifted, each good one dropped, with its chance
+        outcomes = np.sign(p_) * (np.random.default_rng(1).random((n_boot, len(p_))) < np.abs(p_))
         bands = []
         for b, label in enumerate(names):
             m = b_ == b
             pb, rb = float(p_[m].sum()), float(r_[m].sum())
-            row = {"band": label, "labels": int(m.sum()), "predicted": pb, "realised": rb}
-            if b < len(names) - 1:
-                lo, hi = (float(q) for q in np.quantile(outcomes[:, m].sum(axis=1), [0.05, 0.95]))
-                row.update(expected_90=[lo, hi], agrees=bool(lo <= rb <= hi))
-            bands.append(row)
+            lo, hi = (float(q) for q in np.quantile(outcomes[:, m].sum(axis=1), [0.05, 0.95]))
+            bands.append({"band": label, "labels": int(m.sum()), "predicted": pb, "realised": rb,
+                          "expected_90": [lo, hi], "agrees": bool(lo <= rb <= hi)})
+        up, down = p_ > 0, p_ < 0
         rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
+                     "lifted": {"predicted": float(p_[up].sum()), "realised": float(r_[r_ > 0].sum())},
+                     "dropped": {"predicted": float(-p_[down].sum()), "realised": float(-r_[r_ < 0].sum())},
                      "predicted_alone": float(sum(alone[name].values())),
                      "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
                      "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": _interval(r, p, idx),
@@ -264,19 +273,22 @@ def _ratio(a: dict) -> str:
 
 
 def print_accuracy(rows: list[dict]) -> None:
-    print("\n| design | predicted gain (requests combined) | sum of single requests | realised gain | realised / predicted (90 % interval, frames resampled) |")
-    print("|---|---|---|---|---|")
+    print("\n| design | lifted: predicted → realised | dropped: predicted → realised | net predicted (requests combined) "
+          "| sum of single requests' lifts | net realised | realised / predicted (90 % interval, frames resampled) |")
+    print("|---|---|---|---|---|---|---|")
     for a in rows:
-        print(f"| {a['design']} | {a['predicted']:.1f} | {a['predicted_alone']:.1f} | {a['realised']:.0f} | {_ratio(a)} |")
-    print("\nBy the label's round-0 P(IoU ≥ T): labels, predicted → realised good labels gained (the realised "
-          "count's 90 % interval if the predicted chances are right; ✗ outside it); the good ones: labels, net change\n")
+        print(f"| {a['design']} | {a['lifted']['predicted']:.1f} → {a['lifted']['realised']:.0f} | "
+              f"{a['dropped']['predicted']:.1f} → {a['dropped']['realised']:.0f} | {a['predicted']:.1f} | "
+              f"{a['predicted_alone']:.1f} | {a['realised']:.0f} | {_ratio(a)} |")
+    print("\nBy the label's round-0 P(IoU ≥ T): labels, predicted → realised net change of the good labels (the "
+          "realised count's 90 % interval if the predicted chances are right; ✗ outside it)\n")
     names = [b["band"] for b in rows[0]["bands"]] if rows else []
     print("| design | " + " | ".join(names) + " |")
     print("|---" * (len(names) + 1) + "|")
     for a in rows:
         cells = [f"{b['labels']}: {b['predicted']:.1f} → {b['realised']:.0f} "
                  f"({b['expected_90'][0]:.0f}–{b['expected_90'][1]:.0f}){'' if b['agrees'] else ' ✗'}"
-                 if "expected_90" in b else f"{b['labels']}: {b['realised']:+.0f}" for b in a["bands"]]
+                 for b in a["bands"]]
         print(f"| {a['design']} | " + " | ".join(cells) + " |")
     for a in rows:
         if a["predicted_on_ranking_futures"] is not None:
@@ -372,6 +384,7 @@ def main(argv=None) -> int:
             d.update(requests=len(requests), not_realised=sum(not r["realised"] for r in requests),
                      not_realised_s=sum(float(r["seconds"]) for r in requests if not r["realised"]),
                      predicted_good_gain=sum(float(r["good_gain"]) for r in requests if r["realised"]),
+                     predicted_good_loss=sum(float(r["good_loss"]) for r in requests if r["realised"]),
                      rows=requests)
         report["designs"][name] = d
         print(f"{name}: {after['estimated']} scenes estimated again, {after['unchanged']} unchanged; "
@@ -388,11 +401,11 @@ def finish(report: dict, out: Path, args) -> int:
     before = report["round0"]
     print(f"\n{len(report['frames'])} frames, {report['objects']} objects; good: P(IoU ≥ {args.score_iou:g}) ≥ "
           f"{args.min_quality:g}; truly good: also IoU ≥ {args.score_iou:g} with KITTI's box\n")
-    print("| design | human s | good | truly good | good gained per human h | predicted gain | realised gain |")
+    print("| design | human s | good | truly good | good gained per human h | predicted net gain | realised net gain |")
     print("|---|---|---|---|---|---|---|")
     for name, d in report["designs"].items():
         rate = "-" if d["good_per_hour"] is None else f"{d['good_per_hour']:.2f}"
-        pred = f"{d['predicted_good_gain']:.1f}" if name == "advised" else ""
+        pred = f"{d['predicted_good_gain'] - d.get('predicted_good_loss', 0.0):.1f}" if name == "advised" else ""
         print(f"| {name} | {d['human_s']:g} | {before['good']} → {d['good_after']} | {before['truly_good']} → "
               f"{d['truly_good_after']} | {rate} | {pred} | {d['good_gain']} |")
     print_accuracy(report["accuracy"])

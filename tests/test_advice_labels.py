@@ -200,6 +200,11 @@ def test_the_labels_objective_ranks_and_says_what_would_lift_each_label(advised)
     for p in advice.predictions:
         assert p.good_per_hour == pytest.approx(p.good_gain * 3600.0 / p.candidate.seconds)
         assert len(p.p_good) == 3 and np.all((p.p_good >= 0) & (p.p_good <= 1))
+    # a label good now counts in no gain; its chance to fall below the bar is stated as the loss
+    for p in advice.predictions:
+        assert p.good_gain == pytest.approx(float(np.sum(p.p_good[~advice.good])))
+        assert p.good_loss == pytest.approx(float(np.sum(1.0 - p.p_good[advice.good])))
+        assert p.to_dict()["good_loss"] == p.good_loss
     verdicts = advice.verdicts()
     assert [v["target"] for v in verdicts] == list(advice.targets)
     for v, good in zip(verdicts, advice.good):
@@ -408,6 +413,7 @@ def test_the_plan_asks_a_mounting_once_per_camera(advised_batch):
     # requests.csv is that plan (the same seed and settings), its gains stated from the other futures
     assert [r["kind"] for r in rows] == [r.prediction.candidate.kind for r in plan]
     assert [float(r["good_gain"]) for r in rows] == pytest.approx([r.gain for r in plan], abs=1e-3)
+    assert [float(r["good_loss"]) for r in rows] == pytest.approx([r.loss for r in plan], abs=1e-3)
     # a label becomes good once: the plan's gains add up to each target below the bar lifted with
     # chance 1 - prod(1 - p) over the plan's requests (a sum of single gains counts it again per request)
     frames = {o.key: o.advice for o in batch.objects}
@@ -472,6 +478,50 @@ def test_the_plan_values_a_request_by_what_it_adds():
         "size", "size", "dims"]
     assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=2.0).plan()] == ["size", "size"]
     assert [r.objects[0].key for r in _planned(frames).plan(budget_s=2 * 64.4)] == ["a", "b"]
+
+
+def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
+    """Two frames of one camera, each with a car below the bar (0.2) and a good one (0.6). In
+    frame a a size lifts its car with chance 0.9 and keeps the good car good with 0.8, the lines
+    0.5 and 0.9; in frame b a size 0.4 and 1.0; the mounting lifts either car below the bar
+    with 0.5 and keeps either good car with 0.5. The plan is chosen by the lifts alone: the sizes,
+    then the mounting (0.5 × 0.1 + 0.5 × 0.6 for 900 s), then the lines (0.5 × 0.1 × 0.5). The
+    good car of a stays good with 0.8 after the size, 0.8 × 0.5 after the mounting, so the losses
+    are 0.2, 0, 0.8 × 0.5 + 1.0 × 0.5 and 0.4 × 0.1."""
+    from types import SimpleNamespace
+
+    from creference_bayes.workflows.advice import Advice, Outlook, Prediction
+    from creference_bayes.workflows.advice.batch import BatchAdvice, ObjectAdvice
+    from creference_bayes.workflows.advice.candidates import Candidate
+
+    settings = AdviceSettings(min_good_per_hour=0.0)
+    two = np.ones(2)
+    now = Outlook(hdi_width_m=two, hdi_share=two * 0.2, distance_m=two * 20, location_sd_m=two,
+                  p_iou=np.array([0.2, 0.6]))
+
+    def pred(kind, target, seconds, lift, stay):
+        q = np.array([lift, stay])
+        return Prediction(Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
+                          0.0, 0.0, 0.0, 1.0, 0, p_good=q, good_gain=lift, rank_p_good=q, rank_good_gain=lift,
+                          good_loss=1.0 - stay)
+
+    frames = {"a": [pred("size", 0, 64.4, 0.9, 0.8), pred("dims", 0, 183.5, 0.5, 0.9),
+                    pred("mounting", None, 900.0, 0.5, 0.5)],
+              "b": [pred("size", 0, 64.4, 0.4, 1.0), pred("mounting", None, 900.0, 0.5, 0.5)]}
+    objects = tuple(ObjectAdvice(k, f"{k}.png", SimpleNamespace(camera_id="cam"),
+                                 Advice(("t0", "t1"), now, tuple(ps), "collect", "", settings=settings), 0, None)
+                    for k, ps in frames.items())
+    plan = BatchAdvice(objects).plan()
+    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
+        ("a", "size"), ("b", "size"), ("a", "mounting"), ("a", "dims")]
+    assert [r.gain for r in plan] == pytest.approx([0.9, 0.4, 0.5 * 0.1 + 0.5 * 0.6, 0.5 * 0.1 * 0.5])
+    assert [r.loss for r in plan] == pytest.approx([0.2, 0.0, 0.8 * 0.5 + 1.0 * 0.5, 0.4 * 0.1])
+    # with no good labels (the same lifts), the same plan: the losses take no part in the choice
+    alike = _planned({k: ("cam", [(p.candidate.kind, p.candidate.target, p.candidate.seconds, float(p.p_good[0]))
+                                  for p in ps]) for k, ps in frames.items()}, min_good_per_hour=0.0).plan()
+    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in alike] == [
+        (r.objects[0].key, r.prediction.candidate.kind) for r in plan]
+    assert all(r.loss == 0.0 for r in alike)
 
 
 def test_a_stop_quotes_the_figure_it_stopped_by():

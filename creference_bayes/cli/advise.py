@@ -105,7 +105,8 @@ def _batch(args, settings, progress: bool) -> int:
         print(f"{len(batch.objects)} targets advised: {good} labels good (P(IoU >= {settings.iou_threshold:g}) >= "
               f"{settings.min_quality:g}), {stuck} that no single request lifts; {len(rows)} request{'s' * (len(rows) != 1)} "
               f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time, "
-              f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good); "
+              f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good, "
+              f"{sum(float(r['good_loss']) for r in rows):.1f} good ones to fall below the bar); "
               f"{len(batch.skipped)} skipped; wrote {out} (advice.json, requests.csv, "
               f"label_studio_requests.json, cvat_requests.xml)")
         for s in batch.skipped:

@@ -24,9 +24,11 @@ now).
   weights shuffled over the draws show); a label's chance of reaching the bar is the share of its
   futures at or above it once that estimate's binomial noise is taken out (:func:`good_chance`),
   so that neither the noise nor a change that says nothing counts. Labels that are good now count
-  for nothing (the advice says they are good). Requests are ranked on half of the futures
-  (:meth:`Prediction.value`) and their ``good_gain`` and ``p_good`` stated from the other half, so
-  that the chosen requests' gains are not flattered by the noise that chose them;
+  for nothing in the ranking (the advice says they are good); their chance of falling below the
+  bar when the frame is estimated again is stated beside the gain (``good_loss``). Requests are
+  ranked on half of the futures (:meth:`Prediction.value`) and their ``good_gain``, ``good_loss``
+  and ``p_good`` stated from the other half, so that the chosen requests' gains are not flattered
+  by the noise that chose them;
 - **hdi**: the narrowing of every target's HDI share, in percentage points of its distance, summed
   over the targets, per minute.
 
@@ -174,6 +176,9 @@ class Prediction:
         over them)
     good_gain_se : its Monte Carlo standard error
     good_per_hour : ``good_gain`` per human hour of the observation's cost
+    good_loss : the expected number of labels good now that fall below the bar when the frame is
+        estimated again with it (``1 − p_good`` summed over them). It is stated, not ranked by: the
+        requests are ranked by the labels they lift (module docstring)
     """
 
     candidate: Candidate
@@ -189,12 +194,13 @@ class Prediction:
     good_per_hour: float = 0.0
     rank_p_good: np.ndarray | None = None
     rank_good_gain: float | None = None
+    good_loss: float = 0.0
 
     def to_dict(self) -> dict:
         return {"candidate": self.candidate.to_dict(), "expected": self.expected.to_dict(),
                 "gain_pct": self.gain_pct, "gain_se_pct": self.gain_se_pct, "gain_per_minute": self.gain_per_minute,
                 "p_good": [round(float(x), 6) for x in self.p_good], "good_gain": self.good_gain,
-                "good_gain_se": self.good_gain_se, "good_per_hour": self.good_per_hour,
+                "good_gain_se": self.good_gain_se, "good_per_hour": self.good_per_hour, "good_loss": self.good_loss,
                 "rank_good_gain": self.rank_good_gain,
                 "rank_p_good": None if self.rank_p_good is None else [round(float(x), 6) for x in self.rank_p_good],
                 "ess_median": self.ess_median, "fallbacks": self.fallbacks}
@@ -544,7 +550,8 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
                       ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)), p_good=p_told,
                       good_gain=good_gain, good_gain_se=float(np.std(boots, ddof=1)),
                       good_per_hour=good_gain * 3600.0 / cand.seconds if cand.seconds > 0 else math.inf,
-                      rank_p_good=p_rank, rank_good_gain=float(np.sum(p_rank[below])))
+                      rank_p_good=p_rank, rank_good_gain=float(np.sum(p_rank[below])),
+                      good_loss=float(np.sum(1.0 - p_told[~below])))
 
 
 def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):

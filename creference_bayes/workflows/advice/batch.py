@@ -42,9 +42,10 @@ __all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "Request", "BatchAdvice", "object_
 #: Columns of ``requests.csv``. Shares are of the target's ground distance (percent); HDI gains are
 #: summed over the scene's targets (points); ``good_gain`` is the expected number of labels that
 #: become good by it beyond the requests above it (over every frame of the camera, for a mounting;
-#: with the hdi objective, by it alone).
+#: with the hdi objective, by it alone); ``good_loss`` the expected number of labels good now that it
+#: drops below the bar beyond the requests above it.
 REQUEST_COLUMNS = ("rank", "key", "target", "image", "camera", "frames", "kind", "measure", "object", "request",
-                   "line_px", "seconds", "cumulative_seconds", "good_gain", "good_per_hour", "p_iou_now",
+                   "line_px", "seconds", "cumulative_seconds", "good_gain", "good_loss", "good_per_hour", "p_iou_now",
                    "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "answer")
 
 
@@ -74,7 +75,9 @@ class Request:
     ``predictions`` its prediction in each; ``camera`` its id, None for a frame that names no
     camera), its ``value`` (what the plan chose it by, :meth:`BatchAdvice.plan`), ``seconds`` and
     ``gain``: the good labels it is expected to add to the requests above it in the plan (stated
-    from the futures it was not chosen by), or with the hdi objective its good labels alone."""
+    from the futures it was not chosen by), or with the hdi objective its good labels alone;
+    ``loss``: the labels good now it is expected to drop below the bar beyond the requests above
+    it (with the hdi objective, alone)."""
 
     objects: tuple[ObjectAdvice, ...]
     predictions: tuple[Prediction, ...]
@@ -82,6 +85,7 @@ class Request:
     seconds: float
     camera: str | None = None
     gain: float = 0.0
+    loss: float = 0.0
 
     @property
     def prediction(self) -> Prediction:
@@ -96,11 +100,13 @@ class Request:
 class _Item:
     """A request the plan may take (its ``value`` alone) and, with the labels objective, each
     target's chance to be lifted by it, keyed by (frame key, target index), on the futures it is
-    ranked by and on those its gain is stated from."""
+    ranked by and on those its gain is stated from; ``kept``: each target good now, its chance to
+    stay good (stated)."""
 
     request: Request
     rank: dict
     told: dict
+    kept: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -123,13 +129,17 @@ class BatchAdvice:
         target's request (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
 
         The mounting is asked once per camera, its chances (or HDI points) over every frame of
-        that camera (a frame that names no camera is a camera of its own)."""
+        that camera (a frame that names no camera is a camera of its own).
+
+        Each request's ``loss`` is stated the same way and does not take part in the choice: a
+        label good now that requests r₁…r_k would each keep good with chance s₁…s_k stays good with
+        chance Π sᵢ."""
         items = self._items()
         if not items:
             return []
         settings = items[0].request.objects[0].advice.settings
         labels = settings.objective == "labels"
-        left_rank, left_told = {}, {}
+        left_rank, left_told, stays = {}, {}, {}
 
         def rate(it: _Item) -> tuple[float, float]:
             v = sum((p * left_rank.get(t, 1.0) for t, p in it.rank.items()), 0.0) if labels else it.request.value
@@ -157,12 +167,16 @@ class BatchAdvice:
             total += seconds
             if labels:
                 gain = sum((p * left_told.get(t, 1.0) for t, p in it.told.items()), 0.0)
+                loss = sum(((1.0 - s) * stays.get(t, 1.0) for t, s in it.kept.items()), 0.0)
                 for left, chances in ((left_rank, it.rank), (left_told, it.told)):
                     for t, p in chances.items():
                         left[t] = left.get(t, 1.0) * (1.0 - p)
+                for t, s in it.kept.items():
+                    stays[t] = stays.get(t, 1.0) * s
             else:
                 gain = sum(q.good_gain for q in it.request.predictions)
-            out.append(dataclasses.replace(it.request, value=v, gain=gain))
+                loss = sum(q.good_loss for q in it.request.predictions)
+            out.append(dataclasses.replace(it.request, value=v, gain=gain, loss=loss))
         return out
 
     def _items(self) -> list[_Item]:
@@ -175,10 +189,14 @@ class BatchAdvice:
             first = next(iter(targets.values()))
             objective = first.advice.settings.objective
             below = np.flatnonzero(~first.advice.good)
+            good = np.flatnonzero(first.advice.good)
 
             def chances(p: Prediction, stated: bool, key=key, below=below, labels=objective == "labels") -> dict:
                 q = p.p_good if stated else p.ranking_p_good()
                 return {(key, int(i)): float(q[i]) for i in below if q[i] > 0} if labels else {}
+
+            def kept(p: Prediction, key=key, good=good, labels=objective == "labels") -> dict:
+                return {(key, int(i)): float(p.p_good[i]) for i in good if p.p_good[i] < 1} if labels else {}
 
             if objective == "labels":
                 pairs = [(targets[_shown(p, below)], p) for p in first.advice.predictions
@@ -188,16 +206,15 @@ class BatchAdvice:
                          if o.request is not None and o.request.candidate.kind != "mounting"]
             for o, p in pairs:
                 items.append(_Item(Request((o,), (p,), p.value(objective), p.candidate.seconds, o.scene.camera_id),
-                                   chances(p, False), chances(p, True)))
+                                   chances(p, False), chances(p, True), kept(p)))
             p = next((p for p in first.advice.predictions if p.candidate.kind == "mounting"), None)
             if p is not None:
                 cameras.setdefault(first.scene.camera_id or f"frame:{key}", []).append(
-                    (first, p, p.value(objective), chances(p, False), chances(p, True)))
+                    (first, p, p.value(objective), chances(p, False), chances(p, True), kept(p)))
         for camera, of in cameras.items():
             request = Request(tuple(f[0] for f in of), tuple(f[1] for f in of), sum(f[2] for f in of),
                               of[0][1].candidate.seconds, None if camera.startswith("frame:") else camera)
-            items.append(_Item(request, {k: v for f in of for k, v in f[3].items()},
-                               {k: v for f in of for k, v in f[4].items()}))
+            items.append(_Item(request, *({k: v for f in of for k, v in f[n].items()} for n in (3, 4, 5))))
         return items
 
 
@@ -298,7 +315,7 @@ def _rows(plan: list[Request]) -> list[dict]:
             "object": c.object or "", "request": c.description,
             "line_px": "" if c.line is None else ";".join(f"{u:.2f},{v:.2f}" for u, v in c.line),
             "seconds": f"{r.seconds:g}", "cumulative_seconds": f"{total:g}",
-            "good_gain": f"{good:.3f}", "good_per_hour": f"{good * 3600.0 / r.seconds:.3f}",
+            "good_gain": f"{good:.3f}", "good_loss": f"{r.loss:.3f}", "good_per_hour": f"{good * 3600.0 / r.seconds:.3f}",
             "p_iou_now": f"{now.p_iou[i]:.3f}" if one else "", "p_iou_expected": f"{p.expected.p_iou[i]:.3f}" if one else "",
             "hdi_now_pct": f"{100 * now.hdi_share[i]:.2f}" if one else "",
             "hdi_expected_pct": f"{100 * p.expected.hdi_share[i]:.2f}" if one else "",
