@@ -19,6 +19,7 @@ TINY = {
                           "--out", "as"],
                          ["as/predict.jsonl"]),
                         (["own", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/own.jsonl"]),
+                        (["timing", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/timing.jsonl"]),
                         (["report", "--out", "as"], ["as/advice_study.md"])],
     "aggregation_study.py": [(["--draws", "50", "--out-dir", "agg"], ["agg/aggregation_study.png",
                                                                       "agg/aggregation_study.md"])],
@@ -445,3 +446,28 @@ def test_the_advice_studys_policy_table_reads_the_adaptive_run_at_three_quarters
     assert row.split("|")[3:5] == [" 900 ", " 7.0 "]  # mean human s spent by then, median error %
     full = next(line for line in table.splitlines() if line.startswith("| adaptive |"))
     assert full.split("|")[4] == " 4.5 "
+
+
+def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
+    """``policy`` end to end on one scene of each condition, its budget cut to a set of lines and
+    one reference (247.9 s) and its fixed designs to one: every run stays within the budget, the
+    adaptive run asks at most one more annotation, and ``report`` tables both conditions."""
+    import importlib.util
+    from types import SimpleNamespace as NS
+
+    spec = importlib.util.spec_from_file_location("advice_study_policy", EXAMPLES[0].parent / "advice_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    monkeypatch.setattr(study, "FIXED", {"target x1": (1, 0)})
+    monkeypatch.setattr(study, "FIVE_PLUS_FIVE_S", study.TARGET_S + study.REF_S)
+    study.run_policy(NS(out=str(tmp_path), n=1, seed=0, min_ess=100.0, rank_by="hdi"))
+    recs = [json.loads(line) for line in (tmp_path / "policy.jsonl").read_text().splitlines()]
+    assert [r["condition"] for r in recs] == ["paper-like", "outdoor"]
+    for r in recs:
+        steps = r["adaptive"]["steps"]
+        assert 1 <= len(steps) <= 2 and steps[0]["seconds"] == study.TARGET_S
+        assert all(s["seconds"] <= study.TARGET_S + study.REF_S + 1e-9 for s in steps)
+        assert list(r["fixed"]) == ["target x1"] and r["fixed"]["target x1"]["error"] >= 0
+        assert r["estimates"] and all(c["cpu_s"] > 0 for c in r["estimates"])
+    table = study.report_policy(tmp_path)
+    assert "Policies, paper-like scenes" in table and "Policies, outdoor scenes" in table
