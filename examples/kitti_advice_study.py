@@ -33,7 +33,7 @@ against fixed designs, on KITTI frames (docs/advice.md).
    ``DIR/advice_study.json``.
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
    requests' chances combined as the plan combines them (each target below the bar lifted with
-   chance 1 − Π(1 − p), each good one kept with chance Π p), the labels lifted less those dropped,
+   chance 1 − Π(1 − p), each good one dropped with chance Π(1 − p)), the labels lifted less those dropped,
    beside the sum of each request's gain weighed alone, with the ratio's 90 % interval from
    resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
    (``BAND_EDGES``; the last, the labels already good, predicted to lose), with the realised
@@ -161,15 +161,15 @@ def _good_by_target(labels_csv: Path, args) -> dict:
 
 
 def _lifted(chances: list, below: np.ndarray) -> np.ndarray:
-    """Per target, the expected change of its goodness when requests are answered together: for
-    a target below the bar, its chance of becoming good, 1 − Π(1 − p) over the requests'
-    ``p_good``; for one good now, minus its chance of falling below the bar, 1 − Π p (the plan's
-    rules, ``BatchAdvice.plan``: a label becomes good once, and stays good if every request keeps
-    it so). 0 for every target of a frame no request is asked in (it is not estimated again)."""
+    """Per target, the expected change of its goodness when requests are answered together (the
+    plan's rule, ``BatchAdvice.plan``: a label is good after them when any one of them would leave
+    it good, with chance 1 − Π(1 − p) over the requests' ``p_good``): for a target below the bar
+    that chance, for one good now minus its chance of falling, Π(1 − p). 0 for every target of a
+    frame no request is asked in (it is not estimated again)."""
     if not chances:
         return np.zeros(len(below))
-    chances = np.array(chances)
-    return np.where(below, 1.0 - np.prod(1.0 - chances, axis=0), -(1.0 - np.prod(chances, axis=0)))
+    none = np.prod(1.0 - np.array(chances), axis=0)
+    return np.where(below, 1.0 - none, -none)
 
 
 #: The bands of a label's round-0 P(IoU ≥ T) the predictions are checked in; the last, from the
@@ -252,14 +252,14 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
         bands = []
         for b, label in enumerate(names):
             m = b_ == b
-            pb, rb = float(p_[m].sum()), float(r_[m].sum())
-            lo, hi = (float(q) for q in np.quantile(outcomes[:, m].sum(axis=1), [0.05, 0.95]))
+            pb, rb = float(p_[m].sum()) + 0.0, float(r_[m].sum()) + 0.0
+            lo, hi = (float(q) + 0.0 for q in np.quantile(outcomes[:, m].sum(axis=1), [0.05, 0.95]))
             bands.append({"band": label, "labels": int(m.sum()), "predicted": pb, "realised": rb,
                           "expected_90": [lo, hi], "agrees": bool(lo <= rb <= hi)})
         up, down = p_ > 0, p_ < 0
         rows.append({"design": name, "predicted": float(p.sum()), "realised": float(r.sum()),
                      "lifted": {"predicted": float(p_[up].sum()), "realised": float(r_[r_ > 0].sum())},
-                     "dropped": {"predicted": float(-p_[down].sum()), "realised": float(-r_[r_ < 0].sum())},
+                     "dropped": {"predicted": float(-p_[down].sum()) + 0.0, "realised": float(-r_[r_ < 0].sum()) + 0.0},
                      "predicted_alone": float(sum(alone[name].values())),
                      "predicted_on_ranking_futures": float(sum(ranked.values())) if name == "advised" else None,
                      "ratio": float(r.sum() / p.sum()) if p.sum() else None, "ratio_90": _interval(r, p, idx),
@@ -403,9 +403,10 @@ def finish(report: dict, out: Path, args) -> int:
           f"{args.min_quality:g}; truly good: also IoU ≥ {args.score_iou:g} with KITTI's box\n")
     print("| design | human s | good | truly good | good gained per human h | predicted net gain | realised net gain |")
     print("|---|---|---|---|---|---|---|")
+    predicted = {a["design"]: a["predicted"] for a in report["accuracy"]}
     for name, d in report["designs"].items():
         rate = "-" if d["good_per_hour"] is None else f"{d['good_per_hour']:.2f}"
-        pred = f"{d['predicted_good_gain'] - d.get('predicted_good_loss', 0.0):.1f}" if name == "advised" else ""
+        pred = f"{predicted[name]:.1f}" if name == "advised" else ""
         print(f"| {name} | {d['human_s']:g} | {before['good']} → {d['good_after']} | {before['truly_good']} → "
               f"{d['truly_good_after']} | {rate} | {pred} | {d['good_gain']} |")
     print_accuracy(report["accuracy"])

@@ -485,9 +485,12 @@ def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
     frame a a size lifts its car with chance 0.9 and keeps the good car good with 0.8, the lines
     0.5 and 0.9; in frame b a size 0.4 and 1.0; the mounting lifts either car below the bar
     with 0.5 and keeps either good car with 0.5. The plan is chosen by the lifts alone: the sizes,
-    then the mounting (0.5 × 0.1 + 0.5 × 0.6 for 900 s), then the lines (0.5 × 0.1 × 0.5). The
-    good car of a stays good with 0.8 after the size, 0.8 × 0.5 after the mounting, so the losses
-    are 0.2, 0, 0.8 × 0.5 + 1.0 × 0.5 and 0.4 × 0.1."""
+    then the mounting (0.5 × 0.1 + 0.5 × 0.6 for 900 s), then the lines (0.5 × 0.1 × 0.5). A label
+    is good after the requests when any one of them would leave it good: the good car of a falls
+    with 0.2 after the size, 0.2 × 0.5 once the mounting is asked as well and 0.1 × 0.1 with the
+    lines; that of b with 0 after its size, and still 0 after the mounting. So the requests'
+    losses are 0.2, 0, −0.1 and −0.09: the second and third requests on a frame make it likelier
+    that one of them leaves its good car good."""
     from types import SimpleNamespace
 
     from creference_bayes.workflows.advice import Advice, Outlook, Prediction
@@ -515,7 +518,11 @@ def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
         ("a", "size"), ("b", "size"), ("a", "mounting"), ("a", "dims")]
     assert [r.gain for r in plan] == pytest.approx([0.9, 0.4, 0.5 * 0.1 + 0.5 * 0.6, 0.5 * 0.1 * 0.5])
-    assert [r.loss for r in plan] == pytest.approx([0.2, 0.0, 0.8 * 0.5 + 1.0 * 0.5, 0.4 * 0.1])
+    assert [r.loss for r in plan] == pytest.approx([0.2, 0.0, 0.2 * 0.5 - 0.2, 0.1 * 0.1 - 0.1])
+    # a frame no request is asked in loses nothing: the mounting alone drops each good car with 0.5
+    only = BatchAdvice(tuple(dataclasses.replace(o, advice=dataclasses.replace(
+        o.advice, predictions=o.advice.predictions[-1:])) for o in objects)).plan()
+    assert [r.loss for r in only] == pytest.approx([0.5 + 0.5])
     # with no good labels (the same lifts), the same plan: the losses take no part in the choice
     alike = _planned({k: ("cam", [(p.candidate.kind, p.candidate.target, p.candidate.seconds, float(p.p_good[0]))
                                   for p in ps]) for k, ps in frames.items()}, min_good_per_hour=0.0).plan()

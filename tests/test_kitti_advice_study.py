@@ -82,10 +82,10 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
     sizes = [p for sc in advice["scenes"] for p in sc["predictions"] if p["candidate"]["kind"] == "size"]
     assert len(advice["scenes"]) == 1
     below = np.asarray(advice["scenes"][0]["now"]["p_iou"]) < 0.5
-    # per target below the bar, 1 - prod(1 - p); each good label falls with 1 - prod(p); the net
-    # change is the labels lifted less those dropped
+    # per target below the bar, 1 - prod(1 - p); each good label falls with prod(1 - p) (good after
+    # when any request would leave it good); the net change is the labels lifted less those dropped
     lifted = np.sum(1.0 - np.prod([1.0 - np.asarray(p["p_good"])[below] for p in sizes], axis=0))
-    dropped = np.sum(1.0 - np.prod([np.asarray(p["p_good"])[~below] for p in sizes], axis=0))
+    dropped = np.sum(np.prod([1.0 - np.asarray(p["p_good"])[~below] for p in sizes], axis=0))
     accuracy = {a["design"]: a for a in report["accuracy"]}
     assert list(accuracy) == ["advised", "dims", "sizes", "mounting"]
     assert accuracy["sizes"]["lifted"]["predicted"] == pytest.approx(lifted)
@@ -131,10 +131,10 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
 
 def test_a_designs_prediction_is_its_lifts_less_its_losses():
     """Two requests in one frame of three labels: the first below the bar (lifted with 0.3 and
-    0.5: 1 − 0.7 × 0.5), the other two good (kept with 0.9 and 0.8, and 1 and 0.5: they fall with
-    1 − 0.72 and 1 − 0.5); a frame no request is asked in changes nothing."""
+    0.5: 1 − 0.7 × 0.5), the other two good (kept with 0.9 and 0.8: they fall with 0.1 × 0.2; and
+    with 1 and 0.5: the first keeps it, 0); a frame no request is asked in changes nothing."""
     study = _module()
     below = np.array([True, False, False])
     change = study._lifted([np.array([0.3, 0.9, 1.0]), np.array([0.5, 0.8, 0.5])], below)
-    np.testing.assert_allclose(change, [0.65, -0.28, -0.5])
+    np.testing.assert_allclose(change, [0.65, -0.02, 0.0], atol=1e-12)
     np.testing.assert_array_equal(study._lifted([], below), np.zeros(3))

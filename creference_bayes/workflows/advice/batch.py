@@ -131,15 +131,17 @@ class BatchAdvice:
         The mounting is asked once per camera, its chances (or HDI points) over every frame of
         that camera (a frame that names no camera is a camera of its own).
 
-        Each request's ``loss`` is stated the same way and does not take part in the choice: a
-        label good now that requests r₁…r_k would each keep good with chance s₁…s_k stays good with
-        chance Π sᵢ."""
+        Each request's ``loss`` is stated by the same rule and does not take part in the choice: a
+        label is good after the requests when any one of them would leave it good, so a label good
+        now that requests r₁…r_k would each keep good with chance s₁…s_k falls with chance
+        Π(1 − sᵢ) (0 while its frame gets no request: it is not estimated again). A request's loss
+        is what it changes that by; a second request on a frame may lower it (a negative loss)."""
         items = self._items()
         if not items:
             return []
         settings = items[0].request.objects[0].advice.settings
         labels = settings.objective == "labels"
-        left_rank, left_told, stays = {}, {}, {}
+        left_rank, left_told, falls = {}, {}, {}
 
         def rate(it: _Item) -> tuple[float, float]:
             v = sum((p * left_rank.get(t, 1.0) for t, p in it.rank.items()), 0.0) if labels else it.request.value
@@ -167,12 +169,14 @@ class BatchAdvice:
             total += seconds
             if labels:
                 gain = sum((p * left_told.get(t, 1.0) for t, p in it.told.items()), 0.0)
-                loss = sum(((1.0 - s) * stays.get(t, 1.0) for t, s in it.kept.items()), 0.0)
+                loss = 0.0
                 for left, chances in ((left_rank, it.rank), (left_told, it.told)):
                     for t, p in chances.items():
                         left[t] = left.get(t, 1.0) * (1.0 - p)
                 for t, s in it.kept.items():
-                    stays[t] = stays.get(t, 1.0) * s
+                    before = falls.get(t)
+                    falls[t] = (1.0 - s) * (1.0 if before is None else before)
+                    loss += falls[t] - (before or 0.0)
             else:
                 gain = sum(q.good_gain for q in it.request.predictions)
                 loss = sum(q.good_loss for q in it.request.predictions)
@@ -196,7 +200,7 @@ class BatchAdvice:
                 return {(key, int(i)): float(q[i]) for i in below if q[i] > 0} if labels else {}
 
             def kept(p: Prediction, key=key, good=good, labels=objective == "labels") -> dict:
-                return {(key, int(i)): float(p.p_good[i]) for i in good if p.p_good[i] < 1} if labels else {}
+                return {(key, int(i)): float(p.p_good[i]) for i in good} if labels else {}
 
             if objective == "labels":
                 pairs = [(targets[_shown(p, below)], p) for p in first.advice.predictions
