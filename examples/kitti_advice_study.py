@@ -33,8 +33,8 @@ against fixed designs, on KITTI frames (docs/advice.md).
    ``DIR/advice_study.json``.
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
    requests' chances combined as the plan combines them (each target below the bar lifted with
-   chance 1 − Π(1 − p), each good one dropped with chance Π(1 − p)), the labels lifted less those dropped,
-   beside the sum of each request's gain weighed alone, with the ratio's 90 % interval from
+   chance 1 − Π(1 − p), each good one dropped with chance Π(1 − p)), the labels lifted less those
+   dropped, beside the sum of each request's gain weighed alone, with the ratio's 90 % interval from
    resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
    (``BAND_EDGES``; the last, the labels already good, predicted to lose), with the realised
    count's 90 % interval if the predicted chances are right; and the advised plan's gain on the
@@ -193,9 +193,9 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
     them all at once). The ratio's 90 % interval resamples frames (the labels of a frame share its
     camera, so they are not independent). In a band below the bar, ``expected_90`` is the 90 %
     interval of the realised count if each label became good with its predicted chance, and the
-    band ``agrees`` when the realised count lies in it; the band of labels already good has as
-    prediction is its labels' chances of falling, negative, and its count's interval runs from
-    minus the labels that may fall to 0. ``lifted`` and ``dropped`` split a design's predicted and
+    band ``agrees`` when the realised count lies in it. In the band of labels already good the
+    prediction is minus their chances of falling, and the interval runs from minus the labels
+    that may fall to 0. ``lifted`` and ``dropped`` split a design's predicted and
     realised net change into the labels below the bar that became good and the good ones that
     fell."""
     advice = json.loads((out / "advice" / "advice.json").read_text())
