@@ -58,6 +58,7 @@ EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_S
             # a KITTI folder is needed: the tests build a synthetic one in KITTI's layout
             "kitti_study.py": "tests/test_kitti_frames.py",
             "kitti_advice_study.py": "tests/test_kitti_advice_study.py",
+            "kitti_ground.py": "tests/test_kitti_frames.py",
             "horizon_kitti_check.py": "tests/test_horizon.py",
             "kitti_one_car.py": "tests/test_horizon.py"}
 

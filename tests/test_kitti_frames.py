@@ -374,3 +374,34 @@ def test_the_kitti_page_fits_each_frames_ground_plane(tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("2 frames, 11 objects: sd of the objects' ground around their frame's plane 0.000 m")
     assert "slope along the view +0.57 ± 0.00 deg" in done.stdout
+
+
+def test_kitti_ground_moves_only_the_heights_of_the_boxes(kitti_dir, tmp_path):
+    """examples/kitti_ground.py: ``level`` puts every labelled object's bottom at the frame's
+    median (1.47, 1.6, 1.71, 2.39 m: 1.655); ``plane`` onto the least-squares plane of the four,
+    whose residuals it removes; every other field and the DontCare line are KITTI's, and the calib
+    stays readable through the link."""
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_ground.py"
+    rows = [line.split() for line in LABELS.splitlines()]
+    xyz = np.array([[float(r[k]) for k in (11, 12, 13)] for r in rows[:4]])
+    design = np.c_[xyz[:, 0], xyz[:, 2], np.ones(4)]
+    fitted = design @ np.linalg.lstsq(design, xyz[:, 1], rcond=None)[0]
+    assert np.max(np.abs(fitted - xyz[:, 1])) > 0.1  # the example's boxes are off their plane
+    for ground, expected in (("level", np.full(4, 1.655)), ("plane", fitted)):
+        out = tmp_path / ground
+        proc = subprocess.run([sys.executable, str(script), str(kitti_dir), str(out), "--ground", ground],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        new = [line.split() for line in (out / "label_2" / "000007.txt").read_text().splitlines()]
+        assert len(new) == len(rows) and new[4] == rows[4]  # DontCare as it was
+        for r, n, y in zip(rows[:4], new[:4], expected):
+            assert abs(float(n[12]) - y) <= 0.005 + 1e-9  # written to 0.01 m, as KITTI's labels
+            assert n[:12] == r[:12] and n[13:] == r[13:]
+        np.testing.assert_allclose(read_p2(out / "calib" / "000007.txt"), P2)
+        # a second run into the same folder is refused, the first left as it was
+        again = subprocess.run([sys.executable, str(script), str(kitti_dir), str(out), "--ground", ground],
+                               capture_output=True, text=True, timeout=120)
+        assert again.returncode == 2 and "exists" in again.stderr
+    bad = subprocess.run([sys.executable, str(script), str(tmp_path / "none"), str(tmp_path / "x"), "--ground", "level"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "not a KITTI folder" in bad.stderr
