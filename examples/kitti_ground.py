@@ -21,6 +21,7 @@ folder's own (nothing of KITTI's is copied); ``OUT/label_2`` holds the new label
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from pathlib import Path
 
@@ -63,7 +64,8 @@ def main(argv=None) -> int:
     if (args.out / "label_2").exists():
         p.error(f"{args.out / 'label_2'} exists: choose another OUT")
     tmp = args.out / "label_2.partial"
-    tmp.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(tmp, ignore_errors=True)  # what an interrupted run left
+    tmp.mkdir(parents=True)
     for path in labels:
         (tmp / path.name).write_text(moved_label_text(path.read_text(), args.ground))
     for sub in ("calib", "image_2"):
