@@ -151,6 +151,12 @@ def test_the_recommendation_does_not_repeat_its_action(example_result):
     assert "collect: collect" not in advice_table(collect)
     stop = dataclasses.replace(advice, action="stop", reason="precision target met")
     assert "recommendation: stop: precision target met" in advice_table(stop)
+    # each row states the good labels it may drop, in its own column
+    first = dataclasses.replace(advice.predictions[0], good_loss=0.37)
+    lines = advice_table(dataclasses.replace(advice, predictions=[first, *advice.predictions[1:]])).splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("rank"))
+    end = lines[head].index("falls") + len("falls")
+    assert lines[head + 1][:end].endswith(" 0.37"), lines[head:head + 2]
 
 
 # -- the Python interface ---------------------------------------------------------------------
