@@ -29,7 +29,7 @@ MODELS = ("metrology", "paper")
 DEFAULT_MODEL = "metrology"
 #: Model options a user may set, by model (the result's provenance records them).
 MODEL_OPTIONS = {"metrology": ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading",
-                               "ground_sd_m", "ground_tilt_sd_rad"),
+                               "ground_sd_m", "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad"),
                  "paper": ("sigma", "on")}
 _SIZES = ("length", "width", "height")
 

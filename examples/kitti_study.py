@@ -29,8 +29,8 @@ the focal length must be known.
 
 The bound under other assumptions (``--methods bound`` runs it alone, in seconds):
 ``--bound-option KEY=VALUE`` sets a model option for the bound's model only (for example
-``ground_sd_m=0.005``: a flat road); ``--sizes known`` gives every method each object's true size
-(no class prior). Each method's share of fully visible cars (KITTI occlusion 0) at 5–60 m
+``ground_sd_m=0.005`` and ``ground_sd_per_m=0``: a flat road); ``--sizes known`` gives every
+method each object's true size (no class prior). Each method's share of fully visible cars (KITTI occlusion 0) at 5–60 m
 whose label reaches IoU 0.7 is printed by band.
 """
 

@@ -92,6 +92,33 @@ def test_several_targets_share_the_camera_and_need_the_priors():
     assert data_only.singular or np.all(data_only.median_pct > 100 * bound.median_pct)
 
 
+def test_the_ground_prior_adds_its_expected_information_wherever_the_true_offset_lies():
+    """A Student-t's Hessian is negative in its tails, so the bound takes the offset prior's
+    expected information, (ν + 1) / ((ν + 3) s²), the same for an offset at 0 and at 0.4 m; the
+    ground distance's effect on s(d) is the model's."""
+    from creference_bayes.bench.simulate import true_state
+    from creference_bayes.pipeline import build_model
+
+    s = _scene(3, setting="street", n_objects=3, sizes="prior", horizon="none", n_references=0,
+               n_target_annotations=5, tier="low")
+    model, _ = build_model(s, use_references=False)
+    flat, _ = build_model(s, use_references=False, ground_sd_m=1e4)  # the same but a flat offset prior
+    for m in (model, flat):
+        m.handedness = np.array([t.ground_truth["handedness"] for t in s.targets], float)
+    camera, objects = true_state(s)
+    info = []
+    for g in (0.0, 0.4):
+        objs = objects.copy()
+        objs[0, 6] = g
+        info.append(np.linalg.inv(cramer_rao(model, camera, objs, 2.0).cov)
+                    - np.linalg.inv(cramer_rao(flat, camera, objs, 2.0).cov))
+    k = list(cramer_rao(model, camera, objects, 2.0).names).index("0.ground_m")
+    d = np.hypot(objects[0, 0], objects[0, 1])
+    want = 3.0 / 5.0 / (0.056**2 + (0.0017 * d) ** 2)  # ν = 2
+    for got in info:
+        assert got[k, k] == pytest.approx(want, rel=1e-3)
+
+
 def test_cramer_rao_takes_the_model_and_the_truth():
     from creference_bayes.bench.simulate import true_state
     from creference_bayes.pipeline import build_model

@@ -108,6 +108,30 @@ def test_priors_are_densities_of_the_stated_distributions():
     np.testing.assert_allclose(got - got[0], want - want[0], rtol=1e-9)
 
 
+
+def test_the_ground_offset_prior_is_a_student_t_whose_scale_grows_with_distance():
+    model, truth = _model(3, m=2)
+    assert model.object_free[:, 6].all()
+    objs = np.repeat(truth["objects"][None], 4, axis=0)
+    objs[:, :, 0], objs[:, :, 1] = 3.0, [[4.0], [4.0], [40.0], [40.0]]  # ground distance 5 m or √1609 m
+    objs[:, :, 6] = [[0.0], [0.3], [0.0], [0.3]]
+    d = np.hypot(3.0, [4.0, 4.0, 40.0, 40.0])
+    # default: scale √(0.056² + (0.0017 d)²) m, 2 degrees of freedom; as SciPy's t density of g
+    s = np.hypot(0.056, 0.0017 * d)
+    want = -(stats.t.logpdf(objs[:, 0, 6] / s, 2.0) - np.log(s))
+    got = model.ground_neg_log_prior(objs)[:, 0]
+    np.testing.assert_allclose(got - got[0], want - want[0], rtol=1e-12)
+    assert got[3] - got[2] < got[1] - got[0]  # the same offset costs less 40 m away than 5 m away
+    normal = Model(model.principal_point, model.image_size, model.objects, ground_sd_m=0.08, ground_sd_per_m=0.0,
+                   ground_dof=np.inf)  # the earlier prior: N(0, 0.08²) at every distance
+    got = normal.ground_neg_log_prior(objs)[:, 0]
+    want = -stats.norm.logpdf(objs[:, 0, 6], 0.0, 0.08)
+    np.testing.assert_allclose(got - got[0], want - want[0], rtol=1e-12)
+    assert not Model(model.principal_point, model.image_size, model.objects, ground_sd_m=0.0).object_free[:, 6].any()
+    for key, bad in (("ground_sd_m", -0.1), ("ground_sd_per_m", np.nan), ("ground_dof", 0.0)):
+        with pytest.raises(ValueError, match=f"{key}: expected .*got {bad}"):
+            Model(model.principal_point, model.image_size, model.objects, **{key: bad})
+
 def test_target_scales_pool_over_objects_with_one_annotation():
     rng = np.random.default_rng(0)
     a = rng.normal(0, 2.0, (5, 4, 2))

@@ -15,7 +15,11 @@ is at least F⁻¹, F the Fisher information at the truth, summed over:
   information of a Student-t location (:func:`measurement_log_sd`);
 - a measured horizon (pitch and roll free): its two points' offsets, with the model's variance;
 - with ``priors``, the Bayesian (van Trees) bound: the Hessian of the negative log-prior at the
-  truth (never the location prior: the location is the fixed unknown whose error is bounded).
+  truth (never the location prior: the location is the fixed unknown whose error is bounded),
+  except for the ground offsets, whose Student-t prior of ν degrees of freedom and scale s(d)
+  (:meth:`~creference_bayes.models.contract.Model.ground_neg_log_prior`) adds its expected
+  information (ν + 1) / ((ν + 3) s²) (1 / s² for a normal): a t's Hessian at an offset in its
+  tails is negative.
 
 Each target's location (x, camera height − ground, z) is linear in the parameters; its (3, 3)
 covariance C gives the RMS error √tr C and the median of ‖e‖, e ~ N(0, C) (Monte Carlo, fixed
@@ -165,7 +169,14 @@ def cramer_rao(model, camera, objects, sigma_px: float, *, reference_log_sd: flo
         F += Jh.T @ Jh / (hz.sd_px**2 + (cam[C_FOCAL] * np.tan(model.ground_tilt_sd_rad)) ** 2)
     if priors:
         F += free.hessian(lambda c, o: model.camera_neg_log_prior(c) + np.sum(
-            model.object_neg_log_prior(c, o) - model.location.neg_log(o[..., O_X], o[..., O_Z]), axis=1))
+            model.object_neg_log_prior(c, o) - model.location.neg_log(o[..., O_X], o[..., O_Z])
+            - model.ground_neg_log_prior(o), axis=1))
+        nu, s = model.ground_dof, model.ground_scale(objs[None])[0]
+        share = 1.0 if np.isinf(nu) else (nu + 1.0) / (nu + 3.0)
+        kc = len(free.cam)
+        for k, (i, j) in enumerate(free.obj):
+            if j == O_GROUND:
+                F[kc + k, kc + k] += share / s[i] ** 2
     try:
         cov = np.linalg.inv(F)
         np.linalg.cholesky(cov)

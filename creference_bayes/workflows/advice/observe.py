@@ -54,8 +54,7 @@ def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = No
                          target_dof=model.target_dof, ref_dof=model.ref_dof, confidence_map=model.confidence_map,
                          line_reading=model.line_reading, camera_terms=model.camera_terms,
                          orientation=model.orientation, horizon_line=model.horizon_line,
-                         focal_length_px=model.focal_length_px, ground_sd_m=model.ground_sd_m,
-                         ground_tilt_sd_rad=model.ground_tilt_sd_rad, bounds=model.bounds,
+                         focal_length_px=model.focal_length_px, **model.ground_options, bounds=model.bounds,
                          default_temperature=model.default_temperature, **fixed)
     new.handedness = np.array(model.handedness, float)
     if model.pilot is not None:
