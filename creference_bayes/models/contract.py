@@ -31,8 +31,8 @@ Geometry
     is a Student-t whose scale grows with the object's ground distance d = √(x² + z²) from the
     camera: s(d) = √(``ground_sd_m``² + (``ground_sd_per_m`` · d)²), ``ground_dof`` degrees of
     freedom (:meth:`Model.ground_neg_log_prior`): the camera stands on the road, and the road
-    departs from the plane under the camera more the farther it is. Its box turns by ``yaw`` about y and its dimension lines follow
-    :func:`object_corners` with the object's handedness.
+    departs from the plane under the camera more the farther it is. Its box turns by ``yaw``
+    about y and its dimension lines follow :func:`object_corners` with the object's handedness.
 """
 
 from __future__ import annotations
@@ -48,7 +48,8 @@ from .size_priors import SizePrior
 
 __all__ = ["CAMERA_NAMES", "CAMERA_UNITS", "OBJECT_NAMES", "OBJECT_UNITS", "C_FOCAL", "C_PITCH", "C_ROLL",
            "C_HEIGHT", "C_SCALE", "O_X", "O_Z", "O_YAW", "O_SIZE", "O_GROUND", "MAX_PITCH", "MAX_ROLL",
-           "DEFAULT_GROUND_SD_M", "DEFAULT_GROUND_SD_PER_M", "DEFAULT_GROUND_DOF", "DEFAULT_GROUND_TILT_SD_RAD", "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
+           "DEFAULT_GROUND_SD_M", "DEFAULT_GROUND_SD_PER_M", "DEFAULT_GROUND_DOF", "DEFAULT_GROUND_TILT_SD_RAD",
+           "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
            "OBJECT_REPORT", "ObjectData", "Bounds", "Model", "object_corners", "object_report"]
 
 CAMERA_NAMES = ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")
@@ -65,9 +66,10 @@ MAX_ROLL = float(np.radians(45.0))
 #: An object's ground offset from the camera's ground plane: a Student-t of ``DEFAULT_GROUND_DOF``
 #: degrees of freedom and scale √(``DEFAULT_GROUND_SD_M``² + (``DEFAULT_GROUND_SD_PER_M`` · d)²),
 #: metres, at ground distance d metres. Fitted by maximum likelihood to the KITTI development
-#: frames' objects, each against the plane through the others of its frame (157 objects in 18
-#: frames of four or more; the fit on the even frames predicts the odd ones and back; docs/overview.md,
-#: "Uneven ground"): 5.6 cm beside the camera, 10 cm at 50 m, tails heavier than a normal's.
+#: frames' objects, each against the plane through the others of its frame (157 objects in the 23
+#: frames of four or more; the fit on the even frames predicts the odd ones and back;
+#: docs/overview.md, "Uneven ground"): 5.6 cm beside the camera, 10 cm at 50 m, tails heavier
+#: than a normal's.
 DEFAULT_GROUND_SD_M = 0.056
 DEFAULT_GROUND_SD_PER_M = 0.0017
 DEFAULT_GROUND_DOF = 2.0

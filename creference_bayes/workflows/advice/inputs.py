@@ -86,9 +86,9 @@ def _with_batch_image(scene, result: dict):
 def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
     """The advice as text: every target's present, the best ``rows`` observations (best first;
     ``good labels`` the expected labels lifted to the bar, ``falls`` the good ones expected to
-    fall below it), the recommendation. ``estimate_hdi``: the estimate's own HDIs of the distances ((m, 2) metres,
-    on all its draws), shown beside the advice's, which are computed on the draws it weighs (so
-    the two differ by the sampling error of the thinned draws)."""
+    fall below it), the recommendation. ``estimate_hdi``: the estimate's own HDIs of the
+    distances ((m, 2) metres, on all its draws), shown beside the advice's, which are computed on
+    the draws it weighs (so the two differ by the sampling error of the thinned draws)."""
     now, s, ids = advice.now, advice.settings, advice.targets
     lines = [f"advice for {', '.join(repr(t) for t in ids[:8])}{' …' if len(ids) > 8 else ''} "
              f"({'posterior draws' if advice.source == 'posterior' else 'draws of the Laplace approximation'})"]
@@ -99,8 +99,8 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
                      f"location sd {now.location_sd_m[i]:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
-    head = ("rank", "annotation", "cost s", "good labels", "falls", "good/h", f"P(IoU>={s.iou_threshold:g})", "HDI after",
-            "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks")
+    head = ("rank", "annotation", "cost s", "good labels", "falls", "good/h", f"P(IoU>={s.iou_threshold:g})",
+            "HDI after", "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks")
     table = []
     for k, p in enumerate(advice.predictions[:rows], start=1):
         e, c = p.expected, p.candidate
