@@ -204,7 +204,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                       "hdi_prob": hdi_prob, "seed": seed if isinstance(seed, (int, type(None))) else "generator",
                       "sampling": dict(sampling or {}), "confidence_map": _describe_map(m),
                       "classes": {k: v.to_dict() for k, v in (classes or {}).items()},
-                      "bounds": None if bounds is None else _bounds_dict(bounds)}
+                      "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
         return Result.build(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
                             seconds=time.perf_counter() - t0, notes=notes,
                             keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
@@ -249,16 +249,39 @@ def rebuild_model(result, scene: Scene | str | Path):
     cmap = prov.get("confidence_map") or {"name": "none"}
     confidence_map = ConfidenceMap.from_dict(cmap["map"]) if cmap["name"] == "file" else \
         ConfidenceMap.identity(cmap.get("dof")) if cmap["name"] == "identity" else "none"
-    model, _ = build_model(scene, model=prov.get("model", DEFAULT_MODEL), preset=prov.get("preset", "default"),
+    kind = prov.get("model", DEFAULT_MODEL)
+    options = dict(prov["options"])
+    if kind == "metrology":  # the ground's prior it was made with (a result without it: the earlier one)
+        options = {**_ground_options(prov.get("ground") or EARLIER_GROUND), **options}
+    model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
                            location_prior=prov.get("location_prior", "flat"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
-                           bounds=_bounds_from(prov.get("bounds")), **prov["options"])
+                           bounds=_bounds_from(prov.get("bounds")), **options)
     model.handedness = np.array([o["handedness"] for o in d["objects"]], float)
     if d.get("pilot_camera") is not None:
         model.set_pilot(np.array(d["pilot_camera"], float))
     return model
+
+
+#: The ground-offset prior of results made before ``provenance.ground`` was written (until
+#: 2026-11-28): a normal of 8 cm at every distance, as :func:`_ground_dict` writes it.
+EARLIER_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": 0.017453292519943295}
+
+
+def _ground_dict(model) -> dict:
+    """``provenance.ground``: the model's ground-offset prior (metres, metres per metre, degrees of
+    freedom, null for a normal) and the ground's tilt (radians)."""
+    nu = model.ground_dof
+    return {"sd_m": model.ground_sd_m, "sd_per_m": model.ground_sd_per_m, "dof": None if np.isinf(nu) else nu,
+            "tilt_sd_rad": model.ground_tilt_sd_rad}
+
+
+def _ground_options(ground: dict) -> dict:
+    """The model options of a ``provenance.ground``."""
+    return {"ground_sd_m": ground["sd_m"], "ground_sd_per_m": ground["sd_per_m"],
+            "ground_dof": np.inf if ground["dof"] is None else ground["dof"], "ground_tilt_sd_rad": ground["tilt_sd_rad"]}
 
 
 def map_state(result) -> tuple[np.ndarray, np.ndarray]:

@@ -61,6 +61,15 @@ def test_the_same_seed_gives_the_same_result_and_it_rebuilds_its_model(m, tmp_pa
     assert model.map_objective(cam[None], objs[None], T)[0] == pytest.approx(a.model.map_objective(cam[None], objs[None], T)[0])
     cams, objects, source = result_draws(doc, model)
     assert source == "posterior" and objects.shape == (doc["draws"]["n"], m, 7)
+    if m > 1:  # the ground's prior is recorded; a result from before it was (none recorded) had the normal of 8 cm
+        assert doc["provenance"]["ground"] == {"sd_m": 0.056, "sd_per_m": 0.0017, "dof": 2.0,
+                                               "tilt_sd_rad": pytest.approx(np.radians(1.0))}
+        assert (model.ground_sd_m, model.ground_sd_per_m, model.ground_dof) == (0.056, 0.0017, 2.0)
+        older = {**doc, "provenance": {k: v for k, v in doc["provenance"].items() if k != "ground"}}
+        old = rebuild_model(older, path)
+        assert (old.ground_sd_m, old.ground_sd_per_m, old.ground_dof) == (0.08, 0.0, np.inf)
+        assert rebuild_model({**older, "provenance": {**older["provenance"], "options": {"ground_sd_m": 0.2}}},
+                             path).ground_sd_m == 0.2  # an option given wins
 
 
 def load_result_path(tmp_path, doc):
