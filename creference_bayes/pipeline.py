@@ -281,7 +281,8 @@ def _ground_dict(model) -> dict:
 def _ground_options(ground: dict) -> dict:
     """The model options of a ``provenance.ground``."""
     return {"ground_sd_m": ground["sd_m"], "ground_sd_per_m": ground["sd_per_m"],
-            "ground_dof": np.inf if ground["dof"] is None else ground["dof"], "ground_tilt_sd_rad": ground["tilt_sd_rad"]}
+            "ground_dof": np.inf if ground["dof"] is None else ground["dof"],
+            "ground_tilt_sd_rad": ground["tilt_sd_rad"]}
 
 
 def map_state(result) -> tuple[np.ndarray, np.ndarray]:
