@@ -267,7 +267,7 @@ def rebuild_model(result, scene: Scene | str | Path):
 
 #: The ground-offset prior of results made before ``provenance.ground`` was written (until
 #: 2026-11-28): a normal of 8 cm at every distance, as :func:`_ground_dict` writes it.
-EARLIER_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": 0.017453292519943295}
+EARLIER_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": float(np.radians(1.0))}
 
 
 def _ground_dict(model) -> dict:
