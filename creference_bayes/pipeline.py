@@ -21,7 +21,7 @@ from .models.contract import ObjectData
 from .models.metrology import ReferenceTerm
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "estimate", "build_model", "rebuild_model", "map_state",
-           "result_draws", "reference_terms"]
+           "result_draws", "reference_terms", "parse_model_options", "expected_ground"]
 
 MODELS = ("metrology", "paper")
 #: The default model. The benchmark (docs/benchmark_results.md) found the metrology model as good
@@ -31,7 +31,71 @@ DEFAULT_MODEL = "metrology"
 MODEL_OPTIONS = {"metrology": ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading",
                                "ground_sd_m", "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad"),
                  "paper": ("sigma", "on")}
+#: The model options whose values are words, not numbers.
+_WORD_OPTIONS = ("line_reading", "on")
 _SIZES = ("length", "width", "height")
+
+
+def parse_model_options(model: str, items) -> dict:
+    """Model options from ``KEY=VALUE`` strings (the command line's ``--option``): numbers (``inf``
+    allowed), except ``line_reading`` and the paper model's ``on``, which are words. The model
+    checks the values' ranges when it is built.
+
+    Raises
+    ------
+    ValueError : not ``KEY=VALUE``, a KEY the model does not have, a number that is not one, or a
+        KEY given twice (each names the item)
+    """
+    if model not in MODELS:
+        raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
+    out: dict = {}
+    for item in items:
+        key, sep, value = str(item).partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not key or not value:
+            raise ValueError(f"--option {item!r}: expected KEY=VALUE")
+        if key not in MODEL_OPTIONS[model]:
+            raise ValueError(f"--option {key}: the {model} model has no such option "
+                             f"(expected one of {', '.join(MODEL_OPTIONS[model])})")
+        if key in out:
+            raise ValueError(f"--option {key}: given twice ({out[key]!r} and {value!r})")
+        if key in _WORD_OPTIONS:
+            out[key] = value
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"--option {key}: expected a number, got {value!r}") from None
+        if np.isnan(number):
+            raise ValueError(f"--option {key}: expected a number, got {value!r}")
+        out[key] = number
+    return out
+
+
+def _option_record(value):
+    """A model option as a result records it: an infinite number as the word (``"inf"``), JSON
+    having no infinity."""
+    if isinstance(value, (float, np.floating)) and np.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return value
+
+
+def expected_ground(model: str, options: Mapping, n_objects: int) -> dict | None:
+    """The ``provenance.ground`` a result of a scene of ``n_objects`` targets made with these
+    options records (:func:`_ground_dict`), or None where the ground's prior plays no part: the
+    paper model and a scene of one target fix every ground offset. A batch compares it with a
+    stored result's: a result made under another ground prior, the package's earlier default
+    included, is recomputed."""
+    if model != "metrology" or n_objects < 2:
+        return None
+    from .models.contract import (DEFAULT_GROUND_DOF, DEFAULT_GROUND_SD_M, DEFAULT_GROUND_SD_PER_M,
+                                  DEFAULT_GROUND_TILT_SD_RAD)
+
+    nu = float(options.get("ground_dof", DEFAULT_GROUND_DOF))
+    return {"sd_m": float(options.get("ground_sd_m", DEFAULT_GROUND_SD_M)),
+            "sd_per_m": float(options.get("ground_sd_per_m", DEFAULT_GROUND_SD_PER_M)),
+            "dof": None if np.isinf(nu) else nu,
+            "tilt_sd_rad": float(options.get("ground_tilt_sd_rad", DEFAULT_GROUND_TILT_SD_RAD))}
 
 
 def reference_terms(scene: Scene) -> list[ReferenceTerm]:
@@ -197,7 +261,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                     from .inference.map import refine
 
                     map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
-        provenance = {"model": model, "preset": preset, "options": {k: options[k] for k in sorted(options)},
+        provenance = {"model": model, "preset": preset, "options": {k: _option_record(options[k]) for k in sorted(options)},
                       "orientation": orientation,
                       "focal_prior": focal_prior if isinstance(focal_prior, str) else "given",
                       "location_prior": m.location.kind, "use_references": use_references, "temperature": T,
@@ -250,7 +314,8 @@ def rebuild_model(result, scene: Scene | str | Path):
     confidence_map = ConfidenceMap.from_dict(cmap["map"]) if cmap["name"] == "file" else \
         ConfidenceMap.identity(cmap.get("dof")) if cmap["name"] == "identity" else "none"
     kind = prov.get("model", DEFAULT_MODEL)
-    options = dict(prov["options"])
+    options = {k: float(v) if isinstance(v, str) and k not in _WORD_OPTIONS else v  # "inf" (JSON has no infinity)
+               for k, v in prov["options"].items()}
     if kind == "metrology":  # the ground's prior it was made with (a result without it: the earlier one)
         options = {**_ground_options(prov.get("ground") or EARLIER_GROUND), **options}
     model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),

@@ -47,20 +47,16 @@ import numpy as np
 
 
 def _model_options(pairs, parser) -> dict:
-    """``KEY=VALUE`` strings → metrology model options (numbers, except ``location_prior``)."""
-    from creference_bayes.pipeline import MODEL_OPTIONS
+    """``KEY=VALUE`` strings → metrology model options (:func:`~creference_bayes.pipeline.parse_model_options`)
+    and ``location_prior``."""
+    from creference_bayes.pipeline import parse_model_options
 
-    names = (*MODEL_OPTIONS["metrology"], "location_prior")
-    out = {}
-    for item in pairs:
-        key, sep, value = item.partition("=")
-        if not sep or key not in names:
-            parser.error(f"--option {item!r}: expected KEY=VALUE with KEY one of {', '.join(names)}")
-        try:
-            out[key] = value if key == "location_prior" else float(value)
-        except ValueError:
-            parser.error(f"--option {key}: expected a number, got {value!r}")
-    return out
+    rest = [item for item in pairs if not item.startswith("location_prior=")]
+    out = {item.partition("=")[0]: item.partition("=")[2] for item in pairs if item.startswith("location_prior=")}
+    try:
+        return {**parse_model_options("metrology", rest), **out}
+    except ValueError as exc:
+        parser.error(str(exc))
 
 
 def _gt_row(gt: dict, gt_dir: Path, o: dict):

@@ -260,3 +260,60 @@ def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_p
     assert "corner_scale" not in json.loads((tmp_path / "alone" / "scenes" / "once.json").read_text())
     assert [o["sigma_px"] for o in _result(tmp_path / "alone", "once")["objects"]] == [5.0, 5.0]
     assert _result(tmp_path / "alone", "many")["objects"] == _result(tmp_path / "pooled", "many")["objects"]
+
+
+def test_model_options_reach_every_result_and_a_result_of_another_ground_prior_is_recomputed(tmp_path):
+    """``--option`` (and ``BatchSettings.options``) reach the estimates; a resume compares them, and
+    compares the ground prior a multi-object result records with the one it would now be made under:
+    a result of the earlier default (no ``provenance.ground``) is recomputed, a one-target result
+    (whose ground offsets are fixed) is not."""
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a", "street"])
+    out = tmp_path / "out"
+    args = ["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "1", "--no-posterior", "--quiet"]
+    assert main(args) == 0
+    street = _result(out, "street")
+    assert street["provenance"]["ground"]["dof"] == pytest.approx(2.0)  # the default: a t of 2 dof
+    # an older result: no ground recorded (made under the normal of 8 cm)
+    del street["provenance"]["ground"]
+    (out / "results" / "street.json").write_text(json.dumps(street))
+    report = run_batch([tmp_path / "s"], out, LocalEngine(1), BatchSettings(posterior=False))
+    assert report.status == {"one_a": "skipped", "street": "done"}
+    assert _result(out, "street")["provenance"]["ground"]["sd_per_m"] == pytest.approx(0.0017)
+    # the earlier prior asked for explicitly: every scene again, with it recorded
+    earlier = ["--option", "ground_sd_m=0.08", "--option", "ground_sd_per_m=0", "--option", "ground_dof=inf"]
+    assert main(args + earlier) == 0
+    street = _result(out, "street")
+    assert street["provenance"]["ground"] == {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None,
+                                              "tilt_sd_rad": pytest.approx(np.radians(1.0))}
+    assert street["provenance"]["options"]["ground_dof"] == "inf"
+    assert street["batch"]["settings"]["options"] == {"ground_dof": "inf", "ground_sd_m": 0.08,
+                                                      "ground_sd_per_m": 0.0}
+    assert main(args + earlier[2:] + earlier[:2]) == 0  # the same options in another order: up to date
+    r = run_batch([tmp_path / "s"], out, LocalEngine(1),
+                  BatchSettings(posterior=False, options={"ground_sd_m": 0.08, "ground_sd_per_m": 0.0,
+                                                          "ground_dof": math.inf}))
+    assert set(r.status.values()) == {"skipped"}
+    with pytest.raises(ValueError, match="'sigma'"):
+        BatchSettings(options={"sigma": 3.0})  # the paper model's, not the metrology model's
+
+
+def test_cli_model_options_are_typed_and_bad_ones_are_named(tmp_path, capsys):
+    from creference_bayes.cli.main import main
+
+    out = tmp_path / "r.json"
+    assert main(["demo", "--no-posterior", "--quiet", "--out", str(out), "--option", "target_dof=7",
+                 "--option", "line_reading=corrected"]) == 0
+    assert json.loads(out.read_text())["provenance"]["options"] == {"line_reading": "corrected", "target_dof": 7.0}
+    for bad, words in ((["ground_dof=abc"], ["ground_dof", "'abc'"]), (["nope=1"], ["nope", "target_dof"]),
+                       (["ground_sd_m"], ["'ground_sd_m'", "KEY=VALUE"]), (["ground_sd_m=-1"], ["ground_sd_m", "-1"]),
+                       (["target_dof=3", "target_dof=4"], ["target_dof", "twice"]),
+                       (["ground_sd_m=nan"], ["ground_sd_m", "'nan'"])):
+        argv = ["demo", "--no-posterior", "--quiet"] + [x for b in bad for x in ("--option", b)]
+        assert main(argv) == 2, bad
+        err = capsys.readouterr().err
+        assert all(w in err for w in words), (bad, err)
+    assert main(["batch", str(tmp_path), "--out", str(tmp_path / "b"), "--model", "paper", "--option",
+                 "ground_sd_m=0.1"]) == 2
+    assert "the paper model has no such option" in capsys.readouterr().err

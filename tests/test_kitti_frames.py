@@ -131,7 +131,7 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     assert {line.split()[0] for line in errors} == {"joint", "alone", "bound"}, proc.stdout
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--option",
                           "ground_sd=1"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "--option 'ground_sd=1'" in bad.stderr
+    assert bad.returncode == 2 and "--option ground_sd: the metrology model has no such option" in bad.stderr
 
 
 def test_scenes_from_kitti_with_known_sizes_give_each_object_its_true_size(kitti_dir):

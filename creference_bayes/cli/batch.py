@@ -7,8 +7,8 @@ import sys
 
 from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .estimate import (add_camera_options, add_confidence_map_option, check_posterior_values,
-                       confidence_map_option, load_classes)
+from .estimate import (add_camera_options, add_confidence_map_option, add_model_option, check_posterior_values,
+                       confidence_map_option, load_classes, model_options)
 from .main import UsageError, require, seed_value, usage_errors
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -37,7 +37,7 @@ def _settings(args):
                              location_prior=args.location_prior,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
                              classes=load_classes(args.classes) or {}, rig=args.rig,
-                             pool_scale=not args.own_scale)
+                             pool_scale=not args.own_scale, options=model_options(args))
 
 
 def _engine(args):
@@ -100,6 +100,7 @@ def register(subparsers) -> None:
                    help="size priors of your own classes (docs/overview.md, Class size priors); a scene's own win")
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     add_confidence_map_option(p)
+    add_model_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     add_camera_options(p)
     p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",

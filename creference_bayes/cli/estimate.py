@@ -13,11 +13,11 @@ from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.map import PRESETS
 from ..io.files import read_text
 from ..models.location_prior import LOCATION_PRIORS
-from ..pipeline import DEFAULT_MODEL, MODELS
+from ..pipeline import DEFAULT_MODEL, MODEL_OPTIONS, MODELS
 from .main import UsageError, check_output_file, example_scene_path, require, seed_value, usage_errors
 
 __all__ = ["register", "format_tables", "load_classes", "confidence_map_option", "add_confidence_map_option",
-           "add_camera_options", "check_posterior_values"]
+           "add_camera_options", "add_model_option", "model_options", "check_posterior_values"]
 
 
 def _num(v, spec: str) -> str:
@@ -204,12 +204,13 @@ def _run_estimate(args) -> int:
     check_output_file("--netcdf", args.netcdf)
     check_posterior_values(args)
     cmap = confidence_map_option(args.confidence_map, args.model)
+    options = model_options(args, scene)
     result = estimate(scene, model=args.model, preset=args.preset, seed=args.seed, classes=classes, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation, location_prior=args.location_prior,
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
                       sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
-                      progress=not args.quiet and sys.stderr.isatty())
+                      progress=not args.quiet and sys.stderr.isatty(), **options)
     d = result.to_dict()
     if args.out:
         atomic_write_json(args.out, d, inline_numbers=True)
@@ -260,6 +261,29 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
                         "for comparison; docs/method.md, Priors)")
 
 
+def add_model_option(p: argparse.ArgumentParser) -> None:
+    """``--option KEY=VALUE`` (``estimate``, ``demo``, ``batch``)."""
+    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a setting of the model, repeatable: for the metrology model "
+                        f"{', '.join(MODEL_OPTIONS['metrology'])}; for the paper model "
+                        f"{', '.join(MODEL_OPTIONS['paper'])} (for example --option ground_sd_m=0.08 "
+                        "--option ground_sd_per_m=0 --option ground_dof=inf: the ground prior before "
+                        "2026-11-28; docs/method.md, Priors)")
+
+
+def model_options(args, scene=None) -> dict:
+    """The ``--option`` values, typed for ``args.model`` and, given a ``scene``, checked by building
+    its model (a usage error naming the option and its value)."""
+    from ..pipeline import build_model, parse_model_options
+
+    with usage_errors():
+        options = parse_model_options(args.model, args.option)
+    if scene is not None and options:
+        with usage_errors("--option "):  # a value out of the model's range
+            build_model(scene, model=args.model, preset=args.preset, **options)
+    return options
+
+
 def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/2 file")
     p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
@@ -270,6 +294,7 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     add_confidence_map_option(p)
+    add_model_option(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     add_camera_options(p)
     g = p.add_argument_group("posterior")

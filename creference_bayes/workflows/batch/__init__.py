@@ -66,6 +66,9 @@ class BatchSettings:
         by two passes (:mod:`.rig`)
     pool_scale : a frame whose objects are not all annotated twice takes the crowd's corner scale
         from the other frames too (:func:`corner_scales`); False: from its own annotations only
+    options : the model's options (:data:`~creference_bayes.pipeline.MODEL_OPTIONS`, for example
+        ``{"ground_sd_m": 0.08}``); a stored result is also compared by the ground prior it records
+        (:func:`~creference_bayes.pipeline.expected_ground`)
     """
 
     seed: int = 0
@@ -83,14 +86,29 @@ class BatchSettings:
     classes: dict = field(default_factory=dict)
     rig: str = "none"
     pool_scale: bool = True
+    options: dict = field(default_factory=dict)
 
     def __post_init__(self):
         from ...inference.sampler import SamplerSettings
+        from ...pipeline import MODEL_OPTIONS, MODELS
         from .rig import RIG_CHOICES
 
         SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
         if self.rig not in RIG_CHOICES:
             raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {self.rig!r}")
+        if self.model not in MODELS:
+            raise ValueError(f"model: expected one of {list(MODELS)}, got {self.model!r}")
+        unknown = sorted(set(self.options) - set(MODEL_OPTIONS[self.model]))
+        if unknown:
+            raise ValueError(f"options: the {self.model} model has no option {unknown[0]!r} "
+                             f"(expected some of {list(MODEL_OPTIONS[self.model])})")
+
+    def ground(self, n_objects: int) -> dict | None:
+        """The ground prior a result of a scene of ``n_objects`` targets is made under (None: it
+        plays no part), :func:`~creference_bayes.pipeline.expected_ground`."""
+        from ...pipeline import expected_ground
+
+        return expected_ground(self.model, self.options, n_objects)
 
     def to_dict(self) -> dict:
         """The settings as the results record them (``batch.settings``) and a rerun compares them."""
@@ -102,6 +120,11 @@ class BatchSettings:
         d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
         d["keep_draws"] = RESULT_DRAWS
         del d["pool_scale"]  # what it changes, the scene's corner_scale, is in the scene's fingerprint
+        # an infinite value (ground_dof=inf: a normal) as the word, JSON having no infinity
+        d["options"] = {k: "inf" if isinstance(v, float) and math.isinf(v) else v
+                        for k, v in sorted(self.options.items())}
+        if not self.options:  # results made before the option existed stay up to date
+            del d["options"]
         if self.rig == "none":  # results made before the rig existed stay up to date
             del d["rig"]
         return d
@@ -123,7 +146,7 @@ class BatchSettings:
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
                 "location_prior": self.location_prior, "confidence_map": self.confidence_map,
-                "classes": dict(self.classes) or None}
+                "classes": dict(self.classes) or None, **self.options}
 
 
 @dataclass(frozen=True)
@@ -360,7 +383,7 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
         if transform is not None:
             scene, rig = transform(si.key, scene)
         fingerprint = scene_fingerprint(scene)
-        if up_to_date(paths, fingerprint, ident):
+        if up_to_date(paths, fingerprint, ident, settings.ground(len(scene.targets))):
             status[si.key] = "skipped"
             if not paths["scene"].exists():
                 atomic_write_json(paths["scene"], scene_to_dict(scene))

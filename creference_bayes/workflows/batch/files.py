@@ -30,12 +30,18 @@ def result_paths(batch_dir: str | Path) -> dict[str, Path]:
     return {k: p for k, p in paths.items() if not any(part.startswith(".") for part in k.split("/"))}
 
 
-def up_to_date(paths: dict, fingerprint: str, settings: dict) -> bool:
-    """Whether the stored result is the scene's as it is now, made with these settings."""
+def up_to_date(paths: dict, fingerprint: str, settings: dict, ground: dict | None = None) -> bool:
+    """Whether the stored result is the scene's as it is now, made with these settings and, unless
+    ``ground`` is None, under this ground prior (:func:`~creference_bayes.pipeline.expected_ground`;
+    a result that records none was made under the earlier default,
+    :data:`~creference_bayes.pipeline.EARLIER_GROUND`)."""
+    from ...pipeline import EARLIER_GROUND
+
     try:
         d = json.loads(read_text(paths["result"]))
         return (d.get("scene_id", {}).get("sha256") == fingerprint
-                and d.get("batch", {}).get("settings") == settings)
+                and d.get("batch", {}).get("settings") == settings
+                and (ground is None or (d.get("provenance", {}).get("ground") or EARLIER_GROUND) == ground))
     except (OSError, ValueError, AttributeError):
         return False
 
