@@ -72,6 +72,22 @@ def test_the_same_seed_gives_the_same_result_and_it_rebuilds_its_model(m, tmp_pa
                              path).ground_sd_m == 0.2  # an option given wins
 
 
+def test_an_infinite_model_option_is_written_as_a_word_and_read_back_as_infinity(tmp_path):
+    """JSON has no infinity: ``ground_dof=inf`` (a normal) is recorded as "inf", and the model is
+    rebuilt with it (a result written with ``allow_nan=False``, as the CLI writes it)."""
+    d, _ = truth_scene(4, m=2, n_annotations=2, noise_px=2.0)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(d))
+    res = cb.estimate(path, seed=3, posterior=False, ground_dof=np.inf, ground_sd_m=0.08)
+    doc = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert doc["provenance"]["options"] == {"ground_dof": "inf", "ground_sd_m": 0.08}
+    assert doc["provenance"]["ground"]["dof"] is None
+    model = rebuild_model(doc, path)
+    assert (model.ground_dof, model.ground_sd_m) == (np.inf, 0.08)
+    cam, objs = map_state(doc)
+    assert model.map_objective(cam[None], objs[None])[0] == pytest.approx(res.model.map_objective(cam[None], objs[None])[0])
+
+
 def load_result_path(tmp_path, doc):
     p = tmp_path / "result.json"
     p.write_text(json.dumps(doc))
