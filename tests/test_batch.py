@@ -317,3 +317,7 @@ def test_cli_model_options_are_typed_and_bad_ones_are_named(tmp_path, capsys):
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "b"), "--model", "paper", "--option",
                  "ground_sd_m=0.1"]) == 2
     assert "the paper model has no such option" in capsys.readouterr().err
+    # a value out of range is refused before the batch reads a scene or writes a file
+    assert main(["batch", str(tmp_path), "--out", str(tmp_path / "b"), "--option", "ground_tilt_sd_rad=-0.1"]) == 2
+    assert "--option ground_tilt_sd_rad: expected a finite number >= 0 (radians), got -0.1" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()

@@ -272,13 +272,16 @@ def add_model_option(p: argparse.ArgumentParser) -> None:
 
 
 def model_options(args, scene=None) -> dict:
-    """The ``--option`` values, typed for ``args.model`` and, given a ``scene``, checked by building
-    its model (a usage error naming the option and its value)."""
+    """The ``--option`` values, typed for ``args.model`` and checked by building the model of
+    ``scene`` (default: the package's example scene, before a batch reads any of its own): a usage
+    error naming the option and its value."""
+    from ..io.scene import load_scene
     from ..pipeline import build_model, parse_model_options
 
     with usage_errors():
         options = parse_model_options(args.model, args.option)
-    if scene is not None and options:
+    if options:
+        scene = scene if scene is not None else load_scene(example_scene_path())
         with usage_errors("--option "):  # a value out of the model's range
             build_model(scene, model=args.model, preset=args.preset, **options)
     return options

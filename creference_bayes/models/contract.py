@@ -246,9 +246,10 @@ class Model:
         self.orientation = orientation
         self.horizon_line = None if horizon_line is None else np.asarray(horizon_line, float)
         self.focal_length_px = focal_length_px
-        for key, v in (("ground_sd_m", ground_sd_m), ("ground_sd_per_m", ground_sd_per_m)):
+        for key, v, unit in (("ground_sd_m", ground_sd_m, "metres"), ("ground_sd_per_m", ground_sd_per_m, "metres"),
+                             ("ground_tilt_sd_rad", ground_tilt_sd_rad, "radians")):
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{key}: expected a finite number >= 0 (metres), got {v!r}")
+                raise ValueError(f"{key}: expected a finite number >= 0 ({unit}), got {v!r}")
         if not (ground_dof > 0):
             raise ValueError(f"ground_dof: expected a number > 0 (inf: a normal), got {ground_dof!r}")
         self.ground_sd_m = 0.0 if len(self.objects) == 1 else float(ground_sd_m)
