@@ -262,7 +262,7 @@ def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_p
     assert _result(tmp_path / "alone", "many")["objects"] == _result(tmp_path / "pooled", "many")["objects"]
 
 
-def test_model_options_reach_every_result_and_a_result_of_another_ground_prior_is_recomputed(tmp_path):
+def test_model_options_reach_every_result_and_a_result_of_another_ground_prior_is_recomputed(tmp_path, capsys):
     """``--option`` (and ``BatchSettings.options``) reach the estimates; a resume compares them, and
     compares the ground prior a multi-object result records with the one it would now be made under:
     a result of the earlier default (no ``provenance.ground``) is recomputed, a one-target result
@@ -283,14 +283,18 @@ def test_model_options_reach_every_result_and_a_result_of_another_ground_prior_i
     assert _result(out, "street")["provenance"]["ground"]["sd_per_m"] == pytest.approx(0.0017)
     # the earlier prior asked for explicitly: every scene again, with it recorded
     earlier = ["--option", "ground_sd_m=0.08", "--option", "ground_sd_per_m=0", "--option", "ground_dof=inf"]
-    assert main(args + earlier) == 0
+    loud = [a for a in args if a != "--quiet"]
+    capsys.readouterr()
+    assert main(loud + earlier) == 0
+    assert "2 scenes: 2 estimated, 0 failed" in capsys.readouterr().out
     street = _result(out, "street")
     assert street["provenance"]["ground"] == {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None,
                                               "tilt_sd_rad": pytest.approx(np.radians(1.0))}
     assert street["provenance"]["options"]["ground_dof"] == "inf"
     assert street["batch"]["settings"]["options"] == {"ground_dof": "inf", "ground_sd_m": 0.08,
                                                       "ground_sd_per_m": 0.0}
-    assert main(args + earlier[2:] + earlier[:2]) == 0  # the same options in another order: up to date
+    assert main(loud + earlier[2:] + earlier[:2]) == 0  # the same options in another order: up to date
+    assert "2 scenes: 0 estimated, 2 already done, 0 failed" in capsys.readouterr().out
     r = run_batch([tmp_path / "s"], out, LocalEngine(1),
                   BatchSettings(posterior=False, options={"ground_sd_m": 0.08, "ground_sd_per_m": 0.0,
                                                           "ground_dof": math.inf}))
