@@ -21,7 +21,7 @@ from .models.contract import ObjectData
 from .models.metrology import ReferenceTerm
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "estimate", "build_model", "rebuild_model", "map_state",
-           "result_draws", "reference_terms", "parse_model_options", "expected_ground"]
+           "result_draws", "reference_terms", "parse_model_options", "option_record", "expected_ground"]
 
 MODELS = ("metrology", "paper")
 #: The default model. The benchmark (docs/benchmark_results.md) found the metrology model as good
@@ -72,7 +72,7 @@ def parse_model_options(model: str, items) -> dict:
     return out
 
 
-def _option_record(value):
+def option_record(value):
     """A model option as a result records it: an infinite number as the word (``"inf"``), JSON
     having no infinity."""
     if isinstance(value, (float, np.floating)) and np.isinf(value):
@@ -91,12 +91,9 @@ def expected_ground(model: str, options: Mapping, n_objects: int) -> dict | None
     from .models.contract import (DEFAULT_GROUND_DOF, DEFAULT_GROUND_SD_M, DEFAULT_GROUND_SD_PER_M,
                                   DEFAULT_GROUND_TILT_SD_RAD)
 
-    nu = float(options.get("ground_dof", DEFAULT_GROUND_DOF))
-    return {"sd_m": float(options.get("ground_sd_m", DEFAULT_GROUND_SD_M)),
-            "sd_per_m": float(options.get("ground_sd_per_m", DEFAULT_GROUND_SD_PER_M)),
-            "dof": None if np.isinf(nu) else nu,
-            "tilt_sd_rad": float(options.get("ground_tilt_sd_rad", DEFAULT_GROUND_TILT_SD_RAD))}
-
+    ground = dict(ground_sd_m=DEFAULT_GROUND_SD_M, ground_sd_per_m=DEFAULT_GROUND_SD_PER_M,
+                  ground_dof=DEFAULT_GROUND_DOF, ground_tilt_sd_rad=DEFAULT_GROUND_TILT_SD_RAD)
+    return _ground_record(**{k: float(options.get(k, v)) for k, v in ground.items()})
 
 def reference_terms(scene: Scene) -> list[ReferenceTerm]:
     """The scene's references as the models read them (:class:`~.models.metrology.ReferenceTerm`):
@@ -261,7 +258,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                     from .inference.map import refine
 
                     map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
-        provenance = {"model": model, "preset": preset, "options": {k: _option_record(options[k]) for k in sorted(options)},
+        provenance = {"model": model, "preset": preset, "options": {k: option_record(options[k]) for k in sorted(options)},
                       "orientation": orientation,
                       "focal_prior": focal_prior if isinstance(focal_prior, str) else "given",
                       "location_prior": m.location.kind, "use_references": use_references, "temperature": T,
@@ -338,9 +335,13 @@ EARLIER_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": flo
 def _ground_dict(model) -> dict:
     """``provenance.ground``: the model's ground-offset prior (metres, metres per metre, degrees of
     freedom, null for a normal) and the ground's tilt (radians)."""
-    nu = model.ground_dof
-    return {"sd_m": model.ground_sd_m, "sd_per_m": model.ground_sd_per_m, "dof": None if np.isinf(nu) else nu,
-            "tilt_sd_rad": model.ground_tilt_sd_rad}
+    return _ground_record(**model.ground_options)
+
+
+def _ground_record(ground_sd_m, ground_sd_per_m, ground_dof, ground_tilt_sd_rad) -> dict:
+    """The ground options as ``provenance.ground`` writes them (the inverse of :func:`_ground_options`)."""
+    return {"sd_m": ground_sd_m, "sd_per_m": ground_sd_per_m, "dof": None if np.isinf(ground_dof) else ground_dof,
+            "tilt_sd_rad": ground_tilt_sd_rad}
 
 
 def _ground_options(ground: dict) -> dict:

@@ -35,7 +35,7 @@ from typing import Callable
 from ... import __version__
 from ...io.files import atomic_write_json
 from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
-from ...pipeline import DEFAULT_MODEL
+from ...pipeline import DEFAULT_MODEL, option_record
 from .files import ERROR_FORMAT, layout, record_error, up_to_date
 from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
@@ -120,9 +120,7 @@ class BatchSettings:
         d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
         d["keep_draws"] = RESULT_DRAWS
         del d["pool_scale"]  # what it changes, the scene's corner_scale, is in the scene's fingerprint
-        # an infinite value (ground_dof=inf: a normal) as the word, JSON having no infinity
-        d["options"] = {k: "inf" if isinstance(v, float) and math.isinf(v) else v
-                        for k, v in sorted(self.options.items())}
+        d["options"] = {k: option_record(v) for k, v in sorted(self.options.items())}  # inf as "inf"
         if not self.options:  # results made before the option existed stay up to date
             del d["options"]
         if self.rig == "none":  # results made before the rig existed stay up to date
