@@ -32,10 +32,9 @@ against fixed designs, on KITTI frames (docs/advice.md).
    requests' ``good_gain`` in the plan, beside the realised one), also written to
    ``DIR/advice_study.json``.
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
-   requests' chances combined as the plan combines them (each target below the bar lifted with
-   chance 1 − Π(1 − p), each good one dropped with chance Π(1 − p)), the labels lifted less those
-   dropped, beside the sum of each request's gain weighed alone, with the ratio's 90 % interval from
-   resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
+   requests answered together as the plan combines them (``combined_chance``: their changes of
+   each label's P(IoU ≥ T) add), the labels lifted less those dropped, beside the sum of each
+   request's gain weighed alone, with the ratio's 90 % interval from resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
    (``BAND_EDGES``; the last, the labels already good, predicted to lose), with the realised
    count's 90 % interval if the predicted chances are right; and the advised plan's gain on the
    futures its requests were chosen by beside the one it states from the others.
@@ -160,16 +159,20 @@ def _good_by_target(labels_csv: Path, args) -> dict:
         return {(r["scene"], r["target"]): _is_good(r, args) for r in csv.DictReader(f)}
 
 
-def _lifted(chances: list, below: np.ndarray) -> np.ndarray:
-    """Per target, the expected change of its goodness when requests are answered together (the
-    plan's rule, ``BatchAdvice.plan``: a label is good after them when any one of them would leave
-    it good, with chance 1 − Π(1 − p) over the requests' ``p_good``): for a target below the bar
-    that chance, for one good now minus its chance of falling, Π(1 − p). 0 for every target of a
-    frame no request is asked in (it is not estimated again)."""
-    if not chances:
-        return np.zeros(len(below))
-    none = np.prod(1.0 - np.array(chances), axis=0)
-    return np.where(below, 1.0 - none, -none)
+def _lifted(moments: list, scene: dict) -> np.ndarray:
+    """Per target of a frame's advice (``scene``, an entry of advice.json), the expected change of
+    its goodness when the requests of ``moments`` (their ``moments`` there) are answered together,
+    by the plan's rule (:func:`~creference_bayes.workflows.advice.combined_chance`): for a target
+    below the bar its chance to become good, for one good now minus its chance to fall. 0 for every
+    target of a frame no request is asked in (it is not estimated again)."""
+    from creference_bayes.workflows.advice import Moments, combined_chance
+
+    p_now = np.asarray(scene["now"]["p_iou"], float)
+    shift = np.asarray(scene.get("shift") or np.zeros(len(p_now)), float)
+    base, bar = p_now - shift, scene["settings"]["min_quality"] - shift
+    below = p_now < scene["settings"]["min_quality"]
+    chance = combined_chance(base, bar, [Moments.from_dict(m) for m in moments])
+    return np.where(below, chance, chance - 1.0)
 
 
 #: The bands of a label's round-0 P(IoU ≥ T) the predictions are checked in; the last, from the
@@ -213,20 +216,19 @@ def accuracy(out: Path, camera_of: dict, args, n_boot: int = 2000) -> list[dict]
         k = sc["key"]
         p_now = np.asarray(sc["now"]["p_iou"], float)
         now[k] = (list(sc["targets"]), p_now)
-        below = p_now < sc["settings"]["min_quality"]
         told, rank = {d: [] for d in pred}, []
         for p in sc.get("predictions") or []:
             c = p["candidate"]
             designs = [kind_design[c["kind"]]] if c["kind"] in kind_design else []
             if (k, c["key"]) in chosen or (c["kind"] == "mounting" and camera_of.get(k) in cameras):
                 designs.append("advised")
-                rank.append(p["rank_p_good"] if p.get("rank_p_good") is not None else p["p_good"])
+                rank.append(p["rank_moments"])
             for d in designs:
-                told[d].append(p["p_good"])
+                told[d].append(p["moments"])
                 alone[d][k] = alone[d].get(k, 0.0) + float(p["good_gain"])
         for d in pred:
-            pred[d][k] = _lifted(told[d], below)
-        ranked[k] = float(_lifted(rank, below).sum())
+            pred[d][k] = _lifted(told[d], sc)
+        ranked[k] = float(_lifted(rank, sc).sum())
     good0 = _good_by_target(out / "round0" / "labels" / "labels.csv", args)
     frames = sorted(now)
     edges = [*BAND_EDGES, args.min_quality]

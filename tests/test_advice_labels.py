@@ -15,7 +15,7 @@ from conftest import truth_scene
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import parse_scene, scene_to_dict
 from creference_bayes.pipeline import build_model
-from creference_bayes.workflows.advice import AdviceSettings, good_chance
+from creference_bayes.workflows.advice import AdviceSettings, combined_chance, good_chance
 from creference_bayes.workflows.advice.answers import (CATALOGUE_LOG_SD, MOUNTING_SD, with_dimension_lines,
                                                        with_mounting, with_size)
 from creference_bayes.workflows.advice.observe import MountingObservation, SizeObservation
@@ -406,26 +406,32 @@ def test_the_plan_asks_a_mounting_once_per_camera(advised_batch):
     assert len([r for r in mountings if r["camera"] == "rig-B"]) == 1
     assert all(r["frames"] == "2" for r in mountings if r["camera"] == "rig-B")
     assert all(r["frames"] == "1" and r["key"] == "f2" for r in mountings if not r["camera"])
-    # the plan's order: value added per human second, which only falls as the plan grows
+    # requests.csv is the plan (the same seed and settings), its gains stated from the other futures
     batch = advise_batch(out, settings=AdviceSettings(n_draws=100, n_futures=20, min_good_per_hour=0.0))
     plan = batch.plan()
-    assert [r.rate for r in plan] == sorted((r.rate for r in plan), reverse=True)
-    # requests.csv is that plan (the same seed and settings), its gains stated from the other futures
     assert [r["kind"] for r in rows] == [r.prediction.candidate.kind for r in plan]
     assert [float(r["good_gain"]) for r in rows] == pytest.approx([r.gain for r in plan], abs=1e-3)
     assert [float(r["good_loss"]) for r in rows] == pytest.approx([r.loss for r in plan], abs=1e-3)
-    # a label becomes good once: the plan's gains add up to each target below the bar lifted with
-    # chance 1 - prod(1 - p) over the plan's requests (a sum of single gains counts it again per request)
+    # the first request is the best alone per human second (a mounting: summed over its frames)
     frames = {o.key: o.advice for o in batch.objects}
+    alone = [(sum(q.value("labels") for q in ps) / ps[0].candidate.seconds)
+             for ps in ([p for p in a.predictions if p.candidate.kind != "mounting"] for a in frames.values())
+             for ps in ([p] for p in ps)]
+    for cam in {o.scene.camera_id or o.key for o in batch.objects}:
+        ms = [p for o in batch.objects if o.target == 0 and (o.scene.camera_id or o.key) == cam
+              for p in o.advice.predictions if p.candidate.kind == "mounting"]
+        alone.append(sum(p.value("labels") for p in ms) / ms[0].candidate.seconds)
+    assert plan[0].rate == pytest.approx(max(alone))
+    # a frame's requests are answered together: the plan's gains and losses add up to each label's
+    # chance to be good after all of its frame's requests (combined_chance), less now
     chosen = {}
     for r in plan:
         for o, p in zip(r.objects, r.predictions):
-            chosen.setdefault(o.key, []).append(p.p_good)
-    combined = sum(float(np.sum(1.0 - np.prod(1.0 - np.array(ps)[:, ~frames[k].good], axis=0)))
-                   for k, ps in chosen.items())
-    assert sum(r.gain for r in plan) == pytest.approx(combined, abs=1e-9)
-    assert len(plan) > len(frames) and combined < sum(float(np.sum(p[~frames[k].good])) for k, ps in chosen.items()
-                                                      for p in ps) - 0.05
+            chosen.setdefault(o.key, []).append(p.moments)
+    after = {k: combined_chance(*frames[k].futures_scale(), ms) for k, ms in chosen.items()}
+    assert sum(r.gain for r in plan) == pytest.approx(sum(float(a[~frames[k].good].sum()) for k, a in after.items()))
+    assert sum(r.loss for r in plan) == pytest.approx(sum(float((1 - a[frames[k].good]).sum()) for k, a in after.items()))
+    assert len(plan) > len(frames)
     # a team that asks only for lines gets only lines
     only = advise_batch(out, settings=AdviceSettings(n_draws=100, n_futures=20, min_good_per_hour=0.0,
                                                      kinds=("dims",)))
@@ -436,99 +442,98 @@ def test_the_plan_asks_a_mounting_once_per_camera(advised_batch):
     assert sum(float(r["seconds"]) for r in cut) <= budget and len(cut) >= 1
 
 
-def _planned(frames: dict, min_good_per_hour: float = 1.0):
-    """A BatchAdvice of frames given as {key: (camera, [(kind, target, seconds, chance of the one
-    target, stated the same)])}: one target below the bar per frame."""
+def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0):
+    """A BatchAdvice of frames given as {key: (camera, P(IoU ≥ 0.7) of its labels now, [(kind, target,
+    seconds, the request's change of each label's P(IoU ≥ 0.7))])}, every future as sure as can be
+    (a spread of 1e-9: a label is lifted when its summed change takes it to the bar of 0.5), each
+    change known to ``se``."""
     from types import SimpleNamespace
 
-    from creference_bayes.workflows.advice import Advice, Outlook, Prediction
+    from creference_bayes.workflows.advice import Advice, Moments, Outlook, Prediction
     from creference_bayes.workflows.advice.batch import BatchAdvice, ObjectAdvice
     from creference_bayes.workflows.advice.candidates import Candidate
 
     settings = AdviceSettings(min_good_per_hour=min_good_per_hour)
-    one = np.ones(1)
-    now = Outlook(hdi_width_m=one, hdi_share=one * 0.2, distance_m=one * 20, location_sd_m=one, p_iou=one * 0.2)
     objects = []
-    for key, (camera, requests) in frames.items():
-        predictions = tuple(
-            Prediction(Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
-                       0.0, 0.0, 0.0, 1.0, 0, p_good=np.array([p]), good_gain=p, rank_p_good=np.array([p]),
-                       rank_good_gain=p) for kind, target, seconds, p in requests)
-        advice = Advice(("t0",), now, predictions, "collect", "", settings=settings)
-        objects.append(ObjectAdvice(key, f"{key}.png", SimpleNamespace(camera_id=camera), advice, 0, None))
+    for key, (camera, p_now, requests) in frames.items():
+        one, p_now = np.ones(len(p_now)), np.asarray(p_now, float)
+        now = Outlook(hdi_width_m=one, hdi_share=one * 0.2, distance_m=one * 20, location_sd_m=one, p_iou=p_now)
+        below = p_now < 0.5
+        predictions = []
+        for kind, target, seconds, change in requests:
+            m = Moments(np.asarray(change, float), one * se, one * 1e-9)
+            q = combined_chance(p_now, one * 0.5, [m])
+            predictions.append(Prediction(
+                Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
+                0.0, 0.0, 0.0, 1.0, 0, p_good=q, good_gain=float(q[below].sum()), rank_p_good=q,
+                rank_good_gain=float(q[below].sum()), good_loss=float((1 - q[~below]).sum()), moments=m,
+                rank_moments=m))
+        advice = Advice(tuple(f"t{i}" for i in range(len(p_now))), now, tuple(predictions), "collect", "",
+                        settings=settings)
+        objects += [ObjectAdvice(key, f"{key}.png", SimpleNamespace(camera_id=camera), advice, i, None)
+                    for i in range(len(p_now))]
     return BatchAdvice(tuple(objects))
 
 
+def test_requests_answered_together_add_their_changes():
+    """A label at 0.3 (bar 0.45): two requests that each move it by +0.1 lift it only together; a
+    change within its noise counts for little; the futures' spreads add."""
+    base, bar = np.array([0.3]), np.array([0.45])
+
+    def m(change, se=0.0, spread=1e-9):
+        from creference_bayes.workflows.advice import Moments
+
+        return Moments(np.array([change]), np.array([se]), np.array([spread]))
+
+    assert combined_chance(base, bar, [m(0.1)]) == pytest.approx([0.0], abs=1e-6)
+    assert combined_chance(base, bar, [m(0.1), m(0.1)]) == pytest.approx([1.0], abs=1e-6)
+    # +0.2 known to 0.2 counts as +0.1: the label stays below
+    assert combined_chance(base, bar, [m(0.2)]) == pytest.approx([1.0], abs=1e-6)
+    assert combined_chance(base, bar, [m(0.2, se=0.2)]) == pytest.approx([0.0], abs=1e-6)
+    # no request: the label keeps its verdict (its frame is not estimated again)
+    assert combined_chance(np.array([0.3, 0.6]), np.array([0.5, 0.5]), []) == pytest.approx([0.0, 1.0])
+    # a symmetric future at the bar is good with chance one half; wider futures reach further
+    half = combined_chance(np.array([0.5]), np.array([0.5]), [m(0.0, spread=0.01)])
+    assert half == pytest.approx([0.5], abs=1e-6)
+    one, two = (combined_chance(base, bar, [m(0.0, spread=0.01)] * k)[0] for k in (1, 2))
+    assert 0.0 < one < two < 0.5
+
+
 def test_the_plan_values_a_request_by_what_it_adds():
-    """A size and a set of lines on one car, each 0.9 likely to lift it: the lines, second best
-    alone (17.7 good labels per hour), add 0.09 after the size (1.8 per hour), so a size on another
-    car (0.3, 16.8 per hour) goes first, and a camera's mounting counts each frame's car as it is
-    still left."""
-    frames = {"a": ("cam", [("size", 0, 64.4, 0.9), ("dims", 0, 183.5, 0.9), ("mounting", None, 900.0, 0.5)]),
-              "b": ("cam", [("size", 0, 64.4, 0.3), ("mounting", None, 900.0, 0.5)])}
+    """Frames of one camera, a car each: a at 0.2, b at 0.41, c at 0.47 (bar 0.5). In a, a size
+    (+0.35) or lines (+0.35) would each lift the car, so the lines add nothing after the size. In b
+    a size (+0.05) does not lift the car alone; the mounting (+0.05 in every frame) lifts c's car
+    alone, and then b's size lifts b's: its value rises from 0 to 1."""
+    frames = {"a": ("cam", [0.2], [("size", 0, 64.4, [0.35]), ("dims", 0, 183.5, [0.35]),
+                                   ("mounting", None, 900.0, [0.05])]),
+              "b": ("cam", [0.41], [("size", 0, 64.4, [0.05]), ("mounting", None, 900.0, [0.05])]),
+              "c": ("cam", [0.47], [("mounting", None, 900.0, [0.05])])}
     plan = _planned(frames).plan()
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
-        ("a", "size"), ("b", "size"), ("a", "dims"), ("a", "mounting")]
-    assert [r.gain for r in plan] == pytest.approx([0.9, 0.3, 0.9 * 0.1, 0.5 * 0.01 + 0.5 * 0.7])
-    mounting = plan[-1]
-    assert mounting.camera == "cam" and [o.key for o in mounting.objects] == ["a", "b"]
-    assert mounting.rate * 3600 == pytest.approx((0.5 * 0.01 + 0.5 * 0.7) * 3600 / 900)
-    # a request whose added value is no longer worth its time is left out; a budget cuts the rest
-    assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=1.7).plan()] == [
-        "size", "size", "dims"]
-    assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=2.0).plan()] == ["size", "size"]
-    assert [r.objects[0].key for r in _planned(frames).plan(budget_s=2 * 64.4)] == ["a", "b"]
+        ("a", "size"), ("a", "mounting"), ("b", "size")]
+    assert [r.gain for r in plan] == pytest.approx([1.0, 1.0, 1.0], abs=1e-6)
+    mounting = plan[1]
+    assert mounting.camera == "cam" and [o.key for o in mounting.objects] == ["a", "b", "c"]
+    assert mounting.rate * 3600 == pytest.approx(4.0, abs=1e-4)
+    # a request not worth its time stops the plan (the mounting, 4 per hour); a budget cuts it
+    assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=5.0).plan()] == ["size"]
+    assert [r.objects[0].key for r in _planned(frames).plan(budget_s=2 * 64.4)] == ["a"]
+    # changes known no better than they are (se 0.05): b's size and the mounting move nothing
+    assert [r.prediction.candidate.kind for r in _planned(frames, se=0.05).plan()] == ["size"]
 
 
 def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
-    """Two frames of one camera, each with a car below the bar (0.2) and a good one (0.6). In
-    frame a a size lifts its car with chance 0.9 and keeps the good car good with 0.8, the lines
-    0.5 and 0.9; in frame b a size 0.4 and 1.0; the mounting lifts either car below the bar
-    with 0.5 and keeps either good car with 0.5. The plan is chosen by the lifts alone: the sizes,
-    then the mounting (0.5 × 0.1 + 0.5 × 0.6 for 900 s), then the lines (0.5 × 0.1 × 0.5). A label
-    is good after the requests when any one of them would leave it good: the good car of a falls
-    with 0.2 after the size, 0.2 × 0.5 once the mounting is asked as well and 0.1 × 0.1 with the
-    lines; that of b with 0 after its size, and still 0 after the mounting. So the requests'
-    losses are 0.2, 0, −0.1 and −0.09: the second and third requests on a frame make it likelier
-    that one of them leaves its good car good."""
-    from types import SimpleNamespace
-
-    from creference_bayes.workflows.advice import Advice, Outlook, Prediction
-    from creference_bayes.workflows.advice.batch import BatchAdvice, ObjectAdvice
-    from creference_bayes.workflows.advice.candidates import Candidate
-
-    settings = AdviceSettings(min_good_per_hour=0.0)
-    two = np.ones(2)
-    now = Outlook(hdi_width_m=two, hdi_share=two * 0.2, distance_m=two * 20, location_sd_m=two,
-                  p_iou=np.array([0.2, 0.6]))
-
-    def pred(kind, target, seconds, lift, stay):
-        q = np.array([lift, stay])
-        return Prediction(Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
-                          0.0, 0.0, 0.0, 1.0, 0, p_good=q, good_gain=lift, rank_p_good=q, rank_good_gain=lift,
-                          good_loss=1.0 - stay)
-
-    frames = {"a": [pred("size", 0, 64.4, 0.9, 0.8), pred("dims", 0, 183.5, 0.5, 0.9),
-                    pred("mounting", None, 900.0, 0.5, 0.5)],
-              "b": [pred("size", 0, 64.4, 0.4, 1.0), pred("mounting", None, 900.0, 0.5, 0.5)]}
-    objects = tuple(ObjectAdvice(k, f"{k}.png", SimpleNamespace(camera_id="cam"),
-                                 Advice(("t0", "t1"), now, tuple(ps), "collect", "", settings=settings), 0, None)
-                    for k, ps in frames.items())
-    plan = BatchAdvice(objects).plan()
-    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
-        ("a", "size"), ("b", "size"), ("a", "mounting"), ("a", "dims")]
-    assert [r.gain for r in plan] == pytest.approx([0.9, 0.4, 0.5 * 0.1 + 0.5 * 0.6, 0.5 * 0.1 * 0.5])
-    assert [r.loss for r in plan] == pytest.approx([0.2, 0.0, 0.2 * 0.5 - 0.2, 0.1 * 0.1 - 0.1])
-    # a frame no request is asked in loses nothing: the mounting alone drops each good car with 0.5
-    only = BatchAdvice(tuple(dataclasses.replace(o, advice=dataclasses.replace(
-        o.advice, predictions=o.advice.predictions[-1:])) for o in objects)).plan()
-    assert [r.loss for r in only] == pytest.approx([0.5 + 0.5])
-    # with no good labels (the same lifts), the same plan: the losses take no part in the choice
-    alike = _planned({k: ("cam", [(p.candidate.kind, p.candidate.target, p.candidate.seconds, float(p.p_good[0]))
-                                  for p in ps]) for k, ps in frames.items()}, min_good_per_hour=0.0).plan()
-    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in alike] == [
-        (r.objects[0].key, r.prediction.candidate.kind) for r in plan]
-    assert all(r.loss == 0.0 for r in alike)
+    """Frame a: cars at 0.2, 0.6 and 0.45 (bar 0.5). A size on the first lifts it (+0.4) and drops
+    the second (−0.15); lines on the third lift it (+0.1) and bring the second back (+0.1). The
+    plan takes both by their lifts; the size's loss is 1, the lines' −1. Frame b's good car would
+    fall under its size, which lifts nothing: b gets no request and loses nothing."""
+    frames = {"a": ("cam", [0.2, 0.6, 0.45], [("size", 0, 64.4, [0.4, -0.15, 0.0]),
+                                               ("dims", 2, 183.5, [0.0, 0.1, 0.1])]),
+              "b": ("cam", [0.6], [("size", 0, 64.4, [-0.3])])}
+    plan = _planned(frames).plan()
+    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [("a", "size"), ("a", "dims")]
+    assert [r.gain for r in plan] == pytest.approx([1.0, 1.0], abs=1e-6)
+    assert [r.loss for r in plan] == pytest.approx([1.0, -1.0], abs=1e-6)
 
 
 def test_a_stop_quotes_the_figure_it_stopped_by():
@@ -536,9 +541,10 @@ def test_a_stop_quotes_the_figure_it_stopped_by():
     stated half's (here 2.80 per hour) is above the minimum it would be said to be below."""
     from creference_bayes.workflows.advice import _recommend_labels
 
-    batch = _planned({"a": (None, [("size", 0, 64.4, 0.05)])})
+    batch = _planned({"a": (None, [0.2], [("size", 0, 64.4, [0.1])])})
     advice = batch.objects[0].advice
-    best = dataclasses.replace(advice.predictions[0], rank_p_good=np.array([0.01]), rank_good_gain=0.01)
+    best = dataclasses.replace(advice.predictions[0], good_gain=0.05, rank_p_good=np.array([0.01]),
+                               rank_good_gain=0.01)
     action, reason = _recommend_labels(advice.now, [best], advice.settings, advice.targets)
     assert action == "stop" and "make 0.01 of them good (0.56 per human hour, below the minimum 1)" in reason
 

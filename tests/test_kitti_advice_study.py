@@ -76,16 +76,21 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
     scene = json.loads((out / "dims" / "scenes" / "000007.json").read_text())
     assert all(len(t["dimension_lines"]) == 2 for t in scene["targets"])
     assert "| design | human s |" in proc.stdout and "| mounting | 900 |" in proc.stdout
-    # predicted against realised per design: a design's prediction is its requests' chances combined
-    # per target below the bar, 1 - prod(1 - p); beside it, their gains alone summed
+    # predicted against realised per design: a design's prediction is its requests answered together
+    # by the plan's rule (combined_chance: their changes of each label add); beside it, their gains
+    # alone summed
+    from creference_bayes.workflows.advice import Moments, combined_chance
+
     advice = json.loads((out / "advice" / "advice.json").read_text())
     sizes = [p for sc in advice["scenes"] for p in sc["predictions"] if p["candidate"]["kind"] == "size"]
     assert len(advice["scenes"]) == 1
-    below = np.asarray(advice["scenes"][0]["now"]["p_iou"]) < 0.5
-    # per target below the bar, 1 - prod(1 - p); each good label falls with prod(1 - p) (good after
-    # when any request would leave it good); the net change is the labels lifted less those dropped
-    lifted = np.sum(1.0 - np.prod([1.0 - np.asarray(p["p_good"])[below] for p in sizes], axis=0))
-    dropped = np.sum(np.prod([1.0 - np.asarray(p["p_good"])[~below] for p in sizes], axis=0))
+    sc = advice["scenes"][0]
+    p_now, shift = np.asarray(sc["now"]["p_iou"]), np.asarray(sc["shift"])
+    below = p_now < 0.5
+    # each label below the bar is lifted with its chance after them all; each good one falls with
+    # the rest; the net change is the labels lifted less those dropped
+    after = combined_chance(p_now - shift, 0.5 - shift, [Moments.from_dict(p["moments"]) for p in sizes])
+    lifted, dropped = np.sum(after[below]), np.sum(1.0 - after[~below])
     accuracy = {a["design"]: a for a in report["accuracy"]}
     assert list(accuracy) == ["advised", "dims", "sizes", "mounting"]
     assert accuracy["sizes"]["lifted"]["predicted"] == pytest.approx(lifted)

@@ -22,7 +22,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import hashlib
-import heapq
 import io
 import json
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ import numpy as np
 
 from ...io.files import atomic_write_json, atomic_write_text
 from ..batch.files import result_paths
-from . import Advice, AdviceSettings, Prediction
+from . import Advice, AdviceSettings, Prediction, combined_chance
 from .inputs import advise_result, scene_for_result
 from .requests import image_name
 
@@ -98,15 +97,11 @@ class Request:
 
 @dataclass(frozen=True)
 class _Item:
-    """A request the plan may take (its ``value`` alone) and, with the labels objective, each
-    target's chance to be lifted by it, keyed by (frame key, target index), on the futures it is
-    ranked by and on those its gain is stated from; ``kept``: each target good now, its chance to
-    stay good (stated)."""
+    """A request the plan may take and, with the labels objective, the frames it is answered in
+    (key → its prediction there): a target's own frame, or every frame of a camera for a mounting."""
 
     request: Request
-    rank: dict
-    told: dict
-    kept: dict = dataclasses.field(default_factory=dict)
+    frames: dict
 
 
 @dataclass(frozen=True)
@@ -119,64 +114,82 @@ class BatchAdvice:
     def plan(self, budget_s: float | None = None) -> list[Request]:
         """The requests to send, greedy by value per human second, while that value is worth its
         time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
-        request that does not fit is passed over for cheaper ones after it).
+        request that does not fit is passed over for cheaper ones).
 
         With the labels objective every observation of every frame may be asked, each valued by
-        the good labels it adds to the requests already planned: a target below the bar that
-        requests r₁…r_k would each lift with chance p₁…p_k is lifted with chance 1 − Π(1 − pᵢ) (a
-        label becomes good once; docs/advice.md). Values only fall as the plan grows, so each is
-        recomputed when it comes up (lazy greedy). With the hdi objective the plan takes each
-        target's request (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
+        the good labels it adds to the requests already planned in its frames: a frame's requests
+        are answered together, their effects on each label adding
+        (:func:`~creference_bayes.workflows.advice.combined_chance`), so a request's value may fall
+        or rise as the plan grows and every value it changes is computed again after each choice.
+        Greedy takes one request at a time: two requests that would lift a label only together
+        are not planned. With the hdi objective the plan takes each target's request
+        (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone.
 
-        The mounting is asked once per camera, its chances (or HDI points) over every frame of
-        that camera (a frame that names no camera is a camera of its own).
+        The mounting is asked once per camera, its value summed over every frame of that camera
+        (a frame that names no camera is a camera of its own).
 
-        Each request's ``loss`` is stated by the same rule and does not take part in the choice: a
-        label is good after the requests when any one of them would leave it good, so a label good
-        now that requests r₁…r_k would each keep good with chance s₁…s_k falls with chance
-        Π(1 − sᵢ) (0 while its frame gets no request: it is not estimated again). A request's loss
-        is what it changes that by; a second request on a frame may lower it (a negative loss)."""
+        Requests are chosen on the futures they were ranked by (``rank_moments``); each one's
+        ``gain`` (labels below the bar lifted) and ``loss`` (labels good now dropped, which takes no
+        part in the choice) are stated from the others (``moments``), as what it adds to the
+        requests above it. A frame no request is asked in is not estimated again: its labels keep
+        their verdicts."""
         items = self._items()
         if not items:
             return []
         settings = items[0].request.objects[0].advice.settings
         labels = settings.objective == "labels"
-        left_rank, left_told, falls = {}, {}, {}
+        advice = {o.key: o.advice for o in self.objects}
+        asked = {}  # frame key -> (rank moments, told moments) of the requests planned in it
 
-        def rate(it: _Item) -> tuple[float, float]:
-            v = sum((p * left_rank.get(t, 1.0) for t, p in it.rank.items()), 0.0) if labels else it.request.value
+        def chances(key: str, extra=None, told: bool = False) -> np.ndarray:
+            base, bar = advice[key].futures_scale()
+            ms = asked.get(key, ([], []))[told] + ([] if extra is None else [extra])
+            return combined_chance(base, bar, ms)
+
+        def added(it: _Item, told: bool) -> tuple[float, float]:
+            """(lifted, dropped): the labels below the bar it lifts and those good now it drops,
+            beyond the requests planned."""
+            up = down = 0.0
+            for key, p in it.frames.items():
+                below = ~advice[key].good
+                d = chances(key, p.moments if told else p.rank_moments, told) - chances(key, told=told)
+                up, down = up + float(d[below].sum()), down - float(d[~below].sum())
+            return up, down
+
+        def rate(n: int) -> tuple[float, float]:
+            it = items[n]
+            v = added(it, False)[0] if labels else it.request.value
             return v, (v / it.request.seconds if it.request.seconds > 0 else np.inf)
 
         def order(it: _Item) -> tuple:
             o = it.request.objects[0]
             return o.key, o.target, it.request.prediction.candidate.key
 
-        heap = [(-rate(it)[1], order(it), n) for n, it in enumerate(items)]
-        heapq.heapify(heap)
+        by_frame = {}
+        for n, it in enumerate(items):
+            for key in it.frames:
+                by_frame.setdefault(key, []).append(n)
+        values = {n: rate(n) for n in range(len(items))}
         out, total = [], 0.0
-        while heap:
-            _, key, n = heapq.heappop(heap)
-            it = items[n]
-            v, r = rate(it)
-            if heap and (-r, key) > heap[0][:2]:  # its value fell below the next one's: later
-                heapq.heappush(heap, (-r, key, n))
-                continue
-            seconds = it.request.seconds
-            if v <= 0 or not settings.worth(v, seconds):  # values only fall: never again
-                continue
-            if budget_s is not None and total + seconds > budget_s:
-                continue
-            total += seconds
+        while values:
+            if budget_s is not None:  # those that no longer fit never will
+                for n in [n for n in values if total + items[n].request.seconds > budget_s]:
+                    del values[n]
+                if not values:
+                    break
+            n = min(values, key=lambda n: (-values[n][1], order(items[n])))
+            (v, _), it = values.pop(n), items[n]
+            if v <= 0 or not settings.worth(v, it.request.seconds):  # the best is not worth it: none is
+                break
+            total += it.request.seconds
             if labels:
-                gain = sum((p * left_told.get(t, 1.0) for t, p in it.told.items()), 0.0)
-                loss = 0.0
-                for left, chances in ((left_rank, it.rank), (left_told, it.told)):
-                    for t, p in chances.items():
-                        left[t] = left.get(t, 1.0) * (1.0 - p)
-                for t, s in it.kept.items():
-                    before = falls.get(t)
-                    falls[t] = (1.0 - s) * (1.0 if before is None else before)
-                    loss += falls[t] - (before or 0.0)
+                gain, loss = added(it, True)
+                for key, p in it.frames.items():
+                    rank_ms, told_ms = asked.setdefault(key, ([], []))
+                    rank_ms.append(p.rank_moments)
+                    told_ms.append(p.moments)
+                for m in {m for key in it.frames for m in by_frame[key] if m in values}:
+                    values[m] = rate(m)
             else:
                 gain = sum(q.good_gain for q in it.request.predictions)
                 loss = sum(q.good_loss for q in it.request.predictions)
@@ -193,15 +206,6 @@ class BatchAdvice:
             first = next(iter(targets.values()))
             objective = first.advice.settings.objective
             below = np.flatnonzero(~first.advice.good)
-            good = np.flatnonzero(first.advice.good)
-
-            def chances(p: Prediction, stated: bool, key=key, below=below, labels=objective == "labels") -> dict:
-                q = p.p_good if stated else p.ranking_p_good()
-                return {(key, int(i)): float(q[i]) for i in below if q[i] > 0} if labels else {}
-
-            def kept(p: Prediction, key=key, good=good, labels=objective == "labels") -> dict:
-                return {(key, int(i)): float(p.p_good[i]) for i in good} if labels else {}
-
             if objective == "labels":
                 pairs = [(targets[_shown(p, below)], p) for p in first.advice.predictions
                          if p.candidate.kind != "mounting"]
@@ -210,15 +214,14 @@ class BatchAdvice:
                          if o.request is not None and o.request.candidate.kind != "mounting"]
             for o, p in pairs:
                 items.append(_Item(Request((o,), (p,), p.value(objective), p.candidate.seconds, o.scene.camera_id),
-                                   chances(p, False), chances(p, True), kept(p)))
+                                   {key: p}))
             p = next((p for p in first.advice.predictions if p.candidate.kind == "mounting"), None)
             if p is not None:
-                cameras.setdefault(first.scene.camera_id or f"frame:{key}", []).append(
-                    (first, p, p.value(objective), chances(p, False), chances(p, True), kept(p)))
+                cameras.setdefault(first.scene.camera_id or f"frame:{key}", []).append((first, p, p.value(objective)))
         for camera, of in cameras.items():
             request = Request(tuple(f[0] for f in of), tuple(f[1] for f in of), sum(f[2] for f in of),
                               of[0][1].candidate.seconds, None if camera.startswith("frame:") else camera)
-            items.append(_Item(request, *({k: v for f in of for k, v in f[n].items()} for n in (3, 4, 5))))
+            items.append(_Item(request, {f[0].key: f[1] for f in of}))
         return items
 
 
