@@ -442,11 +442,12 @@ def test_the_plan_asks_a_mounting_once_per_camera(advised_batch):
     assert sum(float(r["seconds"]) for r in cut) <= budget and len(cut) >= 1
 
 
-def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0):
+def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0, spread: float = 1e-9):
     """A BatchAdvice of frames given as {key: (camera, P(IoU ≥ 0.7) of its labels now, [(kind, target,
-    seconds, the request's change of each label's P(IoU ≥ 0.7))])}, every future as sure as can be
-    (a spread of 1e-9: a label is lifted when its summed change takes it to the bar of 0.5), each
-    change known to ``se``."""
+    seconds, the request's change of each label's P(IoU ≥ 0.7))])}, each change known to ``se``, the
+    futures' variance ``spread`` (by default as sure as can be: a label is lifted when its change
+    takes it past the bar of 0.5). A request's chances alone are those of combined_chance, on both
+    halves of the futures."""
     from types import SimpleNamespace
 
     from creference_bayes.workflows.advice import Advice, Moments, Outlook, Prediction
@@ -461,7 +462,7 @@ def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0):
         below = p_now < 0.5
         predictions = []
         for kind, target, seconds, change in requests:
-            m = Moments(np.asarray(change, float), one * se, one * 1e-9)
+            m = Moments(np.asarray(change, float), one * se, one * spread)
             q = combined_chance(p_now, one * 0.5, [m])
             predictions.append(Prediction(
                 Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
@@ -499,34 +500,47 @@ def test_requests_answered_together_add_their_changes():
     assert 0.0 < one < two < 0.5
 
 
-def test_the_plan_values_a_request_by_what_it_adds():
-    """Frames of one camera, a car each: a at 0.2, b at 0.41, c at 0.47 (bar 0.5). In a, a size
-    (+0.35) or lines (+0.35) would each lift the car, so the lines add nothing after the size. In b
-    a size (+0.05) does not lift the car alone; the mounting (+0.05 in every frame) lifts c's car
-    alone, and then b's size lifts b's: its value rises from 0 to 1."""
-    frames = {"a": ("cam", [0.2], [("size", 0, 64.4, [0.35]), ("dims", 0, 183.5, [0.35]),
-                                   ("mounting", None, 900.0, [0.05])]),
-              "b": ("cam", [0.41], [("size", 0, 64.4, [0.05]), ("mounting", None, 900.0, [0.05])]),
-              "c": ("cam", [0.47], [("mounting", None, 900.0, [0.05])])}
-    plan = _planned(frames).plan()
+def test_the_plan_chooses_by_each_requests_chances_and_states_them_answered_together():
+    """Frames of one camera, a car each below the bar of 0.5: a at 0.2, b at 0.3. Every change is
+    +0.3 with a spread of 0.01 (sd 0.1), so a request on a's car lifts it alone with chance 1/2 (a
+    future symmetric about the bar), one on b's with more. The plan chooses by the chances alone (a
+    label lifted once any request lifts it): after a's size (1/2 per 64.4 s), a's lines are worth
+    1/2 × 1/2 per 183.5 s. It states each request's gain with the frame's requests answered
+    together: a's lines take a's car to 0.8, so they add more than their own chance."""
+    from creference_bayes.workflows.advice import Moments
+
+    frames = {"a": ("cam", [0.2], [("size", 0, 64.4, [0.3]), ("dims", 0, 183.5, [0.3]),
+                                   ("mounting", None, 900.0, [0.3])]),
+              "b": ("cam", [0.3], [("size", 0, 64.4, [0.3]), ("mounting", None, 900.0, [0.3])])}
+    batch = _planned(frames, spread=0.01)
+    p = {(o.key, q.candidate.kind): float(q.p_good[0]) for o in batch.objects for q in o.advice.predictions}
+    assert p[("a", "size")] == pytest.approx(0.5, abs=1e-6) and p[("b", "size")] > 0.8
+    plan = batch.plan()
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
-        ("a", "size"), ("a", "mounting"), ("b", "size")]
-    assert [r.gain for r in plan] == pytest.approx([1.0, 1.0, 1.0], abs=1e-6)
-    mounting = plan[1]
-    assert mounting.camera == "cam" and [o.key for o in mounting.objects] == ["a", "b", "c"]
-    assert mounting.rate * 3600 == pytest.approx(4.0, abs=1e-4)
-    # a request not worth its time stops the plan (the mounting, 4 per hour); a budget cuts it
-    assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=5.0).plan()] == ["size"]
-    assert [r.objects[0].key for r in _planned(frames).plan(budget_s=2 * 64.4)] == ["a"]
-    # changes known no better than they are (se 0.05): b's size and the mounting move nothing
-    assert [r.prediction.candidate.kind for r in _planned(frames, se=0.05).plan()] == ["size"]
+        ("b", "size"), ("a", "size"), ("a", "dims"), ("a", "mounting")]
+    assert [r.value for r in plan] == pytest.approx([p[("b", "size")], 0.5, 0.25,
+                                                     0.25 * 0.5 + (1 - p[("b", "size")]) * p[("b", "mounting")]])
+    mounting = plan[-1]
+    assert mounting.camera == "cam" and [o.key for o in mounting.objects] == ["a", "b"]
+    # stated answered together: a's car after its size and lines is a future of mean 0.8, var 0.02
+    one = np.ones(1)
+    m = Moments(one * 0.3, one * 0.0, one * 0.01)
+    after = [combined_chance(np.array([x]), one * 0.5, [m] * k)[0] for x, k in ((0.2, 1), (0.2, 2), (0.2, 3))]
+    assert plan[2].gain == pytest.approx(after[1] - after[0]) and plan[2].gain > plan[2].value
+    assert plan[3].gain == pytest.approx(after[2] - after[1] + combined_chance(np.array([0.3]), one * 0.5, [m] * 2)[0]
+                                         - p[("b", "size")])
+    # a request no longer worth its time is left out; a budget cuts the rest
+    assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=4.0, spread=0.01).plan()] == [
+        "size", "size", "dims"]
+    assert [r.objects[0].key for r in _planned(frames, spread=0.01).plan(budget_s=2 * 64.4)] == ["b", "a"]
 
 
 def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
-    """Frame a: cars at 0.2, 0.6 and 0.45 (bar 0.5). A size on the first lifts it (+0.4) and drops
-    the second (−0.15); lines on the third lift it (+0.1) and bring the second back (+0.1). The
-    plan takes both by their lifts; the size's loss is 1, the lines' −1. Frame b's good car would
-    fall under its size, which lifts nothing: b gets no request and loses nothing."""
+    """Frame a: cars at 0.2, 0.6 and 0.45 (bar 0.5), every future as sure as can be. A size on the
+    first lifts it (+0.4) and drops the second (−0.15); lines on the third lift it (+0.1) and bring
+    the second back (+0.1). The plan takes both by their lifts; the size's loss is 1, the lines'
+    −1. Frame b's good car would fall under its size, which lifts nothing: b gets no request and
+    loses nothing."""
     frames = {"a": ("cam", [0.2, 0.6, 0.45], [("size", 0, 64.4, [0.4, -0.15, 0.0]),
                                                ("dims", 2, 183.5, [0.0, 0.1, 0.1])]),
               "b": ("cam", [0.6], [("size", 0, 64.4, [-0.3])])}
@@ -534,6 +548,10 @@ def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [("a", "size"), ("a", "dims")]
     assert [r.gain for r in plan] == pytest.approx([1.0, 1.0], abs=1e-6)
     assert [r.loss for r in plan] == pytest.approx([1.0, -1.0], abs=1e-6)
+    # changes known to 0.1: the lines' +0.1 counts as +0.05, and the third car reaches the bar
+    # exactly (good with chance one half)
+    shaky = _planned(frames, se=0.1).plan()
+    assert [r.gain for r in shaky] == pytest.approx([1.0, 0.5], abs=1e-3)
 
 
 def test_a_stop_quotes_the_figure_it_stopped_by():
