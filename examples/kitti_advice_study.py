@@ -171,6 +171,8 @@ def _lifted(moments: list, scene: dict) -> np.ndarray:
     shift = np.asarray(scene.get("shift") or np.zeros(len(p_now)), float)
     base, bar = p_now - shift, scene["settings"]["min_quality"] - shift
     below = p_now < scene["settings"]["min_quality"]
+    if any(m is None for m in moments):
+        raise SystemExit(f"{scene['key']}: its advice has no moments (made before 2026-11-28): advise again")
     chance = combined_chance(base, bar, [Moments.from_dict(m) for m in moments])
     return np.where(below, chance, chance - 1.0)
 

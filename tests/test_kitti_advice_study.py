@@ -120,8 +120,7 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
             assert b["agrees"] == (lo <= b["realised"] <= hi)
         lo, hi = a["bands"][-1]["expected_90"]  # the good ones: from minus those that may fall to 0
         assert -a["bands"][-1]["labels"] <= lo <= hi <= 0 and lo - 1 <= a["bands"][-1]["predicted"] <= hi + 1
-    in_band = [np.sum(1.0 - np.prod([1.0 - np.asarray(p["p_good"])[(p_now >= lo) & (p_now < hi)] for p in sizes],
-                                    axis=0)) for lo, hi in ((0, 0.1), (0.1, 0.3), (0.3, 0.5))]
+    in_band = [np.sum(after[(p_now >= lo) & (p_now < hi)]) for lo, hi in ((0, 0.1), (0.1, 0.3), (0.3, 0.5))]
     assert [b["predicted"] for b in accuracy["sizes"]["bands"][:3]] == pytest.approx(in_band)
     assert "| design | 0–0.1 | 0.1–0.3 | 0.3–0.5 | ≥ 0.5 (good) |" in proc.stdout
     # --tables-only: the same tables again from the folder, nothing estimated
@@ -135,11 +134,21 @@ def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
 
 
 def test_a_designs_prediction_is_its_lifts_less_its_losses():
-    """Two requests in one frame of three labels: the first below the bar (lifted with 0.3 and
-    0.5: 1 − 0.7 × 0.5), the other two good (kept with 0.9 and 0.8: they fall with 0.1 × 0.2; and
-    with 1 and 0.5: the first keeps it, 0); a frame no request is asked in changes nothing."""
+    """Two requests in one frame of three labels (0.2, 0.6 and 0.55; bar 0.5), their futures as sure
+    as can be: the first moves them by +0.2, −0.15 and 0, the second by +0.2, 0 and −0.1. Answered
+    together they lift the first (0.6) and drop the other two (0.45 each); the first alone lifts
+    none (0.4) and drops the second. A frame no request is asked in changes nothing."""
     study = _module()
-    below = np.array([True, False, False])
-    change = study._lifted([np.array([0.3, 0.9, 1.0]), np.array([0.5, 0.8, 0.5])], below)
-    np.testing.assert_allclose(change, [0.65, -0.02, 0.0], atol=1e-12)
-    np.testing.assert_array_equal(study._lifted([], below), np.zeros(3))
+    scene = {"key": "f", "now": {"p_iou": [0.2, 0.6, 0.55]}, "shift": [0.0, 0.0, 0.0],
+             "settings": {"min_quality": 0.5}}
+
+    def moments(change):
+        return {"change": change, "change_se": [0.0] * 3, "spread": [1e-9] * 3}
+
+    first, second = moments([0.2, -0.15, 0.0]), moments([0.2, 0.0, -0.1])
+    np.testing.assert_allclose(study._lifted([first, second], scene), [1.0, -1.0, -1.0], atol=1e-9)
+    np.testing.assert_allclose(study._lifted([first], scene), [0.0, -1.0, 0.0], atol=1e-9)
+    np.testing.assert_array_equal(study._lifted([], scene), np.zeros(3))
+    # an advice made before the moments were written is refused, and says so
+    with pytest.raises(SystemExit, match="advise again"):
+        study._lifted([None], scene)

@@ -23,7 +23,9 @@ now).
   estimated from ``iou_pairs`` resampled draws (less, for reweighted draws, the bias the same
   weights shuffled over the draws show); a label's chance of reaching the bar is the share of its
   futures at or above it once that estimate's binomial noise is taken out (:func:`good_chance`),
-  so that neither the noise nor a change that says nothing counts. Labels that are good now count
+  the futures' mean change shrunk by its standard error (:func:`combined_chance`, the rule by
+  which requests answered together are combined), so that neither the noise nor a change that
+  says nothing counts. Labels that are good now count
   for nothing in the ranking (the advice says they are good); their chance of falling below the
   bar when the frame is estimated again is stated beside the gain (``good_loss``). Requests are
   ranked on half of the futures (:meth:`Prediction.value`) and their ``good_gain``, ``good_loss``
@@ -548,7 +550,7 @@ def combined_chance(base: np.ndarray, bar: np.ndarray, moments: list[Moments]) -
 
     The requests' effects on a label add: its future P(IoU ≥ t) is taken as a beta of mean
     ``base`` + Σ shrunk changes (:meth:`Moments.shrunk`) and variance Σ spreads (capped at 0.9 of a
-    beta's largest). Measured on KITTI frames (docs/advice.md, "Requests answered together"), the
+    beta's largest). Measured on KITTI frames (docs/advice.md, "Why two rules"), the
     earlier rule, a label lifted once any one request would lift it (1 − Π(1 − pᵢ)), said that a
     set of lines on every object would lift 8.0 labels and drop 0.03; 3 rose and 3 fell. The
     shrinkage keeps the small, noisy changes a request makes to the other labels of its frame from
@@ -614,12 +616,12 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     # ``shift``.
     p_hat = rows["p_iou"].copy()
     n_eff = np.full(len(outer), float(settings.iou_pairs))
-    base = now.p_iou - shift
-    shuffle_var = np.zeros(len(base))
+    present = now.p_iou - shift  # on the futures' scale
+    shuffle_var = np.zeros(len(present))
     if np.any(same):
         shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
                          settings.iou_pairs)
-        p_hat[same] -= shuffled.mean(axis=0) - base
+        p_hat[same] -= shuffled.mean(axis=0) - present
         n_eff[same] = 1.0 / (1.0 / settings.iou_pairs + 1.0 / ess[same])
         shuffle_var = shuffled.var(axis=0, ddof=1) / len(shuffled) if len(shuffled) > 1 else shuffle_var
     below = now.p_iou < settings.min_quality
@@ -629,13 +631,13 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
         a, b = _fit_futures(p_hat[idx][:, cols], n_eff[idx])
         mean = a / (a + b)
         se2 = p_hat[idx][:, cols].var(axis=0, ddof=1) / len(idx) + shuffle_var[cols]
-        return Moments(mean - base[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
+        return Moments(mean - present[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
 
     rank, told = np.arange(len(outer))[0::2], np.arange(len(outer))[1::2]
     m_told, m_rank = moments(told), moments(rank)
-    p_told, p_rank = (combined_chance(base, bar, [m]) for m in (m_told, m_rank))
+    p_told, p_rank = (combined_chance(present, bar, [m]) for m in (m_told, m_rank))
     good_gain = float(np.sum(p_told[below]))
-    boots = [combined_chance(base[below], bar[below], [moments(idx, below)]).sum()
+    boots = [combined_chance(present[below], bar[below], [moments(idx, below)]).sum()
              for idx in rng.choice(told, size=(_BOOTSTRAPS, len(told)))] if np.any(below) else [0.0, 0.0]
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,

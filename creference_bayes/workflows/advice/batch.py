@@ -73,8 +73,9 @@ class Request:
     is on, or most helps) or a camera's mounting (``objects``: one per frame of that camera,
     ``predictions`` its prediction in each; ``camera`` its id, None for a frame that names no
     camera), its ``value`` (what the plan chose it by, :meth:`BatchAdvice.plan`), ``seconds`` and
-    ``gain``: the good labels it is expected to add to the requests above it in the plan (stated
-    from the futures it was not chosen by), or with the hdi objective its good labels alone;
+    ``gain``: the good labels it is expected to add to the requests above it in the plan, its
+    frame's requests answered together (stated from the futures it was not chosen by), or with the
+    hdi objective its good labels alone;
     ``loss``: the labels good now it is expected to drop below the bar beyond the requests above
     it (with the hdi objective, alone)."""
 
@@ -126,9 +127,9 @@ class BatchAdvice:
         (:func:`~creference_bayes.workflows.advice.combined_chance`). A frame no request is asked
         in is not estimated again: its labels keep their verdicts.
 
-        Choosing by the additive rule as well was measured and not kept (docs/advice.md, "Why the
-        effects add"): greedy then buys changes of a few hundredths that it credits on labels at
-        the bar, and a plan on KITTI frames spent 1.6 times the human time for the same labels.
+        Choosing by the additive rule as well was measured and not kept (docs/advice.md, "Why two
+        rules"): greedy then buys changes of a few hundredths that it credits on labels at the
+        bar, and a plan on KITTI frames spent 1.6 times the human time for the same labels.
 
         With the hdi objective the plan takes each target's request
         (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone. The mounting is
