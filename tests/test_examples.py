@@ -271,6 +271,40 @@ def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, mo
     assert "| two |" not in part.split("\n\n")[1]  # fewer than three scenes: no row
 
 
+def test_the_advice_studys_report_splits_the_gains_by_the_crowds_noise_tier(tmp_path):
+    """With scenes of two noise tiers, ``report`` gives each tier's predicted and realised gains per
+    kind (where the model's Student-t reading of references fits the crowd, and where not); with
+    one tier, no such table."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("advice_study_tiers", EXAMPLES[0].parent / "advice_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+
+    def rec(i, tier, ref_pred, ref_real):
+        rows = [{"kind": kind, "measure": None if kind == "target" else "length", "pred_gain_pct": p,
+                 "real_gain_pct": r, "rew_gain_pct": r - 0.5, "real_before_share": [0.6], "ess": 0.5, "fallbacks": 0}
+                for kind, p, r in (("target", 2.0, 2.0), ("new-ref", ref_pred, ref_real))]
+        return {"scene": f"s{i:04d}", "tier": tier, "n_target": 1, "n_refs": 1, "truth_quantile": [0.5],
+                "advice_only_s": 0.1, "handedness_kept_true": [True], "n_candidates": 2, "rows": rows}
+
+    recs = [rec(i, "medium", 1.0, r) for i, r in enumerate((2.0, 3.0, 4.0))]
+    recs += [rec(3 + i, "high", 2.0, r) for i, r in enumerate((1.0, 2.0, 3.0))]
+    (tmp_path / "two").mkdir()
+    (tmp_path / "two" / "predict.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    part = study.report_predict(tmp_path / "two").split("By the crowd's noise tier")[1].split("\n\n")[1]
+    cells = {tuple(c.strip() for c in line.strip("|").split("|")[:2]): [c.strip() for c in line.strip("|").split("|")[2:]]
+             for line in part.splitlines()[2:]}
+    assert cells[("medium", "new-ref")][:3] == ["3", "1.00", "3.00"] and cells[("medium", "new-ref")][3].startswith("3.00 [")
+    assert cells[("medium", "new-ref")][4] == "2.50"  # the draws reweighted by the reference actually added
+    assert cells[("high", "new-ref")][:3] == ["3", "2.00", "2.00"] and cells[("high", "new-ref")][3].startswith("1.00 [")
+    assert cells[("high", "target")][:3] == ["3", "2.00", "2.00"]
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "predict.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs[:3]))
+    assert "noise tier" not in study.report_predict(tmp_path / "one")
+
+
 def test_the_advice_studys_policy_can_rank_by_location_error():
     """``policy --rank-by location`` collects the annotation with the largest expected drop of the
     location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
