@@ -32,7 +32,12 @@ Scenes: the paper-like tier (``high``), all settings, and outdoor alone. ``--ran
 ranks by the expected drop of the location's posterior sd per second instead.
 
 ``timing``: the advice's own time per scene with the default settings. ``report``: the tables
-(Markdown, printed and written to ``OUT/advice_study.md``) and the policy figure.
+(Markdown, printed and written to ``OUT/advice_study.md``) and the policy figure; ``predict``'s
+gains also by the simulated crowd's noise tier.
+
+``--option KEY=VALUE`` (``predict``, ``timing``, ``policy``) gives every estimate and advice a
+metrology model option, as ``creference estimate --option`` does: ``ref_dof=30`` reads references
+as nearly normal, for a crowd without the paper's heavy tails.
 
 Records are appended to ``OUT/<experiment>.jsonl`` one scene at a time, so a run can be stopped
 and resumed (scenes already recorded are skipped). Usage::
@@ -253,19 +258,28 @@ def _done(path: Path) -> set:
         return set()
     recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     mine = (None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(), _MODEL_OPTIONS.get("line_reading", "linear"),
-            _CAMERAS)
+            _CAMERAS, _other_options())
     for r in recs:
-        theirs = (r.get("focal_prior"), r.get("line_reading", "linear"), r.get("cameras", "setting"))
+        theirs = (r.get("focal_prior"), r.get("line_reading", "linear"), r.get("cameras", "setting"),
+                  r.get("options", {}))
         if theirs != mine:
-            said = ["focal prior {}, line reading {!r} and cameras {!r}".format(*x) for x in (theirs, mine)]
+            said = ["focal prior {}, line reading {!r}, cameras {!r} and options {}".format(*x) for x in (theirs, mine)]
             sys.exit(f"advice_study.py: {path} holds records made with {said[0]}, this run has {said[1]}: "
                      "use another --out")
     return {r["scene"] for r in recs}
 
 
+def _other_options() -> dict:
+    """The model options of ``--option`` (as a result records them: an infinite one as "inf")."""
+    from creference_bayes.pipeline import option_record
+
+    return {k: option_record(v) for k, v in sorted(_MODEL_OPTIONS.items()) if k != "line_reading"}
+
+
 def _append(path: Path, record: dict) -> None:
     record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
-              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"), "cameras": _CAMERAS}
+              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"), "cameras": _CAMERAS,
+              **({"options": _other_options()} if _other_options() else {})}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
 
@@ -806,6 +820,10 @@ def main(argv=None) -> None:
             s.add_argument("--objects", type=int, default=1, help="targets per scene (default: %(default)s)")
             s.add_argument("--setting", choices=("indoor", "outdoor", "street"), default=None,
                            help="the simulator's setting (default: indoor and outdoor)")
+        if name in ("predict", "timing", "policy"):
+            s.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                           help="a metrology model option for every estimate and advice, as creference estimate "
+                                "--option has it (repeatable), e.g. ref_dof=30 for a crowd without heavy tails")
         if name == "predict":
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
         if name == "own":
@@ -822,6 +840,16 @@ def main(argv=None) -> None:
     _ESTIMATE_KW.clear()
     if getattr(args, "line_reading", "linear") != "linear":
         _MODEL_OPTIONS["line_reading"] = args.line_reading
+    if getattr(args, "option", None):
+        from creference_bayes.pipeline import parse_model_options
+
+        try:
+            options = parse_model_options("metrology", args.option)
+        except ValueError as exc:
+            p.error(str(exc))
+        if "line_reading" in options:
+            p.error("--option line_reading: use --line-reading")
+        _MODEL_OPTIONS.update(options)
     if getattr(args, "focal_prior", None):
         if args.command == "own":
             p.error("--focal-prior: the own-model check draws its cameras from the default prior, which its "

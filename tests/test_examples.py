@@ -305,6 +305,33 @@ def test_the_advice_studys_report_splits_the_gains_by_the_crowds_noise_tier(tmp_
     assert "noise tier" not in study.report_predict(tmp_path / "one")
 
 
+def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(tmp_path, monkeypatch):
+    """``--option ref_dof=30``: every estimate and advice of ``predict`` reads references with 30
+    degrees of freedom, the records say so, and a resumed run with other options is refused; a
+    bad option is a usage error that names it."""
+    import importlib.util
+    import json
+
+    script = EXAMPLES[0].parent / "advice_study.py"
+    spec = importlib.util.spec_from_file_location("advice_study_options", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    seen = _spy_on(study, monkeypatch, "ref_dof")
+    monkeypatch.chdir(tmp_path)
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--option", "ref_dof=30", "--out", "o"])
+    assert seen["estimate"] and all(kw == (30.0,) for kw in seen["estimate"])
+    assert seen["advise"] and all(model.ref_dof == 30.0 and options.get("ref_dof") == 30.0
+                                  for model, options in seen["advise"])
+    rec = json.loads((tmp_path / "o" / "predict.jsonl").read_text().splitlines()[0])
+    assert rec["options"] == {"ref_dof": 30.0}
+    with pytest.raises(SystemExit, match="options"):  # a resumed run must not mix them
+        study.main(["predict", "--n", "2", "--min-ess", "100", "--out", "o"])
+    for bad in ("ref_dof", "ref_doff=3", "ref_dof=x", "line_reading=corrected"):
+        proc = subprocess.run([sys.executable, str(script), "predict", "--option", bad, "--out", "x"],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and bad.split("=")[0] in proc.stderr, (bad, proc.stderr)
+
+
 def test_the_advice_studys_policy_can_rank_by_location_error():
     """``policy --rank-by location`` collects the annotation with the largest expected drop of the
     location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
