@@ -32,9 +32,10 @@ against fixed designs, on KITTI frames (docs/advice.md).
    requests' ``good_gain`` in the plan, beside the realised one), also written to
    ``DIR/advice_study.json``.
 5. Predicted against realised per design (``accuracy`` in the JSON): a design's prediction is its
-   requests answered together as the plan combines them (``combined_chance``: their changes of
+   requests answered together as the plan states them (``combined_chance``: their changes of
    each label's P(IoU ≥ T) add), the labels lifted less those dropped, beside the sum of each
-   request's gain weighed alone, with the ratio's 90 % interval from resampling the frames; the same in each band of the labels' round-0 P(IoU ≥ T)
+   request's gain weighed alone, with the ratio's 90 % interval from resampling the frames; the
+   same in each band of the labels' round-0 P(IoU ≥ T)
    (``BAND_EDGES``; the last, the labels already good, predicted to lose), with the realised
    count's 90 % interval if the predicted chances are right; and the advised plan's gain on the
    futures its requests were chosen by beside the one it states from the others.
@@ -162,7 +163,7 @@ def _good_by_target(labels_csv: Path, args) -> dict:
 def _lifted(moments: list, scene: dict) -> np.ndarray:
     """Per target of a frame's advice (``scene``, an entry of advice.json), the expected change of
     its goodness when the requests of ``moments`` (their ``moments`` there) are answered together,
-    by the plan's rule (:func:`~creference_bayes.workflows.advice.combined_chance`): for a target
+    as the plan states them (:func:`~creference_bayes.workflows.advice.combined_chance`): for a target
     below the bar its chance to become good, for one good now minus its chance to fall. 0 for every
     target of a frame no request is asked in (it is not estimated again)."""
     from creference_bayes.workflows.advice import Moments, combined_chance
