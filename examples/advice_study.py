@@ -277,9 +277,10 @@ def _other_options() -> dict:
 
 
 def _append(path: Path, record: dict) -> None:
+    options = _other_options()
     record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
               "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"), "cameras": _CAMERAS,
-              **({"options": _other_options()} if _other_options() else {})}
+              **({"options": options} if options else {})}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
 

@@ -163,6 +163,16 @@ def test_the_advice_study_accounts_for_every_estimate(tmp_path):
     assert float(cells[4]) == pytest.approx(max(e["cpu_s"] for r in recs for e in r["estimates"]), abs=0.006)
 
 
+def _example(file: str):
+    """A fresh copy of the example script ``file`` as a module (its globals are its own)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(Path(file).stem, EXAMPLES[0].parent / file)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _spy_on(study, monkeypatch, *keys) -> dict:
     """Record, for every estimate the advice study makes, its keyword arguments ``keys`` (a tuple),
     and for every advice the model it was given and its model options; the real functions still run."""
@@ -187,16 +197,13 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     the model's prior; the next set and the new reference are the scene's next ones, the repeat is
     a second reading of the first reference's true segment; the advice is asked about exactly
     these, and the estimates and the advice share the box of simulation-based calibration."""
-    import importlib.util
 
     import numpy as np
 
     from creference_bayes.bench.sbc import SBC_BOX
 
     script = EXAMPLES[0].parent / "advice_study.py"
-    spec = importlib.util.spec_from_file_location("advice_study_own", script)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example(script.name)
     case = next(c for c in (study._own_case(0, k) for k in range(12)) if c["n_r"] >= 1)
     base, added = case["base"], case["added"]
     n_t, n_r = case["n_t"], case["n_r"]
@@ -234,13 +241,10 @@ def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, mo
     """``own --sets``: every scene starts from one of the numbers of target sets given (the
     default draws are the study's own: 1, 2, 3 or 5), a bad list is refused naming the option,
     and the report splits the target set's predicted and realised gain by the sets before it."""
-    import importlib.util
     import json
 
     script = EXAMPLES[0].parent / "advice_study.py"
-    spec = importlib.util.spec_from_file_location("advice_study_sets", script)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example(script.name)
     assert {study._own_case(0, k, (2,))["n_t"] for k in range(4)} == {2}
     assert {study._own_case(0, k)["n_t"] for k in range(12)} <= {1, 2, 3, 5}
     monkeypatch.chdir(tmp_path)
@@ -275,12 +279,9 @@ def test_the_advice_studys_report_splits_the_gains_by_the_crowds_noise_tier(tmp_
     """With scenes of two noise tiers, ``report`` gives each tier's predicted and realised gains per
     kind (where the model's Student-t reading of references fits the crowd, and where not); with
     one tier, no such table."""
-    import importlib.util
     import json
 
-    spec = importlib.util.spec_from_file_location("advice_study_tiers", EXAMPLES[0].parent / "advice_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("advice_study.py")
 
     def rec(i, tier, ref_pred, ref_real):
         rows = [{"kind": kind, "measure": None if kind == "target" else "length", "pred_gain_pct": p,
@@ -309,13 +310,10 @@ def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(t
     """``--option ref_dof=30``: every estimate and advice of ``predict`` reads references with 30
     degrees of freedom, the records say so, and a resumed run with other options is refused; a
     bad option is a usage error that names it."""
-    import importlib.util
     import json
 
     script = EXAMPLES[0].parent / "advice_study.py"
-    spec = importlib.util.spec_from_file_location("advice_study_options", script)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example(script.name)
     seen = _spy_on(study, monkeypatch, "ref_dof")
     monkeypatch.chdir(tmp_path)
     study.main(["predict", "--n", "1", "--min-ess", "100", "--option", "ref_dof=30", "--out", "o"])
@@ -335,12 +333,9 @@ def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(t
 def test_the_advice_studys_policy_can_rank_by_location_error():
     """``policy --rank-by location`` collects the annotation with the largest expected drop of the
     location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
-    import importlib.util
     from types import SimpleNamespace as NS
 
-    spec = importlib.util.spec_from_file_location("advice_study", EXAMPLES[0].parent / "advice_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("advice_study.py")
     target = NS(key="target", seconds=183.5)
     ref = NS(key="first-0", seconds=64.4)
     # the reference narrows the HDI more per minute; the target set brings the location's sd down
@@ -366,11 +361,8 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     rec = json.loads((tmp_path / "as" / "predict.jsonl").read_text().splitlines()[0])
     assert rec["focal_prior"]["median_px"] == 1650 and rec["focal_prior"]["log_sd"] == 0.27
 
-    import importlib.util
 
-    spec = importlib.util.spec_from_file_location("advice_study_fp", script)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example(script.name)
     study._FOCAL_PRIOR = study.FocalPrior(1650.0, 0.27, float("inf"), source="scene")
     base = study._predict_case(0, 0, ["medium"], 1, None)["base"]
     assert base.focal_prior == study._FOCAL_PRIOR
@@ -391,13 +383,9 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
 def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
     """``--line-reading corrected`` reaches every estimate and every advice of the study (their
     model options), is recorded, and a folder made with another reading is refused on resume."""
-    import importlib.util
     import json
 
-    script = EXAMPLES[0].parent / "advice_study.py"
-    spec = importlib.util.spec_from_file_location("advice_study_lr", script)
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("advice_study.py")
     seen = _spy_on(study, monkeypatch, "line_reading")
     monkeypatch.chdir(tmp_path)
     study.main(["predict", "--n", "1", "--min-ess", "100", "--line-reading", "corrected", "--out", "lr"])
@@ -413,13 +401,10 @@ def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_wit
     """examples/line_noise_bias.py: with no end-point noise the reading is the true length; with
     noise a short segment reads longer (|d + e| grows with e), a long ground line hardly moves, and
     the model's corrected reading takes most of the lengthening off."""
-    import importlib.util
 
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("line_noise_bias", EXAMPLES[0].parent / "line_noise_bias.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("line_noise_bias.py")
     exact = study.measure(3, ["none"], 50, 0)
     assert exact and max(abs(r["shift"]) for r in exact) < 1e-6
     noisy = study.measure(6, ["high"], 400, 0, corrected=40)
@@ -434,7 +419,6 @@ def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_wit
 def test_frame_calibration_reads_each_true_value_against_its_own_draws(tmp_path, capsys):
     """Each quantity's quantile comes from its own column of the draws: with draws set just above
     the truth in some columns and just below it in the others, each quantile is 0 or 1 as set."""
-    import importlib.util
     from types import SimpleNamespace
 
     import numpy as np
@@ -442,9 +426,7 @@ def test_frame_calibration_reads_each_true_value_against_its_own_draws(tmp_path,
     from creference_bayes.models.contract import O_GROUND, O_SIZE, O_X, O_Z
     from creference_bayes.bench.simulate import true_state
 
-    spec = importlib.util.spec_from_file_location("frame_calibration", EXAMPLES[0].parent / "frame_calibration.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("frame_calibration.py")
     scene = study.street_scene("low", 3, 0, 5)
     cam, objs = true_state(scene)
     spread = 1.0 + 1e-5 * np.arange(40)  # 40 draws that differ a little (a fixed quantity's draws do not)
@@ -486,11 +468,8 @@ def test_the_advice_studys_policy_table_reads_the_adaptive_run_at_three_quarters
     """The policy goal: 5 + 5's median location error within 75 % of its human time (930 s of
     1239.5). The table's truncated row is each run's last estimate within 930 s: here 8 % and
     6 % (median 7), not the 5 % and 4 % they reach after it."""
-    import importlib.util
 
-    spec = importlib.util.spec_from_file_location("advice_study_goal", EXAMPLES[0].parent / "advice_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("advice_study.py")
     assert study.GOAL_S == pytest.approx(0.75 * (5 * 183.5 + 5 * 64.4))
 
     def step(seconds, error):
@@ -514,12 +493,9 @@ def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     """``policy`` end to end on one scene of each condition, its budget cut to a set of lines and
     one reference (247.9 s) and its fixed designs to one: every run stays within the budget, the
     adaptive run asks at most one more annotation, and ``report`` tables both conditions."""
-    import importlib.util
     from types import SimpleNamespace as NS
 
-    spec = importlib.util.spec_from_file_location("advice_study_policy", EXAMPLES[0].parent / "advice_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = _example("advice_study.py")
     monkeypatch.setattr(study, "FIXED", {"target x1": (1, 0)})
     monkeypatch.setattr(study, "FIVE_PLUS_FIVE_S", study.TARGET_S + study.REF_S)
     study.run_policy(NS(out=str(tmp_path), n=1, seed=0, min_ess=100.0, rank_by="hdi"))

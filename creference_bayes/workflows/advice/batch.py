@@ -149,9 +149,9 @@ class BatchAdvice:
             the requests planned, all of a frame's answered together."""
             up = down = 0.0
             for key, p in it.frames.items():
-                a = advice[key]
-                ms = asked.get(key, [])
-                d = combined_chance(*a.futures_scale(), ms + [p.moments]) - combined_chance(*a.futures_scale(), ms)
+                a, ms = advice[key], asked.get(key, [])
+                scale = a.futures_scale()
+                d = combined_chance(*scale, ms + [p.moments]) - combined_chance(*scale, ms)
                 up, down = up + float(d[~a.good].sum()), down - float(d[a.good].sum())
             return up, down
 
