@@ -28,8 +28,9 @@ dimension lines, the policy collects the annotation with the highest expected ga
 (the next set, a first reference on each of the scene's ten reference objects, or one more on one
 already referenced) until the 90 % HDI is at most 10 % of the distance or the human time of the
 5 + 5 design is spent; the fixed designs: sets only (1, 2, 5, 10) and 5 sets with k references.
-Scenes: the paper-like tier (``high``), all settings, and outdoor alone. ``--rank-by location``
-ranks by the expected drop of the location's posterior sd per second instead.
+Scenes: the paper-like tier (``high``), all settings, and outdoor alone. The gain is the advice's
+``location`` objective (the expected drop of the location's posterior sd per second); ``--rank-by
+hdi`` follows the narrowing of the distance's HDI instead.
 
 ``timing``: the advice's own time per scene with the default settings. ``report``: the tables
 (Markdown, printed and written to ``OUT/advice_study.md``) and the policy figure; ``predict``'s
@@ -442,17 +443,7 @@ def _policy_candidates(pool, scene, used_targets, used_objects):
     return cands
 
 
-def _pick(advice, rank_by: str):
-    """The annotation to collect: the advice's best (expected HDI narrowing per second), or with
-    ``rank_by="location"`` the largest expected drop of the location's posterior sd per second."""
-    if rank_by == "hdi":
-        return advice.best.candidate
-    now = np.sum(advice.now.location_sd_m)
-    return max(advice.predictions,
-               key=lambda p: (now - np.sum(p.expected.location_sd_m)) / p.candidate.seconds).candidate
-
-
-def run_adaptive(pool, seed, k, min_ess, settings, rank_by="hdi"):
+def run_adaptive(pool, seed, k, min_ess, settings):
     scene = _variant(pool, 1, ())
     used_targets, used_objects, spent, steps = 1, set(), TARGET_S, []
     rng = np.random.default_rng([seed, k, 7])
@@ -472,7 +463,7 @@ def run_adaptive(pool, seed, k, min_ess, settings, rank_by="hdi"):
         if not advice.predictions:
             break
         steps[-1]["gains"] = {p.candidate.key: round(p.gain_per_minute, 4) for p in advice.predictions}
-        best = _pick(advice, rank_by)
+        best = advice.best.candidate  # ranked by the advice's objective (settings.objective)
         steps[-1]["chosen"] = best.key
         if best.kind == "dims":
             scene = _one_more_set(scene, pool)
@@ -495,7 +486,7 @@ def run_policy(args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "policy.jsonl"
     done = _done(path)
-    settings = AdviceSettings(min_gain=0.0, objective="hdi")  # this study measures the HDI advice
+    settings = AdviceSettings(min_gain=0.0, objective=args.rank_by)  # the policy follows the advice's ranking
     if path.is_file():
         other = {json.loads(x).get("rank_by", "hdi") for x in path.read_text().splitlines() if x.strip()}
         if other - {args.rank_by}:
@@ -518,7 +509,7 @@ def run_policy(args) -> None:
                                            "post_error": est["post_error"][0], "covered": est["covered"][0],
                                            "share": float(est["share"][0])}
             rec["adaptive"] = run_adaptive(pool, args.seed, k + (1000 if cond == "outdoor" else 0),
-                                           args.min_ess, settings, args.rank_by)
+                                           args.min_ess, settings)
             _append(path, {**rec, "rank_by": args.rank_by, "estimates": _costs()})
 
 
@@ -831,9 +822,10 @@ def main(argv=None) -> None:
             s.add_argument("--sets", default="1,2,3,5", type=_sets_arg,
                            help="the starting point's numbers of sets, one drawn per scene (default: %(default)s)")
         if name == "policy":
-            s.add_argument("--rank-by", choices=("hdi", "location"), default="hdi",
-                           help="collect the annotation with the largest expected narrowing of the distance's HDI "
-                                "(hdi, the advice's ranking) or drop of the location's sd (location) per second")
+            s.add_argument("--rank-by", choices=("location", "hdi"), default="location",
+                           help="the advice's objective the policy follows: the annotation with the largest "
+                                "expected drop of the location's sd (location) or narrowing of the distance's HDI "
+                                "(hdi) per second (default: %(default)s)")
     args = p.parse_args(argv)
     global _FOCAL_PRIOR, _CAMERAS
     _CAMERAS = getattr(args, "cameras", "setting")

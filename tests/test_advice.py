@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import io
 import json
+import math
 import re
 import xml.etree.ElementTree as ET
 
@@ -58,6 +59,21 @@ def _advise(example, draws=None, **kw):
     return advise(model, scene, cams, objs, camera_map=camera, objects_map=objects, source=source, **kw)
 
 
+def test_cli_on_a_batch_ranked_by_the_location_plans_by_its_drop_per_second(batch_dir, tmp_path, capsys):
+    out = tmp_path / "advice"
+    assert main(["advise", str(batch_dir), "--out", str(out), "--draws", "200", "--futures", "20",
+                 "--rank", "location", "--target-hdi-width", "0", "--min-gain", "0", "--budget", "400"]) == 0
+    printed = capsys.readouterr().out
+    rows = list(csv.DictReader(io.StringIO((out / "requests.csv").read_text())))
+    assert rows and "location-sd points/min" in printed
+    rates = [float(r["location_gain_pts"]) / float(r["seconds"]) for r in rows]
+    assert rates == sorted(rates, reverse=True)
+    assert float(rows[-1]["cumulative_seconds"]) <= 400
+    d = json.loads((out / "advice.json").read_text())
+    assert d["scenes"][0]["settings"]["objective"] == "location"
+    assert all("location_gain_pct" in p for sc in d["scenes"] for p in sc["predictions"])
+
+
 def test_the_same_seed_gives_the_same_advice(example):
     a, b = _advise(example, seed=4), _advise(example, seed=4)
     da, db = a.to_dict(), b.to_dict()
@@ -80,6 +96,19 @@ def test_advice_is_ranked_and_recommends_by_its_settings(example):
     assert met.action == "stop" and "precision target met" in met.reason
     low = _advise(example, seed=1, settings=AdviceSettings(**s, target_hdi_width=0.0, min_gain=1e6))
     assert low.action == "stop" and "below the minimum" in low.reason
+    # by the location's sd: its drop in points of the distance per minute, the same futures
+    loc = _advise(example, seed=1, settings=AdviceSettings(**{**s, "objective": "location"}, target_hdi_width=0.0,
+                                                             min_gain=0.0))
+    assert {p.candidate.key: p.gain_pct for p in loc.predictions} == {p.candidate.key: p.gain_pct for p in a.predictions}
+    for p in loc.predictions:
+        drop = 100.0 * np.sum((loc.now.location_sd_m - p.expected.location_sd_m) / loc.now.distance_m)
+        assert p.location_gain_pct == pytest.approx(drop, rel=1e-9, abs=1e-12)
+    rates = [p.location_gain_pct * 60.0 / p.candidate.seconds for p in loc.predictions]
+    assert rates == sorted(rates, reverse=True)
+    assert loc.action == "collect" and "location sd" in loc.reason and loc.best.candidate.description in loc.reason
+    low = _advise(example, seed=1, settings=AdviceSettings(**{**s, "objective": "location"}, target_hdi_width=0.0,
+                                                           min_gain=1e6))
+    assert low.action == "stop" and "location-sd points" in low.reason
 
 
 def test_a_small_sample_of_draws_does_not_count_against_the_references(example):
@@ -443,6 +472,7 @@ def test_cli_on_a_batch_writes_the_ranked_request_files(batch_dir, tmp_path, cap
     assert cum == sorted(cum) and cum[-1] <= 400
     gains = [float(r["gain_pts_per_minute"]) for r in rows]
     assert gains == sorted(gains, reverse=True)
+    assert all(math.isfinite(float(r["location_gain_pts"])) for r in rows)
     assert all(r["line_px"].count(";") == 1 for r in rows if r["line_px"])
     # the crowd's requests go to the labelling tools; a size or a mounting goes into the scene
     crowd = [r for r in rows if r["kind"] in ("dims", "reference")]

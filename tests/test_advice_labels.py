@@ -306,6 +306,32 @@ def test_good_labels_per_hour_rank_to_three_decimals_and_hdi_points_as_they_are(
     assert sorted([pred("b", 0.0, 0.003), pred("a", 0.0, 0.003)], key=rank_key("hdi"))[0].candidate.key == "a"
 
 
+def test_the_location_objective_ranks_by_the_drop_of_the_locations_sd_per_minute():
+    """A reference that narrows the HDI more per minute, and a set of lines that brings the
+    location's sd down more per minute (0.9 of 2.0 m in 183.5 s against 0.2 m in 64.4 s): the hdi
+    objective puts the reference first, the location objective the lines; each is worth its time
+    by its own points per minute (``min_gain``)."""
+    from creference_bayes.workflows.advice import Outlook, Prediction, rank_key
+    from creference_bayes.workflows.advice.candidates import Candidate
+
+    def pred(key, seconds, hdi_pts, sd_m):
+        cand = Candidate(key, "dims" if key == "lines" else "reference", 0, "t", None, None, None, None, (), seconds)
+        out = Outlook(*(np.array([v]) for v in (4.0, 0.2, 20.0, sd_m, 0.3)))
+        return Prediction(cand, out, gain_pct=hdi_pts, gain_se_pct=0.1, gain_per_minute=hdi_pts * 60.0 / seconds,
+                          ess_median=0.5, fallbacks=0, location_gain_pct=100.0 * (2.0 - sd_m) / 20.0)
+
+    ref, lines = pred("ref", 64.4, 3.0, 1.8), pred("lines", 183.5, 2.0, 1.1)
+    assert sorted([lines, ref], key=rank_key("hdi"))[0] is ref
+    assert sorted([ref, lines], key=rank_key("location"))[0] is lines
+    assert lines.score("location") == pytest.approx(4.5 * 60.0 / 183.5)  # 0.9 m of 20 m: 4.5 points
+    assert ref.score("location") == pytest.approx(1.0 * 60.0 / 64.4)
+    assert lines.value("location") == pytest.approx(4.5) and lines.value("hdi") == 2.0
+    at = AdviceSettings(objective="location", min_gain=1.0)
+    assert at.worth(lines.value("location"), 183.5) and not at.worth(ref.value("location"), 64.4)
+    with pytest.raises(ValueError, match="objective"):
+        AdviceSettings(objective="sd")
+
+
 def _says_nothing(spread: float):
     """An observation whose log-weights are noise of sd ``spread``, nothing of the draws."""
     class Nothing:

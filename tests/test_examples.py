@@ -330,24 +330,6 @@ def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(t
         assert proc.returncode == 2 and bad.split("=")[0] in proc.stderr, (bad, proc.stderr)
 
 
-def test_the_advice_studys_policy_can_rank_by_location_error():
-    """``policy --rank-by location`` collects the annotation with the largest expected drop of the
-    location's sd per second, where the advice itself ranks by HDI narrowing per minute."""
-    from types import SimpleNamespace as NS
-
-    study = _example("advice_study.py")
-    target = NS(key="target", seconds=183.5)
-    ref = NS(key="first-0", seconds=64.4)
-    # the reference narrows the HDI more per minute; the target set brings the location's sd down
-    # by 0.9 m (0.0049 m/s) against the reference's 0.2 m (0.0031 m/s)
-    advice = NS(now=NS(location_sd_m=2.0),
-                predictions=[NS(candidate=ref, expected=NS(location_sd_m=1.8), gain_per_minute=3.0),
-                             NS(candidate=target, expected=NS(location_sd_m=1.1), gain_per_minute=1.0)])
-    advice.best = advice.predictions[0]
-    assert study._pick(advice, "hdi") is ref
-    assert study._pick(advice, "location") is target
-
-
 def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     """``--focal-prior MEDIAN,LOG_SD`` reaches the estimates (their camera block) and is recorded;
     a malformed value is a usage error that names the option and the value."""
@@ -498,9 +480,12 @@ def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     study = _example("advice_study.py")
     monkeypatch.setattr(study, "FIXED", {"target x1": (1, 0)})
     monkeypatch.setattr(study, "FIVE_PLUS_FIVE_S", study.TARGET_S + study.REF_S)
-    study.run_policy(NS(out=str(tmp_path), n=1, seed=0, min_ess=100.0, rank_by="hdi"))
+    study.run_policy(NS(out=str(tmp_path), n=1, seed=0, min_ess=100.0, rank_by="location"))
     recs = [json.loads(line) for line in (tmp_path / "policy.jsonl").read_text().splitlines()]
     assert [r["condition"] for r in recs] == ["paper-like", "outdoor"]
+    assert all(r["rank_by"] == "location" for r in recs)
+    with pytest.raises(SystemExit, match="ranked by"):  # a folder keeps one ranking
+        study.run_policy(NS(out=str(tmp_path), n=1, seed=0, min_ess=100.0, rank_by="hdi"))
     for r in recs:
         steps = r["adaptive"]["steps"]
         assert 1 <= len(steps) <= 2 and steps[0]["seconds"] == study.TARGET_S

@@ -95,8 +95,11 @@ def _batch(args, settings, progress: bool) -> int:
         for r in rows[:10]:
             where = f"{r['key']}  {r['target']}" if r["kind"] != "mounting" else \
                 f"camera {r['camera'] or r['key']} ({r['frames']} frame{'s' if r['frames'] != 1 else ''})"
+            minutes = float(r["seconds"]) / 60.0
             gain = (f"+{float(r['good_gain']):.2f} good labels, {float(r['good_per_hour']):.2f}/h"
-                    if settings.objective == "labels" else f"+{float(r['gain_pts_per_minute']):.3f} points/min")
+                    if settings.objective == "labels" else f"+{float(r['gain_pts_per_minute']):.3f} points/min"
+                    if settings.objective == "hdi" else
+                    f"+{float(r['location_gain_pts']) / minutes:.3f} location-sd points/min")
             print(f"{r['rank']:>4}  {where}  {r['request']}  ({gain})")
         if len(rows) > 10:
             print(f"      … {len(rows) - 10} more in {paths['requests']}")
@@ -179,9 +182,10 @@ def register(subparsers) -> None:
     p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",
                    help="a label is good when its P(IoU >= T) >= Q, as creference labels --min-quality "
                         "(default: %(default)s)")
-    p.add_argument("--rank", choices=("labels", "hdi"), default="labels",
-                   help="rank requests by the labels expected to become good per human hour, or by the "
-                        "narrowing of the distances' HDIs per minute (default: %(default)s)")
+    p.add_argument("--rank", choices=("labels", "hdi", "location"), default="labels",
+                   help="rank requests by the labels expected to become good per human hour, by the "
+                        "narrowing of the distances' HDIs per minute, or by the drop of the locations' sd "
+                        "per minute (default: %(default)s)")
     p.add_argument("--min-good-per-hour", type=float, default=1.0, metavar="N",
                    help="--rank labels: stop when the best request makes fewer than N labels good per "
                         "human hour (default: %(default)s)")
@@ -189,11 +193,12 @@ def register(subparsers) -> None:
                    help="the kinds of request to weigh, of dims, reference, size, mounting, separated by "
                         "commas (default: all)")
     p.add_argument("--target-hdi-width", type=float, default=0.10, metavar="F",
-                   help="--rank hdi: stop when every target's 90 %% HDI of the distance is at most this "
+                   help="--rank hdi, location: stop when every target's 90 %% HDI of the distance is at most this "
                         "share of it (default: %(default)s, i.e. 10 %%)")
     p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
-                   help="--rank hdi: stop when the best expected gain is below G points of the distance "
-                        "(HDI width in percent of the distance) per minute of human time (default: %(default)s)")
+                   help="--rank hdi, location: stop when the best expected gain is below G points of the "
+                        "distance (HDI width or location sd in percent of the distance) per minute of human "
+                        "time (default: %(default)s)")
     p.add_argument("--seed", type=seed_value, default=0,
                    help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--draws", type=int, default=600, metavar="N",

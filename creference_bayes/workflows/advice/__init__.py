@@ -32,7 +32,12 @@ now).
   and ``p_good`` stated from the other half, so that the chosen requests' gains are not flattered
   by the noise that chose them;
 - **hdi**: the narrowing of every target's HDI share, in percentage points of its distance, summed
-  over the targets, per minute.
+  over the targets, per minute;
+- **location**: the drop of every target's location sd √(var x + var y + var z), in percentage
+  points of its distance, summed over the targets, per minute. It stops as **hdi** does. Of the
+  three it is the one whose adaptive policy reaches the paper's design of five sets of lines and
+  five references at three quarters of its human time on paper-like scenes as well as outdoors
+  (docs/advice.md, "The adaptive policy").
 
 :meth:`Advice.verdicts` says per target what would lift its label to the bar. Futures whose
 effective sample size collapses (below :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION`
@@ -60,7 +65,7 @@ __all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Ad
            "Moments", "rank_key"]
 
 #: What the advice ranks requests by (:class:`AdviceSettings`).
-OBJECTIVES = ("labels", "hdi")
+OBJECTIVES = ("labels", "hdi", "location")
 #: The kinds of request (:class:`~.candidates.Candidate`).
 KINDS = ("dims", "reference", "size", "mounting")
 #: Resamples of the futures behind a good-label gain's standard error.
@@ -84,7 +89,8 @@ class AdviceSettings:
     iou_pairs : resampled draws per simulated future for the label quality
     objective : how requests are ranked and when to stop: ``"labels"`` (expected labels that
         become good, a label being good when its P(IoU ≥ ``iou_threshold``) ≥ ``min_quality``, per
-        human hour) or ``"hdi"`` (narrowing of the distances' HDIs per minute)
+        human hour), ``"hdi"`` (narrowing of the distances' HDIs per minute) or ``"location"`` (drop of
+        the locations' sd per minute; both in points of the distance)
     min_quality : the label quality a good label has (``labels --min-quality``)
     min_good_per_hour : with the labels objective, stop when the best request is expected to make
         fewer labels good than this per human hour
@@ -130,7 +136,8 @@ class AdviceSettings:
 
     def worth(self, value: float, seconds: float) -> bool:
         """Whether a request of ``value`` (:meth:`Prediction.value`) is worth ``seconds`` of human
-        time: ``min_good_per_hour`` good labels per hour, or ``min_gain`` HDI points per minute."""
+        time: ``min_good_per_hour`` good labels per hour, or ``min_gain`` points per minute (HDI or
+        location sd, by the objective)."""
         if self.objective == "labels":
             return value * 3600.0 >= self.min_good_per_hour * seconds
         return value * 60.0 >= self.min_gain * seconds
@@ -203,6 +210,8 @@ class Prediction:
     gain_se_pct : Monte Carlo standard error of ``gain_pct`` (from the simulated observations and
         from the finite set of draws)
     gain_per_minute : ``gain_pct`` per minute of the observation's cost
+    location_gain_pct : the current minus the expected location sd (:class:`Outlook`) as a share of
+        the current distance, percentage points, summed over targets
     ess_median : median effective sample size of the reweighted draws, as a share of the draws
     fallbacks : simulated futures whose weights collapsed and were recomputed (of ``n_futures``)
     p_good : (m,) each target's chance that its label is good after it (module docstring)
@@ -234,10 +243,12 @@ class Prediction:
     good_loss: float = 0.0
     moments: Moments | None = None
     rank_moments: Moments | None = None
+    location_gain_pct: float = 0.0
 
     def to_dict(self) -> dict:
         return {"candidate": self.candidate.to_dict(), "expected": self.expected.to_dict(),
                 "gain_pct": self.gain_pct, "gain_se_pct": self.gain_se_pct, "gain_per_minute": self.gain_per_minute,
+                "location_gain_pct": self.location_gain_pct,
                 "p_good": [round(float(x), 6) for x in self.p_good], "good_gain": self.good_gain,
                 "good_gain_se": self.good_gain_se, "good_per_hour": self.good_per_hour, "good_loss": self.good_loss,
                 "rank_good_gain": self.rank_good_gain,
@@ -248,16 +259,21 @@ class Prediction:
 
     def value(self, objective: str) -> float:
         """What the requests are chosen by: good labels (from the futures that rank, where they
-        were kept apart from those ``good_gain`` is stated from: module docstring), or HDI points
-        summed over the targets."""
-        if objective != "labels":
+        were kept apart from those ``good_gain`` is stated from: module docstring), HDI points or
+        location-sd points summed over the targets."""
+        if objective == "hdi":
             return self.gain_pct
+        if objective == "location":
+            return self.location_gain_pct
         return self.good_gain if self.rank_good_gain is None else self.rank_good_gain
 
     def score(self, objective: str) -> float:
-        """What the requests are ranked by: :meth:`value` per human hour, or HDI points per minute."""
-        if objective != "labels":
+        """What the requests are ranked by: :meth:`value` per human hour (labels), or points per
+        minute (hdi, location)."""
+        if objective == "hdi":
             return self.gain_per_minute
+        if objective == "location":
+            return self.value(objective) * 60.0 / self.candidate.seconds if self.candidate.seconds > 0 else math.inf
         return self.value(objective) * 3600.0 / self.candidate.seconds if self.candidate.seconds > 0 else math.inf
 
     def ranking_p_good(self) -> np.ndarray:
@@ -645,7 +661,9 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
                       good_gain=good_gain, good_gain_se=float(np.std(boots, ddof=1)),
                       good_per_hour=good_gain * 3600.0 / cand.seconds if cand.seconds > 0 else math.inf,
                       rank_p_good=p_rank, rank_good_gain=float(np.sum(p_rank[below])),
-                      good_loss=float(np.sum(1.0 - p_told[~below])), moments=m_told, rank_moments=m_rank)
+                      good_loss=float(np.sum(1.0 - p_told[~below])), moments=m_told, rank_moments=m_rank,
+                      location_gain_pct=float(100.0 * np.sum((now.location_sd_m - expected.location_sd_m)
+                                                             / now.distance_m)))
 
 
 def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
@@ -736,13 +754,20 @@ def _recommend(now: Outlook, predictions: list[Prediction], settings: AdviceSett
                         f"{share[widest]:.1f} % of it{which} (target {goal:g} %)")
     if not predictions:
         return "stop", "no annotation of this scene can be simulated"
-    best = predictions[0]
-    if best.gain_per_minute < settings.min_gain:
-        return "stop", (f"the best expected gain, {best.gain_per_minute:.2f} points of the distance per "
+    best, what = predictions[0], "" if settings.objective == "hdi" else "location-sd "
+    rate = best.score(settings.objective)
+    if rate < settings.min_gain:
+        return "stop", (f"the best expected gain, {rate:.2f} {what}points of the distance per "
                         f"minute ({best.candidate.description}), is below the minimum {settings.min_gain:g}")
+    if settings.objective == "location":
+        sd, new = 100 * now.location_sd_m / now.distance_m, 100 * best.expected.location_sd_m / now.distance_m
+        i = int(np.argmax(sd - new))
+        on = "" if len(ids) == 1 else f" ({ids[i]})"
+        return "collect", (f"collect {best.candidate.description} next: expected location sd {sd[i]:.1f} % → "
+                           f"{new[i]:.1f} % of the distance{on}, {rate:.2f} points per minute")
     return "collect", (f"collect {best.candidate.description} next: expected HDI {share[widest]:.1f} % → "
                        f"{100 * best.expected.hdi_share[widest]:.1f} % of the distance{which}, "
-                       f"{best.gain_per_minute:.2f} points per minute")
+                       f"{rate:.2f} points per minute")
 
 
 def _recommend_labels(now: Outlook, predictions: list[Prediction], settings: AdviceSettings, ids):

@@ -41,11 +41,12 @@ __all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "Request", "BatchAdvice", "object_
 #: Columns of ``requests.csv``. Shares are of the target's ground distance (percent); HDI gains are
 #: summed over the scene's targets (points); ``good_gain`` is the expected number of labels that
 #: become good by it beyond the requests above it (over every frame of the camera, for a mounting;
-#: with the hdi objective, by it alone); ``good_loss`` the expected number of labels good now that it
-#: drops below the bar beyond the requests above it.
+#: with the hdi or location objective, by it alone); ``good_loss`` the expected number of labels good
+#: now that it drops below the bar beyond the requests above it; ``location_gain_pts`` the drop of the
+#: location sd in points of the distance, summed over the frame's targets.
 REQUEST_COLUMNS = ("rank", "key", "target", "image", "camera", "frames", "kind", "measure", "object", "request",
                    "line_px", "seconds", "cumulative_seconds", "good_gain", "good_loss", "good_per_hour", "p_iou_now",
-                   "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "answer")
+                   "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "location_gain_pts", "answer")
 
 
 @dataclass(frozen=True)
@@ -75,9 +76,9 @@ class Request:
     camera), its ``value`` (what the plan chose it by, :meth:`BatchAdvice.plan`), ``seconds`` and
     ``gain``: the good labels it is expected to add to the requests above it in the plan, its
     frame's requests answered together (stated from the futures it was not chosen by), or with the
-    hdi objective its good labels alone;
+    hdi or location objective its good labels alone;
     ``loss``: the labels good now it is expected to drop below the bar beyond the requests above
-    it (with the hdi objective, alone)."""
+    it (with the hdi or location objective, alone)."""
 
     objects: tuple[ObjectAdvice, ...]
     predictions: tuple[Prediction, ...]
@@ -131,7 +132,7 @@ class BatchAdvice:
         rules"): greedy then buys changes of a few hundredths that it credits on labels at the
         bar, and a plan on KITTI frames spent 1.6 times the human time for the same labels.
 
-        With the hdi objective the plan takes each target's request
+        With the hdi or location objective the plan takes each target's request
         (:meth:`~creference_bayes.workflows.advice.Advice.requests`), valued alone. The mounting is
         asked once per camera, its value summed over every frame of that camera (a frame that
         names no camera is a camera of its own)."""
@@ -328,7 +329,8 @@ def _rows(plan: list[Request]) -> list[dict]:
             "p_iou_now": f"{now.p_iou[i]:.3f}" if one else "", "p_iou_expected": f"{p.expected.p_iou[i]:.3f}" if one else "",
             "hdi_now_pct": f"{100 * now.hdi_share[i]:.2f}" if one else "",
             "hdi_expected_pct": f"{100 * p.expected.hdi_share[i]:.2f}" if one else "",
-            "gain_pts": f"{p.gain_pct:.3f}", "gain_pts_per_minute": f"{p.gain_per_minute:.4f}", "answer": ""})
+            "gain_pts": f"{p.gain_pct:.3f}", "gain_pts_per_minute": f"{p.gain_per_minute:.4f}",
+            "location_gain_pts": f"{p.location_gain_pct:.3f}", "answer": ""})
     return rows
 
 

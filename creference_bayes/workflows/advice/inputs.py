@@ -108,6 +108,8 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
             i = c.target
         elif s.objective == "labels" and len(p.p_good):
             i = int(np.argmax(np.where(advice.good, -np.inf, p.p_good)))
+        elif s.objective == "location":
+            i = int(np.argmax((now.location_sd_m - e.location_sd_m) / now.distance_m))
         else:
             i = int(np.argmax(now.hdi_share - e.hdi_share))
         on = "" if len(ids) == 1 else f"{ids[i]}: "
