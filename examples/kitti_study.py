@@ -148,11 +148,13 @@ def main(argv=None) -> int:
     p.add_argument("--max-frames", type=int, default=None)
     p.add_argument("--max-steps", type=int, default=20000, help="the sampler's cap on steps per image")
     p.add_argument("--same-score", action="store_true", help="score every method by depth (module docstring)")
-    p.add_argument("--camera", choices=("unknown", "known"), default="unknown",
+    p.add_argument("--camera", choices=("unknown", "known", "rig"), default="unknown",
                    help="unknown: only P2's focal length and principal point (the default); known: also the "
                         "camera's height (the objects' median bottom, ±2 %%) and a level pose (±0.5°), as a "
                         "rig with a measured mounting would give: shows how much of the gap to the goals is "
-                        "the camera's scale")
+                        "the camera's scale; rig: the same, but one height for every frame of a camera (the "
+                        "median over its frames of their objects' median bottom, as wide as those medians "
+                        "spread, at least ±2 %%): the most a mounting shared by the frames can tell")
     p.add_argument("--focal", choices=("known", "unknown"), default="known",
                    help="known: P2's focal length is given (the default); unknown: left out of every scene (a "
                         "street camera nobody calibrated; creference simulate --from-kitti --focal-unknown)")
@@ -209,13 +211,14 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     times = []
     rig_pool, rigs, first_pass = None, {}, {}
+    mounts = _rig_mountings(paths) if args.camera == "rig" else None
     focal_rows = []  # each joint frame's focal length against P2's, when it was estimated
     if args.rig != "none" and "joint" in methods:  # pass one: every frame alone, for its camera's rig
         from creference_bayes.workflows.batch.rig import RigPool, shared_likelihood
 
         frames = []
         for path in paths:
-            frame = _load_frame(path, args.camera)  # (no --focal-sd with a rig)
+            frame = _load_frame(path, args.camera, mounts=mounts)  # (no --focal-sd with a rig)
             t0 = time.perf_counter()
             res = estimate(frame, seed=args.seed, sampling={"max_steps": args.max_steps}, **options)
             first_pass[path.stem] = time.perf_counter() - t0
@@ -223,7 +226,7 @@ def main(argv=None) -> int:
         rig_pool = RigPool(frames, args.rig)  # grouped by camera once
         print(f"rig pass one: {len(paths)} frames, median {np.median(list(first_pass.values())):.1f} s", flush=True)
     for path in paths:
-        frame = _load_frame(path, args.camera, args.focal_sd)
+        frame = _load_frame(path, args.camera, args.focal_sd, mounts)
         name = path.stem
         depth_score = lambda z: np.exp(-np.asarray(z) / 40.0)
         if "joint" in methods:
@@ -350,20 +353,36 @@ def _focal_table(rows) -> str:
     return "\n".join(lines)
 
 
-def _load_frame(path: Path, camera: str, focal_sd: float | None = None):
+def _rig_mountings(paths) -> dict:
+    """Per camera id: (median, log-sd) of its frames' true camera heights (each the median bottom
+    of the frame's objects), the log-sd robust (1.4826 median absolute deviations: a frame of one
+    object on a slope is far off) and at least 0.02 (``--camera rig``)."""
+    heights: dict = {}
+    for path in paths:
+        scene = json.loads(path.read_text())
+        h = float(np.median([t["ground_truth"]["location_m"][1] for t in scene["targets"]]))
+        heights.setdefault((scene.get("camera") or {}).get("id"), []).append(np.log(h))
+    return {cam: (float(np.exp(np.median(v))), max(0.02, 1.4826 * float(np.median(np.abs(v - np.median(v))))))
+            for cam, v in heights.items()}
+
+
+def _load_frame(path: Path, camera: str, focal_sd: float | None = None, mounts: dict | None = None):
     """A study scene; with ``--camera known`` the mounting a measured rig gives (the image's true
-    camera height as a prior of ±2 %, a level pose ±0.5°); with ``focal_sd`` P2's focal length (the
-    scene's ground truth) as a log-normal prior of that log-sd."""
+    camera height as a prior of ±2 %, a level pose ±0.5°), with ``--camera rig`` its camera's
+    (``mounts``, :func:`_rig_mountings`); with ``focal_sd`` P2's focal length (the scene's ground
+    truth) as a log-normal prior of that log-sd."""
     from creference_bayes.io.scene import load_scene
     from creference_bayes.models.camera_terms import FocalPrior, OrientationPrior
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         frame = load_scene(path)
-    if camera == "known":
-        h = float(np.median([t.ground_truth["location_m"][1] for t in frame.targets]))
+    if camera in ("known", "rig"):
+        h, sd = float(np.median([t.ground_truth["location_m"][1] for t in frame.targets])), 0.02
+        if camera == "rig":
+            h, sd = mounts[frame.camera_id]
         frame = replace(frame, orientation_prior=OrientationPrior(
-            pitch_sd=float(np.radians(0.5)), roll_sd=float(np.radians(0.5)), height_median_m=h, height_log_sd=0.02))
+            pitch_sd=float(np.radians(0.5)), roll_sd=float(np.radians(0.5)), height_median_m=h, height_log_sd=sd))
     if focal_sd is not None:
         frame = replace(frame, focal_prior=FocalPrior(float(frame.ground_truth["focal_length_px"]), focal_sd, np.inf,
                                                       source="study"))

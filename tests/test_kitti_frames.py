@@ -405,3 +405,38 @@ def test_kitti_ground_moves_only_the_heights_of_the_boxes(kitti_dir, tmp_path):
     bad = subprocess.run([sys.executable, str(script), str(tmp_path / "none"), str(tmp_path / "x"), "--ground", "level"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "not a KITTI folder" in bad.stderr
+
+
+def test_kitti_study_gives_every_frame_of_a_camera_one_mounting_with_the_rig(kitti_dir, tmp_path):
+    """``--camera rig``: every frame of a camera gets the same height prior, the median over its
+    frames of their true heights (each the median bottom of the frame's objects) with their robust
+    spread in log h (1.4826 median absolute deviations, at least 0.02), and a level pose ±0.5°."""
+    import importlib.util
+    import json
+
+    from creference_bayes.bench.kitti import kitti_scenes
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
+    spec = importlib.util.spec_from_file_location("kitti_study", script)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    paths = []
+    for name, cam, ys in (("1", "a", [1.6, 1.5, 1.7]), ("2", "a", [1.7]), ("3", "a", [2.0, 2.2, 1.9]),
+                          ("4", "b", [1.5, 1.4])):
+        paths.append(tmp_path / f"{name}.json")
+        paths[-1].write_text(json.dumps({"camera": {"id": cam},
+                                         "targets": [{"ground_truth": {"location_m": [0.0, y, 10.0]}} for y in ys]}))
+    mounts = study._rig_mountings(paths)
+    # camera a: medians 1.6, 1.7, 2.0; their logs lie 0.0606, 0 and 0.1625 from log 1.7
+    assert mounts["a"][0] == pytest.approx(1.7)
+    assert mounts["a"][1] == pytest.approx(1.4826 * np.log(1.7 / 1.6))
+    assert mounts["b"] == pytest.approx((1.45, 0.02))
+    kitti_scenes(kitti_dir, tmp_path / "s", n_annotations=1)
+    plain = study._load_frame(tmp_path / "s" / "000007.json", "unknown")
+    frame = study._load_frame(tmp_path / "s" / "000007.json", "rig", mounts={plain.camera_id: (1.8, 0.07)})
+    p = frame.orientation_prior
+    assert (p.height_median_m, p.height_log_sd) == (1.8, 0.07)
+    assert p.pitch_sd == pytest.approx(np.radians(0.5)) and p.roll_sd == pytest.approx(np.radians(0.5))
+    known = study._load_frame(tmp_path / "s" / "000007.json", "known").orientation_prior
+    truth = np.median([t.ground_truth["location_m"][1] for t in plain.targets])
+    assert (known.height_median_m, known.height_log_sd) == (pytest.approx(truth), 0.02)
