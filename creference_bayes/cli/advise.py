@@ -95,7 +95,7 @@ def _batch(args, settings, progress: bool) -> int:
         for r in rows[:10]:
             where = f"{r['key']}  {r['target']}" if r["kind"] != "mounting" else \
                 f"camera {r['camera'] or r['key']} ({r['frames']} frame{'s' if r['frames'] != 1 else ''})"
-            minutes = float(r["seconds"]) / 60.0
+            minutes = max(float(r["seconds"]), 1e-9) / 60.0
             gain = (f"+{float(r['good_gain']):.2f} good labels, {float(r['good_per_hour']):.2f}/h"
                     if settings.objective == "labels" else f"+{float(r['gain_pts_per_minute']):.3f} points/min"
                     if settings.objective == "hdi" else

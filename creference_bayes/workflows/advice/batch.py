@@ -46,7 +46,8 @@ __all__ = ["REQUEST_COLUMNS", "ObjectAdvice", "Request", "BatchAdvice", "object_
 #: location sd in points of the distance, summed over the frame's targets.
 REQUEST_COLUMNS = ("rank", "key", "target", "image", "camera", "frames", "kind", "measure", "object", "request",
                    "line_px", "seconds", "cumulative_seconds", "good_gain", "good_loss", "good_per_hour", "p_iou_now",
-                   "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute", "location_gain_pts", "answer")
+                   "p_iou_expected", "hdi_now_pct", "hdi_expected_pct", "gain_pts", "gain_pts_per_minute",
+                   "location_gain_pts", "answer")
 
 
 @dataclass(frozen=True)
