@@ -212,6 +212,8 @@ def main(argv=None) -> int:
     times = []
     rig_pool, rigs, first_pass = None, {}, {}
     mounts = _rig_mountings(paths) if args.camera == "rig" else None
+    if mounts is not None:
+        print(_mountings_text(paths, mounts))
     focal_rows = []  # each joint frame's focal length against P2's, when it was estimated
     if args.rig != "none" and "joint" in methods:  # pass one: every frame alone, for its camera's rig
         from creference_bayes.workflows.batch.rig import RigPool, shared_likelihood
@@ -364,6 +366,22 @@ def _rig_mountings(paths) -> dict:
         heights.setdefault((scene.get("camera") or {}).get("id"), []).append(np.log(h))
     return {cam: (float(np.exp(np.median(v))), max(0.02, 1.4826 * float(np.median(np.abs(v - np.median(v))))))
             for cam, v in heights.items()}
+
+
+def _mountings_text(paths, mounts: dict) -> str:
+    """``--camera rig``'s mounting per camera, with the range and quartiles of its frames' true
+    heights."""
+    heights: dict = {}
+    for path in paths:
+        scene = json.loads(path.read_text())
+        h = float(np.median([t["ground_truth"]["location_m"][1] for t in scene["targets"]]))
+        heights.setdefault((scene.get("camera") or {}).get("id"), []).append(h)
+    lines = ["one mounting per camera (--camera rig): height (log-sd); its frames' true heights: min, quartiles, max"]
+    for cam, (h, sd) in sorted(mounts.items(), key=lambda kv: -len(heights[kv[0]])):
+        q = np.percentile(heights[cam], [0, 25, 75, 100])
+        lines.append(f"  {cam}: {len(heights[cam])} frames, {h:.2f} m ({sd:.3f}); "
+                     f"{q[0]:.2f}, {q[1]:.2f}–{q[2]:.2f}, {q[3]:.2f} m")
+    return "\n".join(lines)
 
 
 def _load_frame(path: Path, camera: str, focal_sd: float | None = None, mounts: dict | None = None):

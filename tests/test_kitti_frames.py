@@ -431,6 +431,9 @@ def test_kitti_study_gives_every_frame_of_a_camera_one_mounting_with_the_rig(kit
     assert mounts["a"][0] == pytest.approx(1.7)
     assert mounts["a"][1] == pytest.approx(1.4826 * np.log(1.7 / 1.6))
     assert mounts["b"] == pytest.approx((1.45, 0.02))
+    text = study._mountings_text(paths, mounts).splitlines()
+    assert text[1:] == ["  a: 3 frames, 1.70 m (0.090); 1.60, 1.65–1.85, 2.00 m",
+                        "  b: 1 frames, 1.45 m (0.020); 1.45, 1.45–1.45, 1.45 m"]
     kitti_scenes(kitti_dir, tmp_path / "s", n_annotations=1)
     plain = study._load_frame(tmp_path / "s" / "000007.json", "unknown")
     frame = study._load_frame(tmp_path / "s" / "000007.json", "rig", mounts={plain.camera_id: (1.8, 0.07)})
