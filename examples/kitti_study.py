@@ -355,27 +355,32 @@ def _focal_table(rows) -> str:
     return "\n".join(lines)
 
 
-def _rig_mountings(paths) -> dict:
-    """Per camera id: (median, log-sd) of its frames' true camera heights (each the median bottom
-    of the frame's objects), the log-sd robust (1.4826 median absolute deviations: a frame of one
-    object on a slope is far off) and at least 0.02 (``--camera rig``)."""
-    heights: dict = {}
-    for path in paths:
-        scene = json.loads(path.read_text())
-        h = float(np.median([t["ground_truth"]["location_m"][1] for t in scene["targets"]]))
-        heights.setdefault((scene.get("camera") or {}).get("id"), []).append(np.log(h))
-    return {cam: (float(np.exp(np.median(v))), max(0.02, 1.4826 * float(np.median(np.abs(v - np.median(v))))))
-            for cam, v in heights.items()}
-
-
-def _mountings_text(paths, mounts: dict) -> str:
-    """``--camera rig``'s mounting per camera, with the range and quartiles of its frames' true
-    heights."""
+def _true_heights(paths) -> dict:
+    """Per camera id: its frames' true camera heights, each the median bottom of the frame's
+    objects (m)."""
     heights: dict = {}
     for path in paths:
         scene = json.loads(path.read_text())
         h = float(np.median([t["ground_truth"]["location_m"][1] for t in scene["targets"]]))
         heights.setdefault((scene.get("camera") or {}).get("id"), []).append(h)
+    return heights
+
+
+def _rig_mountings(paths) -> dict:
+    """Per camera id: (median, log-sd) of its frames' true camera heights (:func:`_true_heights`),
+    the log-sd robust (1.4826 median absolute deviations: a frame of one object on a slope is far
+    off) and at least 0.02 (``--camera rig``)."""
+    out = {}
+    for cam, h in _true_heights(paths).items():
+        v = np.log(h)
+        out[cam] = (float(np.exp(np.median(v))), max(0.02, 1.4826 * float(np.median(np.abs(v - np.median(v))))))
+    return out
+
+
+def _mountings_text(paths, mounts: dict) -> str:
+    """``--camera rig``'s mounting per camera, with the range and quartiles of its frames' true
+    heights."""
+    heights = _true_heights(paths)
     lines = ["one mounting per camera (--camera rig): height (log-sd); its frames' true heights: min, quartiles, max"]
     for cam, (h, sd) in sorted(mounts.items(), key=lambda kv: -len(heights[kv[0]])):
         q = np.percentile(heights[cam], [0, 25, 75, 100])
