@@ -166,12 +166,11 @@ def _lifted(moments: list, scene: dict) -> np.ndarray:
     as the plan states them (:func:`~creference_bayes.workflows.advice.combined_chance`): for a target
     below the bar its chance to become good, for one good now minus its chance to fall. 0 for every
     target of a frame no request is asked in (it is not estimated again)."""
-    from creference_bayes.workflows.advice import Moments, combined_chance
+    from creference_bayes.workflows.advice import Moments, combined_chance, futures_scale
 
-    p_now = np.asarray(scene["now"]["p_iou"], float)
-    shift = np.asarray(scene.get("shift") or np.zeros(len(p_now)), float)
-    base, bar = p_now - shift, scene["settings"]["min_quality"] - shift
-    below = p_now < scene["settings"]["min_quality"]
+    p_now, q = np.asarray(scene["now"]["p_iou"], float), scene["settings"]["min_quality"]
+    base, bar = futures_scale(p_now, scene.get("shift"), q)
+    below = p_now < q
     if any(m is None for m in moments):
         raise SystemExit(f"{scene['key']}: its advice has no moments (made before 2026-11-28): advise again")
     chance = combined_chance(base, bar, [Moments.from_dict(m) for m in moments])

@@ -62,6 +62,7 @@ from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, norm
                      tempered_update, weighted_hdi)
 
 __all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_chance", "combined_chance",
+           "futures_scale",
            "Moments", "rank_key"]
 
 #: What the advice ranks requests by (:class:`AdviceSettings`).
@@ -272,9 +273,8 @@ class Prediction:
         minute (hdi, location)."""
         if objective == "hdi":
             return self.gain_per_minute
-        if objective == "location":
-            return self.value(objective) * 60.0 / self.candidate.seconds if self.candidate.seconds > 0 else math.inf
-        return self.value(objective) * 3600.0 / self.candidate.seconds if self.candidate.seconds > 0 else math.inf
+        per = 3600.0 if objective == "labels" else 60.0
+        return self.value(objective) * per / self.candidate.seconds if self.candidate.seconds > 0 else math.inf
 
     def ranking_p_good(self) -> np.ndarray:
         """(m,) the chances the verdicts pick a request by (``p_good`` stated from other futures)."""
@@ -308,8 +308,7 @@ class Advice:
     def futures_scale(self) -> tuple[np.ndarray, np.ndarray]:
         """(base, bar), each (m,): the present and the bar on the futures' scale
         (:func:`combined_chance`)."""
-        shift = np.zeros(len(self.targets)) if self.shift is None else np.asarray(self.shift, float)
-        return np.asarray(self.now.p_iou, float) - shift, self.settings.min_quality - shift
+        return futures_scale(self.now.p_iou, self.shift, self.settings.min_quality)
 
     @property
     def best(self) -> Prediction | None:
@@ -560,6 +559,15 @@ def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray) -> tuple[np.ndarray, np.n
     return a * scale, b * scale
 
 
+def futures_scale(p_iou, shift, min_quality: float) -> tuple[np.ndarray, np.ndarray]:
+    """(base, bar), each (m,): labels' P(IoU ≥ t) ``p_iou`` and the bar ``min_quality`` moved onto
+    the futures' scale by ``shift`` (:attr:`Advice.shift`, None: no difference), as an advice and
+    its JSON (``now.p_iou``, ``shift``, ``settings.min_quality``) give them."""
+    p_iou = np.asarray(p_iou, float)
+    shift = np.zeros(len(p_iou)) if shift is None else np.asarray(shift, float)
+    return p_iou - shift, min_quality - shift
+
+
 def combined_chance(base: np.ndarray, bar: np.ndarray, moments: list[Moments]) -> np.ndarray:
     """(m,) each label's chance to be at or above ``bar`` after the requests of ``moments`` are
     answered together, from the present ``base`` (both (m,), on the futures' scale).
@@ -632,7 +640,7 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     # ``shift``.
     p_hat = rows["p_iou"].copy()
     n_eff = np.full(len(outer), float(settings.iou_pairs))
-    present = now.p_iou - shift  # on the futures' scale
+    present, bar = futures_scale(now.p_iou, shift, settings.min_quality)  # on the futures' scale
     shuffle_var = np.zeros(len(present))
     if np.any(same):
         shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
@@ -641,7 +649,6 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
         n_eff[same] = 1.0 / (1.0 / settings.iou_pairs + 1.0 / ess[same])
         shuffle_var = shuffled.var(axis=0, ddof=1) / len(shuffled) if len(shuffled) > 1 else shuffle_var
     below = now.p_iou < settings.min_quality
-    bar = settings.min_quality - shift
 
     def moments(idx: np.ndarray, cols=slice(None)) -> Moments:
         a, b = _fit_futures(p_hat[idx][:, cols], n_eff[idx])
