@@ -387,6 +387,14 @@ def test_cli_on_a_result_finds_its_scene_and_checks_it(example, tmp_path, capsys
     changed = json.loads(example_scene_path().read_text())
     changed["target"]["dimension_lines"].pop()
     (tmp_path / "example_scene.json").write_text(json.dumps(changed))
+    # the edited copy beside the result is passed over, with a warning, for the shipped original
+    assert main(["advise", str(res), "--draws", "50", "--futures", "10", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith(f"warning: {tmp_path / 'example_scene.json'}: not the scene this result was estimated "
+                          "from (same targets and image size but different content"), err
+    assert err.rstrip().endswith(f"used {example_scene_path()}"), err
+    (tmp_path / "mine.json").write_text(json.dumps(changed))  # and with no other candidate, refused
+    res.write_text(json.dumps(dict(result.to_dict(), scene="mine.json")))
     assert main(["advise", str(res)]) == 2
     assert "fingerprint differs" in capsys.readouterr().err
 

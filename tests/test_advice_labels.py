@@ -635,6 +635,8 @@ def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_aga
         return main(["advise", str(out), "--apply", str(advised_batch / "answers.csv"), "--quiet"])
 
     before = {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
+    assert apply([dict(size, answer=" ")]) == 2  # the requests as advised, nobody's answer in them yet
+    assert "no request is answered yet: fill in the 'answer' column" in capsys.readouterr().err
     assert apply([bad]) == 2  # a usage error, and nothing written
     assert "requests row 3 (size): expected 3 numbers" in capsys.readouterr().err
     assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}

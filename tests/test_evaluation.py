@@ -309,6 +309,17 @@ def test_evaluate_kitti_writes_the_table_json_and_figure(folders, tmp_path, caps
     assert doc["not_evaluated"] == ["Pedestrian", "Cyclist"]
 
 
+def test_ground_truth_that_no_difficulty_counts_is_a_warning(folders, capsys):
+    """creference's own labels (occluded 3) given as the ground truth: every AP 0, and it says why."""
+    gt, labels = folders
+    assert main(["evaluate", "kitti", str(gt), str(labels)]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert main(["evaluate", "kitti", str(labels), str(labels), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: no ground-truth box counts at any difficulty"), err
+    assert "is GT_LABEL_DIR KITTI's ground truth?" in err
+
+
 def test_labels_given_as_their_label_2_folder_find_the_sidecars_too(folders, capsys):
     gt, labels = folders
     assert main(["evaluate", "kitti", str(gt / "label_2"), str(labels / "label_2")]) == 0

@@ -399,7 +399,10 @@ INVALID = [
     (_set(("horizon", 1), [0.0, 885.287959567601]), "horizon: zero-length line"),
     (_set(("horizon", 1), [100.0, 5000.0]), "horizon: a horizon steeper than 45 degrees is not supported"),
     (_set(("horizon", 0, 1), -1e9), "horizon[0]: point [0, -1e+09] is far outside the 2880x1800 image"),
-    (_set(("format",), "creference-scene/2"), "target: unknown key; did you mean 'targets'?"),
+    (_set(("format",), "creference-scene/2"), "target: a key of 'creference-scene/1', but the scene's format is "
+     "'creference-scene/2': write the one target as \"targets\": [ … ] (with an id), or set \"format\": \"creference-scene/1\""),
+    (_set(("targets",), []), "targets: a key of 'creference-scene/2', but the scene's format is 'creference-scene/1': "
+     "set \"format\": \"creference-scene/2\" (a list of targets, each with an id)"),
     (_set(("format",), "creference-scene/9"), "format: expected 'creference-scene/1' or 'creference-scene/2', got 'creference-scene/9'"),
     (_delete(("format",)), "format: missing required key"),
     (_delete(("image",)), "image: missing required key"),

@@ -44,6 +44,8 @@ def test_a_scene_of_several_targets_round_trips_and_rejects_bad_input():
     assert scene_to_dict(parse_scene(scene_to_dict(scene))) == scene_to_dict(scene)
     cases = [(lambda b: b["targets"][2].update(id="t0"), r"targets\[2\].id: duplicate id 't0'"),
              (lambda b: b["targets"][1].update({"class": "Spaceship"}), r"targets\[1\].class: no size prior for class 'Spaceship'"),
+             (lambda b: b["targets"][1].update({"class": "Pedestrain"}),
+              r"targets\[1\].class: no size prior for class 'Pedestrain' and no 'dimensions_m'; did you mean 'Pedestrian'\?$"),
              (lambda b: b["references"][1].pop("target"), r"references\[1\].target: a relative reference in a scene"),
              (lambda b: b["references"][0].update(target="nobody"), r"references\[0\].target: no target with id 'nobody'")]
     for change, message in cases:

@@ -15,6 +15,7 @@ import creference_bayes as cb
 from creference_bayes.bench.simulate import write_scenes
 from creference_bayes.cli.main import build_parser, example_scene_path, main
 from creference_bayes.io.files import atomic_path, atomic_write_json
+from creference_bayes.io.kitti import write_calib_file
 from creference_bayes.workflows.advice.inputs import advice_table
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import LocalEngine
@@ -68,6 +69,8 @@ def test_a_folder_that_is_not_a_batch_says_so(tmp_path, capsys):
     assert _err(capsys) == f"error: {tmp_path / 'notbatch'}: not a batch folder (no results/ inside)"
     assert main(["estimate", str(tmp_path / "missing.json")]) == 2
     assert _err(capsys) == f"error: {tmp_path / 'missing.json'}: no such file"
+    assert main(["labels", str(tmp_path / "missing"), "--out", str(tmp_path / "l")]) == 2
+    assert _err(capsys) == f"error: {tmp_path / 'missing'}: no such folder"
 
 
 def test_advise_finds_the_shipped_scene_of_a_result_and_else_names_scene_option(example_result, tmp_path, capsys):
@@ -82,6 +85,87 @@ def test_advise_finds_the_shipped_scene_of_a_result_and_else_names_scene_option(
     err = _err(capsys)
     assert err.startswith(f"error: {moved}: the result's scene 'not_shipped.json' is not beside it"), err
     assert err.endswith("give it with --scene"), err
+
+
+def test_plot_finds_the_scene_where_estimate_read_it(tmp_path, monkeypatch):
+    """A result written to another folder than its scene's records where the scene is (relative
+    to the result), so ``plot`` needs no ``--scene`` from any folder."""
+    scene = tmp_path / "myscenes" / "kitchen.json"
+    scene.parent.mkdir()
+    scene.write_text(example_scene_path().read_text())
+    out = tmp_path / "results" / "kitchen_result.json"
+    out.parent.mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert main(["estimate", "myscenes/kitchen.json", "--out", str(out), "--no-posterior", "--quiet"]) == 0
+    assert json.loads(out.read_text())["scene_path"] == "../myscenes/kitchen.json"
+    monkeypatch.chdir(out.parent)  # neither beside the result nor here by its name
+    assert main(["plot", str(out), "--out", str(tmp_path / "figs"), "--quiet", "--dpi", "30"]) == 0
+    assert (tmp_path / "figs" / "boxes.png").is_file()
+
+
+def test_a_scene_of_the_same_name_beside_the_result_does_not_hide_the_right_one(example_result, tmp_path, monkeypatch,
+                                                                                capsys):
+    d = json.loads(example_result.read_text())
+    d.pop("scene_path")  # as a result that records only the scene's name
+    d["scene"] = "scene.json"
+    result = tmp_path / "a" / "result.json"
+    result.parent.mkdir()
+    result.write_text(json.dumps(d))
+    other = json.loads(example_scene_path().read_text())
+    other["image"]["width"] += 100  # another photo's scene, of the same file name
+    (tmp_path / "a" / "scene.json").write_text(json.dumps(other))
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "b")
+    assert main(["advise", str(result), "--draws", "50", "--futures", "10", "--quiet"]) == 2  # only the wrong one
+    err = _err(capsys)
+    assert err.startswith(f"error: scene '{tmp_path / 'a' / 'scene.json'}' (found by the result's scene name; pass "
+                          "--scene): not the scene this result was estimated from (image 2980x1800 px"), err
+    (tmp_path / "b" / "scene.json").write_text(example_scene_path().read_text())  # the right one, here
+    assert main(["advise", str(result), "--draws", "50", "--futures", "10", "--quiet"]) == 0
+    assert _err(capsys) == (f"warning: {tmp_path / 'a' / 'scene.json'}: not the scene this result was estimated from "
+                            f"(image 2980x1800 px, the result's is 2880x1800); used {tmp_path / 'b' / 'scene.json'}")
+
+
+def test_simulate_says_its_first_scene_is_noise_free_and_estimate_names_identical_annotations(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "s"), "--n", "1", "--objects", "2", "--seed", "1"]) == 0
+    assert capsys.readouterr().out.strip() == (f"wrote 1 scene to {tmp_path / 's'} (noise tiers none, low, medium and "
+                                               "high in turn, so scene_0000 is noise-free; --tier picks one)")
+    note = "note: targets 't0', 't1': the sets of dimension lines agree to within 0.05 px (a noise-free simulated scene?)"
+    assert main(["estimate", str(tmp_path / "s" / "scene_0000.json"), "--no-posterior"]) == 0
+    assert note in capsys.readouterr().out
+    assert main(["estimate", str(tmp_path / "s" / "scene_0000.json"), "--no-posterior", "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith(note), err  # --quiet: no tables, the notes on standard error
+    assert main(["simulate", str(tmp_path / "m"), "--n", "2", "--objects", "2", "--seed", "1", "--tier", "medium"]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote 2 scenes to {tmp_path / 'm'}"
+    assert main(["estimate", str(tmp_path / "m" / "scene_0000.json"), "--no-posterior"]) == 0
+    assert "agree to within" not in capsys.readouterr().out
+
+
+def test_simulate_from_kitti_says_when_there_is_no_folder_or_nothing_to_write(tmp_path, capsys):
+    assert main(["simulate", "--from-kitti", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
+    assert _err(capsys) == f"error: --from-kitti {tmp_path / 'none'}: no such folder"
+    (tmp_path / "k" / "label_2").mkdir(parents=True)
+    (tmp_path / "k" / "calib").mkdir()
+    assert main(["simulate", "--from-kitti", str(tmp_path / "k"), "--out", str(tmp_path / "o")]) == 2
+    assert _err(capsys) == f"error: {tmp_path / 'k' / 'label_2'}: no label files (*.txt)"
+    p2 = np.array([[721.5, 0.0, 609.6, 44.9], [0.0, 721.5, 172.9, 0.2], [0.0, 0.0, 1.0, 0.003]])
+    write_calib_file(tmp_path / "k" / "calib" / "000001.txt", p2)
+    (tmp_path / "k" / "label_2" / "000001.txt").write_text(  # a car hidden behind others: nobody could annotate it
+        "Car 0.00 3 -1.57 600.0 160.0 660.0 220.0 1.5 1.6 3.9 1.0 1.7 30.0 -1.54\n")
+    assert main(["simulate", "--from-kitti", str(tmp_path / "k"), "--out", str(tmp_path / "o")]) == 2
+    assert _err(capsys) == (f"error: --from-kitti {tmp_path / 'k'}: no scene written: no image has an object a person "
+                            "could annotate (left out: 1 by occlusion)")
+
+
+def test_estimate_and_demo_take_a_step_cap_as_batch_does(tmp_path, capsys):
+    assert main(["estimate", str(example_scene_path()), "--max-steps", "5"]) == 2
+    assert _err(capsys) == "error: --max-steps: expected an integer >= 10, got 5"
+    out = tmp_path / "r.json"
+    assert main(["demo", "--max-steps", "50", "--out", str(out), "--quiet"]) == 0
+    diagnostics = json.loads(out.read_text())["diagnostics"]
+    assert diagnostics["iterations"] <= 50 and not diagnostics["converged"]
+    assert "stopped at the step cap (50 steps)" in diagnostics["warnings"][0]
 
 
 @pytest.mark.parametrize("argv", [

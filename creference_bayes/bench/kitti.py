@@ -173,7 +173,7 @@ def kitti_scenes(folder, out, *, n_annotations: int = 5, noise_px: float = 2.0, 
     folder, out = Path(folder), Path(out)
     labels = sorted((folder / "label_2").glob("*.txt"))
     if not labels:
-        raise FileNotFoundError(folder / "label_2")
+        raise FileNotFoundError(2, "no label files (*.txt)", str(folder / "label_2"))
     out.mkdir(parents=True, exist_ok=True)
     totals = {"scenes": 0, "kept": 0, "skipped": {}}
     for k, lp in enumerate(labels):

@@ -56,7 +56,10 @@ def _one(args, settings, progress: bool) -> int:
         d = None  # not JSON: the scene reader says what is wrong
     try:
         if isinstance(d, dict) and d.get("format") in RESULT_FORMATS:
-            scene = scene_for_result(path, d, args.scene)
+            notes: list[str] = []
+            scene = scene_for_result(path, d, args.scene, notes)
+            for note in notes:  # a scene of the result's name that is another photo's, passed over
+                print(f"warning: {note}", file=sys.stderr)
             advice = advise_result(d, scene, seed=args.seed, settings=settings, progress=progress)
             objects = d.get("objects") or [{}]
         else:
@@ -130,6 +133,9 @@ def _apply(args) -> int:
     rows = list(csv.DictReader(read_text(path).splitlines()))
     if rows and "answer" not in rows[0]:
         raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
+    if not any((row.get("answer") or "").strip() for row in rows):
+        raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
+                         "the crowd answered (docs/advice.md, the loop)")
     with usage_errors(one_line=True):
         done = apply_answers(args.input, rows)
     if not args.quiet:

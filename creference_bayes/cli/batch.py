@@ -8,7 +8,7 @@ import sys
 from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .estimate import (add_camera_options, add_confidence_map_option, add_model_option, check_posterior_values,
-                       confidence_map_option, load_classes, model_options)
+                       confidence_map_option, load_classes, model_options, sampling_options)
 from .main import UsageError, require, seed_value, usage_errors
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -24,11 +24,7 @@ def _settings(args):
     if args.rig != "none" and args.no_posterior:
         raise UsageError(f"--rig {args.rig}: needs the posterior (each frame's draws say what it knows of its "
                          "camera); leave out --no-posterior")
-    sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
-    if args.max_steps is not None:
-        require(args.max_steps >= 10, "--max-steps", "an integer >= 10", args.max_steps)
-        # the sampler checks convergence every `chunk` steps: a smaller cap gets a smaller chunk
-        sampling.update(max_steps=args.max_steps, chunk=min(100, args.max_steps))
+    sampling = sampling_options(args)
     with usage_errors():  # a sampler setting out of range
         return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
                              posterior=not args.no_posterior, hdi_prob=args.hdi_prob,

@@ -145,7 +145,9 @@ def _run_simulate_command(args) -> int:
                              f"({exc})") from None
     paths = write_scenes(out, args.n, seed=args.seed, tier=args.tier, setting=args.setting, overwrite=True, **options)
     if not args.quiet:
-        print(f"wrote {len(paths)} scenes to {out}")
+        tiers = (" (noise tiers none, low, medium and high in turn, so scene_0000 is noise-free; --tier picks one)"
+                 if args.tier == "all" and args.noise_px is None else "")
+        print(f"wrote {len(paths)} scene{'s' if len(paths) != 1 else ''} to {out}{tiers}")
     return 0
 
 
@@ -158,16 +160,21 @@ def _run_kitti(args, out: Path) -> int:
         raise UsageError(f"{', '.join(given)}: not with --from-kitti (its scenes are KITTI's own images, objects "
                          "and cameras; --annotations, --noise-px, --sizes and --seed apply)")
     src = Path(args.from_kitti)
+    if not src.is_dir():
+        raise UsageError(f"--from-kitti {src}: no such folder")
     if not (src / "label_2").is_dir() or not (src / "calib").is_dir():
         raise UsageError(f"--from-kitti {src}: not a KITTI folder (needs label_2/ and calib/)")
     with usage_errors():  # a malformed label or calib file: its message names file and line
         totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
                               noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
                               sizes=args.sizes or "prior", focal_known=not args.focal_unknown)
+    skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
+    if not totals["scenes"]:
+        raise UsageError(f"--from-kitti {src}: no scene written: no image has an object a person could annotate"
+                         + (f" (left out: {skipped})" if skipped else " (no labelled object)"))
     if not args.quiet:
-        skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
-        print(f"wrote {totals['scenes']} scenes with {totals['kept']} objects to {out}"
-              + (f" (left out: {skipped})" if skipped else ""))
+        print(f"wrote {totals['scenes']} scene{'s' if totals['scenes'] != 1 else ''} with {totals['kept']} objects "
+              f"to {out}" + (f" (left out: {skipped})" if skipped else ""))
     return 0
 
 

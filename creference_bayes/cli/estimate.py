@@ -188,8 +188,20 @@ def check_posterior_values(args) -> None:
     require(args.min_ess is None or args.min_ess >= 1, "--min-ess", "a number ≥ 1", args.min_ess)
 
 
-def _run_estimate(args) -> int:
+def sampling_options(args) -> dict:
+    """The sampler settings ``--min-ess`` and ``--max-steps`` ask for (shared with ``batch``); empty
+    for the sampler's defaults."""
+    sampling = {} if args.min_ess is None else {"min_ess": args.min_ess}
+    if args.max_steps is not None:
+        require(args.max_steps >= 10, "--max-steps", "an integer >= 10", args.max_steps)
+        # the sampler checks convergence every `chunk` steps: a smaller cap gets a smaller chunk
+        sampling.update(max_steps=args.max_steps, chunk=min(100, args.max_steps))
+    return sampling
+
+
+def _run_estimate(args, banner: str | None = None) -> int:
     from ..io.files import atomic_path, atomic_write_json
+    from ..io.result import scene_path_from
     from ..io.scene import load_scene
     from ..pipeline import estimate
     from ..inference.summary import to_inference_data
@@ -205,14 +217,18 @@ def _run_estimate(args) -> int:
     check_posterior_values(args)
     cmap = confidence_map_option(args.confidence_map, args.model)
     options = model_options(args, scene)
+    if banner and not args.quiet:  # once the command line is known to be good
+        print(banner)
     result = estimate(scene, model=args.model, preset=args.preset, seed=args.seed, classes=classes, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation, location_prior=args.location_prior,
                       temperature=args.temperature, hdi_prob=args.hdi_prob,
-                      sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
+                      sampling=sampling_options(args) or None,
                       progress=not args.quiet and sys.stderr.isatty(), **options)
     d = result.to_dict()
     if args.out:
+        if scene.source is not None:  # so that plot and advise find the scene wherever the result is written
+            d["scene_path"] = scene_path_from(args.out, scene.source)
         atomic_write_json(args.out, d, inline_numbers=True)
     idata = to_inference_data(result) if args.netcdf else None
     if idata is not None:
@@ -220,26 +236,27 @@ def _run_estimate(args) -> int:
             idata.to_netcdf(tmp)
     elif args.netcdf:
         print(f"warning: no posterior, so {args.netcdf} was not written", file=sys.stderr)
-    if not args.quiet:
-        print(f"{args.scene}: {len(d['objects'])} object{'s' if len(d['objects']) > 1 else ''}, model {d['model']}, "
-              f"preset {d['preset']}, MAP in {d['map_info']['seconds']:.2f} s")
-        print(format_tables(d))
-        printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
-        for w in result.warnings:
-            if w not in printed:
-                print(f"note: {w}")
-        for path in (args.out, idata is not None and args.netcdf):
-            if path:
-                print(f"wrote {path}")
+    printed = set(scene.warnings)  # already printed as "warning:" when the scene was read
+    notes = [f"note: {w}" for w in result.warnings if w not in printed]
+    if args.quiet:  # no tables, but what the result warns of (a posterior not converged, a box that misses)
+        for line in notes:
+            print(line, file=sys.stderr)
+        return 0
+    print(f"{args.scene}: {len(d['objects'])} object{'s' if len(d['objects']) > 1 else ''}, model {d['model']}, "
+          f"preset {d['preset']}, MAP in {d['map_info']['seconds']:.2f} s")
+    print(format_tables(d))
+    for line in notes:
+        print(line)
+    for path in (args.out, idata is not None and args.netcdf):
+        if path:
+            print(f"wrote {path}")
     return 0
 
 
 def _run_demo(args) -> int:
     args.scene = str(example_scene_path())
     args.classes = None
-    if not args.quiet:
-        print(f"example scene (synthetic, with ground truth): {args.scene}")
-    return _run_estimate(args)
+    return _run_estimate(args, banner=f"example scene (synthetic, with ground truth): {args.scene}")
 
 
 def add_camera_options(p: argparse.ArgumentParser) -> None:
@@ -298,7 +315,8 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
     add_confidence_map_option(p)
     add_model_option(p)
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="no tables and no progress bar: only errors, warnings and notes, on standard error")
     add_camera_options(p)
     g = p.add_argument_group("posterior")
     g.add_argument("--no-posterior", action="store_true", help="the MAP only: do not sample the posterior")
@@ -310,6 +328,9 @@ def _add_estimate_options(p: argparse.ArgumentParser) -> None:
                         "with the default preset)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
                    help="bulk effective sample size to reach (default: 400)")
+    g.add_argument("--max-steps", type=int, default=None, metavar="N",
+                   help="cap on the sampler's steps; a posterior that has not converged by then says so "
+                        "(default: 20000)")
     g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
 
 

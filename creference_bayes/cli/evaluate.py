@@ -3,6 +3,7 @@ devkit's rules, and the reliability of the labels' P(IoU ≥ t) (docs/evaluation
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from .main import UsageError, require, usage_errors
@@ -47,6 +48,10 @@ def _run_kitti(args) -> int:
     with usage_errors():
         ev = evaluate_kitti(args.gt_label_dir, args.label_dir, count_unlabelled=args.count_unlabelled,
                             n_bins=args.bins)
+    if ev.ap and not any(r["n_groundtruth"] for r in ev.ap):
+        print("warning: no ground-truth box counts at any difficulty (the devkit ignores boxes under 25 px high, "
+              "occluded 3 or truncated over 0.5), so every AP is 0: is GT_LABEL_DIR KITTI's ground truth? "
+              "(the labels creference labels writes say occluded 3)", file=sys.stderr)
     written = []
     if args.out is not None:
         out = Path(args.out)

@@ -45,8 +45,11 @@ def find_scene(result: dict, result_path: Path, explicit: str | None):
     its failures as one-line usage errors."""
     from ..io.result import find_scene as _find
 
+    notes: list[str] = []
     with usage_errors():
-        scene = _find(result, result_path, explicit)
+        scene = _find(result, result_path, explicit, notes)
+    for note in notes:  # a scene of the result's name that is another photo's, passed over
+        print(f"warning: {note}", file=sys.stderr)
     if result.get("format") == "creference-result/1" and "batch" not in result:
         print("warning: a creference-result/1 (written by an older version): only its target id and image size "
               "were checked against the scene", file=sys.stderr)

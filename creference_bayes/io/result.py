@@ -21,11 +21,12 @@ from typing import Any
 import numpy as np
 
 from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT_REPORT, object_report
+from ..models.metrology import MIN_TARGET_SIGMA_PX
 from .files import read_text
 
 __all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
-           "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_mismatch", "find_scene",
-           "canonical_sha256", "map_checks"]
+           "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_path_from", "scene_mismatch",
+           "find_scene", "canonical_sha256", "map_checks"]
 
 RESULT_FORMAT = "creference-result/2"
 #: The result formats this package reads.
@@ -220,20 +221,28 @@ def _references(model) -> dict:
 
 
 def map_checks(scene, model, setup, map_est) -> list[str]:
-    """Warnings about the MAP: a box that misses its annotations, and a focal length that the
-    annotations and an informative prior disagree on (a cropped photo?)."""
-    out = []
+    """Warnings about the MAP: a box that misses its annotations, targets whose sets of dimension
+    lines are identical (a noise-free simulated scene: a posterior too narrow to sample), and a
+    focal length that the annotations and an informative prior disagree on (a cropped photo?)."""
+    out, identical = [], []
     uv, _ = model.project(map_est.camera[None], map_est.objects[None])
     for i, t in enumerate(scene.targets):
         med = np.median(t.corners, axis=0)
         err = float(np.sqrt(np.mean(np.sum((uv[0, i] - med) ** 2, axis=-1))))
         c = t.corners
         spread = np.sqrt(np.sum((c - c.mean(axis=0)) ** 2) / (8 * (len(c) - 1))) if len(c) > 1 else 5.0
+        if len(c) > 1 and spread < MIN_TARGET_SIGMA_PX:
+            identical.append(t.id)
         spread = max(np.sqrt(2.0) * spread, REPROJECTION_MIN_SPREAD_PX)
         if not np.isfinite(err) or err > REPROJECTION_WARN_FACTOR * spread:
             out.append(f"target {t.id!r}: the MAP's box misses its annotations: its corners are {err:.1f} px (RMS) "
                        f"from the annotations' median, over {REPROJECTION_WARN_FACTOR:g} times their own spread "
                        f"({spread:.1f} px); check the dimension lines and the target's size")
+    if identical:
+        say = ", ".join(map(repr, identical[:5])) + (f" and {len(identical) - 5} more" if len(identical) > 5 else "")
+        out.append(f"target{'s' if len(identical) > 1 else ''} {say}: the sets of dimension lines agree to "
+                   f"within {MIN_TARGET_SIGMA_PX:g} px (a noise-free simulated scene?), so the corner scale is at "
+                   "that floor and a posterior so narrow may not converge; real annotations scatter by pixels")
     prior = setup.terms.focal
     if prior is not None and prior.source != "default" and model.camera_free[C_FOCAL]:
         lo, hi = prior.interval(0.99)
@@ -358,10 +367,11 @@ def result_from_v1(d: dict, scene) -> dict:
 
 def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
     """Where the scene of a result (either format) may be, in the order to look: the batch
-    folder's copy when the result came from ``creference batch`` (``batch.scene_copy``), then the
-    file the result names (``scene``) beside the result, in the current folder and among the
+    folder's copy when the result came from ``creference batch`` (``batch.scene_copy``), the path
+    ``creference estimate --out`` recorded (``scene_path``, relative to the result's folder), then
+    the file the result names (``scene``) beside the result, in the current folder and among the
     package's shipped scenes. The result file itself is never a candidate (a batch result is
-    named like its scene)."""
+    named like its scene), nor is a path twice."""
     from importlib import resources
 
     result_path = Path(result_path)
@@ -369,12 +379,33 @@ def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
     batch = result.get("batch") if isinstance(result.get("batch"), dict) else {}
     if batch.get("scene_copy") and batch.get("key"):
         out.append(result_path.parents[len(Path(batch["key"]).parts)] / batch["scene_copy"])
+    recorded = result.get("scene_path")
+    if isinstance(recorded, str) and recorded:
+        out.append(result_path.parent / recorded)
     name = result.get("scene")
     if isinstance(name, str) and name:
         out += [result_path.parent / name, Path.cwd() / name,
                 Path(str(resources.files("creference_bayes") / "data" / name))]
-    me = result_path.resolve()
-    return [p for p in out if p.resolve() != me]
+    seen = {result_path.resolve()}
+    unique = []
+    for p in out:
+        if p.resolve() not in seen:
+            seen.add(p.resolve())
+            unique.append(p)
+    return unique
+
+
+def scene_path_from(result_path: str | Path, scene_path: str | Path) -> str:
+    """The scene file's path as a result written to ``result_path`` records it (``scene_path``):
+    relative to the result's folder, with forward slashes (absolute when there is no relative
+    path, as between two drives)."""
+    import os
+
+    scene_path = Path(scene_path).resolve()
+    try:
+        return Path(os.path.relpath(scene_path, Path(result_path).resolve().parent)).as_posix()
+    except ValueError:
+        return scene_path.as_posix()
 
 
 def canonical_sha256(data) -> str:
@@ -412,11 +443,15 @@ def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str |
     return "; ".join(diffs) or None
 
 
-def find_scene(result: dict, result_path: str | Path, explicit: str | Path | None = None):
+def find_scene(result: dict, result_path: str | Path, explicit: str | Path | None = None,
+               notes: list | None = None):
     """The scene a result (either format) was estimated from: ``explicit``, else the first of
-    :func:`scene_candidates` that exists, checked with :func:`scene_mismatch`. Raises
-    ``FileNotFoundError`` when no candidate exists (the message says where it looked) and
-    ``ValueError`` when the scene found is not the result's (the message says what differs)."""
+    :func:`scene_candidates` that exists and is the result's (:func:`scene_mismatch`: another
+    scene of the same name beside the result does not hide the right one in the current folder).
+    Each candidate passed over because it is not the result's is said in ``notes`` (a list to
+    append to). Raises ``FileNotFoundError`` when no candidate exists (the message says where it
+    looked) and ``ValueError`` when none of those found is the result's (the message says what
+    differs in the first)."""
     import warnings
 
     from .scene import SceneWarning, parse_scene, read_scene_json
@@ -428,6 +463,7 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
             raise FileNotFoundError(2, "no such file", str(explicit))
     else:
         paths, how = scene_candidates(result, result_path), None
+    passed = []  # (path, why) of the candidates that are not the result's scene
     for path in paths:
         if path.is_file():
             data = read_scene_json(path)  # read once: the scene and the file's fingerprint
@@ -436,10 +472,16 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = parse_scene(data, source=path)
             why = scene_mismatch(result, scene, file_sha)
-            if why:
-                where = how or f"scene {str(path)!r} (found by the result's scene name; pass --scene)"
-                raise ValueError(f"{where}: not the scene this result was estimated from ({why})")
-            return scene
+            if not why:
+                if notes is not None:
+                    notes += [f"{other}: not the scene this result was estimated from ({reason}); used {path}"
+                              for other, reason in passed]
+                return scene
+            passed.append((path, why))
+    if passed:
+        path, why = passed[0]
+        where = how or f"scene {str(path)!r} (found by the result's scene name; pass --scene)"
+        raise ValueError(f"{where}: not the scene this result was estimated from ({why})")
     if not result.get("scene") and not result.get("batch"):
         raise FileNotFoundError(2, "the result names no scene: give it with --scene", str(result_path))
     raise FileNotFoundError(2, f"the result's scene {result.get('scene')!r} is not beside it, in the current folder or among "

@@ -507,6 +507,12 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
     data = _dict(data, "(scene)")
     fmt = check_scene_format(_get(data, "format", ""))
     version = SCENE_FORMATS.index(fmt) + 1
+    other = 3 - version
+    clash = sorted(set(data) & (_TOP_KEYS[other] - _TOP_KEYS[version]))  # "targets" in a version-1 scene, say
+    if clash:
+        fix = ('set "format": "creference-scene/2" (a list of targets, each with an id)' if version == 1 else
+               'write the one target as "targets": [ … ] (with an id), or set "format": "creference-scene/1"')
+        raise SceneError(clash[0], f"a key of {SCENE_FORMATS[other - 1]!r}, but the scene's format is {fmt!r}: {fix}")
     _warn_unknown(data, _TOP_KEYS[version], "", sink)
     head = _parse_header(data, source, sink)
     w, h = head["image_width"], head["image_height"]
@@ -533,9 +539,11 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
             raise SceneError(_join("targets", i), "needs 'dimensions_m', a 'size_prior' or a 'class' with a size prior")
         if t.dimensions is None and t.size_prior is None and find_size_prior(t.cls, own_classes, classes) is None:
             known = sorted(set(own_classes) | set(classes or {}) | set(KITTI_SIZE_PRIORS))
+            guess = near_miss(t.cls, known) if isinstance(t.cls, str) else None
             raise SceneError(_join(_join("targets", i), "class"),
-                             f"no size prior for class {_short(t.cls)} and no 'dimensions_m' (classes: {known}; "
-                             "add it under 'classes' or give a classes file)")
+                             f"no size prior for class {_short(t.cls)} and no 'dimensions_m'"
+                             + (f"; did you mean {guess!r}?" if guess else
+                                f" (classes: {known}; add it under 'classes' or give a classes file)"))
     refs_raw = data.get("references")
     refs_raw = [] if refs_raw is None else _list(refs_raw, "references")
     if version == 1:

@@ -347,9 +347,12 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
         top = box[4:][np.all(np.isfinite(box[4:]), axis=1)]
         if len(top):
             anchors[i] = np.clip(top[:, 0].mean(), 0, w), np.clip(top[:, 1].min(), 0, h)
-    ax.plot([], [], color="0.2", lw=lw, label="box at the MAP (the most probable)")
+    # the legend's boxes in the first object's colour (the annotations are black)
+    each = "" if m == 1 else ", each object in its colour"
+    ax.plot([], [], color=styles[0]["color"], lw=lw, label=f"box at the MAP (the most probable{each})")
     if draws is not None:
-        ax.plot([], [], color="0.2", lw=0.9, alpha=0.3, label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
+        ax.plot([], [], color=styles[0]["color"], lw=0.9, alpha=0.3,
+                label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
     ax.plot([], [], color="k", lw=1.1, label="annotations (thin: each set; thick: their median)")
     ax.set(xlim=(0, w), ylim=(h, 0), aspect="equal", xlabel="u (px)", ylabel="v (px)")
     what = f"{m} objects" if m > 1 else labels[0]

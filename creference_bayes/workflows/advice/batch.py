@@ -273,9 +273,7 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
     from ...inference.progress import progress_bar
 
     settings = settings or AdviceSettings()
-    if not (Path(batch_dir) / "results").is_dir():
-        raise FileNotFoundError(2, "not a batch folder (no results/ inside)", str(batch_dir))
-    jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir).items()}
+    jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir, check=True).items()}
     outcome = {}
     with progress_bar(progress, len(jobs), desc="advice", unit="scene") as bar:
         if workers > 1 and len(jobs) > 1:

@@ -67,10 +67,12 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
     return dataclasses.replace(advice, seed=_recordable(seed)), result
 
 
-def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Path | None = None):
+def scene_for_result(result_path: str | Path, result: dict, scene_path: str | Path | None = None,
+                     notes: list | None = None):
     """The scene a result was made from (:func:`~creference_bayes.io.result.find_scene`: ``scene_path``,
-    else the batch folder's copy, else the file the result names), its image resolved for a batch copy."""
-    return _with_batch_image(find_scene(result, result_path, scene_path), result)
+    else the batch folder's copy, else where ``estimate --out`` recorded it, else the file the result
+    names; ``notes`` collects the candidates passed over), its image resolved for a batch copy."""
+    return _with_batch_image(find_scene(result, result_path, scene_path, notes), result)
 
 
 def _with_batch_image(scene, result: dict):

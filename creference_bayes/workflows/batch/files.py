@@ -22,10 +22,14 @@ def layout(out: str | Path, key: str) -> dict[str, Path]:
             "error": out / "errors" / f"{key}.json"}
 
 
-def result_paths(batch_dir: str | Path) -> dict[str, Path]:
+def result_paths(batch_dir: str | Path, *, check: bool = False) -> dict[str, Path]:
     """KEY → path of every result in a batch folder's ``results/``, sorted; the hidden temporary
-    file of a write that was killed (io/files.py) left out."""
+    file of a write that was killed (io/files.py) left out. With ``check``, FileNotFoundError
+    saying whether the folder is missing or is not a batch folder (no ``results/``)."""
     root = Path(batch_dir) / "results"
+    if check and not root.is_dir():
+        why = "not a batch folder (no results/ inside)" if Path(batch_dir).is_dir() else "no such folder"
+        raise FileNotFoundError(2, why, str(batch_dir))
     paths = {p.relative_to(root).with_suffix("").as_posix(): p for p in sorted(root.rglob("*.json"))}
     return {k: p for k, p in paths.items() if not any(part.startswith(".") for part in k.split("/"))}
 

@@ -51,10 +51,8 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     FileNotFoundError : ``batch_dir`` has no ``results/``
     """
     batch_dir = Path(batch_dir)
-    if not (batch_dir / "results").is_dir():
-        raise FileNotFoundError(2, "not a batch folder (no results/ inside)", str(batch_dir))
     inputs, skipped = [], []
-    for key, path in result_paths(batch_dir).items():
+    for key, path in result_paths(batch_dir, check=True).items():
         try:
             result = json.loads(read_text(path))
             if result.get("format") not in RESULT_FORMATS or "batch" not in result:
