@@ -616,12 +616,18 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
             check.append((kind, len(sel), f"{rew.mean():.2f}", f"{real.mean():.2f}",
                           f"{np.median(np.abs(rew - real)):.2f}", f"{np.percentile(np.abs(rew - real), 90):.2f}"))
     calib = []
-    pairs = [(q, s) for r in recs if r["rows"] for q, s in zip(r["truth_quantile"], r["rows"][0]["real_before_share"])]
-    for lo_b, hi_b, label in ((0.0, 0.5, "< 50 %"), (0.5, np.inf, ">= 50 %"), (0.0, np.inf, "all")):
-        q = np.array([q for q, s in pairs if lo_b <= s < hi_b])
-        if len(q):
-            calib.append((label, len(q), f"{np.mean(q):.2f}", f"{100 * np.mean(q < 0.5):.0f} %",
-                          f"{100 * np.mean((q > 0.05) & (q < 0.95)):.0f} %", f"{100 * np.mean(q < 0.1):.0f} %"))
+    pairs = [(q, s, r.get("setting") or "") for r in recs if r["rows"]
+             for q, s in zip(r["truth_quantile"], r["rows"][0]["real_before_share"])]
+    # by setting too: a prior that is not the scenes' population is calibrated over all of them and
+    # not within a band, where it decides most (docs/advice.md, predicted against realised)
+    settings = sorted({c for *_, c in pairs})
+    for setting in ([""] + settings if len(settings) > 1 else [""]):
+        for lo_b, hi_b, label in ((0.0, 0.5, "< 50 %"), (0.5, np.inf, ">= 50 %"), (0.0, np.inf, "all")):
+            q = np.array([q for q, s, c in pairs if lo_b <= s < hi_b and setting in ("", c)])
+            if len(q):
+                calib.append((f"{label}, {setting}" if setting else label, len(q), f"{np.mean(q):.2f}",
+                              f"{100 * np.mean(q < 0.5):.0f} %", f"{100 * np.mean((q > 0.05) & (q < 0.95)):.0f} %",
+                              f"{100 * np.mean(q < 0.1):.0f} %"))
     kept = np.array([h for r in recs for h in r["handedness_kept_true"] if h is not None])
     secs = np.array([r["advice_only_s"] for r in recs])
     m = sorted({r.get("n_objects", 1) for r in recs})

@@ -306,6 +306,35 @@ def test_the_advice_studys_report_splits_the_gains_by_the_crowds_noise_tier(tmp_
     assert "noise tier" not in study.report_predict(tmp_path / "one")
 
 
+def test_the_advice_studys_report_places_the_truth_by_band_and_by_setting(tmp_path):
+    """The truth's quantile in the posterior before, by HDI band, and by band within each setting
+    when the scenes have more than one (a prior can be calibrated over all and not within a band)."""
+    import json
+
+    study = _example("advice_study.py")
+
+    def rec(i, setting, share, q):
+        rows = [{"kind": "target", "measure": None, "pred_gain_pct": 1.0, "real_gain_pct": 1.0, "rew_gain_pct": 1.0,
+                 "real_before_share": [share], "ess": 0.5, "fallbacks": 0}]
+        return {"scene": f"s{i:04d}", "tier": "medium", "setting": setting, "n_target": 1, "n_refs": 0,
+                "truth_quantile": [q], "advice_only_s": 0.1, "handedness_kept_true": [True], "n_candidates": 1,
+                "rows": rows}
+
+    recs = [rec(0, "outdoor", 0.2, 0.9), rec(1, "outdoor", 0.8, 0.2), rec(2, "outdoor", 0.9, 0.3),
+            rec(3, "indoor", 0.1, 0.6)]
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "predict.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    part = study.report_predict(tmp_path / "p").split("Where the true distance falls")[1].split("\n\n")[1]
+    rows = {line.strip("|").split("|")[0].strip(): [c.strip() for c in line.strip("|").split("|")[1:4]]
+            for line in part.splitlines()[2:]}
+    assert rows[">= 50 %"] == ["2", "0.25", "100 %"] and rows["all"] == ["4", "0.50", "50 %"]
+    assert rows[">= 50 %, outdoor"] == ["2", "0.25", "100 %"] and rows["< 50 %, outdoor"] == ["1", "0.90", "0 %"]
+    assert rows["all, indoor"] == ["1", "0.60", "0 %"] and ">= 50 %, indoor" not in rows
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "predict.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs[:3]))
+    assert ", outdoor" not in study.report_predict(tmp_path / "one")
+
+
 def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(tmp_path, monkeypatch):
     """``--option ref_dof=30``: every estimate and advice of ``predict`` reads references with 30
     degrees of freedom, the records say so, and a resumed run with other options is refused; a
