@@ -74,6 +74,46 @@ def test_answers_name_what_is_wrong(frame):
     assert len(more.targets[2].dimension_lines) == len(scene.targets[2].dimension_lines) + 1
 
 
+def test_an_answer_replaces_an_earlier_one_of_its_kind_and_a_wrong_unit_is_refused(frame):
+    """The same catalogue size or calibration applied twice is one fact: the prior is that of one
+    answer (not narrowed again); a second, other answer replaces the first. A size in millimetres,
+    a height in centimetres or a pitch in radians given as degrees is refused, naming the unit."""
+    scene, _ = frame
+    tid = scene.targets[1].id
+    once = with_size(scene, tid, (4.0, 1.8, 1.5))
+    assert with_size(once, tid, (4.0, 1.8, 1.5)) == once
+    assert with_size(once, tid, (4.4, 1.8, 1.5)) == with_size(scene, tid, (4.4, 1.8, 1.5))
+    mounted = with_mounting(scene, 1.65, math.radians(1.0))
+    assert mounted.orientation_prior.source == "calibration"
+    assert with_mounting(mounted, 1.65, math.radians(1.0)) == mounted
+    assert with_mounting(mounted, 1.5, 0.0) == with_mounting(scene, 1.5, 0.0)
+    again = parse_scene(json.loads(json.dumps(scene_to_dict(mounted))))  # the scene file keeps where it came from
+    assert again.orientation_prior == mounted.orientation_prior
+    with pytest.raises(ValueError, match=r"size \[4355.0, 1736.0, 1745.0\] m is \d+ standard deviations from its "
+                                         r"prior .*: metres expected"):
+        with_size(scene, tid, (4355.0, 1736.0, 1745.0))
+    with pytest.raises(ValueError, match="height 170 m: expected metres, between 0.1 and 30"):
+        with_mounting(scene, 170.0, 0.0)
+    with pytest.raises(ValueError, match="pitch 90°: expected degrees, at most 60 either way"):
+        with_mounting(scene, 1.6, math.radians(90.0))
+
+
+def test_a_size_or_mounting_already_answered_is_not_asked_again(frame):
+    from creference_bayes.workflows.advice.candidates import candidates
+
+    scene, truth = frame
+
+    def keys(s):
+        model, _ = build_model(s)
+        return {c.key for c in candidates(s, model, truth["camera"], truth["objects"])[0]}
+
+    tid = scene.targets[1].id
+    before = keys(scene)
+    assert {f"{tid}:size", "camera:mounting"} <= before
+    after = keys(with_mounting(with_size(scene, tid, (4.0, 1.8, 1.5)), 1.6, 0.0))
+    assert before - after == {f"{tid}:size", "camera:mounting"} and after <= before
+
+
 def _draws(model, truth, n, rng):
     """States scattered around the truth (not a posterior: the identities hold at any state)."""
     cams = np.repeat(truth["camera"][None], n, axis=0) * np.exp(0.03 * rng.standard_normal((n, 5)))
@@ -637,6 +677,11 @@ def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_aga
     before = {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
     assert apply([dict(size, answer=" ")]) == 2  # the requests as advised, nobody's answer in them yet
     assert "no request is answered yet: fill in the 'answer' column" in capsys.readouterr().err
+    # an answer of a kind that comes back as an annotation is said, and nothing is written
+    assert apply([dict(size, rank="4", kind="dims", answer="drawn")]) == 0
+    assert ("warning: requests row 4 (dims): answered, but only sizes and mountings are put in from requests.csv"
+            in capsys.readouterr().err)
+    assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
     assert apply([bad]) == 2  # a usage error, and nothing written
     assert "requests row 3 (size): expected 3 numbers" in capsys.readouterr().err
     assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}

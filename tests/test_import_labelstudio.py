@@ -778,6 +778,45 @@ def test_a_request_task_imports_as_its_scene_with_the_answers(assert_same_scene)
     assert_same_scene(s.scene, want)
 
 
+def test_the_answered_requests_of_one_frame_import_as_that_frame_with_every_answer(assert_same_scene):
+    """Request tasks of one frame (one ``request_key``), each answered: one scene, named after the
+    frame, holding the scene the requests were made for once and every task's answer; tasks made
+    for another state of the frame (another round) are refused."""
+    from creference_bayes.cli.main import example_scene_path
+
+    scene = json.loads(example_scene_path().read_text())
+    lines = copy.deepcopy(scene)
+    lines["target"]["dimension_lines"] = [{"worker": "w-lines", "corners": (
+        np.array(scene["target"]["dimension_lines"][0]["corners"]) + 1.5).tolist()}]
+    lines["references"] = []
+    ref = copy.deepcopy(scene)  # the answering worker's reference (the lines only to make a valid scene)
+    ref["references"] = [{**scene["references"][0], "worker": "w-ref", "value": 0.8}]
+    ref["references"][0].pop("range", None)
+    ref["references"][0].pop("seconds", None)
+
+    def task(tid, answer, key="frames/f1", base=scene):
+        t = {"id": tid, "data": {"image": "", "creference_scene": base, "request_key": key}}
+        anns = [a for a in label_studio_task(answer)["annotations"] if a["completed_by"] in ("w-lines", "w-ref")]
+        for ann in anns:  # the worker draws the target without naming it
+            ann["result"] = [r for r in ann["result"] if r.get("from_name") != "target"]
+        t["annotations"] = anns
+        return t
+
+    report = scenes_from_label_studio([task(2, lines), task(6, ref), task(7, lines, key="f2")])
+    assert not report.errors, report.errors
+    assert sorted(s.name for s in report.scenes) == ["f1", "f2"]
+    f1 = next(s for s in report.scenes if s.name == "f1")
+    want = copy.deepcopy(scene)
+    want["target"]["dimension_lines"] += lines["target"]["dimension_lines"]
+    want["references"] += ref["references"]
+    assert_same_scene(f1.scene, want)
+    other = copy.deepcopy(scene)
+    other["references"] = other["references"][:-1]  # the frame as it was a round earlier
+    report = scenes_from_label_studio([task(2, lines), task(6, ref, base=other)])
+    assert [s.name for s in report.scenes] == [] and len(report.errors) == 1
+    assert "task 6 was made for another state of 'frames/f1' than task 2" in str(report.errors[0])
+
+
 # ----------------------------------------------------------------------------------------------
 # the command line: scenes of several targets, estimate on them, --classes
 

@@ -63,6 +63,28 @@ def test_a_frames_prior_comes_from_the_other_frames_only():
     assert apply_rig(other, frames, "focal", "f0") == (other, None)  # no frame of its camera
 
 
+def test_a_frames_calibrated_mounting_is_multiplied_into_the_pooled_one_not_replaced():
+    """A mounting answer (advise --apply) stays in the frame's second pass: the product of the other
+    frames' pooled mounting and the calibration's, so the answer the advice weighed is used."""
+    from creference_bayes.workflows.advice.answers import with_mounting
+
+    scene = parse_scene(truth_scene(0)[0] | {"camera": {"id": "cam", "principal_point": [1483.2, 864.0]}})
+    frames = [SharedLikelihood(f"f{i}", "cam", {"log_height": math.log(h), "pitch": 0.02},
+                               {"log_height": 1 / 0.05**2, "pitch": 1 / 0.01**2})
+              for i, h in enumerate((1.5, 1.55, 1.45, 1.52))]
+    plain, est = apply_rig(scene, frames, "mounting", "f0")
+    pooled = plain.orientation_prior
+    calibrated = with_mounting(scene, 1.70, 0.0)
+    both, _ = apply_rig(calibrated, frames, "mounting", "f0")
+    got, own = both.orientation_prior, calibrated.orientation_prior
+    w0, w1 = pooled.height_log_sd ** -2, own.height_log_sd ** -2
+    assert got.height_log_sd == pytest.approx((w0 + w1) ** -0.5)
+    assert math.log(got.height_median_m) == pytest.approx(
+        (w0 * math.log(pooled.height_median_m) + w1 * math.log(own.height_median_m)) / (w0 + w1))
+    assert got.pitch_sd < min(pooled.pitch_sd, own.pitch_sd) and got.source == "calibration"
+    assert 1.6 < got.height_median_m < 1.70  # the calibration (2 %) outweighs the pool
+
+
 def _result_with_draws(log_focal: np.ndarray, prior: dict) -> dict:
     n = len(log_focal)
     cam = {"focal_length_px": np.exp(log_focal).tolist(), "pitch": 0.1, "roll": 0.0, "height_m": 1.6, "ref_scale": 0.5}

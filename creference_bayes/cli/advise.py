@@ -136,8 +136,11 @@ def _apply(args) -> int:
     if not any((row.get("answer") or "").strip() for row in rows):
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/advice.md, the loop)")
+    notes: list[str] = []
     with usage_errors(one_line=True):
-        done = apply_answers(args.input, rows)
+        done = apply_answers(args.input, rows, notes)
+    for note in notes:
+        print(f"warning: {note}", file=sys.stderr)
     if not args.quiet:
         for source, what in done:
             print(f"{source}: {what}")

@@ -11,13 +11,15 @@ target's size comes from the task or the ``--targets`` table, else its class's s
 
 The tasks of one image (``data.image``) make one scene: they must agree on the image's size and
 the photo's fields (:data:`SHARED_DATA`), and a target is drawn in one task only. A request task of
-``creference advise`` (``data.creference_scene``) is the scene it carries with the answers added.
+``creference advise`` (``data.creference_scene``) is the scene it carries with the answers added;
+the answered request tasks of one frame (one ``data.request_key``) make one scene, named after it.
 Coordinates are percent of ``original_width`` / ``original_height`` (or of the task's
 ``image_width`` / ``image_height``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from importlib import resources
@@ -131,13 +133,19 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
         except ConversionError as exc:
             errors.append(exc)
             continue
-        if part is not None:  # a request task is a scene of its own
+        if part is not None:
             image = part.data.get("image")
-            key = image if isinstance(image, str) and image and "creference_scene" not in part.data else i
+            request = task.get("data", {}).get("request_key") if "creference_scene" in task.get("data", {}) else None
+            if request is not None:  # the answered requests of one frame make one scene: the frame's
+                key = ("request", str(request))
+            else:
+                key = image if isinstance(image, str) and image and "creference_scene" not in part.data else i
             groups.setdefault(key, []).append(part)
     scenes = []
-    for parts in groups.values():
+    for key, parts in groups.items():
         try:
+            if isinstance(key, tuple):
+                parts = [_merged_requests(parts, key[1])]
             scenes.append(_image_scene(parts, image_dir, out_dir, table, classes, notes))
         except ConversionError as exc:
             errors.append(exc)
@@ -324,6 +332,38 @@ def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
                              "truth_from": "data.creference_scene"}
     refs = base.get("references", [])
     return declared, data, list(refs), ["data.creference_scene"] * len(refs)
+
+
+def _merged_requests(parts: list[_TaskPart], key: str) -> _TaskPart:
+    """One part for the answered request tasks of one frame (``data.request_key``): the scene they
+    were made for, once, with every task's answers appended, named after the frame's key (so
+    that importing into the scenes folder the batch was made from writes over that frame's
+    file). The tasks must carry the same scene: one round of requests."""
+    first = parts[0]
+    where = ", ".join(p.where for p in parts) + f" (the requests of {key!r})"
+    snapshot = first.task["data"]["creference_scene"]
+    for part in parts[1:]:
+        if part.task["data"]["creference_scene"] != snapshot:
+            raise ConversionError(where, f"{part.where} was made for another state of {key!r} than {first.where} "
+                                         "(requests of two rounds): import one round's export at a time")
+    own = "data.creference_scene"
+    targets = {tid: {**t, "lines": list(t["lines"]), "origins": list(t["origins"])} for tid, t in first.targets.items()}
+    refs, ref_origins = list(first.refs), list(first.ref_origins)
+    for part in parts[1:]:  # what each further task adds to the scene they share
+        for tid, t in part.targets.items():
+            new = [(line, o) for line, o in zip(t["lines"], t["origins"]) if o != own]
+            if tid not in targets:
+                targets[tid] = {**t, "lines": [], "origins": []}
+            targets[tid]["lines"] += [line for line, _ in new]
+            targets[tid]["origins"] += [f"{part.where}, {o}" for _, o in new]
+        added = [(r, o) for r, o in zip(part.refs, part.ref_origins) if o != own]
+        refs += [r for r, _ in added]
+        ref_origins += [f"{part.where}, {o}" for _, o in added]
+    data = {**first.data}
+    if data.get("frame_id") in (None, ""):
+        data["frame_id"] = PurePosixPath(key).name
+    return dataclasses.replace(first, where=where, data=data, targets=targets, refs=refs, ref_origins=ref_origins,
+                               horizons=[h for p in parts for h in p.horizons])
 
 
 def _resolve(name: str | None, declared: dict, targets: dict, where: str) -> str:

@@ -288,7 +288,7 @@ _FOCAL_PRIOR_KEYS = {"median_px", "equivalent_35mm_mm", "log_sd", "dof"}
 #: Default log-sd of a focal-length prior a scene states without one.
 STATED_FOCAL_LOG_SD = 0.1
 _ORIENTATION_PRIOR_KEYS = {"pitch_mean_deg", "pitch_sd_deg", "roll_mean_deg", "roll_sd_deg",
-                           "height_median_m", "height_log_sd"}
+                           "height_median_m", "height_log_sd", "source"}
 
 
 def _parse_focal_prior(obj: Any, path: str, size: tuple[int, int], sink: list[str]) -> FocalPrior | None:
@@ -323,6 +323,9 @@ def _parse_orientation_prior(obj: Any, path: str, sink: list[str]) -> Orientatio
     kw = {}
     for key in sorted(_ORIENTATION_PRIOR_KEYS):
         if obj.get(key) is None:
+            continue
+        if key == "source":  # "calibration": a mounting was put in (creference advise --apply)
+            kw["source"] = _string(obj[key], _join(path, key))
             continue
         if key.startswith("height_"):
             kw[key] = _number(obj[key], _join(path, key), positive=True)
@@ -749,7 +752,8 @@ def scene_to_dict(scene: Scene) -> dict:
         angles = ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")
         out["camera"]["orientation_prior"] = {**{f"{k}_deg": math.degrees(getattr(op, k)) for k in angles},
                                               "height_median_m": op.height_median_m,
-                                              "height_log_sd": op.height_log_sd}
+                                              "height_log_sd": op.height_log_sd,
+                                              **({"source": op.source} if op.source else {})}
     if scene.horizon is not None:
         out["horizon"] = np.asarray(scene.horizon).tolist()
         if scene.horizon_sd_px:

@@ -118,7 +118,9 @@ def default_focal_prior(image_size) -> FocalPrior:
 class OrientationPrior:
     """Priors on the camera's pose when there is no exact horizon: independent normals on pitch
     and roll (radians; pitch > 0 looks down) and a log-normal on its height above the floor
-    (median ``height_median_m`` metres, log-sd ``height_log_sd``)."""
+    (median ``height_median_m`` metres, log-sd ``height_log_sd``). ``source``: ``"calibration"``
+    when a mounting from the camera's calibration was put in (:mod:`~creference_bayes.workflows.advice.answers`),
+    else None."""
 
     pitch_mean: float = 0.0
     pitch_sd: float = float(np.radians(15.0))
@@ -126,6 +128,7 @@ class OrientationPrior:
     roll_sd: float = float(np.radians(10.0))
     height_median_m: float = 1.6
     height_log_sd: float = 0.6
+    source: str | None = None
 
     def __post_init__(self):
         for key in ("pitch_sd", "roll_sd", "height_median_m", "height_log_sd"):
@@ -141,7 +144,8 @@ class OrientationPrior:
 
     def to_dict(self) -> dict:
         out = {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}
-        return {**out, "height_median_m": self.height_median_m, "height_log_sd": self.height_log_sd}
+        return {**out, "height_median_m": self.height_median_m, "height_log_sd": self.height_log_sd,
+                **({"source": self.source} if self.source else {})}
 
 
 DEFAULT_ORIENTATION_PRIOR = OrientationPrior()

@@ -12,6 +12,12 @@ estimate then uses:
 - a mounting: the camera's ``orientation_prior``, the product of the one it had and the
   calibration's height, pitch and roll with spreads :data:`MOUNTING_SD`.
 
+An answer replaces an earlier answer of its kind instead of multiplying into it (a second
+catalogue size of the same car, or the same ``requests.csv`` applied twice, is the same fact, not
+new evidence): a size is multiplied into the class's prior, a mounting into the scene's prior
+from before any calibration (the default one). An answer far outside what the prior allows (a
+size in millimetres, a height in centimetres) is refused, naming the unit expected.
+
 The advice weighs a request by the same product (:mod:`.observe`), so what it predicts is what the
 estimate will do with the answer.
 """
@@ -27,8 +33,9 @@ import numpy as np
 from ...models.camera_terms import DEFAULT_ORIENTATION_PRIOR
 from ...models.size_priors import SizePrior
 
-__all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "ANSWER_FORMS",
-           "with_dimension_lines", "with_size", "with_mounting", "apply_answers"]
+__all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
+           "MOUNTING_HEIGHT_RANGE_M", "MAX_MOUNTING_ANGLE_DEG", "ANSWER_FORMS", "with_dimension_lines", "with_size",
+           "with_mounting", "apply_answers"]
 
 #: A size from a catalogue (a worker names the make and model): the spread of its log-length,
 #: -width and -height. Our assumption: one model name covers trims and years a few percent apart.
@@ -43,6 +50,12 @@ MOUNTING_SD = {"log_height": 0.02, "pitch": math.radians(0.5), "roll": math.radi
 #: Human seconds for a camera's mounting: an engineer reading the rig's calibration, once per
 #: camera. Our assumption (15 minutes); every frame of that camera shares the answer.
 MOUNTING_SECONDS = 900.0
+#: A catalogue size this many of its class prior's standard deviations (in log-size) from the
+#: prior's median is refused (a size in millimetres or centimetres, or another object's).
+MAX_SIZE_SD = 8.0
+#: The camera heights (metres) and the largest pitch and roll (degrees) a mounting answer may state.
+MOUNTING_HEIGHT_RANGE_M = (0.1, 30.0)
+MAX_MOUNTING_ANGLE_DEG = 60.0
 
 
 def _target(scene, target_id: str) -> int:
@@ -85,7 +98,16 @@ def with_size(scene, target_id: str, size_m, *, log_sd: float = CATALOGUE_LOG_SD
         raise ValueError(f"log_sd: expected a number > 0, got {log_sd!r}")
     if t.dimensions is not None:
         raise ValueError(f"target {target_id!r}: its size is known already (dimensions_m)")
-    prior = t.size_prior or scene.size_prior(t.cls, classes)
+    # an earlier catalogue answer is replaced, not multiplied into (the same fact twice)
+    prior = (t.size_prior if t.size_prior is not None and t.size_prior.source != "catalogue"
+             else scene.size_prior(t.cls, classes))
+    if prior is not None:
+        z = np.abs(np.log(size) - np.log(prior.median_m)) / np.asarray(prior.log_sd)
+        if np.max(z) > MAX_SIZE_SD:
+            expected = ", ".join(f"{v:.2g}" for v in prior.median_m)
+            raise ValueError(f"target {target_id!r}: size {np.ravel(size_m).tolist()} m is {np.max(z):.0f} "
+                             f"standard deviations from its prior (median {expected} m): metres expected, "
+                             "and the size of this object")
     mean, sd = np.log(size), np.full(3, float(log_sd))
     if prior is not None:
         mean, sd = _product(np.log(prior.median_m), np.asarray(prior.log_sd), mean, sd)
@@ -101,13 +123,22 @@ def with_mounting(scene, height_m: float, pitch_rad: float, roll_rad: float = 0.
     for key, v in (("height_m", height_m), ("pitch_rad", pitch_rad), ("roll_rad", roll_rad)):
         if not (isinstance(v, numbers.Real) and math.isfinite(v)) or (key == "height_m" and v <= 0):
             raise ValueError(f"{key}: expected a finite number{' > 0' if key == 'height_m' else ''}, got {v!r}")
+    lo, hi = MOUNTING_HEIGHT_RANGE_M
+    if not lo <= height_m <= hi:
+        raise ValueError(f"height {height_m:g} m: expected metres, between {lo:g} and {hi:g}")
+    for key, v in (("pitch", pitch_rad), ("roll", roll_rad)):
+        if abs(math.degrees(v)) > MAX_MOUNTING_ANGLE_DEG:
+            raise ValueError(f"{key} {math.degrees(v):g}°: expected degrees, at most {MAX_MOUNTING_ANGLE_DEG:g} "
+                             "either way")
     p = scene.orientation_prior or DEFAULT_ORIENTATION_PRIOR
+    if p.source == "calibration":  # an earlier calibration is replaced, not multiplied into
+        p = DEFAULT_ORIENTATION_PRIOR
     log_h, h_sd = _product(math.log(p.height_median_m), p.height_log_sd, math.log(height_m), sd["log_height"])
     pitch, pitch_sd = _product(p.pitch_mean, p.pitch_sd, pitch_rad, sd["pitch"])
     roll, roll_sd = _product(p.roll_mean, p.roll_sd, roll_rad, sd["roll"])
     prior = dataclasses.replace(p, height_median_m=float(math.exp(log_h)), height_log_sd=float(h_sd),
                                 pitch_mean=float(pitch), pitch_sd=float(pitch_sd), roll_mean=float(roll),
-                                roll_sd=float(roll_sd))
+                                roll_sd=float(roll_sd), source="calibration")
     return dataclasses.replace(scene, orientation_prior=prior)
 
 
@@ -127,14 +158,15 @@ def _numbers(text: str, n: int, where: str) -> list[float]:
     return values
 
 
-def apply_answers(batch_dir, rows) -> list[tuple[str, str]]:
+def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str]]:
     """Put the answered size and mounting requests of ``rows`` (``requests.csv``'s rows, dicts; a
     row is answered when its ``answer`` is filled in, :data:`ANSWER_FORMS`) into the scene files
     the batch ``batch_dir`` was made from (each result's ``batch.source``), each file rewritten
     atomically once. A mounting with a ``camera`` goes to every frame of that camera. Returns
-    (scene file, what was put in) per answer. ``creference batch`` then re-estimates the frames
-    whose scenes changed. Raises ValueError naming the row and the value on a bad answer; nothing
-    is written then."""
+    (scene file, what was put in) per answer; an answered row of another kind (drawn lines, a
+    reference, a length, a distance: they come back through an importer) is said in ``notes``.
+    ``creference batch`` then re-estimates the frames whose scenes changed. Raises ValueError
+    naming the row and the value on a bad answer; nothing is written then."""
     import json
     from pathlib import Path
 
@@ -159,7 +191,12 @@ def apply_answers(batch_dir, rows) -> list[tuple[str, str]]:
     for n, row in enumerate(rows, start=1):
         kind, answer = row.get("kind"), (row.get("answer") or "").strip()
         where = f"requests row {row.get('rank', n)} ({kind})"
-        if kind not in ANSWER_FORMS or not answer:
+        if not answer:
+            continue
+        if kind not in ANSWER_FORMS:
+            if notes is not None:
+                notes.append(f"{where}: answered, but only sizes and mountings are put in from requests.csv; "
+                             f"{kind} answers come back as annotations (a Label Studio or CVAT export, imported)")
             continue
         if kind == "size":
             source = scene_of(row.get("key"), where)

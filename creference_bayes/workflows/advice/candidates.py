@@ -5,13 +5,14 @@ Per target: one more set of its dimension lines (``ID:dims``); a worker's distan
 (``ID:distance``, from the image's bottom edge straight up to its nearest bottom corner at the
 MAP, as the paper's distance task draws it; left out when that corner is outside the image or on
 its bottom edge); its length (``ID:length``) and its size from a catalogue (``ID:size``,
-:mod:`.answers`) when its size has a prior; its distance to the nearest other target
-(``ID~ID2:distance``, bottom centres) unless the scene has one. Once for the scene: the camera's
-mounting (``camera:mounting``, :mod:`.answers`). Per group of the scene's references (the same
-object and measure, endpoints within :data:`SAME_SEGMENT_FRACTION` of the segment's length, at
-least :data:`SAME_SEGMENT_MIN_PX`, either direction): one more of the same (``refK-MEASURE``, on
-the per-endpoint median segment) and, for a length or width segment, a distance to its object
-(``refK-distance``, up to the segment's lower end) unless one is drawn already.
+:mod:`.answers`) when its size has a prior and no catalogue answer yet; its distance to the
+nearest other target (``ID~ID2:distance``, bottom centres) unless the scene has one. Once for the
+scene: the camera's mounting (``camera:mounting``, :mod:`.answers`), unless a calibration is in
+already. Per group of the scene's references (the same object and measure, endpoints within
+:data:`SAME_SEGMENT_FRACTION` of the segment's length, at least :data:`SAME_SEGMENT_MIN_PX`,
+either direction): one more of the same (``refK-MEASURE``, on the per-endpoint median segment)
+and, for a length or width segment, a distance to its object (``refK-distance``, up to the
+segment's lower end) unless one is drawn already.
 
 A kind costs the median of the scene's recorded ``seconds`` for it, else the paper's average task
 times (§7.2.2: :data:`PAPER_TARGET_SECONDS`, :data:`PAPER_REFERENCE_SECONDS`); a size and a
@@ -231,7 +232,8 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
         if model.object_free[i, O_SIZE].any():
             reference(f"{tid}:length", i, measure="length", object=tid, line=None,
                       term=ReferenceTerm(0, "size", 1.0, 1.0, False, owner=i, size_index=0), based_on=())
-        if model.object_free[i, O_SIZE].any() and model.objects[i].size_prior is not None:
+        catalogued = scene.targets[i].size_prior is not None and scene.targets[i].size_prior.source == "catalogue"
+        if model.object_free[i, O_SIZE].any() and model.objects[i].size_prior is not None and not catalogued:
             out.append(Candidate(f"{tid}:size", "size", i, tid, "size", tid, None, None, (), SIZE_SECONDS))
         if len(ids) > 1:
             gap = np.hypot(*(ground_xz - ground_xz[i]).T)
@@ -241,7 +243,9 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
                 pairs.add((min(i, j), max(i, j)))
                 reference(f"{tid}~{ids[j]}:distance", i, measure="distance", object=ids[j], line=None,
                           term=ReferenceTerm(0, "distance", 1.0, 1.0, False, owner=i, other=j), based_on=())
-    if MountingObservation(model, MOUNTING_SD).usable:  # else the camera's pose is fixed (an exact horizon)
+    calibrated = scene.orientation_prior is not None and scene.orientation_prior.source == "calibration"
+    # not with a fixed pose (an exact horizon), nor asked again once the calibration's answer is in
+    if MountingObservation(model, MOUNTING_SD).usable and not calibrated:
         out.append(Candidate("camera:mounting", "mounting", None, None, "mounting", None, None, None, (),
                              MOUNTING_SECONDS))
     return out, notes
