@@ -90,6 +90,22 @@ def test_fit_without_ground_truth_runs_estimates(data, tmp_path):
     assert cmap.fit["method"] == "marginal" and cmap.fit["ranges"] == 8 and cmap.fit["scenes_failed"] == 0
 
 
+def test_fit_names_the_levels_it_left_out(data, tmp_path, capsys):
+    from creference_bayes.workflows.confidence.fit import kept_levels
+
+    scenes, expected = data
+    levels, _, n, _ = kept_levels([e[0] for e in expected], 1)
+    least = int(sorted(n)[1])  # the rarest level has fewer ranges than this
+    assert main(["confidence", "fit", str(scenes), "--out", str(tmp_path / "m.json"), "--min-per-level", str(least),
+                 "--quiet"]) == 0
+    dropped = ", ".join(f"{c:g}" for c in levels[n < least])
+    assert capsys.readouterr().err.startswith(f"warning: confidence level(s) {dropped} left out (fewer than {least} "
+                                              "ranges each)")
+    assert main(["confidence", "fit", str(scenes), "--out", str(tmp_path / "m.json"), "--min-per-level", "1",
+                 "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("argv, message", [
     (["estimate", "{scene}", "--model", "paper", "--confidence-map", "identity"],
      "--confidence-map: the paper model turns ranges into bounds"),
@@ -99,6 +115,10 @@ def test_fit_without_ground_truth_runs_estimates(data, tmp_path):
     (["confidence", "fit", "{plain}", "--out", "{tmp}/m.json"], "no range with a stated confidence in 1 scene(s)"),
     (["confidence", "report", "{plain}", "--out", "{tmp}/r"], "no range with a stated confidence has a known truth"),
     (["confidence", "fit", "{scene}", "--out", "{tmp}/m.json", "--draws", "0"], "--draws: expected an integer >= 1"),
+    (["confidence", "fit", "{scene}", "--out", "{tmp}/m.json", "--method", "marginal"],  # before any estimate
+     "confidence level has 10 ranges or more (--min-per-level; ranges per level"),
+    (["estimate", "{scene}", "--confidence-map", "identiy"],
+     "--confidence-map: 'identiy' is none of none, identity and no such file; did you mean 'identity'?"),
 ])
 def test_user_errors_are_one_line(data, tmp_path, capsys, argv, message):
     scenes, _ = data

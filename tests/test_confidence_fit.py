@@ -13,7 +13,8 @@ from scipy import stats
 from creference_bayes.bench.confidence_workers import ConfidentWorkers
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.workflows.confidence.data import StatedRange, stated_ranges
-from creference_bayes.workflows.confidence.fit import _P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth
+from creference_bayes.workflows.confidence.fit import (_P_GRID, _pava, assign_levels, fit_marginal, fit_with_truth,
+                                                     kept_levels)
 from creference_bayes.workflows.confidence.loo import N_DRAWS, RangePrediction, predict_ranges
 
 
@@ -185,6 +186,12 @@ def test_nothing_to_fit_says_so():
         fit_with_truth([StatedRange("s", 0, None, "length", "direct", 0.9, 1.0, 2.0)])
     with pytest.raises(ValueError, match="no confidence level has 10 ranges or more"):
         fit_with_truth(_statements(ConfidentWorkers.pool("over"), 20, seed=0))
+    # one level kept of several would read every other confidence as that one; one level stated is fine
+    with pytest.raises(ValueError, match=r"only one confidence level has 3 ranges or more \(--min-per-level; "
+                                         r"ranges per level 0.5: 3, 0.9: 1\)"):
+        kept_levels([0.5, 0.5, 0.5, 0.9], 3)
+    levels, idx, n, keep = kept_levels([0.9, 0.9, 0.9], 3)
+    assert levels.tolist() == [0.9] and n.tolist() == [3] and keep.all()
 
 
 @pytest.mark.parametrize("j", [4, pytest.param(0, marks=pytest.mark.slow)])

@@ -43,7 +43,7 @@ def _check_fit_options(args) -> None:
 def _run_fit(args) -> int:
     from ..io.files import atomic_write_json
     from ..workflows.confidence.data import load_scenes, stated_ranges
-    from ..workflows.confidence.fit import fit_marginal, fit_with_truth
+    from ..workflows.confidence.fit import fit_marginal, fit_with_truth, kept_levels
 
     _check_fit_options(args)
     with usage_errors():  # no scene files, two with one name
@@ -53,15 +53,21 @@ def _run_fit(args) -> int:
         raise UsageError(f"no range with a stated confidence in {len(scenes)} scene(s): nothing to fit")
     method = args.method
     with_truth = [r for r in ranges if r.truth is not None]
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     if method == "auto":
         method = "truth" if len(with_truth) == len(ranges) else "marginal"
+        if method == "marginal" and with_truth:
+            say(f"{len(ranges) - len(with_truth)} of {len(ranges)} ranges have no known truth, so the fit is without "
+                f"ground truth (--method truth fits the {len(with_truth)} that have one)")
+    with usage_errors():  # too few ranges per level: said before any estimate
+        levels, _, _, keep = kept_levels([r.confidence for r in (with_truth if method == "truth" else ranges)],
+                                         args.min_per_level)
     if method == "truth" and not with_truth:
         raise UsageError("--method truth: no range has a known truth (the scenes' ground truth needs "
                          "reference_lengths_m, the true camera (focal_length_px, pitch_rad, roll_rad, "
                          "camera_height_m), or the targets' truth for their sizes and distances)")
     options = dict(draws=args.draws, seed=args.seed, interval_prob=args.interval_prob,
                    min_per_level=args.min_per_level, min_group=args.min_group)
-    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     with usage_errors():
         if method == "truth":
             say(f"fitting with ground truth: {len(with_truth)} ranges ({len(ranges) - len(with_truth)} "
@@ -81,6 +87,10 @@ def _run_fit(args) -> int:
             cmap = fit_marginal(preds, **options)
             cmap.fit.update(scenes_failed=len(errors), ranges_above_horizon=totals["skipped"],
                             scenes_not_converged=totals["not_converged"])
+    if not keep.all():
+        print(f"warning: confidence level(s) {', '.join(f'{c:g}' for c in levels[~keep])} left out (fewer than "
+              f"{args.min_per_level} ranges each): the map reads them between the levels kept, and is flat below "
+              f"{levels[keep][0]:g} and above {levels[keep][-1]:g}", file=sys.stderr)
     atomic_write_json(args.out, cmap.to_dict())
     if not args.quiet:
         print(format_map(cmap))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -165,6 +166,12 @@ def confidence_map_option(value: str | None, model: str):
                          f"stated confidences, got {value!r} (use --model metrology, or none)")
     if value in MAP_NAMES:
         return value
+    if not Path(value).exists():  # a typo of a name, or a file that is not there
+        from ..io.validation import near_miss
+
+        guess = near_miss(value, MAP_NAMES)
+        raise UsageError(f"--confidence-map: {value!r} is none of {', '.join(MAP_NAMES)} and no such file"
+                         + (f"; did you mean {guess!r}?" if guess else ""))
     with usage_errors("--confidence-map: ", ConfidenceMapError):
         return ConfidenceMap.load(value)
 

@@ -37,7 +37,7 @@ from scipy.special import expit, gammaln, logit
 
 from ...models.confidence_map import ConfidenceMap, CoverageCurve, interval_quantile
 
-__all__ = ["DOF_GRID", "MAX_LEVELS", "assign_levels", "fit_with_truth", "fit_marginal"]
+__all__ = ["DOF_GRID", "MAX_LEVELS", "assign_levels", "kept_levels", "fit_with_truth", "fit_marginal"]
 
 #: The shapes a fit chooses from: Student-t degrees of freedom, None for the normal.
 DOF_GRID = (1.0, 2.0, 3.0, 5.0, 10.0, 30.0, None)
@@ -60,6 +60,22 @@ def assign_levels(conf, max_levels: int = MAX_LEVELS) -> tuple[np.ndarray, np.nd
     used = np.unique(idx)
     idx = np.searchsorted(used, idx)
     return np.array([conf[idx == k].mean() for k in range(len(used))]), idx
+
+
+def kept_levels(conf, min_per_level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The levels of ``conf`` (:func:`assign_levels`), each range's level, the ranges per level and
+    which levels have at least ``min_per_level``. ValueError when none has, or when only one of
+    several has: a map of one level reads every other confidence as that one (it is flat outside
+    its levels)."""
+    levels, idx = assign_levels(conf)
+    n = np.bincount(idx, minlength=len(levels))
+    keep = n >= min_per_level
+    counts = ", ".join(f"{c:g}: {k}" for c, k in zip(levels, n))
+    if not keep.any() or (keep.sum() == 1 and len(levels) > 1):
+        raise ValueError(f"{'no' if not keep.any() else 'only one'} confidence level has {min_per_level} ranges or "
+                         f"more (--min-per-level; ranges per level {counts}): fit on more scenes, or lower "
+                         "--min-per-level")
+    return levels, idx, n, keep
 
 
 def _scene_index(ranges) -> tuple[np.ndarray, int]:
@@ -86,12 +102,9 @@ def _groups(ranges, min_group: int) -> dict[str, list[int]]:
 
 # -- with ground truth ------------------------------------------------------------------------------
 def _truth_curve(covered, conf, draws, rng, min_per_level, prob):
-    levels, idx = assign_levels(conf)
-    n = np.bincount(idx, minlength=len(levels)).astype(float)
+    levels, idx, n, keep = kept_levels(conf, min_per_level)
+    n = n.astype(float)
     k = np.bincount(idx, weights=covered.astype(float), minlength=len(levels))
-    keep = n >= min_per_level
-    if not keep.any():
-        raise ValueError(f"no confidence level has {min_per_level} ranges or more (--min-per-level)")
     n, k, levels = n[keep], k[keep], levels[keep]
     point = isotonic_regression(k / n, weights=n).x
     post = rng.beta(k + 0.5, n - k + 0.5, size=(draws, len(n)))
@@ -206,11 +219,7 @@ def _pava(tables: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _marginal_curve(table, conf, scene_idx, n_scenes, W, min_per_level, prob):
-    levels, idx = assign_levels(conf)
-    n = np.bincount(idx, minlength=len(levels))
-    keep = n >= min_per_level
-    if not keep.any():
-        raise ValueError(f"no confidence level has {min_per_level} ranges or more (--min-per-level)")
+    levels, idx, n, keep = kept_levels(conf, min_per_level)
     T = np.zeros((n_scenes, len(levels), table.shape[1]))
     np.add.at(T, (scene_idx, idx), table)
     T = T[:, keep]
