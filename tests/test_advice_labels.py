@@ -679,15 +679,26 @@ def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_aga
     assert "no request is answered yet: fill in the 'answer' column" in capsys.readouterr().err
     # an answer of a kind that comes back as an annotation is said, and nothing is written
     assert apply([dict(size, rank="4", kind="dims", answer="drawn")]) == 0
-    assert ("warning: requests row 4 (dims): answered, but only sizes and mountings are put in from requests.csv"
+    assert ("warning: requests row 4 (dims): answered, but only sizes, mountings and measurements without a "
+            "segment are put in from requests.csv; drawn lines and segments come back as annotations"
             in capsys.readouterr().err)
     assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
     assert apply([bad]) == 2  # a usage error, and nothing written
     assert "requests row 3 (size): expected 3 numbers" in capsys.readouterr().err
     assert before == {k: (advised_batch / "in" / f"f{k}.json").read_text() for k in range(3)}
-    assert apply([size]) == 0
+    # a target's length and the distance between two targets: no segment, answered in the csv
+    length = {"rank": "5", "key": "f2", "target": "t0", "kind": "reference", "measure": "length", "object": "t0",
+              "line_px": "", "answer": "4.1"}
+    pair = dict(length, rank="6", measure="distance", object="t1", answer="7.5")
+    assert apply([size, length, pair]) == 0
     f2 = load_scene(advised_batch / "in" / "f2.json")
     assert f2.targets[0].size_prior.source == "catalogue" and f2.targets[1].size_prior is None
+    added = [(r.measure, r.low, r.line) for r in f2.references[-2:]]
+    assert added == [("length", 4.1, None), ("distance", 7.5, None)]
+    assert f2.reference_targets[-1] == (0, 1)  # the pair term: between t0 and t1
+    text = (advised_batch / "in" / "f2.json").read_text()
+    assert apply([size, length, pair]) == 0  # the same answers again: nothing changes
+    assert (advised_batch / "in" / "f2.json").read_text() == text
     # batch re-estimates the one frame whose scene changed
     again = run_batch([advised_batch / "in"], out, LocalEngine(1),
                       BatchSettings(seed=0, sampling={"min_ess": 100, "max_steps": 400, "warmup": 200}))

@@ -1,11 +1,12 @@
 """Answers to the advice's requests, put into a scene: one more set of dimension lines, a target's
 size from a catalogue, the camera's mounting from its calibration (docs/advice.md, "The loop").
 
-Lines and references come back through the importers (a Label Studio or CVAT export, imported
-again, gives the scenes with the new annotations). A size or a mounting is not drawn: it is
-written in ``requests.csv``'s ``answer`` column and put into the scene files by
-:func:`apply_answers` (``creference advise BATCH_DIR --apply requests.csv``), as a prior the
-estimate then uses:
+Lines and references on a segment come back through the importers (a Label Studio or CVAT
+export, imported again, gives the scenes with the new annotations). What is not drawn is written
+in ``requests.csv``'s ``answer`` column and put into the scene files by :func:`apply_answers`
+(``creference advise BATCH_DIR --apply requests.csv``): a target's own length, or the distance
+between two targets, as a reference without a segment (:func:`with_measurement`); a size or a
+mounting as a prior the estimate then uses:
 
 - a size: the target's own ``size_prior`` (docs/scene_format.md), the product of the size prior
   it had (its class's) and the catalogue's size with spread :data:`CATALOGUE_LOG_SD`;
@@ -35,7 +36,7 @@ from ...models.size_priors import SizePrior
 
 __all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
            "MOUNTING_HEIGHT_RANGE_M", "MAX_MOUNTING_ANGLE_DEG", "ANSWER_FORMS", "with_dimension_lines", "with_size",
-           "with_mounting", "apply_answers"]
+           "with_mounting", "with_measurement", "apply_answers"]
 
 #: A size from a catalogue (a worker names the make and model): the spread of its log-length,
 #: -width and -height. Our assumption: one model name covers trims and years a few percent apart.
@@ -142,9 +143,38 @@ def with_mounting(scene, height_m: float, pitch_rad: float, roll_rad: float = 0.
     return dataclasses.replace(scene, orientation_prior=prior)
 
 
-#: ``requests.csv``'s ``answer`` column, per kind: what to write there.
+#: ``requests.csv``'s ``answer`` column, per kind: what to write there. A reference request without
+#: a segment (a target's own length, the distance between two targets) is answered there too;
+#: one on a segment comes back drawn, through an importer.
 ANSWER_FORMS = {"size": "length,width,height in metres (the catalogue's)",
-                "mounting": "height in metres,pitch in degrees,roll in degrees (the calibration's; pitch > 0 looks down)"}
+                "mounting": "height in metres,pitch in degrees,roll in degrees (the calibration's; pitch > 0 looks down)",
+                "reference": "the length or distance in metres (a request without a segment)"}
+
+
+def with_measurement(scene, measure: str, value_m: float, target_id: str, other_id: str | None = None,
+                     *, worker: str | None = None):
+    """``scene`` with a worker's measurement that needs no segment: ``target_id``'s own ``measure``
+    (``length``, ``width`` or ``height``), or with ``other_id`` the ground distance between the two
+    targets' bottom centres (``measure`` ``distance``), ``value_m`` metres (docs/scene_format.md,
+    references that name targets). The same measurement already in the scene is not added again."""
+    from ...io.scene import parse_scene, scene_to_dict
+
+    ids = [t.id for t in scene.targets]
+    for tid in (target_id, other_id):
+        if tid is not None and tid not in ids:
+            raise ValueError(f"target: no target {tid!r} in the scene (targets: {ids})")
+    if not (isinstance(value_m, numbers.Real) and math.isfinite(value_m) and value_m > 0):
+        raise ValueError(f"value: expected a length > 0 in metres, got {value_m!r}")
+    ref = {"measure": measure, "mode": "direct", "value": float(value_m), "unit": "m"}
+    ref.update({"targets": [target_id, other_id]} if other_id is not None else {"target": target_id})
+    if worker:
+        ref["worker"] = worker
+    d = scene_to_dict(scene)
+    same = {k: v for k, v in ref.items() if k != "worker"}
+    if any({k: r.get(k) for k in same} == same for r in d.get("references") or []):
+        return scene
+    d["references"] = [*(d.get("references") or []), ref]
+    return parse_scene(d, source=scene.source)
 
 
 def _numbers(text: str, n: int, where: str) -> list[float]:
@@ -159,12 +189,13 @@ def _numbers(text: str, n: int, where: str) -> list[float]:
 
 
 def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str]]:
-    """Put the answered size and mounting requests of ``rows`` (``requests.csv``'s rows, dicts; a
-    row is answered when its ``answer`` is filled in, :data:`ANSWER_FORMS`) into the scene files
-    the batch ``batch_dir`` was made from (each result's ``batch.source``), each file rewritten
-    atomically once. A mounting with a ``camera`` goes to every frame of that camera. Returns
-    (scene file, what was put in) per answer; an answered row of another kind (drawn lines, a
-    reference, a length, a distance: they come back through an importer) is said in ``notes``.
+    """Put the answered size, mounting and segment-less measurement requests of ``rows``
+    (``requests.csv``'s rows, dicts; a row is answered when its ``answer`` is filled in,
+    :data:`ANSWER_FORMS`) into the scene files the batch ``batch_dir`` was made from (each result's
+    ``batch.source``), each file rewritten atomically once. A mounting with a ``camera`` goes to
+    every frame of that camera. Returns (scene file, what was put in) per answer; an answered row
+    of a request that is drawn (lines, a reference on a segment: they come back through an
+    importer) is said in ``notes``.
     ``creference batch`` then re-estimates the frames whose scenes changed. Raises ValueError
     naming the row and the value on a bad answer; nothing is written then."""
     import json
@@ -193,10 +224,23 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
         where = f"requests row {row.get('rank', n)} ({kind})"
         if not answer:
             continue
-        if kind not in ANSWER_FORMS:
+        if kind not in ANSWER_FORMS or (kind == "reference" and row.get("line_px")):
             if notes is not None:
-                notes.append(f"{where}: answered, but only sizes and mountings are put in from requests.csv; "
-                             f"{kind} answers come back as annotations (a Label Studio or CVAT export, imported)")
+                notes.append(f"{where}: answered, but only sizes, mountings and measurements without a segment are "
+                             "put in from requests.csv; drawn lines and segments come back as annotations (a Label "
+                             "Studio or CVAT export, imported)")
+            continue
+        if kind == "reference":
+            source = scene_of(row.get("key"), where)
+            value = _numbers(answer, 1, where)[0]
+            measure, other = row.get("measure"), row.get("object") if row.get("measure") == "distance" else None
+            try:
+                scenes[source] = with_measurement(scenes[source], measure, value, row.get("target"), other,
+                                                  worker=row.get("worker") or None)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            what = f"distance {row.get('target')}–{other}" if other else f"{row.get('target')}: {measure}"
+            done.append((str(source), f"{what} {value:g} m"))
             continue
         if kind == "size":
             source = scene_of(row.get("key"), where)
