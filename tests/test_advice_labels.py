@@ -711,6 +711,36 @@ def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_aga
         assert math.degrees(p.pitch_mean) == pytest.approx(6.0, abs=0.1)
     assert load_scene(advised_batch / "in" / "f2.json").orientation_prior is None
 
+    # the drawn answers, as creference import writes them: the frame's scene without what the
+    # tools do not carry (its truth, its priors), with one more set of lines and one more reference
+    source = advised_batch / "in" / "f2.json"
+    before = load_scene(source)
+    imported = scene_to_dict(before)
+    for key in ("ground_truth",):
+        imported.pop(key, None)
+    for t in imported["targets"]:
+        t.pop("size_prior", None)
+        t.pop("ground_truth", None)
+    line = {"worker": "w-new", "corners": (np.asarray(imported["targets"][1]["dimension_lines"][0]["corners"])
+                                           + 1.5).tolist()}
+    imported["targets"][1]["dimension_lines"].append(line)
+    imported["references"].append({**imported["references"][0], "worker": "w-new", "value": 2.5})
+    imported["references"][-1].pop("range", None)
+    folder = advised_batch / "imported"
+    folder.mkdir()
+    (folder / "f2.json").write_text(json.dumps(imported))
+    (folder / "ghost.json").write_text(json.dumps(imported))
+    assert main(["advise", str(out), "--merge", str(folder), "--quiet"]) == 0
+    assert f"warning: {folder / 'ghost.json'}: no frame of {out} has this name or image; skipped" in (
+        capsys.readouterr().err)
+    after = load_scene(source)
+    assert len(after.targets[1].dimension_lines) == len(before.targets[1].dimension_lines) + 1
+    assert len(after.references) == len(before.references) + 1 and after.references[-1].low == 2.5
+    assert after.ground_truth == before.ground_truth and after.targets[0].size_prior == before.targets[0].size_prior
+    text = source.read_text()
+    assert main(["advise", str(out), "--merge", str(folder), "--quiet"]) == 0  # merged already: nothing new
+    assert source.read_text() == text
+
 
 def test_bad_advice_settings_are_named(capsys):
     with pytest.raises(ValueError, match="kinds: expected some of"):

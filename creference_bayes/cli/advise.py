@@ -149,7 +149,35 @@ def _apply(args) -> int:
     return 0
 
 
+def _merge(args) -> int:
+    from ..workflows.advice.answers import merge_annotations
+
+    if not Path(args.input).is_dir():
+        raise UsageError("--merge: INPUT must be the batch folder the requests are of")
+    folder = Path(args.merge)
+    if not folder.is_dir():
+        raise FileNotFoundError(2, "no such folder", str(folder))
+    files = sorted(folder.glob("*.json"))
+    if not files:
+        raise UsageError(f"--merge {folder}: no scene files (*.json): the folder creference import wrote")
+    notes: list[str] = []
+    with usage_errors(one_line=True):
+        done = merge_annotations(args.input, files, notes)
+    for note in notes:
+        print(f"warning: {note}", file=sys.stderr)
+    if not args.quiet:
+        for source, what in done:
+            print(f"{source}: {what}")
+        print(f"{len(done)} annotation{'s' if len(done) != 1 else ''} added to {len({s for s, _ in done})} scene "
+              "file(s); run creference batch on them again: it re-estimates the frames that changed")
+    return 0
+
+
 def _run(args) -> int:
+    if args.apply is not None and args.merge is not None:
+        raise UsageError("--apply and --merge: one at a time (--merge first: the answers drawn, then those written)")
+    if args.merge is not None:
+        return _merge(args)
     if args.apply is not None:
         return _apply(args)
     settings = _settings(args)
@@ -223,8 +251,13 @@ def register(subparsers) -> None:
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
                    help="how the Label Studio requests draw a segment, as the project's labelling "
                         "config does (default: %(default)s)")
+    p.add_argument("--merge", metavar="IMPORTED_DIR", default=None,
+                   help="a batch folder: add the dimension lines and references of the scenes creference "
+                        "import wrote from the answered requests (a Label Studio or CVAT export) that the "
+                        "batch's own scene files lack, and advise nothing (do this before --apply)")
     p.add_argument("--apply", metavar="REQUESTS_CSV", default=None,
-                   help="a batch folder: put the answered size and mounting requests of REQUESTS_CSV "
+                   help="a batch folder: put the answered sizes, mountings and measurements without a "
+                        "segment of REQUESTS_CSV "
                         "(its answer column) into the scene files the batch was made from, and advise "
                         "nothing")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")

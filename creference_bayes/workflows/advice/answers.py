@@ -36,7 +36,7 @@ from ...models.size_priors import SizePrior
 
 __all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
            "MOUNTING_HEIGHT_RANGE_M", "MAX_MOUNTING_ANGLE_DEG", "ANSWER_FORMS", "with_dimension_lines", "with_size",
-           "with_mounting", "with_measurement", "apply_answers"]
+           "with_mounting", "with_measurement", "apply_answers", "SAME_POINT_PX", "merge_annotations"]
 
 #: A size from a catalogue (a worker names the make and model): the spread of its log-length,
 #: -width and -height. Our assumption: one model name covers trims and years a few percent apart.
@@ -271,4 +271,77 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
             done.append((str(source), f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°"))
     for source in {s for s, _ in done}:
         atomic_write_json(Path(source), scene_to_dict(scenes[Path(source)]))
+    return done
+
+
+#: Two drawn points closer than this (pixels) are the same annotation (files round to 0.01 px).
+SAME_POINT_PX = 0.05
+
+
+def _ref_key(ref: dict) -> tuple:
+    """What makes two references of a scene dict the same measurement (not who or when)."""
+    line = ref.get("line")
+    rng = ref.get("range")
+    value = tuple(round(float(v), 6) for v in rng) if rng is not None else round(float(ref.get("value", 0.0)), 6)
+    return (ref.get("measure"), ref.get("mode"), ref.get("unit"), value, ref.get("target"),
+            tuple(ref.get("targets") or ()), None if line is None else np.round(np.asarray(line, float), 1).tobytes())
+
+
+def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tuple[str, str]]:
+    """Put the annotations of ``scenes`` (imported scene files: a Label Studio or CVAT export of
+    the advice's requests, through ``creference import``) that the batch's own scene files do not
+    hold yet into those files: each imported scene is the frame whose key (its file name) or
+    image it has; its targets' dimension lines and its references that the frame's scene lacks
+    (the same within :data:`SAME_POINT_PX` and the same values) are appended, and nothing else of
+    the frame's scene changes (its truth, priors, answers put in by :func:`apply_answers`). A scene
+    that is no frame of the batch, or a target the frame does not have, is said in ``notes``.
+    Returns (scene file, what was added) per file changed; each written atomically once."""
+    import json
+    from pathlib import Path, PurePath
+
+    from ...io.files import atomic_write_json, read_text
+    from ...io.scene import load_scene, parse_scene, scene_to_dict
+    from ..batch.files import result_paths
+
+    notes = notes if notes is not None else []
+    frames = {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
+              for key, path in result_paths(batch_dir, check=True).items()}
+    by_name = {PurePath(key).name: key for key in frames}
+    loaded = {key: load_scene(source) for key, source in frames.items()}
+    by_image = {PurePath(str(s.image_path)).name: key for key, s in loaded.items() if s.image_path is not None}
+    changed, done = {}, []
+    for path in scenes:
+        path = Path(path)
+        new = load_scene(path)
+        key = by_name.get(path.stem) or (by_image.get(PurePath(str(new.image_path)).name)
+                                         if new.image_path is not None else None)
+        if key is None:
+            notes.append(f"{path}: no frame of {batch_dir} has this name or image; skipped")
+            continue
+        d = changed.get(key) or scene_to_dict(loaded[key])
+        mine = {t["id"]: t for t in d["targets"]}
+        added = []
+        for t in scene_to_dict(new)["targets"]:
+            if t["id"] not in mine:
+                notes.append(f"{path}: target {t['id']!r} is not in frame {key!r}; left out")
+                continue
+            have = [np.asarray(x["corners"], float) for x in mine[t["id"]]["dimension_lines"]]
+            for line in t["dimension_lines"]:
+                corners = np.asarray(line["corners"], float)
+                if not any(np.max(np.abs(corners - h)) <= SAME_POINT_PX for h in have):
+                    mine[t["id"]]["dimension_lines"].append(line)
+                    have.append(corners)
+                    added.append(f"{t['id']}: a set of dimension lines")
+        keys = {_ref_key(r) for r in d.get("references") or []}
+        for ref in scene_to_dict(new).get("references") or []:
+            if _ref_key(ref) not in keys:
+                d["references"] = [*(d.get("references") or []), ref]
+                keys.add(_ref_key(ref))
+                added.append(f"a reference ({ref.get('measure')})")
+        if added:
+            changed[key] = d
+            done += [(str(frames[key]), what) for what in added]
+    checked = {key: parse_scene(d, source=frames[key]) for key, d in changed.items()}  # before anything is written
+    for key, scene in checked.items():
+        atomic_write_json(frames[key], scene_to_dict(scene))
     return done
