@@ -120,6 +120,22 @@ def _batch(args, settings, progress: bool) -> int:
     return 0
 
 
+def _into_scenes(args, put, noun: str, verb: str) -> int:
+    """Run ``put(notes)`` (--apply or --merge: it writes the batch's scene files and returns (file,
+    what) per change), its notes as warnings, then what changed and what to run next."""
+    notes: list[str] = []
+    with usage_errors(one_line=True):
+        done = put(notes)
+    for note in notes:
+        print(f"warning: {note}", file=sys.stderr)
+    if not args.quiet:
+        for source, what in done:
+            print(f"{source}: {what}")
+        print(f"{len(done)} {noun}{'s' if len(done) != 1 else ''} {verb} {len({s for s, _ in done})} scene file(s); "
+              "run creference batch on them again: it re-estimates the frames that changed")
+    return 0
+
+
 def _apply(args) -> int:
     import csv
 
@@ -136,17 +152,7 @@ def _apply(args) -> int:
     if not any((row.get("answer") or "").strip() for row in rows):
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/advice.md, the loop)")
-    notes: list[str] = []
-    with usage_errors(one_line=True):
-        done = apply_answers(args.input, rows, notes)
-    for note in notes:
-        print(f"warning: {note}", file=sys.stderr)
-    if not args.quiet:
-        for source, what in done:
-            print(f"{source}: {what}")
-        print(f"{len(done)} answer{'s' if len(done) != 1 else ''} put into {len({s for s, _ in done})} scene file(s); "
-              f"run creference batch on them again: it re-estimates the frames that changed")
-    return 0
+    return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into")
 
 
 def _merge(args) -> int:
@@ -160,17 +166,7 @@ def _merge(args) -> int:
     files = sorted(folder.glob("*.json"))
     if not files:
         raise UsageError(f"--merge {folder}: no scene files (*.json): the folder creference import wrote")
-    notes: list[str] = []
-    with usage_errors(one_line=True):
-        done = merge_annotations(args.input, files, notes)
-    for note in notes:
-        print(f"warning: {note}", file=sys.stderr)
-    if not args.quiet:
-        for source, what in done:
-            print(f"{source}: {what}")
-        print(f"{len(done)} annotation{'s' if len(done) != 1 else ''} added to {len({s for s, _ in done})} scene "
-              "file(s); run creference batch on them again: it re-estimates the frames that changed")
-    return 0
+    return _into_scenes(args, lambda notes: merge_annotations(args.input, files, notes), "annotation", "added to")
 
 
 def _run(args) -> int:

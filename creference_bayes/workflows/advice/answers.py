@@ -278,13 +278,19 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
 SAME_POINT_PX = 0.05
 
 
-def _ref_key(ref: dict) -> tuple:
-    """What makes two references of a scene dict the same measurement (not who or when)."""
-    line = ref.get("line")
-    rng = ref.get("range")
-    value = tuple(round(float(v), 6) for v in rng) if rng is not None else round(float(ref.get("value", 0.0)), 6)
-    return (ref.get("measure"), ref.get("mode"), ref.get("unit"), value, ref.get("target"),
-            tuple(ref.get("targets") or ()), None if line is None else np.round(np.asarray(line, float), 1).tobytes())
+def _same_reference(a: dict, b: dict) -> bool:
+    """Whether two references of scene dicts are the same measurement (not who or when): the same
+    measure, mode, unit, value or range and targets, and segments within :data:`SAME_POINT_PX`."""
+    def key(ref):
+        rng = ref.get("range")
+        value = tuple(round(float(v), 6) for v in rng) if rng is not None else round(float(ref.get("value", 0.0)), 6)
+        return (ref.get("measure"), ref.get("mode"), ref.get("unit"), value, ref.get("target"),
+                tuple(ref.get("targets") or ()))
+
+    la, lb = a.get("line"), b.get("line")
+    if key(a) != key(b) or (la is None) != (lb is None):
+        return False
+    return la is None or float(np.max(np.abs(np.asarray(la, float) - np.asarray(lb, float)))) <= SAME_POINT_PX
 
 
 def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tuple[str, str]]:
@@ -332,11 +338,9 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
                     mine[t["id"]]["dimension_lines"].append(line)
                     have.append(corners)
                     added.append(f"{t['id']}: a set of dimension lines")
-        keys = {_ref_key(r) for r in d.get("references") or []}
         for ref in scene_to_dict(new).get("references") or []:
-            if _ref_key(ref) not in keys:
+            if not any(_same_reference(ref, r) for r in d.get("references") or []):
                 d["references"] = [*(d.get("references") or []), ref]
-                keys.add(_ref_key(ref))
                 added.append(f"a reference ({ref.get('measure')})")
         if added:
             changed[key] = d
