@@ -82,6 +82,7 @@ def test_a_frames_calibrated_mounting_is_multiplied_into_the_pooled_one_not_repl
     assert math.log(got.height_median_m) == pytest.approx(
         (w0 * math.log(pooled.height_median_m) + w1 * math.log(own.height_median_m)) / (w0 + w1))
     assert got.pitch_sd < min(pooled.pitch_sd, own.pitch_sd) and got.source == "calibration"
+    assert "roll" not in est.center and got.roll_sd == own.roll_sd  # not pooled: the calibration's, counted once
     assert 1.6 < got.height_median_m < 1.70  # the calibration (2 %) outweighs the pool
 
 
