@@ -654,6 +654,20 @@ def test_needs_annotation_carries_the_advices_verdicts(advised_batch, tmp_path):
     assert below == {(r["scene"], r["target"]) for r in rows}
 
 
+def test_the_label_studio_requests_load_their_images_by_the_prefix_and_hide_the_truth(advised_batch):
+    out = advised_batch / "out"
+    assert main(["advise", str(out), "--draws", "100", "--futures", "20", "--min-good-per-hour", "0", "--quiet",
+                 "--out", str(advised_batch / "urls"), "--image-url-prefix", "/data/local-files/?d=frames/"]) == 0
+    tasks = json.loads((advised_batch / "urls" / "label_studio_requests.json").read_text())
+    assert tasks and all(t["data"]["image"] == f"/data/local-files/?d=frames/{t['data']['request_key']}.jpg"
+                         for t in tasks)  # the scenes name no image: KEY.jpg, as requests.csv's image column
+    plain = json.loads((out / "advice" / "label_studio_requests.json").read_text())
+    assert [t["data"]["request_candidate"] for t in plain] == [t["data"]["request_candidate"] for t in tasks]
+    assert all(t["data"]["image"] == "" for t in plain)
+    assert "ground_truth" in json.loads((advised_batch / "in" / "f0.json").read_text())
+    assert "ground_truth" not in json.dumps(tasks)  # workers could read it in the tool
+
+
 def test_answers_go_into_the_scene_files_and_only_those_frames_are_estimated_again(advised_batch, capsys):
     """Last in this file: it changes the batch the tests above read."""
     from creference_bayes.io.scene import load_scene

@@ -92,7 +92,8 @@ def _batch(args, settings, progress: bool) -> int:
     with usage_errors(one_line=True):
         batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
                              progress=progress)
-    paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines)
+    paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines,
+                               image_url_prefix=args.image_url_prefix)
     if not args.quiet:
         rows = request_rows(batch, args.budget)
         for r in rows[:10]:
@@ -247,6 +248,10 @@ def register(subparsers) -> None:
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
                    help="how the Label Studio requests draw a segment, as the project's labelling "
                         "config does (default: %(default)s)")
+    p.add_argument("--image-url-prefix", metavar="PREFIX", default=None,
+                   help="a batch folder: the Label Studio request tasks load each image from PREFIX "
+                        "followed by its file name (e.g. /data/local-files/?d=frames/ for Label Studio's "
+                        "local files; default: the scene's image path)")
     p.add_argument("--merge", metavar="IMPORTED_DIR", default=None,
                    help="a batch folder: add the dimension lines and references of the scenes creference "
                         "import wrote from the answered requests (a Label Studio or CVAT export) that the "

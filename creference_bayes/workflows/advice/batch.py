@@ -334,8 +334,9 @@ def _rows(plan: list[Request]) -> list[dict]:
 
 
 def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float | None = None,
-                       lines: str = "keypoints") -> dict[str, Path]:
-    """Write the advice files (module docstring) to ``out``; returns their paths by name."""
+                       lines: str = "keypoints", image_url_prefix: str | None = None) -> dict[str, Path]:
+    """Write the advice files (module docstring) to ``out``; returns their paths by name.
+    ``image_url_prefix``: the Label Studio tasks' image URLs (:func:`~.requests.label_studio_requests`)."""
     from .requests import cvat_requests, label_studio_requests
 
     out = Path(out)
@@ -366,6 +367,7 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(paths["requests"], buf.getvalue())
-    atomic_write_text(paths["label_studio"], json.dumps(label_studio_requests(requested, lines=lines), indent=1) + "\n")
+    tasks = label_studio_requests(requested, lines=lines, image_url_prefix=image_url_prefix)
+    atomic_write_text(paths["label_studio"], json.dumps(tasks, indent=1) + "\n")
     atomic_write_text(paths["cvat"], cvat_requests(requested))
     return paths

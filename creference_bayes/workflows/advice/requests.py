@@ -67,13 +67,27 @@ def _segment_results(rid: str, candidate, width: int, height: int, lines: str) -
     return out
 
 
-def label_studio_requests(requests, *, lines: str = "keypoints", start_id: int = 1) -> list[dict]:
-    """Label Studio tasks for ``requests``, a list of (key, scene, candidate) (module docstring)."""
+def _without_truth(d: dict) -> dict:
+    """A scene dict without its ground truth: a task's data is shown in the labelling tool."""
+    d = {k: v for k, v in d.items() if k != "ground_truth"}
+    d["targets"] = [{k: v for k, v in t.items() if k != "ground_truth"} for t in d["targets"]]
+    return d
+
+
+def label_studio_requests(requests, *, lines: str = "keypoints", start_id: int = 1,
+                          image_url_prefix: str | None = None) -> list[dict]:
+    """Label Studio tasks for ``requests``, a list of (key, scene, candidate) (module docstring).
+
+    A task's ``image`` is ``image_url_prefix`` followed by the image's file name
+    (:func:`image_name`), the URL the labelling tool loads it from (e.g. ``/data/local-files/?d=frames/``
+    for Label Studio's local files); without a prefix, the scene's image path. The scene in a task
+    (its data and ``creference_scene``) leaves out any ground truth: workers could see it."""
     tasks = []
     for k, (key, scene, cand) in enumerate(requests):
         task_id = start_id + k
-        d = scene_to_dict(scene)
-        task = {"id": task_id, "data": {**task_data(d), **request_fields(key, cand), "creference_scene": d}}
+        d = _without_truth(scene_to_dict(scene))
+        url = None if image_url_prefix is None else f"{image_url_prefix}{image_name(scene, key)}"
+        task = {"id": task_id, "data": {**task_data(d, url), **request_fields(key, cand), "creference_scene": d}}
         if cand.kind == "reference" and cand.line is not None:
             task["predictions"] = [{"model_version": "creference-advice", "result": _segment_results(
                 f"request{task_id}", cand, scene.image_width, scene.image_height, lines)}]
