@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -654,10 +655,19 @@ def test_needs_annotation_carries_the_advices_verdicts(advised_batch, tmp_path):
     assert below == {(r["scene"], r["target"]) for r in rows}
 
 
-def test_the_label_studio_requests_load_their_images_by_the_prefix_and_hide_the_truth(advised_batch):
+def test_the_label_studio_requests_load_their_images_by_the_prefix_and_hide_the_truth(advised_batch, capsys):
     out = advised_batch / "out"
-    assert main(["advise", str(out), "--draws", "100", "--futures", "20", "--min-good-per-hour", "0", "--quiet",
-                 "--out", str(advised_batch / "urls"), "--image-url-prefix", "/data/local-files/?d=frames/"]) == 0
+    failed = out / "errors" / "f9.json"  # a frame the batch could not estimate (and no earlier result)
+    failed.parent.mkdir(exist_ok=True)
+    failed.write_text(json.dumps({"format": "creference-batch-error/1", "key": "f9", "error": "SceneError: …"}))
+    try:
+        assert main(["advise", str(out), "--draws", "100", "--futures", "20", "--min-good-per-hour", "0",
+                     "--out", str(advised_batch / "urls"), "--image-url-prefix", "/data/local-files/?d=frames/"]) == 0
+    finally:
+        failed.unlink()
+    printed = capsys.readouterr().out
+    assert f"0 skipped, 1 frame not advised (failed in the batch: {out / 'errors'}); wrote" in printed
+    assert re.search(r"\([+-]\d+\.\d\d good labels, [+-]\d+\.\d\d/h\)", printed) and "+-" not in printed, printed
     tasks = json.loads((advised_batch / "urls" / "label_studio_requests.json").read_text())
     assert tasks and all(t["data"]["image"] == f"/data/local-files/?d=frames/{t['data']['request_key']}.jpg"
                          for t in tasks)  # the scenes name no image: KEY.jpg, as requests.csv's image column

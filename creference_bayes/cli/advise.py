@@ -100,13 +100,17 @@ def _batch(args, settings, progress: bool) -> int:
             where = f"{r['key']}  {r['target']}" if r["kind"] != "mounting" else \
                 f"camera {r['camera'] or r['key']} ({r['frames']} frame{'s' if r['frames'] != 1 else ''})"
             minutes = max(float(r["seconds"]), 1e-9) / 60.0
-            gain = (f"+{float(r['good_gain']):.2f} good labels, {float(r['good_per_hour']):.2f}/h"
-                    if settings.objective == "labels" else f"+{float(r['gain_pts_per_minute']):.3f} points/min"
+            gain = (f"{float(r['good_gain']):+.2f} good labels, {float(r['good_per_hour']):+.2f}/h"
+                    if settings.objective == "labels" else f"{float(r['gain_pts_per_minute']):+.3f} points/min"
                     if settings.objective == "hdi" else
-                    f"+{float(r['location_gain_pts']) / minutes:.3f} location-sd points/min")
+                    f"{float(r['location_gain_pts']) / minutes:+.3f} location-sd points/min")
             print(f"{r['rank']:>4}  {where}  {r['request']}  ({gain})")
         if len(rows) > 10:
             print(f"      … {len(rows) - 10} more in {paths['requests']}")
+        errors = Path(args.input) / "errors"
+        results = Path(args.input) / "results"  # a frame that failed and has no earlier result: not advised
+        failed = [p for p in sorted(errors.rglob("*.json")) if not p.name.startswith(".")
+                  and not (results / p.relative_to(errors)).exists()] if errors.is_dir() else []
         good = sum(bool(o.advice.good[o.target]) for o in batch.objects)
         stuck = sum(o.advice.verdicts()[o.target]["verdict"] == "none" for o in batch.objects)
         print(f"{len(batch.objects)} targets advised: {good} labels good (P(IoU >= {settings.iou_threshold:g}) >= "
@@ -114,8 +118,10 @@ def _batch(args, settings, progress: bool) -> int:
               f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time, "
               f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good, "
               f"{sum(float(r['good_loss']) for r in rows):.1f} good ones to fall below the bar); "
-              f"{len(batch.skipped)} skipped; wrote {out} (advice.json, requests.csv, "
-              f"label_studio_requests.json, cvat_requests.xml)")
+              f"{len(batch.skipped)} skipped"
+              + (f", {len(failed)} frame{'s' * (len(failed) != 1)} not advised (failed in the batch: {errors})"
+                 if failed else "")
+              + f"; wrote {out} (advice.json, requests.csv, label_studio_requests.json, cvat_requests.xml)")
         for s in batch.skipped:
             print(f"skipped: {s['key']}: {s['reason']}", file=sys.stderr)
     return 0
