@@ -135,7 +135,8 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
             continue
         if part is not None:
             image = part.data.get("image")
-            request = task.get("data", {}).get("request_key") if "creference_scene" in task.get("data", {}) else None
+            raw = part.task["data"]
+            request = raw.get("request_key") if "creference_scene" in raw else None
             if request is not None:  # the answered requests of one frame make one scene: the frame's
                 key = ("request", str(request))
             else:

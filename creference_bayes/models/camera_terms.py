@@ -22,7 +22,8 @@ Horizon measurement
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -141,6 +142,26 @@ class OrientationPrior:
         return (0.5 * ((np.asarray(pitch) - self.pitch_mean) / self.pitch_sd) ** 2
                 + 0.5 * ((np.asarray(roll) - self.roll_mean) / self.roll_sd) ** 2
                 + 0.5 * z**2 + np.log(h))
+
+    def times(self, other: "OrientationPrior", names=("height", "pitch", "roll"),
+              source: str | None = None) -> "OrientationPrior":
+        """The product of this prior and ``other`` (normal densities in log height, pitch and roll)
+        for the quantities ``names``; the others stay this prior's. ``source`` labels the product."""
+        def product(m0, s0, m1, s1):
+            w0, w1 = s0 ** -2, s1 ** -2
+            return float((w0 * m0 + w1 * m1) / (w0 + w1)), float((w0 + w1) ** -0.5)
+
+        kw = {"source": source}
+        if "height" in names:
+            log_h, sd = product(math.log(self.height_median_m), self.height_log_sd,
+                                math.log(other.height_median_m), other.height_log_sd)
+            kw.update(height_median_m=math.exp(log_h), height_log_sd=sd)
+        for n in ("pitch", "roll"):
+            if n in names:
+                mean, sd = product(getattr(self, f"{n}_mean"), getattr(self, f"{n}_sd"),
+                                   getattr(other, f"{n}_mean"), getattr(other, f"{n}_sd"))
+                kw.update({f"{n}_mean": mean, f"{n}_sd": sd})
+        return replace(self, **kw)
 
     def to_dict(self) -> dict:
         out = {k: float(np.degrees(getattr(self, k))) for k in ("pitch_mean", "pitch_sd", "roll_mean", "roll_sd")}

@@ -31,7 +31,7 @@ import numbers
 
 import numpy as np
 
-from ...models.camera_terms import DEFAULT_ORIENTATION_PRIOR
+from ...models.camera_terms import DEFAULT_ORIENTATION_PRIOR, OrientationPrior
 from ...models.size_priors import SizePrior
 
 __all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
@@ -134,13 +134,9 @@ def with_mounting(scene, height_m: float, pitch_rad: float, roll_rad: float = 0.
     p = scene.orientation_prior or DEFAULT_ORIENTATION_PRIOR
     if p.source == "calibration":  # an earlier calibration is replaced, not multiplied into
         p = DEFAULT_ORIENTATION_PRIOR
-    log_h, h_sd = _product(math.log(p.height_median_m), p.height_log_sd, math.log(height_m), sd["log_height"])
-    pitch, pitch_sd = _product(p.pitch_mean, p.pitch_sd, pitch_rad, sd["pitch"])
-    roll, roll_sd = _product(p.roll_mean, p.roll_sd, roll_rad, sd["roll"])
-    prior = dataclasses.replace(p, height_median_m=float(math.exp(log_h)), height_log_sd=float(h_sd),
-                                pitch_mean=float(pitch), pitch_sd=float(pitch_sd), roll_mean=float(roll),
-                                roll_sd=float(roll_sd), source="calibration")
-    return dataclasses.replace(scene, orientation_prior=prior)
+    calibration = OrientationPrior(pitch_mean=pitch_rad, pitch_sd=sd["pitch"], roll_mean=roll_rad, roll_sd=sd["roll"],
+                                   height_median_m=height_m, height_log_sd=sd["log_height"])
+    return dataclasses.replace(scene, orientation_prior=p.times(calibration, source="calibration"))
 
 
 #: ``requests.csv``'s ``answer`` column, per kind: what to write there. A reference request without
@@ -188,6 +184,18 @@ def _numbers(text: str, n: int, where: str) -> list[float]:
     return values
 
 
+def _frame_sources(batch_dir) -> dict:
+    """KEY → the scene file each frame of the batch folder was made from (its result's ``batch.source``)."""
+    import json
+    from pathlib import Path
+
+    from ...io.files import read_text
+    from ..batch.files import result_paths
+
+    return {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
+            for key, path in result_paths(batch_dir, check=True).items()}
+
+
 def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str]]:
     """Put the answered size, mounting and segment-less measurement requests of ``rows``
     (``requests.csv``'s rows, dicts; a row is answered when its ``answer`` is filled in,
@@ -198,17 +206,12 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
     importer) is said in ``notes``.
     ``creference batch`` then re-estimates the frames whose scenes changed. Raises ValueError
     naming the row and the value on a bad answer; nothing is written then."""
-    import json
     from pathlib import Path
 
-    from ...io.files import atomic_write_json, read_text
+    from ...io.files import atomic_write_json
     from ...io.scene import load_scene, scene_to_dict
 
-    from ..batch.files import result_paths
-
-    # key -> the scene file the frame was made from
-    frames = {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
-              for key, path in result_paths(batch_dir).items()}
+    frames = _frame_sources(batch_dir)
     scenes, done = {}, []
 
     def scene_of(key, where):
@@ -302,16 +305,13 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
     the frame's scene changes (its truth, priors, answers put in by :func:`apply_answers`). A scene
     that is no frame of the batch, or a target the frame does not have, is said in ``notes``.
     Returns (scene file, what was added) per file changed; each written atomically once."""
-    import json
     from pathlib import Path, PurePath
 
-    from ...io.files import atomic_write_json, read_text
+    from ...io.files import atomic_write_json
     from ...io.scene import load_scene, parse_scene, scene_to_dict
-    from ..batch.files import result_paths
 
     notes = notes if notes is not None else []
-    frames = {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
-              for key, path in result_paths(batch_dir, check=True).items()}
+    frames = _frame_sources(batch_dir)
     by_name = {PurePath(key).name: key for key in frames}
     loaded = {key: load_scene(source) for key, source in frames.items()}
     by_image = {PurePath(str(s.image_path)).name: key for key, s in loaded.items() if s.image_path is not None}

@@ -237,7 +237,10 @@ def apply_rig(scene, frames: list[SharedLikelihood] | RigPool, rig: str, key: st
     focal, orientation = rig_priors(est, scene.orientation_prior)
     own = scene.orientation_prior
     if orientation is not None and own is not None and own.source == "calibration":
-        orientation = _with_calibration(orientation, own, set(est.center))
+        # the other frames' evidence does not replace the answer (advise --apply): for the quantities
+        # the rig pooled, the product with it (the others are the calibration's already)
+        pooled = {"log_height": "height", "pitch": "pitch", "roll": "roll"}
+        orientation = orientation.times(own, [pooled[n] for n in est.center if n in pooled], source="calibration")
     if scene.focal_length_px is not None:  # a known focal length needs no prior
         focal = None
     if focal is None and orientation is None:
@@ -246,27 +249,6 @@ def apply_rig(scene, frames: list[SharedLikelihood] | RigPool, rig: str, key: st
     if orientation is not None:
         changes["orientation_prior"] = orientation
     return replace(scene, camera_id=camera_id, **changes), est
-
-
-def _with_calibration(pooled, calibration, names):
-    """The product of a frame's pooled mounting prior and the mounting its camera's calibration
-    gave it (``advise --apply``), for the quantities the rig pooled (``names``; the others are the
-    calibration's already): the other frames' evidence does not replace the answer."""
-    def product(m0, s0, m1, s1):
-        w0, w1 = s0 ** -2, s1 ** -2
-        return (w0 * m0 + w1 * m1) / (w0 + w1), (w0 + w1) ** -0.5
-
-    kw = {"source": "calibration"}
-    if "log_height" in names:
-        log_h, h_sd = product(math.log(pooled.height_median_m), pooled.height_log_sd,
-                              math.log(calibration.height_median_m), calibration.height_log_sd)
-        kw.update(height_median_m=math.exp(log_h), height_log_sd=h_sd)
-    for n in ("pitch", "roll"):
-        if n in names:
-            mean, sd = product(getattr(pooled, f"{n}_mean"), getattr(pooled, f"{n}_sd"),
-                               getattr(calibration, f"{n}_mean"), getattr(calibration, f"{n}_sd"))
-            kw.update({f"{n}_mean": mean, f"{n}_sd": sd})
-    return replace(pooled, **kw)
 
 
 def rig_report(est: RigEstimate | None) -> dict | None:
