@@ -18,6 +18,7 @@ import numpy as np
 from .camera_setup import setup_camera
 from .io.scene import Scene, load_scene, parse_scene
 from .models.contract import ObjectData
+from .models.location_prior import LocationPrior
 from .models.metrology import ReferenceTerm
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "estimate", "build_model", "rebuild_model", "map_state",
@@ -29,7 +30,8 @@ MODELS = ("metrology", "paper")
 DEFAULT_MODEL = "metrology"
 #: Model options a user may set, by model (the result's provenance records them).
 MODEL_OPTIONS = {"metrology": ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading",
-                               "ground_sd_m", "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad"),
+                               "ground_sd_m", "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad",
+                               "ref_scale_median", "ref_scale_log_sd"),
                  "paper": ("sigma", "on")}
 #: The model options whose values are words, not numbers.
 _WORD_OPTIONS = ("line_reading", "on")
@@ -120,8 +122,8 @@ def reference_terms(scene: Scene) -> list[ReferenceTerm]:
 
 
 def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "default", orientation: str = "auto",
-                focal_prior="auto", orientation_prior=None, location_prior: str = "auto", classes=None,
-                use_references: bool = True, confidence_map="default", bounds=None, **options):
+                focal_prior="auto", orientation_prior=None, location_prior: str = "auto", distance_range=None,
+                classes=None, use_references: bool = True, confidence_map="default", bounds=None, **options):
     """The model of ``scene`` and its camera set-up.
 
     Parameters
@@ -134,6 +136,8 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the paper
         presets, whose method has no prior), or a name of
         :data:`~.models.location_prior.LOCATION_PRIORS`
+    distance_range : (low, high) metres: the ground distances the data set's targets stand at
+        (the location prior falls softly outside them, :mod:`~.models.location_prior`), or None
     classes : size priors of the user's own classes (a scene's own win)
     use_references : use the workers' references
     confidence_map : how ranges stated with a confidence are read (metrology model):
@@ -153,6 +157,8 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
         raise ValueError(f"{model} model: unknown option(s) {unknown} (expected some of {list(MODEL_OPTIONS[model])})")
     if location_prior == "auto":
         location_prior = "log-depth" if preset == "default" else "flat"
+    if distance_range is not None:
+        location_prior = LocationPrior(location_prior, distance_range)
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior, orientation_prior=orientation_prior,
                          location_prior=location_prior)
     bounds = bounds if bounds is not None else preset_bounds(preset, scene.image_size)
@@ -199,8 +205,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
              posterior: bool = True, restarts: int | None = None, temperature: float | None = None,
              hdi_prob: float = 0.9, sampling: dict | None = None, progress: bool = False, orientation: str = "auto",
              focal_prior="auto", orientation_prior=None, classes=None, confidence_map="default",
-             location_prior: str = "auto", bounds=None, use_references: bool = True, keep_draws: int | None = None,
-             **options):
+             location_prior: str = "auto", distance_range=None, bounds=None, use_references: bool = True,
+             keep_draws: int | None = None, **options):
     """Estimate every target of a scene and its camera.
 
     Parameters
@@ -219,8 +225,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
     hdi_prob : probability of the reported highest-density intervals
     sampling : sampler settings (:class:`~.inference.sampler.SamplerSettings` fields)
     progress : progress bars on standard error
-    orientation, focal_prior, orientation_prior, classes, confidence_map, location_prior, bounds,
-    use_references, options : the model (:func:`build_model`)
+    orientation, focal_prior, orientation_prior, classes, confidence_map, location_prior,
+    distance_range, bounds, use_references, options : the model (:func:`build_model`)
     keep_draws : posterior draws the result keeps (``draws``; 0: none); default
         :data:`~.io.result.RESULT_DRAWS`
 
@@ -239,8 +245,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
     with single_threaded_blas():
         t0 = time.perf_counter()
         m, setup = build_model(scene, model=model, preset=preset, orientation=orientation, focal_prior=focal_prior,
-                               orientation_prior=orientation_prior, location_prior=location_prior, classes=classes,
-                               use_references=use_references, confidence_map=confidence_map, bounds=bounds, **options)
+                               orientation_prior=orientation_prior, location_prior=location_prior,
+                               distance_range=distance_range, classes=classes, use_references=use_references, confidence_map=confidence_map, bounds=bounds, **options)
         T = m.default_temperature if temperature is None else float(temperature)
         map_est = optimize(m, preset=preset, temperature=T, rng=rng, restarts=restarts, progress=progress)
         draws = diag = None
@@ -266,6 +272,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                       "sampling": dict(sampling or {}), "confidence_map": _describe_map(m),
                       "classes": {k: v.to_dict() for k, v in (classes or {}).items()},
                       "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
+        if m.location.distance_m is not None:  # recorded only when given: earlier results read the same
+            provenance["distance_range_m"] = list(m.location.distance_m)
         return Result.build(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
                             seconds=time.perf_counter() - t0, notes=notes,
                             keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
@@ -318,7 +326,8 @@ def rebuild_model(result, scene: Scene | str | Path):
     model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
-                           location_prior=prov.get("location_prior", "flat"), classes=classes,
+                           location_prior=prov.get("location_prior", "flat"),
+                           distance_range=prov.get("distance_range_m"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
                            bounds=_bounds_from(prov.get("bounds")), **options)
     model.handedness = np.array([o["handedness"] for o in d["objects"]], float)

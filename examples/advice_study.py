@@ -99,6 +99,11 @@ _CAMERAS = "setting"
 _MODEL_OPTIONS: dict = {}
 #: Further settings of every estimate (``own``: the box of the model's own scenes as the bounds).
 _ESTIMATE_KW: dict = {}
+#: What-if settings of ``predict`` (recorded with the options): ``distance_range`` (every estimate
+#: told where the scenes' targets stand: "setting", the simulator's range for the scene's setting,
+#: or [low, high] m) and ``reference_px`` (the simulated crowd's reference endpoint noise, px,
+#: instead of its tier's).
+_WHAT_IF: dict = {}
 #: Every estimate's CPU seconds and convergence since the last record was written.
 _COSTS: list[dict] = []
 
@@ -115,8 +120,14 @@ def _parse(d):
     return scene if _FOCAL_PRIOR is None else dataclasses.replace(scene, focal_prior=_FOCAL_PRIOR)
 
 
+def _tier(name: str):
+    """The simulator's noise tier ``name``, with the endpoint noise of ``--reference-px`` if given."""
+    tier = TIERS[name]
+    return tier if "reference_px" not in _WHAT_IF else dataclasses.replace(tier, reference_px=_WHAT_IF["reference_px"])
+
+
 def _scene(seed: int, k: int, tier: str, setting: str | None, n_objects: int = 1):
-    return _parse(simulate_scene(np.random.default_rng([seed, k]), tier=tier, setting=setting, n_objects=n_objects,
+    return _parse(simulate_scene(np.random.default_rng([seed, k]), tier=_tier(tier), setting=setting, n_objects=n_objects,
                                  n_target_annotations=N_TARGET_POOL, n_references=N_REF_POOL, format_offset=k,
                                  cameras=_CAMERAS))
 
@@ -144,7 +155,7 @@ def _second_worker(pool, j: int, rng) -> tuple[Reference, object]:
     the true segment with the tier's endpoint noise, the true length times the tier's measurement
     error, stated in reference j's format and unit (as bench/simulate.py does)."""
     gt = pool.ground_truth
-    tier = TIERS[gt["tier"]]
+    tier = _tier(gt["tier"])
     ref = pool.references[j]
     line = np.asarray(gt["reference_lines_px"][j], float) + rng.normal(0.0, tier.reference_px, (2, 2))
     line[:, 0] = np.clip(line[:, 0], 0, pool.image_width)
@@ -179,7 +190,7 @@ def _estimate(scene, seed, min_ess):
         warnings.simplefilter("always")
         try:
             r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, keep_draws=2000, **_MODEL_OPTIONS,
-                         **_ESTIMATE_KW)
+                         **_ESTIMATE_KW, **_distance_range(scene))
         except RuntimeError as exc:  # no MAP found: the scene is left out, the failure recorded
             _COSTS.append({"cpu_s": time.process_time() - t0, "converged": False, "overflow_warnings": 0,
                            "failed": " ".join(str(exc).split())})
@@ -271,10 +282,23 @@ def _done(path: Path) -> set:
 
 
 def _other_options() -> dict:
-    """The model options of ``--option`` (as a result records them: an infinite one as "inf")."""
+    """The model options of ``--option`` (as a result records them: an infinite one as "inf") and
+    the what-if settings (:data:`_WHAT_IF`)."""
     from creference_bayes.pipeline import option_record
 
-    return {k: option_record(v) for k, v in sorted(_MODEL_OPTIONS.items()) if k != "line_reading"}
+    return {**{k: option_record(v) for k, v in sorted(_MODEL_OPTIONS.items()) if k != "line_reading"}, **_WHAT_IF}
+
+
+def _distance_range(scene) -> dict:
+    """The ``distance_range`` keyword of a scene's estimates (:data:`_WHAT_IF`), or none."""
+    given = _WHAT_IF.get("distance_range")
+    if given is None:
+        return {}
+    if given == "setting":
+        from creference_bayes.bench.simulate import SETTINGS
+
+        return {"distance_range": SETTINGS[scene.ground_truth["setting"]]["distance"]}
+    return {"distance_range": tuple(given)}
 
 
 def _append(path: Path, record: dict) -> None:
@@ -824,6 +848,12 @@ def main(argv=None) -> None:
                                 "--option has it (repeatable), e.g. ref_dof=30 for a crowd without heavy tails")
         if name == "predict":
             s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
+            s.add_argument("--distance-range", default=None, metavar="setting|LOW,HIGH",
+                           help="what if every estimate knew where the targets stand (creference estimate "
+                                "--distance-range): the simulator's range of each scene's setting, or LOW,HIGH m")
+            s.add_argument("--reference-px", type=float, default=None, metavar="PX",
+                           help="what if the simulated crowd drew reference segments with this endpoint noise "
+                                "(px; 0: exact segments) instead of its tier's")
         if name == "own":
             s.add_argument("--sets", default="1,2,3,5", type=_sets_arg,
                            help="the starting point's numbers of sets, one drawn per scene (default: %(default)s)")
@@ -837,6 +867,20 @@ def main(argv=None) -> None:
     _CAMERAS = getattr(args, "cameras", "setting")
     _MODEL_OPTIONS.clear()
     _ESTIMATE_KW.clear()
+    _WHAT_IF.clear()
+    if getattr(args, "distance_range", None):
+        if args.distance_range == "setting":
+            _WHAT_IF["distance_range"] = "setting"
+        else:
+            try:
+                lo, hi = (float(v) for v in args.distance_range.split(","))
+            except ValueError:
+                p.error(f"--distance-range: expected setting or LOW,HIGH, got {args.distance_range!r}")
+            _WHAT_IF["distance_range"] = [lo, hi]
+    if getattr(args, "reference_px", None) is not None:
+        if not args.reference_px >= 0:
+            p.error(f"--reference-px: expected a number of pixels >= 0, got {args.reference_px!r}")
+        _WHAT_IF["reference_px"] = args.reference_px
     if getattr(args, "line_reading", "linear") != "linear":
         _MODEL_OPTIONS["line_reading"] = args.line_reading
     if getattr(args, "option", None):

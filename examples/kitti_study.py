@@ -48,12 +48,22 @@ import numpy as np
 
 def _model_options(pairs, parser) -> dict:
     """``KEY=VALUE`` strings → metrology model options (:func:`~creference_bayes.pipeline.parse_model_options`)
-    and ``location_prior``."""
+    and ``location_prior`` and ``distance_range=LOW,HIGH`` (metres, creference estimate --distance-range)."""
     from creference_bayes.pipeline import parse_model_options
 
-    rest = [item for item in pairs if not item.startswith("location_prior=")]
-    out = {item.partition("=")[0]: item.partition("=")[2] for item in pairs if item.startswith("location_prior=")}
+    setup = ("location_prior=", "distance_range=")
+    rest = [item for item in pairs if not item.startswith(setup)]
+    out = {item.partition("=")[0]: item.partition("=")[2] for item in pairs if item.startswith(setup)}
     try:
+        if "distance_range" in out:
+            text = out["distance_range"]
+            from creference_bayes.models.location_prior import LocationPrior
+
+            try:
+                out["distance_range"] = LocationPrior(distance_m=tuple(float(v) for v in text.split(","))).distance_m
+            except ValueError:
+                raise ValueError(f"--option distance_range: expected LOW,HIGH in metres (0 < LOW < HIGH), "
+                                 f"got {text!r}") from None
         return {**parse_model_options("metrology", rest), **out}
     except ValueError as exc:
         parser.error(str(exc))
@@ -170,7 +180,8 @@ def main(argv=None) -> int:
                         "the other; pooling uses only the frames in use)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a metrology model option for the joint and the alone estimates (repeatable; "
-                        "creference_bayes.pipeline.MODEL_OPTIONS, and location_prior), e.g. target_dof=30")
+                        "creference_bayes.pipeline.MODEL_OPTIONS, location_prior and distance_range=LOW,HIGH), e.g. "
+                        "target_dof=30")
     p.add_argument("--methods", default="joint,alone,bound",
                    help="which of joint, alone, bound to run (comma-separated; default all three)")
     p.add_argument("--bound-option", action="append", default=[], metavar="KEY=VALUE",

@@ -74,6 +74,7 @@ def run(args) -> list[dict]:
         median, log_sd = (float(v) for v in args.focal_prior.split(","))
         focal = FocalPrior(median, log_sd, np.inf, source="scene")
     equiv = tuple(float(v) for v in args.focal_35mm.split(",")) if args.focal_35mm else None
+    distance_range = tuple(float(v) for v in args.distance_range.split(",")) if args.distance_range else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     records = []
@@ -89,7 +90,8 @@ def run(args) -> list[dict]:
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     r = estimate(variant(scene, 1, tuple(range(n_refs))), seed=k, focal_prior=focal,
-                                 location_prior=args.location_prior, sampling={"min_ess": args.min_ess}, keep_draws=0)
+                                 location_prior=args.location_prior, distance_range=distance_range,
+                                 sampling={"min_ess": args.min_ess}, keep_draws=0)
                 seconds = time.process_time() - t0
                 o = r.to_dict()["objects"][0]
                 dist = np.hypot(r.draws.objects[..., 0, 0], r.draws.objects[..., 0, 1]).ravel()
@@ -149,6 +151,9 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="thin_designs", help="output folder (default: %(default)s)")
     p.add_argument("--min-ess", type=int, default=400, help="bulk ESS of each posterior (default: %(default)s)")
     p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"))
+    p.add_argument("--distance-range", default=None, metavar="LOW,HIGH",
+                   help="the data set's distances in metres (creference estimate --distance-range), for example "
+                        "10,80 around these scenes' 15-60 m targets (default: none)")
     p.add_argument("--focal-prior", default=None, metavar="MEDIAN_PX,LOG_SD",
                    help="a log-normal focal-length prior instead of the default")
     p.add_argument("--focal-35mm", default=None, metavar="MM,LOG_SD,DOF",

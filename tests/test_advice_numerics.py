@@ -240,8 +240,6 @@ def test_reference_weights_are_the_difference_of_the_models_posteriors(frame, ki
 def test_a_first_reference_brings_its_crowd_scale_from_the_prior(frame):
     """A scene without references has no crowd scale: the draws get one from its prior, and the
     weights are then the new model's posterior over the old one's times that prior."""
-    from creference_bayes.workflows.advice import _scale_prior
-
     scene, model, cams, objs = frame
     bare = dataclasses.replace(scene, references=(), reference_targets=())
     m0, _ = build_model(bare)
@@ -251,7 +249,7 @@ def test_a_first_reference_brings_its_crowd_scale_from_the_prior(frame):
     c = obs.scale_draws(cams, np.random.default_rng(1))
     assert np.median(c[:, C_SCALE]) == pytest.approx(0.5, rel=0.2)
     obs.simulate(np.random.default_rng(2), c[:4], objs[:4])
-    old = m0.neg_log_posterior(c, objs) + _scale_prior(c[:, C_SCALE])
+    old = m0.neg_log_posterior(c, objs) + m0.ref_scale_neg_log(c[:, C_SCALE])
     for i, row in enumerate(obs.log_ratio(c, objs)):
         assert np.ptp(row - (old - obs.model_with(i).neg_log_posterior(c, objs))) < 1e-8
 

@@ -177,3 +177,40 @@ def test_a_version_1_result_converts_with_its_diagnostics_batch_block_and_camera
     del d["map"]["pitch"], d["map"]["roll"]
     cam = result_from_v1(d, scene)["camera"]["map"]
     assert (cam["pitch"], cam["roll"]) == pytest.approx((pitch, roll), abs=1e-9)
+
+
+def test_a_crowd_measured_elsewhere_replaces_the_crowd_scales_prior(tmp_path):
+    """``ref_scale_median`` / ``ref_scale_log_sd``: the crowd scale's posterior follows the given
+    prior where the scene's references say little of it (two exact references here: the default
+    prior, median 0.5 and log-sd 1, lets them pull the scale far below 0.5); the result records the
+    options and the rebuilt model has them; the advice draws a scene's first crowd scale from it."""
+    from creference_bayes.models.contract import C_SCALE
+    from creference_bayes.pipeline import build_model, reference_terms
+    from creference_bayes.workflows.advice.observe import ReferenceObservation
+
+    d, _ = truth_scene(11, n_annotations=2, noise_px=1.0, n_refs=2)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(d))
+
+    def scale_median(res):
+        return float(np.median(res.draws.cameras[..., C_SCALE]))
+
+    default = cb.estimate(path, seed=0, sampling=FAST)
+    told = cb.estimate(path, seed=0, sampling=FAST, ref_scale_median=2.0, ref_scale_log_sd=0.05)
+    assert scale_median(default) < 1.0 and 1.7 < scale_median(told) < 2.3
+    doc = json.loads(json.dumps(told.to_dict()))
+    assert doc["provenance"]["options"] == {"ref_scale_log_sd": 0.05, "ref_scale_median": 2.0}
+    model = rebuild_model(doc, path)
+    assert (model.ref_scale_median, model.ref_scale_log_sd) == (2.0, 0.05)
+
+    bare = {**d, "references": []}
+    scene = cb.io.scene.parse_scene(bare)
+    m, _ = build_model(scene, ref_scale_median=2.0, ref_scale_log_sd=0.05)
+    obs = ReferenceObservation(m, reference_terms(cb.io.scene.parse_scene(d))[0], {"ref_scale_median": 2.0,
+                                                                                 "ref_scale_log_sd": 0.05})
+    assert obs.needs_scale
+    s = obs.scale_draws(np.tile(m.complete_camera(np.ones((1, 5))), (400, 1)), np.random.default_rng(0))[:, C_SCALE]
+    assert abs(np.log(np.median(s)) - np.log(2.0)) < 0.02 and np.std(np.log(s)) < 0.08
+    for key, value in (("ref_scale_median", 0.0), ("ref_scale_log_sd", -1.0), ("ref_scale_median", np.inf)):
+        with pytest.raises(ValueError, match=key):
+            cb.estimate(path, posterior=False, **{key: value})

@@ -44,7 +44,8 @@ TINY = {
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
-                        (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real"], ["tr/thin.md"])],
+                        (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real", "--distance-range", "10,80"],
+                         ["tr/thin.md"])],
 }
 #: Longer runs of the parts the tiny runs leave out (marked slow).
 SLOW = {
@@ -523,3 +524,31 @@ def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
         assert r["estimates"] and all(c["cpu_s"] > 0 for c in r["estimates"])
     table = study.report_policy(tmp_path)
     assert "Policies, paper-like scenes" in table and "Policies, outdoor scenes" in table
+
+
+def test_the_advice_studys_what_ifs_reach_the_scenes_the_estimates_and_the_advice(tmp_path, monkeypatch):
+    """``--distance-range setting``: every estimate and every advice of ``predict`` knows the
+    simulator's distance range of the scene's setting; ``--reference-px 0``: the references'
+    segments are the true ones; both are recorded, and a resumed run without them is refused."""
+    import json
+
+    import numpy as np
+
+    from creference_bayes.bench.simulate import SETTINGS
+
+    study = _example("advice_study.py")
+    seen = _spy_on(study, monkeypatch, "distance_range")
+    monkeypatch.chdir(tmp_path)
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--tiers", "medium", "--distance-range", "setting",
+                "--reference-px", "0", "--out", "o"])
+    rec = json.loads((tmp_path / "o" / "predict.jsonl").read_text().splitlines()[0])
+    expected = SETTINGS[rec["setting"]]["distance"]
+    assert seen["estimate"] and all(kw == (expected,) for kw in seen["estimate"])
+    assert seen["advise"] and all(model.location.distance_m == expected for model, _ in seen["advise"])
+    assert rec["options"] == {"distance_range": "setting", "reference_px": 0.0}
+    case = study._predict_case(0, 0, ["medium"], 1, None)
+    gt = case["added"]["new-ref"].ground_truth
+    for ref, true_line in zip(case["added"]["new-ref"].references, gt["reference_lines_px"]):
+        np.testing.assert_allclose(ref.line, true_line, atol=0.006)
+    with pytest.raises(SystemExit, match="options"):
+        study.main(["predict", "--n", "2", "--min-ess", "100", "--tiers", "medium", "--out", "o"])

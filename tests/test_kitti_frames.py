@@ -114,7 +114,8 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
     out = tmp_path / "study"
     proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
-                           "--max-steps", "400", "--option", "ground_sd_m=0.05"], capture_output=True, text=True,
+                           "--max-steps", "400", "--option", "ground_sd_m=0.05", "--option", "distance_range=2,90"],
+                          capture_output=True, text=True,
                           timeout=300,
                           env={**os.environ, "MPLBACKEND": "Agg"})
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -132,6 +133,9 @@ def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--option",
                           "ground_sd=1"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--option ground_sd: the metrology model has no such option" in bad.stderr
+    bad = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(tmp_path / "x"), "--option",
+                          "distance_range=80"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "distance_range" in bad.stderr and "'80'" in bad.stderr
 
 
 def test_scenes_from_kitti_with_known_sizes_give_each_object_its_true_size(kitti_dir):

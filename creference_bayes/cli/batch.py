@@ -30,7 +30,7 @@ def _settings(args):
                              posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
                              temperature=args.temperature, use_references=not args.no_references,
                              sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
-                             location_prior=args.location_prior,
+                             location_prior=args.location_prior, distance_range=args.distance_range,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
                              classes=load_classes(args.classes) or {}, rig=args.rig,
                              pool_scale=not args.own_scale, options=model_options(args))

@@ -229,7 +229,7 @@ def _run_estimate(args, banner: str | None = None) -> int:
     result = estimate(scene, model=args.model, preset=args.preset, seed=args.seed, classes=classes, confidence_map=cmap,
                       use_references=not args.no_references, posterior=not args.no_posterior,
                       focal_prior=args.focal_prior, orientation=args.orientation, location_prior=args.location_prior,
-                      temperature=args.temperature, hdi_prob=args.hdi_prob,
+                      distance_range=args.distance_range, temperature=args.temperature, hdi_prob=args.hdi_prob,
                       sampling=sampling_options(args) or None,
                       progress=not args.quiet and sys.stderr.isatty(), **options)
     d = result.to_dict()
@@ -283,6 +283,20 @@ def add_camera_options(p: argparse.ArgumentParser) -> None:
                    help="prior on each object's ground position: uniform in log depth, or flat in (x, z) (auto: "
                         "log-depth with the default preset, flat with the paper presets; inverse-square, 1/d², "
                         "for comparison; docs/method.md, Priors)")
+    g.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
+                   help="the ground distances in metres the targets stand at, for example 3,80 for a street "
+                        "camera: the location prior falls softly outside them (docs/method.md, Priors)")
+
+
+def distance_range_arg(text: str) -> tuple[float, float]:
+    """``--distance-range LOW,HIGH``: two numbers of metres, 0 < LOW < HIGH."""
+    from ..models.location_prior import LocationPrior
+
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+        return LocationPrior(distance_m=(lo, hi)).distance_m
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LOW,HIGH in metres with 0 < LOW < HIGH, got {text!r}") from None
 
 
 def add_model_option(p: argparse.ArgumentParser) -> None:

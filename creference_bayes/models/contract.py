@@ -227,6 +227,11 @@ class Model:
     #: A model that is not smooth rounds its kinks over this many pixels while it is > 0 (the MAP's
     #: search starts on the rounded objective, then polishes on the exact one).
     softness_px = 0.0
+    #: The crowd scale's log-normal prior (median, log-sd; :data:`REF_SCALE_MEDIAN`,
+    #: :data:`REF_SCALE_LOG_SD`); a model with references may be given another
+    #: (``ref_scale_median``, ``ref_scale_log_sd``, :class:`~.metrology.MetrologyModel`).
+    ref_scale_median = REF_SCALE_MEDIAN
+    ref_scale_log_sd = REF_SCALE_LOG_SD
 
     def __init__(self, principal_point, image_size, objects, *, camera_terms: CameraTerms | None = None,
                  orientation: str = "free", horizon_line=None, focal_length_px: float | None = None,
@@ -309,8 +314,15 @@ class Model:
         elif self.orientation == "level":
             cams[:, C_PITCH] = cams[:, C_ROLL] = 0.0
         if not self.camera_free[C_SCALE]:
-            cams[:, C_SCALE] = REF_SCALE_MEDIAN
+            cams[:, C_SCALE] = self.ref_scale_median
         return cams
+
+    def ref_scale_neg_log(self, s) -> np.ndarray:
+        """The crowd scale's negative log-prior at ``s`` (log-length units), up to a constant: its
+        log-normal (:attr:`ref_scale_median`, :attr:`ref_scale_log_sd`) as a density in s."""
+        s = np.asarray(s, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 0.5 * ((np.log(s) - np.log(self.ref_scale_median)) / self.ref_scale_log_sd) ** 2 + np.log(s)
 
     def in_bounds(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         """(n,) bool: every camera and object parameter inside its bounds (yaw is circular)."""
@@ -466,8 +478,7 @@ class Model:
         if t.focal is None and self.camera_free[C_FOCAL] and self.location.map_in_log_coordinates:
             out += np.log(cams[:, C_FOCAL])  # no focal prior: uniform in log µ, likewise
         if self.camera_free[C_SCALE]:
-            s = cams[:, C_SCALE]
-            out += 0.5 * ((np.log(s) - np.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2 + np.log(s)
+            out += self.ref_scale_neg_log(cams[:, C_SCALE])
         return out
 
     # -- the posterior ------------------------------------------------------------------------------

@@ -13,7 +13,8 @@ References (:class:`ReferenceTerm`)
     ground distance between two targets (``distance``, the one term coupling two objects). Each is
     a Student-t (ν = :data:`REF_DOF`) measurement in log-length, a range interval-censored, with
     the crowd's error scale ``ref_scale`` (a camera parameter, log-normal prior:
-    :data:`~.contract.REF_SCALE_MEDIAN`, :data:`~.contract.REF_SCALE_LOG_SD`).
+    :data:`~.contract.REF_SCALE_MEDIAN`, :data:`~.contract.REF_SCALE_LOG_SD`, unless the options
+    ``ref_scale_median`` and ``ref_scale_log_sd`` give another, for a crowd measured elsewhere).
 Line noise
     Each reference's scale is widened by its line noise, s_j² = s² + v_j, v_j = σ_line² |∇ log ℓ_j|²
     over its endpoint coordinates, σ_line = :data:`REF_LINE_FACTOR` × the median σᵢ unless given;
@@ -267,6 +268,9 @@ class MetrologyModel(Model):
     ref_line_sigma : pixel noise of reference lines (None: :data:`REF_LINE_FACTOR` × the median σᵢ)
     confidence_map : how ranges stated with a confidence are read, or None (confidences ignored)
     line_reading : one of :data:`LINE_READINGS`
+    ref_scale_median, ref_scale_log_sd : the crowd scale's log-normal prior (its median, in
+        log-length, and its log-sd; None: :data:`~.contract.REF_SCALE_MEDIAN`,
+        :data:`~.contract.REF_SCALE_LOG_SD`)
     kw : the contract's options (:class:`~.contract.Model`)
     """
 
@@ -275,12 +279,19 @@ class MetrologyModel(Model):
     def __init__(self, principal_point, image_size, objects, references=(), *, target_dof: float = TARGET_DOF,
                  ref_dof: float = REF_DOF, target_sigma: float | None = None, ref_line_sigma: float | None = None,
                  corner_scale: tuple[float, float] | None = None, confidence_map: ConfidenceMap | None = None,
-                 line_reading: str = "linear", **kw):
+                 line_reading: str = "linear", ref_scale_median: float | None = None,
+                 ref_scale_log_sd: float | None = None, **kw):
         if line_reading not in LINE_READINGS:
             raise ValueError(f"line_reading: expected one of {list(LINE_READINGS)}, got {line_reading!r}")
-        for key, v in (("target_dof", target_dof), ("ref_dof", ref_dof)):
+        if ref_scale_median is not None:
+            self.ref_scale_median = ref_scale_median
+        if ref_scale_log_sd is not None:
+            self.ref_scale_log_sd = ref_scale_log_sd
+        for key, v in (("target_dof", target_dof), ("ref_dof", ref_dof), ("ref_scale_median", self.ref_scale_median),
+                       ("ref_scale_log_sd", self.ref_scale_log_sd)):
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a finite number > 0, got {v!r}")
+        self.ref_scale_median, self.ref_scale_log_sd = float(self.ref_scale_median), float(self.ref_scale_log_sd)
         self.target_dof, self.ref_dof = float(target_dof), float(ref_dof)
         self.confidence_map, self.line_reading = confidence_map, line_reading
         self.all_references = tuple(references)

@@ -702,7 +702,7 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
             with np.errstate(all="ignore"):
                 out = -model.neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1) + jac.sum(axis=1)
                 if scale_prior:
-                    out = out - _scale_prior(cn[:, C_SCALE])
+                    out = out - model.ref_scale_neg_log(cn[:, C_SCALE])
             return np.where(np.isfinite(out), out, -np.inf)
         return f
 
@@ -717,15 +717,6 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     else:
         moved, _ = tempered_update(old, density(new, False), x, rng, n_moves=n_moves)
     return coords.from_work(*unpack(moved))
-
-
-def _scale_prior(s: np.ndarray) -> np.ndarray:
-    """The crowd scale's negative log-prior (as
-    :meth:`~creference_bayes.models.contract.Model.camera_neg_log_prior` has it)."""
-    from ...models.contract import REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return 0.5 * ((np.log(s) - np.log(REF_SCALE_MEDIAN)) / REF_SCALE_LOG_SD) ** 2 + np.log(s)
 
 
 def _split_se(dist: np.ndarray, weights: np.ndarray, prob: float, rng, n_splits: int = 3) -> float:

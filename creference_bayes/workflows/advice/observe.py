@@ -30,7 +30,7 @@ import dataclasses
 
 import numpy as np
 
-from ...models.contract import C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
+from ...models.contract import C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE
 from ...models.metrology import MetrologyModel, ReferenceTerm, t_interval
 
 __all__ = ["grown", "simulation_scale", "DimsObservation", "ReferenceObservation", "SizeObservation",
@@ -52,7 +52,8 @@ def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = No
     fixed = {k: options[k] for k in ("target_sigma", "ref_line_sigma") if options.get(k) is not None}
     new = MetrologyModel(model.principal_point, model.image_size, objects, model.all_references + tuple(references),
                          target_dof=model.target_dof, ref_dof=model.ref_dof, confidence_map=model.confidence_map,
-                         line_reading=model.line_reading, camera_terms=model.camera_terms,
+                         line_reading=model.line_reading, ref_scale_median=model.ref_scale_median,
+                         ref_scale_log_sd=model.ref_scale_log_sd, camera_terms=model.camera_terms,
                          orientation=model.orientation, horizon_line=model.horizon_line,
                          focal_length_px=model.focal_length_px, **model.ground_options, bounds=model.bounds,
                          default_temperature=model.default_temperature, **fixed)
@@ -131,9 +132,10 @@ class ReferenceObservation:
         """``cams`` with crowd scales drawn from their prior (truncated to the bounds), for a scene
         without references (:attr:`needs_scale`)."""
         lo, hi = self.probe.camera_lower[C_SCALE], self.probe.camera_upper[C_SCALE]
-        s = np.exp(np.log(REF_SCALE_MEDIAN) + REF_SCALE_LOG_SD * rng.standard_normal(len(cams)))
+        median, log_sd = self.probe.ref_scale_median, self.probe.ref_scale_log_sd
+        s = np.exp(np.log(median) + log_sd * rng.standard_normal(len(cams)))
         while np.any(bad := (s < lo) | (s > hi)):
-            s[bad] = np.exp(np.log(REF_SCALE_MEDIAN) + REF_SCALE_LOG_SD * rng.standard_normal(int(bad.sum())))
+            s[bad] = np.exp(np.log(median) + log_sd * rng.standard_normal(int(bad.sum())))
         out = np.array(cams, float)
         out[:, C_SCALE] = s
         return out

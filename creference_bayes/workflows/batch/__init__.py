@@ -54,7 +54,7 @@ class BatchSettings:
     ----------
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
     model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation,
-    location_prior : as :func:`~creference_bayes.estimate`
+    location_prior, distance_range : as :func:`~creference_bayes.estimate`
     sampling : sampler settings (:class:`~creference_bayes.inference.sampler.SamplerSettings`
         fields, e.g. ``{"min_ess": 400, "max_steps": 20000}``)
     confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
@@ -82,6 +82,7 @@ class BatchSettings:
     focal_prior: str = "auto"
     orientation: str = "auto"
     location_prior: str = "auto"
+    distance_range: tuple[float, float] | None = None
     confidence_map: object = "default"
     classes: dict = field(default_factory=dict)
     rig: str = "none"
@@ -94,6 +95,10 @@ class BatchSettings:
         from .rig import RIG_CHOICES
 
         SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
+        if self.distance_range is not None:
+            from ...models.location_prior import LocationPrior
+
+            LocationPrior(distance_m=self.distance_range)  # a ValueError naming the range
         if self.rig not in RIG_CHOICES:
             raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {self.rig!r}")
         if self.model not in MODELS:
@@ -125,6 +130,10 @@ class BatchSettings:
             del d["options"]
         if self.rig == "none":  # results made before the rig existed stay up to date
             del d["rig"]
+        if self.distance_range is None:  # likewise for the distance range
+            del d["distance_range"]
+        else:
+            d["distance_range"] = [float(v) for v in self.distance_range]
         return d
 
     def _map_identity(self) -> dict:
@@ -143,7 +152,8 @@ class BatchSettings:
                 "hdi_prob": self.hdi_prob, "temperature": self.temperature,
                 "use_references": self.use_references, "sampling": dict(self.sampling) or None,
                 "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "location_prior": self.location_prior, "confidence_map": self.confidence_map,
+                "location_prior": self.location_prior, "distance_range": self.distance_range,
+                "confidence_map": self.confidence_map,
                 "classes": dict(self.classes) or None, **self.options}
 
 
