@@ -158,10 +158,16 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     if location_prior == "auto":
         location_prior = "log-depth" if preset == "default" else "flat"
     if distance_range is not None:
-        location_prior = LocationPrior(location_prior, distance_range)
+        kind = location_prior.kind if isinstance(location_prior, LocationPrior) else location_prior
+        location_prior = LocationPrior(kind, distance_range)
     setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior, orientation_prior=orientation_prior,
                          location_prior=location_prior)
     bounds = bounds if bounds is not None else preset_bounds(preset, scene.image_size)
+    if setup.terms.location is not None and setup.terms.location.distance_m is not None:
+        try:
+            check_distance_range(setup.terms.location.distance_m, bounds, scene.image_size)
+        except ValueError as exc:
+            raise ValueError(f"distance_range: {exc}") from None
     objects = [ObjectData(t.id, t.corners, 1, t.dimensions,
                           None if t.dimensions is not None else t.size_prior or scene.size_prior(t.cls, classes), t.cls)
                for t in scene.targets]
@@ -191,6 +197,23 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
                        default_temperature=CALIBRATED_TEMPERATURE if calibrated else 1.0, **common, **options)
     paper.reference_reports = reports
     return paper, setup
+
+
+def check_distance_range(distance_m, bounds, image_size=(1, 1)) -> None:
+    """A distance range (low, high) m must meet the ground distances a model's bounds allow
+    (``bounds`` None: the default preset's wide box); a ValueError naming both (without the
+    option's name: the caller's words for it differ)."""
+    from .models.contract import O_X, O_Z, Bounds
+
+    bounds = bounds if bounds is not None else Bounds.wide(image_size)
+
+    x_far = max(abs(bounds.object_lower[O_X]), abs(bounds.object_upper[O_X]))
+    near, far = max(bounds.object_lower[O_Z], 0.0), float(np.hypot(x_far, bounds.object_upper[O_Z]))
+    lo, hi = distance_m
+    if lo > far or hi < near:
+        raise ValueError(f"[{lo:g}, {hi:g}] m lies beyond the ground distances the bounds allow "
+                         f"({near:.3g} to {far:.4g} m: z from {bounds.object_lower[O_Z]:g} to "
+                         f"{bounds.object_upper[O_Z]:g} m, |x| up to {x_far:g} m)")
 
 
 def _load(scene, classes) -> Scene:
@@ -246,7 +269,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
         t0 = time.perf_counter()
         m, setup = build_model(scene, model=model, preset=preset, orientation=orientation, focal_prior=focal_prior,
                                orientation_prior=orientation_prior, location_prior=location_prior,
-                               distance_range=distance_range, classes=classes, use_references=use_references, confidence_map=confidence_map, bounds=bounds, **options)
+                               distance_range=distance_range, classes=classes, use_references=use_references,
+                               confidence_map=confidence_map, bounds=bounds, **options)
         T = m.default_temperature if temperature is None else float(temperature)
         map_est = optimize(m, preset=preset, temperature=T, rng=rng, restarts=restarts, progress=progress)
         draws = diag = None

@@ -872,11 +872,12 @@ def main(argv=None) -> None:
         if args.distance_range == "setting":
             _WHAT_IF["distance_range"] = "setting"
         else:
+            from creference_bayes.cli.estimate import distance_range_arg
+
             try:
-                lo, hi = (float(v) for v in args.distance_range.split(","))
-            except ValueError:
-                p.error(f"--distance-range: expected setting or LOW,HIGH, got {args.distance_range!r}")
-            _WHAT_IF["distance_range"] = [lo, hi]
+                _WHAT_IF["distance_range"] = list(distance_range_arg(args.distance_range))
+            except argparse.ArgumentTypeError as exc:
+                p.error(f"--distance-range: setting, or {exc}")
     if getattr(args, "reference_px", None) is not None:
         if not args.reference_px >= 0:
             p.error(f"--reference-px: expected a number of pixels >= 0, got {args.reference_px!r}")

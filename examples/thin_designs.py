@@ -74,7 +74,7 @@ def run(args) -> list[dict]:
         median, log_sd = (float(v) for v in args.focal_prior.split(","))
         focal = FocalPrior(median, log_sd, np.inf, source="scene")
     equiv = tuple(float(v) for v in args.focal_35mm.split(",")) if args.focal_35mm else None
-    distance_range = tuple(float(v) for v in args.distance_range.split(",")) if args.distance_range else None
+    distance_range = args.distance_range
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     records = []
@@ -146,12 +146,14 @@ def scene_bootstrap(records: list[dict]) -> str:
 
 
 def main(argv=None) -> None:
+    from creference_bayes.cli.estimate import distance_range_arg
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=40, help="scenes (each estimated with 0, 1 and 2 references)")
     p.add_argument("--out", default="thin_designs", help="output folder (default: %(default)s)")
     p.add_argument("--min-ess", type=int, default=400, help="bulk ESS of each posterior (default: %(default)s)")
     p.add_argument("--location-prior", default="auto", choices=("auto", "log-depth", "flat", "inverse-square"))
-    p.add_argument("--distance-range", default=None, metavar="LOW,HIGH",
+    p.add_argument("--distance-range", default=None, metavar="LOW,HIGH", type=distance_range_arg,
                    help="the data set's distances in metres (creference estimate --distance-range), for example "
                         "10,80 around these scenes' 15-60 m targets (default: none)")
     p.add_argument("--focal-prior", default=None, metavar="MEDIAN_PX,LOG_SD",

@@ -211,6 +211,7 @@ def test_a_crowd_measured_elsewhere_replaces_the_crowd_scales_prior(tmp_path):
     assert obs.needs_scale
     s = obs.scale_draws(np.tile(m.complete_camera(np.ones((1, 5))), (400, 1)), np.random.default_rng(0))[:, C_SCALE]
     assert abs(np.log(np.median(s)) - np.log(2.0)) < 0.02 and np.std(np.log(s)) < 0.08
-    for key, value in (("ref_scale_median", 0.0), ("ref_scale_log_sd", -1.0), ("ref_scale_median", np.inf)):
+    for key, value in (("ref_scale_median", 0.0), ("ref_scale_log_sd", -1.0), ("ref_scale_median", np.inf),
+                       ("ref_scale_median", 5.0)):  # beyond the crowd scale's bounds (0.005 to 3)
         with pytest.raises(ValueError, match=key):
             cb.estimate(path, posterior=False, **{key: value})

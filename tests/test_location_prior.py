@@ -143,9 +143,11 @@ def test_a_distance_range_keeps_a_thin_designs_posterior_inside_it(tmp_path):
     path.write_text(json.dumps(scene_to_dict(scene)))
     assert rebuild_model(doc, path).location.distance_m == pytest.approx((lo, hi))
     assert "distance_range_m" not in estimate(scene, posterior=False).to_dict()["provenance"]
-    for bad in ((5.0, 2.0), (0.0, 3.0), (1.0, np.inf), (1.0,)):
-        with pytest.raises(ValueError, match="distance range"):
+    for bad in ((5.0, 2.0), (0.0, 3.0), (1.0, np.inf), (1.0,), "29"):
+        with pytest.raises(ValueError, match="distance_range"):
             LocationPrior(distance_m=bad)
+    with pytest.raises(ValueError, match=r"distance_range: \[60, 200\] m lies beyond"):  # the paper's box: z ≤ 50 m
+        estimate(scene, posterior=False, preset="paper", distance_range=(60, 200))
 
 
 def test_cli_distance_range_reaches_the_result_and_a_batch_recomputes_for_a_new_one(tmp_path, capsys):
@@ -158,13 +160,15 @@ def test_cli_distance_range_reaches_the_result_and_a_batch_recomputes_for_a_new_
     with pytest.raises(SystemExit):
         main(["estimate", str(example_scene_path()), "--distance-range", "9,2"])
     assert "--distance-range: expected LOW,HIGH" in capsys.readouterr().err
+    assert main(["estimate", str(example_scene_path()), "--preset", "paper", "--distance-range", "60,200"]) == 2
+    assert "--distance-range: [60, 200] m lies beyond the ground distances the bounds allow" in capsys.readouterr().err
     batch = tmp_path / "batch"
     common = ["batch", str(example_scene_path()), "--out", str(batch), "--no-posterior", "--workers", "1"]
     assert main(common) == 0
     capsys.readouterr()
     assert main(common + ["--distance-range", "2,9"]) == 0
-    assert "1 estimated" in capsys.readouterr().out
+    assert "1 estimated" in capsys.readouterr().out  # the result of no range is not this one's
     assert main(common + ["--distance-range", "2,9"]) == 0
-    assert "0 estimated" in capsys.readouterr().out  # the same range: up to date  # the results of no range are not those of this one
+    assert "0 estimated" in capsys.readouterr().out  # the same range: up to date
     (result,) = (batch / "results").glob("*.json")
     assert json.loads(result.read_text())["provenance"]["distance_range_m"] == [2.0, 9.0]

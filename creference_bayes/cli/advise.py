@@ -139,7 +139,7 @@ def _into_scenes(args, put, noun: str, verb: str) -> int:
         for source, what in done:
             print(f"{source}: {what}")
         print(f"{len(done)} {noun}{'s' if len(done) != 1 else ''} {verb} {len({s for s, _ in done})} scene file(s); "
-              "run creference batch on them again: it re-estimates the frames that changed")
+              "run creference batch on them again, with the same settings: it re-estimates the frames that changed")
     return 0
 
 

@@ -322,6 +322,13 @@ def model_options(args, scene=None) -> dict:
         scene = scene if scene is not None else load_scene(example_scene_path())
         with usage_errors("--option "):  # a value out of the model's range
             build_model(scene, model=args.model, preset=args.preset, **options)
+    if getattr(args, "distance_range", None) is not None:
+        from ..inference.map import preset_bounds
+        from ..pipeline import check_distance_range
+
+        with usage_errors("--distance-range: "):  # beyond the preset's bounds
+            image_size = (scene if scene is not None else load_scene(example_scene_path())).image_size
+            check_distance_range(args.distance_range, preset_bounds(args.preset, image_size), image_size)
     return options
 
 

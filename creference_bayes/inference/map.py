@@ -218,10 +218,10 @@ def _camera_starts(model: Model) -> list[np.ndarray]:
                 from ..core.geometry import horizon_line, pitch_roll_from_horizon
 
                 p, r = pitch_roll_from_horizon(horizon_line(hz.points), mu, model.principal_point)
-                starts.append(np.array([mu, float(p), float(r), 1.6, 0.5]))
-            starts += [np.array([mu, pitch, 0.0, 1.6, 0.5]) for pitch in _PITCH_GRID]
+                starts.append(np.array([mu, float(p), float(r), 1.6, model.ref_scale_median]))
+            starts += [np.array([mu, pitch, 0.0, 1.6, model.ref_scale_median]) for pitch in _PITCH_GRID]
         else:
-            starts.append(model.complete_camera(np.array([mu, 0.0, 0.0, 1.6, 0.5]))[0])
+            starts.append(model.complete_camera(np.array([mu, 0.0, 0.0, 1.6, model.ref_scale_median]))[0])
     lo, hi = model.camera_lower, model.camera_upper
     out = []
     for c in starts:

@@ -65,12 +65,14 @@ class LocationPrior:
         if self.kind not in LOCATION_PRIORS:
             raise ValueError(f"location prior: expected one of {list(LOCATION_PRIORS)}, got {self.kind!r}")
         if self.distance_m is not None:
+            if isinstance(self.distance_m, (str, bytes)):
+                raise ValueError(f"distance_range: expected (low, high) in metres, got the text {self.distance_m!r}")
             try:
                 lo, hi = (float(v) for v in self.distance_m)
             except (TypeError, ValueError):
-                raise ValueError(f"distance range: expected (low, high) in metres, got {self.distance_m!r}") from None
+                raise ValueError(f"distance_range: expected (low, high) in metres, got {self.distance_m!r}") from None
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-                raise ValueError(f"distance range: expected 0 < low < high metres, got {self.distance_m!r}")
+                raise ValueError(f"distance_range: expected 0 < low < high metres, got {self.distance_m!r}")
             object.__setattr__(self, "distance_m", (lo, hi))
 
     @property

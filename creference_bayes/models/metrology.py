@@ -296,6 +296,10 @@ class MetrologyModel(Model):
         self.confidence_map, self.line_reading = confidence_map, line_reading
         self.all_references = tuple(references)
         super().__init__(principal_point, image_size, objects, **kw)
+        lo, hi = self.camera_lower[C_SCALE], self.camera_upper[C_SCALE]
+        if not lo <= self.ref_scale_median <= hi:
+            raise ValueError(f"ref_scale_median: expected within the crowd scale's bounds [{lo:g}, {hi:g}] "
+                             f"(log-length), got {self.ref_scale_median:g}")
         self.camera_lower[C_HEIGHT] = max(self.camera_lower[C_HEIGHT], MIN_CAMERA_HEIGHT_M)
         m, kmax = self.n_objects, max(len(o.annotations) for o in self.objects)
         ann = np.zeros((m, kmax, 4, 2))
