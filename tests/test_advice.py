@@ -429,11 +429,39 @@ def test_cli_on_a_result_of_several_targets_without_draws(frame, tmp_path, capsy
     (["--min-gain", "-1"], "--min-gain: expected a number >= 0"),
     (["--draws", "5"], "--draws: expected an integer >= 50"),
     (["--budget", "100"], "--budget: only for a batch folder"),
+    (["--option", "ref_doff=3"], "--option ref_doff: the metrology model has no such option"),
+    (["--option", "ref_scale_median=9"], "--option ref_scale_median: expected within the crowd scale's bounds"),
 ])
 def test_cli_rejects_bad_options(args, message, capsys):
     assert main(["advise", str(example_scene_path()), *args]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {message}") and err.count("\n") == 1
+
+
+def test_a_scene_is_estimated_for_its_advice_with_the_range_and_options_given(example, tmp_path, monkeypatch,
+                                                                                capsys):
+    """``advise SCENE --distance-range --option``: the scene's estimate gets them (a spy on the
+    estimate the advice makes); a result or a batch, made already, refuses them by name."""
+    import creference_bayes.workflows.advice.inputs as inputs
+
+    seen = {}
+    real = inputs.advise_scene
+
+    def spy(scene, **kw):
+        seen.update(kw)
+        return real(scene, **kw)
+
+    monkeypatch.setattr(inputs, "advise_scene", spy)
+    assert main(["advise", str(example_scene_path()), "--distance-range", "2,9", "--option", "ref_dof=3",
+                 "--draws", "100", "--futures", "20", "--quiet"]) == 0
+    assert seen["distance_range"] == (2.0, 9.0) and seen["ref_dof"] == 3.0
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(example[1].to_dict()))
+    for flags in (["--distance-range", "2,9"], ["--option", "ref_dof=3"]):
+        assert main(["advise", str(path), "--scene", str(example_scene_path()), *flags]) == 2
+        assert f"{flags[0]}: only for a scene file (a result is advised with the settings" in capsys.readouterr().err
+        assert main(["advise", str(tmp_path), *flags]) == 2
+        assert f"{flags[0]}: only for a scene file (a batch" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_paper_model_result(example, tmp_path, capsys):

@@ -154,8 +154,9 @@ def test_cli_distance_range_reaches_the_result_and_a_batch_recomputes_for_a_new_
     from creference_bayes.cli.main import example_scene_path, main
 
     out = tmp_path / "r.json"
-    assert main(["estimate", str(example_scene_path()), "--no-posterior", "--quiet", "--distance-range", "2,9",
+    assert main(["estimate", str(example_scene_path()), "--no-posterior", "--distance-range", "2,9",
                  "--out", str(out)]) == 0
+    assert "; distance range given: 2–9 m)" in capsys.readouterr().out  # the objects' table says so
     assert json.loads(out.read_text())["provenance"]["distance_range_m"] == [2.0, 9.0]
     with pytest.raises(SystemExit):
         main(["estimate", str(example_scene_path()), "--distance-range", "9,2"])

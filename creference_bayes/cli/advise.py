@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+from .estimate import distance_range_arg, model_options
 from .main import UsageError, check_output_file, require, seed_value, usage_errors
 from ..io.files import read_text
 
@@ -56,6 +57,7 @@ def _one(args, settings, progress: bool) -> int:
         d = None  # not JSON: the scene reader says what is wrong
     try:
         if isinstance(d, dict) and d.get("format") in RESULT_FORMATS:
+            _only_for_a_scene(args, "a result")
             notes: list[str] = []
             scene = scene_for_result(path, d, args.scene, notes)
             for note in notes:  # a scene of the result's name that is another photo's, passed over
@@ -65,7 +67,12 @@ def _one(args, settings, progress: bool) -> int:
         else:
             if args.scene is not None:
                 raise UsageError("--scene: only for a result file (INPUT is a scene)")
-            advice, estimated = advise_scene(load_scene(path), seed=args.seed, settings=settings, progress=progress)
+            scene = load_scene(path)
+            args.model, args.preset = "metrology", "default"  # what the advice estimates with
+            options = model_options(args, scene)
+            if args.distance_range is not None:
+                options["distance_range"] = args.distance_range
+            advice, estimated = advise_scene(scene, seed=args.seed, settings=settings, progress=progress, **options)
             objects = estimated.to_dict()["objects"]
         hdi = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in objects]
     except SceneError:
@@ -83,11 +90,19 @@ def _one(args, settings, progress: bool) -> int:
     return 0
 
 
+def _only_for_a_scene(args, what: str) -> None:
+    """``--distance-range`` and ``--option`` set a scene's estimate; ``what`` was made already."""
+    for flag, given in (("--distance-range", args.distance_range is not None), ("--option", bool(args.option))):
+        if given:
+            raise UsageError(f"{flag}: only for a scene file ({what} is advised with the settings it was made with)")
+
+
 def _batch(args, settings, progress: bool) -> int:
     from ..workflows.advice.batch import advise_batch, request_rows, write_batch_advice
 
     if args.scene is not None:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
+    _only_for_a_scene(args, "a batch")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
     with usage_errors(one_line=True):
         batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
@@ -179,6 +194,8 @@ def _merge(args) -> int:
 def _run(args) -> int:
     if args.apply is not None and args.merge is not None:
         raise UsageError("--apply and --merge: one at a time (--merge first: the answers drawn, then those written)")
+    if args.merge is not None or args.apply is not None:
+        _only_for_a_scene(args, "a batch being answered")
     if args.merge is not None:
         return _merge(args)
     if args.apply is not None:
@@ -267,5 +284,11 @@ def register(subparsers) -> None:
                         "segment of REQUESTS_CSV "
                         "(its answer column) into the scene files the batch was made from, and advise "
                         "nothing")
+    p.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
+                   help="a scene: estimate it with this distance range in metres, as creference estimate "
+                        "--distance-range (a result or a batch is advised with what it was made with)")
+    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a scene: a metrology model option for its estimate, as creference estimate --option "
+                        "(repeatable)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
     p.set_defaults(func=_run)

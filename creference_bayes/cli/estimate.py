@@ -76,8 +76,10 @@ def format_tables(d: dict) -> str:
     head = f"  {'target':<10}{'class':<11}{'dist m':>8}{'x':>8}{'z':>8}{'yaw°':>7}{'l×w×h m':>16}"
     head += f"{'dist HDI':>18}" if post else ""
     head += f"{'err %':>7}" if evaluated else ""
+    given = (d.get("provenance") or {}).get("distance_range_m")
     lines.append("objects (MAP" + (f"; distance {prob:.0%} HDI" if post else "")
-                 + ("; location error against the truth" if evaluated else "") + ")")
+                 + ("; location error against the truth" if evaluated else "")
+                 + (f"; distance range given: {given[0]:g}–{given[1]:g} m" if given else "") + ")")
     lines.append(head)
     for o in d["objects"]:
         m = o["map"]
