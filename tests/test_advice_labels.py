@@ -668,6 +668,7 @@ def test_the_label_studio_requests_load_their_images_by_the_prefix_and_hide_the_
     printed = capsys.readouterr().out
     assert f"0 skipped, 1 frame not advised (failed in the batch: {out / 'errors'}); wrote" in printed
     assert re.search(r"\([+-]\d+\.\d\d good labels, [+-]\d+\.\d\d/h\)", printed) and "+-" not in printed, printed
+    assert printed.startswith("rank  where  request  (what it adds to the requests above it, stated on other")
     tasks = json.loads((advised_batch / "urls" / "label_studio_requests.json").read_text())
     assert tasks and all(t["data"]["image"] == f"/data/local-files/?d=frames/{t['data']['request_key']}.jpg"
                          for t in tasks)  # the scenes name no image: KEY.jpg, as requests.csv's image column

@@ -111,6 +111,10 @@ def _batch(args, settings, progress: bool) -> int:
                                image_url_prefix=args.image_url_prefix)
     if not args.quiet:
         rows = request_rows(batch, args.budget)
+        if rows:  # the order is the plan's; a gain is stated on outcomes other than those it was chosen by
+            print("rank  where  request  (" + ("what it adds to the requests above it, stated on other "
+                                                      "simulated outcomes than those it was chosen by"
+                                                      if settings.objective == "labels" else "its gain alone") + ")")
         for r in rows[:10]:
             where = f"{r['key']}  {r['target']}" if r["kind"] != "mounting" else \
                 f"camera {r['camera'] or r['key']} ({r['frames']} frame{'s' if r['frames'] != 1 else ''})"
