@@ -310,3 +310,23 @@ def test_evaluate_kitti_reads_what_labels_writes(batch, tmp_path):
     assert sum(0.05 < o["iou_3d"] < 0.99 for o in doc["objects"]) >= 3  # real partial overlaps
     assert doc["reliability"]["p_iou_ge_0.7"]["count"] == len(sidecar)
     assert (out / "reliability.png").is_file()
+
+
+def test_the_advice_note_tells_a_frame_re_estimated_from_one_without_a_result(tmp_path):
+    """``labels`` leaves out the verdicts of an advice's frames that changed since it was made, and
+    says which: re-estimated (another fingerprint) or no longer labelled (no result now)."""
+    import json
+
+    from creference_bayes.workflows.labels.report import advice_verdicts
+
+    settings = {"iou_threshold": 0.7, "min_quality": 0.5}
+    scenes = [{"key": k, "scene_sha256": k + "-old", "settings": settings, "verdicts": [{"target": "t0"}]}
+              for k in ("a", "b", "c")]
+    (tmp_path / "advice").mkdir()
+    (tmp_path / "advice" / "advice.json").write_text(json.dumps({"scenes": scenes}))
+    kept, note = advice_verdicts(tmp_path, {"a": "a-old", "b": "b-new"}, score_iou=0.7, min_quality=0.5)
+    assert list(kept) == [("a", "t0")]
+    assert "1 frame(s) were re-estimated since the advice" in note
+    assert "1 frame(s) of the advice" in note and "have no result labelled now" in note
+    kept, note = advice_verdicts(tmp_path, {"a": "a-old", "b": "b-old"}, score_iou=0.7, min_quality=0.5)
+    assert len(kept) == 2 and "re-estimated" not in note and "1 frame(s) of the advice" in note

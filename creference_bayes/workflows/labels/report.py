@@ -45,7 +45,7 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
         scenes = d["scenes"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         return {}, f"the advice {path} cannot be read ({exc}); {rerun}"
-    out, stale = {}, 0
+    out, stale, gone = {}, 0, 0
     for sc in scenes:
         s = sc.get("settings") or {}
         if (s.get("iou_threshold"), s.get("min_quality")) != (float(score_iou), float(min_quality)):
@@ -53,12 +53,14 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
                         f"{rerun}")
         now = fingerprints.get(sc["key"])
         if now is None or now != sc.get("scene_sha256"):
-            stale += 1
+            stale += now is not None
+            gone += now is None
             continue
         for v in sc.get("verdicts") or []:
             out[(sc["key"], v["target"])] = v
-    note = None if not stale else (f"{stale} frame(s) were re-estimated since the advice {path} was made: "
-                                   f"their verdicts are left out; {rerun}")
+    said = ([f"{stale} frame(s) were re-estimated since the advice {path} was made"] if stale else []) + \
+        ([f"{gone} frame(s) of the advice {path} have no result labelled now"] if gone else [])
+    note = None if not said else "; ".join(said) + f": their verdicts are left out; {rerun}"
     return out, note
 
 
