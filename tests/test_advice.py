@@ -455,6 +455,11 @@ def test_a_scene_is_estimated_for_its_advice_with_the_range_and_options_given(ex
     assert main(["advise", str(example_scene_path()), "--distance-range", "2,9", "--option", "ref_dof=3",
                  "--draws", "100", "--futures", "20", "--quiet"]) == 0
     assert seen["distance_range"] == (2.0, 9.0) and seen["ref_dof"] == 3.0
+    assert main(["advise", str(example_scene_path()), "--distance-range", "2,9", "--draws", "100", "--futures", "20"]) == 0
+    assert "note: estimated with a distance range (2–9 m), which does part of a reference's work" in \
+        capsys.readouterr().out  # the example has references to ask for
+    assert main(["advise", str(example_scene_path()), "--draws", "100", "--futures", "20"]) == 0
+    assert "distance range" not in capsys.readouterr().out
     path = tmp_path / "r.json"
     path.write_text(json.dumps(example[1].to_dict()))
     for flags in (["--distance-range", "2,9"], ["--option", "ref_dof=3"]):
