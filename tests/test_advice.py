@@ -452,9 +452,11 @@ def test_a_scene_is_estimated_for_its_advice_with_the_range_and_options_given(ex
         return real(scene, **kw)
 
     monkeypatch.setattr(inputs, "advise_scene", spy)
+    out = tmp_path / "advice.json"
     assert main(["advise", str(example_scene_path()), "--distance-range", "2,9", "--option", "ref_dof=3",
-                 "--draws", "100", "--futures", "20", "--quiet"]) == 0
+                 "--draws", "100", "--futures", "20", "--quiet", "--out", str(out)]) == 0
     assert seen["distance_range"] == (2.0, 9.0) and seen["ref_dof"] == 3.0
+    assert json.loads(out.read_text())["estimate"] == {"options": {"ref_dof": 3.0}, "distance_range_m": [2.0, 9.0]}
     assert main(["advise", str(example_scene_path()), "--distance-range", "2,9", "--draws", "100", "--futures", "20"]) == 0
     assert "note: estimated with a distance range (2–9 m), which does part of a reference's work" in \
         capsys.readouterr().out  # the example has references to ask for
@@ -467,6 +469,8 @@ def test_a_scene_is_estimated_for_its_advice_with_the_range_and_options_given(ex
         assert f"{flags[0]}: only for a scene file (a result is advised with the settings" in capsys.readouterr().err
         assert main(["advise", str(tmp_path), *flags]) == 2
         assert f"{flags[0]}: only for a scene file (a batch" in capsys.readouterr().err
+        assert main(["advise", str(tmp_path), "--apply", str(path), *flags]) == 2
+        assert "--apply and --merge write answers into scene files and estimate nothing" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_paper_model_result(example, tmp_path, capsys):

@@ -330,3 +330,6 @@ def test_the_advice_note_tells_a_frame_re_estimated_from_one_without_a_result(tm
     assert "1 frame(s) of the advice" in note and "have no result labelled now" in note
     kept, note = advice_verdicts(tmp_path, {"a": "a-old", "b": "b-old"}, score_iou=0.7, min_quality=0.5)
     assert len(kept) == 2 and "re-estimated" not in note and "1 frame(s) of the advice" in note
+    assert "for what would lift them" not in note  # a frame with no label has nothing to lift
+    kept, note = advice_verdicts(tmp_path, {"a": "a-old", "b": None, "c": "c-old"}, score_iou=0.7, min_quality=0.5)
+    assert len(kept) == 2 and "1 frame(s) were re-estimated" in note and "no result" not in note  # None: no fingerprint

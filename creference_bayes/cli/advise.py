@@ -56,8 +56,9 @@ def _one(args, settings, progress: bool) -> int:
     except (UnicodeDecodeError, ValueError):
         d = None  # not JSON: the scene reader says what is wrong
     try:
+        made_with = None  # a scene's estimate: its options and range, recorded with the advice
         if isinstance(d, dict) and d.get("format") in RESULT_FORMATS:
-            _only_for_a_scene(args, "a result")
+            _only_for_a_scene(args, "a result is advised with the settings it was made with")
             notes: list[str] = []
             scene = scene_for_result(path, d, args.scene, notes)
             for note in notes:  # a scene of the result's name that is another photo's, passed over
@@ -73,6 +74,8 @@ def _one(args, settings, progress: bool) -> int:
             if args.distance_range is not None:
                 options["distance_range"] = args.distance_range
             advice, estimated = advise_scene(scene, seed=args.seed, settings=settings, progress=progress, **options)
+            prov = estimated.to_dict()["provenance"]
+            made_with = {"options": prov["options"], **{k: prov[k] for k in ("distance_range_m",) if k in prov}}
             objects = estimated.to_dict()["objects"]
         hdi = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in objects]
     except SceneError:
@@ -82,7 +85,7 @@ def _one(args, settings, progress: bool) -> int:
     except ValueError as exc:
         raise UsageError(" ".join(str(exc).split())) from None
     if args.out is not None:
-        atomic_write_json(args.out, advice.to_dict())
+        atomic_write_json(args.out, {**advice.to_dict(), **({"estimate": made_with} if made_with else {})})
     if not args.quiet:
         print(advice_table(advice, hdi if len(hdi) == len(advice.targets) else None))
         if args.out is not None:
@@ -90,11 +93,11 @@ def _one(args, settings, progress: bool) -> int:
     return 0
 
 
-def _only_for_a_scene(args, what: str) -> None:
-    """``--distance-range`` and ``--option`` set a scene's estimate; ``what`` was made already."""
+def _only_for_a_scene(args, why: str) -> None:
+    """``--distance-range`` and ``--option`` set a scene's estimate; ``why`` they do nothing here."""
     for flag, given in (("--distance-range", args.distance_range is not None), ("--option", bool(args.option))):
         if given:
-            raise UsageError(f"{flag}: only for a scene file ({what} is advised with the settings it was made with)")
+            raise UsageError(f"{flag}: only for a scene file ({why})")
 
 
 def _batch(args, settings, progress: bool) -> int:
@@ -102,7 +105,7 @@ def _batch(args, settings, progress: bool) -> int:
 
     if args.scene is not None:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
-    _only_for_a_scene(args, "a batch")
+    _only_for_a_scene(args, "a batch is advised with the settings it was made with")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
     with usage_errors(one_line=True):
         batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
@@ -199,7 +202,7 @@ def _run(args) -> int:
     if args.apply is not None and args.merge is not None:
         raise UsageError("--apply and --merge: one at a time (--merge first: the answers drawn, then those written)")
     if args.merge is not None or args.apply is not None:
-        _only_for_a_scene(args, "a batch being answered")
+        _only_for_a_scene(args, "--apply and --merge write answers into scene files and estimate nothing")
     if args.merge is not None:
         return _merge(args)
     if args.apply is not None:

@@ -476,9 +476,9 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                      "depends on it")
     if model.location.distance_m is not None and any(c.kind == "reference" for c in candidates):
         lo, hi = model.location.distance_m
-        notes.append(f"estimated with a distance range ({lo:g}–{hi:g} m), which does part of a reference's work: on "
-                     "simulated outdoor scenes with a range the references realised about half their stated gains "
-                     "(docs/advice.md); read those as an upper bound")
+        notes.append(f"estimated with a distance range ({lo:g}–{hi:g} m), which does part of a reference's work: a "
+                     "reference may realise less than stated (about half on simulated outdoor scenes, nothing with a "
+                     "heavy-tailed crowd; docs/advice.md, 'A range as a user would state it')")
     mix = format_mix(scene)
     seeds = rng.integers(2**63, size=len(candidates))
     predictions = []

@@ -29,8 +29,9 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
                     advice_path: str | Path | None = None) -> tuple[dict, str | None]:
     """The verdicts of ``creference advise BATCH_DIR`` (``BATCH_DIR/advice/advice.json``, or
     ``advice_path``) by (scene key, target id), and a note when there is none to use: no advice,
-    an advice for another bar (``iou_threshold``, ``min_quality``) or of results since re-estimated
-    (the fingerprint it records differs from ``fingerprints[key]``, the labelled result's)."""
+    an advice for another bar (``iou_threshold``, ``min_quality``), of results since re-estimated
+    (the fingerprint it records differs from ``fingerprints[key]``, the labelled result's) or of
+    frames with no labelled result now (no ``key`` in ``fingerprints``)."""
     import json
 
     from ...io.files import read_text
@@ -51,17 +52,20 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
         if (s.get("iou_threshold"), s.get("min_quality")) != (float(score_iou), float(min_quality)):
             return {}, (f"the advice {path} is for P(IoU ≥ {s.get('iou_threshold')}) ≥ {s.get('min_quality')}; "
                         f"{rerun}")
-        now = fingerprints.get(sc["key"])
+        if sc["key"] not in fingerprints:  # no result of that frame is labelled now
+            gone += 1
+            continue
+        now = fingerprints[sc["key"]]
         if now is None or now != sc.get("scene_sha256"):
-            stale += now is not None
-            gone += now is None
+            stale += 1
             continue
         for v in sc.get("verdicts") or []:
             out[(sc["key"], v["target"])] = v
-    said = ([f"{stale} frame(s) were re-estimated since the advice {path} was made"] if stale else []) + \
-        ([f"{gone} frame(s) of the advice {path} have no result labelled now"] if gone else [])
-    note = None if not said else "; ".join(said) + f": their verdicts are left out; {rerun}"
-    return out, note
+    said = ([f"{stale} frame(s) were re-estimated since the advice {path} was made: their verdicts are left "
+             f"out; {rerun}"] if stale else []) + \
+        ([f"{gone} frame(s) of the advice {path} have no result labelled now: their verdicts are left out"]
+         if gone else [])
+    return out, "; ".join(said) or None
 
 
 def label_rows(objects) -> list[dict]:
