@@ -74,9 +74,10 @@ def _one(args, settings, progress: bool) -> int:
             if args.distance_range is not None:
                 options["distance_range"] = args.distance_range
             advice, estimated = advise_scene(scene, seed=args.seed, settings=settings, progress=progress, **options)
-            prov = estimated.to_dict()["provenance"]
+            done = estimated.to_dict()
+            prov = done["provenance"]
             made_with = {"options": prov["options"], **{k: prov[k] for k in ("distance_range_m",) if k in prov}}
-            objects = estimated.to_dict()["objects"]
+            objects = done["objects"]
         hdi = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in objects]
     except SceneError:
         raise

@@ -320,17 +320,18 @@ def model_options(args, scene=None) -> dict:
 
     with usage_errors():
         options = parse_model_options(args.model, args.option)
-    if options:
+    distance_range = getattr(args, "distance_range", None)
+    if options or distance_range is not None:
         scene = scene if scene is not None else load_scene(example_scene_path())
+    if options:
         with usage_errors("--option "):  # a value out of the model's range
             build_model(scene, model=args.model, preset=args.preset, **options)
-    if getattr(args, "distance_range", None) is not None:
+    if distance_range is not None:
         from ..inference.map import preset_bounds
         from ..pipeline import check_distance_range
 
         with usage_errors("--distance-range: "):  # beyond the preset's bounds
-            image_size = (scene if scene is not None else load_scene(example_scene_path())).image_size
-            check_distance_range(args.distance_range, preset_bounds(args.preset, image_size), image_size)
+            check_distance_range(distance_range, preset_bounds(args.preset, scene.image_size), scene.image_size)
     return options
 
 
