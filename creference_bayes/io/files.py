@@ -10,11 +10,13 @@ import json
 import os
 import re
 import secrets
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_path", "read_bytes", "read_text"]
+__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_write_set", "atomic_path", "read_bytes",
+           "read_text"]
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -97,3 +99,32 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2, inlin
     if inline_numbers and indent is not None:
         text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]", text)
     return atomic_write_text(path, text + "\n")
+
+
+def atomic_write_set(files: dict) -> list[Path]:
+    """Write several files as one set (``files``: path → bytes): each in full (fsync) to a hidden
+    temporary file beside it that takes the mode of the file it replaces (a new file: the mode
+    ``open`` gives), and only when every one is written, each renamed over its file. An error while
+    writing any of them (disk full, no permission) removes the temporary files and leaves every
+    file as it was. Returns the paths."""
+    tmps: dict[Path, Path] = {}
+    try:
+        for path, data in files.items():
+            path = Path(path)
+            if path.is_dir():
+                raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file", str(path))
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmps[path] = tmp = _new_temporary(path, path.suffix)
+            if path.exists():  # before the data go in: a file only its owner may read stays so
+                os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        for path, tmp in tmps.items():
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp in tmps.values():
+            tmp.unlink(missing_ok=True)
+        raise
+    return list(tmps)

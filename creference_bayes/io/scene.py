@@ -568,11 +568,11 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
                  classes=own_classes, ground_truth=gt, warnings=tuple(sink), format=fmt, **head)
 
 
-def parse_quietly(data: Any) -> Scene:
+def parse_quietly(data: Any, source: str | Path | None = None) -> Scene:
     """:func:`parse_scene` with its warnings silenced."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return parse_scene(data)
+        return parse_scene(data, source=source)
 
 
 def _parse_header(data: dict, source, sink: list[str]) -> dict:
