@@ -780,7 +780,7 @@ def test_a_request_task_imports_as_its_scene_with_the_answers(assert_same_scene)
 
 def test_the_answered_requests_of_one_frame_import_as_that_frame_with_every_answer(assert_same_scene):
     """Request tasks of one frame (one ``request_key``), each answered: one scene, named after the
-    frame, holding the scene the requests were made for once and every task's answer; tasks made
+    frame's full key (its ``/`` as ``_``), holding the scene the requests were made for once and every task's answer; tasks made
     for another state of the frame (another round) are refused."""
     from creference_bayes.cli.main import example_scene_path
 
@@ -804,8 +804,8 @@ def test_the_answered_requests_of_one_frame_import_as_that_frame_with_every_answ
 
     report = scenes_from_label_studio([task(2, lines), task(6, ref), task(7, lines, key="f2")])
     assert not report.errors, report.errors
-    assert sorted(s.name for s in report.scenes) == ["f1", "f2"]
-    f1 = next(s for s in report.scenes if s.name == "f1")
+    assert sorted(s.name for s in report.scenes) == ["f2", "frames_f1"]  # the full key: a/f1 and b/f1 are two frames
+    f1 = next(s for s in report.scenes if s.name == "frames_f1")
     want = copy.deepcopy(scene)
     want["target"]["dimension_lines"] += lines["target"]["dimension_lines"]
     want["references"] += ref["references"]

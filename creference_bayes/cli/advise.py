@@ -150,19 +150,27 @@ def _batch(args, settings, progress: bool) -> int:
     return 0
 
 
-def _into_scenes(args, put, noun: str, verb: str) -> int:
-    """Run ``put(notes)`` (--apply or --merge: it writes the batch's scene files and returns (file,
-    what) per change), its notes as warnings, then what changed and what to run next."""
+def _into_scenes(args, put, noun: str, verb: str, nothing: str) -> int:
+    """Run ``put(notes)`` (--apply or --merge: it writes the user's scene files and returns (file,
+    what, whether it changed the file) per answer), its notes as warnings, then what changed and
+    what to run next; when nothing changed (no file written), ``nothing``: why."""
     notes: list[str] = []
     with usage_errors(one_line=True):
         done = put(notes)
     for note in notes:
         print(f"warning: {note}", file=sys.stderr)
     if not args.quiet:
-        for source, what in done:
-            print(f"{source}: {what}")
-        print(f"{len(done)} {noun}{'s' if len(done) != 1 else ''} {verb} {len({s for s, _ in done})} scene file(s); "
-              "run creference batch on them again, with the same settings: it re-estimates the frames that changed")
+        for source, what, changed in done:
+            print(f"{source}: {what}" + ("" if changed else " (in the file already)"))
+        new = [source for source, _, changed in done if changed]
+        if not new:
+            print(f"nothing changed: {nothing}; no scene file written, nothing to estimate again")
+        else:
+            same = len(done) - len(new)
+            print(f"{len(new)} {noun}{'s' if len(new) != 1 else ''} {verb} {len(set(new))} scene file(s)"
+                  + (f" ({same} in them already)" if same else "")
+                  + "; run creference batch on them again, with the same settings: it re-estimates the frames "
+                    "that changed")
     return 0
 
 
@@ -182,7 +190,8 @@ def _apply(args) -> int:
     if not any((row.get("answer") or "").strip() for row in rows):
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/advice.md, the loop)")
-    return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into")
+    return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into",
+                        "every answer is in the scene files already")
 
 
 def _merge(args) -> int:
@@ -193,10 +202,11 @@ def _merge(args) -> int:
     folder = Path(args.merge)
     if not folder.is_dir():
         raise FileNotFoundError(2, "no such folder", str(folder))
-    files = sorted(folder.glob("*.json"))
+    files = sorted(p for p in folder.glob("*.json") if not p.name.startswith("."))  # not a killed write's
     if not files:
         raise UsageError(f"--merge {folder}: no scene files (*.json): the folder creference import wrote")
-    return _into_scenes(args, lambda notes: merge_annotations(args.input, files, notes), "annotation", "added to")
+    return _into_scenes(args, lambda notes: merge_annotations(args.input, files, notes), "annotation", "added to",
+                        "the scene files hold every annotation of the imported scenes already")
 
 
 def _run(args) -> int:

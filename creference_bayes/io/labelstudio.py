@@ -362,7 +362,7 @@ def _merged_requests(parts: list[_TaskPart], key: str) -> _TaskPart:
         ref_origins += [f"{part.where}, {o}" for _, o in added]
     data = {**first.data}
     if data.get("frame_id") in (None, ""):
-        data["frame_id"] = PurePosixPath(key).name
+        data["frame_id"] = key  # the full key (a/cam1 and b/cam1 are two frames): advise --merge finds it by it
     return dataclasses.replace(first, where=where, data=data, targets=targets, refs=refs, ref_origins=ref_origins,
                                horizons=[h for p in parts for h in p.horizons])
 

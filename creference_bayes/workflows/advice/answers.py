@@ -184,43 +184,167 @@ def _numbers(text: str, n: int, where: str) -> list[float]:
     return values
 
 
-def _frame_sources(batch_dir) -> dict:
-    """KEY → the scene file each frame of the batch folder was made from (its result's ``batch.source``)."""
+@dataclasses.dataclass(frozen=True)
+class _SceneFile:
+    """A user's scene file as read: its path, its decoded JSON document and its scene."""
+
+    path: object
+    doc: dict
+    scene: object
+
+
+def _user_scene(batch_dir, key: str, result_path) -> _SceneFile:
+    """The scene file frame ``key``'s result (``result_path``) names as its ``batch.source``, read,
+    once it is checked to be the scene the result was estimated from: the result's targets and
+    image size, and its fingerprint (``scene_id.sha256``) or, when answers went in since (its
+    fingerprint changed), the batch's copy of it with annotations added (:func:`_answered_since`).
+    ValueError naming the result and the path otherwise."""
     import json
     from pathlib import Path
 
     from ...io.files import read_text
-    from ..batch.files import result_paths
+    from ...io.result import canonical_sha256, scene_mismatch
+    from ...io.scene import parse_quietly, read_scene_json
 
-    return {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
-            for key, path in result_paths(batch_dir, check=True).items()}
+    result = json.loads(read_text(result_path))
+    source = (result.get("batch") or {}).get("source") if isinstance(result, dict) else None
+    if not isinstance(source, str) or not source:
+        raise ValueError(f"{result_path}: no batch.source (the scene file it was estimated from): "
+                         "not a result of creference batch")
+    path = Path(source)
+    doc = read_scene_json(path)
+    scene = parse_quietly(doc, source=path)
+    why = scene_mismatch(result, scene, canonical_sha256(doc))
+    unhashed = {**result, "scene_id": {k: v for k, v in (result.get("scene_id") or {}).items() if k != "sha256"}}
+    if why and not scene_mismatch(unhashed, scene) and _answered_since(batch_dir, key, result, scene):
+        why = None
+    if why:
+        raise ValueError(f"{result_path}: its batch.source {path} is not the scene it was estimated from ({why}); "
+                         "nothing written")
+    return _SceneFile(path, doc, scene)
 
 
-def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str]]:
+def _has_line(lines: list, corners) -> bool:
+    """Whether a set of dimension lines (scene dicts) like ``corners`` is among ``lines``: every
+    corner within :data:`SAME_POINT_PX`."""
+    corners = np.asarray(corners, float)
+    return any(float(np.max(np.abs(corners - np.asarray(h["corners"], float)))) <= SAME_POINT_PX for h in lines)
+
+
+def _answered_since(batch_dir, key: str, result: dict, scene) -> bool:
+    """Whether ``scene`` is the batch's copy of frame ``key`` (``scenes/KEY.json``, the scene the
+    result records by its fingerprint) with annotations added since: the same image file name and
+    every dimension line and reference of the copy in it. (What the batch put into its copy, a
+    pooled corner scale or a rig's priors, and the priors answers put in do not count.)"""
+    from pathlib import PurePath
+
+    from ...io.result import canonical_sha256
+    from ...io.scene import SceneError, parse_quietly, read_scene_json, scene_to_dict
+    from ..batch.files import layout
+
+    try:
+        data = read_scene_json(layout(batch_dir, key)["scene"])
+        if canonical_sha256(data) != (result.get("scene_id") or {}).get("sha256"):
+            return False
+        was = scene_to_dict(parse_quietly(data))
+    except (OSError, SceneError):
+        return False
+    now = scene_to_dict(scene)
+    if PurePath(was["image"].get("path") or "").name != PurePath(now["image"].get("path") or "").name:
+        return False
+    lines = {t["id"]: t["dimension_lines"] for t in now["targets"]}
+    return (all(t["id"] in lines and _has_line(lines[t["id"]], d["corners"])
+                for t in was["targets"] for d in t["dimension_lines"])
+            and all(any(_same_reference(r, q) for q in now.get("references") or []) for r in was.get("references") or []))
+
+
+def _edited(file: _SceneFile, new, what: str) -> dict:
+    """``file``'s own document with what the scene ``new`` (its scene with answers put in) adds:
+    the dimension lines and references appended, a target's ``size_prior`` and the camera's
+    ``orientation_prior`` set; every other key, the format version and the key order as they were.
+    ValueError naming the file when its format cannot hold the answers (``what``)."""
+    import copy
+
+    from ...io.scene import SceneError, parse_quietly, scene_fingerprint, scene_to_dict
+
+    was, now = scene_to_dict(file.scene), scene_to_dict(new)
+    doc = copy.deepcopy(file.doc)
+    v1 = file.scene.format == "creference-scene/1"
+    for t, a, b in zip([doc["target"]] if v1 else doc["targets"], was["targets"], now["targets"]):
+        lines = b["dimension_lines"][len(a["dimension_lines"]):]
+        if lines:
+            t["dimension_lines"] = [*(t.get("dimension_lines") or []), *lines]
+        if b.get("size_prior") != a.get("size_prior"):
+            t["size_prior"] = b["size_prior"]
+    if now["camera"].get("orientation_prior") != was["camera"].get("orientation_prior"):
+        doc.setdefault("camera", {})["orientation_prior"] = now["camera"]["orientation_prior"]
+    refs = (now.get("references") or [])[len(was.get("references") or []):]
+    if refs:
+        doc["references"] = [*(doc.get("references") or []), *refs]
+    try:
+        same = scene_fingerprint(parse_quietly(doc, source=file.path)) == scene_fingerprint(new)
+    except SceneError:
+        same = False
+    if not same:
+        raise ValueError(f"{file.path}: a {file.scene.format} file cannot hold {what}: make it a creference-scene/2 "
+                         "file (docs/scene_format.md) and run creference batch on it; nothing written")
+    return doc
+
+
+def _write(files: dict, scenes: dict, what: dict) -> None:
+    """Write every scene file (``files``: path → :class:`_SceneFile`) whose scene in ``scenes``
+    (path → scene with the answers) differs from the one read, as one set: each one's document
+    prepared and checked (:func:`_edited`; ``what`` path → what went in) before any is written,
+    then all written (:func:`~creference_bayes.io.files.atomic_write_set`: all or none, each
+    keeping its mode)."""
+    import json
+
+    from ...io.files import atomic_write_set
+    from ...io.scene import scene_fingerprint
+
+    texts = {}
+    for path, file in files.items():
+        if scene_fingerprint(scenes[path]) != scene_fingerprint(file.scene):
+            doc = _edited(file, scenes[path], "; ".join(what.get(path, [])))
+            texts[path] = (json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
+    atomic_write_set(texts)
+
+
+def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str, bool]]:
     """Put the answered size, mounting and segment-less measurement requests of ``rows``
     (``requests.csv``'s rows, dicts; a row is answered when its ``answer`` is filled in,
-    :data:`ANSWER_FORMS`) into the scene files the batch ``batch_dir`` was made from (each result's
-    ``batch.source``), each file rewritten atomically once. A mounting with a ``camera`` goes to
-    every frame of that camera. Returns (scene file, what was put in) per answer; an answered row
-    of a request that is drawn (lines, a reference on a segment: they come back through an
-    importer) is said in ``notes``.
-    ``creference batch`` then re-estimates the frames whose scenes changed. Raises ValueError
-    naming the row and the value on a bad answer; nothing is written then."""
-    from pathlib import Path
+    :data:`ANSWER_FORMS`) into the user's scene files the batch ``batch_dir`` was made from (each
+    result's ``batch.source``, checked to be the result's scene: :func:`_user_scene`). A mounting
+    with a ``camera`` goes to every frame of that camera. Each file keeps its other keys, format
+    version and mode; the files that change are written as one set, all or none (:func:`_write`),
+    and a file no answer changes is not written. Returns (scene file, what was put in, whether it
+    changed the file: False when the file held it already) per answer; an answered row of a request
+    that is drawn (lines, a reference on a segment: they come back through an importer) is said in
+    ``notes``. ``creference batch`` then re-estimates the frames whose scenes changed. Raises
+    ValueError naming the row and the value on a bad answer, the file on an answer its format
+    cannot hold; nothing is written then."""
+    from ...io.scene import scene_fingerprint
+    from ..batch.files import result_paths
 
-    from ...io.files import atomic_write_json
-    from ...io.scene import load_scene, scene_to_dict
-
-    frames = _frame_sources(batch_dir)
-    scenes, done = {}, []
+    results = result_paths(batch_dir, check=True)
+    read, files, scenes, done = {}, {}, {}, []
 
     def scene_of(key, where):
-        if key not in frames:
+        if key not in results:
             raise ValueError(f"{where}: key {key!r} is not a result of {batch_dir}")
-        source = frames[key]
-        if source not in scenes:
-            scenes[source] = load_scene(source)
-        return source
+        if key not in read:
+            file = read[key] = _user_scene(batch_dir, key, results[key])
+            files.setdefault(file.path, file)
+            scenes.setdefault(file.path, file.scene)
+        return read[key].path
+
+    def put(source, where, what, change, *args, **kwargs):
+        before = scenes[source]
+        try:
+            scenes[source] = change(before, *args, **kwargs)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        done.append((source, what, scene_fingerprint(scenes[source]) != scene_fingerprint(before)))
 
     for n, row in enumerate(rows, start=1):
         kind, answer = row.get("kind"), (row.get("answer") or "").strip()
@@ -237,44 +361,30 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
             source = scene_of(row.get("key"), where)
             value = _numbers(answer, 1, where)[0]
             measure, other = row.get("measure"), row.get("object") if row.get("measure") == "distance" else None
-            try:
-                scenes[source] = with_measurement(scenes[source], measure, value, row.get("target"), other,
-                                                  worker=row.get("worker") or None)
-            except ValueError as exc:
-                raise ValueError(f"{where}: {exc}") from None
             what = f"distance {row.get('target')}–{other}" if other else f"{row.get('target')}: {measure}"
-            done.append((str(source), f"{what} {value:g} m"))
+            put(source, where, f"{what} {value:g} m", with_measurement, measure, value, row.get("target"), other,
+                worker=row.get("worker") or None)
             continue
         if kind == "size":
             source = scene_of(row.get("key"), where)
             size = _numbers(answer, 3, where)
-            try:
-                scenes[source] = with_size(scenes[source], row.get("target"), size)
-            except ValueError as exc:
-                raise ValueError(f"{where}: {exc}") from None
-            done.append((str(source), f"{row.get('target')}: size {size} m"))
+            put(source, where, f"{row.get('target')}: size {size} m", with_size, row.get("target"), size)
             continue
         height, pitch, roll = _numbers(answer, 3, where)
         if row.get("camera"):
-            keys = []
-            for key in frames:
-                source = scene_of(key, where)
-                if scenes[source].camera_id == row["camera"]:
-                    keys.append(key)
+            keys = [key for key in results if scenes[scene_of(key, where)].camera_id == row["camera"]]
             if not keys:
                 raise ValueError(f"{where}: no frame of camera {row['camera']!r} in {batch_dir}")
         else:
             keys = [row.get("key")]
         for key in keys:
-            source = scene_of(key, where)
-            try:
-                scenes[source] = with_mounting(scenes[source], height, math.radians(pitch), math.radians(roll))
-            except ValueError as exc:
-                raise ValueError(f"{where}: {exc}") from None
-            done.append((str(source), f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°"))
-    for source in {s for s, _ in done}:
-        atomic_write_json(Path(source), scene_to_dict(scenes[Path(source)]))
-    return done
+            put(scene_of(key, where), where, f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°", with_mounting,
+                height, math.radians(pitch), math.radians(roll))
+    what = {}
+    for source, text, changed in done:
+        what.setdefault(source, []).append(text)
+    _write(files, scenes, what)
+    return [(str(source), text, changed) for source, text, changed in done]
 
 
 #: Two drawn points closer than this (pixels) are the same annotation (files round to 0.01 px).
@@ -296,47 +406,58 @@ def _same_reference(a: dict, b: dict) -> bool:
     return la is None or float(np.max(np.abs(np.asarray(la, float) - np.asarray(lb, float)))) <= SAME_POINT_PX
 
 
-def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tuple[str, str]]:
+def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tuple[str, str, bool]]:
     """Put the annotations of ``scenes`` (imported scene files: a Label Studio or CVAT export of
-    the advice's requests, through ``creference import``) that the batch's own scene files do not
-    hold yet into those files: each imported scene is the frame whose key (its file name) or
-    image it has; its targets' dimension lines and its references that the frame's scene lacks
-    (the same within :data:`SAME_POINT_PX` and the same values) are appended, and nothing else of
-    the frame's scene changes (its truth, priors, answers put in by :func:`apply_answers`). A scene
+    the advice's requests, through ``creference import``) that the user's scene files of the batch
+    do not hold yet into those files (each result's ``batch.source``, checked to be the result's
+    scene: :func:`_user_scene`). An imported scene is the frame whose full key its file name is
+    (the key with characters other than letters, digits, ``.``, ``_`` and ``-`` as ``_``, as the
+    Label Studio import names the answered requests of a frame), else the frame whose image file
+    name it has (as CVAT names images: the scene's ``image.path``, else ``KEY.jpg``); a name or
+    image two frames share is refused, naming their keys. Its targets' dimension lines and its
+    references that the frame's scene lacks (the same within :data:`SAME_POINT_PX` and the same
+    values) are appended, and nothing else of the user's file changes (its other keys, format
+    version and mode, its truth, priors, the answers put in by :func:`apply_answers`). A scene
     that is no frame of the batch, or a target the frame does not have, is said in ``notes``.
-    Returns (scene file, what was added) per file changed; each written atomically once."""
+    Returns (scene file, what was added, True) per annotation added; the files changed are
+    written as one set, all or none (:func:`_write`). ValueError naming the file otherwise, and
+    nothing written."""
     from pathlib import Path, PurePath
 
-    from ...io.files import atomic_write_json
+    from ...io.annotation_tools import safe_name
     from ...io.scene import load_scene, parse_scene, scene_to_dict
+    from ..batch.files import result_paths
+    from .requests import image_name
 
     notes = notes if notes is not None else []
-    frames = _frame_sources(batch_dir)
-    by_name = {PurePath(key).name: key for key in frames}
-    loaded = {key: load_scene(source) for key, source in frames.items()}
-    by_image = {PurePath(str(s.image_path)).name: key for key, s in loaded.items() if s.image_path is not None}
+    read = {key: _user_scene(batch_dir, key, path) for key, path in result_paths(batch_dir, check=True).items()}
+    by_name, by_image = {}, {}
+    for key, file in read.items():
+        by_name.setdefault(safe_name(key), []).append(key)
+        by_image.setdefault(image_name(file.scene, key), []).append(key)
     changed, done = {}, []
     for path in scenes:
         path = Path(path)
         new = load_scene(path)
-        key = by_name.get(path.stem) or (by_image.get(PurePath(str(new.image_path)).name)
-                                         if new.image_path is not None else None)
-        if key is None:
+        keys = by_name.get(path.stem) or (by_image.get(PurePath(str(new.image_path)).name, [])
+                                          if new.image_path is not None else [])
+        if not keys:
             notes.append(f"{path}: no frame of {batch_dir} has this name or image; skipped")
             continue
-        d = changed.get(key) or scene_to_dict(loaded[key])
+        if len(keys) > 1:
+            raise ValueError(f"{path}: its name or image is that of frames {', '.join(map(repr, keys))} of {batch_dir}; "
+                             "which one it answers is not known; nothing written")
+        key = keys[0]
+        d = changed.get(key) or scene_to_dict(read[key].scene)
         mine = {t["id"]: t for t in d["targets"]}
         added = []
         for t in scene_to_dict(new)["targets"]:
             if t["id"] not in mine:
                 notes.append(f"{path}: target {t['id']!r} is not in frame {key!r}; left out")
                 continue
-            have = [np.asarray(x["corners"], float) for x in mine[t["id"]]["dimension_lines"]]
             for line in t["dimension_lines"]:
-                corners = np.asarray(line["corners"], float)
-                if not any(np.max(np.abs(corners - h)) <= SAME_POINT_PX for h in have):
+                if not _has_line(mine[t["id"]]["dimension_lines"], line["corners"]):
                     mine[t["id"]]["dimension_lines"].append(line)
-                    have.append(corners)
                     added.append(f"{t['id']}: a set of dimension lines")
         for ref in scene_to_dict(new).get("references") or []:
             if not any(_same_reference(ref, r) for r in d.get("references") or []):
@@ -344,8 +465,11 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
                 added.append(f"a reference ({ref.get('measure')})")
         if added:
             changed[key] = d
-            done += [(str(frames[key]), what) for what in added]
-    checked = {key: parse_scene(d, source=frames[key]) for key, d in changed.items()}  # before anything is written
-    for key, scene in checked.items():
-        atomic_write_json(frames[key], scene_to_dict(scene))
-    return done
+            done += [(read[key].path, what) for what in added]
+    files = {read[key].path: read[key] for key in changed}
+    merged = {read[key].path: parse_scene(d, source=read[key].path) for key, d in changed.items()}
+    what = {}
+    for source, text in done:
+        what.setdefault(source, []).append(text)
+    _write(files, merged, what)
+    return [(str(source), text, True) for source, text in done]
