@@ -296,7 +296,7 @@ def register(subparsers) -> None:
     p.add_argument("--merge", metavar="IMPORTED_DIR", default=None,
                    help="a batch folder: add the dimension lines and references of the scenes creference "
                         "import wrote from the answered requests (a Label Studio or CVAT export) that the "
-                        "batch's own scene files lack, and advise nothing (do this before --apply)")
+                        "scene files the batch was made from lack, and advise nothing (do this before --apply)")
     p.add_argument("--apply", metavar="REQUESTS_CSV", default=None,
                    help="a batch folder: put the answered sizes, mountings and measurements without a "
                         "segment of REQUESTS_CSV "
