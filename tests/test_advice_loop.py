@@ -103,6 +103,7 @@ def test_merge_refuses_a_name_two_frames_share(tmp_path, capsys):
     assert before == {p: p.read_bytes() for p in (tmp_path / "in").rglob("*.json")}
 
 
+@pytest.mark.filterwarnings("ignore:.*unknown key ignored")  # the test's own reading of the files
 def test_apply_keeps_the_users_file_but_for_the_answer(tmp_path, capsys):
     """A creference-scene/1 file with keys of its own, readable by its owner only: a mounting
     answer adds the camera's orientation prior and nothing else changes (its keys, its format, its
@@ -163,9 +164,10 @@ def test_apply_writes_every_file_or_none(tmp_path, capsys, monkeypatch):
         real(fd)
 
     monkeypatch.setattr(os, "fsync", full)
-    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows)), "--quiet"]) != 0
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows)), "--quiet"]) == 2
     monkeypatch.undo()
-    assert "No space left on device" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and len(err.strip().splitlines()) == 1
     assert before == {p.name: p.read_bytes() for p in (tmp_path / "in").glob("*.json")}
     assert sorted(p.name for p in (tmp_path / "in").iterdir()) == ["f0.json", "f1.json"]  # no temporary left
 
@@ -185,6 +187,10 @@ def test_apply_refuses_a_result_that_names_another_scene(tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(result) in err and str(other.resolve()) in err and len(err.strip().splitlines()) == 1
     assert other.read_bytes() == before
+    result.write_text('{"format": "creference-res')  # a result cut short
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows)), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{result}: not a result file" in err and len(err.strip().splitlines()) == 1
 
 
 def test_apply_after_merge_still_finds_its_scene(tmp_path, capsys):

@@ -206,7 +206,10 @@ def _user_scene(batch_dir, key: str, result_path) -> _SceneFile:
     from ...io.result import canonical_sha256, scene_mismatch
     from ...io.scene import parse_quietly, read_scene_json
 
-    result = json.loads(read_text(result_path))
+    try:
+        result = json.loads(read_text(result_path))
+    except ValueError as exc:  # not UTF-8 or not JSON: a write killed half-way, or not a result
+        raise ValueError(f"{result_path}: not a result file ({exc})") from None
     source = (result.get("batch") or {}).get("source") if isinstance(result, dict) else None
     if not isinstance(source, str) or not source:
         raise ValueError(f"{result_path}: no batch.source (the scene file it was estimated from): "
@@ -219,8 +222,8 @@ def _user_scene(batch_dir, key: str, result_path) -> _SceneFile:
     if why and not scene_mismatch(unhashed, scene) and _answered_since(batch_dir, key, result, scene):
         why = None
     if why:
-        raise ValueError(f"{result_path}: its batch.source {path} is not the scene it was estimated from ({why}); "
-                         "nothing written")
+        raise ValueError(f"{result_path}: its batch.source {path} is not the scene it was estimated from ({why}), "
+                         "nor that scene with annotations added; nothing written")
     return _SceneFile(path, doc, scene)
 
 
