@@ -15,8 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_write_set", "atomic_path", "read_bytes",
-           "read_text"]
+__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_write_set", "atomic_path",
+           "read_bytes", "read_text"]
 
 
 def read_bytes(path: str | Path) -> bytes:

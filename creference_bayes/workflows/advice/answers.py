@@ -258,7 +258,8 @@ def _answered_since(batch_dir, key: str, result: dict, scene) -> bool:
     lines = {t["id"]: t["dimension_lines"] for t in now["targets"]}
     return (all(t["id"] in lines and _has_line(lines[t["id"]], d["corners"])
                 for t in was["targets"] for d in t["dimension_lines"])
-            and all(any(_same_reference(r, q) for q in now.get("references") or []) for r in was.get("references") or []))
+            and all(any(_same_reference(r, q) for q in now.get("references") or [])
+                    for r in was.get("references") or []))
 
 
 def _edited(file: _SceneFile, new, what: str) -> dict:
@@ -381,8 +382,8 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
         else:
             keys = [row.get("key")]
         for key in keys:
-            put(scene_of(key, where), where, f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°", with_mounting,
-                height, math.radians(pitch), math.radians(roll))
+            put(scene_of(key, where), where, f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°",
+                with_mounting, height, math.radians(pitch), math.radians(roll))
     what = {}
     for source, text, changed in done:
         what.setdefault(source, []).append(text)
@@ -448,8 +449,8 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
             notes.append(f"{path}: no frame of {batch_dir} has this name or image; skipped")
             continue
         if len(keys) > 1:
-            raise ValueError(f"{path}: its name or image is that of frames {', '.join(map(repr, keys))} of {batch_dir}; "
-                             "which one it answers is not known; nothing written")
+            raise ValueError(f"{path}: its name or image is that of frames {', '.join(map(repr, keys))} of "
+                             f"{batch_dir}; which one it answers is not known; nothing written")
         key = keys[0]
         d = changed.get(key) or scene_to_dict(read[key].scene)
         mine = {t["id"]: t for t in d["targets"]}
