@@ -10,6 +10,7 @@ from pathlib import Path
 from .estimate import distance_range_arg, model_options
 from .main import UsageError, check_output_file, require, seed_value, usage_errors
 from ..io.files import read_text
+from ..io.validation import read_json
 
 __all__ = ["register"]
 
@@ -40,8 +41,6 @@ def _settings(args):
 
 
 def _one(args, settings, progress: bool) -> int:
-    import json
-
     from ..io.files import atomic_write_json
     from ..io.result import RESULT_FORMATS
     from ..io.scene import SceneError, load_scene
@@ -52,8 +51,8 @@ def _one(args, settings, progress: bool) -> int:
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
     try:
-        d = json.loads(read_text(path))
-    except (UnicodeDecodeError, ValueError):
+        d = read_json(path)
+    except ValueError:
         d = None  # not JSON: the scene reader says what is wrong
     try:
         made_with = None  # a scene's estimate: its options and range, recorded with the advice

@@ -17,12 +17,13 @@ from typing import Any, Iterator
 __all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_path", "read_bytes", "read_text"]
 
 
-def read_bytes(path: str | Path) -> bytes:
-    """The bytes of a file. An error while reading (not only while opening) names the file:
-    ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``, no file name) when the
-    read itself fails."""
+def read_bytes(path: str | Path, limit: int | None = None) -> bytes:
+    """The bytes of a file (``limit``: at most that many). An error while reading (not only while
+    opening) names the file: ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``,
+    no file name) when the read itself fails."""
     try:
-        return Path(path).read_bytes()
+        with open(path, "rb") as f:
+            return f.read(-1 if limit is None else limit)
     except OSError as exc:
         if exc.filename is None:
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from None

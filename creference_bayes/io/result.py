@@ -22,7 +22,6 @@ import numpy as np
 
 from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT_REPORT, object_report
 from ..models.metrology import MIN_TARGET_SIGMA_PX
-from .files import read_text
 
 __all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
            "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_path_from", "scene_mismatch",
@@ -290,10 +289,12 @@ def _camera_evaluation(truth: dict, post: dict | None) -> dict:
 def load_result(path: str | Path) -> dict:
     """A result file's content (either format; check with :data:`RESULT_FORMATS`); ``ValueError``
     naming the file when it is not one."""
+    from .validation import SceneError, read_json
+
     try:
-        data = json.loads(read_text(path))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: not a result file (not JSON: {exc})") from None
+        data = read_json(path)
+    except SceneError as exc:
+        raise ValueError(f"{path}: not a result file ({exc.problem})") from None
     if not isinstance(data, dict) or data.get("format") not in RESULT_FORMATS:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ValueError(f"{path}: format: expected one of {list(RESULT_FORMATS)}, got {got!r}")

@@ -15,7 +15,6 @@ keys are checked. Optional keys may be ``null`` (absent). Limits beyond the form
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from dataclasses import dataclass, field, replace
@@ -27,11 +26,10 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
 from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior, size_priors_from_dict
-from .files import read_bytes
 from .result import canonical_sha256
 from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside, _check_segment, _dict,
                          _get, _got, _join, _list, _number, _point, _points, _short, _string,
-                         _warn_unknown, check_scene_format, near_miss)
+                         _warn_unknown, check_scene_format, near_miss, read_json)
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
@@ -655,22 +653,9 @@ def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) ->
 
 
 def read_scene_json(path: Path) -> Any:
-    """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
-    JSON with finite numbers."""
-    def reject(name):
-        raise SceneError(str(path), f"non-standard JSON constant {name} (numbers must be finite)")
-
-    path = Path(path)
-    raw = read_bytes(path)
-    try:
-        data = json.loads(raw.decode("utf-8-sig"), parse_constant=reject)
-    except UnicodeDecodeError as exc:
-        raise SceneError(str(path), f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
-    except json.JSONDecodeError as exc:
-        raise SceneError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except RecursionError:
-        raise SceneError(str(path), "JSON nested too deeply") from None
-    return data
+    """The decoded JSON of a scene file (:func:`~.validation.read_json`: :class:`SceneError` naming
+    the file when it is not UTF-8 JSON with finite numbers, nested too deeply, …)."""
+    return read_json(path)
 
 
 def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:

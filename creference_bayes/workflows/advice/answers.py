@@ -186,13 +186,12 @@ def _numbers(text: str, n: int, where: str) -> list[float]:
 
 def _frame_sources(batch_dir) -> dict:
     """KEY → the scene file each frame of the batch folder was made from (its result's ``batch.source``)."""
-    import json
     from pathlib import Path
 
-    from ...io.files import read_text
+    from ...io.validation import read_json
     from ..batch.files import result_paths
 
-    return {key: Path((json.loads(read_text(path)).get("batch") or {})["source"])
+    return {key: Path((read_json(path).get("batch") or {})["source"])
             for key, path in result_paths(batch_dir, check=True).items()}
 
 

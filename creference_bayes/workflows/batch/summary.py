@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
 
-from ...io.files import atomic_write_text, read_text
+from ...io.files import atomic_write_text
+from ...io.validation import read_json
 
 __all__ = ["SUMMARY_COLUMNS", "summary_rows", "write_summary", "summary_line"]
 
@@ -23,7 +23,7 @@ SUMMARY_COLUMNS = ("scene", "target", "class", "image", "status", "map_distance_
 
 def _read(path: Path) -> dict | None:
     try:
-        return json.loads(read_text(path))
+        return read_json(path)
     except (OSError, ValueError):
         return None
 

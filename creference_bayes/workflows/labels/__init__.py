@@ -16,14 +16,13 @@ scene changed: rerun the batch).
 
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
-from ...io.files import read_text
 from ...io.result import RESULT_FORMAT, RESULT_FORMATS, canonical_sha256, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
+from ...io.validation import read_json
 from ..batch.files import result_paths
 from .kitti import LabelInput, ObjectLabel, write_labels
 from .quality import IOU_THRESHOLDS
@@ -54,11 +53,11 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     inputs, skipped = [], []
     for key, path in result_paths(batch_dir, check=True).items():
         try:
-            result = json.loads(read_text(path))
+            result = read_json(path)
             if result.get("format") not in RESULT_FORMATS or "batch" not in result:
                 raise ValueError("not a result of creference batch")
             copy_path = batch_dir / result["batch"]["scene_copy"]
-            copy = json.loads(read_text(copy_path))
+            copy = read_json(copy_path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = load_scene(copy_path)
@@ -136,7 +135,7 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         if path.name.startswith("."):
             continue
         try:
-            d = json.loads(read_text(path))
+            d = read_json(path)
             failed.append({"key": d["key"], "error": d["error"]})
         except (OSError, ValueError, KeyError):
             continue

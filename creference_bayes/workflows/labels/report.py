@@ -32,9 +32,7 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
     an advice for another bar (``iou_threshold``, ``min_quality``), of results since re-estimated
     (the fingerprint it records differs from ``fingerprints[key]``, the labelled result's) or of
     frames with no labelled result now (no ``key`` in ``fingerprints``)."""
-    import json
-
-    from ...io.files import read_text
+    from ...io.validation import read_json
 
     path = Path(advice_path) if advice_path is not None else Path(batch_dir) / "advice" / "advice.json"
     rerun = (f"run `creference advise {batch_dir} --score-iou {score_iou:g} --min-quality {min_quality:g}` "
@@ -42,7 +40,7 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
     if not path.is_file():
         return {}, rerun
     try:
-        d = json.loads(read_text(path))
+        d = read_json(path)
         scenes = d["scenes"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         return {}, f"the advice {path} cannot be read ({exc}); {rerun}"

@@ -1,0 +1,123 @@
+"""Hostile and unlucky input (issue 61): JSON from outside read by one reader with bounds, one bad
+unit (a scene of a batch, a task of an export) refused by name while the others go on, ids that
+end up in file names, result fields the commands index into, CSV cells a spreadsheet would run,
+files already in an output folder, and scene size limits."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from conftest import truth_scene
+
+from creference_bayes.cli.main import main
+from creference_bayes.io.scene import SceneError, load_scene
+from creference_bayes.io.validation import MAX_INT_DIGITS, MAX_JSON_DEPTH, json_depth, read_json
+
+DEEP = json.loads("[" * 500 + "]" * 500)
+
+
+def _scene(seed=1, **options) -> dict:
+    scene, _ = truth_scene(seed, m=1, noise_px=1.0, n_annotations=2, **options)
+    return scene
+
+
+def _deep_scene() -> dict:
+    scene = _scene()
+    scene["targets"][0]["ground_truth"]["note"] = DEEP
+    return scene
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+# --- 1. one reader of outside JSON ----------------------------------------------------------------
+
+def test_json_depth_is_found_without_recursion():
+    assert json_depth(1) == 0 and json_depth([]) == 1 and json_depth({"a": [1, {"b": []}]}) == 4
+    assert json_depth(json.loads("[" * 900 + "]" * 900)) == 900
+
+
+@pytest.mark.parametrize("content, problem", [
+    (json.dumps(_deep_scene()), f"JSON nested more than {MAX_JSON_DEPTH} deep"),
+    ('{"format": "creference-scene/2", "x": ' + "7" * 5000 + "}", f"an integer of 5000 digits (at most {MAX_INT_DIGITS})"),
+    ('{"format": "creference-scene/2", "x": -' + "7" * 401 + "}", "an integer of 401 digits"),
+    ("[" * 5000 + "]" * 5000, "JSON nested too deeply"),
+    ('{"x": NaN}', "non-standard JSON constant NaN"),
+], ids=["deep", "big-int", "big-negative-int", "too-deep-to-decode", "nan"])
+def test_a_hostile_scene_is_a_scene_error_naming_the_file(tmp_path, content, problem):
+    path = tmp_path / "s.json"
+    path.write_text(content)
+    with pytest.raises(SceneError) as err:
+        load_scene(path)
+    assert str(err.value).startswith(f"{path}: ") and problem in str(err.value)
+
+
+def test_the_reader_takes_a_bom_and_refuses_other_encodings(tmp_path):
+    path = tmp_path / "c.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps({"a": 1}).encode())
+    assert read_json(path) == {"a": 1}
+    path.write_bytes('{"a": "é"}'.encode("latin-1"))
+    with pytest.raises(SceneError, match=r"c\.json: not UTF-8 text: byte 7"):
+        read_json(path)
+
+
+@pytest.mark.parametrize("content", [
+    json.dumps(_deep_scene()), '{"format": "creference-scene/2", "n": ' + "1" * 5000 + "}"], ids=["deep", "big-int"])
+def test_estimate_refuses_a_hostile_scene_in_one_line(tmp_path, capsys, content):
+    path = tmp_path / "s.json"
+    path.write_text(content)
+    assert main(["estimate", str(path), "--no-posterior", "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith(f"error: {path}: ")
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b'{"car": "\xff"}', "not UTF-8 text"), (b"[" * 5000 + b"]" * 5000, "nested too deeply"),
+    (b'{"car": {"length": ' + b"9" * 5000 + b"}}", "an integer of 5000 digits")], ids=["latin-1", "deep", "big-int"])
+def test_a_hostile_classes_file_is_refused_in_one_line(tmp_path, capsys, content, problem):
+    scene, classes = tmp_path / "s.json", tmp_path / "classes.json"
+    scene.write_text(json.dumps(_scene()))
+    classes.write_bytes(content)
+    assert main(["estimate", str(scene), "--classes", str(classes), "--no-posterior", "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith(f"error: {classes}: ") and problem in line
+
+
+def test_a_batch_reports_a_scene_that_fails_to_load_and_estimates_the_others(tmp_path, capsys):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "deep.json").write_text(json.dumps(_deep_scene()))
+    (scenes / "huge.json").write_text('{"format": "creference-scene/2", "n": ' + "1" * 5000 + "}")
+    (scenes / "good.json").write_text(json.dumps(_scene()))
+    out = tmp_path / "out"
+    status = main(["batch", str(scenes), "--out", str(out), "--no-posterior", "--workers", "1", "--quiet"])
+    assert status != 0
+    assert "Traceback" not in capsys.readouterr().err
+    rows = {r["scene"]: r for r in csv.DictReader((out / "summary.csv").read_text().splitlines())}
+    assert rows["good"]["status"] == "ok" and rows["good"]["map_distance_m"]
+    assert rows["deep"]["status"] == "failed" and "nested more than" in rows["deep"]["error"]
+    assert rows["huge"]["status"] == "failed" and "5000 digits" in rows["huge"]["error"]
+
+
+def test_one_deeply_nested_label_studio_task_is_refused_by_name_and_the_rest_imported(tmp_path, capsys):
+    from pathlib import Path
+
+    tasks = json.loads((Path(__file__).parent / "data" / "label_studio_export.json").read_text())
+    data = tasks[1]["data"]  # task 18: the street, one table
+    for key in ("target_id", "target_length_m", "target_width_m", "target_height_m"):
+        data.pop(key)
+    data["targets"] = [{"id": "table", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
+                        "ground_truth": {"location_m": [0, 1, 5], "note": DEEP}}]
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps(tasks))
+    out = tmp_path / "scenes"
+    assert main(["import", "label-studio", str(export), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"error: task 18: nested more than {MAX_JSON_DEPTH} deep; refused" in err.splitlines()
+    assert (out / "ab12cd34-room.json").is_file() and not (out / "street.json").exists()
