@@ -121,3 +121,37 @@ def test_one_deeply_nested_label_studio_task_is_refused_by_name_and_the_rest_imp
     assert "Traceback" not in err
     assert f"error: task 18: nested more than {MAX_JSON_DEPTH} deep; refused" in err.splitlines()
     assert (out / "ab12cd34-room.json").is_file() and not (out / "street.json").exists()
+
+
+# --- 2. control characters in names ------------------------------------------------------------
+
+@pytest.mark.parametrize("where, value, key", [
+    (("targets", 0, "id"), "a\x00b", "targets[0].id"),
+    (("targets", 0, "class"), "Car\n", "targets[0].class"),
+    (("targets", 0, "dimension_lines", 1, "worker"), "w\t1", "targets[0].dimension_lines[1].worker"),
+    (("camera", "id"), "cam\x1b[31m", "camera.id"),
+    (("targets", 0, "id"), "t\ud800", "targets[0].id"),
+], ids=["nul-id", "newline-class", "tab-worker", "escape-camera", "surrogate-id"])
+def test_control_characters_in_names_are_refused_naming_key_and_value(tmp_path, where, value, key):
+    scene = _scene()
+    obj = scene
+    for k in where[:-1]:
+        obj = obj[k]
+    obj[where[-1]] = value
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(scene))
+    with pytest.raises(SceneError) as err:
+        load_scene(path)
+    assert err.value.path == key
+    assert f"control character U+{ord(next(c for c in value if not c.isprintable() or ord(c) >= 0xd800)):04X}" in str(err.value)
+    assert repr(value)[:20] in str(err.value)
+
+
+def test_a_nul_in_a_target_id_is_refused_before_anything_is_written(tmp_path, capsys):
+    scene = _scene()
+    scene["targets"][0]["id"] = "a\x00b"
+    path, out, nc = tmp_path / "s.json", tmp_path / "r.json", tmp_path / "p.nc"
+    path.write_text(json.dumps(scene))
+    assert main(["estimate", str(path), "--out", str(out), "--netcdf", str(nc), "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith("error: targets[0].id: control character U+0000 in 'a\\x00b'")
+    assert not out.exists() and not nc.exists()

@@ -28,7 +28,7 @@ from ..models.camera_terms import FocalPrior, OrientationPrior
 from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior, size_priors_from_dict
 from .result import canonical_sha256
 from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside, _check_segment, _dict,
-                         _get, _got, _join, _list, _number, _point, _points, _short, _string,
+                         _get, _got, _join, _list, _name, _number, _point, _points, _short, _string,
                          _warn_unknown, check_scene_format, near_miss, read_json)
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
@@ -202,7 +202,7 @@ def _parse_dimension_line(obj: Any, path: str, w: int, h: int, sink: list[str]) 
     seconds = obj.get("seconds")
     return DimensionLine(
         corners=corners,
-        worker=_string(obj.get("worker"), _join(path, "worker")),
+        worker=_name(obj.get("worker"), _join(path, "worker")),
         seconds=None if seconds is None else _number(seconds, _join(path, "seconds"), nonneg=True),
     )
 
@@ -275,8 +275,8 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     return Reference(
         index=index, measure=measure, mode=mode, low=low, high=high, line=line,
         is_range=has_range, unit=unit, stated=stated,
-        object=_string(obj.get("object"), _join(path, "object")),
-        worker=_string(obj.get("worker"), _join(path, "worker")),
+        object=_name(obj.get("object"), _join(path, "object")),
+        worker=_name(obj.get("worker"), _join(path, "worker")),
         confidence=None if conf is None else _number(conf, _join(path, "confidence"), lo=0.0, hi=1.0),
         seconds=None if secs is None else _number(secs, _join(path, "seconds"), nonneg=True),
     )
@@ -353,8 +353,8 @@ def _parse_lines(obj: dict, path: str, w: int, h: int, sink: list[str]) -> tuple
 def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, path)
     _warn_unknown(obj, {"id", "class", "dimensions_m", "size_prior", "dimension_lines", "ground_truth"}, path, sink)
-    ident = _string(_get(obj, "id", path), _join(path, "id"), optional=False)
-    cls = _string(obj.get("class"), _join(path, "class"))
+    ident = _name(_get(obj, "id", path), _join(path, "id"), optional=False)
+    cls = _name(obj.get("class"), _join(path, "class"))
     dims = obj.get("dimensions_m")
     if dims is not None:
         dims = _parse_dims(dims, _join(path, "dimensions_m"), sink)
@@ -475,7 +475,7 @@ def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, "target")
     _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, "target", sink)
     size = _parse_dims(_get(obj, "dimensions_m", "target"), "target.dimensions_m", sink)
-    return Target(_string(obj.get("id", "target"), "target.id", optional=False), None,
+    return Target(_name(obj.get("id", "target"), "target.id", optional=False), None,
                   _parse_lines(obj, "target", w, h, sink), size)
 
 
@@ -598,7 +598,7 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
     camera = {} if camera is None else _dict(camera, "camera")
     _warn_unknown(camera, {"id", "principal_point", "focal_length_px", "focal_length_prior", "orientation_prior",
                            "kitti_p2", "kitti_calib"}, "camera", sink)
-    camera_id = _string(camera.get("id"), "camera.id")
+    camera_id = _name(camera.get("id"), "camera.id")
     if camera_id is not None and not camera_id.strip():
         raise SceneError("camera.id", f"expected a camera's name, got {camera_id!r}")
     kitti_p2 = _parse_p2(camera.get("kitti_p2"), "camera.kitti_p2")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import unicodedata
 from pathlib import Path
 from typing import Any, Callable
 
@@ -113,6 +114,18 @@ def _string(value: Any, path: str, *, optional: bool = True) -> str | None:
         return None
     if not isinstance(value, str):
         raise SceneError(path, f"expected a string, {_got(value)}")
+    return value
+
+
+def _name(value: Any, path: str, *, optional: bool = True) -> str | None:
+    """A name (a target's id or class, a worker, a camera): a string without control characters
+    (NUL, line breaks, tabs, …) or lone surrogates, as names end up in file names, CSV files, KITTI
+    label files and NetCDF variables."""
+    value = _string(value, path, optional=optional)
+    bad = next((c for c in value or "" if unicodedata.category(c) in ("Cc", "Cs")), None)
+    if bad is not None:
+        raise SceneError(path, f"control character U+{ord(bad):04X} in {_short(value)}: names end up in "
+                               "file names and tables, give plain text")
     return value
 
 
