@@ -155,3 +155,27 @@ def test_a_nul_in_a_target_id_is_refused_before_anything_is_written(tmp_path, ca
     assert main(["estimate", str(path), "--out", str(out), "--netcdf", str(nc), "--quiet"]) == 2
     assert _one_error_line(capsys).startswith("error: targets[0].id: control character U+0000 in 'a\\x00b'")
     assert not out.exists() and not nc.exists()
+
+
+# --- 3. result files given to plot / advise -------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["plot", "advise"])
+@pytest.mark.parametrize("batch, key", [
+    ({"key": "/".join("abcdefghijklmn"), "scene_copy": "scenes/s0.json"}, "batch.key"),
+    ({"key": 7, "scene_copy": "scenes/s0.json"}, "batch.key"),
+    ({"key": "s0", "scene_copy": ["scenes/s0.json"]}, "batch.scene_copy"),
+    (["s0"], "batch"),
+], ids=["14-parts", "number", "list-copy", "list"])
+def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys, command, batch, key):
+    import shutil
+    from pathlib import Path
+
+    folder = tmp_path / "b"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", folder)
+    path = folder / "results" / "s0.json"
+    result = json.loads(path.read_text())
+    result["batch"] = batch
+    path.write_text(json.dumps(result))
+    assert main([command, str(path), "--out", str(tmp_path / "o.png" if command == "plot" else tmp_path / "a.json"),
+                 "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith(f"error: {path}: {key}: ")
