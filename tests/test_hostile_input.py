@@ -179,3 +179,33 @@ def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys,
     assert main([command, str(path), "--out", str(tmp_path / "o.png" if command == "plot" else tmp_path / "a.json"),
                  "--quiet"]) == 2
     assert _one_error_line(capsys).startswith(f"error: {path}: {key}: ")
+
+
+# --- 4. CSV cells a spreadsheet would run --------------------------------------------------------
+
+def test_csv_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_exactly(tmp_path):
+    from creference_bayes.io.files import atomic_write_csv, csv_cell, read_csv_rows
+
+    assert csv_cell("\r=a") == "'\r=a" and csv_cell(-1.5) == -1.5
+    values = ['=HYPERLINK("http://x","y")', "+cmd", "-x", "@SUM(A1)", "\tz", "'quoted", "'=b",
+              "-1.5", "+2", "-3e-4", "plain", "a-b", ""]
+    path = atomic_write_csv(tmp_path / "t.csv", [{"v": v, "n": -2.5} for v in values], ["v", "n"])
+    raw = [row["v"] for row in csv.DictReader(path.open(newline=""))]
+    assert raw[:7] == ["'" + v for v in values[:7]]
+    assert raw[7:] == values[7:]  # numbers stay numbers, plain text stays as it is
+    rows = read_csv_rows(path.read_bytes().decode())
+    assert [r["v"] for r in rows] == values and {r["n"] for r in rows} == {"-2.5"}
+
+
+def test_a_formula_in_a_target_id_lands_escaped_in_the_batch_summary(tmp_path):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    scene = _scene()
+    scene["targets"][0]["id"] = '=HYPERLINK("http://evil","click")'
+    (scenes / "s.json").write_text(json.dumps(scene))
+    out = tmp_path / "out"
+    assert main(["batch", str(scenes), "--out", str(out), "--no-posterior", "--workers", "1", "--quiet"]) == 0
+    row = next(csv.DictReader((out / "summary.csv").open(newline="")))
+    assert row["target"] == "'" + scene["targets"][0]["id"]
+    assert float(row["map_distance_m"]) > 0
+

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .estimate import distance_range_arg, model_options
 from .main import UsageError, check_output_file, require, seed_value, usage_errors
-from ..io.files import read_text
+from ..io.files import read_csv_rows, read_text
 from ..io.validation import read_json
 
 __all__ = ["register"]
@@ -166,8 +166,6 @@ def _into_scenes(args, put, noun: str, verb: str) -> int:
 
 
 def _apply(args) -> int:
-    import csv
-
     from ..workflows.advice.answers import apply_answers
 
     if not Path(args.input).is_dir():
@@ -175,7 +173,7 @@ def _apply(args) -> int:
     path = Path(args.apply)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
-    rows = list(csv.DictReader(read_text(path).splitlines()))
+    rows = read_csv_rows(read_text(path))
     if rows and "answer" not in rows[0]:
         raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
     if not any((row.get("answer") or "").strip() for row in rows):

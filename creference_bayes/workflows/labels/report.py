@@ -5,13 +5,11 @@ the quality is calibrated. Writes ``report.md``, ``labels.csv``, ``needs_annotat
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 
 import numpy as np
 
-from ...io.files import atomic_path, atomic_write_text
+from ...io.files import atomic_path, atomic_write_csv, atomic_write_text
 from .quality import IOU_THRESHOLDS, reliability_table
 
 __all__ = ["LABEL_COLUMNS", "NEEDS_COLUMNS", "label_rows", "advice_verdicts", "calibration", "write_report"]
@@ -95,13 +93,8 @@ def calibration(objects, n_bins: int | None = None) -> dict[float, list[dict]]:
     return {t: reliability_table([o.quality.p_iou[t] for o in known], true >= t, n_bins) for t in IOU_THRESHOLDS}
 
 
-def _csv(rows: list[dict], columns) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _cell(r.get(k)) for k in columns})
-    return buf.getvalue()
+def _csv(path: Path, rows: list[dict], columns) -> Path:
+    return atomic_write_csv(path, ({k: _cell(r.get(k)) for k in columns} for r in rows), columns)
 
 
 def _cell(v) -> str:
@@ -136,8 +129,8 @@ def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou
         if v is not None:
             r.update(verdict=v["verdict"], best_request=v["best"], p_expected=v["p_expected"], chance=v["chance"],
                      advice=v["text"])
-    paths = {"labels_csv": atomic_write_text(out / "labels.csv", _csv(rows, LABEL_COLUMNS)),
-             "needs_annotation_csv": atomic_write_text(out / "needs_annotation.csv", _csv(low, NEEDS_COLUMNS))}
+    paths = {"labels_csv": _csv(out / "labels.csv", rows, LABEL_COLUMNS),
+             "needs_annotation_csv": _csv(out / "needs_annotation.csv", low, NEEDS_COLUMNS)}
     calib = calibration(export.objects)
     if figure and rows:
         from ...vision.label_figures import quality_figure
