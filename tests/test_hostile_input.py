@@ -209,3 +209,37 @@ def test_a_formula_in_a_target_id_lands_escaped_in_the_batch_summary(tmp_path):
     assert row["target"] == "'" + scene["targets"][0]["id"]
     assert float(row["map_distance_m"]) > 0
 
+
+
+# --- 6. scene size limits ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("what", ["targets", "annotations", "references"])
+def test_a_scene_beyond_a_size_limit_is_refused_naming_count_and_limit(what):
+    from creference_bayes.io.scene import MAX_ANNOTATIONS, MAX_REFERENCES, MAX_TARGETS, parse_scene
+
+    scene = _scene()
+    if what == "targets":
+        t = scene["targets"][0]
+        scene["targets"] = [dict(t, id=f"t{i}") for i in range(MAX_TARGETS + 1)]
+        scene.pop("references", None)
+        key, n, limit = "targets", MAX_TARGETS + 1, MAX_TARGETS
+    elif what == "annotations":
+        lines = scene["targets"][0]["dimension_lines"]
+        scene["targets"][0]["dimension_lines"] = (lines * MAX_ANNOTATIONS)[:MAX_ANNOTATIONS + 1]
+        key, n, limit = "targets[0].dimension_lines", MAX_ANNOTATIONS + 1, MAX_ANNOTATIONS
+    else:
+        ref = {"target": "t0", "measure": "height", "value": 1.7, "unit": "m"}
+        scene["references"] = [ref] * (MAX_REFERENCES + 1)
+        key, n, limit = "references", MAX_REFERENCES + 1, MAX_REFERENCES
+    with pytest.raises(SceneError) as err:
+        parse_scene(scene)
+    assert err.value.path == key and f"{n} " in err.value.problem and f"the {limit} a scene may have" in err.value.problem
+
+
+def test_a_scene_at_the_limits_loads():
+    from creference_bayes.io.scene import MAX_TARGETS, parse_scene
+
+    scene = _scene()
+    scene["targets"] = [dict(scene["targets"][0], id=f"t{i}") for i in range(MAX_TARGETS)]
+    scene.pop("references", None)
+    assert len(parse_scene(scene).targets) == MAX_TARGETS

@@ -33,7 +33,7 @@ from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside,
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
-           "near_miss", "read_scene_json", "find_size_prior"]
+           "near_miss", "read_scene_json", "find_size_prior", "MAX_TARGETS", "MAX_ANNOTATIONS", "MAX_REFERENCES"]
 
 #: The format :func:`scene_to_dict` writes.
 SCENE_FORMAT = SCENE_FORMATS[-1]
@@ -46,6 +46,14 @@ IMAGE_MARGIN = 0.5
 HORIZON_MARGIN = 20.0
 #: Largest image side accepted, pixels (gigapixel panoramas stay below it).
 MAX_IMAGE_SIDE = 1_000_000
+#: Most targets in a scene. A KITTI frame has up to about 30 objects; the MAP's cost grows faster
+#: than linearly with the targets (100 targets with one distance reference take about a minute
+#: without the posterior), so a scene of more is refused rather than left to run for hours.
+MAX_TARGETS = 100
+#: Most annotations (``dimension_lines``) of one target: crowds of 5-20 workers, with room to spare.
+MAX_ANNOTATIONS = 500
+#: Most references in a scene: a few per target from each worker, with room to spare.
+MAX_REFERENCES = 2000
 _TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "target", "references",
                  "ground_truth"},
              2: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "classes", "targets",
@@ -347,6 +355,7 @@ def _parse_lines(obj: dict, path: str, w: int, h: int, sink: list[str]) -> tuple
     lines = _list(_get(obj, "dimension_lines", path), lpath)
     if not lines:
         raise SceneError(lpath, "expected at least one annotation, got []")
+    _at_most(lines, MAX_ANNOTATIONS, lpath, "annotations of one target")
     return tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink) for i, d in enumerate(lines))
 
 
@@ -496,6 +505,12 @@ def _camera_truth(gt: dict) -> dict:
     return gt
 
 
+def _at_most(items: list, limit: int, path: str, what: str) -> None:
+    if len(items) > limit:
+        raise SceneError(path, f"{len(items)} {what}, more than the {limit} a scene may have "
+                               "(docs/scene_format.md, Limits)")
+
+
 def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
     """Validate a decoded scene file (``data``, a dict, either format) and return a :class:`Scene`;
     :class:`SceneError` on the first invalid key, naming its path and value.
@@ -530,6 +545,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         raw = _list(_get(data, "targets", ""), "targets")
         if not raw:
             raise SceneError("targets", "expected at least one target, got []")
+        _at_most(raw, MAX_TARGETS, "targets", "targets")
         targets = tuple(_parse_target(t, _join("targets", i), w, h, sink) for i, t in enumerate(raw))
     ids: dict[str, int] = {}
     for i, t in enumerate(targets):
@@ -547,6 +563,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
                                 f" (classes: {known}; add it under 'classes' or give a classes file)"))
     refs_raw = data.get("references")
     refs_raw = [] if refs_raw is None else _list(refs_raw, "references")
+    _at_most(refs_raw, MAX_REFERENCES, "references", "references")
     if version == 1:
         parsed = []
         for i, r in enumerate(refs_raw):
