@@ -243,3 +243,30 @@ def test_a_scene_at_the_limits_loads():
     scene["targets"] = [dict(scene["targets"][0], id=f"t{i}") for i in range(MAX_TARGETS)]
     scene.pop("references", None)
     assert len(parse_scene(scene).targets) == MAX_TARGETS
+
+
+# --- 5. files already in --out ----------------------------------------------------------------
+
+def test_import_keeps_a_hand_edited_scene_unless_overwrite_and_says_what_it_replaced(tmp_path, capsys):
+    from pathlib import Path
+
+    export = Path(__file__).parent / "data" / "label_studio_export.json"
+    out = tmp_path / "scenes"
+    main(["import", "label-studio", str(export), "--out", str(out)])
+    street, room = out / "street.json", out / "ab12cd34-room.json"
+    written = street.read_text()
+    capsys.readouterr()
+    main(["import", "label-studio", str(export), "--out", str(out)])  # the same again: nothing replaced
+    assert "unchanged " + str(street) in capsys.readouterr().out and street.read_text() == written
+    edited = json.loads(written)
+    edited["targets"][0]["dimensions_m"]["length"] = 1.7
+    street.write_text(json.dumps(edited))
+    assert main(["import", "label-studio", str(export), "--out", str(out)]) == 2
+    io = capsys.readouterr()
+    assert f"error: {street}: exists and is not the scene of task 18 (edited by hand?); kept it: pass --overwrite " \
+           "to replace it" in io.err.splitlines()
+    assert json.loads(street.read_text()) == edited and room.is_file()
+    main(["import", "label-studio", str(export), "--out", str(out), "--overwrite"])
+    io = capsys.readouterr()
+    assert f"replaced {street} (task 18)" in io.out.splitlines() and "(1 replaced)" in io.out
+    assert street.read_text() == written
