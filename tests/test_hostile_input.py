@@ -270,3 +270,37 @@ def test_import_keeps_a_hand_edited_scene_unless_overwrite_and_says_what_it_repl
     io = capsys.readouterr()
     assert f"replaced {street} (task 18)" in io.out.splitlines() and "(1 replaced)" in io.out
     assert street.read_text() == written
+
+
+def test_labels_removes_only_its_own_files_of_frames_no_longer_in_the_batch(tmp_path, capsys):
+    import shutil
+    from pathlib import Path
+
+    from creference_bayes.io.result import canonical_sha256
+
+    batch = tmp_path / "batch"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", batch)
+    scene = json.loads((batch / "scenes" / "s0.json").read_text())
+    scene["image"]["path"] = "images/photo_018.png"  # another photo: its own label files
+    (batch / "scenes" / "s1.json").write_text(json.dumps(scene))
+    result = json.loads((batch / "results" / "s0.json").read_text())
+    result["batch"].update(key="s1", scene_copy="scenes/s1.json")
+    result["scene_id"]["sha256"] = canonical_sha256(scene)
+    (batch / "results" / "s1.json").write_text(json.dumps(result))
+    out = tmp_path / "labels"
+    assert main(["labels", str(batch), "--out", str(out), "--no-figure", "--quiet"]) == 0
+    ours = ["calib/photo_018.txt", "label_2/photo_018.txt", "uncertainty/photo_018.json"]
+    assert all((out / rel).is_file() for rel in ours)
+    (out / "label_2" / "mine.txt").write_text("a user's file\n")  # never ours
+    (out / "calib" / "photo_018.txt").write_text("edited by hand\n")  # ours, but changed since
+    (batch / "results" / "s1.json").unlink()  # the frame leaves the batch
+    capsys.readouterr()
+    assert main(["labels", str(batch), "--out", str(out), "--no-figure"]) == 0
+    io = capsys.readouterr()
+    assert not (out / "label_2" / "photo_018.txt").exists() and not (out / "uncertainty" / "photo_018.json").exists()
+    assert (out / "label_2" / "mine.txt").read_text() == "a user's file\n"
+    assert (out / "calib" / "photo_018.txt").read_text() == "edited by hand\n"
+    assert (out / "label_2" / "photo_017.txt").is_file()
+    assert ("removed 2 file(s) this command wrote for images no longer in the batch: label_2/photo_018.txt, "
+            "uncertainty/photo_018.json") in io.out
+    assert "warning: calib/photo_018.txt: of an image no longer in the batch, but changed since" in io.err
