@@ -115,7 +115,7 @@ def test_resolve_names_files_and_the_default(tmp_path):
     path.write_text(json.dumps(_fitted().to_dict()))
     assert resolve_confidence_map(str(path)) == _fitted()
     (tmp_path / "bad.json").write_text("{not json")
-    with pytest.raises(ConfidenceMapError, match="bad.json: not JSON"):
+    with pytest.raises(ConfidenceMapError, match="bad.json: not valid JSON"):
         resolve_confidence_map(tmp_path / "bad.json")
     with pytest.raises(ConfidenceMapError, match="expected 'none', 'identity'"):
         resolve_confidence_map(3)

@@ -3,13 +3,15 @@ time, and which (docs/advice.md)."""
 
 from __future__ import annotations
 
+import csv
 import math
 import sys
 from pathlib import Path
 
 from .estimate import distance_range_arg, model_options
 from .main import UsageError, check_output_file, require, seed_value, usage_errors
-from ..io.files import read_text
+from ..io.files import read_csv_rows, read_text
+from ..io.validation import read_json
 
 __all__ = ["register"]
 
@@ -40,8 +42,6 @@ def _settings(args):
 
 
 def _one(args, settings, progress: bool) -> int:
-    import json
-
     from ..io.files import atomic_write_json
     from ..io.result import RESULT_FORMATS
     from ..io.scene import SceneError, load_scene
@@ -52,8 +52,8 @@ def _one(args, settings, progress: bool) -> int:
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
     try:
-        d = json.loads(read_text(path))
-    except (UnicodeDecodeError, ValueError):
+        d = read_json(path)
+    except ValueError:
         d = None  # not JSON: the scene reader says what is wrong
     try:
         made_with = None  # a scene's estimate: its options and range, recorded with the advice
@@ -175,8 +175,6 @@ def _into_scenes(args, put, noun: str, verb: str, nothing: str) -> int:
 
 
 def _apply(args) -> int:
-    import csv
-
     from ..workflows.advice.answers import apply_answers
 
     if not Path(args.input).is_dir():
@@ -184,7 +182,12 @@ def _apply(args) -> int:
     path = Path(args.apply)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
-    rows = list(csv.DictReader(read_text(path).splitlines()))
+    try:
+        rows = read_csv_rows(read_text(path))
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"--apply {path}: not UTF-8 text (byte {exc.start}): save requests.csv as UTF-8") from None
+    except csv.Error as exc:
+        raise UsageError(f"--apply {path}: not a CSV file ({exc})") from None
     if rows and "answer" not in rows[0]:
         raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
     if not any((row.get("answer") or "").strip() for row in rows):

@@ -4,7 +4,6 @@ table for the camera and one for the objects, a ``creference-result/2`` file."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -12,7 +11,6 @@ import numpy as np
 
 from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.map import PRESETS
-from ..io.files import read_text
 from ..models.location_prior import LOCATION_PRIORS
 from ..pipeline import DEFAULT_MODEL, MODEL_OPTIONS, MODELS
 from .main import UsageError, check_output_file, example_scene_path, require, seed_value, usage_errors
@@ -29,12 +27,10 @@ def load_classes(path):
     """The size priors of ``--classes FILE`` (None without it), read and checked before any work."""
     if path is None:
         return None
+    from ..io.validation import read_json
     from ..models.size_priors import size_priors_from_dict
 
-    try:
-        data = json.loads(read_text(path))
-    except json.JSONDecodeError as exc:
-        raise UsageError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}") from None
+    data = read_json(path)  # a SceneError naming the file: exit status 2
     with usage_errors():
         return size_priors_from_dict(data, f"{path}", "file")
 

@@ -72,6 +72,9 @@ def _common(p) -> None:
     p.add_argument("--classes", metavar="CLASSES.json",
                    help="size priors of your own classes (docs/overview.md, Class size priors) for targets without a size, "
                         "written into the scenes whose targets use them")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a scene file already in --out that differs from what the import writes "
+                        "(edited by hand, say); without it such a file is kept and its scene refused")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -162,10 +165,14 @@ def _finish(report, args) -> int:
             print(f"note: {note}", file=sys.stderr)
     for err in report.errors:
         print(f"error: {err}", file=sys.stderr)
-    paths = write_scenes(report.scenes, args.out)
+    done, refused = write_scenes(report.scenes, args.out, overwrite=args.overwrite)
+    for err in refused:
+        print(f"error: {err}", file=sys.stderr)
     if not args.quiet:
-        for scene, path in zip(report.scenes, paths):
-            print(f"wrote {path} ({scene.source})")
-        skipped = f", {len(report.errors)} skipped for errors" if report.errors else ""
-        print(f"{len(paths)} scene(s) written to {args.out}{skipped}")
-    return EXIT_INVALID if report.errors else 0
+        for scene, path, how in done:
+            print(f"{how} {path} ({scene.source})")
+        errors = len(report.errors) + len(refused)
+        skipped = f", {errors} skipped for errors" if errors else ""
+        replaced = sum(how == "replaced" for *_, how in done)
+        print(f"{len(done)} scene(s) written to {args.out}{f' ({replaced} replaced)' if replaced else ''}{skipped}")
+    return EXIT_INVALID if report.errors or refused else 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from .main import UsageError, require, usage_errors
 
 __all__ = ["register", "FORMATS"]
@@ -32,6 +34,12 @@ def _run_labels(args) -> int:
               f"P(IoU ≥ {args.score_iou:g}) < {args.min_quality:g} (needs_annotation.csv); "
               f"not labelled: {len(export.failed_scenes)} failed, {len(export.skipped)} skipped; "
               f"report: {paths['report']}")
+        if export.removed:
+            print(f"removed {len(export.removed)} file(s) this command wrote for images no longer in the batch: "
+                  f"{', '.join(export.removed)}")
+    for rel in export.kept:
+        print(f"warning: {rel}: of an image no longer in the batch, but changed since this command wrote it: "
+              "kept", file=sys.stderr)
     return 0
 
 

@@ -9,13 +9,12 @@ P(IoU ≥ t) matches the IoU it really has (:mod:`.reliability`).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..io.files import read_text
+from ..io.validation import SceneError, read_json
 from ..io.kitti import SIDECAR_FORMATS
 from ..io.kitti_read import KittiLabels, LabelFileError, kitti_boxes, read_kitti_labels
 from .iou3d import METRICS, overlaps
@@ -38,9 +37,9 @@ def label_folder(path: str | Path, role: str) -> Path:
 def read_sidecar_quality(path: Path) -> dict[int, dict[float, float]]:
     """Label line (1-based) → {t: P(IoU ≥ t)} from an uncertainty sidecar (docs/labels.md)."""
     try:
-        doc = json.loads(read_text(path))
-    except ValueError as exc:
-        raise LabelFileError(f"{path}: not JSON ({exc})") from None
+        doc = read_json(path)
+    except SceneError as exc:
+        raise LabelFileError(str(exc)) from None
     if not isinstance(doc, dict) or doc.get("format") not in SIDECAR_FORMATS:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
         raise LabelFileError(f"{path}: format: expected one of {list(SIDECAR_FORMATS)}, got {got!r}")

@@ -496,16 +496,36 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
         return str(found.resolve())
 
 
-def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path) -> list[Path]:
-    """Write each scene to ``out_dir/<name>.json`` atomically (temporary file, then rename)."""
+def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path, overwrite: bool = False
+                 ) -> tuple[list[tuple[ImportedScene, Path, str]], list[ConversionError]]:
+    """Write each scene to ``out_dir/<name>.json`` atomically (temporary file, then rename).
+
+    A file already there that holds another scene (edited by hand, or another export's) is kept
+    and its scene refused (a :class:`ConversionError` naming the file) unless ``overwrite``.
+    Returns (scene, path, ``"wrote"``, ``"replaced"`` or ``"unchanged"``) of each scene written
+    and the refusals."""
+    from .validation import read_json
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
+    done, refused = [], []
     for s in scenes:
         path = out / f"{s.name}.json"
-        atomic_write_json(path, s.scene)
-        paths.append(path)
-    return paths
+        how = "wrote"
+        if path.exists():
+            try:
+                same = read_json(path) == s.scene
+            except (OSError, ValueError):
+                same = False
+            if not same and not overwrite:
+                refused.append(ConversionError(str(path), f"exists and is not the scene of {s.source} (edited by "
+                                                          "hand?); kept it: pass --overwrite to replace it"))
+                continue
+            how = "unchanged" if same else "replaced"
+        if how != "unchanged":
+            atomic_write_json(path, s.scene)
+        done.append((s, path, how))
+    return done, refused
 
 
 def unique_names(scenes: list[ImportedScene]) -> tuple[list[ImportedScene], list[ConversionError]]:

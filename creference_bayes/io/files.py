@@ -5,7 +5,9 @@ process killed mid-write leaves at most a ``.tmp`` file behind, never a truncate
 
 from __future__ import annotations
 
+import csv
 import errno
+import io
 import json
 import os
 import re
@@ -13,18 +15,19 @@ import secrets
 import stat
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterable, Iterator
 
-__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_write_set", "atomic_path",
-           "read_bytes", "read_text"]
+__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atomic_write_csv", "atomic_write_set",
+           "atomic_path", "read_bytes", "read_text", "read_csv_rows", "csv_cell"]
 
 
-def read_bytes(path: str | Path) -> bytes:
-    """The bytes of a file. An error while reading (not only while opening) names the file:
-    ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``, no file name) when the
-    read itself fails."""
+def read_bytes(path: str | Path, limit: int | None = None) -> bytes:
+    """The bytes of a file (``limit``: at most that many). An error while reading (not only while
+    opening) names the file: ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``,
+    no file name) when the read itself fails."""
     try:
-        return Path(path).read_bytes()
+        with open(path, "rb") as f:
+            return f.read(-1 if limit is None else limit)
     except OSError as exc:
         if exc.filename is None:
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from None
@@ -128,3 +131,38 @@ def atomic_write_set(files: dict) -> list[Path]:
             tmp.unlink(missing_ok=True)
         raise
     return list(tmps)
+
+
+#: First characters that make a spreadsheet read a cell as a formula (OWASP's CSV injection list),
+#: and the quote that marks a cell escaped.
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "'")
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+
+
+def _formula_like(text: str) -> bool:
+    return text.startswith(_FORMULA_START) and not _NUMBER.fullmatch(text)
+
+
+def csv_cell(value: Any) -> Any:
+    """A CSV cell that a spreadsheet shows as text: a text beginning with ``=``, ``+``, ``-``,
+    ``@``, a tab or a carriage return (a formula to a spreadsheet: a worker-typed target id
+    ``=HYPERLINK(…)``), or with ``'``, gets a leading ``'``; a number (``-1.5``) stays a number.
+    :func:`read_csv_rows` undoes it."""
+    return "'" + value if isinstance(value, str) and _formula_like(value) else value
+
+
+def atomic_write_csv(path: str | Path, rows: Iterable[dict], columns: Iterable[str]) -> Path:
+    """Write ``rows`` (dicts by column) as CSV with a header, every cell through :func:`csv_cell`,
+    atomically. Returns the path."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({k: csv_cell(v) for k, v in row.items()} for row in rows)
+    return atomic_write_text(path, buf.getvalue())
+
+
+def read_csv_rows(text: str) -> list[dict]:
+    """The rows of a CSV this package wrote (:func:`atomic_write_csv`), each a dict by column,
+    the cells escaped by :func:`csv_cell` restored."""
+    return [{k: v[1:] if isinstance(v, str) and v.startswith("'") and _formula_like(v[1:]) else v
+             for k, v in row.items()} for row in csv.DictReader(io.StringIO(text, newline=""))]

@@ -35,6 +35,7 @@ from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studi
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
 from .scene import _CAMERA_TRUTH, SceneError, parse_quietly, scene_to_dict
+from .validation import MAX_JSON_DEPTH, json_depth, loads_json
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -67,18 +68,12 @@ def read_export(path: str | Path) -> Any:
 def loads_export(text: bytes | str, name: str = "(export)") -> Any:
     """Decode the text of a Label Studio JSON export (raises :class:`ConversionError` naming
     ``name``): an integer beyond any float is read as infinite (and refused where a number is
-    read), a document nested too deeply is refused."""
+    read), a document nested deeper than the decoder goes is refused (a task nested too deeply is
+    refused alone, by :func:`scenes_from_label_studio`)."""
     try:
-        if isinstance(text, bytes):
-            text = text.decode("utf-8-sig")
-        return json.loads(text, parse_int=_json_int)
-    except UnicodeDecodeError:
-        raise ConversionError(name, "not UTF-8 text (expected Label Studio's JSON export)") from None
-    except json.JSONDecodeError as exc:
-        raise ConversionError(name, f"not valid JSON: {exc.msg} at line {exc.lineno} "
-                                    f"column {exc.colno}") from None
-    except RecursionError:
-        raise ConversionError(name, "JSON nested too deeply") from None
+        return loads_json(text, name, max_depth=None, parse_int=_json_int)
+    except SceneError as exc:
+        raise ConversionError(name, exc.problem) from None
 
 
 def _json_int(text: str) -> int | float:
@@ -184,6 +179,8 @@ def _task_part(task: Any, index: int, users: dict, notes: list[str]) -> _TaskPar
     where = _task_name(task, index)
     if not isinstance(task, dict):
         raise ConversionError(where, f"expected a task object, got {type(task).__name__}")
+    if json_depth(task) > MAX_JSON_DEPTH:
+        raise ConversionError(where, f"nested more than {MAX_JSON_DEPTH} deep; refused")
     data = task.get("data")
     if not isinstance(data, dict):
         if "annotations" not in task and "completions" not in task:

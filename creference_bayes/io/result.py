@@ -22,7 +22,7 @@ import numpy as np
 
 from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT_REPORT, object_report
 from ..models.metrology import MIN_TARGET_SIGMA_PX
-from .files import read_text
+from .validation import _short
 
 __all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
            "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_path_from", "scene_mismatch",
@@ -290,10 +290,12 @@ def _camera_evaluation(truth: dict, post: dict | None) -> dict:
 def load_result(path: str | Path) -> dict:
     """A result file's content (either format; check with :data:`RESULT_FORMATS`); ``ValueError``
     naming the file when it is not one."""
+    from .validation import SceneError, read_json
+
     try:
-        data = json.loads(read_text(path))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: not a result file (not JSON: {exc})") from None
+        data = read_json(path)
+    except SceneError as exc:
+        raise ValueError(f"{path}: not a result file ({exc.problem})") from None
     if not isinstance(data, dict) or data.get("format") not in RESULT_FORMATS:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ValueError(f"{path}: format: expected one of {list(RESULT_FORMATS)}, got {got!r}")
@@ -365,6 +367,29 @@ def result_from_v1(d: dict, scene) -> dict:
     return out
 
 
+def batch_fields(result: dict, result_path: str | Path) -> dict:
+    """The ``batch`` block of a result from ``creference batch`` (``{}`` when it has none), its
+    ``key``, ``scene_copy`` and ``source`` checked: text, and a ``key`` of no more folders than
+    the result file lies below (``results/KEY.json`` in the batch folder); else ``ValueError``
+    naming the file and the key."""
+    batch = result.get("batch")
+    if batch is None:
+        return {}
+    if not isinstance(batch, dict):
+        raise ValueError(f"{result_path}: batch: expected an object, got {type(batch).__name__}")
+    for name in ("key", "scene_copy", "source"):
+        value = batch.get(name)
+        if value is not None and (not isinstance(value, str) or not value or "\0" in value):
+            raise ValueError(f"{result_path}: batch.{name}: expected a file name, got {_short(value)}")
+    key = batch.get("key")
+    if key is not None:
+        parts = Path(key).parts
+        if Path(key).is_absolute() or ".." in parts or len(parts) >= len(Path(result_path).absolute().parents):
+            raise ValueError(f"{result_path}: batch.key: {_short(key)} is not where the result lies "
+                             "(expected the file's path below the batch folder's results/)")
+    return batch
+
+
 def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
     """Where the scene of a result (either format) may be, in the order to look: the batch
     folder's copy when the result came from ``creference batch`` (``batch.scene_copy``), the path
@@ -376,9 +401,11 @@ def scene_candidates(result: dict, result_path: str | Path) -> list[Path]:
 
     result_path = Path(result_path)
     out = []
-    batch = result.get("batch") if isinstance(result.get("batch"), dict) else {}
+    batch = batch_fields(result, result_path)
     if batch.get("scene_copy") and batch.get("key"):
-        out.append(result_path.parents[len(Path(batch["key"]).parts)] / batch["scene_copy"])
+        up = len(Path(batch["key"]).parts)  # results/KEY.json: the batch folder is that many folders up
+        parents = result_path.parents if up < len(result_path.parents) else result_path.absolute().parents
+        out.append(parents[up] / batch["scene_copy"])
     recorded = result.get("scene_path")
     if isinstance(recorded, str) and recorded:
         out.append(result_path.parent / recorded)

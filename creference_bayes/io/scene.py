@@ -15,7 +15,6 @@ keys are checked. Optional keys may be ``null`` (absent). Limits beyond the form
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from dataclasses import dataclass, field, replace
@@ -27,15 +26,14 @@ import numpy as np
 from ..core.units import UNITS_TO_M
 from ..models.camera_terms import FocalPrior, OrientationPrior
 from ..models.size_priors import KITTI_SIZE_PRIORS, SIZE_KEYS, SizePrior, size_priors_from_dict
-from .files import read_bytes
 from .result import canonical_sha256
 from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside, _check_segment, _dict,
-                         _get, _got, _join, _list, _number, _point, _points, _short, _string,
-                         _warn_unknown, check_scene_format, near_miss)
+                         _get, _got, _join, _list, _name, _number, _point, _points, _short, _string,
+                         _warn_unknown, check_scene_format, near_miss, read_json)
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
-           "near_miss", "read_scene_json", "find_size_prior"]
+           "near_miss", "read_scene_json", "find_size_prior", "MAX_TARGETS", "MAX_ANNOTATIONS", "MAX_REFERENCES"]
 
 #: The format :func:`scene_to_dict` writes.
 SCENE_FORMAT = SCENE_FORMATS[-1]
@@ -48,6 +46,14 @@ IMAGE_MARGIN = 0.5
 HORIZON_MARGIN = 20.0
 #: Largest image side accepted, pixels (gigapixel panoramas stay below it).
 MAX_IMAGE_SIDE = 1_000_000
+#: Most targets in a scene. A KITTI frame has up to about 30 objects; the MAP's cost grows faster
+#: than linearly with the targets (100 targets with one distance reference take about a minute
+#: without the posterior), so a scene of more is refused rather than left to run for hours.
+MAX_TARGETS = 100
+#: Most annotations (``dimension_lines``) of one target: crowds of 5-20 workers, with room to spare.
+MAX_ANNOTATIONS = 500
+#: Most references in a scene: a few per target from each worker, with room to spare.
+MAX_REFERENCES = 2000
 _TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "target", "references",
                  "ground_truth"},
              2: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "classes", "targets",
@@ -204,7 +210,7 @@ def _parse_dimension_line(obj: Any, path: str, w: int, h: int, sink: list[str]) 
     seconds = obj.get("seconds")
     return DimensionLine(
         corners=corners,
-        worker=_string(obj.get("worker"), _join(path, "worker")),
+        worker=_name(obj.get("worker"), _join(path, "worker")),
         seconds=None if seconds is None else _number(seconds, _join(path, "seconds"), nonneg=True),
     )
 
@@ -277,8 +283,8 @@ def _parse_reference(obj: Any, index: int, path: str, w: int, h: int,
     return Reference(
         index=index, measure=measure, mode=mode, low=low, high=high, line=line,
         is_range=has_range, unit=unit, stated=stated,
-        object=_string(obj.get("object"), _join(path, "object")),
-        worker=_string(obj.get("worker"), _join(path, "worker")),
+        object=_name(obj.get("object"), _join(path, "object")),
+        worker=_name(obj.get("worker"), _join(path, "worker")),
         confidence=None if conf is None else _number(conf, _join(path, "confidence"), lo=0.0, hi=1.0),
         seconds=None if secs is None else _number(secs, _join(path, "seconds"), nonneg=True),
     )
@@ -349,14 +355,15 @@ def _parse_lines(obj: dict, path: str, w: int, h: int, sink: list[str]) -> tuple
     lines = _list(_get(obj, "dimension_lines", path), lpath)
     if not lines:
         raise SceneError(lpath, "expected at least one annotation, got []")
+    _at_most(lines, MAX_ANNOTATIONS, lpath, "annotations of one target")
     return tuple(_parse_dimension_line(d, _join(lpath, i), w, h, sink) for i, d in enumerate(lines))
 
 
 def _parse_target(obj: Any, path: str, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, path)
     _warn_unknown(obj, {"id", "class", "dimensions_m", "size_prior", "dimension_lines", "ground_truth"}, path, sink)
-    ident = _string(_get(obj, "id", path), _join(path, "id"), optional=False)
-    cls = _string(obj.get("class"), _join(path, "class"))
+    ident = _name(_get(obj, "id", path), _join(path, "id"), optional=False)
+    cls = _name(obj.get("class"), _join(path, "class"))
     dims = obj.get("dimensions_m")
     if dims is not None:
         dims = _parse_dims(dims, _join(path, "dimensions_m"), sink)
@@ -477,7 +484,7 @@ def _parse_v1_target(obj: Any, w: int, h: int, sink: list[str]) -> Target:
     obj = _dict(obj, "target")
     _warn_unknown(obj, {"id", "dimensions_m", "dimension_lines"}, "target", sink)
     size = _parse_dims(_get(obj, "dimensions_m", "target"), "target.dimensions_m", sink)
-    return Target(_string(obj.get("id", "target"), "target.id", optional=False), None,
+    return Target(_name(obj.get("id", "target"), "target.id", optional=False), None,
                   _parse_lines(obj, "target", w, h, sink), size)
 
 
@@ -496,6 +503,12 @@ def _camera_truth(gt: dict) -> dict:
         if gt.get(key) is not None:
             gt[key] = _number(gt[key], _join("ground_truth", key), positive=key not in ("pitch_rad", "roll_rad"))
     return gt
+
+
+def _at_most(items: list, limit: int, path: str, what: str) -> None:
+    if len(items) > limit:
+        raise SceneError(path, f"{len(items)} {what}, more than the {limit} a scene may have "
+                               "(docs/scene_format.md, Limits)")
 
 
 def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, SizePrior] | None = None) -> Scene:
@@ -532,6 +545,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
         raw = _list(_get(data, "targets", ""), "targets")
         if not raw:
             raise SceneError("targets", "expected at least one target, got []")
+        _at_most(raw, MAX_TARGETS, "targets", "targets")
         targets = tuple(_parse_target(t, _join("targets", i), w, h, sink) for i, t in enumerate(raw))
     ids: dict[str, int] = {}
     for i, t in enumerate(targets):
@@ -549,6 +563,7 @@ def parse_scene(data: Any, source: str | Path | None = None, classes: dict[str, 
                                 f" (classes: {known}; add it under 'classes' or give a classes file)"))
     refs_raw = data.get("references")
     refs_raw = [] if refs_raw is None else _list(refs_raw, "references")
+    _at_most(refs_raw, MAX_REFERENCES, "references", "references")
     if version == 1:
         parsed = []
         for i, r in enumerate(refs_raw):
@@ -600,7 +615,7 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
     camera = {} if camera is None else _dict(camera, "camera")
     _warn_unknown(camera, {"id", "principal_point", "focal_length_px", "focal_length_prior", "orientation_prior",
                            "kitti_p2", "kitti_calib"}, "camera", sink)
-    camera_id = _string(camera.get("id"), "camera.id")
+    camera_id = _name(camera.get("id"), "camera.id")
     if camera_id is not None and not camera_id.strip():
         raise SceneError("camera.id", f"expected a camera's name, got {camera_id!r}")
     kitti_p2 = _parse_p2(camera.get("kitti_p2"), "camera.kitti_p2")
@@ -655,22 +670,9 @@ def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) ->
 
 
 def read_scene_json(path: Path) -> Any:
-    """The decoded JSON of a scene file; :class:`SceneError` (key ``(file)``) when it is not UTF-8
-    JSON with finite numbers."""
-    def reject(name):
-        raise SceneError(str(path), f"non-standard JSON constant {name} (numbers must be finite)")
-
-    path = Path(path)
-    raw = read_bytes(path)
-    try:
-        data = json.loads(raw.decode("utf-8-sig"), parse_constant=reject)
-    except UnicodeDecodeError as exc:
-        raise SceneError(str(path), f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
-    except json.JSONDecodeError as exc:
-        raise SceneError(str(path), f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except RecursionError:
-        raise SceneError(str(path), "JSON nested too deeply") from None
-    return data
+    """The decoded JSON of a scene file (:func:`~.validation.read_json`: :class:`SceneError` naming
+    the file when it is not UTF-8 JSON with finite numbers, nested too deeply, …)."""
+    return read_json(path)
 
 
 def _parse_calib(value: Any, path: str) -> dict[str, list[float]] | None:

@@ -270,11 +270,13 @@ class ConfidenceMap:
     @classmethod
     def load(cls, path: str | Path) -> "ConfidenceMap":
         """Read a map file; errors start with the file's path."""
+        from ..io.validation import SceneError, read_json
+
         path = Path(path)
         try:
-            d = json.loads(path.read_text(encoding="utf-8-sig"))
-        except json.JSONDecodeError as exc:
-            raise ConfidenceMapError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
+            d = read_json(path)
+        except SceneError as exc:
+            raise ConfidenceMapError(str(exc)) from None
         try:
             return cls.from_dict(d, source=str(path))
         except ConfidenceMapError as exc:

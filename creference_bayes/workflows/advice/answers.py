@@ -199,17 +199,16 @@ def _user_scene(batch_dir, key: str, result_path) -> _SceneFile:
     image size, and its fingerprint (``scene_id.sha256``) or, when answers went in since (its
     fingerprint changed), the batch's copy of it with annotations added (:func:`_answered_since`).
     ValueError naming the result and the path otherwise."""
-    import json
     from pathlib import Path
 
-    from ...io.files import read_text
     from ...io.result import canonical_sha256, scene_mismatch
     from ...io.scene import parse_quietly, read_scene_json
+    from ...io.validation import SceneError, read_json
 
     try:
-        result = json.loads(read_text(result_path))
-    except ValueError as exc:  # not UTF-8 or not JSON: a write killed half-way, or not a result
-        raise ValueError(f"{result_path}: not a result file ({exc})") from None
+        result = read_json(result_path)
+    except SceneError as exc:  # not UTF-8 or not JSON: a write killed half-way, or not a result
+        raise ValueError(f"not a result file: {exc}") from None
     source = (result.get("batch") or {}).get("source") if isinstance(result, dict) else None
     if not isinstance(source, str) or not source:
         raise ValueError(f"{result_path}: no batch.source (the scene file it was estimated from): "

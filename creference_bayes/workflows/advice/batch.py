@@ -19,10 +19,8 @@ batch`` then re-estimates the frames that changed.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
-import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -337,6 +335,7 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
                        lines: str = "keypoints", image_url_prefix: str | None = None) -> dict[str, Path]:
     """Write the advice files (module docstring) to ``out``; returns their paths by name.
     ``image_url_prefix``: the Label Studio tasks' image URLs (:func:`~.requests.label_studio_requests`)."""
+    from ...io.files import atomic_write_csv
     from .requests import cvat_requests, label_studio_requests
 
     out = Path(out)
@@ -362,11 +361,7 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
                      **{k: v for k, v in o.advice.verdicts()[o.target].items() if k != "target"}}
                     for o in batch.objects],
         "skipped": list(batch.skipped)})
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=REQUEST_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write_text(paths["requests"], buf.getvalue())
+    atomic_write_csv(paths["requests"], rows, REQUEST_COLUMNS)
     tasks = label_studio_requests(requested, lines=lines, image_url_prefix=image_url_prefix)
     atomic_write_text(paths["label_studio"], json.dumps(tasks, indent=1) + "\n")
     atomic_write_text(paths["cvat"], cvat_requests(requested))

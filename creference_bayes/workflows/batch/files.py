@@ -3,12 +3,12 @@ a result or an error is recorded (atomically, the scene copy before its result).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from ... import __version__
-from ...io.files import atomic_write_json, read_text
+from ...io.files import atomic_write_json
 from ...io.scene import scene_to_dict
+from ...io.validation import read_json
 
 __all__ = ["ERROR_FORMAT", "layout", "result_paths", "up_to_date", "record_error", "record_result"]
 
@@ -42,7 +42,7 @@ def up_to_date(paths: dict, fingerprint: str, settings: dict, ground: dict | Non
     from ...pipeline import EARLIER_GROUND
 
     try:
-        d = json.loads(read_text(paths["result"]))
+        d = read_json(paths["result"])
         return (d.get("scene_id", {}).get("sha256") == fingerprint
                 and d.get("batch", {}).get("settings") == settings
                 and (ground is None or (d.get("provenance", {}).get("ground") or EARLIER_GROUND) == ground))

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 from pathlib import Path
 
-from ...io.files import atomic_write_text, read_text
+from ...io.files import atomic_write_csv
+from ...io.validation import read_json
 
 __all__ = ["SUMMARY_COLUMNS", "summary_rows", "write_summary", "summary_line"]
 
@@ -23,7 +21,7 @@ SUMMARY_COLUMNS = ("scene", "target", "class", "image", "status", "map_distance_
 
 def _read(path: Path) -> dict | None:
     try:
-        return json.loads(read_text(path))
+        return read_json(path)
     except (OSError, ValueError):
         return None
 
@@ -72,11 +70,7 @@ def summary_rows(out: str | Path, scenes, report) -> list[dict]:
 
 def write_summary(out: str | Path, scenes, report) -> Path:
     """Write ``summary.csv`` in the batch folder (atomically) and return its path."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(summary_rows(out, scenes, report))
-    return atomic_write_text(Path(out) / "summary.csv", buf.getvalue())
+    return atomic_write_csv(Path(out) / "summary.csv", summary_rows(out, scenes, report), SUMMARY_COLUMNS)
 
 
 def summary_line(report, out: str | Path | None = None) -> str:

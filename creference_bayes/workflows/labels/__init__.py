@@ -16,14 +16,13 @@ scene changed: rerun the batch).
 
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
-from ...io.files import read_text
 from ...io.result import RESULT_FORMAT, RESULT_FORMATS, canonical_sha256, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
+from ...io.validation import read_json
 from ..batch.files import result_paths
 from .kitti import LabelInput, ObjectLabel, write_labels
 from .quality import IOU_THRESHOLDS
@@ -54,11 +53,11 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     inputs, skipped = [], []
     for key, path in result_paths(batch_dir, check=True).items():
         try:
-            result = json.loads(read_text(path))
+            result = read_json(path)
             if result.get("format") not in RESULT_FORMATS or "batch" not in result:
                 raise ValueError("not a result of creference batch")
             copy_path = batch_dir / result["batch"]["scene_copy"]
-            copy = json.loads(read_text(copy_path))
+            copy = read_json(copy_path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = load_scene(copy_path)
@@ -90,6 +89,51 @@ class LabelExport:
     skipped: list[dict]
     failed_scenes: list[dict]
     fingerprints: dict = field(default_factory=dict)
+    removed: list[str] = field(default_factory=list)  # stale files of a previous run, removed
+    kept: list[str] = field(default_factory=list)  # stale files of a previous run changed since: kept
+
+
+#: The list of the label files ``labels`` wrote in its folder (path → sha256), so that a later run
+#: removes those of images no longer in the batch and nothing else.
+MANIFEST = ".creference-labels.json"
+MANIFEST_FORMAT = "creference-labels-manifest/1"
+_LABEL_FOLDERS = ("label_2", "calib", "uncertainty")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _replace_manifest(out: Path, names: list[str]) -> tuple[list[str], list[str]]:
+    """Remove the files the previous run listed in ``out``'s manifest that this run did not write
+    (images no longer in the batch), unless changed since (kept); write the new manifest. Returns
+    (removed, kept), paths relative to ``out``."""
+    from ...io.files import atomic_write_json
+
+    now = {}
+    for name in names:
+        for rel in (f"label_2/{name}.txt", f"calib/{name}.txt", f"uncertainty/{name}.json"):
+            if (out / rel).is_file():
+                now[rel] = _sha256(out / rel)
+    try:
+        before = read_json(out / MANIFEST)
+        before = before["files"] if before.get("format") == MANIFEST_FORMAT and isinstance(before["files"], dict) else {}
+    except (OSError, ValueError, KeyError, AttributeError, TypeError):
+        before = {}
+    removed, kept = [], []
+    for rel, sha in sorted(before.items()):
+        parts = PurePath(rel).parts if isinstance(rel, str) else ()
+        if rel in now or len(parts) != 2 or parts[0] not in _LABEL_FOLDERS or not (out / rel).is_file():
+            continue  # rewritten now, gone already, or not a label file of ours
+        if _sha256(out / rel) == sha:
+            (out / rel).unlink()
+            removed.append(rel)
+        else:
+            kept.append(rel)
+    atomic_write_json(out / MANIFEST, {"format": MANIFEST_FORMAT, "files": now})
+    return removed, kept
 
 
 def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | None = None,
@@ -136,9 +180,10 @@ def export_labels(batch_dir: str | Path, out: str | Path, *, type_name: str | No
         if path.name.startswith("."):
             continue
         try:
-            d = json.loads(read_text(path))
+            d = read_json(path)
             failed.append({"key": d["key"], "error": d["error"]})
         except (OSError, ValueError, KeyError):
             continue
+    removed, kept = _replace_manifest(Path(out), sorted(names)) if names else ([], [])
     return LabelExport(objects, sorted(names), skipped, failed,
-                       {inp.key: (inp.result.get("scene_id") or {}).get("sha256") for inp in inputs})
+                       {inp.key: (inp.result.get("scene_id") or {}).get("sha256") for inp in inputs}, removed, kept)

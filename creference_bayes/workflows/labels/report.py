@@ -5,13 +5,11 @@ the quality is calibrated. Writes ``report.md``, ``labels.csv``, ``needs_annotat
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 
 import numpy as np
 
-from ...io.files import atomic_path, atomic_write_text
+from ...io.files import atomic_path, atomic_write_csv, atomic_write_text
 from .quality import IOU_THRESHOLDS, reliability_table
 
 __all__ = ["LABEL_COLUMNS", "NEEDS_COLUMNS", "label_rows", "advice_verdicts", "calibration", "write_report"]
@@ -32,9 +30,7 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
     an advice for another bar (``iou_threshold``, ``min_quality``), of results since re-estimated
     (the fingerprint it records differs from ``fingerprints[key]``, the labelled result's) or of
     frames with no labelled result now (no ``key`` in ``fingerprints``)."""
-    import json
-
-    from ...io.files import read_text
+    from ...io.validation import read_json
 
     path = Path(advice_path) if advice_path is not None else Path(batch_dir) / "advice" / "advice.json"
     rerun = (f"run `creference advise {batch_dir} --score-iou {score_iou:g} --min-quality {min_quality:g}` "
@@ -42,7 +38,7 @@ def advice_verdicts(batch_dir: str | Path, fingerprints: dict, *, score_iou: flo
     if not path.is_file():
         return {}, rerun
     try:
-        d = json.loads(read_text(path))
+        d = read_json(path)
         scenes = d["scenes"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         return {}, f"the advice {path} cannot be read ({exc}); {rerun}"
@@ -97,13 +93,8 @@ def calibration(objects, n_bins: int | None = None) -> dict[float, list[dict]]:
     return {t: reliability_table([o.quality.p_iou[t] for o in known], true >= t, n_bins) for t in IOU_THRESHOLDS}
 
 
-def _csv(rows: list[dict], columns) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _cell(r.get(k)) for k in columns})
-    return buf.getvalue()
+def _csv(path: Path, rows: list[dict], columns) -> Path:
+    return atomic_write_csv(path, ({k: _cell(r.get(k)) for k in columns} for r in rows), columns)
 
 
 def _cell(v) -> str:
@@ -138,8 +129,8 @@ def write_report(export, out: str | Path, *, min_quality: float = 0.5, score_iou
         if v is not None:
             r.update(verdict=v["verdict"], best_request=v["best"], p_expected=v["p_expected"], chance=v["chance"],
                      advice=v["text"])
-    paths = {"labels_csv": atomic_write_text(out / "labels.csv", _csv(rows, LABEL_COLUMNS)),
-             "needs_annotation_csv": atomic_write_text(out / "needs_annotation.csv", _csv(low, NEEDS_COLUMNS))}
+    paths = {"labels_csv": _csv(out / "labels.csv", rows, LABEL_COLUMNS),
+             "needs_annotation_csv": _csv(out / "needs_annotation.csv", low, NEEDS_COLUMNS)}
     calib = calibration(export.objects)
     if figure and rows:
         from ...vision.label_figures import quality_figure

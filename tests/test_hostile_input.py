@@ -1,0 +1,306 @@
+"""Hostile and unlucky input (issue 61): JSON from outside read by one reader with bounds, one bad
+unit (a scene of a batch, a task of an export) refused by name while the others go on, ids that
+end up in file names, result fields the commands index into, CSV cells a spreadsheet would run,
+files already in an output folder, and scene size limits."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from conftest import truth_scene
+
+from creference_bayes.cli.main import main
+from creference_bayes.io.scene import SceneError, load_scene
+from creference_bayes.io.validation import MAX_INT_DIGITS, MAX_JSON_DEPTH, json_depth, read_json
+
+DEEP = json.loads("[" * 500 + "]" * 500)
+
+
+def _scene(seed=1, **options) -> dict:
+    scene, _ = truth_scene(seed, m=1, noise_px=1.0, n_annotations=2, **options)
+    return scene
+
+
+def _deep_scene() -> dict:
+    scene = _scene()
+    scene["targets"][0]["ground_truth"]["note"] = DEEP
+    return scene
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+# --- 1. one reader of outside JSON ----------------------------------------------------------------
+
+def test_json_depth_is_found_without_recursion():
+    assert json_depth(1) == 0 and json_depth([]) == 1 and json_depth({"a": [1, {"b": []}]}) == 4
+    assert json_depth(json.loads("[" * 900 + "]" * 900)) == 900
+
+
+@pytest.mark.parametrize("content, problem", [
+    (json.dumps(_deep_scene()), f"JSON nested more than {MAX_JSON_DEPTH} deep"),
+    ('{"format": "creference-scene/2", "x": ' + "7" * 5000 + "}", f"an integer of 5000 digits (at most {MAX_INT_DIGITS})"),
+    ('{"format": "creference-scene/2", "x": -' + "7" * 401 + "}", "an integer of 401 digits"),
+    ("[" * 5000 + "]" * 5000, "JSON nested too deeply"),
+    ('{"x": NaN}', "non-standard JSON constant NaN"),
+], ids=["deep", "big-int", "big-negative-int", "too-deep-to-decode", "nan"])
+def test_a_hostile_scene_is_a_scene_error_naming_the_file(tmp_path, content, problem):
+    path = tmp_path / "s.json"
+    path.write_text(content)
+    with pytest.raises(SceneError) as err:
+        load_scene(path)
+    assert str(err.value).startswith(f"{path}: ") and problem in str(err.value)
+
+
+def test_the_reader_takes_a_bom_and_refuses_other_encodings(tmp_path):
+    path = tmp_path / "c.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps({"a": 1}).encode())
+    assert read_json(path) == {"a": 1}
+    path.write_bytes('{"a": "é"}'.encode("latin-1"))
+    with pytest.raises(SceneError, match=r"c\.json: not UTF-8 text: byte 7"):
+        read_json(path)
+
+
+@pytest.mark.parametrize("content", [
+    json.dumps(_deep_scene()), '{"format": "creference-scene/2", "n": ' + "1" * 5000 + "}"], ids=["deep", "big-int"])
+def test_estimate_refuses_a_hostile_scene_in_one_line(tmp_path, capsys, content):
+    path = tmp_path / "s.json"
+    path.write_text(content)
+    assert main(["estimate", str(path), "--no-posterior", "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith(f"error: {path}: ")
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b'{"car": "\xff"}', "not UTF-8 text"), (b"[" * 5000 + b"]" * 5000, "nested too deeply"),
+    (b'{"car": {"length": ' + b"9" * 5000 + b"}}", "an integer of 5000 digits")], ids=["latin-1", "deep", "big-int"])
+def test_a_hostile_classes_file_is_refused_in_one_line(tmp_path, capsys, content, problem):
+    scene, classes = tmp_path / "s.json", tmp_path / "classes.json"
+    scene.write_text(json.dumps(_scene()))
+    classes.write_bytes(content)
+    assert main(["estimate", str(scene), "--classes", str(classes), "--no-posterior", "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith(f"error: {classes}: ") and problem in line
+
+
+def test_a_batch_reports_a_scene_that_fails_to_load_and_estimates_the_others(tmp_path, capsys):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "deep.json").write_text(json.dumps(_deep_scene()))
+    (scenes / "huge.json").write_text('{"format": "creference-scene/2", "n": ' + "1" * 5000 + "}")
+    (scenes / "good.json").write_text(json.dumps(_scene()))
+    out = tmp_path / "out"
+    status = main(["batch", str(scenes), "--out", str(out), "--no-posterior", "--workers", "1", "--quiet"])
+    assert status != 0
+    assert "Traceback" not in capsys.readouterr().err
+    rows = {r["scene"]: r for r in csv.DictReader((out / "summary.csv").read_text().splitlines())}
+    assert rows["good"]["status"] == "ok" and rows["good"]["map_distance_m"]
+    assert rows["deep"]["status"] == "failed" and "nested more than" in rows["deep"]["error"]
+    assert rows["huge"]["status"] == "failed" and "5000 digits" in rows["huge"]["error"]
+
+
+def test_one_deeply_nested_label_studio_task_is_refused_by_name_and_the_rest_imported(tmp_path, capsys):
+    from pathlib import Path
+
+    tasks = json.loads((Path(__file__).parent / "data" / "label_studio_export.json").read_text())
+    data = tasks[1]["data"]  # task 18: the street, one table
+    for key in ("target_id", "target_length_m", "target_width_m", "target_height_m"):
+        data.pop(key)
+    data["targets"] = [{"id": "table", "dimensions_m": {"length": 1.6, "width": 0.8, "height": 0.75},
+                        "ground_truth": {"location_m": [0, 1, 5], "note": DEEP}}]
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps(tasks))
+    out = tmp_path / "scenes"
+    assert main(["import", "label-studio", str(export), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"error: task 18: nested more than {MAX_JSON_DEPTH} deep; refused" in err.splitlines()
+    assert (out / "ab12cd34-room.json").is_file() and not (out / "street.json").exists()
+
+
+# --- 2. control characters in names ------------------------------------------------------------
+
+@pytest.mark.parametrize("where, value, key", [
+    (("targets", 0, "id"), "a\x00b", "targets[0].id"),
+    (("targets", 0, "class"), "Car\n", "targets[0].class"),
+    (("targets", 0, "dimension_lines", 1, "worker"), "w\t1", "targets[0].dimension_lines[1].worker"),
+    (("camera", "id"), "cam\x1b[31m", "camera.id"),
+    (("targets", 0, "id"), "t\ud800", "targets[0].id"),
+], ids=["nul-id", "newline-class", "tab-worker", "escape-camera", "surrogate-id"])
+def test_control_characters_in_names_are_refused_naming_key_and_value(tmp_path, where, value, key):
+    scene = _scene()
+    obj = scene
+    for k in where[:-1]:
+        obj = obj[k]
+    obj[where[-1]] = value
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(scene))
+    with pytest.raises(SceneError) as err:
+        load_scene(path)
+    assert err.value.path == key
+    assert f"control character U+{ord(next(c for c in value if not c.isprintable() or ord(c) >= 0xd800)):04X}" in str(err.value)
+    assert repr(value)[:20] in str(err.value)
+
+
+def test_a_nul_in_a_target_id_is_refused_before_anything_is_written(tmp_path, capsys):
+    scene = _scene()
+    scene["targets"][0]["id"] = "a\x00b"
+    path, out, nc = tmp_path / "s.json", tmp_path / "r.json", tmp_path / "p.nc"
+    path.write_text(json.dumps(scene))
+    assert main(["estimate", str(path), "--out", str(out), "--netcdf", str(nc), "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith("error: targets[0].id: control character U+0000 in 'a\\x00b'")
+    assert not out.exists() and not nc.exists()
+
+
+# --- 3. result files given to plot / advise -------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["plot", "advise"])
+@pytest.mark.parametrize("batch, key", [
+    ({"key": "/".join("abcdefghijklmn"), "scene_copy": "scenes/s0.json"}, "batch.key"),
+    ({"key": 7, "scene_copy": "scenes/s0.json"}, "batch.key"),
+    ({"key": "s0", "scene_copy": ["scenes/s0.json"]}, "batch.scene_copy"),
+    (["s0"], "batch"),
+], ids=["14-parts", "number", "list-copy", "list"])
+def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys, command, batch, key):
+    import shutil
+    from pathlib import Path
+
+    folder = tmp_path / "b"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", folder)
+    path = folder / "results" / "s0.json"
+    result = json.loads(path.read_text())
+    result["batch"] = batch
+    path.write_text(json.dumps(result))
+    assert main([command, str(path), "--out", str(tmp_path / "o.png" if command == "plot" else tmp_path / "a.json"),
+                 "--quiet"]) == 2
+    assert _one_error_line(capsys).startswith(f"error: {path}: {key}: ")
+
+
+# --- 4. CSV cells a spreadsheet would run --------------------------------------------------------
+
+def test_csv_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_exactly(tmp_path):
+    from creference_bayes.io.files import atomic_write_csv, csv_cell, read_csv_rows
+
+    assert csv_cell("\r=a") == "'\r=a" and csv_cell(-1.5) == -1.5
+    values = ['=HYPERLINK("http://x","y")', "+cmd", "-x", "@SUM(A1)", "\tz", "'quoted", "'=b",
+              "-1.5", "+2", "-3e-4", "plain", "a-b", ""]
+    path = atomic_write_csv(tmp_path / "t.csv", [{"v": v, "n": -2.5} for v in values], ["v", "n"])
+    raw = [row["v"] for row in csv.DictReader(path.open(newline=""))]
+    assert raw[:7] == ["'" + v for v in values[:7]]
+    assert raw[7:] == values[7:]  # numbers stay numbers, plain text stays as it is
+    rows = read_csv_rows(path.read_bytes().decode())
+    assert [r["v"] for r in rows] == values and {r["n"] for r in rows} == {"-2.5"}
+
+
+def test_a_formula_in_a_target_id_lands_escaped_in_the_batch_summary(tmp_path):
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    scene = _scene()
+    scene["targets"][0]["id"] = '=HYPERLINK("http://evil","click")'
+    (scenes / "s.json").write_text(json.dumps(scene))
+    out = tmp_path / "out"
+    assert main(["batch", str(scenes), "--out", str(out), "--no-posterior", "--workers", "1", "--quiet"]) == 0
+    row = next(csv.DictReader((out / "summary.csv").open(newline="")))
+    assert row["target"] == "'" + scene["targets"][0]["id"]
+    assert float(row["map_distance_m"]) > 0
+
+
+
+# --- 6. scene size limits ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("what", ["targets", "annotations", "references"])
+def test_a_scene_beyond_a_size_limit_is_refused_naming_count_and_limit(what):
+    from creference_bayes.io.scene import MAX_ANNOTATIONS, MAX_REFERENCES, MAX_TARGETS, parse_scene
+
+    scene = _scene()
+    if what == "targets":
+        t = scene["targets"][0]
+        scene["targets"] = [dict(t, id=f"t{i}") for i in range(MAX_TARGETS + 1)]
+        scene.pop("references", None)
+        key, n, limit = "targets", MAX_TARGETS + 1, MAX_TARGETS
+    elif what == "annotations":
+        lines = scene["targets"][0]["dimension_lines"]
+        scene["targets"][0]["dimension_lines"] = (lines * MAX_ANNOTATIONS)[:MAX_ANNOTATIONS + 1]
+        key, n, limit = "targets[0].dimension_lines", MAX_ANNOTATIONS + 1, MAX_ANNOTATIONS
+    else:
+        ref = {"target": "t0", "measure": "height", "value": 1.7, "unit": "m"}
+        scene["references"] = [ref] * (MAX_REFERENCES + 1)
+        key, n, limit = "references", MAX_REFERENCES + 1, MAX_REFERENCES
+    with pytest.raises(SceneError) as err:
+        parse_scene(scene)
+    assert err.value.path == key and f"{n} " in err.value.problem and f"the {limit} a scene may have" in err.value.problem
+
+
+def test_a_scene_at_the_limits_loads():
+    from creference_bayes.io.scene import MAX_TARGETS, parse_scene
+
+    scene = _scene()
+    scene["targets"] = [dict(scene["targets"][0], id=f"t{i}") for i in range(MAX_TARGETS)]
+    scene.pop("references", None)
+    assert len(parse_scene(scene).targets) == MAX_TARGETS
+
+
+# --- 5. files already in --out ----------------------------------------------------------------
+
+def test_import_keeps_a_hand_edited_scene_unless_overwrite_and_says_what_it_replaced(tmp_path, capsys):
+    from pathlib import Path
+
+    export = Path(__file__).parent / "data" / "label_studio_export.json"
+    out = tmp_path / "scenes"
+    main(["import", "label-studio", str(export), "--out", str(out)])
+    street, room = out / "street.json", out / "ab12cd34-room.json"
+    written = street.read_text()
+    capsys.readouterr()
+    main(["import", "label-studio", str(export), "--out", str(out)])  # the same again: nothing replaced
+    assert "unchanged " + str(street) in capsys.readouterr().out and street.read_text() == written
+    edited = json.loads(written)
+    edited["targets"][0]["dimensions_m"]["length"] = 1.7
+    street.write_text(json.dumps(edited))
+    assert main(["import", "label-studio", str(export), "--out", str(out)]) == 2
+    io = capsys.readouterr()
+    assert f"error: {street}: exists and is not the scene of task 18 (edited by hand?); kept it: pass --overwrite " \
+           "to replace it" in io.err.splitlines()
+    assert json.loads(street.read_text()) == edited and room.is_file()
+    main(["import", "label-studio", str(export), "--out", str(out), "--overwrite"])
+    io = capsys.readouterr()
+    assert f"replaced {street} (task 18)" in io.out.splitlines() and "(1 replaced)" in io.out
+    assert street.read_text() == written
+
+
+def test_labels_removes_only_its_own_files_of_frames_no_longer_in_the_batch(tmp_path, capsys):
+    import shutil
+    from pathlib import Path
+
+    from creference_bayes.io.result import canonical_sha256
+
+    batch = tmp_path / "batch"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", batch)
+    scene = json.loads((batch / "scenes" / "s0.json").read_text())
+    scene["image"]["path"] = "images/photo_018.png"  # another photo: its own label files
+    (batch / "scenes" / "s1.json").write_text(json.dumps(scene))
+    result = json.loads((batch / "results" / "s0.json").read_text())
+    result["batch"].update(key="s1", scene_copy="scenes/s1.json")
+    result["scene_id"]["sha256"] = canonical_sha256(scene)
+    (batch / "results" / "s1.json").write_text(json.dumps(result))
+    out = tmp_path / "labels"
+    assert main(["labels", str(batch), "--out", str(out), "--no-figure", "--quiet"]) == 0
+    ours = ["calib/photo_018.txt", "label_2/photo_018.txt", "uncertainty/photo_018.json"]
+    assert all((out / rel).is_file() for rel in ours)
+    (out / "label_2" / "mine.txt").write_text("a user's file\n")  # never ours
+    (out / "calib" / "photo_018.txt").write_text("edited by hand\n")  # ours, but changed since
+    (batch / "results" / "s1.json").unlink()  # the frame leaves the batch
+    capsys.readouterr()
+    assert main(["labels", str(batch), "--out", str(out), "--no-figure"]) == 0
+    io = capsys.readouterr()
+    assert not (out / "label_2" / "photo_018.txt").exists() and not (out / "uncertainty" / "photo_018.json").exists()
+    assert (out / "label_2" / "mine.txt").read_text() == "a user's file\n"
+    assert (out / "calib" / "photo_018.txt").read_text() == "edited by hand\n"
+    assert (out / "label_2" / "photo_017.txt").is_file()
+    assert ("removed 2 file(s) this command wrote for images no longer in the batch: label_2/photo_018.txt, "
+            "uncertainty/photo_018.json") in io.out
+    assert "warning: calib/photo_018.txt: of an image no longer in the batch, but changed since" in io.err
