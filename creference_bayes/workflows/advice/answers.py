@@ -208,7 +208,7 @@ def _user_scene(batch_dir, key: str, result_path) -> _SceneFile:
     try:
         result = read_json(result_path)
     except SceneError as exc:  # not UTF-8 or not JSON: a write killed half-way, or not a result
-        raise ValueError(f"not a result file: {exc}") from None
+        raise ValueError(f"{result_path}: not a result file ({exc.problem})") from None
     source = (result.get("batch") or {}).get("source") if isinstance(result, dict) else None
     if not isinstance(source, str) or not source:
         raise ValueError(f"{result_path}: no batch.source (the scene file it was estimated from): "
