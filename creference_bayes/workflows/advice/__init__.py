@@ -785,9 +785,17 @@ def _recommend_labels(now: Outlook, predictions: list[Prediction], settings: Adv
     best = predictions[0]
     said = f"{len(below)} of {len(ids)} label{'s' if len(ids) != 1 else ''} below {t} {q:g}"
     if not settings.worth(best.value("labels"), best.candidate.seconds):  # decided on the ranking futures
+        # the gain as the table states it (from the futures it was not ranked by), then, when it reads
+        # otherwise, the one the decision is made on (module docstring)
+        low = f"below the minimum {settings.min_good_per_hour:g}"
+        told, ranked = (f"{best.good_gain:.2f}", f"{best.good_per_hour:.2f}"), \
+            (f"{best.value('labels'):.2f}", f"{best.score('labels'):.2f}")
+        judged = f", {low}" if told == ranked else (
+            f"; judged on the other half of the simulated outcomes, those that rank the requests, it makes "
+            f"{ranked[0]}, {ranked[1]} per human hour, {low}")
         return "stop", (f"{said}; the best request, {best.candidate.description}, is expected to make "
-                        f"{best.value('labels'):.2f} of them good ({best.score('labels'):.2f} per human hour, below "
-                        f"the minimum {settings.min_good_per_hour:g}): see the verdicts for what would lift them")
+                        f"{told[0]} ± {best.good_gain_se:.2f} of them good, {told[1]} per human hour{judged}: see "
+                        "the verdicts for what would lift them")
     i = int(below[np.argmax(best.p_good[below])])
     on = "" if len(ids) == 1 else f"{ids[i]}: "
     return "collect", (f"collect {best.candidate.description} next: expected {best.good_gain:.2f} more good "
