@@ -25,7 +25,7 @@ def _advise(example, **settings):
     cams, objs, source = result_draws(result.to_dict(), result.model)
     camera, objects = map_state(result.to_dict())
     return advise(result.model, scene, cams, objs, camera_map=camera, objects_map=objects, source=source, seed=0,
-                  settings=AdviceSettings(n_draws=200, n_futures=40, **settings))
+                  settings=AdviceSettings(**{"n_draws": 200, "n_futures": 40, **settings}))
 
 
 def _rows(text: str) -> list[dict]:
@@ -68,3 +68,19 @@ def test_the_recommendation_states_the_tables_numbers(example):
         for rate, bar in re.findall(r"([\d.]+) per human hour, below the minimum ([\d.e+]+)", said):
             assert float(rate) < float(bar), said
         assert re.search(r"below the minimum", said)
+
+
+def test_every_column_is_explained_and_the_draw_counts_agree(example):
+    """The table's columns in words under it; a result keeping fewer draws than asked for: every
+    count of draws printed is the number weighed."""
+    a = _advise(example, n_draws=5000, n_futures=10)
+    assert a.n_weighed < 5000
+    text = advice_table(a)
+    head = re.split(r"\s{2,}", next(line for line in text.splitlines() if line.startswith("rank  ")).strip())
+    below = text.split(head[-1], 1)[1]  # after the header
+    plain = {"rank", "annotation", "cost s"}
+    for column in head:
+        if column not in plain and not column.startswith("P(IoU"):
+            assert f"{column}: " in below, column
+    counts = {int(n) for n in re.findall(r"(\d+) (?:posterior )?draws", text)}
+    assert counts == {a.n_weighed}, counts
