@@ -84,3 +84,68 @@ def test_every_column_is_explained_and_the_draw_counts_agree(example):
             assert f"{column}: " in below, column
     counts = {int(n) for n in re.findall(r"(\d+) (?:posterior )?draws", text)}
     assert counts == {a.n_weighed}, counts
+
+
+@pytest.fixture(scope="module")
+def street():
+    """A simulated street frame of a Pedestrian, a Car and a Van, their sizes left to their classes'
+    priors: its MAP (candidates need no posterior)."""
+    import warnings
+
+    import numpy as np
+
+    from creference_bayes.bench.simulate import simulate_scene
+    from creference_bayes.io.scene import parse_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = parse_scene(simulate_scene(np.random.default_rng(7), setting="street", n_objects=3, sizes="prior",
+                                           n_target_annotations=2, n_references=1, tier="low"))
+    assert [t.cls for t in scene.targets] == ["Pedestrian", "Car", "Van"]
+    return scene, cb.estimate(scene, seed=0, posterior=False)
+
+
+def _candidates(street):
+    from creference_bayes.workflows.advice.candidates import candidates
+
+    scene, result = street
+    return candidates(scene, result.model, *map_state(result.to_dict()))[0]
+
+
+def test_a_size_is_asked_of_a_vehicle_only_and_every_request_names_its_object_by_class(street):
+    scene, _ = street
+    cands = _candidates(street)
+    sized = {c.target_id for c in cands if c.kind == "size"}
+    assert sized == {t.id for t in scene.targets if t.cls in ("Car", "Van")}  # not the Pedestrian's
+    for c in cands:
+        if c.target is not None:
+            t = scene.targets[c.target]
+            assert f"{t.cls} {t.id}" in c.description, c.description
+        if c.term is not None and c.term.kind == "distance" and c.line is None:  # between two targets
+            other = scene.targets[c.term.other]
+            assert f"{other.cls} {other.id}" in c.description, c.description
+
+
+def test_every_request_task_shows_its_object(street):
+    """Each request on an object, a size too, is a Label Studio task with a region: a segment to
+    measure, or the dimension lines of the target(s) it is asked on, named by their ids (read back
+    as the importer reads a task's results)."""
+    from creference_bayes.io.labelstudio_results import annotation_items
+    from creference_bayes.workflows.advice.requests import label_studio_requests
+
+    scene, _ = street
+    cands = [c for c in _candidates(street) if c.kind != "mounting"]
+    assert {"dims", "size", "reference"} <= {c.kind for c in cands}
+    for lines in ("keypoints", "vectors"):
+        tasks = label_studio_requests([("k", scene, c) for c in cands], lines=lines)
+        assert len(tasks) == len(cands)
+        for c, task in zip(cands, tasks):
+            assert task["predictions"] and task["predictions"][0]["result"], c.key
+            items = annotation_items(task["predictions"][0], 0, scene.image_width, scene.image_height, "w", {}, [])
+            if c.line is not None:
+                assert len(items.references) == 1, c.key
+                continue
+            shown = {scene.targets[c.target].id}
+            if c.term is not None and c.term.kind == "distance":
+                shown.add(scene.targets[c.term.other].id)
+            assert {d.target for d in items.drawings} == shown and len(items.drawings) == len(shown), (c.key, items)

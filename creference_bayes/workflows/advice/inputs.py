@@ -91,7 +91,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
     fall below it), the recommendation. ``estimate_hdi``: the estimate's own HDIs of the
     distances ((m, 2) metres, on all its draws), shown beside the advice's, which are computed on
     the draws it weighs (so the two differ by the sampling error of the thinned draws)."""
-    now, s, ids = advice.now, advice.settings, advice.targets
+    now, s, ids = advice.now, advice.settings, advice.labels  # each target's class and id
     n = advice.n_weighed or s.n_draws  # the draws weighed (fewer than --draws when the result keeps fewer)
     lines = [f"advice for {', '.join(repr(t) for t in ids[:8])}{' …' if len(ids) > 8 else ''} "
              f"({'posterior draws' if advice.source == 'posterior' else 'draws of the Laplace approximation'})"]
@@ -136,7 +136,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
               f"a noisier row); fallbacks: the simulated outcomes (of {s.n_futures}) recomputed on draws "
               "moved to their posterior because too few counted"]
     lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
-    lines += [f"  {v['target']}: {v['text']}" for v in advice.verdicts()]
+    lines += [f"  {name}: {v['text']}" for name, v in zip(ids, advice.verdicts())]
     said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
     lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
     lines += [f"note: {n}" for n in advice.notes]
