@@ -411,7 +411,8 @@ def test_cli_on_a_result_of_several_targets_without_draws(frame, tmp_path, capsy
     out = tmp_path / "advice.json"
     assert main(["advise", str(tmp_path / "result.json"), "--draws", "100", "--futures", "20", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "draws of the Laplace approximation" in text and all(f"now {t.id}:" in text for t in scene.targets)
+    assert "draws of the Laplace approximation" in text
+    assert all(f"now {t.cls} {t.id}:" in text for t in scene.targets)  # each named by its class and id
     said = next(line for line in text.splitlines() if line.startswith("recommendation:"))
     assert said.split()[1] in ("collect", "stop") and "collect: collect" not in said, said
     doc = json.loads(out.read_text())
@@ -519,9 +520,10 @@ def test_cli_on_a_batch_writes_the_ranked_request_files(batch_dir, tmp_path, cap
     assert gains == sorted(gains, reverse=True)
     assert all(math.isfinite(float(r["location_gain_pts"])) for r in rows)
     assert all(r["line_px"].count(";") == 1 for r in rows if r["line_px"])
-    # the crowd's requests go to the labelling tools; a size or a mounting goes into the scene
-    crowd = [r for r in rows if r["kind"] in ("dims", "reference")]
-    assert len(json.loads((out / "label_studio_requests.json").read_text())) == len(crowd)
+    # every request on an object goes to the labelling tools, showing it; a mounting goes into the scene
+    crowd = [r for r in rows if r["kind"] != "mounting"]
+    tasks = json.loads((out / "label_studio_requests.json").read_text())
+    assert len(tasks) == len(crowd) and all(t["predictions"][0]["result"] for t in tasks)
     ET.fromstring((out / "cvat_requests.xml").read_text().split("\n", 1)[1])
 
 
@@ -580,7 +582,9 @@ def test_request_files_carry_the_segment_and_import_back(example, tmp_path):
     (_, fields, line), = items.references
     np.testing.assert_allclose(line, cand.line, atol=1e-6)
     assert fields["measure"] in ("distance", ["distance"])
-    assert "predictions" not in label_studio_requests([("k", scene, dims)])[0]
+    shown = label_studio_requests([("k", scene, dims)])[0]["predictions"][0]  # its target, by its lines
+    drawn = annotation_items(shown, 0, scene.image_width, scene.image_height, "t", {}, []).drawings
+    assert [d.target for d in drawn] == [scene.targets[0].id]
 
     root = read_cvat_xml(cvat_requests([("k", scene, cand)]).encode())
     shape = root.find("image").findall("polyline")[-1]

@@ -55,7 +55,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
-from .candidates import Candidate, candidates as scene_candidates, format_mix
+from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
 from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation
 from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, normalise, p_iou, shuffled_hdi,
@@ -304,6 +304,14 @@ class Advice:
     #: (m,) each label's P(IoU ≥ t) less its posterior-mean box's, the scale the futures are on
     #: (:class:`Moments`); None: no difference
     shift: np.ndarray | None = None
+    #: (m,) the targets as the texts name them (their class and id, :func:`~.candidates.object_name`);
+    #: empty: their ids
+    names: tuple[str, ...] = ()
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The targets as the texts name them (:attr:`names`, else the ids)."""
+        return self.names or self.targets
 
     def futures_scale(self) -> tuple[np.ndarray, np.ndarray]:
         """(base, bar), each (m,): the present and the bar on the futures' scale
@@ -350,7 +358,7 @@ class Advice:
         (expected P(IoU ≥ t) after it) and ``chance`` (that it reaches the bar), and ``text``."""
         s, out = self.settings, []
         t, q = f"P(IoU ≥ {s.iou_threshold:g})", s.min_quality
-        for i, tid in enumerate(self.targets):
+        for i, tid in enumerate(self.targets):  # the key is the id; the texts name the request's object
             p_now = float(self.now.p_iou[i])
             row = {"target": tid, "p_now": p_now, "verdict": "good", "best": None, "p_expected": None,
                    "chance": None, "text": f"good: {t} {p_now:.2f} ≥ {q:g}"}
@@ -497,11 +505,12 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                                             np.random.default_rng(s), temperature))
             bar.update(1)
     predictions.sort(key=rank_key(settings.objective))
-    action, reason = _recommend(now, predictions, settings, [t.id for t in scene.targets])
+    names = tuple(object_name(t) for t in scene.targets)
+    action, reason = _recommend(now, predictions, settings, names)
     return Advice(targets=tuple(t.id for t in scene.targets), now=now, predictions=tuple(predictions), action=action,
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
                   notes=tuple(notes), seconds=time.perf_counter() - t0, source=source, format_mix=mix.to_dict(),
-                  n_weighed=n, shift=shift)
+                  n_weighed=n, shift=shift, names=names)
 
 
 def rank_key(objective: str):
@@ -785,9 +794,17 @@ def _recommend_labels(now: Outlook, predictions: list[Prediction], settings: Adv
     best = predictions[0]
     said = f"{len(below)} of {len(ids)} label{'s' if len(ids) != 1 else ''} below {t} {q:g}"
     if not settings.worth(best.value("labels"), best.candidate.seconds):  # decided on the ranking futures
+        # the gain as the table states it (from the futures it was not ranked by), then, when it reads
+        # otherwise, the one the decision is made on (module docstring)
+        low = f"below the minimum {settings.min_good_per_hour:g}"
+        told, ranked = (f"{best.good_gain:.2f}", f"{best.good_per_hour:.2f}"), \
+            (f"{best.value('labels'):.2f}", f"{best.score('labels'):.2f}")
+        judged = f", {low}" if told == ranked else (
+            f"; judged on the other half of the simulated outcomes, those that rank the requests, it makes "
+            f"{ranked[0]}, {ranked[1]} per human hour, {low}")
         return "stop", (f"{said}; the best request, {best.candidate.description}, is expected to make "
-                        f"{best.value('labels'):.2f} of them good ({best.score('labels'):.2f} per human hour, below "
-                        f"the minimum {settings.min_good_per_hour:g}): see the verdicts for what would lift them")
+                        f"{told[0]} ± {best.good_gain_se:.2f} of them good, {told[1]} per human hour{judged}: see "
+                        "the verdicts for what would lift them")
     i = int(below[np.argmax(best.p_good[below])])
     on = "" if len(ids) == 1 else f"{ids[i]}: "
     return "collect", (f"collect {best.candidate.description} next: expected {best.good_gain:.2f} more good "

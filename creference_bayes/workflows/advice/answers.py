@@ -34,13 +34,18 @@ import numpy as np
 from ...models.camera_terms import DEFAULT_ORIENTATION_PRIOR, OrientationPrior
 from ...models.size_priors import SizePrior
 
-__all__ = ["CATALOGUE_LOG_SD", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
+__all__ = ["CATALOGUE_LOG_SD", "CATALOGUE_CLASSES", "catalogue_lists", "SIZE_SECONDS", "MOUNTING_SD", "MOUNTING_SECONDS", "MAX_SIZE_SD",
            "MOUNTING_HEIGHT_RANGE_M", "MAX_MOUNTING_ANGLE_DEG", "ANSWER_FORMS", "with_dimension_lines", "with_size",
            "with_mounting", "with_measurement", "apply_answers", "SAME_POINT_PX", "merge_annotations"]
 
 #: A size from a catalogue (a worker names the make and model): the spread of its log-length,
 #: -width and -height. Our assumption: one model name covers trims and years a few percent apart.
 CATALOGUE_LOG_SD = 0.03
+#: The shipped classes (KITTI's, ``creference_bayes/data/cvat_labels.json``) whose objects a
+#: catalogue lists by make and model: the vehicles. A Pedestrian, Person_sitting, Cyclist (the
+#: rider's box is not the bicycle's) or Misc object is asked no size; a class a scene defines
+#: itself is (the package cannot tell what a catalogue lists for it).
+CATALOGUE_CLASSES = ("Car", "Van", "Truck", "Tram")
 #: Human seconds for a size from a catalogue: the paper has no such task; its nearest is the
 #: reference task (one worker, one object, one statement), 64.4 s on average (§7.2.2).
 SIZE_SECONDS = 64.4
@@ -57,6 +62,15 @@ MAX_SIZE_SD = 8.0
 #: The camera heights (metres) and the largest pitch and roll (degrees) a mounting answer may state.
 MOUNTING_HEIGHT_RANGE_M = (0.1, 30.0)
 MAX_MOUNTING_ANGLE_DEG = 60.0
+
+
+def catalogue_lists(cls: str | None) -> bool:
+    """Whether a size from a catalogue can be asked for an object of class ``cls``
+    (:data:`CATALOGUE_CLASSES`; classes match as the size priors do, whatever their case)."""
+    from ...models.size_priors import KITTI_SIZE_PRIORS
+
+    shipped = {c.casefold() for c in KITTI_SIZE_PRIORS}
+    return cls is None or cls.casefold() not in shipped or cls.casefold() in {c.casefold() for c in CATALOGUE_CLASSES}
 
 
 def _target(scene, target_id: str) -> int:

@@ -6,7 +6,8 @@ Written to ``OUT`` (default ``BATCH_DIR/advice``)::
     advice.json                 every frame's advice (creference-advice/2) and the targets' ranking
                                 with their verdicts
     requests.csv                the plan: the requests, most added value per human second first
-    label_studio_requests.json  its line and reference requests as Label Studio tasks
+    label_studio_requests.json  its requests on an object (lines, references, sizes) as Label Studio
+                                tasks, each showing its object
     cvat_requests.xml           the same as CVAT for images 1.1 annotations
 
 Each target's ranking row names its request
@@ -342,10 +343,11 @@ def write_batch_advice(batch: BatchAdvice, out: str | Path, *, budget_s: float |
     out.mkdir(parents=True, exist_ok=True)
     plan = batch.plan(budget_s)
     rows = _rows(plan)
-    # the crowd's requests (lines and references) go to the labelling tools; a size or a mounting
-    # is put into the scene (:mod:`.answers`)
+    # every request on an object goes to the labelling tools, each task showing its object (a size
+    # is answered there too, its answer put into the scene by --apply, :mod:`.answers`); the
+    # camera's mounting, from its calibration, is no crowd task
     requested = [(r.objects[0].key, r.objects[0].scene, r.prediction.candidate) for r in plan
-                 if r.prediction.candidate.kind in ("dims", "reference")]
+                 if r.prediction.candidate.kind != "mounting"]
     paths = {"advice": out / "advice.json", "requests": out / "requests.csv",
              "label_studio": out / "label_studio_requests.json", "cvat": out / "cvat_requests.xml"}
     scenes = {}

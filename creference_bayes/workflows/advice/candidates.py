@@ -5,7 +5,8 @@ Per target: one more set of its dimension lines (``ID:dims``); a worker's distan
 (``ID:distance``, from the image's bottom edge straight up to its nearest bottom corner at the
 MAP, as the paper's distance task draws it; left out when that corner is outside the image or on
 its bottom edge); its length (``ID:length``) and its size from a catalogue (``ID:size``,
-:mod:`.answers`) when its size has a prior and no catalogue answer yet; its distance to the
+:mod:`.answers`) when its size has a prior, no catalogue answer yet and its class is one a catalogue
+lists (:data:`~.answers.CATALOGUE_CLASSES`); its distance to the
 nearest other target (``ID~ID2:distance``, bottom centres) unless the scene has one. Once for the
 scene: the camera's mounting (``camera:mounting``, :mod:`.answers`), unless a calibration is in
 already. Per group of the scene's references (the same object and measure, endpoints within
@@ -30,11 +31,12 @@ from ...models.boxes import image_boxes
 from ...models.contract import O_SIZE, O_X, O_Z
 from ...models.metrology import ReferenceTerm
 from ...pipeline import reference_terms
-from .answers import MOUNTING_SD, MOUNTING_SECONDS, SIZE_SECONDS
+from .answers import MOUNTING_SD, MOUNTING_SECONDS, SIZE_SECONDS, catalogue_lists
 from .observe import MountingObservation
 
 __all__ = ["PAPER_TARGET_SECONDS", "PAPER_REFERENCE_SECONDS", "PAPER_RANGE_PRECISION", "SAME_SEGMENT_FRACTION",
-           "SAME_SEGMENT_MIN_PX", "Candidate", "FormatMix", "candidates", "annotation_seconds", "format_mix"]
+           "SAME_SEGMENT_MIN_PX", "Candidate", "FormatMix", "candidates", "annotation_seconds", "format_mix",
+           "object_name"]
 
 #: The paper's average task times (§7.2.2), seconds.
 PAPER_TARGET_SECONDS = 183.5
@@ -68,6 +70,8 @@ class Candidate:
     based_on : indices of the scene's references it repeats or starts from
     seconds : what one such observation costs, seconds
     new_segment : a segment not drawn in the scene yet
+    target_name, object_name : the target and the object as the request's text names them
+        (:func:`object_name`; default: ``target_id`` and ``object``)
     """
 
     key: str
@@ -81,28 +85,31 @@ class Candidate:
     based_on: tuple[int, ...]
     seconds: float
     new_segment: bool = False
+    target_name: str | None = None
+    object_name: str | None = None
 
     @property
     def description(self) -> str:
         """What to ask the crowd for, in words."""
         refs = ", ".join(f"references[{i}]" for i in self.based_on)
+        target, obj = self.target_name or self.target_id, self.object_name or self.object
         if self.kind == "dims":
-            return f"one more set of dimension lines on {self.target_id}"
+            return f"one more set of dimension lines on {target}"
         if self.kind == "size":
-            return f"the size of {self.target_id} from a catalogue (a worker names its make and model)"
+            return f"the size of {target} from a catalogue (a worker names its make and model)"
         if self.kind == "mounting":
             return "the camera's mounting (height, pitch, roll) from its calibration"
         if self.term.kind == "distance":
             as_refs = f" (as {refs})" if refs else ""
-            return f"distance between {self.target_id} and {self.object} (bottom centres){as_refs}"
+            return f"distance between {target} and {obj} (bottom centres){as_refs}"
         if self.based_on and not self.new_segment:
             to = "to" if self.measure == "distance" else "of"
-            return f"{self.measure} {to} {self.object or 'the object'} (as {refs})"
+            return f"{self.measure} {to} {obj or 'the object'} (as {refs})"
         if self.based_on:
-            return f"distance to {self.object or 'the object'} (image bottom to the near end of {refs})"
+            return f"distance to {obj or 'the object'} (image bottom to the near end of {refs})"
         if self.measure == "distance":
-            return f"distance to {self.target_id} (image bottom to its nearest bottom corner)"
-        return f"{self.measure} of {self.target_id}"
+            return f"distance to {target} (image bottom to its nearest bottom corner)"
+        return f"{self.measure} of {target}"
 
     def to_dict(self) -> dict:
         return {"key": self.key, "kind": self.kind, "target": self.target_id, "measure": self.measure,
@@ -124,6 +131,13 @@ class FormatMix:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def object_name(target) -> str:
+    """A target as the advice's texts name it: its class and id (``Car 0``), or its id alone when
+    it has no class or the id names the class already."""
+    cls, tid = target.cls, target.id
+    return tid if not cls or cls.casefold() in tid.casefold() else f"{cls} {tid}"
 
 
 def annotation_seconds(scene) -> dict[str, float]:
@@ -190,12 +204,14 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
     left out, given its ``model`` and the MAP ``camera`` (5,), ``objects`` (m, 7)."""
     secs = annotation_seconds(scene)
     ids = [t.id for t in scene.targets]
+    names = [object_name(t) for t in scene.targets]
     out, notes = [], []
     terms = reference_terms(scene)
     groups = _groups(scene, terms)
     ground = lambda line: ReferenceTerm(0, "ground", 1.0, 1.0, False, line=line)  # noqa: E731
     reference = lambda key, target, **kw: out.append(Candidate(  # noqa: E731
-        key, "reference", target, None if target is None else ids[target], seconds=secs["reference"], **kw))
+        key, "reference", target, None if target is None else ids[target], seconds=secs["reference"],
+        target_name=None if target is None else names[target], **kw))
     for g in groups:
         g["line"] = np.median(np.stack(g["lines"]), axis=0) if g["lines"] else None
     distance_ends = [(g["object"], g["line"][int(np.argmin(g["line"][:, 1]))])  # the end at the object
@@ -204,8 +220,9 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
         term, line = g["term"], g["line"]
         owner = term.owner if term.kind != "ground" else None
         name = ids[term.other] if term.kind == "distance" else g["object"] or (None if owner is None else ids[owner])
+        said = names[term.other] if term.kind == "distance" else g["object"] or (None if owner is None else names[owner])
         reference(f"ref{k}-{g['measure']}", owner, measure=g["measure"], object=name, line=line,
-                  term=dataclasses.replace(term, line=line), based_on=tuple(g["indices"]))
+                  term=dataclasses.replace(term, line=line), based_on=tuple(g["indices"]), object_name=said)
         if line is None or g["measure"] == "distance":
             continue
         near = line[int(np.argmax(line[:, 1]))]  # the end lower in the image: nearer on the ground
@@ -219,7 +236,8 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
     ground_xz = objects[:, [O_X, O_Z]]
     pairs = {tuple(sorted((g["term"].owner, g["term"].other))) for g in groups if g["term"].kind == "distance"}
     for i, tid in enumerate(ids):
-        out.append(Candidate(f"{tid}:dims", "dims", i, tid, None, tid, None, None, (), secs["dims"]))
+        out.append(Candidate(f"{tid}:dims", "dims", i, tid, None, tid, None, None, (), secs["dims"],
+                             target_name=names[i], object_name=names[i]))
         box = image_boxes(camera[None], objects[i][None], scene.principal_point)[0, :4]  # bottom face
         near = box[int(np.nanargmax(box[:, 1]))] if np.any(np.isfinite(box[:, 1])) else None
         seg = None if near is None or not (0 <= near[0] <= scene.image_width) else _bottom_line(scene, near)
@@ -228,13 +246,15 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
                          "bottom edge")
         else:
             reference(f"{tid}:distance", i, measure="distance", object=tid, line=seg, term=ground(seg),
-                      based_on=(), new_segment=True)
+                      based_on=(), new_segment=True, object_name=names[i])
         if model.object_free[i, O_SIZE].any():
-            reference(f"{tid}:length", i, measure="length", object=tid, line=None,
+            reference(f"{tid}:length", i, measure="length", object=tid, line=None, object_name=names[i],
                       term=ReferenceTerm(0, "size", 1.0, 1.0, False, owner=i, size_index=0), based_on=())
         catalogued = scene.targets[i].size_prior is not None and scene.targets[i].size_prior.source == "catalogue"
-        if model.object_free[i, O_SIZE].any() and model.objects[i].size_prior is not None and not catalogued:
-            out.append(Candidate(f"{tid}:size", "size", i, tid, "size", tid, None, None, (), SIZE_SECONDS))
+        if (model.object_free[i, O_SIZE].any() and model.objects[i].size_prior is not None and not catalogued
+                and catalogue_lists(scene.targets[i].cls)):  # not for a person or a Misc object
+            out.append(Candidate(f"{tid}:size", "size", i, tid, "size", tid, None, None, (), SIZE_SECONDS,
+                                 target_name=names[i], object_name=names[i]))
         if len(ids) > 1:
             gap = np.hypot(*(ground_xz - ground_xz[i]).T)
             gap[i] = np.inf
@@ -242,7 +262,8 @@ def candidates(scene, model, camera: np.ndarray, objects: np.ndarray) -> tuple[l
             if (min(i, j), max(i, j)) not in pairs:
                 pairs.add((min(i, j), max(i, j)))
                 reference(f"{tid}~{ids[j]}:distance", i, measure="distance", object=ids[j], line=None,
-                          term=ReferenceTerm(0, "distance", 1.0, 1.0, False, owner=i, other=j), based_on=())
+                          term=ReferenceTerm(0, "distance", 1.0, 1.0, False, owner=i, other=j), based_on=(),
+                          object_name=names[j])
     calibrated = scene.orientation_prior is not None and scene.orientation_prior.source == "calibration"
     # not with a fixed pose (an exact horizon), nor asked again once the calibration's answer is in
     if MountingObservation(model, MOUNTING_SD).usable and not calibrated:

@@ -91,12 +91,13 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
     fall below it), the recommendation. ``estimate_hdi``: the estimate's own HDIs of the
     distances ((m, 2) metres, on all its draws), shown beside the advice's, which are computed on
     the draws it weighs (so the two differ by the sampling error of the thinned draws)."""
-    now, s, ids = advice.now, advice.settings, advice.targets
+    now, s, ids = advice.now, advice.settings, advice.labels  # each target's class and id
+    n = advice.n_weighed or s.n_draws  # the draws weighed (fewer than --draws when the result keeps fewer)
     lines = [f"advice for {', '.join(repr(t) for t in ids[:8])}{' …' if len(ids) > 8 else ''} "
              f"({'posterior draws' if advice.source == 'posterior' else 'draws of the Laplace approximation'})"]
     for i, tid in enumerate(ids):
         full = "" if estimate_hdi is None or estimate_hdi[i] is None else \
-            (f" (on the {advice.n_weighed or s.n_draws} draws the advice weighs; the estimate's, on all its draws: "
+            (f" (on the {n} draws the advice weighs; the estimate's, on all its draws: "
              f"{estimate_hdi[i][1] - estimate_hdi[i][0]:.3g} m)")
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
@@ -126,11 +127,19 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
         lines.append("  ".join(c.ljust(w) if i == 1 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
     if len(advice.predictions) > rows:
         lines.append(f"  … {len(advice.predictions) - rows} more (--out for all)")
+    lines += ["good labels: labels below the bar expected to reach it (± its simulation error); falls: good labels "
+              "expected to fall below it; good/h: good labels per human hour (the rows are ranked by it on the other "
+              "half of the simulated outcomes)",
+              f"HDI after: the expected {s.hdi_prob:.0%} HDI of the distance; gain pts: its narrowing in points of the "
+              "distance (± its error); pts/min: that per minute of human time; loc sd m: the expected location sd",
+              f"ESS: the median share of the {n} draws that still count once a simulated outcome reweights them (low: "
+              f"a noisier row); fallbacks: the simulated outcomes (of {s.n_futures}) recomputed on draws "
+              "moved to their posterior because too few counted"]
     lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
-    lines += [f"  {v['target']}: {v['text']}" for v in advice.verdicts()]
+    lines += [f"  {name}: {v['text']}" for name, v in zip(ids, advice.verdicts())]
     said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
     lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
     lines += [f"note: {n}" for n in advice.notes]
     lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes each on "
-                 f"{s.n_draws} draws at most; {advice.seconds:.1f} s)")
+                 f"the {n} draws; {advice.seconds:.1f} s)")
     return "\n".join(lines)

@@ -6,7 +6,10 @@
   (:func:`~creference_bayes.io.labelstudio_export.task_data`), the request's fields
   (:func:`request_fields`) and the whole current scene (``creference_scene``), into which the
   importer puts the answers. A reference request on a segment carries the segment as a
-  prediction (keypoints or a vector, with its measure, object and target filled in).
+  prediction (keypoints or a vector, with its measure, object and target filled in); any other
+  request (more lines, a size, a target's length, the distance between two targets) carries its
+  target's dimension lines (each corner's median over the sets, named by the target's id; both
+  targets for a distance between them), so that a worker sees which object of the photo is meant.
 - **CVAT**: the scenes' annotations (:func:`~creference_bayes.io.cvat.cvat_xml`) plus, for a
   reference request on a segment, a ``reference`` polyline on it with ``target_id``, ``object``
   and ``measure`` set, the value left empty and ``worker`` = ``requested``; other requests add
@@ -18,8 +21,10 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from pathlib import PurePath
 
+import numpy as np
+
 from ...io.cvat import LABEL_ATTRIBUTES, cvat_xml
-from ...io.labelstudio_export import task_data
+from ...io.labelstudio_export import _target_results, task_data
 from ...io.labelstudio_results import CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE
 from ...io.scene import scene_to_dict
 
@@ -67,6 +72,21 @@ def _segment_results(rid: str, candidate, width: int, height: int, lines: str) -
     return out
 
 
+def _object_results(rid: str, scene, candidate, lines: str) -> list[dict]:
+    """The request's target (and, for a distance between two targets, the other) as Label Studio
+    results: its dimension lines, each corner the median over its sets (module docstring)."""
+    others = [candidate.term.other] if candidate.term is not None and candidate.term.kind == "distance" else []
+    out = []
+    for k, i in enumerate([candidate.target, *others]):
+        t = scene.targets[i]
+        if not t.dimension_lines:
+            continue
+        corners = np.median([d.corners for d in t.dimension_lines], axis=0)
+        out += _target_results(f"{rid}_{k}", {"corners": corners.tolist(), "target": t.id},
+                               scene.image_width, scene.image_height, lines)
+    return out
+
+
 def _without_truth(d: dict) -> dict:
     """A scene dict without its ground truth: a task's data is shown in the labelling tool."""
     d = {k: v for k, v in d.items() if k != "ground_truth"}
@@ -89,8 +109,11 @@ def label_studio_requests(requests, *, lines: str = "keypoints", start_id: int =
         url = None if image_url_prefix is None else f"{image_url_prefix}{image_name(scene, key)}"
         task = {"id": task_id, "data": {**task_data(d, url), **request_fields(key, cand), "creference_scene": d}}
         if cand.kind == "reference" and cand.line is not None:
-            task["predictions"] = [{"model_version": "creference-advice", "result": _segment_results(
-                f"request{task_id}", cand, scene.image_width, scene.image_height, lines)}]
+            result = _segment_results(f"request{task_id}", cand, scene.image_width, scene.image_height, lines)
+        else:
+            result = _object_results(f"request{task_id}", scene, cand, lines) if cand.target is not None else []
+        if result:
+            task["predictions"] = [{"model_version": "creference-advice", "result": result}]
         tasks.append(task)
     return tasks
 
