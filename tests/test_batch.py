@@ -325,3 +325,24 @@ def test_cli_model_options_are_typed_and_bad_ones_are_named(tmp_path, capsys):
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "b"), "--option", "ground_tilt_sd_rad=-0.1"]) == 2
     assert "--option ground_tilt_sd_rad: expected a finite number >= 0 (radians), got -0.1" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
+
+
+def test_cli_batch_summary_line_counts_the_scenes_not_converged(tmp_path, capsys):
+    """A scene whose posterior did not converge is not counted among the estimated ones (issue 64)."""
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a", "one_b"])
+    out = tmp_path / "out"
+    # one_b's sampler gets an effective sample size it cannot reach in 300 steps
+    args = ["--out", str(out), "--workers", "1", "--max-steps", "300"]
+    assert main(["batch", str(tmp_path / "s" / "one_a.json"), "--min-ess", "50", *args]) == 0
+    line = capsys.readouterr().out
+    assert "1 scene: 1 estimated, 0 failed" in line and "converged" not in line
+    assert main(["batch", str(tmp_path / "s"), "--min-ess", "100000", *args]) == 0
+    rows = {r["scene"]: r["converged"] for r in csv.DictReader((out / "summary.csv").open())}
+    assert rows == {"one_a": "false", "one_b": "false"}  # one_a again: the settings changed
+    assert "2 scenes: 0 estimated and converged, 2 not converged (see summary.csv), 0 failed" in capsys.readouterr().out
+    # a result already done that did not converge is counted so on a rerun
+    (tmp_path / "s" / "zz_bad.json").write_text("{not json")
+    assert main(["batch", str(tmp_path / "s"), "--min-ess", "100000", *args]) == 1
+    assert "3 scenes: 0 estimated and converged, 2 not converged (see summary.csv), 1 failed" in capsys.readouterr().out

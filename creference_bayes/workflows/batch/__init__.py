@@ -221,6 +221,8 @@ class BatchReport:
     engine: str
     #: targets estimated in this run (every target of every scene estimated)
     n_targets: int = 0
+    #: the KEYs, done or skipped, whose result says its posterior did not converge (summary.csv)
+    not_converged: list[str] = field(default_factory=list)
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -331,7 +333,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
     ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and batch.json
     whatever ends the run; closes the engine if ``close``."""
-    from .summary import write_summary
+    from .summary import summary_rows, write_summary
 
     out.mkdir(parents=True, exist_ok=True)
     ident = settings.to_dict()
@@ -358,7 +360,9 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
                              n_targets=runner.n_targets if runner is not None else 0)
-        write_summary(out, scenes, report)
+        rows = summary_rows(out, scenes, report)
+        report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
+        write_summary(out, scenes, report, rows)
         atomic_write_json(out / "batch.json", {
             "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
             "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
