@@ -346,3 +346,26 @@ def test_cli_batch_summary_line_counts_the_scenes_not_converged(tmp_path, capsys
     (tmp_path / "s" / "zz_bad.json").write_text("{not json")
     assert main(["batch", str(tmp_path / "s"), "--min-ess", "100000", *args]) == 1
     assert "3 scenes: 0 estimated and converged, 2 not converged (see summary.csv), 1 failed" in capsys.readouterr().out
+
+
+def test_a_batch_with_a_classes_file_can_be_plotted_and_advised(tmp_path, capsys):
+    """The result and the scene copy carry the priors of --classes: plot and advise need no classes file."""
+    from creference_bayes.cli.main import main
+
+    scene, _ = truth_scene(1, m=1, noise_px=1.0, n_annotations=3, sizes_known=False)
+    scene["targets"][0]["class"] = "Kayak"  # no shipped class: only the classes file knows it
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "kayak.json").write_text(json.dumps(scene))
+    (tmp_path / "classes.json").write_text('{"Kayak": {"length_m": 3.5, "width_m": 0.7, "height_m": 0.4}}')
+    out = tmp_path / "out"
+    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "1", "--no-posterior",
+                 "--classes", str(tmp_path / "classes.json")]) == 0
+    copy = load_scene(out / "scenes" / "kayak.json")  # without the classes file
+    assert copy.size_prior("Kayak").median_m == pytest.approx((3.5, 0.7, 0.4))
+    assert scene_fingerprint(copy) == _result(out, "kayak")["scene_id"]["sha256"]
+    capsys.readouterr()
+    assert main(["plot", str(out / "results" / "kayak.json"), "--out", str(tmp_path / "figs"), "--quiet"]) == 0
+    assert (tmp_path / "figs" / "boxes.png").is_file()
+    assert main(["advise", str(out / "results" / "kayak.json"), "--draws", "50", "--futures", "10",
+                 "--out", str(tmp_path / "advice.json"), "--quiet"]) == 0
+    assert "Kayak" not in capsys.readouterr().err

@@ -34,7 +34,7 @@ from typing import Callable
 
 from ... import __version__
 from ...io.files import atomic_write_json
-from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
+from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict, with_classes
 from ...pipeline import DEFAULT_MODEL, option_record
 from .files import ERROR_FORMAT, layout, record_error, up_to_date
 from .runner import Runner, one_line, progress_bar, run_scene
@@ -380,7 +380,9 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)  # the result reports them
-                loaded.append((si, load_scene(si.path, classes=settings.classes or None)))
+                scene = load_scene(si.path, classes=settings.classes or None)
+            # the copy carries the classes file's priors its targets use: plot, advise, labels read it alone
+            loaded.append((si, with_classes(scene, settings.classes)))
         except (SceneError, OSError, ValueError) as exc:
             errors[si.key] = one_line(exc)
             status[si.key] = "failed"
