@@ -369,3 +369,24 @@ def test_a_batch_with_a_classes_file_can_be_plotted_and_advised(tmp_path, capsys
     assert main(["advise", str(out / "results" / "kayak.json"), "--draws", "50", "--futures", "10",
                  "--out", str(tmp_path / "advice.json"), "--quiet"]) == 0
     assert "Kayak" not in capsys.readouterr().err
+
+
+def test_cli_batch_prints_a_line_per_finished_scene_when_stderr_is_not_a_terminal(tmp_path, capsys):
+    """A batch run into a log file said nothing until its end (issue 64): a line per scene, with its
+    key, how it ended and its time; --quiet prints none."""
+    import re
+
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a", "one_b"])
+    (tmp_path / "s" / "zz_bad.json").write_text("{not json")
+    args = ["batch", str(tmp_path / "s"), "--workers", "1", "--no-posterior"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 1  # capsys: standard error is not a terminal
+    err = capsys.readouterr().err.splitlines()
+    lines = [line for line in err if line.startswith("batch ")]
+    assert len(lines) == 2, err  # the scenes estimated; the one that failed to load is named below them
+    for line, key in zip(sorted(lines), ["one_a", "one_b"]):
+        m = re.fullmatch(rf"batch [23]/3: {key} estimated in (\d+\.\d) s; 1 failed \((\d+) s\)", line)
+        assert m, line
+    assert main([*args, "--out", str(tmp_path / "quiet"), "--quiet"]) == 1
+    assert not [line for line in capsys.readouterr().err.splitlines() if line.startswith("batch ")]

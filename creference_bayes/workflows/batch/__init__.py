@@ -237,7 +237,7 @@ class BatchReport:
 
 
 def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings = BatchSettings(), *,
-              time_limit: float | None = None, progress: bool = False,
+              time_limit: float | None = None, progress: bool | str = False,
               on_event: Callable[[str, str], None] | None = None) -> BatchReport:
     """Estimate every scene of ``inputs`` into the batch folder ``out`` with ``engine``.
 
@@ -250,7 +250,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     time_limit : seconds a scene may take from the moment it starts, or None. A scene over it is
         recorded as failed and the batch goes on; its computation is abandoned (a local worker
         process is ended when the batch ends, a Dask worker thread runs on until it finishes)
-    progress : show a tqdm bar on standard error
+    progress : show a tqdm bar on standard error (True), or print a line there per finished scene,
+        with how it ended and its time (``"lines"``, for a log file)
     on_event : called with (KEY, status) as each scene ends (tests, logging)
 
     Returns
