@@ -131,7 +131,7 @@ def _orientation(scene, orientation: str, notes: list[str]):
         notes.append(f"no horizon, and none found in the image ({est.reason}): {free}")
         return "free", None, est
     notes.append(f"no horizon given: estimated from the image ({est.method} segments, "
-                 f"{len(est.vanishing_points)} vanishing points, scale {est.sd_px:.1f} px (heavy-tailed), confidence "
+                 f"{len(est.vanishing_points)} vanishing point{'s' if len(est.vanishing_points) != 1 else ''}, scale {est.sd_px:.1f} px (heavy-tailed), confidence "
                  f"{est.confidence:.2f}) and used as a measurement; pitch and roll estimated with it")
     return "free", HorizonMeasurement(est.points, est.sd_px, "image", dof=est.dof), est
 

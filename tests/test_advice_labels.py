@@ -622,8 +622,8 @@ def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
 
 
 def test_a_stop_quotes_the_figure_it_stopped_by():
-    """The advice stops on the futures the requests are ranked by, and says that figure: the
-    stated half's (here 2.80 per hour) is above the minimum it would be said to be below."""
+    """The advice stops on the futures the requests are ranked by: it states the table's figure (the
+    stated half's) and then the ranking half's it stopped by, below the minimum."""
     from creference_bayes.workflows.advice import _recommend_labels
 
     batch = _planned({"a": (None, [0.2], [("size", 0, 64.4, [0.1])])})
@@ -631,7 +631,8 @@ def test_a_stop_quotes_the_figure_it_stopped_by():
     best = dataclasses.replace(advice.predictions[0], good_gain=0.05, rank_p_good=np.array([0.01]),
                                rank_good_gain=0.01)
     action, reason = _recommend_labels(advice.now, [best], advice.settings, advice.targets)
-    assert action == "stop" and "make 0.01 of them good (0.56 per human hour, below the minimum 1)" in reason
+    assert action == "stop" and "make 0.05 ± 0.00 of them good" in reason
+    assert "those that rank the requests, it makes 0.01, 0.56 per human hour, below the minimum 1" in reason
 
 
 def test_needs_annotation_carries_the_advices_verdicts(advised_batch, tmp_path):

@@ -325,3 +325,68 @@ def test_cli_model_options_are_typed_and_bad_ones_are_named(tmp_path, capsys):
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "b"), "--option", "ground_tilt_sd_rad=-0.1"]) == 2
     assert "--option ground_tilt_sd_rad: expected a finite number >= 0 (radians), got -0.1" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
+
+
+def test_cli_batch_summary_line_counts_the_scenes_not_converged(tmp_path, capsys):
+    """A scene whose posterior did not converge is not counted among the estimated ones (issue 64)."""
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a", "one_b"])
+    out = tmp_path / "out"
+    # one_b's sampler gets an effective sample size it cannot reach in 300 steps
+    args = ["--out", str(out), "--workers", "1", "--max-steps", "300"]
+    assert main(["batch", str(tmp_path / "s" / "one_a.json"), "--min-ess", "50", *args]) == 0
+    line = capsys.readouterr().out
+    assert "1 scene: 1 estimated, 0 failed" in line and "converged" not in line
+    assert main(["batch", str(tmp_path / "s"), "--min-ess", "100000", *args]) == 0
+    rows = {r["scene"]: r["converged"] for r in csv.DictReader((out / "summary.csv").open())}
+    assert rows == {"one_a": "false", "one_b": "false"}  # one_a again: the settings changed
+    assert "2 scenes: 0 estimated and converged, 2 not converged (see summary.csv), 0 failed" in capsys.readouterr().out
+    # a result already done that did not converge is counted so on a rerun
+    (tmp_path / "s" / "zz_bad.json").write_text("{not json")
+    assert main(["batch", str(tmp_path / "s"), "--min-ess", "100000", *args]) == 1
+    assert "3 scenes: 0 estimated and converged, 2 not converged (see summary.csv), 1 failed" in capsys.readouterr().out
+
+
+def test_a_batch_with_a_classes_file_can_be_plotted_and_advised(tmp_path, capsys):
+    """The result and the scene copy carry the priors of --classes: plot and advise need no classes file."""
+    from creference_bayes.cli.main import main
+
+    scene, _ = truth_scene(1, m=1, noise_px=1.0, n_annotations=3, sizes_known=False)
+    scene["targets"][0]["class"] = "Kayak"  # no shipped class: only the classes file knows it
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "kayak.json").write_text(json.dumps(scene))
+    (tmp_path / "classes.json").write_text('{"Kayak": {"length_m": 3.5, "width_m": 0.7, "height_m": 0.4}}')
+    out = tmp_path / "out"
+    assert main(["batch", str(tmp_path / "s"), "--out", str(out), "--workers", "1", "--no-posterior",
+                 "--classes", str(tmp_path / "classes.json")]) == 0
+    copy = load_scene(out / "scenes" / "kayak.json")  # without the classes file
+    assert copy.size_prior("Kayak").median_m == pytest.approx((3.5, 0.7, 0.4))
+    assert scene_fingerprint(copy) == _result(out, "kayak")["scene_id"]["sha256"]
+    capsys.readouterr()
+    assert main(["plot", str(out / "results" / "kayak.json"), "--out", str(tmp_path / "figs"), "--quiet"]) == 0
+    assert (tmp_path / "figs" / "boxes.png").is_file()
+    assert main(["advise", str(out / "results" / "kayak.json"), "--draws", "50", "--futures", "10",
+                 "--out", str(tmp_path / "advice.json"), "--quiet"]) == 0
+    assert "Kayak" not in capsys.readouterr().err
+
+
+def test_cli_batch_prints_a_line_per_finished_scene_when_stderr_is_not_a_terminal(tmp_path, capsys):
+    """A batch run into a log file said nothing until its end (issue 64): a line per scene, with its
+    key, how it ended and its time; --quiet prints none."""
+    import re
+
+    from creference_bayes.cli.main import main
+
+    write_scenes(tmp_path / "s", ["one_a", "one_b"])
+    (tmp_path / "s" / "zz_bad.json").write_text("{not json")
+    args = ["batch", str(tmp_path / "s"), "--workers", "1", "--no-posterior"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 1  # capsys: standard error is not a terminal
+    err = capsys.readouterr().err.splitlines()
+    lines = [line for line in err if line.startswith("batch ")]
+    assert len(lines) == 2, err  # the scenes estimated; the one that failed to load is named below them
+    for line, key in zip(sorted(lines), ["one_a", "one_b"]):
+        m = re.fullmatch(rf"batch [23]/3: {key} estimated in (\d+\.\d) s; 1 failed \((\d+) s\)", line)
+        assert m, line
+    assert main([*args, "--out", str(tmp_path / "quiet"), "--quiet"]) == 1
+    assert not [line for line in capsys.readouterr().err.splitlines() if line.startswith("batch ")]

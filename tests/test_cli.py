@@ -341,7 +341,8 @@ def test_format_tables_align_their_columns_with_and_without_a_posterior():
 
     for posterior in (True, False):
         lines = format_tables(_fake_result(3, posterior)).splitlines()
-        cam = lines[2:7]
+        cam = lines[2:lines.index("")]
+        assert len(cam) == 4  # the fake reads no references: no crowd scale row
         assert all(line[27] != " " and line[28:29] in ("", " ") for line in cam)  # the MAPs end in one column
         if posterior:
             hdi = [line.index("[") for line in cam[:4] if "[" in line]
@@ -349,3 +350,50 @@ def test_format_tables_align_their_columns_with_and_without_a_posterior():
         head = next(line for line in lines if line.strip().startswith("target"))
         rows = [line for line in lines if line.startswith("  car")]
         assert {len(line) for line in rows} == {len(head)}  # every object row as wide as the header
+
+
+@pytest.mark.parametrize("horizon, fixed", [(None, "focal_length_px (given in the scene)"),
+                                            ("exact", "focal_length_px (given in the scene), pitch and roll "
+                                                      "(from the exact horizon)")])
+def test_estimate_tables_say_what_fixed_each_quantity_and_leave_out_a_crowd_scale_not_used(
+        tmp_path, capsys, horizon, fixed):
+    """Issue 64: a scene without a horizon was told its focal length was fixed by the exact horizon,
+    and a scene without references printed a crowd scale '(not used)'."""
+    scene, _ = truth_scene(3, noise_px=1.0, n_annotations=3, focal_known=True, horizon=horizon)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    assert main(["estimate", str(path), "--max-steps", "300", "--min-ess", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "crowd scale" not in out and "not used" not in out  # no references: the model has no crowd scale
+    (line,) = [line for line in out.splitlines() if line.startswith("truth inside")]
+    assert line.endswith(f"; not checked (fixed, no spread in the posterior): {fixed}")
+    focal = next(line for line in out.splitlines() if line.strip().startswith("focal length px"))
+    assert "(given in the scene)" in focal
+    if horizon is None:
+        assert "horizon" not in line
+
+
+def test_estimate_tables_show_the_crowd_scale_when_references_are_read(tmp_path, capsys):
+    scene, _ = truth_scene(3, noise_px=1.0, n_annotations=3, n_refs=2)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    assert main(["estimate", str(path), "--no-posterior"]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("crowd scale"))
+    assert len(row.split()) == 3 and float(row.split()[2]) > 0  # its MAP, nothing said 'not used'
+
+
+def test_a_horizon_found_in_the_photo_from_one_vanishing_point_says_so_in_the_singular(monkeypatch):
+    import types
+
+    import creference_bayes.vision.horizon as horizon
+    from creference_bayes.camera_setup import _orientation
+
+    found = types.SimpleNamespace(points=np.array([[0.0, 500.0], [1000.0, 500.0]]), sd_px=2.0, dof=4.0,
+                                  method="LSD", vanishing_points=np.zeros((1, 3)), confidence=0.5,
+                                  __bool__=lambda self: True)
+    monkeypatch.setattr(horizon, "estimate_horizon", lambda *a, **k: found)
+    scene = types.SimpleNamespace(horizon=None, horizon_sd_px=0.0, image_path=Path("photo.jpg"),
+                                  principal_point=(500.0, 400.0), image_size=(1000, 800))
+    notes = []
+    _orientation(scene, "auto", notes)
+    assert "1 vanishing point," in notes[0]

@@ -88,3 +88,27 @@ def test_progress_bars_never_load_the_notebook_flavour_of_tqdm():
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
     assert "sampling" in proc.stderr  # the bars were drawn, on standard error
+
+
+def test_progress_mode_is_a_bar_on_a_terminal_and_lines_elsewhere():
+    import io
+
+    from creference_bayes.inference.progress import LineBar, progress_bar, progress_mode
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    assert progress_mode(False, Terminal()) is True and progress_mode(False, io.StringIO()) == "lines"
+    assert progress_mode(True, Terminal()) is False and progress_mode(True, io.StringIO()) is False
+    assert isinstance(progress_bar("lines", 3, desc="advice", unit="scene"), LineBar)
+
+
+def test_line_bar_prints_a_line_per_update_with_its_note(capsys):
+    from creference_bayes.inference.progress import progress_bar
+
+    with progress_bar("lines", 3, desc="advice", unit="scene", initial=1) as bar:
+        bar.update(1)
+        bar.set_postfix_str("k2 done", refresh=False)
+        bar.update(1)
+    assert capsys.readouterr().err.splitlines() == ["advice 2/3 scenes (0 s)", "advice 3/3: k2 done (0 s)"]

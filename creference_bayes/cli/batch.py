@@ -50,6 +50,7 @@ def _engine(args):
 
 
 def _run_batch(args) -> int:
+    from ..inference.progress import progress_mode
     from ..workflows.batch import run_batch
     from ..workflows.batch.summary import summary_line
 
@@ -60,7 +61,7 @@ def _run_batch(args) -> int:
     engine = _engine(args)
     with usage_errors():  # no scene found, two scenes with one name (the engine is closed)
         report = run_batch(args.inputs, args.out, engine, settings, time_limit=args.time_limit,
-                           progress=not args.quiet and sys.stderr.isatty())
+                           progress=progress_mode(args.quiet))
     if not args.quiet:
         for key, error in report.errors.items():
             print(f"failed: {key}: {error}", file=sys.stderr)
@@ -97,7 +98,8 @@ def register(subparsers) -> None:
     p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
     add_confidence_map_option(p)
     add_model_option(p)
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar (on a terminal) or "
+                                                             "line per finished scene (otherwise)")
     add_camera_options(p)
     p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
                    help="what the frames of one camera (the scenes' camera.id) share, learnt from all of them: "

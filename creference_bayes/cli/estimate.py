@@ -56,12 +56,14 @@ def format_tables(d: dict) -> str:
              + (f"{'' if post else ' ' * 20}{'truth':>10}" if truth else "")]
     mid = 32 if post else 20  # the width of the mean and HDI columns, or of the notes
     for key, (label, nd, k) in _CAMERA_ROWS.items():
+        if key == "ref_scale" and key not in cam["free"]:
+            continue  # no references read with a crowd scale: the model has none
         row = f"  {label:<16}{_f(cam['map'][key] * k, nd):>10}"
         if post and key in post["mean"]:
             lo, hi = post["hdi"][key]
             row += f"{_f(post['mean'][key] * k, nd):>10}  {'[' + _f(lo * k, nd) + ', ' + _f(hi * k, nd) + ']':<22}"
         elif key not in cam["free"]:
-            row += f"  {_why_fixed(key, cam):<{mid - 2}}"
+            row += f"  {'(' + _why_fixed(key, cam) + ')':<{mid - 2}}"
         else:
             row += " " * mid
         if truth.get(key) is not None:
@@ -102,10 +104,15 @@ def format_tables(d: dict) -> str:
 
 
 def _why_fixed(key: str, cam: dict) -> str:
+    """What fixed a camera quantity (not a parameter of the model), as the scene has it."""
     orientation = (cam.get("setup") or {}).get("orientation")
-    if key in ("pitch", "roll") and orientation in ("horizon", "level"):
-        return "(from the horizon)" if orientation == "horizon" else "(level camera)"
-    return "(not used)" if key == "ref_scale" else "(fixed)"
+    if key in ("pitch", "roll") and orientation == "horizon":
+        return "from the exact horizon"
+    if key in ("pitch", "roll") and orientation == "level":
+        return "a level camera, as asked"
+    if key == "focal_length_px":
+        return "given in the scene"
+    return "fixed"
 
 
 def _truth_lines(d: dict) -> list[str]:
@@ -135,9 +142,16 @@ def _truth_lines(d: dict) -> list[str]:
             inside.append(f"{key} {sum(flags)} of {len(flags)}")
     out.append(f"truth inside the {prob:.0%} HDI: {', '.join(inside) or 'none'}"
                + (f"; outside: {', '.join(outside)}" if outside else "")
-               + (f"; not checked: {', '.join(fixed)} (no spread in the posterior: fixed by the exact horizon "
-                  "or the camera set-up)" if fixed else ""))
+               + (f"; not checked (fixed, no spread in the posterior): {_fixed_list(fixed, d['camera'])}" if fixed else ""))
     return out
+
+
+def _fixed_list(keys: list[str], cam: dict) -> str:
+    """``focal_length_px (given in the scene), pitch and roll (from the exact horizon)``."""
+    why: dict[str, list[str]] = {}
+    for key in keys:
+        why.setdefault(_why_fixed(key, cam), []).append(key)
+    return ", ".join(f"{' and '.join(names)} ({reason})" for reason, names in why.items())
 
 
 def _references_line(refs: dict) -> str | None:

@@ -1,7 +1,9 @@
 """Progress bars (tqdm) on standard error, in one place: how they look and where they go.
 
 Callers decide *whether* to show one (the command line: not with ``--quiet``, and only when
-standard error is a terminal); this module only builds it. The bars are tqdm's plain text bars
+standard error is a terminal); this module only builds it. A long run of units (the scenes of a
+batch) whose standard error is not a terminal (a log file, a pipe) prints a line per finished unit
+instead (:func:`progress_mode`, :class:`LineBar`): a bar there would be one line at the end. The bars are tqdm's plain text bars
 (``tqdm.std``), also inside Jupyter: ``tqdm.auto`` would pick the notebook widget there and, in a
 kernel without ipywidgets, emit a ``TqdmWarning`` on import even when the bar is disabled.
 """
@@ -9,9 +11,19 @@ kernel without ipywidgets, emit a ``TqdmWarning`` on import even when the bar is
 from __future__ import annotations
 
 import sys
+import time
 from contextlib import contextmanager
 
-__all__ = ["progress_bar", "SilentBar"]
+__all__ = ["progress_bar", "progress_mode", "SilentBar", "LineBar"]
+
+
+def progress_mode(quiet: bool, stream=None):
+    """How the command line reports a long run of units: False (``--quiet``), True (a bar:
+    ``stream``, standard error by default, is a terminal) or ``"lines"`` (a line per unit)."""
+    if quiet:
+        return False
+    stream = sys.stderr if stream is None else stream
+    return True if stream.isatty() else "lines"
 
 
 class SilentBar:
@@ -31,6 +43,9 @@ class SilentBar:
     def set_postfix(self, *args, **kwargs) -> None:
         pass
 
+    def set_postfix_str(self, *args, **kwargs) -> None:
+        pass
+
     def refresh(self) -> None:
         pass
 
@@ -48,7 +63,26 @@ class SilentBar:
         return False
 
 
-def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = None,
+class LineBar(SilentBar):
+    """A line on standard error per update, for a log file: ``batch 3/48: <postfix> (12 s)``, the
+    postfix as :meth:`set_postfix_str` last set it (what the unit was and how it ended)."""
+
+    def __init__(self, total: int | None = None, initial: int = 0, desc: str | None = None, unit: str = "it"):
+        super().__init__(total, initial)
+        self.desc, self.unit, self.note, self.start = desc or "progress", unit, "", time.monotonic()
+
+    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+        self.note = s
+
+    def update(self, n: int = 1) -> None:
+        super().update(n)
+        count = f"{self.n}/{self.total}" if self.total is not None else f"{self.n}"
+        what = f": {self.note}" if self.note else f" {self.unit}{'s' if self.n != 1 else ''}"
+        print(f"{self.desc} {count}{what} ({time.monotonic() - self.start:.0f} s)", file=sys.stderr, flush=True)
+        self.note = ""
+
+
+def progress_bar(enabled: bool | str, total: int | None = None, *, desc: str | None = None,
                  unit: str = "it", initial: int = 0, leave: bool = False, postfix: dict | None = None):
     """A tqdm bar on standard error that disappears when done, or a disabled (silent) one.
 
@@ -56,8 +90,11 @@ def progress_bar(enabled: bool, total: int | None = None, *, desc: str | None = 
     label before the bar; ``unit``: what one update counts; ``initial``: updates already done;
     ``leave``: keep the finished bar on the screen; ``postfix``: values shown after the bar
     (``set_postfix`` changes them). Returns a ``tqdm.std.tqdm`` (or, when not ``enabled``, a
-    :class:`SilentBar`), usable as a context manager; ``update(n)`` advances it.
+    :class:`SilentBar`; when ``enabled`` is ``"lines"``, a :class:`LineBar`), usable as a context
+    manager; ``update(n)`` advances it.
     """
+    if enabled == "lines":
+        return LineBar(total, initial, desc, unit)
     if not enabled:
         return SilentBar(total, initial)
     from tqdm.std import tqdm

@@ -481,9 +481,12 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
     differs in the first)."""
     import warnings
 
+    from ..models.size_priors import size_priors_from_dict
     from .scene import SceneWarning, parse_scene, read_scene_json
 
     result_path = Path(result_path)
+    recorded = (result.get("provenance") or {}).get("classes")  # a classes file's priors it was made with
+    classes = size_priors_from_dict(recorded, "provenance.classes", "file") if recorded else None
     if explicit is not None:
         paths, how = [Path(explicit)], f"--scene {explicit}"
         if not paths[0].is_file():
@@ -497,7 +500,7 @@ def find_scene(result: dict, result_path: str | Path, explicit: str | Path | Non
             file_sha = canonical_sha256(data)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
-                scene = parse_scene(data, source=path)
+                scene = parse_scene(data, source=path, classes=classes)
             why = scene_mismatch(result, scene, file_sha)
             if not why:
                 if notes is not None:

@@ -33,7 +33,8 @@ from .validation import (SCENE_FORMATS, SceneError, SceneWarning, _check_inside,
 
 __all__ = ["SCENE_FORMAT", "SCENE_FORMATS", "SceneError", "SceneWarning", "DimensionLine", "Target", "Reference",
            "Scene", "load_scene", "parse_scene", "scene_to_dict", "scene_fingerprint", "scene_differences",
-           "near_miss", "read_scene_json", "find_size_prior", "MAX_TARGETS", "MAX_ANNOTATIONS", "MAX_REFERENCES"]
+           "near_miss", "read_scene_json", "find_size_prior", "with_classes", "MAX_TARGETS", "MAX_ANNOTATIONS",
+           "MAX_REFERENCES"]
 
 #: The format :func:`scene_to_dict` writes.
 SCENE_FORMAT = SCENE_FORMATS[-1]
@@ -667,6 +668,18 @@ def load_scene(path: str | Path, classes: dict[str, SizePrior] | None = None) ->
     scene, ``FileNotFoundError`` if ``path`` does not exist."""
     path = Path(path)
     return parse_scene(read_scene_json(path), source=path, classes=classes)
+
+
+def with_classes(scene: Scene, classes: dict[str, SizePrior] | None) -> Scene:
+    """``scene`` with the entries of ``classes`` (a classes file) that its targets take their size
+    prior from added to its own classes (its own win, as in :meth:`Scene.size_prior`): written out
+    (:func:`scene_to_dict`), it needs no classes file to be read again."""
+    used = {}
+    for t in scene.targets:
+        if t.dimensions is None and t.size_prior is None and classes:
+            prior = scene.size_prior(t.cls, classes)
+            used.update({name: p for name, p in classes.items() if p is prior})
+    return replace(scene, classes={**used, **scene.classes}) if used else scene
 
 
 def read_scene_json(path: Path) -> Any:

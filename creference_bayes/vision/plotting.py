@@ -294,6 +294,16 @@ def _box_segments(boxes: np.ndarray) -> list:
     return segs
 
 
+def _median_box_pt(ax, boxes: list, width_px: int) -> float:
+    """The median size (the larger side of its extent) of the projected ``boxes`` on the figure, in
+    points: the axes' width in points per pixel of the image (``width_px`` wide) times each box's
+    size in pixels."""
+    pt_per_px = ax.get_position().width * ax.figure.figure.get_figwidth() * 72 / max(width_px, 1)
+    sizes = [np.ptp(b[np.all(np.isfinite(b), axis=1)], axis=0).max() for b in boxes
+             if np.all(np.isfinite(b), axis=1).sum() >= 2]
+    return float(np.median(sizes)) * pt_per_px if sizes else 64.0
+
+
 def _annotation_segments(corners: np.ndarray) -> list:
     """The three dimension lines (from the first corner) of (k, 4, 2) annotations, as segments."""
     return [c[[0, j]] for c in np.asarray(corners).reshape(-1, 4, 2) for j in (1, 2, 3)]
@@ -326,24 +336,28 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
         ax.add_patch(Rectangle((0, 0), w, h, facecolor="#f4f4f4", edgecolor="#999999"))
     if scene.horizon is not None:
         ax.plot(*np.asarray(scene.horizon).T, ls="--", color="#777777", lw=1, label="horizon")
+    maps = [image_boxes(camera[None], objects[i][None], scene.principal_point)[0] for i in range(m)]
+    # Line widths follow the objects' size on the figure (a KITTI frame's cars are a few dozen
+    # points): the MAP box below, thin enough that the draws around it and the annotations drawn
+    # over it (thin black) stay visible where they differ from it by a pixel or two.
+    lw = float(np.clip(0.025 * _median_box_pt(ax, maps, w), 0.8, 1.6 if m <= 30 else 1.3))
     ax.add_collection(LineCollection([s for t in scene.targets for s in _annotation_segments(t.corners)],
-                                     colors="k", linewidths=0.5, alpha=0.35, zorder=2, gid="annotations"),
+                                     colors="k", linewidths=0.35 * lw, alpha=0.6, zorder=4, gid="annotations"),
                       autolim=False)
     ax.add_collection(LineCollection([s for t in scene.targets for s in _annotation_segments(t.median_corners)],
-                                     colors="k", linewidths=1.1, zorder=2.5, gid="median annotations"), autolim=False)
+                                     colors="k", linewidths=0.6 * lw, zorder=4.5, gid="median annotations"),
+                      autolim=False)
     if draws is not None:
         cams, objs = draws
         pick = np.random.default_rng(rng).choice(len(cams), size=min(n_boxes, len(cams)), replace=False)
         for i in range(m):
             segs = _box_segments(image_boxes(cams[pick], objs[pick, i], scene.principal_point))
-            ax.add_collection(LineCollection(segs, colors=styles[i]["color"], linewidths=0.9, alpha=0.3, zorder=2,
-                                             gid="draw boxes"), autolim=False)
-    maps = [image_boxes(camera[None], objects[i][None], scene.principal_point)[0] for i in range(m)]
-    lw = 1.6 if m <= 30 else 1.3
+            ax.add_collection(LineCollection(segs, colors=styles[i]["color"], linewidths=max(0.6 * lw, 0.8), alpha=0.45,
+                                             zorder=3, gid="draw boxes"), autolim=False)
     anchors = np.full((m, 2), np.nan)
     for i, box in enumerate(maps):
         ax.add_collection(LineCollection(_box_segments(box), colors=styles[i]["color"], linestyles=[styles[i]["ls"]],
-                                         linewidths=lw, zorder=3, gid="map box"), autolim=False)
+                                         linewidths=lw, zorder=2.5, gid="map box"), autolim=False)
         top = box[4:][np.all(np.isfinite(box[4:]), axis=1)]
         if len(top):
             anchors[i] = np.clip(top[:, 0].mean(), 0, w), np.clip(top[:, 1].min(), 0, h)
@@ -351,9 +365,9 @@ def plot_boxes(scene, camera: np.ndarray, objects: np.ndarray, draws=None, *, n_
     each = "" if m == 1 else ", each object in its colour"
     ax.plot([], [], color=styles[0]["color"], lw=lw, label=f"box at the MAP (the most probable{each})")
     if draws is not None:
-        ax.plot([], [], color=styles[0]["color"], lw=0.9, alpha=0.3,
+        ax.plot([], [], color=styles[0]["color"], lw=max(0.6 * lw, 0.8), alpha=0.45,
                 label=f"{min(n_boxes, len(draws[0]))} boxes per object: {draws_label}")
-    ax.plot([], [], color="k", lw=1.1, label="annotations (thin: each set; thick: their median)")
+    ax.plot([], [], color="k", lw=max(0.6 * lw, 0.8), label="annotations (thin: each set; thick: their median)")
     ax.set(xlim=(0, w), ylim=(h, 0), aspect="equal", xlabel="u (px)", ylabel="v (px)")
     what = f"{m} objects" if m > 1 else labels[0]
     ax.set_title(f"{what}: boxes at the MAP" + (f" and {draws_label}" if draws is not None else ""))

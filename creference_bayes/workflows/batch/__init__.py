@@ -34,7 +34,7 @@ from typing import Callable
 
 from ... import __version__
 from ...io.files import atomic_write_json
-from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict
+from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict, with_classes
 from ...pipeline import DEFAULT_MODEL, option_record
 from .files import ERROR_FORMAT, layout, record_error, up_to_date
 from .runner import Runner, one_line, progress_bar, run_scene
@@ -221,6 +221,8 @@ class BatchReport:
     engine: str
     #: targets estimated in this run (every target of every scene estimated)
     n_targets: int = 0
+    #: the KEYs, done or skipped, whose result says its posterior did not converge (summary.csv)
+    not_converged: list[str] = field(default_factory=list)
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -235,7 +237,7 @@ class BatchReport:
 
 
 def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings = BatchSettings(), *,
-              time_limit: float | None = None, progress: bool = False,
+              time_limit: float | None = None, progress: bool | str = False,
               on_event: Callable[[str, str], None] | None = None) -> BatchReport:
     """Estimate every scene of ``inputs`` into the batch folder ``out`` with ``engine``.
 
@@ -248,7 +250,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     time_limit : seconds a scene may take from the moment it starts, or None. A scene over it is
         recorded as failed and the batch goes on; its computation is abandoned (a local worker
         process is ended when the batch ends, a Dask worker thread runs on until it finishes)
-    progress : show a tqdm bar on standard error
+    progress : show a tqdm bar on standard error (True), or print a line there per finished scene,
+        with how it ended and its time (``"lines"``, for a log file)
     on_event : called with (KEY, status) as each scene ends (tests, logging)
 
     Returns
@@ -331,7 +334,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
     ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and batch.json
     whatever ends the run; closes the engine if ``close``."""
-    from .summary import write_summary
+    from .summary import summary_rows, write_summary
 
     out.mkdir(parents=True, exist_ok=True)
     ident = settings.to_dict()
@@ -358,7 +361,9 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
                              n_targets=runner.n_targets if runner is not None else 0)
-        write_summary(out, scenes, report)
+        rows = summary_rows(out, scenes, report)
+        report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
+        write_summary(out, scenes, report, rows)
         atomic_write_json(out / "batch.json", {
             "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
             "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
@@ -376,7 +381,9 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)  # the result reports them
-                loaded.append((si, load_scene(si.path, classes=settings.classes or None)))
+                scene = load_scene(si.path, classes=settings.classes or None)
+            # the copy carries the classes file's priors its targets use: plot, advise, labels read it alone
+            loaded.append((si, with_classes(scene, settings.classes)))
         except (SceneError, OSError, ValueError) as exc:
             errors[si.key] = one_line(exc)
             status[si.key] = "failed"

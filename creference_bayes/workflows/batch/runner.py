@@ -84,29 +84,30 @@ class Runner:
             return
         if fut not in self.running:  # already failed with a broken pool
             return
-        si, job, _ = self.running.pop(fut)
+        si, job, start = self.running.pop(fut)
         try:
             res = fut.result()
         except cf.BrokenExecutor as exc:  # a worker process died: every task in the pool is lost
-            self._finish(si, False, "worker", f"a worker process died ({one_line(exc)}); rerun to retry")
-            for other, (osi, *_rest) in list(self.running.items()):
-                self._finish(osi, False, "worker", "lost with a worker process that died; rerun to retry")
+            self._finish(si, False, "worker", f"a worker process died ({one_line(exc)}); rerun to retry", start=start)
+            for other, (osi, _job, ostart) in list(self.running.items()):
+                self._finish(osi, False, "worker", "lost with a worker process that died; rerun to retry", start=ostart)
             self.running.clear()
             self.abandoned.clear()
             self.engine.renew()
             return
         except cf.CancelledError:
-            self._finish(si, False, "worker", "the task was cancelled by the engine; rerun to retry")
+            self._finish(si, False, "worker", "the task was cancelled by the engine; rerun to retry", start=start)
             return
         except Exception as exc:  # raised by the engine itself (e.g. Dask's KilledWorker)
-            self._finish(si, False, "worker", one_line(exc), traceback.format_exc())
+            self._finish(si, False, "worker", one_line(exc), traceback.format_exc(), start=start)
             return
         if res["ok"]:
             record_result(layout(self.out, si.key), si, job["scene"], res["result"], job["seed"], self.settings)
             self.n_targets += len(res["result"]["objects"])
-            self._finish(si, True)
+            converged = (res["result"].get("diagnostics") or {}).get("converged", True)
+            self._finish(si, True, start=start, converged=converged)
         else:
-            self._finish(si, False, res["stage"], res["error"], res.get("traceback"))
+            self._finish(si, False, res["stage"], res["error"], res.get("traceback"), start=start)
 
     def _enforce_time_limit(self) -> None:
         if self.time_limit is None:
@@ -118,15 +119,18 @@ class Runner:
                 if not fut.cancel():
                     self.abandoned.add(fut)
                 self._finish(si, False, "time limit", f"TimeLimit: no result within "
-                             f"{self.time_limit:g} s; the computation was abandoned")
+                             f"{self.time_limit:g} s; the computation was abandoned", start=start)
 
-    def _finish(self, si, ok: bool, stage=None, error=None, tb=None) -> None:
+    def _finish(self, si, ok: bool, stage=None, error=None, tb=None, *, start=None, converged=True) -> None:
         if not ok:
             self.n_failed += 1
             self.errors[si.key] = error
             record_error(layout(self.out, si.key), si, stage, error, tb)
         self.status[si.key] = "done" if ok else "failed"
+        # the scene, how it ended and its time: after the bar on a terminal, a line each in a log file
+        how = ("estimated" if converged else "estimated, not converged") if ok else f"failed ({stage})"
+        took = f" in {time.monotonic() - start:.1f} s" if start is not None else ""
+        self.bar.set_postfix_str(f"{si.key} {how}{took}; {self.n_failed} failed", refresh=False)
         self.bar.update(1)
-        self.bar.set_postfix(failed=self.n_failed)
         if self.on_event:
             self.on_event(si.key, self.status[si.key])

@@ -68,17 +68,25 @@ def summary_rows(out: str | Path, scenes, report) -> list[dict]:
     return [row for si in scenes for row in _rows(out, si.key, report.status[si.key], report.errors.get(si.key))]
 
 
-def write_summary(out: str | Path, scenes, report) -> Path:
-    """Write ``summary.csv`` in the batch folder (atomically) and return its path."""
-    return atomic_write_csv(Path(out) / "summary.csv", summary_rows(out, scenes, report), SUMMARY_COLUMNS)
+def write_summary(out: str | Path, scenes, report, rows: list[dict] | None = None) -> Path:
+    """Write ``summary.csv`` in the batch folder (atomically; ``rows``: :func:`summary_rows`, if
+    already read) and return its path."""
+    return atomic_write_csv(Path(out) / "summary.csv", summary_rows(out, scenes, report) if rows is None else rows,
+                            SUMMARY_COLUMNS)
 
 
 def summary_line(report, out: str | Path | None = None) -> str:
-    """``47 scenes: 38 estimated, 2 already done, 7 failed in 95.2 s (24.0 targets/min on …)``."""
+    """``47 scenes: 38 estimated, 2 already done, 7 failed in 95.2 s (24.0 targets/min on …)``; a scene
+    whose posterior did not converge (estimated now or already done) is counted apart: ``48 scenes:
+    46 estimated and converged, 1 already done, 1 not converged (see summary.csv), 0 failed …``."""
     n = len(report.status)
-    parts = [f"{len(report.keys('done'))} estimated"]
-    if report.keys("skipped"):
-        parts.append(f"{len(report.keys('skipped'))} already done")
+    bad = set(report.not_converged)
+    count = lambda status: sum(k not in bad for k in report.keys(status))
+    parts = [f"{count('done')} estimated" + (" and converged" if bad else "")]
+    if count("skipped"):
+        parts.append(f"{count('skipped')} already done")
+    if bad:
+        parts.append(f"{len(bad)} not converged (see summary.csv)")
     parts.append(f"{len(report.keys('failed'))} failed")
     if report.keys("not run"):
         parts.append(f"{len(report.keys('not run'))} not run")
