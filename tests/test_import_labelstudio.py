@@ -959,3 +959,29 @@ def test_the_camera_id_round_trips_through_a_task(assert_same_scene):
     (s,) = scenes_from_label_studio([task]).scenes
     assert s.scene["camera"]["id"] == "rig/front"
     assert parse_scene(s.scene).camera_id == "rig/front"
+
+
+def test_many_reference_lines_are_each_paired_with_their_own_end():
+    """Relations are paired by set look-ups (linear): 600 lines, relations drawn either way and in
+    shuffled order, each line keeps its own two ends and its own value."""
+    rng = np.random.default_rng(3)
+    n = 600
+    res = _target_points("a", "car1", 20, cls="Car")
+    relations = []
+    for k in range(n):
+        x, y = 1 + 98 * k / n, 90 + 5 * (k % 2)
+        res += [_pt(f"s{k}", "reference start", x, y), _pt(f"e{k}", "reference end", x + 0.5, y + 1),
+                _ctl(f"s{k}", "measure", "choices", "length"), _ctl(f"s{k}", "mode", "choices", "relative"),
+                _ctl(f"e{k}", "value", "number", 1.0 + k)]
+        a, b = (f"s{k}", f"e{k}") if k % 3 else (f"e{k}", f"s{k}")
+        relations.append({"type": "relation", "from_id": a, "to_id": b, "direction": "right", "labels": []})
+    res += [relations[i] for i in rng.permutation(n)]
+    task = {"id": 5, "data": {"image": "x.png"}, "annotations": [{"id": 7, "result": res}]}
+    report = scenes_from_label_studio([task])
+    assert report.ok, report.errors[:1]
+    refs = report.scenes[0].scene["references"]
+    assert len(refs) == n
+    by_value = {r["value"]: r["line"] for r in refs}
+    for k in range(n):
+        x, y = 20 * (1 + 98 * k / n), 10 * (90 + 5 * (k % 2))
+        np.testing.assert_allclose(by_value[1.0 + k], [[x, y], [x + 10, y + 10]])
