@@ -604,3 +604,19 @@ def test_the_camera_id_round_trips_through_cvat_xml():
     with pytest.raises(ValueError, match="disagree on its camera id"):
         cvat_xml([a, {**a, "camera": {"id": "rig/rear"}, "targets": [{**a["targets"][0], "id": "u0"}],
                       "references": []}], image_names=["x.png", "x.png"])
+
+
+def test_an_image_name_too_long_for_the_file_system_skips_that_image_only(tmp_path, capsys):
+    long = "drive/" + "x" * 300 + ".png"  # one component past the 255 bytes of a file name
+    bare = _TARGET.format(tid="1")
+    path = tmp_path / "annotations.xml"
+    path.write_bytes(f'{_HEAD}{_image("drive/a.png", bare)}{_image(long, bare)}</annotations>'.encode())
+    report = scenes_from_cvat(read_cvat_xml(path), image_dir=tmp_path)
+    assert [s.name for s in report.scenes] == ["drive_a"]
+    (err,) = report.errors
+    assert str(err).startswith(f"image '{long[:30]}") and "cannot be looked up in the image folder: " in str(err)
+    out = tmp_path / "o"
+    assert main(["import", "cvat", str(path), "--out", str(out), "--image-dir", str(tmp_path), "--quiet"]) == 2
+    assert [p.name for p in out.iterdir()] == ["drive_a.json"]
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: image 'drive/xxx") and line.endswith("File name too long")
