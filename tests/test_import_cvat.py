@@ -259,6 +259,76 @@ def test_xml_with_entities_is_refused_before_parsing():
         read_cvat_xml(bomb.encode())
 
 
+_ENTITY_DOC = ('<?xml version="1.0" encoding="{enc}"?>\n<!DOCTYPE annotations [<!ENTITY who "the crowd">]>\n'
+               '<annotations><version>1.1</version><image id="0" name="a.jpg" width="10" height="10">'
+               '<tag label="camera"><attribute name="camera_id">&who;</attribute></tag></image></annotations>')
+
+
+@pytest.mark.parametrize("enc", ["utf-8", "utf-16"])
+@pytest.mark.parametrize("doc", [_ENTITY_DOC, '<?xml version="1.0" encoding="{enc}"?><!DOCTYPE annotations>'
+                                               '<annotations><version>1.1</version></annotations>'])
+def test_a_dtd_is_refused_by_the_parser_in_any_encoding(tmp_path, capsys, enc, doc):
+    """Not a pattern on the raw bytes: a UTF-16 document (no ASCII '<!DOCTYPE' in it) is refused
+    too, with or without an internal entity."""
+    data = doc.format(enc=enc).encode(enc)
+    assert (b"<!DOCTYPE" in data) == (enc == "utf-8")
+    with pytest.raises(ConversionError, match="declares a DTD or entities"):
+        read_cvat_xml(data)
+    path = tmp_path / "annotations.xml"
+    path.write_bytes(data)
+    assert main(["import", "cvat", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {path}: the XML declares a DTD or entities, which CVAT "
+                                               "files never do; refused (entity expansion is unsafe)")
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_encoding_the_parser_cannot_read_is_one_line():
+    data = '<?xml version="1.0" encoding="utf-16-le"?><annotations/>'.encode("utf-16-le")
+    with pytest.raises(ConversionError, match=r"^\(xml\): cannot be parsed as XML: multi-byte encodings"):
+        read_cvat_xml(data)
+
+
+def test_only_what_the_importer_reads_is_kept_of_the_xml():
+    meta = "<meta><task>" + "<label><name>x</name><attributes><attribute/></attributes></label>" * 500 + "</task></meta>"
+    text = XML.read_text().replace("<version>1.1</version>", "<version>1.1</version>" + meta + "<junk><a/><b/></junk>")
+    root = read_cvat_xml(text.encode())
+    assert [el.tag for el in root] == ["version"] + ["image"] * len(root.findall("image"))
+    assert {s.name for s in scenes_from_cvat(root).scenes} == {"living_room", "photos_street"}
+    deep = read_cvat_xml(b'<annotations><track id="1"><box/><box/></track><image name="a" width="1" height="1">'
+                         b'<points label="target"><attribute name="k">v<x><y/></x></attribute></points></image>'
+                         b'</annotations>')
+    assert [len(el) for el in deep] == [0, 1]  # a track only noted; nothing below an attribute
+    assert deep.find("image/points/attribute").text == "v"
+
+
+def test_an_xml_of_too_many_elements_or_bytes_is_refused(tmp_path, capsys, monkeypatch):
+    from creference_bayes.io import cvat
+
+    monkeypatch.setattr(cvat, "MAX_XML_ELEMENTS", 100)
+    many = b"<annotations>" + b"<x/>" * 100 + b"</annotations>"  # the root and 100 more
+    with pytest.raises(ConversionError, match=r"^\(xml\): more than 100 XML elements; refused"):
+        read_cvat_xml(many)
+    read_cvat_xml(many.replace(b"<x/>", b"", 1))
+    monkeypatch.setattr(cvat, "MAX_XML_BYTES", 1 << 20)
+    path = tmp_path / "annotations.xml"
+    path.write_bytes(b"<annotations>" + b" " * (1 << 20) + b"</annotations>")
+    with pytest.raises(ConversionError, match=r"annotations.xml: the XML is larger than 1 MiB; refused"):
+        read_cvat_xml(path)
+    zpath = tmp_path / "task.zip"
+    with zipfile.ZipFile(zpath, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        z.writestr("annotations.xml", path.read_bytes())
+    assert zpath.stat().st_size < 5000
+    assert main(["import", "cvat", str(zpath), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {zpath}: annotations.xml unpacks to {(1 << 20) + 27} bytes, "
+                                               "more than 1 MiB; refused (a CVAT export of thousands of images is "
+                                               "a few tens of MB)")
+    with zipfile.ZipFile(zpath, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        z.writestr("annotations.xml", many)
+    assert main(["import", "cvat", str(zpath), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {zpath}: annotations.xml: more than 100 XML elements; "
+                                               "refused (a CVAT export of thousands of images has far fewer)")
+
+
 @pytest.mark.parametrize("text, message", [
     ("<annotations><image", "not well-formed XML"),
     ("<dataset/>", "the root element is <dataset>, expected <annotations>"),
@@ -534,3 +604,19 @@ def test_the_camera_id_round_trips_through_cvat_xml():
     with pytest.raises(ValueError, match="disagree on its camera id"):
         cvat_xml([a, {**a, "camera": {"id": "rig/rear"}, "targets": [{**a["targets"][0], "id": "u0"}],
                       "references": []}], image_names=["x.png", "x.png"])
+
+
+def test_an_image_name_too_long_for_the_file_system_skips_that_image_only(tmp_path, capsys):
+    long = "drive/" + "x" * 300 + ".png"  # one component past the 255 bytes of a file name
+    bare = _TARGET.format(tid="1")
+    path = tmp_path / "annotations.xml"
+    path.write_bytes(f'{_HEAD}{_image("drive/a.png", bare)}{_image(long, bare)}</annotations>'.encode())
+    report = scenes_from_cvat(read_cvat_xml(path), image_dir=tmp_path)
+    assert [s.name for s in report.scenes] == ["drive_a"]
+    (err,) = report.errors
+    assert str(err).startswith(f"image '{long[:30]}") and "cannot be looked up in the image folder: " in str(err)
+    out = tmp_path / "o"
+    assert main(["import", "cvat", str(path), "--out", str(out), "--image-dir", str(tmp_path), "--quiet"]) == 2
+    assert [p.name for p in out.iterdir()] == ["drive_a.json"]
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: image 'drive/xxx") and line.endswith("File name too long")

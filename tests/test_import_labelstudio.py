@@ -959,3 +959,49 @@ def test_the_camera_id_round_trips_through_a_task(assert_same_scene):
     (s,) = scenes_from_label_studio([task]).scenes
     assert s.scene["camera"]["id"] == "rig/front"
     assert parse_scene(s.scene).camera_id == "rig/front"
+
+
+def test_many_reference_lines_are_each_paired_with_their_own_end():
+    """Relations are paired by set look-ups (linear): 600 lines, relations drawn either way and in
+    shuffled order, each line keeps its own two ends and its own value."""
+    rng = np.random.default_rng(3)
+    n = 600
+    res = _target_points("a", "car1", 20, cls="Car")
+    relations = []
+    for k in range(n):
+        x, y = 1 + 98 * k / n, 90 + 5 * (k % 2)
+        res += [_pt(f"s{k}", "reference start", x, y), _pt(f"e{k}", "reference end", x + 0.5, y + 1),
+                _ctl(f"s{k}", "measure", "choices", "length"), _ctl(f"s{k}", "mode", "choices", "relative"),
+                _ctl(f"e{k}", "value", "number", 1.0 + k)]
+        a, b = (f"s{k}", f"e{k}") if k % 3 else (f"e{k}", f"s{k}")
+        relations.append({"type": "relation", "from_id": a, "to_id": b, "direction": "right", "labels": []})
+    res += [relations[i] for i in rng.permutation(n)]
+    task = {"id": 5, "data": {"image": "x.png"}, "annotations": [{"id": 7, "result": res}]}
+    report = scenes_from_label_studio([task])
+    assert report.ok, report.errors[:1]
+    refs = report.scenes[0].scene["references"]
+    assert len(refs) == n
+    by_value = {r["value"]: r["line"] for r in refs}
+    for k in range(n):
+        x, y = 20 * (1 + 98 * k / n), 10 * (90 + 5 * (k % 2))
+        np.testing.assert_allclose(by_value[1.0 + k], [[x, y], [x + 10, y + 10]])
+
+
+def test_a_task_whose_image_cannot_be_named_is_skipped_alone(tmp_path, capsys):
+    """An image name past the file system's 255 bytes (with --image-dir), a NUL in data.image_path:
+    that task is refused, naming it; the others are imported."""
+    good, long, nul = _street_task(), _street_task(), _street_task()
+    long["id"], long["data"]["image"] = 42, "/data/upload/3/" + "x" * 300 + ".png"
+    nul["id"], nul["data"]["image"], nul["data"]["image_path"] = 43, "/data/upload/3/other.png", "a\0b.png"
+    report = scenes_from_label_studio([good, long, nul], image_dir=tmp_path)
+    assert [s.source for s in report.scenes] == ["task 41"]
+    errors = [str(e) for e in report.errors]
+    assert errors[0].startswith("task 42: the image's name 'xxx") and "cannot be looked up in the image folder" in errors[0]
+    assert errors[1] == r"task 43: data.image_path 'a\x00b.png' holds a NUL character (no file has such a name)"
+    assert [str(e) for e in scenes_from_label_studio([nul]).errors] == errors[1:]  # without --image-dir too
+    export, out = tmp_path / "export.json", tmp_path / "o"
+    export.write_text(json.dumps([good, long, nul]))
+    assert main(["import", "label-studio", str(export), "--out", str(out), "--image-dir", str(tmp_path), "--quiet"]) == 2
+    assert [p.name for p in out.iterdir()] == ["street.json"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [line.split(":")[0] for line in err] == ["error", "error"] and "task 42" in err[0] and "task 43" in err[1]

@@ -75,10 +75,9 @@ def read_p2(path: str | Path) -> np.ndarray:
 def _image_size(path: Path | None) -> tuple[int, int]:
     if path is None:
         return 1242, 375
-    from PIL import Image
+    from ..vision.images import image_size
 
-    with Image.open(path) as im:
-        return im.size
+    return image_size(path)
 
 
 def _corners(loc, ry, dims_hwl, hand_corner):

@@ -20,10 +20,6 @@ from .main import EXIT_INVALID, UsageError, usage_errors
 
 __all__ = ["register"]
 
-#: Largest annotations.xml read from a CVAT ZIP (bytes): far above any real export, far below a bomb.
-MAX_XML_BYTES = 1 << 30
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser("import", help="convert Label Studio or CVAT exports to scene files",
                               description="Convert the annotations of a Label Studio or CVAT project "
@@ -120,7 +116,7 @@ def _read_cvat(path: str):
     """The parsed annotations.xml of a CVAT export: the XML file, or the ZIP holding it (a missing,
     unreadable or broken file is a ConversionError naming it)."""
     from ..io.annotation_tools import ConversionError, open_input
-    from ..io.cvat import read_cvat_xml
+    from ..io.cvat import MAX_XML_BYTES, read_cvat_xml
 
     with open_input(path) as f:
         is_zip = zipfile.is_zipfile(f)
@@ -136,11 +132,13 @@ def _read_cvat(path: str):
                         raise ConversionError(path, f"expected one annotations.xml in the ZIP, found {len(names)}")
                     info = z.getinfo(names[0])
                     if info.file_size > MAX_XML_BYTES:
-                        raise ConversionError(path, f"{names[0]} unpacks to {info.file_size} bytes; refused")
+                        raise ConversionError(path, f"{names[0]} unpacks to {info.file_size} bytes, more than "
+                                                    f"{MAX_XML_BYTES >> 20} MiB; refused (a CVAT export of "
+                                                    "thousands of images is a few tens of MB)")
                     data = z.read(info)
             except (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError, NotImplementedError, OSError) as exc:
                 raise ConversionError(path, f"cannot read the ZIP: {exc}") from None
-    return read_cvat_xml(data if is_zip else path)
+    return read_cvat_xml(data, name=f"{path}: {names[0]}") if is_zip else read_cvat_xml(path)
 
 
 def _run_cvat(args) -> int:

@@ -7,6 +7,7 @@ target ids, image size and content hash), else a one-line error (exit 2).
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 from .main import UsageError, usage_errors
@@ -91,6 +92,7 @@ def _run(args) -> int:
     from ..io.result import load_result, result_from_v1
     from ..pipeline import rebuild_model, result_draws
     from ..vision import plotting
+    from ..vision.images import ImageWarning
 
     path = Path(args.result)
     with usage_errors():  # wrong format key, or not JSON
@@ -118,8 +120,15 @@ def _run(args) -> int:
     if source == "posterior" and chains is None and not args.quiet:
         print("note: the result does not say which chain each of its draws came from: no rank plot")
     chosen = [ids.index(i) for i in args.object] if args.object else [0]
-    figures = plotting.scene_figures(scene, d, (cams, objs) if len(cams) else None, source=source, chains=chains,
-                                     chosen=chosen)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ImageWarning)
+        figures = plotting.scene_figures(scene, d, (cams, objs) if len(cams) else None, source=source,
+                                         chains=chains, chosen=chosen)
+    for w in caught:  # a photo that cannot be read: one line; other warnings as they were
+        if not issubclass(w.category, ImageWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    for message in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, ImageWarning)):
+        print(f"warning: {message}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name, fig in figures.items():

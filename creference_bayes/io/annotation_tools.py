@@ -483,17 +483,21 @@ def image_file(image_dir: str | Path, name: str, out_dir: str | Path | None, whe
         notes.append(f"{where}: no file name in {name!r}; image.path not set")
         return None
     candidates = [Path(image_dir, *parts[i:]) for i in range(len(parts))]
-    found = next((c for c in candidates if c.is_file()), None)
-    if found is None:
-        found = candidates[-1]
-        notes.append(f"{where}: no image file {' or '.join(str(c) for c in candidates)}; image.path set to "
-                     f"{str(found)!r} all the same (estimate cannot use the photo until it is there)")
-    if out_dir is None:
-        return str(found)
     try:
-        return os.path.relpath(found.resolve(), Path(out_dir).resolve())
-    except ValueError:  # another drive (Windows)
-        return str(found.resolve())
+        found = next((c for c in candidates if c.is_file()), None)
+        if found is None:
+            found = candidates[-1]
+            notes.append(f"{where}: no image file {' or '.join(str(c) for c in candidates)}; image.path set to "
+                         f"{str(found)!r} all the same (estimate cannot use the photo until it is there)")
+        if out_dir is None:
+            return str(found)
+        try:
+            return os.path.relpath(found.resolve(), Path(out_dir).resolve())
+        except ValueError:  # another drive (Windows)
+            return str(found.resolve())
+    except OSError as exc:  # a name longer than the file system takes, …: this image only
+        raise ConversionError(where, f"the image's name {_short(name)} cannot be looked up in the image folder: "
+                                     f"{exc.strerror or exc}") from None
 
 
 def write_scenes(scenes: Iterable[ImportedScene], out_dir: str | Path, overwrite: bool = False

@@ -12,15 +12,17 @@ measurement in attributes named as :data:`~.annotation_tools.REFERENCE_FIELDS` a
 whose ``camera_id`` is the scene's ``camera.id``. Every shape may carry a ``worker`` attribute
 (CVAT records no per-shape annotator). Other shapes and labels are ignored with a note.
 
-The XML is not trusted: documents with a DTD (``<!DOCTYPE``/``<!ENTITY``) are refused before
-parsing, so no entity can expand.
+The XML is not trusted: it is parsed incrementally by ``defusedxml`` with DTDs forbidden (a
+``<!DOCTYPE``, and so any ``<!ENTITY``, is refused in any encoding: no entity can expand), only the
+elements the importer reads are kept, and a document past :data:`MAX_XML_BYTES` bytes or
+:data:`MAX_XML_ELEMENTS` elements is refused.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
-import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from importlib import resources
@@ -29,11 +31,11 @@ from typing import Any
 
 from .annotation_tools import (MISSING, REFERENCE_FIELDS, ConversionError, ImportedScene, ImportReport,
                                TargetTable, _whole, checked_scene, classes_block, image_file, mean_horizon,
-                               number_field, read_input, reference_from_fields, safe_name, scene_dict,
+                               number_field, open_input, reference_from_fields, safe_name, scene_dict,
                                size_fields, unique_names)
 from .scene import parse_scene, scene_to_dict
 
-__all__ = ["LABEL_ATTRIBUTES", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
+__all__ = ["LABEL_ATTRIBUTES", "MAX_XML_BYTES", "MAX_XML_ELEMENTS", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
 TARGET, REFERENCE, HORIZON, CAMERA = "target", "reference", "horizon", "camera"
 #: Attributes of each label, in the order they are written.
@@ -45,7 +47,6 @@ LABEL_ATTRIBUTES = {
 }
 _SELECTS = ("class", "measure", "mode", "unit")
 _N_POINTS = {TARGET: 4, REFERENCE: 2, HORIZON: 2}
-_DTD = re.compile(rb"<!\s*(DOCTYPE|ENTITY)", re.IGNORECASE)
 
 
 def cvat_label_spec() -> list[dict]:
@@ -54,22 +55,106 @@ def cvat_label_spec() -> list[dict]:
     return json.loads(text)
 
 
-def read_cvat_xml(source: str | Path | bytes) -> ET.Element:
-    """Parse a CVAT XML file (a path or the bytes), refusing DTDs and entity declarations."""
-    name = "(xml)"
-    if not isinstance(source, bytes):
-        name = str(source)
-        source = read_input(source)
-    if _DTD.search(source):
-        raise ConversionError(name, "the XML declares a DTD or entities, which CVAT files never "
-                                    "do; refused (entity expansion is unsafe)")
+def read_cvat_xml(source: str | Path | bytes, *, name: str | None = None) -> ET.Element:
+    """Parse a CVAT XML file (a path or the bytes) incrementally, refusing any DTD (so no entity
+    can be declared, let alone expanded), a document of more than :data:`MAX_XML_BYTES` bytes or
+    :data:`MAX_XML_ELEMENTS` elements. Only what the importer reads is kept: ``<version>``, the
+    ``<image>`` elements with their shapes and the shapes' attributes, and an empty ``<track>`` for
+    each track (it is only noted); the rest (``<meta>``, deeper or unknown elements) is dropped as
+    it is read.
+
+    Returns the ``<annotations>`` element; raises :class:`ConversionError` naming the file (``name``,
+    for bytes: where they come from)."""
+    if isinstance(source, bytes):
+        name, stream = name or "(xml)", io.BytesIO(source)
+    else:
+        name, stream = name or str(source), open_input(source)
+    with stream:
+        return _parse(_Capped(stream, name), name)
+
+
+#: Largest CVAT XML read (bytes, uncompressed): a CVAT task of thousands of images is a few tens
+#: of MB; past this it is refused (a small ZIP can unpack to gigabytes).
+MAX_XML_BYTES = 64 << 20
+#: Most elements read from a CVAT XML: a photo's image with a dozen shapes is about a hundred.
+MAX_XML_ELEMENTS = 1_000_000
+#: Levels kept below each child of the root (an image's shapes and their attributes; a track is
+#: only noted); other children are dropped as they are read.
+_KEEP_DEPTH = {"image": 2, "version": 0, "track": 0}
+
+
+class _Capped:
+    """A binary stream that refuses to give more than :data:`MAX_XML_BYTES` bytes."""
+
+    def __init__(self, stream, name: str):
+        self.stream, self.name, self.count = stream, name, 0
+
+    def read(self, n: int) -> bytes:
+        data = self.stream.read(n)
+        self.count += len(data)
+        if self.count > MAX_XML_BYTES:
+            raise ConversionError(self.name, f"the XML is larger than {MAX_XML_BYTES >> 20} MiB; refused "
+                                             "(a CVAT export of thousands of images is a few tens of MB)")
+        return data
+
+
+class _Kept:
+    """The parser's target: builds only the elements :data:`_KEEP_DEPTH` keeps, counting all."""
+
+    def __init__(self, name: str):
+        self.name, self.count, self.root = name, 0, None
+        self.open: list[tuple[ET.Element | None, int, list]] = []  # (element or None: dropped, levels kept, text)
+
+    def start(self, tag, attrib):
+        self.count += 1
+        if self.count > MAX_XML_ELEMENTS:
+            raise ConversionError(self.name, f"more than {MAX_XML_ELEMENTS} XML elements; refused (a CVAT "
+                                             "export of thousands of images has far fewer)")
+        if not self.open:
+            if tag != "annotations":
+                raise ConversionError(self.name, f"the root element is <{tag}>, expected <annotations> "
+                                                 "(CVAT for images 1.1)")
+            self.root = ET.Element(tag, attrib)
+            self.open.append((self.root, 1, []))
+            return
+        parent, levels, _ = self.open[-1]
+        levels = _KEEP_DEPTH.get(tag, -1) if len(self.open) == 1 else levels - 1
+        el = ET.SubElement(parent, tag, attrib) if levels >= 0 and parent is not None else None
+        self.open.append((el, levels, []))
+
+    def data(self, text):
+        el, _, texts = self.open[-1] if self.open else (None, 0, None)
+        if el is not None:
+            texts.append(text)
+
+    def end(self, tag):
+        el, _, texts = self.open.pop()
+        if el is not None and texts:
+            el.text = "".join(texts)
+
+    def close(self):
+        return self.root
+
+
+def _parse(stream, name: str) -> ET.Element:
+    from defusedxml import DefusedXmlException
+    from defusedxml.ElementTree import DefusedXMLParser
+
+    target = _Kept(name)
+    parser = DefusedXMLParser(target=target, forbid_dtd=True)
     try:
-        root = ET.fromstring(source)
+        while chunk := stream.read(1 << 16):
+            parser.feed(chunk)
+        root = parser.close()
+    except ConversionError:
+        raise
     except ET.ParseError as exc:
         raise ConversionError(name, f"not well-formed XML: {exc}") from None
-    if root.tag != "annotations":
-        raise ConversionError(name, f"the root element is <{root.tag}>, expected <annotations> "
-                                    "(CVAT for images 1.1)")
+    except DefusedXmlException:
+        raise ConversionError(name, "the XML declares a DTD or entities, which CVAT files never do; "
+                                    "refused (entity expansion is unsafe)") from None
+    except ValueError as exc:  # e.g. an encoding expat cannot read ("multi-byte encodings are not supported")
+        raise ConversionError(name, f"cannot be parsed as XML: {exc}") from None
     return root
 
 

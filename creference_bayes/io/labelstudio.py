@@ -549,6 +549,9 @@ def _image_path(data: dict, image_dir, out_dir, where: str, notes: list) -> str 
     if path not in (None, ""):
         if not isinstance(path, str):
             raise ConversionError(where, f"data.image_path must be text, got {_short(path)}")
+        if "\0" in path:
+            raise ConversionError(where, f"data.image_path {_short(path)} holds a NUL character (no file has "
+                                         "such a name)")
         return path
     url = data.get("image")
     if image_dir is None or not isinstance(url, str) or not url:

@@ -298,17 +298,19 @@ def _class_of(rids, controls, awhere) -> str | None:
 
 
 def _pairs(starts, ends, relations, regions, where, awhere):
-    """(start, end) region ids of the keypoint reference lines, paired by relations."""
+    """(start, end) region ids of the keypoint reference lines, paired by relations (linear in
+    their number: membership is looked up in sets)."""
     partner: dict[str, str] = {}
     pairs = []
+    is_start, is_end = set(starts), set(ends)
     for a, b in relations:
         for rid in (a, b):
             if rid not in regions:
                 raise ConversionError(awhere, f"a relation links {a!r} and {b!r}, but {rid!r} is no "
                                               "region of this annotation")
-        if a in ends and b in starts:
+        if a in is_end and b in is_start:
             a, b = b, a
-        if not (a in starts and b in ends):
+        if not (a in is_start and b in is_end):
             raise ConversionError(f"{awhere}, region {a!r}", f"a relation links {regions[a].label!r} to "
                                   f"{regions[b].label!r}; relations must link a 'reference start' "
                                   "to a 'reference end'")
@@ -322,7 +324,7 @@ def _pairs(starts, ends, relations, regions, where, awhere):
         return [(starts[0], ends[0])]
     for rid in starts + ends:
         if rid not in partner:
-            other = REF_END if rid in starts else REF_START
+            other = REF_END if rid in is_start else REF_START
             raise ConversionError(f"{awhere}, region {rid!r}", f"{regions[rid].label!r} is not linked "
                                   f"to a '{other}' (draw a relation between the two ends)")
     return pairs

@@ -1,4 +1,4 @@
-"""The focal length of a photo from its EXIF tags (Pillow adapter).
+"""The focal length of a photo from its EXIF tags (read through the Pillow adapter :mod:`.images`).
 
 Two routes, in order:
 
@@ -62,14 +62,15 @@ def _number(value) -> float | None:
 
 
 def _read_exif(path):
-    """(IFD0's tags, the Exif IFD's tags, the file's width), or None when not readable as an image."""
-    from PIL import Image, UnidentifiedImageError
+    """(IFD0's tags, the Exif IFD's tags, the file's width), or None when not readable as an image
+    (:func:`~.images.open_image`: also a FIFO or device, or an image past the size limit)."""
+    from .images import open_image
 
     try:
-        with Image.open(path) as im:
+        with open_image(path) as im:
             exif = im.getexif()
             return exif, dict(exif.get_ifd(_EXIF_IFD)) if exif else {}, im.size[0]
-    except (OSError, UnidentifiedImageError, ValueError):
+    except OSError:  # ImageError included
         return None
 
 

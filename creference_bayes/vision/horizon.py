@@ -36,7 +36,6 @@ diagonal), where vanishing points are unit homogeneous 3-vectors: points at infi
 
 from __future__ import annotations
 
-import errno
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -46,6 +45,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 from scipy.stats import t as student_t
+
+from .images import ImageError, image_bytes
 
 __all__ = ["METHODS", "HorizonEstimate", "read_gray", "detect_segments", "merge_collinear", "find_vanishing_points",
            "estimate_horizon", "horizon_error"]
@@ -117,31 +118,25 @@ class HorizonEstimate:
 
 def read_gray(path: str | Path) -> np.ndarray:
     """An image file as an (h, w) uint8 array, without OpenCV's own messages on standard error:
-    read by Python (a missing file, a folder or a permission problem is an ``OSError`` naming the
-    path) and decoded by ``cv2.imdecode`` with OpenCV's logging silenced.
+    checked and read by :func:`~.images.image_bytes` (a regular file, an image no larger than
+    :data:`~.images.MAX_IMAGE_PIXELS`, judged from its header) and decoded by ``cv2.imdecode``
+    with OpenCV's logging silenced.
 
     Raises
     ------
-    OSError
-        When the file cannot be read; ``strerror`` says why, ``filename`` is the path.
-    ValueError
-        When OpenCV cannot decode it as an image.
+    ImageError
+        (an ``OSError``) When the file cannot be read, is not an image, or is too large;
+        ``strerror`` says why, ``filename`` is the path.
     """
-    path = Path(path)
-    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else _read_error(path)
+    data, _ = image_bytes(path)
     with _quiet_opencv():
-        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+        except cv2.error as exc:
+            raise ImageError(path, f"cannot be decoded by OpenCV ({' '.join(str(exc).split())[:120]})") from None
     if img is None:
-        raise ValueError("not an image OpenCV can decode")
+        raise ImageError(path, "not an image OpenCV can decode")
     return img
-
-
-def _read_error(path: Path):
-    if not path.exists():
-        raise FileNotFoundError(errno.ENOENT, "no such file", str(path))
-    if path.is_dir():
-        raise IsADirectoryError(errno.EISDIR, "a folder, not an image file", str(path))
-    return np.fromfile(path, dtype=np.uint8)  # anything else: let the OS say what is wrong
 
 
 @contextmanager

@@ -53,6 +53,9 @@ OBJECT_LINESTYLES = ("-", (0, (5, 2)), (0, (1, 1.2)), (0, (6, 2, 1, 2)), (0, (2.
 #: Up to this many objects, each label reads ``id (class)``; beyond, the id alone (or its number when
 #: an id is long) and a key below the figure gives each object's class.
 FULL_LABELS_UP_TO = 12
+#: The photo behind the figures is reduced to at most this many pixels a side (the figures are
+#: at most 16 in wide; a full-size 50 MP photo would cost gigabytes to draw).
+PHOTO_MAX_SIDE = 2400
 #: At most this many zoom panels beside the top view; more go to :func:`plot_zooms`.
 MAX_ZOOM_PANELS = 12
 #: The longest side of a figure (inches) that grows with the number of objects.
@@ -125,15 +128,20 @@ def _truth_state(target) -> np.ndarray | None:
 
 
 def _load_image(scene):
-    """The scene's photo as an array, or None (no photo, or one that cannot be read)."""
+    """The scene's photo as an (h, w, 3) array reduced to at most :data:`PHOTO_MAX_SIDE` pixels a
+    side (drawn over the scene's own size, so a smaller copy lands in place), or None: no photo, or
+    one that cannot be read (then an :class:`~.images.ImageWarning` names the file and why)."""
+    import warnings
+
+    from .images import ImageError, ImageWarning, read_image
+
     path = scene.image_path
     if path is None or not path.exists():
         return None
-    import matplotlib.image as mpimg
-
     try:
-        return mpimg.imread(path)
-    except (OSError, ValueError, SyntaxError):
+        return read_image(path, mode="RGB", max_side=PHOTO_MAX_SIDE)
+    except ImageError as exc:
+        warnings.warn(f"{exc}; the figures are drawn without the photo", ImageWarning, stacklevel=2)
         return None
 
 
