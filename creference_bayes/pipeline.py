@@ -86,8 +86,8 @@ def expected_ground(model: str, options: Mapping, n_objects: int) -> dict | None
     """The ``provenance.ground`` a result of a scene of ``n_objects`` targets made with these
     options records (:func:`_ground_dict`), or None where the ground's prior plays no part: the
     paper model and a scene of one target fix every ground offset. A batch compares it with a
-    stored result's: a result made under another ground prior, the package's earlier default
-    included, is recomputed."""
+    stored result's: a result made under another ground prior, :data:`UNRECORDED_GROUND` for one
+    that records none, is recomputed."""
     if model != "metrology" or n_objects < 2:
         return None
     from .models.contract import (DEFAULT_GROUND_DOF, DEFAULT_GROUND_SD_M, DEFAULT_GROUND_SD_PER_M,
@@ -296,7 +296,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                       "sampling": dict(sampling or {}), "confidence_map": _describe_map(m),
                       "classes": {k: v.to_dict() for k, v in (classes or {}).items()},
                       "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
-        if m.location.distance_m is not None:  # recorded only when given: earlier results read the same
+        if m.location.distance_m is not None:  # recorded only when given: a result without it had no range
             provenance["distance_range_m"] = list(m.location.distance_m)
         return Result.build(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
                             seconds=time.perf_counter() - t0, notes=notes,
@@ -345,8 +345,8 @@ def rebuild_model(result, scene: Scene | str | Path):
     kind = prov.get("model", DEFAULT_MODEL)
     options = {k: float(v) if isinstance(v, str) and k not in _WORD_OPTIONS else v  # "inf" (JSON has no infinity)
                for k, v in prov["options"].items()}
-    if kind == "metrology":  # the ground's prior it was made with (a result without it: the earlier one)
-        options = {**_ground_options(prov.get("ground") or EARLIER_GROUND), **options}
+    if kind == "metrology":  # the ground's prior it was made with (a result without it: UNRECORDED_GROUND)
+        options = {**_ground_options(prov.get("ground") or UNRECORDED_GROUND), **options}
     model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
@@ -360,9 +360,11 @@ def rebuild_model(result, scene: Scene | str | Path):
     return model
 
 
-#: The ground-offset prior of results made before ``provenance.ground`` was written (until
-#: 2026-11-28): a normal of 8 cm at every distance, as :func:`_ground_dict` writes it.
-EARLIER_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": float(np.radians(1.0))}
+#: The ground-offset prior a result that records no ``provenance.ground`` is read with: a normal of
+#: 8 cm at every distance, as :func:`_ground_dict` writes it.
+UNRECORDED_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": float(np.radians(1.0))}
+#: Another name of :data:`UNRECORDED_GROUND`.
+EARLIER_GROUND = UNRECORDED_GROUND
 
 
 def _ground_dict(model) -> dict:

@@ -6,7 +6,8 @@ measurement noise, pitch 0–15°, roll within ±5°, a principal point up to 5 
 coordinates stored to 0.01 px, 5 target annotations and 5 references) and estimates each twice,
 once with its horizon and once without (pitch and roll then estimated). Prints one row per scene
 and the summary: median and mean MAP location error, and the share of scenes whose true distance
-lies in the 90 % HDI. ``--level`` adds the old level-camera assumption for comparison.
+lies in the 90 % HDI. ``--level`` adds, for comparison, a level camera assumed when the scene
+has no horizon (``--orientation level``).
 
     python examples/horizon_study.py --n 20 [--seed 77] [--min-ess 400] [--level]
 """
@@ -40,7 +41,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n", type=int, default=20, help="scenes (default %(default)s)")
     ap.add_argument("--seed", type=int, default=77, help="simulation seed (default %(default)s)")
     ap.add_argument("--min-ess", type=float, default=400, help="sampler's bulk ESS (default %(default)s)")
-    ap.add_argument("--level", action="store_true", help="also assume a level camera (the old behaviour)")
+    ap.add_argument("--level", action="store_true", help="also estimate with a level camera assumed (pitch and roll 0, --orientation level)")
     args = ap.parse_args(argv)
     runs = {"with horizon": {}, "without": {}}
     if args.level:

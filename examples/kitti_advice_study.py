@@ -172,7 +172,7 @@ def _lifted(moments: list, scene: dict) -> np.ndarray:
     base, bar = futures_scale(p_now, scene.get("shift"), q)
     below = p_now < q
     if any(m is None for m in moments):
-        raise SystemExit(f"{scene['key']}: its advice has no moments (made before 2026-11-28): advise again")
+        raise SystemExit(f"{scene['key']}: its advice has no moments (advice.json lacks them): advise again")
     chance = combined_chance(base, bar, [Moments.from_dict(m) for m in moments])
     return np.where(below, chance, chance - 1.0)
 

@@ -289,6 +289,91 @@ def test_every_command_has_a_description_and_demo_says_its_scene_is_synthetic():
     assert "synthetic" in parsers["demo"].description
 
 
+def _every_parser():
+    """(name, parser) of every command and every command of a command (``import cvat``, …)."""
+    import argparse
+
+    for name, p, actions in _actions():
+        if name == "creference":
+            continue
+        yield name, p
+        for a in actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for sub_name, sub in a.choices.items():
+                    yield f"{name} {sub_name}", sub
+
+
+def test_every_command_shows_at_most_twelve_everyday_options():
+    """Research and comparison switches live in the "advanced options" section; every other option,
+    -h counted, is what a newcomer reads first (the main section and any other group)."""
+    from creference_bayes.cli.main import ADVANCED, MAX_MAIN_OPTIONS
+
+    assert MAX_MAIN_OPTIONS == 12
+    too_many = {}
+    for name, p in _every_parser():
+        everyday = [a.option_strings[0] for g in p._action_groups if g.title != ADVANCED
+                    for a in g._group_actions if a.option_strings]
+        main_section = [a for g in p._action_groups if g.title == "options" for a in g._group_actions
+                        if a.option_strings]
+        assert len(main_section) <= len(everyday)
+        if len(everyday) > MAX_MAIN_OPTIONS:
+            too_many[name] = everyday
+    assert not too_many, too_many
+
+
+def test_the_advanced_options_of_estimate_batch_and_advise():
+    """The research switches the issue named are advanced; the everyday ones are not."""
+    from creference_bayes.cli.main import ADVANCED
+
+    parsers = dict(_every_parser())
+
+    def advanced(name):
+        return {a.option_strings[0] for g in parsers[name]._action_groups if g.title == ADVANCED
+                for a in g._group_actions}
+
+    for name in ("estimate", "demo", "batch"):
+        assert {"--preset", "--model", "--temperature", "--location-prior", "--orientation", "--focal-prior",
+                "--option", "--confidence-map"} <= advanced(name), name
+        assert not {"--out", "--seed", "--quiet", "--distance-range", "--no-posterior"} & advanced(name), name
+    assert {"--own-scale"} <= advanced("batch") and "--rig" not in advanced("batch")
+    assert {"--futures", "--rank", "--option"} <= advanced("advise")
+    assert not {"--budget", "--workers", "--draws", "--distance-range", "--apply", "--merge"} & advanced("advise")
+    assert {"--temperature", "--paper-restarts"} <= advanced("bench")
+
+
+def test_no_help_text_narrates_history():
+    """The help says what the code does: no dates, no "old behaviour", no commit hashes."""
+    import re
+
+    date = re.compile(r"20[0-9][0-9]-[01][0-9]-[0-3][0-9]")
+    words = re.compile(r"old behaviou?r|earlier default|before 20[0-9][0-9]|until 20[0-9][0-9]", re.I)
+    commit = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
+    bad = {}
+    for name, p in [("creference", next(_actions())[1]), *_every_parser()]:
+        text = " ".join(p.format_help().split())
+        found = date.findall(text) + words.findall(text) + commit.findall(text)
+        if found:
+            bad[name] = found
+    assert not bad, bad
+
+
+def test_every_model_option_key_is_explained_in_the_user_guide():
+    """--option's help lists the keys and points to docs/user_guide.md, Model options: a line each."""
+    import re
+
+    from creference_bayes.pipeline import MODEL_OPTIONS
+
+    guide = (Path(__file__).resolve().parents[1] / "docs" / "user_guide.md").read_text()
+    section = guide.split("\n## Model options", 1)[1].split("\n## ", 1)[0]
+    rows = set(re.findall(r"^\| `([a-z_]+)` \|", section, re.M))
+    keys = {k for ks in MODEL_OPTIONS.values() for k in ks}
+    assert keys <= rows, sorted(keys - rows)
+    for name, p in _every_parser():
+        if name in ("estimate", "demo", "batch"):
+            text = " ".join(p.format_help().split())
+            assert "Model options" in text and all(k in text for k in keys), name
+
+
 def test_bench_help_and_readme_agree_on_timings():
     from creference_bayes.cli.bench import BENCH_TIMES
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from .estimate import distance_range_arg, model_options
-from .main import UsageError, check_output_file, require, seed_value, usage_errors
+from .main import UsageError, advanced_group, check_output_file, require, seed_value, usage_errors
 from ..io.files import read_csv_rows, read_text
 from ..io.validation import read_json
 
@@ -252,50 +252,23 @@ def register(subparsers) -> None:
     p.add_argument("--out", metavar="PATH", default=None,
                    help="a scene or result: write the advice as JSON to PATH; a batch folder: the "
                         "folder for the advice files (default: BATCH_DIR/advice)")
-    p.add_argument("--scene", metavar="SCENE", default=None,
-                   help="the scene of a result file (default: the batch copy, or the file the "
-                        "result names next to it)")
-    p.add_argument("--score-iou", type=float, default=0.7, metavar="T",
-                   help="a label's quality is P(IoU >= T) (default: %(default)s)")
-    p.add_argument("--min-quality", type=float, default=0.5, metavar="Q",
-                   help="a label is good when its P(IoU >= T) >= Q, as creference labels --min-quality "
-                        "(default: %(default)s)")
-    p.add_argument("--rank", choices=("labels", "hdi", "location"), default="labels",
-                   help="rank requests by the labels expected to become good per human hour, by the "
-                        "narrowing of the distances' HDIs per minute, or by the drop of the locations' sd "
-                        "per minute (default: %(default)s)")
-    p.add_argument("--min-good-per-hour", type=float, default=1.0, metavar="N",
-                   help="--rank labels: stop when the best request makes fewer than N labels good per "
-                        "human hour (default: %(default)s)")
+    p.add_argument("--seed", type=seed_value, default=0,
+                   help="seed of the estimate and the simulation (default: %(default)s)")
     p.add_argument("--requests", default="dims,reference,size,mounting", metavar="KINDS",
                    help="the kinds of request to weigh, of dims, reference, size, mounting, separated by "
                         "commas (default: all)")
-    p.add_argument("--target-hdi-width", type=float, default=0.10, metavar="F",
-                   help="--rank hdi, location: stop when every target's 90 %% HDI of the distance is at most this "
-                        "share of it (default: %(default)s, i.e. 10 %%)")
-    p.add_argument("--min-gain", type=float, default=0.5, metavar="G",
-                   help="--rank hdi, location: stop when the best expected gain is below G points of the "
-                        "distance (HDI width or location sd in percent of the distance) per minute of human "
-                        "time (default: %(default)s)")
-    p.add_argument("--seed", type=seed_value, default=0,
-                   help="seed of the estimate and the simulation (default: %(default)s)")
-    p.add_argument("--draws", type=int, default=600, metavar="N",
-                   help="posterior draws used, thinned evenly (default: %(default)s)")
-    p.add_argument("--futures", type=int, default=150, metavar="M",
-                   help="simulated outcomes per annotation (default: %(default)s)")
     p.add_argument("--budget", type=float, default=None, metavar="SECONDS",
                    help="a batch folder: plan requests, most value added per human second first, "
                         "within this many seconds of human time (default: every request worth "
                         "its time)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="a batch folder: advise on N scenes at once in local processes (default: %(default)s)")
-    p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
-                   help="how the Label Studio requests draw a segment, as the project's labelling "
-                        "config does (default: %(default)s)")
-    p.add_argument("--image-url-prefix", metavar="PREFIX", default=None,
-                   help="a batch folder: the Label Studio request tasks load each image from PREFIX "
-                        "followed by its file name (e.g. /data/local-files/?d=frames/ for Label Studio's "
-                        "local files; default: the scene's image path)")
+    p.add_argument("--draws", type=int, default=600, metavar="N",
+                   help="posterior draws the advice weighs, thinned evenly: fewer is faster and rougher "
+                        "(default: %(default)s)")
+    p.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
+                   help="a scene: estimate it with this distance range in metres, as creference estimate "
+                        "--distance-range (a result or a batch is advised with what it was made with)")
     p.add_argument("--merge", metavar="IMPORTED_DIR", default=None,
                    help="a batch folder: add the dimension lines and references of the scenes creference "
                         "import wrote from the answered requests (a Label Studio or CVAT export) that the "
@@ -305,11 +278,41 @@ def register(subparsers) -> None:
                         "segment of REQUESTS_CSV "
                         "(its answer column) into the scene files the batch was made from, and advise "
                         "nothing")
-    p.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
-                   help="a scene: estimate it with this distance range in metres, as creference estimate "
-                        "--distance-range (a result or a batch is advised with what it was made with)")
-    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a scene: a metrology model option for its estimate, as creference estimate --option "
-                        "(repeatable)")
+    p.add_argument("--image-url-prefix", metavar="PREFIX", default=None,
+                   help="a batch folder: the Label Studio request tasks load each image from PREFIX "
+                        "followed by its file name (e.g. /data/local-files/?d=frames/ for Label Studio's "
+                        "local files; default: the scene's image path)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    g = advanced_group(p)
+    g.add_argument("--rank", choices=("labels", "hdi", "location"), default="labels",
+                   help="what a request is worth: labels (the labels it is expected to make good per human "
+                        "hour), hdi (how much it narrows the distances' 90 %% HDIs per minute) or location "
+                        "(how much it lowers the locations' sd per minute) (default: %(default)s)")
+    g.add_argument("--min-good-per-hour", type=float, default=1.0, metavar="N",
+                   help="--rank labels: stop when the best request makes fewer than N labels good per "
+                        "human hour (default: %(default)s)")
+    g.add_argument("--target-hdi-width", type=float, default=0.10, metavar="F",
+                   help="--rank hdi, location: stop when every target's 90 %% HDI of the distance is at most this "
+                        "share of it (default: %(default)s, i.e. 10 %%)")
+    g.add_argument("--min-gain", type=float, default=0.5, metavar="G",
+                   help="--rank hdi, location: stop when the best expected gain is below G points of the "
+                        "distance (HDI width or location sd in percent of the distance) per minute of human "
+                        "time (default: %(default)s)")
+    g.add_argument("--score-iou", type=float, default=0.7, metavar="T",
+                   help="a label's quality is P(IoU >= T) (default: %(default)s)")
+    g.add_argument("--min-quality", type=float, default=0.5, metavar="Q",
+                   help="a label is good when its P(IoU >= T) >= Q, as creference labels --min-quality "
+                        "(default: %(default)s)")
+    g.add_argument("--futures", type=int, default=150, metavar="M",
+                   help="how many possible answers to each request are simulated to weigh it: more is "
+                        "slower and steadier (default: %(default)s)")
+    g.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a scene: change one setting of the metrology model for its estimate, as creference "
+                        "estimate --option (repeatable; docs/user_guide.md, Model options)")
+    g.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
+                   help="how the Label Studio requests draw a segment, as the project's labelling "
+                        "config does (default: %(default)s)")
+    g.add_argument("--scene", metavar="SCENE", default=None,
+                   help="the scene of a result file (default: the batch copy, or the file the "
+                        "result names next to it)")
     p.set_defaults(func=_run)

@@ -7,9 +7,9 @@ import sys
 
 from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
-from .estimate import (add_camera_options, add_confidence_map_option, add_model_option, check_posterior_values,
-                       confidence_map_option, load_classes, model_options, sampling_options)
-from .main import UsageError, require, seed_value, usage_errors
+from .estimate import (add_camera_options, add_confidence_map_option, add_distance_range_option, add_model_option,
+                       check_posterior_values, confidence_map_option, load_classes, model_options, sampling_options)
+from .main import UsageError, advanced_group, require, seed_value, usage_errors
 
 __all__ = ["register", "EXIT_FAILED"]
 
@@ -89,37 +89,42 @@ def register(subparsers) -> None:
                         "(default: %(default)s)")
     p.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
                    help="a scene still running after this long is recorded as failed (default: none)")
-    p.add_argument("--preset", default="default", choices=PRESETS,
-                   help="optimiser preset (default: %(default)s)")
-    p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
-                   help="likelihood model (default: %(default)s)")
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
                    help="size priors of your own classes (docs/overview.md, Class size priors); a scene's own win")
-    p.add_argument("--no-references", action="store_true", help="ignore the scenes' reference annotations")
-    add_confidence_map_option(p)
-    add_model_option(p)
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar (on a terminal) or "
-                                                             "line per finished scene (otherwise)")
-    add_camera_options(p)
+    add_distance_range_option(p)
     p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
                    help="what the frames of one camera (the scenes' camera.id) share, learnt from all of them: "
                         "focal (its focal length), mounting (also its height, pitch and roll, with a spread "
                         "from frame to frame), or none (every frame alone; the default). Two passes: "
                         "DIR/first_pass/ holds every frame alone, DIR/results/ the frames with their camera's "
                         "rig (docs/batch.md)")
-    p.add_argument("--own-scale", action="store_true",
-                   help="a frame's corner scale (the crowd's pixel error) from its own annotations only; by "
-                        "default an object annotated once takes it from every object of the batch annotated "
-                        "more than once (docs/batch.md)")
-    g = p.add_argument_group("posterior")
-    g.add_argument("--no-posterior", action="store_true",
-                   help="the MAP only (creference labels then has no uncertainty to export)")
-    g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
+    p.add_argument("--no-posterior", action="store_true",
+                   help="the MAP only, much faster (creference labels then has no uncertainty to export)")
+    p.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
                    help="probability of the credible intervals (default: %(default)s)")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar (on a terminal) or "
+                                                             "line per finished scene (otherwise)")
+    g = advanced_group(p)
+    g.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
+                   help="how annotations are weighed: metrology, or the paper's cost to compare with it "
+                        "(default: %(default)s; creference estimate --help)")
+    g.add_argument("--preset", default="default", choices=PRESETS,
+                   help="how the MAP is searched for: this package's optimiser (default) or the paper's "
+                        "(paper, paper-controlled: slow; creference estimate --help)")
+    g.add_argument("--no-references", action="store_true",
+                   help="ignore the scenes' reference annotations (to see what they add)")
+    add_confidence_map_option(p)
+    add_model_option(p)
+    add_camera_options(p)
+    g.add_argument("--own-scale", action="store_true",
+                   help="each frame learns how far its crowd's corners stray (the corner scale) from its own "
+                        "annotations only; by default an object annotated once borrows it from the objects of "
+                        "the batch annotated more than once (docs/batch.md)")
     g.add_argument("--temperature", type=float, default=None, metavar="T",
-                   help="temperature of the posterior (default: the model's)")
+                   help="widen (T > 1) or narrow (T < 1) the posterior (default: the model's calibrated one)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
-                   help="bulk effective sample size to reach (default: 400)")
+                   help="the sampler runs until every checked quantity has this bulk effective sample size "
+                        "(default: 400)")
     g.add_argument("--max-steps", type=int, default=None, metavar="N",
                    help="cap on the sampler's steps; a scene that has not converged by then says so in "
                         "its result (default: 20000)")

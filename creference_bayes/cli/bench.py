@@ -10,7 +10,7 @@ from pathlib import Path
 from ..bench.runner import CONFIGS, plain, run_bench
 from ..bench.simulate import CAMERA_POPULATIONS, SETTINGS, TIERS
 from ..io.files import atomic_write_text
-from .main import UsageError, require, seed_value, usage_errors
+from .main import UsageError, advanced_group, require, seed_value, usage_errors
 
 __all__ = ["register", "BENCH_TIMES"]
 
@@ -197,11 +197,6 @@ def register(subparsers) -> None:
                       help=f"the documented run, {_n_scenes('full')} scenes ({BENCH_TIMES['full']})")
     p.add_argument("--out", default="bench_out", metavar="DIR", help="output directory (default: %(default)s)")
     p.add_argument("--seed", type=seed_value, default=0, help="seed of scenes and estimators (default: %(default)s)")
-    p.add_argument("--paper-restarts", type=int, default=None, metavar="N",
-                   help="override the paper preset's restarts (default: 200; 8 with --quick)")
-    p.add_argument("--temperature", type=float, default=None, metavar="T",
-                   help="posterior temperature of the paper model (default: the package's); with --sbc, "
-                        "of the metrology model (a T below 1 makes it over-confident: the check must see it)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG figures")
     kind = p.add_mutually_exclusive_group()
     kind.add_argument("--frames", action="store_true",
@@ -214,13 +209,19 @@ def register(subparsers) -> None:
                            "the truth among the posterior's draws (distance, focal length, pitch, roll) for "
                            "thin designs (1 set of lines, 0-2 references) and full ones (5 + 5); writes "
                            "sbc.md, sbc.json, sbc_ranks.png (--quick: 4 scenes a design; --full: 60)")
-    p.add_argument("--sbc-scenes", type=int, default=None, metavar="N",
-                   help="scenes per design of --sbc (overrides --quick/--full)")
     p.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
                    help="the scenes' cameras: each setting's ranges (setting, the documented runs) or real ones: "
                         "phones, zoom, action and vehicle cameras (real; not with --sbc, which draws its "
                         "cameras from the prior)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    g = advanced_group(p)
+    g.add_argument("--paper-restarts", type=int, default=None, metavar="N",
+                   help="random restarts of the paper's optimiser (default: 200; 8 with --quick)")
+    g.add_argument("--temperature", type=float, default=None, metavar="T",
+                   help="posterior temperature of the paper model (default: the package's); with --sbc, "
+                        "of the metrology model (a T below 1 makes it over-confident: the check must see it)")
+    g.add_argument("--sbc-scenes", type=int, default=None, metavar="N",
+                   help="scenes per design of --sbc (overrides --quick/--full)")
     p.set_defaults(func=_run_bench_command)
 
     p = subparsers.add_parser(
@@ -235,7 +236,8 @@ def register(subparsers) -> None:
     p.add_argument("--n", type=int, default=None, help="number of scenes (not with --from-kitti)")
     p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
-                   help="noise tier, or all to cycle through them (default: %(default)s)")
+                   help="how noisy the simulated crowd is: none, low, medium or high (the paper's), or all "
+                        "to cycle through them (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),
                    help="indoor, outdoor or street (a KITTI-like car camera; default: two thirds indoor, "
                         "one third outdoor)")
@@ -243,33 +245,34 @@ def register(subparsers) -> None:
     p.add_argument("--annotations", type=int, default=None,
                    help="dimension-line sets per target (default: 13; 5 with --from-kitti)")
     p.add_argument("--references", type=int, default=5, help="references per scene (default: %(default)s)")
-    p.add_argument("--noise-px", type=float, default=None,
-                   help="pixel noise per corner instead of the tier's (default: the tier's; 2 with --from-kitti)")
-    p.add_argument("--sizes", choices=("known", "prior"), default=None,
-                   help="known: each target's size is stated; prior: left to its class's size prior "
-                        "(default: known; prior with --from-kitti, as a crowd knows them)")
-    p.add_argument("--horizon", choices=("exact", "none", "sd"), default="exact",
-                   help="the horizon the scene gives: exact, none, or sd (off by 5 px and stated so; "
-                        "default: %(default)s)")
-    p.add_argument("--focal-known", action="store_true", help="write the true focal length into the scene")
-    p.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
-                   help="each setting's camera ranges (setting, the default) or real cameras: phones, zoom, action "
-                        "and vehicle cameras, each with its own image size (real)")
-    p.add_argument("--focal-unknown", action="store_true",
-                   help="with --from-kitti: leave P2's focal length out of the scenes (a street camera nobody "
-                        "calibrated; every scene still names its camera, camera.id)")
-    p.add_argument("--confidence", default=None, metavar="MAP",
-                   help="every reference is a range stated with a confidence by a pool of workers "
-                        "(each with an own error scale) whose true confidence map is calibrated, "
-                        "over (over-confident: a stated 90%% holds about 60%%), under, or a width "
-                        "factor (1 calibrated; docs/confidence.md); default: the paper's formats, "
-                        "no confidence")
-    p.add_argument("--confidence-workers", type=int, default=40, metavar="N",
-                   help="workers in the pool of --confidence (default: %(default)s)")
     p.add_argument("--from-kitti", metavar="DIR", default=None,
                    help="scenes from a KITTI folder (label_2/, calib/, image_2/): simulated dimension lines "
                         "on the real boxes (docs/kitti.md)")
     p.add_argument("--overwrite", action="store_true",
                    help="write into a non-empty folder, replacing files of the same name")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    g = advanced_group(p)
+    g.add_argument("--noise-px", type=float, default=None,
+                   help="pixel noise per corner instead of the tier's (default: the tier's; 2 with --from-kitti)")
+    g.add_argument("--sizes", choices=("known", "prior"), default=None,
+                   help="known: each target's size is stated; prior: left to its class's size prior "
+                        "(default: known; prior with --from-kitti, as a crowd knows them)")
+    g.add_argument("--horizon", choices=("exact", "none", "sd"), default="exact",
+                   help="the horizon the scene gives: exact, none, or sd (off by 5 px and stated so; "
+                        "default: %(default)s)")
+    g.add_argument("--focal-known", action="store_true", help="write the true focal length into the scene")
+    g.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
+                   help="each setting's camera ranges (setting, the default) or real cameras: phones, zoom, action "
+                        "and vehicle cameras, each with its own image size (real)")
+    g.add_argument("--focal-unknown", action="store_true",
+                   help="with --from-kitti: leave P2's focal length out of the scenes (a street camera nobody "
+                        "calibrated; every scene still names its camera, camera.id)")
+    g.add_argument("--confidence", default=None, metavar="MAP",
+                   help="every reference is a range stated with a confidence by a pool of workers "
+                        "(each with an own error scale) whose true confidence map is calibrated, "
+                        "over (over-confident: a stated 90%% holds about 60%%), under, or a width "
+                        "factor (1 calibrated; docs/confidence.md); default: the paper's formats, "
+                        "no confidence")
+    g.add_argument("--confidence-workers", type=int, default=40, metavar="N",
+                   help="workers in the pool of --confidence (default: %(default)s)")
     p.set_defaults(func=_run_simulate_command)

@@ -13,10 +13,11 @@ from ..camera_setup import FOCAL_PRIORS, ORIENTATIONS
 from ..inference.map import PRESETS
 from ..models.location_prior import LOCATION_PRIORS
 from ..pipeline import DEFAULT_MODEL, MODEL_OPTIONS, MODELS
-from .main import UsageError, check_output_file, example_scene_path, require, seed_value, usage_errors
+from .main import (UsageError, advanced_group, check_output_file, example_scene_path, require, seed_value,
+                   usage_errors)
 
 __all__ = ["register", "format_tables", "load_classes", "confidence_map_option", "add_confidence_map_option",
-           "add_camera_options", "add_model_option", "model_options", "check_posterior_values"]
+           "add_camera_options", "add_distance_range_option", "add_model_option", "model_options", "check_posterior_values"]
 
 
 def _num(v, spec: str) -> str:
@@ -189,14 +190,15 @@ def confidence_map_option(value: str | None, model: str):
 
 
 def add_confidence_map_option(p: argparse.ArgumentParser) -> None:
-    """``--confidence-map`` (estimate, demo, batch)."""
+    """``--confidence-map`` (estimate, demo, batch), among the advanced options."""
     from ..models.confidence_map import DEFAULT_CONFIDENCE_MAP
 
-    p.add_argument("--confidence-map", default=None, metavar="none|identity|MAP.json",
-                   help="how the metrology model reads a range stated with a confidence: none "
-                        "(confidence ignored), identity (the worker's c %% range read as their central "
-                        "c %% interval) or a map fitted by `creference confidence fit` (default: "
-                        f"{DEFAULT_CONFIDENCE_MAP}; docs/confidence.md)")
+    advanced_group(p).add_argument(
+        "--confidence-map", default=None, metavar="none|identity|MAP.json",
+        help="how a reference range stated with a confidence (\"90 %% sure: 4-6 m\") is read by the "
+             "metrology model: none (the confidence ignored), identity (the range taken as a central "
+             "interval of that probability) or a map fitted by `creference confidence fit` (default: "
+             f"{DEFAULT_CONFIDENCE_MAP}; docs/confidence.md)")
 
 
 def check_posterior_values(args) -> None:
@@ -278,26 +280,34 @@ def _run_demo(args) -> int:
     return _run_estimate(args, banner=f"example scene (synthetic, with ground truth): {args.scene}")
 
 
-def add_camera_options(p: argparse.ArgumentParser) -> None:
-    """``--focal-prior``, ``--orientation`` and ``--location-prior`` (``estimate``, ``demo``, ``batch``)."""
-    g = p.add_argument_group("camera")
-    g.add_argument("--focal-prior", default="auto", choices=FOCAL_PRIORS,
-                   help="prior on the focal length when the scene does not give it: auto (the "
-                        "scene's camera.focal_length_prior, else the photo's EXIF, else a weak "
-                        "default around a 26 mm-equivalent lens), default (the weak default), "
-                        "none (flat within the bounds) (default: %(default)s)")
-    g.add_argument("--orientation", default="auto", choices=ORIENTATIONS,
-                   help="camera pitch and roll: auto (from an exact horizon; otherwise estimated, "
-                        "with the horizon from the photo as a measurement when there is one), free "
-                        "(estimated even with a horizon), level (assume a level camera when there "
-                        "is no horizon, the old behaviour) (default: %(default)s)")
-    g.add_argument("--location-prior", default="auto", choices=("auto",) + LOCATION_PRIORS,
-                   help="prior on each object's ground position: uniform in log depth, or flat in (x, z) (auto: "
-                        "log-depth with the default preset, flat with the paper presets; inverse-square, 1/d², "
-                        "for comparison; docs/method.md, Priors)")
-    g.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
+def add_distance_range_option(p: argparse.ArgumentParser) -> None:
+    """``--distance-range`` (``estimate``, ``demo``, ``batch``), among the everyday options."""
+    p.add_argument("--distance-range", type=distance_range_arg, default=None, metavar="LOW,HIGH",
                    help="the ground distances in metres the targets stand at, for example 3,80 for a street "
-                        "camera: the location prior falls softly outside them (docs/method.md, Priors)")
+                        "camera: distances outside become unlikely (docs/method.md, A distance range)")
+
+
+def add_camera_options(p: argparse.ArgumentParser) -> None:
+    """``--focal-prior``, ``--orientation`` and ``--location-prior`` (``estimate``, ``demo``,
+    ``batch``), among the advanced options."""
+    g = advanced_group(p)
+    g.add_argument("--focal-prior", default="auto", choices=FOCAL_PRIORS,
+                   help="what is assumed of the focal length when the scene does not give it: auto (the "
+                        "scene's camera.focal_length_prior, else the photo's EXIF, else a broad prior "
+                        "around a 26 mm-equivalent lens), default (that broad prior, ignoring scene and "
+                        "EXIF), none (any focal length within the bounds) (default: %(default)s)")
+    g.add_argument("--orientation", default="auto", choices=ORIENTATIONS,
+                   help="how the camera's pitch and roll are found: auto (from an exact horizon; "
+                        "otherwise estimated, using a horizon found in the photo when there is one), "
+                        "free (estimated even when the scene gives a horizon), level (a scene without a "
+                        "horizon is assumed taken with a level camera: pitch and roll 0) "
+                        "(default: %(default)s)")
+    g.add_argument("--location-prior", default="auto", choices=("auto",) + LOCATION_PRIORS,
+                   help="what is assumed of where a target stands before the annotations are read: "
+                        "log-depth (every distance equally likely on a log scale), flat (every ground "
+                        "position equally likely) or inverse-square (1/d², a comparison only); auto: "
+                        "log-depth with the default preset, flat with the paper presets "
+                        "(docs/method.md, Priors)")
 
 
 def distance_range_arg(text: str) -> tuple[float, float]:
@@ -312,13 +322,14 @@ def distance_range_arg(text: str) -> tuple[float, float]:
 
 
 def add_model_option(p: argparse.ArgumentParser) -> None:
-    """``--option KEY=VALUE`` (``estimate``, ``demo``, ``batch``)."""
-    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                   help="a setting of the model, repeatable: for the metrology model "
-                        f"{', '.join(MODEL_OPTIONS['metrology'])}; for the paper model "
-                        f"{', '.join(MODEL_OPTIONS['paper'])} (for example --option ground_sd_m=0.08 "
-                        "--option ground_sd_per_m=0 --option ground_dof=inf: the ground prior before "
-                        "2026-11-28; docs/method.md, Priors)")
+    """``--option KEY=VALUE`` (``estimate``, ``demo``, ``batch``), among the advanced options."""
+    advanced_group(p).add_argument(
+        "--option", action="append", default=[], metavar="KEY=VALUE",
+        help="change one setting of the model, repeatable (e.g. --option target_dof=30 reads the "
+             "annotations' errors as nearly normal). Keys of the metrology model: "
+             f"{', '.join(MODEL_OPTIONS['metrology'])}; of the paper model: "
+             f"{', '.join(MODEL_OPTIONS['paper'])}. What each does, with its default: "
+             "docs/user_guide.md, Model options")
 
 
 def model_options(args, scene=None) -> dict:
@@ -345,34 +356,48 @@ def model_options(args, scene=None) -> dict:
     return options
 
 
-def _add_estimate_options(p: argparse.ArgumentParser) -> None:
+def _add_estimate_options(p: argparse.ArgumentParser, classes: bool = True) -> None:
+    """The options of ``estimate`` (``classes``: with ``--classes``) and ``demo``: the everyday ones
+    first, then the advanced ones (:func:`~.main.advanced_group`)."""
     p.add_argument("--out", metavar="RESULT.json", help="write a creference-result/2 file")
-    p.add_argument("--preset", default="default", choices=PRESETS, help="optimiser preset (default: %(default)s)")
-    p.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
-                   help="likelihood model: the measurement-likelihood extension or the paper's "
-                        "cost with pairwise soft constraints (default: %(default)s; see "
-                        "docs/benchmark_results.md)")
     p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
-    p.add_argument("--no-references", action="store_true", help="ignore the scene's reference annotations")
-    add_confidence_map_option(p)
-    add_model_option(p)
+    if classes:
+        p.add_argument("--classes", metavar="CLASSES.json", default=None,
+                       help="size priors of your own classes (docs/overview.md, Class size priors); the "
+                            "scene's own win")
+    add_distance_range_option(p)
+    p.add_argument("--no-posterior", action="store_true",
+                   help="the MAP only: no credible intervals, much faster")
+    p.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
+                   help="probability of the credible intervals (default: %(default)s)")
+    p.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
     p.add_argument("--quiet", action="store_true",
                    help="no tables and no progress bar: only errors, warnings and notes, on standard error")
+    g = advanced_group(p)
+    g.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
+                   help="how annotations are weighed: metrology (each annotation and reference a noisy "
+                        "measurement) or paper (the paper's cost with pairwise soft constraints, to compare "
+                        "or reproduce it) (default: %(default)s; docs/benchmark_results.md)")
+    g.add_argument("--preset", default="default", choices=PRESETS,
+                   help="how the MAP is searched for and within which bounds: default (this package's "
+                        "optimiser), paper (the paper's system study: 200 random restarts, its bounds; "
+                        "slow), paper-controlled (the paper's controlled study: 100 restarts, its bounds) "
+                        "(default: %(default)s; docs/method.md, Bounds)")
+    g.add_argument("--no-references", action="store_true",
+                   help="ignore the scene's reference annotations (to see what they add)")
+    add_confidence_map_option(p)
+    add_model_option(p)
     add_camera_options(p)
-    g = p.add_argument_group("posterior")
-    g.add_argument("--no-posterior", action="store_true", help="the MAP only: do not sample the posterior")
-    g.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
-                   help="probability of the credible intervals (default: %(default)s)")
     g.add_argument("--temperature", type=float, default=None, metavar="T",
-                   help="temperature of the posterior, log p = -cost/T + log prior (default: the "
-                        "model's: 1 for metrology and for the paper presets, 3 for the paper model "
-                        "with the default preset)")
+                   help="widen (T > 1) or narrow (T < 1) the posterior: log p = -cost/T + log prior (default: "
+                        "the model's calibrated one: 1 for metrology and the paper presets, 3 for the paper "
+                        "model with the default preset)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",
-                   help="bulk effective sample size to reach (default: 400)")
+                   help="the sampler runs until every checked quantity has this bulk effective sample size "
+                        "(default: 400)")
     g.add_argument("--max-steps", type=int, default=None, metavar="N",
                    help="cap on the sampler's steps; a posterior that has not converged by then says so "
                         "(default: 20000)")
-    g.add_argument("--netcdf", metavar="PATH", help="write the full posterior (arviz InferenceData) as NetCDF")
 
 
 def register(subparsers) -> None:
@@ -387,8 +412,6 @@ def register(subparsers) -> None:
                    help="a scene file: creference-scene/1 (one target) or creference-scene/2 (one or more; "
                         "docs/scene_format.md)")
     _add_estimate_options(p)
-    p.add_argument("--classes", metavar="CLASSES.json", default=None,
-                   help="size priors of your own classes (docs/overview.md, Class size priors); the scene's own win")
     p.set_defaults(func=_run_estimate)
     p = subparsers.add_parser(
         "demo", help="estimate the synthetic example scene shipped with the package",
@@ -396,5 +419,5 @@ def register(subparsers) -> None:
                     "synthetic scene (simulated annotations of a TV stand in a room, no photo) "
                     "with five references and its ground truth, so the output also shows the "
                     "error of the estimate.")
-    _add_estimate_options(p)
+    _add_estimate_options(p, classes=False)
     p.set_defaults(func=_run_demo)

@@ -22,7 +22,7 @@ from .. import __version__
 from ..io.scene import SceneError, SceneWarning
 
 __all__ = ["main", "build_parser", "example_scene_path", "seed_value", "check_output_file", "require",
-           "usage_errors", "UsageError", "EXIT_INVALID"]
+           "usage_errors", "UsageError", "EXIT_INVALID", "advanced_group", "ADVANCED", "MAX_MAIN_OPTIONS"]
 
 #: Modules that add sub-commands, in the order of the help text.
 COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes.cli.plot",
@@ -32,6 +32,22 @@ COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes
                               "creference_bayes.cli.confidence", "creference_bayes.cli.evaluate"]
 
 EXIT_INVALID = 2
+
+#: The title of every command's second section of options: research and comparison switches and
+#: settings rarely changed, listed after the everyday options in ``--help``.
+ADVANCED = "advanced options"
+#: At most this many options (``-h`` counted) outside the advanced section of any command's help.
+MAX_MAIN_OPTIONS = 12
+
+
+def advanced_group(parser: argparse.ArgumentParser, what: str = "") -> argparse._ArgumentGroup:
+    """The parser's section of advanced options (created once): switches for comparisons and
+    research, and settings rarely changed; ``what``: the section's description, when it is created."""
+    for group in parser._action_groups:
+        if group.title == ADVANCED:
+            return group
+    return parser.add_argument_group(ADVANCED, what or "for comparisons and research, or settings rarely "
+                                                      "changed; the defaults suit most data")
 
 
 class UsageError(Exception):

@@ -29,8 +29,8 @@ __all__ = ["KittiObject", "OCCLUDED_UNKNOWN", "SIDECAR_FORMAT", "SIDECAR_FORMATS
 #: The uncertainty sidecar beside a label file (docs/labels.md; the layout is documented in
 #: :mod:`creference_bayes.workflows.labels.kitti`).
 SIDECAR_FORMAT = "creference-kitti-uncertainty/2"
-#: The sidecar formats read (``/1``: what earlier versions wrote; each object has ``line`` and
-#: ``quality`` in both).
+#: The sidecar formats read (``/1`` and ``/2``; each object has ``line`` and ``quality`` in
+#: both).
 SIDECAR_FORMATS = ("creference-kitti-uncertainty/1", SIDECAR_FORMAT)
 
 #: KITTI's occlusion code for "unknown" (the devkit's readme: 0 visible … 2 largely occluded, 3 unknown).

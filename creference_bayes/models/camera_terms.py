@@ -45,7 +45,6 @@ EXIF_LOG_SD = 0.1
 #: street cameras), log-sd 0.5 and 3 degrees of freedom, so that 13 mm (an ultra-wide phone camera)
 #: and 85 mm (a portrait lens) lie within about 1.4 and 2.4 scales and a 300 mm telephoto is still
 #: possible. KITTI's camera (24 mm on its 1242 × 375 images) sits 0.16 scales below the median.
-#: Until 2026-11-27 the median was 30 mm.
 DEFAULT_FOCAL_35MM = 26.0
 DEFAULT_FOCAL_LOG_SD = 0.5
 DEFAULT_FOCAL_DOF = 3.0

@@ -589,8 +589,8 @@ def combined_chance(base: np.ndarray, bar: np.ndarray, moments: list[Moments]) -
     The requests' effects on a label add: its future P(IoU ≥ t) is taken as a beta of mean
     ``base`` + Σ shrunk changes (:meth:`Moments.shrunk`) and variance Σ spreads (capped at 0.9 of a
     beta's largest). Measured on KITTI frames (docs/advice.md, "Why two rules"), the
-    earlier rule, a label lifted once any one request would lift it (1 − Π(1 − pᵢ)), said that a
-    set of lines on every object would lift 7.9 labels and drop none; 3 rose and 3 fell. The
+    alternative rule, a label lifted once any one request would lift it (1 − Π(1 − pᵢ)), says that
+    a set of lines on every object would lift 7.9 labels and drop none; 3 rose and 3 fell. The
     shrinkage keeps the small, noisy changes a request makes to the other labels of its frame from
     adding up to a lift that is only noise.
     """

@@ -37,15 +37,15 @@ def result_paths(batch_dir: str | Path, *, check: bool = False) -> dict[str, Pat
 def up_to_date(paths: dict, fingerprint: str, settings: dict, ground: dict | None = None) -> bool:
     """Whether the stored result is the scene's as it is now, made with these settings and, unless
     ``ground`` is None, under this ground prior (:func:`~creference_bayes.pipeline.expected_ground`;
-    a result that records none was made under the earlier default,
-    :data:`~creference_bayes.pipeline.EARLIER_GROUND`)."""
-    from ...pipeline import EARLIER_GROUND
+    a result that records none is taken as made under
+    :data:`~creference_bayes.pipeline.UNRECORDED_GROUND`)."""
+    from ...pipeline import UNRECORDED_GROUND
 
     try:
         d = read_json(paths["result"])
         return (d.get("scene_id", {}).get("sha256") == fingerprint
                 and d.get("batch", {}).get("settings") == settings
-                and (ground is None or (d.get("provenance", {}).get("ground") or EARLIER_GROUND) == ground))
+                and (ground is None or (d.get("provenance", {}).get("ground") or UNRECORDED_GROUND) == ground))
     except (OSError, ValueError, AttributeError):
         return False
 

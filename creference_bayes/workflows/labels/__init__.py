@@ -8,7 +8,7 @@ scene has no image; the scenes of one image share its files, :mod:`.kitti`)::
     OUT/uncertainty/NAME.json   the camera and, per target, MAP, posterior, quality, box draws
 
 The boxes are read from ``results/KEY.json`` (``creference-result/2``; a ``creference-result/1``
-of an earlier batch is converted, :func:`~creference_bayes.io.result.result_from_v1`) and the
+result is converted, :func:`~creference_bayes.io.result.result_from_v1`) and the
 scenes from the copies ``scenes/KEY.json`` that ``creference batch`` keeps; a copy whose
 canonical content is not the scene the result records (``scene_id.sha256``) is not used (the
 scene changed: rerun the batch).
