@@ -779,3 +779,15 @@ def test_bad_advice_settings_are_named(capsys):
                           (["--min-quality", "1.5"], "--min-quality"), (["--score-iou", "1"], "--score-iou")):
         assert main(["advise", "nothing.json", *args]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_advise_batch_prints_a_line_per_scene_when_stderr_is_not_a_terminal(advised_batch, capsys):
+    """An advice of a batch run into a log file said nothing until its end (issue 64): a line per
+    frame advised, naming it."""
+    import re
+
+    assert main(["advise", str(advised_batch / "out"), "--draws", "100", "--futures", "20", "--min-good-per-hour",
+                 "0", "--out", str(advised_batch / "logged")]) == 0  # capsys: standard error is not a terminal
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("advice ")]
+    assert sorted(re.fullmatch(r"advice [123]/3: (f[012]) advised \(\d+ s\)", line).group(1) for line in lines) == [
+        "f0", "f1", "f2"], lines

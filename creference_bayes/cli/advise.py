@@ -101,7 +101,7 @@ def _only_for_a_scene(args, why: str) -> None:
             raise UsageError(f"{flag}: only for a scene file ({why})")
 
 
-def _batch(args, settings, progress: bool) -> int:
+def _batch(args, settings, progress: bool | str) -> int:
     from ..workflows.advice.batch import advise_batch, request_rows, write_batch_advice
 
     if args.scene is not None:
@@ -223,8 +223,10 @@ def _run(args) -> int:
         return _apply(args)
     settings = _settings(args)
     progress = not args.quiet and sys.stderr.isatty()
-    if Path(args.input).is_dir():
-        return _batch(args, settings, progress)
+    if Path(args.input).is_dir():  # a line per scene advised when standard error is not a terminal
+        from ..inference.progress import progress_mode
+
+        return _batch(args, settings, progress_mode(args.quiet))
     if args.budget is not None:
         raise UsageError("--budget: only for a batch folder")
     if args.workers != 1:

@@ -260,8 +260,14 @@ def _advise_one(path: Path, key: str, seed, settings):
         return " ".join(str(exc).split())
 
 
+def _advised(bar, key: str, outcome) -> None:
+    """One scene advised: the bar's note (a log file's line) says which, and whether it was skipped."""
+    bar.set_postfix_str(f"{key} skipped: {outcome}" if isinstance(outcome, str) else f"{key} advised", refresh=False)
+    bar.update(1)
+
+
 def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettings | None = None,
-                 workers: int = 1, progress: bool = False) -> BatchAdvice:
+                 workers: int = 1, progress: bool | str = False) -> BatchAdvice:
     """The advice for every result of a ``creference batch`` folder (module docstring).
 
     Results that cannot be read, whose scene copy changed or of another model are listed in
@@ -284,11 +290,11 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
                 futures = {engine.executor.submit(_advise_one, *job): key for key, job in jobs.items()}
                 for f in as_completed(futures):
                     outcome[futures[f]] = f.result()
-                    bar.update(1)
+                    _advised(bar, futures[f], outcome[futures[f]])
         else:
             for key, job in jobs.items():
                 outcome[key] = _advise_one(*job)
-                bar.update(1)
+                _advised(bar, key, outcome[key])
     objects, skipped = [], []
     for key in jobs:
         if isinstance(outcome[key], str):
