@@ -437,13 +437,13 @@ def _targets_cli(data, ctx):
 
 
 def _classes(data, ctx):
-    """A mutated --classes file: load_classes as estimate, batch and import read it (UsageError when
-    refused), then a scene read and a CVAT export converted with it."""
+    """A mutated --classes file: load_classes as estimate, batch and import read it (UsageError, or
+    SceneError naming the file when it is no JSON to read: both exit status 2), then a scene read and a CVAT export converted with it."""
     box = ctx["box"]
     with box.example() as (inp, out):
         path = _write(inp / "classes.json", hostile_json(CLASSES, data))
         box.snapshot()
-        classes = _refused(lambda: load_classes(str(path)), UsageError)
+        classes = _refused(lambda: load_classes(str(path)), UsageError, SceneError)
         if classes is not None:
             scene = _refused(lambda: load_scene(ctx["scene"], classes=classes), SceneError)
             if scene is not None:

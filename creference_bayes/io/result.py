@@ -452,9 +452,12 @@ def scene_mismatch(result: dict, scene, file_sha256: str | None = None) -> str |
 
     v1 = result.get("format") == "creference-result/1"
     recorded = result.get("scene_id") if isinstance(result.get("scene_id"), dict) else {}
-    ids = [result.get("target")] if v1 else [o.get("id") for o in result.get("objects", [])]
+    objects = result.get("objects") if isinstance(result.get("objects"), list) else []
+    ids = [result.get("target")] if v1 else [o.get("id") if isinstance(o, dict) else None for o in objects]
     mine = [t.id for t in scene.targets]
     size = result.get("image_size") or recorded.get("image_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2):  # a result edited by hand
+        size = [size, "?"]
     diffs = []
     if ids != mine:
         say = lambda v: (repr(v[0]) if len(v) == 1 else f"{v[:5]}{'…' if len(v) > 5 else ''}")

@@ -808,8 +808,10 @@ def kept_chains(result: dict) -> np.ndarray | None:
     ``diagnostics.n_chains``: the kept draws are evenly spaced over the chains laid end to end,
     :data:`~creference_bayes.io.result.RESULT_DRAWS`); None when the result does not say."""
     kept, diag = result.get("draws") or {}, result.get("diagnostics") or {}
-    if isinstance(kept.get("chain"), list) and len(kept["chain"]) == kept.get("n"):
-        return np.asarray(kept["chain"], int)
+    chain = kept.get("chain")
+    if isinstance(chain, list) and len(chain) == kept.get("n"):
+        ok = all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 10_000 for v in chain)
+        return np.asarray(chain, int) if ok else None  # a result edited by hand: no chain said
     n, of, c = kept.get("n"), kept.get("of"), diag.get("n_chains")
     if not (isinstance(n, int) and isinstance(of, int) and isinstance(c, int)) or c < 2 or of % c:
         return None
