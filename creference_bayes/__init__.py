@@ -22,30 +22,24 @@ Quick start::
 
     import creference_bayes as cb
     result = cb.estimate("scene.json", seed=0)
-    print(result.to_dict()["objects"][0]["map"])
+    for obj in result.objects:                 # MAP location (m), ground distance and its HDI
+        print(obj.id, obj.location_m, obj.distance_m, obj.hdi.get("distance_m"))
+    print(result.summary())                    # a table: MAP, mean, sd, HDI, ESS, R-hat
+    idata = result.to_inference_data()         # arviz: az.loo(idata), az.plot_posterior(idata)
+    result.save("result.json")                 # cb.load_result("result.json") reads it back
+
+The package leaves the process's environment alone: it limits the BLAS to one thread only while
+its own numerics run (:mod:`.inference.threads`).
 """
 
 __version__ = "0.2.0"
 
-import os as _os
-
-# Every array this package factors is tiny (4x4 solves, 5x5 Hessians): a threaded BLAS only adds
-# overhead. Applies when numpy is not imported yet and the user has not chosen a thread count;
-# estimate() also limits an already-loaded BLAS to one thread while it runs (inference/threads.py).
-_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-_USER_SET_THREADS = any(_var in _os.environ for _var in _THREAD_VARS)
-for _var in _THREAD_VARS:
-    _os.environ.setdefault(_var, "1")
-
 from .core.metrics import (location_percentage_error, percentage_error, range_percentage_error,
                            range_precision)
-from .io.result import Result, load_result
+from .io.result import CameraEstimate, ObjectEstimate
 from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
-from .inference import threads as _threads
-from .pipeline import estimate
-
-_threads.USER_SET_THREADS = _USER_SET_THREADS
+from .pipeline import Result, ResultWarning, estimate, load_result
 
 __all__ = ["__version__", "estimate", "load_scene", "parse_scene", "load_result", "Scene", "SceneError",
-           "SceneWarning", "Result", "percentage_error", "range_percentage_error",
+           "SceneWarning", "Result", "ResultWarning", "ObjectEstimate", "CameraEstimate", "percentage_error", "range_percentage_error",
            "location_percentage_error", "range_precision"]

@@ -1,17 +1,21 @@
-"""The public entry point: :func:`estimate` any scene, from the scene to its :class:`~.io.result.Result`.
+"""The public entry point: :func:`estimate` any scene, from the scene to its :class:`Result`.
 
 Data flow, one way: scene (one target or many: a scene is a frame) → camera set-up
 (:mod:`.camera_setup`) → model (:mod:`.models`: ``metrology`` or ``paper``, both the same
 contract) → MAP (:mod:`.inference.map`) → posterior (:mod:`.inference.sampler`, an emcee run) →
-result (:mod:`.io.result`). This module only wires the stages. The result records how it was made
-(``provenance``), and :func:`rebuild_model` makes the same model again from a result and its scene.
+result (:class:`Result`, its file :mod:`.io.result`). This module only wires the stages. The result
+records how it was made (``provenance``), and :func:`rebuild_model` makes the same model again from
+a result and its scene (:meth:`Result.to_inference_data` of a result read with :func:`load_result`).
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +25,7 @@ from .models.contract import ObjectData
 from .models.location_prior import LocationPrior
 from .models.metrology import ReferenceTerm
 
-__all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "estimate", "build_model", "rebuild_model", "map_state",
+__all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "load_result", "build_model", "rebuild_model", "map_state",
            "result_draws", "reference_terms", "parse_model_options", "option_record", "expected_ground"]
 
 MODELS = ("metrology", "paper")
@@ -255,11 +259,11 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
 
     Returns
     -------
-    :class:`~.io.result.Result`
+    :class:`Result`
     """
     from .inference.map import optimize
     from .inference.threads import single_threaded_blas
-    from .io.result import RESULT_DRAWS, Result
+    from .io.result import RESULT_DRAWS, result_data
 
     scene = _load(scene, classes)
     if temperature is not None and not (np.isfinite(temperature) and temperature > 0):
@@ -298,9 +302,163 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                       "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
         if m.location.distance_m is not None:  # recorded only when given: a result without it had no range
             provenance["distance_range_m"] = list(m.location.distance_m)
-        return Result.build(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
-                            seconds=time.perf_counter() - t0, notes=notes,
-                            keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
+        data = result_data(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
+                           seconds=time.perf_counter() - t0, notes=notes,
+                           keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
+        return Result(data, draws, diag, tuple(data["warnings"]), m, scene_file=scene.source)
+
+
+class ResultWarning(UserWarning):
+    """What a :class:`Result` could not do in full (an InferenceData without the scene's part)."""
+
+
+@dataclass(frozen=True)
+class Result:
+    """The estimate of one scene: what :func:`estimate` returns and :func:`load_result` reads back.
+
+    Read it with :attr:`objects` (each target's MAP, posterior and HDIs), :attr:`camera`,
+    :attr:`converged` and :meth:`summary` (a table); :meth:`to_inference_data` gives the posterior
+    as an ``arviz.InferenceData``; :meth:`save` writes the file (``creference-result/2``,
+    docs/result_format.md), whose content :meth:`to_dict` returns.
+
+    Attributes
+    ----------
+    data : the file's content (:meth:`to_dict`)
+    draws : the posterior draws: ``cameras`` (chain, draw, 5), ``objects`` (chain, draw, m, 7) and
+        ``log_prob``; every draw of an estimate, the kept ones (``draws`` of the file, by chain) of
+        a result read back; None without a posterior
+    diagnostics : the sampler's :class:`~.inference.sampler.Diagnostics` (None for a result read
+        back: its file's ``diagnostics``)
+    warnings : what the user should know
+    model : the model estimated (None for a result read back: :meth:`to_inference_data` rebuilds
+        it from the scene)
+    scene_file : the scene's file, when known (:meth:`save` records where it is)
+    source : the file the result was read from, or None
+    """
+
+    data: dict
+    draws: Any = None
+    diagnostics: Any = None
+    warnings: tuple[str, ...] = ()
+    model: Any = field(default=None, repr=False, compare=False)
+    scene_file: Path | None = field(default=None, repr=False, compare=False)
+    source: Path | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def objects(self) -> tuple:
+        """Each target's :class:`~.io.result.ObjectEstimate`, in the scene's order."""
+        from .io.result import ObjectEstimate
+
+        return tuple(ObjectEstimate.from_dict(o) for o in self.data["objects"])
+
+    @property
+    def camera(self):
+        """The camera's :class:`~.io.result.CameraEstimate`."""
+        from .io.result import CameraEstimate
+
+        return CameraEstimate.from_dict(self.data["camera"])
+
+    @property
+    def converged(self) -> bool | None:
+        """Whether the posterior sampler converged (None without a posterior)."""
+        diag = self.data.get("diagnostics")
+        return None if not isinstance(diag, dict) or diag.get("converged") is None else bool(diag["converged"])
+
+    @property
+    def hdi_prob(self) -> float | None:
+        """The probability of the result's highest-density intervals."""
+        return self.data.get("hdi_prob")
+
+    def to_dict(self) -> dict:
+        """The file's content (``creference-result/2``; docs/result_format.md)."""
+        return self.data
+
+    def summary(self):
+        """A pandas DataFrame, a row per quantity (``focal_length_px``, …, ``x[t0]``, …) and the
+        columns ``map``, ``mean``, ``sd``, ``median``, the HDI's ends (``hdi_5%``, ``hdi_95%``),
+        ``ess_bulk`` and ``r_hat``: the result's own numbers (from every draw), the same after
+        :meth:`save` and :func:`load_result`."""
+        from .inference.summary import summary_table
+
+        return summary_table(self.data)
+
+    def to_inference_data(self, scene: Scene | str | Path | None = None):
+        """The posterior as an ``arviz.InferenceData`` (layout: :mod:`.inference.summary`):
+        ``posterior``, ``sample_stats``, ``log_likelihood`` (every observation once, for
+        ``arviz.loo``), ``observed_data``, ``constant_data``, the provenance in the attributes; None
+        without a posterior.
+
+        A result read back holds its kept draws and rebuilds its model from its scene (``scene``, else
+        where :func:`~.io.result.find_scene` looks); when the scene cannot be found the
+        InferenceData has the posterior and sample_stats only, says so in its attribute
+        ``missing`` and warns (:class:`ResultWarning`).
+        """
+        from .inference.summary import to_inference_data
+
+        if self.draws is None:
+            return None
+        model, note = self.model, None
+        if model is None:
+            try:
+                model = rebuild_model(self.data, self._scene(scene))
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                reason = " ".join(str(exc).split())
+                note = f"log_likelihood, observed_data and constant_data need the result's scene ({reason})"
+                warnings.warn(note, ResultWarning, stacklevel=2)
+        return to_inference_data(self.data, self.draws, model, note)
+
+    def _scene(self, scene):
+        from .io.result import find_scene
+
+        if scene is not None:
+            return scene
+        try:
+            if self.source is None:
+                raise FileNotFoundError(2, "the result was not read from a file: pass scene=", str(self.data.get("scene")))
+            return find_scene(self.data, self.source)
+        except (OSError, ValueError):
+            if self.scene_file is None:
+                raise
+            return self.scene_file
+
+    def save(self, path: str | Path) -> Path:
+        """Write the result's file (JSON, atomically) to ``path``; it records where the scene's file is
+        (``scene_path``, relative to ``path``) when known, so that :func:`load_result` and the
+        commands ``plot`` and ``advise`` find it. Returns the path."""
+        from .io.files import atomic_write_json
+        from .io.result import scene_path_from
+
+        d = dict(self.data)
+        if self.scene_file is not None:
+            d["scene_path"] = scene_path_from(path, self.scene_file)
+        return atomic_write_json(path, d, inline_numbers=True)
+
+
+def load_result(path: str | Path, scene: Scene | str | Path | None = None) -> Result:
+    """A result file (``creference estimate --out``, :meth:`Result.save`, a batch's
+    ``results/KEY.json``) as a :class:`Result`, with its kept draws by chain. A
+    ``creference-result/1`` file is read in the current format, which needs its scene (``scene``,
+    else where :func:`~.io.result.find_scene` looks). ``ValueError`` naming the file when it is not
+    a result."""
+    from .io.result import chained_draws, find_scene, read_result, result_from_v1
+
+    path = Path(path)
+    d = read_result(path)
+    if d.get("format") == "creference-result/1":
+        found = scene if isinstance(scene, Scene) else find_scene(d, path, scene)
+        d = result_from_v1(d, found)
+    scene_file = None
+    if isinstance(d.get("scene_path"), str) and d["scene_path"]:
+        candidate = path.parent / d["scene_path"]
+        scene_file = candidate if candidate.is_file() else None
+    if isinstance(scene, (str, Path)):  # given for a creference-result/1
+        scene_file = Path(scene)
+    try:
+        draws = chained_draws(d)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return Result(d, draws, None, tuple(d.get("warnings") or ()), None,
+                  scene_file=scene_file, source=path)
 
 
 def _describe_map(model) -> dict:

@@ -577,7 +577,8 @@ def _thinned(draws: dict, n: int) -> dict:
     idx = np.unique(np.linspace(0, draws["n"] - 1, n).round().astype(int))
     pick = lambda v: v if not isinstance(v, list) else [v[i] for i in idx]  # noqa: E731
     return {"n": len(idx), "camera": {k: pick(v) for k, v in draws["camera"].items()},
-            "objects": [{k: pick(v) for k, v in o.items()} for o in draws["objects"]]}
+            "objects": [{k: pick(v) for k, v in o.items()} for o in draws["objects"]],
+            **{k: pick(draws[k]) for k in ("chain", "lp") if k in draws}}
 
 
 # ------------------------------------------------------------------------------------------------

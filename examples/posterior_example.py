@@ -27,8 +27,7 @@ parser.add_argument("--min-ess", type=float, default=400, metavar="N",
                     help="bulk ESS the sampler runs to (default: %(default)s; less for a quick look)")
 args = parser.parse_args()
 
-from creference_bayes.inference.summary import summary_table, to_inference_data  # noqa: E402
-from creference_bayes.io.files import atomic_path, atomic_write_json  # noqa: E402
+from creference_bayes.io.files import atomic_path  # noqa: E402
 from creference_bayes.vision import plotting  # noqa: E402
 
 scene = cb.load_scene(args.scene or example_scene_path())
@@ -40,12 +39,12 @@ d = result.to_dict()
 print(format_tables(d))
 for w in result.warnings:
     print("note:", w)
-idata = to_inference_data(result)
+print(result.summary().round(4).to_string())  # MAP, mean, sd, median, HDI, ESS, R-hat per quantity
+idata = result.to_inference_data()  # arviz: az.summary(idata), az.loo(idata), az.plot_trace(idata)
 if idata is not None:
-    print(summary_table(idata))  # az.summary, yaw as a circular variable
     with atomic_path(out / "posterior.nc") as tmp:
         idata.to_netcdf(tmp)
-atomic_write_json(out / "result.json", d, inline_numbers=True)
+result.save(out / "result.json")
 figures = plotting.scene_figures(scene, d, result.draws)
 for name, fig in figures.items():
     with atomic_path(out / f"{name}.png") as tmp:

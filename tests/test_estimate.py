@@ -8,8 +8,7 @@ import pytest
 
 import creference_bayes as cb
 from conftest import truth_scene
-from creference_bayes.inference.summary import to_inference_data
-from creference_bayes.io.result import RESULT_FORMAT, load_result, stored_draws
+from creference_bayes.io.result import RESULT_FORMAT, read_result, stored_draws
 from creference_bayes.pipeline import map_state, rebuild_model, result_draws
 
 FAST = {"min_ess": 100}
@@ -91,7 +90,7 @@ def test_an_infinite_model_option_is_written_as_a_word_and_read_back_as_infinity
 def load_result_path(tmp_path, doc):
     p = tmp_path / "result.json"
     p.write_text(json.dumps(doc))
-    return load_result(p)
+    return read_result(p)
 
 
 def test_the_posterior_of_a_noise_free_scene_holds_the_truth_and_is_narrow():
@@ -108,19 +107,19 @@ def test_every_result_has_its_inference_data(tmp_path):
     NetCDF file reads back."""
     d, _ = truth_scene(6, m=2, n_annotations=2, noise_px=1.0, n_refs=3, sizes_known=False)
     r = cb.estimate(d, seed=0, sampling=FAST)
-    idata = to_inference_data(r)
-    assert set(idata.groups()) >= {"posterior", "log_likelihood", "sample_stats", "observed_data"}
+    idata = r.to_inference_data()
+    assert set(idata.groups()) >= {"posterior", "log_likelihood", "sample_stats", "observed_data", "constant_data"}
     post = idata.posterior
     assert post["distance_m"].dims == ("chain", "draw", "object") and list(post["object"].values) == ["t0", "t1"]
-    assert idata.log_likelihood["annotations"].shape[-2:] == (2, 2)
-    assert idata.log_likelihood["references"].shape[-1] == 3
+    kinds = list(idata.log_likelihood["kind"].values)
+    assert kinds.count("annotation") == 4 and kinds.count("reference") == 3
     path = tmp_path / "post.nc"
     idata.to_netcdf(path)
     import arviz as az
 
     back = az.from_netcdf(path)
     np.testing.assert_allclose(back.posterior["x"].values, post["x"].values)
-    assert to_inference_data(cb.estimate(d, posterior=False)) is None
+    assert cb.estimate(d, posterior=False).to_inference_data() is None
 
 
 def test_the_result_keeps_draws_that_read_back():

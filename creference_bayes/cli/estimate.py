@@ -221,11 +221,9 @@ def sampling_options(args) -> dict:
 
 
 def _run_estimate(args, banner: str | None = None) -> int:
-    from ..io.files import atomic_path, atomic_write_json
-    from ..io.result import scene_path_from
+    from ..io.files import atomic_path
     from ..io.scene import load_scene
     from ..pipeline import estimate
-    from ..inference.summary import to_inference_data
 
     classes = load_classes(args.classes)
     scene = load_scene(args.scene, classes=classes)
@@ -247,11 +245,9 @@ def _run_estimate(args, banner: str | None = None) -> int:
                       sampling=sampling_options(args) or None,
                       progress=not args.quiet and sys.stderr.isatty(), **options)
     d = result.to_dict()
-    if args.out:
-        if scene.source is not None:  # so that plot and advise find the scene wherever the result is written
-            d["scene_path"] = scene_path_from(args.out, scene.source)
-        atomic_write_json(args.out, d, inline_numbers=True)
-    idata = to_inference_data(result) if args.netcdf else None
+    if args.out:  # it records where the scene is, so that plot and advise find it wherever it is written
+        result.save(args.out)
+    idata = result.to_inference_data() if args.netcdf else None
     if idata is not None:
         with atomic_path(args.netcdf) as tmp:
             idata.to_netcdf(tmp)

@@ -113,8 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from ..inference.threads import single_threaded_blas
+
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), single_threaded_blas():  # tiny arrays: BLAS threads only cost
             warnings.simplefilter("ignore", SceneWarning)  # reported through scene.warnings
             return int(args.func(args) or 0)
     except (SceneError, UsageError) as exc:

@@ -89,14 +89,14 @@ def _run(args) -> int:
 
     matplotlib.use("Agg")
     from ..io.files import atomic_path
-    from ..io.result import load_result, result_from_v1
+    from ..io.result import read_result, result_from_v1
     from ..pipeline import rebuild_model, result_draws
     from ..vision import plotting
     from ..vision.images import ImageWarning
 
     path = Path(args.result)
     with usage_errors():  # wrong format key, or not JSON
-        d = load_result(path)
+        d = read_result(path)
     scene = find_scene(d, path, args.scene)
     chains = None
     if d["format"] == "creference-result/1":

@@ -1,8 +1,8 @@
-"""The arviz adapter: the posterior of any scene as an ``arviz.InferenceData``, its diagnostics.
+"""The arviz adapter: the posterior of any result as an ``arviz.InferenceData``, and its summary
+table. The only module that imports arviz.
 
-Layout of :func:`to_inference_data`. ``chain`` is what the sampler ran independently: one of its
-ensembles for a scene of one object (each ensemble's walkers' draws, laid end to end), one walker
-for a scene of several (block sweeps):
+Layout of :func:`to_inference_data` (``chain`` is what the sampler ran independently: one of its
+ensembles for a scene of one object, one walker for a scene of several):
 
 * ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
   ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,
@@ -10,16 +10,29 @@ for a scene of several (block sweeps):
   (``y`` is the camera height less the object's ground offset; yaw on the arc of ±π around the
   MAP's);
 * ``sample_stats``: ``lp``, the log-posterior density in the sampler's coordinates;
-* ``log_likelihood``: the log-likelihood of every observation at every draw (the model's
-  :meth:`~creference_bayes.models.contract.Model.pointwise_log_likelihood`): ``annotations``
-  (chain, draw, object, annotation; 0 where an object has fewer), ``references`` and ``horizon``;
-* ``observed_data``: the dimension-line corners (object, annotation, corner, pixel_axis; NaN where
-  an object has fewer annotations), the reference lines (NaN for a reference without one) and their
-  stated [low, high] (metres, or ratios for relative ones).
+* ``log_likelihood``: one variable, ``observations`` (chain, draw, observation): the
+  log-likelihood of every observation the model has (the model's
+  :meth:`~creference_bayes.models.contract.Model.pointwise_log_likelihood`) and of nothing else,
+  so that ``arviz.loo`` and ``arviz.waic`` count them right: each target's sets of dimension lines
+  (the paper's model: one, their median), each reference in the likelihood (the paper's model:
+  each target's reference penalties, for targets that have them) and a measured horizon. Its
+  coordinates say what each is: ``kind`` (``annotation``, ``reference`` or ``horizon``),
+  ``target`` (the target's id; ``""`` for a reference or the horizon of the metrology model) and
+  ``index`` (the set's number within its target, the reference's number in the scene);
+* ``observed_data``: ``corners`` (annotation, corner, pixel_axis), every set of dimension lines
+  (``annotation_target`` and ``annotation_index`` say whose), ``reference_lines`` (NaN for a
+  reference without one) and their stated ``reference_values`` [low, high];
+* ``constant_data``: ``principal_point``, ``image_size`` and each object's ``handedness``.
+
+Every group's attributes hold the result's provenance (``provenance``: JSON text), its ``model``,
+``preset``, ``scene``, ``format`` and the package's version. ``log_likelihood``,
+``observed_data`` and ``constant_data`` need the model (a result read from its file: its scene);
+without it the attribute ``missing`` says so.
 """
 
 from __future__ import annotations
 
+import json
 import warnings as _warnings
 
 import numpy as np
@@ -30,7 +43,7 @@ with _warnings.catch_warnings():
     _warnings.simplefilter("ignore", FutureWarning)  # arviz 0.23 announces its refactor on import
     import arviz as az
 
-__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "summary_table", "az"]
+__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "observations", "summary_table", "az"]
 
 #: The per-object quantities of the posterior group, in order (the results' own report).
 OBJECT_VARS = OBJECT_REPORT
@@ -39,53 +52,145 @@ OBJECT_VARS = OBJECT_REPORT
 CAMERA_VARS = tuple("camera_height_m" if n == "height_m" else n for n in CAMERA_NAMES)
 
 
-def to_inference_data(result, attrs: dict | None = None) -> "az.InferenceData | None":
-    """The whole posterior of an estimate as an InferenceData (module docstring for the layout),
-    or None for an estimate without draws.
+def observations(model, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The log-likelihood of each observation the model has at each draw, (n, k), and the
+    coordinates of the ``observation`` dimension (module docstring): the model's pointwise terms
+    without the padding (an object's missing sets of dimension lines, a horizon not measured,
+    targets without references)."""
+    ll = model.pointwise_log_likelihood(cams, objs)
+    cols, coords = [], {"observation": [], "kind": [], "target": [], "index": []}
+
+    def add(column, label, kind, target, index):
+        cols.append(column)
+        for k, v in zip(coords, (label, kind, target, index)):
+            coords[k].append(v)
+
+    ann = ll["annotations"]  # (n, m, K), padded where an object has fewer sets
+    for i, o in enumerate(model.objects):
+        for j in range(min(len(o.annotations), ann.shape[2])):
+            add(ann[:, i, j], f"{o.id}/{j}", "annotation", o.id, j)
+    refs = ll.get("references")
+    if refs is not None and refs.size:
+        constraints = getattr(model, "constraints", None)
+        if constraints is not None:  # the paper's model: one penalty per target
+            for i, (o, c) in enumerate(zip(model.objects, constraints)):
+                if c is not None and c.n_pairs:
+                    add(refs[:, i], f"{o.id}/references", "reference", o.id, i)
+        else:
+            for k, r in enumerate(model.references):
+                add(refs[:, k], f"reference {r.index}", "reference", "", int(r.index))
+    hz = model.camera_terms.horizon
+    if hz is not None and model.orientation == "free" and "horizon" in ll:
+        add(ll["horizon"], "horizon", "horizon", "", 0)
+    values = np.stack(cols, axis=-1) if cols else np.zeros((len(cams), 0))
+    return values, coords
+
+
+def _provenance(data: dict, note: str | None) -> dict:
+    from .. import __version__
+
+    out = {"format": str(data.get("format")), "model": str(data.get("model")), "preset": str(data.get("preset")),
+           "scene": str(data.get("scene")), "scene_sha256": str((data.get("scene_id") or {}).get("sha256")),
+           "provenance": json.dumps(data.get("provenance") or {}, sort_keys=True),
+           "yaw": "radians, on the arc of ±pi around the MAP's", "creference_bayes_version": __version__,
+           "inference_library": "emcee"}
+    if note:
+        out["missing"] = note
+    return out
+
+
+def to_inference_data(data: dict, draws, model=None, note: str | None = None) -> "az.InferenceData | None":
+    """The posterior of a result as an InferenceData (module docstring for the layout), or None
+    for a result without draws.
 
     Parameters
     ----------
-    result : :class:`~creference_bayes.io.result.Result` returned by :func:`creference_bayes.estimate`
-        (a result read back from its file holds a thinned set of draws only: use
-        ``result["draws"]`` there)
-    attrs : extra metadata for the InferenceData
+    data : the result's dict (``creference-result/2``)
+    draws : its draws: ``cameras`` (chain, draw, 5), ``objects`` (chain, draw, m, 7), ``log_prob``
+        (chain, draw) or None
+    model : the model estimated (or rebuilt); None: no ``log_likelihood``, ``observed_data`` and
+        ``constant_data``
+    note : why the model is missing (the attribute ``missing``)
     """
-    draws, model = result.draws, result.model
-    if draws is None or model is None:
+    if draws is None:
         return None
-    cams, objs = draws.cameras, draws.objects  # (C, N, 5), (C, N, m, 7)
+    cams, objs = np.asarray(draws.cameras, float), np.asarray(draws.objects, float)
     C, N, m = objs.shape[:3]
-    yaw_centre = np.array([o["map"]["yaw"] for o in result.data["objects"]])
+    ids = [o["id"] for o in data["objects"]]
+    yaw_centre = np.array([o["map"]["yaw"] for o in data["objects"]])
     post = {name: cams[..., k] for k, name in enumerate(CAMERA_VARS)}
     table = object_report(cams, objs, yaw_centre)
     post.update({name: table[..., k] for k, name in enumerate(OBJECT_VARS)})
-    ll = model.pointwise_log_likelihood(cams.reshape(-1, 5), objs.reshape(-1, m, 7))
-    log_lik = {k: v.reshape((C, N) + v.shape[1:]) for k, v in ll.items() if v.size}
-    K = max(len(o.annotations) for o in model.objects)
-    corners = np.full((m, K, 4, 2), np.nan)
-    for i, o in enumerate(model.objects):
-        corners[i, :len(o.annotations)] = o.annotations
-    observed = {"corners": corners}
-    refs = getattr(model, "all_references", ())
-    if refs:
-        observed["reference_values"] = np.array([[r.low, r.high] for r in refs])
-        observed["reference_lines"] = np.array([np.full((2, 2), np.nan) if r.line is None else r.line for r in refs])
-    dims = {name: ["object"] for name in OBJECT_VARS}
-    dims.update({"corners": ["object", "annotation", "corner", "pixel_axis"], "reference_values": ["reference", "bound"],
-                 "reference_lines": ["reference", "end", "pixel_axis"], "annotations": ["object", "annotation"],
-                 "references": ["reference_used" if model.name == "metrology" else "object"]})
-    meta = {"model": model.name, "handedness": [int(h) for h in model.handedness],
-            "yaw": "radians, on the arc of ±pi around the MAP's", "scene": str(result.data.get("scene")),
-            **(attrs or {})}
-    stats = {"lp": draws.log_prob} if draws.log_prob is not None else None
+    attrs = _provenance(data, note)
+
+    def dataset(values, dims, coords=None, sample=True):
+        with _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", FutureWarning)
+            return az.dict_to_dataset(values, coords=coords, dims=dims, attrs=attrs, index_origin=0,
+                                      default_dims=None if sample else [])
+
+    groups = {"posterior": dataset(post, {name: ["object"] for name in OBJECT_VARS}, {"object": ids})}
+    if draws.log_prob is not None:
+        groups["sample_stats"] = dataset({"lp": np.asarray(draws.log_prob, float)}, {})
+    if model is not None:
+        ll, where = observations(model, cams.reshape(-1, 5), objs.reshape(-1, m, 7))
+        ds = dataset({"observations": ll.reshape(C, N, -1)}, {"observations": ["observation"]},
+                     {"observation": where["observation"]})
+        groups["log_likelihood"] = ds.assign_coords({k: ("observation", where[k]) for k in ("kind", "target", "index")})
+        labels = [(o.id, j) for o in model.objects for j in range(len(o.annotations))]
+        observed = {"corners": np.concatenate([o.annotations for o in model.objects])}
+        refs = getattr(model, "all_references", ())
+        if refs:
+            observed["reference_values"] = np.array([[r.low, r.high] for r in refs])
+            observed["reference_lines"] = np.array([np.full((2, 2), np.nan) if r.line is None else r.line
+                                                    for r in refs])
+        ds = dataset(observed, {"corners": ["annotation", "corner", "pixel_axis"],
+                                "reference_values": ["reference", "bound"],
+                                "reference_lines": ["reference", "end", "pixel_axis"]},
+                     {"annotation": [f"{t}/{j}" for t, j in labels], "reference": [int(r.index) for r in refs]},
+                     sample=False)
+        groups["observed_data"] = ds.assign_coords(annotation_target=("annotation", [t for t, _ in labels]),
+                                                   annotation_index=("annotation", [j for _, j in labels]))
+        constant = {"principal_point": np.asarray(model.principal_point, float),
+                    "image_size": np.asarray(data.get("image_size") or model.image_size, float),
+                    "handedness": np.asarray(model.handedness, float)}
+        groups["constant_data"] = dataset(constant, {"principal_point": ["pixel_axis"], "image_size": ["pixel_axis"],
+                                                     "handedness": ["object"]}, {"object": ids}, sample=False)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore", FutureWarning)
-        return az.from_dict(posterior=post, sample_stats=stats, log_likelihood=log_lik, observed_data=observed,
-                            coords={"object": [o.id for o in model.objects]}, dims=dims, attrs=meta)
+        return az.InferenceData(**groups)
 
 
-def summary_table(idata, hdi_prob: float = 0.9):
-    """``az.summary`` of the posterior (a pandas DataFrame), yaw treated as circular."""
-    with _warnings.catch_warnings():
-        _warnings.simplefilter("ignore")
-        return az.summary(idata, hdi_prob=hdi_prob, circ_var_names=["yaw"])
+def summary_table(data: dict):
+    """A result's summary as a pandas DataFrame, a row per quantity (the camera's by name, each
+    object's as ``name[id]``, as ``arviz.summary`` names them): the MAP, the posterior's mean, sd,
+    median and HDI (``hdi_5%``, ``hdi_95%`` for an HDI of 0.9), the sampler's bulk ESS and R-hat
+    (NaN where the result has none: a fixed quantity, no posterior). The numbers are the result's
+    own (its file's, from every draw), so a result read back from its file gives the same table."""
+    import pandas as pd
+
+    prob = data.get("hdi_prob") or 0.9
+    lo, hi = f"hdi_{100 * (1 - prob) / 2:g}%", f"hdi_{100 * (1 + prob) / 2:g}%"
+    diag = data.get("diagnostics") or {}
+    ess, rhat = diag.get("ess_bulk") or {}, diag.get("r_hat") or {}
+    rows, index = [], []
+
+    def num(v):
+        return np.nan if v is None else float(v)
+
+    def row(label, name, block, key):
+        post = block.get("posterior") or {}
+        interval = (post.get("hdi") or {}).get(name) or (None, None)
+        index.append(label)
+        rows.append({"map": num(block["map"].get(name)), "mean": num((post.get("mean") or {}).get(name)),
+                     "sd": num((post.get("sd") or {}).get(name)), "median": num((post.get("median") or {}).get(name)),
+                     lo: num(interval[0]), hi: num(interval[1]), "ess_bulk": num(ess.get(key)),
+                     "r_hat": num(rhat.get(key))})
+
+    camera = data["camera"]
+    for name, var in zip(CAMERA_NAMES, CAMERA_VARS):
+        row(var, name, camera, f"camera.{name}")
+    for o in data["objects"]:
+        for name in OBJECT_VARS:
+            row(f"{name}[{o['id']}]", name, o, f"{o['id']}.{name}")
+    return pd.DataFrame(rows, index=index)

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -24,8 +23,8 @@ from ..models.contract import C_FOCAL, CAMERA_NAMES, O_YAW, OBJECT_NAMES, OBJECT
 from ..models.metrology import MIN_TARGET_SIGMA_PX
 from .validation import _short
 
-__all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "Result", "StoredDraws", "hdi",
-           "stored_draws", "load_result", "result_from_v1", "scene_candidates", "scene_path_from", "scene_mismatch",
+__all__ = ["RESULT_FORMAT", "RESULT_FORMATS", "RESULT_DRAWS", "OBJECT_REPORT", "ObjectEstimate", "CameraEstimate",
+           "StoredDraws", "hdi", "result_data", "stored_draws", "chained_draws", "read_result", "result_from_v1", "scene_candidates", "scene_path_from", "scene_mismatch",
            "find_scene", "canonical_sha256", "map_checks"]
 
 RESULT_FORMAT = "creference-result/2"
@@ -60,11 +59,13 @@ def _summary(x: np.ndarray, prob: float) -> dict:
 
 @dataclass(frozen=True)
 class StoredDraws:
-    """Draws read back from a result's ``draws``: cameras (1, n, 5), objects (1, n, m, 7), natural
-    parameters in the order of ``CAMERA_NAMES`` and ``OBJECT_NAMES``."""
+    """Draws read back from a result's ``draws``: cameras (chain, n, 5), objects (chain, n, m, 7),
+    natural parameters in the order of ``CAMERA_NAMES`` and ``OBJECT_NAMES``, and the log-density
+    of each (chain, n) in the sampler's coordinates (None when the file has none)."""
 
     cameras: np.ndarray
     objects: np.ndarray
+    log_prob: np.ndarray | None = None
 
 
 def _column(v: np.ndarray):
@@ -73,14 +74,18 @@ def _column(v: np.ndarray):
     return float(v[0]) if np.all(v == v[0]) else v.tolist()
 
 
-def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int) -> dict:
-    """Evenly spaced draws of the chains' draws laid end to end, each with its chain."""
+def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int, lp: np.ndarray | None = None) -> dict:
+    """Evenly spaced draws of the chains' draws laid end to end, each with its chain (and its
+    log-density, ``lp``)."""
     n = len(cams)
     idx = np.unique(np.linspace(0, n - 1, min(n_keep, n)).round().astype(int))
-    return {"n": int(len(idx)), "of": int(n), "chain": (idx // (n // n_chains)).tolist(),
-            "camera": {k: _column(cams[idx, j]) for j, k in enumerate(CAMERA_NAMES)},
-            "objects": [{k: _column(objs[idx, i, j]) for j, k in enumerate(OBJECT_NAMES)}
-                        for i in range(objs.shape[1])]}
+    out = {"n": int(len(idx)), "of": int(n), "chain": (idx // (n // n_chains)).tolist(),
+           "camera": {k: _column(cams[idx, j]) for j, k in enumerate(CAMERA_NAMES)},
+           "objects": [{k: _column(objs[idx, i, j]) for j, k in enumerate(OBJECT_NAMES)}
+                       for i in range(objs.shape[1])]}
+    if lp is not None:
+        out["lp"] = _column(np.asarray(lp, float).reshape(-1)[idx])
+    return out
 
 
 def stored_draws(d: dict) -> StoredDraws | None:
@@ -100,7 +105,32 @@ def stored_draws(d: dict) -> StoredDraws | None:
         raise ValueError("draws: expected finite numbers")
     if objs.shape[1] != len(d.get("objects", ())):
         raise ValueError(f"draws.objects: {objs.shape[1]} objects, the result has {len(d.get('objects', ()))}")
-    return StoredDraws(cams[None], objs[None])
+    lp = None
+    if kept.get("lp") is not None:
+        try:
+            lp = np.broadcast_to(np.asarray(kept["lp"], float), (n,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"draws.lp: expected {n} numbers") from None
+    return StoredDraws(cams[None], objs[None], None if lp is None else lp[None])
+
+
+def chained_draws(d: dict) -> StoredDraws | None:
+    """The kept draws of a result dict arranged by the chain each came from (``draws.chain``):
+    cameras (chain, k, 5), objects (chain, k, m, 7), each chain cut to the shortest one's k
+    draws (the even spacing leaves them a draw apart at most); one chain when the file does not
+    say. None when the result keeps no draws."""
+    kept = stored_draws(d)
+    if kept is None:
+        return None
+    chain = d["draws"].get("chain")
+    if not isinstance(chain, list) or len(chain) != kept.cameras.shape[1]:
+        return kept
+    chain = np.asarray(chain, int)
+    rows = [np.flatnonzero(chain == c) for c in np.unique(chain)]
+    k = min(len(r) for r in rows)
+    pick = np.stack([r[:k] for r in rows])  # (C, k) indices into the kept draws
+    lp = None if kept.log_prob is None else kept.log_prob[0][pick]
+    return StoredDraws(kept.cameras[0][pick], kept.objects[0][pick], lp)
 
 
 def _r(v, nd=6):
@@ -119,87 +149,144 @@ def _posterior_block(names, s: dict, prob: float, keep=None) -> dict:
     return out
 
 
+def _pairs(block: dict | None, names) -> dict:
+    """``{name: (low, high)}`` of an HDI block (its ``prob`` left out); empty for None."""
+    return {} if not block else {n: tuple(block[n]) for n in names if n in block and block[n] is not None}
+
+
+def _values(block: dict | None, names) -> dict:
+    return {} if not block else {n: block[n] for n in names if n in block}
+
+
 @dataclass(frozen=True)
-class Result:
-    """The estimate of one scene (module docstring); :meth:`to_dict` is the file.
+class ObjectEstimate:
+    """One target's estimate (a result's ``objects`` entry, read for Python).
 
     Attributes
     ----------
-    data : the file's content
-    draws : the posterior draws (:class:`~creference_bayes.inference.sampler.Draws`), or None
-    diagnostics : the sampler's :class:`~creference_bayes.inference.sampler.Diagnostics`, or None
-    warnings : what the user should know
-    model : the model estimated (not in the file; :func:`creference_bayes.inference.summary.to_inference_data`
-        makes the whole posterior's ``arviz.InferenceData`` from it and the draws)
+    id, cls : the target's id and class
+    location_m : the MAP's (x, y, z), metres, camera frame (x right, y down to the ground, z ahead)
+    size_m : the MAP's (length, width, height), metres
+    yaw_rad, distance_m : the MAP's yaw (radians) and ground distance from the camera (metres)
+    map : every reported quantity's MAP (``OBJECT_REPORT`` names)
+    mean, sd, median : the posterior's (empty without a posterior)
+    hdi : quantity → (low, high), the highest-density interval of probability ``hdi_prob``
+    hdi_prob : the HDIs' probability, or None without a posterior
+    n_annotations : the target's sets of dimension lines
+    evaluation : errors against the scene's ground truth, or None
     """
 
-    data: dict
-    draws: Any = None
-    diagnostics: Any = None
-    warnings: tuple[str, ...] = ()
-    model: Any = field(default=None, repr=False, compare=False)
-
-    @property
-    def converged(self) -> bool | None:
-        return None if self.diagnostics is None else bool(self.diagnostics.converged)
-
-    def to_dict(self) -> dict:
-        return self.data
+    id: str
+    cls: str | None
+    location_m: tuple[float, float, float]
+    size_m: tuple[float, float, float]
+    yaw_rad: float
+    distance_m: float
+    map: dict
+    mean: dict
+    sd: dict
+    median: dict
+    hdi: dict
+    hdi_prob: float | None
+    n_annotations: int
+    evaluation: dict | None = None
 
     @classmethod
-    def build(cls, scene, model, setup, map_est, draws, diag, *, hdi_prob: float, provenance: dict,
-              seconds: float, notes=(), keep_draws: int = RESULT_DRAWS) -> "Result":
-        from .scene import scene_fingerprint
+    def from_dict(cls, o: dict) -> "ObjectEstimate":
+        m, post = o["map"], o.get("posterior") or {}
+        return cls(id=o["id"], cls=o.get("class"), location_m=(m["x"], m["y"], m["z"]),
+                   size_m=(m["length_m"], m["width_m"], m["height_m"]), yaw_rad=m["yaw"],
+                   distance_m=m["distance_m"], map=dict(m), mean=_values(post.get("mean"), OBJECT_REPORT),
+                   sd=_values(post.get("sd"), OBJECT_REPORT), median=_values(post.get("median"), OBJECT_REPORT),
+                   hdi=_pairs(post.get("hdi"), OBJECT_REPORT), hdi_prob=(post.get("hdi") or {}).get("prob"),
+                   n_annotations=int(o.get("n_annotations", 0)), evaluation=o.get("evaluation"))
 
-        warnings = list(scene.warnings) + list(setup.notes) + list(notes)
-        cf = model.camera_free
-        camera = {"map": _named(CAMERA_NAMES, map_est.camera), "free": [n for n, f in zip(CAMERA_NAMES, cf) if f],
-                  "setup": setup.to_dict()}
-        if setup.horizon_estimate is not None:
-            camera["setup"]["horizon_estimate"] = setup.horizon_estimate.to_dict()
-        objs_map = object_report(map_est.camera, map_est.objects)
-        post_obj = post_cam = kept = None
-        if draws is not None:
-            cams = draws.cameras.reshape(-1, 5)
-            objs = draws.objects.reshape(-1, model.n_objects, 7).copy()
-            yaw0 = map_est.objects[:, O_YAW]
-            objs[..., O_YAW] = yaw0 + (objs[..., O_YAW] - yaw0 + np.pi) % (2 * np.pi) - np.pi
-            table = object_report(cams, objs)  # (N, m, 9)
-            if keep_draws > 0:
-                kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0])
-            post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
-            post_cam = _summary(cams, hdi_prob)
-            camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
-            if not diag.converged:
-                warnings += [f"posterior not converged: {w}" for w in diag.warnings]
-        if scene.ground_truth:
-            camera["evaluation"] = _camera_evaluation(scene.ground_truth, camera.get("posterior"))
-        warnings += map_checks(scene, model, setup, map_est)
-        objects = []
-        for i, (t, o) in enumerate(zip(scene.targets, model.objects)):
-            entry = {"id": t.id, "class": t.cls, "handedness": int(map_est.handedness[i]),
-                     "size": "known" if o.sizes is not None else "class prior",
-                     "n_annotations": len(o.annotations),
-                     "map": {n: _r(v) for n, v in zip(OBJECT_REPORT, objs_map[i])}}
-            if hasattr(model, "sigma") and np.ndim(model.sigma):
-                entry["sigma_px"] = _r(model.sigma[i], 3)
-            if post_obj is not None:
-                entry["posterior"] = _posterior_block(OBJECT_REPORT, post_obj[i], hdi_prob)
-            if t.ground_truth is not None and "location_m" in t.ground_truth:
-                entry["evaluation"] = _evaluate(t.ground_truth, objs_map[i], None if post_obj is None else post_obj[i])
-            objects.append(entry)
-        data = {"format": RESULT_FORMAT, "scene": scene.source.name if scene.source else None,
-                "scene_format": scene.format, "scene_id": {"sha256": scene_fingerprint(scene)},
-                "image_size": [scene.image_width, scene.image_height], "model": model.name,
-                "preset": provenance.get("preset", "default"), "hdi_prob": hdi_prob,
-                "camera": camera, "objects": objects, "references": _references(model),
-                "map_info": {k: _r(v, 4) if isinstance(v, float) else v for k, v in map_est.info.items()},
-                "diagnostics": None if diag is None else diag.to_dict(),
-                "pilot_camera": None if model.pilot is None else [float(v) for v in model.pilot],
-                "provenance": provenance, "seconds": round(seconds, 3), "warnings": warnings}
-        if kept is not None:
-            data["draws"] = kept
-        return cls(data, draws, diag, tuple(warnings), model)
+
+@dataclass(frozen=True)
+class CameraEstimate:
+    """The shared camera's estimate (a result's ``camera``, read for Python): the MAP's focal
+    length (px), pitch and roll (radians) and height (metres); ``free`` the quantities estimated
+    (the others fixed); ``map``, ``mean``, ``sd``, ``median``, ``hdi`` as for
+    :class:`ObjectEstimate` (``CAMERA_NAMES``), the posterior's of the free quantities only."""
+
+    focal_length_px: float
+    pitch_rad: float
+    roll_rad: float
+    height_m: float
+    free: tuple[str, ...]
+    map: dict
+    mean: dict
+    sd: dict
+    median: dict
+    hdi: dict
+    hdi_prob: float | None
+
+    @classmethod
+    def from_dict(cls, c: dict) -> "CameraEstimate":
+        m, post = c["map"], c.get("posterior") or {}
+        return cls(focal_length_px=m["focal_length_px"], pitch_rad=m["pitch"], roll_rad=m["roll"],
+                   height_m=m["height_m"], free=tuple(c.get("free", ())), map=dict(m),
+                   mean=_values(post.get("mean"), CAMERA_NAMES), sd=_values(post.get("sd"), CAMERA_NAMES),
+                   median=_values(post.get("median"), CAMERA_NAMES), hdi=_pairs(post.get("hdi"), CAMERA_NAMES),
+                   hdi_prob=(post.get("hdi") or {}).get("prob"))
+
+
+def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, provenance: dict,
+                seconds: float, notes=(), keep_draws: int = RESULT_DRAWS) -> dict:
+    """The file's content (``creference-result/2``) of an estimate: the MAP, the posterior's
+    summary of every draw and ``keep_draws`` of them, the diagnostics, the warnings (``warnings``:
+    the scene's, the set-up's, ``notes`` and the MAP's checks) and ``provenance``."""
+    from .scene import scene_fingerprint
+
+    warnings = list(scene.warnings) + list(setup.notes) + list(notes)
+    cf = model.camera_free
+    camera = {"map": _named(CAMERA_NAMES, map_est.camera), "free": [n for n, f in zip(CAMERA_NAMES, cf) if f],
+              "setup": setup.to_dict()}
+    if setup.horizon_estimate is not None:
+        camera["setup"]["horizon_estimate"] = setup.horizon_estimate.to_dict()
+    objs_map = object_report(map_est.camera, map_est.objects)
+    post_obj = post_cam = kept = None
+    if draws is not None:
+        cams = draws.cameras.reshape(-1, 5)
+        objs = draws.objects.reshape(-1, model.n_objects, 7).copy()
+        yaw0 = map_est.objects[:, O_YAW]
+        objs[..., O_YAW] = yaw0 + (objs[..., O_YAW] - yaw0 + np.pi) % (2 * np.pi) - np.pi
+        table = object_report(cams, objs)  # (N, m, 9)
+        if keep_draws > 0:
+            kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0], draws.log_prob)
+        post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
+        post_cam = _summary(cams, hdi_prob)
+        camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
+        if not diag.converged:
+            warnings += [f"posterior not converged: {w}" for w in diag.warnings]
+    if scene.ground_truth:
+        camera["evaluation"] = _camera_evaluation(scene.ground_truth, camera.get("posterior"))
+    warnings += map_checks(scene, model, setup, map_est)
+    objects = []
+    for i, (t, o) in enumerate(zip(scene.targets, model.objects)):
+        entry = {"id": t.id, "class": t.cls, "handedness": int(map_est.handedness[i]),
+                 "size": "known" if o.sizes is not None else "class prior",
+                 "n_annotations": len(o.annotations),
+                 "map": {n: _r(v) for n, v in zip(OBJECT_REPORT, objs_map[i])}}
+        if hasattr(model, "sigma") and np.ndim(model.sigma):
+            entry["sigma_px"] = _r(model.sigma[i], 3)
+        if post_obj is not None:
+            entry["posterior"] = _posterior_block(OBJECT_REPORT, post_obj[i], hdi_prob)
+        if t.ground_truth is not None and "location_m" in t.ground_truth:
+            entry["evaluation"] = _evaluate(t.ground_truth, objs_map[i], None if post_obj is None else post_obj[i])
+        objects.append(entry)
+    data = {"format": RESULT_FORMAT, "scene": scene.source.name if scene.source else None,
+            "scene_format": scene.format, "scene_id": {"sha256": scene_fingerprint(scene)},
+            "image_size": [scene.image_width, scene.image_height], "model": model.name,
+            "preset": provenance.get("preset", "default"), "hdi_prob": hdi_prob,
+            "camera": camera, "objects": objects, "references": _references(model),
+            "map_info": {k: _r(v, 4) if isinstance(v, float) else v for k, v in map_est.info.items()},
+            "diagnostics": None if diag is None else diag.to_dict(),
+            "pilot_camera": None if model.pilot is None else [float(v) for v in model.pilot],
+            "provenance": provenance, "seconds": round(seconds, 3), "warnings": warnings}
+    if kept is not None:
+        data["draws"] = kept
+    return data
 
 
 def _references(model) -> dict:
@@ -287,9 +374,10 @@ def _camera_evaluation(truth: dict, post: dict | None) -> dict:
     return out
 
 
-def load_result(path: str | Path) -> dict:
-    """A result file's content (either format; check with :data:`RESULT_FORMATS`); ``ValueError``
-    naming the file when it is not one."""
+def read_result(path: str | Path) -> dict:
+    """A result file's content as a dict (either format; check with :data:`RESULT_FORMATS`);
+    ``ValueError`` naming the file when it is not one. :func:`creference_bayes.load_result` reads
+    it as a :class:`~creference_bayes.pipeline.Result`."""
     from .validation import SceneError, read_json
 
     try:

@@ -247,15 +247,17 @@ def object_seed(seed: int, key: str) -> list[int]:
 def _advise_one(path: Path, key: str, seed, settings):
     """One scene (run in a worker process with ``workers`` > 1): (scene, Advice), or the reason it
     cannot be advised on."""
-    from ...io.result import load_result
+    from ...inference.threads import single_threaded_blas
+    from ...io.result import read_result
 
     try:
-        result = load_result(path)
+        result = read_result(path)
         if "batch" not in result:
             raise ValueError("not a result of creference batch")
         scene = scene_for_result(path, result)
-        return scene, advise_result(result, scene, seed=object_seed(seed, key), settings=settings), \
-            (result.get("scene_id") or {}).get("sha256")
+        with single_threaded_blas():
+            advice = advise_result(result, scene, seed=object_seed(seed, key), settings=settings)
+        return scene, advice, (result.get("scene_id") or {}).get("sha256")
     except (OSError, ValueError, KeyError, TypeError) as exc:
         return " ".join(str(exc).split())
 

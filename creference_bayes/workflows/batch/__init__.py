@@ -314,7 +314,7 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
 
 def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
     """Each first-pass result's likelihood of what its camera shares (:mod:`.rig`)."""
-    from ...io.result import load_result
+    from ...io.result import read_result
     from .rig import camera_id_of, shared_likelihood
 
     frames = []
@@ -325,7 +325,7 @@ def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SceneWarning)
             camera_id = camera_id_of(load_scene(paths["scene"]))
-        frames.append(shared_likelihood(si.key, camera_id, load_result(paths["result"])))
+        frames.append(shared_likelihood(si.key, camera_id, read_result(paths["result"])))
     return frames
 
 

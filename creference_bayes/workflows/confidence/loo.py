@@ -163,8 +163,10 @@ def _predict_job(job: tuple) -> tuple:
     """:func:`predict_ranges` for a process pool: ``job`` is (key, scene, seed, sampling); returns
     (key, predictions, info) or (key, None, the error): one scene's failure does not stop the others."""
     key, scene, seed, sampling = job
+    from ...inference.threads import single_threaded_blas
+
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), single_threaded_blas():
             warnings.simplefilter("ignore")
             return (key, *predict_ranges(scene, key, seed=seed, sampling=sampling))
     except Exception as exc:
