@@ -7,7 +7,6 @@ and quotes the value (cut to :data:`MAX_REPR` characters, so a message stays one
 
 from __future__ import annotations
 
-import json
 import math
 import unicodedata
 from pathlib import Path
@@ -15,7 +14,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .files import read_bytes
+from ..core import jsonfile
+from ..core.jsonfile import MAX_INT_DIGITS, MAX_JSON_BYTES, MAX_JSON_DEPTH, json_depth
 
 __all__ = ["SceneError", "SceneWarning", "near_miss", "read_json", "loads_json", "json_depth", "MAX_REPR",
            "MIN_SEGMENT_PX", "NEAR_MISS_EDITS", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_INT_DIGITS"]
@@ -24,14 +24,6 @@ __all__ = ["SceneError", "SceneWarning", "near_miss", "read_json", "loads_json",
 MAX_REPR = 60
 #: Segments shorter than this (pixels) count as zero-length.
 MIN_SEGMENT_PX = 1e-6
-#: Largest JSON file read from outside (bytes): far above any scene, result or tool export.
-MAX_JSON_BYTES = 1 << 30
-#: Deepest nesting of lists and objects in a JSON file read from outside. A scene is 6 deep, a
-#: result or a Label Studio export about 8; far deeper input only costs recursion later.
-MAX_JSON_DEPTH = 64
-#: Most digits of a JSON integer (a float holds about 309): more is refused, not read as an
-#: integer Python cannot print or convert (its limit is 4300 digits).
-MAX_INT_DIGITS = 400
 #: An unknown key this many edits (or fewer) from a known key of the same object is taken for a
 #: typo of it and rejected (:func:`near_miss`); keys farther from every known key only warn.
 NEAR_MISS_EDITS = 2
@@ -229,51 +221,13 @@ def check_scene_format(value: Any) -> str:
 def read_json(path: str | Path, *, max_depth: int | None = MAX_JSON_DEPTH,
               parse_int: Callable[[str], Any] | None = None) -> Any:
     """The decoded JSON of a file from outside the process (a scene, a result, a tool's export, a
-    classes file, …): :class:`SceneError` naming the file when it is larger than
-    :data:`MAX_JSON_BYTES`, not UTF-8 (a BOM is allowed), not JSON, uses ``NaN``/``Infinity``, nests
-    deeper than ``max_depth`` (None: as deep as the decoder goes) or has an integer of more than
-    :data:`MAX_INT_DIGITS` digits (``parse_int``: read integers otherwise). Missing or unreadable
-    files raise ``OSError`` naming the file."""
-    path = Path(path)
-    raw = read_bytes(path, limit=MAX_JSON_BYTES + 1)
-    if len(raw) > MAX_JSON_BYTES:
-        raise SceneError(str(path), f"larger than {MAX_JSON_BYTES} bytes; refused")
-    return loads_json(raw, str(path), max_depth=max_depth, parse_int=parse_int)
+    classes file, …): :func:`creference_bayes.core.jsonfile.read_json` (its limits and refusals),
+    refusals as :class:`SceneError` naming the file. Missing or unreadable files raise ``OSError``
+    naming the file."""
+    return jsonfile.read_json(path, SceneError, max_depth=max_depth, parse_int=parse_int)
 
 
 def loads_json(raw: bytes | str, name: str, *, max_depth: int | None = MAX_JSON_DEPTH,
                parse_int: Callable[[str], Any] | None = None) -> Any:
     """:func:`read_json` of bytes or text (``name``: what the errors name)."""
-    def constant(text):
-        raise SceneError(name, f"non-standard JSON constant {text} (numbers must be finite)")
-
-    def integer(text):
-        if len(text.lstrip("-")) > MAX_INT_DIGITS:
-            raise SceneError(name, f"an integer of {len(text.lstrip('-'))} digits (at most {MAX_INT_DIGITS})")
-        return int(text)
-
-    try:
-        text = raw.decode("utf-8-sig") if isinstance(raw, bytes) else raw.removeprefix("\ufeff")
-        data = json.loads(text, parse_constant=constant, parse_int=parse_int or integer)
-    except UnicodeDecodeError as exc:
-        raise SceneError(name, f"not UTF-8 text: byte {exc.start} is {raw[exc.start:exc.start + 1]!r}") from None
-    except json.JSONDecodeError as exc:
-        raise SceneError(name, f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except RecursionError:
-        raise SceneError(name, "JSON nested too deeply") from None
-    if max_depth is not None and json_depth(data) > max_depth:
-        raise SceneError(name, f"JSON nested more than {max_depth} deep")
-    return data
-
-
-def json_depth(value: Any) -> int:
-    """How deep lists and objects nest in decoded JSON (a number or string: 0, ``[]``: 1), found
-    without recursion."""
-    deepest, stack = 0, [(value, 1)]
-    while stack:
-        v, d = stack.pop()
-        if isinstance(v, (list, dict)):
-            deepest = max(deepest, d)
-            stack.extend((c, d + 1) for c in (v.values() if isinstance(v, dict) else v)
-                         if isinstance(c, (list, dict)))
-    return deepest
+    return jsonfile.loads_json(raw, name, SceneError, max_depth=max_depth, parse_int=parse_int)

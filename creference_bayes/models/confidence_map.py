@@ -270,13 +270,10 @@ class ConfidenceMap:
     @classmethod
     def load(cls, path: str | Path) -> "ConfidenceMap":
         """Read a map file; errors start with the file's path."""
-        from ..io.validation import SceneError, read_json
+        from ..core.jsonfile import read_json
 
         path = Path(path)
-        try:
-            d = read_json(path)
-        except SceneError as exc:
-            raise ConfidenceMapError(str(exc)) from None
+        d = read_json(path, lambda name, problem: ConfidenceMapError(f"{name}: {problem}"))
         try:
             return cls.from_dict(d, source=str(path))
         except ConfidenceMapError as exc:
