@@ -192,7 +192,7 @@ def test_documented_scenes_are_valid(name):
 
 
 def test_the_ten_documented_reference_formats_are_valid_and_distinct():
-    blocks = _json_blocks(ROOT / "docs" / "scene_format.md")
+    blocks = _json_blocks(ROOT / "docs" / "scene_format.md") + _json_blocks(ROOT / "docs" / "reference_formats.md")
     full = next(b for b in blocks if isinstance(b, dict) and "format" in b)
     refs = [b for b in blocks if isinstance(b, dict) and "measure" in b and "format" not in b]
     kinds = {(r["measure"], r["mode"], "range" in r) for r in refs}
