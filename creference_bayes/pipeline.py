@@ -29,7 +29,7 @@ __all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "lo
            "result_draws", "reference_terms", "parse_model_options", "option_record", "expected_ground"]
 
 MODELS = ("metrology", "paper")
-#: The default model. The benchmark (docs/benchmark_results.md) found the metrology model as good
+#: The default model. The benchmark (docs/studies/benchmark.md) found the metrology model as good
 #: as the paper's cost or better in every noise tier and, unlike it, calibrated at T = 1.
 DEFAULT_MODEL = "metrology"
 #: Model options a user may set, by model (the result's provenance records them).

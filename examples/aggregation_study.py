@@ -21,8 +21,9 @@ reference lines on the ground: line 1 a sofa's length, line 2 a table's length p
 
 Writes ``aggregation_study.png`` (mean error with the interquartile range against pixel noise,
 one line per measurement noise, as the paper plots it; one row per measurement-noise reading) and
-``aggregation_study.md`` into ``--out-dir`` (default: ``./aggregation_study``; the copies in the
-repository's docs/ were made with ``--out-dir docs``).
+``aggregation_study.md`` into ``--out-dir`` (default: ``./aggregation_study``; the repository's
+docs/aggregation_study.png and docs/studies/aggregation.md were made with ``--out-dir docs``, the
+table then moved into docs/studies/).
 
 Usage::
 

@@ -1,6 +1,6 @@
 """Are a frame's posteriors calibrated? Simulated street frames, every object at once.
 
-The frames are the bench's scenes of several targets (docs/benchmark_results.md, "Scenes of
+The frames are the bench's scenes of several targets (docs/studies/benchmark.md, "Scenes of
 several targets"): street cameras, 5 sets of dimension lines per object, no focal length and no
 horizon given, sizes left to the class priors, the `low` (2 px) and `high` (5 px, Student-t)
 tiers. Each frame is estimated once with the package's defaults (MAP, then the posterior). Per

@@ -192,7 +192,7 @@ def test_documented_scenes_are_valid(name):
 
 
 def test_the_ten_documented_reference_formats_are_valid_and_distinct():
-    blocks = _json_blocks(ROOT / "docs" / "scene_format.md")
+    blocks = _json_blocks(ROOT / "docs" / "scene_format.md") + _json_blocks(ROOT / "docs" / "reference_formats.md")
     full = next(b for b in blocks if isinstance(b, dict) and "format" in b)
     refs = [b for b in blocks if isinstance(b, dict) and "measure" in b and "format" not in b]
     kinds = {(r["measure"], r["mode"], "range" in r) for r in refs}
@@ -372,3 +372,30 @@ def test_the_sidecar_is_the_one_layout_labels_md_describes(labelled):
         keys = set(side) | set(side["camera"]) | {k for o in side["objects"] for k in o}
         missing = sorted(k for k in keys if k not in documented)
         assert not missing, f"{name}: sidecar keys missing from docs/labels.md: {missing}"
+
+
+# ------------------------------------------------------------------------------------------------
+# docs/commands.md: every command and every option of the real parsers, as make_commands.py writes it
+
+
+def test_commands_md_lists_every_command_and_option():
+    """docs/commands.md has a section per command and names every one of its options; rerun
+    `python docs/figures/make_commands.py` when a parser changes."""
+    import argparse
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_commands", ROOT / "docs" / "figures" / "make_commands.py")
+    make = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make)
+    doc = (ROOT / "docs" / "commands.md").read_text()
+    sections = dict(re.findall(r"^## ([^\n]+)\n(.*?)(?=^## |\Z)", doc, re.M | re.S))
+    missing = []
+    for name, parser in make.commands(make.build_parser()):
+        if name not in sections:
+            missing.append(name)
+            continue
+        for action in parser._actions:
+            if action.option_strings and action.help != argparse.SUPPRESS and "--help" not in action.option_strings:
+                if f"`{max(action.option_strings, key=len)}" not in sections[name]:
+                    missing.append(f"{name} {max(action.option_strings, key=len)}")
+    assert not missing, f"docs/commands.md misses {missing}: run python docs/figures/make_commands.py"

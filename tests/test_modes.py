@@ -77,7 +77,7 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
     the flat location prior the far modes hold about a quarter of the mass ([4.8, 12] m); with the
     log-depth prior (1/z) a few per cent, below what a 90 % HDI includes. Every seed agrees, and
     every chain sees the far mass. (With the flat prior, seed 7's search misses the near mode and
-    runs to its step cap, reported as not converged: docs/method.md, "Modes".)"""
+    runs to its step cap, reported as not converged: docs/inference.md, "Modes first".)"""
     hdis, far = [], []
     for seed in seeds:
         r = estimate(table_scene, seed=seed, location_prior=location_prior)

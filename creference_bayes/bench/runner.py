@@ -1,4 +1,4 @@
-"""The benchmark (docs/benchmark_results.md, "What was run"): the paper's method, a peer, our models
+"""The benchmark (docs/studies/benchmark.md, "What was run"): the paper's method, a peer, our models
 and the Cramér–Rao bound on the same simulated scenes in one process, in four sizes
 (``creference bench --quick|--full|--frames|--sbc``; command line :mod:`creference_bayes.cli.bench`,
 ``--sbc`` is :mod:`.sbc`). Tables: :mod:`.report`; figures: :mod:`.figures`.
@@ -104,7 +104,7 @@ CONFIGS = {
         name="quick", scenes=_grid({"none": (1, 0), "low": (1, 0), "medium": (0, 1), "high": (1, 1)}),
         ref_counts=(0, 5), posterior_ref_counts=(5,), paper_restarts=8, paper_baseline_scenes=0,
         pair_scenes=0, sampler={"min_ess": 200, "n_ensembles": 2, "max_steps": 3000}, exact_scenes=1),
-    # the documented run (docs/benchmark_results.md)
+    # the documented run (docs/studies/benchmark.md)
     "full": BenchConfig(
         name="full", scenes=_grid({t: (5, 3) for t in TIERS}),
         ref_counts=(0, 1, 2, 3, 4, 5), posterior_ref_counts=(0, 2, 5), paper_restarts=None,

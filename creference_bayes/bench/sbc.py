@@ -1,5 +1,5 @@
 """Simulation-based calibration of the metrology model's posterior (Talts et al. 2018;
-docs/benchmark_results.md, "Simulation-based calibration").
+docs/studies/benchmark.md, "Simulation-based calibration").
 
 For each scene: draw the parameters from the model's own prior, simulate the annotations from the
 model's own noise model, estimate, and record the rank of each true value among L thinned

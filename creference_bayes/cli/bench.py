@@ -14,7 +14,7 @@ from .main import UsageError, advanced_group, require, seed_value, usage_errors
 
 __all__ = ["register", "BENCH_TIMES"]
 
-#: How long each bench size takes (two cores, the adopted defaults; docs/benchmark_results.md:
+#: How long each bench size takes (two cores, the adopted defaults; docs/studies/benchmark.md:
 #: quick 13 s, full 32 min). The README and docs/overview.md quote the same words (a test checks it).
 BENCH_TIMES = {"quick": "under a minute", "full": "about 30 minutes"}
 
@@ -70,7 +70,7 @@ def _run_bench_command(args) -> int:
 
 
 def _run_sbc(args) -> int:
-    """``creference bench --sbc``: simulation-based calibration (docs/benchmark_results.md, "SBC")."""
+    """``creference bench --sbc``: simulation-based calibration (docs/studies/benchmark.md, "SBC")."""
     from ..bench.sbc import run_sbc, sbc_markdown, sbc_summary
 
     n = args.sbc_scenes if args.sbc_scenes is not None else (60 if args.full else 4)
@@ -189,7 +189,7 @@ def register(subparsers) -> None:
         description="Run the paper's method, PoseLib's P4Pf (extra 'peer'), both models of this "
                     "package and the Cramér–Rao bound on the same simulated scenes; write tables "
                     f"(bench.md, bench.json) and figures. --quick: {BENCH_TIMES['quick']}; --full: "
-                    f"{BENCH_TIMES['full']} on two cores. See docs/benchmark_results.md.")
+                    f"{BENCH_TIMES['full']} on two cores. See docs/studies/benchmark.md.")
     size = p.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true",
                       help=f"CI-sized run, {_n_scenes('quick')} scenes (the default; {BENCH_TIMES['quick']})")

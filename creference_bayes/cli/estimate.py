@@ -373,7 +373,7 @@ def _add_estimate_options(p: argparse.ArgumentParser, classes: bool = True) -> N
     g.add_argument("--model", default=DEFAULT_MODEL, choices=MODELS,
                    help="how annotations are weighed: metrology (each annotation and reference a noisy "
                         "measurement) or paper (the paper's cost with pairwise soft constraints, to compare "
-                        "or reproduce it) (default: %(default)s; docs/benchmark_results.md)")
+                        "or reproduce it) (default: %(default)s; docs/studies/benchmark.md)")
     g.add_argument("--preset", default="default", choices=PRESETS,
                    help="how the MAP is searched for and within which bounds: default (this package's "
                         "optimiser), paper (the paper's system study: 200 random restarts, its bounds; "

@@ -1,4 +1,4 @@
-"""The paper's costs, vectorised over a batch of parameter vectors (method.md §2, §3, §5).
+"""The paper's costs, vectorised over a batch of parameter vectors (docs/paper.md).
 
 Parameter vectors are ``(x, y, z, yaw, focal_length_px, pitch, roll)``: metres, metres, metres,
 radians, pixels, radians, radians; a batch has shape (n, 7) and every cost
@@ -67,7 +67,7 @@ def sigmoid_penalty(x: np.ndarray, low: np.ndarray, high: np.ndarray,
     """Eq. 6–7: P(x; l, u) = S(l − x) + S(x − u), S(r) = min((r + 1) / (1 + exp(−a r)), M).
 
     The paper prints ``max`` in Eq. 7, but its text makes M a cap that keeps the penalty from
-    dominating the objective; this is ``min`` (method.md §3). Broadcasts ``x`` (n, 1) against
+    dominating the objective; this is ``min`` (docs/paper.md, departure 2). Broadcasts ``x`` (n, 1) against
     bounds (m,) to (n, m).
     """
     def s(r):

@@ -1,4 +1,4 @@
-"""The paper's error measures (§3.2, method.md §8). All return percentages and broadcast.
+"""The paper's error measures (§3.2, docs/paper.md, "Metrics"). All return percentages and broadcast.
 
 Eq. 1  percentage error        |m − GT| / |GT| × 100
 Eq. 2  range percentage error  the error of the range's centre (l + u)/2

@@ -1,6 +1,6 @@
 """Single-view metrology on the ground plane: reference pairs → bounds on x and z (paper §5.2.2).
 
-The exact, coordinate form of the paper's cross-ratio construction (docs/method.md, "The paper
+The exact, coordinate form of the paper's cross-ratio construction (docs/paper.md, "The paper
 model", for the derivation).
 
 Ground coordinates

@@ -4,7 +4,7 @@ The emcee adapter. It knows nothing of cameras or boxes: it samples any vectoris
 ``log_prob((n, ndim)) → (n,)`` from a starting point and a covariance (the MAP and its Laplace
 approximation). :mod:`.sampler` uses it for a scene with one object block.
 
-How it samples (docs/method.md, "One object: the whole vector by ensemble moves")
+How it samples (docs/inference.md, "One object: the whole vector by ensemble moves")
 --------------
 * **Independent ensembles.** ``n_ensembles`` ensembles of ``n_walkers`` walkers share one
   :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but their moves
@@ -247,7 +247,7 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
     The mixture fitted to k-means centres keeps the single t as a component of weight
     :data:`DEFENSIVE_WEIGHT` (a defensive mixture: no tail is offered much less often than by the
     single t, where an independence step's weight p/q could strand a walker). The mixture gives a
-    lump that the mode search merged with the MAP a component of its own (docs/method.md)."""
+    lump that the mode search merged with the MAP a component of its own (docs/inference.md)."""
     if settings.independence_weight == 0.0:
         return None
     defensive, fit_to = False, u

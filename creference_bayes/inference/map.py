@@ -1,6 +1,6 @@
 """The MAP of a scene: every object's pose and size and the shared camera, jointly.
 
-Presets (:data:`PRESETS`; docs/method.md, "Finding the MAP", step by step):
+Presets (:data:`PRESETS`; docs/inference.md, "Finding the MAP", step by step):
 
 ``default``
     1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown), every object

@@ -1,6 +1,6 @@
 """The posterior of any scene: an emcee run from the MAP, to convergence.
 
-The emcee adapter (docs/method.md, "Sampling and summaries"). :class:`emcee.EnsembleSampler`
+The emcee adapter (docs/inference.md, "Sampling and summaries"). :class:`emcee.EnsembleSampler`
 drives every run; how it moves follows the model's block structure, never the kind of scene: one
 object block is sampled whole by the ensemble moves of :mod:`.ensemble`; several by sweeps over the
 camera block and one block per object (:mod:`.moves`), by random-walk or multiple-try independence

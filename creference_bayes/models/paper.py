@@ -8,7 +8,7 @@ For each object, Eq. 5 on the per-corner median of its annotations,
 it), plus the capped sigmoid penalties (Eq. 6–7) that keep its ground position (x, z) within the
 bounds every usable pair of references implies (Eq. 8–11; :mod:`creference_bayes.core.metrology`).
 The cost is read as a negative log-likelihood at a temperature: σ = :data:`CALIBRATED_SIGMA_PX`,
-T = :data:`CALIBRATED_TEMPERATURE` with the default preset (calibrated: docs/benchmark_results.md,
+T = :data:`CALIBRATED_TEMPERATURE` with the default preset (calibrated: docs/studies/benchmark.md,
 calibration sweep), the paper's σ = 100 px and T = 1 with its presets. The camera priors and the
 location prior are the contract's and enter untempered. Objects stand on one ground plane (no
 ground offsets): the paper's method knows no uneven ground.
@@ -24,7 +24,7 @@ from .contract import O_X, O_Z, Model
 __all__ = ["CALIBRATED_SIGMA_PX", "CALIBRATED_TEMPERATURE", "PaperModel"]
 
 #: σ (pixels) and temperature T of the paper model's posterior with the ``default`` preset: with
-#: the paper's σ = 100 px no temperature calibrates it (docs/benchmark_results.md, calibration
+#: the paper's σ = 100 px no temperature calibrates it (docs/studies/benchmark.md, calibration
 #: sweep). The ``paper`` presets keep the paper's σ = 100 px and T = 1.
 CALIBRATED_SIGMA_PX = 2.0
 CALIBRATED_TEMPERATURE = 3.0
