@@ -1,4 +1,4 @@
-"""Is the advice worth following? Experiments on simulated scenes (docs/advice.md, "Checks").
+"""Is the advice worth following? Experiments on simulated scenes (docs/studies/advice.md).
 
 ``predict``: predicted against realised. On each scene (``--objects`` targets: 1 for the paper's
 scenes, more for frames) a random starting point (1, 2, 3 or 5 sets of dimension lines on every
@@ -644,7 +644,7 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
     pairs = [(q, s, r.get("setting") or "") for r in recs if r["rows"]
              for q, s in zip(r["truth_quantile"], r["rows"][0]["real_before_share"])]
     # by setting too: a prior that is not the scenes' population is calibrated over all of them and
-    # not within a band, where it decides most (docs/advice.md, predicted against realised)
+    # not within a band, where it decides most (docs/studies/advice.md, predicted against realised)
     settings = sorted({c for *_, c in pairs})
     for setting in ([""] + settings if len(settings) > 1 else [""]):
         for lo_b, hi_b, label in ((0.0, 0.5, "< 50 %"), (0.5, np.inf, ">= 50 %"), (0.0, np.inf, "all")):

@@ -1,4 +1,4 @@
-"""The confidence-map study (docs/confidence.md): simulated workers who state a confidence with each
+"""The confidence-map study (docs/studies/confidence.md): simulated workers who state a confidence with each
 range, with a known true map, and three checks of the research tools against it.
 
 (a) fit with ground truth: does `creference confidence fit` recover the true map g within its
@@ -12,7 +12,7 @@ range, with a known true map, and three checks of the research tools against it.
 
     python examples/confidence_study.py --out confidence_study_out --workers 2          # the full presets
     python examples/confidence_study.py --out confidence_study_out --workers 2 \
-        --n-a 300 --replicates 200 --n-b 10,25,50,100,200 --n-b-medium 25,100 --n-c 150   # docs/confidence.md
+        --n-a 300 --replicates 200 --n-b 10,25,50,100,200 --n-b-medium 25,100 --n-c 150   # docs/studies/confidence.md
     python examples/confidence_study.py --out /tmp/cs --quick                           # a check, ~2 min
 
 Every data set is written to OUT/data/NAME/ as scene files, so the package's own commands can be

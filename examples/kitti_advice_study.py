@@ -1,5 +1,5 @@
 """Is the advice worth following on real street geometry? Good labels per human hour, advised
-against fixed designs, on KITTI frames (docs/advice.md).
+against fixed designs, on KITTI frames (docs/studies/advice.md).
 
     python examples/kitti_advice_study.py KITTI_DIR --out DIR [--split all|even|odd] [--start-k 1]
         [--noise-px 2] [--budget-s S] [--max-frames N] [--max-steps N] [--seed 0]

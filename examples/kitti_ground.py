@@ -1,5 +1,5 @@
 """A copy of a KITTI folder whose boxes stand on a simpler ground than the real road: what the
-road's unevenness costs a frame estimated alone (docs/kitti.md, "Where a frame alone goes wrong").
+road's unevenness costs a frame estimated alone (docs/studies/kitti.md, "Where a frame alone goes wrong").
 
     python examples/kitti_ground.py KITTI_DIR OUT --ground level|plane
 

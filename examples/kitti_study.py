@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     p.add_argument("--focal-sd", type=float, default=None, metavar="LOG_SD",
                    help="with --focal unknown: give every frame P2's focal length as a log-normal prior of this "
                         "log-sd (0.02: ±2 %%), as a camera pooled over many frames would: how well the focal "
-                        "length must be known (docs/kitti.md); not with --rig")
+                        "length must be known (docs/studies/kitti.md); not with --rig")
     p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
                    help="pool what frames of one camera share before the joint labels (creference batch --rig): "
                         "the focal length, or also the mounting (height, pitch, roll); default: each frame alone")

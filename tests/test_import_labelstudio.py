@@ -620,10 +620,10 @@ def test_cli_needs_an_export_and_an_output_folder(tmp_path, capsys):
 
 
 def test_the_documented_annotation_imports_as_a_references_only_annotation():
-    """docs/import.md's example annotation (references only, no target points) converts as it says."""
+    """docs/labelstudio_annotations.md's example annotation (references only, no target points) converts as it says."""
     from creference_bayes.cli.main import example_scene_path
 
-    documented = next(b for b in _doc_blocks("import.md") if isinstance(b, dict) and "completed_by" in b)
+    documented = next(b for b in _doc_blocks("labelstudio_annotations.md") if isinstance(b, dict) and "completed_by" in b)
     task = label_studio_tasks([json.loads(example_scene_path().read_text())])[0]
     targets_only = [a for a in task["annotations"] if str(a["completed_by"]).startswith("t")]
     task["annotations"] = targets_only + [documented]

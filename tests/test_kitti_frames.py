@@ -358,12 +358,12 @@ def test_kitti_study_tables_the_frames_focal_lengths_by_objects_per_frame():
 
 
 def test_the_kitti_page_fits_each_frames_ground_plane(tmp_path):
-    """docs/kitti.md's ground snippet, run as printed on a folder of two frames whose objects stand
+    """docs/studies/kitti.md's ground snippet, run as printed on a folder of two frames whose objects stand
     exactly on planes rising 1 cm per metre ahead: no spread around the plane, a slope of
     atan(0.01) = 0.57° in both; a frame of four objects (too few) and DontCare rows are left out."""
     import re
 
-    block = re.findall(r"```python\n(.*?)```", (Path(__file__).resolve().parents[1] / "docs" / "kitti.md").read_text(),
+    block = re.findall(r"```python\n(.*?)```", (Path(__file__).resolve().parents[1] / "docs" / "studies" / "kitti.md").read_text(),
                        re.S)
     (snippet,) = [b for b in block if "ground plane" in b]
     labels = tmp_path / "kitti" / "label_2"

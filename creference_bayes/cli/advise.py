@@ -192,7 +192,7 @@ def _apply(args) -> int:
         raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
     if not any((row.get("answer") or "").strip() for row in rows):
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
-                         "the crowd answered (docs/advice.md, the loop)")
+                         "the crowd answered (docs/requests.md)")
     return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into",
                         "every answer is in the scene files already")
 

@@ -313,7 +313,7 @@ def _camera_id(data: dict, where: str) -> dict:
 
 
 def _request(data: dict, where: str) -> tuple[dict, dict, list, list]:
-    """A request task (``creference advise``, docs/advice.md) carries the scene it was made for in
+    """A request task (``creference advise``, docs/requests.md) carries the scene it was made for in
     ``data.creference_scene`` (either format): its targets with their dimension lines, its
     references and its photo's fields; the task's answers are appended to them."""
     try:

@@ -45,7 +45,7 @@ __all__ = ["CONFIDENCE_MAP_FORMAT", "MAP_NAMES", "DEFAULT_CONFIDENCE_MAP", "COVE
 CONFIDENCE_MAP_FORMAT = "creference-confidence-map/1"
 #: The maps that need no file.
 MAP_NAMES = ("none", "identity")
-#: The map ``estimate`` and ``batch`` use unless told otherwise (docs/confidence.md: the study
+#: The map ``estimate`` and ``batch`` use unless told otherwise (docs/studies/confidence.md: the study
 #: behind the choice). ``none`` keeps the treatment of scenes from before confidences were read.
 DEFAULT_CONFIDENCE_MAP = "none"
 #: Limits of the coverage a range is read at.

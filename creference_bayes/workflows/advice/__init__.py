@@ -1,5 +1,4 @@
-"""Whether one more annotation is worth its human time, and which (docs/advice.md, "How the advice
-is computed").
+"""Whether one more annotation is worth its human time, and which (docs/advice_method.md).
 
 For the posterior draws of a scene (one target or many), each observation the scene allows
 (:mod:`.candidates`) is weighed by preposterior simulation under the model's own noise model
@@ -37,7 +36,7 @@ now).
   points of its distance, summed over the targets, per minute. It stops as **hdi** does. Of the
   three it is the one whose adaptive policy reaches the paper's design of five sets of lines and
   five references at three quarters of its human time on paper-like scenes as well as outdoors
-  (docs/advice.md, "The adaptive policy").
+  (docs/studies/advice.md, "The adaptive policy").
 
 :meth:`Advice.verdicts` says per target what would lift its label to the bar. Futures whose
 effective sample size collapses (below :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION`
@@ -402,7 +401,7 @@ class _Draws:
     In the ground's frame a box moves with the camera's height and pitch, which the image does not
     tie down; in the camera's frame the image pins its direction. On KITTI frames the ground's
     frame understated the present's label quality by 0.07 on average, and a mounting, which pins
-    height and pitch, took that away: the advice promised it as a gain (docs/advice.md)."""
+    height and pitch, took that away: the advice promised it as a gain (docs/studies/advice.md)."""
 
     def __init__(self, cams, objs, scene):
         from ..labels.kitti import kitti_poses
@@ -486,7 +485,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         lo, hi = model.location.distance_m
         notes.append(f"estimated with a distance range ({lo:g}–{hi:g} m), which does part of a reference's work: a "
                      "reference may realise less than stated (about half on simulated outdoor scenes, nothing with a "
-                     "heavy-tailed crowd; docs/advice.md, 'A range as a user would state it')")
+                     "heavy-tailed crowd; docs/studies/advice.md, 'A range as a user would state it')")
     mix = format_mix(scene)
     seeds = rng.integers(2**63, size=len(candidates))
     predictions = []
@@ -588,7 +587,7 @@ def combined_chance(base: np.ndarray, bar: np.ndarray, moments: list[Moments]) -
 
     The requests' effects on a label add: its future P(IoU ≥ t) is taken as a beta of mean
     ``base`` + Σ shrunk changes (:meth:`Moments.shrunk`) and variance Σ spreads (capped at 0.9 of a
-    beta's largest). Measured on KITTI frames (docs/advice.md, "Why two rules"), the
+    beta's largest). Measured on KITTI frames (docs/studies/advice.md, "Why two rules"), the
     alternative rule, a label lifted once any one request would lift it (1 − Π(1 − pᵢ)), says that
     a set of lines on every object would lift 7.9 labels and drop none; 3 rose and 3 fell. The
     shrinkage keeps the small, noisy changes a request makes to the other labels of its frame from
@@ -693,7 +692,7 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     the blocks barely correlate, so random-walk moves go further).
 
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
-    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/advice.md); an
+    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
     annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
     ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d)."""
     from ...inference.coords import CAMERA_LOG, WorkingCoords

@@ -1,5 +1,5 @@
 """Answers to the advice's requests, put into a scene: one more set of dimension lines, a target's
-size from a catalogue, the camera's mounting from its calibration (docs/advice.md, "The loop").
+size from a catalogue, the camera's mounting from its calibration (docs/requests.md).
 
 Lines and references on a segment come back through the importers (a Label Studio or CVAT
 export, imported again, gives the scenes with the new annotations). What is not drawn is written

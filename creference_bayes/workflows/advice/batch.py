@@ -128,7 +128,7 @@ class BatchAdvice:
         (:func:`~creference_bayes.workflows.advice.combined_chance`). A frame no request is asked
         in is not estimated again: its labels keep their verdicts.
 
-        Choosing by the additive rule as well was measured and not kept (docs/advice.md, "Why two
+        Choosing by the additive rule as well was measured and not kept (docs/studies/advice.md, "Why two
         rules"): greedy then buys changes of a few hundredths that it credits on labels at the
         bar, and a plan on KITTI frames spent 1.6 times the human time for the same labels.
 

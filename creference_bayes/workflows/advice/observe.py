@@ -3,7 +3,7 @@
 Each kind takes the *current* model of the scene (the metrology model, the MAP's handedness and
 pilot) and gives, for M simulated observations and N posterior draws (cameras (N, 5), objects
 (N, m, 7)), the (M, N) log-ratios log p_new − log p_old of the posteriors with and without the
-i-th simulated observation (docs/advice.md, "How the advice is computed"):
+i-th simulated observation (docs/advice_method.md):
 
 - **A set of dimension lines on target i** (:class:`DimsObservation`): its four corners projected
   at the simulating draw plus bivariate Student-t(ν) noise that scatters as the scene's sets do
@@ -70,7 +70,7 @@ def simulation_scale(model: MetrologyModel, i: int, options: dict) -> float:
     A stated corner scale (the default 5 px, or the estimate's ``target_sigma``) is a t scale and
     is used as it is. A scale estimated from the sets' spread is their sd, and a t(ν) of that scale
     scatters √(ν / (ν − 2)) times more than the sets did, which made the advice under-predict
-    what one more set brings (docs/advice.md); so the scale is sd · √((ν − 2) / ν).
+    what one more set brings (docs/advice_method.md); so the scale is sd · √((ν − 2) / ν).
     """
     sigma, nu = float(model.sigma[i]), float(model.target_dof)
     from_spread = options.get("target_sigma") is None and any(len(o.annotations) > 1 for o in model.objects)

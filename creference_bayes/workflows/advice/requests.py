@@ -1,5 +1,5 @@
 """The request list as files a labelling tool takes: Label Studio tasks and CVAT for images XML
-(docs/advice.md, "Sending the requests to the crowd", says how the answers come back).
+(docs/requests.md says how the answers come back).
 
 - **Label Studio**: one task per request, without annotations (the community edition takes a task
   with one out of the labelling queue). Its ``data`` holds the scene's task data

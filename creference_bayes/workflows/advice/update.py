@@ -20,7 +20,7 @@ __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
 #: not trusted: that simulated future is recomputed by :func:`tempered_update` (an annotation) or
-#: :func:`kalman_update` (a size, a mounting) (docs/advice.md).
+#: :func:`kalman_update` (a size, a mounting) (docs/advice_method.md).
 MIN_ESS = 10.0
 MIN_ESS_FRACTION = 0.01
 #: Shuffles :func:`shuffled_hdi` averages over.
@@ -234,7 +234,7 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
     and the Metropolis steps correct what is not normal (a posterior cut off by the horizon). A draw
     that a step would move where q or the new posterior is not defined stays where it was. Used for
     answers that enter as a normal prior, where the tempered update's few random-walk steps in a
-    frame's many dimensions leave the draws too close together (docs/advice.md).
+    frame's many dimensions leave the draws too close together (docs/studies/advice.md).
 
     Parameters
     ----------
