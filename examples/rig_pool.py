@@ -5,7 +5,8 @@ batch folder's first pass (docs/studies/rig.md; creference_bayes/workflows/batch
 
 BATCH is a ``creference batch --rig ...`` folder whose ``first_pass/`` is complete (the second pass
 is not needed). For every camera with two or more frames, and for all its frames and each group
-of frames (frames named by an integer, e.g. KITTI's index: ``0-24`` takes frames 0 to 24), the
+of frames (frames named by an integer, e.g. KITTI's index: ``0-24`` takes frames 0 to 24; ``even``,
+``odd``), the
 pooled focal length under
 
 - ``before``: the rule before issue 62 (the frame's prior divided out by a Laplace step at the
@@ -15,7 +16,8 @@ pooled focal length under
 
 with, when the frames' scenes carry a ground-truth focal length (``simulate --from-kitti`` writes
 the calibration's), the error and z = error / stated sd. Columns: pooled µ px, % vs truth, stated
-log-sd, z, frames used/offered, n_eff, top-3 weight share, D, warnings.
+log-sd, z, frames used/offered, n_eff, top-3 weight share, D, warnings; then the shared bias the
+groups show, √mean(e² − V) over the groups (V without the floor: what the floor should cover).
 """
 
 from __future__ import annotations
@@ -72,7 +74,8 @@ def load(folder: Path):
         result = read_result(path)
         after = R.shared_likelihood(key, camera, result)
         a = (after.mean["log_focal"], after.precision["log_focal"]) if "log_focal" in after.mean else None
-        rows.append(dict(key=key, camera=camera, truth=truth, before=laplace_likelihood(result), after=a))
+        rows.append(dict(key=key, camera=camera, truth=truth, before=laplace_likelihood(result), after=a,
+                         objects=len(raw.get("targets", ()))))
     return rows
 
 
@@ -104,13 +107,13 @@ def row(label, rule, res, truth):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("batch", type=Path)
-    ap.add_argument("--groups", default="", help="comma-separated integer ranges of frame names, e.g. 0-24,25-50")
+    ap.add_argument("--groups", default="", help="comma-separated integer ranges of frame names (e.g. 0-24,25-50), "
+                    "or even, odd")
     args = ap.parse_args(argv)
     rows = load(args.batch)
     groups = [("all", None)]
     for g in filter(None, args.groups.split(",")):
-        lo, hi = (int(x) for x in g.split("-"))
-        groups.append((g, (lo, hi)))
+        groups.append((g, g if g in ("even", "odd") else tuple(int(x) for x in g.split("-"))))
     cameras = sorted({r["camera"] for r in rows if r["camera"] is not None})
     print(f"floor (SHARED_BIAS_SD) {R.SHARED_BIAS_SD['log_focal']}, informative: likelihood log-sd <= "
           f"{R.MAX_LIKELIHOOD_SD['log_focal']}")
@@ -121,8 +124,18 @@ def main(argv=None):
         truths = {r["truth"] for r in mine}
         truth = truths.pop() if len(truths) == 1 else None
         print(f"camera {cam}: {len(mine)} frames" + (f", truth {truth:g} px" if truth else ""))
+        if truth is not None:  # each frame's likelihood against the truth, by objects per frame
+            for lo, hi, lab in ((1, 1, "1 object"), (2, 2, "2 objects"), (3, 10**6, "3+ objects")):
+                sel = [r for r in mine if lo <= r["objects"] <= hi]
+                cells = []
+                for rule in ("before", "after"):
+                    e = [100 * (math.exp(r[rule][0]) / truth - 1) for r in sel if r[rule] is not None]
+                    cells.append(f"{rule} median {np.median(e):+6.1f}% ({len(e)})" if e else f"{rule} -")
+                print(f"  frames of {lab:10s}: {len(sel):2d}; likelihood's mean vs truth: " + ", ".join(cells))
+        excess = {"before": [], "after": []}
         for label, rng in groups:
-            sel = [r for r in mine if rng is None or (r["key"].isdigit() and rng[0] <= int(r["key"]) <= rng[1])]
+            sel = [r for r in mine if rng is None or (r["key"].isdigit() and (
+                int(r["key"]) % 2 == (rng == "odd") if isinstance(rng, str) else rng[0] <= int(r["key"]) <= rng[1]))]
             b = [r for r in sel if r["before"] is not None]
             a = [r for r in sel if r["after"] is not None]
             res_b = pool_before(np.array([r["before"][0] for r in b]), np.array([r["before"][1] for r in b])) \
@@ -131,6 +144,15 @@ def main(argv=None):
                                np.array([r["after"][1] for r in a])) if len(a) >= 2 else None
             print(row(label, "before", res_b, truth))
             print(row(label, "after", res_a, truth))
+            if rng is not None and truth is not None:  # the groups' errors beyond their stated variance
+                floor2 = R.SHARED_BIAS_SD["log_focal"] ** 2
+                for rule, res, f2 in (("before", res_b, 0.0), ("after", res_a, floor2)):
+                    if res is not None:
+                        excess[rule].append((res[0] - math.log(truth)) ** 2 - (res[1] - f2))
+        for rule, e in excess.items():
+            if e:
+                print(f"  shared bias sqrt(mean(e^2 - V)) over the {len(e)} groups ({rule}, V without floor): "
+                      f"{math.sqrt(max(0.0, float(np.mean(e)))):.3f}")
 
 
 if __name__ == "__main__":
