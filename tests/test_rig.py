@@ -12,7 +12,10 @@ from creference_bayes.io.result import CAMERA_NAMES, OBJECT_NAMES
 from creference_bayes.io.scene import SceneError, parse_scene
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import LocalEngine
-from creference_bayes.workflows.batch.rig import RigPool, SharedLikelihood, apply_rig, shared_likelihood
+from creference_bayes.workflows.batch import rig as rig_module
+from creference_bayes.workflows.batch.rig import RigPool, SharedLikelihood, apply_rig, rig_report, shared_likelihood
+
+FLOOR = 0.04  # rig.SHARED_BIAS_SD["log_focal"]
 
 
 def _frames(values, precisions, camera="cam", name="log_focal"):
@@ -23,16 +26,80 @@ def _frames(values, precisions, camera="cam", name="log_focal"):
 def test_a_shared_focal_length_is_recovered_and_its_spread_is_honest():
     rng = np.random.default_rng(3)
     truth = math.log(800.0)
-    p = rng.uniform(5.0, 100.0, 40)  # log-sd 0.1 to 0.45 per frame
+    p = rng.uniform(16.0, 100.0, 40)  # log-sd 0.1 to 0.25 per frame: all informative
     est = RigPool(_frames(truth + rng.normal(0, 1 / np.sqrt(p)), p), "focal").estimate("cam")
     assert abs(est.center["log_focal"] - truth) < 4 * math.sqrt(est.var["log_focal"])
-    assert est.var["log_focal"] <= 2.0 / p.sum()  # frames that agree: about the precisions' sum
+    # frames that agree: about the precisions' sum, and the floor for the model's shared bias
+    assert est.var["log_focal"] <= 2.0 / p.sum() + FLOOR**2
+    assert rig_report(est)["warnings"] == []  # forty frames that agree: nothing to warn of
     # frames that disagree beyond their stated precision (a likelihood the normal describes badly):
     # the rig widens instead of becoming over-sure
     m = truth + rng.normal(0, 1 / np.sqrt(p)) + rng.normal(0, 0.3, len(p))
     wide = RigPool(_frames(m, p), "focal").estimate("cam")
-    assert wide.var["log_focal"] > 3.0 / p.sum()
+    assert wide.var["log_focal"] - FLOOR**2 > 3.0 / p.sum()
     assert abs(wide.center["log_focal"] - truth) < 4 * math.sqrt(wide.var["log_focal"])
+
+
+def test_frames_with_a_wide_likelihood_are_left_out_of_the_pool():
+    """Weak frames (likelihood log-sd > 0.25) are biased (docs/studies/rig.md): only informative
+    frames are pooled, however many weak ones there are."""
+    precise = _frames([math.log(700.0)] * 3, [1 / 0.1**2] * 3)
+    weak = [SharedLikelihood(f"w{i}", "cam", {"log_focal": math.log(400.0)}, {"log_focal": 1 / 0.3**2})
+            for i in range(10)]
+    est = RigPool(precise + weak, "focal").estimate("cam")
+    assert est.frames["log_focal"] == 3 and est.check["log_focal"].offered == 13
+    assert est.center["log_focal"] == pytest.approx(math.log(700.0))
+    block = rig_report(est)["focal_length_px"]
+    assert (block["frames"], block["frames_offered"]) == (3, 13)
+    # a frame whose only others are weak gets no prior from them
+    scene = parse_scene(truth_scene(0)[0] | {"camera": {"id": "cam", "principal_point": [1483.2, 864.0]}})
+    assert apply_rig(scene, _frames([6.6], [1 / 0.1**2]) + weak, "focal", "f0") == (scene, None)
+
+
+def test_the_pooled_sd_is_never_below_the_floor():
+    """However many frames agree, the model's bias that they share remains: the stated sd is at
+    least the floor (in quadrature), in the pool and in the prior a frame gets from it."""
+    rng = np.random.default_rng(4)
+    p = np.full(200, 1 / 0.05**2)
+    frames = _frames(math.log(720.0) + rng.normal(0, 0.05, 200), p)
+    est = RigPool(frames, "focal").estimate("cam")
+    assert math.sqrt(est.var["log_focal"]) >= FLOOR
+    assert est.var["log_focal"] == pytest.approx(1 / p.sum() + FLOOR**2, rel=0.2)
+    scene = parse_scene(truth_scene(0)[0] | {"camera": {"id": "cam", "principal_point": [1483.2, 864.0]}})
+    pooled, _ = apply_rig(scene, frames, "focal", "f0")
+    assert pooled.focal_prior.log_sd >= FLOOR
+    block = rig_report(est)["focal_length_px"]
+    assert block["log_sd"] >= FLOOR and block["floor_log_sd"] == FLOOR
+
+
+def test_a_pool_resting_on_one_frame_warns():
+    """One very precise frame among weak ones carries the pool: the rig block says so."""
+    rng = np.random.default_rng(6)
+    p = np.r_[1 / 0.01**2, np.full(10, 1 / 0.2**2)]
+    est = RigPool(_frames(math.log(720.0) + rng.normal(0, 1 / np.sqrt(p)), p), "focal").estimate("cam")
+    check = est.check["log_focal"]
+    assert check.n_eff < 2 and check.top3_share > 0.9
+    report = rig_report(est)
+    assert report["focal_length_px"]["warnings"] == [rig_module.FEW_FRAMES]
+    assert report["warnings"] == ["focal_length_px: " + rig_module.FEW_FRAMES]
+    assert any("warning: rig cam: focal_length_px: the pool rests on few frames" == line
+               for line in rig_module.rig_lines({"cam": report}))
+
+
+def test_two_groups_of_frames_that_disagree_raise_d():
+    """Ten precise frames say 700 px, twenty less precise ones 800 px: the pool follows the precise
+    ten, the frames' median the twenty; D says they disagree (the pool rests on enough frames)."""
+    rng = np.random.default_rng(7)
+    m = np.r_[math.log(700.0) + rng.normal(0, 0.01, 10), math.log(800.0) + rng.normal(0, 0.01, 20)]
+    p = np.r_[np.full(10, 1 / 0.05**2), np.full(20, 1 / 0.15**2)]
+    est = RigPool(_frames(m, p), "focal").estimate("cam")
+    check = est.check["log_focal"]
+    assert check.d < -2 and check.n_eff > 5 and check.top3_share < 0.6
+    assert check.median == pytest.approx(math.log(800.0), abs=0.03)
+    assert rig_report(est)["focal_length_px"]["warnings"] == [rig_module.DISAGREE]
+    # the same frames in one group: no disagreement
+    same = RigPool(_frames(np.full(30, math.log(700.0)) + rng.normal(0, 0.01, 30), p), "focal").estimate("cam")
+    assert abs(same.check["log_focal"].d) < 2 and rig_report(same)["warnings"] == []
 
 
 def test_the_mountings_spread_between_frames_is_estimated():
@@ -106,6 +173,20 @@ def test_the_prior_a_frame_used_is_divided_out():
     # a frame whose posterior is its prior tells nothing and is left out of the pool
     flat = np.random.default_rng(2).normal(b, s, 20000)
     assert shared_likelihood("k", "cam", _result_with_draws(flat, {"median_px": 900.0, "log_sd": s, "dof": None})).mean == {}
+
+
+def test_a_weak_frames_heavy_tailed_prior_is_divided_out_exactly():
+    """A weak frame (likelihood log-sd 0.35) under a Student-t prior (the default's shape, 3 degrees
+    of freedom) that pulls it up: the posterior is far from normal, and a Laplace step at its mean
+    misreads the likelihood; reweighting the draws by 1/prior recovers its mean and variance."""
+    a, sd, b, s, dof = math.log(500.0), 0.35, math.log(900.0), 0.25, 3.0
+    rng = np.random.default_rng(8)
+    lik = rng.normal(a, sd, 400000)  # the posterior by resampling the likelihood's draws by the prior
+    w = (1 + ((lik - b) / s) ** 2 / dof) ** (-(dof + 1) / 2)
+    post = rng.choice(lik, 20000, p=w / w.sum())
+    f = shared_likelihood("k", "cam", _result_with_draws(post, {"median_px": 900.0, "log_sd": s, "dof": dof}))
+    assert f.mean["log_focal"] == pytest.approx(a, abs=0.03)
+    assert f.precision["log_focal"] ** -0.5 == pytest.approx(sd, rel=0.1)
 
 
 def test_scene_camera_id_round_trips_and_is_validated():

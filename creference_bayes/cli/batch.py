@@ -63,6 +63,10 @@ def _run_batch(args) -> int:
         report = run_batch(args.inputs, args.out, engine, settings, time_limit=args.time_limit,
                            progress=progress_mode(args.quiet))
     if not args.quiet:
+        from ..workflows.batch.rig import rig_lines
+
+        for line in rig_lines(report.rig):
+            print(line, file=sys.stderr if line.startswith("warning:") else sys.stdout)
         for key, error in report.errors.items():
             print(f"failed: {key}: {error}", file=sys.stderr)
         print(summary_line(report, args.out))

@@ -223,6 +223,9 @@ class BatchReport:
     n_targets: int = 0
     #: the KEYs, done or skipped, whose result says its posterior did not converge (summary.csv)
     not_converged: list[str] = field(default_factory=list)
+    #: with a rig: each camera's pool of all its frames as a ``rig`` block, with its checks and
+    #: warnings (:meth:`.rig.RigPool.summary`)
+    rig: dict = field(default_factory=dict)
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -259,7 +262,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     BatchReport; the folder also holds ``summary.csv`` and ``batch.json``. With ``settings.rig``
     other than ``none`` the frames are first estimated alone into ``out/first_pass`` (a batch folder
     of its own), then each frame again into ``out`` with its camera's rig (:mod:`.rig`); its result
-    then has a ``rig`` block. The report is the second pass's; its time counts both.
+    then has a ``rig`` block. The report is the second pass's; its time counts both; its ``rig``
+    holds each camera's pool of all its frames, with the pool's warnings.
     """
 
     t_start = time.perf_counter()
@@ -289,7 +293,9 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         scene, est = apply_rig(scene, pool, settings.rig, key)
         return scene, rig_report(est)
 
-    return _run_pass(scenes, out, settings, transform=with_rig, **run)
+    report = _run_pass(scenes, out, settings, transform=with_rig, **run)
+    report.rig = pool.summary()
+    return report
 
 
 def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
