@@ -10,7 +10,7 @@ roll. Two-pass empirical Bayes:
    log h, pitch and roll), the prior that frame used is divided out exactly: the draws reweighted
    by 1/prior(q) (self-normalised importance weights) have the frame's likelihood of q as their
    distribution; its weighted mean and variance make it a normal N(mᵢ, 1/Pᵢ). (A Laplace step at
-   the posterior mean was used before: on weak frames, whose posterior is far from normal, it left
+   the posterior mean would not do: on weak frames, whose posterior is far from normal, it leaves
    the likelihood biased low by half, docs/studies/rig.md.) A frame cannot say what it knows when
    the weights' effective sample size is below :data:`MIN_WEIGHT_ESS` of its draws (its prior
    was far narrower than its likelihood), or when Pᵢ is below :data:`MIN_INFORMATION` of its
