@@ -149,3 +149,24 @@ def test_every_request_task_shows_its_object(street):
             if c.term is not None and c.term.kind == "distance":
                 shown.add(scene.targets[c.term.other].id)
             assert {d.target for d in items.drawings} == shown and len(items.drawings) == len(shown), (c.key, items)
+
+
+def test_cvat_requests_leave_out_an_answered_measurement_without_a_segment():
+    """A frame into which --apply put a target's length (a reference without a segment) made the
+    next advise BATCH fail writing cvat_requests.xml ("a length of 't0' without a line cannot be
+    written as a CVAT shape"): the request file leaves such references out and keeps the request."""
+    import xml.etree.ElementTree as ET
+
+    from creference_bayes.io.scene import load_scene
+    from creference_bayes.workflows.advice.answers import with_measurement
+    from creference_bayes.workflows.advice.candidates import candidates
+    from creference_bayes.workflows.advice.requests import cvat_requests
+
+    scene = load_scene(example_scene_path())
+    answered = with_measurement(scene, "length", 4.2, scene.targets[0].id)
+    assert any(r.line is None for r in answered.references)
+    result = cb.estimate(answered, seed=0, posterior=False)
+    found, _ = candidates(answered, result.model, *map_state(result))
+    request = next(c for c in found if c.kind == "reference" and c.line is not None)
+    root = ET.fromstring(cvat_requests([("f0", answered, request)]).split("\n", 1)[1])
+    assert len(root.findall("image")) == 1 and root.findall("image/polyline")

@@ -304,3 +304,35 @@ def test_labels_removes_only_its_own_files_of_frames_no_longer_in_the_batch(tmp_
     assert ("removed 2 file(s) this command wrote for images no longer in the batch: label_2/photo_018.txt, "
             "uncertainty/photo_018.json") in io.out
     assert "warning: calib/photo_018.txt: of an image no longer in the batch, but changed since" in io.err
+
+
+def test_a_result_edited_by_hand_is_refused_by_name_by_every_command_that_reads_it(tmp_path):
+    """A result whose MAP, ids or draws are not what the package writes (found by the readers'
+    fuzz: a string for a MAP value, a draw of 310 digits) is a one-line error naming the file and the
+    key, not a TypeError or OverflowError deep in plot, advise or labels."""
+    from creference_bayes.io.result import read_result, result_problem
+
+    result = tmp_path / "r.json"
+    good = {"format": "creference-result/2",
+            "camera": {"map": {"focal_length_px": 700.0, "pitch": 0.0, "roll": 0.0, "height_m": 1.6,
+                               "ref_scale": 0.5}},
+            "objects": [{"id": "t0", "map": {"x": 1.0, "y": 1.6, "z": 10.0, "yaw": 0.0, "length_m": 4.0,
+                                             "width_m": 1.8, "height_m": 1.5, "ground_m": 0.0}}]}
+    assert result_problem(good) is None
+    bad = [({**good, "objects": [{"id": "t0", "map": {**good["objects"][0]["map"], "x": "near"}}]}, "objects[0].map.x"),
+           ({**good, "objects": ["t0"]}, "objects[0]"),
+           ({**good, "camera": {"map": {**good["camera"]["map"], "pitch": None}}}, "camera.map.pitch"),
+           ({**good, "draws": {"n": 2, "camera": {"focal_length_px": 1}, "objects": []}}, "draws")]
+    for d, key in bad:
+        result.write_text(json.dumps(d))
+        with pytest.raises(ValueError) as err:
+            read_result(result)
+        assert str(err.value).startswith(f"{result}: {key}") and len(str(err.value).splitlines()) == 1
+    d = {**good, "draws": {"n": 1, "camera": {k: 1 for k in good["camera"]["map"]}, "objects": [
+        {k: 1 for k in good["objects"][0]["map"]}]}}
+    d["draws"]["camera"]["focal_length_px"] = 10 ** 299  # read as JSON: an integer no float holds
+    text = json.dumps(d).replace(str(10 ** 299), "1" + "0" * 309)
+    result.write_text(text)
+    with pytest.raises(ValueError) as err:
+        read_result(result)
+    assert str(result) in str(err.value)

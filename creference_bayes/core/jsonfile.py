@@ -17,9 +17,9 @@ MAX_JSON_BYTES = 1 << 30
 #: Deepest nesting of lists and objects in a JSON file read from outside. A scene is 6 deep, a
 #: result or a Label Studio export about 8; far deeper input only costs recursion later.
 MAX_JSON_DEPTH = 64
-#: Most digits of a JSON integer (a float holds about 309): more is refused, not read as an
-#: integer Python cannot print or convert (its limit is 4300 digits).
-MAX_INT_DIGITS = 400
+#: Most digits of a JSON integer: more is refused, not read as an integer no float holds (a float
+#: ends near 1.8e308) or Python cannot print (its limit is 4300 digits).
+MAX_INT_DIGITS = 300
 
 #: ``error(name, problem)``: the exception a refusal raises (``name``: the file).
 ErrorClass = Callable[[str, str], Exception]

@@ -99,7 +99,7 @@ def stored_draws(d: dict) -> StoredDraws | None:
         col = lambda v: np.broadcast_to(np.asarray(v, float), (n,))
         cams = np.column_stack([col(kept["camera"][k]) for k in CAMERA_NAMES])
         objs = np.stack([np.column_stack([col(o[k]) for k in OBJECT_NAMES]) for o in kept["objects"]], axis=1)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"draws: not the draws of a {RESULT_FORMAT} ({' '.join(str(exc).split())})") from None
     if not (np.all(np.isfinite(cams)) and np.all(np.isfinite(objs))):
         raise ValueError("draws: expected finite numbers")
@@ -387,7 +387,51 @@ def read_result(path: str | Path) -> dict:
     if not isinstance(data, dict) or data.get("format") not in RESULT_FORMATS:
         got = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ValueError(f"{path}: format: expected one of {list(RESULT_FORMATS)}, got {got!r}")
+    if data["format"] == RESULT_FORMAT:
+        why = result_problem(data)
+        if why:
+            raise ValueError(f"{path}: {why}: not a result as this package writes it (edited by hand?)")
     return data
+
+
+def _numbers(block, names, where: str) -> str | None:
+    """What is wrong with ``block`` as an object of finite numbers under ``names``, or None."""
+    if not isinstance(block, dict):
+        return f"{where}: expected an object, got {_short(block)}"
+    for k in names:
+        v = block.get(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            return f"{where}.{k}: expected a finite number, got {_short(v)}"
+    return None
+
+
+def result_problem(d: dict) -> str | None:
+    """What in a ``creference-result/2`` dict is not as the package writes it, where the commands
+    that read results (``plot``, ``advise``, ``labels``, a batch's rig) index into it: the camera's
+    and every object's MAP (finite numbers), the objects' ids, the posterior's standard deviations
+    and the kept draws (:func:`stored_draws`); None when all is well."""
+    camera, objects = d.get("camera"), d.get("objects")
+    if not isinstance(camera, dict):
+        return f"camera: expected an object, got {_short(camera)}"
+    why = _numbers(camera.get("map"), CAMERA_NAMES, "camera.map")
+    if why:
+        return why
+    post = camera.get("posterior")
+    if post is not None and not (isinstance(post, dict) and isinstance(post.get("sd", {}), dict)):
+        return f"camera.posterior: expected an object with an object sd, got {_short(post)}"
+    if not isinstance(objects, list) or not objects:
+        return f"objects: expected a list of objects, got {_short(objects)}"
+    for i, o in enumerate(objects):
+        if not isinstance(o, dict) or not isinstance(o.get("id"), str):
+            return f"objects[{i}]: expected an object with an id, got {_short(o)}"
+        why = _numbers(o.get("map"), OBJECT_NAMES, f"objects[{i}].map")
+        if why:
+            return why
+    try:
+        stored_draws(d)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def result_from_v1(d: dict, scene) -> dict:

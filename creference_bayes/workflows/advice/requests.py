@@ -18,6 +18,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import xml.etree.ElementTree as ET
 from pathlib import PurePath
 
@@ -122,8 +124,9 @@ def cvat_requests(requests) -> str:
     """CVAT for images 1.1 XML for ``requests``, a list of (key, scene, candidate) (module docstring):
     one image per scene, with every request on it."""
     scenes = {}
-    for key, scene, _ in requests:
-        scenes.setdefault(key, scene)
+    for key, scene, _ in requests:  # a reference without a segment (an answered length) has no CVAT shape
+        scenes.setdefault(key, dataclasses.replace(scene, references=tuple(r for r in scene.references
+                                                                            if r.line is not None)))
     names = {key: image_name(scene, key) for key, scene in scenes.items()}
     root = ET.fromstring(cvat_xml(list(scenes.values()), image_names=list(names.values())).split("\n", 1)[1])
     images = {img.get("name"): img for img in root.findall("image")}

@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
-from ...io.result import RESULT_FORMAT, RESULT_FORMATS, canonical_sha256, result_from_v1
+from ...io.result import RESULT_FORMAT, canonical_sha256, read_result, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
 from ...io.validation import read_json
 from ..batch.files import result_paths
@@ -53,8 +53,8 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
     inputs, skipped = [], []
     for key, path in result_paths(batch_dir, check=True).items():
         try:
-            result = read_json(path)
-            if result.get("format") not in RESULT_FORMATS or "batch" not in result:
+            result = read_result(path)
+            if "batch" not in result:
                 raise ValueError("not a result of creference batch")
             copy_path = batch_dir / result["batch"]["scene_copy"]
             copy = read_json(copy_path)
