@@ -48,7 +48,7 @@ def test_the_demo_says_which_true_values_it_did_not_check(demo_run):
     camera = json.loads(result.read_text())["camera"]
     assert "pitch" not in camera["posterior"]["sd"] and "roll" not in camera["posterior"]["sd"]
     assert camera["setup"]["orientation"] == "horizon"  # the shipped example has an exact horizon
-    assert "not checked: pitch, roll (no spread in the posterior" in line, line
+    assert "not checked (fixed, no spread in the posterior): pitch and roll (from the exact horizon)" in line, line
 
 
 def test_advise_shows_the_estimates_hdi_beside_its_own(example_result, capsys):
