@@ -164,8 +164,9 @@ def test_a_nul_in_a_target_id_is_refused_before_anything_is_written(tmp_path, ca
     ({"key": "/".join("abcdefghijklmn"), "scene_copy": "scenes/s0.json"}, "batch.key"),
     ({"key": 7, "scene_copy": "scenes/s0.json"}, "batch.key"),
     ({"key": "s0", "scene_copy": ["scenes/s0.json"]}, "batch.scene_copy"),
+    ({"key": "s0", "scene_copy": "../../s0.json"}, "batch.scene_copy"),
     (["s0"], "batch"),
-], ids=["14-parts", "number", "list-copy", "list"])
+], ids=["14-parts", "number", "list-copy", "outside-copy", "list"])
 def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys, command, batch, key):
     import shutil
     from pathlib import Path
@@ -304,3 +305,26 @@ def test_labels_removes_only_its_own_files_of_frames_no_longer_in_the_batch(tmp_
     assert ("removed 2 file(s) this command wrote for images no longer in the batch: label_2/photo_018.txt, "
             "uncertainty/photo_018.json") in io.out
     assert "warning: calib/photo_018.txt: of an image no longer in the batch, but changed since" in io.err
+
+
+# --- 7. hardening found in review ---------------------------------------------------------------
+
+@pytest.mark.parametrize("where", ["../outside.json", "absolute"])
+def test_labels_refuses_a_scene_copy_outside_the_batch_folder(tmp_path, capsys, where):
+    """A result edited by hand whose ``batch.scene_copy`` leaves the batch folder: that frame is
+    skipped with a line naming the result and the path, not read (here it would label)."""
+    import shutil
+    from pathlib import Path
+
+    batch = tmp_path / "batch"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", batch)
+    shutil.copy(batch / "scenes" / "s0.json", tmp_path / "outside.json")  # a scene the result is of
+    copy = str(tmp_path / "outside.json") if where == "absolute" else where
+    path = batch / "results" / "s0.json"
+    result = json.loads(path.read_text())
+    result["batch"]["scene_copy"] = copy
+    path.write_text(json.dumps(result))
+    assert main(["labels", str(batch), "--out", str(tmp_path / "labels"), "--no-figure", "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert f"{path}: batch.scene_copy: {copy[:40]!r}"[:-1] in line and "is outside the batch folder" in line, line
+    assert not (tmp_path / "labels" / "label_2").exists()
