@@ -328,3 +328,23 @@ def test_labels_refuses_a_scene_copy_outside_the_batch_folder(tmp_path, capsys, 
     line = _one_error_line(capsys)
     assert f"{path}: batch.scene_copy: {copy[:40]!r}"[:-1] in line and "is outside the batch folder" in line, line
     assert not (tmp_path / "labels" / "label_2").exists()
+
+
+@pytest.mark.parametrize("which", ["export", "targets"])
+def test_an_import_input_beyond_its_size_limit_is_refused_naming_file_and_limit(tmp_path, capsys, monkeypatch,
+                                                                                 which):
+    import creference_bayes.io.annotation_tools as tools
+    import creference_bayes.io.labelstudio as ls
+
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps([{"id": 1, "data": {"image": "x.jpg"}, "annotations": []}]))
+    table = tmp_path / "t.csv"
+    table.write_text("target_id,length_m,width_m,height_m\ncar,4.5,1.8,1.5\n")
+    big = export if which == "export" else table
+    limit = big.stat().st_size - 1  # one byte short
+    monkeypatch.setattr(ls if which == "export" else tools, "MAX_JSON_BYTES" if which == "export" else "MAX_TABLE_BYTES",
+                        limit, raising=False)
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o"), "--targets", str(table),
+                 "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert str(big) in line and f"larger than {limit} bytes" in line, line
