@@ -246,3 +246,18 @@ def test_a_second_run_that_changes_nothing_says_so_and_writes_nothing(tmp_path, 
     printed = capsys.readouterr().out
     assert "nothing changed" in printed and "run creference batch" not in printed
     assert (path.stat().st_ino, path.read_bytes()) == (inode, text)
+
+
+def test_apply_keeps_a_scene_file_that_is_a_symlink_a_link(tmp_path, capsys):
+    """The user's scene file is a link into another folder: the answer goes into the file it points
+    to, and the link stays a link."""
+    out = _batch(tmp_path, {"new": _scene(3)})
+    link = tmp_path / "in" / "new.json"
+    real = tmp_path / "store" / "new.json"
+    real.parent.mkdir()
+    link.rename(real)
+    link.symlink_to(real)
+    rows = [{"rank": "1", "key": "new", "target": "t0", "kind": "size", "answer": "4.0,1.8,1.5"}]
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows)), "--quiet"]) == 0
+    assert link.is_symlink() and link.resolve() == real
+    assert load_scene(real).targets[0].size_prior.source == "catalogue"
