@@ -9,6 +9,9 @@ import json
 import numpy as np
 import pytest
 from conftest import truth_scene
+from fuzz_strategies import FUZZ
+from hypothesis import given
+from hypothesis import strategies as st
 
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import SceneError, load_scene
@@ -196,6 +199,23 @@ def test_csv_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_exactl
     assert raw[7:] == values[7:]  # numbers stay numbers, plain text stays as it is
     rows = read_csv_rows(path.read_bytes().decode())
     assert [r["v"] for r in rows] == values and {r["n"] for r in rows} == {"-2.5"}
+
+
+_CSV_PIECES = ["\r", "\n", "\r\n", '"', ",", "'", "=", "+", "-", "@", "\t", "-1.5", "1e3", " ", "a", "é", "\x00"]
+
+
+@given(cells=st.lists(st.one_of(st.lists(st.sampled_from(_CSV_PIECES), max_size=6).map("".join), st.text(max_size=8)),
+                      min_size=1, max_size=4))
+@FUZZ
+def test_any_text_cell_round_trips_through_the_csv_writer_and_reader(tmp_path, cells):
+    """A worker's free text (a lone carriage return or newline in it, quotes, a formula's first
+    character, a number as text) comes back exactly, one row per row written."""
+    from creference_bayes.io.files import atomic_write_csv, read_csv_rows, read_text
+
+    rows = [{"text": c, "n": i} for i, c in enumerate(cells)]
+    path = atomic_write_csv(tmp_path / "t.csv", rows, ["text", "n"])
+    assert read_csv_rows(read_text(path)) == [{"text": c, "n": str(i)} for i, c in enumerate(cells)]
+    assert len(list(csv.reader(path.open(newline="", encoding="utf-8")))) == len(cells) + 1  # a spreadsheet's rows
 
 
 def test_a_formula_in_a_target_id_lands_escaped_in_the_batch_summary(tmp_path):

@@ -182,7 +182,7 @@ def atomic_write_csv(path: str | Path, rows: Iterable[dict], columns: Iterable[s
     """Write ``rows`` (dicts by column) as CSV with a header, every cell through :func:`csv_cell`,
     atomically. Returns the path."""
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\r\n")  # quotes a lone \r (RFC 4180)
     writer.writeheader()
     writer.writerows({k: csv_cell(v) for k, v in row.items()} for row in rows)
     return atomic_write_text(path, buf.getvalue())
