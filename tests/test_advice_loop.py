@@ -246,3 +246,49 @@ def test_a_second_run_that_changes_nothing_says_so_and_writes_nothing(tmp_path, 
     printed = capsys.readouterr().out
     assert "nothing changed" in printed and "run creference batch" not in printed
     assert (path.stat().st_ino, path.read_bytes()) == (inode, text)
+
+
+def test_apply_keeps_a_scene_file_that_is_a_symlink_a_link(tmp_path, capsys):
+    """The user's scene file is a link into another folder: the answer goes into the file it points
+    to, and the link stays a link."""
+    out = _batch(tmp_path, {"new": _scene(3)})
+    link = tmp_path / "in" / "new.json"
+    real = tmp_path / "store" / "new.json"
+    real.parent.mkdir()
+    link.rename(real)
+    link.symlink_to(real)
+    rows = [{"rank": "1", "key": "new", "target": "t0", "kind": "size", "answer": "4.0,1.8,1.5"}]
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows)), "--quiet"]) == 0
+    assert link.is_symlink() and link.resolve() == real
+    assert load_scene(real).targets[0].size_prior.source == "catalogue"
+
+
+def test_cvat_requests_name_frames_of_one_name_in_two_folders_apart_and_each_merges_back(tmp_path, capsys):
+    """Frames a/cam1 and b/cam1 without an image path: two CVAT images (a_cam1.jpg, b_cam1.jpg),
+    not one, and each image's answer goes into its own frame's scene file."""
+    import xml.etree.ElementTree as ET
+
+    from creference_bayes.io.cvat import cvat_xml
+    from creference_bayes.workflows.advice.requests import cvat_requests
+
+    a, b = _scene(1), _scene(2)
+    assert not a["image"].get("path") and not b["image"].get("path")
+    out = _batch(tmp_path, {"a/cam1": a, "b/cam1": b})
+    size = SimpleNamespace(kind="size", line=None)
+    xml = cvat_requests([(key, load_scene(tmp_path / "in" / f"{key}.json"), size) for key in ("a/cam1", "b/cam1")])
+    names = [img.get("name") for img in ET.fromstring(xml.split("\n", 1)[1]).findall("image")]
+    assert names == ["a_cam1.jpg", "b_cam1.jpg"]
+    answered = []
+    for d, shift in ((a, 1.5), (b, -2.0)):  # each worker drew one more set of lines on the first target
+        d = copy.deepcopy(d)
+        corners = np.asarray(d["targets"][0]["dimension_lines"][0]["corners"]) + shift
+        d["targets"][0]["dimension_lines"].append({"worker": "w-new", "corners": corners.tolist()})
+        answered.append(d)
+    (tmp_path / "annotations.xml").write_text(cvat_xml(answered, image_names=names))
+    assert main(["import", "cvat", str(tmp_path / "annotations.xml"), "--out", str(tmp_path / "answered"),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["advise", str(out), "--merge", str(tmp_path / "answered")]) == 0
+    for key, shift in (("a/cam1", 1.5), ("b/cam1", -2.0)):
+        lines = load_scene(tmp_path / "in" / f"{key}.json").targets[0].dimension_lines
+        assert len(lines) == 2 and np.allclose(lines[1].corners - lines[0].corners, shift, atol=0.01), key

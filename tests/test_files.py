@@ -42,3 +42,37 @@ def test_fingerprint_ignores_key_order_and_sees_value_changes():
     assert scene_fingerprint(parse_scene(reordered)) == base
     d["target"]["dimension_lines"][0]["corners"][0][0] += 0.01
     assert scene_fingerprint(parse_scene(d)) != base
+
+
+def test_atomic_writes_keep_a_symlink_a_link_and_update_the_file_it_points_to(tmp_path):
+    from creference_bayes.io.files import atomic_write_set
+
+    (tmp_path / "data").mkdir()
+    real, link = tmp_path / "data" / "scene.json", tmp_path / "scene.json"
+    real.write_text("old\n")
+    link.symlink_to(real)
+    atomic_write_text(link, "new\n")
+    assert link.is_symlink() and link.resolve() == real and real.read_text() == "new\n"
+    with atomic_path(link) as tmp:
+        assert tmp.parent == real.parent  # beside the file replaced: a rename within one folder
+        tmp.write_text("by name\n")
+    assert link.is_symlink() and real.read_text() == "by name\n"
+    assert atomic_write_set({link: b"set\n"}) == [link]
+    assert link.is_symlink() and real.read_text() == "set\n"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["data", "scene.json", "scene.json"]
+
+
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o444])
+def test_atomic_writes_keep_the_mode_of_the_file_they_replace(tmp_path, mode):
+    import stat
+
+    from creference_bayes.io.files import atomic_write_bytes, atomic_write_set
+
+    path = tmp_path / "f.json"
+    path.write_text("{}")
+    path.chmod(mode)
+    for write in (lambda: atomic_write_text(path, "a"), lambda: atomic_write_bytes(path, b"b"),
+                  lambda: atomic_write_json(path, [1]), lambda: atomic_write_set({path: b"c"})):
+        write()
+        assert stat.S_IMODE(path.stat().st_mode) == mode
+    assert path.read_text() == "c"

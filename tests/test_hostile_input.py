@@ -6,9 +6,11 @@ files already in an output folder, and scene size limits."""
 import csv
 import json
 
-import numpy as np
 import pytest
 from conftest import truth_scene
+from fuzz_strategies import FUZZ
+from hypothesis import given
+from hypothesis import strategies as st
 
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import SceneError, load_scene
@@ -164,8 +166,9 @@ def test_a_nul_in_a_target_id_is_refused_before_anything_is_written(tmp_path, ca
     ({"key": "/".join("abcdefghijklmn"), "scene_copy": "scenes/s0.json"}, "batch.key"),
     ({"key": 7, "scene_copy": "scenes/s0.json"}, "batch.key"),
     ({"key": "s0", "scene_copy": ["scenes/s0.json"]}, "batch.scene_copy"),
+    ({"key": "s0", "scene_copy": "../../s0.json"}, "batch.scene_copy"),
     (["s0"], "batch"),
-], ids=["14-parts", "number", "list-copy", "list"])
+], ids=["14-parts", "number", "list-copy", "outside-copy", "list"])
 def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys, command, batch, key):
     import shutil
     from pathlib import Path
@@ -195,6 +198,23 @@ def test_csv_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_exactl
     assert raw[7:] == values[7:]  # numbers stay numbers, plain text stays as it is
     rows = read_csv_rows(path.read_bytes().decode())
     assert [r["v"] for r in rows] == values and {r["n"] for r in rows} == {"-2.5"}
+
+
+_CSV_PIECES = ["\r", "\n", "\r\n", '"', ",", "'", "=", "+", "-", "@", "\t", "-1.5", "1e3", " ", "a", "é", "\x00"]
+
+
+@given(cells=st.lists(st.one_of(st.lists(st.sampled_from(_CSV_PIECES), max_size=6).map("".join), st.text(max_size=8)),
+                      min_size=1, max_size=4))
+@FUZZ
+def test_any_text_cell_round_trips_through_the_csv_writer_and_reader(tmp_path, cells):
+    """A worker's free text (a lone carriage return or newline in it, quotes, a formula's first
+    character, a number as text) comes back exactly, one row per row written."""
+    from creference_bayes.io.files import atomic_write_csv, read_csv_rows, read_text
+
+    rows = [{"text": c, "n": i} for i, c in enumerate(cells)]
+    path = atomic_write_csv(tmp_path / "t.csv", rows, ["text", "n"])
+    assert read_csv_rows(read_text(path)) == [{"text": c, "n": str(i)} for i, c in enumerate(cells)]
+    assert len(list(csv.reader(path.open(newline="", encoding="utf-8")))) == len(cells) + 1  # a spreadsheet's rows
 
 
 def test_a_formula_in_a_target_id_lands_escaped_in_the_batch_summary(tmp_path):
@@ -336,3 +356,45 @@ def test_a_result_edited_by_hand_is_refused_by_name_by_every_command_that_reads_
     with pytest.raises(ValueError) as err:
         read_result(result)
     assert str(result) in str(err.value)
+
+# --- 7. hardening found in review ---------------------------------------------------------------
+
+@pytest.mark.parametrize("where", ["../outside.json", "absolute"])
+def test_labels_refuses_a_scene_copy_outside_the_batch_folder(tmp_path, capsys, where):
+    """A result edited by hand whose ``batch.scene_copy`` leaves the batch folder: that frame is
+    skipped with a line naming the result and the path, not read (here it would label)."""
+    import shutil
+    from pathlib import Path
+
+    batch = tmp_path / "batch"
+    shutil.copytree(Path(__file__).parent / "data" / "batch_v1", batch)
+    shutil.copy(batch / "scenes" / "s0.json", tmp_path / "outside.json")  # a scene the result is of
+    copy = str(tmp_path / "outside.json") if where == "absolute" else where
+    path = batch / "results" / "s0.json"
+    result = json.loads(path.read_text())
+    result["batch"]["scene_copy"] = copy
+    path.write_text(json.dumps(result))
+    assert main(["labels", str(batch), "--out", str(tmp_path / "labels"), "--no-figure", "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert f"{path}: batch.scene_copy: {copy[:40]!r}"[:-1] in line and "is outside the batch folder" in line, line
+    assert not (tmp_path / "labels" / "label_2").exists()
+
+
+@pytest.mark.parametrize("which", ["export", "targets"])
+def test_an_import_input_beyond_its_size_limit_is_refused_naming_file_and_limit(tmp_path, capsys, monkeypatch,
+                                                                                 which):
+    import creference_bayes.io.annotation_tools as tools
+    import creference_bayes.io.labelstudio as ls
+
+    export = tmp_path / "export.json"
+    export.write_text(json.dumps([{"id": 1, "data": {"image": "x.jpg"}, "annotations": []}]))
+    table = tmp_path / "t.csv"
+    table.write_text("target_id,length_m,width_m,height_m\ncar,4.5,1.8,1.5\n")
+    big = export if which == "export" else table
+    limit = big.stat().st_size - 1  # one byte short
+    monkeypatch.setattr(ls if which == "export" else tools, "MAX_JSON_BYTES" if which == "export" else "MAX_TABLE_BYTES",
+                        limit, raising=False)
+    assert main(["import", "label-studio", str(export), "--out", str(tmp_path / "o"), "--targets", str(table),
+                 "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert str(big) in line and f"larger than {limit} bytes" in line, line

@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_INT_DIGITS", "read_json", "loads_json", "json_depth"]
+__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_INT_DIGITS", "read_json", "read_capped", "loads_json", "json_depth"]
 
 #: Largest JSON file read from outside (bytes): far above any scene, result or tool export.
 MAX_JSON_BYTES = 1 << 30
@@ -32,17 +32,24 @@ def read_json(path: str | Path, error: ErrorClass, *, max_depth: int | None = MA
     deeper than ``max_depth`` (None: as deep as the decoder goes) or has an integer of more than
     :data:`MAX_INT_DIGITS` digits (``parse_int``: read integers otherwise). Missing or unreadable
     files raise ``OSError`` naming the file."""
-    path = Path(path)
+    raw = read_capped(path, MAX_JSON_BYTES, error)
+    return loads_json(raw, str(path), error, max_depth=max_depth, parse_int=parse_int)
+
+
+def read_capped(path: str | Path, limit: int, error: ErrorClass) -> bytes:
+    """The bytes of the file ``path``, never more than ``limit`` + 1 read: ``error(path, problem)``
+    raised when it is larger than ``limit`` bytes. Missing or unreadable files raise ``OSError``
+    naming the file (a failed read too, not only a failed open)."""
     try:
         with open(path, "rb") as f:
-            raw = f.read(MAX_JSON_BYTES + 1)
-    except OSError as exc:  # a failed read (not only open) names the file too
+            raw = f.read(limit + 1)
+    except OSError as exc:
         if exc.filename is None:
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from None
         raise
-    if len(raw) > MAX_JSON_BYTES:
-        raise error(str(path), f"larger than {MAX_JSON_BYTES} bytes; refused")
-    return loads_json(raw, str(path), error, max_depth=max_depth, parse_int=parse_int)
+    if len(raw) > limit:
+        raise error(str(path), f"larger than {limit} bytes; refused")
+    return raw
 
 
 def loads_json(raw: bytes | str, name: str, error: ErrorClass, *, max_depth: int | None = MAX_JSON_DEPTH,

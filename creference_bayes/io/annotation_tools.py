@@ -21,6 +21,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ..core.jsonfile import read_capped
 from ..core.units import UNITS_TO_M
 from ..models.size_priors import SIZE_KEYS, SizePrior
 from .files import atomic_write_json
@@ -29,7 +30,7 @@ from .scene import MEASURES, MODES, SCENE_FORMAT, SceneError, parse_quietly, pri
 __all__ = ["ConversionError", "ImportedScene", "ImportReport", "REFERENCE_FIELDS", "MISSING",
            "reference_from_fields", "number_field", "mean_horizon", "checked_scene", "classes_block",
            "safe_name", "unique_names", "image_file", "size_fields", "open_input",
-           "read_input", "TableRow", "TargetTable", "load_target_table", "write_scenes"]
+           "read_input", "MAX_TABLE_BYTES", "TableRow", "TargetTable", "load_target_table", "write_scenes"]
 
 #: The per-reference fields, as named in the shipped Label Studio config and CVAT label spec.
 REFERENCE_FIELDS = ("object", "measure", "mode", "value", "range_low", "range_high", "unit",
@@ -301,21 +302,29 @@ def open_input(path: str | Path):
     :class:`ConversionError` naming it."""
     try:
         return open(path, "rb")
-    except FileNotFoundError:
-        raise ConversionError(str(path), "no such file (it does not exist)") from None
-    except IsADirectoryError:
-        raise ConversionError(str(path), "is a folder, expected a file") from None
     except OSError as exc:
-        raise ConversionError(str(path), f"cannot be read: {exc.strerror or exc}") from None
+        raise _input_error(path, exc) from None
 
 
-def read_input(path: str | Path) -> bytes:
-    """The bytes of an input file (:func:`open_input`'s errors)."""
-    with open_input(path) as f:
-        try:
-            return f.read()
-        except OSError as exc:
-            raise ConversionError(str(path), f"cannot be read: {exc.strerror or exc}") from None
+def _input_error(path: str | Path, exc: OSError) -> ConversionError:
+    if isinstance(exc, FileNotFoundError):
+        return ConversionError(str(path), "no such file (it does not exist)")
+    if isinstance(exc, IsADirectoryError):
+        return ConversionError(str(path), "is a folder, expected a file")
+    return ConversionError(str(path), f"cannot be read: {exc.strerror or exc}")
+
+
+#: Largest ``--targets`` table read (bytes): a row is a few dozen bytes.
+MAX_TABLE_BYTES = 64 << 20
+
+
+def read_input(path: str | Path, limit: int) -> bytes:
+    """The bytes of an input file of at most ``limit`` bytes (:func:`open_input`'s errors; a larger
+    file is a :class:`ConversionError` naming it and the limit)."""
+    try:
+        return read_capped(path, limit, ConversionError)
+    except OSError as exc:
+        raise _input_error(path, exc) from None
 
 
 _TABLE_COLUMNS = ("target_id", "length_m", "width_m", "height_m")
@@ -438,7 +447,7 @@ def load_target_table(path: str | Path) -> TargetTable:
     image's focal length only."""
     path = Path(path)
     try:
-        text = read_input(path).decode("utf-8-sig")
+        text = read_input(path, MAX_TABLE_BYTES).decode("utf-8-sig")
     except UnicodeDecodeError:
         raise ConversionError(str(path), "not UTF-8 text (expected a CSV file)") from None
     reader = csv.DictReader(io.StringIO(text, newline=""))

@@ -45,32 +45,63 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
     For writers that want a file name (``fig.savefig``, ``InferenceData.to_netcdf``). The
     temporary name keeps ``path``'s suffix (or ``suffix``) so that such writers pick the right
-    format. On an exception the temporary file is removed and ``path`` is untouched.
+    format. On an exception the temporary file is removed and ``path`` is untouched. A ``path``
+    that is a symbolic link stays one: the file it points to is replaced (:func:`_target`); a file
+    replaced keeps its mode (:func:`_new_temporary`).
     """
-    path = Path(path)
-    if path.is_dir():
-        raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file", str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _target(Path(path))
     tmp = _new_temporary(path, suffix or path.suffix)
     try:
         yield tmp
-        os.replace(tmp, path)
+        _replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
 
 
+def _target(path: Path) -> Path:
+    """The file a write to ``path`` replaces: ``path``, or the file a symbolic link there points
+    to (so that the user's link stays a link); checked not to be a folder, its folder made."""
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file", str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _replaced_mode(path: Path) -> int | None:
+    """The permission bits of the file at ``path`` a write replaces (None: no file there)."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except FileNotFoundError:
+        return None
+
+
 def _new_temporary(path: Path, suffix: str) -> Path:
-    """Create an empty, new file beside ``path`` with the mode a plain ``open(path, "w")`` gives
-    (0666 less the umask; ``tempfile.mkstemp`` would make it 0600, and the rename keeps that)."""
+    """Create an empty, new file beside ``path`` with the mode of the file it is to replace (a file
+    only its owner may read stays so, also while the data go in), else the mode a plain
+    ``open(path, "w")`` gives (0666 less the umask; ``tempfile.mkstemp`` would make it 0600, and
+    the rename keeps that). It stays writable by its owner until :func:`_replace`."""
+    mode = _replaced_mode(path)
     for _ in range(100):
         tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}"
         try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 if mode is None else 0o600))
         except FileExistsError:
             continue
+        if mode is not None:
+            os.chmod(tmp, mode | stat.S_IWUSR)
         return tmp
     raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))  # pragma: no cover
+
+
+def _replace(tmp: Path, path: Path) -> None:
+    """Rename ``tmp`` onto ``path``, with the mode of the file it replaces."""
+    mode = _replaced_mode(path)
+    if mode is not None and mode != stat.S_IMODE(tmp.stat().st_mode):
+        os.chmod(tmp, mode)
+    os.replace(tmp, path)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -106,28 +137,24 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2, inlin
 
 def atomic_write_set(files: dict) -> list[Path]:
     """Write several files as one set (``files``: path → bytes): each in full (fsync) to a hidden
-    temporary file beside it that takes the mode of the file it replaces (a new file: the mode
-    ``open`` gives), and only when every one is written, each renamed over its file. An error while
-    writing any of them (disk full, no permission) removes the temporary files and leaves every
-    file as it was. Returns the paths."""
-    tmps: dict[Path, Path] = {}
+    temporary file beside it (:func:`_new_temporary`: with the mode of the file it replaces), and
+    only when every one is written, each renamed over its file (a symbolic link: over the file it
+    points to). An error while writing any of them (disk full, no permission) removes the
+    temporary files and leaves every file as it was. Returns the paths."""
+    tmps: dict[Path, tuple[Path, Path]] = {}
     try:
         for path, data in files.items():
-            path = Path(path)
-            if path.is_dir():
-                raise IsADirectoryError(errno.EISDIR, "is a folder, expected a file", str(path))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmps[path] = tmp = _new_temporary(path, path.suffix)
-            if path.exists():  # before the data go in: a file only its owner may read stays so
-                os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))
+            target = _target(Path(path))
+            tmp = _new_temporary(target, target.suffix)
+            tmps[Path(path)] = (tmp, target)
             with open(tmp, "wb") as f:
                 f.write(data)
                 f.flush()
                 os.fsync(f.fileno())
-        for path, tmp in tmps.items():
-            os.replace(tmp, path)
+        for tmp, target in tmps.values():
+            _replace(tmp, target)
     except BaseException:
-        for tmp in tmps.values():
+        for tmp, _ in tmps.values():
             tmp.unlink(missing_ok=True)
         raise
     return list(tmps)
@@ -155,7 +182,7 @@ def atomic_write_csv(path: str | Path, rows: Iterable[dict], columns: Iterable[s
     """Write ``rows`` (dicts by column) as CSV with a header, every cell through :func:`csv_cell`,
     atomically. Returns the path."""
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\r\n")  # quotes a lone \r (RFC 4180)
     writer.writeheader()
     writer.writerows({k: csv_cell(v) for k, v in row.items()} for row in rows)
     return atomic_write_text(path, buf.getvalue())

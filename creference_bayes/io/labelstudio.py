@@ -35,7 +35,7 @@ from .labelstudio_export import (CAMERA_DATA, CAMERA_ID, PHOTO_DATA, label_studi
                                  task_data)
 from .labelstudio_results import TARGET_LABELS, annotation_items, annotation_result
 from .scene import _CAMERA_TRUTH, SceneError, parse_quietly, scene_to_dict
-from .validation import MAX_JSON_DEPTH, json_depth, loads_json
+from .validation import MAX_JSON_BYTES, MAX_JSON_DEPTH, json_depth, loads_json
 
 __all__ = ["TARGET_LABELS", "LINE_TOOLS", "DATA_FIELDS", "SHARED_DATA", "label_studio_config", "read_export",
            "loads_export", "read_users", "scenes_from_label_studio", "label_studio_task", "label_studio_tasks",
@@ -61,8 +61,9 @@ def label_studio_config(lines: str = "keypoints") -> str:
 
 
 def read_export(path: str | Path) -> Any:
-    """Decode a Label Studio JSON export file (raises :class:`ConversionError` naming the file)."""
-    return loads_export(read_input(path), str(path))
+    """Decode a Label Studio JSON export file of at most :data:`MAX_JSON_BYTES` bytes (raises
+    :class:`ConversionError` naming the file)."""
+    return loads_export(read_input(path, MAX_JSON_BYTES), str(path))
 
 
 def loads_export(text: bytes | str, name: str = "(export)") -> Any:

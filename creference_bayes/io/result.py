@@ -501,9 +501,9 @@ def result_from_v1(d: dict, scene) -> dict:
 
 def batch_fields(result: dict, result_path: str | Path) -> dict:
     """The ``batch`` block of a result from ``creference batch`` (``{}`` when it has none), its
-    ``key``, ``scene_copy`` and ``source`` checked: text, and a ``key`` of no more folders than
-    the result file lies below (``results/KEY.json`` in the batch folder); else ``ValueError``
-    naming the file and the key."""
+    ``key``, ``scene_copy`` and ``source`` checked: text, a ``scene_copy`` inside the batch folder
+    (relative, no ``..``) and a ``key`` of no more folders than the result file lies below
+    (``results/KEY.json`` in the batch folder); else ``ValueError`` naming the file and the field."""
     batch = result.get("batch")
     if batch is None:
         return {}
@@ -513,6 +513,9 @@ def batch_fields(result: dict, result_path: str | Path) -> dict:
         value = batch.get(name)
         if value is not None and (not isinstance(value, str) or not value or "\0" in value):
             raise ValueError(f"{result_path}: batch.{name}: expected a file name, got {_short(value)}")
+    copy = batch.get("scene_copy")
+    if copy is not None and (Path(copy).is_absolute() or ".." in Path(copy).parts):
+        raise ValueError(f"{result_path}: batch.scene_copy: {_short(copy)} is outside the batch folder; refused")
     key = batch.get("key")
     if key is not None:
         parts = Path(key).parts

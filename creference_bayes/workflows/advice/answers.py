@@ -430,8 +430,8 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
     scene: :func:`_user_scene`). An imported scene is the frame whose full key its file name is
     (the key with characters other than letters, digits, ``.``, ``_`` and ``-`` as ``_``, as the
     Label Studio import names the answered requests of a frame), else the frame whose image file
-    name it has (as CVAT names images: the scene's ``image.path``, else ``KEY.jpg``); a name or
-    image two frames share is refused, naming their keys. Its targets' dimension lines and its
+    name it has (as CVAT names images: the scene's ``image.path``, else that file-safe key and
+    ``.jpg``); a name or image two frames share is refused, naming their keys. Its targets' dimension lines and its
     references that the frame's scene lacks (the same within :data:`SAME_POINT_PX` and the same
     values) are appended, and nothing else of the user's file changes (its other keys, format
     version and mode, its truth, priors, the answers put in by :func:`apply_answers`). A scene

@@ -25,6 +25,7 @@ from pathlib import PurePath
 
 import numpy as np
 
+from ...io.annotation_tools import safe_name
 from ...io.cvat import LABEL_ATTRIBUTES, cvat_xml
 from ...io.labelstudio_export import _target_results, task_data
 from ...io.labelstudio_results import CONTROL_VALUE, IMAGE, LINES, POINTS, REF_END, REF_START, REFERENCE
@@ -38,8 +39,11 @@ _POINT_SIZE = 0.5
 
 
 def image_name(scene, key: str) -> str:
-    """The image's file name (``<key>.jpg`` when the scene names none)."""
-    return PurePath(str(scene.image_path)).name if scene.image_path is not None else f"{PurePath(key).name}.jpg"
+    """The image's file name; when the scene names none, the frame's full key made file-safe
+    (:func:`~creference_bayes.io.annotation_tools.safe_name`) with ``.jpg``: ``a/cam1`` and
+    ``b/cam1`` are ``a_cam1.jpg`` and ``b_cam1.jpg``, and the import names their scenes as
+    ``advise --merge`` looks for them."""
+    return PurePath(str(scene.image_path)).name if scene.image_path is not None else f"{safe_name(key)}.jpg"
 
 
 def request_fields(key: str, candidate) -> dict:

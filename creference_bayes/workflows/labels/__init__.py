@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
-from ...io.result import RESULT_FORMAT, canonical_sha256, read_result, result_from_v1
+from ...io.result import RESULT_FORMAT, batch_fields, canonical_sha256, read_result, result_from_v1
 from ...io.scene import SceneError, SceneWarning, load_scene
 from ...io.validation import read_json
 from ..batch.files import result_paths
@@ -56,7 +56,7 @@ def load_batch(batch_dir: str | Path) -> tuple[list[LabelInput], list[dict]]:
             result = read_result(path)
             if "batch" not in result:
                 raise ValueError("not a result of creference batch")
-            copy_path = batch_dir / result["batch"]["scene_copy"]
+            copy_path = batch_dir / batch_fields(result, path)["scene_copy"]  # inside batch_dir
             copy = read_json(copy_path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
