@@ -108,9 +108,12 @@ def _batch(args, settings, progress: bool | str) -> int:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
     _only_for_a_scene(args, "a batch is advised with the settings it was made with")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
-    engine = _engine(args)  # as creference batch runs: local processes or a Dask scheduler
+    # as creference batch runs: local processes (no more than the frames) or a Dask scheduler
+    engine = _engine(args) if args.scheduler else None
+    require(args.workers is None or args.workers >= 1, "--workers", "an integer >= 1", args.workers)
     with usage_errors(one_line=True):
-        batch = advise_batch(args.input, seed=args.seed, settings=settings, engine=engine, progress=progress)
+        batch = advise_batch(args.input, seed=args.seed, settings=settings, engine=engine, workers=args.workers,
+                             progress=progress)
     paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines,
                                image_url_prefix=args.image_url_prefix)
     if not args.quiet:

@@ -279,22 +279,25 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
 
     Results that cannot be read, whose scene copy changed or of another model are listed in
     ``skipped`` with the reason. The scenes are advised on ``engine`` as ``creference batch``
-    estimates them (:func:`~creference_bayes.workflows.batch.engines.each_completed`; a
-    :class:`~creference_bayes.workflows.batch.engines.LocalEngine` or
-    :class:`~creference_bayes.workflows.batch.engines.DaskEngine`, closed on return), by default
-    ``workers`` local processes (default: the machine's cores); each scene's seed derives from
-    ``seed`` and its key (:func:`object_seed`), so the numbers depend neither on the engine nor on
-    the number of workers.
+    estimates them (:func:`~creference_bayes.workflows.batch.engines.each_completed`; e.g. a
+    :class:`~creference_bayes.workflows.batch.engines.DaskEngine`; closed on return), by default
+    on ``workers`` local processes (default: the machine's cores; no more than the scenes, and
+    this process for one: a worker process would only add its start); each scene's seed derives
+    from ``seed`` and its key (:func:`object_seed`), so the numbers depend neither on the engine
+    nor on the number of workers.
     """
     from ...inference.progress import progress_bar
-    from ..batch.engines import LocalEngine, each_completed
+    from ..batch.engines import InlineEngine, LocalEngine, default_workers, each_completed
 
     settings = settings or AdviceSettings()
-    if engine is None:
-        engine = LocalEngine(workers)
     abandon = True
     try:
         jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir, check=True).items()}
+        if engine is None:
+            if workers is not None and workers < 1:
+                raise ValueError(f"workers: expected an integer >= 1, got {workers!r}")
+            n = min(default_workers() if workers is None else workers, len(jobs))
+            engine = LocalEngine(n) if n > 1 else InlineEngine()
         outcome = {}
         with progress_bar(progress, len(jobs), desc="advice", unit="scene") as bar:
             for key, got in each_completed(engine, _advise_one, jobs):
@@ -307,7 +310,8 @@ def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettin
                 _advised(bar, key, got)
         abandon = False
     finally:
-        engine.close(abandon=abandon)
+        if engine is not None:
+            engine.close(abandon=abandon)
     objects, skipped = [], []
     for key in jobs:
         if isinstance(outcome[key], str):

@@ -25,7 +25,8 @@ import time
 from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
 
-__all__ = ["Engine", "LocalEngine", "DaskEngine", "DASK_INSTALL_HINT", "default_workers", "each_completed"]
+__all__ = ["Engine", "LocalEngine", "DaskEngine", "DASK_INSTALL_HINT", "default_workers", "each_completed",
+           "InlineEngine"]
 
 DASK_INSTALL_HINT = 'Dask distributed is needed for --scheduler: pip install "creference-bayes[dist]"'
 
@@ -141,6 +142,41 @@ class LocalEngine(Engine):
 
     def describe(self) -> str:
         return f"{self.workers} local worker process{'es' if self.workers != 1 else ''}"
+
+
+class _InlineExecutor(Executor):
+    """Runs each task in this process as it is submitted (its future is done on return)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as exc:
+            fut.set_exception(exc)
+        return fut
+
+
+class InlineEngine(Engine):
+    """This process, one task at a time: for work that one local worker would do, without the cost
+    of starting a process (it cannot end a task, so no time limit; :func:`each_completed` only)."""
+
+    name = "inline"
+
+    def __init__(self):
+        self._executor = _InlineExecutor()
+
+    @property
+    def executor(self) -> Executor:
+        return self._executor
+
+    def slots(self) -> int:
+        return 1
+
+    def close(self, abandon: bool = False) -> None:
+        pass
+
+    def describe(self) -> str:
+        return "this process"
 
 
 class DaskEngine(Engine):
