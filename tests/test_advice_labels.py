@@ -791,3 +791,58 @@ def test_advise_batch_prints_a_line_per_scene_when_stderr_is_not_a_terminal(advi
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("advice ")]
     assert sorted(re.fullmatch(r"advice [123]/3: (f[012]) advised \(\d+ s\)", line).group(1) for line in lines) == [
         "f0", "f1", "f2"], lines
+
+
+def _advice_files(folder) -> tuple[str, list]:
+    """requests.csv (the plan) and advice.json's scenes and ranking, without the time each took."""
+    data = json.loads((folder / "advice.json").read_text())
+    for s in data["scenes"]:
+        s.pop("seconds", None)
+    return (folder / "requests.csv").read_text(), [data["scenes"], data["ranking"], data["skipped"]]
+
+
+def _advise_into(batch, out, *engine) -> tuple[str, list]:
+    assert main(["advise", str(batch / "out"), "--draws", "100", "--futures", "20", "--min-good-per-hour", "0",
+                 "--quiet", "--out", str(batch / out), *engine]) == 0
+    return _advice_files(batch / out)
+
+
+def test_advise_batch_gives_the_same_plan_on_one_worker_or_two(advised_batch):
+    """issue 64: the frames run on batch's engine; a frame's seed is fixed by its key, so the plan
+    and the advice do not depend on the number of workers."""
+    one = _advise_into(advised_batch, "one_worker", "--workers", "1")
+    assert one[0].count("\n") > 1  # a plan with requests
+    assert _advise_into(advised_batch, "two_workers", "--workers", "2") == one
+    assert one == _advice_files(advised_batch / "out" / "advice")  # the default: the machine's cores
+
+
+def test_advise_batch_runs_on_a_dask_scheduler_with_the_same_numbers(advised_batch):
+    """issue 64: --scheduler as creference batch has it; the numbers are those of local processes."""
+    distributed = pytest.importorskip("distributed")
+
+    local = _advise_into(advised_batch, "local", "--workers", "1")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        dask = _advise_into(advised_batch, "dask", "--scheduler", cluster.scheduler_address)
+    assert dask == local
+
+
+def test_advise_batch_takes_batch_s_engine_options(advised_batch, monkeypatch, capsys):
+    """issue 64: --workers defaults to the machine's cores as for creference batch (the frames run
+    on its LocalEngine, no more workers than frames); --workers with --scheduler is refused as there."""
+    from creference_bayes.workflows.batch import engines
+
+    made = []
+
+    class Spy(engines.LocalEngine):
+        def __init__(self, workers=None):
+            made.append(workers)
+            super().__init__(workers)
+
+    monkeypatch.setattr(engines, "LocalEngine", Spy)
+    assert main(["advise", str(advised_batch / "out"), "--draws", "100", "--futures", "20", "--requests", "size",
+                 "--quiet", "--out", str(advised_batch / "spied")]) == 0
+    cores = engines.default_workers()  # one process a core, no more than the three frames; one: this process
+    assert made == ([min(cores, 3)] if cores > 1 else [])
+    assert main(["advise", str(advised_batch / "out"), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"]) == 2
+    assert "with --scheduler the Dask workers decide" in capsys.readouterr().err

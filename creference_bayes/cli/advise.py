@@ -26,7 +26,6 @@ def _settings(args):
             "a number >= 0 (points of the distance per minute)", args.min_gain)
     require(args.draws >= 50, "--draws", "an integer >= 50", args.draws)
     require(args.futures >= 10, "--futures", "an integer >= 10", args.futures)
-    require(args.workers >= 1, "--workers", "an integer >= 1", args.workers)
     require(args.budget is None or (math.isfinite(args.budget) and args.budget > 0), "--budget",
             "a number of seconds > 0", args.budget)
     require(0.0 < args.score_iou < 1.0, "--score-iou", "an IoU threshold in (0, 1)", args.score_iou)
@@ -103,13 +102,17 @@ def _only_for_a_scene(args, why: str) -> None:
 
 def _batch(args, settings, progress: bool | str) -> int:
     from ..workflows.advice.batch import advise_batch, request_rows, write_batch_advice
+    from .batch import _engine
 
     if args.scene is not None:
         raise UsageError("--scene: only for a result file (INPUT is a batch folder)")
     _only_for_a_scene(args, "a batch is advised with the settings it was made with")
     out = Path(args.out) if args.out is not None else Path(args.input) / "advice"
+    # as creference batch runs: local processes (no more than the frames) or a Dask scheduler
+    engine = _engine(args) if args.scheduler else None
+    require(args.workers is None or args.workers >= 1, "--workers", "an integer >= 1", args.workers)
     with usage_errors(one_line=True):
-        batch = advise_batch(args.input, seed=args.seed, settings=settings, workers=args.workers,
+        batch = advise_batch(args.input, seed=args.seed, settings=settings, engine=engine, workers=args.workers,
                              progress=progress)
     paths = write_batch_advice(batch, out, budget_s=args.budget, lines=args.lines,
                                image_url_prefix=args.image_url_prefix)
@@ -229,8 +232,9 @@ def _run(args) -> int:
         return _batch(args, settings, progress_mode(args.quiet))
     if args.budget is not None:
         raise UsageError("--budget: only for a batch folder")
-    if args.workers != 1:
-        raise UsageError("--workers: only for a batch folder")
+    for flag, given in (("--workers", args.workers is not None), ("--scheduler", args.scheduler is not None)):
+        if given:
+            raise UsageError(f"{flag}: only for a batch folder")
     return _one(args, settings, progress)
 
 
@@ -263,8 +267,12 @@ def register(subparsers) -> None:
                    help="a batch folder: plan requests, most value added per human second first, "
                         "within this many seconds of human time (default: every request worth "
                         "its time)")
-    p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="a batch folder: advise on N scenes at once in local processes (default: %(default)s)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="a batch folder: advise on N scenes at once in local processes, as creference batch "
+                        "(default: the machine's cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a batch folder: run on a Dask distributed scheduler, e.g. tcp://host:8786, as "
+                        "creference batch (needs the dist extra)")
     p.add_argument("--draws", type=int, default=600, metavar="N",
                    help="posterior draws the advice weighs, thinned evenly: fewer is faster and rougher "
                         "(default: %(default)s)")

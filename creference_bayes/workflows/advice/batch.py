@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from concurrent.futures import BrokenExecutor, CancelledError
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -245,8 +246,8 @@ def object_seed(seed: int, key: str) -> list[int]:
 
 
 def _advise_one(path: Path, key: str, seed, settings):
-    """One scene (run in a worker process with ``workers`` > 1): (scene, Advice), or the reason it
-    cannot be advised on."""
+    """One scene (run on the engine: a local worker process or a Dask worker thread): (scene,
+    Advice, fingerprint), or the reason it cannot be advised on."""
     from ...inference.threads import single_threaded_blas
     from ...io.result import read_result
 
@@ -262,6 +263,10 @@ def _advise_one(path: Path, key: str, seed, settings):
         return " ".join(str(exc).split())
 
 
+#: What the engine raises for a task it lost (Dask's KilledWorker is matched by name: Dask is optional).
+_LOST = (BrokenExecutor, CancelledError)
+
+
 def _advised(bar, key: str, outcome) -> None:
     """One scene advised: the bar's note (a log file's line) says which, and whether it was skipped."""
     bar.set_postfix_str(f"{key} skipped: {outcome}" if isinstance(outcome, str) else f"{key} advised", refresh=False)
@@ -269,34 +274,44 @@ def _advised(bar, key: str, outcome) -> None:
 
 
 def advise_batch(batch_dir: str | Path, *, seed: int = 0, settings: AdviceSettings | None = None,
-                 workers: int = 1, progress: bool | str = False) -> BatchAdvice:
+                 engine=None, workers: int | None = None, progress: bool | str = False) -> BatchAdvice:
     """The advice for every result of a ``creference batch`` folder (module docstring).
 
     Results that cannot be read, whose scene copy changed or of another model are listed in
-    ``skipped`` with the reason. With ``workers`` > 1 the scenes are advised on in that many local
-    processes; each scene's seed derives from ``seed`` and its key (:func:`object_seed`), so the
-    numbers do not depend on ``workers``.
+    ``skipped`` with the reason. The scenes are advised on ``engine`` as ``creference batch``
+    estimates them (:func:`~creference_bayes.workflows.batch.engines.each_completed`; e.g. a
+    :class:`~creference_bayes.workflows.batch.engines.DaskEngine`; closed on return), by default
+    on ``workers`` local processes (default: the machine's cores; no more than the scenes, and
+    this process for one: a worker process would only add its start); each scene's seed derives
+    from ``seed`` and its key (:func:`object_seed`), so the numbers depend neither on the engine
+    nor on the number of workers.
     """
     from ...inference.progress import progress_bar
+    from ..batch.engines import InlineEngine, LocalEngine, default_workers, each_completed
 
     settings = settings or AdviceSettings()
-    jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir, check=True).items()}
-    outcome = {}
-    with progress_bar(progress, len(jobs), desc="advice", unit="scene") as bar:
-        if workers > 1 and len(jobs) > 1:
-            from concurrent.futures import as_completed
-
-            from ..batch.engines import LocalEngine
-
-            with LocalEngine(workers) as engine:
-                futures = {engine.executor.submit(_advise_one, *job): key for key, job in jobs.items()}
-                for f in as_completed(futures):
-                    outcome[futures[f]] = f.result()
-                    _advised(bar, futures[f], outcome[futures[f]])
-        else:
-            for key, job in jobs.items():
-                outcome[key] = _advise_one(*job)
-                _advised(bar, key, outcome[key])
+    abandon = True
+    try:
+        jobs = {key: (path, key, seed, settings) for key, path in result_paths(batch_dir, check=True).items()}
+        if engine is None:
+            if workers is not None and workers < 1:
+                raise ValueError(f"workers: expected an integer >= 1, got {workers!r}")
+            n = min(default_workers() if workers is None else workers, len(jobs))
+            engine = LocalEngine(n) if n > 1 else InlineEngine()
+        outcome = {}
+        with progress_bar(progress, len(jobs), desc="advice", unit="scene") as bar:
+            for key, got in each_completed(engine, _advise_one, jobs):
+                if isinstance(got, BaseException):
+                    if not isinstance(got, _LOST) and type(got).__name__ != "KilledWorker":
+                        raise got  # the task's own: a fault to see, as when it ran in this process
+                    # the engine's: a worker that died, a cancelled task
+                    got = f"the worker failed ({type(got).__name__}: {' '.join(str(got).split())}); rerun to retry"
+                outcome[key] = got
+                _advised(bar, key, got)
+        abandon = False
+    finally:
+        if engine is not None:
+            engine.close(abandon=abandon)
     objects, skipped = [], []
     for key in jobs:
         if isinstance(outcome[key], str):

@@ -11,18 +11,22 @@
 An engine also says how many tasks run at once (:meth:`Engine.slots`): the runner keeps exactly
 that many in flight, so a task's clock starts when it starts (the per-scene time limit relies on
 it), and it can shut the engine down without waiting for tasks it gave up on.
+:func:`each_completed` runs tasks that need no more than that (the advice of a batch's frames).
 """
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import multiprocessing
 import os
 import signal
 import threading
 import time
+from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
 
-__all__ = ["Engine", "LocalEngine", "DaskEngine", "DASK_INSTALL_HINT", "default_workers"]
+__all__ = ["Engine", "LocalEngine", "DaskEngine", "DASK_INSTALL_HINT", "default_workers", "each_completed",
+           "InlineEngine"]
 
 DASK_INSTALL_HINT = 'Dask distributed is needed for --scheduler: pip install "creference-bayes[dist]"'
 
@@ -140,6 +144,41 @@ class LocalEngine(Engine):
         return f"{self.workers} local worker process{'es' if self.workers != 1 else ''}"
 
 
+class _InlineExecutor(Executor):
+    """Runs each task in this process as it is submitted (its future is done on return)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as exc:
+            fut.set_exception(exc)
+        return fut
+
+
+class InlineEngine(Engine):
+    """This process, one task at a time: for work that one local worker would do, without the cost
+    of starting a process (it cannot end a task, so no time limit; :func:`each_completed` only)."""
+
+    name = "inline"
+
+    def __init__(self):
+        self._executor = _InlineExecutor()
+
+    @property
+    def executor(self) -> Executor:
+        return self._executor
+
+    def slots(self) -> int:
+        return 1
+
+    def close(self, abandon: bool = False) -> None:
+        pass
+
+    def describe(self) -> str:
+        return "this process"
+
+
 class DaskEngine(Engine):
     """A Dask distributed scheduler, by address (``tcp://host:8786``) or an existing client.
 
@@ -199,3 +238,31 @@ class DaskEngine(Engine):
 
     def describe(self) -> str:
         return self._description
+
+
+def each_completed(engine: Engine, fn, jobs: dict):
+    """Run ``fn(*args)`` for every ``key: args`` of ``jobs`` on ``engine``, ``engine.slots()`` at a
+    time, and yield ``(key, outcome)`` as each ends: what ``fn`` returned, or the exception the task
+    raised or the engine raised for it (a local worker process that died loses every task running
+    with it; the pool is then renewed and the rest go on). The caller closes the engine."""
+    todo, running = deque(jobs.items()), {}
+    while todo or running:
+        while todo and len(running) < engine.slots():
+            key, args = todo.popleft()
+            running[engine.executor.submit(fn, *args)] = key
+        done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+        ended, broken = [], False
+        for fut in done:
+            key = running.pop(fut)
+            try:
+                ended.append((key, fut.result()))
+            except cf.BrokenExecutor as exc:
+                ended.append((key, exc))
+                broken = True
+            except Exception as exc:  # the task's own, or the engine's (e.g. Dask's KilledWorker)
+                ended.append((key, exc))
+        if broken:  # the tasks still running died with the pool
+            ended += [(key, cf.BrokenExecutor("lost with a worker process that died")) for key in running.values()]
+            running.clear()
+            engine.renew()
+        yield from ended
