@@ -217,7 +217,7 @@ class Seeds:
         report = run_batch([sources], batch, ThreadEngine(),
                            BatchSettings(seed=0, sampling={"min_ess": 30, "max_steps": 200, "warmup": 100}))
         assert report.ok, report.errors
-        assert main(["advise", str(batch), "--draws", "50", "--futures", "10", "--min-good-per-hour", "0",
+        assert main(["advise", str(batch), "--draws", "50", "--futures", "10", "--min-good-per-hour", "0", "--workers", "1",
                      "--quiet"]) == 0
         rows = list(csv.DictReader((batch / "advice" / "requests.csv").read_text().splitlines()))
         answers = {"size": "4.1,1.7,1.5", "mounting": "1.6,6,1", "reference": "12.5"}
@@ -590,7 +590,8 @@ def _advise_batch(data, ctx):
     with box.example() as (inp, out):
         batch = _batch_with(data, ctx, inp)
         box.snapshot()
-        _cli(["advise", batch, "--draws", "50", "--futures", "10", "--requests", "size", "--quiet", "--out", out])
+        _cli(["advise", batch, "--draws", "50", "--futures", "10", "--requests", "size", "--quiet", "--workers", "1",
+              "--out", out])
         box.check()
 
 
