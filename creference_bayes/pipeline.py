@@ -494,7 +494,11 @@ def rebuild_model(result, scene: Scene | str | Path):
     from .models.size_priors import size_priors_from_dict
 
     d = result if isinstance(result, dict) else result.to_dict()
-    prov = d["provenance"]
+    prov = d.get("provenance")
+    missing = [k for k in ("options", "orientation", "focal_prior", "use_references")
+               if not isinstance(prov, dict) or k not in prov]
+    if missing:
+        raise ValueError(f"provenance.{missing[0]}: missing (the settings the result was made with)")
     classes = size_priors_from_dict(prov["classes"], "provenance.classes", "file") if prov.get("classes") else None
     scene = _load(scene, classes)
     cmap = prov.get("confidence_map") or {"name": "none"}
@@ -512,9 +516,16 @@ def rebuild_model(result, scene: Scene | str | Path):
                            distance_range=prov.get("distance_range_m"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
                            bounds=_bounds_from(prov.get("bounds")), **options)
-    model.handedness = np.array([o["handedness"] for o in d["objects"]], float)
-    if d.get("pilot_camera") is not None:
-        model.set_pilot(np.array(d["pilot_camera"], float))
+    hands = [o.get("handedness") for o in d["objects"]]
+    if not all(h in (-1, 1) and not isinstance(h, bool) for h in hands):
+        raise ValueError(f"objects[].handedness: expected -1 or 1 for every object, got {hands[:5]!r}")
+    model.handedness = np.array(hands, float)
+    pilot = d.get("pilot_camera")
+    if pilot is not None:
+        if not (isinstance(pilot, list) and len(pilot) == 5 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in pilot)):
+            raise ValueError(f"pilot_camera: expected null or 5 finite numbers, got {str(pilot)[:60]}")
+        model.set_pilot(np.array(pilot, float))
     return model
 
 

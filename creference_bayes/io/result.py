@@ -427,6 +427,15 @@ def result_problem(d: dict) -> str | None:
         why = _numbers(o.get("map"), OBJECT_NAMES, f"objects[{i}].map")
         if why:
             return why
+    prov = d.get("provenance")
+    if prov is not None:
+        if not isinstance(prov, dict):
+            return f"provenance: expected an object, got {_short(prov)}"
+        for key, kind in (("options", dict), ("classes", dict), ("confidence_map", dict), ("ground", dict),
+                          ("bounds", dict), ("orientation", str), ("focal_prior", (str, dict)),
+                          ("model", str), ("preset", str), ("location_prior", str)):
+            if prov.get(key) is not None and not isinstance(prov[key], kind):
+                return f"provenance.{key}: got {_short(prov[key])}"
     try:
         stored_draws(d)
     except ValueError as exc:
