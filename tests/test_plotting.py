@@ -216,7 +216,8 @@ def test_a_result_missing_a_key_is_a_one_line_error(three, tmp_path, capsys):
     path = _write(tmp_path / "result.json", broken)
     assert main(["plot", str(path), "--scene", str(folder / "scene.json"), "--out", str(tmp_path / "figs")]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == f"error: {path}: objects[1].map.yaw: expected a number, got None"
+    assert err == (f"error: {path}: objects[1].map.yaw: expected a finite number, got None: not a result as this "
+                   "package writes it (edited by hand?)")
     assert not (tmp_path / "figs").exists()
 
 

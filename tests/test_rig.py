@@ -271,3 +271,20 @@ def test_a_frame_without_a_camera_id_is_named_by_its_photos_exif(tmp_path):
     pooled, est = apply_rig(scene, frames, "focal", "f9")
     assert pooled.camera_id == "exif:Canon EOS 80D 35mm" and est.keys == ("f0", "f1", "f2")
     assert pooled.focal_prior.median_px == pytest.approx(math.exp(7.2))
+
+
+def test_the_rig_pool_example_prints_every_cameras_pool_before_and_after(rig_batch):
+    """examples/rig_pool.py (docs/studies/rig.md) on a rig batch's first pass: a row for camera
+    rig-A under each rule, with its frames counted; it writes nothing."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root, _, _ = rig_batch
+    example = Path(__file__).resolve().parents[1] / "examples" / "rig_pool.py"
+    before = sorted(p for p in (root / "out").rglob("*"))
+    proc = subprocess.run([sys.executable, str(example), str(root / "out"), "--groups", "0-1,2-3"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "rig-A" in proc.stdout and "before" in proc.stdout and "after" in proc.stdout, proc.stdout
+    assert sorted(p for p in (root / "out").rglob("*")) == before

@@ -42,7 +42,7 @@ def _settings(args):
 
 def _one(args, settings, progress: bool) -> int:
     from ..io.files import atomic_write_json
-    from ..io.result import RESULT_FORMATS
+    from ..io.result import RESULT_FORMATS, read_result
     from ..io.scene import SceneError, load_scene
     from ..workflows.advice.inputs import advice_table, advise_result, advise_scene, scene_for_result
 
@@ -57,6 +57,7 @@ def _one(args, settings, progress: bool) -> int:
     try:
         made_with = None  # a scene's estimate: its options and range, recorded with the advice
         if isinstance(d, dict) and d.get("format") in RESULT_FORMATS:
+            d = read_result(path)  # its content checked: a result edited by hand is refused by name
             _only_for_a_scene(args, "a result is advised with the settings it was made with")
             notes: list[str] = []
             scene = scene_for_result(path, d, args.scene, notes)
@@ -288,12 +289,12 @@ def register(subparsers) -> None:
                         "segment of REQUESTS_CSV "
                         "(its answer column) into the scene files the batch was made from, and advise "
                         "nothing")
-    p.add_argument("--image-url-prefix", metavar="PREFIX", default=None,
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
+    g = advanced_group(p)
+    g.add_argument("--image-url-prefix", metavar="PREFIX", default=None,
                    help="a batch folder: the Label Studio request tasks load each image from PREFIX "
                         "followed by its file name (e.g. /data/local-files/?d=frames/ for Label Studio's "
                         "local files; default: the scene's image path)")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors; no progress bar")
-    g = advanced_group(p)
     g.add_argument("--rank", choices=("labels", "hdi", "location"), default="labels",
                    help="what a request is worth: labels (the labels it is expected to make good per human "
                         "hour), hdi (how much it narrows the distances' 90 %% HDIs per minute) or location "

@@ -411,6 +411,9 @@ def result_problem(d: dict) -> str | None:
     and every object's MAP (finite numbers), the objects' ids, the posterior's standard deviations
     and the kept draws (:func:`stored_draws`); None when all is well."""
     camera, objects = d.get("camera"), d.get("objects")
+    for key in ("scene_id", "draws", "diagnostics"):
+        if d.get(key) is not None and not isinstance(d[key], dict):
+            return f"{key}: expected an object, got {_short(d[key])}"
     if not isinstance(camera, dict):
         return f"camera: expected an object, got {_short(camera)}"
     why = _numbers(camera.get("map"), CAMERA_NAMES, "camera.map")
