@@ -532,8 +532,6 @@ def rebuild_model(result, scene: Scene | str | Path):
 #: The ground-offset prior a result that records no ``provenance.ground`` is read with: a normal of
 #: 8 cm at every distance, as :func:`_ground_dict` writes it.
 UNRECORDED_GROUND = {"sd_m": 0.08, "sd_per_m": 0.0, "dof": None, "tilt_sd_rad": float(np.radians(1.0))}
-#: Another name of :data:`UNRECORDED_GROUND`.
-EARLIER_GROUND = UNRECORDED_GROUND
 
 
 def _ground_dict(model) -> dict:
