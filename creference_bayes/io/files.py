@@ -21,13 +21,13 @@ __all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_write_json", "atom
            "atomic_path", "read_bytes", "read_text", "read_csv_rows", "csv_cell"]
 
 
-def read_bytes(path: str | Path, limit: int | None = None) -> bytes:
-    """The bytes of a file (``limit``: at most that many). An error while reading (not only while
-    opening) names the file: ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``,
-    no file name) when the read itself fails."""
+def read_bytes(path: str | Path) -> bytes:
+    """The bytes of a file. An error while reading (not only while opening) names the file:
+    ``Path.read_bytes`` raises a bare ``OSError`` (``Input/output error``, no file name) when the
+    read itself fails. (A file from outside with a size limit: :func:`~creference_bayes.core.jsonfile.read_capped`.)"""
     try:
         with open(path, "rb") as f:
-            return f.read(-1 if limit is None else limit)
+            return f.read()
     except OSError as exc:
         if exc.filename is None:
             raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from None

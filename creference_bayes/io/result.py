@@ -193,12 +193,10 @@ class ObjectEstimate:
 
     @classmethod
     def from_dict(cls, o: dict) -> "ObjectEstimate":
-        m, post = o["map"], o.get("posterior") or {}
+        m = o["map"]
         return cls(id=o["id"], cls=o.get("class"), location_m=(m["x"], m["y"], m["z"]),
                    size_m=(m["length_m"], m["width_m"], m["height_m"]), yaw_rad=m["yaw"],
-                   distance_m=m["distance_m"], map=dict(m), mean=_values(post.get("mean"), OBJECT_REPORT),
-                   sd=_values(post.get("sd"), OBJECT_REPORT), median=_values(post.get("median"), OBJECT_REPORT),
-                   hdi=_pairs(post.get("hdi"), OBJECT_REPORT), hdi_prob=(post.get("hdi") or {}).get("prob"),
+                   distance_m=m["distance_m"], map=dict(m), **_posterior_fields(o.get("posterior"), OBJECT_REPORT),
                    n_annotations=int(o.get("n_annotations", 0)), evaluation=o.get("evaluation"))
 
 
@@ -223,12 +221,19 @@ class CameraEstimate:
 
     @classmethod
     def from_dict(cls, c: dict) -> "CameraEstimate":
-        m, post = c["map"], c.get("posterior") or {}
+        m = c["map"]
         return cls(focal_length_px=m["focal_length_px"], pitch_rad=m["pitch"], roll_rad=m["roll"],
                    height_m=m["height_m"], free=tuple(c.get("free", ())), map=dict(m),
-                   mean=_values(post.get("mean"), CAMERA_NAMES), sd=_values(post.get("sd"), CAMERA_NAMES),
-                   median=_values(post.get("median"), CAMERA_NAMES), hdi=_pairs(post.get("hdi"), CAMERA_NAMES),
-                   hdi_prob=(post.get("hdi") or {}).get("prob"))
+                   **_posterior_fields(c.get("posterior"), CAMERA_NAMES))
+
+
+def _posterior_fields(post: dict | None, names) -> dict:
+    """An estimate's ``mean``, ``sd``, ``median``, ``hdi`` (of ``names``) and ``hdi_prob`` from a
+    result's ``posterior`` block (empty without one)."""
+    post = post or {}
+    return {"mean": _values(post.get("mean"), names), "sd": _values(post.get("sd"), names),
+            "median": _values(post.get("median"), names), "hdi": _pairs(post.get("hdi"), names),
+            "hdi_prob": (post.get("hdi") or {}).get("prob")}
 
 
 def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, provenance: dict,
