@@ -73,6 +73,7 @@ class Controls:
     def from_config(cls, config: Any) -> "Controls":
         """The controls of a labelling config (XML text; read as untrusted input: no DTD, no
         entities). :class:`RequestError` (400) for text that is not such a config."""
+        import defusedxml
         import defusedxml.ElementTree as DET
         from xml.etree.ElementTree import ParseError
 
@@ -81,7 +82,7 @@ class Controls:
                                f"{_short(config)}")
         try:
             root = DET.fromstring(config, forbid_dtd=True)
-        except (ParseError, DET.DefusedXmlException, ValueError) as exc:
+        except (ParseError, defusedxml.DefusedXmlException, ValueError) as exc:
             raise RequestError(f"label_config: not a labelling config ({exc})") from None
         images = [el.get("name") for el in root.iter("Image") if el.get("name")]
         if not images:
