@@ -278,3 +278,15 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
         summary = " ".join(pred["result"][-1]["value"]["text"])
         assert "estimate: posterior draws" in summary
         assert (advice["request"] or advice["reason"]) in summary
+
+
+def test_the_command_prints_the_served_config_and_refuses_an_open_port_without_a_token(capsys, monkeypatch):
+    from creference_bayes.cli import main
+    from creference_bayes.serve.frames import Controls
+
+    assert main(["serve", "--print-config", "--lines", "keypoints"]) == 0
+    controls = Controls.from_config(capsys.readouterr().out)
+    assert (controls.box, controls.text, controls.summary) == ("estimate_box", "estimate_text", "estimate_summary")
+    monkeypatch.delenv("CREFERENCE_SERVE_TOKEN", raising=False)
+    assert main(["serve", "--host", "0.0.0.0"]) == 2
+    assert "only with a token" in capsys.readouterr().err

@@ -100,7 +100,7 @@ def register(subparsers) -> None:
     p.add_argument("--print-config", action="store_true",
                    help="print the labelling config with the estimate's controls and exit")
     p.add_argument("--lines", default="keypoints", choices=("keypoints", "vectors"),
-                   help="--print-config: how lines are drawn (default: %(default)s)")
+                   help="how the printed config draws lines (default: %(default)s)")
     p.add_argument("--iou-threshold", type=float, default=0.7, metavar="T",
                    help="label quality is P(IoU >= T) (default: %(default)s)")
     adv = advanced_group(p)
