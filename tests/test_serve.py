@@ -263,7 +263,11 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
         r = c.post("/webhook", json={**hook, "annotation": ann})
         assert r.status_code == 201 and r.json["result"]["queued"] == "p3_t9"
     assert worker.busy("p3_t9")
-    worker.run_pending()  # one job for the task, with every annotation the webhooks brought
+    before = c.get("/health").json
+    worker.run_pending()
+    after = c.get("/health").json
+    assert before["jobs"] == 1 and after["jobs"] == 0
+    assert after["model_version"] != before["model_version"]  # Label Studio asks again for newer predictions  # one job for the task, with every annotation the webhooks brought
     state = tmp_path / "state"
     result = json.loads((state / "results" / "p3_t9.json").read_text())
     advice = json.loads((state / "advice" / "p3_t9.json").read_text())
@@ -290,3 +294,23 @@ def test_the_command_prints_the_served_config_and_refuses_an_open_port_without_a
     monkeypatch.delenv("CREFERENCE_SERVE_TOKEN", raising=False)
     assert main(["serve", "--host", "0.0.0.0"]) == 2
     assert "only with a token" in capsys.readouterr().err
+
+
+def test_one_job_per_task_at_a_time(tmp_path):
+    from creference_bayes.serve.jobs import FrameStore, Worker
+
+    worker, calls = Worker(FrameStore(tmp_path)), []
+
+    def job(key):
+        calls.append(key)
+        if len(calls) == 1:  # asked for twice while it runs: run once more after it, not twice, not now
+            worker.submit("a")
+            worker.submit("a")
+            assert worker.pending() == 2 and worker.busy("a")
+
+    worker.run_job = job
+    for key in ("a", "a", "b"):
+        worker.submit(key)
+    assert worker.pending() == 2
+    worker.run_pending()
+    assert calls == ["a", "b", "a"] and worker.pending() == 0

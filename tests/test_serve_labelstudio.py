@@ -52,6 +52,19 @@ def _wait_files(paths, seconds):
         time.sleep(2)
 
 
+def _wait_idle(url, token, seconds):
+    """Until the service has no job queued or running."""
+    t0 = time.monotonic()
+    while True:
+        req = urllib.request.Request(url, headers={"Authorization": f"Bearer {token}"})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            if json.loads(r.read())["jobs"] == 0:
+                return
+        if time.monotonic() - t0 > seconds:
+            raise AssertionError(f"the service's jobs did not finish within {seconds} s")
+        time.sleep(2)
+
+
 def test_label_studio_shows_the_served_estimate(checks, tmp_path, monkeypatch):
     import creference_bayes as cb
     from creference_bayes.bench.simulate import simulate_scene
@@ -105,6 +118,7 @@ def test_label_studio_shows_the_served_estimate(checks, tmp_path, monkeypatch):
                     assert st == 201
             keys = [f"p{pid}_t{tid}" for tid in task_ids]
             _wait_files([state / sub / f"{k}.json" for k in keys for sub in ("results", "advice")], 900)
+            _wait_idle(f"http://127.0.0.1:{port}/health", token, 900)
             st, done = ls.call(f"/api/dm/actions?id=retrieve_tasks_predictions&project={pid}",
                                {"selectedItems": {"all": True, "excluded": []}}, "POST")
             assert st == 200, done

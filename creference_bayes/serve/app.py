@@ -160,7 +160,8 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
     @app.get("/")
     @app.get("/health")
     def health():
-        return jsonify({"status": "UP", "model_class": "creference", "model_version": model_version()})
+        return jsonify({"status": "UP", "model_class": "creference", "model_version": model_version(),
+                        "jobs": worker.pending()})
 
     @app.post("/setup")
     def setup():

@@ -23,6 +23,7 @@ import hashlib
 import logging
 import queue
 import threading
+import time
 import traceback
 from pathlib import Path
 
@@ -156,8 +157,10 @@ class Worker:
     (:func:`~creference_bayes.estimate`), then the advice's next request."""
 
     def __init__(self, store: FrameStore, *, image_root=None, seed: int = 0, hdi_prob: float = 0.9,
-                 advice_settings=None, sampling: dict | None = None):
+                 advice_settings=None, sampling: dict | None = None, settle_s: float = 2.0):
         self.store, self.image_root, self.seed, self.hdi_prob = store, image_root, seed, hdi_prob
+        self.settle_s = settle_s  # the thread waits this long after a task's last submit (its annotations settle)
+        self._last: dict[str, float] = {}
         self.advice_settings, self.sampling = advice_settings, sampling
         self._queue: queue.Queue = queue.Queue()
         self._lock = threading.Lock()
@@ -178,6 +181,7 @@ class Worker:
 
     def submit(self, key: str) -> None:
         with self._lock:
+            self._last[key] = time.monotonic()
             if key == self._running:
                 self._again.add(key)
             elif key not in self._queued:
@@ -188,9 +192,10 @@ class Worker:
         with self._lock:
             return key in self._queued or key == self._running
 
-    def idle(self) -> bool:
+    def pending(self) -> int:
+        """Jobs queued or running."""
         with self._lock:
-            return not self._queued and self._running is None
+            return len(self._queued) + (self._running is not None)
 
     def run_pending(self) -> None:
         """Run every queued job in this thread (tests, and a service without its thread)."""
@@ -203,7 +208,12 @@ class Worker:
 
     def _loop(self) -> None:
         while True:
-            self._run(self._queue.get())
+            key = self._queue.get()
+            with self._lock:
+                wait = self._last.get(key, 0.0) + self.settle_s - time.monotonic()
+            if wait > 0:  # more annotations of the task may be on their way: one job for them all
+                time.sleep(wait)
+            self._run(key)
 
     def _run(self, key: str) -> None:
         with self._lock:
@@ -215,12 +225,12 @@ class Worker:
             log.error("job %s failed: %s", key, traceback.format_exc())
             self.store.put_error(key, None, " ".join(str(exc).split()) or type(exc).__name__)
         finally:
-            with self._lock:
+            with self._lock:  # a job asked for while it ran is queued again before anyone sees it idle
                 self._running = None
-                again = key in self._again
-                self._again.discard(key)
-            if again:
-                self.submit(key)
+                if key in self._again:
+                    self._again.discard(key)
+                    self._queued.add(key)
+                    self._queue.put(key)
 
     def run_job(self, key: str) -> None:
         """Estimate the frame of a stored task, unless its result is up to date."""
