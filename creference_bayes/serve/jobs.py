@@ -209,9 +209,11 @@ class Worker:
     def _loop(self) -> None:
         while True:
             key = self._queue.get()
-            with self._lock:
-                wait = self._last.get(key, 0.0) + self.settle_s - time.monotonic()
-            if wait > 0:  # more annotations of the task may be on their way: one job for them all
+            while True:  # more annotations of the task may be on their way: one job for them all
+                with self._lock:
+                    wait = self._last.get(key, 0.0) + self.settle_s - time.monotonic()
+                if wait <= 0:
+                    break
                 time.sleep(wait)
             self._run(key)
 
