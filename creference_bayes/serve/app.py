@@ -205,7 +205,10 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         seed = derive_seed(settings.seed, frame.fingerprint)
         result = store.result(key, frame.fingerprint)
         if result is None:
-            result = estimate(frame.scene, posterior=False, seed=seed, hdi_prob=settings.hdi_prob)
+            try:
+                result = estimate(frame.scene, posterior=False, seed=seed, hdi_prob=settings.hdi_prob)
+            except ValueError as exc:  # a scene the model refuses (its message names the value)
+                raise RequestError(f"task {task['id']}: {' '.join(str(exc).split())}", 422) from None
             if settings.background:
                 worker.submit(key)
         view = frame_view(frame.scene, result, threshold=settings.iou_threshold, hdi_prob=settings.hdi_prob,
@@ -235,6 +238,9 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         if isinstance(aid, bool) or not isinstance(aid, (int, str)):
             raise RequestError(f"annotation.id: expected an id, got {str(aid)[:60]}")
         key = task_key(pid, tid)
+        if isinstance(doc.get("project"), dict) and isinstance(doc["project"].get("label_config"), str) \
+                and pid is not None:
+            store.put_config(pid, doc["project"]["label_config"])
         stored = {**(store.task(key) or {}), "id": tid, "data": task["data"]}
         others = [a for a in stored.get("annotations", []) if isinstance(a, dict) and a.get("id") != aid]
         task_frame({**stored, "annotations": others + [annotation]}, settings.image_root)  # 4xx before storing
