@@ -145,6 +145,9 @@ def test_no_path_outside_the_image_root_is_read(tmp_path, task):
         t["data"].update(data)
         r = _predict(c, [t])
         assert r.status_code == 403 and "outside the image root" in r.json["error"], data
+    long = copy.deepcopy(task)
+    long["data"]["image_path"] = "a" * 5000
+    assert _predict(c, [long]).status_code == 422
     inside = copy.deepcopy(task)
     inside["data"]["image_path"] = "street.png"
     assert task_frame(inside, root).scene.image_path == root.resolve() / "street.png"

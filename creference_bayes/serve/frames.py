@@ -160,7 +160,13 @@ def _image_file(data: dict, image_root, where: str) -> Path | None:
             names.append(url_path(data["image"], where))
         except ConversionError:
             pass
-    root = Path(image_root).resolve()
+    try:
+        return _inside(Path(image_root).resolve(), names, where)
+    except OSError as exc:  # a name no file system takes (too long, …)
+        raise RequestError(f"{where}: image {_short(names[0])}: {exc.strerror or exc}", 422) from None
+
+
+def _inside(root: Path, names: list[str], where: str) -> Path | None:
     for name in names:
         if "\0" in name:
             raise RequestError(f"{where}: image name {_short(name)} holds a NUL character", 422)

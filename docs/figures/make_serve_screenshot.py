@@ -48,7 +48,7 @@ try:
         for el in d.find_elements(By.XPATH, f"//*[contains(text(), '{text}')]"):
             try:
                 el.click()
-                time.sleep(2)
+                time.sleep(4)
                 break
             except Exception:
                 continue
@@ -144,6 +144,8 @@ def main(argv=None) -> int:
         hook = next(h for h in _call(base, token, f"/api/webhooks/?project={pid}") if h["url"].endswith("/webhook"))
         _call(base, token, f"/api/webhooks/{hook['id']}/", {"headers": {"Authorization": f"Bearer {serve_token}"}},
               "PATCH")
+        _call(base, token, "/api/storages/localfiles", {"project": pid, "title": "photos", "path": str(work / "files"),
+                                                         "use_blob_urls": False}, "POST")
         task = label_studio_task(scene, lines="vectors", image_url="/data/local-files/?d=frame.png")
         _call(base, token, f"/api/projects/{pid}/import", [task["data"]], "POST")
         tid = _call(base, token, f"/api/projects/{pid}/tasks/")[0]["id"]
@@ -161,7 +163,7 @@ def main(argv=None) -> int:
               {"selectedItems": {"all": True, "excluded": []}}, "POST")
         args.out.parent.mkdir(parents=True, exist_ok=True)
         job = {"base": base, "email": email, "password": password, "path": f"/projects/{pid}/data?task={tid}",
-               "wait": 15, "out": str(args.out.resolve()), "click": []}
+               "wait": 15, "out": str(args.out.resolve()), "click": ["creference-"]}
         proc = subprocess.run([str(args.label_studio_venv / "bin" / "python"), "-c", _BROWSER], input=json.dumps(job),
                               capture_output=True, text=True, timeout=600)
         if proc.returncode:
