@@ -39,7 +39,8 @@ def main(argv=None) -> int:
         times = []
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory() as tmp:
-                client = create_app(ServeSettings(state_dir=Path(tmp), background=False), start_worker=False).test_client()
+                settings = ServeSettings(state_dir=Path(tmp), background=False)
+                client = create_app(settings, start_worker=False).test_client()
                 t0 = time.perf_counter()
                 r = client.post("/predict", json={"tasks": [task], "label_config": config})
                 times.append(time.perf_counter() - t0)

@@ -267,10 +267,10 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
         assert r.status_code == 201 and r.json["result"]["queued"] == "p3_t9"
     assert worker.busy("p3_t9")
     before = c.get("/health").json
-    worker.run_pending()
+    worker.run_pending()  # one job for the task, with every annotation the webhooks brought
     after = c.get("/health").json
     assert before["jobs"] == 1 and after["jobs"] == 0
-    assert after["model_version"] != before["model_version"]  # Label Studio asks again for newer predictions  # one job for the task, with every annotation the webhooks brought
+    assert after["model_version"] != before["model_version"]  # Label Studio asks again for newer predictions
     state = tmp_path / "state"
     result = json.loads((state / "results" / "p3_t9.json").read_text())
     advice = json.loads((state / "advice" / "p3_t9.json").read_text())

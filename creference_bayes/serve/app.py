@@ -147,7 +147,8 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
     @app.errorhandler(Exception)
     def failed(exc: Exception):  # a bug, not the client's fault: logged, said without a traceback
         log.exception("internal error")
-        return jsonify({"status": "error", "error": f"internal error ({type(exc).__name__}); see the service's log"}), 500
+        said = f"internal error ({type(exc).__name__}); see the service's log"
+        return jsonify({"status": "error", "error": said}), 500
 
     @app.before_request
     def check_token():

@@ -241,7 +241,8 @@ def _percent(uv: np.ndarray, width: int, height: int) -> list[list[float]]:
 def object_text(scene: Scene, view: FrameView, i: int) -> str:
     """One target's line: its distance, interval and label quality."""
     lo, hi = view.interval_m[i]
-    return (f"{scene.targets[i].id}: {view.distance_m[i]:.2f} m ({100 * view.hdi_prob:g} % interval {lo:.2f}–{hi:.2f} m), "
+    return (f"{scene.targets[i].id}: {view.distance_m[i]:.2f} m "
+            f"({100 * view.hdi_prob:g} % interval {lo:.2f}–{hi:.2f} m), "
             f"P(IoU ≥ {view.threshold:g}) {view.p_iou[i]:.2f}")
 
 

@@ -7,7 +7,8 @@ simulated frame of three targets drawn on a plain synthetic photo, posts its ann
 the background posterior, retrieves the predictions, then opens the task in headless Chromium and
 saves the page. Every process it starts is stopped by its id.
 
-    python docs/figures/make_serve_screenshot.py --label-studio-venv /path/to/venv --out docs/figures/serve_labelstudio.png
+    python docs/figures/make_serve_screenshot.py --label-studio-venv /path/to/venv \
+        --out docs/figures/serve_labelstudio.png
 """
 
 from __future__ import annotations
@@ -111,10 +112,10 @@ def main(argv=None) -> int:
     from creference_bayes.serve.frames import serve_config
 
     work = Path(tempfile.mkdtemp(prefix="serve-shot-"))
-    (work / "files").mkdir()
+    (work / "files" / "photos").mkdir(parents=True)
     scene = scene_to_dict(parse_scene(simulate_scene(args.seed, tier="high", n_objects=3, n_references=3,
                                                      n_target_annotations=3)))
-    _photo(scene, work / "files" / "frame.png")
+    _photo(scene, work / "files" / "photos" / "frame.png")
     email, password, token = "admin@example.com", secrets.token_hex(12), secrets.token_hex(20)
     serve_token = secrets.token_hex(16)
     ls_port, serve_port = _port(), _port()
@@ -122,7 +123,8 @@ def main(argv=None) -> int:
     env = {k: v for k, v in os.environ.items() if not k.startswith("LABEL_STUDIO_")}
     env.update(LATEST_VERSION_CHECK="false", SENTRY_DSN="", FRONTEND_SENTRY_DSN="", COLLECT_ANALYTICS="false",
                ML_BLOCK_LOCAL_IP="false", SSRF_PROTECTION_ENABLED="false",
-               LABEL_STUDIO_LOCAL_FILES_SERVING_ENABLED="true", LABEL_STUDIO_LOCAL_FILES_DOCUMENT_ROOT=str(work / "files"))
+               LABEL_STUDIO_LOCAL_FILES_SERVING_ENABLED="true",
+               LABEL_STUDIO_LOCAL_FILES_DOCUMENT_ROOT=str(work / "files"))
     procs = []
     try:
         procs.append(subprocess.Popen(
@@ -144,9 +146,9 @@ def main(argv=None) -> int:
         hook = next(h for h in _call(base, token, f"/api/webhooks/?project={pid}") if h["url"].endswith("/webhook"))
         _call(base, token, f"/api/webhooks/{hook['id']}/", {"headers": {"Authorization": f"Bearer {serve_token}"}},
               "PATCH")
-        _call(base, token, "/api/storages/localfiles", {"project": pid, "title": "photos", "path": str(work / "files"),
-                                                         "use_blob_urls": False}, "POST")
-        task = label_studio_task(scene, lines="vectors", image_url="/data/local-files/?d=frame.png")
+        _call(base, token, "/api/storages/localfiles", {"project": pid, "title": "photos", "use_blob_urls": False,
+                                                         "path": str(work / "files" / "photos")}, "POST")
+        task = label_studio_task(scene, lines="vectors", image_url="/data/local-files/?d=photos/frame.png")
         _call(base, token, f"/api/projects/{pid}/import", [task["data"]], "POST")
         tid = _call(base, token, f"/api/projects/{pid}/tasks/")[0]["id"]
         for ann in task["annotations"]:
