@@ -19,7 +19,7 @@ from creference_bayes.io.scene import parse_scene, scene_to_dict
 from creference_bayes.models.boxes import image_boxes
 from creference_bayes.pipeline import map_state
 from creference_bayes.serve.app import ServeSettings, create_app
-from creference_bayes.serve.frames import WIREFRAME, serve_config, task_frame
+from creference_bayes.serve.predictions import WIREFRAME, serve_config, task_scene
 from creference_bayes.workflows.advice import AdviceSettings
 
 from fuzz_strategies import VALUES, fuzz_settings
@@ -150,8 +150,8 @@ def test_no_path_outside_the_image_root_is_read(tmp_path, task):
     assert _predict(c, [long]).status_code == 422
     inside = copy.deepcopy(task)
     inside["data"]["image_path"] = "street.png"
-    assert task_frame(inside, root).scene.image_path == root.resolve() / "street.png"
-    assert task_frame(inside, None).scene.image_path is None  # without a root no photo is read
+    assert task_scene(inside, root).scene.image_path == root.resolve() / "street.png"
+    assert task_scene(inside, None).scene.image_path is None  # without a root no photo is read
 
 
 # ------------------------------------------------------------------------------------------------
@@ -289,7 +289,7 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
 
 def test_the_command_prints_the_served_config_and_refuses_an_open_port_without_a_token(capsys, monkeypatch):
     from creference_bayes.cli import main
-    from creference_bayes.serve.frames import Controls
+    from creference_bayes.serve.predictions import Controls
 
     assert main(["serve", "--print-config", "--lines", "keypoints"]) == 0
     controls = Controls.from_config(capsys.readouterr().out)

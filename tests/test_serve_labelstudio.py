@@ -72,7 +72,7 @@ def test_label_studio_shows_the_served_estimate(checks, tmp_path, monkeypatch):
     from creference_bayes.io.scene import parse_scene, scene_to_dict
     from creference_bayes.models.boxes import image_boxes
     from creference_bayes.pipeline import map_state
-    from creference_bayes.serve.frames import WIREFRAME, serve_config
+    from creference_bayes.serve.predictions import WIREFRAME, serve_config
 
     venv = os.environ.get("CREFERENCE_LABEL_STUDIO_VENV")
     if not venv or not (Path(venv) / "bin" / "label-studio").exists():

@@ -38,7 +38,7 @@ def _loopback(host: str) -> bool:
 
 
 def _run_serve(args) -> int:
-    from ..serve.frames import serve_config
+    from ..serve.predictions import serve_config
 
     if args.print_config:
         sys.stdout.write(serve_config(args.lines))

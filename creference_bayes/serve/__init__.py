@@ -1,7 +1,7 @@
 """``creference serve``: a Label Studio ML backend that shows each frame's estimate in the
 annotation tool (docs/serve.md).
 
-- :mod:`.frames`: a task → its frame's scene → the estimate as a Label Studio prediction (no web
+- :mod:`.predictions`: a task → its frame's scene → the estimate as a Label Studio prediction (no web
   framework);
 - :mod:`.jobs`: the service's folder (tasks, results, advice; nothing lost on a restart) and the
   background queue that samples each frame's posterior and finds its next request;
@@ -11,6 +11,6 @@ annotation tool (docs/serve.md).
 Flask is the optional extra ``[serve]``; only :mod:`.app` imports it.
 """
 
-from .frames import RequestError, serve_config
+from .predictions import RequestError, serve_config
 
 __all__ = ["RequestError", "serve_config"]

@@ -16,7 +16,7 @@ from typing import Any
 from .. import __version__
 from ..io.annotation_tools import ConversionError
 from ..io.labelstudio import loads_export
-from .frames import (Controls, RequestError, empty_prediction, frame_view, prediction, task_frame, task_id)
+from .predictions import (Controls, RequestError, empty_prediction, estimate_view, prediction, task_scene, task_id)
 from .jobs import FrameStore, Worker, task_key
 
 __all__ = ["ServeSettings", "create_app", "FLASK_INSTALL_HINT", "MAX_TASKS"]
@@ -190,7 +190,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         controls = Controls.from_config(config if config is not None else store.config(pid))
         for task in tasks:
             task_id(task)
-        frames = [task_frame(task, settings.image_root) for task in tasks]  # every task checked before any work
+        frames = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before any work
         version = model_version()
         return jsonify({"results": [_predict_one(task, frame, pid, controls, version)
                                     for task, frame in zip(tasks, frames)], "model_version": version})
@@ -212,7 +212,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
                 raise RequestError(f"task {task['id']}: {' '.join(str(exc).split())}", 422) from None
             if settings.background:
                 worker.submit(key)
-        view = frame_view(frame.scene, result, threshold=settings.iou_threshold, hdi_prob=settings.hdi_prob,
+        view = estimate_view(frame.scene, result, threshold=settings.iou_threshold, hdi_prob=settings.hdi_prob,
                           n_draws=settings.n_draws, seed=seed)
         advice = store.advice(key, frame.fingerprint)
         said = None
@@ -244,7 +244,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             store.put_config(pid, doc["project"]["label_config"])
         stored = {**(store.task(key) or {}), "id": tid, "data": task["data"]}
         others = [a for a in stored.get("annotations", []) if isinstance(a, dict) and a.get("id") != aid]
-        task_frame({**stored, "annotations": others + [annotation]}, settings.image_root)  # 4xx before storing
+        task_scene({**stored, "annotations": others + [annotation]}, settings.image_root)  # 4xx before storing
         store.put_annotation(key, task, annotation)
         worker.submit(key)
         return jsonify({"status": "ok", "result": {"queued": key}}), 201

@@ -31,7 +31,7 @@ from ..io.files import atomic_write_json, atomic_write_text
 from ..io.scene import scene_to_dict
 from ..io.validation import read_json
 from ..workflows.batch.files import layout
-from .frames import Frame, task_frame
+from .predictions import Frame, task_scene
 
 __all__ = ["FrameStore", "Worker", "task_key"]
 
@@ -240,13 +240,13 @@ class Worker:
         from ..workflows.advice import AdviceSettings
         from ..workflows.advice.inputs import advise_result
         from ..workflows.batch import derive_seed
-        from .frames import RequestError
+        from .predictions import RequestError
 
         task = self.store.task(key)
         if task is None:
             return
         try:
-            frame = task_frame(task, self.image_root)
+            frame = task_scene(task, self.image_root)
         except RequestError as exc:
             self.store.put_error(key, None, str(exc))
             return

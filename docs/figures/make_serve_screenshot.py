@@ -106,7 +106,7 @@ def main(argv=None) -> int:
     from creference_bayes.bench.simulate import simulate_scene
     from creference_bayes.io.labelstudio import label_studio_task
     from creference_bayes.io.scene import parse_scene, scene_to_dict
-    from creference_bayes.serve.frames import serve_config
+    from creference_bayes.serve.predictions import serve_config
 
     work = Path(tempfile.mkdtemp(prefix="serve-shot-"))
     (work / "files" / "photos").mkdir(parents=True)

@@ -30,7 +30,7 @@ from ..io.scene import Scene, SceneError, parse_quietly, scene_fingerprint
 from ..models.contract import O_X, O_Z
 
 __all__ = ["RequestError", "ESTIMATE_BOX", "ESTIMATE_TEXT", "ESTIMATE_SUMMARY", "ESTIMATE_LABEL", "WIREFRAME",
-           "serve_config", "Controls", "Frame", "task_id", "task_frame", "FrameView", "frame_view", "object_text",
+           "serve_config", "Controls", "Frame", "task_id", "task_scene", "EstimateView", "estimate_view", "object_text",
            "summary_lines", "prediction", "empty_prediction"]
 
 #: The controls :func:`serve_config` adds to a shipped config: the boxes (polygons), the per-box
@@ -120,7 +120,7 @@ def task_id(task: Any) -> int:
     return tid
 
 
-def task_frame(task: dict, image_root: str | Path | None = None) -> Frame | None:
+def task_scene(task: dict, image_root: str | Path | None = None) -> Frame | None:
     """The frame of a Label Studio task (with its annotations), or None when no annotation draws
     anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message names
     the task, annotation and region), 403 for an image outside ``image_root``."""
@@ -183,7 +183,7 @@ def _inside(root: Path, names: list[str], where: str) -> Path | None:
 
 
 @dataclass(frozen=True)
-class FrameView:
+class EstimateView:
     """What the prediction shows of an estimate of a frame.
 
     Attributes
@@ -212,8 +212,8 @@ class FrameView:
         return float(np.min(self.p_iou))
 
 
-def frame_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: float = 0.9, n_draws: int = 400,
-               seed=0) -> FrameView:
+def estimate_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: float = 0.9, n_draws: int = 400,
+               seed=0) -> EstimateView:
     """The view of ``result`` (a :class:`~creference_bayes.pipeline.Result` of ``scene``): its kept
     posterior draws, else ``n_draws`` draws of the Laplace approximation at its MAP
     (:func:`~creference_bayes.pipeline.result_draws`); the label quality as ``creference labels``
@@ -230,7 +230,7 @@ def frame_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: float 
     boxes = kitti_poses(scene, cams, objs)
     p = np.array([label_quality(box[i], boxes[:, i], (threshold,)).p_iou[threshold] for i in range(len(box))])
     dist = np.hypot(objs[..., O_X], objs[..., O_Z])
-    return FrameView(camera, objects, np.hypot(objects[:, O_X], objects[:, O_Z]), hdi(dist, hdi_prob), p, source,
+    return EstimateView(camera, objects, np.hypot(objects[:, O_X], objects[:, O_Z]), hdi(dist, hdi_prob), p, source,
                      threshold, hdi_prob, result.converged if source == "posterior" else None)
 
 
@@ -238,7 +238,7 @@ def _percent(uv: np.ndarray, width: int, height: int) -> list[list[float]]:
     return [[100.0 * float(u) / width, 100.0 * float(v) / height] for u, v in uv]
 
 
-def object_text(scene: Scene, view: FrameView, i: int) -> str:
+def object_text(scene: Scene, view: EstimateView, i: int) -> str:
     """One target's line: its distance, interval and label quality."""
     lo, hi = view.interval_m[i]
     return (f"{scene.targets[i].id}: {view.distance_m[i]:.2f} m "
@@ -246,7 +246,7 @@ def object_text(scene: Scene, view: FrameView, i: int) -> str:
             f"P(IoU ≥ {view.threshold:g}) {view.p_iou[i]:.2f}")
 
 
-def summary_lines(scene: Scene, view: FrameView, next_request: str | None) -> list[str]:
+def summary_lines(scene: Scene, view: EstimateView, next_request: str | None) -> list[str]:
     """The frame's summary: its label quality, how it was estimated, the next request."""
     low = int(np.argmin(view.p_iou))
     how = ("MAP with the Laplace approximation (the posterior is being sampled in the background)"
@@ -259,7 +259,7 @@ def summary_lines(scene: Scene, view: FrameView, next_request: str | None) -> li
     return lines
 
 
-def prediction(scene: Scene, view: FrameView, controls: Controls, model_version: str,
+def prediction(scene: Scene, view: EstimateView, controls: Controls, model_version: str,
                next_request: str | None = None) -> dict:
     """The Label Studio prediction of a frame's estimate (module docstring): regions in the task's
     image coordinates (percent), ``score`` the frame's label quality."""
