@@ -190,10 +190,10 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         controls = Controls.from_config(config if config is not None else store.config(pid))
         for task in tasks:
             task_id(task)
-        frames = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before any work
+        scenes = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before any work
         version = model_version()
         return jsonify({"results": [_predict_one(task, frame, pid, controls, version)
-                                    for task, frame in zip(tasks, frames)], "model_version": version})
+                                    for task, frame in zip(tasks, scenes)], "model_version": version})
 
     def _predict_one(task: dict, frame, pid, controls: Controls, version: str) -> dict:
         from .. import estimate
@@ -213,7 +213,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             if settings.background:
                 worker.submit(key)
         view = estimate_view(frame.scene, result, threshold=settings.iou_threshold, hdi_prob=settings.hdi_prob,
-                          n_draws=settings.n_draws, seed=seed)
+                             n_draws=settings.n_draws, seed=seed)
         advice = store.advice(key, frame.fingerprint)
         said = None
         if advice is not None:

@@ -34,7 +34,7 @@ from selenium import webdriver
 from selenium.webdriver.common.by import By
 job = json.load(sys.stdin)
 opts = webdriver.ChromeOptions()
-for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,1250", "--disable-dev-shm-usage"):
+for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,1400", "--disable-dev-shm-usage"):
     opts.add_argument(a)
 d = webdriver.Chrome(options=opts)
 try:
@@ -48,7 +48,7 @@ try:
     for text in job.get("click", []):  # the deepest element showing the text, clicked as a user would
         found = d.find_elements(By.XPATH, f"//*[contains(text(), '{text}')]")
         if found:
-            d.execute_script("arguments[0].scrollIntoView(); arguments[0].click();", found[0])
+            d.execute_script("arguments[0].click();", found[0])
             time.sleep(5)
     d.save_screenshot(job["out"])
 finally:
@@ -162,7 +162,7 @@ def main(argv=None) -> int:
               {"selectedItems": {"all": True, "excluded": []}}, "POST")
         args.out.parent.mkdir(parents=True, exist_ok=True)
         job = {"base": base, "email": email, "password": password, "path": f"/projects/{pid}/data?task={tid}",
-               "wait": 15, "out": str(args.out.resolve()), "click": ["creference-", "estimate"]}
+               "wait": 15, "out": str(args.out.resolve()), "click": ["creferen"]}
         proc = subprocess.run([str(args.label_studio_venv / "bin" / "python"), "-c", _BROWSER], input=json.dumps(job),
                               capture_output=True, text=True, timeout=600)
         if proc.returncode:
