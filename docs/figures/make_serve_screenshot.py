@@ -32,9 +32,10 @@ _BROWSER = r'''
 import json, sys, time
 from selenium import webdriver
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.action_chains import ActionChains
 job = json.load(sys.stdin)
 opts = webdriver.ChromeOptions()
-for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,1400", "--disable-dev-shm-usage"):
+for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,1750", "--disable-dev-shm-usage"):
     opts.add_argument(a)
 d = webdriver.Chrome(options=opts)
 try:
@@ -45,11 +46,15 @@ try:
     time.sleep(5)
     d.get(job["base"] + job["path"])
     time.sleep(job["wait"])
-    for text in job.get("click", []):  # the deepest element showing the text, clicked as a user would
+    for text in job.get("click", []):  # the prediction's tab, clicked as a user would
         found = d.find_elements(By.XPATH, f"//*[contains(text(), '{text}')]")
         if found:
             d.execute_script("arguments[0].click();", found[0])
             time.sleep(5)
+    regions = [el for el in d.find_elements(By.XPATH, "//*[text()='estimate']") if el.location["x"] > 1000]
+    if regions:  # the first box, selected in the regions list: its numbers show under the photo
+        ActionChains(d).move_to_element(regions[0]).click().perform()
+        time.sleep(4)
     d.save_screenshot(job["out"])
 finally:
     d.quit()
