@@ -317,3 +317,18 @@ def test_one_job_per_task_at_a_time(tmp_path):
     assert worker.pending() == 2
     worker.run_pending()
     assert calls == ["a", "b", "a"] and worker.pending() == 0
+
+
+def test_deleted_annotations_leave_the_stored_task(tmp_path, task):
+    app = _app(tmp_path)
+    c, store = app.test_client(), app.extensions["creference"]["store"]
+    hook = {"action": "ANNOTATION_CREATED", "project": {"id": 3}, "task": {"id": 5, "data": task["data"]}}
+    for ann in task["annotations"][:2]:
+        assert c.post("/webhook", json={**hook, "annotation": ann}).status_code == 201
+    first, second = (a["id"] for a in task["annotations"][:2])
+    r = c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "project": {"id": 3}, "annotations": [{"id": first}]})
+    assert r.status_code == 201 and r.json["result"]["queued"] == ["p3_t5"]
+    assert [a["id"] for a in store.task("p3_t5")["annotations"]] == [second]
+    r = c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "project": {"id": 4}, "annotations": [{"id": second}]})
+    assert r.json["result"]["queued"] == []  # another project's task is not touched
+    assert c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "annotations": 7}).status_code == 400

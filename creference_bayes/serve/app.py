@@ -26,6 +26,8 @@ FLASK_INSTALL_HINT = 'creference serve needs Flask: pip install "creference-baye
 MAX_TASKS = 100
 #: The webhook actions that re-estimate a task's frame.
 REESTIMATE = ("ANNOTATION_CREATED", "ANNOTATION_UPDATED")
+#: The webhook action whose annotations leave the stored tasks (and their frames are estimated again).
+DELETED = "ANNOTATIONS_DELETED"
 
 log = logging.getLogger("creference.serve")
 
@@ -228,6 +230,8 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         action = doc.get("action")
         if not isinstance(action, str) or not action:
             raise RequestError(f"action: expected the event's name (text), got {str(action)[:60]}")
+        if action == DELETED:
+            return _deleted(doc)
         if action not in REESTIMATE:
             return jsonify({"status": "Unknown event", "action": action[:60]}), 200
         pid = _project_id(doc.get("project"))
@@ -248,6 +252,19 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         store.put_annotation(key, task, annotation)
         worker.submit(key)
         return jsonify({"status": "ok", "result": {"queued": key}}), 201
+
+    def _deleted(doc: dict):
+        """``ANNOTATIONS_DELETED``: the annotations (``[{"id": …}, …]``) leave their stored tasks,
+        whose frames are estimated again."""
+        pid = _project_id(doc.get("project"))
+        gone = doc.get("annotations")
+        if not isinstance(gone, list) or not all(isinstance(a, dict) and isinstance(a.get("id"), (int, str))
+                                                 and not isinstance(a.get("id"), bool) for a in gone):
+            raise RequestError(f"annotations: expected a list of {{\"id\": …}}, got {str(gone)[:60]}")
+        changed = store.drop_annotations(pid, [a["id"] for a in gone])
+        for key in changed:
+            worker.submit(key)
+        return jsonify({"status": "ok", "result": {"queued": changed}}), 201
 
     if start_worker:
         worker.start()

@@ -86,6 +86,22 @@ class FrameStore:
             atomic_write_json(self.paths(key)["task"], doc)
         return doc
 
+    def drop_annotations(self, project, ids) -> list[str]:
+        """Remove the annotations of these ids from the stored tasks of a project (every project's
+        when it is None); returns the keys of the tasks that changed."""
+        ids, changed = {str(i) for i in ids}, []
+        prefix = "" if project is None else task_key(project, 0).rsplit("_", 1)[0] + "_"
+        with self._lock:
+            for key in self.keys():
+                task = self.task(key) if key.startswith(prefix) else None
+                if task is None:
+                    continue
+                kept = [a for a in task.get("annotations", []) if str(a.get("id")) not in ids]
+                if len(kept) < len(task.get("annotations", [])):
+                    atomic_write_json(self.paths(key)["task"], {**task, "annotations": kept})
+                    changed.append(key)
+        return changed
+
     def keys(self) -> list[str]:
         return sorted(p.stem for p in (self.root / "tasks").glob("*.json") if not p.name.startswith("."))
 
