@@ -326,9 +326,21 @@ def test_deleted_annotations_leave_the_stored_task(tmp_path, task):
     for ann in task["annotations"][:2]:
         assert c.post("/webhook", json={**hook, "annotation": ann}).status_code == 201
     first, second = (a["id"] for a in task["annotations"][:2])
-    r = c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "project": {"id": 3}, "annotations": [{"id": first}]})
+    gone = {"action": "ANNOTATIONS_DELETED", "project": {"id": 3}, "annotations": [{"id": first}]}
+    r = c.post("/webhook", json=gone)
     assert r.status_code == 201 and r.json["result"]["queued"] == ["p3_t5"]
     assert [a["id"] for a in store.task("p3_t5")["annotations"]] == [second]
     r = c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "project": {"id": 4}, "annotations": [{"id": second}]})
     assert r.json["result"]["queued"] == []  # another project's task is not touched
     assert c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "annotations": 7}).status_code == 400
+
+
+def test_past_the_time_budget_a_frame_is_queued_not_estimated(tmp_path, task, monkeypatch):
+    app = _app(tmp_path, time_budget_s=0.0)
+    c, worker = app.test_client(), app.extensions["creference"]["worker"]
+    monkeypatch.setattr(cb, "estimate", lambda *a, **k: pytest.fail("no MAP past the budget"))
+    r = _predict(c, [task, {**task, "id": 6}])
+    assert r.status_code == 200 and len(r.json["results"]) == 2
+    for pred in r.json["results"]:
+        assert "score" not in pred and "queued" in pred["result"][0]["value"]["text"][0]
+    assert worker.busy("p3_t5") and worker.busy("p3_t6")

@@ -45,6 +45,7 @@ def _run_serve(args) -> int:
         return 0
     require(0 < args.iou_threshold < 1, "--iou-threshold", "a number in (0, 1)", args.iou_threshold)
     require(args.max_body_mb > 0, "--max-body-mb", "a size > 0 (MiB)", args.max_body_mb)
+    require(args.time_budget >= 0, "--time-budget", "seconds >= 0", args.time_budget)
     require(1 <= args.port <= 65535, "--port", "a port number in [1, 65535]", args.port)
     token = _token(args)
     if not _loopback(args.host) and token is None:
@@ -66,6 +67,7 @@ def _run_serve(args) -> int:
     settings = ServeSettings(state_dir=Path(args.state), image_root=None if args.image_root is None else
                              Path(args.image_root), token=token, max_body_bytes=int(args.max_body_mb * 2**20),
                              iou_threshold=args.iou_threshold, seed=args.seed, background=not args.no_background,
+                             time_budget_s=args.time_budget,
                              advice_settings=advice)
     app = create_app(settings)
     try:
@@ -106,6 +108,9 @@ def register(subparsers) -> None:
     adv = advanced_group(p)
     adv.add_argument("--max-body-mb", type=float, default=16.0, metavar="MB",
                      help="larger requests are refused with 413 (default: %(default)s MiB)")
+    adv.add_argument("--time-budget", type=float, default=60.0, metavar="S",
+                     help="a /predict estimates no more frames after S seconds and queues the rest for the background "
+                          "(Label Studio waits 100 s; default: %(default)s)")
     adv.add_argument("--seed", type=seed_value, default=0, help="base seed (default: %(default)s)")
     adv.add_argument("--no-background", action="store_true",
                      help="do not sample a posterior for frames /predict estimates (only webhooks queue jobs)")

@@ -9,6 +9,7 @@ import base64
 import binascii
 import hmac
 import logging
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,8 +23,8 @@ from .jobs import FrameStore, Worker, task_key
 __all__ = ["ServeSettings", "create_app", "FLASK_INSTALL_HINT", "MAX_TASKS"]
 
 FLASK_INSTALL_HINT = 'creference serve needs Flask: pip install "creference-bayes[serve]"'
-#: At most this many tasks in one /predict request.
-MAX_TASKS = 100
+#: At most this many tasks in one /predict request (Label Studio sends every selected task at once).
+MAX_TASKS = 10000
 #: The webhook actions that re-estimate a task's frame.
 REESTIMATE = ("ANNOTATION_CREATED", "ANNOTATION_UPDATED")
 #: The webhook action whose annotations leave the stored tasks (and their frames are estimated again).
@@ -48,6 +49,9 @@ class ServeSettings:
     n_draws : draws of the Laplace approximation behind a fresh frame's numbers
     seed : base seed (each frame's derives from it and the scene, as a batch's)
     background : queue a posterior for every frame /predict estimates without one
+    time_budget_s : a /predict finds no more MAPs once this many seconds have passed (Label Studio
+        waits 100 s): the tasks left without a stored estimate are queued for the background and
+        answered with a prediction that says so
     advice_settings : :class:`~creference_bayes.workflows.advice.AdviceSettings` of the next
         request (None: the defaults)
     sampling : sampler settings of the background posterior
@@ -62,6 +66,7 @@ class ServeSettings:
     n_draws: int = 400
     seed: int = 0
     background: bool = True
+    time_budget_s: float = 60.0
     advice_settings: Any = None
     sampling: dict | None = field(default=None)
 
@@ -193,11 +198,11 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         for task in tasks:
             task_id(task)
         scenes = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before any work
-        version = model_version()
-        return jsonify({"results": [_predict_one(task, frame, pid, controls, version)
+        version, until = model_version(), time.monotonic() + settings.time_budget_s
+        return jsonify({"results": [_predict_one(task, frame, pid, controls, version, until)
                                     for task, frame in zip(tasks, scenes)], "model_version": version})
 
-    def _predict_one(task: dict, frame, pid, controls: Controls, version: str) -> dict:
+    def _predict_one(task: dict, frame, pid, controls: Controls, version: str, until: float) -> dict:
         from .. import estimate
         from ..workflows.batch import derive_seed
 
@@ -207,6 +212,10 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             return empty_prediction(controls, version, "no dimension lines yet: nothing to estimate")
         seed = derive_seed(settings.seed, frame.fingerprint)
         result = store.result(key, frame.fingerprint)
+        if result is None and time.monotonic() > until:  # past the budget: the background estimates it
+            worker.submit(key)
+            return empty_prediction(controls, version, "queued: this frame is being estimated in the background "
+                                                       "(ask again)")
         if result is None:
             try:
                 result = estimate(frame.scene, posterior=False, seed=seed, hdi_prob=settings.hdi_prob)
