@@ -330,7 +330,7 @@ def test_deleted_annotations_leave_the_stored_task(tmp_path, task):
     r = c.post("/webhook", json=gone)
     assert r.status_code == 201 and r.json["result"]["queued"] == ["p3_t5"]
     assert [a["id"] for a in store.task("p3_t5")["annotations"]] == [second]
-    r = c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "project": {"id": 4}, "annotations": [{"id": second}]})
+    r = c.post("/webhook", json={**gone, "project": {"id": 4}, "annotations": [{"id": second}]})
     assert r.json["result"]["queued"] == []  # another project's task is not touched
     assert c.post("/webhook", json={"action": "ANNOTATIONS_DELETED", "annotations": 7}).status_code == 400
 
