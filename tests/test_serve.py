@@ -170,7 +170,15 @@ def bad_bodies(draw, task_json):
     good = ({"tasks": [task], "project": "3.1", "label_config": CONFIG} if route == "/predict" else
             {"action": "ANNOTATION_CREATED", "project": {"id": 3}, "task": {k: task[k] for k in ("id", "data")},
              "annotation": task["annotations"][0]})
-    how = draw(st.sampled_from(["truncated", "not an object", "envelope", "task", "region"]))
+    how = draw(st.sampled_from(["truncated", "not an object", "envelope", "task", "region", "deleted"]))
+    if how == "deleted":  # the ids of deleted annotations, not as a list of {"id": …}
+        def valid(v):
+            return isinstance(v, list) and all(isinstance(a, dict) and isinstance(a.get("id"), (int, str))
+                                               and not isinstance(a.get("id"), bool) for a in v)
+        bad = draw(st.one_of(VALUES, st.lists(st.dictionaries(st.just("id"), VALUES), max_size=3)).filter(
+            lambda v: not valid(v)))
+        return "/webhook", json.dumps({"action": "ANNOTATIONS_DELETED", "project": {"id": 3},
+                                       "annotations": bad}).encode()
     if how == "truncated":  # no prefix of a JSON object is JSON
         text = json.dumps(good)
         return route, text[:draw(st.integers(0, len(text) - 1))].encode()
