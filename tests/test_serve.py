@@ -352,3 +352,10 @@ def test_past_the_time_budget_a_frame_is_queued_not_estimated(tmp_path, task, mo
     for pred in r.json["results"]:
         assert "score" not in pred and "queued" in pred["result"][0]["value"]["text"][0]
     assert worker.busy("p3_t5") and worker.busy("p3_t6")
+
+
+def test_an_annotation_that_kept_the_predicted_boxes_still_imports(client, task):
+    (pred,) = _predict(client, [task]).json["results"]
+    kept = copy.deepcopy(task)
+    kept["annotations"][0]["result"] += pred["result"]  # the annotator accepted the prediction and drew on
+    assert task_scene(kept).fingerprint == task_scene(task).fingerprint
