@@ -284,6 +284,11 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
     advice = json.loads((state / "advice" / "p3_t9.json").read_text())
     assert result["scene_id"]["sha256"] == advice["scene_sha256"] and result["draws"]
 
+    from creference_bayes.workflows.labels import export_labels
+
+    export = export_labels(state, tmp_path / "labels")  # the folder reads as a batch folder
+    assert [o.key for o in export.objects] == ["p3_t9"] and not export.skipped
+
     def no_estimate(*a, **k):
         raise AssertionError("the stored posterior should answer")
 

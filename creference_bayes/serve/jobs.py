@@ -7,7 +7,8 @@ the tasks and the advice beside it)::
     DIR/tasks/KEY.json     the task as last seen (its data and every annotation, by id)
     DIR/scenes/KEY.json    the frame's scene, as estimated
     DIR/results/KEY.json   its creference-result/2 with posterior draws (``scene_id.sha256``: the
-                           scene it is the result of)
+                           scene it is the result of) and a batch's ``batch`` block: ``creference
+                           labels DIR`` reads the folder as a batch folder
     DIR/advice/KEY.json    the next request for that scene
     DIR/errors/KEY.json    why the last job of the task failed
     DIR/projects/ID.xml    each project's labelling config, from /setup
@@ -28,7 +29,6 @@ import traceback
 from pathlib import Path
 
 from ..io.files import atomic_write_json, atomic_write_text
-from ..io.scene import scene_to_dict
 from ..io.validation import read_json
 from ..workflows.batch.files import layout
 from .predictions import Frame, task_scene
@@ -128,11 +128,14 @@ class FrameStore:
         ok = isinstance(d, dict) and (fingerprint is None or d.get("scene_sha256") == fingerprint)
         return d if ok else None
 
-    def put_result(self, key: str, frame: Frame, result) -> None:
+    def put_result(self, key: str, frame: Frame, result, seed: int, settings: dict) -> None:
+        """The scene copy, then the result with a batch's ``batch`` block (its source: the copy), so
+        that ``creference labels`` and ``advise`` read the folder as a batch folder."""
+        from ..workflows.batch import SceneInput
+        from ..workflows.batch.files import record_result
+
         p = self.paths(key)
-        atomic_write_json(p["scene"], scene_to_dict(frame.scene))  # the copy first, then the result
-        result.save(p["result"])
-        p["error"].unlink(missing_ok=True)
+        record_result(p, SceneInput(key, p["scene"]), frame.scene, dict(result.to_dict()), seed, settings)
 
     def put_advice(self, key: str, frame: Frame, advice) -> None:
         best = advice.best
@@ -273,8 +276,9 @@ class Worker:
         if result is None:
             log.info("job %s: sampling the posterior of %d target(s)", key, len(frame.scene.targets))
             result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling)
-            self.store.put_result(key, frame, result)
+            settings = {"serve": True, "seed": self.seed, "hdi_prob": self.hdi_prob, "sampling": self.sampling or {}}
+            self.store.put_result(key, frame, result, seed, settings)
         if self.store.advice(key, frame.fingerprint) is None:
-            settings = self.advice_settings or AdviceSettings()
-            self.store.put_advice(key, frame, advise_result(result, frame.scene, seed=seed, settings=settings))
+            advice = advise_result(result, frame.scene, seed=seed, settings=self.advice_settings or AdviceSettings())
+            self.store.put_advice(key, frame, advice)
         log.info("job %s: done", key)
