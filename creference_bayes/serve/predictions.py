@@ -213,7 +213,7 @@ class EstimateView:
 
 
 def estimate_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: float = 0.9, n_draws: int = 400,
-               seed=0) -> EstimateView:
+                  seed=0) -> EstimateView:
     """The view of ``result`` (a :class:`~creference_bayes.pipeline.Result` of ``scene``): its kept
     posterior draws, else ``n_draws`` draws of the Laplace approximation at its MAP
     (:func:`~creference_bayes.pipeline.result_draws`); the label quality as ``creference labels``
@@ -231,7 +231,7 @@ def estimate_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: flo
     p = np.array([label_quality(box[i], boxes[:, i], (threshold,)).p_iou[threshold] for i in range(len(box))])
     dist = np.hypot(objs[..., O_X], objs[..., O_Z])
     return EstimateView(camera, objects, np.hypot(objects[:, O_X], objects[:, O_Z]), hdi(dist, hdi_prob), p, source,
-                     threshold, hdi_prob, result.converged if source == "posterior" else None)
+                        threshold, hdi_prob, result.converged if source == "posterior" else None)
 
 
 def _percent(uv: np.ndarray, width: int, height: int) -> list[list[float]]:
