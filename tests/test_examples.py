@@ -34,6 +34,7 @@ TINY = {
                              ["dp/labels/report.md"])],
     "estimate_scene.py": [([], [])],
     "speed_by_objects.py": [(["--counts", "3", "--scenes", "1", "--max-steps", "400"], [])],
+    "serve_speed.py": [(["--targets", "1", "--repeats", "1"], [])],
     "frame_calibration.py": [(["--frames", "1", "--counts", "3", "--tiers", "low", "--min-ess", "100", "--out", "fc"],
                               ["fc/frames.jsonl", "fc/frames.md"])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],

@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "creference_bayes"
 
 #: Each folder (or top-level module) may import only from its own rank or below.
 LAYERS = {"core": 0, "models": 1, "io": 2, "inference": 3, "vision": 4, "camera_setup": 5,
-          "pipeline": 5, "bench": 6, "evaluation": 6, "workflows": 7, "cli": 8}
+          "pipeline": 5, "bench": 6, "evaluation": 6, "workflows": 7, "serve": 7, "cli": 8}
 HEAVY = ("cv2", "emcee", "arviz", "matplotlib", "dask", "poselib", "shapely", "PIL", "tqdm")
 STDLIB = set(sys.stdlib_module_names)
 

@@ -29,7 +29,8 @@ COMMAND_MODULES: list[str] = ["creference_bayes.cli.estimate", "creference_bayes
                               "creference_bayes.cli.imports", "creference_bayes.cli.bench",
                               "creference_bayes.cli.batch", "creference_bayes.cli.labels",
                               "creference_bayes.cli.advise",
-                              "creference_bayes.cli.confidence", "creference_bayes.cli.evaluate"]
+                              "creference_bayes.cli.confidence", "creference_bayes.cli.evaluate",
+                              "creference_bayes.cli.serve"]
 
 EXIT_INVALID = 2
 

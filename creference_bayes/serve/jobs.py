@@ -1,0 +1,284 @@
+"""The service's folder and its background queue: every task it has seen, each frame's posterior
+and its advice, kept on disk so that nothing is lost when the service restarts (docs/serve.md).
+
+The folder (a batch folder's layout, :func:`~creference_bayes.workflows.batch.files.layout`, with
+the tasks and the advice beside it)::
+
+    DIR/tasks/KEY.json     the task as last seen (its data and every annotation, by id)
+    DIR/scenes/KEY.json    the frame's scene, as estimated
+    DIR/results/KEY.json   its creference-result/2 with posterior draws (``scene_id.sha256``: the
+                           scene it is the result of) and a batch's ``batch`` block: ``creference
+                           labels DIR`` reads the folder as a batch folder
+    DIR/advice/KEY.json    the next request for that scene
+    DIR/errors/KEY.json    why the last job of the task failed
+    DIR/projects/ID.xml    each project's labelling config, from /setup
+
+KEY is ``p<project>_t<task>``. A stored result counts for a task only while its scene is the one
+the task's annotations make now. One job per task at a time: a job asked for while one of the
+same task runs is run once more after it, and a job reads the task as it is when it starts.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import queue
+import threading
+import time
+import traceback
+from pathlib import Path
+
+from ..io.files import atomic_write_json, atomic_write_text
+from ..io.validation import read_json
+from ..workflows.batch.files import layout
+from .predictions import Frame, task_scene
+
+__all__ = ["FrameStore", "Worker", "task_key"]
+
+log = logging.getLogger("creference.serve")
+
+
+def task_key(project, task_id: int) -> str:
+    """The file name stem of a task: ``p<project>_t<task>`` (``p0`` when the project is unknown)."""
+    return f"p{int(project) if project is not None else 0}_t{int(task_id)}"
+
+
+class FrameStore:
+    """The service's folder (module docstring)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        for sub in ("tasks", "scenes", "results", "advice", "errors", "projects"):
+            (self.root / sub).mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+
+    def paths(self, key: str) -> dict[str, Path]:
+        return {**layout(self.root, key), "task": self.root / "tasks" / f"{key}.json",
+                "advice": self.root / "advice" / f"{key}.json"}
+
+    def _read(self, path: Path):
+        try:
+            return read_json(path)
+        except (OSError, ValueError):
+            return None
+
+    # -- tasks ---------------------------------------------------------------------------------
+    def task(self, key: str) -> dict | None:
+        """The task as last seen (``data`` and ``annotations``), or None."""
+        d = self._read(self.paths(key)["task"])
+        return d if isinstance(d, dict) else None
+
+    def put_task(self, key: str, task: dict) -> dict:
+        """Store a task as Label Studio sent it to /predict: its data and all its annotations."""
+        anns = [a for a in task.get("annotations") or [] if isinstance(a, dict)]
+        doc = {"id": task["id"], "data": task["data"], "annotations": anns}
+        with self._lock:
+            atomic_write_json(self.paths(key)["task"], doc)
+        return doc
+
+    def put_annotation(self, key: str, task: dict, annotation: dict) -> dict:
+        """Store one created or updated annotation of a task (a webhook's): it replaces the stored
+        annotation of the same id; the task's data is the webhook's."""
+        with self._lock:
+            old = self.task(key) or {}
+            anns = [a for a in old.get("annotations", []) if a.get("id") != annotation.get("id")]
+            doc = {"id": task["id"], "data": task["data"], "annotations": anns + [annotation]}
+            atomic_write_json(self.paths(key)["task"], doc)
+        return doc
+
+    def drop_annotations(self, project, ids) -> list[str]:
+        """Remove the annotations of these ids from the stored tasks of a project (every project's
+        when it is None); returns the keys of the tasks that changed."""
+        ids, changed = {str(i) for i in ids}, []
+        prefix = "" if project is None else task_key(project, 0).rsplit("_", 1)[0] + "_"
+        with self._lock:
+            for key in self.keys():
+                task = self.task(key) if key.startswith(prefix) else None
+                if task is None:
+                    continue
+                kept = [a for a in task.get("annotations", []) if str(a.get("id")) not in ids]
+                if len(kept) < len(task.get("annotations", [])):
+                    atomic_write_json(self.paths(key)["task"], {**task, "annotations": kept})
+                    changed.append(key)
+        return changed
+
+    def keys(self) -> list[str]:
+        return sorted(p.stem for p in (self.root / "tasks").glob("*.json") if not p.name.startswith("."))
+
+    # -- results -------------------------------------------------------------------------------
+    def result(self, key: str, fingerprint: str):
+        """The stored result of this scene (a :class:`~creference_bayes.pipeline.Result`), or None."""
+        from ..pipeline import load_result
+
+        path = self.paths(key)["result"]
+        d = self._read(path)
+        if not isinstance(d, dict) or (d.get("scene_id") or {}).get("sha256") != fingerprint:
+            return None
+        try:
+            return load_result(path)
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def advice(self, key: str, fingerprint: str) -> dict | None:
+        d = self._read(self.paths(key)["advice"])
+        return d if isinstance(d, dict) and d.get("scene_sha256") == fingerprint else None
+
+    def error(self, key: str, fingerprint: str | None = None) -> dict | None:
+        d = self._read(self.paths(key)["error"])
+        ok = isinstance(d, dict) and (fingerprint is None or d.get("scene_sha256") == fingerprint)
+        return d if ok else None
+
+    def put_result(self, key: str, frame: Frame, result, seed: int, settings: dict) -> None:
+        """The scene copy, then the result with a batch's ``batch`` block (its source: the copy), so
+        that ``creference labels`` and ``advise`` read the folder as a batch folder."""
+        from ..workflows.batch import SceneInput
+        from ..workflows.batch.files import record_result
+
+        p = self.paths(key)
+        record_result(p, SceneInput(key, p["scene"]), frame.scene, dict(result.to_dict()), seed, settings)
+
+    def put_advice(self, key: str, frame: Frame, advice) -> None:
+        best = advice.best
+        request = best.candidate.description if advice.action == "collect" and best is not None else None
+        atomic_write_json(self.paths(key)["advice"], {"scene_sha256": frame.fingerprint, "action": advice.action,
+                                                      "reason": advice.reason, "request": request})
+
+    def put_error(self, key: str, fingerprint: str | None, error: str) -> None:
+        atomic_write_json(self.paths(key)["error"], {"scene_sha256": fingerprint, "error": error})
+
+    # -- projects ------------------------------------------------------------------------------
+    def put_config(self, project: int, config: str) -> None:
+        atomic_write_text(self.root / "projects" / f"{int(project)}.xml", config)
+
+    def config(self, project: int | None) -> str | None:
+        if project is None:
+            return None
+        try:
+            return (self.root / "projects" / f"{int(project)}.xml").read_text("utf-8")
+        except OSError:
+            return None
+
+    def state_tag(self) -> str:
+        """Eight hex digits that change whenever a result or advice is written: the model version
+        says so, and Label Studio asks again for the predictions of an older version."""
+        h = hashlib.sha256()
+        for sub in ("results", "advice"):
+            for p in sorted((self.root / sub).glob("*.json")):
+                try:
+                    h.update(f"{p.name}:{p.stat().st_mtime_ns}".encode())
+                except OSError:
+                    continue
+        return h.hexdigest()[:8]
+
+
+class Worker:
+    """A background thread that estimates queued frames (module docstring): the posterior
+    (:func:`~creference_bayes.estimate`), then the advice's next request."""
+
+    def __init__(self, store: FrameStore, *, image_root=None, seed: int = 0, hdi_prob: float = 0.9,
+                 advice_settings=None, sampling: dict | None = None, settle_s: float = 2.0):
+        self.store, self.image_root, self.seed, self.hdi_prob = store, image_root, seed, hdi_prob
+        self.settle_s = settle_s  # the thread waits this long after a task's last submit (its annotations settle)
+        self._last: dict[str, float] = {}
+        self.advice_settings, self.sampling = advice_settings, sampling
+        self._queue: queue.Queue = queue.Queue()
+        self._lock = threading.Lock()
+        self._queued: set[str] = set()
+        self._running: str | None = None
+        self._again: set[str] = set()
+        self._thread: threading.Thread | None = None
+
+    def start(self, resume: bool = True) -> "Worker":
+        """Start the thread; with ``resume``, queue every stored task (a task whose result is up to
+        date is passed over at once)."""
+        if resume:
+            for key in self.store.keys():
+                self.submit(key)
+        self._thread = threading.Thread(target=self._loop, name="creference-serve-worker", daemon=True)
+        self._thread.start()
+        return self
+
+    def submit(self, key: str) -> None:
+        with self._lock:
+            self._last[key] = time.monotonic()
+            if key == self._running:
+                self._again.add(key)
+            elif key not in self._queued:
+                self._queued.add(key)
+                self._queue.put(key)
+
+    def busy(self, key: str) -> bool:
+        with self._lock:
+            return key in self._queued or key == self._running
+
+    def pending(self) -> int:
+        """Jobs queued or running."""
+        with self._lock:
+            return len(self._queued) + (self._running is not None)
+
+    def run_pending(self) -> None:
+        """Run every queued job in this thread (tests, and a service without its thread)."""
+        while True:
+            try:
+                key = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            self._run(key)
+
+    def _loop(self) -> None:
+        while True:
+            key = self._queue.get()
+            while True:  # more annotations of the task may be on their way: one job for them all
+                with self._lock:
+                    wait = self._last.get(key, 0.0) + self.settle_s - time.monotonic()
+                if wait <= 0:
+                    break
+                time.sleep(wait)
+            self._run(key)
+
+    def _run(self, key: str) -> None:
+        with self._lock:
+            self._queued.discard(key)
+            self._running = key
+        try:
+            self.run_job(key)
+        except Exception as exc:  # a job's failure is recorded, never the end of the thread
+            log.error("job %s failed: %s", key, traceback.format_exc())
+            self.store.put_error(key, None, " ".join(str(exc).split()) or type(exc).__name__)
+        finally:
+            with self._lock:  # a job asked for while it ran is queued again before anyone sees it idle
+                self._running = None
+                if key in self._again:
+                    self._again.discard(key)
+                    self._queued.add(key)
+                    self._queue.put(key)
+
+    def run_job(self, key: str) -> None:
+        """Estimate the frame of a stored task, unless its result is up to date."""
+        from .. import estimate
+        from ..workflows.advice import AdviceSettings
+        from ..workflows.advice.inputs import advise_result
+        from ..workflows.batch import derive_seed
+        from .predictions import RequestError
+
+        task = self.store.task(key)
+        if task is None:
+            return
+        try:
+            frame = task_scene(task, self.image_root)
+        except RequestError as exc:
+            self.store.put_error(key, None, str(exc))
+            return
+        if frame is None or self.store.error(key, frame.fingerprint) is not None:
+            return
+        seed = derive_seed(self.seed, frame.fingerprint)
+        result = self.store.result(key, frame.fingerprint)
+        if result is None:
+            log.info("job %s: sampling the posterior of %d target(s)", key, len(frame.scene.targets))
+            result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling)
+            settings = {"serve": True, "seed": self.seed, "hdi_prob": self.hdi_prob, "sampling": self.sampling or {}}
+            self.store.put_result(key, frame, result, seed, settings)
+        if self.store.advice(key, frame.fingerprint) is None:
+            advice = advise_result(result, frame.scene, seed=seed, settings=self.advice_settings or AdviceSettings())
+            self.store.put_advice(key, frame, advice)
+        log.info("job %s: done", key)
