@@ -203,7 +203,7 @@ class BlockKernel:
         self.so = 2.38 / np.sqrt(np.maximum(self.ko, 1))
         self.tries, self.adapt, self.calls = int(tries), adapt, 0
         self.colours = colours(target.m, target.model.pairs)
-        self.accepted = {"camera": [], "objects": []}
+        self.accepted = {"camera": [], "objects": [], "all": []}
 
     # -- state <-> blocks ---------------------------------------------------------------------------
     def _unpack(self, state):
@@ -310,9 +310,11 @@ class BlockKernel:
                 rate = 3.0 / (self.calls + 10) ** 0.6
                 self.so = self.so * np.exp(rate * (a.mean(axis=0) - 0.3))
                 self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
+        moved = a.any(axis=1) | b
         self.accepted["objects"].append(a.mean(axis=0))
         self.accepted["camera"].append(float(b.mean()))
-        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), a.any(axis=1) | b
+        self.accepted["all"].append(float(moved.mean()))
+        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), moved
 
 
 class RandomWalkSweep(emcee.moves.Move):

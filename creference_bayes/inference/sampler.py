@@ -17,9 +17,9 @@ Block sweeps:
   40 % and 70 % of it the covariances, the shear and the independence centres are re-estimated
   from the second half of the draws since the last re-estimate (blended 80/20 with the Laplace
   approximation, so that a short warm-up cannot make them singular). Then everything is frozen.
-* **Stopping.** The main phase runs in chunks until every free parameter's and every object
-  distance's bulk ESS reaches ``min_ess`` and its rank-normalised split R-hat is at most
-  ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
+* **Stopping.** The main phase runs in chunks until the bulk ESS of every free parameter, every
+  object's distance and (with ground offsets) its bottom's y reaches ``min_ess`` and its
+  rank-normalised split R-hat is at most ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
   split R-hat is within 3× of the threshold; the rule that decides is always the ranked one.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, fields
 import emcee
 import numpy as np
 
-from ..models.contract import CAMERA_NAMES, O_YAW, OBJECT_NAMES, Model
+from ..models.contract import C_HEIGHT, CAMERA_NAMES, O_GROUND, O_YAW, OBJECT_NAMES, Model
 from .diagnostics import ess_bulk_rhat, rhat_split_raw
 from .laplace import laplace_blocks
 from .map import MapState, derivatives
@@ -155,9 +155,10 @@ class Draws:
 
 @dataclass(frozen=True)
 class Diagnostics:
-    """How the sampler did: per free parameter bulk ESS and R-hat (dicts keyed by
-    ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates, ``converged`` and the
-    reasons when it is not, seconds."""
+    """How the sampler did, in one shape whatever its moves: per checked quantity bulk ESS and R-hat
+    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates
+    (:func:`_acceptance`), ``converged`` and the reasons when it is not, seconds, the modes found
+    before sampling (None: one)."""
 
     n_chains: int
     warmup: int
@@ -178,7 +179,14 @@ class Diagnostics:
                 "max_r_hat": _extreme(self.r_hat, max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
-                **({"modes": self.info["mode_report"]} if self.info.get("mode_report") else {})}
+                "modes": self.info.get("mode_report") or None}
+
+
+def _acceptance(all_: float, camera: float, objects: float) -> dict:
+    """The acceptance rates every run reports, whatever its moves: ``all``, the share of a walker's
+    steps that moved it; ``camera`` and ``objects``, the share of proposals for the camera block and
+    for an object block accepted (moves of the whole vector move both at once: each is ``all``)."""
+    return {"all": all_, "camera": camera, "objects": objects}
 
 
 def _extreme(d, pick, nd):
@@ -262,10 +270,12 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     model has several object blocks, whole by ensemble moves when it has one.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
-    when the MAP has zero posterior density.
+    when the MAP has zero posterior density. The model is sampled at the MAP's handedness and pilot
+    (:meth:`MapState.fitted`); ``model`` itself is not changed.
     """
     s = settings or SamplerSettings()
     rng = np.random.default_rng(rng)
+    model = map_est.fitted(model)
     if model.n_objects == 1:
         return _sample_whole(model, map_est, s, rng, temperature, progress)
     return _sample_blocks(model, map_est, s, rng, temperature, progress)
@@ -363,8 +373,8 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
                  "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
     return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
-                              dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist())),
-                              {"all": float(np.mean(chains.acceptance_fraction))}, ok, tuple(why),
+                              _named(model, zip(names, eb.tolist())), _named(model, zip(names, rh.tolist())),
+                              _acceptance(*[float(np.mean(chains.acceptance_fraction))] * 3), ok, tuple(why),
                               time.perf_counter() - t0, info)
 
 
@@ -475,7 +485,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
                     need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
             chunk = int(np.clip(1.2 * need - it, 8 * s.chunk, 2 * it))
     acc = seg.kernel.accepted
-    acceptance = {"camera": float(np.mean(acc["camera"])), "objects": float(np.mean(acc["objects"]))}
+    acceptance = _acceptance(*(float(np.mean(acc[k])) for k in ("all", "camera", "objects")))
     warn = []
     if not ok:
         warn.append(f"not converged after {it} steps: " + "; ".join(diag["why"]))
@@ -483,7 +493,8 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     draws = Draws(np.transpose(np.array(cams_d), (1, 0, 2)), np.transpose(np.array(objs_d), (1, 0, 2, 3)),
                   np.transpose(np.array(lp_d)))
-    return draws, Diagnostics(C, s.warmup, it, thin, diag["ess_bulk"], diag["r_hat"], acceptance, ok, tuple(warn),
+    return draws, Diagnostics(C, s.warmup, it, thin, _named(model, diag["ess_bulk"]), _named(model, diag["r_hat"]),
+                              acceptance, ok, tuple(warn),
                               time.perf_counter() - t0, {"laplace_positive_definite": bool(laplace_ok)})
 
 
@@ -505,7 +516,20 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
             names.append(f"{o.id}.{OBJECT_NAMES[j]}")
         cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
         names.append(f"{o.id}.distance_m")
+        if model.object_free[i, O_GROUND]:  # its bottom's y, the camera height less its ground offset
+            cols.append(cams[..., C_HEIGHT] - objs[..., i, O_GROUND])
+            names.append(f"{o.id}.y")
     return np.stack(cols, axis=-1), names
+
+
+def _named(model: Model, values) -> dict:
+    """Each checked quantity's value (:func:`_columns`' names) as a dict, with the ``y`` of every
+    object whose ground offset is fixed: the camera height's (its y is the camera height)."""
+    out = dict(values)
+    for i, o in enumerate(model.objects):
+        if not model.object_free[i, O_GROUND]:
+            out[f"{o.id}.y"] = out.get(f"camera.{CAMERA_NAMES[C_HEIGHT]}")
+    return out
 
 
 def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings) -> dict:
