@@ -143,8 +143,9 @@ class MapState:
         return model.variant(handedness=self.handedness, pilot=self.pilot)
 
 
-def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closed-form placement of every object for one camera and one handedness over the yaw grid.
+def _solve_objects(model: Model, cam: np.ndarray, handedness, corners=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closed-form placement of every object for one camera and one handedness (±1, or (m,)) over
+    the yaw grid, from each object's per-corner median annotation or ``corners`` (m, 4, 2) px.
 
     Returns the best (x, y, z) (m, 3), yaw (m,) and the mean reprojection error (m,) pixels.
     """
@@ -153,9 +154,9 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
 
     mu = cam[C_FOCAL]
     R = rotation_from_pitch_roll(cam[C_PITCH], cam[C_ROLL])
-    obs = np.array([o.corner_median for o in model.objects]) - model.principal_point  # (m, 4, 2)
+    obs = (np.array([o.corner_median for o in model.objects]) if corners is None else corners) - model.principal_point
     sizes = np.array([o.initial_sizes for o in model.objects])
-    p = object_corners(sizes, np.full(len(sizes), handedness))  # (m, 4, 3)
+    p = object_corners(sizes, np.broadcast_to(handedness, len(sizes)))  # (m, 4, 3)
     c, s = np.cos(_YAW_GRID), np.sin(_YAW_GRID)
     Ry = np.zeros((len(_YAW_GRID), 3, 3))
     Ry[:, 0, 0], Ry[:, 0, 2], Ry[:, 1, 1], Ry[:, 2, 0], Ry[:, 2, 2] = c, s, 1.0, -s, c
@@ -178,12 +179,12 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
 
 
 def initial_objects(model: Model, cam: np.ndarray, handedness: np.ndarray | None = None,
-                    keep_camera: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+                    keep_camera: bool = False, corners=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Objects placed for one camera: (camera with its height set from them, unless
     ``keep_camera``; objects (m, 7); handedness (m,); the total reprojection error in pixels). Each
-    object takes the handedness that fits its annotations better, or the one ``handedness`` (m,)
-    gives."""
-    sols = [_solve_objects(model, cam, h) for h in (1, -1)]
+    object takes the handedness that fits its annotations (their per-corner median, or
+    ``corners`` (m, 4, 2) px) better, or the one ``handedness`` (m,) gives."""
+    sols = [_solve_objects(model, cam, h, corners) for h in (1, -1)]
     pick = np.where(sols[0][2] <= sols[1][2], 0, 1) if handedness is None else np.where(handedness > 0, 0, 1)
     t = np.where(pick[:, None] == 0, sols[0][0], sols[1][0])
     yaw = np.where(pick == 0, sols[0][1], sols[1][1])

@@ -238,12 +238,12 @@ def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
 class _Run:
     """One segment of the run: a target in the current shear, its kernel and an EnsembleSampler."""
 
-    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt):
+    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
         m = model.n_objects
         self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
         Lc = _chol(Sc, model.camera_free)
         Lo = np.array([_chol(Ao[i], model.object_free[i]) for i in range(m)])
-        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt)
+        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)
         w = 0.5 if s.independence_weight is None else s.independence_weight
         moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
         if w > 0:
@@ -397,17 +397,18 @@ def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
 
 
 def _mode_report(modes, target: BlockTarget, to_u, shares=None) -> list[dict] | None:
-    """Where each mode found before sampling is (its object's distance and yaw), how far below the
-    MAP's its log-density is, its Laplace share of the mass and the share of each ensemble's draws
-    nearest to it (they should agree); None with one mode."""
+    """Where each mode found before sampling is (its object's id, distance and yaw), how far below
+    the MAP's its log-density is, its Laplace share of the mass and the share of each chain's (each
+    ensemble's) draws nearest to it (they should agree); None with one mode."""
     if len(modes) < 2:
         return None
     centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
     lp = target(centers)
-    return [{"distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])), "yaw": float(objs[k, 0, O_YAW]),
-             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
-             "draw_share_per_ensemble": None if shares is None else [float(g[k]) for g in shares]}
+    return [{"target": target.model.objects[0].id, "distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])),
+             "yaw": float(objs[k, 0, O_YAW]), "log_density_below_map": float(lp[0] - lp[k]),
+             "laplace_share": float(m.share),
+             "draw_share_per_chain": None if shares is None else [float(g[k]) for g in shares]}
             for k, m in enumerate(modes)]
 
 
@@ -425,7 +426,16 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
     wc = wc0 + dc
     wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
     random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
-    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True)
+    found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
+    mix = _mixture(model, found, B0)
+    if mix is not None:  # chain c starts each object in its mode c (mod its modes)
+        for i, modes in enumerate(found):
+            for c in range(C):
+                k = c % len(modes)
+                if k:
+                    L = _chol(modes[k].cov, of[i])
+                    wo[c, i] = modes[k].center + L @ rng.standard_normal(7) + B[i] @ dc[c]
+    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=mix)
     state = seg.state(wc, wo, random_state)
     bad = ~np.isfinite(state.log_prob)
     wc[bad], wo[bad] = wc0, wo0
@@ -448,8 +458,11 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
             Sc, Ao, B, mc = _reestimate(model, wcs, wos, Sc0, Ao0, B0)
             mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            if mix is not None:  # an object with several modes keeps its MAP mode's blocks (its draws
+                several = np.array([len(modes) > 1 for modes in found])  # span every mode)
+                Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
             wc, wo = seg.target.working(state.coords)
-            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True)
+            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=mix)
             seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
             state = seg.state(wc, wo, state.random_state)
             hist = []
@@ -493,9 +506,79 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     draws = Draws(np.transpose(np.array(cams_d), (1, 0, 2)), np.transpose(np.array(objs_d), (1, 0, 2, 3)),
                   np.transpose(np.array(lp_d)))
+    info = {"laplace_positive_definite": bool(laplace_ok)}
+    if mix is not None:
+        info["mode_report"] = _object_mode_report(model, found, draws, wc0, wo0)
+        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(found) if len(modes) > 1]
+        denser = [(i, k) for i, k in denser if k.log_prob > found[i][0].log_prob + 1.0]
+        if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
+            wo = wo0.copy()
+            for i, k in denser:
+                wo[i] = k.center
+            c, o = WorkingCoords(model).from_work(wc0[None], wo[None])
+            info["denser_mode"] = (c[0], o[0])
     return draws, Diagnostics(C, s.warmup, it, thin, _named(model, diag["ess_bulk"]), _named(model, diag["r_hat"]),
-                              acceptance, ok, tuple(warn),
-                              time.perf_counter() - t0, {"laplace_positive_definite": bool(laplace_ok)})
+                              acceptance, ok, tuple(warn), time.perf_counter() - t0, info)
+
+
+def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
+    """Each object's modes given the MAP's camera (:func:`.modes.object_modes`), or each its
+    MAP's alone without ``mode_search``."""
+    from .modes import Mode, object_modes
+
+    if not s.mode_search:
+        return [[Mode(wo0[i], Ao[i], 0.0, 1.0)] for i in range(model.n_objects)]
+    return object_modes(BlockTarget(model, temperature, wc0, B, np.zeros_like(wo0)), wc0, wo0, Ao, temperature)
+
+
+#: Least weight of each mode's component in an object's independence proposal (so that the
+#: proposal keeps offering every mode, whatever its Laplace share).
+MIN_MODE_WEIGHT = 0.1
+
+
+def _mixture(model, found, B):
+    """The objects' other modes as :class:`~.moves.BlockKernel` takes them (weights (m, 1 + E),
+    centres (m, E, 7), Cholesky factors (m, E, 7, 7), and how each centre moves with the camera in
+    the sampler's coordinates (m, E, 7, 5), ``B`` (m, 7, 5) their shear), or None when no object
+    has another."""
+    E = max(len(modes) for modes in found) - 1
+    if E == 0:
+        return None
+    m = model.n_objects
+    w, centres, L, shear = np.zeros((m, 1 + E)), np.zeros((m, E, 7)), np.zeros((m, E, 7, 7)), np.zeros((m, E, 7, 5))
+    for i, modes in enumerate(found):
+        share = np.maximum([k.share for k in modes], MIN_MODE_WEIGHT)
+        w[i, :len(modes)] = share / share.sum()
+        for k, mode in enumerate(modes[1:]):
+            centres[i, k], L[i, k] = mode.center, _chol(mode.cov, model.object_free[i])
+            shear[i, k] = (mode.shear - B[i]) * model.object_free[i][:, None] * model.camera_free[None]
+    return w, centres, L, shear
+
+
+def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
+    """Each mode of an object with several: the object's id, its distance and yaw there, how far
+    below the MAP's its log-density is, its Laplace share given the camera and the share of each
+    chain's draws nearest to it (in its own Laplace metric; they should agree)."""
+    coords = WorkingCoords(model)
+    out = []
+    for i, modes in enumerate(found):
+        if len(modes) < 2:
+            continue
+        free = model.object_free[i]
+        wo = np.repeat(wo0[None], len(modes), axis=0)
+        wo[:, i] = [k.center for k in modes]
+        _, objs = coords.from_work(np.repeat(wc0[None], len(modes), axis=0), wo)
+        C, N = draws.objects.shape[:2]
+        x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
+        dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
+                                   x - k.center[free]) for k in modes], axis=1)
+        near = np.argmin(dist, axis=1).reshape(C, N)
+        out += [{"target": model.objects[i].id, "distance_m": float(np.hypot(objs[k, i, 0], objs[k, i, 1])),
+                 "yaw": float(objs[k, i, O_YAW]), "log_density_below_map": float(modes[0].log_prob - mode.log_prob),
+                 "laplace_share": float(mode.share),
+                 "draw_share_per_chain": [float(np.mean(near[c] == k)) for c in range(C)]}
+                for k, mode in enumerate(modes)]
+    return out
 
 
 def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState) -> tuple[np.ndarray, list[str]]:
