@@ -44,6 +44,9 @@ VALLEY = 0.5
 MIN_SHARE = 1e-3
 #: At most this many modes are kept (the heaviest).
 MAX_MODES = 4
+#: A set of dimension lines whose corners miss the MAP's by more than this many times the best
+#: set's miss (+ 1 px), RMS, may be another reading of its object (:func:`object_modes`).
+OUTLIER_SET = 4.0
 #: Local maxima more than this many nats below the best are not weighed.
 MAX_DROP = 25.0
 
@@ -259,7 +262,9 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     Given the camera the objects are independent (pair terms aside), so every object is searched
     at once. For the k-th set of dimension lines (k < ``max_sets``), every object that has one is
     placed by the closed-form solve from that set alone (the others stay at the MAP) and all are
-    climbed together, the camera held (Newton steps, :mod:`.map`). An object's end point is a new
+    climbed together, the camera held (Newton steps, :mod:`.map`): only the sets that miss the
+    MAP's corners by more than :data:`OUTLIER_SET` times (the best set's miss + 1 px), RMS, and
+    only their objects (an object whose sets agree has one reading). An object's end point is a new
     mode when it lies more than :data:`SAME_MODE` from the modes kept (in the MAP's whitened
     units, ``Ao`` its Laplace covariance given the camera) with a valley between
     (:func:`_same_mode`); its mass is its Laplace mass given the camera. Modes under
@@ -282,11 +287,20 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
 
     model, coords = target.model, target.coords
     m, of = model.n_objects, model.object_free
-    cam = coords.from_work(wc0[None], wo0[None])[0][0]
+    cams, objs = coords.from_work(wc0[None], wo0[None])
+    cam = cams[0]
     held = model.variant(camera_free=np.zeros(5, bool))
-    ends, starts = [], []
-    for k in range(min(max_sets, max(len(o.annotations) for o in model.objects))):
-        has = np.array([len(o.annotations) > k for o in model.objects])
+    uv = model.project(cams, objs)[0][0]  # (m, 4, 2) the MAP's corners
+    K = min(max_sets, max(len(o.annotations) for o in model.objects))
+    miss = np.full((m, K), np.nan)  # each set's RMS distance from them, px
+    for i, o in enumerate(model.objects):
+        a = o.annotations[:K]
+        miss[i, :len(a)] = np.sqrt(np.mean(np.sum((a - uv[i]) ** 2, axis=-1), axis=-1))
+    with np.errstate(invalid="ignore"):
+        apart = miss > OUTLIER_SET * (np.nanmin(miss, axis=1, keepdims=True) + 1.0)
+    ends = []
+    for k in np.flatnonzero(apart.any(axis=0)):
+        has = apart[:, k]
         corners = np.array([o.annotations[min(k, len(o.annotations) - 1)] for o in model.objects])
         placed = initial_objects(model, cam, handedness=model.handedness, keep_camera=True, corners=corners)[1]
         wo = np.where(has[:, None], coords.to_work(cam[None], placed[None])[1][0], wo0)
