@@ -11,15 +11,18 @@ Block sweeps:
 * **Coordinates.** Working coordinates (:mod:`.coords`), each object's block measured from its
   conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the
   camera (from the Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws).
+* **Modes.** Each object's other modes given the MAP's camera (:func:`.modes.object_modes`): an
+  object with several has a mixture independence proposal, one component per mode following the
+  camera, and chain c starts it in its mode c mod k.
 * **Start.** Over-dispersed draws (1.2 ×) from the Laplace approximation; walkers that start at
   zero density start at the MAP.
 * **Warm-up.** ``warmup`` steps, the random-walk scales tuned towards an acceptance of 0.3; at
   40 % and 70 % of it the covariances, the shear and the independence centres are re-estimated
   from the second half of the draws since the last re-estimate (blended 80/20 with the Laplace
   approximation, so that a short warm-up cannot make them singular). Then everything is frozen.
-* **Stopping.** The main phase runs in chunks until the bulk ESS of every free parameter, every
-  object's distance and (with ground offsets) its bottom's y reaches ``min_ess`` and its
-  rank-normalised split R-hat is at most ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
+* **Stopping.** The main phase runs in chunks until the bulk ESS of every free parameter and every
+  object's distance reaches ``min_ess`` and its rank-normalised split R-hat is at most
+  ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
   split R-hat is within 3× of the threshold; the rule that decides is always the ranked one.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
@@ -71,7 +74,9 @@ class SamplerSettings:
         min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
         proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
         inflation and mixture components;  mode_search, explore_temperature, explore_steps : look
-        for other modes before sampling (:mod:`.modes`), by a tempered exploration
+        for other modes before sampling (:mod:`.modes`), by a tempered exploration (several
+        objects: ``mode_search`` looks for each object's, given the MAP's camera, from its sets of
+        dimension lines, :func:`~.modes.object_modes`)
     """
 
     min_ess: float = 400.0
@@ -175,8 +180,8 @@ class Diagnostics:
     def to_dict(self) -> dict:
         r = lambda d: {k: (None if v is None or not np.isfinite(v) else round(float(v), 4)) for k, v in d.items()}
         return {"sampler": "emcee", "n_chains": self.n_chains, "warmup": self.warmup, "iterations": self.iterations,
-                "thin": self.thin, "min_ess_bulk": _extreme(self.ess_bulk, min, 1),
-                "max_r_hat": _extreme(self.r_hat, max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
+                "thin": self.thin, "min_ess_bulk": _extreme(_checked(self.ess_bulk), min, 1),
+                "max_r_hat": _extreme(_checked(self.r_hat), max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
                 "modes": self.info.get("mode_report") or None}
@@ -187,6 +192,11 @@ def _acceptance(all_: float, camera: float, objects: float) -> dict:
     steps that moved it; ``camera`` and ``objects``, the share of proposals for the camera block and
     for an object block accepted (moves of the whole vector move both at once: each is ``all``)."""
     return {"all": all_, "camera": camera, "objects": objects}
+
+
+def _checked(d: dict) -> dict:
+    """The quantities the stopping rule checks (all but :data:`REPORTED_ONLY`)."""
+    return {k: v for k, v in d.items() if k.rpartition(".")[2] not in REPORTED_ONLY}
 
 
 def _extreme(d, pick, nd):
@@ -373,7 +383,7 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
                  "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
     return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
-                              _named(model, zip(names, eb.tolist())), _named(model, zip(names, rh.tolist())),
+                              *_with_y(model, draws, dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist()))),
                               _acceptance(*[float(np.mean(chains.acceptance_fraction))] * 3), ok, tuple(why),
                               time.perf_counter() - t0, info)
 
@@ -517,7 +527,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
                 wo[i] = k.center
             c, o = WorkingCoords(model).from_work(wc0[None], wo[None])
             info["denser_mode"] = (c[0], o[0])
-    return draws, Diagnostics(C, s.warmup, it, thin, _named(model, diag["ess_bulk"]), _named(model, diag["r_hat"]),
+    return draws, Diagnostics(C, s.warmup, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
                               acceptance, ok, tuple(warn), time.perf_counter() - t0, info)
 
 
@@ -599,20 +609,28 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
             names.append(f"{o.id}.{OBJECT_NAMES[j]}")
         cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
         names.append(f"{o.id}.distance_m")
-        if model.object_free[i, O_GROUND]:  # its bottom's y, the camera height less its ground offset
-            cols.append(cams[..., C_HEIGHT] - objs[..., i, O_GROUND])
-            names.append(f"{o.id}.y")
     return np.stack(cols, axis=-1), names
 
 
-def _named(model: Model, values) -> dict:
-    """Each checked quantity's value (:func:`_columns`' names) as a dict, with the ``y`` of every
-    object whose ground offset is fixed: the camera height's (its y is the camera height)."""
-    out = dict(values)
+#: Quantities the diagnostics report but the stopping rule does not check (``<target id>.y``, the
+#: bottom's y: the camera height less the ground offset, each checked).
+REPORTED_ONLY = ("y",)
+
+
+def _with_y(model: Model, draws: Draws, ess: dict, rhat: dict) -> tuple[dict, dict]:
+    """The checked quantities' bulk ESS and R-hat with each object's ``y`` added: the camera
+    height's where its ground offset is fixed, else its own from the draws."""
+    ess, rhat = dict(ess), dict(rhat)
+    h = f"camera.{CAMERA_NAMES[C_HEIGHT]}"
     for i, o in enumerate(model.objects):
-        if not model.object_free[i, O_GROUND]:
-            out[f"{o.id}.y"] = out.get(f"camera.{CAMERA_NAMES[C_HEIGHT]}")
-    return out
+        ess[f"{o.id}.y"], rhat[f"{o.id}.y"] = ess.get(h), rhat.get(h)
+    free = np.flatnonzero(model.object_free[:, O_GROUND])
+    if free.size:
+        y = draws.cameras[..., C_HEIGHT, None] - draws.objects[..., free, O_GROUND]  # (chain, draw, k)
+        eb, rh = ess_bulk_rhat(y)
+        for i, e, r in zip(free, eb.tolist(), rh.tolist()):
+            ess[f"{model.objects[i].id}.y"], rhat[f"{model.objects[i].id}.y"] = e, r
+    return ess, rhat
 
 
 def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings) -> dict:
