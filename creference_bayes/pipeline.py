@@ -23,23 +23,31 @@ from .camera_setup import setup_camera
 from .io.scene import Scene, load_scene, parse_scene
 from .models.contract import ObjectData
 from .models.location_prior import LocationPrior
-from .models.metrology import ReferenceTerm
+from .models.metrology import MetrologyModel, ReferenceTerm
+from .models.paper import PaperModel
 
-__all__ = ["MODELS", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "load_result", "build_model", "rebuild_model", "map_state",
+__all__ = ["MODELS", "MODEL_CLASSES", "model_class", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "load_result", "build_model", "rebuild_model", "map_state",
            "result_draws", "reference_terms", "parse_model_options", "option_record", "expected_ground"]
 
-MODELS = ("metrology", "paper")
+#: The models by name: classes of the model contract (:mod:`.models.contract`), each declaring its
+#: capabilities and the options a user may set.
+MODEL_CLASSES = {"metrology": MetrologyModel, "paper": PaperModel}
+MODELS = tuple(MODEL_CLASSES)
 #: The default model. The benchmark (docs/studies/benchmark.md) found the metrology model as good
 #: as the paper's cost or better in every noise tier and, unlike it, calibrated at T = 1.
 DEFAULT_MODEL = "metrology"
 #: Model options a user may set, by model (the result's provenance records them).
-MODEL_OPTIONS = {"metrology": ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading",
-                               "ground_sd_m", "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad",
-                               "ref_scale_median", "ref_scale_log_sd"),
-                 "paper": ("sigma", "on")}
-#: The model options whose values are words, not numbers.
-_WORD_OPTIONS = ("line_reading", "on")
+MODEL_OPTIONS = {name: cls.options for name, cls in MODEL_CLASSES.items()}
 _SIZES = ("length", "width", "height")
+
+
+def model_class(model: str):
+    """The class of the model named ``model`` (:data:`MODEL_CLASSES`); ``ValueError`` naming it
+    when there is none."""
+    try:
+        return MODEL_CLASSES[model]
+    except (KeyError, TypeError):
+        raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})") from None
 
 
 def parse_model_options(model: str, items) -> dict:
@@ -52,8 +60,7 @@ def parse_model_options(model: str, items) -> dict:
     ValueError : not ``KEY=VALUE``, a KEY the model does not have, a number that is not one, or a
         KEY given twice (each names the item)
     """
-    if model not in MODELS:
-        raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
+    cls = model_class(model)
     out: dict = {}
     for item in items:
         key, sep, value = str(item).partition("=")
@@ -65,7 +72,7 @@ def parse_model_options(model: str, items) -> dict:
                              f"(expected one of {', '.join(MODEL_OPTIONS[model])})")
         if key in out:
             raise ValueError(f"--option {key}: given twice ({out[key]!r} and {value!r})")
-        if key in _WORD_OPTIONS:
+        if key in cls.word_options:
             out[key] = value
             continue
         try:
@@ -92,7 +99,7 @@ def expected_ground(model: str, options: Mapping, n_objects: int) -> dict | None
     paper model and a scene of one target fix every ground offset. A batch compares it with a
     stored result's: a result made under another ground prior, :data:`UNRECORDED_GROUND` for one
     that records none, is recomputed."""
-    if model != "metrology" or n_objects < 2:
+    if not model_class(model).has_ground_offsets(n_objects):
         return None
     from .models.contract import (DEFAULT_GROUND_DOF, DEFAULT_GROUND_SD_M, DEFAULT_GROUND_SD_PER_M,
                                   DEFAULT_GROUND_TILT_SD_RAD)
@@ -152,13 +159,12 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     options : the model's settings (:data:`MODEL_OPTIONS`)
     """
     from .inference.map import preset_bounds
-    from .models.confidence_map import resolve_confidence_map
 
-    if model not in MODELS:
-        raise ValueError(f"model: unknown model {model!r} (expected one of {list(MODELS)})")
-    unknown = sorted(set(options) - set(MODEL_OPTIONS[model]))
+    cls = model_class(model)
+    unknown = sorted(set(options) - set(cls.options))
     if unknown:
-        raise ValueError(f"{model} model: unknown option(s) {unknown} (expected some of {list(MODEL_OPTIONS[model])})")
+        raise ValueError(f"{model} model: unknown option(s) {unknown} (expected some of {list(cls.options)})")
+    check_confidence_map(model, confidence_map)
     if location_prior == "auto":
         location_prior = "log-depth" if preset == "default" else "flat"
     if distance_range is not None:
@@ -178,29 +184,52 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     refs = reference_terms(scene) if use_references else []
     common = dict(camera_terms=setup.terms, orientation=setup.orientation, focal_length_px=scene.focal_length_px,
                   horizon_line=setup.camera.horizon if setup.orientation == "horizon" else None, bounds=bounds)
-    if model == "metrology":
-        from .models.metrology import MetrologyModel
+    return _BUILDERS[model](scene, objects, refs, setup, common, preset, confidence_map, options), setup
 
-        cmap = resolve_confidence_map(confidence_map)
-        return MetrologyModel(scene.principal_point, scene.image_size, objects, refs, confidence_map=cmap,
-                              corner_scale=scene.corner_scale, **common, **options), setup
-    if not (confidence_map is None or isinstance(confidence_map, str) and confidence_map in ("default", "none")):
-        raise ValueError("confidence_map: the paper model turns ranges into bounds and does not read stated "
-                         "confidences (use the metrology model, or 'none')")
+
+def check_confidence_map(model: str, confidence_map, option: str = "confidence_map") -> None:
+    """A confidence map other than ``"default"`` or ``"none"`` needs a model that reads stated
+    confidences (capability ``confidence_map``); a ValueError naming ``option`` and the model
+    otherwise."""
+    if "confidence_map" in model_class(model).capabilities or confidence_map is None or \
+            isinstance(confidence_map, str) and confidence_map in ("default", "none"):
+        return
+    readers = [name for name, c in MODEL_CLASSES.items() if "confidence_map" in c.capabilities]
+    raise ValueError(f"{option}: the {model} model does not read stated confidences, got {confidence_map!r} "
+                     f"(use {' or '.join(f'the {r} model' for r in readers)}, or 'none')")
+
+
+def _metrology(scene, objects, refs, setup, common, preset, confidence_map, options):
+    """The metrology model of a scene (:func:`build_model`)."""
+    from .models.confidence_map import resolve_confidence_map
+
+    return MetrologyModel(scene.principal_point, scene.image_size, objects, refs,
+                          confidence_map=resolve_confidence_map(confidence_map), corner_scale=scene.corner_scale,
+                          **common, **options)
+
+
+def _paper(scene, objects, refs, setup, common, preset, confidence_map, options):
+    """The paper model of a scene (:func:`build_model`): its references aggregated into each
+    object's bounds; the default preset's calibrated σ and temperature."""
     from .core.metrology import aggregate_references
-    from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE, PaperModel
+    from .models.paper import CALIBRATED_SIGMA_PX, CALIBRATED_TEMPERATURE
 
+    options = dict(options)
     on = options.pop("on", "xz")
     lines = [r for r in refs if r.kind == "ground"]
+    bounds = common["bounds"]
     focal_range = None if bounds is None else (bounds.camera_lower[0], bounds.camera_upper[0])
     reports = [aggregate_references(o.corner_median, lines, setup.aggregation_camera, on=on,
                                     focal_range_px=focal_range) for o in objects]
     calibrated = preset == "default"
     options = {"sigma": CALIBRATED_SIGMA_PX if calibrated else options.get("sigma", 100.0), **options}
-    paper = PaperModel(scene.principal_point, scene.image_size, objects, [r.constraints for r in reports],
-                       default_temperature=CALIBRATED_TEMPERATURE if calibrated else 1.0, **common, **options)
-    paper.reference_reports = reports
-    return paper, setup
+    return PaperModel(scene.principal_point, scene.image_size, objects, [r.constraints for r in reports],
+                      reference_reports=reports, default_temperature=CALIBRATED_TEMPERATURE if calibrated else 1.0,
+                      **common, **options)
+
+
+#: How each model of :data:`MODEL_CLASSES` is built from a scene.
+_BUILDERS = {"metrology": _metrology, "paper": _paper}
 
 
 def check_distance_range(distance_m, bounds, image_size=(1, 1)) -> None:
@@ -277,6 +306,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                                confidence_map=confidence_map, bounds=bounds, **options)
         T = m.default_temperature if temperature is None else float(temperature)
         map_est = optimize(m, preset=preset, temperature=T, rng=rng, restarts=restarts, progress=progress)
+        m = map_est.fitted(m)  # the model at the fit's handedness and pilot (a copy)
         draws = diag = None
         notes = []
         if posterior:
@@ -312,7 +342,7 @@ class ResultWarning(UserWarning):
     """What a :class:`Result` could not do in full (an InferenceData without the scene's part)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Result:
     """The estimate of one scene: what :func:`estimate` returns and :func:`load_result` reads back.
 
@@ -343,6 +373,18 @@ class Result:
     model: Any = field(default=None, repr=False, compare=False)
     scene_file: Path | None = field(default=None, repr=False, compare=False)
     source: Path | None = field(default=None, repr=False, compare=False)
+
+    def __eq__(self, other) -> bool:
+        """Equal results have the same content (:meth:`to_dict`, numbers exactly, NaN equal to NaN),
+        the same draws and the same warnings; how long it took (every ``seconds``), the model, the
+        diagnostics object and where the files are do not count: the same scene estimated with the
+        same seed gives an equal result. A result is unhashable (its content is a dict)."""
+        if not isinstance(other, Result):
+            return NotImplemented
+        return _same(self.data, other.data) and _same(self.warnings, other.warnings) and \
+            _same(None if self.draws is None else vars(self.draws), None if other.draws is None else vars(other.draws))
+
+    __hash__ = None
 
     @property
     def objects(self) -> tuple:
@@ -434,6 +476,21 @@ class Result:
         return atomic_write_json(path, d, inline_numbers=True)
 
 
+def _same(a, b) -> bool:
+    """Whether two values of a result (dicts, lists, arrays, numbers, strings) are the same, but
+    for timings (``seconds``)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(k == "seconds" or _same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, (np.ndarray, float, np.floating)) or isinstance(b, (np.ndarray, float, np.floating)):
+        try:
+            return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+        except TypeError:  # not numbers
+            return np.array_equal(np.asarray(a), np.asarray(b))
+    return type(a) is type(b) and a == b
+
+
 def load_result(path: str | Path, scene: Scene | str | Path | None = None) -> Result:
     """A result file (``creference estimate --out``, :meth:`Result.save`, a batch's
     ``results/KEY.json``) as a :class:`Result`, with its kept draws by chain. A
@@ -466,7 +523,7 @@ def _describe_map(model) -> dict:
     :func:`rebuild_model` reads them the same way)."""
     from .models.confidence_map import describe_confidence_map
 
-    cmap = getattr(model, "confidence_map", None)
+    cmap = model.confidence_map if "confidence_map" in model.capabilities else None
     out = describe_confidence_map(cmap)
     return {**out, "map": cmap.to_dict()} if out["name"] == "file" else out
 
@@ -505,9 +562,10 @@ def rebuild_model(result, scene: Scene | str | Path):
     confidence_map = ConfidenceMap.from_dict(cmap["map"]) if cmap["name"] == "file" else \
         ConfidenceMap.identity(cmap.get("dof")) if cmap["name"] == "identity" else "none"
     kind = prov.get("model", DEFAULT_MODEL)
-    options = {k: float(v) if isinstance(v, str) and k not in _WORD_OPTIONS else v  # "inf" (JSON has no infinity)
+    cls = model_class(kind)
+    options = {k: float(v) if isinstance(v, str) and k not in cls.word_options else v  # "inf" (JSON has no infinity)
                for k, v in prov["options"].items()}
-    if kind == "metrology":  # the ground's prior it was made with (a result without it: UNRECORDED_GROUND)
+    if "ground_sd_m" in cls.options:  # the ground's prior it was made with (a result without it: UNRECORDED_GROUND)
         options = {**_ground_options(prov.get("ground") or UNRECORDED_GROUND), **options}
     model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
@@ -519,14 +577,13 @@ def rebuild_model(result, scene: Scene | str | Path):
     hands = [o.get("handedness") for o in d["objects"]]
     if not all(h in (-1, 1) and not isinstance(h, bool) for h in hands):
         raise ValueError(f"objects[].handedness: expected -1 or 1 for every object, got {hands[:5]!r}")
-    model.handedness = np.array(hands, float)
     pilot = d.get("pilot_camera")
     if pilot is not None:
         if not (isinstance(pilot, list) and len(pilot) == 5 and all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in pilot)):
             raise ValueError(f"pilot_camera: expected null or 5 finite numbers, got {str(pilot)[:60]}")
-        model.set_pilot(np.array(pilot, float))
-    return model
+        pilot = np.array(pilot, float)
+    return model.variant(handedness=np.array(hands, float), pilot=pilot)
 
 
 #: The ground-offset prior a result that records no ``provenance.ground`` is read with: a normal of

@@ -123,6 +123,7 @@ def main(argv=None) -> None:
         model, _ = build_model(scene_of(args, seed), model=args.model)
         T = model.default_temperature
         map_est = optimize(model, temperature=T)
+        model = map_est.fitted(model)  # the model at the MAP's handedness and pilot
         settings = SamplerSettings.from_options(None if args.min_ess is None else {"min_ess": args.min_ess})
         draws, diag = sample(model, map_est, settings=settings, rng=seed, temperature=T)
         rc, ro, ref_s = reference_run(model, map_est, args.steps, np.random.default_rng(100 + seed), T)

@@ -108,7 +108,7 @@ def test_fit_names_the_levels_it_left_out(data, tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["estimate", "{scene}", "--model", "paper", "--confidence-map", "identity"],
-     "--confidence-map: the paper model turns ranges into bounds"),
+     "--confidence-map: the paper model does not read stated confidences"),
     (["estimate", "{scene}", "--confidence-map", "{bad}"],
      "pooled.coverage: expected non-decreasing values (a map is monotone)"),
     (["batch", "{scene}", "--out", "{tmp}/b", "--confidence-map", "{bad}"], "--confidence-map: "),

@@ -66,6 +66,7 @@ def test_map_is_the_mode_of_the_sampled_density():
     scene, _ = _scene(3, n_refs=4)
     m = build_model(scene)[0]
     est = optimize(m)
+    m = est.fitted(m)  # the model at the MAP's handedness and pilot
     c0, o0 = est.camera[None], est.objects[None]
     f0 = m.map_objective(c0, o0)[0]
     steps = [("camera", k) for k in np.flatnonzero(m.camera_free)] + [("object", k) for k in (0, 1, 2)]

@@ -130,5 +130,5 @@ def test_estimate_reads_the_map_and_records_it():
     assert d_id["references"]["read_with_confidence_map"] == 5
     assert d_id["objects"] != d_none["objects"]
     assert build_model(scene)[0].confidence_map is None  # the default is none
-    with pytest.raises(ValueError, match="the paper model turns ranges into bounds"):
+    with pytest.raises(ValueError, match="the paper model does not read stated confidences"):
         estimate(scene, model="paper", confidence_map="identity", **kw)

@@ -100,7 +100,7 @@ def test_r_hat_across_modes_catches_a_sampler_that_cannot_move_between_them(tabl
     different modes, then disagree and the result says so."""
     r = estimate(table_scene, seed=0, sampling={"independence_weight": 0.0, "max_steps": 1500})
     d = r.to_dict()["diagnostics"]
-    far = np.array([m["draw_share_per_ensemble"] for m in d["modes"] if m["distance_m"] > 8])
+    far = np.array([m["draw_share_per_chain"] for m in d["modes"] if m["distance_m"] > 8])
     assert np.ptp(far.sum(axis=0)) > 0.02  # the premise: the ensembles disagree on the far mass
     assert not d["converged"]
 
@@ -166,4 +166,68 @@ def test_a_thin_far_target_converges_quickly_with_yaw_on_one_turn(seed):
     # the ridge holds one mode's mass: a far local maximum the search may report (seed 11 with the
     # 26 mm default focal prior: 588 m, 7.5 nats down, Laplace share 0.5 %) holds none of the draws
     for mode in (diag.get("modes") or [])[1:]:
-        assert mode["laplace_share"] < 0.01 and max(mode["draw_share_per_ensemble"]) < 0.01, mode
+        assert mode["laplace_share"] < 0.01 and max(mode["draw_share_per_chain"]) < 0.01, mode
+
+
+def _frame_with_two_readings(seed=3, factor=1.6):
+    """Three targets of known size, two sets of dimension lines each (0.5 px noise); the first
+    has two more sets, of the same box ``factor`` times as far along its viewing ray: its
+    posterior has a mode at its true distance and one ``factor`` times as far (the camera is
+    pinned by the others). Returns the model (corner scale 1 px) and the true distance."""
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.models.contract import Model, ObjectData
+    from creference_bayes.pipeline import build_model
+
+    d, truth = truth_scene(seed, m=3, n_annotations=2, noise_px=0.5, sizes_known=True)
+    cam, objs = truth["camera"], truth["objects"]
+    far = objs[:1].copy()
+    far[0, :2] *= factor
+    box = Model(d["camera"]["principal_point"], (d["image"]["width"], d["image"]["height"]),
+                [ObjectData("0", np.zeros((1, 4, 2)), int(truth["handedness"][0]), tuple(objs[0, 3:6]))])
+    uv = box.project(cam[None], far[None])[0][0, 0]
+    rng = np.random.default_rng(seed)
+    for k in range(2):
+        d["targets"][0]["dimension_lines"].append(
+            {"worker": f"far{k}", "corners": np.round(uv + rng.normal(0.0, 0.5, (4, 2)), 2).tolist()})
+    return build_model(parse_scene(d), target_sigma=1.0)[0], float(np.hypot(*objs[0, :2]))
+
+
+@pytest.fixture(scope="module")
+def two_readings():
+    from creference_bayes.inference.map import optimize
+
+    model, true_distance = _frame_with_two_readings()
+    return model, optimize(model), true_distance
+
+
+def test_a_frames_object_with_two_readings_has_two_modes(two_readings):
+    """The search given the MAP's camera finds the first target's second mode (1.6 × as far) with
+    a share of the mass, and no other mode for the other targets."""
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.sampler import _laplace_start, _object_modes
+
+    model, est, true_distance = two_readings
+    fitted = est.fitted(model)
+    wc0, wo0, Sc, Ao, B, _ = _laplace_start(fitted, est, 1.0)
+    found = _object_modes(fitted, 1.0, SamplerSettings(), wc0, wo0, Sc, Ao, B)
+    assert [len(m) for m in found] == [2, 1, 1]
+    wo = wo0.copy()
+    wo[0] = found[0][1].center
+    _, objs = WorkingCoords(fitted).from_work(wc0[None], wo[None])
+    assert np.hypot(*objs[0, 0, :2]) == pytest.approx(1.6 * true_distance, rel=0.1)
+    assert 0.05 < found[0][1].share < 0.95 and found[0][0].share + found[0][1].share == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_every_chain_of_a_frame_visits_both_modes_of_its_object(two_readings, seed):
+    """Block sweeps with the object's modes in its independence proposal: every chain (started in
+    either mode) spends a share of its draws in each, and the diagnostics report both modes."""
+    from creference_bayes.inference.sampler import sample as sample_scene
+
+    model, est, true_distance = two_readings
+    draws, diag = sample_scene(model, est, settings=SamplerSettings(max_steps=800), rng=seed)
+    far = np.hypot(draws.objects[..., 0, 0], draws.objects[..., 0, 1]) > 1.3 * true_distance
+    assert np.all((far.mean(axis=1) > 0.2) & (far.mean(axis=1) < 0.8)), far.mean(axis=1)
+    report = diag.to_dict()["modes"]
+    assert [r["target"] for r in report] == ["t0", "t0"]
+    assert report[1]["distance_m"] == pytest.approx(1.6 * true_distance, rel=0.1)

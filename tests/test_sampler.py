@@ -453,7 +453,7 @@ def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_
     draws, diag = sample_scene(model, est, settings=SamplerSettings(min_ess=300), rng=0)
     assert diag.converged
     d = np.hypot(draws.objects[..., 0], draws.objects[..., 1]).reshape(-1, 5)
-    _, objs = laplace(model, est.camera, est.objects).draws(20000, 1)
+    _, objs = laplace(est.fitted(model), est.camera, est.objects).draws(20000, 1)
     dl = np.hypot(objs[..., 0], objs[..., 1])
     np.testing.assert_allclose(d.std(axis=0), dl.std(axis=0), rtol=0.2)
     np.testing.assert_allclose(d.mean(axis=0), dl.mean(axis=0), rtol=0.01)

@@ -97,6 +97,7 @@ def test_the_coupled_hessian_is_the_whole_posteriors():
     _distance(d, "t0", "t1", round(_true_distance(truth, 0, 1), 1))
     model, _ = build_model(parse_scene(d))
     mp = optimize(model)
+    model = mp.fitted(model)
     co = WorkingCoords(model)
     wc, wo = (x[0] for x in co.to_work(mp.camera[None], mp.objects[None]))
     dense = derivatives(model, wc, wo).dense()

@@ -174,9 +174,10 @@ def confidence_map_option(value: str | None, model: str):
 
     if value is None:
         return "default"
-    if model == "paper" and value != "none":
-        raise UsageError(f"--confidence-map: the paper model turns ranges into bounds and does not read "
-                         f"stated confidences, got {value!r} (use --model metrology, or none)")
+    from ..pipeline import check_confidence_map
+
+    with usage_errors():
+        check_confidence_map(model, value, "--confidence-map")
     if value in MAP_NAMES:
         return value
     if not Path(value).exists():  # a typo of a name, or a file that is not there

@@ -123,7 +123,9 @@ class Arrowhead:
 @dataclass(frozen=True)
 class MapState:
     """The optimum: camera (5,), objects (m, 7), handedness (m,), its negative log-posterior, the
-    arrowhead Hessian there, and ``info`` (iterations, seconds, starts tried)."""
+    arrowhead Hessian there, and ``info`` (iterations, seconds, starts tried). With ``pilot`` (the
+    camera (5,) of the first optimum, where the model fixes what it takes there, or None) it is the
+    fit's state: :meth:`fitted` is the model at it."""
 
     camera: np.ndarray
     objects: np.ndarray
@@ -133,10 +135,17 @@ class MapState:
     info: dict = field(default_factory=dict)
     #: other local optima the search reached: (camera (5,), objects (m, 7), handedness (m,)), best first
     others: tuple = ()
+    pilot: np.ndarray | None = None
+
+    def fitted(self, model: Model) -> Model:
+        """``model`` at this fit: a copy with the optimum's handedness and pilot (``model`` is not
+        changed; :meth:`~creference_bayes.models.contract.Model.variant`)."""
+        return model.variant(handedness=self.handedness, pilot=self.pilot)
 
 
-def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closed-form placement of every object for one camera and one handedness over the yaw grid.
+def _solve_objects(model: Model, cam: np.ndarray, handedness, corners=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closed-form placement of every object for one camera and one handedness (±1, or (m,)) over
+    the yaw grid, from each object's per-corner median annotation or ``corners`` (m, 4, 2) px.
 
     Returns the best (x, y, z) (m, 3), yaw (m,) and the mean reprojection error (m,) pixels.
     """
@@ -145,9 +154,9 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
 
     mu = cam[C_FOCAL]
     R = rotation_from_pitch_roll(cam[C_PITCH], cam[C_ROLL])
-    obs = np.array([o.corner_median for o in model.objects]) - model.principal_point  # (m, 4, 2)
+    obs = (np.array([o.corner_median for o in model.objects]) if corners is None else corners) - model.principal_point
     sizes = np.array([o.initial_sizes for o in model.objects])
-    p = object_corners(sizes, np.full(len(sizes), handedness))  # (m, 4, 3)
+    p = object_corners(sizes, np.broadcast_to(handedness, len(sizes)))  # (m, 4, 3)
     c, s = np.cos(_YAW_GRID), np.sin(_YAW_GRID)
     Ry = np.zeros((len(_YAW_GRID), 3, 3))
     Ry[:, 0, 0], Ry[:, 0, 2], Ry[:, 1, 1], Ry[:, 2, 0], Ry[:, 2, 2] = c, s, 1.0, -s, c
@@ -170,12 +179,12 @@ def _solve_objects(model: Model, cam: np.ndarray, handedness: int) -> tuple[np.n
 
 
 def initial_objects(model: Model, cam: np.ndarray, handedness: np.ndarray | None = None,
-                    keep_camera: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+                    keep_camera: bool = False, corners=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Objects placed for one camera: (camera with its height set from them, unless
     ``keep_camera``; objects (m, 7); handedness (m,); the total reprojection error in pixels). Each
-    object takes the handedness that fits its annotations better, or the one ``handedness`` (m,)
-    gives."""
-    sols = [_solve_objects(model, cam, h) for h in (1, -1)]
+    object takes the handedness that fits its annotations (their per-corner median, or
+    ``corners`` (m, 4, 2) px) better, or the one ``handedness`` (m,) gives."""
+    sols = [_solve_objects(model, cam, h, corners) for h in (1, -1)]
     pick = np.where(sols[0][2] <= sols[1][2], 0, 1) if handedness is None else np.where(handedness > 0, 0, 1)
     t = np.where(pick[:, None] == 0, sols[0][0], sols[1][0])
     yaw = np.where(pick == 0, sols[0][1], sols[1][1])
@@ -466,13 +475,13 @@ def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[n
     best = None
     per = max(1, restarts // 2)
     for h in (hand, -hand):
-        model.handedness = h.astype(float)
-        flat = FlatState(model, cam, objs)
+        fit = model.variant(handedness=h)
+        flat = FlatState(fit, cam, objs)
         lo, hi = flat.lower.copy(), flat.upper.copy()
         lo[flat.circular], hi[flat.circular] = -np.pi, np.pi
 
         def f(x):
-            v = float(model.map_objective(*flat.unpack(x), temperature)[0])
+            v = float(fit.map_objective(*flat.unpack(x), temperature)[0])
             return v if np.isfinite(v) else 1e300
 
         res = basinhopping(f, rng.uniform(lo, hi), niter=per - 1, T=0.0, rng=rng,
@@ -488,7 +497,8 @@ def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[n
 
 def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0, rng=None,
              restarts: int | None = None, progress: bool = False, n_refine: int = 2) -> MapState:
-    """The MAP of ``model`` (module docstring). Sets the model's handedness per object and its pilot.
+    """The MAP of ``model`` (module docstring), with each object's handedness and the pilot camera
+    (:meth:`MapState.fitted` is the model at them; ``model`` itself is not changed).
 
     Parameters
     ----------
@@ -509,7 +519,7 @@ def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0,
     t0 = time.perf_counter()
     others = ()
     if preset == "default":
-        cam, objs, hand, info = _default(model, temperature, n_refine)
+        cam, objs, hand, pilot, info = _default(model, temperature, n_refine)
         others = info.pop("others")
     else:
         from .progress import progress_bar
@@ -517,35 +527,38 @@ def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0,
         n = _PAPER_RESTARTS[preset] if restarts is None else restarts
         with progress_bar(progress, 2 * max(1, n // 2), desc=f"{preset} restarts", unit="restart") as bar:
             cam, objs, hand, info = _paper(model, temperature, n, np.random.default_rng(rng), bar)
-        model.handedness = hand.astype(float)
-        model.set_pilot(cam)
-    out = _state(model, cam, objs, hand, temperature, {**info, "preset": preset, "seconds": time.perf_counter() - t0})
-    return MapState(out.camera, out.objects, out.handedness, out.value, out.hessian, out.info, others)
+        pilot = cam
+    fit = model.variant(handedness=hand, pilot=pilot)
+    info = {**info, "preset": preset, "seconds": time.perf_counter() - t0}
+    return _state(fit, cam, objs, temperature, info, others)
 
 
-def _state(model: Model, cam, objs, hand, temperature: float, info: dict) -> MapState:
-    wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
-    D = derivatives(model, wc, wo, temperature)
+def _state(fit: Model, cam, objs, temperature: float, info: dict, others: tuple = ()) -> MapState:
+    """The MapState at (cam, objs) of ``fit``, the model at the fit's handedness and pilot."""
+    wc, wo = (a[0] for a in WorkingCoords(fit).to_work(cam[None], objs[None]))
+    D = derivatives(fit, wc, wo, temperature)
     objs = objs.copy()
     objs[:, O_YAW] = (objs[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
-    value = float(model.map_objective(cam[None], objs[None], temperature)[0])
-    return MapState(model.complete_camera(cam[None])[0], objs, np.asarray(hand, int), value, D, info)
+    value = float(fit.map_objective(cam[None], objs[None], temperature)[0])
+    return MapState(fit.complete_camera(cam[None])[0], objs, fit.handedness.astype(int), value, D, info, others,
+                    None if fit.pilot is None else fit.pilot.copy())
 
 
 def refine(model: Model, current: MapState, camera: np.ndarray, objects: np.ndarray,
            temperature: float = 1.0) -> MapState:
     """The optimum reached from another start (camera (5,), objects (m, 7): a mode the sampler's
-    search found), if it is better than ``current``; else ``current``. The model's handedness is
-    kept."""
-    coords = WorkingCoords(model)
+    search found), if it is better than ``current``; else ``current``. The handedness and pilot of
+    ``current`` are kept."""
+    fit = current.fitted(model)
+    coords = WorkingCoords(fit)
     wc, wo = (a[0] for a in coords.to_work(camera[None], objects[None]))
-    wc, wo, f, it = _newton(model, wc, wo, temperature)
+    wc, wo, f, it = _newton(fit, wc, wo, temperature)
     if not f < current.value:
         return current
     cams, objs = coords.from_work(wc[None], wo[None])
-    return _state(model, cams[0], objs[0], model.handedness, temperature,
+    return _state(fit, cams[0], objs[0], temperature,
                   {**current.info, "iterations": current.info.get("iterations", 0) + it,
-                   "from_sampler_mode_search": True})
+                   "from_sampler_mode_search": True}, current.others)
 
 
 #: An object whose fit with the other handedness (the camera held) comes within this many nats of
@@ -561,35 +574,28 @@ def _flips(model: Model, wc, wo, f: float, temperature: float):
     handedness flipped and fitted with the camera held; those whose fit comes within
     :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest first) are flipped
     one at a time and everything refined from there, each kept when the whole objective improves.
-    Returns (wc, wo, value, iterations)."""
+    ``model`` is the fit's model (its handedness); returns (the model at the handedness kept, wc, wo,
+    value, iterations)."""
     coords = WorkingCoords(model)
     cams, objs = coords.from_work(wc[None], wo[None])
-    h0 = model.handedness.copy()
+    h0 = model.handedness
     _, flipped, _, _ = initial_objects(model, cams[0], handedness=-h0, keep_camera=True)
     flipped[:, O_SIZE] = objs[0, :, O_SIZE]
-    model.handedness = -h0
     wof = coords.to_work(cams, flipped[None])[1][0]
-    free = model.camera_free.copy()
-    model.camera_free[:] = False
-    try:
-        _, wof, _, iters = _newton(model, wc, wof, temperature)
-        per_f = _object_values(model, coords, wc, wof, temperature)
-    finally:
-        model.camera_free[:] = free
-        model.handedness = h0
+    held = model.variant(handedness=-h0, camera_free=np.zeros(5, bool))  # every object flipped, the camera held
+    _, wof, _, iters = _newton(held, wc, wof, temperature)
+    per_f = _object_values(held, WorkingCoords(held), wc, wof, temperature)
     gap = per_f - _object_values(model, coords, wc, wo, temperature)
     for i in [k for k in np.argsort(gap) if gap[k] < FLIP_MARGIN][:MAX_FLIPS]:
-        hand = model.handedness.copy()
-        model.handedness = np.where(np.arange(len(hand)) == i, -hand, hand)
+        hand = model.handedness
+        trial = model.variant(handedness=np.where(np.arange(len(hand)) == i, -hand, hand))
         start = wo.copy()
         start[i] = wof[i]
-        wc2, wo2, f2, it = _newton(model, wc, start, temperature)
+        wc2, wo2, f2, it = _newton(trial, wc, start, temperature)
         iters += it
         if f2 < f:
-            wc, wo, f = wc2, wo2, f2
-        else:
-            model.handedness = hand
-    return wc, wo, f, iters
+            model, wc, wo, f = trial, wc2, wo2, f2
+    return model, wc, wo, f, iters
 
 
 def _object_values(model: Model, coords: WorkingCoords, wc, wo, temperature: float) -> np.ndarray:
@@ -607,8 +613,9 @@ def _corner_fits(model: Model, starts, temperature: float) -> list:
     tip), then L-BFGS-B on the objective. Returns (value, camera, objects, handedness) of each."""
     obs = np.array([o.corner_median for o in model.objects])  # (m, 4, 2)
     out = []
+    base = model
     for _, _, cam, objs, hand in starts:
-        model.handedness = hand.astype(float)
+        model = base.variant(handedness=hand)
         flat = FlatState(model, cam, objs)
         x0 = flat.pack(cam[None], objs[None])[0]
         scale = np.maximum(np.abs(x0), 0.1)
@@ -638,73 +645,71 @@ def _corner_fits(model: Model, starts, temperature: float) -> list:
 
 
 def _default(model: Model, temperature: float, n_refine: int):
-    """The default preset (module docstring): (camera, objects, handedness, info)."""
+    """The default preset (module docstring): (camera, objects, handedness, pilot camera, info).
+    Every start and pass is a copy of ``model`` at its own state (:meth:`Model.variant`)."""
     candidates = []
+    both = model.n_objects == 1  # one object sets the camera: both handednesses from the start
     for start in _camera_starts(model):
         placed = [initial_objects(model, start)]
-        if model.n_objects == 1:  # one object sets the camera: both handednesses from the start
+        if both:
             placed.append(initial_objects(model, start, handedness=-placed[0][2]))
         for cam, objs, hand, err in placed:
-            model.handedness = hand.astype(float)
-            value = float(model.map_objective(cam[None], objs[None], temperature)[0])
+            value = float(model.variant(handedness=hand).map_objective(cam[None], objs[None], temperature)[0])
             candidates.append((value, err, cam, objs, hand))
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
     # the best starts, and the best of every other handedness (one object: refine both)
     firsts = {}
-    for k, c in enumerate(candidates if model.n_objects == 1 else ()):  # several: flips decide (_flips)
+    for k, c in enumerate(candidates if both else ()):  # several: flips decide (_flips)
         firsts.setdefault(tuple(c[4]), k)
     chosen = sorted(set(range(min(n_refine, len(candidates)))) | set(firsts.values()))
     iters = 0
     reached = []
-    sigma = np.array(model.sigma, float)
+    smoother = "corner_sigma" in model.capabilities and np.any(np.asarray(model.sigma) < _SMOOTH_SIGMA_PX)
     for k in chosen:
         value, err, cam, objs, hand = candidates[k]
-        model.handedness = hand.astype(float)
-        wc, wo = (a[0] for a in WorkingCoords(model).to_work(cam[None], objs[None]))
-        if np.any(sigma < _SMOOTH_SIGMA_PX) or not model.smooth:  # continuation: a smoother cost
-            model.sigma = np.maximum(sigma, _SMOOTH_SIGMA_PX)  # first (far from the optimum a tiny σ
-            for soft in (0.0,) if model.smooth else _SOFTNESS_PX:  # leaves only t-tails; kinks stop
-                model.softness_px = soft  # Newton: rounded ever less)
-                wc, wo, f, it = _newton(model, wc, wo, temperature)
+        fit = model.variant(handedness=hand)
+        wc, wo = (a[0] for a in WorkingCoords(fit).to_work(cam[None], objs[None]))
+        if smoother or not model.smooth:  # continuation: a smoother cost first (far from the optimum
+            wide = fit.variant(sigma=np.maximum(model.sigma, _SMOOTH_SIGMA_PX)) if smoother else fit  # a tiny σ
+            for soft in (0.0,) if model.smooth else _SOFTNESS_PX:  # leaves only t-tails; kinks stop Newton:
+                wc, wo, f, it = _newton(wide.variant(softness_px=soft), wc, wo, temperature)  # rounded ever less)
                 iters += it
-            model.sigma, model.softness_px = sigma, 0.0
-        wc, wo, f, it = _newton(model, wc, wo, temperature)
+        wc, wo, f, it = _newton(fit, wc, wo, temperature)
         iters += it
         reached.append((f, wc, wo, hand))
     f, wc, wo, hand = min(reached, key=lambda r: r[0])  # the first of the best
     if not np.isfinite(f):
         raise RuntimeError(f"no start of the optimiser reached a finite posterior density "
                            f"({len(candidates)} starts tried)")
-    model.handedness = hand.astype(float)
     coords = WorkingCoords(model)
-    cams, _ = coords.from_work(wc[None], wo[None])
-    model.set_pilot(cams[0])
-    if model.needs_pilot:
-        wc, wo, f, it = _newton(model, wc, wo, temperature)
+    pilot = coords.from_work(wc[None], wo[None])[0][0]
+    fit = model.variant(handedness=hand, pilot=pilot)
+    if fit.needs_pilot:
+        wc, wo, f, it = _newton(fit, wc, wo, temperature)
         iters += it
-    wc, wo, f, it = _flips(model, wc, wo, f, temperature)
+    fit, wc, wo, f, it = _flips(fit, wc, wo, f, temperature)
     iters += it
     cams, objs = coords.from_work(wc[None], wo[None])
     cam, objs = cams[0], objs[0]
-    D = _hold(derivatives(model, wc, wo, temperature), wc, *_camera_box(model))
+    D = _hold(derivatives(fit, wc, wo, temperature), wc, *_camera_box(fit))
     step = D.solve()
     stalled = step is None or -0.5 * (D.g_c @ step[0] + np.sum(D.g_o * step[1])) > _DECREMENT_TOL
     if stalled or not model.smooth:  # kinks, or Newton stopped short (a Hessian not positive where
-        flat = FlatState(model, cam, objs)  # a very sharp likelihood bends): L-BFGS-B needs none
-        x, _ = _lbfgsb(model, flat, flat.pack(cam[None], objs[None])[0], temperature, ftol=1e-13)
+        flat = FlatState(fit, cam, objs)  # a very sharp likelihood bends): L-BFGS-B needs none
+        x, _ = _lbfgsb(fit, flat, flat.pack(cam[None], objs[None])[0], temperature, ftol=1e-13)
         c2, o2 = flat.unpack(x)
-        if model.map_objective(c2, o2, temperature)[0] < model.map_objective(cam[None], objs[None], temperature)[0]:
+        if fit.map_objective(c2, o2, temperature)[0] < fit.map_objective(cam[None], objs[None], temperature)[0]:
             cam, objs = c2[0], o2[0]
+    hand = fit.handedness
     if not model.smooth:  # kinks: the best of this and the fits of the projected corners (below)
-        best_fit = (model.map_objective(cam[None], objs[None], temperature)[0], cam, objs, model.handedness.copy())
-        for fit in _corner_fits(model, [candidates[k] for k in chosen], temperature):
-            best_fit = min(best_fit, fit, key=lambda b: b[0])
+        best_fit = (fit.map_objective(cam[None], objs[None], temperature)[0], cam, objs, hand)
+        for found in _corner_fits(fit, [candidates[k] for k in chosen], temperature):
+            best_fit = min(best_fit, found, key=lambda b: b[0])
         _, cam, objs, hand = best_fit
-        model.handedness = np.asarray(hand, float)
     others = []
     for f_, wc_, wo_, hand_ in sorted(reached, key=lambda r: r[0]):
         if np.isfinite(f_) and not (np.allclose(wc_, wc) and np.allclose(wo_, wo)):
             c_, o_ = coords.from_work(wc_[None], wo_[None])
             others.append((c_[0], o_[0], np.asarray(hand_, int)))
-    return cam, objs, model.handedness.astype(int), {"iterations": iters, "starts": len(candidates),
-                                                     "polished": bool(stalled), "others": tuple(others)}
+    return cam, objs, np.asarray(hand).astype(int), pilot, {"iterations": iters, "starts": len(candidates),
+                                                          "polished": bool(stalled), "others": tuple(others)}

@@ -44,6 +44,9 @@ VALLEY = 0.5
 MIN_SHARE = 1e-3
 #: At most this many modes are kept (the heaviest).
 MAX_MODES = 4
+#: A set of dimension lines whose corners miss the MAP's by more than this many times the best
+#: set's miss (+ 1 px), RMS, may be another reading of its object (:func:`object_modes`).
+OUTLIER_SET = 4.0
 #: Local maxima more than this many nats below the best are not weighed.
 MAX_DROP = 25.0
 
@@ -64,6 +67,9 @@ class Mode:
     cov: np.ndarray
     log_prob: float
     share: float
+    #: (k, 5) how the centre moves with the camera's working coordinates (an object's mode given
+    #: the camera, :func:`object_modes`), or None
+    shear: np.ndarray | None = None
 
 
 def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
@@ -245,3 +251,109 @@ def _log_resp(u, weights, means, covs) -> np.ndarray:
         logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
     logs = np.column_stack(logs)
     return logs - logsumexp(logs, axis=1, keepdims=True)
+
+
+def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, temperature: float,
+                 max_sets: int = 8) -> list[list[Mode]]:
+    """Each object's modes given the MAP's camera, in a scene of object blocks (:mod:`.moves`):
+    another reading of an object that its own sets of dimension lines support (two sets that
+    place it at different depths: the posterior then has a mode for each).
+
+    Given the camera the objects are independent (pair terms aside), so every object is searched
+    at once. For the k-th set of dimension lines (k < ``max_sets``), every object that has one is
+    placed by the closed-form solve from that set alone (the others stay at the MAP) and all are
+    climbed together, the camera held (Newton steps, :mod:`.map`): only the sets that miss the
+    MAP's corners by more than :data:`OUTLIER_SET` times (the best set's miss + 1 px), RMS, and
+    only their objects (an object whose sets agree has one reading). An object's end point is a new
+    mode when it lies more than :data:`SAME_MODE` from the modes kept (in the MAP's whitened
+    units, ``Ao`` its Laplace covariance given the camera) with a valley between
+    (:func:`_same_mode`); its mass is its Laplace mass given the camera. Modes under
+    :data:`MIN_SHARE` go, at most :data:`MAX_MODES` stay.
+
+    Parameters
+    ----------
+    target : the :class:`~.moves.BlockTarget` (its object coordinates at ``wc0`` are the working ones)
+    wc0, wo0 : (5,), (m, 7) the MAP in working coordinates
+    Ao : (m, 7, 7) each object's Laplace covariance given the camera (zero on fixed entries)
+    temperature : the posterior's T
+
+    Returns
+    -------
+    per object, its modes (:class:`Mode`: centre (7,), covariance (7, 7) and ``shear`` (7, 5), the
+    centre's regression on the camera, in working coordinates), the MAP's first
+    """
+    from ..models.contract import O_YAW
+    from .map import _newton, derivatives, initial_objects
+
+    model, coords = target.model, target.coords
+    m, of = model.n_objects, model.object_free
+    cams, objs = coords.from_work(wc0[None], wo0[None])
+    cam = cams[0]
+    held = model.variant(camera_free=np.zeros(5, bool))
+    uv = model.project(cams, objs)[0][0]  # (m, 4, 2) the MAP's corners
+    K = min(max_sets, max(len(o.annotations) for o in model.objects))
+    miss = np.full((m, K), np.nan)  # each set's RMS distance from them, px
+    for i, o in enumerate(model.objects):
+        a = o.annotations[:K]
+        miss[i, :len(a)] = np.sqrt(np.mean(np.sum((a - uv[i]) ** 2, axis=-1), axis=-1))
+    with np.errstate(invalid="ignore"):
+        apart = miss > OUTLIER_SET * (np.nanmin(miss, axis=1, keepdims=True) + 1.0)
+    ends = []
+    for k in np.flatnonzero(apart.any(axis=0)):
+        has = apart[:, k]
+        corners = np.array([o.annotations[min(k, len(o.annotations) - 1)] for o in model.objects])
+        placed = initial_objects(model, cam, handedness=model.handedness, keep_camera=True, corners=corners)[1]
+        wo = np.where(has[:, None], coords.to_work(cam[None], placed[None])[1][0], wo0)
+        if not np.all(np.isfinite(wo[has])):
+            continue
+        _, end, _, _ = _newton(held, wc0, wo, temperature)
+        end[:, O_YAW] = wo0[:, O_YAW] + (end[:, O_YAW] - wo0[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
+        ends.append(np.where(has[:, None], end, np.nan))
+    wc = wc0[None]
+
+    def own(i, x):  # object i's log-density given the camera at states x (n, 7), the others at the MAP
+        wt = np.repeat(wo0[None], len(x), axis=0)
+        wt[:, i] = x
+        return target.objects(np.repeat(wc, len(x), axis=0), wt)[0][:, i]
+
+    out = []
+    for i in range(m):
+        free = of[i]
+        L = np.linalg.cholesky(Ao[i][np.ix_(free, free)])
+        whiten = lambda x, i=i, L=L, free=free: np.linalg.solve(L, (np.atleast_2d(x) - wo0[i])[:, free].T).T  # noqa: E731
+
+        def neg(z, i=i, L=L, free=free):  # −log p of object i in its whitened coordinates
+            x = np.repeat(wo0[i][None], len(np.atleast_2d(z)), axis=0)
+            x[:, free] += np.atleast_2d(z) @ L.T
+            v = own(i, x)
+            return np.where(np.isfinite(v), -v, 1e300)
+
+        found = [wo0[i]]
+        for e in ends:
+            x = e[i]
+            if np.all(np.isfinite(x)) and not any(_same_mode(neg, whiten(x)[0], whiten(f)[0]) for f in found):
+                found.append(x)
+        if len(found) == 1:
+            out.append([Mode(wo0[i], Ao[i], float(own(i, wo0[i][None])[0]), 1.0)])
+            continue
+        lp = own(i, np.array(found))
+        modes = [(wo0[i], Ao[i], None)]
+        for x in found[1:]:
+            wo = wo0.copy()
+            wo[i] = x
+            D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
+            H = D.H_oo[i][np.ix_(free, free)]
+            c = np.zeros((7, 7))
+            try:
+                np.linalg.cholesky(H)
+                c[np.ix_(free, free)] = np.linalg.inv(H)
+            except np.linalg.LinAlgError:
+                c = None  # no Laplace mass (not a maximum of the density): no share
+            modes.append((x, c, None if c is None else -c @ D.H_co[i].T))
+        log_mass = np.array([lp[k] + 0.5 * np.linalg.slogdet(c[np.ix_(free, free)])[1] if c is not None else -np.inf
+                             for k, (_, c, _) in enumerate(modes)])
+        share = np.exp(log_mass - logsumexp(log_mass))
+        kept = [Mode(x, c, float(v), float(w), b) for (x, c, b), v, w in zip(modes, lp, share)]
+        rest = sorted((k for k in kept[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
+        out.append([kept[0]] + rest[:MAX_MODES - 1])
+    return out

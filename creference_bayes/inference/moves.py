@@ -190,20 +190,35 @@ class BlockKernel:
 
     ``adapt``: while True, each random-walk sweep moves its scales by exp(rate · (acceptance − 0.3)),
     rate = 3 / (t + 10)^0.6 at its t-th call (Robbins–Monro).
+
+    ``modes``: other modes of the objects, (weights (m, 1 + E), centres (m, E, 7) at the camera
+    ``target.c0``, Cholesky factors (m, E, 7, 7), how the centres move with the camera (m, E, 7, 5)),
+    or None: an object's independence proposal given the camera is then a mixture, its first
+    component the one above (weight 0 pads an object with fewer modes).
     """
 
     def __init__(self, target: BlockTarget, Lc: np.ndarray, Lo: np.ndarray, mc: np.ndarray, mt: np.ndarray, *,
-                 tries: int = 4, adapt: bool = False):
+                 tries: int = 4, adapt: bool = False, modes=None):
         self.t = target
         self.Lc, self.Lo = Lc, Lo
         self.Lci, self.Loi = np.linalg.pinv(Lc), np.linalg.pinv(Lo)
         self.mc, self.mt = mc, mt
+        self.modes = None
+        if modes is not None:
+            w, centres, L, shear = modes
+            with np.errstate(divide="ignore"):
+                log_w = np.log(w)
+            Ls = np.concatenate([Lo[:, None], L], axis=1)
+            diag = np.diagonal(Ls, axis1=-2, axis2=-1)
+            self.modes = (log_w, np.concatenate([mt[:, None], centres], axis=1), Ls, np.linalg.pinv(Ls),
+                          np.sum(np.log(np.where(diag > 0, diag, 1.0)), axis=-1),
+                          np.concatenate([np.zeros((len(mt), 1, 7, 5)), shear], axis=1))
         self.kc, self.ko = int(target.cf.sum()), target.of.sum(axis=1)
         self.sc = 2.38 / np.sqrt(max(self.kc, 1))
         self.so = 2.38 / np.sqrt(np.maximum(self.ko, 1))
         self.tries, self.adapt, self.calls = int(tries), adapt, 0
         self.colours = colours(target.m, target.model.pairs)
-        self.accepted = {"camera": [], "objects": []}
+        self.accepted = {"camera": [], "objects": [], "all": []}
 
     # -- state <-> blocks ---------------------------------------------------------------------------
     def _unpack(self, state):
@@ -224,9 +239,33 @@ class BlockKernel:
     def _t(rs, shape):
         return rs.standard_normal(shape) / np.sqrt(rs.chisquare(IND_DOF, shape[:-1] + (1,)) / IND_DOF)
 
-    def _log_q_obj(self, x):  # (…, m): Student-t log-density (up to constants) of the object proposal
+    def _means(self, wc):  # (C, m, 1 + E, 7): each mode's centre given each walker's camera (C, 5)
+        return self.modes[1] + np.einsum("meic,nc->nmei", self.modes[5], wc - self.t.c0)
+
+    def _log_q_obj(self, x, wc=None):  # (…, m): Student-t log-density (up to constants) of the object proposal
+        if self.modes is not None:  # a mixture over the modes; x (C, [k,] m, 7), wc (C, 5)
+            log_w, _, _, Li, logdet = self.modes[:5]
+            means = self._means(wc).reshape((len(wc),) + (1,) * (x.ndim - 3) + self.modes[1].shape)
+            w = np.einsum("meij,...mej->...mei", Li, x[..., None, :] - means) / IND_SCALE
+            lq = log_w - logdet - 0.5 * (IND_DOF + self.ko[:, None]) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+            top = np.max(lq, axis=-1)
+            return top + np.log(np.sum(np.exp(lq - top[..., None]), axis=-1))
         w = np.einsum("mij,...mj->...mi", self.Loi, x - self.mt) / IND_SCALE
         return -0.5 * (IND_DOF + self.ko) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+
+    def _draw_obj(self, rs, wc, k: int) -> np.ndarray:
+        """(C, k, m, 7) independence proposals of every object given the cameras ``wc`` (C, 5) (a
+        mixture over its modes)."""
+        C, m = len(wc), self.t.m
+        z = self._t(rs, (C, k, m, 7))
+        if self.modes is None:
+            return self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, z)
+        log_w, _, L = self.modes[:3]
+        cum = np.cumsum(np.exp(log_w), axis=-1)
+        comp = np.minimum(np.sum(rs.uniform(size=(C, k, m, 1)) * cum[:, -1:] >= cum, axis=-1), cum.shape[1] - 1)
+        idx = np.arange(m)
+        means = self._means(wc)[np.arange(C)[:, None, None], idx, comp]  # (C, k, m, 7)
+        return means + IND_SCALE * np.einsum("ckmij,ckmj->ckmi", L[idx, comp], z)
 
     def _log_q_cam(self, x):
         w = (x - self.mc) @ self.Lci.T / IND_SCALE
@@ -241,7 +280,7 @@ class BlockKernel:
         for colour in self.colours:
             if independent:
                 k = self.tries
-                props = self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, self._t(rs, (C, k, m, 7)))
+                props = self._draw_obj(rs, wc, k)
                 if colour is not None:
                     props = np.where(colour[None, None, :, None], props, wt[:, None])
                 own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
@@ -250,8 +289,8 @@ class BlockKernel:
                 if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
                     with np.errstate(invalid="ignore"):
                         new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
-                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props), 1, -1),
-                                          cur - self._log_q_obj(wt), rs)
+                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props, wc), 1, -1),
+                                          cur - self._log_q_obj(wt, wc), rs)
                 if colour is not None:
                     ok &= colour[None, :]
                 take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
@@ -310,9 +349,11 @@ class BlockKernel:
                 rate = 3.0 / (self.calls + 10) ** 0.6
                 self.so = self.so * np.exp(rate * (a.mean(axis=0) - 0.3))
                 self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
+        moved = a.any(axis=1) | b
         self.accepted["objects"].append(a.mean(axis=0))
         self.accepted["camera"].append(float(b.mean()))
-        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), a.any(axis=1) | b
+        self.accepted["all"].append(float(moved.mean()))
+        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), moved
 
 
 class RandomWalkSweep(emcee.moves.Move):

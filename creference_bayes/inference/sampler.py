@@ -11,14 +11,17 @@ Block sweeps:
 * **Coordinates.** Working coordinates (:mod:`.coords`), each object's block measured from its
   conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the
   camera (from the Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws).
+* **Modes.** Each object's other modes given the MAP's camera (:func:`.modes.object_modes`): an
+  object with several has a mixture independence proposal, one component per mode following the
+  camera, and chain c starts it in its mode c mod k.
 * **Start.** Over-dispersed draws (1.2 ×) from the Laplace approximation; walkers that start at
   zero density start at the MAP.
 * **Warm-up.** ``warmup`` steps, the random-walk scales tuned towards an acceptance of 0.3; at
   40 % and 70 % of it the covariances, the shear and the independence centres are re-estimated
   from the second half of the draws since the last re-estimate (blended 80/20 with the Laplace
   approximation, so that a short warm-up cannot make them singular). Then everything is frozen.
-* **Stopping.** The main phase runs in chunks until every free parameter's and every object
-  distance's bulk ESS reaches ``min_ess`` and its rank-normalised split R-hat is at most
+* **Stopping.** The main phase runs in chunks until the bulk ESS of every free parameter and every
+  object's distance reaches ``min_ess`` and its rank-normalised split R-hat is at most
   ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
   split R-hat is within 3× of the threshold; the rule that decides is always the ranked one.
 
@@ -33,7 +36,7 @@ from dataclasses import dataclass, field, fields
 import emcee
 import numpy as np
 
-from ..models.contract import CAMERA_NAMES, O_YAW, OBJECT_NAMES, Model
+from ..models.contract import C_HEIGHT, CAMERA_NAMES, O_GROUND, O_YAW, OBJECT_NAMES, Model
 from .diagnostics import ess_bulk_rhat, rhat_split_raw
 from .laplace import laplace_blocks
 from .map import MapState, derivatives
@@ -71,7 +74,9 @@ class SamplerSettings:
         min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
         proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
         inflation and mixture components;  mode_search, explore_temperature, explore_steps : look
-        for other modes before sampling (:mod:`.modes`), by a tempered exploration
+        for other modes before sampling (:mod:`.modes`), by a tempered exploration (several
+        objects: ``mode_search`` looks for each object's, given the MAP's camera, from its sets of
+        dimension lines, :func:`~.modes.object_modes`)
     """
 
     min_ess: float = 400.0
@@ -155,9 +160,10 @@ class Draws:
 
 @dataclass(frozen=True)
 class Diagnostics:
-    """How the sampler did: per free parameter bulk ESS and R-hat (dicts keyed by
-    ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates, ``converged`` and the
-    reasons when it is not, seconds."""
+    """How the sampler did, in one shape whatever its moves: per checked quantity bulk ESS and R-hat
+    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates
+    (:func:`_acceptance`), ``converged`` and the reasons when it is not, seconds, the modes found
+    before sampling (None: one)."""
 
     n_chains: int
     warmup: int
@@ -174,11 +180,23 @@ class Diagnostics:
     def to_dict(self) -> dict:
         r = lambda d: {k: (None if v is None or not np.isfinite(v) else round(float(v), 4)) for k, v in d.items()}
         return {"sampler": "emcee", "n_chains": self.n_chains, "warmup": self.warmup, "iterations": self.iterations,
-                "thin": self.thin, "min_ess_bulk": _extreme(self.ess_bulk, min, 1),
-                "max_r_hat": _extreme(self.r_hat, max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
+                "thin": self.thin, "min_ess_bulk": _extreme(_checked(self.ess_bulk), min, 1),
+                "max_r_hat": _extreme(_checked(self.r_hat), max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
-                **({"modes": self.info["mode_report"]} if self.info.get("mode_report") else {})}
+                "modes": self.info.get("mode_report") or None}
+
+
+def _acceptance(all_: float, camera: float, objects: float) -> dict:
+    """The acceptance rates every run reports, whatever its moves: ``all``, the share of a walker's
+    steps that moved it; ``camera`` and ``objects``, the share of proposals for the camera block and
+    for an object block accepted (moves of the whole vector move both at once: each is ``all``)."""
+    return {"all": all_, "camera": camera, "objects": objects}
+
+
+def _checked(d: dict) -> dict:
+    """The quantities the stopping rule checks (all but :data:`REPORTED_ONLY`)."""
+    return {k: v for k, v in d.items() if k.rpartition(".")[2] not in REPORTED_ONLY}
 
 
 def _extreme(d, pick, nd):
@@ -230,12 +248,12 @@ def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
 class _Run:
     """One segment of the run: a target in the current shear, its kernel and an EnsembleSampler."""
 
-    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt):
+    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
         m = model.n_objects
         self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
         Lc = _chol(Sc, model.camera_free)
         Lo = np.array([_chol(Ao[i], model.object_free[i]) for i in range(m)])
-        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt)
+        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)
         w = 0.5 if s.independence_weight is None else s.independence_weight
         moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
         if w > 0:
@@ -262,10 +280,12 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     model has several object blocks, whole by ensemble moves when it has one.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
-    when the MAP has zero posterior density.
+    when the MAP has zero posterior density. The model is sampled at the MAP's handedness and pilot
+    (:meth:`MapState.fitted`); ``model`` itself is not changed.
     """
     s = settings or SamplerSettings()
     rng = np.random.default_rng(rng)
+    model = map_est.fitted(model)
     if model.n_objects == 1:
         return _sample_whole(model, map_est, s, rng, temperature, progress)
     return _sample_blocks(model, map_est, s, rng, temperature, progress)
@@ -363,8 +383,8 @@ def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress
     info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
                  "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
     return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
-                              dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist())),
-                              {"all": float(np.mean(chains.acceptance_fraction))}, ok, tuple(why),
+                              *_with_y(model, draws, dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist()))),
+                              _acceptance(*[float(np.mean(chains.acceptance_fraction))] * 3), ok, tuple(why),
                               time.perf_counter() - t0, info)
 
 
@@ -387,17 +407,18 @@ def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
 
 
 def _mode_report(modes, target: BlockTarget, to_u, shares=None) -> list[dict] | None:
-    """Where each mode found before sampling is (its object's distance and yaw), how far below the
-    MAP's its log-density is, its Laplace share of the mass and the share of each ensemble's draws
-    nearest to it (they should agree); None with one mode."""
+    """Where each mode found before sampling is (its object's id, distance and yaw), how far below
+    the MAP's its log-density is, its Laplace share of the mass and the share of each chain's (each
+    ensemble's) draws nearest to it (they should agree); None with one mode."""
     if len(modes) < 2:
         return None
     centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
     lp = target(centers)
-    return [{"distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])), "yaw": float(objs[k, 0, O_YAW]),
-             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
-             "draw_share_per_ensemble": None if shares is None else [float(g[k]) for g in shares]}
+    return [{"target": target.model.objects[0].id, "distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])),
+             "yaw": float(objs[k, 0, O_YAW]), "log_density_below_map": float(lp[0] - lp[k]),
+             "laplace_share": float(m.share),
+             "draw_share_per_chain": None if shares is None else [float(g[k]) for g in shares]}
             for k, m in enumerate(modes)]
 
 
@@ -415,7 +436,16 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
     wc = wc0 + dc
     wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
     random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
-    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True)
+    found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
+    mix = _mixture(model, found, B0)
+    if mix is not None:  # chain c starts each object in its mode c (mod its modes)
+        for i, modes in enumerate(found):
+            for c in range(C):
+                k = c % len(modes)
+                if k:
+                    L = _chol(modes[k].cov, of[i])
+                    wo[c, i] = modes[k].center + L @ rng.standard_normal(7) + B[i] @ dc[c]
+    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=mix)
     state = seg.state(wc, wo, random_state)
     bad = ~np.isfinite(state.log_prob)
     wc[bad], wo[bad] = wc0, wo0
@@ -438,8 +468,11 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
             Sc, Ao, B, mc = _reestimate(model, wcs, wos, Sc0, Ao0, B0)
             mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            if mix is not None:  # an object with several modes keeps its MAP mode's blocks (its draws
+                several = np.array([len(modes) > 1 for modes in found])  # span every mode)
+                Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
             wc, wo = seg.target.working(state.coords)
-            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True)
+            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=mix)
             seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
             state = seg.state(wc, wo, state.random_state)
             hist = []
@@ -475,7 +508,7 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
                     need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
             chunk = int(np.clip(1.2 * need - it, 8 * s.chunk, 2 * it))
     acc = seg.kernel.accepted
-    acceptance = {"camera": float(np.mean(acc["camera"])), "objects": float(np.mean(acc["objects"]))}
+    acceptance = _acceptance(*(float(np.mean(acc[k])) for k in ("all", "camera", "objects")))
     warn = []
     if not ok:
         warn.append(f"not converged after {it} steps: " + "; ".join(diag["why"]))
@@ -483,8 +516,79 @@ def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progres
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     draws = Draws(np.transpose(np.array(cams_d), (1, 0, 2)), np.transpose(np.array(objs_d), (1, 0, 2, 3)),
                   np.transpose(np.array(lp_d)))
-    return draws, Diagnostics(C, s.warmup, it, thin, diag["ess_bulk"], diag["r_hat"], acceptance, ok, tuple(warn),
-                              time.perf_counter() - t0, {"laplace_positive_definite": bool(laplace_ok)})
+    info = {"laplace_positive_definite": bool(laplace_ok)}
+    if mix is not None:
+        info["mode_report"] = _object_mode_report(model, found, draws, wc0, wo0)
+        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(found) if len(modes) > 1]
+        denser = [(i, k) for i, k in denser if k.log_prob > found[i][0].log_prob + 1.0]
+        if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
+            wo = wo0.copy()
+            for i, k in denser:
+                wo[i] = k.center
+            c, o = WorkingCoords(model).from_work(wc0[None], wo[None])
+            info["denser_mode"] = (c[0], o[0])
+    return draws, Diagnostics(C, s.warmup, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
+                              acceptance, ok, tuple(warn), time.perf_counter() - t0, info)
+
+
+def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
+    """Each object's modes given the MAP's camera (:func:`.modes.object_modes`), or each its
+    MAP's alone without ``mode_search``."""
+    from .modes import Mode, object_modes
+
+    if not s.mode_search:
+        return [[Mode(wo0[i], Ao[i], 0.0, 1.0)] for i in range(model.n_objects)]
+    return object_modes(BlockTarget(model, temperature, wc0, B, np.zeros_like(wo0)), wc0, wo0, Ao, temperature)
+
+
+#: Least weight of each mode's component in an object's independence proposal (so that the
+#: proposal keeps offering every mode, whatever its Laplace share).
+MIN_MODE_WEIGHT = 0.1
+
+
+def _mixture(model, found, B):
+    """The objects' other modes as :class:`~.moves.BlockKernel` takes them (weights (m, 1 + E),
+    centres (m, E, 7), Cholesky factors (m, E, 7, 7), and how each centre moves with the camera in
+    the sampler's coordinates (m, E, 7, 5), ``B`` (m, 7, 5) their shear), or None when no object
+    has another."""
+    E = max(len(modes) for modes in found) - 1
+    if E == 0:
+        return None
+    m = model.n_objects
+    w, centres, L, shear = np.zeros((m, 1 + E)), np.zeros((m, E, 7)), np.zeros((m, E, 7, 7)), np.zeros((m, E, 7, 5))
+    for i, modes in enumerate(found):
+        share = np.maximum([k.share for k in modes], MIN_MODE_WEIGHT)
+        w[i, :len(modes)] = share / share.sum()
+        for k, mode in enumerate(modes[1:]):
+            centres[i, k], L[i, k] = mode.center, _chol(mode.cov, model.object_free[i])
+            shear[i, k] = (mode.shear - B[i]) * model.object_free[i][:, None] * model.camera_free[None]
+    return w, centres, L, shear
+
+
+def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
+    """Each mode of an object with several: the object's id, its distance and yaw there, how far
+    below the MAP's its log-density is, its Laplace share given the camera and the share of each
+    chain's draws nearest to it (in its own Laplace metric; they should agree)."""
+    coords = WorkingCoords(model)
+    out = []
+    for i, modes in enumerate(found):
+        if len(modes) < 2:
+            continue
+        free = model.object_free[i]
+        wo = np.repeat(wo0[None], len(modes), axis=0)
+        wo[:, i] = [k.center for k in modes]
+        _, objs = coords.from_work(np.repeat(wc0[None], len(modes), axis=0), wo)
+        C, N = draws.objects.shape[:2]
+        x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
+        dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
+                                   x - k.center[free]) for k in modes], axis=1)
+        near = np.argmin(dist, axis=1).reshape(C, N)
+        out += [{"target": model.objects[i].id, "distance_m": float(np.hypot(objs[k, i, 0], objs[k, i, 1])),
+                 "yaw": float(objs[k, i, O_YAW]), "log_density_below_map": float(modes[0].log_prob - mode.log_prob),
+                 "laplace_share": float(mode.share),
+                 "draw_share_per_chain": [float(np.mean(near[c] == k)) for c in range(C)]}
+                for k, mode in enumerate(modes)]
+    return out
 
 
 def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState) -> tuple[np.ndarray, list[str]]:
@@ -506,6 +610,27 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
         cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
         names.append(f"{o.id}.distance_m")
     return np.stack(cols, axis=-1), names
+
+
+#: Quantities the diagnostics report but the stopping rule does not check (``<target id>.y``, the
+#: bottom's y: the camera height less the ground offset, each checked).
+REPORTED_ONLY = ("y",)
+
+
+def _with_y(model: Model, draws: Draws, ess: dict, rhat: dict) -> tuple[dict, dict]:
+    """The checked quantities' bulk ESS and R-hat with each object's ``y`` added: the camera
+    height's where its ground offset is fixed, else its own from the draws."""
+    ess, rhat = dict(ess), dict(rhat)
+    h = f"camera.{CAMERA_NAMES[C_HEIGHT]}"
+    for i, o in enumerate(model.objects):
+        ess[f"{o.id}.y"], rhat[f"{o.id}.y"] = ess.get(h), rhat.get(h)
+    free = np.flatnonzero(model.object_free[:, O_GROUND])
+    if free.size:
+        y = draws.cameras[..., C_HEIGHT, None] - draws.objects[..., free, O_GROUND]  # (chain, draw, k)
+        eb, rh = ess_bulk_rhat(y)
+        for i, e, r in zip(free, eb.tolist(), rh.tolist()):
+            ess[f"{model.objects[i].id}.y"], rhat[f"{model.objects[i].id}.y"] = e, r
+    return ess, rhat
 
 
 def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings) -> dict:

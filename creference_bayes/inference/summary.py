@@ -71,12 +71,11 @@ def observations(model, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray,
             add(ann[:, i, j], f"{o.id}/{j}", "annotation", o.id, j)
     refs = ll.get("references")
     if refs is not None and refs.size:
-        constraints = getattr(model, "constraints", None)
-        if constraints is not None:  # the paper's model: one penalty per target
-            for i, (o, c) in enumerate(zip(model.objects, constraints)):
+        if "reference_bounds" in model.capabilities:  # one penalty per target
+            for i, (o, c) in enumerate(zip(model.objects, model.constraints)):
                 if c is not None and c.n_pairs:
                     add(refs[:, i], f"{o.id}/references", "reference", o.id, i)
-        else:
+        elif "reference_likelihood" in model.capabilities:
             for k, r in enumerate(model.references):
                 add(refs[:, k], f"reference {r.index}", "reference", "", int(r.index))
     hz = model.camera_terms.horizon
@@ -139,7 +138,7 @@ def to_inference_data(data: dict, draws, model=None, note: str | None = None) ->
         groups["log_likelihood"] = ds.assign_coords({k: ("observation", where[k]) for k in ("kind", "target", "index")})
         labels = [(o.id, j) for o in model.objects for j in range(len(o.annotations))]
         observed = {"corners": np.concatenate([o.annotations for o in model.objects])}
-        refs = getattr(model, "all_references", ())
+        refs = model.all_references if "reference_likelihood" in model.capabilities else ()
         if refs:
             observed["reference_values"] = np.array([[r.low, r.high] for r in refs])
             observed["reference_lines"] = np.array([np.full((2, 2), np.nan) if r.line is None else r.line

@@ -273,7 +273,7 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
                  "size": "known" if o.sizes is not None else "class prior",
                  "n_annotations": len(o.annotations),
                  "map": {n: _r(v) for n, v in zip(OBJECT_REPORT, objs_map[i])}}
-        if hasattr(model, "sigma") and np.ndim(model.sigma):
+        if "object_sigma" in model.capabilities:
             entry["sigma_px"] = _r(model.sigma[i], 3)
         if post_obj is not None:
             entry["posterior"] = _posterior_block(OBJECT_REPORT, post_obj[i], hdi_prob)
@@ -297,17 +297,18 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
 def _references(model) -> dict:
     """What the references contributed: how many entered the likelihood (and which were left out,
     why) for the metrology model; for the paper model, each object's pairs used and skipped."""
-    if hasattr(model, "reference_reports"):
+    if "reference_bounds" in model.capabilities:
         return {"used_as": "pairwise bounds",
                 "objects": [{"pairs_used": r.pairs_used, "pairs_skipped": r.pairs_skipped,
                              "skipped_reasons": r.skipped_reasons} for r in model.reference_reports]}
-    status = getattr(model, "reference_status", {})
+    likelihood = "reference_likelihood" in model.capabilities
+    status = model.reference_status if likelihood else {}
     out = {"used_as": "likelihood", "n_references": len(status),
            "in_likelihood": sum(v == "used" for v in status.values())}
     left = {str(k): v for k, v in status.items() if v != "used"}
     if left:
         out["left_out"] = left
-    if getattr(model, "n_stated_ranges", 0):
+    if likelihood and model.n_stated_ranges:
         out["read_with_confidence_map"] = model.n_stated_ranges
     return out
 

@@ -37,6 +37,7 @@ Geometry
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +51,8 @@ __all__ = ["CAMERA_NAMES", "CAMERA_UNITS", "OBJECT_NAMES", "OBJECT_UNITS", "C_FO
            "C_HEIGHT", "C_SCALE", "O_X", "O_Z", "O_YAW", "O_SIZE", "O_GROUND", "MAX_PITCH", "MAX_ROLL",
            "DEFAULT_GROUND_SD_M", "DEFAULT_GROUND_SD_PER_M", "DEFAULT_GROUND_DOF", "DEFAULT_GROUND_TILT_SD_RAD",
            "REF_SCALE_MEDIAN", "REF_SCALE_LOG_SD",
-           "OBJECT_REPORT", "ObjectData", "Bounds", "Model", "object_corners", "object_report"]
+           "OBJECT_REPORT", "CAPABILITIES", "FIT_STATE", "ObjectData", "Bounds", "Model", "object_corners",
+           "object_report"]
 
 CAMERA_NAMES = ("focal_length_px", "pitch", "roll", "height_m", "ref_scale")
 CAMERA_UNITS = ("px", "rad", "rad", "m", "1")
@@ -78,6 +80,26 @@ DEFAULT_GROUND_TILT_SD_RAD = float(np.radians(1.0))
 #: The crowd's error scale in log-length: log-normal prior, median and log-sd (models that use one).
 REF_SCALE_MEDIAN = 0.5
 REF_SCALE_LOG_SD = 1.0
+#: What a model may offer beyond the contract, by name, and what each promises. A model lists its
+#: own in :attr:`Model.capabilities`; the optimiser, the results and the commands read them there,
+#: never the model's name or which attributes it happens to have.
+CAPABILITIES = {
+    "corner_sigma": "a corner scale `sigma` (pixels: one number, or (m,) one per object) that the MAP's "
+                    "first pass may raise for a smoother objective",
+    "object_sigma": "`sigma` is (m,), each object's own corner scale; results report it (`sigma_px`)",
+    "reference_likelihood": "the workers' references are measurements in the likelihood: `all_references`, "
+                            "`references` (those used), `reference_status` (index → used, or why not), "
+                            "`n_stated_ranges`; the pointwise `references` are (n, k), one per reference used",
+    "reference_bounds": "the references bound each object's ground position: `reference_reports` and "
+                        "`constraints` (one per object, or None); the pointwise `references` are (n, m), "
+                        "one per object",
+    "confidence_map": "a range stated with a confidence is read through `confidence_map`",
+}
+#: The per-fit attributes an optimiser may set on its own copy of a model (:meth:`Model.variant`):
+#: each object's handedness (m,) ±1, the corner scale ``sigma`` (pixels, a model with
+#: ``corner_sigma``), ``softness_px`` (pixels) and ``camera_free`` (5,) bool; a ``pilot`` camera
+#: (5,) goes through :meth:`Model.set_pilot`.
+FIT_STATE = ("handedness", "sigma", "softness_px", "camera_free", "pilot")
 #: Behind-the-camera penalty per metre.
 _BEHIND = 1e6
 
@@ -222,6 +244,12 @@ class Model:
     """
 
     name = "model"
+    #: What the model offers beyond the contract (names of :data:`CAPABILITIES`).
+    capabilities: frozenset = frozenset()
+    #: The options a user may set (keywords of the model, recorded in a result's provenance), and
+    #: those of them whose values are words, not numbers.
+    options: tuple[str, ...] = ()
+    word_options: tuple[str, ...] = ()
     #: Whether the objective is smooth (no kinks): the optimiser may finish with Newton steps alone.
     smooth = True
     #: A model that is not smooth rounds its kinks over this many pixels while it is > 0 (the MAP's
@@ -269,6 +297,31 @@ class Model:
         self.camera_lower, self.camera_upper = self.bounds.camera_lower.copy(), self.bounds.camera_upper.copy()
         self.object_lower, self.object_upper = self.bounds.object_lower.copy(), self.bounds.object_upper.copy()
         self._set_masks()
+
+    @classmethod
+    def has_ground_offsets(cls, n_objects: int) -> bool:
+        """Whether a user's model of a scene of ``n_objects`` targets has ground offsets under a
+        ground-offset prior of their choosing (its :attr:`options` include ``ground_sd_m``): one
+        object defines the ground plane itself (:meth:`__init__` fixes its offset)."""
+        return "ground_sd_m" in cls.options and n_objects > 1
+
+    def variant(self, **state) -> "Model":
+        """A copy of this model at another per-fit state (keys of :data:`FIT_STATE`): what an
+        optimiser or sampler changes while it fits lives in its own copy, and this model is never
+        changed. ``ValueError`` naming a key that is not per-fit state."""
+        unknown = sorted(set(state) - set(FIT_STATE))
+        if unknown:
+            raise ValueError(f"variant: {unknown[0]!r} is not per-fit state (expected some of {list(FIT_STATE)})")
+        if "sigma" in state and "corner_sigma" not in self.capabilities:
+            raise ValueError(f"variant: sigma: the {self.name} model has no corner scale")
+        new = copy.copy(self)
+        new.__dict__ = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self.__dict__.items()}
+        pilot = state.pop("pilot", None)
+        for key, value in state.items():
+            setattr(new, key, np.array(value, bool if key == "camera_free" else float) if np.ndim(value) else value)
+        if pilot is not None and not (self.pilot is not None and np.array_equal(pilot, self.pilot)):
+            new.set_pilot(pilot)  # (what a model fixes at its pilot depends on that camera alone)
+        return new
 
     # -- blocks, bounds, fixed values ------------------------------------------------------------
     @property

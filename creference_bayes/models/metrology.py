@@ -275,6 +275,10 @@ class MetrologyModel(Model):
     """
 
     name = "metrology"
+    capabilities = frozenset({"corner_sigma", "object_sigma", "reference_likelihood", "confidence_map"})
+    options = ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading", "ground_sd_m",
+               "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad", "ref_scale_median", "ref_scale_log_sd")
+    word_options = ("line_reading",)
 
     def __init__(self, principal_point, image_size, objects, references=(), *, target_dof: float = TARGET_DOF,
                  ref_dof: float = REF_DOF, target_sigma: float | None = None, ref_line_sigma: float | None = None,

@@ -38,13 +38,20 @@ class PaperModel(Model):
     principal_point, image_size, objects : as :class:`~.contract.Model`
     constraints : per object, the soft bounds on its (x, z) from pairs of references, or None
     sigma : σ of Eq. 5, pixels
+    reference_reports : per object, how its references were aggregated
+        (:class:`~creference_bayes.core.metrology.ReferenceReport`: pairs used and skipped, why),
+        or empty
     kw : the contract's options (``ground_sd_m`` is 0: one ground plane)
     """
 
     name = "paper"
+    capabilities = frozenset({"corner_sigma", "reference_bounds"})
+    options = ("sigma", "on")
+    word_options = ("on",)
     smooth = False
 
-    def __init__(self, principal_point, image_size, objects, constraints=None, *, sigma: float = PAPER_SIGMA_PX, **kw):
+    def __init__(self, principal_point, image_size, objects, constraints=None, *, sigma: float = PAPER_SIGMA_PX,
+                 reference_reports=(), **kw):
         if not (np.isfinite(sigma) and sigma > 0):
             raise ValueError(f"sigma: expected a finite number > 0, got {sigma!r}")
         self.sigma = float(sigma)
@@ -53,6 +60,7 @@ class PaperModel(Model):
         self.constraints: tuple[SoftConstraints | None, ...] = tuple(constraints or (None,) * self.n_objects)
         if len(self.constraints) != self.n_objects:
             raise ValueError(f"constraints: one per object expected, got {len(self.constraints)} for {self.n_objects}")
+        self.reference_reports = tuple(reference_reports)
         self.observed = np.array([o.corner_median for o in self.objects])  # (m, 4, 2)
         self._norms = np.linalg.norm(self.observed, axis=-1)
 

@@ -139,8 +139,9 @@ class BatchSettings:
     def _map_identity(self) -> dict:
         """The map the estimates use, as compared on a rerun (a file's content, not its path)."""
         from ...models.confidence_map import describe_confidence_map, resolve_confidence_map
+        from ...pipeline import model_class
 
-        if self.model == "paper":  # the paper model reads no confidence (the pipeline checks the map)
+        if "confidence_map" not in model_class(self.model).capabilities:  # the pipeline checks the map
             return {"name": "none"}
         d = describe_confidence_map(resolve_confidence_map(self.confidence_map))
         d.pop("source", None)
