@@ -250,15 +250,6 @@ def test_a_rig_batch_resumes(rig_batch):
     assert again.keys("skipped") == [f"f{k}" for k in range(5)]
 
 
-def test_cli_rig_needs_the_posterior(tmp_path, capsys):
-    from creference_bayes.cli.main import main
-
-    (tmp_path / "s.json").write_text(json.dumps(truth_scene(0)[0]))
-    assert main(["batch", str(tmp_path / "s.json"), "--out", str(tmp_path / "o"), "--rig", "focal",
-                 "--no-posterior"]) == 2
-    assert "--rig focal: needs the posterior" in capsys.readouterr().err
-
-
 def test_a_frame_without_a_camera_id_is_named_by_its_photos_exif(tmp_path):
     from test_camera import _camera_jpeg
 
