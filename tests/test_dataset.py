@@ -41,6 +41,7 @@ def test_frames_of_one_camera_pool_it_by_default_and_each_result_says_so(four_fr
     root, settings, report = four_frames
     assert report.ok and (root / "out" / "first_pass" / "results" / "f0.json").exists()
     assert report.dataset["focal_length_px"]["groups"]["cam-A"]["frames"] == 4
+    assert json.loads((root / "out" / "batch.json").read_text())["dataset"] == report.dataset
     for k in range(4):
         res = json.loads((root / "out" / "results" / f"f{k}.json").read_text())
         took = res["dataset"]["focal_length_px"]

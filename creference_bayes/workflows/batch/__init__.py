@@ -305,9 +305,8 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     except BaseException:
         engine.close(abandon=True)
         raise
-    report = _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings), **run)
-    report.dataset = ds.summary()
-    return report
+    return _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings),
+                     dataset=ds.summary(), **run)
 
 
 def _load_quietly(scenes: list[SceneInput], settings: BatchSettings) -> list:
@@ -344,11 +343,12 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
 
 
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
-              t_start: float, transform=None, close: bool = True) -> BatchReport:
+              t_start: float, transform=None, close: bool = True, dataset: dict | None = None) -> BatchReport:
     """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
     ``transform(KEY, scene)`` → (scene, estimate keyword arguments, dataset block, rig block), if
-    given: :func:`.dataset.hand_back`); writes summary.csv and batch.json
-    whatever ends the run; closes the engine if ``close``."""
+    given: :func:`.dataset.hand_back`); writes summary.csv and batch.json (with ``dataset``, the
+    pools of all frames, :meth:`.dataset.DataSet.summary`) whatever ends the run; closes the engine
+    if ``close``."""
     from .summary import summary_rows, write_summary
 
     out.mkdir(parents=True, exist_ok=True)
@@ -375,13 +375,14 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
             engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
-                             n_targets=runner.n_targets if runner is not None else 0)
+                             n_targets=runner.n_targets if runner is not None else 0, dataset=dataset or {})
         rows = summary_rows(out, scenes, report)
         report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
         write_summary(out, scenes, report, rows)
         atomic_write_json(out / "batch.json", {
             "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
             "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
+            **({"dataset": dataset} if dataset else {}),
             "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
                         **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
     return report
