@@ -58,7 +58,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
-           "combine", "pool_check", "read_frame", "plan", "dataset_lines", "DATASET_CHOICES",
+           "combine", "pool_check", "read_frame", "read_camera_given_mounting", "plan", "dataset_lines",
+           "DATASET_CHOICES",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
 #: ``--dataset``: learn what frames share (``auto``: what there is something to learn of) or nothing
@@ -66,9 +67,13 @@ DATASET_CHOICES = ("auto", "none")
 #: a reading whose precision is below this share of its posterior precision tells nothing
 MIN_INFORMATION = 0.1
 #: the least effective sample size of a reading's importance weights 1/prior, as a share of its draws
+#: (below it the frame's prior was far narrower than its likelihood: the draws cannot show the latter)
 MIN_WEIGHT_ESS = 0.1
+#: ... and, with a reweighting to other frames' pool of another quantity
+#: (:func:`read_camera_given_mounting`), the least effective number of draws of all the weights
+MIN_REWEIGHTED_ESS = 40
 #: draws of the Laplace approximation a frame is read from when its result keeps none
-LAPLACE_DRAWS = 1000
+LAPLACE_DRAWS = 4000
 #: a population of target distances is fitted from at least this many other frames of a setting ...
 MIN_POPULATION_FRAMES = 5
 #: ... and this many informative targets among them (module docstring of :class:`Shared`)
@@ -131,6 +136,8 @@ SHARED = {s.name: s for s in (
     Shared("log_distance", "distance_m", "setting", "spread", max_sd=0.25, min_spread=0.1,
            min_frames=MIN_POPULATION_FRAMES, min_readings=MIN_POPULATION_TARGETS),
 )}
+#: the camera's mounting: a frame's focal length is read given the others' pool of it
+MOUNTING = ("log_height", "pitch", "roll")
 #: the corner scale (sd px, degrees of freedom) is read from the annotations (:func:`~.corner_scales`)
 CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
 
@@ -209,21 +216,30 @@ def _sig(v: float) -> float:
     return float(f"{v:.6g}")
 
 
-def divide_prior(q: np.ndarray, log_prior: np.ndarray | None) -> tuple[float, float, float] | None:
+def divide_prior(q: np.ndarray, log_prior: np.ndarray | None,
+                 log_reweight: np.ndarray | None = None) -> tuple[float, float, float] | None:
     """The likelihood of a quantity from draws ``q`` and the log prior at them: the draws
     reweighted by 1/prior (self-normalised importance weights) → (mean, variance, effective sample
     size of the weights), or None when the weights' effective sample size is below
-    :data:`MIN_WEIGHT_ESS` of the draws or the variance is not positive."""
+    :data:`MIN_WEIGHT_ESS` of the draws or the variance is not positive. ``log_reweight``: a further
+    log weight at each draw (the draws moved to another prior of other quantities); then the
+    weights' effective sample size must also be :data:`MIN_REWEIGHTED_ESS` or more."""
     q = np.asarray(q, dtype=float)
-    if log_prior is None:
-        w = np.full(len(q), 1.0 / len(q))
-    else:
-        lw = -np.asarray(log_prior, dtype=float)
+
+    def normalised(lw):
         w = np.exp(lw - lw.max())
-        w /= w.sum()
+        return w / w.sum()
+
+    own = np.zeros(len(q)) if log_prior is None else -np.asarray(log_prior, dtype=float)
+    w = normalised(own)
     ess = 1.0 / float((w**2).sum())
     if not (len(q) > 1 and ess >= MIN_WEIGHT_ESS * len(q)):
         return None
+    if log_reweight is not None:
+        w = normalised(own + np.asarray(log_reweight, dtype=float))
+        ess = 1.0 / float((w**2).sum())
+        if not ess >= MIN_REWEIGHTED_ESS:
+            return None
     mean = float((w * q).sum())
     var = float((w * (q - mean) ** 2).sum()) / (1.0 - 1.0 / ess)  # unbiased for reliability weights
     if not (var > 0 and np.isfinite(var)):
@@ -231,12 +247,13 @@ def divide_prior(q: np.ndarray, log_prior: np.ndarray | None) -> tuple[float, fl
     return mean, var, ess
 
 
-def likelihood(q: np.ndarray, log_prior: np.ndarray | None) -> tuple[float, float] | None:
+def likelihood(q: np.ndarray, log_prior: np.ndarray | None,
+               log_reweight: np.ndarray | None = None) -> tuple[float, float] | None:
     """A reading (mean, precision) from draws ``q`` with the prior divided out (:func:`divide_prior`),
     or None when it cannot be read or has less than :data:`MIN_INFORMATION` of the posterior's
     precision."""
     post = float(np.var(q, ddof=1)) if len(q) > 1 else 0.0
-    lik = divide_prior(q, log_prior)
+    lik = divide_prior(q, log_prior, log_reweight)
     if lik is None or not (post > 0 and np.isfinite(post)) or not 1.0 / lik[1] >= MIN_INFORMATION / post:
         return None
     return lik[0], 1.0 / lik[1]
@@ -327,14 +344,15 @@ def _setting(camera_id: str | None) -> str:
     return camera_id if camera_id is not None else "data set"
 
 
-def read_frame(key: str, scene, result: dict, camera_id: str | None) -> dict[str, list[Reading]]:
+def read_frame(key: str, scene, result: dict, camera_id: str | None, draws=None) -> dict[str, list[Reading]]:
     """Every reading of one frame's first-pass result (module docstring, step 1): quantity name →
-    readings (a camera's quantities, the crowd's reference scale, each target's log distance)."""
+    readings (a camera's quantities, the crowd's reference scale, each target's log distance).
+    ``draws``: the result's (cameras, objects) when already drawn (:func:`_draws`)."""
     from ...models.contract import C_SCALE, O_X, O_Z, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
     from ...models.location_prior import LocationPrior
     from .rig import camera_likelihood
 
-    cams, objs = _draws(result, scene)
+    cams, objs = draws if draws is not None else _draws(result, scene)
     out: dict[str, list[Reading]] = {}
     if camera_id is not None:
         for name, (mean, precision) in camera_likelihood(result, cams).items():
@@ -364,6 +382,24 @@ def read_frame(key: str, scene, result: dict, camera_id: str | None) -> dict[str
     return out
 
 
+def read_camera_given_mounting(ds: "DataSet", key: str, result: dict, cams: np.ndarray) -> Reading | None:
+    """Frame ``key``'s focal-length reading as if it had known its camera's mounting: its draws
+    reweighted from the wide default mounting prior it was estimated under to the pool of the
+    other frames' mounting (N(M₋ᵢ, V₋ᵢ + τ²) of pitch, roll and height), with its focal prior
+    divided out (:func:`.rig.camera_likelihood`). Why: with a pitch free within ±15°, a frame
+    that pins the horizon in pixels leaves a pitch width shrinking as 1/µ, an extra ≈ 1/µ prior
+    that biases a weak frame's focal length low (docs/studies/rig.md); the camera's pitch, which
+    every frame knows well, takes it away. None: no reading (as :func:`read_frame`)."""
+    from .rig import camera_likelihood
+
+    camera_id = ds.camera_of.get(key)
+    if camera_id is None:
+        return None
+    given = {n: (e.center, e.prior_sd) for n in MOUNTING if (e := ds.estimate(n, key)) is not None}
+    lik = camera_likelihood(result, cams, given).get("log_focal")
+    return None if lik is None else Reading(key, camera_id, *lik)
+
+
 @dataclass
 class DataSet:
     """The pools of every quantity a batch learns, from its first pass (:meth:`from_first_pass`).
@@ -388,7 +424,7 @@ class DataSet:
         from .files import layout
 
         readings: dict[str, list[Reading]] = {name: [] for name in learn}
-        camera_of = {}
+        camera_of, kept = {}, {}
         for key, camera_id in frames:
             camera_of[key] = camera_id
             paths = layout(folder, key)
@@ -397,10 +433,21 @@ class DataSet:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 scene = load_scene(paths["scene"])
-            for name, rs in read_frame(key, scene, read_result(paths["result"]), camera_id).items():
+            result = read_result(paths["result"])
+            draws = _draws(result, scene)
+            kept[key] = (result, draws[0])
+            for name, rs in read_frame(key, scene, result, camera_id, draws).items():
                 if name in readings:
                     readings[name] += rs
-        return cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
+        ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
+        if "log_focal" in learn and any(n in learn for n in MOUNTING):
+            focal = []
+            for key, (result, cams) in kept.items():
+                r = read_camera_given_mounting(ds, key, result, cams)
+                if r is not None:
+                    focal.append(r)
+            ds.pools["log_focal"] = Pool(SHARED["log_focal"], focal)
+        return ds
 
     def group_of(self, name: str, key: str) -> str | None:
         by = SHARED[name].shared_by

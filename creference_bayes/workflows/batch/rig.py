@@ -119,19 +119,31 @@ def _log_prior(name: str, q: np.ndarray, setup: dict) -> np.ndarray | None:
     return -0.5 * ((q - mean) / sd) ** 2
 
 
-def camera_likelihood(result: dict, cams: np.ndarray) -> dict:
+def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None) -> dict:
     """Each camera quantity's likelihood (mean, precision) in one frame, from its draws ``cams``
     (k, 5) and its result's ``camera`` (its ``free`` parameters and the priors of ``setup``): the
     prior divided out of the draws exactly (:func:`.dataset.likelihood`); a quantity the frame
-    does not estimate, or cannot say what it knows of, is absent."""
+    does not estimate, or cannot say what it knows of, is absent.
+
+    ``given``: quantity name → (mean, sd) of the camera's pooled values of the *other* quantities
+    (the mounting): the draws are then also reweighted from the prior the frame used on them to
+    these, so that each quantity's likelihood is read as if the frame had known the camera's
+    mounting (:func:`.dataset.read_camera_given_mounting`: a weak frame's focal length is biased
+    low by the wide pitch prior, docs/studies/rig.md)."""
     free = set(result["camera"].get("free", ()))
     setup = result["camera"].get("setup") or {}
+    values = {name: cams[:, col] if fn is None else fn(cams[:, col]) for name, (col, fn) in QUANTITIES.items()
+              if _CAMERA_COLUMNS[name] in free}
     out = {}
-    for name, (col, fn) in QUANTITIES.items():
-        if _CAMERA_COLUMNS[name] not in free:
-            continue
-        v = cams[:, col] if fn is None else fn(cams[:, col])
-        lik = likelihood(v, _log_prior(name, v, setup))
+    for name, v in values.items():
+        reweight = None  # log N(q; mean, sd²) − log prior_used(q) of the other quantities given
+        for other, (mean, sd) in (given or {}).items():
+            if other != name and other in values:
+                q = values[other]
+                used = _log_prior(other, q, setup)
+                term = -0.5 * ((q - mean) / sd) ** 2 - (0.0 if used is None else used)
+                reweight = term if reweight is None else reweight + term
+        lik = likelihood(v, _log_prior(name, v, setup), reweight)
         if lik is not None:
             out[name] = lik
     return out
