@@ -152,3 +152,22 @@ def test_cli_dataset_none_turns_the_layer_off(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "s0.json"), str(tmp_path / "s1.json"), "--out", str(tmp_path / "o"),
                  "--dataset", "none", "--no-posterior", "--workers", "1", "--quiet"]) == 0
     assert not (tmp_path / "o" / "first_pass").exists()
+
+
+def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
+    """A weak frame's focal length leans with its pitch (the horizon pinned in pixels): under the
+    wide default pitch prior the reading follows the frame's own pitch; given the camera's pooled
+    pitch (the draws reweighted to it) it is the focal length at that pitch."""
+    from creference_bayes.workflows.batch.rig import camera_likelihood
+
+    rng = np.random.default_rng(3)
+    pitch = rng.normal(math.radians(-3.0), math.radians(4.0), 20000)  # the frame alone: far off, wide
+    log_focal = math.log(700.0) + 2.0 * (pitch - math.radians(1.0)) + rng.normal(0, 0.05, 20000)
+    cams = np.column_stack([np.exp(log_focal), pitch, np.zeros(20000), np.full(20000, 1.6), np.full(20000, 0.5)])
+    result = {"camera": {"free": ["focal_length_px", "pitch"], "setup": {
+        "orientation_prior": {"pitch_mean": 0.0, "pitch_sd": 15.0, "roll_mean": 0.0, "roll_sd": 15.0,
+                              "height_median_m": 1.6, "height_log_sd": 0.2}}}}
+    alone = camera_likelihood(result, cams)["log_focal"]
+    given = camera_likelihood(result, cams, {"pitch": (math.radians(1.0), math.radians(0.5))})["log_focal"]
+    assert math.exp(alone[0]) < 0.9 * 700.0  # led by its own pitch, 4° low
+    assert math.exp(given[0]) == pytest.approx(700.0, rel=0.01) and given[1] > alone[1]

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
-           "combine", "pool_check", "read_frame", "read_camera_given_mounting", "plan", "dataset_lines",
+           "combine", "pool_check", "read_frame", "read_focal_given_orientation", "plan", "dataset_lines",
            "DATASET_CHOICES",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
@@ -70,7 +70,7 @@ MIN_INFORMATION = 0.1
 #: (below it the frame's prior was far narrower than its likelihood: the draws cannot show the latter)
 MIN_WEIGHT_ESS = 0.1
 #: ... and, with a reweighting to other frames' pool of another quantity
-#: (:func:`read_camera_given_mounting`), the least effective number of draws of all the weights
+#: (:func:`read_focal_given_orientation`), the least effective number of draws of all the weights
 MIN_REWEIGHTED_ESS = 40
 #: draws of the Laplace approximation a frame is read from when its result keeps none
 LAPLACE_DRAWS = 4000
@@ -136,8 +136,8 @@ SHARED = {s.name: s for s in (
     Shared("log_distance", "distance_m", "setting", "spread", max_sd=0.25, min_spread=0.1,
            min_frames=MIN_POPULATION_FRAMES, min_readings=MIN_POPULATION_TARGETS),
 )}
-#: the camera's mounting: a frame's focal length is read given the others' pool of it
-MOUNTING = ("log_height", "pitch", "roll")
+#: what a frame's focal length is read given (the others' pool of it): the orientation
+GIVEN = ("pitch", "roll")
 #: the corner scale (sd px, degrees of freedom) is read from the annotations (:func:`~.corner_scales`)
 CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
 
@@ -382,20 +382,21 @@ def read_frame(key: str, scene, result: dict, camera_id: str | None, draws=None)
     return out
 
 
-def read_camera_given_mounting(ds: "DataSet", key: str, result: dict, cams: np.ndarray) -> Reading | None:
-    """Frame ``key``'s focal-length reading as if it had known its camera's mounting: its draws
-    reweighted from the wide default mounting prior it was estimated under to the pool of the
-    other frames' mounting (N(M₋ᵢ, V₋ᵢ + τ²) of pitch, roll and height), with its focal prior
-    divided out (:func:`.rig.camera_likelihood`). Why: with a pitch free within ±15°, a frame
-    that pins the horizon in pixels leaves a pitch width shrinking as 1/µ, an extra ≈ 1/µ prior
-    that biases a weak frame's focal length low (docs/studies/rig.md); the camera's pitch, which
-    every frame knows well, takes it away. None: no reading (as :func:`read_frame`)."""
+def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np.ndarray) -> Reading | None:
+    """Frame ``key``'s focal-length reading as if it had known its camera's orientation: its draws
+    reweighted from the wide default pitch and roll prior it was estimated under to the pool of the
+    other frames' (N(M₋ᵢ, V₋ᵢ + τ²), :data:`GIVEN`), with its focal prior divided out
+    (:func:`.rig.camera_likelihood`). Why: with a pitch free within ±15°, a frame that pins the
+    horizon in pixels leaves a pitch width shrinking as 1/µ, an extra ≈ 1/µ prior that biases a
+    weak frame's focal length low (docs/studies/rig.md); the camera's pitch, which every frame
+    knows well, takes it away. Not the height: its pool leans 2 % high on KITTI, which the focal
+    length would follow. None: no reading (as :func:`read_frame`)."""
     from .rig import camera_likelihood
 
     camera_id = ds.camera_of.get(key)
     if camera_id is None:
         return None
-    given = {n: (e.center, e.prior_sd) for n in MOUNTING if (e := ds.estimate(n, key)) is not None}
+    given = {n: (e.center, e.prior_sd) for n in GIVEN if (e := ds.estimate(n, key)) is not None}
     lik = camera_likelihood(result, cams, given).get("log_focal")
     return None if lik is None else Reading(key, camera_id, *lik)
 
@@ -440,10 +441,10 @@ class DataSet:
                 if name in readings:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
-        if "log_focal" in learn and any(n in learn for n in MOUNTING):
+        if "log_focal" in learn and any(n in learn for n in GIVEN):
             focal = []
             for key, (result, cams) in kept.items():
-                r = read_camera_given_mounting(ds, key, result, cams)
+                r = read_focal_given_orientation(ds, key, result, cams)
                 if r is not None:
                     focal.append(r)
             ds.pools["log_focal"] = Pool(SHARED["log_focal"], focal)

@@ -128,7 +128,7 @@ def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None)
     ``given``: quantity name → (mean, sd) of the camera's pooled values of the *other* quantities
     (the mounting): the draws are then also reweighted from the prior the frame used on them to
     these, so that each quantity's likelihood is read as if the frame had known the camera's
-    mounting (:func:`.dataset.read_camera_given_mounting`: a weak frame's focal length is biased
+    mounting (:func:`.dataset.read_focal_given_orientation`: a weak frame's focal length is biased
     low by the wide pitch prior, docs/studies/rig.md)."""
     free = set(result["camera"].get("free", ()))
     setup = result["camera"].get("setup") or {}
