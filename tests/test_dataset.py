@@ -171,3 +171,28 @@ def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
     given = camera_likelihood(result, cams, {"pitch": (math.radians(1.0), math.radians(0.5))})["log_focal"]
     assert math.exp(alone[0]) < 0.9 * 700.0  # led by its own pitch, 4° low
     assert math.exp(given[0]) == pytest.approx(700.0, rel=0.01) and given[1] > alone[1]
+
+
+def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
+    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
+    reading for a camera of ten frames; it writes nothing."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root, _, _ = four_frames
+    first = tmp_path / "b" / "first_pass"
+    for sub in ("results", "scenes"):  # ten frames of cam-A: the four, copied under new names
+        (first / sub).mkdir(parents=True)
+        for i in range(10):
+            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
+    example = Path(__file__).resolve().parents[1] / "examples" / "dataset_pool.py"
+    before = sorted(tmp_path.rglob("*"))
+    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--groups", "0-4"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rows = proc.stdout.splitlines()
+    assert any(r.startswith("all    alone  cam-A") for r in rows) and any(r.startswith("all    given  cam-A") for r in rows)
+    assert "z " in proc.stdout  # the scenes carry the truth
+    assert sorted(tmp_path.rglob("*")) == before
