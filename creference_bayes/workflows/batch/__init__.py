@@ -291,7 +291,7 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     from .rig import camera_id_of
 
     try:
-        loaded = _load_quietly(scenes, settings)
+        loaded = _load_quietly(scenes, settings) if settings.dataset != "none" else []
         learn = plan([scene for _, scene in loaded], settings)
     except BaseException:
         engine.close(abandon=True)
