@@ -120,7 +120,7 @@ def register(subparsers) -> None:
     add_model_option(p)
     add_camera_options(p)
     g.add_argument("--rig", choices=("auto", "none", "focal", "mounting"), default="auto",
-                   help="of a camera's frames, pool: auto or mounting (the focal length, height, pitch and roll; "
+                   help="which of its camera's quantities a frame takes from the others: auto or mounting (the focal length, height, pitch and roll; "
                         "the default), focal (the focal length only) or none (nothing of the camera)")
     g.add_argument("--own-scale", action="store_true",
                    help="each frame learns how far its crowd's corners stray (the corner scale) from its own "
