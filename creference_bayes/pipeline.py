@@ -332,6 +332,8 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                       "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
         if m.location.distance_m is not None:  # recorded only when given: a result without it had no range
             provenance["distance_range_m"] = list(m.location.distance_m)
+        if m.location.population is not None:  # a data set's fitted population (workflows/batch/dataset.py)
+            provenance["location_population"] = list(m.location.population)
         data = result_data(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
                            seconds=time.perf_counter() - t0, notes=notes,
                            keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
@@ -570,7 +572,8 @@ def rebuild_model(result, scene: Scene | str | Path):
     model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
-                           location_prior=prov.get("location_prior", "flat"),
+                           location_prior=LocationPrior(prov.get("location_prior", "flat"),
+                                                        population=prov.get("location_population")),
                            distance_range=prov.get("distance_range_m"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
                            bounds=_bounds_from(prov.get("bounds")), **options)

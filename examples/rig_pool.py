@@ -3,8 +3,9 @@ batch folder's first pass (docs/studies/rig.md; creference_bayes/workflows/batch
 
     python examples/rig_pool.py BATCH [--groups 0-24,25-50] [--rig focal]
 
-BATCH is a ``creference batch --rig ...`` folder whose ``first_pass/`` is complete (the second pass
-is not needed). For every camera with two or more frames, and for all its frames and each group
+BATCH is a ``creference batch`` folder whose ``first_pass/`` is complete (the second pass is not
+needed); its frames are read as the batch reads them (a MAP's Laplace approximation, or the
+posterior draws a first pass of an earlier version kept). ``before`` needs kept draws. For every camera with two or more frames, and for all its frames and each group
 of frames (frames named by an integer, e.g. KITTI's index: ``0-24`` takes frames 0 to 24; ``even``,
 ``odd``), the
 pooled focal length under
@@ -32,6 +33,7 @@ import numpy as np
 
 from creference_bayes.io.result import read_result, stored_draws
 from creference_bayes.io.scene import SceneWarning, load_scene
+from creference_bayes.workflows.batch import dataset as D
 from creference_bayes.workflows.batch import rig as R
 
 
@@ -39,7 +41,7 @@ def laplace_likelihood(result: dict) -> tuple[float, float] | None:
     """The log-focal likelihood (mean, precision) by the rule before issue 62: a Laplace step at the
     posterior mean, frames with at least MIN_INFORMATION of their posterior precision."""
     draws = stored_draws(result)
-    if draws is None or "focal_length_px" not in result["camera"].get("free", ()):
+    if draws is None or "focal_length_px" not in result["camera"].get("free", ()):  # a MAP first pass: none
         return None
     v = np.log(draws.cameras.reshape(-1, 5)[:, 0])
     m, var = float(v.mean()), float(v.var(ddof=1))
@@ -72,8 +74,10 @@ def load(folder: Path):
         raw = json.loads((first / "scenes" / path.name).read_text())
         truth = (raw.get("ground_truth") or {}).get("focal_length_px")
         result = read_result(path)
-        after = R.shared_likelihood(key, camera, result)
-        a = (after.mean["log_focal"], after.precision["log_focal"]) if "log_focal" in after.mean else None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)
+            after = D.read_frame(key, load_scene(first / "scenes" / path.name), result, camera or key)
+        a = (after["log_focal"][0].mean, after["log_focal"][0].precision) if "log_focal" in after else None
         rows.append(dict(key=key, camera=camera, truth=truth, before=laplace_likelihood(result), after=a,
                          objects=len(raw.get("targets", ()))))
     return rows
@@ -81,7 +85,7 @@ def load(folder: Path):
 
 def pool_before(m, p):
     """The rule before issue 62 on all frames offered: (M, V, check)."""
-    c, v, _ = R._combine(m, p, "shared")
+    c, v, _ = D.combine(m, p, "shared")
     return c, v, R.pool_check(m, p, c, v, len(m))
 
 

@@ -335,7 +335,7 @@ def test_the_advanced_options_of_estimate_batch_and_advise():
         assert {"--preset", "--model", "--temperature", "--location-prior", "--orientation", "--focal-prior",
                 "--option", "--confidence-map"} <= advanced(name), name
         assert not {"--out", "--seed", "--quiet", "--distance-range", "--no-posterior"} & advanced(name), name
-    assert {"--own-scale"} <= advanced("batch") and "--rig" not in advanced("batch")
+    assert {"--own-scale", "--rig"} <= advanced("batch") and "--dataset" not in advanced("batch")
     assert {"--futures", "--rank", "--option"} <= advanced("advise")
     assert not {"--budget", "--workers", "--draws", "--distance-range", "--apply", "--merge"} & advanced("advise")
     assert {"--temperature", "--paper-restarts"} <= advanced("bench")

@@ -64,7 +64,8 @@ EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_S
             "horizon_kitti_check.py": "tests/test_horizon.py",
             "kitti_one_car.py": "tests/test_horizon.py",
             # a rig batch's first pass is needed: the test makes one
-            "rig_pool.py": "tests/test_rig.py"}
+            "rig_pool.py": "tests/test_rig.py",
+            "dataset_pool.py": "tests/test_dataset.py"}
 
 
 def test_there_are_examples():

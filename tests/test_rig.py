@@ -250,15 +250,6 @@ def test_a_rig_batch_resumes(rig_batch):
     assert again.keys("skipped") == [f"f{k}" for k in range(5)]
 
 
-def test_cli_rig_needs_the_posterior(tmp_path, capsys):
-    from creference_bayes.cli.main import main
-
-    (tmp_path / "s.json").write_text(json.dumps(truth_scene(0)[0]))
-    assert main(["batch", str(tmp_path / "s.json"), "--out", str(tmp_path / "o"), "--rig", "focal",
-                 "--no-posterior"]) == 2
-    assert "--rig focal: needs the posterior" in capsys.readouterr().err
-
-
 def test_a_frame_without_a_camera_id_is_named_by_its_photos_exif(tmp_path):
     from test_camera import _camera_jpeg
 
@@ -288,3 +279,15 @@ def test_the_rig_pool_example_prints_every_cameras_pool_before_and_after(rig_bat
     assert proc.returncode == 0, proc.stderr
     assert "rig-A" in proc.stdout and "before" in proc.stdout and "after" in proc.stdout, proc.stdout
     assert sorted(p for p in (root / "out").rglob("*")) == before
+
+
+def test_the_labels_sidecar_says_what_each_frame_took_from_the_data_set(rig_batch, tmp_path):
+    from creference_bayes.cli.main import main
+
+    root, _, _ = rig_batch
+    assert main(["labels", str(root / "out"), "--out", str(tmp_path / "l"), "--quiet", "--no-figure"]) == 0
+    side = json.loads((tmp_path / "l" / "uncertainty" / "f0.json").read_text())
+    took = side["dataset"]["focal_length_px"]
+    assert took["from"] == "data set" and took["group"] == "rig-A" and took["log_sd"] >= FLOOR
+    assert side["camera"]["rig"]["focal_length_px"]["median"] == took["median"]
+    assert "dataset" not in json.loads((tmp_path / "l" / "uncertainty" / "f4.json").read_text())

@@ -21,9 +21,6 @@ def _settings(args):
     from ..workflows.batch import BatchSettings
 
     check_posterior_values(args)
-    if args.rig != "none" and args.no_posterior:
-        raise UsageError(f"--rig {args.rig}: needs the posterior (each frame's draws say what it knows of its "
-                         "camera); leave out --no-posterior")
     sampling = sampling_options(args)
     with usage_errors():  # a sampler setting out of range
         return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
@@ -32,8 +29,9 @@ def _settings(args):
                              sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
                              location_prior=args.location_prior, distance_range=args.distance_range,
                              confidence_map=confidence_map_option(args.confidence_map, args.model),
-                             classes=load_classes(args.classes) or {}, rig=args.rig,
-                             pool_scale=not args.own_scale, options=model_options(args))
+                             classes=load_classes(args.classes) or {}, dataset=args.dataset,
+                             rig=args.rig, pool_scale=not (args.own_scale or args.dataset == "none"),
+                             options=model_options(args))
 
 
 def _engine(args):
@@ -63,9 +61,9 @@ def _run_batch(args) -> int:
         report = run_batch(args.inputs, args.out, engine, settings, time_limit=args.time_limit,
                            progress=progress_mode(args.quiet))
     if not args.quiet:
-        from ..workflows.batch.rig import rig_lines
+        from ..workflows.batch.dataset import dataset_lines
 
-        for line in rig_lines(report.rig):
+        for line in dataset_lines(report.dataset):
             print(line, file=sys.stderr if line.startswith("warning:") else sys.stdout)
         for key, error in report.errors.items():
             print(f"failed: {key}: {error}", file=sys.stderr)
@@ -96,12 +94,13 @@ def register(subparsers) -> None:
     p.add_argument("--classes", metavar="CLASSES.json", default=None,
                    help="size priors of your own classes (docs/overview.md, Class size priors); a scene's own win")
     add_distance_range_option(p)
-    p.add_argument("--rig", choices=("none", "focal", "mounting"), default="none",
-                   help="what the frames of one camera (the scenes' camera.id) share, learnt from all of them: "
-                        "focal (its focal length), mounting (also its height, pitch and roll, with a spread "
-                        "from frame to frame), or none (every frame alone; the default). Two passes: "
-                        "DIR/first_pass/ holds every frame alone, DIR/results/ the frames with their camera's "
-                        "rig (docs/batch.md)")
+    p.add_argument("--dataset", choices=("auto", "none"), default="auto",
+                   help="what the frames share, learnt from all of them and handed back to each (the others' "
+                        "evidence, leaving the frame out): a camera's focal length and mounting (frames with one "
+                        "camera.id), the crowd's reference and corner scales, where the targets stand (a fitted "
+                        "distance population). auto (the default): whatever there is something to learn of, from a "
+                        "first pass (DIR/first_pass/, a MAP each); none: every frame alone. Hand-set values "
+                        "(--distance-range, --option ref_scale_*, a scene's focal length) win (docs/batch.md)")
     p.add_argument("--no-posterior", action="store_true",
                    help="the MAP only, much faster (creference labels then has no uncertainty to export)")
     p.add_argument("--hdi-prob", type=float, default=0.9, metavar="P",
@@ -120,6 +119,9 @@ def register(subparsers) -> None:
     add_confidence_map_option(p)
     add_model_option(p)
     add_camera_options(p)
+    g.add_argument("--rig", choices=("auto", "none", "focal", "mounting"), default="auto",
+                   help="which of its camera's quantities a frame takes from the others: auto or mounting (the focal length, height, pitch and roll; "
+                        "the default), focal (the focal length only) or none (nothing of the camera)")
     g.add_argument("--own-scale", action="store_true",
                    help="each frame learns how far its crowd's corners stray (the corner scale) from its own "
                         "annotations only; by default an object annotated once borrows it from the objects of "

@@ -28,6 +28,17 @@ A distance range (``distance_m``)
     outside, it falls as a half-normal in the log of the ground distance d = √(x² + z²), of sd
     :data:`RANGE_SOFTNESS` (a soft edge: a stated range is approximate, and a sampler must not
     meet a wall).
+
+A fitted population (``population``)
+    What a data set learns of where its targets stand (``creference batch``'s data-set layer,
+    workflows/batch/dataset.py): the ground distance d is log-normal, median ``population[0]`` m
+    and log-sd ``population[1]``, in every direction alike,
+
+        p(x, z) ∝ N(log d; log median, log_sd²) / d²,
+
+    whatever the kind (1/d² is the area element's: uniform in log d and in direction). The data set
+    reads each target's likelihood of log d by dividing the prior it was estimated under out of its
+    draws (weights 1/(p(x, z) d²)), so this is the prior those likelihoods combine under.
 """
 
 from __future__ import annotations
@@ -56,10 +67,13 @@ class LocationPrior:
     kind : one of :data:`LOCATION_PRIORS`
     distance_m : (low, high) the range of ground distances, metres, the targets stand in, or None
         (module docstring)
+    population : (median m, log-sd) of a log-normal population of ground distances, or None
+        (module docstring: it replaces the kind's density)
     """
 
     kind: str = DEFAULT_LOCATION_PRIOR
     distance_m: tuple[float, float] | None = None
+    population: tuple[float, float] | None = None
 
     def __post_init__(self):
         if self.kind not in LOCATION_PRIORS:
@@ -74,6 +88,14 @@ class LocationPrior:
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
                 raise ValueError(f"distance_range: expected 0 < low < high metres, got {self.distance_m!r}")
             object.__setattr__(self, "distance_m", (lo, hi))
+        if self.population is not None:
+            try:
+                median, log_sd = (float(v) for v in self.population)
+            except (TypeError, ValueError):
+                raise ValueError(f"population: expected (median m, log-sd), got {self.population!r}") from None
+            if not (np.isfinite(median) and np.isfinite(log_sd) and median > 0 and log_sd > 0):
+                raise ValueError(f"population: expected a median > 0 m and a log-sd > 0, got {self.population!r}")
+            object.__setattr__(self, "population", (median, log_sd))
 
     @property
     def map_in_log_coordinates(self) -> bool:
@@ -85,8 +107,12 @@ class LocationPrior:
         shape; z > 0 inside every preset's bounds)."""
         x, z = np.asarray(x, float), np.asarray(z, float)
         with np.errstate(divide="ignore", invalid="ignore"):
-            out = (0.0 if self.kind == "flat" else np.log(x * x + z * z) if self.kind == "inverse-square"
-                   else np.log(z))
+            if self.population is not None:
+                log_d2 = np.log(x * x + z * z)
+                out = log_d2 + 0.5 * ((0.5 * log_d2 - np.log(self.population[0])) / self.population[1]) ** 2
+            else:
+                out = (0.0 if self.kind == "flat" else np.log(x * x + z * z) if self.kind == "inverse-square"
+                       else np.log(z))
             if self.distance_m is not None:
                 log_d = 0.5 * np.log(x * x + z * z)
                 lo, hi = np.log(self.distance_m)
@@ -94,4 +120,5 @@ class LocationPrior:
         return out
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, **({"distance_m": list(self.distance_m)} if self.distance_m else {})}
+        return {"kind": self.kind, **({"distance_m": list(self.distance_m)} if self.distance_m else {}),
+                **({"population": list(self.population)} if self.population else {})}

@@ -61,9 +61,13 @@ class BatchSettings:
         :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
         actually used (a file's by its content, wherever it lies)
     classes : size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
-    rig : what the frames of one camera (``camera.id``) share: ``none`` (every frame alone),
-        ``focal`` (the focal length) or ``mounting`` (also the camera's height, pitch and roll), pooled
-        by two passes (:mod:`.rig`)
+    dataset : ``auto``: learn what the frames share when there is something to learn (the camera's
+        focal length and mounting, the crowd's reference scale, where targets stand), from a
+        first pass, and hand it back to each frame (:mod:`.dataset`); ``none``: every frame alone
+        (the crowd's corner scale excepted: ``pool_scale``)
+    rig : what the frames of one camera (``camera.id``) share: ``auto`` (the focal length and the
+        mounting), ``focal`` (the focal length only), ``mounting`` (the same as ``auto``) or
+        ``none`` (nothing of the camera) (:mod:`.rig`)
     pool_scale : a frame whose objects are not all annotated twice takes the crowd's corner scale
         from the other frames too (:func:`corner_scales`); False: from its own annotations only
     options : the model's options (:data:`~creference_bayes.pipeline.MODEL_OPTIONS`, for example
@@ -85,13 +89,15 @@ class BatchSettings:
     distance_range: tuple[float, float] | None = None
     confidence_map: object = "default"
     classes: dict = field(default_factory=dict)
-    rig: str = "none"
+    dataset: str = "auto"
+    rig: str = "auto"
     pool_scale: bool = True
     options: dict = field(default_factory=dict)
 
     def __post_init__(self):
         from ...inference.sampler import SamplerSettings
         from ...pipeline import MODEL_OPTIONS, MODELS
+        from .dataset import DATASET_CHOICES
         from .rig import RIG_CHOICES
 
         SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
@@ -99,6 +105,8 @@ class BatchSettings:
             from ...models.location_prior import LocationPrior
 
             LocationPrior(distance_m=self.distance_range)  # a ValueError naming the range
+        if self.dataset not in DATASET_CHOICES:
+            raise ValueError(f"dataset: expected one of {list(DATASET_CHOICES)}, got {self.dataset!r}")
         if self.rig not in RIG_CHOICES:
             raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {self.rig!r}")
         if self.model not in MODELS:
@@ -128,8 +136,9 @@ class BatchSettings:
         d["options"] = {k: option_record(v) for k, v in sorted(self.options.items())}  # inf as "inf"
         if not self.options:  # results made before the option existed stay up to date
             del d["options"]
-        if self.rig == "none":  # results made before the rig existed stay up to date
-            del d["rig"]
+        for key in ("dataset", "rig"):  # the defaults: what a frame took is in its scene and its job's record
+            if d[key] == "auto":
+                del d[key]
         if self.distance_range is None:  # likewise for the distance range
             del d["distance_range"]
         else:
@@ -224,9 +233,9 @@ class BatchReport:
     n_targets: int = 0
     #: the KEYs, done or skipped, whose result says its posterior did not converge (summary.csv)
     not_converged: list[str] = field(default_factory=list)
-    #: with a rig: each camera's pool of all its frames as a ``rig`` block, with its checks and
-    #: warnings (:meth:`.rig.RigPool.summary`)
-    rig: dict = field(default_factory=dict)
+    #: what the data set learnt: each quantity's pool of all the frames of each group, with its
+    #: checks and warnings (:meth:`.dataset.DataSet.summary`); empty when nothing was learnt
+    dataset: dict = field(default_factory=dict)
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -260,11 +269,12 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
 
     Returns
     -------
-    BatchReport; the folder also holds ``summary.csv`` and ``batch.json``. With ``settings.rig``
-    other than ``none`` the frames are first estimated alone into ``out/first_pass`` (a batch folder
-    of its own), then each frame again into ``out`` with its camera's rig (:mod:`.rig`); its result
-    then has a ``rig`` block. The report is the second pass's; its time counts both; its ``rig``
-    holds each camera's pool of all its frames, with the pool's warnings.
+    BatchReport; the folder also holds ``summary.csv`` and ``batch.json``. When the data set has
+    something to teach (:func:`.dataset.plan`), the frames are first estimated alone, a MAP each,
+    into ``out/first_pass`` (a batch folder of its own, resumed like any), then each frame into
+    ``out`` with the priors the other frames give it; its result then has a ``dataset`` block (and,
+    with its camera's pool, a ``rig`` block). The report is the second pass's; its time counts
+    both; its ``dataset`` holds each quantity's pool of all the frames, with the pools' warnings.
     """
 
     t_start = time.perf_counter()
@@ -278,25 +288,39 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         engine.close(abandon=True)
         raise
     run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
-    if settings.rig == "none":
-        return _run_pass(scenes, out, settings, **run)
-    from .rig import RigPool, apply_rig, rig_report
+    from .dataset import DataSet, hand_back, plan
+    from .rig import camera_id_of
 
-    first = out / "first_pass"  # every frame alone: a batch folder of its own, resumed like any
     try:
-        _run_pass(scenes, first, replace(settings, rig="none"), close=False, **run)
-        pool = RigPool(_rig_frames(scenes, first), settings.rig)
+        loaded = _load_quietly(scenes, settings) if settings.dataset != "none" else []
+        learn = plan([scene for _, scene in loaded], settings)
     except BaseException:
         engine.close(abandon=True)
         raise
+    if not learn:
+        return _run_pass(scenes, out, settings, **run)
+    first = out / "first_pass"  # every frame alone, a MAP each: a batch folder of its own, resumed like any
+    try:
+        _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False, **run)
+        ds = DataSet.from_first_pass([(si.key, camera_id_of(scene)) for si, scene in loaded], first, learn)
+    except BaseException:
+        engine.close(abandon=True)
+        raise
+    return _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings),
+                     dataset=ds.summary(), **run)
 
-    def with_rig(key, scene):
-        scene, est = apply_rig(scene, pool, settings.rig, key)
-        return scene, rig_report(est)
 
-    report = _run_pass(scenes, out, settings, transform=with_rig, **run)
-    report.rig = pool.summary()
-    return report
+def _load_quietly(scenes: list[SceneInput], settings: BatchSettings) -> list:
+    """(scene input, scene) of every scene that loads (the others fail in the pass that reads them)."""
+    loaded = []
+    for si in scenes:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                loaded.append((si, load_scene(si.path, classes=settings.classes or None)))
+        except (SceneError, OSError, ValueError):
+            continue
+    return loaded
 
 
 def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
@@ -319,28 +343,13 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
             for ss, dof, needs in own]
 
 
-def _rig_frames(scenes: list[SceneInput], folder: Path) -> list:
-    """Each first-pass result's likelihood of what its camera shares (:mod:`.rig`)."""
-    from ...io.result import read_result
-    from .rig import camera_id_of, shared_likelihood
-
-    frames = []
-    for si in scenes:
-        paths = layout(folder, si.key)
-        if not paths["result"].exists():  # failed: its camera's rig comes from the others
-            continue
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)
-            camera_id = camera_id_of(load_scene(paths["scene"]))
-        frames.append(shared_likelihood(si.key, camera_id, read_result(paths["result"])))
-    return frames
-
-
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
-              t_start: float, transform=None, close: bool = True) -> BatchReport:
+              t_start: float, transform=None, close: bool = True, dataset: dict | None = None) -> BatchReport:
     """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
-    ``transform(KEY, scene)`` → (scene, rig block), if given); writes summary.csv and batch.json
-    whatever ends the run; closes the engine if ``close``."""
+    ``transform(KEY, scene)`` → (scene, estimate keyword arguments, dataset block, rig block), if
+    given: :func:`.dataset.hand_back`); writes summary.csv and batch.json (with ``dataset``, the
+    pools of all frames, :meth:`.dataset.DataSet.summary`) whatever ends the run; closes the engine
+    if ``close``."""
     from .summary import summary_rows, write_summary
 
     out.mkdir(parents=True, exist_ok=True)
@@ -367,13 +376,14 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
             engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
         report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
                              engine=engine.describe(),
-                             n_targets=runner.n_targets if runner is not None else 0)
+                             n_targets=runner.n_targets if runner is not None else 0, dataset=dataset or {})
         rows = summary_rows(out, scenes, report)
         report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
         write_summary(out, scenes, report, rows)
         atomic_write_json(out / "batch.json", {
             "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
             "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
+            **({"dataset": dataset} if dataset else {}),
             "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
                         **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
     return report
@@ -399,17 +409,30 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
     todo = deque()
     for (si, scene), scale in zip(loaded, scales):
         paths = layout(out, si.key)
+        own_scale = scene.corner_scale
         if scale is not None:
             scene = replace(scene, corner_scale=scale)
-        rig = None
+        kwargs, block, rig = {}, {}, None
         if transform is not None:
-            scene, rig = transform(si.key, scene)
+            scene, kwargs, block, rig = transform(si.key, scene)
+        if scale is not None:  # the crowd's corner scale: a quantity of the data set read from the annotations
+            block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": scale[0], "dof": scale[1]}
+        elif own_scale is not None and block:
+            block["corner_scale_px"] = {"from": "override", "why": "the scene's own corner scale"}
+        job_ident = ident if not kwargs else {**ident, "from_dataset": _kwargs_record(kwargs)}
         fingerprint = scene_fingerprint(scene)
-        if up_to_date(paths, fingerprint, ident, settings.ground(len(scene.targets))):
+        if up_to_date(paths, fingerprint, job_ident, settings.ground(len(scene.targets))):
             status[si.key] = "skipped"
             if not paths["scene"].exists():
                 atomic_write_json(paths["scene"], scene_to_dict(scene))
             continue
         todo.append((si, {"scene": scene, "seed": derive_seed(settings.seed, fingerprint),
-                          "estimate": settings.estimate_kwargs(), "rig": rig}))
+                          "estimate": {**settings.estimate_kwargs(), **kwargs}, "rig": rig,
+                          "dataset": block or None, "ident": job_ident}))
     return todo
+
+
+def _kwargs_record(kwargs: dict) -> dict:
+    """What a frame's estimate took from the data set beyond its scene, as its result's settings
+    record it (a rerun compares them: another pool, another estimate)."""
+    return {k: v.to_dict() if hasattr(v, "to_dict") else v for k, v in sorted(kwargs.items())}

@@ -1,47 +1,23 @@
-"""The camera rig: what the frames of one camera share, estimated from all of them
-(``creference batch --rig``; docs/batch.md, "One camera, many frames").
+"""The camera rig: what the frames of one camera share (the camera's quantities of the data-set
+layer, :mod:`.dataset`; docs/batch.md, "One camera, many frames").
 
 Frames name their camera (``camera.id`` of the scene). A camera keeps its focal length from frame
 to frame and, bolted to a vehicle, nearly its mounting: its height above the road and its pitch and
-roll. Two-pass empirical Bayes:
+roll. The quantities are declared in :data:`.dataset.SHARED` (``log_focal`` shared; ``log_height``,
+``pitch``, ``roll`` spread from frame to frame) and learnt by the data set's mechanism: each frame's
+likelihood read from its first pass with its prior divided out exactly (:func:`camera_likelihood`),
+the informative frames combined (the focal length's floor, the mounting's least spread), each
+frame handed the pool of the others (leave one out). This module is what is the camera's own: which
+quantities ``--rig`` pools (:data:`POOLED`), the priors a frame used (:func:`_log_prior`), and how
+the pooled values become a frame's focal-length and orientation priors (:func:`rig_priors`,
+:func:`apply_rig_estimates`).
 
-1. every frame is estimated alone (its own priors);
-2. from each frame's posterior draws, for each shared quantity q (log µ; with the mounting also
-   log h, pitch and roll), the prior that frame used is divided out exactly: the draws reweighted
-   by 1/prior(q) (self-normalised importance weights) have the frame's likelihood of q as their
-   distribution; its weighted mean and variance make it a normal N(mᵢ, 1/Pᵢ). (A Laplace step at
-   the posterior mean would not do: on weak frames, whose posterior is far from normal, it leaves
-   the likelihood biased low by half, docs/studies/rig.md.) A frame cannot say what it knows when
-   the weights' effective sample size is below :data:`MIN_WEIGHT_ESS` of its draws (its prior
-   was far narrower than its likelihood), or when Pᵢ is below :data:`MIN_INFORMATION` of its
-   posterior precision (its posterior is mostly its prior);
-3. the frames of one camera are combined, and every frame is estimated again with a prior made
-   from the *other* frames of its camera (leave one out: a frame's own annotations count once).
-   Only *informative* frames are pooled: likelihood sd at most :data:`MAX_LIKELIHOOD_SD` (log µ:
-   0.25). Weak frames are biased: on KITTI one-object frames the focal length comes out ≈ 40 %
-   low, because the wide pitch prior acts as an extra ≈ 1/µ prior (the horizon is pinned in
-   pixels, so the pitch's allowed width shrinks as µ grows); a robust (heavy-tailed) combination
-   does not help, it flattens the weights toward these frames (docs/studies/rig.md).
-
-   - the focal length is one value per camera: the precision-weighted mean M of the mᵢ, with
-     variance 1/ΣPᵢ multiplied by the Birge ratio Σ Pᵢ (mᵢ − M)² / (n − 1) when the frames disagree
-     more than their precisions allow (a frame's likelihood that the normal describes badly must
-     not make the rig over-sure), plus :data:`SHARED_BIAS_SD`² (a floor in quadrature: the model's
-     bias that all frames of a camera share, which no number of frames averages away; 0.04 in log
-     µ, measured on the KITTI development frames, docs/studies/rig.md);
-   - the mounting varies from frame to frame around the camera's (a moving vehicle pitches, the road
-     is uneven): qᵢ ~ N(M, τ²) with τ² from the DerSimonian–Laird moment estimator (at least
-     :data:`MIN_SPREAD`), and the frame's prior N(M₋ᵢ, τ² + V₋ᵢ). These get no floor of their own:
-     the frame's prior is already never narrower than :data:`MIN_SPREAD` (τ² is added to V₋ᵢ), and
-     no bias of the mounting shared by frames has been measured;
-
-4. every pooled quantity is checked against its frames (:class:`PoolCheck`): the effective number
-   of frames n_eff = (ΣPᵢ)²/ΣPᵢ², the share of the weight the three most precise frames carry, and
-   the disagreement D = (M − median of the mᵢ) / √(sd of that median² + V) (the median's sd by a
-   seeded bootstrap; V without the floor, a bias the frames share moves both alike). The pool
-   "rests on few frames" when n_eff < :data:`MIN_EFFECTIVE_FRAMES` or the top three carry more
-   than :data:`MAX_TOP3_SHARE`; "the pool and the frames disagree" when |D| > :data:`MAX_DISAGREEMENT`.
-   ``batch`` prints these warnings and every frame's ``rig`` block records them.
+Why only informative frames (likelihood sd at most ``max_sd``: log µ 0.25): weak frames are biased;
+on KITTI one-object frames the focal length comes out ≈ 40 % low, because the wide pitch prior acts
+as an extra ≈ 1/µ prior (the horizon is pinned in pixels, so the pitch's allowed width shrinks as µ
+grows); a robust (heavy-tailed) combination does not help, it flattens the weights toward these
+frames (docs/studies/rig.md). The focal length's floor (0.04 in log µ, measured on the KITTI
+development frames) is the model's bias all frames of a camera share.
 
 A frame's camera is its scene's ``camera.id``; a scene without one whose photo has EXIF make and
 model is named by them (:func:`~creference_bayes.vision.exif.camera_id_from_exif`); a frame with
@@ -57,46 +33,29 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["RIG_CHOICES", "QUANTITIES", "SharedLikelihood", "PoolCheck", "RigEstimate", "RigPool", "camera_id_of",
-           "shared_likelihood", "divide_prior", "pool_check", "rig_priors", "apply_rig", "rig_report",
-           "rig_lines"]
+from .dataset import DISAGREE, FEW_FRAMES, SHARED, Pool, PoolCheck, Reading, divide_prior, likelihood, pool_check
 
-#: ``--rig`` values: what frames of one camera share
-RIG_CHOICES = ("none", "focal", "mounting")
-#: the shared quantities: name → (camera column of the draws, transform, pooled as "shared" or "spread")
-QUANTITIES = {"log_focal": (0, np.log, "shared"), "log_height": (3, np.log, "spread"),
-              "pitch": (1, None, "spread"), "roll": (2, None, "spread")}
+__all__ = ["RIG_CHOICES", "QUANTITIES", "POOLED", "SharedLikelihood", "PoolCheck", "RigEstimate", "RigPool",
+           "camera_id_of", "camera_likelihood", "shared_likelihood", "divide_prior", "pool_check", "rig_priors",
+           "apply_rig", "apply_rig_estimates", "rig_report", "rig_lines", "FEW_FRAMES", "DISAGREE"]
+
+#: ``--rig`` values: what frames of one camera share (``auto``: the focal length and the mounting,
+#: when there is something to learn, :func:`.dataset.plan`)
+RIG_CHOICES = ("auto", "none", "focal", "mounting")
+#: the camera's quantities: name → camera column of the draws, transform
+QUANTITIES = {"log_focal": (0, np.log), "log_height": (3, np.log), "pitch": (1, None), "roll": (2, None)}
 #: the quantities each ``--rig`` value pools
-POOLED = {"none": (), "focal": ("log_focal",), "mounting": ("log_focal", "log_height", "pitch", "roll")}
+POOLED = {"auto": ("log_focal", "log_height", "pitch", "roll"), "none": (), "focal": ("log_focal",),
+          "mounting": ("log_focal", "log_height", "pitch", "roll")}
 _CAMERA_COLUMNS = {"log_focal": "focal_length_px", "pitch": "pitch", "roll": "roll", "log_height": "height_m"}
-#: a frame whose likelihood precision is below this share of its posterior precision tells nothing
-MIN_INFORMATION = 0.1
-#: the least effective sample size of a frame's importance weights 1/prior, as a share of its draws,
-#: for its likelihood to be read from them (on the KITTI development frames the least was 0.35)
-MIN_WEIGHT_ESS = 0.1
-#: the widest likelihood (sd) a frame may have and be pooled: log µ 0.25 (measured: weaker frames
-#: are biased low, docs/studies/rig.md); log h the same; pitch and roll 2° (not measured: a frame
-#: that knows its pitch only to 2° knows little beyond the default prior's horizon)
-MAX_LIKELIHOOD_SD = {"log_focal": 0.25, "log_height": 0.25, "pitch": math.radians(2.0), "roll": math.radians(2.0)}
-#: the least sd of a pooled "shared" quantity (added in quadrature): the model's bias that every
-#: frame of a camera shares. log µ: 0.04, from the halves of the KITTI development frames
-#: (√mean(e² − V) of half-pools: 0.024 with this rule, 0.042 with the rule before; the real case of
-#: issue 62, 8 % low with sd 0.020, needed ≥ 0.036; docs/studies/rig.md)
-SHARED_BIAS_SD = {"log_focal": 0.04}
-#: a pool is said to rest on few frames below this effective number of frames (ΣP)²/ΣP² ...
-MIN_EFFECTIVE_FRAMES = 5.0
-#: ... or when its three most precise frames carry more than this share of the weight
-MAX_TOP3_SHARE = 0.6
-#: the pool and its frames disagree when |D| (module docstring, step 4) is above this
-MAX_DISAGREEMENT = 2.0
-#: bootstrap resamples for the sd of the frames' median (seeded: the same frames, the same numbers)
-BOOTSTRAP = 500
-FEW_FRAMES = "the pool rests on few frames"
-DISAGREE = "the pool and the frames disagree"
-#: the least spread of the mounting from frame to frame (log h; pitch and roll in radians): a camera
-#: on a moving vehicle is never still, and with a few dozen frames the moment estimator is often
-#: exactly 0, which would make every frame's prior as narrow as the pooled mean's uncertainty
-MIN_SPREAD = {"log_height": 0.03, "pitch": math.radians(0.5), "roll": math.radians(0.5)}
+#: the widest likelihood (sd) a frame may have and be pooled, by quantity (:data:`.dataset.SHARED`)
+MAX_LIKELIHOOD_SD = {n: SHARED[n].max_sd for n in QUANTITIES}
+#: the least sd of the pooled focal length (added in quadrature): the model's bias that every frame of
+#: a camera shares (docs/studies/rig.md)
+SHARED_BIAS_SD = {"log_focal": SHARED["log_focal"].floor}
+#: the least spread of the mounting from frame to frame (log h; pitch and roll in radians): a camera on
+#: a moving vehicle is never still, and with a few dozen frames the moment estimator is often exactly 0
+MIN_SPREAD = {n: SHARED[n].min_spread for n in ("log_height", "pitch", "roll")}
 
 
 @dataclass(frozen=True)
@@ -108,21 +67,6 @@ class SharedLikelihood:
     camera_id: str | None
     mean: dict
     precision: dict
-
-
-@dataclass(frozen=True)
-class PoolCheck:
-    """How a pooled quantity rests on its frames (module docstring, step 4): ``used`` informative
-    frames of ``offered`` (the frames that estimated it), ``n_eff``, ``top3_share``, the frames'
-    ``median`` (the same units as the pool), the disagreement ``d`` and the ``warnings``."""
-
-    used: int
-    offered: int
-    n_eff: float
-    top3_share: float
-    median: float
-    d: float
-    warnings: tuple
 
 
 @dataclass(frozen=True)
@@ -175,130 +119,80 @@ def _log_prior(name: str, q: np.ndarray, setup: dict) -> np.ndarray | None:
     return -0.5 * ((q - mean) / sd) ** 2
 
 
-def divide_prior(q: np.ndarray, log_prior: np.ndarray | None) -> tuple[float, float, float] | None:
-    """The likelihood of a quantity from posterior draws ``q`` and the log prior at them: the draws
-    reweighted by 1/prior (self-normalised importance weights) → (mean, variance, effective sample
-    size of the weights), or None when the weights' effective sample size is below
-    :data:`MIN_WEIGHT_ESS` of the draws or the variance is not positive."""
-    q = np.asarray(q, dtype=float)
-    if log_prior is None:
-        w = np.full(len(q), 1.0 / len(q))
-    else:
-        lw = -np.asarray(log_prior, dtype=float)
-        w = np.exp(lw - lw.max())
-        w /= w.sum()
-    ess = 1.0 / float((w**2).sum())
-    if not (len(q) > 1 and ess >= MIN_WEIGHT_ESS * len(q)):
-        return None
-    mean = float((w * q).sum())
-    var = float((w * (q - mean) ** 2).sum()) / (1.0 - 1.0 / ess)  # unbiased for reliability weights
-    if not (var > 0 and np.isfinite(var)):
-        return None
-    return mean, var, ess
+def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None) -> dict:
+    """Each camera quantity's likelihood (mean, precision) in one frame, from its draws ``cams``
+    (k, 5) and its result's ``camera`` (its ``free`` parameters and the priors of ``setup``): the
+    prior divided out of the draws exactly (:func:`.dataset.likelihood`); a quantity the frame
+    does not estimate, or cannot say what it knows of, is absent.
+
+    ``given``: quantity name → (mean, sd) of the camera's pooled values of the *other* quantities
+    (the mounting): the draws are then also reweighted from the prior the frame used on them to
+    these, so that each quantity's likelihood is read as if the frame had known the camera's
+    mounting (:func:`.dataset.read_focal_given_orientation`: a weak frame's focal length is biased
+    low by the wide pitch prior, docs/studies/rig.md)."""
+    free = set(result["camera"].get("free", ()))
+    setup = result["camera"].get("setup") or {}
+    values = {name: cams[:, col] if fn is None else fn(cams[:, col]) for name, (col, fn) in QUANTITIES.items()
+              if _CAMERA_COLUMNS[name] in free}
+    out = {}
+    for name, v in values.items():
+        reweight = None  # log N(q; mean, sd²) − log prior_used(q) of the other quantities given
+        for other, (mean, sd) in (given or {}).items():
+            if other != name and other in values:
+                q = values[other]
+                used = _log_prior(other, q, setup)
+                term = -0.5 * ((q - mean) / sd) ** 2 - (0.0 if used is None else used)
+                reweight = term if reweight is None else reweight + term
+        lik = likelihood(v, _log_prior(name, v, setup), reweight)
+        if lik is not None:
+            out[name] = lik
+    return out
 
 
 def shared_likelihood(key: str, camera_id: str | None, result: dict) -> SharedLikelihood:
-    """Each shared quantity's likelihood in one frame, from its result (``creference-result/2``
-    with draws: the camera's ``free`` parameters and the priors of ``camera.setup``): the prior
-    divided out of the draws exactly (:func:`divide_prior`)."""
+    """Each camera quantity's likelihood in one frame from the posterior draws its result keeps
+    (:func:`camera_likelihood`; none without draws)."""
     from ...io.result import stored_draws
 
     draws = stored_draws(result)
-    mean, precision = {}, {}
-    if draws is not None:
-        cams = draws.cameras.reshape(-1, 5)
-        free = set(result["camera"].get("free", ()))
-        setup = result["camera"].get("setup") or {}
-        for name, (col, fn, _) in QUANTITIES.items():
-            if _CAMERA_COLUMNS[name] not in free:
-                continue
-            v = cams[:, col] if fn is None else fn(cams[:, col])
-            post = float(np.var(v, ddof=1))
-            lik = divide_prior(v, _log_prior(name, v, setup))
-            if lik is None or not (post > 0 and np.isfinite(post)) or not 1.0 / lik[1] >= MIN_INFORMATION / post:
-                continue
-            mean[name], precision[name] = lik[0], 1.0 / lik[1]
-    return SharedLikelihood(key, camera_id, mean, precision)
+    lik = camera_likelihood(result, draws.cameras.reshape(-1, 5)) if draws is not None else {}
+    return SharedLikelihood(key, camera_id, {n: v[0] for n, v in lik.items()}, {n: v[1] for n, v in lik.items()})
 
 
-def _combine(m: np.ndarray, p: np.ndarray, kind: str, floor: float = 0.0) -> tuple[float, float, float]:
-    """(M, V, τ) of likelihoods N(mᵢ, 1/pᵢ) (module docstring), V without a shared quantity's
-    floor; τ at least ``floor`` (a spread quantity's :data:`MIN_SPREAD`)."""
-    w = p.sum()
-    center = float((p * m).sum() / w)
-    n = len(m)
-    q = float((p * (m - center) ** 2).sum())
-    if kind == "shared":
-        return center, (1.0 / w) * max(1.0, q / (n - 1) if n > 1 else 1.0), 0.0
-    tau2 = max(0.0, (q - (n - 1)) / (w - (p**2).sum() / w)) if n > 1 else 0.0
-    tau2 = max(tau2, floor**2)
-    ws = 1.0 / (1.0 / p + tau2)
-    center = float((ws * m).sum() / ws.sum())
-    return center, float(1.0 / ws.sum()), math.sqrt(tau2)
-
-
-def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered: int) -> PoolCheck:
-    """How the pool (``center``, ``var`` without a floor) of the informative frames' likelihoods
-    N(mᵢ, 1/pᵢ) rests on them (module docstring, step 4); ``offered``: the frames that estimated
-    the quantity, informative or not."""
-    n = len(m)
-    n_eff = float(p.sum() ** 2 / (p**2).sum())
-    top3 = float(np.sort(p)[::-1][:3].sum() / p.sum())
-    median = float(np.median(m))
-    rng = np.random.default_rng(0)
-    sd_median = float(np.std(np.median(m[rng.integers(0, n, (BOOTSTRAP, n))], axis=1))) if n > 1 else 0.0
-    d = (center - median) / math.sqrt(sd_median**2 + var)
-    warnings = []
-    if n_eff < MIN_EFFECTIVE_FRAMES or top3 > MAX_TOP3_SHARE:
-        warnings.append(FEW_FRAMES)
-    if abs(d) > MAX_DISAGREEMENT:
-        warnings.append(DISAGREE)
-    return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warnings))
+def _rig_estimate(camera_id: str, pooled: dict, keys: tuple) -> RigEstimate | None:
+    """A camera's :class:`RigEstimate` from its quantities' pools (name → :class:`.dataset.Pooled` or None)."""
+    pooled = {n: e for n, e in pooled.items() if e is not None}
+    if not pooled:
+        return None
+    return RigEstimate(camera_id, {n: e.center for n, e in pooled.items()}, {n: e.var for n, e in pooled.items()},
+                       {n: e.tau for n, e in pooled.items()}, {n: e.readings for n, e in pooled.items()}, keys,
+                       {n: e.check for n, e in pooled.items()})
 
 
 class RigPool:
-    """The frames' likelihoods grouped by camera and quantity once, as arrays: each frame's
-    leave-one-out rig is then one vectorised combination over its camera's frames (a batch of n
-    frames costs O(n) per frame in NumPy, not O(n) Python work per frame and quantity)."""
+    """The frames' likelihoods of what their camera shares, one :class:`.dataset.Pool` per quantity
+    ``rig`` pools, grouped by camera (the frames' ``camera_id``; frames without one are left out)."""
 
     def __init__(self, frames: list[SharedLikelihood], rig: str):
         if rig not in RIG_CHOICES:
             raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {rig!r}")
         self.rig = rig
-        by_camera: dict[str, list[SharedLikelihood]] = {}
+        frames = [f for f in frames if f.camera_id is not None]
+        self.pools = {name: Pool(SHARED[name], [Reading(f.key, f.camera_id, f.mean[name], f.precision[name])
+                                                for f in frames if name in f.precision]) for name in POOLED[rig]}
+        #: camera id → its frames' keys
+        self.cameras: dict[str, tuple] = {}
         for f in frames:
-            if f.camera_id is not None:
-                by_camera.setdefault(f.camera_id, []).append(f)
-        #: camera id → (its frames' keys, quantity → (keys, means, precisions) of the frames that estimated it)
-        self.cameras = {cam: (tuple(f.key for f in group),
-                              {name: (np.array([f.key for f in group if name in f.precision], dtype=object),
-                                      np.array([f.mean[name] for f in group if name in f.precision]),
-                                      np.array([f.precision[name] for f in group if name in f.precision]))
-                               for name in POOLED[rig]})
-                        for cam, group in sorted(by_camera.items())}
+            self.cameras[f.camera_id] = self.cameras.get(f.camera_id, ()) + (f.key,)
 
     def estimate(self, camera_id: str, leave_out: str | None = None) -> RigEstimate | None:
         """The camera's pooled quantities without the frame ``leave_out`` (a KEY), or None when it has
-        none. Only informative frames are pooled (likelihood sd at most :data:`MAX_LIKELIHOOD_SD`);
-        a quantity needs two of them (one when a frame is left out: then the others are the
-        evidence)."""
+        none (:meth:`.dataset.Pool.estimate`: informative frames only; two of them, or one other
+        when a frame is left out)."""
         if camera_id not in self.cameras:
             return None
-        keys, quantities = self.cameras[camera_id]
-        center, var, tau, count, check = {}, {}, {}, {}, {}
-        for name, (k, m, p) in quantities.items():
-            offered = k != leave_out
-            keep = offered & (p >= MAX_LIKELIHOOD_SD[name] ** -2)
-            if keep.sum() < (1 if leave_out is not None else 2):
-                continue
-            kind = QUANTITIES[name][2]
-            c, v, tau[name] = _combine(m[keep], p[keep], kind, MIN_SPREAD.get(name, 0.0))
-            check[name] = pool_check(m[keep], p[keep], c, v, int(offered.sum()))
-            center[name], var[name] = c, v + (SHARED_BIAS_SD.get(name, 0.0) ** 2 if kind == "shared" else 0.0)
-            count[name] = int(keep.sum())
-        if not center:
-            return None
-        return RigEstimate(camera_id, center, var, tau, count, tuple(x for x in keys if x != leave_out), check)
+        keys = tuple(k for k in self.cameras[camera_id] if k != leave_out)
+        return _rig_estimate(camera_id, {n: p.estimate(camera_id, leave_out) for n, p in self.pools.items()}, keys)
 
     def summary(self) -> dict:
         """Each camera's pool of all its frames as a ``rig`` block (:func:`rig_report`); cameras
@@ -338,7 +232,20 @@ def apply_rig(scene, frames: list[SharedLikelihood] | RigPool, rig: str, key: st
     if camera_id is None or rig == "none":
         return scene, None
     pool = frames if isinstance(frames, RigPool) else RigPool(frames, rig)
-    est = pool.estimate(camera_id, leave_out=key)
+    return _with_rig(scene, camera_id, pool.estimate(camera_id, leave_out=key))
+
+
+def apply_rig_estimates(scene, pooled: dict):
+    """``scene`` with the priors of its camera's pools (quantity name → :class:`.dataset.Pooled` or
+    None, each leaving the frame out: :meth:`.dataset.DataSet.estimate`) → (scene, :class:`RigEstimate`
+    or None), as :func:`apply_rig`."""
+    camera_id = camera_id_of(scene)
+    keys = tuple(dict.fromkeys(k for e in pooled.values() if e is not None for k in e.keys))
+    est = _rig_estimate(camera_id, pooled, keys) if camera_id is not None else None
+    return _with_rig(scene, camera_id, est)
+
+
+def _with_rig(scene, camera_id, est: RigEstimate | None):
     if est is None:
         return scene, None
     focal, orientation = rig_priors(est, scene.orientation_prior)
@@ -348,8 +255,8 @@ def apply_rig(scene, frames: list[SharedLikelihood] | RigPool, rig: str, key: st
         # the rig pooled, the product with it (the others are the calibration's already)
         pooled = {"log_height": "height", "pitch": "pitch", "roll": "roll"}
         orientation = orientation.times(own, [pooled[n] for n in est.center if n in pooled], source="calibration")
-    if scene.focal_length_px is not None:  # a known focal length needs no prior
-        focal = None
+    if scene.focal_length_px is not None or (scene.focal_prior is not None and scene.focal_prior.source != "rig"):
+        focal = None  # a known focal length needs no prior; the scene's own prior is the user's (an override)
     if focal is None and orientation is None:
         return scene, None
     changes = {"focal_prior": focal} if focal is not None else {}

@@ -25,6 +25,8 @@ def run_scene(job: dict) -> dict:
         result = estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()
         if job.get("rig"):  # the rig the frame's camera priors came from (rig.py)
             result["rig"] = job["rig"]
+        if job.get("dataset"):  # what the frame took from the data set, and how sure that was (dataset.py)
+            result["dataset"] = job["dataset"]
         return {"ok": True, "result": result}
     except Exception as exc:  # isolate the failure: the batch goes on
         return {"ok": False, "stage": "estimate", "error": one_line(exc), "traceback": traceback.format_exc()}
@@ -102,7 +104,8 @@ class Runner:
             self._finish(si, False, "worker", one_line(exc), traceback.format_exc(), start=start)
             return
         if res["ok"]:
-            record_result(layout(self.out, si.key), si, job["scene"], res["result"], job["seed"], self.settings)
+            record_result(layout(self.out, si.key), si, job["scene"], res["result"], job["seed"],
+                          job.get("ident", self.settings))
             self.n_targets += len(res["result"]["objects"])
             converged = (res["result"].get("diagnostics") or {}).get("converged", True)
             self._finish(si, True, start=start, converged=converged)

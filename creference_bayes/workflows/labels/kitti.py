@@ -239,11 +239,13 @@ def image_labels(members: list[LabelInput], name: str, *, type_name: str | None 
               "focal_length_px": float(cam[C_FOCAL]), "pitch_rad": float(cam[C_PITCH]), "roll_rad": float(cam[C_ROLL]),
               "draws": {"n": len(pick), **{k: np.round(pick[:, j], 6).tolist() for j, k in enumerate(CAMERA_NAMES)
                                            if k in res["camera"]["free"]}},
-              **({"rig": res["rig"]} if res.get("rig") else {})}  # the camera's rig (creference batch --rig)
+              **({"rig": res["rig"]} if res.get("rig") else {})}  # the camera's pool (creference batch)
     doc = {"format": SIDECAR_FORMAT, "image": name, "scenes": [m.key for m in members],
            "label_file": f"label_2/{name}.txt", "calib_file": f"calib/{name}.txt",
            "frame": KITTI_FRAME if members[ref].scene.kitti_p2 is not None else GRAVITY_FRAME, "camera": camera,
            "score": f"P(IoU >= {float(score_iou):g})", "objects": [o.sidecar for o in objects]}
+    if res.get("dataset"):  # what the frame took from the data set and how sure that was (creference batch)
+        doc["dataset"] = res["dataset"]
     return P2, calib, objects, doc
 
 

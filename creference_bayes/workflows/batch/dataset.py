@@ -1,0 +1,579 @@
+"""What a data set teaches each frame: the quantities frames share, each declared once and learned
+through one mechanism (``creference batch``, on by default; docs/batch.md, "What the data set
+teaches each frame"; issue 62).
+
+A shared quantity is a :class:`Shared`: its name, who shares it (``shared_by``: the frames of one
+camera, the data set's crowd, or the frames of one *setting*, a camera id or else the whole data
+set), whether the frames share one value (``"shared"``) or draw theirs around a common one
+(``"spread"``), and the bounds of what is pooled. :data:`SHARED` declares them all:
+
+==================  ==========  ======  ===============================================================
+quantity            shared_by   kind    a frame reads it from / is handed it back as
+==================  ==========  ======  ===============================================================
+focal length        camera      shared  first pass, log µ / the focal-length prior (:mod:`.rig`)
+camera height       camera      spread  first pass, log h / the orientation prior's height
+pitch, roll         camera      spread  first pass / the orientation prior's pitch and roll
+reference scale     crowd       spread  first pass, log s / the ``ref_scale_median``, ``_log_sd`` options
+target distance     setting     spread  first pass, each target's log d / the location prior's population
+corner scale        crowd       shared  the annotations (sets of one object) / the scene's corner scale
+==================  ==========  ======  ===============================================================
+
+The mechanism, the same for every quantity:
+
+1. **Read** (:func:`read_frame`): every frame is estimated alone first (a MAP, ``first_pass/``);
+   its draws (the Laplace approximation at the MAP, or the posterior's when the result keeps them)
+   are reweighted by 1/prior, the prior the frame used divided out exactly
+   (:func:`divide_prior`), and the weighted mean and variance make each reading a normal
+   likelihood N(mᵢ, 1/Pᵢ) (a target's distance: one reading per target). A reading whose
+   weights' effective sample size is below :data:`MIN_WEIGHT_ESS` of the draws, or whose
+   precision is below :data:`MIN_INFORMATION` of the posterior's (its posterior is its prior), is
+   not made.
+2. **Combine** (:class:`Pool`): a group's informative readings (sd at most ``max_sd``): a
+   "shared" quantity's precision-weighted mean, its variance inflated by the Birge ratio and a
+   floor (``floor``, the model's bias shared by a group's frames) in quadrature; a "spread"
+   quantity's DerSimonian–Laird mean and spread τ (at least ``min_spread``). Each pool is checked
+   against its readings (:class:`PoolCheck`).
+3. **Hand back, leaving the frame out**: each frame gets the pool of the *other* frames of its
+   group (its own annotations count once): a shared value as N(M₋ᵢ, V₋ᵢ), a spread one as
+   N(M₋ᵢ, V₋ᵢ + τ²) (the next frame's value, or the next target's distance). The corner scale is
+   the one quantity read from the annotations themselves (:func:`~.corner_scales`: sums of squares
+   pooled, no first pass).
+
+A quantity is learnt when there is something to learn (:func:`plan`): frames sharing a camera id
+that lack a focal length or a calibrated mounting; frames with references (their crowd's scale);
+:data:`MIN_POPULATION_FRAMES` frames of one setting with :data:`MIN_POPULATION_TARGETS` targets
+for a population. What a user sets by hand (``--distance-range``, the ``ref_scale`` options, a
+scene's own focal length or focal prior, its corner scale) wins and is recorded as an override.
+
+Numbers: log µ, log h, log s and log d are natural logs of pixels, metres, the crowd scale and
+metres; pitch and roll radians (the blocks print degrees).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
+           "combine", "pool_check", "read_frame", "read_focal_given_orientation", "plan", "dataset_lines",
+           "DATASET_CHOICES",
+           "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
+
+#: ``--dataset``: learn what frames share (``auto``: what there is something to learn of) or nothing
+DATASET_CHOICES = ("auto", "none")
+#: a reading whose precision is below this share of its posterior precision tells nothing
+MIN_INFORMATION = 0.1
+#: the least effective sample size of a reading's importance weights 1/prior, as a share of its draws
+#: (below it the frame's prior was far narrower than its likelihood: the draws cannot show the latter)
+MIN_WEIGHT_ESS = 0.1
+#: ... and, with a reweighting to other frames' pool of another quantity
+#: (:func:`read_focal_given_orientation`), the least effective number of draws of all the weights
+MIN_REWEIGHTED_ESS = 40
+#: draws of the Laplace approximation a frame is read from when its result keeps none
+LAPLACE_DRAWS = 4000
+#: a population of target distances is fitted from at least this many other frames of a setting ...
+MIN_POPULATION_FRAMES = 5
+#: ... and this many informative targets among them (module docstring of :class:`Shared`)
+MIN_POPULATION_TARGETS = 10
+#: a pool is said to rest on few frames below this effective number of readings (ΣP)²/ΣP² ...
+MIN_EFFECTIVE_FRAMES = 5.0
+#: ... or when its three most precise readings carry more than this share of the weight
+MAX_TOP3_SHARE = 0.6
+#: the pool and its readings disagree when |D| (:func:`pool_check`) is above this
+MAX_DISAGREEMENT = 2.0
+#: bootstrap resamples for the sd of the readings' median (seeded: the same readings, the same numbers)
+BOOTSTRAP = 500
+FEW_FRAMES = "the pool rests on few frames"
+DISAGREE = "the pool and the frames disagree"
+
+
+@dataclass(frozen=True)
+class Shared:
+    """A quantity frames share, declared once (module docstring).
+
+    Attributes
+    ----------
+    name : the pooled scale's name (``log_focal``: log µ px; ``pitch``: radians; ...)
+    label : the result's block key, in natural units (``focal_length_px``, ``pitch_deg``, ...)
+    shared_by : ``"camera"`` (frames of one ``camera.id``), ``"crowd"`` (the data set's annotators),
+        ``"setting"`` (frames of one camera id; frames without one: the whole data set)
+    kind : ``"shared"`` (one value) or ``"spread"`` (each frame's, or target's, around a common one)
+    natural : ``"log"`` (shown as exp: a median and a log-sd) or ``"angle"`` (radians shown in degrees)
+    max_sd : the widest reading (sd, pooled scale) that is pooled (weaker ones are biased, docs/studies/rig.md)
+    floor : a shared quantity's least sd, added in quadrature (a bias its group's frames share)
+    min_spread : a spread quantity's least τ
+    min_frames : other informative frames a frame's leave-one-out pool needs (a pool of all frames: one more)
+    min_readings : informative readings (targets) a pool needs
+    """
+
+    name: str
+    label: str
+    shared_by: str
+    kind: str
+    natural: str = "log"
+    max_sd: float = math.inf
+    floor: float = 0.0
+    min_spread: float = 0.0
+    min_frames: int = 1
+    min_readings: int = 1
+
+
+#: Every quantity the data-set layer learns (module docstring). The camera's: measured in
+#: docs/studies/rig.md (the focal length's max_sd 0.25 and floor 0.04; the mounting's thresholds
+#: not measured against truth). The crowd's reference scale: a crowd's scale varies between frames
+#: (other annotators, other lines), at least 10 % (not measured). Target distances: readings as
+#: informative as a pooled focal length's (the ridge (z, µ) → (λz, λµ) makes them as weak), a
+#: population at least 10 % wide in log distance.
+SHARED = {s.name: s for s in (
+    Shared("log_focal", "focal_length_px", "camera", "shared", max_sd=0.25, floor=0.04),
+    Shared("log_height", "height_m", "camera", "spread", max_sd=0.25, min_spread=0.03),
+    Shared("pitch", "pitch_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
+    Shared("roll", "roll_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
+    Shared("log_ref_scale", "ref_scale", "crowd", "spread", min_spread=0.1, min_frames=2),
+    Shared("log_distance", "distance_m", "setting", "spread", max_sd=0.25, min_spread=0.1,
+           min_frames=MIN_POPULATION_FRAMES, min_readings=MIN_POPULATION_TARGETS),
+)}
+#: what a frame's focal length is read given (the others' pool of it): the orientation
+GIVEN = ("pitch", "roll")
+#: the corner scale (sd px, degrees of freedom) is read from the annotations (:func:`~.corner_scales`)
+CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One frame's likelihood N(mean, 1/precision) of a shared quantity (one target's, for a
+    distance), in its ``group`` (a camera id, ``"crowd"``, a setting)."""
+
+    key: str
+    group: str
+    mean: float
+    precision: float
+
+
+@dataclass(frozen=True)
+class PoolCheck:
+    """How a pool rests on its readings (:func:`pool_check`): ``used`` informative readings of
+    ``offered``, ``n_eff``, ``top3_share``, the readings' ``median`` (pooled scale), the
+    disagreement ``d`` and the ``warnings``."""
+
+    used: int
+    offered: int
+    n_eff: float
+    top3_share: float
+    median: float
+    d: float
+    warnings: tuple
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """A group's pooled value of a quantity: ``center`` M, ``var`` V of M (a shared quantity's with
+    its floor), ``tau`` (the spread; 0 for a shared one), ``frames`` (informative frames),
+    ``readings`` (informative readings) and the ``check``."""
+
+    quantity: Shared
+    group: str
+    center: float
+    var: float
+    tau: float
+    frames: int
+    readings: int
+    check: PoolCheck
+    #: the frames of the group the pool was offered (the one left out excepted), in order
+    keys: tuple = ()
+
+    @property
+    def prior_sd(self) -> float:
+        """The sd of the prior a frame is handed: √(V + τ²)."""
+        return math.sqrt(self.var + self.tau**2)
+
+    def block(self) -> dict:
+        """The pool in natural units, as a result's ``dataset`` block and ``batch``'s table show it."""
+        q, c = self.quantity, self.check
+        if q.natural == "log":
+            out = {"median": _sig(math.exp(self.center)), "log_sd": round(math.sqrt(self.var), 4)}
+            if q.kind == "spread":
+                out["spread_log_sd"] = round(self.tau, 4)
+            median = _sig(math.exp(c.median))
+        else:
+            out = {"mean": round(math.degrees(self.center), 3), "sd": round(math.degrees(math.sqrt(self.var)), 3),
+                   "spread_sd": round(math.degrees(self.tau), 3)}
+            median = round(math.degrees(c.median), 3)
+        if q.floor:
+            out["floor_log_sd"] = q.floor
+        out.update(frames=self.frames, frames_offered=c.offered, n_eff=round(c.n_eff, 1),
+                   top3_share=round(c.top3_share, 2), frames_median=median, disagreement=round(c.d, 2),
+                   warnings=list(c.warnings))
+        if self.readings != self.frames:
+            out["readings"] = self.readings
+        return out
+
+
+def _sig(v: float) -> float:
+    return float(f"{v:.6g}")
+
+
+def divide_prior(q: np.ndarray, log_prior: np.ndarray | None,
+                 log_reweight: np.ndarray | None = None) -> tuple[float, float, float] | None:
+    """The likelihood of a quantity from draws ``q`` and the log prior at them: the draws
+    reweighted by 1/prior (self-normalised importance weights) → (mean, variance, effective sample
+    size of the weights), or None when the weights' effective sample size is below
+    :data:`MIN_WEIGHT_ESS` of the draws or the variance is not positive. ``log_reweight``: a further
+    log weight at each draw (the draws moved to another prior of other quantities); then the
+    weights' effective sample size must also be :data:`MIN_REWEIGHTED_ESS` or more."""
+    q = np.asarray(q, dtype=float)
+
+    def normalised(lw):
+        w = np.exp(lw - lw.max())
+        return w / w.sum()
+
+    own = np.zeros(len(q)) if log_prior is None else -np.asarray(log_prior, dtype=float)
+    w = normalised(own)
+    ess = 1.0 / float((w**2).sum())
+    if not (len(q) > 1 and ess >= MIN_WEIGHT_ESS * len(q)):
+        return None
+    if log_reweight is not None:
+        w = normalised(own + np.asarray(log_reweight, dtype=float))
+        ess = 1.0 / float((w**2).sum())
+        if not ess >= MIN_REWEIGHTED_ESS:
+            return None
+    mean = float((w * q).sum())
+    var = float((w * (q - mean) ** 2).sum()) / (1.0 - 1.0 / ess)  # unbiased for reliability weights
+    if not (var > 0 and np.isfinite(var)):
+        return None
+    return mean, var, ess
+
+
+def likelihood(q: np.ndarray, log_prior: np.ndarray | None,
+               log_reweight: np.ndarray | None = None) -> tuple[float, float] | None:
+    """A reading (mean, precision) from draws ``q`` with the prior divided out (:func:`divide_prior`),
+    or None when it cannot be read or has less than :data:`MIN_INFORMATION` of the posterior's
+    precision."""
+    post = float(np.var(q, ddof=1)) if len(q) > 1 else 0.0
+    lik = divide_prior(q, log_prior, log_reweight)
+    if lik is None or not (post > 0 and np.isfinite(post)) or not 1.0 / lik[1] >= MIN_INFORMATION / post:
+        return None
+    return lik[0], 1.0 / lik[1]
+
+
+def combine(m: np.ndarray, p: np.ndarray, kind: str, min_spread: float = 0.0) -> tuple[float, float, float]:
+    """(M, V, τ) of readings N(mᵢ, 1/pᵢ) (module docstring, step 2), V without a floor."""
+    w = p.sum()
+    center = float((p * m).sum() / w)
+    n = len(m)
+    q = float((p * (m - center) ** 2).sum())
+    if kind == "shared":
+        return center, (1.0 / w) * max(1.0, q / (n - 1) if n > 1 else 1.0), 0.0
+    tau2 = max(0.0, (q - (n - 1)) / (w - (p**2).sum() / w)) if n > 1 else 0.0
+    tau2 = max(tau2, min_spread**2)
+    ws = 1.0 / (1.0 / p + tau2)
+    center = float((ws * m).sum() / ws.sum())
+    return center, float(1.0 / ws.sum()), math.sqrt(tau2)
+
+
+def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered: int) -> PoolCheck:
+    """How a pool (``center``, ``var`` without a floor) rests on its informative readings
+    N(mᵢ, 1/pᵢ): n_eff = (ΣPᵢ)²/ΣPᵢ², the three most precise readings' share of the weight, and
+    the disagreement D = (M − median of the mᵢ) / √(sd of that median² + V) (the median's sd by a
+    seeded bootstrap; V without the floor, a bias the readings share moves both alike). Warnings:
+    "rests on few frames" when n_eff < :data:`MIN_EFFECTIVE_FRAMES` or the top three carry more than
+    :data:`MAX_TOP3_SHARE`; "disagree" when |D| > :data:`MAX_DISAGREEMENT`. ``offered``: the
+    readings made, informative or not."""
+    n = len(m)
+    n_eff = float(p.sum() ** 2 / (p**2).sum())
+    top3 = float(np.sort(p)[::-1][:3].sum() / p.sum())
+    median = float(np.median(m))
+    rng = np.random.default_rng(0)
+    sd_median = float(np.std(np.median(m[rng.integers(0, n, (BOOTSTRAP, n))], axis=1))) if n > 1 else 0.0
+    d = (center - median) / math.sqrt(sd_median**2 + var)
+    warns = []
+    if n_eff < MIN_EFFECTIVE_FRAMES or top3 > MAX_TOP3_SHARE:
+        warns.append(FEW_FRAMES)
+    if abs(d) > MAX_DISAGREEMENT:
+        warns.append(DISAGREE)
+    return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warns))
+
+
+class Pool:
+    """One quantity's readings grouped once, as arrays: a frame's leave-one-out pool is then one
+    vectorised combination over its group's readings."""
+
+    def __init__(self, quantity: Shared, readings: list[Reading]):
+        self.quantity = quantity
+        groups: dict[str, list[Reading]] = {}
+        for r in readings:
+            groups.setdefault(r.group, []).append(r)
+        #: group → (keys, means, precisions) of its readings
+        self.groups = {g: (np.array([r.key for r in rs], dtype=object), np.array([r.mean for r in rs]),
+                           np.array([r.precision for r in rs])) for g, rs in sorted(groups.items())}
+
+    def estimate(self, group: str, leave_out: str | None = None) -> Pooled | None:
+        """The group's pool without the frame ``leave_out`` (a KEY: all its readings), or None when
+        its informative readings are too few: ``min_frames`` other frames for a frame's pool, one
+        more for the pool of all frames, and ``min_readings`` readings."""
+        if group not in self.groups:
+            return None
+        q = self.quantity
+        keys, m, p = self.groups[group]
+        offered = keys != leave_out
+        keep = offered & (p >= q.max_sd**-2)
+        frames = len(set(keys[keep]))
+        if frames < q.min_frames + (leave_out is None) or keep.sum() < max(q.min_readings, 1):
+            return None
+        center, var, tau = combine(m[keep], p[keep], q.kind, q.min_spread)
+        check = pool_check(m[keep], p[keep], center, var, int(offered.sum()))
+        if q.kind == "shared":
+            var += q.floor**2
+        return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
+
+
+def _draws(result: dict, scene):
+    """A first-pass result's draws: cameras (k, 5), objects (k, m, 7): those it keeps, else
+    :data:`LAPLACE_DRAWS` of the Laplace approximation at its MAP (seeded)."""
+    from ...pipeline import rebuild_model, result_draws
+
+    model = rebuild_model(result, scene)
+    cams, objs, _ = result_draws(result, model, n=LAPLACE_DRAWS, seed=0)
+    return cams, objs
+
+
+def _setting(camera_id: str | None) -> str:
+    return camera_id if camera_id is not None else "data set"
+
+
+def read_frame(key: str, scene, result: dict, camera_id: str | None, draws=None) -> dict[str, list[Reading]]:
+    """Every reading of one frame's first-pass result (module docstring, step 1): quantity name →
+    readings (a camera's quantities, the crowd's reference scale, each target's log distance).
+    ``draws``: the result's (cameras, objects) when already drawn (:func:`_draws`)."""
+    from ...models.contract import C_SCALE, O_X, O_Z, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
+    from ...models.location_prior import LocationPrior
+    from .rig import camera_likelihood
+
+    cams, objs = draws if draws is not None else _draws(result, scene)
+    out: dict[str, list[Reading]] = {}
+    if camera_id is not None:
+        for name, (mean, precision) in camera_likelihood(result, cams).items():
+            out[name] = [Reading(key, camera_id, mean, precision)]
+    prov = result.get("provenance") or {}
+    free = set(result["camera"].get("free", ()))
+    if "ref_scale" in free:  # the log-normal prior the frame used, as a density in log s
+        opts = prov.get("options") or {}
+        median = float(opts.get("ref_scale_median", REF_SCALE_MEDIAN))
+        log_sd = float(opts.get("ref_scale_log_sd", REF_SCALE_LOG_SD))
+        q = np.log(cams[:, C_SCALE])
+        lik = likelihood(q, -0.5 * ((q - math.log(median)) / log_sd) ** 2)
+        if lik is not None:
+            out["log_ref_scale"] = [Reading(key, "crowd", *lik)]
+    location = LocationPrior(prov.get("location_prior", "flat"), prov.get("distance_range_m"),
+                             prov.get("location_population"))
+    readings = []
+    for j in range(objs.shape[1]):
+        x, z = objs[:, j, O_X], objs[:, j, O_Z]
+        log_d2 = np.log(x * x + z * z)
+        # weights 1/(p(x, z) d²): the likelihood of log d, uniform in direction (location_prior.py)
+        lik = likelihood(0.5 * log_d2, -location.neg_log(x, z) + log_d2)
+        if lik is not None:
+            readings.append(Reading(key, _setting(camera_id), *lik))
+    if readings:
+        out["log_distance"] = readings
+    return out
+
+
+def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np.ndarray) -> Reading | None:
+    """Frame ``key``'s focal-length reading as if it had known its camera's orientation: its draws
+    reweighted from the wide default pitch and roll prior it was estimated under to the pool of the
+    other frames' (N(M₋ᵢ, V₋ᵢ + τ²), :data:`GIVEN`), with its focal prior divided out
+    (:func:`.rig.camera_likelihood`). Why: with a pitch free within ±15°, a frame that pins the
+    horizon in pixels leaves a pitch width shrinking as 1/µ, an extra ≈ 1/µ prior that biases a
+    weak frame's focal length low (docs/studies/rig.md); the camera's pitch, which every frame
+    knows well, takes it away. Not the height: its pool leans 2 % high on KITTI, which the focal
+    length would follow. None: no reading (as :func:`read_frame`)."""
+    from .rig import camera_likelihood
+
+    camera_id = ds.camera_of.get(key)
+    if camera_id is None:
+        return None
+    given = {n: (e.center, e.prior_sd) for n in GIVEN if (e := ds.estimate(n, key)) is not None}
+    lik = camera_likelihood(result, cams, given).get("log_focal")
+    return None if lik is None else Reading(key, camera_id, *lik)
+
+
+@dataclass
+class DataSet:
+    """The pools of every quantity a batch learns, from its first pass (:meth:`from_first_pass`).
+
+    Attributes
+    ----------
+    pools : quantity name → :class:`Pool`
+    learn : the quantity names learnt (:func:`plan`)
+    camera_of : KEY → the frame's camera id (None: a camera of its own)
+    """
+
+    pools: dict
+    learn: tuple
+    camera_of: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_first_pass(cls, frames, folder, learn: tuple) -> "DataSet":
+        """Read every first-pass result in the batch folder ``folder`` of ``frames`` ((KEY, camera
+        id) pairs; a frame without a result is left out: its groups learn from the others)."""
+        from ...io.result import read_result
+        from ...io.scene import SceneWarning, load_scene
+        from .files import layout
+
+        readings: dict[str, list[Reading]] = {name: [] for name in learn}
+        camera_of, kept = {}, {}
+        for key, camera_id in frames:
+            camera_of[key] = camera_id
+            paths = layout(folder, key)
+            if not paths["result"].exists():
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(paths["scene"])
+            result = read_result(paths["result"])
+            draws = _draws(result, scene)
+            kept[key] = (result, draws[0])
+            for name, rs in read_frame(key, scene, result, camera_id, draws).items():
+                if name in readings:
+                    readings[name] += rs
+        ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
+        if "log_focal" in learn and any(n in learn for n in GIVEN):
+            focal = []
+            for key, (result, cams) in kept.items():
+                r = read_focal_given_orientation(ds, key, result, cams)
+                if r is not None:
+                    focal.append(r)
+            ds.pools["log_focal"] = Pool(SHARED["log_focal"], focal)
+        return ds
+
+    def group_of(self, name: str, key: str) -> str | None:
+        by = SHARED[name].shared_by
+        camera_id = self.camera_of.get(key)
+        return "crowd" if by == "crowd" else _setting(camera_id) if by == "setting" else camera_id
+
+    def estimate(self, name: str, key: str, leave_out: bool = True) -> Pooled | None:
+        """The pool frame ``key`` is handed of quantity ``name`` (its group's, leaving it out)."""
+        group = self.group_of(name, key)
+        if name not in self.pools or group is None:
+            return None
+        return self.pools[name].estimate(group, key if leave_out else None)
+
+    def summary(self) -> dict:
+        """Every group's pool of all its frames: quantity label → group → block (:meth:`Pooled.block`)."""
+        out = {}
+        for name, pool in self.pools.items():
+            blocks = {g: est.block() for g in pool.groups if (est := pool.estimate(g)) is not None}
+            if blocks:
+                out[SHARED[name].label] = {"shared_by": SHARED[name].shared_by, "kind": SHARED[name].kind,
+                                           "groups": blocks}
+        return out
+
+
+def plan(scenes, settings) -> tuple[str, ...]:
+    """The quantities a batch of ``scenes`` learns from a first pass (module docstring): empty with
+    ``settings.dataset == "none"``; the camera's (``settings.rig``) when two frames share a camera
+    id and one of them lacks a focal length or a calibrated mounting; the reference scale when two
+    frames have references and neither ``ref_scale`` option is set; the distance population when a
+    setting has :data:`MIN_POPULATION_FRAMES` + 1 frames with :data:`MIN_POPULATION_TARGETS`
+    targets and no ``distance_range`` is set (the default preset's location prior only)."""
+    from .rig import POOLED, camera_id_of
+
+    if settings.dataset == "none":
+        return ()
+    learn = []
+    cameras: dict[str, list] = {}
+    for s in scenes:
+        cameras.setdefault(camera_id_of(s), []).append(s)
+    if any(cam is not None and len(group) >= 2 and any(
+            s.focal_length_px is None or s.orientation_prior is None or s.orientation_prior.source != "calibration"
+            for s in group) for cam, group in cameras.items()):
+        learn += [n for n in POOLED[settings.rig]]
+    if (settings.model == "metrology" and settings.use_references
+            and not {"ref_scale_median", "ref_scale_log_sd"} & set(settings.options)
+            and sum(bool(s.references) for s in scenes) >= SHARED["log_ref_scale"].min_frames + 1):
+        learn.append("log_ref_scale")
+    if settings.distance_range is None and settings.preset == "default" and settings.location_prior in ("auto", "log-depth"):
+        settings_groups: dict[str, list] = {}
+        for cam, group in cameras.items():
+            settings_groups.setdefault(_setting(cam), []).extend(group)
+        if any(len(g) > MIN_POPULATION_FRAMES and sum(len(s.targets) for s in g) >= MIN_POPULATION_TARGETS
+               for g in settings_groups.values()):
+            learn.append("log_distance")
+    return tuple(learn)
+
+
+def overrides(scene, settings) -> dict:
+    """What the user set by hand for this frame, which the data set does not replace: block label → why."""
+    out = {}
+    if scene.focal_length_px is not None:
+        out["focal_length_px"] = "the scene's own focal length"
+    elif scene.focal_prior is not None and getattr(scene.focal_prior, "source", None) != "rig":
+        out["focal_length_px"] = "the scene's own focal-length prior"
+    if {"ref_scale_median", "ref_scale_log_sd"} & set(settings.options):
+        out["ref_scale"] = "--option " + ", ".join(f"{k}={settings.options[k]:g}" for k in
+                                                   ("ref_scale_median", "ref_scale_log_sd") if k in settings.options)
+    if settings.distance_range is not None:
+        out["distance_m"] = "--distance-range {:g},{:g}".format(*settings.distance_range)
+    return out
+
+
+def hand_back(ds: DataSet, key: str, scene, settings):
+    """Frame ``key``'s priors from the others (module docstring, step 3): → (scene, estimate keyword
+    arguments to change, its ``dataset`` block, its camera's ``rig`` block or None)."""
+    from dataclasses import replace
+
+    from ...models.location_prior import LocationPrior
+    from .rig import apply_rig_estimates, rig_report
+
+    block: dict = {}
+    kwargs: dict = {}
+    own = overrides(scene, settings)
+    scene, rig_est = apply_rig_estimates(scene, {n: ds.estimate(n, key) for n in ds.learn if SHARED[n].shared_by == "camera"})
+    rig = rig_report(rig_est)
+    if rig_est is not None:
+        for name in rig_est.center:
+            block[SHARED[name].label] = {"from": "data set", "shared_by": "camera", "group": rig_est.camera_id,
+                                         **rig[SHARED[name].label]}
+    ref = ds.estimate("log_ref_scale", key) if "log_ref_scale" in ds.learn else None
+    if ref is not None and "ref_scale" not in own:
+        kwargs["ref_scale_median"] = _sig(math.exp(ref.center))
+        kwargs["ref_scale_log_sd"] = round(ref.prior_sd, 4)
+        block["ref_scale"] = {"from": "data set", "shared_by": "crowd", "group": ref.group, **ref.block()}
+    dist = ds.estimate("log_distance", key) if "log_distance" in ds.learn else None
+    if dist is not None and "distance_m" not in own:
+        kind = settings.location_prior if settings.location_prior != "auto" else "log-depth"
+        kwargs["location_prior"] = LocationPrior(kind, population=(_sig(math.exp(dist.center)), round(dist.prior_sd, 4)))
+        block["distance_m"] = {"from": "data set", "shared_by": "setting", "group": dist.group, **dist.block()}
+    if scene.corner_scale is not None:
+        block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
+                                    "shared_by": "crowd", "sd": scene.corner_scale[0], "dof": scene.corner_scale[1]}
+    for label, why in own.items():
+        block[label] = {"from": "override", "why": why}
+    return scene, kwargs, block, rig
+
+
+def dataset_lines(summary: dict) -> list[str]:
+    """``batch``'s printout of :meth:`DataSet.summary`: a table row per quantity and group, then a
+    line per warning."""
+    rows, warns = [], []
+    for label, entry in summary.items():
+        for group, b in entry["groups"].items():
+            if "median" in b:
+                value = f"{b['median']:g}"
+                sd = f"log-sd {b['log_sd']:.3f}" + (f" spread {b['spread_log_sd']:.3f}" if "spread_log_sd" in b else "")
+            else:
+                value = f"{b['mean']:.2f}°"
+                sd = f"sd {b['sd']:.2f}° spread {b['spread_sd']:.2f}°"
+            used = f"{b['frames']}/{b['frames_offered']}" if "readings" not in b else \
+                f"{b['readings']}/{b['frames_offered']} ({b['frames']} frames)"
+            rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {value:>10}  {sd:<28} "
+                        f"{used:<18} n_eff {b['n_eff']:g}  D {b['disagreement']:+.2f}")
+            warns += [f"warning: data set: {label} of {group}: {w}" for w in b["warnings"]]
+    if not rows:
+        return []
+    head = f"  {'quantity':<16} {'by':<8} {'group':<24} {'pooled':>10}  {'uncertainty':<28} {'used/offered':<18}"
+    return ["data set (what the frames share; each frame took the others'):", head, *rows, *warns]

@@ -1,0 +1,198 @@
+"""The data-set layer (workflows/batch/dataset.py): what frames share, declared once, learnt by
+default from a MAP first pass, handed back to each frame leaving it out; overrides win."""
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import truth_scene
+
+from creference_bayes.io.scene import parse_scene
+from creference_bayes.workflows.batch import BatchSettings, run_batch
+from creference_bayes.workflows.batch.dataset import SHARED, DataSet, Pool, Reading, hand_back, plan
+from creference_bayes.workflows.batch.engines import LocalEngine
+
+FAST = {"min_ess": 50, "max_steps": 300, "warmup": 100}
+
+
+def _scene(seed, camera="cam-A", **kw):
+    d, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=2, sizes_known=False, focal_px=1400.0, **kw)
+    if camera is not None:
+        d["camera"]["id"] = camera
+    return d
+
+
+@pytest.fixture(scope="module")
+def four_frames(tmp_path_factory):
+    """Four frames of one camera, its focal length removed; MAP only (the layer reads a MAP's
+    Laplace approximation, so no sampler is needed to test it)."""
+    root = tmp_path_factory.mktemp("dataset")
+    (root / "in").mkdir()
+    for seed in range(4):
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(_scene(seed)))
+    settings = BatchSettings(seed=1, posterior=False)
+    report = run_batch([root / "in"], root / "out", LocalEngine(1), settings)
+    return root, settings, report
+
+
+def test_frames_of_one_camera_pool_it_by_default_and_each_result_says_so(four_frames):
+    root, settings, report = four_frames
+    assert report.ok and (root / "out" / "first_pass" / "results" / "f0.json").exists()
+    assert report.dataset["focal_length_px"]["groups"]["cam-A"]["frames"] == 4
+    assert json.loads((root / "out" / "batch.json").read_text())["dataset"] == report.dataset
+    for k in range(4):
+        res = json.loads((root / "out" / "results" / f"f{k}.json").read_text())
+        took = res["dataset"]["focal_length_px"]
+        assert took["from"] == "data set" and took["group"] == "cam-A" and took["frames_offered"] == 3
+        assert took["log_sd"] >= SHARED["log_focal"].floor  # how sure, with the floor
+        assert abs(math.log(took["median"] / 1400.0)) < 4 * took["log_sd"]
+        assert res["camera"]["setup"]["focal_prior"]["source"] == "rig"
+        assert {"height_m", "pitch_deg", "roll_deg"} <= set(res["dataset"])  # the mounting too, by default
+        assert res["rig"]["focal_length_px"]["median"] == took["median"]  # the camera's part, as before
+    again = run_batch([root / "in"], root / "out", LocalEngine(1), settings)
+    assert again.keys("skipped") == [f"f{k}" for k in range(4)]
+
+
+def test_dataset_none_estimates_every_frame_alone(four_frames, tmp_path):
+    root, settings, _ = four_frames
+    report = run_batch([root / "in" / "f0.json", root / "in" / "f1.json"], tmp_path / "o", LocalEngine(1),
+                       replace(settings, dataset="none"))
+    assert report.ok and not report.dataset and not (tmp_path / "o" / "first_pass").exists()
+    res = json.loads((tmp_path / "o" / "results" / "f0.json").read_text())
+    assert "dataset" not in res and res["camera"]["setup"]["focal_prior"]["source"] == "default"
+
+
+def test_plan_learns_only_what_there_is_to_learn():
+    two = [parse_scene(_scene(s)) for s in range(2)]
+    assert plan(two, BatchSettings()) == ("log_focal", "log_height", "pitch", "roll")
+    assert plan(two, BatchSettings(rig="focal")) == ("log_focal",)
+    assert plan(two, BatchSettings(dataset="none")) == ()
+    alone = [parse_scene(_scene(s, camera=None)) for s in range(2)]
+    assert plan(alone, BatchSettings()) == ()  # no camera shared, no population from 2 frames
+    many = [parse_scene(_scene(s, camera=None)) for s in range(6)]  # 12 targets in 6 frames: a population
+    assert plan(many, BatchSettings()) == ("log_distance",)
+    assert plan(many, BatchSettings(distance_range=(5.0, 60.0))) == ()  # a hand-set range wins
+    refs = [parse_scene(_scene(s, camera=None, n_refs=2)) for s in range(3)]
+    assert plan(refs, BatchSettings()) == ("log_ref_scale",)
+    assert plan(refs, BatchSettings(options={"ref_scale_median": 0.4})) == ()
+
+
+def _population(seed=0, frames=12, per_frame=3, median=15.0, log_sd=0.5, noise=0.1):
+    rng = np.random.default_rng(seed)
+    truth = rng.normal(math.log(median), log_sd, (frames, per_frame))
+    return [Reading(f"f{i}", "street", float(truth[i, j] + rng.normal(0, noise)), noise**-2)
+            for i in range(frames) for j in range(per_frame)]
+
+
+def test_a_distance_population_is_fitted_from_simulated_distances():
+    est = Pool(SHARED["log_distance"], _population(frames=40)).estimate("street")
+    assert math.exp(est.center) == pytest.approx(15.0, rel=0.15)
+    assert est.tau == pytest.approx(0.5, rel=0.2) and est.readings == 120 and est.frames == 40
+    # a frame is handed the next target's distribution: the spread and the mean's uncertainty
+    assert est.prior_sd == pytest.approx(math.sqrt(est.var + est.tau**2))
+    # too few frames: no population (MIN_POPULATION_FRAMES others)
+    assert Pool(SHARED["log_distance"], _population(frames=5)).estimate("street", leave_out="f0") is None
+
+
+def test_leave_one_out_leaves_every_reading_of_the_frame_out():
+    readings = _population()
+    moved = [replace(r, mean=r.mean + 3.0) if r.key == "f0" else r for r in readings]
+    a = Pool(SHARED["log_distance"], readings).estimate("street", leave_out="f0")
+    b = Pool(SHARED["log_distance"], moved).estimate("street", leave_out="f0")
+    assert (a.center, a.var, a.tau) == (b.center, b.var, b.tau) and "f0" not in a.keys
+    c = Pool(SHARED["log_distance"], moved).estimate("street", leave_out="f1")
+    assert c.center > a.center  # another frame's pool does see f0's targets
+
+
+def test_overrides_win_and_are_recorded():
+    pools = {"log_distance": Pool(SHARED["log_distance"], _population()),
+             "log_ref_scale": Pool(SHARED["log_ref_scale"], [Reading(f"f{i}", "crowd", math.log(0.3), 400.0)
+                                                             for i in range(12)]),
+             "log_focal": Pool(SHARED["log_focal"], [Reading(f"f{i}", "street", 7.0, 400.0) for i in range(12)])}
+    ds = DataSet(pools, tuple(pools), {f"f{i}": "street" for i in range(12)})
+    d = _scene(0, camera="street")
+    scene = parse_scene(d)
+    _, kwargs, block, _ = hand_back(ds, "f0", scene, BatchSettings())
+    assert kwargs["ref_scale_median"] == pytest.approx(0.3) and block["ref_scale"]["from"] == "data set"
+    assert kwargs["location_prior"].population[0] == pytest.approx(15.0, rel=0.2)
+    assert block["focal_length_px"]["from"] == "data set"
+    d["camera"]["focal_length_px"] = 1400.0
+    own = BatchSettings(distance_range=(5.0, 60.0), options={"ref_scale_median": 0.5})
+    scene, kwargs, block, _ = hand_back(ds, "f0", parse_scene(d), own)
+    assert kwargs == {} and scene.focal_prior is None
+    assert block["distance_m"] == {"from": "override", "why": "--distance-range 5,60"}
+    assert block["ref_scale"] == {"from": "override", "why": "--option ref_scale_median=0.5"}
+    assert block["focal_length_px"] == {"from": "override", "why": "the scene's own focal length"}
+
+
+def test_the_location_population_is_a_prior_a_result_records_and_rebuilds():
+    from creference_bayes import estimate
+    from creference_bayes.models.location_prior import LocationPrior
+    from creference_bayes.pipeline import rebuild_model
+
+    with pytest.raises(ValueError, match="population"):
+        LocationPrior(population=(15.0, 0.0))
+    near = LocationPrior(population=(10.0, 0.3))
+    # uniform in direction, log-normal in distance: at one distance every direction alike
+    assert near.neg_log(3.0, 4.0) == pytest.approx(near.neg_log(0.0, 5.0))
+    assert near.neg_log(0.0, 10.0) + math.log(100.0) < near.neg_log(0.0, 30.0) + math.log(900.0)
+    d = _scene(0)
+    res = estimate(parse_scene(d), posterior=False, seed=0, location_prior=near).to_dict()
+    assert res["provenance"]["location_population"] == [10.0, 0.3]
+    assert rebuild_model(res, parse_scene(d)).location.population == (10.0, 0.3)
+
+
+def test_cli_dataset_none_turns_the_layer_off(tmp_path, capsys):
+    from creference_bayes.cli.main import main
+
+    for seed in range(2):
+        (tmp_path / f"s{seed}.json").write_text(json.dumps(_scene(seed)))
+    assert main(["batch", str(tmp_path / "s0.json"), str(tmp_path / "s1.json"), "--out", str(tmp_path / "o"),
+                 "--dataset", "none", "--no-posterior", "--workers", "1", "--quiet"]) == 0
+    assert not (tmp_path / "o" / "first_pass").exists()
+
+
+def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
+    """A weak frame's focal length leans with its pitch (the horizon pinned in pixels): under the
+    wide default pitch prior the reading follows the frame's own pitch; given the camera's pooled
+    pitch (the draws reweighted to it) it is the focal length at that pitch."""
+    from creference_bayes.workflows.batch.rig import camera_likelihood
+
+    rng = np.random.default_rng(3)
+    pitch = rng.normal(math.radians(-3.0), math.radians(4.0), 20000)  # the frame alone: far off, wide
+    log_focal = math.log(700.0) + 2.0 * (pitch - math.radians(1.0)) + rng.normal(0, 0.05, 20000)
+    cams = np.column_stack([np.exp(log_focal), pitch, np.zeros(20000), np.full(20000, 1.6), np.full(20000, 0.5)])
+    result = {"camera": {"free": ["focal_length_px", "pitch"], "setup": {
+        "orientation_prior": {"pitch_mean": 0.0, "pitch_sd": 15.0, "roll_mean": 0.0, "roll_sd": 15.0,
+                              "height_median_m": 1.6, "height_log_sd": 0.2}}}}
+    alone = camera_likelihood(result, cams)["log_focal"]
+    given = camera_likelihood(result, cams, {"pitch": (math.radians(1.0), math.radians(0.5))})["log_focal"]
+    assert math.exp(alone[0]) < 0.9 * 700.0  # led by its own pitch, 4° low
+    assert math.exp(given[0]) == pytest.approx(700.0, rel=0.01) and given[1] > alone[1]
+
+
+def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
+    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
+    reading for a camera of ten frames; it writes nothing."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root, _, _ = four_frames
+    first = tmp_path / "b" / "first_pass"
+    for sub in ("results", "scenes"):  # ten frames of cam-A: the four, copied under new names
+        (first / sub).mkdir(parents=True)
+        for i in range(10):
+            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
+    example = Path(__file__).resolve().parents[1] / "examples" / "dataset_pool.py"
+    before = sorted(tmp_path.rglob("*"))
+    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--groups", "0-4"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rows = proc.stdout.splitlines()
+    assert any(r.startswith("all    alone  cam-A") for r in rows) and any(r.startswith("all    given  cam-A") for r in rows)
+    assert "z " in proc.stdout  # the scenes carry the truth
+    assert sorted(tmp_path.rglob("*")) == before
