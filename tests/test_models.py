@@ -205,7 +205,7 @@ def test_line_noise_widens_far_references_and_is_fixed_at_the_pilot():
     reading (an option) shifts short segments and never narrows them."""
     d, truth = truth_scene(4, horizon="exact", n_refs=4)
     scene = parse_scene(d)
-    m, _ = build_model(scene, ref_line_sigma=10.0)
+    m, _ = build_model(scene, ref_line_sigma=10.0, line_reading="linear")
     assert np.all(m.ref_line_var == 0)  # before the pilot
     m.set_pilot(truth["camera"])
     lines = np.array([r.line for r in m.references])
