@@ -8,8 +8,11 @@ pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors
 camera comes from its own ranges, or (``cameras="real"``) from a population of real cameras
 (:data:`REAL_CAMERAS`: phones, zoom, action and car-mounted cameras, each with its image size).
 
-Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
-``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
+Noise tiers (:data:`TIERS`, and the crowds of :data:`CROWDS`) move the dimension lines' corners
+(Gaussian, or Student-t with a tier's ``dof``), the reference lines' end points (each coordinate
+off by N(0, ``reference_px``²) around the true segment's projection, so a drawn segment is always
+noisy but in tier ``none``) and the workers' measurements (:func:`measurement_factor`, a share
+``outliers`` of them off by a log-error of sd :data:`OUTLIER_LOG_SD` instead).
 References cycle through the paper's ten formats (:data:`FORMATS`). Targets' sizes are stated
 (``sizes="known"``) or left to their class's prior (``"prior"``: KITTI's shipped classes, or
 :func:`class_priors` written into the scene). With several targets, each one's ground may lie
@@ -35,20 +38,22 @@ from ..models.contract import REF_SCALE_MEDIAN
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 from .confidence_workers import ConfidentWorkers
 
-__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
+__all__ = ["NoiseTier", "TIERS", "CROWDS", "OUTLIER_LOG_SD", "noise_tier", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
            "simulate_scene", "draw_camera", "measurement_factor", "class_priors", "true_state", "write_scenes"]
 
 
 @dataclass(frozen=True)
 class NoiseTier:
     """Annotation noise: target corner σ (px; with ``dof`` a Student-t of that standard deviation),
-    reference endpoint σ (px), measurement model (:func:`measurement_factor`)."""
+    reference endpoint σ (px), measurement model (:func:`measurement_factor`) and the share of
+    measurements that are outliers (log-error N(0, :data:`OUTLIER_LOG_SD`²) instead)."""
 
     name: str
     target_px: float
     reference_px: float
-    measurement: str  # "none", "10%", "40%" or "paper"
+    measurement: str  # "none", "<x>%" (log-normal of log-sd x / 100) or "paper"
     dof: float | None = None
+    outliers: float = 0.0
 
 
 TIERS: dict[str, NoiseTier] = {
@@ -57,6 +62,22 @@ TIERS: dict[str, NoiseTier] = {
     "medium": NoiseTier("medium", 5.0, 10.0, "40%"),
     "high": NoiseTier("high", 10.0, 30.0, "paper"),
 }
+#: Crowds whose drawn reference segments are noisy (issue 66): a light, careful crowd and a heavy one.
+CROWDS: dict[str, NoiseTier] = {
+    "light": NoiseTier("light", 2.0, 5.0, "10%"),
+    "heavy": NoiseTier("heavy", 5.0, 10.0, "55%", outliers=0.12),
+}
+#: Log-sd of an outlier's error factor (a factor of 2.7 at one sd).
+OUTLIER_LOG_SD = 1.0
+
+
+def noise_tier(name: str | NoiseTier) -> NoiseTier:
+    """The :class:`NoiseTier` of a name of :data:`TIERS` or :data:`CROWDS` (a tier is returned as is)."""
+    if isinstance(name, NoiseTier):
+        return name
+    if name not in TIERS and name not in CROWDS:
+        raise ValueError(f"tier: expected one of {[*TIERS, *CROWDS]}, got {name!r}")
+    return TIERS.get(name) or CROWDS[name]
 
 #: (length, width, height) ranges in metres per object type (within the paper's Table 1).
 OBJECTS: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
@@ -169,21 +190,30 @@ def measurement_factor(rng, model: str, size=None):
     Parameters
     ----------
     rng : numpy Generator
-    model : ``"none"``, ``"10%"`` / ``"40%"`` (log-normal, log-sd 0.1 / 0.4) or ``"paper"``
-        (heavy-tailed, :data:`PAPER_NOISE`)
+    model : ``"none"``, ``"<x>%"`` (log-normal of log-sd x / 100: ``"10%"`` 0.1, ``"40%"`` 0.4) or
+        ``"paper"`` (heavy-tailed, :data:`PAPER_NOISE`)
     size : None for a float, else the shape of an array of factors
     """
     shape = () if size is None else size
     if model == "none":
         out = np.ones(shape)
-    elif model in ("10%", "40%"):
-        out = np.exp(rng.normal(0.0, 0.1 if model == "10%" else 0.4, shape))
+    elif _percent(model) is not None:
+        out = np.exp(rng.normal(0.0, _percent(model), shape))
     elif model == "paper":
         lim = math.log(PAPER_NOISE["clip"])
         out = np.exp(np.clip(PAPER_NOISE["scale"] * rng.standard_t(PAPER_NOISE["dof"], shape), -lim, lim))
     else:
-        raise ValueError(f"measurement noise: unknown model {model!r} (expected none, 10%, 40% or paper)")
+        raise ValueError(f"measurement noise: unknown model {model!r} (expected none, a percentage such as 10% or paper)")
     return float(out) if size is None else out
+
+
+def _percent(model: str) -> float | None:
+    """x / 100 of a measurement model ``"<x>%"`` (x > 0), else None."""
+    try:
+        value = float(model[:-1]) / 100.0 if model.endswith("%") else None
+    except ValueError:
+        return None
+    return value if value is not None and np.isfinite(value) and value > 0 else None
 
 
 def class_priors(setting: str) -> dict[str, SizePrior]:
@@ -255,7 +285,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     ----------
     rng : seed or Generator
     setting : a key of :data:`SETTINGS`, or None (two thirds indoor, one third outdoor)
-    tier : a key of :data:`TIERS` or a :class:`NoiseTier`
+    tier : a key of :data:`TIERS` or :data:`CROWDS`, or a :class:`NoiseTier`
     n_objects : targets (fewer when the image cannot hold them side by side; at least one)
     n_references : reference annotations (one object each), cycling through :data:`FORMATS`;
         relative ones are relative to the first target
@@ -289,10 +319,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     target's holds its location, yaw, handedness, size, ground offset and true corners.
     """
     rng = np.random.default_rng(rng)
-    if isinstance(tier, str):
-        if tier not in TIERS:
-            raise ValueError(f"tier: expected one of {list(TIERS)}, got {tier!r}")
-        tier = TIERS[tier]
+    tier = noise_tier(tier)
     if n_target_annotations < 1 or n_references < 0 or n_objects < 1:
         raise ValueError(f"n_target_annotations and n_objects must be >= 1 and n_references >= 0, got "
                          f"{n_target_annotations!r}, {n_objects!r} and {n_references!r}")
@@ -380,6 +407,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         true_len = float(np.linalg.norm(seg_3d[1] - seg_3d[0]))
         if confidence is None:
             stated = true_len * measurement_factor(rng, tier.measurement)
+            if tier.outliers and rng.uniform() < tier.outliers:
+                stated = true_len * math.exp(rng.normal(0.0, OUTLIER_LOG_SD))
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
@@ -444,7 +473,8 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
                  *, overwrite: bool = False, noise_px: float | None = None, **options) -> list[Path]:
     """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
 
-    ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); ``noise_px`` replaces
+    ``tier`` is a name of :data:`TIERS` or :data:`CROWDS` or ``all`` (cycling none, low, medium,
+    high); ``noise_px`` replaces
     its corner noise; reference formats cycle so that every ten references cover the ten formats
     once each. Each file is written whole or not at all. ``options`` go to :func:`simulate_scene`
     (``n_objects``, ``sizes``, ``confidence``, …).
@@ -461,9 +491,9 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
     if not overwrite and outdir.is_dir() and any(outdir.iterdir()):
         raise FileExistsError(errno.EEXIST, "folder is not empty (overwrite=True replaces its scenes)", str(outdir))
     outdir.mkdir(parents=True, exist_ok=True)
-    if tier != "all" and tier not in TIERS:
-        raise ValueError(f"tier: expected one of {[*TIERS, 'all']}, got {tier!r}")
-    tiers = [TIERS[t] for t in (TIERS if tier == "all" else [tier])]
+    if tier != "all" and tier not in TIERS and tier not in CROWDS:
+        raise ValueError(f"tier: expected one of {[*TIERS, *CROWDS, 'all']}, got {tier!r}")
+    tiers = list(TIERS.values()) if tier == "all" else [noise_tier(tier)]
     if noise_px is not None:
         tiers = [replace(t, target_px=float(noise_px)) for t in tiers]
     paths = []
