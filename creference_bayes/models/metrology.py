@@ -75,6 +75,8 @@ READ_SCALES = np.geomspace(1.0 / 128.0, 2.0, 20)
 #: (:func:`marginal_reading`).
 MARGINAL_DRAWS = 1024
 READ_NODES = 8
+#: A reading error of a smaller sd (log-length) is read as one bin of its mean and variance.
+READ_NARROW_SD = 0.02
 #: Smallest downward component of a unit-depth viewing ray: rays closer to the horizon meet the
 #: ground at about h / MIN_RAY_DOWN, i.e. 1000 camera heights away.
 MIN_RAY_DOWN = 1e-3
@@ -336,7 +338,8 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     √(``scale``² + ``node_var``[b]) (a range: its probability, interval-censored); the
     likelihood is the bins' mean. Where ``own_scale`` is finite (ranges read through a confidence
     map), the range's log-centre is a measurement with that scale instead, Student-t of ``own_dof``
-    (None: normal).
+    (None: normal). A value's density leaves out its constant (the same for every state); a
+    probability or density is floored at 1e-300.
 
     Parameters
     ----------
@@ -348,29 +351,42 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
 
     Returns
     -------
-    (n, k) log-likelihoods (−inf where a range has no probability)
+    (n, k) log-likelihoods (NaN where ``pred`` is)
     """
     pred, node_shift, node_var = np.asarray(pred, float), np.asarray(node_shift, float), np.asarray(node_var, float)
-    K = node_shift.shape[-1]
-    loc = pred[..., None] - node_shift                                                  # (n, k, K)
-    s = np.sqrt(np.asarray(scale, float)[..., None] ** 2 + node_var)
-    stated = None
-    if own_scale is not None and np.any(np.isfinite(own_scale)):
-        stated = np.isfinite(own_scale)
-        s = np.where(stated[:, None], np.sqrt(np.where(stated, own_scale, 0.0)[:, None] ** 2 + node_var), s)
+    log_low, log_high = np.asarray(log_low, float), np.asarray(log_high, float)
+    n, k = pred.shape
+    stated = np.zeros(k, bool) if own_scale is None else np.isfinite(own_scale)
+    ranged = np.asarray(is_range, bool) & ~stated
+    out = np.empty((n, k))
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        lo = (np.asarray(log_low, float)[:, None] - loc) / s
-        hi = (np.asarray(log_high, float)[:, None] - loc) / s
-        single = -(0.5 * (nu + 1.0)) * np.log1p(lo * lo / nu) - np.log(s)
-        ll = np.where(np.asarray(is_range, bool)[:, None], np.log(np.maximum(t_interval(nu, lo, hi), 1e-300)), single)
-        if stated is not None:
-            z = 0.5 * (lo + hi)  # the log-centre's offset, in its own scales
-            centre = (-0.5 * z * z if own_dof is None else -(0.5 * (own_dof + 1.0)) * np.log1p(z * z / own_dof)) - np.log(s)
-            ll = np.where(stated[:, None], centre, ll)
-        if K == 1:
-            return ll[..., 0]
-        top = np.max(ll, axis=-1)
-        return top + np.log(np.mean(np.exp(ll - top[..., None]), axis=-1))
+        s = np.sqrt(np.broadcast_to(np.asarray(scale, float), (n, k))[..., None] ** 2 + node_var)   # (n, k, K)
+        if stated.any():
+            s[:, stated] = np.sqrt(np.asarray(own_scale, float)[stated, None] ** 2 + node_var[stated])
+        loc = pred[..., None] - node_shift
+        one = (np.ptp(node_shift, axis=-1) == 0) & (np.ptp(node_var, axis=-1) == 0)  # references of one bin
+        for cols, kind in ((~ranged & ~stated, "value"), (ranged, "range"), (stated, "stated")):
+            for bins in (one, ~one):
+                if (cols & bins).any():
+                    out[:, cols & bins] = _bin_log_likelihood(kind, loc, s, cols & bins, 1 if bins is one else None,
+                                                              log_low, log_high, nu, own_dof)
+    return out
+
+
+def _bin_log_likelihood(kind, loc, s, cols, bins, log_low, log_high, nu, own_dof):
+    """:func:`reading_log_likelihood` of the columns ``cols`` of one kind (``value``, ``range`` or
+    ``stated``), over their first ``bins`` bins (None: all)."""
+    sc, lc = s[:, cols, :bins], loc[:, cols, :bins]
+    lo = (log_low[cols, None] - lc) / sc
+    if kind == "range":
+        log_p = np.log(np.maximum(t_interval(nu, lo, (log_high[cols, None] - lc) / sc), 1e-300))
+    else:
+        z, dof = (lo, nu) if kind == "value" else (0.5 * (lo + (log_high[cols, None] - lc) / sc), own_dof)
+        log_p = (-0.5 * z * z if dof is None else -(0.5 * (dof + 1.0)) * np.log1p(z * z / dof)) - np.log(sc)
+    if log_p.shape[-1] == 1:
+        return log_p[..., 0]
+    top = np.max(log_p, axis=-1)  # the bins' mean, in the log domain
+    return top + np.log(np.mean(np.exp(log_p - top[..., None]), axis=-1))
 
 
 class MetrologyModel(Model):
@@ -518,8 +534,11 @@ class MetrologyModel(Model):
             self.ref_shift[lines] = centre
             self.ref_node_shift = np.zeros((len(self.references), nodes.shape[1]))
             self.ref_node_var = np.zeros_like(self.ref_node_shift)
+            total = np.mean(var + (nodes - centre[:, None]) ** 2, axis=1)
+            narrow = total < READ_NARROW_SD**2  # its shape is lost beside any crowd's scale: one bin
+            nodes[narrow], var[narrow] = centre[narrow, None], total[narrow, None]
             self.ref_node_shift[lines], self.ref_node_var[lines] = nodes - centre[:, None], var
-            self.ref_line_var[lines] = np.mean(var + (nodes - centre[:, None]) ** 2, axis=1)
+            self.ref_line_var[lines] = total
             return
         if self.line_reading == "corrected":
             shift, var = segment_reading(self._lines, self.principal_point, at, self.ref_line_sigma)
