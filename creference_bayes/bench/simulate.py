@@ -278,7 +278,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
                    principal_offset: float = 0.0, roll_deg: float = 3.0, format_offset: int | None = None,
                    distance_range: tuple[float, float] | None = None, single_values: bool = False,
                    decimals: int | None = 2, confidence: ConfidentWorkers | None = None, ground_sd_m: float = 0.08,
-                   horizon: str = "exact", focal_known: bool = False, cameras: str = "setting") -> dict:
+                   horizon: str = "exact", focal_known: bool = False, cameras: str = "setting",
+                   formats: tuple[int, ...] | None = None) -> dict:
     """Draw one synthetic scene.
 
     Parameters
@@ -308,6 +309,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     horizon : ``exact`` (the true horizon), ``none``, or ``sd`` (moved by N(0, 5 px) at each end
         and stated with ``horizon_sd_px`` 5)
     focal_known : state the true focal length
+    formats : indices of :data:`FORMATS` the references cycle through instead of all ten (e.g.
+        the relative ones)
     cameras : ``setting`` (the setting's image, focal length and mounting ranges, :data:`SETTINGS`)
         or ``real`` (a camera of :data:`REAL_CAMERAS`, :func:`draw_camera`; its kind is in the
         ground truth's ``camera_kind``)
@@ -326,6 +329,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     for name, value, allowed in (("sizes", sizes, ("known", "prior")), ("horizon", horizon, ("exact", "none", "sd"))):
         if value not in allowed:
             raise ValueError(f"{name}: expected one of {list(allowed)}, got {value!r}")
+    if formats is not None and not (len(formats) and all(0 <= int(f) < len(FORMATS) for f in formats)):
+        raise ValueError(f"formats: expected indices of FORMATS (0-{len(FORMATS) - 1}), got {formats!r}")
     if setting is None:
         setting = "indoor" if rng.uniform() < 2 / 3 else "outdoor"
     if setting not in SETTINGS:
@@ -380,11 +385,12 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     refs, truths, true_lines = [], [], []
     first = targets[0]["ground_truth"]["dimensions_m"]
     dmin, dmax = cfg["distance"]
-    order = rng.permutation(len(FORMATS))
+    pool = np.arange(len(FORMATS)) if formats is None else np.asarray(formats, int)
+    order = pool[rng.permutation(len(pool))]
     if format_offset is not None:
-        order = (int(format_offset) + np.arange(len(FORMATS))) % len(FORMATS)
+        order = pool[(int(format_offset) + np.arange(len(pool))) % len(pool)]
     for j in range(n_references):
-        measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
+        measure, mode, is_range = FORMATS[order[j % len(pool)]]
         is_range = (is_range and not single_values) or confidence is not None
         for attempt in range(20):  # another object when one does not fit the view
             oname, osize = _draw_object(rng, setting)
