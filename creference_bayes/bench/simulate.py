@@ -12,7 +12,7 @@ Noise tiers (:data:`TIERS`, and the crowds of :data:`CROWDS`) move the dimension
 (Gaussian, or Student-t with a tier's ``dof``), the reference lines' end points (each coordinate
 off by N(0, ``reference_px``²) around the true segment's projection, so a drawn segment is always
 noisy but in tier ``none``) and the workers' measurements (:func:`measurement_factor`, a share
-``outliers`` of them off by a log-error of sd :data:`OUTLIER_LOG_SD` instead).
+``outliers`` of them off by a factor log-uniform within ±:data:`OUTLIER_FACTOR` instead).
 References cycle through the paper's ten formats (:data:`FORMATS`). Targets' sizes are stated
 (``sizes="known"``) or left to their class's prior (``"prior"``: KITTI's shipped classes, or
 :func:`class_priors` written into the scene). With several targets, each one's ground may lie
@@ -38,7 +38,7 @@ from ..models.contract import REF_SCALE_MEDIAN
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 from .confidence_workers import ConfidentWorkers
 
-__all__ = ["NoiseTier", "TIERS", "CROWDS", "OUTLIER_LOG_SD", "noise_tier", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
+__all__ = ["NoiseTier", "TIERS", "CROWDS", "OUTLIER_FACTOR", "noise_tier", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
            "simulate_scene", "draw_camera", "measurement_factor", "class_priors", "true_state", "write_scenes"]
 
 
@@ -46,7 +46,7 @@ __all__ = ["NoiseTier", "TIERS", "CROWDS", "OUTLIER_LOG_SD", "noise_tier", "OBJE
 class NoiseTier:
     """Annotation noise: target corner σ (px; with ``dof`` a Student-t of that standard deviation),
     reference endpoint σ (px), measurement model (:func:`measurement_factor`) and the share of
-    measurements that are outliers (log-error N(0, :data:`OUTLIER_LOG_SD`²) instead)."""
+    measurements that are outliers (off by a factor log-uniform within ±:data:`OUTLIER_FACTOR`)."""
 
     name: str
     target_px: float
@@ -67,8 +67,9 @@ CROWDS: dict[str, NoiseTier] = {
     "light": NoiseTier("light", 2.0, 5.0, "10%"),
     "heavy": NoiseTier("heavy", 5.0, 10.0, "55%", outliers=0.12),
 }
-#: Log-sd of an outlier's error factor (a factor of 2.7 at one sd).
-OUTLIER_LOG_SD = 1.0
+#: An outlier states the true length times a factor log-uniform in [1 / this, this] (a worker who
+#: confuses units or measures another object).
+OUTLIER_FACTOR = 10.0
 
 
 def noise_tier(name: str | NoiseTier) -> NoiseTier:
@@ -414,7 +415,7 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         if confidence is None:
             stated = true_len * measurement_factor(rng, tier.measurement)
             if tier.outliers and rng.uniform() < tier.outliers:
-                stated = true_len * math.exp(rng.normal(0.0, OUTLIER_LOG_SD))
+                stated = true_len * OUTLIER_FACTOR ** rng.uniform(-1.0, 1.0)
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
