@@ -407,7 +407,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     assert seen["advise"] and all(o == {"line_reading": "corrected"} for _, o in seen["advise"])
     rec = json.loads((tmp_path / "lr" / "predict.jsonl").read_text().splitlines()[0])
     assert rec["line_reading"] == "corrected"
-    with pytest.raises(SystemExit, match="line reading 'corrected'.*'linear'.*another --out"):
+    with pytest.raises(SystemExit, match="line reading 'corrected'.*'marginal'.*another --out"):
         study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
 
 
