@@ -262,8 +262,8 @@ def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sig
     A drawn end point is its true one off by N(0, σ²) per coordinate (σ in pixels). The true end
     points are two ground points, a priori anywhere on the ground and at any separation ℓ on a
     log scale, in any direction: density ∝ 1 / (ℓ² + ℓ₀²) per unit of ground area of each point
-    (ℓ₀ the ground length of σ pixels along the drawn segment, below which lengths are not told
-    apart). Their posterior given the drawn end points is sampled by importance: ``draws`` true
+    (ℓ₀ the ground length of σ pixels along the image's rows at the drawn segment's midpoint, the
+    shortest σ pixels show there: below it lengths are not told apart). Their posterior given the drawn end points is sampled by importance: ``draws`` true
     segments drawn around the drawn one (antithetic, seeded: deterministic), each weighted by that
     prior in pixels, 1 / ((ℓ² + ℓ₀²) w₁³ w₂³) (w the downward part of an end point's ray, whose
     cube is the ground map's area scale; zero at or above the horizon). The reading's error
@@ -271,8 +271,8 @@ def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sig
     ``shift`` (k, nodes) each bin's mean, ``var`` (k, nodes) its variance (log-length², together
     the law of total variance). Near the horizon e is large, skewed and heavy-tailed (a short
     segment drawn with noise reads long, and a few pixels of a row mean metres of ground); far
-    from it, small and normal. Zeros for σ = 0; a segment whose weights are not finite gets one
-    node's worth of its linearised variance (:func:`linear_line_variances`) in every bin.
+    from it, small and normal. Zeros for σ = 0; a segment whose weights are not finite is read
+    linearly (no shift, :func:`linear_line_variances` in every bin).
     """
     lines = np.asarray(lines, float).reshape(-1, 2, 2)
     m = len(lines)
