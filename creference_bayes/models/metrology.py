@@ -360,7 +360,7 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     ranged = np.asarray(is_range, bool) & ~stated
     out = np.empty((n, k))
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        s = np.sqrt(np.broadcast_to(np.asarray(scale, float), (n, k))[..., None] ** 2 + node_var)   # (n, k, K)
+        s = np.sqrt(np.asarray(scale, float)[..., None] ** 2 + node_var)                        # (n, k, K)
         if stated.any():
             s[:, stated] = np.sqrt(np.asarray(own_scale, float)[stated, None] ** 2 + node_var[stated])
         loc = pred[..., None] - node_shift
