@@ -21,6 +21,7 @@ Usage::
     python examples/reference_reading_study.py --report --out rr_light
     python examples/reference_reading_study.py --monte-carlo     # the reading alone (no estimates)
     python examples/reference_reading_study.py --bench --out rr_bench   # the bench's tiers
+    python examples/reference_reading_study.py --timing          # CPU of one evaluation, each reading
 
 ``--bench`` estimates the 32 one-target scenes of ``creference bench --full`` (tiers none, low,
 medium and high: reference end points off by 0, 5, 10 and 30 px) from 5 sets of dimension lines
@@ -225,6 +226,47 @@ def bench(args) -> str:
             "distance: 90 % HDI covers |\n|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n")
 
 
+def timing(readings, rounds: int = 15, calls: int = 50) -> str:
+    """CPU seconds of one evaluation of the posterior's terms at 64 states of the paper-study-size
+    scene of ``examples/profile_posterior.py`` (seed 0: outdoor, 20 line references), with and
+    without its horizon, per reading: the minimum over ``rounds`` interleaved rounds of ``calls``
+    calls; and of fixing the reading at the pilot."""
+    import sys
+
+    from creference_bayes.bench.simulate import true_state
+    from creference_bayes.pipeline import build_model
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from profile_posterior import study_scene
+
+    lines = []
+    for horizon in (True, False):
+        sc = study_scene(0, horizon)
+        cam, obj = true_state(sc)
+        rng = np.random.default_rng(0)
+        cams = cam[None] * (1 + 0.01 * rng.standard_normal((64, 5)))
+        objs = obj[None] * (1 + 0.01 * rng.standard_normal((64,) + obj.shape))
+        models, pilot = {}, {}
+        for reading in readings:
+            m, _ = build_model(sc, line_reading=reading)
+            m.handedness = np.array([t.ground_truth["handedness"] for t in sc.targets], float)
+            m.set_pilot(cam)
+            t0 = time.process_time()
+            m.set_pilot(cam)
+            pilot[reading] = time.process_time() - t0
+            models[reading] = m
+        best = dict.fromkeys(readings, np.inf)
+        for _ in range(rounds):
+            for reading, m in models.items():
+                t0 = time.process_time()
+                for _ in range(calls):
+                    m.terms(cams, objs)
+                best[reading] = min(best[reading], (time.process_time() - t0) / calls)
+        lines += [f"horizon {'given' if horizon else 'free'}, {r}: {1e3 * best[r]:.2f} ms of CPU per evaluation "
+                  f"of 64 states; the reading at the pilot {1e3 * pilot[r]:.1f} ms" for r in readings]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=100, help="scenes per crowd (default: %(default)s)")
@@ -238,6 +280,7 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="reference_reading", help="output folder (default: %(default)s)")
     p.add_argument("--report", action="store_true", help="only write the table of the records in --out")
     p.add_argument("--bench", action="store_true", help="only the bench's tiers (module docstring)")
+    p.add_argument("--timing", action="store_true", help="only the CPU of one evaluation per reading")
     p.add_argument("--monte-carlo", action="store_true", help="only the reading against a Monte Carlo of end-point noise")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -246,6 +289,9 @@ def main(argv=None) -> None:
         return
     if args.bench:
         print(bench(args))
+        return
+    if args.timing:
+        print(timing(args.readings))
         return
     for name, values, allowed in (("--crowds", args.crowds, CROWDS), ("--readings", args.readings, LINE_READINGS)):
         bad = [v for v in values if v not in allowed]
