@@ -16,10 +16,14 @@ References (:class:`ReferenceTerm`)
     :data:`~.contract.REF_SCALE_MEDIAN`, :data:`~.contract.REF_SCALE_LOG_SD`, unless the options
     ``ref_scale_median`` and ``ref_scale_log_sd`` give another, for a crowd measured elsewhere).
 Line noise
-    Each reference's scale is widened by its line noise, s_j² = s² + v_j, v_j = σ_line² |∇ log ℓ_j|²
-    over its endpoint coordinates, σ_line = :data:`REF_LINE_FACTOR` × the median σᵢ unless given;
-    with ``line_reading="corrected"`` the reading's median bias is removed too
-    (:func:`segment_reading`). Both are taken once, at a *pilot* camera
+    A reference's segment is drawn with pixel noise σ_line at each end point (:data:`REF_LINE_FACTOR`
+    × the median σᵢ unless given). With ``line_reading="marginal"`` (the default) its true end
+    points are marginalised (:func:`marginal_reading`): the reading's error, large and skewed near
+    the horizon, is kept as bins (e_b, v_b) of equal probability and the stated value's likelihood
+    is the bins' mean of the Student-t around log ℓ_j − e_b with scale √(s² + v_b)
+    (:func:`reading_log_likelihood`). ``linear`` reads the segment as drawn with s_j² = s² + v_j,
+    v_j = σ_line² |∇ log ℓ_j|² over its endpoint coordinates; ``corrected`` removes the reading's
+    median bias too (:func:`segment_reading`). Each is taken once, at a *pilot* camera
     (:meth:`MetrologyModel.set_pilot`), and held fixed: recomputed at every state, the normaliser
     −log s_j would reward states where the lines look insensitive.
 Stated confidence
