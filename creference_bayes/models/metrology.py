@@ -79,8 +79,6 @@ READ_SCALES = np.geomspace(1.0 / 128.0, 2.0, 20)
 #: (:func:`marginal_reading`).
 MARGINAL_DRAWS = 1024
 READ_NODES = 8
-#: A reading error of a smaller sd (log-length) is read as one bin of its mean and variance.
-READ_NARROW_SD = 0.02
 #: Smallest downward component of a unit-depth viewing ray: rays closer to the horizon meet the
 #: ground at about h / MIN_RAY_DOWN, i.e. 1000 camera heights away.
 MIN_RAY_DOWN = 1e-3
@@ -538,11 +536,8 @@ class MetrologyModel(Model):
             self.ref_shift[lines] = centre
             self.ref_node_shift = np.zeros((len(self.references), nodes.shape[1]))
             self.ref_node_var = np.zeros_like(self.ref_node_shift)
-            total = np.mean(var + (nodes - centre[:, None]) ** 2, axis=1)
-            narrow = total < READ_NARROW_SD**2  # its shape is lost beside any crowd's scale: one bin
-            nodes[narrow], var[narrow] = centre[narrow, None], total[narrow, None]
             self.ref_node_shift[lines], self.ref_node_var[lines] = nodes - centre[:, None], var
-            self.ref_line_var[lines] = total
+            self.ref_line_var[lines] = np.mean(var + (nodes - centre[:, None]) ** 2, axis=1)
             return
         if self.line_reading == "corrected":
             shift, var = segment_reading(self._lines, self.principal_point, at, self.ref_line_sigma)
