@@ -51,8 +51,9 @@ and resumed (scenes already recorded are skipped). Usage::
     python examples/advice_study.py report --out advice_study
 
 ``--focal-prior MEDIAN,LOG_SD`` has every scene state a log-normal focal-length prior (1650,0.27
-fits the simulator's cameras); ``--line-reading corrected`` has the estimates and the advice read
-reference segments less the lengthening their line noise brings. Each record says which. These
+fits the simulator's cameras); ``--line-reading linear`` (or ``corrected``) has the estimates and
+the advice read reference segments as drawn (or less the median lengthening their line noise
+brings) instead of marginalising their end points. Each record says which. These
 runs take tens of minutes (predict) to hours (policy) of CPU: on a shared machine run them under
 the shared lock (``flock /work/bench.lock ...``).
 """
@@ -75,6 +76,7 @@ from creference_bayes.bench.simulate import (CAMERA_POPULATIONS, RANGE_PRECISION
 from creference_bayes.core.units import UNITS_TO_M
 from creference_bayes.io.scene import Reference, SceneWarning, parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
+from creference_bayes.models.metrology import LINE_READINGS
 from creference_bayes.pipeline import estimate, map_state, reference_terms, result_draws
 from creference_bayes.workflows.advice import AdviceSettings, advise
 from creference_bayes.workflows.advice.candidates import Candidate, FormatMix, candidates, format_mix
@@ -269,7 +271,7 @@ def _done(path: Path) -> set:
     if not path.is_file():
         return set()
     recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    mine = (None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(), _MODEL_OPTIONS.get("line_reading", "linear"),
+    mine = (None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(), _MODEL_OPTIONS.get("line_reading", "marginal"),
             _CAMERAS, _other_options())
     for r in recs:
         theirs = (r.get("focal_prior"), r.get("line_reading", "linear"), r.get("cameras", "setting"),
@@ -304,7 +306,7 @@ def _distance_range(scene) -> dict:
 def _append(path: Path, record: dict) -> None:
     options = _other_options()
     record = {**record, "focal_prior": None if _FOCAL_PRIOR is None else _FOCAL_PRIOR.to_dict(),
-              "line_reading": _MODEL_OPTIONS.get("line_reading", "linear"), "cameras": _CAMERAS,
+              "line_reading": _MODEL_OPTIONS.get("line_reading", "marginal"), "cameras": _CAMERAS,
               **({"options": options} if options else {})}
     with path.open("a") as f:
         f.write(json.dumps(record) + "\n")
@@ -833,7 +835,7 @@ def main(argv=None) -> None:
         s.add_argument("--focal-prior", metavar="MEDIAN,LOG_SD",
                        help="every scene states a log-normal focal-length prior (median in pixels, log-sd), e.g. "
                             "1650,0.27 to match the simulator's cameras; default: the package's default prior")
-        s.add_argument("--line-reading", choices=("linear", "corrected"), default="linear",
+        s.add_argument("--line-reading", choices=LINE_READINGS, default="marginal",
                        help="how the metrology model reads reference segments (default: %(default)s)")
         if name in ("predict", "timing", "policy"):
             s.add_argument("--cameras", choices=CAMERA_POPULATIONS, default="setting",
@@ -883,7 +885,7 @@ def main(argv=None) -> None:
         if not args.reference_px >= 0:
             p.error(f"--reference-px: expected a number of pixels >= 0, got {args.reference_px!r}")
         _WHAT_IF["reference_px"] = args.reference_px
-    if getattr(args, "line_reading", "linear") != "linear":
+    if getattr(args, "line_reading", "marginal") != "marginal":
         _MODEL_OPTIONS["line_reading"] = args.line_reading
     if getattr(args, "option", None):
         from creference_bayes.pipeline import parse_model_options

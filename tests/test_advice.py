@@ -331,10 +331,10 @@ def test_a_laplace_block_that_is_not_positive_definite_is_repaired_alone(frame):
 
 
 def test_the_models_of_the_futures_keep_the_estimates_settings(example):
-    """A model read with ``line_reading="corrected"``: the futures' models read references the
-    same way (a new reference on a short, far segment reads less its shift) and keep a corner
-    scale the estimate fixed."""
-    from creference_bayes.models.metrology import ReferenceTerm, ground_lengths, segment_reading
+    """A model read with ``line_reading="corrected"`` (or the default ``marginal``): the futures'
+    models read references the same way (a new reference on a short, far segment reads less its
+    shift) and keep a corner scale the estimate fixed."""
+    from creference_bayes.models.metrology import ReferenceTerm, ground_lengths, marginal_reading, segment_reading
     from creference_bayes.pipeline import build_model
     from creference_bayes.workflows.advice.observe import ReferenceObservation, grown
 
@@ -349,10 +349,11 @@ def test_the_models_of_the_futures_keep_the_estimates_settings(example):
         assert np.all(more == 3.0) if options else np.all(more != model.sigma)
         obs = ReferenceObservation(model, ReferenceTerm(0, "ground", 1, 1, False, line=line), options)
         at = model.complete_camera(camera[None])
-        shift = segment_reading(line[None], model.principal_point, at[0], model.ref_line_sigma)[0][0] if options else 0
+        read = segment_reading if options else marginal_reading
+        shift = np.mean(read(line[None], model.principal_point, at[0], model.ref_line_sigma)[0][0])
         reading = np.log(ground_lengths(line[None], model.principal_point, at))[0, 0]
         assert obs.reading(at, map_state(result.to_dict())[1][None])[0] == pytest.approx(reading - shift, abs=1e-9)
-    assert shift > 0.01  # a segment the correction moves
+        assert shift > 0.01  # a segment the reading moves
 
 
 # ------------------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from creference_bayes.bench.simulate import simulate_scene, true_state
 from creference_bayes.evaluation.iou3d import box_iou_3d
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.contract import C_SCALE
-from creference_bayes.models.metrology import ReferenceTerm
+from creference_bayes.models.metrology import ReferenceTerm, ground_lengths
 from creference_bayes.pipeline import build_model
 from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
                                                           annotation_seconds, candidates, format_mix)
@@ -342,3 +342,27 @@ def test_format_mix_counts_ranges_and_their_precision():
     mix = format_mix(scene)
     assert mix.range_share == pytest.approx(sum(r.is_range for r in scene.references) / 10)
     assert 0.0 < mix.range_precision < 2.0
+
+
+def test_a_simulated_reference_on_a_segment_near_the_horizon_is_read_as_the_model_reads_it(frame):
+    """A new reference on a short segment 60 px below the horizon, simulated at the true camera by
+    a crowd of almost no error: its values scatter as the model's reading of the drawn segment
+    says (a mixture of its bins, each a Student-t, skewed and moved from the drawn segment's length:
+    at 86 m, 8 px of row noise hide metres of depth), not around the drawn segment's length."""
+    scene, model, cams, objs = frame
+    a, b, c = model.horizon_line
+    row = (60.0 - c - a * 1440.0) / b
+    line = np.array([[1400.0, row], [1440.0, row]])
+    obs = ReferenceObservation(model, ReferenceTerm(0, "ground", 1, 1, False, line=line), {})
+    cam, o = true_state(scene)
+    at = model.complete_camera(np.repeat(cam[None], 20000, axis=0))
+    at[:, C_SCALE] = 1e-3
+    obs.simulate(np.random.default_rng(3), at, np.repeat(o[None], 20000, axis=0))
+    error = obs.log_low - np.log(ground_lengths(line[None], model.principal_point, at[:1]))[0, 0]
+    p = obs.probe
+    rng = np.random.default_rng(4)
+    k = rng.integers(p.ref_node_shift.shape[1], size=200_000)
+    bins = -(p.ref_shift[-1] + p.ref_node_shift[-1, k]) + np.sqrt(p.ref_node_var[-1, k]) * rng.standard_t(p.ref_dof, len(k))
+    want = np.percentile(bins, [10, 50, 90])
+    assert abs(want[1]) > 0.05 and want[2] - want[1] > 1.2 * (want[1] - want[0])  # moved and skewed
+    np.testing.assert_allclose(np.percentile(error, [10, 50, 90]), want, atol=0.06)

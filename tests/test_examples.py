@@ -44,6 +44,10 @@ TINY = {
     "measure_presets.py": [(["--n", "2"], [])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
+    "reference_reading_study.py": [(["--n", "1", "--crowds", "light", "--min-ess", "100", "--out", "rr"],
+                                    ["rr/records.jsonl", "rr/table.md"]),
+                                   (["--bench", "--n", "1", "--min-ess", "100", "--out", "rr"], ["rr/bench.jsonl"]),
+                                   (["--monte-carlo"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
                         (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real", "--distance-range", "10,80"],
                          ["tr/thin.md"])],
@@ -409,7 +413,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     assert seen["advise"] and all(o == {"line_reading": "corrected"} for _, o in seen["advise"])
     rec = json.loads((tmp_path / "lr" / "predict.jsonl").read_text().splitlines()[0])
     assert rec["line_reading"] == "corrected"
-    with pytest.raises(SystemExit, match="line reading 'corrected'.*'linear'.*another --out"):
+    with pytest.raises(SystemExit, match="line reading 'corrected'.*'marginal'.*another --out"):
         study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
 
 

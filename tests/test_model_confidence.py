@@ -63,8 +63,9 @@ def test_none_is_exactly_the_treatment_without_confidences(seed):
 
 @pytest.mark.parametrize("cmap", [ConfidenceMap.identity(), FITTED])
 def test_mapped_ranges_are_measurements_of_their_log_against_scipy(cmap):
-    """Every reference a confident range: log L = Σ log f_D((m − log ℓ)/S)/S with S² = s_c² + line
-    variance, s_c = w / q_D((1 + g(c))/2), ℓ what the reference measures."""
+    """Every reference a confident range: log L = Σ log mean_b f_D((m − log ℓ + e_b)/S_b)/S_b with
+    S_b² = s_c² + v_b, s_c = w / q_D((1 + g(c))/2), ℓ what the reference measures and (e_b, v_b)
+    the bins of its line's reading error (none for the lineless)."""
     d, scene = _scene(4)
     cams, objs = _states(d)
     m = _model(scene, cmap, cams[0])
@@ -75,10 +76,11 @@ def test_mapped_ranges_are_measurements_of_their_log_against_scipy(cmap):
     lo, hi = np.log([r["range"] for r in d["references"]]).T
     c = np.array([r["confidence"] for r in d["references"]])
     s_c = 0.5 * (hi - lo) / interval_quantile(cmap.coverage(c), cmap.dof)
-    S = np.sqrt(s_c**2 + m.ref_line_var)
-    assert np.all(m.ref_line_var[:3] > 0) and np.all(m.ref_line_var[3:] == 0)
+    e, v = m.ref_shift[:, None] + m.ref_node_shift, m.ref_node_var
+    assert e.shape == (5, 8) and np.all(v[:3] > 0) and np.all(v[3:] == 0) and np.all(e[3:] == 0)
+    S = np.sqrt(s_c[:, None] ** 2 + v)
     dist = stats.norm if cmap.dof is None else stats.t(cmap.dof)
-    want = dist.logpdf((0.5 * (lo + hi) - np.log(ell)) / S) - np.log(S)
+    want = np.log(np.mean(np.exp(dist.logpdf((0.5 * (lo + hi)[:, None] - np.log(ell)[..., None] + e) / S)) / S, axis=-1))
     got = m.pointwise_log_likelihood(cams, objs)["references"]
     np.testing.assert_allclose(got - got[0], want - want[0], rtol=1e-9, atol=1e-9)
 

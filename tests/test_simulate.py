@@ -8,6 +8,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from creference_bayes.bench.simulate import (FORMATS, OBJECTS, REAL_CAMERAS, SETTINGS, TIERS, NoiseTier, draw_camera,
                                              measurement_factor, simulate_scene, true_state, write_scenes)
@@ -259,3 +260,35 @@ def test_write_scenes_replaces_the_corner_noise(tmp_path):
     np.testing.assert_allclose(t.corners, np.broadcast_to(t.ground_truth["corners_px"], t.corners.shape), atol=0.006)
     with pytest.raises(FileExistsError):
         write_scenes(tmp_path / "s", 1)
+
+
+@pytest.mark.parametrize("crowd", ["light", "heavy"])
+def test_the_crowds_draw_their_reference_segments_and_values_with_noise(crowd):
+    """The crowds of issue 66: reference end points off by their σ around the true segment, direct
+    values off by a log-normal of their log-sd, the heavy crowd's with 12 % outliers (a factor
+    log-uniform within ±10); restricted to the relative formats, only those."""
+    from creference_bayes.bench.simulate import CROWDS, OUTLIER_FACTOR
+    from creference_bayes.core.units import UNITS_TO_M
+
+    tier = CROWDS[crowd]
+    ends, log_err = [], []
+    for seed in range(30):
+        d = simulate_scene(np.random.default_rng([7, seed]), tier=crowd, n_references=20, single_values=True)
+        g = d["ground_truth"]
+        for r, true_line, length in zip(d["references"], g["reference_lines_px"], g["reference_lengths_m"]):
+            line = np.asarray(r["line"])
+            if np.all((line > 1) & (line < [d["image"]["width"] - 1, d["image"]["height"] - 1])):  # not clipped
+                ends.append(line - np.asarray(true_line))
+            if r["mode"] == "direct":
+                log_err.append(np.log(r["value"] * UNITS_TO_M[r["unit"]] / length))
+    assert np.std(np.concatenate(ends)) == pytest.approx(tier.reference_px, rel=0.1)
+    log_err, sd = np.array(log_err), float(tier.measurement[:-1]) / 100
+    beyond = 1.2  # in log: a factor 3.3, out of reach of the light crowd
+    want = tier.outliers * (1 - beyond / np.log(OUTLIER_FACTOR)) + (1 - tier.outliers) * 2 * stats.norm.sf(beyond / sd)
+    assert np.mean(np.abs(log_err) > beyond) == pytest.approx(want, abs=0.035)
+    assert stats.median_abs_deviation(log_err, scale="normal") == pytest.approx(sd, rel=0.2)
+    relative = [i for i, (_, mode, _) in enumerate(FORMATS) if mode == "relative"]
+    d = simulate_scene(np.random.default_rng(1), tier=crowd, n_references=8, formats=relative)
+    assert {r["mode"] for r in d["references"]} == {"relative"}
+    with pytest.raises(ValueError, match="formats"):
+        simulate_scene(np.random.default_rng(1), tier=crowd, formats=(10,))

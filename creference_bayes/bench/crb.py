@@ -70,14 +70,16 @@ class Bound:
 
 def measurement_log_sd(model: str) -> float:
     """Equivalent log-sd of a worker's measurement for a simulator noise model (module docstring)."""
-    from .simulate import PAPER_NOISE
+    from .simulate import PAPER_NOISE, _percent
 
-    if model in ("none", "10%", "40%"):
-        return {"none": 0.0, "10%": 0.1, "40%": 0.4}[model]
+    if model == "none":
+        return 0.0
+    if _percent(model) is not None:
+        return _percent(model)
     if model == "paper":
         nu, s = PAPER_NOISE["dof"], PAPER_NOISE["scale"]
         return float(np.sqrt((nu + 3.0) * s**2 / (nu + 1.0)))
-    raise ValueError(f"measurement model: unknown {model!r} (expected none, 10%, 40% or paper)")
+    raise ValueError(f"measurement model: unknown {model!r} (expected none, a percentage such as 10% or paper)")
 
 
 class _Free:

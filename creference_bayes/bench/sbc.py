@@ -23,7 +23,9 @@ true line is drawn in the image independently of the parameters (:data:`REF_ROWS
 would tell the pitch something the model does not use. Scenes whose annotations leave the image
 are drawn again (a selection on the data alone: the ranks stay uniform).
 The check also measures what the model only approximates: the σ it plugs in from the spread of
-several sets of lines, and line noise taken through derivatives at a pilot estimate.
+several sets of lines, and the reading of each reference's segment fixed at a pilot estimate,
+whose prior on the true segment (a ground segment of any direction, log-uniform in length) is not
+how these lines are drawn (uniform in the image, 40–400 px long).
 
 Designs: ``thin`` (one set of dimension lines, 0, 1 or 2 references in turn) and ``full``
 (5 + 5). Quantities: the ground distance d, µ, pitch and roll. Per design and quantity: the rank

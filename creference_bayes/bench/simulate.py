@@ -8,8 +8,11 @@ pedestrians and cyclists uniform in log depth, sizes from the KITTI class priors
 camera comes from its own ranges, or (``cameras="real"``) from a population of real cameras
 (:data:`REAL_CAMERAS`: phones, zoom, action and car-mounted cameras, each with its image size).
 
-Noise tiers (:data:`TIERS`) move the dimension lines' corners (Gaussian, or Student-t with a tier's
-``dof``), the reference lines' endpoints and the workers' measurements (:func:`measurement_factor`).
+Noise tiers (:data:`TIERS`, and the crowds of :data:`CROWDS`) move the dimension lines' corners
+(Gaussian, or Student-t with a tier's ``dof``), the reference lines' end points (each coordinate
+off by N(0, ``reference_px``²) around the true segment's projection, so a drawn segment is always
+noisy but in tier ``none``) and the workers' measurements (:func:`measurement_factor`, a share
+``outliers`` of them off by a factor log-uniform within ±:data:`OUTLIER_FACTOR` instead).
 References cycle through the paper's ten formats (:data:`FORMATS`). Targets' sizes are stated
 (``sizes="known"``) or left to their class's prior (``"prior"``: KITTI's shipped classes, or
 :func:`class_priors` written into the scene). With several targets, each one's ground may lie
@@ -35,20 +38,22 @@ from ..models.contract import REF_SCALE_MEDIAN
 from ..models.size_priors import KITTI_SIZE_PRIORS, SizePrior
 from .confidence_workers import ConfidentWorkers
 
-__all__ = ["NoiseTier", "TIERS", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
+__all__ = ["NoiseTier", "TIERS", "CROWDS", "OUTLIER_FACTOR", "noise_tier", "OBJECTS", "SETTINGS", "REAL_CAMERAS", "CAMERA_POPULATIONS", "FORMATS", "PAPER_NOISE", "RANGE_PRECISION", "STREET_MIX",
            "simulate_scene", "draw_camera", "measurement_factor", "class_priors", "true_state", "write_scenes"]
 
 
 @dataclass(frozen=True)
 class NoiseTier:
     """Annotation noise: target corner σ (px; with ``dof`` a Student-t of that standard deviation),
-    reference endpoint σ (px), measurement model (:func:`measurement_factor`)."""
+    reference endpoint σ (px), measurement model (:func:`measurement_factor`) and the share of
+    measurements that are outliers (off by a factor log-uniform within ±:data:`OUTLIER_FACTOR`)."""
 
     name: str
     target_px: float
     reference_px: float
-    measurement: str  # "none", "10%", "40%" or "paper"
+    measurement: str  # "none", "<x>%" (log-normal of log-sd x / 100) or "paper"
     dof: float | None = None
+    outliers: float = 0.0
 
 
 TIERS: dict[str, NoiseTier] = {
@@ -57,6 +62,23 @@ TIERS: dict[str, NoiseTier] = {
     "medium": NoiseTier("medium", 5.0, 10.0, "40%"),
     "high": NoiseTier("high", 10.0, 30.0, "paper"),
 }
+#: Crowds whose drawn reference segments are noisy (issue 66): a light, careful crowd and a heavy one.
+CROWDS: dict[str, NoiseTier] = {
+    "light": NoiseTier("light", 2.0, 5.0, "10%"),
+    "heavy": NoiseTier("heavy", 5.0, 10.0, "55%", outliers=0.12),
+}
+#: An outlier states the true length times a factor log-uniform in [1 / this, this] (a worker who
+#: confuses units or measures another object).
+OUTLIER_FACTOR = 10.0
+
+
+def noise_tier(name: str | NoiseTier) -> NoiseTier:
+    """The :class:`NoiseTier` of a name of :data:`TIERS` or :data:`CROWDS` (a tier is returned as is)."""
+    if isinstance(name, NoiseTier):
+        return name
+    if name not in TIERS and name not in CROWDS:
+        raise ValueError(f"tier: expected one of {[*TIERS, *CROWDS]}, got {name!r}")
+    return TIERS.get(name) or CROWDS[name]
 
 #: (length, width, height) ranges in metres per object type (within the paper's Table 1).
 OBJECTS: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {
@@ -169,21 +191,30 @@ def measurement_factor(rng, model: str, size=None):
     Parameters
     ----------
     rng : numpy Generator
-    model : ``"none"``, ``"10%"`` / ``"40%"`` (log-normal, log-sd 0.1 / 0.4) or ``"paper"``
-        (heavy-tailed, :data:`PAPER_NOISE`)
+    model : ``"none"``, ``"<x>%"`` (log-normal of log-sd x / 100: ``"10%"`` 0.1, ``"40%"`` 0.4) or
+        ``"paper"`` (heavy-tailed, :data:`PAPER_NOISE`)
     size : None for a float, else the shape of an array of factors
     """
     shape = () if size is None else size
     if model == "none":
         out = np.ones(shape)
-    elif model in ("10%", "40%"):
-        out = np.exp(rng.normal(0.0, 0.1 if model == "10%" else 0.4, shape))
+    elif _percent(model) is not None:
+        out = np.exp(rng.normal(0.0, _percent(model), shape))
     elif model == "paper":
         lim = math.log(PAPER_NOISE["clip"])
         out = np.exp(np.clip(PAPER_NOISE["scale"] * rng.standard_t(PAPER_NOISE["dof"], shape), -lim, lim))
     else:
-        raise ValueError(f"measurement noise: unknown model {model!r} (expected none, 10%, 40% or paper)")
+        raise ValueError(f"measurement noise: unknown model {model!r} (expected none, a percentage such as 10% or paper)")
     return float(out) if size is None else out
+
+
+def _percent(model: str) -> float | None:
+    """x / 100 of a measurement model ``"<x>%"`` (x > 0), else None."""
+    try:
+        value = float(model[:-1]) / 100.0 if model.endswith("%") else None
+    except ValueError:
+        return None
+    return value if value is not None and np.isfinite(value) and value > 0 else None
 
 
 def class_priors(setting: str) -> dict[str, SizePrior]:
@@ -248,14 +279,15 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
                    principal_offset: float = 0.0, roll_deg: float = 3.0, format_offset: int | None = None,
                    distance_range: tuple[float, float] | None = None, single_values: bool = False,
                    decimals: int | None = 2, confidence: ConfidentWorkers | None = None, ground_sd_m: float = 0.08,
-                   horizon: str = "exact", focal_known: bool = False, cameras: str = "setting") -> dict:
+                   horizon: str = "exact", focal_known: bool = False, cameras: str = "setting",
+                   formats: tuple[int, ...] | None = None) -> dict:
     """Draw one synthetic scene.
 
     Parameters
     ----------
     rng : seed or Generator
     setting : a key of :data:`SETTINGS`, or None (two thirds indoor, one third outdoor)
-    tier : a key of :data:`TIERS` or a :class:`NoiseTier`
+    tier : a key of :data:`TIERS` or :data:`CROWDS`, or a :class:`NoiseTier`
     n_objects : targets (fewer when the image cannot hold them side by side; at least one)
     n_references : reference annotations (one object each), cycling through :data:`FORMATS`;
         relative ones are relative to the first target
@@ -278,6 +310,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     horizon : ``exact`` (the true horizon), ``none``, or ``sd`` (moved by N(0, 5 px) at each end
         and stated with ``horizon_sd_px`` 5)
     focal_known : state the true focal length
+    formats : indices of :data:`FORMATS` the references cycle through instead of all ten (e.g.
+        the relative ones)
     cameras : ``setting`` (the setting's image, focal length and mounting ranges, :data:`SETTINGS`)
         or ``real`` (a camera of :data:`REAL_CAMERAS`, :func:`draw_camera`; its kind is in the
         ground truth's ``camera_kind``)
@@ -289,16 +323,15 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     target's holds its location, yaw, handedness, size, ground offset and true corners.
     """
     rng = np.random.default_rng(rng)
-    if isinstance(tier, str):
-        if tier not in TIERS:
-            raise ValueError(f"tier: expected one of {list(TIERS)}, got {tier!r}")
-        tier = TIERS[tier]
+    tier = noise_tier(tier)
     if n_target_annotations < 1 or n_references < 0 or n_objects < 1:
         raise ValueError(f"n_target_annotations and n_objects must be >= 1 and n_references >= 0, got "
                          f"{n_target_annotations!r}, {n_objects!r} and {n_references!r}")
     for name, value, allowed in (("sizes", sizes, ("known", "prior")), ("horizon", horizon, ("exact", "none", "sd"))):
         if value not in allowed:
             raise ValueError(f"{name}: expected one of {list(allowed)}, got {value!r}")
+    if formats is not None and not (len(formats) and all(0 <= int(f) < len(FORMATS) for f in formats)):
+        raise ValueError(f"formats: expected indices of FORMATS (0-{len(FORMATS) - 1}), got {formats!r}")
     if setting is None:
         setting = "indoor" if rng.uniform() < 2 / 3 else "outdoor"
     if setting not in SETTINGS:
@@ -353,11 +386,12 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
     refs, truths, true_lines = [], [], []
     first = targets[0]["ground_truth"]["dimensions_m"]
     dmin, dmax = cfg["distance"]
-    order = rng.permutation(len(FORMATS))
+    pool = np.arange(len(FORMATS)) if formats is None else np.asarray(formats, int)
+    order = pool[rng.permutation(len(pool))]
     if format_offset is not None:
-        order = (int(format_offset) + np.arange(len(FORMATS))) % len(FORMATS)
+        order = pool[(int(format_offset) + np.arange(len(pool))) % len(pool)]
     for j in range(n_references):
-        measure, mode, is_range = FORMATS[order[j % len(FORMATS)]]
+        measure, mode, is_range = FORMATS[order[j % len(pool)]]
         is_range = (is_range and not single_values) or confidence is not None
         for attempt in range(20):  # another object when one does not fit the view
             oname, osize = _draw_object(rng, setting)
@@ -380,6 +414,8 @@ def simulate_scene(rng=None, *, setting: str | None = None, tier: str | NoiseTie
         true_len = float(np.linalg.norm(seg_3d[1] - seg_3d[0]))
         if confidence is None:
             stated = true_len * measurement_factor(rng, tier.measurement)
+            if tier.outliers and rng.uniform() < tier.outliers:
+                stated = true_len * OUTLIER_FACTOR ** rng.uniform(-1.0, 1.0)
         else:
             worker, f_low, f_high, conf = confidence.state(rng)
             stated = true_len * math.sqrt(f_low * f_high)
@@ -444,7 +480,8 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
                  *, overwrite: bool = False, noise_px: float | None = None, **options) -> list[Path]:
     """Write ``n`` simulated scenes ``scene_0000.json`` … to ``outdir`` (deterministic for ``seed``).
 
-    ``tier`` is a tier name or ``all`` (cycling none, low, medium, high); ``noise_px`` replaces
+    ``tier`` is a name of :data:`TIERS` or :data:`CROWDS` or ``all`` (cycling none, low, medium,
+    high); ``noise_px`` replaces
     its corner noise; reference formats cycle so that every ten references cover the ten formats
     once each. Each file is written whole or not at all. ``options`` go to :func:`simulate_scene`
     (``n_objects``, ``sizes``, ``confidence``, …).
@@ -461,9 +498,9 @@ def write_scenes(outdir, n: int, seed: int = 0, tier: str = "all", setting: str 
     if not overwrite and outdir.is_dir() and any(outdir.iterdir()):
         raise FileExistsError(errno.EEXIST, "folder is not empty (overwrite=True replaces its scenes)", str(outdir))
     outdir.mkdir(parents=True, exist_ok=True)
-    if tier != "all" and tier not in TIERS:
-        raise ValueError(f"tier: expected one of {[*TIERS, 'all']}, got {tier!r}")
-    tiers = [TIERS[t] for t in (TIERS if tier == "all" else [tier])]
+    if tier != "all" and tier not in TIERS and tier not in CROWDS:
+        raise ValueError(f"tier: expected one of {[*TIERS, *CROWDS, 'all']}, got {tier!r}")
+    tiers = list(TIERS.values()) if tier == "all" else [noise_tier(tier)]
     if noise_px is not None:
         tiers = [replace(t, target_px=float(noise_px)) for t in tiers]
     paths = []

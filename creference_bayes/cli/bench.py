@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..bench.runner import CONFIGS, plain, run_bench
-from ..bench.simulate import CAMERA_POPULATIONS, SETTINGS, TIERS
+from ..bench.simulate import CAMERA_POPULATIONS, CROWDS, SETTINGS, TIERS
 from ..io.files import atomic_write_text
 from .main import UsageError, advanced_group, require, seed_value, usage_errors
 
@@ -235,9 +235,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", dest="out_dir", metavar="OUTDIR", default=None, help="the same as OUTDIR")
     p.add_argument("--n", type=int, default=None, help="number of scenes (not with --from-kitti)")
     p.add_argument("--seed", type=seed_value, default=0, help="random seed (default: %(default)s)")
-    p.add_argument("--tier", default="all", choices=[*TIERS, "all"],
+    p.add_argument("--tier", default="all", choices=[*TIERS, *CROWDS, "all"],
                    help="how noisy the simulated crowd is: none, low, medium or high (the paper's), or all "
-                        "to cycle through them (default: %(default)s)")
+                        "to cycle through them; or the crowds light (2 px corners, 5 px reference end points, "
+                        "log-sd 0.1) and heavy (5 px, 10 px, log-sd 0.55, 12%% outliers) (default: %(default)s)")
     p.add_argument("--setting", default=None, choices=list(SETTINGS),
                    help="indoor, outdoor or street (a KITTI-like car camera; default: two thirds indoor, "
                         "one third outdoor)")

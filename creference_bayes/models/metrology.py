@@ -16,10 +16,14 @@ References (:class:`ReferenceTerm`)
     :data:`~.contract.REF_SCALE_MEDIAN`, :data:`~.contract.REF_SCALE_LOG_SD`, unless the options
     ``ref_scale_median`` and ``ref_scale_log_sd`` give another, for a crowd measured elsewhere).
 Line noise
-    Each reference's scale is widened by its line noise, s_j² = s² + v_j, v_j = σ_line² |∇ log ℓ_j|²
-    over its endpoint coordinates, σ_line = :data:`REF_LINE_FACTOR` × the median σᵢ unless given;
-    with ``line_reading="corrected"`` the reading's median bias is removed too
-    (:func:`segment_reading`). Both are taken once, at a *pilot* camera
+    A reference's segment is drawn with pixel noise σ_line at each end point (:data:`REF_LINE_FACTOR`
+    × the median σᵢ unless given). With ``line_reading="marginal"`` (the default) its true end
+    points are marginalised (:func:`marginal_reading`): the reading's error, large and skewed near
+    the horizon, is kept as bins (e_b, v_b) of equal probability and the stated value's likelihood
+    is the bins' mean of the Student-t around log ℓ_j − e_b with scale √(s² + v_b)
+    (:func:`reading_log_likelihood`). ``linear`` reads the segment as drawn with s_j² = s² + v_j,
+    v_j = σ_line² |∇ log ℓ_j|² over its endpoint coordinates; ``corrected`` removes the reading's
+    median bias too (:func:`segment_reading`). Each is taken once, at a *pilot* camera
     (:meth:`MetrologyModel.set_pilot`), and held fixed: recomputed at every state, the normaliser
     −log s_j would reward states where the lines look insensitive.
 Stated confidence
@@ -49,6 +53,7 @@ from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_X, O_Z, Mod
 __all__ = ["TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_DOF", "REF_LINE_FACTOR",
            "LINE_READINGS", "MIN_RAY_DOWN", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "ReferenceTerm",
            "MetrologyModel", "corner_spread", "target_sigmas", "ground_lengths", "linear_line_variances", "segment_reading",
+           "marginal_reading", "reading_log_likelihood",
            "t_interval"]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -61,14 +66,19 @@ DEFAULT_TARGET_SIGMA_PX = 5.0
 REF_DOF = 2.0
 #: Pixel noise of a reference's endpoints, as a multiple of the objects' corner scale σ.
 REF_LINE_FACTOR = 2.0
-#: How a reference's drawn segment is read (``line_reading``): ``linear`` (default) as drawn,
-#: its noise linearised at the pilot; ``corrected`` less the lengthening its noise brings.
-LINE_READINGS = ("linear", "corrected")
+#: How a reference's drawn segment is read (``line_reading``): ``marginal`` (default) its true end
+#: points marginalised (:func:`marginal_reading`); ``linear`` as drawn, its noise linearised at
+#: the pilot; ``corrected`` less the median lengthening its noise brings (:func:`segment_reading`).
+LINE_READINGS = ("marginal", "linear", "corrected")
 #: Endpoint step of the central differences of log-length at the pilot, pixels.
 _LINE_STEP_PX = 0.5
 #: Noise draws and segment scales λ of the reading's inversion (:func:`segment_reading`).
 READ_DRAWS = 128
 READ_SCALES = np.geomspace(1.0 / 128.0, 2.0, 20)
+#: True segments drawn per reference line and bins of its error in the ``marginal`` reading
+#: (:func:`marginal_reading`).
+MARGINAL_DRAWS = 1024
+READ_NODES = 8
 #: Smallest downward component of a unit-depth viewing ray: rays closer to the horizon meet the
 #: ground at about h / MIN_RAY_DOWN, i.e. 1000 camera heights away.
 MIN_RAY_DOWN = 1e-3
@@ -138,6 +148,15 @@ def target_sigmas(annotation_sets, corner_scale: tuple[float, float] | None = No
     return np.maximum(np.where(dof > 0, own, pooled), MIN_TARGET_SIGMA_PX)
 
 
+def _ground_rays(points: np.ndarray, principal_point, cams: np.ndarray) -> np.ndarray:
+    """(n, p, 3) the viewing rays Rᵀ K⁻¹ (u, v, 1) of (p, 2) pixels for (n, 5) cameras; their
+    second component is the ray's downward part (≤ 0 at or above the horizon)."""
+    pts = np.asarray(points, float).reshape(-1, 2) - np.asarray(principal_point, float)
+    R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])  # (n, 3, 3)
+    # ray in G: Rᵀ K⁻¹ (u, v, 1) = ((u − cx) R[0] + (v − cy) R[1]) / µ + R[2]  (rows of R)
+    return (pts @ R[:, :2, :]) / cams[:, C_FOCAL, None, None] + R[:, None, 2, :]
+
+
 def ground_lengths(lines: np.ndarray, principal_point, cams: np.ndarray) -> np.ndarray:
     """Real lengths of ground segments for a batch of cameras.
 
@@ -153,13 +172,15 @@ def ground_lengths(lines: np.ndarray, principal_point, cams: np.ndarray) -> np.n
     1 / :data:`MIN_RAY_DOWN` camera heights (a huge, finite length).
     """
     cams = np.atleast_2d(np.asarray(cams, float))
-    pts = np.asarray(lines, float).reshape(-1, 2) - np.asarray(principal_point, float)  # (2k, 2)
-    R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])  # (n, 3, 3)
-    # ray in G: Rᵀ K⁻¹ (u, v, 1) = ((u − cx) R[0] + (v − cy) R[1]) / µ + R[2]  (rows of R)
-    d = (pts @ R[:, :2, :]) / cams[:, C_FOCAL, None, None] + R[:, None, 2, :]  # (n, 2k, 3)
-    down = np.maximum(d[..., 1], MIN_RAY_DOWN)
-    gx, gz = d[..., 0] / down, d[..., 2] / down  # ground point per unit camera height
-    return cams[:, C_HEIGHT, None] * np.hypot(gx[:, 1::2] - gx[:, 0::2], gz[:, 1::2] - gz[:, 0::2])
+    return cams[:, C_HEIGHT, None] * _unit_lengths(_ground_rays(lines, principal_point, cams))
+
+
+def _unit_lengths(rays: np.ndarray) -> np.ndarray:
+    """(n, k) ground lengths per unit camera height of the segments whose end points' rays are
+    (n, 2k, 3) (:func:`_ground_rays`; see :func:`ground_lengths` for rays at the horizon)."""
+    down = np.maximum(rays[..., 1], MIN_RAY_DOWN)
+    gx, gz = rays[..., 0] / down, rays[..., 2] / down  # ground point per unit camera height
+    return np.hypot(gx[..., 1::2] - gx[..., 0::2], gz[..., 1::2] - gz[..., 0::2])
 
 
 def _log_lengths(lines, principal_point, camera) -> np.ndarray:
@@ -236,6 +257,62 @@ def segment_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sigm
     return shift, var
 
 
+def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sigma: float, *,
+                     draws: int = MARGINAL_DRAWS, nodes: int = READ_NODES) -> tuple[np.ndarray, np.ndarray]:
+    """The error of each drawn segment's reading, its true end points marginalised, at one camera (5,).
+
+    A drawn end point is its true one off by N(0, σ²) per coordinate (σ in pixels). The true end
+    points are two ground points, a priori anywhere on the ground and at any separation ℓ on a
+    log scale, in any direction: density ∝ 1 / (ℓ² + ℓ₀²) per unit of ground area of each point
+    (ℓ₀ the ground length of σ pixels along the image's rows at the drawn segment's midpoint, the
+    shortest σ pixels show there: below it lengths are not told apart). Their posterior given the drawn end points is sampled by importance: ``draws`` true
+    segments drawn around the drawn one (antithetic, seeded: deterministic), each weighted by that
+    prior in pixels, 1 / ((ℓ² + ℓ₀²) w₁³ w₂³) (w the downward part of an end point's ray, whose
+    cube is the ground map's area scale; zero at or above the horizon). The reading's error
+    e = log ℓ(drawn) − log ℓ(true) is then summarised by ``nodes`` bins of equal probability:
+    ``shift`` (k, nodes) each bin's mean, ``var`` (k, nodes) its variance (log-length², together
+    the law of total variance). Near the horizon e is large, skewed and heavy-tailed (a short
+    segment drawn with noise reads long, and a few pixels of a row mean metres of ground); far
+    from it, small and normal. Zeros for σ = 0; a segment whose weights are not finite is read
+    linearly (no shift, :func:`linear_line_variances` in every bin).
+    """
+    lines = np.asarray(lines, float).reshape(-1, 2, 2)
+    m = len(lines)
+    shift, var = np.zeros((m, nodes)), np.zeros((m, nodes))
+    if m == 0 or sigma == 0:
+        return shift, var
+    cam = np.asarray(camera, float)[None]
+    half = np.random.default_rng(20261202).standard_normal(((draws + 1) // 2, 1, 2, 2))
+    true = lines[None] + sigma * np.concatenate([half, -half])[:draws]                   # (D, m, 2, 2)
+    rays = _ground_rays(true, principal_point, cam)[0]                                   # (D·m·2, 3)
+    down = rays[:, 1].reshape(draws, m, 2)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        drawn = _unit_lengths(_ground_rays(lines, principal_point, cam)[0])                   # (m,)
+        length = _unit_lengths(rays).reshape(draws, m)
+        mid = lines.mean(axis=1)
+        across = np.stack([mid - [0.5 * sigma, 0.0], mid + [0.5 * sigma, 0.0]], axis=1)
+        floor = _unit_lengths(_ground_rays(across, principal_point, cam)[0])
+        w = np.where(np.all(down > MIN_RAY_DOWN, axis=-1),
+                     1.0 / ((length**2 + floor**2) * np.prod(np.maximum(down, MIN_RAY_DOWN), axis=-1) ** 3), 0.0)
+        error = np.log(drawn) - np.log(length)
+        order = np.argsort(error, axis=0)
+        error, w = np.take_along_axis(error, order, 0), np.take_along_axis(w, order, 0)
+        cum = np.cumsum(w, axis=0) / w.sum(axis=0)                                          # (D, m)
+        # each draw's share of each bin of equal probability: the overlap of its step of the
+        # cumulative weight with the bin
+        edges = np.arange(nodes + 1) / nodes
+        prev = np.vstack([np.zeros((1, m)), cum[:-1]])
+        share = np.clip(np.minimum(cum[..., None], edges[1:]) - np.maximum(prev[..., None], edges[:-1]), 0, None)
+        mass = share.sum(axis=0)                                                             # (m, nodes)
+        shift = np.einsum("dmk,dm->mk", share, error) / mass
+        var = np.einsum("dmk,dmk->mk", share, (error[..., None] - shift[None]) ** 2) / mass
+    bad = ~(np.all(np.isfinite(shift), axis=1) & np.all(np.isfinite(var), axis=1))
+    if bad.any():
+        shift[bad] = 0.0
+        var[bad] = linear_line_variances(lines[bad], principal_point, camera, sigma)[:, None]
+    return shift, var
+
+
 def t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """T_ν(hi) − T_ν(lo), the Student-t probability of [lo, hi] (lo ≤ hi, elementwise), to full
     relative precision far out in either tail.
@@ -252,6 +329,66 @@ def t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     rh, rl = np.sqrt(ah * ah + 2.0), np.sqrt(lo * lo + 2.0)
     g_hi, g_lo = 1.0 / (rh * (rh - ah)), 1.0 / (rl * (rl - lo))
     return np.where(hi <= 0, g_hi, 1.0 - g_hi) - g_lo
+
+
+def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, node_shift, node_var,
+                           own_scale=None, own_dof: float | None = None) -> np.ndarray:
+    """Log-likelihood of stated values or ranges given what the references measure, the reading's
+    error marginalised over its bins (:attr:`MetrologyModel.ref_node_shift`).
+
+    Bin b is a Student-t (ν = ``nu``) of log-length around ``pred`` − ``node_shift``[b] with scale
+    √(``scale``² + ``node_var``[b]) (a range: its probability, interval-censored); the
+    likelihood is the bins' mean. Where ``own_scale`` is finite (ranges read through a confidence
+    map), the range's log-centre is a measurement with that scale instead, Student-t of ``own_dof``
+    (None: normal). A value's density leaves out its constant (the same for every state); a
+    probability or density is floored at 1e-300.
+
+    Parameters
+    ----------
+    pred : (n, k) log-lengths (:meth:`MetrologyModel.predicted_log_lengths`)
+    scale : (n, 1) or (n, k) the crowd's scale, log-length
+    log_low, log_high, is_range : (k,) the stated values (equal) or ranges, log-length
+    node_shift, node_var : (k, K) the reading's error bins
+    own_scale : (k,) or None
+
+    Returns
+    -------
+    (n, k) log-likelihoods (NaN where ``pred`` is)
+    """
+    pred, node_shift, node_var = np.asarray(pred, float), np.asarray(node_shift, float), np.asarray(node_var, float)
+    log_low, log_high = np.asarray(log_low, float), np.asarray(log_high, float)
+    n, k = pred.shape
+    stated = np.zeros(k, bool) if own_scale is None else np.isfinite(own_scale)
+    ranged = np.asarray(is_range, bool) & ~stated
+    out = np.empty((n, k))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s = np.sqrt(np.asarray(scale, float)[..., None] ** 2 + node_var)                        # (n, k, K)
+        if stated.any():
+            s[:, stated] = np.sqrt(np.asarray(own_scale, float)[stated, None] ** 2 + node_var[stated])
+        loc = pred[..., None] - node_shift
+        one = (np.ptp(node_shift, axis=-1) == 0) & (np.ptp(node_var, axis=-1) == 0)  # references of one bin
+        for cols, kind in ((~ranged & ~stated, "value"), (ranged, "range"), (stated, "stated")):
+            for bins in (one, ~one):
+                if (cols & bins).any():
+                    out[:, cols & bins] = _bin_log_likelihood(kind, loc, s, cols & bins, 1 if bins is one else None,
+                                                              log_low, log_high, nu, own_dof)
+    return out
+
+
+def _bin_log_likelihood(kind, loc, s, cols, bins, log_low, log_high, nu, own_dof):
+    """:func:`reading_log_likelihood` of the columns ``cols`` of one kind (``value``, ``range`` or
+    ``stated``), over their first ``bins`` bins (None: all)."""
+    sc, lc = s[:, cols, :bins], loc[:, cols, :bins]
+    lo = (log_low[cols, None] - lc) / sc
+    if kind == "range":
+        log_p = np.log(np.maximum(t_interval(nu, lo, (log_high[cols, None] - lc) / sc), 1e-300))
+    else:
+        z, dof = (lo, nu) if kind == "value" else (0.5 * (lo + (log_high[cols, None] - lc) / sc), own_dof)
+        log_p = (-0.5 * z * z if dof is None else -(0.5 * (dof + 1.0)) * np.log1p(z * z / dof)) - np.log(sc)
+    if log_p.shape[-1] == 1:
+        return log_p[..., 0]
+    top = np.max(log_p, axis=-1)  # the bins' mean, in the log domain
+    return top + np.log(np.mean(np.exp(log_p - top[..., None]), axis=-1))
 
 
 class MetrologyModel(Model):
@@ -283,7 +420,7 @@ class MetrologyModel(Model):
     def __init__(self, principal_point, image_size, objects, references=(), *, target_dof: float = TARGET_DOF,
                  ref_dof: float = REF_DOF, target_sigma: float | None = None, ref_line_sigma: float | None = None,
                  corner_scale: tuple[float, float] | None = None, confidence_map: ConfidenceMap | None = None,
-                 line_reading: str = "linear", ref_scale_median: float | None = None,
+                 line_reading: str = "marginal", ref_scale_median: float | None = None,
                  ref_scale_log_sd: float | None = None, **kw):
         if line_reading not in LINE_READINGS:
             raise ValueError(f"line_reading: expected one of {list(LINE_READINGS)}, got {line_reading!r}")
@@ -365,6 +502,10 @@ class MetrologyModel(Model):
             self._stated_scale[j] = float(self.confidence_map.scale(r.confidence, half[j], r.measure, r.mode))
         self.ref_line_var = np.zeros(len(refs))
         self.ref_shift = np.zeros(len(refs))
+        #: the reading's error beyond ``ref_shift``, in bins of equal probability (k, K): each
+        #: bin's mean offset and variance, log-length (one bin unless ``line_reading="marginal"``)
+        self.ref_node_shift = np.zeros((len(refs), 1))
+        self.ref_node_var = np.zeros((len(refs), 1))
         self._set_masks()
 
     @property
@@ -385,23 +526,34 @@ class MetrologyModel(Model):
         return bool(len(self._lines)) and self.ref_line_sigma > 0
 
     def set_pilot(self, camera: np.ndarray) -> None:
-        """Fix every reference line's noise (and, with ``line_reading="corrected"``, its reading's
-        shift) at the (5,) camera ``camera`` (module docstring)."""
+        """Fix every reference line's reading error at the (5,) camera ``camera`` (module
+        docstring): its shift, spread and (``marginal``) shape."""
         super().set_pilot(camera)
         if not len(self._lines) or self.ref_line_sigma == 0:
             return
         at = self.complete_camera(self.pilot[None])[0]
         at[C_HEIGHT] = max(at[C_HEIGHT], MIN_CAMERA_HEIGHT_M)
+        lines = self._with_line
+        if self.line_reading == "marginal":
+            nodes, var = marginal_reading(self._lines, self.principal_point, at, self.ref_line_sigma)
+            centre = nodes.mean(axis=1)
+            self.ref_shift[lines] = centre
+            self.ref_node_shift = np.zeros((len(self.references), nodes.shape[1]))
+            self.ref_node_var = np.zeros_like(self.ref_node_shift)
+            self.ref_node_shift[lines], self.ref_node_var[lines] = nodes - centre[:, None], var
+            self.ref_line_var[lines] = np.mean(var + (nodes - centre[:, None]) ** 2, axis=1)
+            return
         if self.line_reading == "corrected":
             shift, var = segment_reading(self._lines, self.principal_point, at, self.ref_line_sigma)
-            self.ref_shift[self._with_line] = shift
+            self.ref_shift[lines] = shift
         else:
             var = linear_line_variances(self._lines, self.principal_point, at, self.ref_line_sigma)
-        self.ref_line_var[self._with_line] = var
+        self.ref_line_var[lines] = var
+        self.ref_node_var[lines, 0] = var
 
     def predicted_log_lengths(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
-        """(n, k) what each reference measures at the states, in log-length (the corrected reading
-        for line references)."""
+        """(n, k) what each reference measures at the states, in log-length (for a line, its
+        reading less its shift: the mean true log-length with ``marginal``)."""
         n = len(cams)
         pred = np.zeros((n, len(self.references)))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -422,21 +574,10 @@ class MetrologyModel(Model):
 
     def reference_nll_matrix(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         """Negative log-likelihood of each reference, (n, k)."""
-        pred = self.predicted_log_lengths(cams, objs)
-        nu = self.ref_dof
-        crowd = np.sqrt(cams[:, C_SCALE, None] ** 2 + self.ref_line_var[None])  # (n, k)
-        own = np.sqrt(self._stated_scale ** 2 + self.ref_line_var)[None]
-        s = np.where(self._stated[None], own, crowd)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            lo = (self.ref_log_low[None] - pred) / s
-            hi = (self.ref_log_high[None] - pred) / s
-            single = -(0.5 * (nu + 1.0)) * np.log1p(lo * lo / nu) - np.log(s)
-            ll = np.where(self.ref_is_range[None], np.log(np.maximum(t_interval(nu, lo, hi), 1e-300)), single)
-            if self._stated.any():
-                z = 0.5 * (lo + hi)  # the log-centre's offset, in its own scales
-                dof = self.confidence_map.dof
-                stated = (-0.5 * z * z if dof is None else -(0.5 * (dof + 1.0)) * np.log1p(z * z / dof)) - np.log(s)
-                ll = np.where(self._stated[None], stated, ll)
+        own = np.where(self._stated, self._stated_scale, np.nan)
+        ll = reading_log_likelihood(self.predicted_log_lengths(cams, objs), cams[:, C_SCALE, None], self.ref_log_low,
+                                    self.ref_log_high, self.ref_is_range, self.ref_dof, self.ref_node_shift,
+                                    self.ref_node_var, own, None if self.confidence_map is None else self.confidence_map.dof)
         return np.where(np.isfinite(ll), -ll, 1e300)
 
     def _split_nll(self, nll: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,10 +12,12 @@ i-th simulated observation (docs/advice_method.md):
   log-posteriors with and without it (:func:`grown`).
 - **A reference** (:class:`ReferenceObservation`, any
   :class:`~creference_bayes.models.metrology.ReferenceTerm`): at the simulating draw, log v = the
-  model's reading of it + √(s² + v_line)·ε, ε ~ t(ν), s the draw's crowd scale, v_line the
-  segment's line noise at the pilot; stated as a range with the scene's share of ranges and median
-  precision. It changes nothing else, so the ratio is its own likelihood. A scene without
-  references has no crowd scale yet: its draws get one from the scale's prior.
+  model's reading of it − e_b + √(s² + v_b)·ε, ε ~ t(ν), s the draw's crowd scale and (e_b, v_b)
+  a bin of the segment's reading error at the pilot drawn at random (the model's own reading,
+  :func:`~creference_bayes.models.metrology.reading_log_likelihood`); stated as a range with the
+  scene's share of ranges and median precision. It changes nothing else, so the ratio is its own
+  likelihood. A scene without references has no crowd scale yet: its draws get one from the
+  scale's prior.
 - **A size from a catalogue** (:class:`SizeObservation`) and **the camera's mounting**
   (:class:`MountingObservation`): the draw's log-size (or log-height, pitch and roll) plus normal
   noise of the answer's spread; the answer enters as a prior (:mod:`.answers`), so the ratio is
@@ -31,7 +33,7 @@ import dataclasses
 import numpy as np
 
 from ...models.contract import C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE
-from ...models.metrology import MetrologyModel, ReferenceTerm, t_interval
+from ...models.metrology import MetrologyModel, ReferenceTerm, reading_log_likelihood
 
 __all__ = ["grown", "simulation_scale", "DimsObservation", "ReferenceObservation", "SizeObservation",
            "MountingObservation"]
@@ -124,7 +126,9 @@ class ReferenceObservation:
         self.usable = self.probe.n_references_used == model.n_references_used + 1
         #: the scene has no crowd scale yet; this reference makes it a parameter
         self.needs_scale = bool(self.probe.camera_free[C_SCALE] and not model.camera_free[C_SCALE])
-        self.line_var = float(self.probe.ref_line_var[-1]) if self.usable else 0.0
+        #: the new reference's reading error (:attr:`~creference_bayes.models.metrology.MetrologyModel.ref_node_shift`)
+        self.node_shift = self.probe.ref_node_shift[-1] if self.usable else np.zeros(1)
+        self.node_var = self.probe.ref_node_var[-1] if self.usable else np.zeros(1)
         self.log_low = self.log_high = np.zeros(0)
         self.is_range = np.zeros(0, bool)
 
@@ -147,10 +151,11 @@ class ReferenceObservation:
     def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
         """One stated value or range per draw (M, 5), (M, m, 7)."""
         m = len(cams)
-        scale = np.sqrt(cams[:, C_SCALE] ** 2 + self.line_var)
+        b = rng.integers(len(self.node_shift), size=m)
+        scale = np.sqrt(cams[:, C_SCALE] ** 2 + self.node_var[b])
         eps = rng.standard_t(self.model.ref_dof, size=m)
         # no worker is off by more than a factor 10⁴ (t₂ tails would give 0 or ∞ after rounding)
-        log_v = self.reading(cams, objs) + np.clip(scale * eps, -_MAX_LOG_ERROR, _MAX_LOG_ERROR)
+        log_v = self.reading(cams, objs) - self.node_shift[b] + np.clip(scale * eps, -_MAX_LOG_ERROR, _MAX_LOG_ERROR)
         self.is_range = rng.uniform(size=m) < self.range_share
         half = np.log1p(self.range_precision / 2), np.log1p(-min(self.range_precision, 1.9) / 2)
         # values as a worker states them (4 significant digits), never zero
@@ -167,14 +172,11 @@ class ReferenceObservation:
     def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None) -> np.ndarray:
         """(M, N) the simulated references' log-likelihoods at the draws (over the temperature), as
         the model reads a reference (:meth:`~creference_bayes.models.metrology.MetrologyModel.reference_nll_matrix`)."""
-        nu = self.model.ref_dof
-        inv = 1.0 / np.sqrt(cams[:, C_SCALE] ** 2 + self.line_var)[None]              # (1, N)
-        pred = self.reading(cams, objs)[None]
-        lo = (self.log_low[:, None] - pred) * inv                                       # (M, N)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            single = np.log(inv) - 0.5 * (nu + 1.0) * np.log1p(lo * lo / nu)
-            ranged = np.log(np.maximum(t_interval(nu, lo, (self.log_high[:, None] - pred) * inv), 0.0))
-        out = np.where(self.is_range[:, None], ranged, single) / self.temperature
+        m = len(self.log_low)
+        pred = np.repeat(self.reading(cams, objs)[:, None], m, axis=1)                  # (N, M)
+        out = reading_log_likelihood(pred, cams[:, C_SCALE, None], self.log_low, self.log_high, self.is_range,
+                                     self.model.ref_dof, np.broadcast_to(self.node_shift, (m, len(self.node_shift))),
+                                     np.broadcast_to(self.node_var, (m, len(self.node_var)))).T / self.temperature
         return np.where(np.isfinite(out), out, -np.inf)
 
 
