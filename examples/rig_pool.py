@@ -76,7 +76,7 @@ def load(folder: Path):
         result = read_result(path)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SceneWarning)
-            after = D.read_frame(key, load_scene(first / "scenes" / path.name), result, camera or key)
+            after = D.read_readings(key, load_scene(first / "scenes" / path.name), result, camera or key)
         a = (after["log_focal"][0].mean, after["log_focal"][0].precision) if "log_focal" in after else None
         rows.append(dict(key=key, camera=camera, truth=truth, before=laplace_likelihood(result), after=a,
                          objects=len(raw.get("targets", ()))))

@@ -20,7 +20,7 @@ corner scale        crowd       shared  the annotations (sets of one object) / t
 
 The mechanism, the same for every quantity:
 
-1. **Read** (:func:`read_frame`): every frame is estimated alone first (a MAP, ``first_pass/``);
+1. **Read** (:func:`read_readings`): every frame is estimated alone first (a MAP, ``first_pass/``);
    its draws (the Laplace approximation at the MAP, or the posterior's when the result keeps them)
    are reweighted by 1/prior, the prior the frame used divided out exactly
    (:func:`divide_prior`), and the weighted mean and variance make each reading a normal
@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
-           "combine", "pool_check", "read_frame", "read_focal_given_orientation", "plan", "dataset_lines",
+           "combine", "pool_check", "read_readings", "read_focal_given_orientation", "plan", "dataset_lines",
            "DATASET_CHOICES",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
@@ -344,7 +344,7 @@ def _setting(camera_id: str | None) -> str:
     return camera_id if camera_id is not None else "data set"
 
 
-def read_frame(key: str, scene, result: dict, camera_id: str | None, draws=None) -> dict[str, list[Reading]]:
+def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=None) -> dict[str, list[Reading]]:
     """Every reading of one frame's first-pass result (module docstring, step 1): quantity name →
     readings (a camera's quantities, the crowd's reference scale, each target's log distance).
     ``draws``: the result's (cameras, objects) when already drawn (:func:`_draws`)."""
@@ -390,7 +390,7 @@ def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np
     horizon in pixels leaves a pitch width shrinking as 1/µ, an extra ≈ 1/µ prior that biases a
     weak frame's focal length low (docs/studies/rig.md); the camera's pitch, which every frame
     knows well, takes it away. Not the height: its pool leans 2 % high on KITTI, which the focal
-    length would follow. None: no reading (as :func:`read_frame`)."""
+    length would follow. None: no reading (as :func:`read_readings`)."""
     from .rig import camera_likelihood
 
     camera_id = ds.camera_of.get(key)
@@ -437,7 +437,7 @@ class DataSet:
             result = read_result(paths["result"])
             draws = _draws(result, scene)
             kept[key] = (result, draws[0])
-            for name, rs in read_frame(key, scene, result, camera_id, draws).items():
+            for name, rs in read_readings(key, scene, result, camera_id, draws).items():
                 if name in readings:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
