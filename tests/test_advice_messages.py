@@ -54,8 +54,20 @@ def test_the_recommendation_states_the_tables_numbers(example):
     best = first.best
     judged, stated = best.score("labels"), best.good_per_hour
     assert f"{judged:.2f}" != f"{stated:.2f}"  # the two halves differ here, as in the report
-    # a minimum between the two: the table's rate is above it, the decisive one below
-    for minimum in (1e6, (judged + stated) / 2):
+    # a minimum between the two: when the decisive half is below it the advice stops though the
+    # table's rate is above it (and the other way round it collects): either way the recommendation
+    # gives the table's numbers
+    between = (judged + stated) / 2
+    a = _advise(example, min_quality=0.65, min_good_per_hour=between)
+    if judged > stated:
+        text = advice_table(a)
+        top, said = _rows(text)[0], _recommendation(text)
+        assert a.action == "collect" and top["annotation"] in said, said
+        got = re.search(r"expected ([\d.]+) more good labels \(([\d.]+) per human hour", said)
+        assert got, said
+        assert float(got[1]) == pytest.approx(float(top["good labels"].split()[0]))
+        assert float(got[2]) == pytest.approx(float(top["good/h"]))
+    for minimum in (1e6,) + ((between,) if judged < stated else ()):
         a = _advise(example, min_quality=0.65, min_good_per_hour=minimum)
         text = advice_table(a)
         top, said = _rows(text)[0], _recommendation(text)

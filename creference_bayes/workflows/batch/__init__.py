@@ -294,8 +294,11 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     try:
         loaded = _load_quietly(scenes, settings) if settings.dataset != "none" else []
         learn = plan([scene for _, scene in loaded], settings)
-    except BaseException:
+    except BaseException as exc:
         engine.close(abandon=True)
+        if isinstance(exc, KeyboardInterrupt):  # stopped while the scenes are read: the folder still
+            _write_folder(out, scenes, settings.to_dict(), {si.key: "not run" for si in scenes}, {}, engine,
+                          t_start, time_limit)  # gets its summary, every scene not run
         raise
     if not learn:
         return _run_pass(scenes, out, settings, **run)
@@ -350,7 +353,6 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
     given: :func:`.dataset.hand_back`); writes summary.csv and batch.json (with ``dataset``, the
     pools of all frames, :meth:`.dataset.DataSet.summary`) whatever ends the run; closes the engine
     if ``close``."""
-    from .summary import summary_rows, write_summary
 
     out.mkdir(parents=True, exist_ok=True)
     ident = settings.to_dict()
@@ -374,18 +376,27 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
         interrupted = any(s == "not run" for s in status.values())
         if close or interrupted:
             engine.close(abandon=interrupted or (runner is not None and bool(runner.abandoned)))
-        report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
-                             engine=engine.describe(),
-                             n_targets=runner.n_targets if runner is not None else 0, dataset=dataset or {})
-        rows = summary_rows(out, scenes, report)
-        report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
-        write_summary(out, scenes, report, rows)
-        atomic_write_json(out / "batch.json", {
-            "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
-            "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
-            **({"dataset": dataset} if dataset else {}),
-            "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
-                        **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
+        report = _write_folder(out, scenes, ident, status, errors, engine, t_start, time_limit,
+                               runner.n_targets if runner is not None else 0, dataset)
+    return report
+
+
+def _write_folder(out: Path, scenes, ident: dict, status: dict, errors: dict, engine: Engine, t_start: float,
+                  time_limit, n_targets: int = 0, dataset: dict | None = None) -> BatchReport:
+    """The folder's summary.csv and batch.json for the scenes' ``status`` (whatever ended the run)."""
+    from .summary import summary_rows, write_summary
+
+    report = BatchReport(status=status, errors=errors, seconds=time.perf_counter() - t_start,
+                         engine=engine.describe(), n_targets=n_targets, dataset=dataset or {})
+    rows = summary_rows(out, scenes, report)
+    report.not_converged = list(dict.fromkeys(r["scene"] for r in rows if r["converged"] == "false"))
+    write_summary(out, scenes, report, rows)
+    atomic_write_json(out / "batch.json", {
+        "format": BATCH_FORMAT, "creference_version": __version__, "settings": ident,
+        "engine": report.engine, "time_limit_s": time_limit, "seconds": round(report.seconds, 3),
+        **({"dataset": dataset} if dataset else {}),
+        "scenes": [{"key": si.key, "source": str(si.path.resolve()), "status": status[si.key],
+                    **({"error": errors[si.key]} if si.key in errors else {})} for si in scenes]})
     return report
 
 
