@@ -111,6 +111,33 @@ def test_the_kalman_update_gives_the_conjugate_posterior_of_a_correlated_gaussia
     assert len(np.unique(moved[:, 1])) == 4000
 
 
+def test_the_kalman_update_moves_several_answers_at_once_each_to_its_own_posterior():
+    """The advice's collapsed futures of one request are moved in one pass: three answers of the
+    conjugate problem above, each set of draws to its own answer's posterior (with Metropolis steps
+    on its own density); one set in a batch of one is the unbatched call, random number for number."""
+    rng = np.random.default_rng(6)
+    cov = np.array([[1.0, 0.8], [0.8, 1.0]])
+    prior = rng.multivariate_normal(np.zeros(2), cov, 2000)
+    values, sd = np.array([[-1.0], [0.0], [1.5]]), np.array([0.05])
+
+    def log_density(x):  # (F, N, 2): the prior's density times set f's answer
+        inv = np.linalg.inv(cov)
+        return -0.5 * (np.einsum("fni,ij,fnj->fn", x, inv, x) + ((x[..., 0] - values[:, :1]) / sd[0]) ** 2)
+
+    moved = kalman_update(np.repeat(prior[None], 3, axis=0), lambda x: x[..., :1], values, sd, rng,
+                          log_density=log_density, n_moves=4)
+    assert moved.shape == (3, 2000, 2)
+    gain = cov[:, :1] / (cov[0, 0] + sd[0] ** 2)
+    post = cov - gain @ cov[:1, :]
+    for f, v in enumerate(values[:, 0]):
+        mean = (gain * v).ravel()
+        for k in range(2):
+            assert moved[f, :, k].mean() == pytest.approx(mean[k], abs=4 * np.sqrt(post[k, k] / 2000))
+            assert moved[f, :, k].std() == pytest.approx(np.sqrt(post[k, k]), rel=0.1)
+    one = kalman_update(prior[None], lambda x: x[..., :1], values[:1], sd, np.random.default_rng(1))
+    np.testing.assert_allclose(one[0], kalman_update(prior, lambda x: x[:, :1], values[0], sd, np.random.default_rng(1)))
+
+
 def test_the_kalman_update_follows_a_quantity_that_is_not_linear():
     """The draws (log angular size a, depth z in metres, log-normal), the answer on the log-size
     q = a + log z: the moved depths against plain reweighting of a million draws."""
