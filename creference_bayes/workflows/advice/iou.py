@@ -15,7 +15,7 @@ import numpy as np
 
 from ...evaluation.iou3d import footprints
 
-__all__ = ["convex_intersection_area", "iou_3d_pairs"]
+__all__ = ["convex_intersection_area", "iou_3d_pairs", "iou_3d_at_least"]
 
 #: Pairs handled per vectorised chunk (bounds the temporary arrays to a few tens of megabytes).
 _CHUNK = 20000
@@ -106,3 +106,31 @@ def iou_3d_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     inter = inter_area * overlap_h
     union = np.prod(a[:, 4:7], axis=1) + np.prod(b[:, 4:7], axis=1) - inter
     return np.clip(inter / union, 0.0, 1.0)
+
+
+def iou_3d_at_least(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
+    """Whether the 3D IoU of ``a[p]`` and ``b[p]`` is at least ``threshold``, for every p (boxes as
+    :func:`iou_3d_pairs`): :func:`iou_3d_pairs` ≥ ``threshold``, computed only for the pairs an upper
+    bound leaves open. The bound: the footprints' intersection lies in ``a``'s footprint cut by the
+    rectangle that bounds ``b``'s in ``a``'s frame (their overlaps along ``a``'s two axes), times the
+    heights' overlap, over the union that intersection would leave."""
+    a, b = np.atleast_2d(np.asarray(a, float)), np.atleast_2d(np.asarray(b, float))
+    if a.shape != b.shape or a.shape[1:] != (7,):
+        raise ValueError(f"a, b: expected two (P, 7) arrays, got {a.shape} and {b.shape}")
+    c, s = np.cos(a[:, 3]), np.sin(a[:, 3])
+    dx, dz = b[:, 0] - a[:, 0], b[:, 2] - a[:, 2]
+    along, across = dx * c - dz * s, dx * s + dz * c              # b's centre in a's frame
+    turn = b[:, 3] - a[:, 3]
+    ct, st = np.abs(np.cos(turn)), np.abs(np.sin(turn))
+    half_l, half_w = (ct * b[:, 4] + st * b[:, 5]) / 2, (st * b[:, 4] + ct * b[:, 5]) / 2
+    ox = np.clip(np.minimum(a[:, 4] / 2, along + half_l) - np.maximum(-a[:, 4] / 2, along - half_l), 0.0, None)
+    oz = np.clip(np.minimum(a[:, 5] / 2, across + half_w) - np.maximum(-a[:, 5] / 2, across - half_w), 0.0, None)
+    oh = np.clip(np.minimum(a[:, 1], b[:, 1]) - np.maximum(a[:, 1] - a[:, 6], b[:, 1] - b[:, 6]), 0.0, None)
+    inter = np.minimum(ox * oz, np.minimum(a[:, 4] * a[:, 5], b[:, 4] * b[:, 5])) * oh
+    volumes = np.prod(a[:, 4:7], axis=1) + np.prod(b[:, 4:7], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        open_ = inter >= threshold * (volumes - inter) * (1.0 - 1e-9)
+    out = np.zeros(len(a), bool)
+    if open_.any():
+        out[open_] = iou_3d_pairs(a[open_], b[open_]) >= threshold
+    return out

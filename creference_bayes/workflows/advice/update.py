@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .iou import iou_3d_pairs
+from .iou import iou_3d_at_least
 
 __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
            "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "kalman_update"]
@@ -173,8 +173,8 @@ def p_iou(boxes: np.ndarray, weights: np.ndarray, threshold: float, rng, n_pairs
     idx = np.stack([systematic_resample(row, n_pairs, rng) for row in w])       # (M, n_pairs)
     means = np.stack([mean_boxes(boxes[:, j], w) for j in range(boxes.shape[1])], axis=1)  # (M, k, 7)
     truth = boxes[idx]                                                           # (M, n_pairs, k, 7)
-    iou = iou_3d_pairs(np.repeat(means[:, None], n_pairs, axis=1).reshape(-1, 7), truth.reshape(-1, 7))
-    return (iou.reshape(len(w), n_pairs, -1) >= threshold).mean(axis=1)
+    good = iou_3d_at_least(np.repeat(means[:, None], n_pairs, axis=1).reshape(-1, 7), truth.reshape(-1, 7), threshold)
+    return good.reshape(len(w), n_pairs, -1).mean(axis=1)
 
 
 def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: int = 8,
