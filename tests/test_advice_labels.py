@@ -247,9 +247,9 @@ def test_the_collapsed_futures_of_a_size_are_moved_together_each_to_its_own_answ
 
 @pytest.mark.slow
 def test_the_fallbacks_on_fewer_draws_predict_what_they_did_on_all(monkeypatch):
-    """The advice recomputes a collapsed future on FALLBACK_DRAWS of the draws, with KALMAN_MOVES
-    random-walk steps after a Kalman update (docs/studies/advice.md, "Speed"): every request's
-    predictions as they were on all the draws with 32 steps, within their Monte Carlo noise."""
+    """The advice recomputes a collapsed future on FALLBACK_DRAWS of the draws (docs/studies/advice.md,
+    "Speed of the advice on a frame"): every request's predictions as they were on all the draws,
+    within their Monte Carlo noise."""
     import creference_bayes.workflows.advice as advice_module
     from creference_bayes.pipeline import estimate
     from creference_bayes.workflows.advice.inputs import advise_result
@@ -259,9 +259,8 @@ def test_the_fallbacks_on_fewer_draws_predict_what_they_did_on_all(monkeypatch):
     result = estimate(scene, seed=1, sampling={"min_ess": 400}, keep_draws=400)
     settings = AdviceSettings(n_draws=400, n_futures=60)
     runs = []
-    for draws, moves in ((250, 12), (400, 32)):
+    for draws in (250, 400):
         monkeypatch.setattr(advice_module, "FALLBACK_DRAWS", draws)
-        monkeypatch.setattr(advice_module, "KALMAN_MOVES", moves)
         runs.append({p.candidate.key: p for p in advise_result(result, scene, seed=3, settings=settings).predictions})
     fast, full = runs
     assert sum(p.fallbacks for p in fast.values()) >= 10   # the fallbacks were used

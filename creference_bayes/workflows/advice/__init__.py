@@ -71,12 +71,9 @@ KINDS = ("dims", "reference", "size", "mounting")
 #: Resamples of the futures behind a good-label gain's standard error.
 _BOOTSTRAPS = 20
 #: Draws a collapsed future is recomputed on (:func:`_moved`), evenly thinned from those weighed
-#: (its HDI is read against the present's on the same draws), and the random-walk steps after a
-#: Kalman update. The cost of the fallbacks grows with both; on a frame of 12 objects the spreads
-#: they leave are as close to the frame's estimated again with 250 draws and 12 steps as with 400
-#: and 32 (docs/studies/advice.md, "Speed").
+#: (its HDI is read against the present's on the same draws): the fallbacks' cost grows with them
+#: (docs/studies/advice.md, "Speed of the advice on a frame").
 FALLBACK_DRAWS = 250
-KALMAN_MOVES = 12
 
 
 @dataclass(frozen=True)
@@ -704,10 +701,9 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     the blocks barely correlate, so random-walk moves go further).
 
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
-    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md), then
-    :data:`KALMAN_MOVES` random-walk steps; an annotation by the tempered update
-    (:func:`~.update.tempered_update`), ``max(8, d)`` random-walk steps a stage for d parameters, at
-    most 32 (mixing slows with d).
+    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
+    annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
+    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d).
 
     ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
     the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
@@ -742,9 +738,14 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
         return old(y.reshape(-1, y.shape[-1])).reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
 
     moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
-                          n_moves=KALMAN_MOVES)
+                          n_moves=_n_moves(x.shape[1]))
     c, o = natural(moved)
     return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
+
+
+def _n_moves(d: int) -> int:
+    """The random-walk steps of :func:`_moved` in d dimensions (its docstring)."""
+    return int(min(32, max(8, d)))
 
 
 def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
@@ -786,7 +787,7 @@ def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature
     x = np.concatenate([wc[:, new.camera_free], wo[:, new.object_free]], axis=1)
     unpack, density = _working(new, coords, wc, wo, temperature)
     moved, _ = tempered_update(density(obs.model, obs.needs_scale), density(new, False), x, rng,
-                               n_moves=int(min(32, max(8, x.shape[1]))))
+                               n_moves=_n_moves(x.shape[1]))
     return coords.from_work(*unpack(moved))
 
 
