@@ -462,9 +462,9 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
     from creference_bayes.workflows import advice as advice_module
     from creference_bayes.workflows.advice.inputs import advise_result
 
-    def present(obs, i, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
-        order = rng.permutation(len(cams))
-        return cams[order], objs[order]
+    def present(obs, idx, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
+        orders = [rng.permutation(len(cams)) for _ in np.atleast_1d(idx)]   # one set per collapsed future
+        return np.stack([cams[o] for o in orders]), np.stack([objs[o] for o in orders])
 
     monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(20.0))
     monkeypatch.setattr(advice_module, "_moved", present)
