@@ -225,6 +225,53 @@ def test_an_answers_fallback_moves_the_draws_to_the_answered_estimate(crowded, k
     assert np.all(np.abs(ratio - 1.0) < 0.12) and abs(np.mean(ratio) - 1.0) < 0.05
 
 
+def test_the_collapsed_futures_of_a_size_are_moved_together_each_to_its_own_answer(crowded):
+    """The fallback moves every collapsed future of a request in one pass: two answers for the
+    second target's size, one from a draw in each tail of its length, each move its own set of
+    draws to a length near its answer (the answer is 3 % sure, the class prior 20 % or more)."""
+    from creference_bayes.models.contract import O_SIZE
+    from creference_bayes.workflows.advice import _moved
+
+    scene, model, cams, objs = crowded
+    length = objs[:, 1, O_SIZE.start]
+    tails = np.argsort(length)[[len(cams) // 20, -len(cams) // 20]]
+    obs = SizeObservation(model, 1, CATALOGUE_LOG_SD)
+    obs.simulate(np.random.default_rng(3), cams[tails], objs[tails])
+    moved_cams, moved = _moved(obs, np.array([0, 1]), cams[:250], objs[:250], np.random.default_rng(4), 1.0)
+    assert moved_cams.shape == (2, 250, 5) and moved.shape == (2, 250, *objs.shape[1:])
+    for f in range(2):
+        assert np.median(np.log(moved[f, :, 1, O_SIZE.start])) == pytest.approx(obs.values[f, 0], abs=0.05)
+    assert obs.values[1, 0] - obs.values[0, 0] > 0.2   # two answers apart
+    assert np.all(np.isfinite(moved))
+
+
+@pytest.mark.slow
+def test_the_fallbacks_on_fewer_draws_predict_what_they_did_on_all(monkeypatch):
+    """The advice recomputes a collapsed future on FALLBACK_DRAWS of the draws (docs/studies/advice.md,
+    "Speed of the advice on a frame"): every request's predictions as they were on all the draws,
+    within their Monte Carlo noise."""
+    import creference_bayes.workflows.advice as advice_module
+    from creference_bayes.pipeline import estimate
+    from creference_bayes.workflows.advice.inputs import advise_result
+
+    d, _ = truth_scene(5, m=3, noise_px=2.0, n_annotations=2, sizes_known=False, focal_known=True, depth=(8.0, 35.0))
+    scene = parse_scene(d)
+    result = estimate(scene, seed=1, sampling={"min_ess": 400}, keep_draws=400)
+    settings = AdviceSettings(n_draws=400, n_futures=60)
+    runs = []
+    for draws in (250, 400):
+        monkeypatch.setattr(advice_module, "FALLBACK_DRAWS", draws)
+        runs.append({p.candidate.key: p for p in advise_result(result, scene, seed=3, settings=settings).predictions})
+    fast, full = runs
+    assert sum(p.fallbacks for p in fast.values()) >= 10   # the fallbacks were used
+    assert fast.keys() == full.keys()
+    for key, p in fast.items():
+        q = full[key]
+        np.testing.assert_allclose(p.expected.p_iou, q.expected.p_iou, atol=0.03, err_msg=key)
+        np.testing.assert_allclose(p.expected.hdi_share, q.expected.hdi_share, atol=0.003, err_msg=key)
+        assert abs(p.good_gain - q.good_gain) <= 0.05 + 3 * np.hypot(p.good_gain_se, q.good_gain_se), key
+
+
 @pytest.fixture(scope="module")
 def advised(frame):
     from creference_bayes.workflows.advice.inputs import advise_scene
@@ -415,9 +462,9 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
     from creference_bayes.workflows import advice as advice_module
     from creference_bayes.workflows.advice.inputs import advise_result
 
-    def present(obs, i, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
-        order = rng.permutation(len(cams))
-        return cams[order], objs[order]
+    def present(obs, idx, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
+        orders = [rng.permutation(len(cams)) for _ in np.atleast_1d(idx)]   # one set per collapsed future
+        return np.stack([cams[o] for o in orders]), np.stack([objs[o] for o in orders])
 
     monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(20.0))
     monkeypatch.setattr(advice_module, "_moved", present)

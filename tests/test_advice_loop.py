@@ -230,7 +230,9 @@ def test_a_second_run_that_changes_nothing_says_so_and_writes_nothing(tmp_path, 
             {"rank": "2", "key": "f0", "kind": "mounting", "answer": "1.5,4,0.5"}]
     answers = _answers(tmp_path / "a.csv", rows)
     assert main(["advise", str(out), "--apply", str(answers)]) == 0
-    assert "run creference batch" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "run creference batch" in printed
+    assert printed.count("note: a catalogue size ties the camera") == 1   # what the size costs, said once
     inode, text = path.stat().st_ino, path.read_bytes()
     assert main(["advise", str(out), "--apply", str(answers)]) == 0
     printed = capsys.readouterr().out

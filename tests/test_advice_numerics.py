@@ -15,7 +15,7 @@ from creference_bayes.models.metrology import ReferenceTerm, ground_lengths
 from creference_bayes.pipeline import build_model
 from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
                                                           annotation_seconds, candidates, format_mix)
-from creference_bayes.workflows.advice.iou import iou_3d_pairs
+from creference_bayes.workflows.advice.iou import iou_3d_at_least, iou_3d_pairs
 from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation, grown
 from creference_bayes.workflows.advice.update import (kalman_update, location_sd, normalise, tempered_update,
                                                       weighted_hdi)
@@ -33,6 +33,27 @@ def test_pairwise_iou_matches_shapely():
     np.testing.assert_allclose(iou_3d_pairs(a, b), expected, atol=1e-9)
     assert np.all(iou_3d_pairs(a[:50], b[:50]) > 1 - 1e-9)
     assert (expected == 0).any() and ((expected > 0) & (expected < 1)).sum() > 100
+
+
+@pytest.mark.parametrize("threshold", [0.3, 0.5, 0.7, 0.9])
+def test_iou_at_least_a_threshold_is_the_iou_compared_whatever_the_bound_leaves_out(threshold):
+    """The advice's P(IoU ≥ t) counts pairs by :func:`iou_3d_at_least`, which computes the IoU only
+    where a cheap upper bound leaves the answer open: the same verdict as the IoU compared, pair
+    for pair (identical, touching, turned and far-apart boxes among them)."""
+    rng = np.random.default_rng(2)
+    n = 4000
+    a = np.column_stack([rng.normal(0, 0.6, n), rng.normal(1.5, 0.2, n), rng.normal(6, 0.6, n),
+                         rng.uniform(-np.pi, np.pi, n), rng.uniform(0.2, 3, (n, 3))])
+    b = a + np.column_stack([rng.normal(0, 0.3, (n, 3)), rng.normal(0, 0.3, n), rng.normal(0, 0.1, (n, 3))])
+    b[:, 4:] = np.abs(b[:, 4:]) + 0.05
+    b[:50] = a[:50]                                               # identical
+    b[50:100] = a[50:100]
+    b[50:100, 0] += a[50:100, 4] * np.cos(a[50:100, 3])          # touching end to end
+    b[50:100, 2] -= a[50:100, 4] * np.sin(a[50:100, 3])
+    b[100:150, 0] += 20.0                                         # far apart
+    iou = iou_3d_pairs(a, b)
+    np.testing.assert_array_equal(iou_3d_at_least(a, b, threshold), iou >= threshold)
+    assert np.all(iou[:50] > 1 - 1e-9) and np.all(iou[50:150] < 1e-9)
 
 
 def test_weighted_hdi_with_equal_weights_is_the_sample_hdi_and_columns_are_independent():
@@ -109,6 +130,33 @@ def test_the_kalman_update_gives_the_conjugate_posterior_of_a_correlated_gaussia
         assert moved[:, k].mean() == pytest.approx(mean[k], abs=4 * np.sqrt(post[k, k] / 4000))
     np.testing.assert_allclose(np.cov(moved.T), post, atol=0.06 * np.sqrt(np.outer(np.diag(post), np.diag(post))).max())
     assert len(np.unique(moved[:, 1])) == 4000
+
+
+def test_the_kalman_update_moves_several_answers_at_once_each_to_its_own_posterior():
+    """The advice's collapsed futures of one request are moved in one pass: three answers of the
+    conjugate problem above, each set of draws to its own answer's posterior (with Metropolis steps
+    on its own density); one set in a batch of one is the unbatched call, random number for number."""
+    rng = np.random.default_rng(6)
+    cov = np.array([[1.0, 0.8], [0.8, 1.0]])
+    prior = rng.multivariate_normal(np.zeros(2), cov, 2000)
+    values, sd = np.array([[-1.0], [0.0], [1.5]]), np.array([0.05])
+
+    def log_density(x):  # (F, N, 2): the prior's density times set f's answer
+        inv = np.linalg.inv(cov)
+        return -0.5 * (np.einsum("fni,ij,fnj->fn", x, inv, x) + ((x[..., 0] - values[:, :1]) / sd[0]) ** 2)
+
+    moved = kalman_update(np.repeat(prior[None], 3, axis=0), lambda x: x[..., :1], values, sd, rng,
+                          log_density=log_density, n_moves=4)
+    assert moved.shape == (3, 2000, 2)
+    gain = cov[:, :1] / (cov[0, 0] + sd[0] ** 2)
+    post = cov - gain @ cov[:1, :]
+    for f, v in enumerate(values[:, 0]):
+        mean = (gain * v).ravel()
+        for k in range(2):
+            assert moved[f, :, k].mean() == pytest.approx(mean[k], abs=4 * np.sqrt(post[k, k] / 2000))
+            assert moved[f, :, k].std() == pytest.approx(np.sqrt(post[k, k]), rel=0.1)
+    one = kalman_update(prior[None], lambda x: x[..., :1], values[:1], sd, np.random.default_rng(1))
+    np.testing.assert_allclose(one[0], kalman_update(prior, lambda x: x[:, :1], values[0], sd, np.random.default_rng(1)))
 
 
 def test_the_kalman_update_follows_a_quantity_that_is_not_linear():

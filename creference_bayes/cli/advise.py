@@ -154,10 +154,11 @@ def _batch(args, settings, progress: bool | str) -> int:
     return 0
 
 
-def _into_scenes(args, put, noun: str, verb: str, nothing: str) -> int:
+def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None) -> int:
     """Run ``put(notes)`` (--apply or --merge: it writes the user's scene files and returns (file,
     what, whether it changed the file) per answer), its notes as warnings, then what changed and
-    what to run next; when nothing changed (no file written), ``nothing``: why."""
+    what to run next; when nothing changed (no file written), ``nothing``: why. ``cost(what)``: what
+    an answer that changed a file costs the next estimate, if anything (said once)."""
     notes: list[str] = []
     with usage_errors(one_line=True):
         done = put(notes)
@@ -175,6 +176,9 @@ def _into_scenes(args, put, noun: str, verb: str, nothing: str) -> int:
                   + (f" ({same} in them already)" if same else "")
                   + "; run creference batch on them again, with the same settings: it re-estimates the frames "
                     "that changed")
+            said = {cost(what) for _, what, changed in done if changed and cost is not None} - {None}
+            for text in sorted(said):
+                print(f"note: {text}")
     return 0
 
 
@@ -198,7 +202,16 @@ def _apply(args) -> int:
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/requests.md)")
     return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into",
-                        "every answer is in the scene files already")
+                        "every answer is in the scene files already", _answer_cost)
+
+
+def _answer_cost(what: str) -> str | None:
+    """What an answer (``apply_answers``' text of it) costs the frame's next estimate."""
+    if ": size " in what:
+        return ("a catalogue size ties the camera to that object's distance: on some frames the sampler then moves "
+                "the camera's pitch and height more slowly, and the frame's estimate takes up to a few times longer "
+                "(the same posterior; docs/studies/advice.md, 'Speed')")
+    return None
 
 
 def _merge(args) -> int:

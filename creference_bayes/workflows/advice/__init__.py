@@ -70,6 +70,10 @@ OBJECTIVES = ("labels", "hdi", "location")
 KINDS = ("dims", "reference", "size", "mounting")
 #: Resamples of the futures behind a good-label gain's standard error.
 _BOOTSTRAPS = 20
+#: Draws a collapsed future is recomputed on (:func:`_moved`), evenly thinned from those weighed
+#: (its HDI is read against the present's on the same draws): the fallbacks' cost grows with them
+#: (docs/studies/advice.md, "Speed of the advice on a frame").
+FALLBACK_DRAWS = 250
 
 
 @dataclass(frozen=True)
@@ -625,18 +629,23 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
     rows = draws.outlooks(weights, settings, rng)
     n = len(cams)
     collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
-    for i in collapsed:  # recompute those futures with the fallback
-        moved = _Draws(*_moved(obs, i, cams, draws.objs, rng, temperature), draws.scene)
-        one = moved.outlooks(np.full((1, n), 1.0 / n), settings, rng)
-        for k in rows:
-            rows[k][i] = one[k][0]
     # Each future against the present at its own weights (module docstring): scaled by the present
-    # on all draws over that; fallback futures are equally weighted draws, as the present is.
+    # on all draws over that. The fallback futures are recomputed on FALLBACK_DRAWS of the draws
+    # (evenly thinned), moved together: scaled by the present on all draws over that on those.
     same = np.ones(len(outer), bool)
     same[collapsed] = False
     width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng)
-    rows["hdi_width_m"] = rows["hdi_width_m"] * np.where(same[:, None], now.hdi_width_m / width, 1.0)
-    rows["hdi_share"] = rows["hdi_share"] * np.where(same[:, None], now.hdi_share / share, 1.0)
+    if len(collapsed):
+        sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
+        equal = np.full((1, len(sub)), 1.0 / len(sub))
+        sub_width, sub_median = weighted_hdi(draws.dist[sub], equal, settings.hdi_prob)
+        width[collapsed], share[collapsed] = sub_width[0], sub_width[0] / sub_median[0]
+        for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, temperature)):
+            one = _Draws(c, o, draws.scene).outlooks(equal, settings, rng)
+            for k in rows:
+                rows[k][i] = one[k][0]
+    rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width
+    rows["hdi_share"] = rows["hdi_share"] * now.hdi_share / share
     expected = Outlook(**{k: v.mean(axis=0) for k, v in rows.items()})
     expected = dataclasses.replace(expected, p_iou=np.clip(expected.p_iou + shift, 0.0, 1.0))
     gains = 100.0 * np.sum(now.hdi_share - rows["hdi_share"], axis=1)
@@ -686,7 +695,7 @@ def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, setting
                                                              / now.distance_m)))
 
 
-def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
+def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     """The draws moved to the posterior after the i-th simulated observation, over the new model's
     free parameters, in the sampler's working coordinates (:mod:`~creference_bayes.inference.coords`:
     the blocks barely correlate, so random-walk moves go further).
@@ -694,41 +703,91 @@ def _moved(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: fl
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
     update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
     annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
-    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d)."""
-    from ...inference.coords import CAMERA_LOG, WorkingCoords
+    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d).
 
-    new = obs.model_with(i) if hasattr(obs, "model_with") else None
-    coords = WorkingCoords(new or obs.model)
-    cf, of = (new or obs.model).camera_free, (new or obs.model).object_free
-    logs = CAMERA_LOG & cf
+    ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
+    the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
+    from ...inference.coords import WorkingCoords
+
+    if np.ndim(i) == 0:
+        c, o = _moved(obs, np.array([i]), cams, objs, rng, temperature)
+        return c[0], o[0]
+    idx = np.asarray(i, int)
+    prior = not hasattr(obs, "model_with")  # an answer that enters as a normal prior
+    if not prior:
+        out = [_moved_one(obs, k, cams, objs, rng, temperature) for k in idx]
+        return np.array([c for c, _ in out]), np.array([o for _, o in out])
+    coords = WorkingCoords(obs.model)
+    cf, of = obs.model.camera_free, obs.model.object_free
     wc, wo = coords.to_work(cams, objs)
+    x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
+    unpack, density = _working(obs.model, coords, wc, wo, temperature)
+    old = density(obs.model, obs.needs_scale)
+    values = obs.values[idx]                                                        # (F, p)
+
+    def natural(y):  # (F, n, d) → cameras and objects of every row
+        return coords.from_work(*unpack(y.reshape(-1, y.shape[-1])))
+
+    def observe(y):
+        return obs.quantities(*natural(y)).reshape(*y.shape[:2], -1)
+
+    def target(y):  # the old posterior times the f-th answer's normal density, set f's own
+        z = (values[:, None, :] - observe(y)) / obs.sd
+        with np.errstate(invalid="ignore"):
+            ratio = -0.5 * np.sum(z * z, axis=-1)
+        return old(y.reshape(-1, y.shape[-1])).reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
+
+    moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
+                          n_moves=_n_moves(x.shape[1]))
+    c, o = natural(moved)
+    return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
+
+
+def _n_moves(d: int) -> int:
+    """The random-walk steps of :func:`_moved` in d dimensions (its docstring)."""
+    return int(min(32, max(8, d)))
+
+
+def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
+    """(unpack, density) in the working coordinates of ``model``'s free parameters: ``unpack``
+    (n, d) → full working cameras and objects (the fixed entries of the first draw), ``density``
+    (a model, whether the crowd scale's prior enters) → the log-posterior density (n, d) → (n,)."""
+    from ...inference.coords import CAMERA_LOG
+
+    cf, of = model.camera_free, model.object_free
+    logs = CAMERA_LOG & cf
 
     def unpack(x):
         c, o = np.repeat(wc[:1], len(x), axis=0), np.repeat(wo[:1], len(x), axis=0)
         c[:, cf], o[:, of] = x[:, :cf.sum()], x[:, cf.sum():]
         return c, o
 
-    def density(model, scale_prior: bool):  # log-posterior density in working coordinates
+    def density(m, scale_prior: bool):  # log-posterior density in working coordinates
         def f(x):
             c, o = unpack(x)
             cn, on, jac = coords.from_work_jacobian(c, o)
             with np.errstate(all="ignore"):
-                out = -model.neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1) + jac.sum(axis=1)
+                out = -m.neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1) + jac.sum(axis=1)
                 if scale_prior:
-                    out = out - model.ref_scale_neg_log(cn[:, C_SCALE])
+                    out = out - m.ref_scale_neg_log(cn[:, C_SCALE])
             return np.where(np.isfinite(out), out, -np.inf)
         return f
 
-    x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
-    old, n_moves = density(obs.model, obs.needs_scale), int(min(32, max(8, x.shape[1])))
-    if new is None:  # an answer that enters as a normal prior (a size, a mounting): the Kalman update
-        def target(y):
-            return old(y) + obs.log_ratio(*coords.from_work(*unpack(y)), values=obs.values[i:i + 1])[0]
+    return unpack, density
 
-        moved = kalman_update(x, lambda y: obs.quantities(*coords.from_work(*unpack(y))), obs.values[i], obs.sd, rng,
-                              log_density=target, n_moves=n_moves)
-    else:
-        moved, _ = tempered_update(old, density(new, False), x, rng, n_moves=n_moves)
+
+def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
+    """:func:`_moved` for one future of an annotation (a set of lines, a reference): the tempered
+    update to the model with it."""
+    from ...inference.coords import WorkingCoords
+
+    new = obs.model_with(i)
+    coords = WorkingCoords(new)
+    wc, wo = coords.to_work(cams, objs)
+    x = np.concatenate([wc[:, new.camera_free], wo[:, new.object_free]], axis=1)
+    unpack, density = _working(new, coords, wc, wo, temperature)
+    moved, _ = tempered_update(density(obs.model, obs.needs_scale), density(new, False), x, rng,
+                               n_moves=_n_moves(x.shape[1]))
     return coords.from_work(*unpack(moved))
 
 

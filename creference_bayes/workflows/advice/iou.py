@@ -4,8 +4,9 @@ The advice needs the IoU of an exported box with every posterior draw for each o
 simulated futures: tens of thousands of pairs per candidate annotation, too many for shapely's
 polygon objects (:mod:`creference_bayes.evaluation.iou3d` uses shapely for the labels themselves, and the tests check
 this module against it). Both footprints are convex quadrilaterals, so their intersection is the
-convex polygon whose corners are the corners of each footprint inside the other and the crossings
-of their edges; its area follows from those points sorted by angle around their centroid.
+convex polygon bounded by the parts of each footprint's edges inside the other; its area is the sum
+over those parts of their ends' cross products (Green's theorem), each edge clipped to the other's
+half-planes, with no sorting of corners.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 
 from ...evaluation.iou3d import footprints
 
-__all__ = ["convex_intersection_area", "iou_3d_pairs"]
+__all__ = ["convex_intersection_area", "iou_3d_pairs", "iou_3d_at_least"]
 
 #: Pairs handled per vectorised chunk (bounds the temporary arrays to a few tens of megabytes).
 _CHUNK = 20000
@@ -28,50 +29,39 @@ def _ccw(poly: np.ndarray) -> np.ndarray:
     return np.where((signed < 0)[:, None, None], poly[:, ::-1], poly)
 
 
-def _inside(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """(P, k) whether each of ``points`` (P, k, 2) lies in the counter-clockwise convex ``poly`` (P, 4, 2)."""
-    a = poly[:, None, :, :]                      # (P, 1, 4, 2) edge starts
-    e = np.roll(poly, -1, axis=1)[:, None] - a   # (P, 1, 4, 2) edge vectors
-    d = points[:, :, None, :] - a                # (P, k, 4, 2)
-    cross = e[..., 0] * d[..., 1] - e[..., 1] * d[..., 0]
-    scale = np.abs(e).sum(axis=-1) * (np.abs(d).sum(axis=-1) + 1.0)
-    return np.all(cross >= -1e-9 * scale, axis=-1)
+def _clipped_edges(pa: np.ndarray, pb: np.ndarray, keep_on_line: bool) -> np.ndarray:
+    """(P,) twice the signed area the edges of ``pa`` contribute to the boundary of ``pa`` ∩ ``pb``
+    (both (P, 4, 2), counter-clockwise): each edge clipped to the half-planes of ``pb`` (Cyrus–Beck),
+    the part left contributing p × q for its ends p, q (Green's theorem).
 
-
-def _crossings(pa: np.ndarray, pb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Crossing points of every edge of ``pa`` with every edge of ``pb``: (P, 16, 2) and valid (P, 16)."""
-    p = pa[:, :, None, :]
-    r = (np.roll(pa, -1, axis=1) - pa)[:, :, None, :]
-    q = pb[:, None, :, :]
-    s = (np.roll(pb, -1, axis=1) - pb)[:, None, :, :]
-    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
-    qp = q - p
+    An edge on a line of ``pb`` belongs to the boundary once: kept when ``keep_on_line`` and the two
+    run the same way (a shared side: the edges of the other polygon on it are dropped), dropped
+    when they run opposite ways (the polygons touch from outside)."""
+    r = np.roll(pa, -1, axis=1) - pa                        # (P, 4, 2) edge vectors of pa
+    e = (np.roll(pb, -1, axis=1) - pb)[:, None]             # (P, 1, 4, 2) edge vectors of pb
+    def side(x):  # (P, 4, 4): how far the points x (P, 4, 2) are inside each half-plane of pb
+        d = x[:, :, None, :] - pb[:, None]
+        return e[..., 0] * d[..., 1] - e[..., 1] * d[..., 0]
+    f0, f1 = side(pa), side(pa + r)
+    scale = np.abs(e).sum(axis=-1) * (np.abs(pa).sum(axis=-1)[:, :, None] + np.abs(r).sum(axis=-1)[:, :, None] + 1.0)
+    on_line = (np.abs(f0) <= 1e-9 * scale) & (np.abs(f1) <= 1e-9 * scale)
+    same_way = np.sum(r[:, :, None, :] * e, axis=-1) > 0
+    df = f1 - f0
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
-        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > _EPS) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    pts = p + np.where(ok, t, 0.0)[..., None] * r
-    n = len(pa)
-    return pts.reshape(n, 16, 2), ok.reshape(n, 16)
+        t = -f0 / df
+    free = on_line & same_way & keep_on_line
+    lo = np.max(np.where((df > 0) & ~free, t, 0.0), axis=2).clip(0.0, 1.0)
+    hi = np.min(np.where((df < 0) & ~free, t, 1.0), axis=2).clip(0.0, 1.0)
+    empty = np.any(((df == 0) & (f0 < 0) | on_line) & ~free, axis=2) | (lo >= hi)
+    p, q = pa + lo[..., None] * r, pa + hi[..., None] * r
+    return np.sum(np.where(empty, 0.0, p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0]), axis=1)
 
 
 def _area_chunk(pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    pa, pb = _ccw(pa), _ccw(pb)
-    cross_pts, cross_ok = _crossings(pa, pb)
-    pts = np.concatenate([pa, pb, cross_pts], axis=1)                          # (P, 24, 2)
-    ok = np.concatenate([_inside(pa, pb), _inside(pb, pa), cross_ok], axis=1)  # (P, 24)
-    count = ok.sum(axis=1)
-    centre = np.sum(pts * ok[..., None], axis=1) / np.maximum(count, 1)[:, None]
-    rel = pts - centre[:, None, :]
-    angle = np.where(ok, np.arctan2(rel[..., 1], rel[..., 0]), np.inf)
-    order = np.argsort(angle, axis=1)
-    rel = np.take_along_axis(rel, order[..., None], axis=1)
-    k = np.arange(pts.shape[1])[None, :]
-    nxt = np.where(k + 1 < count[:, None], k + 1, 0)
-    rel_next = np.take_along_axis(rel, nxt[..., None], axis=1)
-    tri = rel[..., 0] * rel_next[..., 1] - rel[..., 1] * rel_next[..., 0]
-    area = 0.5 * np.sum(np.where(k < count[:, None], tri, 0.0), axis=1)
-    return np.where(count >= 3, np.maximum(area, 0.0), 0.0)
+    centre = pa.mean(axis=1, keepdims=True)  # a common origin near both, for precision
+    pa, pb = _ccw(pa - centre), _ccw(pb - centre)
+    area = 0.5 * (_clipped_edges(pa, pb, True) + _clipped_edges(pb, pa, False))
+    return np.maximum(area, 0.0)
 
 
 def convex_intersection_area(pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
@@ -116,3 +106,31 @@ def iou_3d_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     inter = inter_area * overlap_h
     union = np.prod(a[:, 4:7], axis=1) + np.prod(b[:, 4:7], axis=1) - inter
     return np.clip(inter / union, 0.0, 1.0)
+
+
+def iou_3d_at_least(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
+    """Whether the 3D IoU of ``a[p]`` and ``b[p]`` is at least ``threshold``, for every p (boxes as
+    :func:`iou_3d_pairs`): :func:`iou_3d_pairs` ≥ ``threshold``, computed only for the pairs an upper
+    bound leaves open. The bound: the footprints' intersection lies in ``a``'s footprint cut by the
+    rectangle that bounds ``b``'s in ``a``'s frame (their overlaps along ``a``'s two axes), times the
+    heights' overlap, over the union that intersection would leave."""
+    a, b = np.atleast_2d(np.asarray(a, float)), np.atleast_2d(np.asarray(b, float))
+    if a.shape != b.shape or a.shape[1:] != (7,):
+        raise ValueError(f"a, b: expected two (P, 7) arrays, got {a.shape} and {b.shape}")
+    c, s = np.cos(a[:, 3]), np.sin(a[:, 3])
+    dx, dz = b[:, 0] - a[:, 0], b[:, 2] - a[:, 2]
+    along, across = dx * c - dz * s, dx * s + dz * c              # b's centre in a's frame
+    turn = b[:, 3] - a[:, 3]
+    ct, st = np.abs(np.cos(turn)), np.abs(np.sin(turn))
+    half_l, half_w = (ct * b[:, 4] + st * b[:, 5]) / 2, (st * b[:, 4] + ct * b[:, 5]) / 2
+    ox = np.clip(np.minimum(a[:, 4] / 2, along + half_l) - np.maximum(-a[:, 4] / 2, along - half_l), 0.0, None)
+    oz = np.clip(np.minimum(a[:, 5] / 2, across + half_w) - np.maximum(-a[:, 5] / 2, across - half_w), 0.0, None)
+    oh = np.clip(np.minimum(a[:, 1], b[:, 1]) - np.maximum(a[:, 1] - a[:, 6], b[:, 1] - b[:, 6]), 0.0, None)
+    inter = np.minimum(ox * oz, np.minimum(a[:, 4] * a[:, 5], b[:, 4] * b[:, 5])) * oh
+    volumes = np.prod(a[:, 4:7], axis=1) + np.prod(b[:, 4:7], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        open_ = inter >= threshold * (volumes - inter) * (1.0 - 1e-9)
+    out = np.zeros(len(a), bool)
+    if open_.any():
+        out[open_] = iou_3d_pairs(a[open_], b[open_]) >= threshold
+    return out

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .iou import iou_3d_pairs
+from .iou import iou_3d_at_least
 
 __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
            "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "kalman_update"]
@@ -173,8 +173,8 @@ def p_iou(boxes: np.ndarray, weights: np.ndarray, threshold: float, rng, n_pairs
     idx = np.stack([systematic_resample(row, n_pairs, rng) for row in w])       # (M, n_pairs)
     means = np.stack([mean_boxes(boxes[:, j], w) for j in range(boxes.shape[1])], axis=1)  # (M, k, 7)
     truth = boxes[idx]                                                           # (M, n_pairs, k, 7)
-    iou = iou_3d_pairs(np.repeat(means[:, None], n_pairs, axis=1).reshape(-1, 7), truth.reshape(-1, 7))
-    return (iou.reshape(len(w), n_pairs, -1) >= threshold).mean(axis=1)
+    good = iou_3d_at_least(np.repeat(means[:, None], n_pairs, axis=1).reshape(-1, 7), truth.reshape(-1, 7), threshold)
+    return good.reshape(len(w), n_pairs, -1).mean(axis=1)
 
 
 def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: int = 8,
@@ -236,77 +236,99 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
     answers that enter as a normal prior, where the tempered update's few random-walk steps in a
     frame's many dimensions leave the draws too close together (docs/studies/advice.md).
 
+    F observations at once (``particles`` (F, N, d), ``value`` (F, p)) move F sets of draws, each
+    by its own gain and its own Metropolis steps, in one pass: the advice's collapsed futures of
+    one request (the same arithmetic as F calls, a fraction of their overhead).
+
     Parameters
     ----------
-    particles : (N, d) draws of the current posterior
-    observe : callable (N, d) → (N, p), the observed quantities q of each draw
-    value : (p,) the observation
+    particles : (N, d) draws of the current posterior, or (F, N, d)
+    observe : callable (N, d) → (N, p), the observed quantities q of each draw; for F sets,
+        (F, N, d) → (F, N, p)
+    value : (p,) the observation, or (F, p)
     sd : (p,) its spread, in the unit of q
     rng : numpy Generator
     steps : how many steps the observation is split into
     log_density : callable (N, d) → (N,), the new posterior's unnormalised log-density, −∞ outside
-        its support (needed for ``n_moves`` > 0)
+        its support (needed for ``n_moves`` > 0); for F sets, (F, N, d) → (F, N), set f's own
     n_moves : Metropolis steps after the update (proposals with the moved draws' covariance)
 
     Returns
     -------
-    (N, d) draws of the new posterior, equally weighted
+    (N, d) draws of the new posterior, equally weighted, or (F, N, d)
     """
     if n_moves > 0 and log_density is None:
         raise ValueError("kalman_update: n_moves > 0 needs the new posterior's log_density")
     x = np.array(particles, float)
-    n, d = x.shape
+    batched = x.ndim == 3
+    if not batched:  # one set: the same code on a batch of one (the same random numbers)
+        x = x[None]
+        observe = (lambda f: lambda y: np.asarray(f(y[0]), float)[None])(observe)
+        if log_density is not None:
+            log_density = (lambda f: lambda y: f(y[0])[None])(log_density)
+    n_sets, n, d = x.shape
+    value = np.asarray(value, float).reshape(n_sets, -1)
     var = steps * np.square(np.asarray(sd, float))
     q = np.asarray(observe(x), float)
     if not np.all(np.isfinite(q)):
         raise ValueError("kalman_update: an observed quantity of a draw is not finite")
     for _ in range(steps):
-        dx, dq = x - x.mean(axis=0), q - q.mean(axis=0)
-        gain = np.linalg.solve(dq.T @ dq / (n - 1) + np.diag(var), dq.T @ dx / (n - 1)).T   # (d, p)
-        perturbed = value + np.sqrt(var) * rng.standard_normal(q.shape)
-        x_new = x + (perturbed - q) @ gain.T
+        dx, dq = x - x.mean(axis=1, keepdims=True), q - q.mean(axis=1, keepdims=True)
+        cqq = np.einsum("fnp,fnr->fpr", dq, dq) / (n - 1) + np.diag(var)
+        gain = np.linalg.solve(cqq, np.einsum("fnp,fnd->fpd", dq, dx) / (n - 1))        # (F, p, d)
+        perturbed = value[:, None, :] + np.sqrt(var) * rng.standard_normal(q.shape)
+        x_new = x + np.einsum("fnp,fpd->fnd", perturbed - q, gain)
         with np.errstate(all="ignore"):
             q_new = np.asarray(observe(x_new), float)
         # a draw moved where its quantity or the new posterior is not defined (an object pushed over
         # the horizon, say) stays where it was for this step
-        stay = ~np.all(np.isfinite(q_new), axis=1)
+        stay = ~np.all(np.isfinite(q_new), axis=-1)
         if log_density is not None:
             stay |= ~np.isfinite(log_density(x_new))
         x_new[stay], q_new[stay] = x[stay], q[stay]
         x, q = x_new, q_new
     if n_moves > 0:
-        cov = np.cov(x.T).reshape(d, d)
-        chol = np.linalg.cholesky(cov + 1e-8 * np.diag(np.diag(cov)) + 1e-300 * np.eye(d))
+        dx = x - x.mean(axis=1, keepdims=True)
+        cov = np.einsum("fni,fnj->fij", dx, dx) / (n - 1)
+        diag = np.einsum("fii->fi", cov)
+        chol = np.linalg.cholesky(cov + 1e-8 * diag[:, :, None] * np.eye(d) + 1e-300 * np.eye(d))
         x, _, _, _ = _random_walk(lambda p: log_density(p)[None], x, log_density(x)[None], np.ones(1), chol,
-                                  2.38 / np.sqrt(d), rng, n_moves)
-    return x
+                                  np.full(n_sets, 2.38 / np.sqrt(d)), rng, n_moves)
+    return x if batched else x[0]
 
 
 def _random_walk(density, x, parts, coef, chol, step, rng, n_moves):
     """``n_moves`` random-walk Metropolis steps leaving log p = Σ coef_k · part_k invariant (−∞
     wherever a part is), Gaussian proposals step · chol · ε, the step adapted to the acceptance;
     ``density`` (n, d) → the parts (k, n). Returns the draws, their parts, the step and the number
-    of moves accepted."""
-    n = len(x)
+    of moves accepted. F sets of draws at once: ``x`` (F, n, d), parts (k, F, n), ``chol``
+    (F, d, d) and ``step`` (F,), each set's step adapted to its own acceptance."""
+    batched = x.ndim == 3
+    xs, ch = (x, chol) if batched else (x[None], chol[None])
+    parts = parts if batched else parts[:, None]
+    steps = np.broadcast_to(np.asarray(step, float), (len(xs),)).copy()
+    call = density if batched else (lambda p: density(p[0])[:, None])
     accepted, cur = 0, _combine(parts, coef)
     for _ in range(n_moves):
-        prop = x + step * rng.standard_normal(x.shape) @ chol.T
-        new = density(prop)
+        prop = xs + steps[:, None, None] * np.einsum("fnd,fed->fne", rng.standard_normal(xs.shape), ch)
+        new = call(prop)
         log_p = _combine(new, coef)
         with np.errstate(invalid="ignore"):
-            acc = np.log(rng.uniform(size=n)) < np.where(np.isfinite(log_p), log_p - cur, -np.inf)
-        x[acc], parts[:, acc], cur[acc] = prop[acc], new[:, acc], log_p[acc]
-        rate = acc.mean()
+            acc = np.log(rng.uniform(size=cur.shape)) < np.where(np.isfinite(log_p), log_p - cur, -np.inf)
+        xs[acc], parts[:, acc], cur[acc] = prop[acc], new[:, acc], log_p[acc]
+        rate = acc.mean(axis=1)
         accepted += int(acc.sum())
-        step *= 0.6 if rate < 0.15 else (1.4 if rate > 0.5 else 1.0)
-    return x, parts, step, accepted
+        steps *= np.where(rate < 0.15, 0.6, np.where(rate > 0.5, 1.4, 1.0))
+    if batched:
+        return xs, parts, steps, accepted
+    return xs[0], parts[:, 0], float(steps[0]), accepted
 
 
 def _combine(parts: np.ndarray, coef: np.ndarray) -> np.ndarray:
     """Σ coef_k · part_k over the rows of ``parts`` (k, n), −∞ wherever a part is (no 0 · ∞): for
     the tempered update log p_β = (1 − β) log p_old + β log p_new."""
     with np.errstate(invalid="ignore"):
-        out = coef @ np.where(np.isfinite(parts), parts, 0.0)
+        out = np.tensordot(coef, np.where(np.isfinite(parts), parts, 0.0), axes=1)
     return np.where(np.all(np.isfinite(parts), axis=0), out, -np.inf)
 
 
