@@ -69,7 +69,9 @@ EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_S
             "kitti_one_car.py": "tests/test_horizon.py",
             # a rig batch's first pass is needed: the test makes one
             "rig_pool.py": "tests/test_rig.py",
-            "dataset_pool.py": "tests/test_dataset.py"}
+            "dataset_pool.py": "tests/test_dataset.py",
+            # scene files with ground truth are needed: the test simulates one
+            "advice_speed.py": "tests/test_examples.py::test_advice_speed_times_a_simulated_scene"}
 
 
 def test_there_are_examples():
@@ -560,3 +562,17 @@ def test_the_advice_studys_what_ifs_reach_the_scenes_the_estimates_and_the_advic
         np.testing.assert_allclose(ref.line, true_line, atol=0.006)
     with pytest.raises(SystemExit, match="options"):
         study.main(["predict", "--n", "2", "--min-ess", "100", "--tiers", "medium", "--out", "o"])
+
+
+def test_advice_speed_times_a_simulated_scene(tmp_path):
+    """examples/advice_speed.py on one simulated scene: its table has the scene's row, with the
+    advice's and the estimate's seconds."""
+    from creference_bayes.cli import main
+
+    assert main(["simulate", str(tmp_path / "s"), "--n", "1", "--quiet"]) == 0
+    scene = next((tmp_path / "s").glob("*.json"))
+    proc = subprocess.run([sys.executable, str(EXAMPLES[0].parent / "advice_speed.py"), str(scene)], cwd=tmp_path,
+                          env={**os.environ, "MPLBACKEND": "Agg"}, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("|") and scene.stem in line]
+    assert rows, proc.stdout
