@@ -364,3 +364,71 @@ def test_an_annotation_that_kept_the_predicted_boxes_still_imports(client, task)
     kept = copy.deepcopy(task)
     kept["annotations"][0]["result"] += pred["result"]  # the annotator accepted the prediction and drew on
     assert task_scene(kept).fingerprint == task_scene(task).fingerprint
+
+
+# ------------------------------------------------------------------------------------------------
+# in a batch folder: each frame with the data set's priors (the data-set layer's own hand-back)
+
+
+@pytest.fixture(scope="module")
+def batch_folder(tmp_path_factory):
+    """A batch of two frames of camera cam-A, its focal length unknown; MAP only (the layer reads a
+    MAP's Laplace approximation)."""
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    root = tmp_path_factory.mktemp("batch")
+    (root / "in").mkdir()
+    for seed in range(2):
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(_camera_scene(seed)))
+    report = run_batch([root / "in"], root / "out", LocalEngine(1), BatchSettings(seed=1, posterior=False))
+    assert report.ok and "cam-A" in report.dataset["focal_length_px"]["groups"]
+    return root / "out"
+
+
+def _camera_scene(seed, camera="cam-A"):
+    from conftest import truth_scene
+
+    d, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=2, sizes_known=False, focal_px=1400.0)
+    d["camera"]["id"] = camera
+    return d
+
+
+def test_in_a_batch_folder_each_frame_takes_the_data_sets_priors(batch_folder, tmp_path, monkeypatch):
+    import shutil
+
+    state = tmp_path / "state"
+    shutil.copytree(batch_folder, state)
+    app = _app(tmp_path, background=True, **FAST)
+    c, worker = app.test_client(), app.extensions["creference"]["worker"]
+    learnt = json.loads((state / "batch.json").read_text())["dataset"]
+    pooled = learnt["focal_length_px"]["groups"]["cam-A"]
+    real, seen = cb.estimate, []
+
+    def estimate(scene, **kw):  # what each estimate is given; MAP only (seconds)
+        seen.append(scene)
+        return real(scene, **{**kw, "posterior": False})
+
+    monkeypatch.setattr(cb, "estimate", estimate)
+    tasks = [label_studio_task(_camera_scene(7, camera), task_id=i, lines="vectors")
+             for i, camera in ((11, "cam-A"), (12, "cam-B"))]
+    r = _predict(c, tasks)
+    assert r.status_code == 200, r.json
+    same, other = (" | ".join(p["result"][-1]["value"]["text"]) for p in r.json["results"])
+    assert f"focal length from the data set: {pooled['median']:.4g} px ± " in same and "camera cam-A" in same
+    prior = seen[0].focal_prior
+    assert prior.source == "rig" and prior.median_px == pytest.approx(pooled["median"], rel=1e-3)
+    # a camera the batch has no pool of: the frame's own camera priors, and the summary says why
+    assert seen[1].focal_prior is None or seen[1].focal_prior.source != "rig"
+    assert "focal length" in other and "not from the data set (the data set has no pool of camera 'cam-B')" in other
+    # the background job: the same priors, its result's dataset block says what it took
+    worker.run_pending()
+    assert seen[2].focal_prior == prior
+    took = json.loads((state / "results" / "p3_t11.json").read_text())["dataset"]["focal_length_px"]
+    assert took["from"] == "data set" and took["group"] == "cam-A" and took["median"] == pooled["median"]
+    assert json.loads((state / "results" / "p3_t12.json").read_text())["dataset"]["focal_length_px"]["from"] \
+        == "the frame"
+    (again,) = _predict(c, tasks[:1]).json["results"]  # answered from the stored result of these priors
+    summary = " | ".join(again["result"][-1]["value"]["text"])
+    assert len(seen) == 4 and "focal length from the data set" in summary and "not known yet" not in summary
+    assert worker.priors.dataset.summary() == learnt  # the batch's pools, read as the batch read them

@@ -106,13 +106,16 @@ class FrameStore:
         return sorted(p.stem for p in (self.root / "tasks").glob("*.json") if not p.name.startswith("."))
 
     # -- results -------------------------------------------------------------------------------
-    def result(self, key: str, fingerprint: str):
-        """The stored result of this scene (a :class:`~creference_bayes.pipeline.Result`), or None."""
+    def result(self, key: str, frame: Frame):
+        """The stored result of this frame (a :class:`~creference_bayes.pipeline.Result`): of its
+        scene, with what it took from a data set (its ``dataset`` block); or None."""
+        from ..io.scene import scene_fingerprint
         from ..pipeline import load_result
 
         path = self.paths(key)["result"]
         d = self._read(path)
-        if not isinstance(d, dict) or (d.get("scene_id") or {}).get("sha256") != fingerprint:
+        if not isinstance(d, dict) or (d.get("scene_id") or {}).get("sha256") != scene_fingerprint(frame.scene) \
+                or d.get("dataset") != frame.dataset:
             return None
         try:
             return load_result(path)
@@ -129,13 +132,16 @@ class FrameStore:
         return d if ok else None
 
     def put_result(self, key: str, frame: Frame, result, seed: int, settings: dict) -> None:
-        """The scene copy, then the result with a batch's ``batch`` block (its source: the copy), so
-        that ``creference labels`` and ``advise`` read the folder as a batch folder."""
+        """The scene copy, then the result with a batch's ``batch`` block (its source: the copy)
+        and the frame's ``rig`` and ``dataset`` blocks, so that ``creference labels`` and ``advise``
+        read the folder as a batch folder."""
         from ..workflows.batch import SceneInput
         from ..workflows.batch.files import record_result
 
         p = self.paths(key)
-        record_result(p, SceneInput(key, p["scene"]), frame.scene, dict(result.to_dict()), seed, settings)
+        d = dict(result.to_dict())
+        d.update({k: v for k, v in (("rig", frame.rig), ("dataset", frame.dataset)) if v})
+        record_result(p, SceneInput(key, p["scene"]), frame.scene, d, seed, settings)
 
     def put_advice(self, key: str, frame: Frame, advice) -> None:
         best = advice.best
@@ -173,11 +179,13 @@ class FrameStore:
 
 class Worker:
     """A background thread that estimates queued frames (module docstring): the posterior
-    (:func:`~creference_bayes.estimate`), then the advice's next request."""
+    (:func:`~creference_bayes.estimate`), then the advice's next request; with ``priors``
+    (:class:`~.priors.DataSetPriors`), each frame with the data set's."""
 
     def __init__(self, store: FrameStore, *, image_root=None, seed: int = 0, hdi_prob: float = 0.9,
-                 advice_settings=None, sampling: dict | None = None, settle_s: float = 2.0):
+                 advice_settings=None, sampling: dict | None = None, settle_s: float = 2.0, priors=None):
         self.store, self.image_root, self.seed, self.hdi_prob = store, image_root, seed, hdi_prob
+        self.priors = priors
         self.settle_s = settle_s  # the thread waits this long after a task's last submit (its annotations settle)
         self._last: dict[str, float] = {}
         self.advice_settings, self.sampling = advice_settings, sampling
@@ -253,6 +261,12 @@ class Worker:
                     self._queued.add(key)
                     self._queue.put(key)
 
+    def frame(self, key: str, task: dict) -> Frame | None:
+        """Task ``key``'s frame (:func:`~.predictions.task_scene`: None when its annotations draw
+        nothing yet), with the data set's priors when the service has them."""
+        frame = task_scene(task, self.image_root)
+        return frame if frame is None or self.priors is None else self.priors.frame(key, frame)
+
     def run_job(self, key: str) -> None:
         """Estimate the frame of a stored task, unless its result is up to date."""
         from .. import estimate
@@ -265,17 +279,17 @@ class Worker:
         if task is None:
             return
         try:
-            frame = task_scene(task, self.image_root)
+            frame = self.frame(key, task)
         except RequestError as exc:
             self.store.put_error(key, None, str(exc))
             return
         if frame is None or self.store.error(key, frame.fingerprint) is not None:
             return
         seed = derive_seed(self.seed, frame.fingerprint)
-        result = self.store.result(key, frame.fingerprint)
+        result = self.store.result(key, frame)
         if result is None:
             log.info("job %s: sampling the posterior of %d target(s)", key, len(frame.scene.targets))
-            result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling)
+            result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling, **frame.kwargs)
             settings = {"serve": True, "seed": self.seed, "hdi_prob": self.hdi_prob, "sampling": self.sampling or {}}
             self.store.put_result(key, frame, result, seed, settings)
         if self.store.advice(key, frame.fingerprint) is None:
