@@ -283,6 +283,7 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
     result = json.loads((state / "results" / "p3_t9.json").read_text())
     advice = json.loads((state / "advice" / "p3_t9.json").read_text())
     assert result["scene_id"]["sha256"] == advice["scene_sha256"] and result["draws"]
+    assert advice["seconds"]["posterior"] > 0 and advice["seconds"]["advice_cpu"] > 0  # how long the job's steps took
 
     from creference_bayes.workflows.labels import export_labels
 

@@ -26,6 +26,7 @@ import queue
 import threading
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..io.files import atomic_write_json, atomic_write_text
@@ -73,8 +74,12 @@ class FrameStore:
         anns = [a for a in task.get("annotations") or [] if isinstance(a, dict)]
         doc = {"id": task["id"], "data": task["data"], "annotations": anns}
         with self._lock:
-            atomic_write_json(self.paths(key)["task"], doc)
+            if self.task(key) != doc:  # Label Studio asks again and again for the same task
+                self._write_task(key, doc)
         return doc
+
+    def _write_task(self, key: str, doc: dict) -> None:
+        atomic_write_json(self.paths(key)["task"], doc, indent=None)  # compact: the C encoder, 10 times faster
 
     def put_annotation(self, key: str, task: dict, annotation: dict) -> dict:
         """Store one created or updated annotation of a task (a webhook's): it replaces the stored
@@ -83,7 +88,7 @@ class FrameStore:
             old = self.task(key) or {}
             anns = [a for a in old.get("annotations", []) if a.get("id") != annotation.get("id")]
             doc = {"id": task["id"], "data": task["data"], "annotations": anns + [annotation]}
-            atomic_write_json(self.paths(key)["task"], doc)
+            self._write_task(key, doc)
         return doc
 
     def drop_annotations(self, project, ids) -> list[str]:
@@ -98,7 +103,7 @@ class FrameStore:
                     continue
                 kept = [a for a in task.get("annotations", []) if str(a.get("id")) not in ids]
                 if len(kept) < len(task.get("annotations", [])):
-                    atomic_write_json(self.paths(key)["task"], {**task, "annotations": kept})
+                    self._write_task(key, {**task, "annotations": kept})
                     changed.append(key)
         return changed
 
@@ -143,11 +148,13 @@ class FrameStore:
         d.update({k: v for k, v in (("rig", frame.rig), ("dataset", frame.dataset)) if v})
         record_result(p, SceneInput(key, p["scene"]), frame.scene, d, seed, settings)
 
-    def put_advice(self, key: str, frame: Frame, advice) -> None:
+    def put_advice(self, key: str, frame: Frame, advice, seconds: dict | None = None) -> None:
+        """The next request for the frame; ``seconds``: how long the job's steps took."""
         best = advice.best
         request = best.candidate.description if advice.action == "collect" and best is not None else None
         atomic_write_json(self.paths(key)["advice"], {"scene_sha256": frame.fingerprint, "action": advice.action,
-                                                      "reason": advice.reason, "request": request})
+                                                      "reason": advice.reason, "request": request,
+                                                      **({"seconds": seconds} if seconds else {})})
 
     def put_error(self, key: str, fingerprint: str | None, error: str) -> None:
         atomic_write_json(self.paths(key)["error"], {"scene_sha256": fingerprint, "error": error})
@@ -287,12 +294,25 @@ class Worker:
             return
         seed = derive_seed(self.seed, frame.fingerprint)
         result = self.store.result(key, frame)
+        seconds = {}
         if result is None:
             log.info("job %s: sampling the posterior of %d target(s)", key, len(frame.scene.targets))
-            result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling, **frame.kwargs)
+            with _timed(seconds, "posterior"):
+                result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling,
+                                  **frame.kwargs)
             settings = {"serve": True, "seed": self.seed, "hdi_prob": self.hdi_prob, "sampling": self.sampling or {}}
             self.store.put_result(key, frame, result, seed, settings)
         if self.store.advice(key, frame.fingerprint) is None:
-            advice = advise_result(result, frame.scene, seed=seed, settings=self.advice_settings or AdviceSettings())
-            self.store.put_advice(key, frame, advice)
-        log.info("job %s: done", key)
+            with _timed(seconds, "advice"):
+                advice = advise_result(result, frame.scene, seed=seed, settings=self.advice_settings or AdviceSettings())
+            self.store.put_advice(key, frame, advice, seconds)
+        log.info("job %s: done (%s)", key, ", ".join(f"{k} {v:g} s" for k, v in seconds.items()) or "up to date")
+
+
+@contextmanager
+def _timed(seconds: dict, step: str):
+    """Record a job's step in ``seconds``: ``step`` (wall clock) and ``step_cpu`` (the process's CPU
+    meanwhile), seconds."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    yield
+    seconds[step], seconds[f"{step}_cpu"] = round(time.perf_counter() - t0, 2), round(time.process_time() - c0, 2)
