@@ -433,3 +433,43 @@ def test_in_a_batch_folder_each_frame_takes_the_data_sets_priors(batch_folder, t
     summary = " | ".join(again["result"][-1]["value"]["text"])
     assert len(seen) == 4 and "focal length from the data set" in summary and "not known yet" not in summary
     assert worker.priors.dataset.summary() == learnt  # the batch's pools, read as the batch read them
+
+
+# ------------------------------------------------------------------------------------------------
+# tasks that share a photo: one frame, as `creference import label-studio` joins them
+
+
+def test_tasks_of_one_photo_are_estimated_as_one_frame(tmp_path, monkeypatch):
+    from creference_bayes.io.labelstudio import scenes_from_label_studio
+
+    whole = scene_to_dict(parse_scene(simulate_scene(2, tier="high", n_objects=2, n_references=0,
+                                                     n_target_annotations=3)))
+    url = "/data/local-files/?d=street/0042.png"
+    task_a, task_b = (label_studio_task({**whole, "targets": [t]}, task_id=21 + i, lines="vectors", image_url=url)
+                      for i, t in enumerate(whole["targets"]))
+    app = _app(tmp_path, background=True, **FAST)
+    c, worker, state = app.test_client(), app.extensions["creference"]["worker"], tmp_path / "state"
+    real = cb.estimate
+    monkeypatch.setattr(cb, "estimate", lambda scene, **kw: real(scene, **{**kw, "posterior": False}))  # seconds
+
+    def boxes(pred):
+        return [np.array(x["value"]["points"]) for x in pred["result"] if x["type"] == "polygonlabels"]
+
+    (alone,) = _predict(c, [task_b]).json["results"]
+    assert len(boxes(alone)) == 1
+    worker.run_pending()
+    assert (state / "results" / "p3_t22.json").exists()  # a frame of its own, while it is its photo's only task
+    (pred_a,) = _predict(c, [task_a]).json["results"]
+    (pred_b,) = _predict(c, [task_b]).json["results"]
+    assert len(boxes(pred_a)) == len(boxes(pred_b)) == 2  # each task shows its photo's frame
+    assert all(np.array_equal(p, q) for p, q in zip(boxes(pred_a), boxes(pred_b)))
+    (joined,) = scenes_from_label_studio([task_a, task_b]).scenes  # what the importer makes of them
+    camera, objects = map_state(real(joined.scene, posterior=False, seed=0))
+    w, h = whole["image"]["width"], whole["image"]["height"]
+    for i, got in enumerate(boxes(pred_b)):
+        want = image_boxes(camera[None], objects[i][None], whole.get("principal_point", [w / 2, h / 2]))[0][
+            list(WIREFRAME)]
+        assert np.max(np.abs(got / 100.0 * [w, h] - want)) < 0.5
+    worker.run_pending()  # one result, under the first task's key; the second task's own one is gone
+    assert len(json.loads((state / "results" / "p3_t21.json").read_text())["objects"]) == 2
+    assert not (state / "results" / "p3_t22.json").exists() and not (state / "advice" / "p3_t22.json").exists()

@@ -200,18 +200,21 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         config = doc.get("label_config")
         controls = Controls.from_config(config if config is not None else store.config(pid))
         keys = [task_key(pid, task_id(task)) for task in tasks]
-        frames = [worker.frame(key, task) for key, task in zip(keys, tasks)]  # every task checked before any work
+        alone = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before one is stored
+        for key, task in zip(keys, tasks):
+            store.put_task(key, task)
+        frames = [worker.frame(key, task, alone=frame) for key, task, frame in zip(keys, tasks, alone)]
         version, until = model_version(), time.monotonic() + settings.time_budget_s
-        return jsonify({"results": [_predict_one(key, task, frame, controls, version, until)
-                                    for key, task, frame in zip(keys, tasks, frames)], "model_version": version})
+        return jsonify({"results": [_predict_one(task, frame, controls, version, until)
+                                    for task, frame in zip(tasks, frames)], "model_version": version})
 
-    def _predict_one(key: str, task: dict, frame, controls: Controls, version: str, until: float) -> dict:
+    def _predict_one(task: dict, frame, controls: Controls, version: str, until: float) -> dict:
         from .. import estimate
         from ..workflows.batch import derive_seed
 
-        store.put_task(key, task)
         if frame is None:
             return empty_prediction(controls, version, "no dimension lines yet: nothing to estimate")
+        key = frame.key  # the frame's: the first task of its photo
         seed = derive_seed(settings.seed, frame.fingerprint)
         result = store.result(key, frame)
         if result is None and time.monotonic() > until:  # past the budget: the background estimates it
@@ -261,7 +264,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         others = [a for a in stored.get("annotations", []) if isinstance(a, dict) and a.get("id") != aid]
         task_scene({**stored, "annotations": others + [annotation]}, settings.image_root)  # 4xx before storing
         store.put_annotation(key, task, annotation)
-        worker.submit(key)
+        worker.submit(store.members(key)[0])
         return jsonify({"status": "ok", "result": {"queued": key}}), 201
 
     def _deleted(doc: dict):
@@ -274,7 +277,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             raise RequestError(f"annotations: expected a list of {{\"id\": …}}, got {str(gone)[:60]}")
         changed = store.drop_annotations(pid, [a["id"] for a in gone])
         for key in changed:
-            worker.submit(key)
+            worker.submit(store.members(key)[0])
         return jsonify({"status": "ok", "result": {"queued": changed}}), 201
 
     if start_worker:

@@ -13,8 +13,11 @@ the tasks and the advice beside it)::
     DIR/errors/KEY.json    why the last job of the task failed
     DIR/projects/ID.xml    each project's labelling config, from /setup
 
-KEY is ``p<project>_t<task>``. A stored result counts for a task only while its scene is the one
-the task's annotations make now. One job per task at a time: a job asked for while one of the
+KEY is ``p<project>_t<task>``. The tasks of one project that show one photo (``data.image``) make
+one frame, as ``creference import label-studio`` joins them: its scene, result and advice are kept
+under the key of its first task (the lowest id), and a task's own ones are removed when it joins
+another's frame. A stored result counts for a frame only while its scene is the one the tasks'
+annotations make now. One job per task at a time: a job asked for while one of the
 same task runs is run once more after it, and a job reads the task as it is when it starts.
 """
 
@@ -32,7 +35,7 @@ from pathlib import Path
 from ..io.files import atomic_write_json, atomic_write_text
 from ..io.validation import read_json
 from ..workflows.batch.files import layout
-from .predictions import Frame, task_scene
+from .predictions import Frame, frame_scene
 
 __all__ = ["FrameStore", "Worker", "task_key"]
 
@@ -52,6 +55,8 @@ class FrameStore:
         for sub in ("tasks", "scenes", "results", "advice", "errors", "projects"):
             (self.root / sub).mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
+        #: task key → the photo it shows (None: a frame of its own), :func:`_photo`
+        self._photos = {key: _photo(self.task(key)) for key in self.keys()}
 
     def paths(self, key: str) -> dict[str, Path]:
         return {**layout(self.root, key), "task": self.root / "tasks" / f"{key}.json",
@@ -80,6 +85,19 @@ class FrameStore:
 
     def _write_task(self, key: str, doc: dict) -> None:
         atomic_write_json(self.paths(key)["task"], doc, indent=None)  # compact: the C encoder, 10 times faster
+        self._photos[key] = _photo(doc)
+
+    def members(self, key: str, task: dict | None = None) -> list[str]:
+        """The keys of the tasks that make one frame with task ``key`` (``task``: as it is now; else
+        as stored): the stored tasks of its project that show the same photo, and itself, in the
+        order of their ids; the first is the frame's key. ``[key]`` for a task of no photo."""
+        photo = _photo(task if task is not None else self.task(key))
+        if photo is None:
+            return [key]
+        project = key.rsplit("_t", 1)[0]
+        with self._lock:
+            same = {k for k, p in self._photos.items() if p == photo and k.rsplit("_t", 1)[0] == project}
+        return sorted(same | {key}, key=lambda k: int(k.rsplit("_t", 1)[1]))
 
     def put_annotation(self, key: str, task: dict, annotation: dict) -> dict:
         """Store one created or updated annotation of a task (a webhook's): it replaces the stored
@@ -147,6 +165,10 @@ class FrameStore:
         d = dict(result.to_dict())
         d.update({k: v for k, v in (("rig", frame.rig), ("dataset", frame.dataset)) if v})
         record_result(p, SceneInput(key, p["scene"]), frame.scene, d, seed, settings)
+        for other in set(frame.members) - {key}:  # a task's own frame, before it joined this one
+            for path in self.paths(other).values():
+                if path.parent.name != "tasks":
+                    path.unlink(missing_ok=True)
 
     def put_advice(self, key: str, frame: Frame, advice, seconds: dict | None = None) -> None:
         """The next request for the frame; ``seconds``: how long the job's steps took."""
@@ -182,6 +204,16 @@ class FrameStore:
                 except OSError:
                     continue
         return h.hexdigest()[:8]
+
+
+def _photo(task: dict | None) -> str | None:
+    """The photo a stored task shows (``data.image``), or None: a task of no photo, or a request
+    task of ``creference advise`` (a frame of its own)."""
+    data = (task or {}).get("data")
+    if not isinstance(data, dict) or "creference_scene" in data:
+        return None
+    image = data.get("image")
+    return image if isinstance(image, str) and image else None
 
 
 class Worker:
@@ -268,11 +300,23 @@ class Worker:
                     self._queued.add(key)
                     self._queue.put(key)
 
-    def frame(self, key: str, task: dict) -> Frame | None:
-        """Task ``key``'s frame (:func:`~.predictions.task_scene`: None when its annotations draw
-        nothing yet), with the data set's priors when the service has them."""
-        frame = task_scene(task, self.image_root)
-        return frame if frame is None or self.priors is None else self.priors.frame(key, frame)
+    def frame(self, key: str, task: dict, alone: Frame | None = None) -> Frame | None:
+        """The frame of task ``key`` (``task``: as it is now), joined with the stored tasks of its
+        photo (:meth:`FrameStore.members`, :func:`~.predictions.frame_scene`: None when no
+        annotation draws anything yet), with the data set's priors when the service has them.
+        ``alone``: the task's frame made alone, used when no other task shares its photo."""
+        from dataclasses import replace
+
+        members = self.store.members(key, task)
+        if alone is not None and members == [key]:
+            frame = alone
+        else:
+            tasks = [task if k == key else self.store.task(k) for k in members]
+            frame = frame_scene([t for t in tasks if t is not None], self.image_root)
+        if frame is None:
+            return None
+        frame = replace(frame, key=members[0], members=tuple(members))
+        return frame if self.priors is None else self.priors.frame(frame.key, frame)
 
     def run_job(self, key: str) -> None:
         """Estimate the frame of a stored task, unless its result is up to date."""
@@ -290,8 +334,9 @@ class Worker:
         except RequestError as exc:
             self.store.put_error(key, None, str(exc))
             return
-        if frame is None or self.store.error(key, frame.fingerprint) is not None:
+        if frame is None or self.store.error(frame.key, frame.fingerprint) is not None:
             return
+        key = frame.key  # the frame's, when the task shares its photo with others
         seed = derive_seed(self.seed, frame.fingerprint)
         result = self.store.result(key, frame)
         seconds = {}

@@ -31,8 +31,8 @@ from ..io.scene import Scene, SceneError, parse_quietly, scene_fingerprint
 from ..models.contract import O_X, O_Z
 
 __all__ = ["RequestError", "ESTIMATE_BOX", "ESTIMATE_TEXT", "ESTIMATE_SUMMARY", "ESTIMATE_LABEL", "WIREFRAME",
-           "serve_config", "Controls", "Frame", "task_id", "task_scene", "EstimateView", "estimate_view", "object_text",
-           "dataset_lines", "summary_lines", "prediction", "empty_prediction"]
+           "serve_config", "Controls", "Frame", "task_id", "task_scene", "frame_scene", "EstimateView", "estimate_view",
+           "object_text", "dataset_lines", "summary_lines", "prediction", "empty_prediction"]
 
 #: The controls :func:`serve_config` adds to a shipped config: the boxes (polygons), the per-box
 #: text, the frame's summary text, and the boxes' label.
@@ -112,6 +112,9 @@ class Frame:
     kwargs: dict = field(default_factory=dict)
     dataset: dict | None = None
     rig: dict | None = None
+    #: the frame's key in the service's folder (its first task's) and the keys of all its tasks
+    key: str | None = None
+    members: tuple[str, ...] = ()
 
 
 def task_id(task: Any) -> int:
@@ -127,13 +130,22 @@ def task_id(task: Any) -> int:
 
 
 def task_scene(task: dict, image_root: str | Path | None = None) -> Frame | None:
-    """The frame of a Label Studio task (with its annotations), or None when no annotation draws
-    anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message names
-    the task, annotation and region), 403 for an image outside ``image_root``."""
-    tid = task_id(task)
-    data = task["data"]
+    """The frame of a Label Studio task (with its annotations) alone, or None when no annotation
+    draws anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message
+    names the task, annotation and region), 403 for an image outside ``image_root``."""
+    return frame_scene([task], image_root)
+
+
+def frame_scene(tasks: list[dict], image_root: str | Path | None = None) -> Frame | None:
+    """The frame of the tasks of one photo (each with its annotations), joined into one scene as
+    ``creference import label-studio`` joins them; the photo is the first task's. None when no
+    annotation draws anything yet; :class:`RequestError` as :func:`task_scene` (422 also for tasks
+    that cannot be joined: their image sizes disagree, a target drawn in two of them)."""
+    tid = task_id(tasks[0])
+    data = tasks[0]["data"]
     try:
-        report = scenes_from_label_studio([{**task, "data": {k: v for k, v in data.items() if k != "image_path"}}])
+        report = scenes_from_label_studio([{**t, "data": {k: v for k, v in t["data"].items() if k != "image_path"}}
+                                           for t in tasks])
     except ConversionError as exc:
         raise RequestError(str(exc), 422) from None
     if report.errors:

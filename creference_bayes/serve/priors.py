@@ -135,4 +135,4 @@ class DataSetPriors:
         fingerprint = scene_fingerprint(scene)
         if block:
             fingerprint = hashlib.sha256(f"{fingerprint}:{json.dumps(block, sort_keys=True)}".encode()).hexdigest()
-        return Frame(scene, fingerprint, frame.notes, kwargs, block or None, rig)
+        return replace(frame, scene=scene, fingerprint=fingerprint, kwargs=kwargs, dataset=block or None, rig=rig)
