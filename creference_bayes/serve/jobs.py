@@ -349,7 +349,8 @@ class Worker:
             self.store.put_result(key, frame, result, seed, settings)
         if self.store.advice(key, frame.fingerprint) is None:
             with _timed(seconds, "advice"):
-                advice = advise_result(result, frame.scene, seed=seed, settings=self.advice_settings or AdviceSettings())
+                advice = advise_result(result, frame.scene, seed=seed,
+                                       settings=self.advice_settings or AdviceSettings())
             self.store.put_advice(key, frame, advice, seconds)
         log.info("job %s: done (%s)", key, ", ".join(f"{k} {v:g} s" for k, v in seconds.items()) or "up to date")
 
