@@ -99,7 +99,8 @@ class DataSetPriors:
                 continue
             frames.append((key, camera_id_of(scene)))
             scenes.append(scene)
-        dataset = DataSet.from_first_pass(frames, first, learn)
+        # nothing learnt: no first pass to read (the crowd's corner scale is read from the scenes)
+        dataset = DataSet.from_first_pass(frames, first, learn) if learn else DataSet({}, (), dict(frames))
         return cls(folder, dataset, tuple(scenes), BatchSettings(), time.perf_counter() - t0)
 
     def describe(self) -> str:
