@@ -387,6 +387,13 @@ def batch_folder(tmp_path_factory):
     return root / "out"
 
 
+def test_a_batch_json_that_is_not_a_batchs_is_refused_naming_it(tmp_path):
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "batch.json").write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match=r"batch\.json: not a batch folder's batch\.json"):
+        _app(tmp_path)
+
+
 def _camera_scene(seed, camera="cam-A"):
     from conftest import truth_scene
 
