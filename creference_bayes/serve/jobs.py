@@ -35,7 +35,7 @@ from pathlib import Path
 from ..io.files import atomic_write_json, atomic_write_text
 from ..io.validation import read_json
 from ..workflows.batch.files import layout
-from .predictions import Frame, frame_scene
+from .predictions import Frame, tasks_scene
 
 __all__ = ["FrameStore", "Worker", "task_key"]
 
@@ -302,7 +302,7 @@ class Worker:
 
     def frame(self, key: str, task: dict, alone: Frame | None = None) -> Frame | None:
         """The frame of task ``key`` (``task``: as it is now), joined with the stored tasks of its
-        photo (:meth:`FrameStore.members`, :func:`~.predictions.frame_scene`: None when no
+        photo (:meth:`FrameStore.members`, :func:`~.predictions.tasks_scene`: None when no
         annotation draws anything yet), with the data set's priors when the service has them.
         ``alone``: the task's frame made alone, used when no other task shares its photo."""
         from dataclasses import replace
@@ -312,7 +312,7 @@ class Worker:
             frame = alone
         else:
             tasks = [task if k == key else self.store.task(k) for k in members]
-            frame = frame_scene([t for t in tasks if t is not None], self.image_root)
+            frame = tasks_scene([t for t in tasks if t is not None], self.image_root)
         if frame is None:
             return None
         frame = replace(frame, key=members[0], members=tuple(members))

@@ -31,7 +31,7 @@ from ..io.scene import Scene, SceneError, parse_quietly, scene_fingerprint
 from ..models.contract import O_X, O_Z
 
 __all__ = ["RequestError", "ESTIMATE_BOX", "ESTIMATE_TEXT", "ESTIMATE_SUMMARY", "ESTIMATE_LABEL", "WIREFRAME",
-           "serve_config", "Controls", "Frame", "task_id", "task_scene", "frame_scene", "EstimateView", "estimate_view",
+           "serve_config", "Controls", "Frame", "task_id", "task_scene", "tasks_scene", "EstimateView", "estimate_view",
            "object_text", "dataset_lines", "summary_lines", "prediction", "empty_prediction"]
 
 #: The controls :func:`serve_config` adds to a shipped config: the boxes (polygons), the per-box
@@ -133,10 +133,10 @@ def task_scene(task: dict, image_root: str | Path | None = None) -> Frame | None
     """The frame of a Label Studio task (with its annotations) alone, or None when no annotation
     draws anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message
     names the task, annotation and region), 403 for an image outside ``image_root``."""
-    return frame_scene([task], image_root)
+    return tasks_scene([task], image_root)
 
 
-def frame_scene(tasks: list[dict], image_root: str | Path | None = None) -> Frame | None:
+def tasks_scene(tasks: list[dict], image_root: str | Path | None = None) -> Frame | None:
     """The frame of the tasks of one photo (each with its annotations), joined into one scene as
     ``creference import label-studio`` joins them; the photo is the first task's. None when no
     annotation draws anything yet; :class:`RequestError` as :func:`task_scene` (422 also for tasks
