@@ -10,6 +10,7 @@ CPU time is what the request would take on a core of its own), then the load ave
 With ``--batch DIR`` the service runs in a copy of that batch folder (``creference batch … --out
 DIR``): each frame takes the data set's priors (docs/serve.md, "A data set's priors"), its camera
 ``--camera-id``; the time the service takes to read the data set at its start is printed too.
+``--profile`` then profiles one more request of the last size (CPU time, cProfile).
 
 With ``--jobs`` it times instead, for each frame size, the background job a webhook queues (the
 posterior as ``creference estimate`` samples it, then the next request, by default with the
@@ -59,6 +60,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--batch", default=None, metavar="DIR", help="run the service in a copy of this batch folder")
     ap.add_argument("--camera-id", default=None, help="the tasks' camera (data.camera_id)")
+    ap.add_argument("--profile", action="store_true", help="then profile one more /predict of the last size (CPU "
+                    "time, cProfile) and print where it goes")
     ap.add_argument("--jobs", action="store_true", help="time the background job against creference batch")
     ap.add_argument("--min-ess", type=float, default=None, help="the sampler's effective sample size (--jobs; "
                     "default: the sampler's)")
@@ -96,6 +99,14 @@ def main(argv=None) -> int:
             wall, cpu = np.array(times).T
             print(f"{len(scene['targets']):7d}  {np.median(wall):8.2f}  {wall.max():5.2f}  {np.median(cpu):12.2f}  "
                   f"{cpu.max():9.2f}")
+        if args.profile:
+            import cProfile
+            import pstats
+
+            profile = cProfile.Profile(timer=time.process_time)
+            profile.runcall(client.post, "/predict", json={"tasks": [{**task, "id": task_id + 1}],
+                                                           "label_config": config})
+            pstats.Stats(profile).sort_stats("cumulative").print_stats(r"creference_bayes", 25)
     print("load average (1, 5, 15 min): {:.1f} {:.1f} {:.1f}".format(*os.getloadavg()))
     return 0
 
