@@ -57,6 +57,8 @@ SLOW = {
     "confidence_study.py": [(["--quick", "--quick-b", "--n-a", "10", "--n-b", "4", "--n-c", "1",
                               "--replicates", "2", "--out", "cs"], ["cs/confidence_study.md"])],
     "batch_throughput.py": [(["--n", "2", "--min-ess", "100", "--out", "bt"], ["bt/dask_2/summary.csv"])],
+    "serve_speed.py": [(["--jobs", "--targets", "1", "--min-ess", "50", "--advice-draws", "50", "--advice-futures",
+                         "10"], [])],
 }
 #: Examples that need tools outside the package: run by the tests named, when the tools are there.
 EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_STUDIO_VENV, CREFERENCE_DATUMARO_VENV)",

@@ -283,6 +283,7 @@ def test_webhook_job_lands_on_disk_and_the_next_predict_answers_from_it(tmp_path
     result = json.loads((state / "results" / "p3_t9.json").read_text())
     advice = json.loads((state / "advice" / "p3_t9.json").read_text())
     assert result["scene_id"]["sha256"] == advice["scene_sha256"] and result["draws"]
+    assert advice["seconds"]["posterior"] > 0 and advice["seconds"]["advice_cpu"] > 0  # how long the job's steps took
 
     from creference_bayes.workflows.labels import export_labels
 
@@ -364,3 +365,118 @@ def test_an_annotation_that_kept_the_predicted_boxes_still_imports(client, task)
     kept = copy.deepcopy(task)
     kept["annotations"][0]["result"] += pred["result"]  # the annotator accepted the prediction and drew on
     assert task_scene(kept).fingerprint == task_scene(task).fingerprint
+
+
+# ------------------------------------------------------------------------------------------------
+# in a batch folder: each frame with the data set's priors (the data-set layer's own hand-back)
+
+
+@pytest.fixture(scope="module")
+def batch_folder(tmp_path_factory):
+    """A batch of two frames of camera cam-A, its focal length unknown; MAP only (the layer reads a
+    MAP's Laplace approximation)."""
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    root = tmp_path_factory.mktemp("batch")
+    (root / "in").mkdir()
+    for seed in range(2):
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(_camera_scene(seed)))
+    report = run_batch([root / "in"], root / "out", LocalEngine(1), BatchSettings(seed=1, posterior=False))
+    assert report.ok and "cam-A" in report.dataset["focal_length_px"]["groups"]
+    return root / "out"
+
+
+def test_a_batch_json_that_is_not_a_batchs_is_refused_naming_it(tmp_path):
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "batch.json").write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match=r"batch\.json: not a batch folder's batch\.json"):
+        _app(tmp_path)
+
+
+def _camera_scene(seed, camera="cam-A"):
+    from conftest import truth_scene
+
+    d, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=2, sizes_known=False, focal_px=1400.0)
+    d["camera"]["id"] = camera
+    return d
+
+
+def test_in_a_batch_folder_each_frame_takes_the_data_sets_priors(batch_folder, tmp_path, monkeypatch):
+    import shutil
+
+    state = tmp_path / "state"
+    shutil.copytree(batch_folder, state)
+    app = _app(tmp_path, background=True, **FAST)
+    c, worker = app.test_client(), app.extensions["creference"]["worker"]
+    learnt = json.loads((state / "batch.json").read_text())["dataset"]
+    pooled = learnt["focal_length_px"]["groups"]["cam-A"]
+    real, seen = cb.estimate, []
+
+    def estimate(scene, **kw):  # what each estimate is given; MAP only (seconds)
+        seen.append(scene)
+        return real(scene, **{**kw, "posterior": False})
+
+    monkeypatch.setattr(cb, "estimate", estimate)
+    tasks = [label_studio_task(_camera_scene(7, camera), task_id=i, lines="vectors")
+             for i, camera in ((11, "cam-A"), (12, "cam-B"))]
+    r = _predict(c, tasks)
+    assert r.status_code == 200, r.json
+    same, other = (" | ".join(p["result"][-1]["value"]["text"]) for p in r.json["results"])
+    assert f"focal length from the data set: {pooled['median']:.4g} px ± " in same and "camera cam-A" in same
+    prior = seen[0].focal_prior
+    assert prior.source == "rig" and prior.median_px == pytest.approx(pooled["median"], rel=1e-3)
+    # a camera the batch has no pool of: the frame's own camera priors, and the summary says why
+    assert seen[1].focal_prior is None or seen[1].focal_prior.source != "rig"
+    assert "focal length" in other and "not from the data set (the data set has no pool of camera 'cam-B')" in other
+    # the background job: the same priors, its result's dataset block says what it took
+    worker.run_pending()
+    assert seen[2].focal_prior == prior
+    took = json.loads((state / "results" / "p3_t11.json").read_text())["dataset"]["focal_length_px"]
+    assert took["from"] == "data set" and took["group"] == "cam-A" and took["median"] == pooled["median"]
+    assert json.loads((state / "results" / "p3_t12.json").read_text())["dataset"]["focal_length_px"]["from"] \
+        == "the frame"
+    (again,) = _predict(c, tasks[:1]).json["results"]  # answered from the stored result of these priors
+    summary = " | ".join(again["result"][-1]["value"]["text"])
+    assert len(seen) == 4 and "focal length from the data set" in summary and "not known yet" not in summary
+    assert worker.priors.dataset.summary() == learnt  # the batch's pools, read as the batch read them
+
+
+# ------------------------------------------------------------------------------------------------
+# tasks that share a photo: one frame, as `creference import label-studio` joins them
+
+
+def test_tasks_of_one_photo_are_estimated_as_one_frame(tmp_path, monkeypatch):
+    from creference_bayes.io.labelstudio import scenes_from_label_studio
+
+    whole = scene_to_dict(parse_scene(simulate_scene(2, tier="high", n_objects=2, n_references=0,
+                                                     n_target_annotations=3)))
+    url = "/data/local-files/?d=street/0042.png"
+    task_a, task_b = (label_studio_task({**whole, "targets": [t]}, task_id=21 + i, lines="vectors", image_url=url)
+                      for i, t in enumerate(whole["targets"]))
+    app = _app(tmp_path, background=True, **FAST)
+    c, worker, state = app.test_client(), app.extensions["creference"]["worker"], tmp_path / "state"
+    real = cb.estimate
+    monkeypatch.setattr(cb, "estimate", lambda scene, **kw: real(scene, **{**kw, "posterior": False}))  # seconds
+
+    def boxes(pred):
+        return [np.array(x["value"]["points"]) for x in pred["result"] if x["type"] == "polygonlabels"]
+
+    (alone,) = _predict(c, [task_b]).json["results"]
+    assert len(boxes(alone)) == 1
+    worker.run_pending()
+    assert (state / "results" / "p3_t22.json").exists()  # a frame of its own, while it is its photo's only task
+    (pred_a,) = _predict(c, [task_a]).json["results"]
+    (pred_b,) = _predict(c, [task_b]).json["results"]
+    assert len(boxes(pred_a)) == len(boxes(pred_b)) == 2  # each task shows its photo's frame
+    assert all(np.array_equal(p, q) for p, q in zip(boxes(pred_a), boxes(pred_b)))
+    (joined,) = scenes_from_label_studio([task_a, task_b]).scenes  # what the importer makes of them
+    camera, objects = map_state(real(joined.scene, posterior=False, seed=0))
+    w, h = whole["image"]["width"], whole["image"]["height"]
+    for i, got in enumerate(boxes(pred_b)):
+        want = image_boxes(camera[None], objects[i][None], whole.get("principal_point", [w / 2, h / 2]))[0][
+            list(WIREFRAME)]
+        assert np.max(np.abs(got / 100.0 * [w, h] - want)) < 0.5
+    worker.run_pending()  # one result, under the first task's key; the second task's own one is gone
+    assert len(json.loads((state / "results" / "p3_t21.json").read_text())["objects"]) == 2
+    assert not (state / "results" / "p3_t22.json").exists() and not (state / "advice" / "p3_t22.json").exists()

@@ -69,13 +69,19 @@ def _run_serve(args) -> int:
                              iou_threshold=args.iou_threshold, seed=args.seed, background=not args.no_background,
                              time_budget_s=args.time_budget,
                              advice_settings=advice)
-    app = create_app(settings)
+    try:
+        app = create_app(settings)
+    except ValueError as exc:  # a batch.json in --state that is not a batch's
+        raise UsageError(f"--state: {exc}") from None
     try:
         server = make_server(args.host, args.port, app, threaded=True)
     except OSError as exc:
         raise UsageError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
     print(f"creference serve: listening on http://{args.host}:{args.port} (folder {args.state}; "
           f"{'token required' if token else 'no token'}); stop with Ctrl+C", file=sys.stderr, flush=True)
+    priors = app.extensions["creference"]["worker"].priors
+    if priors is not None:
+        print(f"creference serve: each frame takes the priors of {priors.describe()}", file=sys.stderr, flush=True)
     try:
         server.serve_forever()
     finally:
@@ -91,7 +97,8 @@ def register(subparsers) -> None:
                     "with each target's projected box, its distance and label quality, the frame's next request; "
                     "new annotations are re-estimated in the background (docs/serve.md). Needs the [serve] extra.")
     p.add_argument("--state", default="creference-serve", metavar="DIR",
-                   help="the service's folder: tasks, results, advice (default: %(default)s)")
+                   help="the service's folder: tasks, results, advice; a batch folder (creference batch --out DIR): "
+                        "each frame takes the priors its data set learnt (default: %(default)s)")
     p.add_argument("--image-root", default=None, metavar="DIR",
                    help="the folder of the photos (horizon, EXIF); a task naming a file outside it is refused "
                         "(default: no photo is read)")

@@ -19,6 +19,7 @@ from ..io.annotation_tools import ConversionError
 from ..io.labelstudio import loads_export
 from .predictions import (Controls, RequestError, empty_prediction, estimate_view, prediction, task_scene, task_id)
 from .jobs import FrameStore, Worker, task_key
+from .priors import DataSetPriors
 
 __all__ = ["ServeSettings", "create_app", "FLASK_INSTALL_HINT", "MAX_TASKS"]
 
@@ -118,8 +119,11 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         raise ImportError(FLASK_INSTALL_HINT) from exc
 
     store = FrameStore(settings.state_dir)
+    priors = DataSetPriors.from_folder(settings.state_dir)
+    if priors is not None:
+        log.info("%s (read in %.1f s)", priors.describe(), priors.seconds)
     worker = Worker(store, image_root=settings.image_root, seed=settings.seed, hdi_prob=settings.hdi_prob,
-                    advice_settings=settings.advice_settings, sampling=settings.sampling)
+                    advice_settings=settings.advice_settings, sampling=settings.sampling, priors=priors)
     app = Flask("creference_bayes.serve")
     app.config["MAX_CONTENT_LENGTH"] = int(settings.max_body_bytes)
     app.extensions["creference"] = {"store": store, "worker": worker, "settings": settings}
@@ -195,30 +199,31 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         pid = _project_id(doc.get("project"))
         config = doc.get("label_config")
         controls = Controls.from_config(config if config is not None else store.config(pid))
-        for task in tasks:
-            task_id(task)
-        scenes = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before any work
+        keys = [task_key(pid, task_id(task)) for task in tasks]
+        alone = [task_scene(task, settings.image_root) for task in tasks]  # every task checked before one is stored
+        for key, task in zip(keys, tasks):
+            store.put_task(key, task)
+        frames = [worker.frame(key, task, alone=frame) for key, task, frame in zip(keys, tasks, alone)]
         version, until = model_version(), time.monotonic() + settings.time_budget_s
-        return jsonify({"results": [_predict_one(task, frame, pid, controls, version, until)
-                                    for task, frame in zip(tasks, scenes)], "model_version": version})
+        return jsonify({"results": [_predict_one(task, frame, controls, version, until)
+                                    for task, frame in zip(tasks, frames)], "model_version": version})
 
-    def _predict_one(task: dict, frame, pid, controls: Controls, version: str, until: float) -> dict:
+    def _predict_one(task: dict, frame, controls: Controls, version: str, until: float) -> dict:
         from .. import estimate
         from ..workflows.batch import derive_seed
 
-        key = task_key(pid, task["id"])
-        store.put_task(key, task)
         if frame is None:
             return empty_prediction(controls, version, "no dimension lines yet: nothing to estimate")
+        key = frame.key  # the frame's: the first task of its photo
         seed = derive_seed(settings.seed, frame.fingerprint)
-        result = store.result(key, frame.fingerprint)
+        result = store.result(key, frame)
         if result is None and time.monotonic() > until:  # past the budget: the background estimates it
             worker.submit(key)
             return empty_prediction(controls, version, "queued: this frame is being estimated in the background "
                                                        "(ask again)")
         if result is None:
             try:
-                result = estimate(frame.scene, posterior=False, seed=seed, hdi_prob=settings.hdi_prob)
+                result = estimate(frame.scene, posterior=False, seed=seed, hdi_prob=settings.hdi_prob, **frame.kwargs)
             except ValueError as exc:  # a scene the model refuses (its message names the value)
                 raise RequestError(f"task {task['id']}: {' '.join(str(exc).split())}", 422) from None
             if settings.background:
@@ -231,7 +236,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             said = advice["request"] or f"none ({advice['reason']})"
         elif worker.busy(key):
             said = "being computed in the background (ask again)"
-        return prediction(frame.scene, view, controls, version, said)
+        return prediction(frame.scene, view, controls, version, said, frame.dataset)
 
     @app.post("/webhook")
     def webhook():
@@ -259,7 +264,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
         others = [a for a in stored.get("annotations", []) if isinstance(a, dict) and a.get("id") != aid]
         task_scene({**stored, "annotations": others + [annotation]}, settings.image_root)  # 4xx before storing
         store.put_annotation(key, task, annotation)
-        worker.submit(key)
+        worker.submit(store.members(key)[0])
         return jsonify({"status": "ok", "result": {"queued": key}}), 201
 
     def _deleted(doc: dict):
@@ -272,7 +277,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             raise RequestError(f"annotations: expected a list of {{\"id\": …}}, got {str(gone)[:60]}")
         changed = store.drop_annotations(pid, [a["id"] for a in gone])
         for key in changed:
-            worker.submit(key)
+            worker.submit(store.members(key)[0])
         return jsonify({"status": "ok", "result": {"queued": changed}}), 201
 
     if start_worker:

@@ -16,7 +16,8 @@ next request). Its ``score`` is the frame's label quality: the lowest P(IoU ≥ 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -30,8 +31,8 @@ from ..io.scene import Scene, SceneError, parse_quietly, scene_fingerprint
 from ..models.contract import O_X, O_Z
 
 __all__ = ["RequestError", "ESTIMATE_BOX", "ESTIMATE_TEXT", "ESTIMATE_SUMMARY", "ESTIMATE_LABEL", "WIREFRAME",
-           "serve_config", "Controls", "Frame", "task_id", "task_scene", "EstimateView", "estimate_view", "object_text",
-           "summary_lines", "prediction", "empty_prediction"]
+           "serve_config", "Controls", "Frame", "task_id", "task_scene", "tasks_scene", "EstimateView", "estimate_view",
+           "object_text", "dataset_lines", "summary_lines", "prediction", "empty_prediction"]
 
 #: The controls :func:`serve_config` adds to a shipped config: the boxes (polygons), the per-box
 #: text, the frame's summary text, and the boxes' label.
@@ -101,11 +102,19 @@ def _short(value: Any, n: int = 80) -> str:
 @dataclass(frozen=True)
 class Frame:
     """A task's frame: its scene, the scene's fingerprint (what a stored result is checked
-    against) and the importer's notes."""
+    against) and the importer's notes; with a data set's priors (:mod:`.priors`), the scene as
+    the data set hands it, the estimate's keyword arguments (``kwargs``), the result's ``dataset``
+    and ``rig`` blocks, and a fingerprint that covers them."""
 
     scene: Scene
     fingerprint: str
     notes: tuple[str, ...] = ()
+    kwargs: dict = field(default_factory=dict)
+    dataset: dict | None = None
+    rig: dict | None = None
+    #: the frame's key in the service's folder (its first task's) and the keys of all its tasks
+    key: str | None = None
+    members: tuple[str, ...] = ()
 
 
 def task_id(task: Any) -> int:
@@ -121,13 +130,22 @@ def task_id(task: Any) -> int:
 
 
 def task_scene(task: dict, image_root: str | Path | None = None) -> Frame | None:
-    """The frame of a Label Studio task (with its annotations), or None when no annotation draws
-    anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message names
-    the task, annotation and region), 403 for an image outside ``image_root``."""
-    tid = task_id(task)
-    data = task["data"]
+    """The frame of a Label Studio task (with its annotations) alone, or None when no annotation
+    draws anything yet. :class:`RequestError`: 422 for a task the importer refuses (its message
+    names the task, annotation and region), 403 for an image outside ``image_root``."""
+    return tasks_scene([task], image_root)
+
+
+def tasks_scene(tasks: list[dict], image_root: str | Path | None = None) -> Frame | None:
+    """The frame of the tasks of one photo (each with its annotations), joined into one scene as
+    ``creference import label-studio`` joins them; the photo is the first task's. None when no
+    annotation draws anything yet; :class:`RequestError` as :func:`task_scene` (422 also for tasks
+    that cannot be joined: their image sizes disagree, a target drawn in two of them)."""
+    tid = task_id(tasks[0])
+    data = tasks[0]["data"]
     try:
-        report = scenes_from_label_studio([{**task, "data": {k: v for k, v in data.items() if k != "image_path"}}])
+        report = scenes_from_label_studio([{**t, "data": {k: v for k, v in t["data"].items() if k != "image_path"}}
+                                           for t in tasks])
     except ConversionError as exc:
         raise RequestError(str(exc), 422) from None
     if report.errors:
@@ -246,21 +264,54 @@ def object_text(scene: Scene, view: EstimateView, i: int) -> str:
             f"P(IoU ≥ {view.threshold:g}) {view.p_iou[i]:.2f}")
 
 
-def summary_lines(scene: Scene, view: EstimateView, next_request: str | None) -> list[str]:
-    """The frame's summary: its label quality, how it was estimated, the next request."""
+#: How the frame summary names each quantity a frame took: label → (name, unit)
+_NAMES = {"focal_length_px": ("focal length", " px"), "height_m": ("camera height", " m"),
+          "pitch_deg": ("pitch", "°"), "roll_deg": ("roll", "°"), "ref_scale": ("reference scale", ""),
+          "distance_m": ("target distances", " m"), "corner_scale_px": ("corner scale", " px")}
+
+
+def dataset_lines(block: dict | None) -> list[str]:
+    """The frame summary's lines of a ``dataset`` block: what the frame took from the data set and
+    how sure that was (the sd of the prior it was handed: a log quantity's in percent, an angle's
+    in degrees), and what it did not take and why (one line per reason)."""
+    lines, own = [], {}
+    for label, entry in (block or {}).items():
+        name, unit = _NAMES.get(label, (label, ""))
+        group = entry.get("group")
+        where = {"camera": f"camera {group}", "crowd": "the crowd", "setting": f"setting {group}"}.get(
+            entry.get("shared_by"), group)
+        if entry.get("from") != "data set":
+            own.setdefault(entry.get("why"), []).append(name)
+        elif "median" in entry:
+            sd = math.hypot(entry["log_sd"], entry.get("spread_log_sd", 0.0))
+            lines.append(f"{name} from the data set: {'median ' if label == 'distance_m' else ''}"
+                         f"{entry['median']:.4g}{unit} ± {100 * sd:.2g} % ({where}, {entry['frames']} frames)")
+        elif "mean" in entry:
+            sd = math.hypot(entry["sd"], entry.get("spread_sd", 0.0))
+            lines.append(f"{name} from the data set: {entry['mean']:.2f}{unit} ± {sd:.2g}{unit} "
+                         f"({where}, {entry['frames']} frames)")
+        else:  # the corner scale
+            lines.append(f"{name} from the data set: {entry['sd']:.2g}{unit} ({where})")
+    return lines + [f"{', '.join(names)}: not from the data set ({why})" for why, names in own.items()]
+
+
+def summary_lines(scene: Scene, view: EstimateView, next_request: str | None,
+                  dataset: dict | None = None) -> list[str]:
+    """The frame's summary: its label quality, how it was estimated (with the data set's priors it
+    took, :func:`dataset_lines`), the next request."""
     low = int(np.argmin(view.p_iou))
     how = ("MAP with the Laplace approximation (the posterior is being sampled in the background)"
            if view.source == "laplace" else
            f"posterior draws{'' if view.converged is not False else ' (the sampler did not converge)'}")
     lines = [f"label quality: lowest P(IoU ≥ {view.threshold:g}) {view.p_iou[low]:.2f} ({scene.targets[low].id}) "
              f"of {len(scene.targets)} target{'s' if len(scene.targets) != 1 else ''}",
-             f"estimate: {how}"]
+             f"estimate: {how}", *dataset_lines(dataset)]
     lines.append(f"next request: {next_request}" if next_request else "next request: not known yet")
     return lines
 
 
 def prediction(scene: Scene, view: EstimateView, controls: Controls, model_version: str,
-               next_request: str | None = None) -> dict:
+               next_request: str | None = None, dataset: dict | None = None) -> dict:
     """The Label Studio prediction of a frame's estimate (module docstring): regions in the task's
     image coordinates (percent), ``score`` the frame's label quality."""
     from ..models.boxes import image_boxes
@@ -280,7 +331,7 @@ def prediction(scene: Scene, view: EstimateView, controls: Controls, model_versi
                                "value": {"text": [object_text(scene, view, i)]}})
     if controls.summary is not None:
         result.append({"id": "estimate_summary", "from_name": controls.summary, "type": "textarea", **common,
-                       "value": {"text": summary_lines(scene, view, next_request)}})
+                       "value": {"text": summary_lines(scene, view, next_request, dataset)}})
     return {"model_version": model_version, "score": round(view.score, 6), "result": result}
 
 
