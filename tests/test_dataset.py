@@ -249,3 +249,27 @@ def test_a_held_focal_length_carries_its_pools_uncertainty_as_one_scale_the_came
         eps.append(e)
     n = min(map(len, eps))
     assert np.allclose(eps[0][:n], eps[1][:n], atol=1e-5)
+
+
+def test_the_focal_floor_example_measures_the_floor_on_frames_with_a_known_focal_length(four_frames, tmp_path):
+    """examples/focal_floor.py (docs/studies/rig.md, "The floor, measured") on a batch's MAP first
+    pass: a row per block size, the floor between the rms error and minus the rms stated sd."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root, _, _ = four_frames
+    first = tmp_path / "b" / "first_pass"
+    for sub in ("results", "scenes"):  # eight frames of cam-A: the four, copied under new names
+        (first / sub).mkdir(parents=True)
+        for i in range(8):
+            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
+    example = Path(__file__).resolve().parents[1] / "examples" / "focal_floor.py"
+    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--blocks", "2,4",
+                           "--partitions", "20", "--bootstrap", "10"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rows = [r.split() for r in proc.stdout.splitlines()[2:]]
+    assert [r[0] for r in rows] == ["2", "4"]
+    for _, floor, sd, rms, *_ in rows:
+        assert -float(sd) - 1e-3 <= float(floor) <= float(rms) + 1e-3
