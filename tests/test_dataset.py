@@ -175,25 +175,37 @@ def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
     assert math.exp(given[0]) == pytest.approx(700.0, rel=0.01) and given[1] > alone[1]
 
 
-def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
-    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
-    reading for a camera of ten frames; it writes nothing."""
+def _copies(four_frames, folder, frames):
+    """A batch folder whose first pass is ``frames`` frames of cam-A: the four frames' first-pass
+    results and scenes, copied under the names 0, 1, ..."""
     import shutil
+
+    root, _, _ = four_frames
+    for sub in ("results", "scenes"):
+        (folder / "first_pass" / sub).mkdir(parents=True)
+        for i in range(frames):
+            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", folder / "first_pass" / sub / f"{i}.json")
+    return folder
+
+
+def _example(name, *args):
+    """examples/NAME run with ``args`` → the finished process (it must succeed)."""
     import subprocess
     import sys
     from pathlib import Path
 
-    root, _, _ = four_frames
-    first = tmp_path / "b" / "first_pass"
-    for sub in ("results", "scenes"):  # ten frames of cam-A: the four, copied under new names
-        (first / sub).mkdir(parents=True)
-        for i in range(10):
-            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
-    example = Path(__file__).resolve().parents[1] / "examples" / "dataset_pool.py"
-    before = sorted(tmp_path.rglob("*"))
-    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--groups", "0-4"],
-                          capture_output=True, text=True, timeout=300)
+    example = Path(__file__).resolve().parents[1] / "examples" / name
+    proc = subprocess.run([sys.executable, str(example), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
+    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
+    reading for a camera of ten frames; it writes nothing."""
+    batch = _copies(four_frames, tmp_path / "b", 10)
+    before = sorted(tmp_path.rglob("*"))
+    proc = _example("dataset_pool.py", batch, "--groups", "0-4")
     rows = proc.stdout.splitlines()
     assert any(r.startswith("all    alone  cam-A") for r in rows) and any(r.startswith("all    given  cam-A") for r in rows)
     assert "z " in proc.stdout  # the scenes carry the truth
@@ -254,21 +266,8 @@ def test_a_held_focal_length_carries_its_pools_uncertainty_as_one_scale_the_came
 def test_the_focal_floor_example_measures_the_floor_on_frames_with_a_known_focal_length(four_frames, tmp_path):
     """examples/focal_floor.py (docs/studies/rig.md, "The floor, measured") on a batch's MAP first
     pass: a row per block size, the floor between the rms error and minus the rms stated sd."""
-    import shutil
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root, _, _ = four_frames
-    first = tmp_path / "b" / "first_pass"
-    for sub in ("results", "scenes"):  # eight frames of cam-A: the four, copied under new names
-        (first / sub).mkdir(parents=True)
-        for i in range(8):
-            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
-    example = Path(__file__).resolve().parents[1] / "examples" / "focal_floor.py"
-    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--blocks", "2,4",
-                           "--partitions", "20", "--bootstrap", "10"], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    batch = _copies(four_frames, tmp_path / "b", 8)
+    proc = _example("focal_floor.py", batch, "--blocks", "2,4", "--partitions", "20", "--bootstrap", "10")
     rows = [r.split() for r in proc.stdout.splitlines()[2:]]
     assert [r[0] for r in rows] == ["2", "4"]
     for _, floor, sd, rms, *_ in rows:
