@@ -1,7 +1,7 @@
 """The focal length's floor measured on frames whose focal length is known (docs/studies/rig.md,
 "The floor, measured"; creference_bayes/workflows/batch/dataset.py).
 
-    python examples/focal_floor.py BATCH [--blocks 3,5,7,10,14] [--partitions 400] [--bootstrap 150]
+    python examples/focal_floor.py BATCH [--blocks 3,5,7,10,14] [--partitions 400] [--bootstrap 150] [--group 0-24]
 
 BATCH is a ``creference batch`` folder whose ``first_pass/`` is complete and whose scenes carry the
 truth (``ground_truth.focal_length_px``: ``simulate --from-kitti`` writes P2's). For the camera with
@@ -10,7 +10,9 @@ pooled pitch and roll, what the layer pools) are split at random into disjoint b
 each block is pooled without a floor, and floor² = mean over blocks of (error² − stated variance),
 the part of a pool's error its statistical variance does not state. Printed per block size: the
 floor (signed square root), the rms stated sd, the rms error, the mean error and the 16–84 %
-interval of the floor over bootstrap resamples of the frames. Log µ throughout (natural log of px).
+interval of the floor over bootstrap resamples of the frames. ``--group LO-HI``: only the frames
+named LO to HI (integers, e.g. KITTI's index), read and pooled apart. Log µ throughout (natural
+log of px).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 
 from creference_bayes.workflows.batch import dataset as D
 
-from dataset_pool import frames_of
+from dataset_pool import frames_of, in_group
 
 
 def block_errors(m, p, truth, b, partitions, rng):
@@ -51,9 +53,11 @@ def main(argv=None):
     ap.add_argument("--blocks", default="3,5,7,10,14", help="comma-separated block sizes (frames)")
     ap.add_argument("--partitions", type=int, default=400)
     ap.add_argument("--bootstrap", type=int, default=150)
+    ap.add_argument("--group", default=None, help="an integer range of frame names (e.g. 0-24)")
     args = ap.parse_args(argv)
     first = args.batch / "first_pass"
-    frames = frames_of(first)
+    group = tuple(int(x) for x in args.group.split("-")) if args.group else None
+    frames = [f for f in frames_of(first) if in_group(f[0], group)]
     camera = Counter(c for _, c, _, _ in frames if c is not None).most_common(1)[0][0]
     truths = {t for _, c, _, t in frames if c == camera}
     if len(truths) != 1 or None in truths:
