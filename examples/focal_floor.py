@@ -82,8 +82,8 @@ def main(argv=None):
             eb, vb = block_errors(m[pick], p[pick], truth, b, max(1, args.partitions // 10), rng)
             boots.append(float(np.mean(eb**2 - vb)))
         lo, hi = np.percentile(boots, [16, 84])
-        print(f"{b:<4d} {signed_sqrt(np.mean(e**2 - v)):+.3f}   {math.sqrt(np.mean(v)):.3f}    {math.sqrt(np.mean(e**2)):.3f}"
-              f"       {np.mean(e):+.3f}       {signed_sqrt(lo):+.3f} .. {signed_sqrt(hi):+.3f}")
+        print(f"{b:<4d} {signed_sqrt(np.mean(e**2 - v)):+.3f}   {math.sqrt(np.mean(v)):.3f}    "
+              f"{math.sqrt(np.mean(e**2)):.3f}       {np.mean(e):+.3f}       {signed_sqrt(lo):+.3f} .. {signed_sqrt(hi):+.3f}")
 
 
 if __name__ == "__main__":

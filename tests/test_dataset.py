@@ -267,7 +267,8 @@ def test_the_focal_floor_example_measures_the_floor_on_frames_with_a_known_focal
     """examples/focal_floor.py (docs/studies/rig.md, "The floor, measured") on a batch's MAP first
     pass: a row per block size, the floor between the rms error and minus the rms stated sd."""
     batch = _copies(four_frames, tmp_path / "b", 8)
-    proc = _example("focal_floor.py", batch, "--blocks", "2,4", "--partitions", "20", "--bootstrap", "10", "--group", "0-5")
+    proc = _example("focal_floor.py", batch, "--blocks", "2,4", "--partitions", "20", "--bootstrap", "10",
+                    "--group", "0-5")
     assert "6 informative readings of 6" in proc.stdout.splitlines()[0]  # --group 0-5: six of the eight frames
     rows = [r.split() for r in proc.stdout.splitlines()[2:]]
     assert [r[0] for r in rows] == ["2", "4"]

@@ -64,6 +64,7 @@ import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
            "combine", "pool_check", "read_readings", "read_focal_given_orientation", "plan", "dataset_lines",
+           "scale_depths", "shared_scale", "share_scale",
            "DATASET_CHOICES",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
@@ -134,9 +135,10 @@ class Shared:
 #: Every quantity the data-set layer learns (module docstring). The camera's: measured in
 #: docs/studies/rig.md (the focal length's max_sd 0.25; its floor 0.03, measured on the KITTI
 #: development frames: the excess of disjoint blocks' squared errors over their stated variances is
-#: ≈ 0, 0.03 its bootstrap 84th percentile; held, docs/studies/rig.md "A shared value handed back
-#: as shared"; the mounting's thresholds not measured against truth). The crowd's reference scale: a crowd's scale varies between frames
-#: (other annotators, other lines), at least 10 % (not measured). Target distances: readings as
+#: ≈ 0, 0.03 its bootstrap 84th percentile, examples/focal_floor.py; held: "A shared value handed
+#: back as shared"; the mounting's thresholds not measured against truth). The crowd's reference
+#: scale: a crowd's scale varies between frames (other annotators, other lines), at least 10 % (not
+#: measured). Target distances: readings as
 #: informative as a pooled focal length's (the ridge (z, µ) → (λz, λµ) makes them as weak), a
 #: population at least 10 % wide in log distance.
 SHARED = {s.name: s for s in (
@@ -313,14 +315,16 @@ def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered:
 
 def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
     """``result`` (a ``creference-result/2`` dict, changed in place and returned) as if its camera's
-    focal length were exp(``log_k``) times what it used: every kept draw's focal length and every
-    object's depth z multiplied by exp(log_k) (one number, or one per kept draw), the MAP's by
-    exp(``log_k_map``), the posterior summaries recomputed from the kept draws.
+    focal length were exp(``log_k``) times what it used: every kept draw's focal length (px) and
+    every object's depth z (m) multiplied by exp(log_k) (``log_k``: a natural log, one number or
+    one per kept draw), the MAP's by exp(``log_k_map``), the posterior summaries recomputed from the
+    kept draws, each object's ``evaluation`` dropped. ValueError: no kept draws, or a log_k not finite.
 
     Why this is the focal length's whole effect: with the image fixed, µ → kµ maps a point at
     depth z to kz with x and y (the height) unchanged (u − c = µx/z). Checked on KITTI frames: the
     MAP depth moves as k^0.9 (the size and location priors pull back a little), x within 0.15 m,
-    yaw within 0.015 rad, sizes within 4 % (docs/studies/rig.md, "A shared value handed back")."""
+    yaw within 0.015 rad, sizes within 4 % (docs/studies/rig.md, "A shared value handed back as
+    shared")."""
     from ...io.result import _posterior_block, _summary, stored_draws
     from ...models.contract import C_FOCAL, CAMERA_NAMES, O_Z, OBJECT_REPORT, object_report
 
@@ -597,7 +601,9 @@ def hand_back(ds: DataSet, key: str, scene, settings):
     if focal is not None and SHARED["log_focal"].held and "focal_length_px" not in own:
         # held: the camera's one value, the pool of all its frames; its uncertainty rides on the result
         scene = replace(scene, camera_id=focal.group, focal_length_px=_sig(math.exp(focal.center)), focal_prior=None)
-        block["focal_length_px"] = {"from": "data set", "shared_by": "camera", "group": focal.group, **focal.block(), "statistical_log_sd": round(math.sqrt(max(focal.var - focal.quantity.floor**2, 0.0)), 4),
+        statistical = math.sqrt(max(focal.var - focal.quantity.floor**2, 0.0))
+        block["focal_length_px"] = {"from": "data set", "shared_by": "camera", "group": focal.group, **focal.block(),
+                                    "statistical_log_sd": round(statistical, 4),
                                     "shared_scale_log_sd": round(math.sqrt(focal.var), 4)}
     ref = ds.estimate("log_ref_scale", key) if "log_ref_scale" in ds.learn else None
     if ref is not None and "ref_scale" not in own:
@@ -620,7 +626,7 @@ def hand_back(ds: DataSet, key: str, scene, settings):
 def shared_scale(block: dict, base_seed: int) -> dict | None:
     """The scale a frame's result carries for the held values it took (:func:`hand_back`'s
     ``block``): ``{"log_sd", "seed"}``, the seed one per group (the camera's frames draw the same
-    factors: one scale, shared), or None when it took none."""
+    factors: one scale, shared), or None when it took none. ``log_sd``: natural log of px."""
     import hashlib
 
     took = block.get("focal_length_px") or {}
