@@ -322,7 +322,7 @@ def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
 
     Why this is the focal length's whole effect: with the image fixed, µ → kµ maps a point at
     depth z to kz with x and y (the height) unchanged (u − c = µx/z). Checked on KITTI frames: the
-    MAP depth moves as k^0.9 (the size and location priors pull back a little), x within 0.15 m,
+    MAP depth moves as k^0.9 (the size and location priors pull back a little), x within 0.16 m,
     yaw within 0.015 rad, sizes within 4 % (docs/studies/rig.md, "A shared value handed back as
     shared")."""
     from ...io.result import _posterior_block, _summary, stored_draws
