@@ -11,7 +11,8 @@ from conftest import truth_scene
 
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.workflows.batch import BatchSettings, run_batch
-from creference_bayes.workflows.batch.dataset import SHARED, DataSet, Pool, Reading, hand_back, plan
+from creference_bayes.workflows.batch.dataset import (SHARED, DataSet, Pool, Reading, hand_back, plan,
+                                                      scale_depths)
 from creference_bayes.workflows.batch.engines import LocalEngine
 
 FAST = {"min_ess": 50, "max_steps": 300, "warmup": 100}
@@ -45,12 +46,13 @@ def test_frames_of_one_camera_pool_it_by_default_and_each_result_says_so(four_fr
     for k in range(4):
         res = json.loads((root / "out" / "results" / f"f{k}.json").read_text())
         took = res["dataset"]["focal_length_px"]
-        assert took["from"] == "data set" and took["group"] == "cam-A" and took["frames_offered"] == 3
-        assert took["log_sd"] >= SHARED["log_focal"].floor  # how sure, with the floor
+        assert took["from"] == "data set" and took["group"] == "cam-A" and took["held"]
+        assert took["frames_offered"] == 4  # held: the camera's one value, each frame's evidence once in it
+        assert took["shared_scale_log_sd"] == took["log_sd"] >= SHARED["log_focal"].floor  # how sure, floor in
         assert abs(math.log(took["median"] / 1400.0)) < 4 * took["log_sd"]
-        assert res["camera"]["setup"]["focal_prior"]["source"] == "rig"
-        assert {"height_m", "pitch_deg", "roll_deg"} <= set(res["dataset"])  # the mounting too, by default
-        assert res["rig"]["focal_length_px"]["median"] == took["median"]  # the camera's part, as before
+        assert res["camera"]["map"]["focal_length_px"] == took["median"] == report.dataset["focal_length_px"][
+            "groups"]["cam-A"]["median"] and "focal_length_px" not in res["camera"]["free"]
+        assert {"height_m", "pitch_deg", "roll_deg"} <= set(res["dataset"]) & set(res["rig"])  # the mounting too
     again = run_batch([root / "in"], root / "out", LocalEngine(1), settings)
     assert again.keys("skipped") == [f"f{k}" for k in range(4)]
 
@@ -173,26 +175,102 @@ def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
     assert math.exp(given[0]) == pytest.approx(700.0, rel=0.01) and given[1] > alone[1]
 
 
-def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
-    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
-    reading for a camera of ten frames; it writes nothing."""
+def _copies(four_frames, folder, frames):
+    """A batch folder whose first pass is ``frames`` frames of cam-A: the four frames' first-pass
+    results and scenes, copied under the names 0, 1, ..."""
     import shutil
+
+    root, _, _ = four_frames
+    for sub in ("results", "scenes"):
+        (folder / "first_pass" / sub).mkdir(parents=True)
+        for i in range(frames):
+            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", folder / "first_pass" / sub / f"{i}.json")
+    return folder
+
+
+def _example(name, *args):
+    """examples/NAME run with ``args`` → the finished process (it must succeed)."""
     import subprocess
     import sys
     from pathlib import Path
 
-    root, _, _ = four_frames
-    first = tmp_path / "b" / "first_pass"
-    for sub in ("results", "scenes"):  # ten frames of cam-A: the four, copied under new names
-        (first / sub).mkdir(parents=True)
-        for i in range(10):
-            shutil.copy(root / "out" / "first_pass" / sub / f"f{i % 4}.json", first / sub / f"{i}.json")
-    example = Path(__file__).resolve().parents[1] / "examples" / "dataset_pool.py"
-    before = sorted(tmp_path.rglob("*"))
-    proc = subprocess.run([sys.executable, str(example), str(tmp_path / "b"), "--groups", "0-4"],
-                          capture_output=True, text=True, timeout=300)
+    example = Path(__file__).resolve().parents[1] / "examples" / name
+    proc = subprocess.run([sys.executable, str(example), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):
+    """examples/dataset_pool.py (docs/studies/rig.md) on a batch's MAP first pass: a row per
+    reading for a camera of ten frames; it writes nothing."""
+    batch = _copies(four_frames, tmp_path / "b", 10)
+    before = sorted(tmp_path.rglob("*"))
+    proc = _example("dataset_pool.py", batch, "--groups", "0-4")
     rows = proc.stdout.splitlines()
     assert any(r.startswith("all    alone  cam-A") for r in rows) and any(r.startswith("all    given  cam-A") for r in rows)
     assert "z " in proc.stdout  # the scenes carry the truth
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_focal_length_k_times_larger_puts_the_targets_k_times_deeper_as_scale_depths_does():
+    """The premise of a held focal length's shared scale: with the image fixed, µ → kµ moves each
+    target's depth z to ≈ kz, x nearly unchanged (the MAPs of one frame at µ and 1.05µ); and
+    scale_depths does exactly that to a result: the kept draws' depths and focal lengths, the MAP's
+    when asked, the posterior summaries with them."""
+    import copy
+
+    from creference_bayes import estimate
+
+    d = _scene(0)
+    d["camera"]["focal_length_px"] = 1400.0
+    fits = {}
+    for k in (1.0, 1.05):
+        d["camera"]["focal_length_px"] = 1400.0 * k
+        fits[k] = estimate(parse_scene(d), seed=0, posterior=k == 1.0, sampling=FAST, keep_draws=100).to_dict()
+    for a, b in zip(fits[1.0]["objects"], fits[1.05]["objects"]):
+        assert b["map"]["z"] / a["map"]["z"] == pytest.approx(1.05, abs=0.02)  # 1.042–1.053 on seeds 0–2
+        assert abs(b["map"]["x"] - a["map"]["x"]) < 0.2 * abs(b["map"]["z"] - a["map"]["z"])
+    before = scale_depths(copy.deepcopy(fits[1.0]), 0.0)  # the summaries from the kept draws
+    after = scale_depths(copy.deepcopy(fits[1.0]), math.log(1.05), math.log(1.05))
+    assert after["camera"]["posterior"]["median"]["focal_length_px"] == pytest.approx(1470.0)
+    for a, b, da, db in zip(before["objects"], after["objects"], before["draws"]["objects"], after["draws"]["objects"]):
+        assert np.allclose(db["z"], 1.05 * np.asarray(da["z"]), atol=1e-5) and db["x"] == da["x"]
+        assert b["posterior"]["median"]["z"] == pytest.approx(1.05 * a["posterior"]["median"]["z"], rel=1e-5)
+        assert b["map"]["z"] == pytest.approx(1.05 * a["map"]["z"], rel=1e-5) and b["map"]["x"] == a["map"]["x"]
+    with pytest.raises(ValueError, match="no posterior draws"):
+        scale_depths({k: v for k, v in fits[1.05].items() if k != "draws"}, 0.1)
+
+
+def test_a_held_focal_length_carries_its_pools_uncertainty_as_one_scale_the_cameras_frames_share(tmp_path):
+    """Two frames of one camera, posterior sampled: each takes the pooled focal length as its
+    own, and its draws carry the pool's whole log-sd as a factor exp(ε_d) on focal length and
+    depths, the same ε_d in every frame of the camera (one value: one uncertainty, shared)."""
+    (tmp_path / "in").mkdir()
+    for seed in range(2):
+        (tmp_path / "in" / f"f{seed}.json").write_text(json.dumps(_scene(seed)))
+    report = run_batch([tmp_path / "in"], tmp_path / "out", LocalEngine(1), BatchSettings(seed=1, sampling=FAST))
+    assert report.ok
+    eps = []
+    for k in range(2):
+        res = json.loads((tmp_path / "out" / "results" / f"f{k}.json").read_text())
+        took = res["dataset"]["focal_length_px"]
+        assert took["held"] and res["camera"]["map"]["focal_length_px"] == took["median"]
+        e = np.log(np.asarray(res["draws"]["camera"]["focal_length_px"]) / took["median"])
+        assert np.std(e) == pytest.approx(took["shared_scale_log_sd"], rel=0.3)
+        assert res["camera"]["posterior"]["sd"]["focal_length_px"] > 0.5 * took["log_sd"] * took["median"]
+        eps.append(e)
+    n = min(map(len, eps))
+    assert np.allclose(eps[0][:n], eps[1][:n], atol=1e-5)
+
+
+def test_the_focal_floor_example_measures_the_floor_on_frames_with_a_known_focal_length(four_frames, tmp_path):
+    """examples/focal_floor.py (docs/studies/rig.md, "The floor, measured") on a batch's MAP first
+    pass: a row per block size, the floor between the rms error and minus the rms stated sd."""
+    batch = _copies(four_frames, tmp_path / "b", 8)
+    proc = _example("focal_floor.py", batch, "--blocks", "2,4", "--partitions", "20", "--bootstrap", "10",
+                    "--group", "0-5")
+    assert "6 informative readings of 6" in proc.stdout.splitlines()[0]  # --group 0-5: six of the eight frames
+    rows = [r.split() for r in proc.stdout.splitlines()[2:]]
+    assert [r[0] for r in rows] == ["2", "4"]
+    for _, floor, sd, rms, *_ in rows:
+        assert -float(sd) - 1e-3 <= float(floor) <= float(rms) + 1e-3

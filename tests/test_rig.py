@@ -13,9 +13,10 @@ from creference_bayes.io.scene import SceneError, parse_scene
 from creference_bayes.workflows.batch import BatchSettings, run_batch
 from creference_bayes.workflows.batch.engines import LocalEngine
 from creference_bayes.workflows.batch import rig as rig_module
-from creference_bayes.workflows.batch.rig import RigPool, SharedLikelihood, apply_rig, rig_report, shared_likelihood
+from creference_bayes.workflows.batch.rig import (SHARED_BIAS_SD, RigPool, SharedLikelihood, apply_rig, rig_report,
+                                                  shared_likelihood)
 
-FLOOR = 0.04  # rig.SHARED_BIAS_SD["log_focal"]
+FLOOR = SHARED_BIAS_SD["log_focal"]
 
 
 def _frames(values, precisions, camera="cam", name="log_focal"):
@@ -225,13 +226,14 @@ def test_batch_pools_the_focal_length_and_mounting_of_one_camera(rig_batch):
         first = json.loads((out / "first_pass" / "results" / f"f{k}.json").read_text())
         rig = res["rig"]
         assert rig["camera_id"] == "rig-A" and rig["frames"] == 3
-        assert res["camera"]["setup"]["focal_prior"]["source"] == "rig"
-        # the frame's second pass used the rig: its copy of the scene carries it for `labels`
+        # the focal length is held: the pool of the camera's four frames, the frame's own; its copy of
+        # the scene carries it for `labels`
+        focal = res["dataset"]["focal_length_px"]
         copy = json.loads((out / "scenes" / f"f{k}.json").read_text())
-        assert copy["camera"]["focal_length_prior"]["median_px"] == pytest.approx(rig["focal_length_px"]["median"], rel=1e-3)
-        # three other frames know the focal length better than the default prior did
-        assert rig["focal_length_px"]["log_sd"] < first["camera"]["setup"]["focal_prior"]["log_sd"]
-        assert abs(math.log(rig["focal_length_px"]["median"] / 1400.0)) < 4 * rig["focal_length_px"]["log_sd"]
+        assert focal["held"] and copy["camera"]["focal_length_px"] == focal["median"] and "focal_length_px" not in rig
+        # the frames know the focal length better than the default prior did
+        assert focal["log_sd"] < first["camera"]["setup"]["focal_prior"]["log_sd"]
+        assert abs(math.log(focal["median"] / 1400.0)) < 4 * focal["log_sd"]
         # the mounting: the frames' shared height (1.6 m) and pitch (6°), each with a spread
         height, pitch = rig["height_m"], rig["pitch_deg"]
         assert height["spread_log_sd"] >= 0.03 and pitch["spread_sd"] >= 0.5
@@ -289,5 +291,6 @@ def test_the_labels_sidecar_says_what_each_frame_took_from_the_data_set(rig_batc
     side = json.loads((tmp_path / "l" / "uncertainty" / "f0.json").read_text())
     took = side["dataset"]["focal_length_px"]
     assert took["from"] == "data set" and took["group"] == "rig-A" and took["log_sd"] >= FLOOR
-    assert side["camera"]["rig"]["focal_length_px"]["median"] == took["median"]
+    assert took["held"] and side["camera"]["focal_length_px"] == took["median"]  # the camera's one value
+    assert took["shared_scale_log_sd"] == took["log_sd"]  # how sure the pool was: carried by the draws
     assert "dataset" not in json.loads((tmp_path / "l" / "uncertainty" / "f4.json").read_text())

@@ -37,6 +37,7 @@ from ...io.files import atomic_write_json
 from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict, with_classes
 from ...pipeline import DEFAULT_MODEL, option_record
 from .files import ERROR_FORMAT, layout, record_error, up_to_date
+from .dataset import shared_scale
 from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
@@ -431,6 +432,9 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
         elif own_scale is not None and block:
             block["corner_scale_px"] = {"from": "override", "why": "the scene's own corner scale"}
         job_ident = ident if not kwargs else {**ident, "from_dataset": _kwargs_record(kwargs)}
+        scale = shared_scale(block, settings.seed)
+        if scale is not None:  # the held values' uncertainty the result carries: another scale, another result
+            job_ident = {**job_ident, "shared_scale": scale}
         fingerprint = scene_fingerprint(scene)
         if up_to_date(paths, fingerprint, job_ident, settings.ground(len(scene.targets))):
             status[si.key] = "skipped"
@@ -439,7 +443,7 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
             continue
         todo.append((si, {"scene": scene, "seed": derive_seed(settings.seed, fingerprint),
                           "estimate": {**settings.estimate_kwargs(), **kwargs}, "rig": rig,
-                          "dataset": block or None, "ident": job_ident}))
+                          "dataset": block or None, "ident": job_ident, "shared_scale": scale}))
     return todo
 
 

@@ -16,8 +16,11 @@ Why only informative frames (likelihood sd at most ``max_sd``: log µ 0.25): wea
 on KITTI one-object frames the focal length comes out ≈ 40 % low, because the wide pitch prior acts
 as an extra ≈ 1/µ prior (the horizon is pinned in pixels, so the pitch's allowed width shrinks as µ
 grows); a robust (heavy-tailed) combination does not help, it flattens the weights toward these
-frames (docs/studies/rig.md). The focal length's floor (0.04 in log µ, measured on the KITTI
-development frames) is the model's bias all frames of a camera share.
+frames (docs/studies/rig.md). The focal length's floor (0.03 in log µ, measured on the KITTI
+development frames) is the model's bias all frames of a camera share. In ``creference batch`` the
+focal length is *held* (:data:`.dataset.SHARED`, :func:`.dataset.hand_back`): each frame takes the
+pool of all the camera's frames as its focal length, its uncertainty carried by the result's draws;
+:func:`apply_rig` still hands it as a prior (the API of the earlier ``--rig``).
 
 A frame's camera is its scene's ``camera.id``; a scene without one whose photo has EXIF make and
 model is named by them (:func:`~creference_bayes.vision.exif.camera_id_from_exif`); a frame with

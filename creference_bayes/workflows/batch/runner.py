@@ -9,6 +9,7 @@ import traceback
 from collections import deque
 
 from ...pipeline import estimate
+from .dataset import share_scale
 from .files import layout, record_error, record_result
 
 __all__ = ["run_scene", "one_line", "Runner", "progress_bar"]
@@ -23,6 +24,8 @@ def run_scene(job: dict) -> dict:
     """
     try:
         result = estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()
+        if job.get("shared_scale"):  # a held value's uncertainty, one scale the camera's frames share (dataset.py)
+            share_scale(result, **job["shared_scale"])
         if job.get("rig"):  # the rig the frame's camera priors came from (rig.py)
             result["rig"] = job["rig"]
         if job.get("dataset"):  # what the frame took from the data set, and how sure that was (dataset.py)
