@@ -274,3 +274,37 @@ def test_the_focal_floor_example_measures_the_floor_on_frames_with_a_known_focal
     assert [r[0] for r in rows] == ["2", "4"]
     for _, floor, sd, rms, *_ in rows:
         assert -float(sd) - 1e-3 <= float(floor) <= float(rms) + 1e-3
+
+
+def test_the_advice_weighs_a_held_focal_lengths_frame_given_the_held_value_and_states_its_labels_with_the_scale():
+    """A result whose draws carry a held focal length's shared scale: the advice weighs its futures
+    on the draws given the held value (the scale divided out: the model holds µ fixed, and no request
+    on the frame moves the camera's pool), says so, and states the labels' quality now from the
+    draws as they are, as ``creference labels`` does; a result without a scale is weighed as it is."""
+    import copy
+
+    from creference_bayes import estimate
+    from creference_bayes.models.contract import C_FOCAL, O_Z
+    from creference_bayes.pipeline import map_state, rebuild_model, result_draws
+    from creference_bayes.workflows.advice import AdviceSettings, _label_quality
+    from creference_bayes.workflows.advice.inputs import _given_held_focal, advise_result
+    from creference_bayes.workflows.batch.dataset import share_scale
+
+    d = _scene(0)
+    d["camera"]["focal_length_px"] = 1400.0
+    scene = parse_scene(d)
+    plain = estimate(scene, seed=0, sampling=FAST, keep_draws=200).to_dict()
+    held = share_scale(copy.deepcopy(plain), log_sd=0.08, seed=3)
+    model = rebuild_model(held, scene)
+    cams, objs, _ = result_draws(held, model)
+    (wc, wo), notes = _given_held_focal(model, cams, objs)
+    assert np.allclose(wc[:, C_FOCAL], 1400.0)
+    p_cams, p_objs, _ = result_draws(plain, model)
+    assert np.allclose(wo[..., O_Z], p_objs[..., O_Z], rtol=1e-5) and np.std(np.log(cams[:, C_FOCAL])) > 0.05
+    assert len(notes) == 1 and "held at 1400.0 px" in notes[0]
+    assert _given_held_focal(model, p_cams, p_objs) == ((p_cams, p_objs), [])
+    settings = AdviceSettings(n_draws=100, n_futures=20, kinds=("dims",))
+    advice = advise_result(held, scene, seed=0, settings=settings)
+    assert notes[0] in advice.notes
+    camera, objects = map_state(held)
+    assert np.allclose(advice.now.p_iou, _label_quality(scene, camera, objects, cams, objs, settings.iou_threshold))

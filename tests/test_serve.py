@@ -424,14 +424,14 @@ def test_in_a_batch_folder_each_frame_takes_the_data_sets_priors(batch_folder, t
     assert r.status_code == 200, r.json
     same, other = (" | ".join(p["result"][-1]["value"]["text"]) for p in r.json["results"])
     assert f"focal length from the data set: {pooled['median']:.4g} px ± " in same and "camera cam-A" in same
-    prior = seen[0].focal_prior
-    assert prior.source == "rig" and prior.median_px == pytest.approx(pooled["median"], rel=1e-3)
+    held = seen[0].focal_length_px  # held: the camera's one value (its uncertainty rides on the draws)
+    assert pooled["held"] and held == pytest.approx(pooled["median"], rel=1e-3)
     # a camera the batch has no pool of: the frame's own camera priors, and the summary says why
-    assert seen[1].focal_prior is None or seen[1].focal_prior.source != "rig"
+    assert seen[1].focal_length_px is None and (seen[1].focal_prior is None or seen[1].focal_prior.source != "rig")
     assert "focal length" in other and "not from the data set (the data set has no pool of camera 'cam-B')" in other
     # the background job: the same priors, its result's dataset block says what it took
     worker.run_pending()
-    assert seen[2].focal_prior == prior
+    assert seen[2].focal_length_px == held
     took = json.loads((state / "results" / "p3_t11.json").read_text())["dataset"]["focal_length_px"]
     assert took["from"] == "data set" and took["group"] == "cam-A" and took["median"] == pooled["median"]
     assert json.loads((state / "results" / "p3_t12.json").read_text())["dataset"]["focal_length_px"]["from"] \
@@ -480,3 +480,22 @@ def test_tasks_of_one_photo_are_estimated_as_one_frame(tmp_path, monkeypatch):
     worker.run_pending()  # one result, under the first task's key; the second task's own one is gone
     assert len(json.loads((state / "results" / "p3_t21.json").read_text())["objects"]) == 2
     assert not (state / "results" / "p3_t22.json").exists() and not (state / "advice" / "p3_t22.json").exists()
+
+
+def test_a_held_focal_lengths_laplace_draws_carry_the_data_sets_shared_scale(scene):
+    """A frame whose focal length the data set held (its ``dataset`` block) is answered from the
+    Laplace approximation with the held value fixed; its draws carry the pool's shared scale as a
+    batch's results do, so the distance interval is wider and the label quality no higher than the
+    same draws without it."""
+    from creference_bayes.serve.predictions import estimate_view
+
+    d = copy.deepcopy(scene)
+    d["camera"]["focal_length_px"] = 1500.0
+    s = parse_scene(d)
+    result = cb.estimate(s, posterior=False, seed=0)
+    block = {"focal_length_px": {"from": "data set", "group": "cam", "held": True, "shared_scale_log_sd": 0.1}}
+    alone = estimate_view(s, result, seed=0)
+    held = estimate_view(s, result, seed=0, dataset=block, base_seed=1)
+    width = [np.diff(v.interval_m, axis=1).ravel() for v in (alone, held)]
+    assert np.all(width[1] > 1.5 * width[0])
+    assert np.all(held.p_iou <= alone.p_iou + 0.05) and np.allclose(held.distance_m, alone.distance_m)

@@ -229,7 +229,7 @@ def create_app(settings: ServeSettings, *, start_worker: bool = True):
             if settings.background:
                 worker.submit(key)
         view = estimate_view(frame.scene, result, threshold=settings.iou_threshold, hdi_prob=settings.hdi_prob,
-                             n_draws=settings.n_draws, seed=seed)
+                             n_draws=settings.n_draws, seed=seed, dataset=frame.dataset, base_seed=settings.seed)
         advice = store.advice(key, frame.fingerprint)
         said = None
         if advice is not None:

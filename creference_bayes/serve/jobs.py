@@ -34,6 +34,7 @@ from pathlib import Path
 
 from ..io.files import atomic_write_json, atomic_write_text
 from ..io.validation import read_json
+from ..workflows.batch.dataset import share_scale, shared_scale
 from ..workflows.batch.files import layout
 from .predictions import Frame, tasks_scene
 
@@ -155,14 +156,14 @@ class FrameStore:
         return d if ok else None
 
     def put_result(self, key: str, frame: Frame, result, seed: int, settings: dict) -> None:
-        """The scene copy, then the result with a batch's ``batch`` block (its source: the copy)
+        """The scene copy, then the result (a Result or its dict) with a batch's ``batch`` block (its source: the copy)
         and the frame's ``rig`` and ``dataset`` blocks, so that ``creference labels`` and ``advise``
         read the folder as a batch folder."""
         from ..workflows.batch import SceneInput
         from ..workflows.batch.files import record_result
 
         p = self.paths(key)
-        d = dict(result.to_dict())
+        d = dict(result if isinstance(result, dict) else result.to_dict())
         d.update({k: v for k, v in (("rig", frame.rig), ("dataset", frame.dataset)) if v})
         record_result(p, SceneInput(key, p["scene"]), frame.scene, d, seed, settings)
         for other in set(frame.members) - {key}:  # a task's own frame, before it joined this one
@@ -344,7 +345,10 @@ class Worker:
             log.info("job %s: sampling the posterior of %d target(s)", key, len(frame.scene.targets))
             with _timed(seconds, "posterior"):
                 result = estimate(frame.scene, seed=seed, hdi_prob=self.hdi_prob, sampling=self.sampling,
-                                  **frame.kwargs)
+                                  **frame.kwargs).to_dict()
+                scale = shared_scale(frame.dataset or {}, self.seed)
+                if scale is not None:  # a held focal length's uncertainty, as a batch's results carry it
+                    share_scale(result, **scale)
             settings = {"serve": True, "seed": self.seed, "hdi_prob": self.hdi_prob, "sampling": self.sampling or {}}
             self.store.put_result(key, frame, result, seed, settings)
         if self.store.advice(key, frame.fingerprint) is None:

@@ -231,18 +231,25 @@ class EstimateView:
 
 
 def estimate_view(scene: Scene, result, *, threshold: float = 0.7, hdi_prob: float = 0.9, n_draws: int = 400,
-                  seed=0) -> EstimateView:
+                  seed=0, dataset: dict | None = None, base_seed: int = 0) -> EstimateView:
     """The view of ``result`` (a :class:`~creference_bayes.pipeline.Result` of ``scene``): its kept
     posterior draws, else ``n_draws`` draws of the Laplace approximation at its MAP
     (:func:`~creference_bayes.pipeline.result_draws`); the label quality as ``creference labels``
-    states it (the MAP box against the draws' boxes in the labels' frame)."""
+    states it (the MAP box against the draws' boxes in the labels' frame). A frame whose focal
+    length the data set held (its ``dataset`` block) has its Laplace draws carry the held value's
+    shared uncertainty as a batch's results do (kept draws carry it already;
+    :func:`~creference_bayes.workflows.batch.dataset.shared_log_k`, ``base_seed`` the service's)."""
     from ..pipeline import map_state, rebuild_model, result_draws
+    from ..workflows.batch.dataset import scale_draws, shared_log_k
     from ..workflows.labels.kitti import kitti_poses
     from ..workflows.labels.quality import label_quality
 
     d = result.to_dict()
     model = result.model if result.model is not None else rebuild_model(d, scene)
     cams, objs, source = result_draws(d, model, n=n_draws, seed=seed)
+    log_k = shared_log_k(dataset, base_seed, len(cams)) if source == "laplace" else None
+    if log_k is not None:
+        cams, objs = scale_draws(cams, objs, log_k)
     camera, objects = map_state(d)
     box = kitti_poses(scene, camera[None], objects[None])[0]
     boxes = kitti_poses(scene, cams, objs)

@@ -428,7 +428,7 @@ class _Draws:
 def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.ndarray, objects_map: np.ndarray,
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
-           progress: bool = False) -> Advice:
+           progress: bool = False, label_draws: tuple[np.ndarray, np.ndarray] | None = None) -> Advice:
     """The advice for ``scene`` given posterior draws of its metrology ``model``.
 
     Parameters
@@ -448,6 +448,8 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         than the scene's are (default: the scene's mix for all)
     source : where the draws come from, ``posterior`` or ``laplace`` (reported)
     progress : a progress bar over the candidates on standard error
+    label_draws : (cameras, objects) the labels' quality now is stated from, when not ``cams`` and
+        ``objs`` (a held focal length's shared scale: :func:`~.inputs.advise_result`)
     """
     from ...inference.progress import progress_bar
 
@@ -469,7 +471,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     now = Outlook(**{k: v[0] for k, v in draws.outlooks(np.full((1, n), 1.0 / n), settings, rng, n).items()})
     # the label's quality as creference labels states it (its MAP box against the draws); a future's
     # is its posterior-mean box's, moved by what separates the two now
-    label_p = _label_quality(scene, camera_map, objects_map, cams, objs, settings.iou_threshold)
+    label_p = _label_quality(scene, camera_map, objects_map, *(label_draws or (cams, objs)), settings.iou_threshold)
     shift = label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
     base = model.neg_log_posterior(draws.cams, draws.objs, temperature)

@@ -313,6 +313,32 @@ def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered:
     return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warns))
 
 
+def scale_draws(cams: np.ndarray, objs: np.ndarray, log_k) -> tuple[np.ndarray, np.ndarray]:
+    """Copies of the draws, cameras (n, 5) and objects (n, m, 7), with draw d's focal length (px)
+    and every object's depth z (m) multiplied by exp(``log_k``) (a natural log, one number or (n,)):
+    :func:`scale_depths` on arrays (its docstring says why this is the focal length's whole effect).
+    ValueError: a log_k not finite."""
+    from ...models.contract import C_FOCAL, O_Z
+
+    cams, objs = np.array(cams, float), np.array(objs, float)
+    k = np.exp(np.broadcast_to(np.asarray(log_k, float), (len(cams),)))
+    if not np.all(np.isfinite(k)):
+        raise ValueError(f"scale_depths: log_k must be finite, got {log_k!r}")
+    cams[:, C_FOCAL] *= k
+    objs[:, :, O_Z] *= k[:, None]
+    return cams, objs
+
+
+def shared_log_k(block: dict | None, base_seed: int, n: int) -> np.ndarray | None:
+    """(n,) the factors (natural logs) by which a frame's draws carry the held values' shared
+    uncertainty (:func:`shared_scale` of its ``dataset`` block), or None when it took none: the
+    same numbers :func:`share_scale` multiplies a result's kept draws by."""
+    scale = shared_scale(block or {}, base_seed)
+    if scale is None:
+        return None
+    return np.random.default_rng(scale["seed"]).normal(0.0, scale["log_sd"], int(n))
+
+
 def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
     """``result`` (a ``creference-result/2`` dict, changed in place and returned) as if its camera's
     focal length were exp(``log_k``) times what it used: every kept draw's focal length (px) and
@@ -331,12 +357,7 @@ def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
     kept = stored_draws(result)
     if kept is None:
         raise ValueError("scale_depths: the result keeps no posterior draws")
-    cams, objs = kept.cameras[0].copy(), kept.objects[0].copy()
-    k = np.exp(np.broadcast_to(np.asarray(log_k, float), (len(cams),)))
-    if not np.all(np.isfinite(k)):
-        raise ValueError(f"scale_depths: log_k must be finite, got {log_k!r}")
-    cams[:, C_FOCAL] *= k
-    objs[:, :, O_Z] *= k[:, None]
+    cams, objs = scale_draws(kept.cameras[0], kept.objects[0], log_k)
     draws = result["draws"]
     draws["camera"]["focal_length_px"] = np.round(cams[:, C_FOCAL], 6).tolist()
     for o, col in zip(draws["objects"], np.moveaxis(objs[:, :, O_Z], 1, 0)):
