@@ -27,11 +27,22 @@ import numpy as np
 from ..core.geometry import rotation_from_pitch_roll
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Model
 
-__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS"]
+__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS", "WHOLE_DIM", "explored_whole"]
 
 CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
+#: A model of at most this many free parameters is explored whole (:func:`explored_whole`).
+WHOLE_DIM = 12
+
+
+def explored_whole(model: Model) -> bool:
+    """Whether the model's joint is small enough (at most :data:`WHOLE_DIM` free parameters: one
+    object and its camera, or two of known size) to be explored whole: its optimiser refines both
+    handednesses from the start and its sampler moves the whole vector by the ensemble kernel
+    (there the camera is pinned by an object or two alone, so it is weakly identified and the
+    posterior lies along curved ridges that the objects' blocks cannot follow)."""
+    return int(model.camera_free.sum() + model.object_free.sum()) <= WHOLE_DIM
 
 
 class WorkingCoords:
@@ -105,7 +116,7 @@ class WorkingCoords:
 
 
 class HorizonDistance:
-    """Flat working coordinates of a one-object scene ↔ the same with pitch replaced by log D.
+    """Flat working coordinates of a scene ↔ the same with pitch replaced by log D of its first object.
 
     When pitch is free, a far object's posterior lies along a curved ridge: its depth, the camera
     height, the focal length and the pitch trade against each other through the object's distance
@@ -127,10 +138,10 @@ class HorizonDistance:
 
     @classmethod
     def of(cls, model: Model) -> "HorizonDistance | None":
-        """The coordinates for a one-object model whose pitch and roll are free, else None (flat
-        layout: the free camera coordinates, then the object's u, v, …)."""
+        """The coordinates for a model whose pitch and roll are free, else None (flat layout: the
+        free camera coordinates, then the first object's u, v, …)."""
         cf = model.camera_free
-        if model.n_objects != 1 or not (cf[C_PITCH] and cf[C_ROLL]):
+        if not (cf[C_PITCH] and cf[C_ROLL]):
             return None
         pos = np.cumsum(cf) - 1
         kc = int(cf.sum())
