@@ -400,9 +400,13 @@ def _scene_model(seed, **kw):
     return model, optimize(model), truth
 
 
-def test_the_move_set_follows_the_block_structure():
-    """A small joint (one object): the whole vector by the ensemble kernel; a larger one: block
-    sweeps. Either way each walker is a chain and the same seed gives the same draws."""
+def test_the_kernel_follows_the_blocks_and_every_chain_is_a_walker():
+    """One object block is moved whole by the ensemble kernel, several by block sweeps. Either way
+    a chain is one walker (the draws have a chain per walker, the diagnostics say as many), ``lp``
+    is the log-density in working coordinates (the same function of the draws whatever the
+    kernel), and the same seed gives the same draws."""
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.moves import BlockTarget
     from creference_bayes.inference.sampler import sample as sample_scene
 
     tiny = SamplerSettings(min_ess=50)
@@ -410,9 +414,15 @@ def test_the_move_set_follows_the_block_structure():
         model, est, _ = _scene_model(2, m=m, n_annotations=2, noise_px=2.0)
         a, da = sample_scene(model, est, settings=tiny, rng=4)
         b, _ = sample_scene(model, est, settings=tiny, rng=4)
-        assert a.objects.shape[0] == chains and a.objects.shape[2] == m
+        assert a.objects.shape[:3] == (chains, a.log_prob.shape[1], m) and da.n_chains == chains
         np.testing.assert_array_equal(a.objects, b.objects)
         assert set(da.ess_bulk) == set(da.r_hat) and all(k.endswith(".distance_m") or "." in k for k in da.ess_bulk)
+        fit = est.fitted(model)
+        coords = WorkingCoords(fit)
+        wc0, wo0 = (x[0] for x in coords.to_work(est.camera[None], est.objects[None]))
+        target = BlockTarget(fit, 1.0, wc0, np.zeros((m, 7, 5)), wo0)
+        wc, wo = coords.to_work(a.cameras[:, -5:].reshape(-1, 5), a.objects[:, -5:].reshape(-1, m, 7))
+        np.testing.assert_allclose(a.log_prob[:, -5:].ravel(), target(target.join(wc, wo)), rtol=1e-7, atol=1e-7)
 
 
 def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_is_gaussian():

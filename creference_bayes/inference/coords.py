@@ -27,22 +27,21 @@ import numpy as np
 from ..core.geometry import rotation_from_pitch_roll
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Model
 
-__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS", "WHOLE_DIM", "explored_whole"]
+__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS", "explored_whole"]
 
 CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
-#: A model of at most this many free parameters is explored whole (:func:`explored_whole`).
-WHOLE_DIM = 12
-
-
 def explored_whole(model: Model) -> bool:
-    """Whether the model's joint is small enough (at most :data:`WHOLE_DIM` free parameters: one
-    object and its camera, or two of known size) to be explored whole: its optimiser refines both
-    handednesses from the start and its sampler moves the whole vector by the ensemble kernel
-    (there the camera is pinned by an object or two alone, so it is weakly identified and the
-    posterior lies along curved ridges that the objects' blocks cannot follow)."""
-    return int(model.camera_free.sum() + model.object_free.sum()) <= WHOLE_DIM
+    """Whether the model's free parameters form the camera block and at most one object block, so
+    that its posterior is explored whole: its optimiser refines both handednesses from the start
+    and its sampler moves the whole vector (at most 12 parameters) by the ensemble kernel. Block
+    sweeps pay where the object blocks are nearly independent given a camera that many of them
+    pin; with one object block the camera is pinned by that object alone (weakly identified), the
+    two blocks pin each other along curved ridges, and only moves of the whole vector follow them.
+    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 15× the
+    block sweeps' CPU time: docs/studies/sampler.md.)"""
+    return int(np.any(model.object_free, axis=1).sum()) <= 1
 
 
 class WorkingCoords:

@@ -3,7 +3,7 @@ coordinates learned during warm-up, with an independence proposal fitted to the 
 
 It knows nothing of cameras or boxes: it moves any vectorised ``log_prob((n, ndim)) → (n,)`` from
 a starting point and a covariance (the MAP and its Laplace approximation). :mod:`.sampler` runs it
-for a model whose joint block is small (:func:`.coords.explored_whole`); its walkers are the
+for a model of one object block (:func:`.coords.explored_whole`); its walkers are the
 chains of the one driver, which stops them by bulk ESS and rank R-hat as it stops every kernel
 (:func:`.sampler.run_chains`).
 

@@ -6,8 +6,8 @@ approximation at the MAP, a search for other modes, one warm-up in which each ke
 and one main phase with one stopping rule, whose chains are the walkers of every kernel. What
 moves the walkers follows what the model declares, never the kind of scene:
 
-* **A small joint** (:func:`.coords.explored_whole`: few free parameters, an object whose camera
-  it must pin): the whole free vector by the ensemble kernel (:class:`.ensemble.Ensemble`:
+* **One object block** (:func:`.coords.explored_whole`: the camera pinned by one object alone,
+  weakly identified): the whole free vector by the ensemble kernel (:class:`.ensemble.Ensemble`:
   differential-evolution and stretch moves within groups of walkers and a multiple-try
   independence proposal, in coordinates learned during warm-up), with pitch replaced by the log of
   the first object's distance below the horizon (:class:`.coords.HorizonDistance`); its modes are
@@ -72,7 +72,7 @@ class SamplerSettings:
             mode_search : look for other modes before sampling (:mod:`.modes`)
     Block sweeps
         n_chains : walkers, each an independent chain;  warmup : warm-up steps
-    Ensemble kernel (a small joint; :mod:`.ensemble`)
+    Ensemble kernel (one object block; :mod:`.ensemble`)
         n_ensembles, n_walkers : groups and the walkers of each (every walker a chain);  stage :
         the first warm-up stage's length (later ones double);  max_warmup : cap on warm-up
         steps;  adapt : fit the straightening map and the independence proposal during warm-up;
@@ -274,8 +274,8 @@ class _Run:
 
 def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None = None, rng=None,
            temperature: float = 1.0, progress: bool = False) -> tuple[Draws, Diagnostics]:
-    """Sample the posterior of ``model`` from its MAP (module docstring): the ensemble kernel for a
-    small joint, block sweeps otherwise, under one warm-up and one stopping rule.
+    """Sample the posterior of ``model`` from its MAP (module docstring): the ensemble kernel for one
+    object block, block sweeps for several, under one warm-up and one stopping rule.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
     when the MAP has zero posterior density. The model is sampled at the MAP's handedness and pilot
@@ -286,9 +286,7 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     rng = np.random.default_rng(rng)
     model = map_est.fitted(model)
     start = _laplace_start(model, map_est, temperature)
-    d = int(model.camera_free.sum() + model.object_free.sum())
-    kernel = (_Whole if explored_whole(model) and s.n_walkers >= 2 * d else _Blocks)(model, start, s, rng, temperature,
-                                                                                     map_est)
+    kernel = (_Whole if explored_whole(model) else _Blocks)(model, start, s, rng, temperature, map_est)
     from .progress import progress_bar
 
     with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
