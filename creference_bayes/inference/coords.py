@@ -39,7 +39,7 @@ def explored_whole(model: Model) -> bool:
     sweeps pay where the object blocks are nearly independent given a camera that many of them
     pin; with one object block the camera is pinned by that object alone (weakly identified), the
     two blocks pin each other along curved ridges, and only moves of the whole vector follow them.
-    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 15× the
+    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 10× the
     block sweeps' CPU time: docs/studies/sampler.md.)"""
     return int(np.any(model.object_free, axis=1).sum()) <= 1
 
