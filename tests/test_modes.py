@@ -38,13 +38,13 @@ def test_find_modes_finds_both_and_weighs_them():
     assert [m.share for m in modes] == pytest.approx(list(_W), abs=0.02)
 
 
-def test_sampler_started_in_both_modes_gets_their_weights_in_every_group():
+def test_sampler_started_in_both_modes_gets_their_weights_in_every_ensemble():
     settings = SamplerSettings(min_ess=400)
     with_modes = sample(_bimodal, _MU[0], 0.25 * np.eye(2), settings=settings, rng=3,
                         modes=[(_MU[1], np.eye(2))])
-    x = with_modes.draws[..., 0].reshape(settings.n_ensembles, -1)  # per group of walkers
+    x = with_modes.draws[..., 0].reshape(4, -1)  # per group of walkers
     assert with_modes.converged
-    assert np.mean(x > 4, axis=1) == pytest.approx(np.full(len(x), 0.3), abs=0.06)
+    assert np.mean(x > 4, axis=1) == pytest.approx(np.full(4, 0.3), abs=0.06)
     group = np.array(with_modes.info["mode_shares"][24:48])  # the second group's walkers
     assert group[:, 1].mean() == pytest.approx(0.3, abs=0.06)
 

@@ -92,7 +92,7 @@ class SamplerSettings:
     mode_search: bool = True
     n_chains: int = 8
     warmup: int = 600
-    n_ensembles: int = 2
+    n_ensembles: int = 4
     n_walkers: int = 24
     stage: int = 50
     max_warmup: int = 5000
