@@ -272,8 +272,19 @@ def bench(args) -> str:
                                         "quantile": float(np.mean(distance < np.hypot(x, z)))}) + "\n")
                     f.flush()
     recs = _load(path)
-    rows = []
+    if args.seeds != [0]:
+        recs = [r for r in recs if any(r["scene"].endswith(f"-seed{s}") or (s == 0 and "-seed" not in r["scene"])
+                                       for s in args.seeds)]
+    rows, paired = [], []
     for tier in ("none", "low", "medium", "high", "all noisy"):
+        both = {}
+        for r in recs:
+            if r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"):
+                both.setdefault(r["scene"], {})[r["reading"]] = r["post_error"]
+        diff = [d["marginal"] - d["linear"] for d in both.values() if {"marginal", "linear"} <= set(d)]
+        if diff:
+            lo, hi = cluster_bootstrap(diff, np.arange(len(diff)))
+            paired.append(f"- {tier}: {np.mean(diff):+.1f} points over {len(diff)} scenes ({lo:+.1f} to {hi:+.1f})")
         for reading in args.readings:
             s = [r for r in recs if r["reading"] == reading and (r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"))]
             if s:
@@ -283,7 +294,9 @@ def bench(args) -> str:
                             f"{np.median(pe):.1f} / {pe.mean():.1f} | {100 * np.mean([r['covered'] for r in s]):.0f} % | "
                             f"{np.nanmean(q):.2f} |")
     return ("| tier | reading | scenes | MAP error % median / mean | posterior-mean error % median / mean | "
-            "distance: 90 % HDI covers | mean quantile |\n|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n")
+            "distance: 90 % HDI covers | mean quantile |\n|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+            + ("\nPosterior-mean error, marginal less linear, mean over the scenes (95 % bootstrap):\n\n"
+               + "\n".join(paired) + "\n" if paired else ""))
 
 
 def timing(readings, rounds: int = 15, calls: int = 50) -> str:
