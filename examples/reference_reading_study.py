@@ -21,13 +21,21 @@ Usage::
     python examples/reference_reading_study.py --report --out rr_light
     python examples/reference_reading_study.py --monte-carlo     # the reading alone (no estimates)
     python examples/reference_reading_study.py --bench --out rr_bench   # the bench's tiers
+    python examples/reference_reading_study.py --bench --seeds 1,2 --out rr_bench12   # more of its scenes
+    python examples/reference_reading_study.py --populations light,heavy,low,medium,high --n 40
     python examples/reference_reading_study.py --timing          # CPU of one evaluation, each reading
 
 ``--bench`` estimates the 32 one-target scenes of ``creference bench --full`` (tiers none, low,
 medium and high: reference end points off by 0, 5, 10 and 30 px) from 5 sets of dimension lines
 and 5 references, as the bench's ``ours-metrology`` estimator with 5 references, each reading in
 turn, and tabulates the MAP's and the posterior mean's location errors and the 90 % HDI's coverage
-per tier.
+per tier, and the per-scene difference of the posterior mean's error between the readings (with
+a bootstrap interval); ``--seeds`` takes the scenes the bench draws with other seeds as well.
+
+``--populations`` reads the simulator's own reference segments (its objects' edges and distance
+lines, of a crowd of ``CROWDS`` or a bench tier) at the true camera with the model's σ_line, each
+way, and tabulates where the true error falls in what each reading states, by the drawn segment's
+length over σ_line.
 
 ``--monte-carlo`` reads, at a known camera, 2000 ground segments a band (any direction, 0.3–10 m,
 log-uniform) 3–8 m and 30–60 m away, drawn with 2 and 5 px of end-point noise, each way, and
@@ -271,10 +279,8 @@ def bench(args) -> str:
                                         "covered": bool(lo <= np.hypot(x, z) <= hi),
                                         "quantile": float(np.mean(distance < np.hypot(x, z)))}) + "\n")
                     f.flush()
-    recs = _load(path)
-    if args.seeds != [0]:
-        recs = [r for r in recs if any(r["scene"].endswith(f"-seed{s}") or (s == 0 and "-seed" not in r["scene"])
-                                       for s in args.seeds)]
+    seed_of = lambda sid: int(sid.rpartition("-seed")[2]) if "-seed" in sid else 0  # noqa: E731
+    recs = [r for r in _load(path) if seed_of(r["scene"]) in args.seeds]
     rows, paired = [], []
     for tier in ("none", "low", "medium", "high", "all noisy"):
         both = {}
