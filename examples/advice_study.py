@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from creference_bayes.bench.simulate import (CAMERA_POPULATIONS, RANGE_PRECISION, TIERS, measurement_factor,
+from creference_bayes.bench.simulate import (CAMERA_POPULATIONS, RANGE_PRECISION, measurement_factor, noise_tier,
                                              simulate_scene)
 from creference_bayes.core.units import UNITS_TO_M
 from creference_bayes.io.scene import Reference, SceneWarning, parse_scene
@@ -123,8 +123,8 @@ def _parse(d):
 
 
 def _tier(name: str):
-    """The simulator's noise tier ``name``, with the endpoint noise of ``--reference-px`` if given."""
-    tier = TIERS[name]
+    """The simulator's noise tier or crowd ``name``, with the endpoint noise of ``--reference-px`` if given."""
+    tier = noise_tier(name)
     return tier if "reference_px" not in _WHAT_IF else dataclasses.replace(tier, reference_px=_WHAT_IF["reference_px"])
 
 
@@ -850,7 +850,8 @@ def main(argv=None) -> None:
                            help="a metrology model option for every estimate and advice, as creference estimate "
                                 "--option has it (repeatable), e.g. ref_dof=30 for a crowd without heavy tails")
         if name == "predict":
-            s.add_argument("--tiers", default="medium,high", help="noise tiers, cycled (default: %(default)s)")
+            s.add_argument("--tiers", default="medium,high",
+                           help="noise tiers or crowds (bench/simulate.py's TIERS, CROWDS), cycled (default: %(default)s)")
             s.add_argument("--distance-range", default=None, metavar="setting|LOW,HIGH",
                            help="what if every estimate knew where the targets stand (creference estimate "
                                 "--distance-range): the simulator's range of each scene's setting, or LOW,HIGH m")

@@ -21,13 +21,21 @@ Usage::
     python examples/reference_reading_study.py --report --out rr_light
     python examples/reference_reading_study.py --monte-carlo     # the reading alone (no estimates)
     python examples/reference_reading_study.py --bench --out rr_bench   # the bench's tiers
+    python examples/reference_reading_study.py --bench --seeds 1,2 --out rr_bench12   # more of its scenes
+    python examples/reference_reading_study.py --populations light,heavy,low,medium,high --n 40
     python examples/reference_reading_study.py --timing          # CPU of one evaluation, each reading
 
 ``--bench`` estimates the 32 one-target scenes of ``creference bench --full`` (tiers none, low,
 medium and high: reference end points off by 0, 5, 10 and 30 px) from 5 sets of dimension lines
 and 5 references, as the bench's ``ours-metrology`` estimator with 5 references, each reading in
 turn, and tabulates the MAP's and the posterior mean's location errors and the 90 % HDI's coverage
-per tier.
+per tier, and the per-scene difference of the posterior mean's error between the readings (with
+a bootstrap interval); ``--seeds`` takes the scenes the bench draws with other seeds as well.
+
+``--populations`` reads the simulator's own reference segments (its objects' edges and distance
+lines, of a crowd of ``CROWDS`` or a bench tier) at the true camera with the model's σ_line, each
+way, and tabulates where the true error falls in what each reading states, by the drawn segment's
+length over σ_line.
 
 ``--monte-carlo`` reads, at a known camera, 2000 ground segments a band (any direction, 0.3–10 m,
 log-uniform) 3–8 m and 30–60 m away, drawn with 2 and 5 px of end-point noise, each way, and
@@ -52,6 +60,7 @@ import numpy as np
 from creference_bayes.bench.simulate import CROWDS, FORMATS, simulate_scene
 from creference_bayes.evaluation.reliability import cluster_bootstrap
 from creference_bayes.io.scene import parse_scene
+from creference_bayes.models.contract import O_X, O_Z
 from creference_bayes.models.metrology import LINE_READINGS
 from creference_bayes.pipeline import estimate
 
@@ -188,6 +197,59 @@ def monte_carlo(n: int = 2000, seed: int = 3) -> str:
             + "\n".join(rows) + "\n")
 
 
+def populations(names, n: int) -> str:
+    """The readings of the simulator's own reference segments at the true camera (module
+    docstring, ``--populations``), as a Markdown table: per population (a crowd of ``CROWDS`` with
+    20 references a scene, or a bench tier with 5) and band of drawn length over σ_line, where the
+    true error of the segment's reading falls in what each reading states (mean quantile, shares
+    beyond its 5 % and 95 % quantiles)."""
+    from scipy.special import ndtr
+
+    from creference_bayes.bench.simulate import TIERS
+    from creference_bayes.models.metrology import ground_lengths, linear_line_variances, marginal_reading
+    from creference_bayes.pipeline import build_model
+
+    bands = ((0.0, 4.0), (4.0, 8.0), (8.0, np.inf))
+    rows = []
+    for name in names:
+        found = {"linear": [], "marginal": []}
+        for k in range(n):
+            crowd = name in CROWDS
+            d = simulate_scene(np.random.default_rng([67, list((*CROWDS, *TIERS)).index(name), k]), tier=name,
+                               setting=SETTINGS[k % 2], n_references=20 if crowd else 5,
+                               n_target_annotations=13 if crowd else 5, format_offset=5 * k)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sc = parse_scene(d)
+                m, _ = build_model(sc)
+            gt = sc.ground_truth
+            cam = m.complete_camera(np.array([[gt["focal_length_px"], gt["pitch_rad"], gt["roll_rad"],
+                                               gt["camera_height_m"], 0.0]]))[0]
+            lines, sigma = np.array([r.line for r in sc.references], float), m.ref_line_sigma
+            if sigma == 0:
+                continue
+            with np.errstate(divide="ignore", invalid="ignore"):
+                error = np.log(ground_lengths(lines, m.principal_point, cam[None])[0]) - np.log(gt["reference_lengths_m"])
+            length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1) / sigma
+            bins, var = marginal_reading(lines, m.principal_point, cam, sigma)
+            lin = linear_line_variances(lines, m.principal_point, cam, sigma)
+            ok = np.isfinite(error) & (lin > 0)
+            found["linear"] += list(zip(ndtr(error / np.sqrt(np.where(ok, lin, 1.0)))[ok], length[ok]))
+            q = np.mean(ndtr((error[:, None] - bins) / np.sqrt(np.maximum(var, 1e-300))), axis=1)
+            found["marginal"] += list(zip(q[ok], length[ok]))
+        for reading, pairs in found.items():
+            q, length = np.array(pairs).T
+            cells = []
+            for lo, hi in ((0.0, np.inf), *bands):
+                s = q[(length >= lo) & (length < hi)]
+                cells.append(f"{len(s)}: {s.mean():.2f}, {100 * np.mean(s < 0.05):.0f} / {100 * np.mean(s > 0.95):.0f} %"
+                             if len(s) else "–")
+            rows.append(f"| {name} | {reading} | " + " | ".join(cells) + " |")
+    return ("| population | reading | all segments | drawn < 4 σ_line | 4–8 σ_line | ≥ 8 σ_line |\n|---|---|---|---|---|---|\n"
+            + "\n".join(rows) + "\n\nEach cell: segments: the true error's mean quantile in the reading, the shares "
+            "below its 5 % and above its 95 % quantiles.\n")
+
+
 def bench(args) -> str:
     """The bench's tiers, each reading (module docstring): records to OUT/bench.jsonl, a table."""
     from creference_bayes.bench.runner import CONFIGS, bench_scenes, variant
@@ -197,33 +259,50 @@ def bench(args) -> str:
     path = out / "bench.jsonl"
     done = {(r["scene"], r["reading"]) for r in _load(path)}
     with open(path, "a") as f:
-        for k, (sid, sc) in enumerate(bench_scenes(CONFIGS["full"])[: args.n]):
-            x, _, z = sc.targets[0].ground_truth["location_m"]
-            for reading in args.readings:
-                if (sid, reading) in done:
-                    continue
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    r = estimate(variant(sc, 5, range(5)), seed=k, line_reading=reading, sampling={"min_ess": args.min_ess},
-                                 keep_draws=0)
-                o = r.to_dict()["objects"][0]
-                lo, hi = o["posterior"]["hdi"]["distance_m"]
-                f.write(json.dumps({"scene": sid, "tier": sc.ground_truth["tier"], "reading": reading,
-                                    "map_error": o["evaluation"]["location_pct_error"],
-                                    "post_error": o["evaluation"]["posterior_location_pct_error"],
-                                    "covered": bool(lo <= np.hypot(x, z) <= hi)}) + "\n")
-                f.flush()
-    recs = _load(path)
-    rows = []
+        for seed in args.seeds:
+            for k, (sid, sc) in enumerate(bench_scenes(CONFIGS["full"], seed)[: args.n]):
+                sid = sid if seed == 0 else f"{sid}-seed{seed}"
+                x, _, z = sc.targets[0].ground_truth["location_m"]
+                for reading in args.readings:
+                    if (sid, reading) in done:
+                        continue
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        r = estimate(variant(sc, 5, range(5)), seed=k, line_reading=reading,
+                                     sampling={"min_ess": args.min_ess}, keep_draws=0)
+                    o = r.to_dict()["objects"][0]
+                    lo, hi = o["posterior"]["hdi"]["distance_m"]
+                    distance = np.hypot(r.draws.objects[..., 0, O_X], r.draws.objects[..., 0, O_Z])
+                    f.write(json.dumps({"scene": sid, "tier": sc.ground_truth["tier"], "reading": reading,
+                                        "map_error": o["evaluation"]["location_pct_error"],
+                                        "post_error": o["evaluation"]["posterior_location_pct_error"],
+                                        "covered": bool(lo <= np.hypot(x, z) <= hi),
+                                        "quantile": float(np.mean(distance < np.hypot(x, z)))}) + "\n")
+                    f.flush()
+    seed_of = lambda sid: int(sid.rpartition("-seed")[2]) if "-seed" in sid else 0  # noqa: E731
+    recs = [r for r in _load(path) if seed_of(r["scene"]) in args.seeds]
+    rows, paired = [], []
     for tier in ("none", "low", "medium", "high", "all noisy"):
+        both = {}
+        for r in recs:
+            if r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"):
+                both.setdefault(r["scene"], {})[r["reading"]] = r["post_error"]
+        diff = [d["marginal"] - d["linear"] for d in both.values() if {"marginal", "linear"} <= set(d)]
+        if diff:
+            lo, hi = cluster_bootstrap(diff, np.arange(len(diff)))
+            paired.append(f"- {tier}: {np.mean(diff):+.1f} points over {len(diff)} scenes ({lo:+.1f} to {hi:+.1f})")
         for reading in args.readings:
             s = [r for r in recs if r["reading"] == reading and (r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"))]
             if s:
                 me, pe = np.array([r["map_error"] for r in s]), np.array([r["post_error"] for r in s])
+                q = np.array([r.get("quantile", np.nan) for r in s])
                 rows.append(f"| {tier} | {reading} | {len(s)} | {np.median(me):.1f} / {me.mean():.1f} | "
-                            f"{np.median(pe):.1f} / {pe.mean():.1f} | {100 * np.mean([r['covered'] for r in s]):.0f} % |")
+                            f"{np.median(pe):.1f} / {pe.mean():.1f} | {100 * np.mean([r['covered'] for r in s]):.0f} % | "
+                            f"{np.nanmean(q):.2f} |")
     return ("| tier | reading | scenes | MAP error % median / mean | posterior-mean error % median / mean | "
-            "distance: 90 % HDI covers |\n|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n")
+            "distance: 90 % HDI covers | mean quantile |\n|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+            + ("\nPosterior-mean error, marginal less linear, mean over the scenes (95 % bootstrap):\n\n"
+               + "\n".join(paired) + "\n" if paired else ""))
 
 
 def timing(readings, rounds: int = 15, calls: int = 50) -> str:
@@ -280,10 +359,18 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="reference_reading", help="output folder (default: %(default)s)")
     p.add_argument("--report", action="store_true", help="only write the table of the records in --out")
     p.add_argument("--bench", action="store_true", help="only the bench's tiers (module docstring)")
+    p.add_argument("--seeds", default="0", type=lambda v: [int(x) for x in v.split(",")],
+                   help="with --bench: comma-separated seeds of the bench's scenes, 32 a seed (default: %(default)s)")
     p.add_argument("--timing", action="store_true", help="only the CPU of one evaluation per reading")
     p.add_argument("--monte-carlo", action="store_true", help="only the reading against a Monte Carlo of end-point noise")
+    p.add_argument("--populations", default=None, type=lambda v: v.split(","),
+                   help="only the reading of the simulator's own segments at the true camera, for these crowds "
+                        "or bench tiers (comma-separated; --n scenes each)")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
+    if args.populations:
+        print(populations(args.populations, args.n))
+        return
     if args.monte_carlo:
         print(monte_carlo())
         return

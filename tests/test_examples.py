@@ -47,7 +47,8 @@ TINY = {
     "reference_reading_study.py": [(["--n", "1", "--crowds", "light", "--min-ess", "100", "--out", "rr"],
                                     ["rr/records.jsonl", "rr/table.md"]),
                                    (["--bench", "--n", "1", "--min-ess", "100", "--out", "rr"], ["rr/bench.jsonl"]),
-                                   (["--monte-carlo"], [])],
+                                   (["--monte-carlo"], []),
+                                   (["--populations", "light", "--n", "1"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
                         (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real", "--distance-range", "10,80"],
                          ["tr/thin.md"])],
@@ -421,6 +422,31 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
     assert rec["line_reading"] == "corrected"
     with pytest.raises(SystemExit, match="line reading 'corrected'.*'marginal'.*another --out"):
         study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
+
+
+def test_the_advice_study_predicts_on_the_simulators_crowds(tmp_path, monkeypatch):
+    """``predict --tiers light`` draws its scenes from the simulator's light crowd (2 px corners,
+    5 px reference end points), as ``--tiers high`` from the paper-like tier, and records it."""
+    import json
+
+    study = _example("advice_study.py")
+    monkeypatch.chdir(tmp_path)
+    study.main(["predict", "--n", "1", "--min-ess", "100", "--tiers", "light", "--out", "lc"])
+    rec = json.loads((tmp_path / "lc" / "predict.jsonl").read_text().splitlines()[0])
+    assert rec["tier"] == "light" and rec["rows"]
+
+
+def test_the_reading_study_reads_the_bench_scenes_of_other_seeds(tmp_path, monkeypatch):
+    """``--bench --seeds 0,1``: the first scene of the bench's draw at each seed (another scene at
+    seed 1, named so), each with the truth's quantile in the posterior of its distance."""
+    import json
+
+    study = _example("reference_reading_study.py")
+    monkeypatch.chdir(tmp_path)
+    study.main(["--bench", "--n", "1", "--seeds", "0,1", "--readings", "marginal", "--min-ess", "100", "--out", "rb"])
+    recs = [json.loads(line) for line in (tmp_path / "rb" / "bench.jsonl").read_text().splitlines()]
+    assert [r["scene"] for r in recs] == ["none-indoor-00", "none-indoor-00-seed1"]
+    assert all(0.0 <= r["quantile"] <= 1.0 for r in recs) and recs[0]["map_error"] != recs[1]["map_error"]
 
 
 def test_the_line_noise_study_finds_no_shift_without_noise_and_a_lengthening_with_it():
