@@ -20,6 +20,10 @@ Usage::
                                                                  # matched to the simulator's µ
     python examples/thin_designs.py --n 120 --out thin_real --cameras real  # real cameras (phones,
                                                                  # zoom, action and street cameras)
+    python examples/thin_designs.py --n 80 --cameras real --dataset auto --refs 0,2 --out thin_ds
+                                         # each design's scenes as one batch, the data-set layer on
+                                         # (--dataset none: the same batch, every frame alone;
+                                         # --mixed: every second scene indoor)
 
 Records go to ``OUT/thin.jsonl`` (one line per estimate), the table to ``OUT/thin.md``. Tens of
 estimates a minute on one core; run it under the shared lock (``flock /tmp/bench.lock …``).
