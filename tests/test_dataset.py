@@ -135,9 +135,13 @@ def test_the_location_population_is_a_prior_a_result_records_and_rebuilds():
     with pytest.raises(ValueError, match="population"):
         LocationPrior(population=(15.0, 0.0))
     near = LocationPrior(population=(10.0, 0.3))
-    # uniform in direction, log-normal in distance: at one distance every direction alike
-    assert near.neg_log(3.0, 4.0) == pytest.approx(near.neg_log(0.0, 5.0))
-    assert near.neg_log(0.0, 10.0) + math.log(100.0) < near.neg_log(0.0, 30.0) + math.log(900.0)
+    # a log-normal factor in the distance on the default's 1/z: relative to it every direction alike
+    assert near.relative_log_prior(3.0, 4.0) == pytest.approx(near.relative_log_prior(0.0, 5.0))
+    assert near.relative_log_prior(0.0, 10.0) > near.relative_log_prior(0.0, 30.0)
+    # ... and a wide population is the default prior again (a flat factor), not another prior
+    wide, default = LocationPrior(population=(10.0, 1e3)), LocationPrior()
+    x, z = np.array([0.0, 5.0, -20.0]), np.array([3.0, 40.0, 90.0])
+    assert np.ptp(wide.neg_log(x, z) - default.neg_log(x, z)) < 1e-4
     d = _scene(0)
     res = estimate(parse_scene(d), posterior=False, seed=0, location_prior=near).to_dict()
     assert res["provenance"]["location_population"] == [10.0, 0.3]

@@ -373,9 +373,8 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
     readings = []
     for j in range(objs.shape[1]):
         x, z = objs[:, j, O_X], objs[:, j, O_Z]
-        log_d2 = np.log(x * x + z * z)
-        # weights 1/(p(x, z) d²): the likelihood of log d, uniform in direction (location_prior.py)
-        lik = likelihood(0.5 * log_d2, -location.neg_log(x, z) + log_d2)
+        # weights p_kind/p: the evidence on log d relative to the kind's density (location_prior.py)
+        lik = likelihood(0.5 * np.log(x * x + z * z), location.relative_log_prior(x, z))
         if lik is not None:
             readings.append(Reading(key, _setting(camera_id), *lik))
     if readings:
