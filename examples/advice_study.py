@@ -36,6 +36,11 @@ hdi`` follows the narrowing of the distance's HDI instead.
 (Markdown, printed and written to ``OUT/advice_study.md``) and the policy figure; ``predict``'s
 gains also by the simulated crowd's noise tier.
 
+``predict --dataset auto`` runs the scenes through ``creference batch``'s data-set layer: the
+``--n`` starting points are one data set (a first pass of MAPs into ``OUT/dataset/``), and every
+estimate of a scene, before and after, takes the priors the other scenes hand it (the crowd's
+reference and corner scales, where the targets stand), as the advice on a batch folder does.
+
 ``--option KEY=VALUE`` (``predict``, ``timing``, ``policy``) gives every estimate and advice a
 metrology model option, as ``creference estimate --option`` does: ``ref_dof=30`` reads references
 as nearly normal, for a crowd without the paper's heavy tails.
@@ -108,6 +113,11 @@ _ESTIMATE_KW: dict = {}
 _WHAT_IF: dict = {}
 #: Every estimate's CPU seconds and convergence since the last record was written.
 _COSTS: list[dict] = []
+#: ``predict --dataset auto``: scene name → (the scene fields, the estimate keywords and the
+#: ``dataset`` block the data-set layer hands it, learnt from the run's base scenes as one batch)
+_DATASET: dict = {}
+#: what the data-set layer hands back in the scene itself (the rest comes as estimate keywords)
+_HANDED = ("focal_prior", "orientation_prior", "corner_scale", "camera_id")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -184,15 +194,16 @@ def _costs() -> list[dict]:
     return out
 
 
-def _estimate(scene, seed, min_ess):
+def _estimate(scene, seed, min_ess, priors=None):
     """The estimate and, per target, its HDI width, share and median of the distance, whether the
-    truth is inside, the location errors (MAP, posterior mean) and the truth's quantile."""
+    truth is inside, the location errors (MAP, posterior mean) and the truth's quantile. ``priors``:
+    estimate keywords the data set hands the scene (:func:`_handed`)."""
     t0 = time.process_time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, keep_draws=2000, **_MODEL_OPTIONS,
-                         **_ESTIMATE_KW, **_distance_range(scene))
+            r = estimate(scene, seed=seed, sampling={"min_ess": min_ess}, keep_draws=2000,
+                         **{**_MODEL_OPTIONS, **_ESTIMATE_KW, **_distance_range(scene), **(priors or {})})
         except RuntimeError as exc:  # no MAP found: the scene is left out, the failure recorded
             _COSTS.append({"cpu_s": time.process_time() - t0, "converged": False, "overflow_warnings": 0,
                            "failed": " ".join(str(exc).split())})
@@ -222,7 +233,43 @@ def _advise(scene, est, seed, cands=None, mixes=None, settings=None):
     r = est["result"]
     camera, objects = map_state(r.to_dict())
     return advise(r.model, scene, est["cams"], est["objs"], camera_map=camera, objects_map=objects,
-                  options=_MODEL_OPTIONS, seed=seed, candidates=cands, mixes=mixes, settings=settings)
+                  options=_options(r), seed=seed, candidates=cands, mixes=mixes, settings=settings)
+
+
+def _options(result) -> dict:
+    """The model options the estimate was made with (the study's and those the data set handed it),
+    as the advice reads them from a result's provenance."""
+    return {**_MODEL_OPTIONS, **{k: v for k, v in result.to_dict()["provenance"]["options"].items()
+                                 if k.startswith("ref_scale")}}
+
+
+def _learn_dataset(args, case_of) -> None:
+    """``--dataset auto``: the run's ``--n`` base scenes as one data set, through ``creference
+    batch``'s data-set layer (its first pass, a MAP each, into ``OUT/dataset/``, and what it hands
+    each frame from the others: :func:`~creference_bayes.workflows.batch.learn_priors`). Every
+    estimate of a scene, before and after the annotation added, then takes the priors its base
+    scene was handed (the other frames' pools do not change with this frame's annotation)."""
+    from creference_bayes.io.scene import scene_to_dict
+    from creference_bayes.workflows.batch import BatchSettings, learn_priors
+
+    folder = Path(args.out) / "dataset"
+    (folder / "in").mkdir(parents=True, exist_ok=True)
+    for k in range(args.n):
+        path = folder / "in" / f"s{k:04d}.json"
+        if not path.exists():
+            path.write_text(json.dumps(scene_to_dict(case_of(args.seed, k)["base"])))
+    handed = learn_priors([folder / "in"], folder / "first_pass",
+                          BatchSettings(seed=args.seed, model="metrology", options=dict(_MODEL_OPTIONS)))
+    _DATASET.update({key: ({f: getattr(scene, f) for f in _HANDED}, kwargs, block)
+                     for key, (scene, kwargs, block) in handed.items()})
+
+
+def _handed(name: str, scene):
+    """``scene`` with what the data set hands it (``--dataset auto``) → (scene, estimate keywords)."""
+    if name not in _DATASET:
+        return scene, {}
+    fields, kwargs, _ = _DATASET[name]
+    return dataclasses.replace(scene, **fields), kwargs
 
 
 def _reference_candidate(key, scene, j, seconds=REF_S):
@@ -244,11 +291,11 @@ def _reweighted(est, kind, scene_after, settings):
     keep = np.unique(np.linspace(0, len(cams) - 1, min(settings.n_draws, len(cams))).round().astype(int))
     cams, objs = cams[keep], objs[keep]
     if kind == "target":
-        obs = DimsObservation(model, 0, _MODEL_OPTIONS)
+        obs = DimsObservation(model, 0, _options(est["result"]))
         obs.corners = scene_after.targets[0].dimension_lines[-1].corners[None]
     else:
         term = reference_terms(scene_after)[-1]  # the reference as drawn and stated
-        obs = ReferenceObservation(model, term, _MODEL_OPTIONS)
+        obs = ReferenceObservation(model, term, _options(est["result"]))
         if not obs.usable:
             return None
         if obs.needs_scale:
@@ -386,6 +433,8 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
         def case_of(seed, k):
             return _predict_case(seed, k, args.tiers.split(","), args.objects, args.setting)
     settings = AdviceSettings(objective="hdi")  # this study measures the HDI advice
+    if _WHAT_IF.get("dataset"):
+        _learn_dataset(args, case_of)
     with _bar(args.n, file.split(".")[0]) as bar:
         for k in range(args.n):
             bar.update(1)
@@ -393,9 +442,9 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
             if name in done:
                 continue
             case = case_of(args.seed, k)
-            base = case["base"]
+            base, priors = _handed(name, case["base"])
             _costs()
-            before = _estimate(base, [args.seed, k, 2], args.min_ess)
+            before = _estimate(base, [args.seed, k, 2], args.min_ess, priors)
             if before is None:
                 continue
             r = before["result"]
@@ -414,7 +463,7 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
             for kind, scene in added.items():
                 if kind not in preds:
                     continue
-                after = _estimate(scene, [args.seed, k, 5], args.min_ess)
+                after = _estimate(_handed(name, scene)[0], [args.seed, k, 5], args.min_ess, priors)
                 if after is None:
                     continue
                 p = preds[kind]
@@ -431,6 +480,7 @@ def run_predict(args, case_of=None, file: str = "predict.jsonl") -> None:
                            "truth_quantile": before["truth_quantile"],
                            "handedness_kept_true": before["handedness_kept_true"],
                            "advice_only_s": advice.seconds, "n_candidates": len(every), "rows": rows,
+                           **({"dataset": _DATASET[name][2]} if name in _DATASET else {}),
                            "estimates": _costs()})
 
 
@@ -619,6 +669,7 @@ def report_predict(out: Path, file: str = "predict.jsonl") -> str:
             sel = [x for x in rows if x["kind"] == kind and lo_b <= np.mean(x["real_before_share"]) < hi_b]
             if len(sel) >= 3:
                 bands.append((label, kind, *points(sel)))
+    bands.append(("all", "every kind (the total)", *points(rows)))
     by_sets = []
     for label, ok in (("one set", lambda n: n == 1), ("two", lambda n: n == 2), ("three or more", lambda n: n >= 3)):
         sel = [x for r in recs if ok(r["n_target"]) for x in r["rows"] if x["kind"] == "target"]
@@ -855,6 +906,11 @@ def main(argv=None) -> None:
             s.add_argument("--distance-range", default=None, metavar="setting|LOW,HIGH",
                            help="what if every estimate knew where the targets stand (creference estimate "
                                 "--distance-range): the simulator's range of each scene's setting, or LOW,HIGH m")
+            s.add_argument("--dataset", choices=("none", "auto"), default="none",
+                           help="auto: the base scenes as one data set through creference batch's data-set layer "
+                                "(what the frames share, learnt from a first pass and handed to each from the "
+                                "others); every estimate of a scene takes its priors (default: %(default)s, each "
+                                "scene alone)")
             s.add_argument("--reference-px", type=float, default=None, metavar="PX",
                            help="what if the simulated crowd drew reference segments with this endpoint noise "
                                 "(px; 0: exact segments) instead of its tier's")
@@ -872,6 +928,7 @@ def main(argv=None) -> None:
     _MODEL_OPTIONS.clear()
     _ESTIMATE_KW.clear()
     _WHAT_IF.clear()
+    _DATASET.clear()
     if getattr(args, "distance_range", None):
         if args.distance_range == "setting":
             _WHAT_IF["distance_range"] = "setting"
@@ -882,6 +939,10 @@ def main(argv=None) -> None:
                 _WHAT_IF["distance_range"] = list(distance_range_arg(args.distance_range))
             except argparse.ArgumentTypeError as exc:
                 p.error(f"--distance-range: setting, or {exc}")
+    if getattr(args, "dataset", "none") != "none":
+        if _WHAT_IF.get("distance_range"):
+            p.error("--dataset auto: the data set learns where the targets stand; drop --distance-range")
+        _WHAT_IF["dataset"] = args.dataset
     if getattr(args, "reference_px", None) is not None:
         if not args.reference_px >= 0:
             p.error(f"--reference-px: expected a number of pixels >= 0, got {args.reference_px!r}")

@@ -20,6 +20,10 @@ Usage::
                                                                  # matched to the simulator's µ
     python examples/thin_designs.py --n 120 --out thin_real --cameras real  # real cameras (phones,
                                                                  # zoom, action and street cameras)
+    python examples/thin_designs.py --n 80 --cameras real --dataset auto --refs 0,2 --out thin_ds
+                                         # each design's scenes as one batch, the data-set layer on
+                                         # (--dataset none: the same batch, every frame alone;
+                                         # --mixed: every second scene indoor)
 
 Records go to ``OUT/thin.jsonl`` (one line per estimate), the table to ``OUT/thin.md``. Tens of
 estimates a minute on one core; run it under the shared lock (``flock /tmp/bench.lock …``).
@@ -46,12 +50,40 @@ TIERS = ("medium", "high")
 REFS = (0, 1, 2)
 
 
-def _scene(k: int, cameras: str = "setting"):
-    d = simulate_scene(np.random.default_rng([19, k]), setting="outdoor", tier=TIERS[k % 2],
-                       distance_range=(15.0, 60.0), cameras=cameras)
+def _scene_dict(k: int, cameras: str = "setting", mixed: bool = False) -> dict:
+    """Scene k as the simulator writes it: outdoor, 15–60 m; with ``mixed`` every second scene
+    indoor (the simulator's indoor range, 2.25–10 m)."""
+    indoor = mixed and k % 2 == 1
+    return simulate_scene(np.random.default_rng([19, k]), setting="indoor" if indoor else "outdoor",
+                          tier=TIERS[(k // 2 if mixed else k) % 2], distance_range=None if indoor else (15.0, 60.0),
+                          cameras=cameras)
+
+
+def _scene(k: int, cameras: str = "setting", mixed: bool = False):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return parse_scene(d)
+        return parse_scene(_scene_dict(k, cameras, mixed))
+
+
+def _design(d: dict, n_refs: int) -> dict:
+    """The scene file of a design: one set of lines on each target, the first ``n_refs`` references."""
+    return {**d, "targets": [{**t, "dimension_lines": t["dimension_lines"][:1]} for t in d["targets"]],
+            "references": d["references"][:n_refs]}
+
+
+def _record(k: int, scene, n_refs: int, dist: np.ndarray, o: dict, converged: bool, seconds: float,
+            focal="auto", overflow: int = 0) -> dict:
+    """One estimate's record: ``dist`` the posterior draws of the target's ground distance, ``o``
+    the result's object."""
+    x, _, z = scene.targets[0].ground_truth["location_m"]
+    d_true = float(np.hypot(x, z))
+    lo, hi = o["posterior"]["hdi"]["distance_m"]
+    return {"scene": k, "tier": scene.ground_truth["tier"], "refs": n_refs, "distance": d_true,
+            "setting": scene.ground_truth["setting"], "camera": scene.ground_truth.get("camera_kind", "outdoor"),
+            "quantile": float(np.mean(dist < d_true)), "prior_quantile": _prior_quantile(scene, focal),
+            "hdi": [lo, hi], "covered": bool(lo <= d_true <= hi), "map_error": o["evaluation"]["location_pct_error"],
+            "post_error": o["evaluation"]["posterior_location_pct_error"], "converged": converged,
+            "seconds": seconds, "overflow_warnings": overflow}
 
 
 def _prior_quantile(scene, focal) -> float:
@@ -77,33 +109,62 @@ def run(args) -> list[dict]:
     distance_range = args.distance_range
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.dataset is not None:
+        return run_batches(args, out)
     records = []
     with open(out / "thin.jsonl", "w") as f:
         for k in range(args.n):
-            scene = _scene(k, args.cameras)
+            scene = _scene(k, args.cameras, args.mixed)
             if equiv:  # a prior in 35 mm-equivalent terms (mm, log-sd, dof), on this scene's image
                 focal = FocalPrior.from_35mm(equiv[0], scene.image_size, log_sd=equiv[1], dof=equiv[2], source="scene")
-            x, _, z = scene.targets[0].ground_truth["location_m"]
-            d_true = float(np.hypot(x, z))
-            for n_refs in REFS:
+            for n_refs in args.refs:
                 t0 = time.process_time()
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     r = estimate(variant(scene, 1, tuple(range(n_refs))), seed=k, focal_prior=focal,
                                  location_prior=args.location_prior, distance_range=distance_range,
                                  sampling={"min_ess": args.min_ess}, keep_draws=0)
-                seconds = time.process_time() - t0
-                o = r.to_dict()["objects"][0]
                 dist = np.hypot(r.draws.objects[..., 0, 0], r.draws.objects[..., 0, 1]).ravel()
-                lo, hi = o["posterior"]["hdi"]["distance_m"]
-                rec = {"scene": k, "tier": TIERS[k % 2], "refs": n_refs, "distance": d_true,
-                       "camera": scene.ground_truth.get("camera_kind", "outdoor"),
-                       "quantile": float(np.mean(dist < d_true)),
-                       "prior_quantile": _prior_quantile(scene, focal), "hdi": [lo, hi],
-                       "covered": bool(lo <= d_true <= hi), "map_error": o["evaluation"]["location_pct_error"],
-                       "post_error": o["evaluation"]["posterior_location_pct_error"],
-                       "converged": bool(r.converged), "seconds": seconds,
-                       "overflow_warnings": sum("overflow" in str(w.message) for w in caught)}
+                rec = _record(k, scene, n_refs, dist, r.to_dict()["objects"][0], bool(r.converged),
+                              time.process_time() - t0, focal, sum("overflow" in str(w.message) for w in caught))
+                f.write(json.dumps(rec) + "\n")
+                f.flush()
+                records.append(rec)
+    return records
+
+
+def run_batches(args, out: Path) -> list[dict]:
+    """``--dataset``: each design's scenes as one data set, estimated by ``creference batch`` with
+    its defaults (``auto``: the data-set layer learns what the frames share, the distance
+    population among it; ``none``: every frame alone) into ``OUT/refsR/``; the records read from
+    its results (their kept draws; seconds: each estimate's own, the first pass not counted)."""
+    from creference_bayes.io.result import stored_draws
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    settings = BatchSettings(sampling={"min_ess": args.min_ess}, location_prior=args.location_prior,
+                             distance_range=args.distance_range, dataset=args.dataset)
+    dicts = [_scene_dict(k, args.cameras, args.mixed) for k in range(args.n)]
+    records = []
+    with open(out / "thin.jsonl", "w") as f:
+        for n_refs in args.refs:
+            folder = out / f"refs{n_refs}"
+            (folder / "in").mkdir(parents=True, exist_ok=True)
+            for k, d in enumerate(dicts):
+                (folder / "in" / f"k{k:04d}.json").write_text(json.dumps(_design(d, n_refs)))
+            t0 = time.perf_counter()
+            run_batch([folder / "in"], folder / "batch", LocalEngine(args.workers), settings)
+            print(f"{n_refs} references: batch of {args.n} in {time.perf_counter() - t0:.0f} s", flush=True)
+            for k in range(args.n):
+                path = folder / "batch" / "results" / f"k{k:04d}.json"
+                if not path.exists():
+                    continue
+                res = json.loads(path.read_text())
+                objs = stored_draws(res).objects
+                dist = np.hypot(objs[..., 0, 0], objs[..., 0, 1]).ravel()
+                rec = _record(k, _scene(k, args.cameras, args.mixed), n_refs, dist, res["objects"][0],
+                              bool((res.get("diagnostics") or {}).get("converged")), float(res["seconds"]))
+                rec["population"] = (res.get("dataset") or {}).get("distance_m")
                 f.write(json.dumps(rec) + "\n")
                 f.flush()
                 records.append(rec)
@@ -117,7 +178,7 @@ def table(records: list[dict], by: str = "refs") -> str:
             "median HDI / distance | MAP error % median / mean | posterior-mean error % median / mean | "
             "converged | CPU s p99 / max |\n|---|---|---|---|---|---|---|---|---|---|")
     rows = []
-    groups = REFS if by == "refs" else sorted({r["camera"] for r in records})
+    groups = sorted({r[by] for r in records})
     for refs in [*groups, "all"]:
         s = [r for r in records if refs == "all" or r[by] == refs]
         if not s:
@@ -163,10 +224,23 @@ def main(argv=None) -> None:
                         "of the default, e.g. 30,0.5,3 (the default's own numbers)")
     p.add_argument("--cameras", default="setting", choices=CAMERA_POPULATIONS,
                    help="the simulator's outdoor cameras (setting) or real ones, street cameras included (real)")
+    p.add_argument("--mixed", action="store_true",
+                   help="every second scene indoor (the simulator's indoor range, 2.25-10 m): one data set of both")
+    p.add_argument("--dataset", default=None, choices=("auto", "none"),
+                   help="each design's scenes as one batch (creference batch --dataset auto: the data-set layer, "
+                        "its default; none: every frame alone); default: each scene estimated on its own")
+    p.add_argument("--workers", type=int, default=1, help="the batch's worker processes (--dataset)")
+    p.add_argument("--refs", default=",".join(map(str, REFS)), type=lambda v: tuple(int(x) for x in v.split(",")),
+                   help="the designs: references with the one set of lines (default: %(default)s)")
     args = p.parse_args(argv)
+    if args.dataset is not None and (args.focal_prior or args.focal_35mm):
+        p.error("--dataset: the batch estimates with the default focal-length prior; drop --focal-prior / --focal-35mm")
     records = run(args)
     text = (table(records) + f"\n{scene_bootstrap(records)}\n"
-            + ("" if args.cameras == "setting" else "\nBy camera:\n\n" + table(records, "camera")))
+            + ("" if args.cameras == "setting" else "\nBy camera:\n\n" + table(records, "camera"))
+            + ("" if not args.mixed else "\nBy setting:\n\n" + table(records, "setting") + "\n"
+               + "\n".join(f"{s}: {scene_bootstrap([r for r in records if r['setting'] == s])}"
+                           for s in ("indoor", "outdoor"))))
     (Path(args.out) / "thin.md").write_text(text)
     print(text)
 

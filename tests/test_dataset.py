@@ -137,9 +137,13 @@ def test_the_location_population_is_a_prior_a_result_records_and_rebuilds():
     with pytest.raises(ValueError, match="population"):
         LocationPrior(population=(15.0, 0.0))
     near = LocationPrior(population=(10.0, 0.3))
-    # uniform in direction, log-normal in distance: at one distance every direction alike
-    assert near.neg_log(3.0, 4.0) == pytest.approx(near.neg_log(0.0, 5.0))
-    assert near.neg_log(0.0, 10.0) + math.log(100.0) < near.neg_log(0.0, 30.0) + math.log(900.0)
+    # a log-normal factor in the distance on the default's 1/z: relative to it every direction alike
+    assert near.relative_log_prior(3.0, 4.0) == pytest.approx(near.relative_log_prior(0.0, 5.0))
+    assert near.relative_log_prior(0.0, 10.0) > near.relative_log_prior(0.0, 30.0)
+    # ... and a wide population is the default prior again (a flat factor), not another prior
+    wide, default = LocationPrior(population=(10.0, 1e3)), LocationPrior()
+    x, z = np.array([0.0, 5.0, -20.0]), np.array([3.0, 40.0, 90.0])
+    assert np.ptp(wide.neg_log(x, z) - default.neg_log(x, z)) < 1e-4
     d = _scene(0)
     res = estimate(parse_scene(d), posterior=False, seed=0, location_prior=near).to_dict()
     assert res["provenance"]["location_population"] == [10.0, 0.3]
@@ -308,3 +312,57 @@ def test_the_advice_weighs_a_held_focal_lengths_frame_given_the_held_value_and_s
     assert notes[0] in advice.notes
     camera, objects = map_state(held)
     assert np.allclose(advice.now.p_iou, _label_quality(scene, camera, objects, cams, objs, settings.iou_threshold))
+
+
+@pytest.fixture(scope="module")
+def population_batch(tmp_path_factory):
+    """Six frames of no named camera, two targets each: enough for the data set's distance
+    population (plan()); MAP only (the advice then draws from the Laplace approximation)."""
+    root = tmp_path_factory.mktemp("population")
+    (root / "in").mkdir()
+    for seed in range(6):
+        (root / "in" / f"f{seed}.json").write_text(json.dumps(_scene(seed, camera=None)))
+    settings = BatchSettings(seed=1, posterior=False)
+    report = run_batch([root / "in"], root / "out", LocalEngine(1), settings)
+    return root, settings, report
+
+
+def test_the_advice_on_a_batch_predicts_under_the_priors_the_data_set_handed_each_frame(population_batch):
+    """``advise`` on a batch folder rebuilds each frame's model as the frame was estimated: with the
+    population the others handed it, so its present and its simulated outcomes draw from it."""
+    from creference_bayes.pipeline import rebuild_model
+    from creference_bayes.workflows.advice import AdviceSettings
+    from creference_bayes.workflows.advice.inputs import advise_result, scene_for_result
+
+    root, _, report = population_batch
+    assert report.ok and "distance_m" in report.dataset
+    path = root / "out" / "results" / "f0.json"
+    res = json.loads(path.read_text())
+    took = res["dataset"]["distance_m"]
+    assert took["from"] == "data set" and took["frames_offered"] == 10  # the other 5 frames' targets
+    scene = scene_for_result(path, res)  # the batch's copy, as advise_batch finds it
+    median, log_sd = rebuild_model(res, scene).location.population
+    assert median == pytest.approx(took["median"]) and log_sd == pytest.approx(
+        math.hypot(took["log_sd"], took["spread_log_sd"]), abs=1e-3)
+    settings = AdviceSettings(n_draws=200, n_futures=20)
+    learned = advise_result(res, scene, seed=0, settings=settings)
+    alone = {**res, "provenance": {k: v for k, v in res["provenance"].items() if k != "location_population"}}
+    without = advise_result(alone, scene, seed=0, settings=settings)
+    # the population is information the frame alone lacks: every target's present is surer with it
+    assert np.all(learned.now.location_sd_m < without.now.location_sd_m)
+    assert learned.now.hdi_width_m.sum() < without.now.hdi_width_m.sum()
+
+
+def test_learn_priors_hands_each_frame_what_the_batch_estimated_it_with(population_batch):
+    """``learn_priors`` (for studies that estimate the frames themselves) hands each frame the
+    priors a batch gives it, from the same first pass (resumed, not estimated again)."""
+    from creference_bayes.workflows.batch import learn_priors
+
+    root, settings, _ = population_batch
+    handed = learn_priors([root / "in"], root / "out" / "first_pass", settings)
+    assert sorted(handed) == [f"f{k}" for k in range(6)]
+    for key, (scene, kwargs, block) in handed.items():
+        res = json.loads((root / "out" / "results" / f"{key}.json").read_text())
+        assert kwargs["location_prior"].population == tuple(res["provenance"]["location_population"])
+        assert block["distance_m"] == res["dataset"]["distance_m"]
+        assert scene.corner_scale is None  # every target annotated twice: its own scale

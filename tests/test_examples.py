@@ -18,6 +18,8 @@ TINY = {
     "advice_study.py": [(["predict", "--n", "1", "--min-ess", "100", "--focal-prior", "1650,0.27", "--cameras", "real",
                           "--out", "as"],
                          ["as/predict.jsonl"]),
+                        (["predict", "--n", "1", "--min-ess", "100", "--dataset", "auto", "--out", "asd"],
+                         ["asd/predict.jsonl", "asd/dataset/in/s0000.json"]),
                         (["own", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/own.jsonl"]),
                         (["timing", "--n", "1", "--min-ess", "100", "--out", "as"], ["as/timing.jsonl"]),
                         (["report", "--out", "as"], ["as/advice_study.md"])],
@@ -50,6 +52,8 @@ TINY = {
                                    (["--monte-carlo"], []),
                                    (["--populations", "light", "--n", "1"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
+                        (["--n", "2", "--min-ess", "100", "--refs", "0", "--mixed", "--dataset", "none", "--out", "tdb"],
+                         ["tdb/thin.jsonl", "tdb/refs0/batch/results/k0001.json"]),
                         (["--n", "1", "--min-ess", "100", "--out", "tr", "--cameras", "real", "--distance-range", "10,80"],
                          ["tr/thin.md"])],
 }

@@ -31,14 +31,17 @@ A distance range (``distance_m``)
 
 A fitted population (``population``)
     What a data set learns of where its targets stand (``creference batch``'s data-set layer,
-    workflows/batch/dataset.py): the ground distance d is log-normal, median ``population[0]`` m
-    and log-sd ``population[1]``, in every direction alike,
+    workflows/batch/dataset.py): a log-normal factor in the ground distance d, median
+    ``population[0]`` m and log-sd ``population[1]``, on the kind's own density,
 
-        p(x, z) ∝ N(log d; log median, log_sd²) / d²,
+        p(x, z) ∝ N(log d; log median, log_sd²) · p_kind(x, z)      (log-depth: / z),
 
-    whatever the kind (1/d² is the area element's: uniform in log d and in direction). The data set
-    reads each target's likelihood of log d by dividing the prior it was estimated under out of its
-    draws (weights 1/(p(x, z) d²)), so this is the prior those likelihoods combine under.
+    so that a wide population is the kind's prior again (under 1/d², the area element's, a wide
+    population leaned near as the inverse-square prior does: on thin outdoor designs the
+    population came 0.15 too near in log distance, docs/studies/method.md). The data set reads
+    each target's evidence on log d relative to the kind's density (its draws weighted by
+    p_kind / p, the prior it was estimated under: :meth:`relative_log_prior`), so this is the
+    prior those readings combine under.
 """
 
 from __future__ import annotations
@@ -67,8 +70,8 @@ class LocationPrior:
     kind : one of :data:`LOCATION_PRIORS`
     distance_m : (low, high) the range of ground distances, metres, the targets stand in, or None
         (module docstring)
-    population : (median m, log-sd) of a log-normal population of ground distances, or None
-        (module docstring: it replaces the kind's density)
+    population : (median m, log-sd) of a log-normal factor in the ground distance on the kind's
+        density, or None (module docstring)
     """
 
     kind: str = DEFAULT_LOCATION_PRIOR
@@ -107,17 +110,20 @@ class LocationPrior:
         shape; z > 0 inside every preset's bounds)."""
         x, z = np.asarray(x, float), np.asarray(z, float)
         with np.errstate(divide="ignore", invalid="ignore"):
+            out = (0.0 if self.kind == "flat" else np.log(x * x + z * z) if self.kind == "inverse-square"
+                   else np.log(z))
             if self.population is not None:
-                log_d2 = np.log(x * x + z * z)
-                out = log_d2 + 0.5 * ((0.5 * log_d2 - np.log(self.population[0])) / self.population[1]) ** 2
-            else:
-                out = (0.0 if self.kind == "flat" else np.log(x * x + z * z) if self.kind == "inverse-square"
-                       else np.log(z))
+                out = out + 0.5 * ((0.5 * np.log(x * x + z * z) - np.log(self.population[0])) / self.population[1]) ** 2
             if self.distance_m is not None:
                 log_d = 0.5 * np.log(x * x + z * z)
                 lo, hi = np.log(self.distance_m)
                 out = out + 0.5 * ((np.maximum(lo - log_d, 0.0) + np.maximum(log_d - hi, 0.0)) / RANGE_SOFTNESS) ** 2
         return out
+
+    def relative_log_prior(self, x, z) -> np.ndarray:
+        """log p(x, z) − log p_kind(x, z): the prior relative to its kind's own density (its range
+        and population; 0 without them), what a data set's reading divides out (module docstring)."""
+        return LocationPrior(self.kind).neg_log(x, z) - self.neg_log(x, z)
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, **({"distance_m": list(self.distance_m)} if self.distance_m else {}),

@@ -42,7 +42,7 @@ from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
 __all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
-           "discover_scenes", "derive_seed", "run_scene", "run_batch", "layout"]
+           "discover_scenes", "derive_seed", "run_scene", "run_batch", "learn_priors", "layout"]
 
 BATCH_FORMAT = "creference-batch/2"
 
@@ -289,8 +289,7 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         engine.close(abandon=True)
         raise
     run = dict(engine=engine, time_limit=time_limit, progress=progress, on_event=on_event, t_start=t_start)
-    from .dataset import DataSet, hand_back, plan
-    from .rig import camera_id_of
+    from .dataset import hand_back, plan
 
     try:
         loaded = _load_quietly(scenes, settings) if settings.dataset != "none" else []
@@ -303,15 +302,70 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
         raise
     if not learn:
         return _run_pass(scenes, out, settings, **run)
-    first = out / "first_pass"  # every frame alone, a MAP each: a batch folder of its own, resumed like any
-    try:
-        _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False, **run)
-        ds = DataSet.from_first_pass([(si.key, camera_id_of(scene)) for si, scene in loaded], first, learn)
+    try:  # every frame alone, a MAP each, into out/first_pass: a batch folder of its own, resumed like any
+        ds = _first_pass(scenes, loaded, out / "first_pass", settings, learn, run)
     except BaseException:
         engine.close(abandon=True)
         raise
     return _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings),
                      dataset=ds.summary(), **run)
+
+
+def _first_pass(scenes, loaded, first: Path, settings: BatchSettings, learn: tuple, run: dict):
+    """Estimate every frame alone (a MAP each) into ``first`` and read what the frames share
+    (:meth:`.dataset.DataSet.from_first_pass`); the engine is left open."""
+    from .dataset import DataSet
+    from .rig import camera_id_of
+
+    _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False, **run)
+    return DataSet.from_first_pass([(si.key, camera_id_of(scene)) for si, scene in loaded], first, learn)
+
+
+def learn_priors(inputs, out: str | Path, settings: BatchSettings = BatchSettings(), engine: Engine | None = None) -> dict:
+    """What ``creference batch`` hands each frame, without estimating the frames with it: the
+    batch's first pass into ``out`` (a MAP each, resumed like any batch folder; run only when the
+    data set has something to teach, :func:`.dataset.plan`), the crowd's corner scale of the
+    other frames (``settings.pool_scale``) and each frame's priors from the others
+    (:func:`.dataset.hand_back`). Returns KEY → (scene with its handed-back priors, estimate
+    keyword arguments, the ``dataset`` block its result would carry), for every scene that loads.
+    For studies that estimate the frames themselves (examples/advice_study.py ``--dataset``)."""
+    from .dataset import hand_back, plan
+    from .engines import LocalEngine
+
+    out = Path(out)
+    scenes = discover_scenes(inputs, exclude=out)
+    loaded = _load_quietly(scenes, settings)
+    learn = plan([scene for _, scene in loaded], settings)
+    ds = None
+    if learn:
+        engine = engine or LocalEngine(1)
+        run = dict(engine=engine, time_limit=None, progress=False, on_event=None, t_start=time.perf_counter())
+        try:
+            ds = _first_pass(scenes, loaded, out, settings, learn, run)
+        finally:
+            engine.close()
+    scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    handed = {}
+    for (si, scene), scale in zip(loaded, scales):
+        own_scale, kwargs, block = scene.corner_scale, {}, {}
+        scene = _with_scale(scene, scale)
+        if ds is not None:
+            scene, kwargs, block, _ = hand_back(ds, si.key, scene, settings)
+        handed[si.key] = (scene, kwargs, _scale_block(block, scale, own_scale))
+    return handed
+
+
+def _with_scale(scene, scale):
+    return scene if scale is None else replace(scene, corner_scale=scale)
+
+
+def _scale_block(block: dict, scale, own_scale) -> dict:
+    """A frame's ``dataset`` block with its corner scale: the crowd's (``scale``) or its own."""
+    if scale is not None:  # the crowd's corner scale: a quantity of the data set read from the annotations
+        block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": scale[0], "dof": scale[1]}
+    elif own_scale is not None and block:
+        block["corner_scale_px"] = {"from": "override", "why": "the scene's own corner scale"}
+    return block
 
 
 def _load_quietly(scenes: list[SceneInput], settings: BatchSettings) -> list:
@@ -422,15 +476,11 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
     for (si, scene), scale in zip(loaded, scales):
         paths = layout(out, si.key)
         own_scale = scene.corner_scale
-        if scale is not None:
-            scene = replace(scene, corner_scale=scale)
+        scene = _with_scale(scene, scale)
         kwargs, block, rig = {}, {}, None
         if transform is not None:
             scene, kwargs, block, rig = transform(si.key, scene)
-        if scale is not None:  # the crowd's corner scale: a quantity of the data set read from the annotations
-            block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": scale[0], "dof": scale[1]}
-        elif own_scale is not None and block:
-            block["corner_scale_px"] = {"from": "override", "why": "the scene's own corner scale"}
+        block = _scale_block(block, scale, own_scale)
         job_ident = ident if not kwargs else {**ident, "from_dataset": _kwargs_record(kwargs)}
         scale = shared_scale(block, settings.seed)
         if scale is not None:  # the held values' uncertainty the result carries: another scale, another result
