@@ -108,6 +108,31 @@ def test_leave_one_out_leaves_every_reading_of_the_frame_out():
     assert c.center > a.center  # another frame's pool does see f0's targets
 
 
+def test_targets_of_two_settings_under_one_group_are_not_handed_one_population():
+    """Indoor (4 m) and outdoor (25 m) frames without camera ids share one group: the readings look
+    like two populations (a two-component mixture beats one by BIC), the pool says so and no frame
+    is handed it (each keeps the default location prior, its block says why); one population of
+    the same size and spread, readings of uneven precision, is handed back (seeds 0–4)."""
+    from creference_bayes.workflows.batch.dataset import TWO_POPULATIONS, two_populations
+
+    for seed in range(5):
+        indoor = _population(seed, frames=20, median=4.0, log_sd=0.3, noise=0.2)
+        outdoor = [replace(r, key=f"g{r.key}") for r in _population(seed + 10, frames=20, median=25.0, log_sd=0.3,
+                                                                    noise=0.2)]
+        pool = Pool(SHARED["log_distance"], indoor + outdoor)
+        assert pool.mixed["street"] and TWO_POPULATIONS in pool.estimate("street", leave_out="f0").check.warnings
+        one = _population(seed, frames=40, median=12.0, log_sd=0.6, noise=0.1)
+        rng = np.random.default_rng(seed)
+        uneven = [replace(r, precision=float(rng.uniform(0.15, 0.6)) ** -2) for r in one]
+        assert not Pool(SHARED["log_distance"], uneven).mixed["street"]
+        assert not two_populations(np.array([r.mean for r in uneven]), np.array([r.precision for r in uneven]))
+    keys = {r.key: "street" for r in indoor + outdoor}
+    ds = DataSet({"log_distance": pool}, ("log_distance",), keys)
+    _, kwargs, block, _ = hand_back(ds, "f0", parse_scene(_scene(0, camera=None)), BatchSettings())
+    assert "location_prior" not in kwargs
+    assert block["distance_m"] == {"from": "the frame", "group": "street", "why": TWO_POPULATIONS}
+
+
 def test_overrides_win_and_are_recorded():
     pools = {"log_distance": Pool(SHARED["log_distance"], _population()),
              "log_ref_scale": Pool(SHARED["log_ref_scale"], [Reading(f"f{i}", "crowd", math.log(0.3), 400.0)

@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -94,6 +94,8 @@ MAX_DISAGREEMENT = 2.0
 BOOTSTRAP = 500
 FEW_FRAMES = "the pool rests on few frames"
 DISAGREE = "the pool and the frames disagree"
+TWO_POPULATIONS = ("the readings look like two populations (a mixture fits them better by BIC): not handed "
+                   "back; give each setting its own camera id")
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,10 @@ class Shared:
     min_spread : a spread quantity's least τ
     min_frames : other informative frames a frame's leave-one-out pool needs (a pool of all frames: one more)
     min_readings : informative readings (targets) a pool needs
+    one_population : a spread quantity that is handed back only when its group's readings look like
+        one population: when two normal components fit them better by BIC (:func:`two_populations`),
+        the pool carries :data:`TWO_POPULATIONS` and no frame is handed it (frames of two settings
+        under one group: indoor and outdoor photos without camera ids)
     held : a shared quantity the frames take as given: each frame is handed the pool of *all* its
         group's frames (its own evidence counts once, inside the pool) as its value, and its result
         carries the pool's whole uncertainty (statistical ⊕ floor) as one scale its group's frames
@@ -130,6 +136,7 @@ class Shared:
     min_frames: int = 1
     min_readings: int = 1
     held: bool = False
+    one_population: bool = False
 
 
 #: Every quantity the data-set layer learns (module docstring). The camera's: measured in
@@ -148,7 +155,7 @@ SHARED = {s.name: s for s in (
     Shared("pitch", "pitch_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
     Shared("roll", "roll_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
     Shared("log_ref_scale", "ref_scale", "crowd", "spread", min_spread=0.1, min_frames=2),
-    Shared("log_distance", "distance_m", "setting", "spread", min_spread=0.1,
+    Shared("log_distance", "distance_m", "setting", "spread", min_spread=0.1, one_population=True,
            min_frames=MIN_POPULATION_FRAMES, min_readings=MIN_POPULATION_TARGETS),
 )}
 #: what a frame's focal length is read given (the others' pool of it): the orientation
@@ -314,6 +321,43 @@ def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered:
     return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warns))
 
 
+def two_populations(m: np.ndarray, p: np.ndarray) -> bool:
+    """Whether readings N(mᵢ, 1/pᵢ) look like two populations: the maximum likelihood of a mixture
+    of two random-effects normals, π N(μ₁, τ₁² + 1/pᵢ) + (1 − π) N(μ₂, τ₂² + 1/pᵢ), beats that of
+    one, N(μ, τ² + 1/pᵢ), by more than BIC's price of its three more parameters, (3/2) log n
+    (fewer than 10 readings: never). Seeded starts: the same readings, the same answer."""
+    from scipy.optimize import minimize
+    from scipy.special import expit, logsumexp
+
+    m, v = np.asarray(m, float), 1.0 / np.asarray(p, float)
+    n = len(m)
+    if n < 10:
+        return False
+
+    def nll1(t):
+        s2 = v + math.exp(2.0 * t[1])
+        return 0.5 * float(np.sum(np.log(2.0 * math.pi * s2) + (m - t[0]) ** 2 / s2))
+
+    def nll2(t):
+        w = expit(t[4])
+        parts = []
+        for mu, log_tau, share in ((t[0], t[2], w), (t[1], t[3], 1.0 - w)):
+            s2 = v + math.exp(2.0 * log_tau)
+            parts.append(math.log(max(share, 1e-300)) - 0.5 * (np.log(2.0 * math.pi * s2) + (m - mu) ** 2 / s2))
+        return -float(np.sum(logsumexp(np.stack(parts), axis=0)))
+
+    spread = max(float(np.std(m)), 1e-3)
+    one = minimize(nll1, [float(np.median(m)), math.log(spread)], method="Nelder-Mead",
+                   options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000})
+    best = math.inf
+    for lo, hi in ((0.25, 0.75), (0.1, 0.6), (0.4, 0.9)):
+        a, b = np.quantile(m, [lo, hi])
+        fit = minimize(nll2, [a, b, math.log(spread / 2), math.log(spread / 2), 0.0], method="Nelder-Mead",
+                       options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 8000})
+        best = min(best, float(fit.fun))
+    return bool(2.0 * (one.fun - best) > 3.0 * math.log(n))
+
+
 def scale_draws(cams: np.ndarray, objs: np.ndarray, log_k) -> tuple[np.ndarray, np.ndarray]:
     """Copies of the draws, cameras (n, 5) and objects (n, m, 7), with draw d's focal length (px)
     and every object's depth z (m) multiplied by exp(``log_k``) (a natural log, one number or (n,)):
@@ -389,6 +433,10 @@ class Pool:
         #: group → (keys, means, precisions) of its readings
         self.groups = {g: (np.array([r.key for r in rs], dtype=object), np.array([r.mean for r in rs]),
                            np.array([r.precision for r in rs])) for g, rs in sorted(groups.items())}
+        #: group → whether its informative readings look like two populations (``one_population``
+        #: quantities; decided once on all of them, as a property of the group)
+        self.mixed = {g: quantity.one_population and two_populations(m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2])
+                      for g, (_, m, p) in self.groups.items()}
 
     def estimate(self, group: str, leave_out: str | None = None) -> Pooled | None:
         """The group's pool without the frame ``leave_out`` (a KEY: all its readings), or None when
@@ -405,6 +453,8 @@ class Pool:
             return None
         center, var, tau = combine(m[keep], p[keep], q.kind, q.min_spread)
         check = pool_check(m[keep], p[keep], center, var, int(offered.sum()))
+        if self.mixed[group]:
+            check = replace(check, warnings=check.warnings + (TWO_POPULATIONS,))
         if q.kind == "shared":
             var += q.floor**2
         return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
@@ -632,7 +682,9 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         kwargs["ref_scale_log_sd"] = round(ref.prior_sd, 4)
         block["ref_scale"] = {"from": "data set", "shared_by": "crowd", "group": ref.group, **ref.block()}
     dist = ds.estimate("log_distance", key) if "log_distance" in ds.learn else None
-    if dist is not None and "distance_m" not in own:
+    if dist is not None and TWO_POPULATIONS in dist.check.warnings and "distance_m" not in own:
+        block["distance_m"] = {"from": "the frame", "group": dist.group, "why": TWO_POPULATIONS}
+    elif dist is not None and "distance_m" not in own:
         kind = settings.location_prior if settings.location_prior != "auto" else "log-depth"
         kwargs["location_prior"] = LocationPrior(kind, population=(_sig(math.exp(dist.center)), round(dist.prior_sd, 4)))
         block["distance_m"] = {"from": "data set", "shared_by": "setting", "group": dist.group, **dist.block()}
