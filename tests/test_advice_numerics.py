@@ -21,13 +21,20 @@ from creference_bayes.workflows.advice.update import (kalman_update, location_sd
                                                       weighted_hdi)
 
 
-def test_pairwise_iou_matches_shapely():
-    rng = np.random.default_rng(0)
-    n = 400
+def _box_pairs(seed: int, n: int, yaw_sd: float, size_sd: float):
+    """n random boxes (x, y, z, yaw, l, w, h) and as many moved from them: 0.3 m, ``yaw_sd`` rad,
+    ``size_sd`` m apart (sizes kept positive)."""
+    rng = np.random.default_rng(seed)
     a = np.column_stack([rng.normal(0, 0.6, n), rng.normal(1.5, 0.2, n), rng.normal(6, 0.6, n),
                          rng.uniform(-np.pi, np.pi, n), rng.uniform(0.2, 3, (n, 3))])
-    b = a + np.column_stack([rng.normal(0, 0.3, (n, 3)), rng.normal(0, 0.5, n), rng.normal(0, 0.2, (n, 3))])
+    b = a + np.column_stack([rng.normal(0, 0.3, (n, 3)), rng.normal(0, yaw_sd, n), rng.normal(0, size_sd, (n, 3))])
     b[:, 4:] = np.abs(b[:, 4:]) + 0.05
+    return a, b
+
+
+def test_pairwise_iou_matches_shapely():
+    n = 400
+    a, b = _box_pairs(0, n, 0.5, 0.2)
     b[:50] = a[:50]  # identical boxes
     expected = np.array([box_iou_3d(a[i], b[i:i + 1])[0] for i in range(n)])
     np.testing.assert_allclose(iou_3d_pairs(a, b), expected, atol=1e-9)
@@ -40,12 +47,8 @@ def test_iou_at_least_a_threshold_is_the_iou_compared_whatever_the_bound_leaves_
     """The advice's P(IoU ≥ t) counts pairs by :func:`iou_3d_at_least`, which computes the IoU only
     where a cheap upper bound leaves the answer open: the same verdict as the IoU compared, pair
     for pair (identical, touching, turned and far-apart boxes among them)."""
-    rng = np.random.default_rng(2)
     n = 4000
-    a = np.column_stack([rng.normal(0, 0.6, n), rng.normal(1.5, 0.2, n), rng.normal(6, 0.6, n),
-                         rng.uniform(-np.pi, np.pi, n), rng.uniform(0.2, 3, (n, 3))])
-    b = a + np.column_stack([rng.normal(0, 0.3, (n, 3)), rng.normal(0, 0.3, n), rng.normal(0, 0.1, (n, 3))])
-    b[:, 4:] = np.abs(b[:, 4:]) + 0.05
+    a, b = _box_pairs(2, n, 0.3, 0.1)
     b[:50] = a[:50]                                               # identical
     b[50:100] = a[50:100]
     b[50:100, 0] += a[50:100, 4] * np.cos(a[50:100, 3])          # touching end to end
