@@ -38,8 +38,8 @@ from .core.metrics import (location_percentage_error, percentage_error, range_pe
                            range_precision)
 from .io.result import CameraEstimate, ObjectEstimate
 from .io.scene import Scene, SceneError, SceneWarning, load_scene, parse_scene
-from .pipeline import Result, ResultWarning, estimate, load_result
+from .pipeline import EstimateSettings, Result, ResultWarning, estimate, load_result
 
-__all__ = ["__version__", "estimate", "load_scene", "parse_scene", "load_result", "Scene", "SceneError",
+__all__ = ["__version__", "estimate", "EstimateSettings", "load_scene", "parse_scene", "load_result", "Scene", "SceneError",
            "SceneWarning", "Result", "ResultWarning", "ObjectEstimate", "CameraEstimate", "percentage_error", "range_percentage_error",
            "location_percentage_error", "range_precision"]

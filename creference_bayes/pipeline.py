@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from .models.location_prior import LocationPrior
 from .models.metrology import MetrologyModel, ReferenceTerm
 from .models.paper import PaperModel
 
-__all__ = ["MODELS", "MODEL_CLASSES", "model_class", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "load_result", "build_model", "rebuild_model", "map_state",
+__all__ = ["EstimateSettings", "MODELS", "MODEL_CLASSES", "model_class", "DEFAULT_MODEL", "MODEL_OPTIONS", "Result", "estimate", "load_result", "build_model", "rebuild_model", "map_state",
            "result_draws", "reference_terms", "parse_model_options", "option_record", "expected_ground"]
 
 #: The models by name: classes of the model contract (:mod:`.models.contract`), each declaring its
@@ -132,47 +132,128 @@ def reference_terms(scene: Scene) -> list[ReferenceTerm]:
     return out
 
 
-def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "default", orientation: str = "auto",
-                focal_prior="auto", orientation_prior=None, location_prior: str = "auto", distance_range=None,
-                classes=None, use_references: bool = True, confidence_map="default", bounds=None, **options):
+@dataclass(frozen=True)
+class EstimateSettings:
+    """What decides an estimate's numbers besides the scene and the seed: one object that
+    :func:`estimate`, :func:`build_model`, a batch (:class:`~.workflows.batch.BatchSettings`
+    extends it) and the command line share.
+
+    Attributes
+    ----------
+    model : one of :data:`MODELS`
+    preset : ``default`` (closed-form starts and Newton steps), ``paper`` or ``paper-controlled``
+        (the paper's basin hopping with random restarts, its bounds and σ in px)
+    posterior : sample the posterior after the MAP
+    restarts : random restarts of the paper's presets (None: the paper's)
+    temperature : T of log p = log-likelihood / T + log-prior (priors are never tempered); None:
+        the model's own (1 for the metrology model and the paper presets, 3 for the paper model
+        with the default preset)
+    hdi_prob : probability of the reported highest-density intervals, in (0, 1)
+    sampling : sampler settings (:class:`~.inference.sampler.SamplerSettings` fields, e.g.
+        ``{"min_ess": 400, "max_steps": 20000}``)
+    orientation, focal_prior, orientation_prior : how the camera is treated
+        (:func:`~.camera_setup.setup_camera`)
+    location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the paper
+        presets, whose method has no prior), a name of
+        :data:`~.models.location_prior.LOCATION_PRIORS` or a
+        :class:`~.models.location_prior.LocationPrior`
+    distance_range : (low, high) metres: the ground distances the data set's targets stand at
+        (the location prior falls softly outside them), or None
+    bounds : a :class:`~.models.contract.Bounds` box instead of the preset's (simulation-based
+        calibration estimates within the box its scenes are drawn from)
+    classes : size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
+    confidence_map : how ranges stated with a confidence are read (metrology model):
+        ``"default"``, ``"none"``, ``"identity"``, a map file's path or a
+        :class:`~.models.confidence_map.ConfidenceMap`
+    use_references : use the workers' references
+    keep_draws : posterior draws the result keeps (0: none); None:
+        :data:`~.io.result.RESULT_DRAWS`
+    options : the model's own settings (:data:`MODEL_OPTIONS`, e.g. ``{"ground_sd_m": 0.08}``)
+    """
+
+    model: str = DEFAULT_MODEL
+    preset: str = "default"
+    posterior: bool = True
+    restarts: int | None = None
+    temperature: float | None = None
+    hdi_prob: float = 0.9
+    sampling: Mapping = field(default_factory=dict)
+    orientation: str = "auto"
+    focal_prior: Any = "auto"
+    orientation_prior: Any = None
+    location_prior: Any = "auto"
+    distance_range: tuple[float, float] | None = None
+    bounds: Any = None
+    classes: Mapping = field(default_factory=dict)
+    confidence_map: Any = "default"
+    use_references: bool = True
+    keep_draws: int | None = None
+    options: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        cls = model_class(self.model)  # a ValueError naming the model
+        t = self.temperature
+        if t is not None and not (isinstance(t, (int, float)) and not isinstance(t, bool) and np.isfinite(t) and t > 0):
+            raise ValueError(f"temperature: expected a finite number > 0, got {t!r}")
+        if not (isinstance(self.hdi_prob, (int, float)) and 0 < self.hdi_prob < 1):
+            raise ValueError(f"hdi_prob: expected a probability in (0, 1), got {self.hdi_prob!r}")
+        unknown = sorted(set(self.options) - set(cls.options))
+        if unknown:
+            raise ValueError(f"{self.model} model: unknown option(s) {unknown} (expected some of {list(cls.options)})")
+        object.__setattr__(self, "sampling", dict(self.sampling or {}))
+        object.__setattr__(self, "classes", dict(self.classes or {}))
+        object.__setattr__(self, "options", dict(self.options or {}))
+
+    def replace(self, **changes) -> "EstimateSettings":
+        """These settings with ``changes``: a field by its name, any other name a model option
+        (added to :attr:`options`)."""
+        names = {f.name for f in fields(self)}
+        options = {k: changes.pop(k) for k in list(changes) if k not in names}
+        if options:
+            changes["options"] = {**changes.get("options", self.options), **options}
+        return replace(self, **changes) if changes else self
+
+    @classmethod
+    def of(cls, settings: "EstimateSettings | None", changes: Mapping) -> "EstimateSettings":
+        """``settings`` (default: the defaults) with ``changes`` (:meth:`replace`)."""
+        base = cls() if settings is None else settings
+        if not isinstance(base, EstimateSettings):
+            raise TypeError(f"settings: expected an EstimateSettings, got {type(base).__name__}")
+        return base.replace(**changes)
+
+    def estimate_settings(self) -> "EstimateSettings":
+        """Only the estimate's part (a batch's settings extend these)."""
+        if type(self) is EstimateSettings:
+            return self
+        return EstimateSettings(**{f.name: getattr(self, f.name) for f in fields(EstimateSettings)})
+
+
+def build_model(scene: Scene, settings: EstimateSettings | None = None, **changes):
     """The model of ``scene`` and its camera set-up.
 
     Parameters
     ----------
     scene : the scene
-    model : one of :data:`MODELS`
-    preset : the optimiser preset (the paper's presets bring the paper's bounds and σ)
-    orientation, focal_prior, orientation_prior : how the camera is treated
-        (:func:`~.camera_setup.setup_camera`)
-    location_prior : ``"auto"`` (``"log-depth"`` with the default preset, ``"flat"`` with the paper
-        presets, whose method has no prior), or a name of
-        :data:`~.models.location_prior.LOCATION_PRIORS`
-    distance_range : (low, high) metres: the ground distances the data set's targets stand at
-        (the location prior falls softly outside them, :mod:`~.models.location_prior`), or None
-    classes : size priors of the user's own classes (a scene's own win)
-    use_references : use the workers' references
-    confidence_map : how ranges stated with a confidence are read (metrology model):
-        ``"default"``, ``"none"``, ``"identity"``, a map file's path or a
-        :class:`~.models.confidence_map.ConfidenceMap`
-    bounds : a :class:`~.models.contract.Bounds` box instead of the preset's (simulation-based
-        calibration estimates within the box its scenes are drawn from)
-    options : the model's settings (:data:`MODEL_OPTIONS`)
+    settings : :class:`EstimateSettings` (default: the defaults); the model reads ``model``,
+        ``preset``, ``orientation``, ``focal_prior``, ``orientation_prior``, ``location_prior``,
+        ``distance_range``, ``classes``, ``use_references``, ``confidence_map``, ``bounds`` and
+        ``options``
+    changes : changes to ``settings`` (:meth:`EstimateSettings.replace`: a field by its name, any
+        other name a model option)
     """
     from .inference.map import preset_bounds
 
-    cls = model_class(model)
-    unknown = sorted(set(options) - set(cls.options))
-    if unknown:
-        raise ValueError(f"{model} model: unknown option(s) {unknown} (expected some of {list(cls.options)})")
-    check_confidence_map(model, confidence_map)
+    st = EstimateSettings.of(settings, changes)
+    model, preset, location_prior, classes = st.model, st.preset, st.location_prior, st.classes or None
+    check_confidence_map(model, st.confidence_map)
     if location_prior == "auto":
         location_prior = "log-depth" if preset == "default" else "flat"
-    if distance_range is not None:
+    if st.distance_range is not None:
         kind = location_prior.kind if isinstance(location_prior, LocationPrior) else location_prior
-        location_prior = LocationPrior(kind, distance_range)
-    setup = setup_camera(scene, orientation=orientation, focal_prior=focal_prior, orientation_prior=orientation_prior,
+        location_prior = LocationPrior(kind, st.distance_range)
+    setup = setup_camera(scene, orientation=st.orientation, focal_prior=st.focal_prior, orientation_prior=st.orientation_prior,
                          location_prior=location_prior)
-    bounds = bounds if bounds is not None else preset_bounds(preset, scene.image_size)
+    bounds = st.bounds if st.bounds is not None else preset_bounds(preset, scene.image_size)
     if setup.terms.location is not None and setup.terms.location.distance_m is not None:
         try:
             check_distance_range(setup.terms.location.distance_m, bounds, scene.image_size)
@@ -181,10 +262,10 @@ def build_model(scene: Scene, *, model: str = DEFAULT_MODEL, preset: str = "defa
     objects = [ObjectData(t.id, t.corners, 1, t.dimensions,
                           None if t.dimensions is not None else t.size_prior or scene.size_prior(t.cls, classes), t.cls)
                for t in scene.targets]
-    refs = reference_terms(scene) if use_references else []
+    refs = reference_terms(scene) if st.use_references else []
     common = dict(camera_terms=setup.terms, orientation=setup.orientation, focal_length_px=scene.focal_length_px,
                   horizon_line=setup.camera.horizon if setup.orientation == "horizon" else None, bounds=bounds)
-    return _BUILDERS[model](scene, objects, refs, setup, common, preset, confidence_map, options), setup
+    return _BUILDERS[model](scene, objects, refs, setup, common, preset, st.confidence_map, st.options), setup
 
 
 def check_confidence_map(model: str, confidence_map, option: str = "confidence_map") -> None:
@@ -257,34 +338,20 @@ def _load(scene, classes) -> Scene:
     return load_scene(scene, classes=classes)
 
 
-def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL, preset: str = "default", seed=None,
-             posterior: bool = True, restarts: int | None = None, temperature: float | None = None,
-             hdi_prob: float = 0.9, sampling: dict | None = None, progress: bool = False, orientation: str = "auto",
-             focal_prior="auto", orientation_prior=None, classes=None, confidence_map="default",
-             location_prior: str = "auto", distance_range=None, bounds=None, use_references: bool = True,
-             keep_draws: int | None = None, **options):
+def estimate(scene: Scene | str | Path | Mapping, settings: EstimateSettings | None = None, *, seed=None,
+             progress: bool = False, **changes):
     """Estimate every target of a scene and its camera.
 
     Parameters
     ----------
     scene : a :class:`~.io.scene.Scene`, the path of a scene file (``creference-scene/1``: one
         target; ``creference-scene/2``: one or more) or such a file's content as a dict
-    model : one of :data:`MODELS`
-    preset : ``default`` (closed-form starts and Newton steps), ``paper`` or ``paper-controlled``
-        (the paper's basin hopping with random restarts, its bounds and σ)
+    settings : :class:`EstimateSettings` (default: the defaults)
     seed : int or Generator; the same seed gives the same result
-    posterior : sample the posterior after the MAP
-    restarts : random restarts of the paper's presets (None: the paper's)
-    temperature : T of log p = log-likelihood / T + log-prior (priors are never tempered); None:
-        the model's own (1 for the metrology model and the paper presets, 3 for the paper model
-        with the default preset)
-    hdi_prob : probability of the reported highest-density intervals
-    sampling : sampler settings (:class:`~.inference.sampler.SamplerSettings` fields)
     progress : progress bars on standard error
-    orientation, focal_prior, orientation_prior, classes, confidence_map, location_prior,
-    distance_range, bounds, use_references, options : the model (:func:`build_model`)
-    keep_draws : posterior draws the result keeps (``draws``; 0: none); default
-        :data:`~.io.result.RESULT_DRAWS`
+    changes : changes to ``settings`` by keyword (:meth:`EstimateSettings.replace`: a field by its
+        name, e.g. ``model="paper"``, ``hdi_prob=0.5``, ``sampling={"min_ess": 400}``; any other
+        name a model option, e.g. ``ground_sd_m=0.1``)
 
     Returns
     -------
@@ -294,26 +361,22 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
     from .inference.threads import single_threaded_blas
     from .io.result import RESULT_DRAWS, result_data
 
-    scene = _load(scene, classes)
-    if temperature is not None and not (np.isfinite(temperature) and temperature > 0):
-        raise ValueError(f"temperature: expected a finite number > 0, got {temperature!r}")
+    st = EstimateSettings.of(settings, changes)
+    scene = _load(scene, st.classes or None)
     rng = np.random.default_rng(seed)
     with single_threaded_blas():
         t0 = time.perf_counter()
-        m, setup = build_model(scene, model=model, preset=preset, orientation=orientation, focal_prior=focal_prior,
-                               orientation_prior=orientation_prior, location_prior=location_prior,
-                               distance_range=distance_range, classes=classes, use_references=use_references,
-                               confidence_map=confidence_map, bounds=bounds, **options)
-        T = m.default_temperature if temperature is None else float(temperature)
-        map_est = optimize(m, preset=preset, temperature=T, rng=rng, restarts=restarts, progress=progress)
+        m, setup = build_model(scene, st)
+        T = m.default_temperature if st.temperature is None else float(st.temperature)
+        map_est = optimize(m, preset=st.preset, temperature=T, rng=rng, restarts=st.restarts, progress=progress)
         m = map_est.fitted(m)  # the model at the fit's handedness and pilot (a copy)
         draws = diag = None
         notes = []
-        if posterior:
+        if st.posterior:
             from .inference.sampler import SamplerSettings, SamplingError, sample
 
             try:
-                draws, diag = sample(m, map_est, settings=SamplerSettings.from_options(sampling), rng=rng,
+                draws, diag = sample(m, map_est, settings=SamplerSettings.from_options(st.sampling), rng=rng,
                                      temperature=T, progress=progress)
             except SamplingError as exc:  # a MAP with zero posterior density: report, do not crash
                 notes.append(f"posterior not sampled: {exc}")
@@ -322,21 +385,22 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
                     from .inference.map import refine
 
                     map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
-        provenance = {"model": model, "preset": preset, "options": {k: option_record(options[k]) for k in sorted(options)},
-                      "orientation": orientation,
-                      "focal_prior": focal_prior if isinstance(focal_prior, str) else "given",
-                      "location_prior": m.location.kind, "use_references": use_references, "temperature": T,
-                      "hdi_prob": hdi_prob, "seed": seed if isinstance(seed, (int, type(None))) else "generator",
-                      "sampling": dict(sampling or {}), "confidence_map": _describe_map(m),
-                      "classes": {k: v.to_dict() for k, v in (classes or {}).items()},
-                      "bounds": None if bounds is None else _bounds_dict(bounds), "ground": _ground_dict(m)}
+        provenance = {"model": st.model, "preset": st.preset,
+                      "options": {k: option_record(st.options[k]) for k in sorted(st.options)},
+                      "orientation": st.orientation,
+                      "focal_prior": st.focal_prior if isinstance(st.focal_prior, str) else "given",
+                      "location_prior": m.location.kind, "use_references": st.use_references, "temperature": T,
+                      "hdi_prob": st.hdi_prob, "seed": seed if isinstance(seed, (int, type(None))) else "generator",
+                      "sampling": dict(st.sampling), "confidence_map": _describe_map(m),
+                      "classes": {k: v.to_dict() for k, v in st.classes.items()},
+                      "bounds": None if st.bounds is None else _bounds_dict(st.bounds), "ground": _ground_dict(m)}
         if m.location.distance_m is not None:  # recorded only when given: a result without it had no range
             provenance["distance_range_m"] = list(m.location.distance_m)
         if m.location.population is not None:  # a data set's fitted population (workflows/batch/dataset.py)
             provenance["location_population"] = list(m.location.population)
-        data = result_data(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
+        data = result_data(scene, m, setup, map_est, draws, diag, hdi_prob=st.hdi_prob, provenance=provenance,
                            seconds=time.perf_counter() - t0, notes=notes,
-                           keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))
+                           keep_draws=RESULT_DRAWS if st.keep_draws is None else int(st.keep_draws))
         return Result(data, draws, diag, tuple(data["warnings"]), m, scene_file=scene.source)
 
 
@@ -569,14 +633,14 @@ def rebuild_model(result, scene: Scene | str | Path):
                for k, v in prov["options"].items()}
     if "ground_sd_m" in cls.options:  # the ground's prior it was made with (a result without it: UNRECORDED_GROUND)
         options = {**_ground_options(prov.get("ground") or UNRECORDED_GROUND), **options}
-    model, _ = build_model(scene, model=kind, preset=prov.get("preset", "default"),
+    model, _ = build_model(scene, EstimateSettings(model=kind, preset=prov.get("preset", "default"),
                            orientation=prov["orientation"],
                            focal_prior=prov["focal_prior"] if prov["focal_prior"] != "given" else "auto",
                            location_prior=LocationPrior(prov.get("location_prior", "flat"),
                                                         population=prov.get("location_population")),
                            distance_range=prov.get("distance_range_m"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
-                           bounds=_bounds_from(prov.get("bounds")), **options)
+                           bounds=_bounds_from(prov.get("bounds")), options=options))
     hands = [o.get("handedness") for o in d["objects"]]
     if not all(h in (-1, 1) and not isinstance(h, bool) for h in hands):
         raise ValueError(f"objects[].handedness: expected -1 or 1 for every object, got {hands[:5]!r}")

@@ -165,9 +165,12 @@ def test_time_limit_fails_the_scene_and_the_batch_goes_on(tmp_path):
 
 
 def test_run_scene_returns_an_exception_as_a_failure_record(tmp_path):
+    from creference_bayes.pipeline import EstimateSettings
+
     write_scenes(tmp_path, ["one_a"])
-    job = {"scene": load_scene(tmp_path / "one_a.json"), "seed": 1,
-           "estimate": {"model": "no-such-model", "posterior": False}}
+    bad = EstimateSettings(posterior=False)
+    object.__setattr__(bad, "model", "no-such-model")  # past the settings' own check: the estimate raises
+    job = {"scene": load_scene(tmp_path / "one_a.json"), "seed": 1, "estimate": bad}
     res = run_scene(job)
     assert res["ok"] is False and res["stage"] == "estimate"
     assert "no-such-model" in res["error"] and "Traceback" in res["traceback"]
@@ -205,7 +208,7 @@ def test_every_setting_that_changes_the_numbers_is_compared_on_a_resume():
               BatchSettings(sampling={"max_steps": 300}), BatchSettings(confidence_map="identity")]
     assert all(s.to_dict() != base.to_dict() for s in others)
     assert json.loads(json.dumps(others[2].to_dict()))["classes"]["Kayak"]  # recorded as plain JSON
-    assert others[2].estimate_kwargs()["classes"] == kayak
+    assert others[2].estimate_settings().classes == kayak
     with pytest.raises(ValueError, match="min_ess"):
         BatchSettings(sampling={"min_ess": -1})
 

@@ -159,3 +159,28 @@ def test_importing_the_package_leaves_the_environment_alone():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["True", "[]"]
+
+
+def test_one_settings_object_for_estimate_build_model_and_batch():
+    """cb.EstimateSettings is what estimate, build_model and a batch read: a field by name, any other
+    keyword a model option; bad values refused by name; a batch's settings extend it."""
+    from creference_bayes.pipeline import build_model
+    from creference_bayes.workflows.batch import BatchSettings
+
+    s = cb.EstimateSettings(hdi_prob=0.5).replace(ground_sd_m=0.2, use_references=False)
+    assert (s.hdi_prob, s.use_references, s.options) == (0.5, False, {"ground_sd_m": 0.2})
+    with pytest.raises(ValueError, match="ground_sdm"):
+        cb.EstimateSettings(options={"ground_sdm": 1.0})
+    with pytest.raises(ValueError, match="temperature"):
+        s.replace(temperature=0.0)
+    with pytest.raises(ValueError, match="hdi_prob"):
+        cb.EstimateSettings(hdi_prob=1.0)
+    b = BatchSettings(seed=3, hdi_prob=0.5, use_references=False, options={"ground_sd_m": 0.2})
+    assert b.estimate_settings() == s and type(b.estimate_settings()) is cb.EstimateSettings
+    d, _ = truth_scene(0, m=2, sizes_known=False, n_refs=1)
+    scene = cb.parse_scene(d)
+    model, _ = build_model(scene, s)
+    assert model.ground_sd_m == 0.2 and len(model.references) == 0
+    res = cb.estimate(scene, s, seed=0, posterior=False)
+    prov = res.to_dict()["provenance"]
+    assert (prov["hdi_prob"], prov["use_references"], prov["options"]) == (0.5, False, {"ground_sd_m": 0.2})

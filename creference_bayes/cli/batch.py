@@ -8,7 +8,7 @@ import sys
 from ..inference.map import PRESETS
 from ..pipeline import DEFAULT_MODEL, MODELS
 from .estimate import (add_camera_options, add_confidence_map_option, add_distance_range_option, add_model_option,
-                       check_posterior_values, confidence_map_option, load_classes, model_options, sampling_options)
+                       estimate_fields, load_classes)
 from .main import UsageError, advanced_group, require, seed_value, usage_errors
 
 __all__ = ["register", "EXIT_FAILED"]
@@ -20,18 +20,10 @@ EXIT_FAILED = 1
 def _settings(args):
     from ..workflows.batch import BatchSettings
 
-    check_posterior_values(args)
-    sampling = sampling_options(args)
+    fields = estimate_fields(args, load_classes(args.classes))
     with usage_errors():  # a sampler setting out of range
-        return BatchSettings(seed=args.seed, model=args.model, preset=args.preset,
-                             posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
-                             temperature=args.temperature, use_references=not args.no_references,
-                             sampling=sampling, focal_prior=args.focal_prior, orientation=args.orientation,
-                             location_prior=args.location_prior, distance_range=args.distance_range,
-                             confidence_map=confidence_map_option(args.confidence_map, args.model),
-                             classes=load_classes(args.classes) or {}, dataset=args.dataset,
-                             rig=args.rig, pool_scale=not (args.own_scale or args.dataset == "none"),
-                             options=model_options(args))
+        return BatchSettings(**fields, seed=args.seed, dataset=args.dataset, rig=args.rig,
+                             pool_scale=not (args.own_scale or args.dataset == "none"))
 
 
 def _engine(args):

@@ -221,10 +221,22 @@ def sampling_options(args) -> dict:
     return sampling
 
 
+def estimate_fields(args, classes=None, scene=None) -> dict:
+    """The :class:`~creference_bayes.pipeline.EstimateSettings` fields the options shared by
+    ``estimate``, ``demo`` and ``batch`` ask for (each checked: a usage error naming the option)."""
+    check_posterior_values(args)
+    return dict(model=args.model, preset=args.preset, posterior=not args.no_posterior, hdi_prob=args.hdi_prob,
+                temperature=args.temperature, use_references=not args.no_references,
+                sampling=sampling_options(args), focal_prior=args.focal_prior, orientation=args.orientation,
+                location_prior=args.location_prior, distance_range=args.distance_range,
+                confidence_map=confidence_map_option(args.confidence_map, args.model), classes=classes or {},
+                options=model_options(args, scene))
+
+
 def _run_estimate(args, banner: str | None = None) -> int:
     from ..io.files import atomic_path
     from ..io.scene import load_scene
-    from ..pipeline import estimate
+    from ..pipeline import EstimateSettings, estimate
 
     classes = load_classes(args.classes)
     scene = load_scene(args.scene, classes=classes)
@@ -234,17 +246,10 @@ def _run_estimate(args, banner: str | None = None) -> int:
         raise UsageError("--netcdf: there is no posterior to write with --no-posterior")
     check_output_file("--out", args.out)
     check_output_file("--netcdf", args.netcdf)
-    check_posterior_values(args)
-    cmap = confidence_map_option(args.confidence_map, args.model)
-    options = model_options(args, scene)
+    settings = EstimateSettings(**estimate_fields(args, classes, scene))
     if banner and not args.quiet:  # once the command line is known to be good
         print(banner)
-    result = estimate(scene, model=args.model, preset=args.preset, seed=args.seed, classes=classes, confidence_map=cmap,
-                      use_references=not args.no_references, posterior=not args.no_posterior,
-                      focal_prior=args.focal_prior, orientation=args.orientation, location_prior=args.location_prior,
-                      distance_range=args.distance_range, temperature=args.temperature, hdi_prob=args.hdi_prob,
-                      sampling=sampling_options(args) or None,
-                      progress=not args.quiet and sys.stderr.isatty(), **options)
+    result = estimate(scene, settings, seed=args.seed, progress=not args.quiet and sys.stderr.isatty())
     d = result.to_dict()
     if args.out:  # it records where the scene is, so that plot and advise find it wherever it is written
         result.save(args.out)

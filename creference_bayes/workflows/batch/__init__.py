@@ -35,7 +35,7 @@ from typing import Callable
 from ... import __version__
 from ...io.files import atomic_write_json
 from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict, with_classes
-from ...pipeline import DEFAULT_MODEL, option_record
+from ...pipeline import EstimateSettings, option_record
 from .files import ERROR_FORMAT, layout, record_error, up_to_date
 from .dataset import shared_scale
 from .runner import Runner, one_line, progress_bar, run_scene
@@ -48,20 +48,15 @@ BATCH_FORMAT = "creference-batch/2"
 
 
 @dataclass(frozen=True)
-class BatchSettings:
-    """What decides a scene's numbers; a result made with other settings is recomputed.
+class BatchSettings(EstimateSettings):
+    """What decides a scene's numbers; a result made with other settings is recomputed: the
+    estimate's settings (:class:`~creference_bayes.pipeline.EstimateSettings`, whose fields these
+    extend; ``sampling`` e.g. ``{"min_ess": 400, "max_steps": 20000}``; ``confidence_map`` is
+    compared by the map actually used, a file's by its content wherever it lies) and the batch's own.
 
     Attributes
     ----------
     seed : base seed; each scene's seed is :func:`derive_seed` (seed, scene fingerprint)
-    model, preset, posterior, hdi_prob, temperature, use_references, focal_prior, orientation,
-    location_prior, distance_range : as :func:`~creference_bayes.estimate`
-    sampling : sampler settings (:class:`~creference_bayes.inference.sampler.SamplerSettings`
-        fields, e.g. ``{"min_ess": 400, "max_steps": 20000}``)
-    confidence_map : ``"default"``, ``"none"``, ``"identity"`` or a
-        :class:`~creference_bayes.models.confidence_map.ConfidenceMap`; the settings compare the map
-        actually used (a file's by its content, wherever it lies)
-    classes : size priors of the user's own classes (name → ``SizePrior``; a scene's own win)
     dataset : ``auto``: learn what the frames share when there is something to learn (the camera's
         focal length and mounting, the crowd's reference scale, where targets stand), from a
         first pass, and hand it back to each frame (:mod:`.dataset`); ``none``: every frame alone
@@ -71,36 +66,22 @@ class BatchSettings:
         ``none`` (nothing of the camera) (:mod:`.rig`)
     pool_scale : a frame whose objects are not all annotated twice takes the crowd's corner scale
         from the other frames too (:func:`corner_scales`); False: from its own annotations only
-    options : the model's options (:data:`~creference_bayes.pipeline.MODEL_OPTIONS`, for example
-        ``{"ground_sd_m": 0.08}``); a stored result is also compared by the ground prior it records
-        (:func:`~creference_bayes.pipeline.expected_ground`)
+
+    A stored result is also compared by the ground prior it records
+    (:func:`~creference_bayes.pipeline.expected_ground`).
     """
 
     seed: int = 0
-    model: str = DEFAULT_MODEL
-    preset: str = "default"
-    posterior: bool = True
-    hdi_prob: float = 0.9
-    temperature: float | None = None
-    use_references: bool = True
-    sampling: dict = field(default_factory=dict)
-    focal_prior: str = "auto"
-    orientation: str = "auto"
-    location_prior: str = "auto"
-    distance_range: tuple[float, float] | None = None
-    confidence_map: object = "default"
-    classes: dict = field(default_factory=dict)
     dataset: str = "auto"
     rig: str = "auto"
     pool_scale: bool = True
-    options: dict = field(default_factory=dict)
 
     def __post_init__(self):
         from ...inference.sampler import SamplerSettings
-        from ...pipeline import MODEL_OPTIONS, MODELS
         from .dataset import DATASET_CHOICES
         from .rig import RIG_CHOICES
 
+        super().__post_init__()  # the model, its options, the temperature: a ValueError naming each
         SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
         if self.distance_range is not None:
             from ...models.location_prior import LocationPrior
@@ -110,12 +91,6 @@ class BatchSettings:
             raise ValueError(f"dataset: expected one of {list(DATASET_CHOICES)}, got {self.dataset!r}")
         if self.rig not in RIG_CHOICES:
             raise ValueError(f"rig: expected one of {list(RIG_CHOICES)}, got {self.rig!r}")
-        if self.model not in MODELS:
-            raise ValueError(f"model: expected one of {list(MODELS)}, got {self.model!r}")
-        unknown = sorted(set(self.options) - set(MODEL_OPTIONS[self.model]))
-        if unknown:
-            raise ValueError(f"options: the {self.model} model has no option {unknown[0]!r} "
-                             f"(expected some of {list(MODEL_OPTIONS[self.model])})")
 
     def ground(self, n_objects: int) -> dict | None:
         """The ground prior a result of a scene of ``n_objects`` targets is made under (None: it
@@ -129,6 +104,9 @@ class BatchSettings:
         from ...io.result import RESULT_DRAWS
 
         d = asdict(replace(self, confidence_map=None, classes={}))
+        for key in ("restarts", "orientation_prior", "bounds"):  # the estimate's fields a batch leaves at None
+            if d[key] is None:
+                del d[key]
         d["sampling"] = dict(sorted(self.sampling.items()))
         d["confidence_map"] = self._map_identity()
         d["classes"] = {k: self.classes[k].to_dict() for k in sorted(self.classes)}
@@ -156,17 +134,6 @@ class BatchSettings:
         d = describe_confidence_map(resolve_confidence_map(self.confidence_map))
         d.pop("source", None)
         return d
-
-    def estimate_kwargs(self) -> dict:
-        """Keyword arguments of :func:`~creference_bayes.estimate`."""
-        return {"model": self.model, "preset": self.preset, "posterior": self.posterior,
-                "hdi_prob": self.hdi_prob, "temperature": self.temperature,
-                "use_references": self.use_references, "sampling": dict(self.sampling) or None,
-                "focal_prior": self.focal_prior, "orientation": self.orientation,
-                "location_prior": self.location_prior, "distance_range": self.distance_range,
-                "confidence_map": self.confidence_map,
-                "classes": dict(self.classes) or None, **self.options}
-
 
 @dataclass(frozen=True)
 class SceneInput:
@@ -492,7 +459,7 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
                 atomic_write_json(paths["scene"], scene_to_dict(scene))
             continue
         todo.append((si, {"scene": scene, "seed": derive_seed(settings.seed, fingerprint),
-                          "estimate": {**settings.estimate_kwargs(), **kwargs}, "rig": rig,
+                          "estimate": settings.estimate_settings().replace(**kwargs), "rig": rig,
                           "dataset": block or None, "ident": job_ident, "shared_scale": scale}))
     return todo
 

@@ -19,11 +19,11 @@ def run_scene(job: dict) -> dict:
     """Estimate one scene (runs in a worker: a local process or a Dask worker thread).
 
     ``job`` holds the ``scene`` (a :class:`~creference_bayes.io.scene.Scene`), its ``seed`` and the
-    settings' ``estimate`` keyword arguments. Never raises for a failed estimate: returns
+    settings' ``estimate`` (an :class:`~creference_bayes.pipeline.EstimateSettings`). Never raises for a failed estimate: returns
     ``{"ok": True, "result": …}`` or ``{"ok": False, "stage", "error", "traceback"}``.
     """
     try:
-        result = estimate(job["scene"], seed=job["seed"], **job["estimate"]).to_dict()
+        result = estimate(job["scene"], job["estimate"], seed=job["seed"]).to_dict()
         if job.get("shared_scale"):  # a held value's uncertainty, one scale the camera's frames share (dataset.py)
             share_scale(result, **job["shared_scale"])
         if job.get("rig"):  # the rig the frame's camera priors came from (rig.py)
