@@ -1,8 +1,7 @@
 """The arviz adapter: the posterior of any result as an ``arviz.InferenceData``, and its summary
 table. The only module that imports arviz.
 
-Layout of :func:`to_inference_data` (``chain`` is what the sampler ran independently: one of its
-ensembles for a scene of one object, one walker for a scene of several):
+Layout of :func:`to_inference_data` (``chain`` is one of the sampler's walkers, whatever its kernel):
 
 * ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
   ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,
