@@ -42,11 +42,10 @@ def test_sampler_started_in_both_modes_gets_their_weights_in_every_ensemble():
     settings = SamplerSettings(min_ess=400)
     with_modes = sample(_bimodal, _MU[0], 0.25 * np.eye(2), settings=settings, rng=3,
                         modes=[(_MU[1], np.eye(2))])
-    x = with_modes.draws[..., 0].reshape(4, -1)  # per group of walkers
+    share = np.mean(with_modes.draws[..., 0] > 4, axis=1)  # per chain: a group of walkers
     assert with_modes.converged
-    assert np.mean(x > 4, axis=1) == pytest.approx(np.full(4, 0.3), abs=0.06)
-    group = np.array(with_modes.info["mode_shares"][24:48])  # the second group's walkers
-    assert group[:, 1].mean() == pytest.approx(0.3, abs=0.06)
+    assert share == pytest.approx(np.full(4, 0.3), abs=0.06)
+    assert with_modes.info["mode_shares"][1][1] == pytest.approx(0.3, abs=0.06)
 
 
 def test_mixture_fit_recovers_the_components():
@@ -77,7 +76,7 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
     Seed 7 used to report [4.91, 5.40] m, converged, while the others found the far mode too. With
     the flat location prior the far modes hold about a quarter of the mass ([4.8, 12] m); with the
     log-depth prior (1/z) a few per cent, below what a 90 % HDI includes. Every seed agrees, and
-    most chains see the far mass. (With the flat prior, seed 7's search misses the near mode and
+    every chain sees the far mass. (With the flat prior, seed 7's search misses the near mode and
     runs to its step cap, reported as not converged: docs/inference.md, "Modes first".)"""
     hdis, far = [], []
     for seed in seeds:
@@ -89,13 +88,11 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
         far.append(np.mean(dist > 8, axis=1))
     lo, hi = np.array(hdis).T
     assert np.ptp(lo) < 0.1 and np.ptp(hi) < 1.0  # Monte Carlo error of the HDI's ends
-    far = np.array(far)  # (seed, chain): a chain is a walker, whose share scatters more than the pool's
-    pooled = far.mean(axis=1)
-    assert np.mean(far > 0) > 0.5  # most chains visit the far modes
+    far = np.array(far)  # (seed, chain): a chain is a group of walkers
     if location_prior == "flat":
-        assert lo.min() > 4.6 and hi.min() > 10.5 and np.all((pooled > 0.15) & (pooled < 0.4))
+        assert lo.min() > 4.6 and hi.min() > 10.5 and np.all((far > 0.15) & (far < 0.4))
     else:
-        assert lo.min() > 4.6 and 5.2 < hi.max() < 6.5 and np.all((pooled > 0.005) & (pooled < 0.12))
+        assert lo.min() > 4.6 and 5.2 < hi.max() < 6.5 and np.all((far > 0.005) & (far < 0.12))
 
 
 def test_r_hat_across_modes_catches_a_sampler_that_cannot_move_between_them(table_scene):

@@ -22,7 +22,7 @@ def gaussian(p):
 
 
 def _draws(chains):
-    return chains.draws  # (chain, draw, d): a chain per walker
+    return chains.draws  # (chain, draw, d): a chain per group of walkers, its walkers end to end
 
 
 def _ess(x):
@@ -327,7 +327,8 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     exact = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
                      rng.standard_normal((n, 5)))
     share = _in_lump(exact).mean()
-    tau = lambda c: emcee.autocorr.integrated_time(np.swapaxes(c.draws, 0, 1)[..., :1], quiet=True)[0]  # noqa: E731
+    per_walker = lambda c: c.draws.reshape(4 * 24, -1, 5)  # noqa: E731  (walker, step, d)
+    tau = lambda c: emcee.autocorr.integrated_time(np.swapaxes(per_walker(c), 0, 1)[..., :1], quiet=True)[0]  # noqa: E731
     taus = {}
     for k in (1, 3):
         taus[k] = []
@@ -400,9 +401,10 @@ def _scene_model(seed, **kw):
     return model, optimize(model), truth
 
 
-def test_the_kernel_follows_the_blocks_and_every_chain_is_a_walker():
+def test_the_kernel_follows_the_blocks_and_every_chain_is_an_independent_unit():
     """One object block is moved whole by the ensemble kernel, several by block sweeps. Either way
-    a chain is one walker (the draws have a chain per walker, the diagnostics say as many), ``lp``
+    a chain is one independent unit, a group of walkers or a walker (the draws have a chain per
+    unit, the diagnostics say as many), ``lp``
     is the log-density in working coordinates (the same function of the draws whatever the
     kernel), and the same seed gives the same draws."""
     from creference_bayes.inference.coords import WorkingCoords
@@ -410,11 +412,14 @@ def test_the_kernel_follows_the_blocks_and_every_chain_is_a_walker():
     from creference_bayes.inference.sampler import sample as sample_scene
 
     tiny = SamplerSettings(min_ess=50)
-    for m, chains in ((1, tiny.n_ensembles * tiny.n_walkers), (3, tiny.n_chains)):
+    for m, chains in ((1, tiny.n_ensembles), (3, tiny.n_chains)):
         model, est, _ = _scene_model(2, m=m, n_annotations=2, noise_px=2.0)
         a, da = sample_scene(model, est, settings=tiny, rng=4)
         b, _ = sample_scene(model, est, settings=tiny, rng=4)
         assert a.objects.shape[:3] == (chains, a.log_prob.shape[1], m) and da.n_chains == chains
+        dist, key = np.hypot(a.objects[..., 0, 0], a.objects[..., 0, 1]), f"{model.objects[0].id}.distance_m"
+        assert float(az.rhat(dist)) == pytest.approx(da.r_hat[key], abs=1e-9)  # over the draws' chains
+        assert float(az.ess(dist, method="bulk")) == pytest.approx(da.ess_bulk[key], rel=1e-9)
         np.testing.assert_array_equal(a.objects, b.objects)
         assert set(da.ess_bulk) == set(da.r_hat) and all(k.endswith(".distance_m") or "." in k for k in da.ess_bulk)
         fit = est.fitted(model)

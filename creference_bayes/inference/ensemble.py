@@ -3,8 +3,8 @@ coordinates learned during warm-up, with an independence proposal fitted to the 
 
 It knows nothing of cameras or boxes: it moves any vectorised ``log_prob((n, ndim)) → (n,)`` from
 a starting point and a covariance (the MAP and its Laplace approximation). :mod:`.sampler` runs it
-for a model of one object block (:func:`.coords.explored_whole`); its walkers are the
-chains of the one driver, which stops them by bulk ESS and rank R-hat as it stops every kernel
+for a model of one object block (:func:`.coords.explored_whole`); each group of its walkers is a
+chain of the one driver, which stops them by bulk ESS and rank R-hat as it stops every kernel
 (:func:`.sampler.run_chains`).
 
 How it moves (docs/method.md, "The sampler")
@@ -12,7 +12,8 @@ How it moves (docs/method.md, "The sampler")
 * **Groups.** ``n_ensembles`` groups of ``n_walkers`` walkers share one
   :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but a walker draws its
   partners only from its own group (:mod:`.moves`): the groups never exchange information, so
-  R-hat across the walkers also compares independent groups.
+  each is an independent chain and R-hat across them is meaningful (the walkers of one group are
+  not independent of each other).
 * **Start.** Group g's walkers are drawn from N(centre, cov) of mode g mod (number of modes), each
   group with its own generator (spawned from ``rng``); points of log-probability −∞ are redrawn.
 * **Warm-up.** In stages (``stage`` steps, later ones doubled) the kernel fits a map to the
@@ -58,7 +59,7 @@ class _SafeLogProb:
 
     def __init__(self, log_prob):
         self.log_prob = log_prob
-        self.nonfinite = self.calls = self.evaluations = 0
+        self.nonfinite = 0
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.atleast_2d(p)
@@ -68,8 +69,6 @@ class _SafeLogProb:
         if bad.any():
             self.nonfinite += int(np.sum(bad & ~np.isneginf(lp)))
             lp = np.where(bad, -np.inf, lp)
-        self.calls += 1
-        self.evaluations += len(p)
         return lp
 
 
@@ -224,7 +223,8 @@ def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
 
 class Ensemble:
     """The ensemble kernel (module docstring) on ``log_prob`` from ``center``: :meth:`tune` is its
-    warm-up, :meth:`run` its steps; ``n_chains`` walkers, each a chain of the driver.
+    warm-up, :meth:`run` its steps; ``n_chains`` groups of ``walkers`` walkers, each group a chain of
+    the driver.
 
     Parameters
     ----------
@@ -266,21 +266,19 @@ class Ensemble:
         self.rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
         self.fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
         self.coords = Coordinates.affine(center, cov, self.log_mask)
-        self.n_chains = s.n_ensembles * s.n_walkers
+        self.n_chains, self.walkers = s.n_ensembles, s.n_walkers
         self.moved: list = []
-        self.info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
-                           "reparametrised": False, "modes": len(starts)}
+        self.info: dict = {"warmup_stages": [], "reparametrised": False}
 
     def tune(self, bar) -> int:
         """The warm-up (module docstring); returns its steps."""
         self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.log_mask, self.pos, self.rstate,
                                                      self.s, self.info, bar, self.centers, self.fit_rng)
         self.sampler, self.state = _run(self.safe, self.coords, _moves(self.s, proposal), pos, rstate)
-        self.info["proposal_components"] = 0 if proposal is None else proposal.n_components
         return sum(self.info["warmup_stages"])
 
     def run(self, steps: int):
-        """Yield the walkers' parameters (n_chains, ndim) and log-density there after each of
+        """Yield the walkers' parameters (n_chains · walkers, ndim) and log-density there after each of
         ``steps`` steps."""
         for state in self.sampler.sample(self.state, iterations=steps, store=False, skip_initial_state_check=True):
             p = self.coords.inverse(state.coords)
@@ -301,7 +299,8 @@ class Ensemble:
 
 @dataclass(frozen=True)
 class Chains:
-    """What :func:`sample` returns: draws (chain, draw, ndim) (a chain per walker), their
+    """What :func:`sample` returns: draws (chain, draw, ndim) (a chain per group, its walkers end to
+    end), their
     log-density (chain, draw), steps of warm-up and of the main phase, the thinning, whether the
     stopping rule was met, its diagnostics and the kernel's ``info``."""
 
@@ -319,15 +318,15 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
            modes=None) -> Chains:
     """Sample ``log_prob`` by the ensemble kernel (:class:`Ensemble`, the same parameters) under
     the driver's stopping rule (:func:`.sampler.run_chains`: bulk ESS and rank R-hat of every
-    parameter over the walkers)."""
+    parameter over the groups)."""
     kernel = Ensemble(log_prob, center, cov, settings=settings, rng=rng, log_mask=log_mask, modes=modes)
     from .progress import progress_bar
 
     with progress_bar(False, 0) as bar:
         warm = kernel.tune(bar)
-        (p,), lp, it, thin, diag = run_chains(kernel, lambda x: (x,), lambda x: (np.swapaxes(x, 0, 1), [
+        (p,), lp, it, thin, diag = run_chains(kernel, lambda x: (x,), lambda x: (x, [
             f"x[{k}]" for k in range(x.shape[-1])]), kernel.s, bar)
-    kernel.info.update(nonfinite=kernel.safe.nonfinite, log_prob_calls=kernel.safe.calls)
+    kernel.info["nonfinite"] = kernel.safe.nonfinite
     if kernel.centers is not None:  # the share of each chain's draws nearest each mode
         near = kernel.nearest_mode(p)
         kernel.info["mode_shares"] = [[float(np.mean(near[c] == k)) for k in range(len(kernel.centers))]
@@ -362,8 +361,6 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         stage = done
         n_warm += stage
         info["warmup_stages"].append(stage)
-        info["warmup_acceptance"].append(float(np.mean(sampler.acceptance_fraction)))
-        info["warmup_independence_acceptance"].append(indep)
         bar.update(stage)
         if not s.adapt:
             break

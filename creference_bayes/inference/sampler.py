@@ -3,7 +3,8 @@
 The emcee adapter (docs/method.md, "The sampler"). One driver runs every scene (as PyMC's
 ``CompoundStep`` and numpyro's ``HMCGibbs`` run their step methods): a start from the Laplace
 approximation at the MAP, a search for other modes, one warm-up in which each kernel tunes itself,
-and one main phase with one stopping rule, whose chains are the walkers of every kernel. What
+and one main phase with one stopping rule, in which a chain is one independent unit of any kernel:
+a group of the ensemble kernel's walkers (laid end to end), a walker of the block sweeps. What
 moves the walkers follows what the model declares, never the kind of scene:
 
 * **One object block** (:func:`.coords.explored_whole`: the camera pinned by one object alone,
@@ -12,7 +13,7 @@ moves the walkers follows what the model declares, never the kind of scene:
   independence proposal, in coordinates learned during warm-up), with pitch replaced by the log of
   the first object's distance below the horizon (:class:`.coords.HorizonDistance`); its modes are
   searched whole first (:func:`.modes.find_modes`: each a component of the independence proposal
-  and the start of some walkers' groups).
+  and the start of some walkers' groups). Each group is a chain.
 * **Otherwise** block sweeps (:mod:`.moves`) over the camera block and one block per object, by
   random-walk and multiple-try independence proposals, each walker an independent chain; working
   coordinates (:mod:`.coords`) in which each object is measured from its conditional mean given
@@ -26,7 +27,8 @@ moves the walkers follows what the model declares, never the kind of scene:
 
 **Stopping** (:func:`run_chains`, every kernel): the main phase runs in chunks until the bulk ESS
 of every free parameter and every object's distance reaches ``min_ess`` and its rank-normalised
-split R-hat over the chains is at most ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The
+split R-hat over the chains (the independent units) is at most ``max_rhat`` (:mod:`.diagnostics`),
+or ``max_steps``. The
 ranked check runs only when the raw split R-hat is within 3× of the threshold; the rule that
 decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
 kernel, and the diagnostics have one shape.
@@ -65,15 +67,15 @@ class SamplerSettings:
         min_ess : bulk effective sample size every free parameter (and every object's distance)
             must reach;  max_rhat : largest rank-normalised split R-hat over the chains accepted;
             max_steps : cap on main-phase steps (the result then says it has not converged);
-            chunk : steps between convergence checks (at least);  max_draws : draws kept per
-            chain (older ones thinned when exceeded);  tries : tries per independence proposal
+            chunk : steps between convergence checks (at least);  max_draws : steps kept per
+            walker (older ones thinned when exceeded);  tries : tries per independence proposal
             (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps that
             are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
             mode_search : look for other modes before sampling (:mod:`.modes`)
     Block sweeps
         n_chains : walkers, each an independent chain;  warmup : warm-up steps
     Ensemble kernel (one object block; :mod:`.ensemble`)
-        n_ensembles, n_walkers : groups and the walkers of each (every walker a chain);  stage :
+        n_ensembles, n_walkers : groups (each a chain) and the walkers of each;  stage :
         the first warm-up stage's length (later ones double);  max_warmup : cap on warm-up
         steps;  adapt : fit the straightening map and the independence proposal during warm-up;
         min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
@@ -297,25 +299,28 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     warn = [] if diag["ok"] else [f"not converged after {it} steps: " + "; ".join(diag["why"])]
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
-    info = {"laplace_positive_definite": bool(start[-1]), **kernel.report(draws)}
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              _acceptance(*kernel.acceptance()), diag["ok"], tuple(warn), time.perf_counter() - t0, info)
+                              _acceptance(*kernel.acceptance()), diag["ok"], tuple(warn), time.perf_counter() - t0,
+                              kernel.report(draws))
 
 
 def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
     """The main phase of every kernel, to the one stopping rule (module docstring).
 
-    ``kernel.run(steps)`` yields each step's states of its ``kernel.n_chains`` chains (C, …) and
-    their log-densities (C,); every ``thin``-th step is kept (``thin`` doubles whenever more than
-    2 · ``max_draws`` are kept), ``convert`` turns each chunk's kept states (n, C, …) into a tuple
-    of arrays (n, C, …) and ``columns`` those arrays (all kept so far) into the checked quantities
-    (C, n, k) and their names. The first check comes after ``chunk`` steps or once the chains hold
+    ``kernel.run(steps)`` yields each step's states of its walkers (S, …), ``kernel.walkers`` to
+    each of its ``kernel.n_chains`` independent chains and a chain's walkers consecutive, and
+    their log-densities (S,); every ``thin``-th step is kept (``thin`` doubles whenever more than
+    2 · ``max_draws`` steps are kept). ``convert`` turns each chunk's kept states (n, S, …) into a
+    tuple of arrays (n, S, …); :func:`_by_chain` lays each chain's walkers end to end, and
+    ``columns`` turns those arrays (C, walkers · n, …) into the checked quantities (C, N, k) and
+    their names. The first check comes after ``chunk`` steps or once the walkers hold
     64 · ``chunk`` draws, whichever is later; later chunks aim at the length the ESS and R-hat
-    found ask for, at most doubling the run. Returns the kept arrays (C, n, …), their
-    log-densities (C, n), the steps run, the thinning and the last check (:func:`_diagnose`).
+    found ask for, at most doubling the run. Returns the kept arrays (C, N, …) and log-densities
+    (C, N) by chain, the steps run, the thinning and the last check (:func:`_diagnose`).
     """
     arrays, lps, thin, it, diag = None, None, 1, 0, None
-    first = max(s.chunk, -(-64 * s.chunk // kernel.n_chains))
+    w = kernel.walkers
+    first = max(s.chunk, -(-64 * s.chunk // (kernel.n_chains * w)))
     chunk = first
     while it < s.max_steps:
         chunk = min(chunk, s.max_steps - it)
@@ -332,7 +337,7 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             lps = np.array(ls) if lps is None else np.concatenate([lps, ls])
         while len(lps) >= 2 * s.max_draws:
             arrays, lps, thin = tuple(a[1::2] for a in arrays), lps[1::2], 2 * thin
-        arr, names = columns(*arrays)
+        arr, names = columns(*(_by_chain(a, w) for a in arrays))
         with np.errstate(all="ignore"):  # a cheap look first (module docstring)
             raw = float(np.nanmax(np.append(rhat_split_raw(arr), 1.0)))
         need = it * (raw - 1.0) / (3.0 * (s.max_rhat - 1.0)) if s.max_rhat > 1.0 else it
@@ -344,7 +349,14 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             if diag["max_rhat"] > s.max_rhat:
                 need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
         chunk = int(np.clip(1.2 * need - it, first, 2 * it))
-    return tuple(np.swapaxes(a, 0, 1) for a in arrays), lps.T, it, thin, diag
+    return tuple(_by_chain(a, w) for a in arrays), _by_chain(lps, w), it, thin, diag
+
+
+def _by_chain(a: np.ndarray, walkers: int) -> np.ndarray:
+    """Kept steps of the walkers (n, S, …) as chains (S / walkers, walkers · n, …): each chain's
+    walkers' draws laid end to end, walker after walker."""
+    n, S = a.shape[:2]
+    return np.swapaxes(a, 0, 1).reshape((S // walkers, walkers * n) + a.shape[2:])
 
 
 def _interior(lower: np.ndarray, upper: np.ndarray, v: np.ndarray, margin: float = 1e-7) -> np.ndarray:
@@ -372,7 +384,7 @@ class _Blocks:
         wc0, wo0, Sc, Ao, B, _ = self.start = start
         self.model, self.s, self.T = model, s, temperature
         m, C = model.n_objects, s.n_chains
-        self.n_chains = C
+        self.n_chains, self.walkers = C, 1
         of = model.object_free
         Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
         dc = 1.2 * rng.standard_normal((C, 5)) @ _chol(Sc, model.camera_free).T
@@ -501,7 +513,7 @@ class _Whole:
         self.modes = modes
         self.kernel = Ensemble(log_prob, center, cov, settings=s, rng=rng,
                                modes=[(m.center, m.cov) for m in modes[1:]])
-        self.n_chains = self.kernel.n_chains
+        self.n_chains, self.walkers = self.kernel.n_chains, self.kernel.walkers
 
     def tune(self, bar) -> int:
         return self.kernel.tune(bar)
@@ -519,7 +531,7 @@ class _Whole:
 
     def report(self, draws: Draws) -> dict:
         """The modes found (:func:`_mode_report`) and a mode denser than the MAP's."""
-        info = {k: v for k, v in self.kernel.info.items() if k in ("warmup_stages", "modes", "proposal_components")}
+        info = {}
         if len(self.modes) > 1:
             C, N = draws.cameras.shape[:2]
             wc, wo = WorkingCoords(self.model).to_work(draws.cameras.reshape(-1, 5),
@@ -627,8 +639,6 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
     """The quantities checked: every free parameter (yaw unwrapped around the MAP) and each
     object's ground distance, as (chain, draw, k), with their names."""
     cols, names = [], []
-    cams = np.transpose(cams, (1, 0, 2))  # (chain, draw, 5)
-    objs = np.transpose(objs, (1, 0, 2, 3))
     for j in np.flatnonzero(model.camera_free):
         cols.append(cams[..., j])
         names.append(f"camera.{CAMERA_NAMES[j]}")

@@ -1,7 +1,8 @@
 """The arviz adapter: the posterior of any result as an ``arviz.InferenceData``, and its summary
 table. The only module that imports arviz.
 
-Layout of :func:`to_inference_data` (``chain`` is one of the sampler's walkers, whatever its kernel):
+Layout of :func:`to_inference_data` (``chain`` is one independent unit of the sampler: a group of
+walkers of the ensemble kernel, laid end to end, or one walker of the block sweeps):
 
 * ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
   ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,
