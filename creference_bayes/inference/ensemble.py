@@ -300,9 +300,8 @@ class Ensemble:
 @dataclass(frozen=True)
 class Chains:
     """What :func:`sample` returns: draws (chain, draw, ndim) (a chain per group, its walkers end to
-    end), their
-    log-density (chain, draw), steps of warm-up and of the main phase, the thinning, whether the
-    stopping rule was met, its diagnostics and the kernel's ``info``."""
+    end), their log-density (chain, draw), steps of warm-up and of the main phase, the thinning,
+    whether the stopping rule was met, its diagnostics and the kernel's ``info``."""
 
     draws: np.ndarray
     log_prob: np.ndarray

@@ -28,9 +28,8 @@ moves the walkers follows what the model declares, never the kind of scene:
 **Stopping** (:func:`run_chains`, every kernel): the main phase runs in chunks until the bulk ESS
 of every free parameter and every object's distance reaches ``min_ess`` and its rank-normalised
 split R-hat over the chains (the independent units) is at most ``max_rhat`` (:mod:`.diagnostics`),
-or ``max_steps``. The
-ranked check runs only when the raw split R-hat is within 3× of the threshold; the rule that
-decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
+or ``max_steps``. The ranked check runs only when the raw split R-hat is within 3× of the
+threshold; the rule that decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
 kernel, and the diagnostics have one shape.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
