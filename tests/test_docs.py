@@ -317,7 +317,7 @@ def labelled(tmp_path_factory):
     (root / "scenes").mkdir()
     (root / "one" / "scene_0000.json").rename(root / "scenes" / "scene_0000.json")
     (root / "street" / "scene_0000.json").rename(root / "scenes" / "scene_0001.json")
-    settings = BatchSettings(seed=3, sampling={"n_walkers": 24, "tau_multiple": 20, "min_ess": 100,
+    settings = BatchSettings(seed=3, sampling={"n_walkers": 24, "min_ess": 100,
                                                "n_chains": 4, "warmup": 100, "max_steps": 400})
     report = run_batch([root / "scenes"], root / "batch", LocalEngine(1), settings)
     assert report.ok, report.errors

@@ -42,7 +42,7 @@ def test_sampler_started_in_both_modes_gets_their_weights_in_every_ensemble():
     settings = SamplerSettings(min_ess=400)
     with_modes = sample(_bimodal, _MU[0], 0.25 * np.eye(2), settings=settings, rng=3,
                         modes=[(_MU[1], np.eye(2))])
-    share = np.mean(with_modes.draws()[..., 0] > 4, axis=1)  # per ensemble
+    share = np.mean(with_modes.draws[..., 0] > 4, axis=1)  # per chain: a group of walkers
     assert with_modes.converged
     assert share == pytest.approx(np.full(4, 0.3), abs=0.06)
     assert with_modes.info["mode_shares"][1][1] == pytest.approx(0.3, abs=0.06)
@@ -88,7 +88,7 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
         far.append(np.mean(dist > 8, axis=1))
     lo, hi = np.array(hdis).T
     assert np.ptp(lo) < 0.1 and np.ptp(hi) < 1.0  # Monte Carlo error of the HDI's ends
-    far = np.array(far)
+    far = np.array(far)  # (seed, chain): a chain is a group of walkers
     if location_prior == "flat":
         assert lo.min() > 4.6 and hi.min() > 10.5 and np.all((far > 0.15) & (far < 0.4))
     else:

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.inference.ensemble import integrated_time
 from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
 from creference_bayes.inference.ensemble import SamplingError, sample
 from creference_bayes.inference.sampler import SamplerSettings
@@ -23,7 +22,7 @@ def gaussian(p):
 
 
 def _draws(chains):
-    return chains.draws()  # (n_ens, n_draws, d)
+    return chains.draws  # (chain, draw, d): a chain per group of walkers, its walkers end to end
 
 
 def _ess(x):
@@ -77,13 +76,13 @@ def test_recovers_a_curved_banana():
 
 
 def test_same_seed_same_draws():
-    settings = SamplerSettings(min_ess=100, tau_multiple=10, stage=20, max_steps=200)
+    settings = SamplerSettings(min_ess=100, stage=20, max_steps=200)
     a = sample(gaussian, MEAN, COV, rng=7, settings=settings)
     b = sample(gaussian, MEAN, COV, rng=7, settings=settings)
     c = sample(gaussian, MEAN, COV, rng=8, settings=settings)
-    assert np.array_equal(a.chain, b.chain)
+    assert np.array_equal(a.draws, b.draws)
     assert np.array_equal(a.log_prob, b.log_prob)
-    assert not np.array_equal(a.chain[-1], c.chain[-1])
+    assert not np.array_equal(a.draws[:, -1], c.draws[:, -1])
 
 
 def test_nan_and_inf_log_prob_are_zero_density():
@@ -159,20 +158,6 @@ def test_grouped_moves_use_only_their_own_ensemble(move):
     assert near0.sum() == near1000.sum() == 16
 
 
-def test_integrated_time_matches_emcee_and_ar1():
-    """The vectorised estimator equals emcee's, and τ of an AR(1) chain is (1 + φ)/(1 − φ)."""
-    rng = np.random.default_rng(5)
-    phi, n = 0.8, 20000
-    x = np.zeros((n, 8, 2))
-    e = rng.standard_normal((n, 8, 2))
-    for t in range(1, n):
-        x[t] = phi * x[t - 1] + e[t]
-    ours = integrated_time(x)
-    theirs = emcee.autocorr.integrated_time(x, quiet=True)
-    np.testing.assert_allclose(ours, theirs, rtol=1e-8)
-    np.testing.assert_allclose(ours, (1 + phi) / (1 - phi), rtol=0.1)
-
-
 def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
     """u ↔ p round-trips, and log |∂p/∂u| (central differences) is Σ log p over the log
     coordinates plus one constant: the shear adds no density term."""
@@ -242,18 +227,6 @@ def test_warm_up_compares_a_stage_with_the_sample_its_map_was_fitted_to():
     assert not _stable(wide, reference=_location_spread(fitted))
 
 
-def test_integrated_time_of_a_walker_that_never_moved_is_one():
-    """A constant column (a derived roll that µ does not change) has τ = 1, not the chain's
-    length: its mean differs from its value in the last bit (0.1 over 300 steps: 5e-16), and
-    that residue used to read as perfect correlation, holding a converged run to the step cap."""
-    rng = np.random.default_rng(0)
-    x = np.stack([np.full((300, 32), 0.1), rng.standard_normal((300, 32))], axis=-1)
-    assert (x[:, :, 0] - x[:, :, 0].mean(axis=0))[0, 0] != 0.0  # the residue is there
-    tau = integrated_time(x)
-    assert tau[0] == 1.0
-    assert tau[1] == pytest.approx(1.0, abs=0.3)
-
-
 @pytest.mark.parametrize("tries", [1, 4])
 def test_the_multiple_try_independence_move_keeps_its_target(tries):
     """Walkers started from exact Gamma(3) draws stay Gamma(3)-distributed under the
@@ -299,7 +272,7 @@ def test_a_warm_up_stage_already_whitened_ends_early():
     stages = chains.info["warmup_stages"]
     assert 2 * settings.stage <= stages[-1] <= stages[-2], stages  # scheduled 2 · stages[-2], cut
     assert chains.converged
-    draws = chains.chain[chains.burn_in:].reshape(-1, 5)
+    draws = chains.draws.reshape(-1, 5)
     assert np.allclose(draws.var(axis=0), np.diag(C), rtol=0.15)
     assert np.allclose(draws.mean(axis=0), 0.0, atol=0.1 * np.sqrt(np.diag(C)))
 
@@ -354,17 +327,18 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     exact = np.where(lump[:, None], LUMP_MEAN + LUMP_SD * rng.standard_normal((n, 5)),
                      rng.standard_normal((n, 5)))
     share = _in_lump(exact).mean()
+    per_walker = lambda c: c.draws.reshape(4 * 24, -1, 5)  # noqa: E731  (walker, step, d)
+    tau = lambda c: emcee.autocorr.integrated_time(np.swapaxes(per_walker(c), 0, 1)[..., :1], quiet=True)[0]  # noqa: E731
     taus = {}
     for k in (1, 3):
         taus[k] = []
         for seed in range(36):
-            chains = sample(_lumpy, np.zeros(5), 0.01 * np.eye(5), rng=seed,
-                            settings=SamplerSettings(min_ess=400, proposal_components=k))
-            assert chains.converged
-            taus[k].append(chains.autocorr_time[0])
+            chains = sample(_lumpy, np.zeros(5), 0.01 * np.eye(5), rng=seed,  # the same 400 steps each
+                            settings=SamplerSettings(min_ess=1e9, max_steps=400, proposal_components=k))
+            taus[k].append(tau(chains))
             if k == 3:
-                x = chains.chain[chains.burn_in:].reshape(-1, 5)
-                ess = x.shape[0] / chains.autocorr_time[0]
+                x = chains.draws.reshape(-1, 5)
+                ess = x.shape[0] / taus[k][-1]
                 assert abs(_in_lump(x).mean() - share) < 4 * np.sqrt(share * (1 - share) / ess)
     assert np.mean(np.log(taus[3])) < np.mean(np.log(taus[1])), taus
 
@@ -427,9 +401,14 @@ def _scene_model(seed, **kw):
     return model, optimize(model), truth
 
 
-def test_the_move_set_follows_the_block_structure():
-    """One object block: the whole vector by ensemble moves (4 ensembles as chains); several: block
-    sweeps (each walker a chain). Either way the same seed gives the same draws."""
+def test_the_kernel_follows_the_blocks_and_every_chain_is_an_independent_unit():
+    """One object block is moved whole by the ensemble kernel, several by block sweeps. Either way
+    a chain is one independent unit, a group of walkers or a walker (the draws have a chain per
+    unit, the diagnostics say as many), ``lp``
+    is the log-density in working coordinates (the same function of the draws whatever the
+    kernel), and the same seed gives the same draws."""
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.moves import BlockTarget
     from creference_bayes.inference.sampler import sample as sample_scene
 
     tiny = SamplerSettings(min_ess=50)
@@ -437,9 +416,18 @@ def test_the_move_set_follows_the_block_structure():
         model, est, _ = _scene_model(2, m=m, n_annotations=2, noise_px=2.0)
         a, da = sample_scene(model, est, settings=tiny, rng=4)
         b, _ = sample_scene(model, est, settings=tiny, rng=4)
-        assert a.objects.shape[0] == chains and a.objects.shape[2] == m
+        assert a.objects.shape[:3] == (chains, a.log_prob.shape[1], m) and da.n_chains == chains
+        dist, key = np.hypot(a.objects[..., 0, 0], a.objects[..., 0, 1]), f"{model.objects[0].id}.distance_m"
+        assert float(az.rhat(dist)) == pytest.approx(da.r_hat[key], abs=1e-9)  # over the draws' chains
+        assert float(az.ess(dist, method="bulk")) == pytest.approx(da.ess_bulk[key], rel=1e-9)
         np.testing.assert_array_equal(a.objects, b.objects)
         assert set(da.ess_bulk) == set(da.r_hat) and all(k.endswith(".distance_m") or "." in k for k in da.ess_bulk)
+        fit = est.fitted(model)
+        coords = WorkingCoords(fit)
+        wc0, wo0 = (x[0] for x in coords.to_work(est.camera[None], est.objects[None]))
+        target = BlockTarget(fit, 1.0, wc0, np.zeros((m, 7, 5)), wo0)
+        wc, wo = coords.to_work(a.cameras[:, -5:].reshape(-1, 5), a.objects[:, -5:].reshape(-1, m, 7))
+        np.testing.assert_allclose(a.log_prob[:, -5:].ravel(), target(target.join(wc, wo)), rtol=1e-7, atol=1e-7)
 
 
 def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_is_gaussian():

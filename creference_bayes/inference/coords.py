@@ -27,11 +27,21 @@ import numpy as np
 from ..core.geometry import rotation_from_pitch_roll
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Model
 
-__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS"]
+__all__ = ["CAMERA_LOG", "WorkingCoords", "HorizonDistance", "FD_STEPS", "explored_whole"]
 
 CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
+def explored_whole(model: Model) -> bool:
+    """Whether the model's free parameters form the camera block and at most one object block, so
+    that its posterior is explored whole: its optimiser refines both handednesses from the start
+    and its sampler moves the whole vector (at most 12 parameters) by the ensemble kernel. Block
+    sweeps pay where the object blocks are nearly independent given a camera that many of them
+    pin; with one object block the camera is pinned by that object alone (weakly identified), the
+    two blocks pin each other along curved ridges, and only moves of the whole vector follow them.
+    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 10× the
+    block sweeps' CPU time: docs/studies/sampler.md.)"""
+    return int(np.any(model.object_free, axis=1).sum()) <= 1
 
 
 class WorkingCoords:
@@ -105,7 +115,7 @@ class WorkingCoords:
 
 
 class HorizonDistance:
-    """Flat working coordinates of a one-object scene ↔ the same with pitch replaced by log D.
+    """Flat working coordinates of a scene ↔ the same with pitch replaced by log D of its first object.
 
     When pitch is free, a far object's posterior lies along a curved ridge: its depth, the camera
     height, the focal length and the pitch trade against each other through the object's distance
@@ -127,10 +137,10 @@ class HorizonDistance:
 
     @classmethod
     def of(cls, model: Model) -> "HorizonDistance | None":
-        """The coordinates for a one-object model whose pitch and roll are free, else None (flat
-        layout: the free camera coordinates, then the object's u, v, …)."""
+        """The coordinates for a model whose pitch and roll are free, else None (flat layout: the
+        free camera coordinates, then the first object's u, v, …)."""
         cf = model.camera_free
-        if model.n_objects != 1 or not (cf[C_PITCH] and cf[C_ROLL]):
+        if not (cf[C_PITCH] and cf[C_ROLL]):
             return None
         pos = np.cumsum(cf) - 1
         kc = int(cf.sum())

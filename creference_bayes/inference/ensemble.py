@@ -1,40 +1,37 @@
-"""Sampling a log-posterior with emcee: several independent ensembles, seeded, run to convergence.
+"""The ensemble kernel: emcee's differential-evolution and stretch moves over a whole vector, in
+coordinates learned during warm-up, with an independence proposal fitted to the walkers.
 
-The emcee adapter. It knows nothing of cameras or boxes: it samples any vectorised
-``log_prob((n, ndim)) → (n,)`` from a starting point and a covariance (the MAP and its Laplace
-approximation). :mod:`.sampler` uses it for a scene with one object block.
+It knows nothing of cameras or boxes: it moves any vectorised ``log_prob((n, ndim)) → (n,)`` from
+a starting point and a covariance (the MAP and its Laplace approximation). :mod:`.sampler` runs it
+for a model of one object block (:func:`.coords.explored_whole`); each group of its walkers is a
+chain of the one driver, which stops them by bulk ESS and rank R-hat as it stops every kernel
+(:func:`.sampler.run_chains`).
 
-How it samples (docs/inference.md, "One object: the whole vector by ensemble moves")
+How it moves (docs/method.md, "The sampler")
 --------------
-* **Independent ensembles.** ``n_ensembles`` ensembles of ``n_walkers`` walkers share one
-  :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but their moves
-  (:mod:`.moves`) draw partners only from the walker's own ensemble, so each ensemble is an
-  independent Markov chain and R-hat across them is meaningful.
-* **Start.** Each ensemble's walkers are drawn from N(centre, cov) with its own generator
-  (spawned from ``rng``); points of log-probability −∞ are redrawn.
-* **Warm-up.** In stages (``stage`` steps, later ones doubled) the sampler fits a map to the
+* **Groups.** ``n_ensembles`` groups of ``n_walkers`` walkers share one
+  :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but a walker draws its
+  partners only from its own group (:mod:`.moves`): the groups never exchange information, so
+  each is an independent chain and R-hat across them is meaningful (the walkers of one group are
+  not independent of each other).
+* **Start.** Group g's walkers are drawn from N(centre, cov) of mode g mod (number of modes), each
+  group with its own generator (spawned from ``rng``); points of log-probability −∞ are redrawn.
+* **Warm-up.** In stages (``stage`` steps, later ones doubled) the kernel fits a map to the
   walkers (:class:`~.reparam.Coordinates`: logarithms, a whitening and a unit-Jacobian shear that
   straightens curved ridges) and an independence proposal (:func:`_fit_proposal`), until a stage
   run in the map fitted before it looks like the sample the map was fitted to (:func:`_stable`)
-  and the proposal is accepted often enough. A stage is judged every ``chunk`` steps on the
-  second half of what it has run, and ends once it passes after 2 · ``stage`` steps. Warm-up
-  draws are discarded; the map and the proposal are then frozen. A first main chunk with a large
-  τ becomes one more warm-up stage (at most ``max_retunes`` times).
-* **Main phase.** The independence proposal (:class:`~.moves.IndependenceMove`, ``tries``
-  proposals per walker by multiple-try Metropolis) on 80 % of steps, the grouped
-  differential-evolution and stretch moves on the rest. It runs in chunks until the chain after
-  burn-in is ``tau_multiple`` autocorrelation times long, τ has settled (within
-  ``tau_tolerance``), the estimated bulk ESS reaches ``min_ess`` and the rank-normalised split
-  R-hat across the ensembles is at most ``max_rhat``, or ``max_steps``. Burn-in is 2·max τ and
-  thinning ½·min τ (emcee's advice).
-* **Seeding.** Everything random comes from ``rng``: the same seed gives identical draws.
+  and the proposal is accepted often enough (or ``max_warmup``). A stage is judged every
+  ``chunk`` steps on the second half of what it has run, and ends once it passes after
+  2 · ``stage`` steps. The map and the proposal are then frozen.
+* **Moves.** The independence proposal (:class:`~.moves.IndependenceMove`, ``tries`` proposals
+  per walker by multiple-try Metropolis, a component per mode) on 80 % of steps, the grouped
+  differential-evolution and stretch moves on the rest.
 * **Robustness.** A log-probability of NaN or ±∞ is taken as −∞ (the state is rejected) and
-  counted in ``Chains.info["nonfinite"]``.
+  counted in ``info["nonfinite"]``.
 """
 
 from __future__ import annotations
 
-import time
 import warnings
 from dataclasses import dataclass, field
 
@@ -42,13 +39,12 @@ import emcee
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from .diagnostics import rhat_rank
 from .modes import fit_mixture
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
-from .sampler import SamplerSettings
+from .sampler import SamplerSettings, SamplingError, run_chains
 
-__all__ = ["Chains", "SamplingError", "sample", "explore", "integrated_time"]
+__all__ = ["Ensemble", "Chains", "sample", "explore"]
 
 
 #: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
@@ -58,114 +54,12 @@ MIXTURE_POINTS = 3000
 DEFENSIVE_WEIGHT = 0.2
 
 
-class SamplingError(RuntimeError):
-    """The sampler cannot start (for example, the starting point has zero density)."""
-
-
-def integrated_time(x: np.ndarray, c: float = 5.0) -> np.ndarray:
-    """Integrated autocorrelation time τ of an ensemble chain.
-
-    The estimator of :func:`emcee.autocorr.integrated_time`: each walker's normalised
-    autocorrelation function, averaged over walkers, summed up to Sokal's window (the first lag M
-    with M ≥ c·τ(M)). Computed for all walkers and parameters with one real FFT instead of one
-    complex FFT per walker and parameter.
-
-    Parameters
-    ----------
-    x : (n_steps, n_walkers, ndim) or (n_steps, n_walkers)
-    c : window constant
-
-    Returns
-    -------
-    (ndim,) array, or a float for 2-D input; steps. A walker that never moved contributes no
-    correlation beyond lag 0.
-    """
-    x = np.asarray(x, float)
-    scalar = x.ndim == 2
-    if scalar:
-        x = x[..., None]
-    if x.ndim != 3 or x.shape[0] < 2:
-        raise ValueError(f"integrated_time: expected (n_steps ≥ 2, n_walkers[, ndim]), got {x.shape}")
-    n = x.shape[0]
-    n_fft = 1 << int(np.ceil(np.log2(2 * n)))
-    # a walker that never moved (or moved by rounding only: a derived roll that is constant in
-    # exact arithmetic) is exactly zero after centring; its mean can differ from its value in the
-    # last bit, and that constant residue would read as perfect correlation
-    still = np.ptp(x, axis=0) <= 1e-9 * np.maximum(1.0, np.max(np.abs(x), axis=0))
-    centred = np.where(still, 0.0, x - x.mean(axis=0))
-    f = np.fft.rfft(centred, n=n_fft, axis=0)
-    acf = np.fft.irfft(f.real**2 + f.imag**2, n=n_fft, axis=0)[:n]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        acf = acf / acf[0]
-    acf = np.where(np.isfinite(acf), acf, 0.0)
-    acf[0] = 1.0
-    rho = acf.mean(axis=1)  # (n, ndim)
-    taus = 2.0 * np.cumsum(rho, axis=0) - 1.0
-    inside = np.arange(n)[:, None] < c * taus
-    window = np.where(inside.all(axis=0), n - 1, np.argmin(inside, axis=0))
-    tau = taus[window, np.arange(taus.shape[1])]
-    return float(tau[0]) if scalar else tau
-
-
-@dataclass(frozen=True)
-class Chains:
-    """The main phase of a run.
-
-    Attributes
-    ----------
-    chain : (n_steps, n_ensembles, n_walkers, ndim) positions, in the parameters of ``log_prob``
-    log_prob : (n_steps, n_ensembles, n_walkers)
-    burn_in, thin : steps discarded at the start, and the thinning of what is kept
-    autocorr_time : (ndim,) integrated autocorrelation time, steps (after burn-in)
-    acceptance_fraction : (n_ensembles, n_walkers) over the main phase
-    warmup_steps : steps of the discarded warm-up
-    converged : the length and ESS criteria were met before ``max_steps``
-    seconds : wall time of the whole run
-    info : what happened (plain dict): reasons it stopped, non-finite values seen, moves, …
-    """
-
-    chain: np.ndarray
-    log_prob: np.ndarray
-    burn_in: int
-    thin: int
-    autocorr_time: np.ndarray
-    acceptance_fraction: np.ndarray
-    warmup_steps: int
-    converged: bool
-    seconds: float
-    info: dict = field(default_factory=dict)
-
-    @property
-    def n_steps(self) -> int:
-        return self.chain.shape[0]
-
-    @property
-    def n_ensembles(self) -> int:
-        return self.chain.shape[1]
-
-    @property
-    def n_walkers(self) -> int:
-        """Walkers per ensemble."""
-        return self.chain.shape[2]
-
-    def draws(self, values: np.ndarray | None = None) -> np.ndarray:
-        """Post-burn-in, thinned draws per ensemble, walker-major: (n_ensembles, n_walkers · n_kept,
-        ...).
-
-        Each walker's kept steps are contiguous, so the order along the draw axis is a
-        concatenation of walker chains (what autocorrelation-based ESS estimates expect).
-        """
-        v = self.chain if values is None else values
-        k = np.moveaxis(v[self.burn_in::self.thin], 0, 2)  # kept: (n_ens, n_walk, n_kept, ...)
-        return k.reshape(k.shape[0], k.shape[1] * k.shape[2], *k.shape[3:])
-
-
 class _SafeLogProb:
     """Wraps a vectorised log-probability: NaN and ±∞ become −∞, and are counted."""
 
     def __init__(self, log_prob):
         self.log_prob = log_prob
-        self.nonfinite = self.calls = self.evaluations = 0
+        self.nonfinite = 0
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         p = np.atleast_2d(p)
@@ -175,8 +69,6 @@ class _SafeLogProb:
         if bad.any():
             self.nonfinite += int(np.sum(bad & ~np.isneginf(lp)))
             lp = np.where(bad, -np.inf, lp)
-        self.calls += 1
-        self.evaluations += len(p)
         return lp
 
 
@@ -329,102 +221,116 @@ def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
                 and np.all((ratio > 1 / sd_max) & (ratio < sd_max)))
 
 
-def _burn_and_tau(chain: np.ndarray, burn_prev: int | None) -> tuple[int, np.ndarray]:
-    """Burn-in (2·max τ, at most half the chain) and τ after it; chain (n, walkers, d).
-
-    τ is estimated after the previous check's burn-in (one FFT pass per check); on the first
-    check, from the whole chain and then again after the burn-in it implies.
-    """
-    n = chain.shape[0]
-    if n < 4:
-        return 0, integrated_time(chain) if n >= 2 else np.ones(chain.shape[2])
-    if burn_prev is None:
-        burn_prev = int(np.ceil(2.0 * np.max(integrated_time(chain))))
-    tau = integrated_time(chain[min(burn_prev, n // 2):])
-    return min(int(np.ceil(2.0 * np.max(tau))), n // 2), tau
-
-
-def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
-           log_mask=None, progress: bool = False, modes=None, derived=None) -> Chains:
-    """Sample ``log_prob`` with independent emcee ensembles until converged (module docstring).
+class Ensemble:
+    """The ensemble kernel (module docstring) on ``log_prob`` from ``center``: :meth:`tune` is its
+    warm-up, :meth:`run` its steps; ``n_chains`` groups of ``walkers`` walkers, each group a chain of
+    the driver.
 
     Parameters
     ----------
     log_prob : callable, (n, ndim) → (n,) unnormalised log-density; NaN and ±∞ are taken as −∞
     center : (ndim,) a point of high density (the MAP); must have a finite log-density
-    cov : (ndim, ndim) covariance of the starting cloud (a Laplace approximation); default
-        0.01² · I
-    settings : :class:`SamplerSettings`
-    rng : seed or ``numpy.random.Generator``
+    cov : (ndim, ndim) covariance of the starting cloud (a Laplace approximation); default 0.01² · I
+    settings : :class:`~.sampler.SamplerSettings`;  rng : seed or ``numpy.random.Generator``
     log_mask : (ndim,) bool, parameters that are always positive and are better sampled as
         logarithms (:mod:`.reparam`); the density is corrected for it
-    progress : show a progress bar (tqdm) on standard error
-    modes : further modes of the posterior besides ``center`` (:func:`.modes.find_modes`), a
-        sequence of (centre (ndim,), covariance (ndim, ndim)). Ensemble g then starts in mode
-        g mod (1 + len(modes)), ``center`` being mode 0 (so R-hat across the ensembles tells
-        whether they found the same posterior), the independence proposal has a component per
-        mode, and the coordinates are affine (one polynomial cannot straighten two modes)
-    derived : callable (n, ndim) → (n, k), quantities the result will report (the target's
-        distance), or None; the stopping rule wants ``tau_multiple`` autocorrelation times of
-        these too (they can mix more slowly than any parameter); their τ goes to
-        ``Chains.info["derived_tau"]``
-
-    Returns
-    -------
-    Chains
+    modes : further modes besides ``center`` (:func:`.modes.find_modes`), (centre (ndim,),
+        covariance (ndim, ndim)) each: group g starts in mode g mod (1 + len(modes)), the
+        independence proposal has a component per mode, and the map is affine (one polynomial
+        cannot straighten two modes)
 
     Raises
     ------
-    SamplingError : when ``center`` has log-density −∞ or no finite starting points are found
+    SamplingError : ``center`` has log-density −∞, or no finite starting points are found
     """
-    t0 = time.perf_counter()
-    s = settings or SamplerSettings()
-    rng = np.random.default_rng(rng)
-    center = np.atleast_1d(np.asarray(center, float))
-    d = len(center)
-    if s.n_walkers < 2 * d:
-        raise ValueError(f"sampling.n_walkers: expected ≥ 2·ndim = {2 * d}, got {s.n_walkers}")
-    log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool).reshape(d)
-    if np.any(center[log_mask] <= 0):
-        raise ValueError("log_mask: a parameter sampled as a logarithm is not positive at the centre")
-    cov = np.eye(d) * 1e-4 if cov is None else np.asarray(cov, float).reshape(d, d)
-    safe = _SafeLogProb(log_prob)
-    if not np.isfinite(safe(center[None])[0]):
-        raise SamplingError("the starting point has log-probability −∞ (or NaN)")
-    starts = [(center, cov)] + [(np.asarray(c, float).reshape(d), np.asarray(v, float).reshape(d, d))
-                                for c, v in (modes or [])]
-    centers = np.array([c for c, _ in starts]) if len(starts) > 1 else None
-    pos = _initial_points(safe, starts, rng.spawn(s.n_ensembles), s.n_walkers)
-    rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
-    fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
-    info: dict = {"warmup_stages": [], "warmup_acceptance": [], "warmup_independence_acceptance": [],
-                  "reparametrised": False, "modes": len(starts)}
+
+    def __init__(self, log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
+                 log_mask=None, modes=None):
+        s = self.s = settings or SamplerSettings()
+        rng = np.random.default_rng(rng)
+        center = np.atleast_1d(np.asarray(center, float))
+        d = len(center)
+        if s.n_walkers < 2 * d:
+            raise ValueError(f"sampling.n_walkers: expected ≥ 2·ndim = {2 * d}, got {s.n_walkers}")
+        self.log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool).reshape(d)
+        if np.any(center[self.log_mask] <= 0):
+            raise ValueError("log_mask: a parameter sampled as a logarithm is not positive at the centre")
+        cov = np.eye(d) * 1e-4 if cov is None else np.asarray(cov, float).reshape(d, d)
+        self.safe = _SafeLogProb(log_prob)
+        if not np.isfinite(self.safe(center[None])[0]):
+            raise SamplingError("the starting point has log-probability −∞ (or NaN)")
+        starts = [(center, cov)] + [(np.asarray(c, float).reshape(d), np.asarray(v, float).reshape(d, d))
+                                    for c, v in (modes or [])]
+        self.centers = np.array([c for c, _ in starts]) if len(starts) > 1 else None
+        self.pos = _initial_points(self.safe, starts, rng.spawn(s.n_ensembles), s.n_walkers)
+        self.rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+        self.fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
+        self.coords = Coordinates.affine(center, cov, self.log_mask)
+        self.n_chains, self.walkers = s.n_ensembles, s.n_walkers
+        self.moved: list = []
+        self.info: dict = {"warmup_stages": [], "reparametrised": False}
+
+    def tune(self, bar) -> int:
+        """The warm-up (module docstring); returns its steps."""
+        self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.log_mask, self.pos, self.rstate,
+                                                     self.s, self.info, bar, self.centers, self.fit_rng)
+        self.sampler, self.state = _run(self.safe, self.coords, _moves(self.s, proposal), pos, rstate)
+        return sum(self.info["warmup_stages"])
+
+    def run(self, steps: int):
+        """Yield the walkers' parameters (n_chains · walkers, ndim) and log-density there after each of
+        ``steps`` steps."""
+        for state in self.sampler.sample(self.state, iterations=steps, store=False, skip_initial_state_check=True):
+            p = self.coords.inverse(state.coords)
+            self.moved.append(float(np.mean(np.any(state.coords != self.state.coords, axis=1))))
+            self.state = emcee.State(state, copy=True)
+            with np.errstate(divide="ignore"):  # the kernel's log-density includes log |∂p/∂u|
+                yield p, state.log_prob - np.sum(np.log(p[:, self.log_mask]), axis=1)
+
+    def acceptance(self) -> float:
+        """The share of a walker's steps that moved it."""
+        return float(np.mean(self.moved)) if self.moved else float("nan")
+
+    def nearest_mode(self, p: np.ndarray) -> np.ndarray:
+        """Which mode each point p (..., ndim) is nearest to, in the kernel's coordinates."""
+        u = self.coords.forward(p)
+        return np.argmin(((u[..., None, :] - self.coords.forward(self.centers)) ** 2).sum(-1), axis=-1)
+
+
+@dataclass(frozen=True)
+class Chains:
+    """What :func:`sample` returns: draws (chain, draw, ndim) (a chain per group, its walkers end to
+    end), their log-density (chain, draw), steps of warm-up and of the main phase, the thinning,
+    whether the stopping rule was met, its diagnostics and the kernel's ``info``."""
+
+    draws: np.ndarray
+    log_prob: np.ndarray
+    warmup_steps: int
+    n_steps: int
+    thin: int
+    converged: bool
+    diagnostics: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+
+def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None, log_mask=None,
+           modes=None) -> Chains:
+    """Sample ``log_prob`` by the ensemble kernel (:class:`Ensemble`, the same parameters) under
+    the driver's stopping rule (:func:`.sampler.run_chains`: bulk ESS and rank R-hat of every
+    parameter over the groups)."""
+    kernel = Ensemble(log_prob, center, cov, settings=settings, rng=rng, log_mask=log_mask, modes=modes)
     from .progress import progress_bar
 
-    with progress_bar(progress, 3 * s.stage + 10 * s.chunk, desc="sampling", unit="step") as bar:
-        coords = Coordinates.affine(center, cov, log_mask)
-        coords, proposal, pos, rstate = _warmup(safe, coords, log_mask, pos, rstate, s, info, bar,
-                                                centers, fit_rng)
-        sampler, chain, burn, tau, coords = _main_phase(safe, coords, proposal, pos, rstate, s, info,
-                                                        bar, log_mask, centers, derived, fit_rng)
-    n, g, k = chain.shape[0], s.n_ensembles, s.n_walkers
-    info.update({"nonfinite": safe.nonfinite, "log_prob_calls": safe.calls,
-                 "log_prob_evaluations": safe.evaluations,
-                 "moves": [type(m).__name__ for m in sampler._moves],
-                 "proposal_components": next((m.n_components for m in sampler._moves
-                                              if isinstance(m, IndependenceMove)), 0)})
-    if centers is not None:  # which mode each kept draw is nearest to, per ensemble
-        kept = coords.forward(chain[burn:]).reshape(-1, s.n_ensembles, s.n_walkers, d)
-        near = np.argmin(((kept[..., None, :] - coords.forward(centers)) ** 2).sum(-1), axis=-1)
-        info["mode_shares"] = [[float(np.mean(near[:, g] == k)) for k in range(len(centers))]
-                               for g in range(s.n_ensembles)]
-    with np.errstate(divide="ignore"):  # the sampler's log-density includes log |∂p/∂u|
-        lp = sampler.get_log_prob() - np.sum(np.log(chain[..., log_mask]), axis=-1)
-    return Chains(chain=chain.reshape(n, g, k, d), log_prob=lp.reshape(n, g, k), burn_in=burn,
-                  thin=max(1, int(0.5 * np.min(tau))), autocorr_time=tau,
-                  acceptance_fraction=sampler.acceptance_fraction.reshape(g, k),
-                  warmup_steps=sum(info["warmup_stages"]), converged=info["stopped"] == "converged",
-                  seconds=time.perf_counter() - t0, info=info)
+    with progress_bar(False, 0) as bar:
+        warm = kernel.tune(bar)
+        (p,), lp, it, thin, diag = run_chains(kernel, lambda x: (x,), lambda x: (x, [
+            f"x[{k}]" for k in range(x.shape[-1])]), kernel.s, bar)
+    kernel.info["nonfinite"] = kernel.safe.nonfinite
+    if kernel.centers is not None:  # the share of each chain's draws nearest each mode
+        near = kernel.nearest_mode(p)
+        kernel.info["mode_shares"] = [[float(np.mean(near[c] == k)) for k in range(len(kernel.centers))]
+                                      for c in range(len(p))]
+    return Chains(p, lp, warm, it, thin, diag["ok"], diag, kernel.info)
 
 
 def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
@@ -454,8 +360,6 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         stage = done
         n_warm += stage
         info["warmup_stages"].append(stage)
-        info["warmup_acceptance"].append(float(np.mean(sampler.acceptance_fraction)))
-        info["warmup_independence_acceptance"].append(indep)
         bar.update(stage)
         if not s.adapt:
             break
@@ -472,87 +376,6 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
             stage *= 2
     return coords, proposal, pos, rstate
 
-
-def _main_phase(safe, coords, proposal, pos, rstate, s: SamplerSettings, info: dict, bar,
-                log_mask=None, centers=None, derived=None, fit_rng=None):
-    """Run in chunks until converged or ``max_steps``; returns the sampler, the chain in
-    parameters (n, walkers, d), the burn-in, τ and the coordinates finally used.
-
-    If the first chunk shows τ above ``retune_tau`` (the warm-up had not yet seen the whole
-    posterior, so the map does not fit it), that chunk becomes one more warm-up stage: the map
-    and the proposal are refitted to it and the main phase starts again (at most
-    ``max_retunes`` times; the discarded chunks count as warm-up). Afterwards the chain grows
-    towards the length the current τ asks for, at most doubling at a time.
-    """
-    nw, d = pos.shape
-    sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
-    chain, watched = np.zeros((0, nw, d)), None  # watched: the chain and its derived columns
-    n, n_target, burn, tau, tau_prev = 0, s.chunk, None, np.full(d, np.nan), np.inf
-    info["stopped"], info["retunes"] = "max_steps", 0
-    while n < s.max_steps:
-        # at most doubling: a high τ from a short chain must not commit the run to many steps
-        step = int(min(max(s.chunk, min(n_target - n, n)), s.max_steps - n))
-        state = sampler.run_mcmc(state, step, skip_initial_state_check=True)
-        new = coords.inverse(sampler.get_chain(discard=n))
-        chain = np.concatenate([chain, new])
-        new = _with_derived(new, derived)  # derived columns of the new steps only
-        watched = new if watched is None else np.concatenate([watched, new])
-        n += step
-        bar.update(step)
-        burn, tau_all = _burn_and_tau(watched, burn)
-        tau, info["derived_tau"] = tau_all[:d], [float(t) for t in tau_all[d:]]
-        tau_max = float(np.max(tau_all))
-        if n == step and tau_max > s.retune_tau and info["retunes"] < s.max_retunes and s.adapt:
-            try:
-                tail = chain[n // 2:].reshape(-1, d)
-                coords = Coordinates.fit(tail, log_mask, shear=centers is None)
-                proposal = _fit_proposal(coords.forward(tail), s, _forward(coords, centers), fit_rng)
-            except np.linalg.LinAlgError:
-                pass
-            else:
-                info["retunes"] += 1
-                info["warmup_stages"].append(n)
-                sampler, state = _run(safe, coords, _moves(s, proposal), chain[-1], state.random_state)
-                chain, watched = np.zeros((0, nw, d)), None
-                n, n_target, burn, tau_prev = 0, s.chunk, None, np.inf
-                continue
-        ess_est = nw * (n - burn) / tau_max
-        steady = abs(tau_max - tau_prev) <= s.tau_tolerance * tau_max
-        tau_prev = tau_max
-        rhat_ok = True
-        if n - burn >= s.tau_multiple * tau_max and ess_est >= s.min_ess and steady:
-            info["max_r_hat"] = _max_rank_rhat(watched[burn:], s.n_ensembles)
-            rhat_ok = info["max_r_hat"] <= s.max_rhat
-            if rhat_ok:
-                info["stopped"] = "converged"
-                break
-        # expected total: burn-in + max(50 τ, the steps the ESS needs), with a 10 % margin
-        need = 2.0 * tau_max + max(s.tau_multiple * tau_max, s.min_ess * tau_max / nw)
-        if not rhat_ok:  # R-hat − 1 falls about as 1 / length
-            need = max(need, n * (info["max_r_hat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else 2 * n)
-        n_target = int(np.ceil(1.1 * need))
-        bar.total = sum(info["warmup_stages"]) + max(n_target, n + s.chunk)
-        bar.refresh()
-    return sampler, chain, burn, tau, coords
-
-
-def _max_rank_rhat(chain: np.ndarray, n_ensembles: int) -> float:
-    """The largest rank-normalised split R-hat across the ensembles of every column of a chain
-    (n, walkers, k), each ensemble's draws walker-major (:mod:`.diagnostics`)."""
-    n, w, k = chain.shape
-    per = w // n_ensembles
-    arr = np.moveaxis(chain.reshape(n, n_ensembles, per, k), 0, 2).reshape(n_ensembles, per * n, k)
-    with np.errstate(all="ignore"):
-        return float(np.nanmax(np.append(rhat_rank(arr), 1.0)))
-
-
-def _with_derived(chain: np.ndarray, derived) -> np.ndarray:
-    """(n, walkers, d) chain with the ``derived`` quantities appended as columns."""
-    if derived is None or not len(chain):
-        return chain
-    n, w, d = chain.shape
-    extra = np.asarray(derived(chain.reshape(-1, d)), float).reshape(n, w, -1)
-    return np.concatenate([chain, extra], axis=2)
 
 
 def _forward(coords, centers):
@@ -595,3 +418,4 @@ def _run(safe, coords, moves, pos, rstate):
     nw, d = pos.shape
     sampler = emcee.EnsembleSampler(nw, d, _InSpace(safe, coords), moves=moves, vectorize=True)
     return sampler, emcee.State(coords.forward(pos), random_state=rstate)
+

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.optimize import basinhopping, least_squares, minimize
 
 from ..models.contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, O_GROUND, O_SIZE, O_YAW, Bounds, Model
-from .coords import CAMERA_LOG, FD_STEPS, WorkingCoords
+from .coords import CAMERA_LOG, FD_STEPS, WorkingCoords, explored_whole
 
 __all__ = ["PRESETS", "Arrowhead", "MapState", "FlatState", "optimize", "refine", "derivatives", "initial_objects",
            "preset_bounds"]
@@ -648,7 +648,7 @@ def _default(model: Model, temperature: float, n_refine: int):
     """The default preset (module docstring): (camera, objects, handedness, pilot camera, info).
     Every start and pass is a copy of ``model`` at its own state (:meth:`Model.variant`)."""
     candidates = []
-    both = model.n_objects == 1  # one object sets the camera: both handednesses from the start
+    both = explored_whole(model)  # one object block sets the camera: both handednesses from the start
     for start in _camera_starts(model):
         placed = [initial_objects(model, start)]
         if both:
@@ -657,7 +657,7 @@ def _default(model: Model, temperature: float, n_refine: int):
             value = float(model.variant(handedness=hand).map_objective(cam[None], objs[None], temperature)[0])
             candidates.append((value, err, cam, objs, hand))
     candidates.sort(key=lambda c: (not np.isfinite(c[0]), c[0] if np.isfinite(c[0]) else c[1]))
-    # the best starts, and the best of every other handedness (one object: refine both)
+    # the best starts, and the best of every other handedness (one object block: refine both)
     firsts = {}
     for k, c in enumerate(candidates if both else ()):  # several: flips decide (_flips)
         firsts.setdefault(tuple(c[4]), k)

@@ -83,7 +83,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     center, cov : (d,), (d, d) the MAP and its Laplace covariance
     laplace : callable, (d,) point → (d, d) Laplace covariance there
     rng : numpy Generator
-    circular : index of a circular coordinate (radians), or None
+    circular : indices of circular coordinates (radians), or None
     temperature, n_steps, n_walkers : the tempered exploration (:func:`.ensemble.explore`)
     n_climbs : local maximisations from the explored points
     extra_starts : (k, d) more points to climb from (other local optima the MAP's search found)
@@ -115,7 +115,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
         found.append(_climb(neg, s))
     p_found = coords.inverse(np.array(found))
     if circular is not None:  # the same state, one turn away: bring it next to the MAP
-        k = int(circular)
+        k = np.asarray(circular, int)
         p_found[:, k] = center[k] + (p_found[:, k] - center[k] + np.pi) % (2 * np.pi) - np.pi
     lp = np.asarray(log_prob(p_found), float)
     u_found = coords.forward(p_found)

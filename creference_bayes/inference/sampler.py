@@ -1,29 +1,36 @@
-"""The posterior of any scene: an emcee run from the MAP, to convergence.
+"""The posterior of any scene: one driver, its kernels composed by the model's blocks.
 
-The emcee adapter (docs/inference.md, "Sampling and summaries"). :class:`emcee.EnsembleSampler`
-drives every run; how it moves follows the model's block structure, never the kind of scene: one
-object block is sampled whole by the ensemble moves of :mod:`.ensemble`; several by sweeps over the
-camera block and one block per object (:mod:`.moves`), by random-walk or multiple-try independence
-proposals, whose walkers are independent chains (so R-hat across them is meaningful).
+The emcee adapter (docs/method.md, "The sampler"). One driver runs every scene (as PyMC's
+``CompoundStep`` and numpyro's ``HMCGibbs`` run their step methods): a start from the Laplace
+approximation at the MAP, a search for other modes, one warm-up in which each kernel tunes itself,
+and one main phase with one stopping rule, in which a chain is one independent unit of any kernel:
+a group of the ensemble kernel's walkers (laid end to end), a walker of the block sweeps. What
+moves the walkers follows what the model declares, never the kind of scene:
 
-Block sweeps:
+* **One object block** (:func:`.coords.explored_whole`: the camera pinned by one object alone,
+  weakly identified): the whole free vector by the ensemble kernel (:class:`.ensemble.Ensemble`:
+  differential-evolution and stretch moves within groups of walkers and a multiple-try
+  independence proposal, in coordinates learned during warm-up), with pitch replaced by the log of
+  the first object's distance below the horizon (:class:`.coords.HorizonDistance`); its modes are
+  searched whole first (:func:`.modes.find_modes`: each a component of the independence proposal
+  and the start of some walkers' groups). Each group is a chain.
+* **Otherwise** block sweeps (:mod:`.moves`) over the camera block and one block per object, by
+  random-walk and multiple-try independence proposals, each walker an independent chain; working
+  coordinates (:mod:`.coords`) in which each object is measured from its conditional mean given
+  the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the camera (from the
+  Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws). Each object's modes
+  given the MAP's camera (:func:`.modes.object_modes`) make its independence proposal a mixture,
+  and chain c starts it in mode c mod k. Warm-up: ``warmup`` steps, the random-walk scales tuned
+  towards an acceptance of 0.3; at 40 % and 70 % of it the covariances, the shear and the
+  independence centres are re-estimated from the second half of the draws since the last
+  re-estimate (blended 80/20 with the Laplace approximation).
 
-* **Coordinates.** Working coordinates (:mod:`.coords`), each object's block measured from its
-  conditional mean given the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the
-  camera (from the Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws).
-* **Modes.** Each object's other modes given the MAP's camera (:func:`.modes.object_modes`): an
-  object with several has a mixture independence proposal, one component per mode following the
-  camera, and chain c starts it in its mode c mod k.
-* **Start.** Over-dispersed draws (1.2 ×) from the Laplace approximation; walkers that start at
-  zero density start at the MAP.
-* **Warm-up.** ``warmup`` steps, the random-walk scales tuned towards an acceptance of 0.3; at
-  40 % and 70 % of it the covariances, the shear and the independence centres are re-estimated
-  from the second half of the draws since the last re-estimate (blended 80/20 with the Laplace
-  approximation, so that a short warm-up cannot make them singular). Then everything is frozen.
-* **Stopping.** The main phase runs in chunks until the bulk ESS of every free parameter and every
-  object's distance reaches ``min_ess`` and its rank-normalised split R-hat is at most
-  ``max_rhat`` (:mod:`.diagnostics`), or ``max_steps``. The ranked check runs only when the raw
-  split R-hat is within 3× of the threshold; the rule that decides is always the ranked one.
+**Stopping** (:func:`run_chains`, every kernel): the main phase runs in chunks until the bulk ESS
+of every free parameter and every object's distance reaches ``min_ess`` and its rank-normalised
+split R-hat over the chains (the independent units) is at most ``max_rhat`` (:mod:`.diagnostics`),
+or ``max_steps``. The ranked check runs only when the raw split R-hat is within 3× of the
+threshold; the rule that decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
+kernel, and the diagnostics have one shape.
 
 Everything random comes from ``rng``: the same seed gives the same draws.
 """
@@ -35,15 +42,16 @@ from dataclasses import dataclass, field, fields
 
 import emcee
 import numpy as np
+from scipy.linalg import block_diag
 
 from ..models.contract import C_HEIGHT, CAMERA_NAMES, O_GROUND, O_YAW, OBJECT_NAMES, Model
 from .diagnostics import ess_bulk_rhat, rhat_split_raw
 from .laplace import laplace_blocks
 from .map import MapState, derivatives
-from .coords import HorizonDistance, WorkingCoords
+from .coords import HorizonDistance, WorkingCoords, explored_whole
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
 
-__all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample"]
+__all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample", "run_chains"]
 
 
 class SamplingError(RuntimeError):
@@ -54,82 +62,72 @@ class SamplingError(RuntimeError):
 class SamplerSettings:
     """Settings of :func:`sample` (unknown keys of a user's dict are rejected: :meth:`from_options`).
 
-    Both move sets
+    Every kernel
         min_ess : bulk effective sample size every free parameter (and every object's distance)
-            must reach;  max_rhat : largest rank-normalised split R-hat accepted;  max_steps : cap on
-            main-phase steps (the result then says it has not converged);  chunk : steps between
-            convergence checks (at least);  tries : tries per independence proposal (multiple-try
-            Metropolis; 1: plain);  independence_weight : the share of steps that are independence
-            moves (None: 0.5 for block sweeps, 0.8 for the ensemble moves)
-    Block moves (several objects)
-        n_chains : walkers, each an independent chain;  warmup : warm-up steps;  max_draws : draws
-        kept per chain (older ones thinned when exceeded)
-    Ensemble moves (one object; :mod:`.ensemble`)
-        n_ensembles, n_walkers : independent ensembles and the walkers of each;  stage : the first
-        warm-up stage's length (later ones double);  max_warmup : cap on warm-up steps;
-        tau_multiple, tau_tolerance : the chain after burn-in is at least this many
-        autocorrelation times long, and τ has settled to this fraction;  retune_tau, max_retunes :
-        a first main chunk with τ above this becomes another warm-up stage, at most this often;
-        adapt : fit the straightening map and the independence proposal during warm-up;
+            must reach;  max_rhat : largest rank-normalised split R-hat over the chains accepted;
+            max_steps : cap on main-phase steps (the result then says it has not converged);
+            chunk : steps between convergence checks (at least);  max_draws : steps kept per
+            walker (older ones thinned when exceeded);  tries : tries per independence proposal
+            (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps that
+            are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
+            mode_search : look for other modes before sampling (:mod:`.modes`)
+    Block sweeps
+        n_chains : walkers, each an independent chain;  warmup : warm-up steps
+    Ensemble kernel (one object block; :mod:`.ensemble`)
+        n_ensembles, n_walkers : groups (each a chain) and the walkers of each;  stage :
+        the first warm-up stage's length (later ones double);  max_warmup : cap on warm-up
+        steps;  adapt : fit the straightening map and the independence proposal during warm-up;
         min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
         proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
-        inflation and mixture components;  mode_search, explore_temperature, explore_steps : look
-        for other modes before sampling (:mod:`.modes`), by a tempered exploration (several
-        objects: ``mode_search`` looks for each object's, given the MAP's camera, from its sets of
-        dimension lines, :func:`~.modes.object_modes`)
+        inflation and mixture components;  explore_temperature, explore_steps : the tempered
+        exploration of the mode search (:func:`.modes.find_modes`)
     """
 
     min_ess: float = 400.0
     max_rhat: float = 1.01
     max_steps: int = 20000
     chunk: int = 50
+    max_draws: int = 2000
     tries: int = 4
     independence_weight: float | None = None
+    mode_search: bool = True
     n_chains: int = 8
     warmup: int = 600
-    max_draws: int = 2000
     n_ensembles: int = 4
     n_walkers: int = 24
     stage: int = 50
     max_warmup: int = 5000
-    tau_multiple: float = 50.0
-    tau_tolerance: float = 0.2
-    retune_tau: float = 20.0
-    max_retunes: int = 2
     adapt: bool = True
     min_independence_acceptance: float = 0.15
     proposal_df: float = 6.0
     proposal_scale: float = 1.2
     proposal_components: int = 3
-    mode_search: bool = True
     explore_temperature: float = 3.0
     explore_steps: int = 150
 
     def __post_init__(self):
         whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-        positive = lambda *keys: [(k, getattr(self, k) > 0, "a number > 0") for k in keys]
+        flag = lambda k: (k, isinstance(getattr(self, k), bool), "true or false")
         checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
                   ("chunk", whole(self.chunk) and self.chunk >= 10, "an integer ≥ 10"),
                   ("max_steps", whole(self.max_steps) and self.max_steps >= self.chunk, "an integer ≥ chunk"),
+                  ("max_draws", whole(self.max_draws) and self.max_draws >= 100, "an integer ≥ 100"),
                   ("tries", whole(self.tries) and self.tries >= 1, "an integer ≥ 1"),
                   ("independence_weight", self.independence_weight is None or 0.0 <= self.independence_weight < 1.0,
-                   "a number in [0, 1)"),
+                   "a number in [0, 1)"), flag("mode_search"),
                   ("n_chains", whole(self.n_chains) and self.n_chains >= 2, "an integer ≥ 2"),
                   ("warmup", whole(self.warmup) and self.warmup >= 50, "an integer ≥ 50"),
-                  ("max_draws", whole(self.max_draws) and self.max_draws >= 100, "an integer ≥ 100"),
                   ("n_ensembles", whole(self.n_ensembles) and self.n_ensembles >= 2, "an integer ≥ 2"),
                   ("n_walkers", whole(self.n_walkers) and self.n_walkers >= 8 and self.n_walkers % 2 == 0,
                    "an even integer ≥ 8"),
                   ("stage", whole(self.stage) and self.stage >= 10, "an integer ≥ 10"),
                   ("max_warmup", whole(self.max_warmup) and self.max_warmup >= self.stage, "an integer ≥ stage"),
-                  *positive("tau_multiple", "tau_tolerance", "retune_tau"),
-                  ("max_retunes", whole(self.max_retunes) and self.max_retunes >= 0, "an integer ≥ 0"),
-                  ("adapt", isinstance(self.adapt, bool), "true or false"),
+                  flag("adapt"),
                   ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
-                  *positive("proposal_df", "proposal_scale"),
+                  ("proposal_df", self.proposal_df > 0, "a number > 0"),
+                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
                   ("proposal_components", whole(self.proposal_components) and self.proposal_components >= 1,
                    "an integer ≥ 1"),
-                  ("mode_search", isinstance(self.mode_search, bool), "true or false"),
                   ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
                   ("explore_steps", whole(self.explore_steps) and self.explore_steps >= 10, "an integer ≥ 10")]
         for name, ok, expected in checks:
@@ -146,6 +144,7 @@ class SamplerSettings:
         if unknown:
             raise ValueError(f"sampling: unknown option(s) {unknown} (expected some of {sorted(known)})")
         return cls(**options)
+
 
 
 @dataclass(frozen=True)
@@ -276,19 +275,87 @@ class _Run:
 
 def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None = None, rng=None,
            temperature: float = 1.0, progress: bool = False) -> tuple[Draws, Diagnostics]:
-    """Sample the posterior of ``model`` from its MAP (module docstring): by block moves when the
-    model has several object blocks, whole by ensemble moves when it has one.
+    """Sample the posterior of ``model`` from its MAP (module docstring): the ensemble kernel for one
+    object block, block sweeps for several, under one warm-up and one stopping rule.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
     when the MAP has zero posterior density. The model is sampled at the MAP's handedness and pilot
     (:meth:`MapState.fitted`); ``model`` itself is not changed.
     """
+    t0 = time.perf_counter()
     s = settings or SamplerSettings()
     rng = np.random.default_rng(rng)
     model = map_est.fitted(model)
-    if model.n_objects == 1:
-        return _sample_whole(model, map_est, s, rng, temperature, progress)
-    return _sample_blocks(model, map_est, s, rng, temperature, progress)
+    start = _laplace_start(model, map_est, temperature)
+    kernel = (_Whole if explored_whole(model) else _Blocks)(model, start, s, rng, temperature, map_est)
+    from .progress import progress_bar
+
+    with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
+        warm = kernel.tune(bar)
+        (cams, objs), lp, it, thin, diag = run_chains(kernel, kernel.natural,
+                                                      lambda c, o: _columns(model, c, o, map_est), s, bar)
+    draws = Draws(cams, objs, lp)
+    warn = [] if diag["ok"] else [f"not converged after {it} steps: " + "; ".join(diag["why"])]
+    if not start[-1]:
+        warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
+    return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
+                              _acceptance(*kernel.acceptance()), diag["ok"], tuple(warn), time.perf_counter() - t0,
+                              kernel.report(draws))
+
+
+def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
+    """The main phase of every kernel, to the one stopping rule (module docstring).
+
+    ``kernel.run(steps)`` yields each step's states of its walkers (S, …), ``kernel.walkers`` to
+    each of its ``kernel.n_chains`` independent chains and a chain's walkers consecutive, and
+    their log-densities (S,); every ``thin``-th step is kept (``thin`` doubles whenever more than
+    2 · ``max_draws`` steps are kept). ``convert`` turns each chunk's kept states (n, S, …) into a
+    tuple of arrays (n, S, …); :func:`_by_chain` lays each chain's walkers end to end, and
+    ``columns`` turns those arrays (C, walkers · n, …) into the checked quantities (C, N, k) and
+    their names. The first check comes after ``chunk`` steps or once the walkers hold
+    64 · ``chunk`` draws, whichever is later; later chunks aim at the length the ESS and R-hat
+    found ask for, at most doubling the run. Returns the kept arrays (C, N, …) and log-densities
+    (C, N) by chain, the steps run, the thinning and the last check (:func:`_diagnose`).
+    """
+    arrays, lps, thin, it, diag = None, None, 1, 0, None
+    w = kernel.walkers
+    first = max(s.chunk, -(-64 * s.chunk // (kernel.n_chains * w)))
+    chunk = first
+    while it < s.max_steps:
+        chunk = min(chunk, s.max_steps - it)
+        xs, ls = [], []
+        for x, lp in kernel.run(chunk):
+            it += 1
+            if it % thin == 0:
+                xs.append(np.array(x))
+                ls.append(np.array(lp))
+        bar.update(chunk)
+        if xs:
+            new = convert(np.array(xs))
+            arrays = new if arrays is None else tuple(np.concatenate(p) for p in zip(arrays, new))
+            lps = np.array(ls) if lps is None else np.concatenate([lps, ls])
+        while len(lps) >= 2 * s.max_draws:
+            arrays, lps, thin = tuple(a[1::2] for a in arrays), lps[1::2], 2 * thin
+        arr, names = columns(*(_by_chain(a, w) for a in arrays))
+        with np.errstate(all="ignore"):  # a cheap look first (module docstring)
+            raw = float(np.nanmax(np.append(rhat_split_raw(arr), 1.0)))
+        need = it * (raw - 1.0) / (3.0 * (s.max_rhat - 1.0)) if s.max_rhat > 1.0 else it
+        if raw <= 1.0 + 3.0 * (s.max_rhat - 1.0) or it >= s.max_steps or diag is None:
+            diag = _diagnose(arr, names, s)
+            if diag["ok"]:
+                break
+            need = max(need, s.min_ess * it / max(diag["min_ess"], 1.0))
+            if diag["max_rhat"] > s.max_rhat:
+                need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
+        chunk = int(np.clip(1.2 * need - it, first, 2 * it))
+    return tuple(_by_chain(a, w) for a in arrays), _by_chain(lps, w), it, thin, diag
+
+
+def _by_chain(a: np.ndarray, walkers: int) -> np.ndarray:
+    """Kept steps of the walkers (n, S, …) as chains (S / walkers, walkers · n, …): each chain's
+    walkers' draws laid end to end, walker after walker."""
+    n, S = a.shape[:2]
+    return np.swapaxes(a, 0, 1).reshape((S // walkers, walkers * n) + a.shape[2:])
 
 
 def _interior(lower: np.ndarray, upper: np.ndarray, v: np.ndarray, margin: float = 1e-7) -> np.ndarray:
@@ -307,85 +374,175 @@ def _laplace_start(model: Model, map_est: MapState, temperature: float):
     return (wc0, wo0) + laplace_blocks(model, derivatives(model, wc0, wo0, temperature, with_jacobian=True))
 
 
-def _sample_whole(model, map_est, s: SamplerSettings, rng, temperature, progress) -> tuple[Draws, Diagnostics]:
-    """One object block: the whole free vector of working coordinates by the ensemble moves
-    (:mod:`.ensemble`), after a search for other modes (:mod:`.modes`)."""
-    from .ensemble import SamplingError as _Failed, sample as ensemble_sample
-    from .modes import MIN_SHARE, find_modes
+class _Blocks:
+    """Block sweeps (module docstring): ``n_chains`` walkers, each an independent chain, started
+    from over-dispersed draws (1.2 ×) of the Laplace approximation (at the MAP where those have
+    zero density), each object in its mode c mod k."""
 
-    t0 = time.perf_counter()
-    wc0, wo0, Sc, Ao, B, laplace_ok = _laplace_start(model, map_est, temperature)
-    target = BlockTarget(model, temperature, wc0, np.zeros_like(B), wo0, yaw_window=wo0[:, O_YAW])
-    center = target.join(wc0[None], wo0[None])[0]
-    cf, of = model.camera_free, model.object_free
-    free = np.concatenate([cf, of[0]])
-    cov = _joint_cov(Sc, Ao, B, free)
-    yaw = int(np.sum(cf)) + int(np.sum(of[0, :O_YAW]))
-    circular = yaw if of[0, O_YAW] else None
+    def __init__(self, model, start, s: SamplerSettings, rng, temperature, map_est):
+        wc0, wo0, Sc, Ao, B, _ = self.start = start
+        self.model, self.s, self.T = model, s, temperature
+        m, C = model.n_objects, s.n_chains
+        self.n_chains, self.walkers = C, 1
+        of = model.object_free
+        Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
+        dc = 1.2 * rng.standard_normal((C, 5)) @ _chol(Sc, model.camera_free).T
+        wc = wc0 + dc
+        wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
+        random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+        self.found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
+        self.mix = _mixture(model, self.found, B)
+        if self.mix is not None:  # chain c starts each object in its mode c (mod its modes)
+            for i, modes in enumerate(self.found):
+                for c in range(C):
+                    k = c % len(modes)
+                    if k:
+                        wo[c, i] = modes[k].center + _chol(modes[k].cov, of[i]) @ rng.standard_normal(7) + B[i] @ dc[c]
+        self.seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=self.mix)
+        state = self.seg.state(wc, wo, random_state)
+        bad = ~np.isfinite(state.log_prob)
+        wc[bad], wo[bad] = wc0, wo0
+        self.state = self.seg.state(wc, wo, random_state)
+        if not np.all(np.isfinite(self.state.log_prob)):
+            raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
 
-    # with pitch free, pitch is sampled as the log of the object's distance below the horizon
-    hd = HorizonDistance.of(model)
-    to_u = (lambda q: q) if hd is None else hd.inverse
-    log_prob = target if hd is None else (lambda q: target(hd.inverse(q)) + hd.log_jacobian(q))
+    def tune(self, bar) -> int:
+        """The warm-up (module docstring); returns its steps."""
+        s, m = self.s, self.model.n_objects
+        wc0, wo0, Sc0, Ao0, B0, _ = self.start
+        seg, state, done, hist = self.seg, self.state, 0, []
+        for mark in (int(0.4 * s.warmup), int(0.7 * s.warmup), s.warmup):  # warm-up segments
+            for state in seg.run(state, mark - done):
+                hist.append(seg.target.working(state.coords))
+            bar.update(mark - done)
+            done = mark
+            if mark == s.warmup:
+                break
+            keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
+            wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
+            Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
+            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
+                several = np.array([len(modes) > 1 for modes in self.found])  # draws span every mode)
+                Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
+            wc, wo = seg.target.working(state.coords)
+            seg = _Run(self.model, self.T, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=self.mix)
+            seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
+            state = seg.state(wc, wo, state.random_state)
+            hist = []
+        seg.kernel.adapt = False
+        self.seg, self.state = seg, state
+        return s.warmup
 
-    def in_q(u, cov_u):  # a point and its covariance, in the sampled coordinates
-        if hd is None:
-            return u, cov_u
-        J = np.column_stack([(hd.forward(u + 1e-6 * e) - hd.forward(u - 1e-6 * e))[0] / 2e-6 for e in np.eye(len(u))])
-        return hd.forward(u[None])[0], J @ cov_u @ J.T
+    def run(self, steps: int):
+        for self.state in self.seg.run(self.state, steps):
+            yield self.state.coords, self.state.log_prob
 
-    def distance(q):  # the object's ground distance: the stopping rule watches it too
-        _, objs = target.natural(to_u(q))
-        return np.hypot(objs[:, 0, 0], objs[:, 0, 1])[:, None]
+    def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cameras (n, C, 5) and objects (n, C, m, 7) of states (n, C, d)."""
+        cams, objs = self.seg.target.natural(u.reshape(-1, u.shape[-1]))
+        return cams.reshape(u.shape[:2] + (5,)), objs.reshape(u.shape[:2] + objs.shape[1:])
 
-    center, cov = in_q(center, cov)
-    try:
+    def acceptance(self) -> tuple[float, float, float]:
+        return tuple(float(np.mean(self.seg.kernel.accepted[k])) for k in ("all", "camera", "objects"))
+
+    def report(self, draws: Draws) -> dict:
+        """The objects' modes (:func:`_object_mode_report`) and a mode denser than the MAP's."""
+        if self.mix is None:
+            return {}
+        wc0, wo0 = self.start[:2]
+        info = {"mode_report": _object_mode_report(self.model, self.found, draws, wc0, wo0)}
+        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(self.found) if len(modes) > 1]
+        denser = [(i, k) for i, k in denser if k.log_prob > self.found[i][0].log_prob + 1.0]
+        if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
+            wo = wo0.copy()
+            for i, k in denser:
+                wo[i] = k.center
+            c, o = WorkingCoords(self.model).from_work(wc0[None], wo[None])
+            info["denser_mode"] = (c[0], o[0])
+        return info
+
+
+class _Whole:
+    """The whole free vector by the ensemble kernel (module docstring), after a search for the
+    joint posterior's modes; a mode denser than the MAP's becomes the centre."""
+
+    def __init__(self, model, start, s: SamplerSettings, rng, temperature, map_est):
+        from .ensemble import Ensemble
+        from .modes import MIN_SHARE, find_modes
+
+        wc0, wo0, Sc, Ao, B, _ = start
+        self.model = model
+        cf, of = model.camera_free, model.object_free
+        target = self.target = BlockTarget(model, temperature, wc0, np.zeros_like(B), wo0, yaw_window=wo0[:, O_YAW])
+        free = np.concatenate([cf, of.ravel()])
+        flat = np.cumsum(free) - 1
+        circular = [int(flat[5 + 7 * i + O_YAW]) for i in range(model.n_objects) if of[i, O_YAW]] or None
+        hd = self.hd = HorizonDistance.of(model)  # pitch as the log of the first object's distance below the horizon
+        self.to_u = (lambda q: q) if hd is None else hd.inverse
+        log_prob = target if hd is None else (lambda q: target(hd.inverse(q)) + hd.log_jacobian(q))
+
+        def in_q(u, cov_u):  # a point and its covariance, in the sampled coordinates
+            if hd is None:
+                return u, cov_u
+            J = np.column_stack([(hd.forward(u + 1e-6 * e) - hd.forward(u - 1e-6 * e))[0] / 2e-6
+                                 for e in np.eye(len(u))])
+            return hd.forward(u[None])[0], J @ cov_u @ J.T
+
+        center, cov = in_q(target.join(wc0[None], wo0[None])[0], _joint_cov(Sc, Ao, B, free))
         modes = []
         if s.mode_search:
             side = np.random.default_rng(np.random.SeedSequence(rng.bit_generator.seed_seq.entropy, spawn_key=tuple(
                 rng.bit_generator.seed_seq.spawn_key) + (2**31 + 19,), pool_size=rng.bit_generator.seed_seq.pool_size))
-            laplace_q = lambda c: in_q(to_u(c[None])[0], _whole_cov(model, target, to_u(c[None])[0], temperature, free))[1]
-            others = [target.join(*(a for a in WorkingCoords(model).to_work(c[None], o[None])))[0]
+            laplace_q = lambda c: in_q(self.to_u(c[None])[0], _whole_cov(model, target, self.to_u(c[None])[0],  # noqa: E731
+                                                                         temperature, free))[1]
+            others = [in_q(target.join(*WorkingCoords(model).to_work(c[None], o[None]))[0], cov)[0]
                       for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
-            others = [in_q(u_, cov)[0] for u_ in others if np.abs(u_[circular] - center[circular]) < np.pi] \
-                if circular is not None else [in_q(u_, cov)[0] for u_ in others]
-            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side,
-                               circular=circular, temperature=s.explore_temperature, n_steps=s.explore_steps,
+            others = [u for u in others if circular is None or np.all(np.abs(u[circular] - center[circular]) < np.pi)]
+            modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, circular=circular,
+                               temperature=s.explore_temperature, n_steps=s.explore_steps,
                                extra_starts=np.array(others) if others else None)
-        better = None
+        self.better = None
         if len(modes) > 1:  # a denser mode than the MAP's becomes the centre; modes with no mass go
             lp = log_prob(np.array([m.center for m in modes]))
             if lp.max() > lp[0] + 1.0:
-                better = modes[int(np.argmax(lp))]
-                modes = [better] + [m for m in modes if m is not better and m.share >= MIN_SHARE]
-                center, cov = better.center, better.cov
-        chains = ensemble_sample(log_prob, center, cov, settings=s, rng=rng, progress=progress,
-                                 modes=[(m.center, m.cov) for m in modes[1:]], derived=distance)
-    except _Failed as exc:
-        raise SamplingError(str(exc)) from None
-    u = to_u(chains.draws().reshape(-1, chains.chain.shape[-1])).reshape(chains.draws().shape)
-    lp = chains.draws(chains.log_prob)
-    g, n, d = u.shape
-    cams, objs = target.natural(u.reshape(-1, d))
-    draws = Draws(cams.reshape(g, n, 5), objs.reshape(g, n, 1, 7), lp)
-    arr, names = _columns(model, draws.cameras.transpose(1, 0, 2), draws.objects.transpose(1, 0, 2, 3), map_est)
-    eb, rh = ess_bulk_rhat(arr)
-    ok = bool(chains.converged)
-    why = [] if ok else [f"stopped at the step cap ({chains.n_steps} steps) before the chain was {s.tau_multiple:g} "
-                         f"autocorrelation times long with bulk ESS ≥ {s.min_ess:g} and R-hat ≤ {s.max_rhat:g}"]
-    if not laplace_ok:
-        why.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
-    info = {k: v for k, v in chains.info.items() if k in ("warmup_stages", "retunes", "modes", "proposal_components",
-                                                            "log_prob_calls", "nonfinite")}
-    if better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
-        c, o = target.natural(to_u(better.center[None]))
-        info["denser_mode"] = (c[0], o[0])
-    info.update({"burn_in": chains.burn_in, "autocorr_time": dict(zip(names[:d], map(float, chains.autocorr_time))),
-                 "laplace_positive_definite": bool(laplace_ok), "mode_report": _mode_report(modes, target, to_u, chains.info.get("mode_shares"))})
-    return draws, Diagnostics(s.n_ensembles, chains.warmup_steps, chains.n_steps, chains.thin,
-                              *_with_y(model, draws, dict(zip(names, eb.tolist())), dict(zip(names, rh.tolist()))),
-                              _acceptance(*[float(np.mean(chains.acceptance_fraction))] * 3), ok, tuple(why),
-                              time.perf_counter() - t0, info)
+                self.better = modes[int(np.argmax(lp))]
+                modes = [self.better] + [m for m in modes if m is not self.better and m.share >= MIN_SHARE]
+                center, cov = self.better.center, self.better.cov
+        self.modes = modes
+        self.kernel = Ensemble(log_prob, center, cov, settings=s, rng=rng,
+                               modes=[(m.center, m.cov) for m in modes[1:]])
+        self.n_chains, self.walkers = self.kernel.n_chains, self.kernel.walkers
+
+    def tune(self, bar) -> int:
+        return self.kernel.tune(bar)
+
+    def run(self, steps: int):
+        for q, lp in self.kernel.run(steps):  # the log-density in working coordinates
+            yield q, lp if self.hd is None else lp - self.hd.log_jacobian(q)
+
+    def natural(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cams, objs = self.target.natural(self.to_u(q.reshape(-1, q.shape[-1])))
+        return cams.reshape(q.shape[:2] + (5,)), objs.reshape(q.shape[:2] + objs.shape[1:])
+
+    def acceptance(self) -> tuple[float, float, float]:
+        return (self.kernel.acceptance(),) * 3  # moves of the whole vector move every block at once
+
+    def report(self, draws: Draws) -> dict:
+        """The modes found (:func:`_mode_report`) and a mode denser than the MAP's."""
+        info = {}
+        if len(self.modes) > 1:
+            C, N = draws.cameras.shape[:2]
+            wc, wo = WorkingCoords(self.model).to_work(draws.cameras.reshape(-1, 5),
+                                                       draws.objects.reshape((C * N,) + draws.objects.shape[2:]))
+            q = self.target.join(wc, wo)
+            near = self.kernel.nearest_mode(q if self.hd is None else self.hd.forward(q)).reshape(C, N)
+            shares = [[float(np.mean(near[c] == k)) for k in range(len(self.modes))] for c in range(C)]
+            info["mode_report"] = _mode_report(self.modes, self.target, self.to_u, shares)
+        if self.better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
+            c, o = self.target.natural(self.to_u(self.better.center[None]))
+            info["denser_mode"] = (c[0], o[0])
+        return info
 
 
 def _whole_cov(model, target: BlockTarget, u: np.ndarray, temperature: float, free: np.ndarray) -> np.ndarray:
@@ -396,139 +553,25 @@ def _whole_cov(model, target: BlockTarget, u: np.ndarray, temperature: float, fr
 
 
 def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
-    """The Laplace covariance of one object's scene's free coordinates, whole (camera, then the
-    object given it), from its blocks."""
-    full = np.zeros((12, 12))
-    full[:5, :5] = Sc
-    full[5:, :5] = B[0] @ Sc
-    full[:5, 5:] = full[5:, :5].T
-    full[5:, 5:] = Ao[0] + B[0] @ Sc @ B[0].T
-    return full[np.ix_(free, free)]
+    """The Laplace covariance of a scene's free coordinates, whole (the camera, then each object),
+    from its blocks: the objects ride on the camera by their shear ``B``."""
+    J = np.vstack([np.eye(5), B.reshape(-1, 5)])
+    return (J @ Sc @ J.T + block_diag(np.zeros((5, 5)), *Ao))[np.ix_(free, free)]
 
 
-def _mode_report(modes, target: BlockTarget, to_u, shares=None) -> list[dict] | None:
-    """Where each mode found before sampling is (its object's id, distance and yaw), how far below
-    the MAP's its log-density is, its Laplace share of the mass and the share of each chain's (each
-    ensemble's) draws nearest to it (they should agree); None with one mode."""
-    if len(modes) < 2:
-        return None
+def _mode_report(modes, target: BlockTarget, to_u, shares) -> list[dict]:
+    """Where each mode found before sampling is (the object whose distance differs most between
+    the modes: its id, distance and yaw), how far below the MAP's its log-density is, its Laplace
+    share of the mass and the share of each chain's draws nearest to it (they should agree)."""
     centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
+    dist = np.hypot(objs[..., 0], objs[..., 1])  # (modes, m)
+    i = int(np.argmax(np.ptp(np.log(dist), axis=0)))
     lp = target(centers)
-    return [{"target": target.model.objects[0].id, "distance_m": float(np.hypot(objs[k, 0, 0], objs[k, 0, 1])),
-             "yaw": float(objs[k, 0, O_YAW]), "log_density_below_map": float(lp[0] - lp[k]),
-             "laplace_share": float(m.share),
-             "draw_share_per_chain": None if shares is None else [float(g[k]) for g in shares]}
+    return [{"target": target.model.objects[i].id, "distance_m": float(dist[k, i]), "yaw": float(objs[k, i, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
+             "draw_share_per_chain": [float(g[k]) for g in shares]}
             for k, m in enumerate(modes)]
-
-
-def _sample_blocks(model, map_est, s: SamplerSettings, rng, temperature, progress) -> tuple[Draws, Diagnostics]:
-    """Several object blocks: block sweeps (:mod:`.moves`) across independent chains."""
-    t0 = time.perf_counter()
-    m, C = model.n_objects, s.n_chains
-    cf, of = model.camera_free, model.object_free
-    wc0, wo0, Sc0, Ao0, B0, laplace_ok = _laplace_start(model, map_est, temperature)
-    Sc, Ao, B = Sc0, Ao0, B0
-    # start: over-dispersed draws from the Laplace approximation, in working coordinates
-    Lc = _chol(Sc, cf)
-    Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
-    dc = 1.2 * rng.standard_normal((C, 5)) @ Lc.T
-    wc = wc0 + dc
-    wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
-    random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
-    found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
-    mix = _mixture(model, found, B0)
-    if mix is not None:  # chain c starts each object in its mode c (mod its modes)
-        for i, modes in enumerate(found):
-            for c in range(C):
-                k = c % len(modes)
-                if k:
-                    L = _chol(modes[k].cov, of[i])
-                    wo[c, i] = modes[k].center + L @ rng.standard_normal(7) + B[i] @ dc[c]
-    seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=mix)
-    state = seg.state(wc, wo, random_state)
-    bad = ~np.isfinite(state.log_prob)
-    wc[bad], wo[bad] = wc0, wo0
-    state = seg.state(wc, wo, random_state)
-    if not np.all(np.isfinite(state.log_prob)):
-        raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
-
-    from .progress import progress_bar
-
-    with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
-        done, hist = 0, []
-        for mark in (int(0.4 * s.warmup), int(0.7 * s.warmup), s.warmup):  # warm-up segments
-            for state in seg.run(state, mark - done):
-                hist.append(seg.target.working(state.coords))
-            bar.update(mark - done)
-            done = mark
-            if mark == s.warmup:
-                break
-            keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
-            wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
-            Sc, Ao, B, mc = _reestimate(model, wcs, wos, Sc0, Ao0, B0)
-            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
-            if mix is not None:  # an object with several modes keeps its MAP mode's blocks (its draws
-                several = np.array([len(modes) > 1 for modes in found])  # span every mode)
-                Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
-            wc, wo = seg.target.working(state.coords)
-            seg = _Run(model, temperature, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=mix)
-            seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
-            state = seg.state(wc, wo, state.random_state)
-            hist = []
-        seg.kernel.adapt = False
-        # main phase: frozen moves, in chunks until converged
-        cams_d, objs_d, lp_d = [], [], []
-        thin, it, ok, diag = 1, 0, False, None
-        chunk = 8 * s.chunk  # block sweeps: checks at least 8 chunks apart (400 steps by default)
-        while it < s.max_steps:
-            chunk = min(chunk, s.max_steps - it)
-            for state in seg.run(state, chunk):
-                it += 1
-                if it % thin == 0:
-                    cams, objs = seg.target.natural(state.coords)
-                    cams_d.append(cams)
-                    objs_d.append(objs)
-                    lp_d.append(np.array(state.log_prob))
-                if len(cams_d) >= 2 * s.max_draws:
-                    cams_d, objs_d, lp_d, thin = cams_d[1::2], objs_d[1::2], lp_d[1::2], thin * 2
-            bar.update(chunk)
-            arr, names = _columns(model, np.array(cams_d), np.array(objs_d), map_est)
-            with np.errstate(all="ignore"):  # a cheap look first (module docstring)
-                raw = float(np.nanmax(np.append(rhat_split_raw(arr), 1.0)))
-            need = it * (raw - 1.0) / (3.0 * (s.max_rhat - 1.0)) if s.max_rhat > 1.0 else it
-            if raw <= 1.0 + 3.0 * (s.max_rhat - 1.0) or it >= s.max_steps or diag is None:
-                diag = _diagnose(arr, names, s)
-                if diag["ok"]:
-                    ok = True
-                    break
-                rate = max(diag["min_ess"], 1.0) / it
-                need = max(need, s.min_ess / rate)
-                if diag["max_rhat"] > s.max_rhat:
-                    need = max(need, it * (diag["max_rhat"] - 1.0) / (s.max_rhat - 1.0) if s.max_rhat > 1.0 else it)
-            chunk = int(np.clip(1.2 * need - it, 8 * s.chunk, 2 * it))
-    acc = seg.kernel.accepted
-    acceptance = _acceptance(*(float(np.mean(acc[k])) for k in ("all", "camera", "objects")))
-    warn = []
-    if not ok:
-        warn.append(f"not converged after {it} steps: " + "; ".join(diag["why"]))
-    if not laplace_ok:
-        warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
-    draws = Draws(np.transpose(np.array(cams_d), (1, 0, 2)), np.transpose(np.array(objs_d), (1, 0, 2, 3)),
-                  np.transpose(np.array(lp_d)))
-    info = {"laplace_positive_definite": bool(laplace_ok)}
-    if mix is not None:
-        info["mode_report"] = _object_mode_report(model, found, draws, wc0, wo0)
-        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(found) if len(modes) > 1]
-        denser = [(i, k) for i, k in denser if k.log_prob > found[i][0].log_prob + 1.0]
-        if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
-            wo = wo0.copy()
-            for i, k in denser:
-                wo[i] = k.center
-            c, o = WorkingCoords(model).from_work(wc0[None], wo[None])
-            info["denser_mode"] = (c[0], o[0])
-    return draws, Diagnostics(C, s.warmup, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              acceptance, ok, tuple(warn), time.perf_counter() - t0, info)
 
 
 def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
@@ -595,8 +638,6 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
     """The quantities checked: every free parameter (yaw unwrapped around the MAP) and each
     object's ground distance, as (chain, draw, k), with their names."""
     cols, names = [], []
-    cams = np.transpose(cams, (1, 0, 2))  # (chain, draw, 5)
-    objs = np.transpose(objs, (1, 0, 2, 3))
     for j in np.flatnonzero(model.camera_free):
         cols.append(cams[..., j])
         names.append(f"camera.{CAMERA_NAMES[j]}")

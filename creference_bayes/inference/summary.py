@@ -1,8 +1,8 @@
 """The arviz adapter: the posterior of any result as an ``arviz.InferenceData``, and its summary
 table. The only module that imports arviz.
 
-Layout of :func:`to_inference_data` (``chain`` is what the sampler ran independently: one of its
-ensembles for a scene of one object, one walker for a scene of several):
+Layout of :func:`to_inference_data` (``chain`` is one independent unit of the sampler: a group of
+walkers of the ensemble kernel, laid end to end, or one walker of the block sweeps):
 
 * ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
   ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,
