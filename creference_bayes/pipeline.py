@@ -333,7 +333,7 @@ def estimate(scene: Scene | str | Path | Mapping, *, model: str = DEFAULT_MODEL,
         if m.location.distance_m is not None:  # recorded only when given: a result without it had no range
             provenance["distance_range_m"] = list(m.location.distance_m)
         if m.location.population is not None:  # a data set's fitted population (workflows/batch/dataset.py)
-            provenance["location_population"] = m.location.to_dict()["population"]
+            provenance["location_population"] = list(m.location.population)
         data = result_data(scene, m, setup, map_est, draws, diag, hdi_prob=hdi_prob, provenance=provenance,
                            seconds=time.perf_counter() - t0, notes=notes,
                            keep_draws=RESULT_DRAWS if keep_draws is None else int(keep_draws))

@@ -7,8 +7,9 @@ BATCH is a ``creference batch`` folder of simulated scenes (``ground_truth`` on 
 ``examples/thin_designs.py`` writes them) whose ``first_pass/`` is complete. Per setting (the
 scenes' ``ground_truth.setting``) and camera kind: each target's reading of log distance against
 the truth (mean error and the sd of z = error × √precision: 1 for honest readings), and the prior
-each frame is handed (leave-one-out, every component of a mixture) as a forecast of its targets'
-true log distance: the truth's mean quantile in it and the share inside its central 90 %.
+each frame is handed (leave-one-out; none when the group looks like two populations) as a
+forecast of its targets' true log distance: the truth's mean quantile in it and the share inside
+its central 90 %.
 ``--reading-sd-scale``: every reading's sd multiplied by this before pooling (what if the
 readings were that much less sure).
 """
@@ -63,17 +64,15 @@ def main(argv=None):
             setting, kind, logs = truth[k]
             rows.append({"setting": setting, "kind": kind, "z": (mi - logs[j]) * math.sqrt(pi), "err": mi - logs[j]})
         full = pool.estimate(g)
-        print(f"group {g}: {len(m)} readings; pool of all frames: "
-              + ", ".join(f"{w:.2f} × {math.exp(c):.1f} m (sd {sd:.3f})" for w, c, sd in full.mixture)
-              + f"; {', '.join(full.check.warnings) or 'no warning'}")
+        print(f"group {g}: {len(m)} readings; pool of all frames: {math.exp(full.center):.1f} m (prior sd "
+              f"{full.prior_sd:.3f}); {', '.join(full.check.warnings) or 'no warning'}")
     forecasts = []
     for k, (setting, kind, logs) in truth.items():
         est = ds.estimate("log_distance", k)
-        if est is None:
+        if est is None or D.TWO_POPULATIONS in est.check.warnings:  # handed none
             continue
-        w, c, sd = (np.array(v) for v in zip(*est.mixture))
         for y in logs:
-            q = float((w * stats.norm.cdf((y - c) / sd)).sum())
+            q = float(stats.norm.cdf((y - est.center) / est.prior_sd))
             forecasts.append({"setting": setting, "kind": kind, "q": q, "in90": 0.05 <= q <= 0.95})
     print("\n| by | readings | mean error (log d) | z mean | z sd | prior forecasts | truth's mean quantile | "
           "inside its 90 % |\n|---|---|---|---|---|---|---|---|")

@@ -108,49 +108,33 @@ def test_leave_one_out_leaves_every_reading_of_the_frame_out():
     assert c.center > a.center  # another frame's pool does see f0's targets
 
 
-def test_targets_of_two_settings_under_one_group_are_handed_their_mixture():
+def test_targets_of_two_settings_under_one_group_are_not_handed_one_population():
     """Indoor (4 m) and outdoor (25 m) frames without camera ids share one group: the readings look
-    like two populations (a two-component mixture beats one by BIC), the pool says so and pools
-    each (the components near 4 and 25 m, in proportion); one population of the same size and
-    spread, readings of uneven precision, stays one (seeds 0–2). The mixture is every frame's
-    prior: an indoor frame's second pass, its own evidence on its target's distance at 4 m, comes
-    out indoor-like, an outdoor frame's outdoor-like, where one population would pull both to the
-    middle."""
-    from creference_bayes.models.location_prior import LocationPrior
-    from creference_bayes.workflows.batch.dataset import TWO_POPULATIONS, dataset_lines, fit_mixture
+    like two populations (a two-component mixture beats one by BIC), the pool says so and no frame
+    is handed it (each keeps the default location prior, its block says why); one population of
+    the same size and spread, readings of uneven precision, is handed back (seeds 0–4)."""
+    from creference_bayes.workflows.batch.dataset import TWO_POPULATIONS, two_populations
 
-    for seed in range(3):
+    for seed in range(5):
         indoor = _population(seed, frames=20, median=4.0, log_sd=0.3, noise=0.2)
-        outdoor = [replace(r, key=f"g{r.key}") for r in _population(seed + 10, frames=10, median=25.0, log_sd=0.3,
+        outdoor = [replace(r, key=f"g{r.key}") for r in _population(seed + 10, frames=20, median=25.0, log_sd=0.3,
                                                                     noise=0.2)]
         pool = Pool(SHARED["log_distance"], indoor + outdoor)
-        est = pool.estimate("street", leave_out="f0")
-        assert TWO_POPULATIONS in est.check.warnings and len(est.mixture) == 2
-        (w_in, c_in, sd_in), (w_out, c_out, sd_out) = est.mixture
-        assert math.exp(c_in) == pytest.approx(4.0, rel=0.2) and math.exp(c_out) == pytest.approx(25.0, rel=0.2)
-        assert w_in == pytest.approx(2 / 3, abs=0.1) and 0.1 < sd_in < 0.7 and 0.1 < sd_out < 0.7
+        assert pool.mixed["street"] and TWO_POPULATIONS in pool.estimate("street", leave_out="f0").check.warnings
         one = _population(seed, frames=40, median=12.0, log_sd=0.6, noise=0.1)
         rng = np.random.default_rng(seed)
         uneven = [replace(r, precision=float(rng.uniform(0.15, 0.6)) ** -2) for r in one]
-        assert Pool(SHARED["log_distance"], uneven).mixtures["street"] is None
-        assert fit_mixture(np.array([r.mean for r in uneven]), np.array([r.precision for r in uneven])) is None
+        assert not Pool(SHARED["log_distance"], uneven).mixed["street"]
+        assert not two_populations(np.array([r.mean for r in uneven]), np.array([r.precision for r in uneven]))
+        # a second population of fewer targets than a population needs (MIN_POPULATION_TARGETS) is none
+        few = indoor + outdoor[:9]
+        m, p = np.array([r.mean for r in few]), np.array([r.precision for r in few])
+        assert two_populations(m, p, min_each=8) and not two_populations(m, p)
     keys = {r.key: "street" for r in indoor + outdoor}
     ds = DataSet({"log_distance": pool}, ("log_distance",), keys)
     _, kwargs, block, _ = hand_back(ds, "f0", parse_scene(_scene(0, camera=None)), BatchSettings())
-    prior = kwargs["location_prior"]
-    assert len(prior.population) == 2 and len(block["distance_m"]["components"]) == 2
-    assert any("as a mixture" in line and line.count(" × ") == 2 for line in dataset_lines(ds.summary()))
-    one = LocationPrior(population=(math.exp(est.center), est.prior_sd))
-
-    def posterior_median(prior, log_d, sd=0.5):  # a target's own evidence N(log_d, sd²) on log d (a thin design's)
-        d = np.exp(np.linspace(-1.0, 5.5, 4001))
-        log_post = -0.5 * ((np.log(d) - log_d) / sd) ** 2 - prior.neg_log(0.0, d) + np.log(d)  # ∝ d: per log d
-        cdf = np.cumsum(np.exp(log_post - log_post.max()))
-        return float(d[np.searchsorted(cdf, cdf[-1] / 2)])
-
-    for truth in (4.0, 25.0):
-        mixed, pooled = posterior_median(prior, math.log(truth)), posterior_median(one, math.log(truth))
-        assert abs(math.log(mixed / truth)) < 0.1 and abs(math.log(pooled / truth)) > 2 * abs(math.log(mixed / truth))
+    assert "location_prior" not in kwargs
+    assert block["distance_m"] == {"from": "the frame", "group": "street", "why": TWO_POPULATIONS}
 
 
 def test_overrides_win_and_are_recorded():
@@ -163,8 +147,7 @@ def test_overrides_win_and_are_recorded():
     scene = parse_scene(d)
     _, kwargs, block, _ = hand_back(ds, "f0", scene, BatchSettings())
     assert kwargs["ref_scale_median"] == pytest.approx(0.3) and block["ref_scale"]["from"] == "data set"
-    (weight, median, _), = kwargs["location_prior"].population
-    assert weight == 1.0 and median == pytest.approx(15.0, rel=0.2)
+    assert kwargs["location_prior"].population[0] == pytest.approx(15.0, rel=0.2)
     assert block["focal_length_px"]["from"] == "data set"
     d["camera"]["focal_length_px"] = 1400.0
     own = BatchSettings(distance_range=(5.0, 60.0), options={"ref_scale_median": 0.5})
@@ -192,15 +175,8 @@ def test_the_location_population_is_a_prior_a_result_records_and_rebuilds():
     assert np.ptp(wide.neg_log(x, z) - default.neg_log(x, z)) < 1e-4
     d = _scene(0)
     res = estimate(parse_scene(d), posterior=False, seed=0, location_prior=near).to_dict()
-    assert res["provenance"]["location_population"] == [[1.0, 10.0, 0.3]]
-    assert rebuild_model(res, parse_scene(d)).location.population == ((1.0, 10.0, 0.3),)
-    # a mixture: each component's own log-normal in its weight, on 1/z (components 6 sd apart: at
-    # each median the other adds e^-18)
-    two = LocationPrior(population=((0.25, 4.0, 0.3), (0.75, 25.0, 0.3)))
-    assert two.neg_log(0.0, 4.0) - two.neg_log(0.0, 25.0) == pytest.approx(math.log(3.0) - math.log(25.0 / 4.0),
-                                                                           abs=1e-6)
-    with pytest.raises(ValueError, match="population"):
-        LocationPrior(population=((0.5, 4.0, 0.3), (0.5, 25.0)))
+    assert res["provenance"]["location_population"] == [10.0, 0.3]
+    assert rebuild_model(res, parse_scene(d)).location.population == (10.0, 0.3)
 
 
 def test_cli_dataset_none_turns_the_layer_off(tmp_path, capsys):
@@ -394,7 +370,7 @@ def test_the_advice_on_a_batch_predicts_under_the_priors_the_data_set_handed_eac
     took = res["dataset"]["distance_m"]
     assert took["from"] == "data set" and took["frames_offered"] == 10  # the other 5 frames' targets
     scene = scene_for_result(path, res)  # the batch's copy, as advise_batch finds it
-    (_, median, log_sd), = rebuild_model(res, scene).location.population
+    median, log_sd = rebuild_model(res, scene).location.population
     assert median == pytest.approx(took["median"]) and log_sd == pytest.approx(
         math.hypot(took["log_sd"], took["spread_log_sd"]), abs=1e-3)
     settings = AdviceSettings(n_draws=200, n_futures=20)
@@ -416,7 +392,7 @@ def test_learn_priors_hands_each_frame_what_the_batch_estimated_it_with(populati
     assert sorted(handed) == [f"f{k}" for k in range(6)]
     for key, (scene, kwargs, block) in handed.items():
         res = json.loads((root / "out" / "results" / f"{key}.json").read_text())
-        assert kwargs["location_prior"].to_dict()["population"] == res["provenance"]["location_population"]
+        assert kwargs["location_prior"].population == tuple(res["provenance"]["location_population"])
         assert block["distance_m"] == res["dataset"]["distance_m"]
         assert scene.corner_scale is None  # every target annotated twice: its own scale
 

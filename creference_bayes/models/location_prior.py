@@ -31,18 +31,17 @@ A distance range (``distance_m``)
 
 A fitted population (``population``)
     What a data set learns of where its targets stand (``creference batch``'s data-set layer,
-    workflows/batch/dataset.py): a mixture of log-normal factors in the ground distance d, each
-    component (weight w_k, median m_k, log-sd s_k), on the kind's own density,
+    workflows/batch/dataset.py): a log-normal factor in the ground distance d, median
+    ``population[0]`` m and log-sd ``population[1]``, on the kind's own density,
 
-        p(x, z) ∝ Σ_k w_k N(log d; log m_k, s_k²) · p_kind(x, z)      (log-depth: / z),
+        p(x, z) ∝ N(log d; log median, log_sd²) · p_kind(x, z)      (log-depth: / z),
 
-    one component for targets of one population, two when a data set's targets stand in two
-    (indoor and outdoor photos under one group), so that a wide population is the kind's prior
-    again (under 1/d², the area element's, a wide population leaned near as the inverse-square
-    prior does: on thin outdoor designs the population came 0.15 too near in log distance,
-    docs/studies/method.md). The data set reads each target's evidence on log d relative to the
-    kind's density (its draws weighted by p_kind / p, the prior it was estimated under:
-    :meth:`relative_log_prior`), so this is the prior those readings combine under.
+    so that a wide population is the kind's prior again (under 1/d², the area element's, a wide
+    population leaned near as the inverse-square prior does: on thin outdoor designs the
+    population came 0.15 too near in log distance, docs/studies/method.md). The data set reads
+    each target's evidence on log d relative to the kind's density (its draws weighted by
+    p_kind / p, the prior it was estimated under: :meth:`relative_log_prior`), so this is the
+    prior those readings combine under.
 """
 
 from __future__ import annotations
@@ -71,14 +70,13 @@ class LocationPrior:
     kind : one of :data:`LOCATION_PRIORS`
     distance_m : (low, high) the range of ground distances, metres, the targets stand in, or None
         (module docstring)
-    population : the components (weight, median m, log-sd) of a mixture of log-normal factors in
-        the ground distance on the kind's density, the weights summing to 1, or None (module
-        docstring); a pair (median m, log-sd) is one component (results written before mixtures)
+    population : (median m, log-sd) of a log-normal factor in the ground distance on the kind's
+        density, or None (module docstring)
     """
 
     kind: str = DEFAULT_LOCATION_PRIOR
     distance_m: tuple[float, float] | None = None
-    population: tuple[tuple[float, float, float], ...] | None = None
+    population: tuple[float, float] | None = None
 
     def __post_init__(self):
         if self.kind not in LOCATION_PRIORS:
@@ -94,7 +92,13 @@ class LocationPrior:
                 raise ValueError(f"distance_range: expected 0 < low < high metres, got {self.distance_m!r}")
             object.__setattr__(self, "distance_m", (lo, hi))
         if self.population is not None:
-            object.__setattr__(self, "population", _components(self.population))
+            try:
+                median, log_sd = (float(v) for v in self.population)
+            except (TypeError, ValueError):
+                raise ValueError(f"population: expected (median m, log-sd), got {self.population!r}") from None
+            if not (np.isfinite(median) and np.isfinite(log_sd) and median > 0 and log_sd > 0):
+                raise ValueError(f"population: expected a median > 0 m and a log-sd > 0, got {self.population!r}")
+            object.__setattr__(self, "population", (median, log_sd))
 
     @property
     def map_in_log_coordinates(self) -> bool:
@@ -108,11 +112,8 @@ class LocationPrior:
         with np.errstate(divide="ignore", invalid="ignore"):
             out = (0.0 if self.kind == "flat" else np.log(x * x + z * z) if self.kind == "inverse-square"
                    else np.log(z))
-            if self.population is not None:  # −log Σ w_k N(log d; log m_k, s_k²), up to a constant
-                log_d = 0.5 * np.log(x * x + z * z)
-                terms = np.stack([np.log(w / s) - 0.5 * ((log_d - np.log(m)) / s) ** 2 for w, m, s in self.population])
-                top = terms.max(axis=0)
-                out = out - top - np.log(np.exp(terms - top).sum(axis=0))
+            if self.population is not None:
+                out = out + 0.5 * ((0.5 * np.log(x * x + z * z) - np.log(self.population[0])) / self.population[1]) ** 2
             if self.distance_m is not None:
                 log_d = 0.5 * np.log(x * x + z * z)
                 lo, hi = np.log(self.distance_m)
@@ -126,24 +127,4 @@ class LocationPrior:
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, **({"distance_m": list(self.distance_m)} if self.distance_m else {}),
-                **({"population": [list(c) for c in self.population]} if self.population else {})}
-
-
-def _components(population) -> tuple[tuple[float, float, float], ...]:
-    """``population`` as components (weight, median m, log-sd), the weights normalised; a pair
-    (median, log-sd) is one component. ValueError naming the value: anything else."""
-    try:
-        rows = [tuple(float(v) for v in c) for c in population]
-    except TypeError:  # a pair of numbers
-        try:
-            rows = [(1.0, *(float(v) for v in population))]
-        except (TypeError, ValueError):
-            rows = []
-    except ValueError:
-        rows = []
-    ok = bool(rows) and all(len(c) == 3 and all(np.isfinite(c)) and min(c) > 0 for c in rows)
-    if not ok:
-        raise ValueError("population: expected (median m, log-sd) or components (weight, median m, log-sd), each "
-                         f"number finite and > 0, got {population!r}")
-    total = sum(c[0] for c in rows)
-    return tuple((c[0] / total, c[1], c[2]) for c in rows)
+                **({"population": list(self.population)} if self.population else {})}

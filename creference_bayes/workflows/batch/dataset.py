@@ -31,15 +31,11 @@ The mechanism, the same for every quantity:
 2. **Combine** (:class:`Pool`): a group's informative readings (sd at most ``max_sd``): a
    "shared" quantity's precision-weighted mean, its variance inflated by the Birge ratio and a
    floor (``floor``, the model's bias shared by a group's frames) in quadrature; a "spread"
-   quantity's DerSimonian–Laird mean and spread τ (at least ``min_spread``), or, when its readings
-   look like two populations (``Shared.components``, :func:`fit_mixture`), a mixture of two such,
-   each with its weight, centre and spread. Each pool is checked against its readings
-   (:class:`PoolCheck`).
+   quantity's DerSimonian–Laird mean and spread τ (at least ``min_spread``). Each pool is checked
+   against its readings (:class:`PoolCheck`).
 3. **Hand back, leaving the frame out**: each frame gets the pool of the *other* frames of its
    group (its own annotations count once): a shared value as N(M₋ᵢ, V₋ᵢ), a spread one as
-   N(M₋ᵢ, V₋ᵢ + τ²) (the next frame's value, or the next target's distance; of a mixture, the
-   mixture of its components' N(M₋ᵢ,ₖ, V₋ᵢ,ₖ + τₖ²), the frame's own evidence choosing between
-   them in its second pass). A shared quantity
+   N(M₋ᵢ, V₋ᵢ + τ²) (the next frame's value, or the next target's distance). A shared quantity
    declared ``held`` (the focal length: a camera has one) is instead the frame's own value, the
    pool of *all* its group's frames (each frame's evidence counted once, inside the pool: as a
    prior, a frame's own weak, noisy evidence would move it again), and the pool's whole
@@ -67,8 +63,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
-           "combine", "fit_mixture", "mixture_pools", "pool_check", "read_readings", "read_focal_given_orientation",
-           "plan", "dataset_lines", "scale_depths", "shared_scale", "share_scale",
+           "combine", "pool_check", "read_readings", "read_focal_given_orientation", "plan", "dataset_lines",
+           "scale_depths", "shared_scale", "share_scale",
            "DATASET_CHOICES",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
@@ -98,8 +94,8 @@ MAX_DISAGREEMENT = 2.0
 BOOTSTRAP = 500
 FEW_FRAMES = "the pool rests on few frames"
 DISAGREE = "the pool and the frames disagree"
-TWO_POPULATIONS = ("the readings look like two populations (a mixture of two fits them better by BIC): each "
-                   "frame is handed the mixture; give each setting its own camera id")
+TWO_POPULATIONS = ("the readings look like two populations (a mixture fits them better by BIC): not handed "
+                   "back; give each setting its own camera id")
 
 
 @dataclass(frozen=True)
@@ -119,11 +115,10 @@ class Shared:
     min_spread : a spread quantity's least τ
     min_frames : other informative frames a frame's leave-one-out pool needs (a pool of all frames: one more)
     min_readings : informative readings (targets) a pool needs
-    components : the most populations a spread quantity's group may hold: 2 for target distances
-        (frames of two settings under one group: indoor and outdoor photos without camera ids).
-        A group whose readings a mixture of two fits better by BIC (:func:`fit_mixture`) is pooled
-        as that mixture, each component with its own centre and spread, and carries
-        :data:`TWO_POPULATIONS`; one population is the mixture of one component
+    one_population : a spread quantity that is handed back only when its group's readings look like
+        one population: when two normal components fit them better by BIC (:func:`two_populations`),
+        the pool carries :data:`TWO_POPULATIONS` and no frame is handed it (frames of two settings
+        under one group: indoor and outdoor photos without camera ids)
     held : a shared quantity the frames take as given: each frame is handed the pool of *all* its
         group's frames (its own evidence counts once, inside the pool) as its value, and its result
         carries the pool's whole uncertainty (statistical ⊕ floor) as one scale its group's frames
@@ -141,7 +136,7 @@ class Shared:
     min_frames: int = 1
     min_readings: int = 1
     held: bool = False
-    components: int = 1
+    one_population: bool = False
 
 
 #: Every quantity the data-set layer learns (module docstring). The camera's: measured in
@@ -160,7 +155,7 @@ SHARED = {s.name: s for s in (
     Shared("pitch", "pitch_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
     Shared("roll", "roll_deg", "camera", "spread", "angle", max_sd=math.radians(2.0), min_spread=math.radians(0.5)),
     Shared("log_ref_scale", "ref_scale", "crowd", "spread", min_spread=0.1, min_frames=2),
-    Shared("log_distance", "distance_m", "setting", "spread", min_spread=0.1, components=2,
+    Shared("log_distance", "distance_m", "setting", "spread", min_spread=0.1, one_population=True,
            min_frames=MIN_POPULATION_FRAMES, min_readings=MIN_POPULATION_TARGETS),
 )}
 #: what a frame's focal length is read given (the others' pool of it): the orientation
@@ -211,20 +206,11 @@ class Pooled:
     check: PoolCheck
     #: the frames of the group the pool was offered (the one left out excepted), in order
     keys: tuple = ()
-    #: a pool of several populations (``Shared.components``): each one's (weight, centre, V, τ); empty: one
-    components: tuple = ()
 
     @property
     def prior_sd(self) -> float:
         """The sd of the prior a frame is handed: √(V + τ²)."""
         return math.sqrt(self.var + self.tau**2)
-
-    @property
-    def mixture(self) -> tuple:
-        """The prior a frame is handed, as components (weight, centre, sd): N(M, V + τ²), or each
-        population's (module docstring, step 3)."""
-        return tuple((w, c, math.sqrt(v + t**2)) for w, c, v, t in self.components) or \
-            ((1.0, self.center, self.prior_sd),)
 
     def block(self) -> dict:
         """The pool in natural units, as a result's ``dataset`` block and ``batch``'s table show it."""
@@ -242,9 +228,6 @@ class Pooled:
             out["floor_log_sd"] = q.floor
         if q.held:  # every frame's value, its uncertainty carried by the results (module docstring, step 3)
             out["held"] = True
-        if self.components:
-            out["components"] = [{"share": round(w, 3), "median": _sig(math.exp(c)), "log_sd": round(math.sqrt(v), 4),
-                                  "spread_log_sd": round(t, 4)} for w, c, v, t in self.components]
         out.update(frames=self.frames, frames_offered=c.offered, n_eff=round(c.n_eff, 1),
                    top3_share=round(c.top3_share, 2), frames_median=median, disagreement=round(c.d, 2),
                    warnings=list(c.warnings))
@@ -338,21 +321,24 @@ def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered:
     return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warns))
 
 
-def fit_mixture(m: np.ndarray, p: np.ndarray, start: tuple | None = None,
-                min_each: int = MIN_POPULATION_TARGETS) -> tuple | None:
-    """Readings N(mᵢ, 1/pᵢ) as two populations, the maximum likelihood mixture of two
-    random-effects normals π N(μ₁, τ₁² + 1/pᵢ) + (1 − π) N(μ₂, τ₂² + 1/pᵢ): its components
-    ((π, μ₁, τ₁), (1 − π, μ₂, τ₂)), nearer centre first; or None when it does not beat one
-    population N(μ, τ² + 1/pᵢ) by more than BIC's price of its three more parameters, (3/2) log n,
-    or a component holds fewer than ``min_each`` readings (weight × n; a population of fewer is
-    not one: fewer than 10 readings, None). Seeded starts: the same readings, the same answer.
-    ``start``: components to refit from, no test (a group's mixture with one frame left out)."""
+def two_populations(m: np.ndarray, p: np.ndarray, min_each: int = MIN_POPULATION_TARGETS) -> bool:
+    """Whether readings N(mᵢ, 1/pᵢ) look like two populations: the maximum likelihood of a mixture
+    of two random-effects normals, π N(μ₁, τ₁² + 1/pᵢ) + (1 − π) N(μ₂, τ₂² + 1/pᵢ), beats that of
+    one, N(μ, τ² + 1/pᵢ), by more than BIC's price of its three more parameters, (3/2) log n, and
+    each component holds ``min_each`` readings or more (min(π, 1 − π) n: fewer are no population,
+    as a population of one needs as many; fewer than 10 readings: never). Seeded starts: the same
+    readings, the same answer."""
     from scipy.optimize import minimize
-    from scipy.special import expit, logit, logsumexp
+    from scipy.special import expit, logsumexp
 
     m, v = np.asarray(m, float), 1.0 / np.asarray(p, float)
     n = len(m)
-    options = {"xatol": 1e-4, "fatol": 1e-6, "maxiter": 8000}
+    if n < 10:
+        return False
+
+    def nll1(t):
+        s2 = v + math.exp(2.0 * t[1])
+        return 0.5 * float(np.sum(np.log(2.0 * math.pi * s2) + (m - t[0]) ** 2 / s2))
 
     def nll2(t):
         w = expit(t[4])
@@ -362,45 +348,14 @@ def fit_mixture(m: np.ndarray, p: np.ndarray, start: tuple | None = None,
             parts.append(math.log(max(share, 1e-300)) - 0.5 * (np.log(2.0 * math.pi * s2) + (m - mu) ** 2 / s2))
         return -float(np.sum(logsumexp(np.stack(parts), axis=0)))
 
-    def components(t):
-        w = float(expit(t[4]))
-        return tuple(sorted(((w, float(t[0]), math.exp(t[2])), (1.0 - w, float(t[1]), math.exp(t[3]))),
-                            key=lambda c: c[1]))
-
-    if start is not None:
-        (w, mu1, tau1), (_, mu2, tau2) = start
-        t0 = [mu1, mu2, math.log(max(tau1, 1e-3)), math.log(max(tau2, 1e-3)), float(logit(min(max(w, 1e-3), 1 - 1e-3)))]
-        return components(minimize(nll2, t0, method="Nelder-Mead", options=options).x)
-    if n < 10:
-        return None
-
-    def nll1(t):
-        s2 = v + math.exp(2.0 * t[1])
-        return 0.5 * float(np.sum(np.log(2.0 * math.pi * s2) + (m - t[0]) ** 2 / s2))
-
     spread = max(float(np.std(m)), 1e-3)
+    options = {"xatol": 1e-4, "fatol": 1e-6, "maxiter": 8000}  # a BIC decision: 1e-6 nats are nothing
     one = minimize(nll1, [float(np.median(m)), math.log(spread)], method="Nelder-Mead", options=options)
     best = min((minimize(nll2, [*np.quantile(m, [lo, hi]), math.log(spread / 2), math.log(spread / 2), 0.0],
-                         method="Nelder-Mead", options=options)
-                for lo, hi in ((0.25, 0.75), (0.1, 0.6), (0.4, 0.9))), key=lambda f: f.fun)
-    fit = components(best.x)
-    better = 2.0 * (one.fun - best.fun) > 3.0 * math.log(n)
-    return fit if better and min(w for w, _, _ in fit) * n >= min_each else None
-
-
-def mixture_pools(m: np.ndarray, p: np.ndarray, fit: tuple, min_spread: float = 0.0) -> tuple:
-    """Each component (π, μ, τ) of a mixture fitted to readings N(mᵢ, 1/pᵢ) (:func:`fit_mixture`)
-    as a pool (π, μ, V, τ): τ at least ``min_spread``, V = 1 / Σᵢ rᵢ/(1/pᵢ + τ²) with rᵢ reading
-    i's membership of it (the one-population V, :func:`combine`, of the readings it holds)."""
-    m, v = np.asarray(m, float), 1.0 / np.asarray(p, float)
-    log_parts = np.stack([math.log(w) - 0.5 * (np.log(v + t * t) + (m - mu) ** 2 / (v + t * t)) for w, mu, t in fit])
-    r = np.exp(log_parts - log_parts.max(axis=0))
-    r /= r.sum(axis=0)
-    out = []
-    for (w, mu, t), ri in zip(fit, r):
-        t = max(t, min_spread)
-        out.append((w, mu, float(1.0 / max((ri / (v + t * t)).sum(), 1e-300)), t))
-    return tuple(out)
+                         method="Nelder-Mead", options=options) for lo, hi in ((0.25, 0.75), (0.1, 0.6), (0.4, 0.9))),
+               key=lambda f: f.fun)
+    share = float(expit(best.x[4]))
+    return bool(2.0 * (one.fun - best.fun) > 3.0 * math.log(n) and min(share, 1.0 - share) * n >= min_each)
 
 
 def scale_draws(cams: np.ndarray, objs: np.ndarray, log_k) -> tuple[np.ndarray, np.ndarray]:
@@ -478,12 +433,11 @@ class Pool:
         #: group → (keys, means, precisions) of its readings
         self.groups = {g: (np.array([r.key for r in rs], dtype=object), np.array([r.mean for r in rs]),
                            np.array([r.precision for r in rs])) for g, rs in sorted(groups.items())}
-        #: group → the mixture its informative readings are of (``Shared.components`` > 1), or None:
-        #: one population (decided once on all of them, as a property of the group: :func:`fit_mixture`;
-        #: each component of ``min_readings`` readings or more, as a population of one)
-        self.mixtures = {g: fit_mixture(m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2],
-                                        min_each=quantity.min_readings)
-                         if quantity.components > 1 else None for g, (_, m, p) in self.groups.items()}
+        #: group → whether its informative readings look like two populations (``one_population``
+        #: quantities; decided once on all of them, as a property of the group)
+        self.mixed = {g: quantity.one_population and two_populations(
+                          m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2], quantity.min_readings)
+                      for g, (_, m, p) in self.groups.items()}
 
     def estimate(self, group: str, leave_out: str | None = None) -> Pooled | None:
         """The group's pool without the frame ``leave_out`` (a KEY: all its readings), or None when
@@ -500,15 +454,11 @@ class Pool:
             return None
         center, var, tau = combine(m[keep], p[keep], q.kind, q.min_spread)
         check = pool_check(m[keep], p[keep], center, var, int(offered.sum()))
-        components = ()
-        if self.mixtures[group] is not None:  # several populations: each its own pool
+        if self.mixed[group]:
             check = replace(check, warnings=check.warnings + (TWO_POPULATIONS,))
-            fit = fit_mixture(m[keep], p[keep], start=self.mixtures[group])
-            components = mixture_pools(m[keep], p[keep], fit, q.min_spread)
         if q.kind == "shared":
             var += q.floor**2
-        return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])),
-                      components)
+        return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
 
 
 def _draws(result: dict, scene):
@@ -733,10 +683,11 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         kwargs["ref_scale_log_sd"] = round(ref.prior_sd, 4)
         block["ref_scale"] = {"from": "data set", "shared_by": "crowd", "group": ref.group, **ref.block()}
     dist = ds.estimate("log_distance", key) if "log_distance" in ds.learn else None
-    if dist is not None and "distance_m" not in own:
+    if dist is not None and TWO_POPULATIONS in dist.check.warnings and "distance_m" not in own:
+        block["distance_m"] = {"from": "the frame", "group": dist.group, "why": TWO_POPULATIONS}
+    elif dist is not None and "distance_m" not in own:
         kind = settings.location_prior if settings.location_prior != "auto" else "log-depth"
-        population = tuple((round(w, 4), _sig(math.exp(c)), round(sd, 4)) for w, c, sd in dist.mixture)
-        kwargs["location_prior"] = LocationPrior(kind, population=population)
+        kwargs["location_prior"] = LocationPrior(kind, population=(_sig(math.exp(dist.center)), round(dist.prior_sd, 4)))
         block["distance_m"] = {"from": "data set", "shared_by": "setting", "group": dist.group, **dist.block()}
     if scene.corner_scale is not None:
         block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
@@ -786,10 +737,6 @@ def dataset_lines(summary: dict) -> list[str]:
                 f"{b['readings']}/{b['frames_offered']} ({b['frames']} frames)"
             rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {value:>10}  {sd:<28} "
                         f"{used:<18} n_eff {b['n_eff']:g}  D {b['disagreement']:+.2f}")
-            if "components" in b:  # what the frames were handed: the mixture
-                rows.append(f"  {'':<16} {'':<8} {'as a mixture':<24} " + ", ".join(
-                    f"{c['share']:.2f} × {c['median']:g} (log-sd {c['log_sd']:.3f} spread {c['spread_log_sd']:.3f})"
-                    for c in b["components"]))
             warns += [f"warning: data set: {label} of {group}: {w}" for w in b["warnings"]]
     if not rows:
         return []
