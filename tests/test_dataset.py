@@ -126,6 +126,10 @@ def test_targets_of_two_settings_under_one_group_are_not_handed_one_population()
         uneven = [replace(r, precision=float(rng.uniform(0.15, 0.6)) ** -2) for r in one]
         assert not Pool(SHARED["log_distance"], uneven).mixed["street"]
         assert not two_populations(np.array([r.mean for r in uneven]), np.array([r.precision for r in uneven]))
+        # a second population of fewer targets than a population needs (MIN_POPULATION_TARGETS) is none
+        few = indoor + outdoor[:9]
+        m, p = np.array([r.mean for r in few]), np.array([r.precision for r in few])
+        assert two_populations(m, p, min_each=8) and not two_populations(m, p)
     keys = {r.key: "street" for r in indoor + outdoor}
     ds = DataSet({"log_distance": pool}, ("log_distance",), keys)
     _, kwargs, block, _ = hand_back(ds, "f0", parse_scene(_scene(0, camera=None)), BatchSettings())
@@ -391,3 +395,19 @@ def test_learn_priors_hands_each_frame_what_the_batch_estimated_it_with(populati
         assert kwargs["location_prior"].population == tuple(res["provenance"]["location_population"])
         assert block["distance_m"] == res["dataset"]["distance_m"]
         assert scene.corner_scale is None  # every target annotated twice: its own scale
+
+
+def test_the_distance_population_example_checks_readings_and_priors_against_the_truth(population_batch, tmp_path):
+    """examples/distance_population.py (docs/studies/rig.md) on a batch's first pass of simulated
+    frames: a row of the 12 targets' readings against the truth and of the 6 frames' handed priors
+    as forecasts; readings twice as wide have z half as spread; it writes nothing."""
+    root, _, _ = population_batch
+    before = sorted(tmp_path.rglob("*"))
+    rows = {}
+    for scale in ("1", "2"):
+        out = _example("distance_population.py", root / "out", "--reading-sd-scale", scale).stdout
+        assert out.startswith("group data set: 12 readings; pool of all frames: ")
+        rows[scale] = next(r for r in out.splitlines() if r.startswith("| - |")).split(" | ")
+        assert rows[scale][1] == "12" and rows[scale][5] == "12"  # readings; every frame's prior, its targets
+    assert float(rows["2"][4]) == pytest.approx(float(rows["1"][4]) / 2, abs=0.011)
+    assert sorted(tmp_path.rglob("*")) == before

@@ -78,6 +78,7 @@ EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_S
             "rig_pool.py": "tests/test_rig.py",
             "dataset_pool.py": "tests/test_dataset.py",
             "focal_floor.py": "tests/test_dataset.py",
+            "distance_population.py": "tests/test_dataset.py",
             # scene files with ground truth are needed: the test simulates one
             "advice_speed.py": "tests/test_examples.py::test_advice_speed_times_a_simulated_scene"}
 

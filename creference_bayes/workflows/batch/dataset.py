@@ -321,11 +321,13 @@ def pool_check(m: np.ndarray, p: np.ndarray, center: float, var: float, offered:
     return PoolCheck(n, offered, n_eff, top3, median, d, tuple(warns))
 
 
-def two_populations(m: np.ndarray, p: np.ndarray) -> bool:
+def two_populations(m: np.ndarray, p: np.ndarray, min_each: int = MIN_POPULATION_TARGETS) -> bool:
     """Whether readings N(mᵢ, 1/pᵢ) look like two populations: the maximum likelihood of a mixture
     of two random-effects normals, π N(μ₁, τ₁² + 1/pᵢ) + (1 − π) N(μ₂, τ₂² + 1/pᵢ), beats that of
-    one, N(μ, τ² + 1/pᵢ), by more than BIC's price of its three more parameters, (3/2) log n
-    (fewer than 10 readings: never). Seeded starts: the same readings, the same answer."""
+    one, N(μ, τ² + 1/pᵢ), by more than BIC's price of its three more parameters, (3/2) log n, and
+    each component holds ``min_each`` readings or more (min(π, 1 − π) n: fewer are no population,
+    as a population of one needs as many; fewer than 10 readings: never). Seeded starts: the same
+    readings, the same answer."""
     from scipy.optimize import minimize
     from scipy.special import expit, logsumexp
 
@@ -347,15 +349,13 @@ def two_populations(m: np.ndarray, p: np.ndarray) -> bool:
         return -float(np.sum(logsumexp(np.stack(parts), axis=0)))
 
     spread = max(float(np.std(m)), 1e-3)
-    one = minimize(nll1, [float(np.median(m)), math.log(spread)], method="Nelder-Mead",
-                   options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000})
-    best = math.inf
-    for lo, hi in ((0.25, 0.75), (0.1, 0.6), (0.4, 0.9)):
-        a, b = np.quantile(m, [lo, hi])
-        fit = minimize(nll2, [a, b, math.log(spread / 2), math.log(spread / 2), 0.0], method="Nelder-Mead",
-                       options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 8000})
-        best = min(best, float(fit.fun))
-    return bool(2.0 * (one.fun - best) > 3.0 * math.log(n))
+    options = {"xatol": 1e-4, "fatol": 1e-6, "maxiter": 8000}  # a BIC decision: 1e-6 nats are nothing
+    one = minimize(nll1, [float(np.median(m)), math.log(spread)], method="Nelder-Mead", options=options)
+    best = min((minimize(nll2, [*np.quantile(m, [lo, hi]), math.log(spread / 2), math.log(spread / 2), 0.0],
+                         method="Nelder-Mead", options=options) for lo, hi in ((0.25, 0.75), (0.1, 0.6), (0.4, 0.9))),
+               key=lambda f: f.fun)
+    share = float(expit(best.x[4]))
+    return bool(2.0 * (one.fun - best.fun) > 3.0 * math.log(n) and min(share, 1.0 - share) * n >= min_each)
 
 
 def scale_draws(cams: np.ndarray, objs: np.ndarray, log_k) -> tuple[np.ndarray, np.ndarray]:
@@ -435,7 +435,8 @@ class Pool:
                            np.array([r.precision for r in rs])) for g, rs in sorted(groups.items())}
         #: group → whether its informative readings look like two populations (``one_population``
         #: quantities; decided once on all of them, as a property of the group)
-        self.mixed = {g: quantity.one_population and two_populations(m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2])
+        self.mixed = {g: quantity.one_population and two_populations(
+                          m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2], quantity.min_readings)
                       for g, (_, m, p) in self.groups.items()}
 
     def estimate(self, group: str, leave_out: str | None = None) -> Pooled | None:
