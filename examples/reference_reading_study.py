@@ -5,14 +5,15 @@ Scenes of the simulator's crowds (``creference_bayes.bench.simulate.CROWDS``): `
 corners, 5 px reference end points, log-sd 0.1) and ``heavy`` (5 px corners, 10 px end points,
 log-sd 0.55, 12 % outliers); each scene has 13 sets of dimension lines, 20 references cycling
 through the paper's ten formats (direct and relative, values and ranges, lengths, widths and
-distances; with ``--references relative`` only the relative values, lengths and widths, as in
-issue 66), the exact horizon, the focal length unknown; indoor and outdoor alternate. Every scene
-is estimated once per ``--readings`` (the metrology model's ``line_reading``, or ``learned``: the
+distances; with ``--references relative`` only the relative values, lengths and widths, as in issue
+66), the exact horizon, the focal length unknown; indoor and outdoor alternate. Every scene is
+estimated once per ``--readings`` (the metrology model's ``line_reading``, or ``learned``: the
 marginal reading with the crowd's segment floor fitted to the run's other scenes, as ``creference
-batch`` hands it), with the same seed. Per crowd and reading: the 90 % HDI's coverage of the target's distance and of the focal
-length, the mean quantile of each truth in its posterior, the share of truths above the posterior
-median, the median HDI width over the distance, the MAP's and posterior mean's location errors,
-and CPU seconds; under the table, 95 % bootstrap intervals over scenes.
+batch`` hands it), with the same seed. Per crowd and reading: the 90 % HDI's coverage of the
+target's distance and of the focal length, the mean quantile of each truth in its posterior, the
+share of truths above the posterior median, the median HDI width over the distance, the MAP's and
+posterior mean's location errors, and CPU seconds; under the table, 95 % bootstrap intervals over
+scenes.
 
 Usage::
 

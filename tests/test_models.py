@@ -326,7 +326,8 @@ def test_the_default_reading_of_a_drawn_segment_matches_a_monte_carlo_of_its_end
         assert abs(np.median(error)) < 0.05
         assert np.sqrt(np.mean(m.ref_line_var)) == pytest.approx(np.std(error), rel=0.25)
         bins = m.ref_shift[:, None] + m.ref_node_shift
-        pit = np.mean(ndtr((truth[:, None] - (raw[:, None] - bins)) / np.sqrt(np.maximum(m.ref_node_var, 1e-12))), axis=1)
+        pit = np.mean(ndtr((truth[:, None] - (raw[:, None] - bins)) / np.sqrt(np.maximum(m.ref_node_var, 1e-12))),
+                      axis=1)
         assert np.mean((pit > 0.1) & (pit < 0.9)) == pytest.approx(0.8, abs=0.08)
         if depth[0] > 10:
             assert np.median(raw - truth) > 0.3  # the raw reading lengthens near the horizon

@@ -268,8 +268,9 @@ def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sig
     log scale, in any direction: density ∝ 1 / (ℓ² + ℓ₀²) per unit of ground area of each point
     (ℓ₀ the ground length of ``floor_px`` pixels along the image's rows at the drawn segment's
     midpoint; None: σ, the shortest σ pixels show there, below which lengths are not told apart;
-    a crowd's own floor is learnt from its drawn lengths, :func:`segment_floor`). Their posterior given the drawn end points is sampled by importance: ``draws`` true
-    segments drawn around the drawn one (antithetic, seeded: deterministic), each weighted by that
+    a crowd's own floor is learnt from its drawn lengths, :func:`segment_floor`). Their posterior
+    given the drawn end points is sampled by importance: ``draws`` true segments drawn around the
+    drawn one (antithetic, seeded: deterministic), each weighted by that
     prior in pixels, 1 / ((ℓ² + ℓ₀²) w₁³ w₂³) (w the downward part of an end point's ray, whose
     cube is the ground map's area scale; zero at or above the horizon). The reading's error
     e = log ℓ(drawn) − log ℓ(true) is then summarised by ``nodes`` bins of equal probability:
@@ -461,7 +462,8 @@ class MetrologyModel(Model):
 
     name = "metrology"
     capabilities = frozenset({"corner_sigma", "object_sigma", "reference_likelihood", "confidence_map"})
-    options = ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "read_floor_px", "line_reading", "ground_sd_m",
+    options = ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "read_floor_px", "line_reading",
+               "ground_sd_m",
                "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad", "ref_scale_median", "ref_scale_log_sd")
     word_options = ("line_reading",)
 

@@ -349,8 +349,9 @@ def learn_priors(inputs, out: str | Path, settings: BatchSettings = BatchSetting
         finally:
             engine.close()
     scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    segments = hand_segments([scene for _, scene in loaded], settings)
     handed = {}
-    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, hand_segments([scene for _, scene in loaded], settings)):
+    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, segments):
         own_scale, kwargs, block = scene.corner_scale, {}, {}
         scene = _with_scale(scene, scale)
         if ds is not None:
@@ -456,8 +457,8 @@ def hand_segments(scenes: list, settings) -> list[tuple[dict, dict]]:
     if "read_floor_px" in settings.options:
         why = {"from": "override", "why": f"--option read_floor_px={settings.options['read_floor_px']:g}"}
         return [({}, {SEGMENT_FLOOR.label: why}) for _ in scenes]
-    return [({}, {}) if seg is None else
-            ({"read_floor_px": seg["floor_px"]}, {SEGMENT_FLOOR.label: {"from": "data set", "shared_by": "crowd", **seg}})
+    return [({}, {}) if seg is None else ({"read_floor_px": seg["floor_px"]},
+                                          {SEGMENT_FLOOR.label: {"from": "data set", "shared_by": "crowd", **seg}})
             for seg in segment_floors(scenes)]
 
 
@@ -532,8 +533,9 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
             status[si.key] = "failed"
             record_error(layout(out, si.key), si, "load", errors[si.key])
     scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    segments = hand_segments([scene for _, scene in loaded], settings)
     todo = deque()
-    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, hand_segments([scene for _, scene in loaded], settings)):
+    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, segments):
         paths = layout(out, si.key)
         own_scale = scene.corner_scale
         scene = _with_scale(scene, scale)
