@@ -5,13 +5,15 @@ Scenes of the simulator's crowds (``creference_bayes.bench.simulate.CROWDS``): `
 corners, 5 px reference end points, log-sd 0.1) and ``heavy`` (5 px corners, 10 px end points,
 log-sd 0.55, 12 % outliers); each scene has 13 sets of dimension lines, 20 references cycling
 through the paper's ten formats (direct and relative, values and ranges, lengths, widths and
-distances; with ``--references relative`` only the relative values, lengths and widths, as in
-issue 66), the exact horizon, the focal length unknown; indoor and outdoor alternate. Every scene
-is estimated once per ``--readings`` (the metrology model's ``line_reading``), with the same
-seed. Per crowd and reading: the 90 % HDI's coverage of the target's distance and of the focal
-length, the mean quantile of each truth in its posterior, the share of truths above the posterior
-median, the median HDI width over the distance, the MAP's and posterior mean's location errors,
-and CPU seconds; under the table, 95 % bootstrap intervals over scenes.
+distances; with ``--references relative`` only the relative values, lengths and widths, as in issue
+66), the exact horizon, the focal length unknown; indoor and outdoor alternate. Every scene is
+estimated once per ``--readings`` (the metrology model's ``line_reading``, or ``learned``: the
+marginal reading with the crowd's segment floor fitted to the run's other scenes, as ``creference
+batch`` hands it), with the same seed. Per crowd and reading: the 90 % HDI's coverage of the
+target's distance and of the focal length, the mean quantile of each truth in its posterior, the
+share of truths above the posterior median, the median HDI width over the distance, the MAP's and
+posterior mean's location errors, and CPU seconds; under the table, 95 % bootstrap intervals over
+scenes.
 
 Usage::
 
@@ -24,6 +26,8 @@ Usage::
     python examples/reference_reading_study.py --bench --seeds 1,2 --out rr_bench12   # more of its scenes
     python examples/reference_reading_study.py --populations light,heavy,low,medium,high --n 40
     python examples/reference_reading_study.py --timing          # CPU of one evaluation, each reading
+    python examples/reference_reading_study.py --n 40 --crowds light --readings marginal,learned --out rr_floor
+    python examples/reference_reading_study.py --bench --readings linear,marginal,learned --out rr_bench
 
 ``--bench`` estimates the 32 one-target scenes of ``creference bench --full`` (tiers none, low,
 medium and high: reference end points off by 0, 5, 10 and 30 px) from 5 sets of dimension lines
@@ -34,8 +38,9 @@ a bootstrap interval); ``--seeds`` takes the scenes the bench draws with other s
 
 ``--populations`` reads the simulator's own reference segments (its objects' edges and distance
 lines, of a crowd of ``CROWDS`` or a bench tier) at the true camera with the model's σ_line, each
-way, and tabulates where the true error falls in what each reading states, by the drawn segment's
-length over σ_line.
+way (``learned``: with the floor the population's other scenes teach), and tabulates where the
+true error falls in what each reading states, by the drawn segment's length over σ_line. With
+``--bench``, each tier's scenes are the data set a ``learned`` floor is fitted to.
 
 ``--monte-carlo`` reads, at a known camera, 2000 ground segments a band (any direction, 0.3–10 m,
 log-uniform) 3–8 m and 30–60 m away, drawn with 2 and 5 px of end-point noise, each way, and
@@ -63,8 +68,14 @@ from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.contract import O_X, O_Z
 from creference_bayes.models.metrology import LINE_READINGS
 from creference_bayes.pipeline import estimate
+from creference_bayes.workflows.batch import segment_floors
 
 SETTINGS = ("indoor", "outdoor")
+#: The readings a run compares: the model's, and ``learned``: the marginal one with the crowd's
+#: segment floor learnt from the run's other scenes (the population's, or the bench tier's), as
+#: ``creference batch`` hands it (``read_floor_px``, :func:`~creference_bayes.workflows.batch.segment_floors`).
+LEARNED = "learned"
+READINGS = (*LINE_READINGS, LEARNED)
 #: The references' formats (indices of FORMATS): all ten, or the relative values only.
 REFERENCES = {"mixed": None, "relative": tuple(i for i, (_, mode, rng) in enumerate(FORMATS) if mode == "relative" and not rng)}
 
@@ -97,11 +108,21 @@ def record(sc, result, crowd: str, k: int, reading: str, seconds: float, referen
             "converged": bool(result.converged), "seconds": seconds}
 
 
+def reading_options(reading: str, floor: dict | None) -> dict:
+    """The estimate's options of a reading of :data:`READINGS` (``floor``: what
+    :func:`~creference_bayes.workflows.batch.segment_floors` hands the scene, or None)."""
+    if reading != LEARNED:
+        return {"line_reading": reading}
+    return {"line_reading": "marginal", **({"read_floor_px": floor["floor_px"]} if floor else {})}
+
+
 def run(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "records.jsonl"
     done = {(r["crowd"], r["scene"], r["reading"]) for r in _load(path)}
+    floors = {crowd: segment_floors([scene(crowd, k, args.references) for k in range(args.n)])
+              if LEARNED in args.readings else [None] * args.n for crowd in args.crowds}
     with open(path, "a") as f:
         for k in range(args.n):
             for crowd in args.crowds:
@@ -113,7 +134,8 @@ def run(args) -> None:
                     t0 = time.process_time()
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        r = estimate(sc, seed=k, line_reading=reading, sampling={"min_ess": args.min_ess}, keep_draws=0)
+                        r = estimate(sc, seed=k, sampling={"min_ess": args.min_ess}, keep_draws=0,
+                                     **reading_options(reading, floors[crowd][k]))
                     rec = record(sc, r, crowd, k, reading, time.process_time() - t0, args.references)
                     f.write(json.dumps(rec) + "\n")
                     f.flush()
@@ -212,7 +234,8 @@ def populations(names, n: int) -> str:
     bands = ((0.0, 4.0), (4.0, 8.0), (8.0, np.inf))
     rows = []
     for name in names:
-        found = {"linear": [], "marginal": []}
+        found = {"linear": [], "marginal": [], LEARNED: []}
+        scenes = []
         for k in range(n):
             crowd = name in CROWDS
             d = simulate_scene(np.random.default_rng([67, list((*CROWDS, *TIERS)).index(name), k]), tier=name,
@@ -220,7 +243,10 @@ def populations(names, n: int) -> str:
                                n_target_annotations=13 if crowd else 5, format_offset=5 * k)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                sc = parse_scene(d)
+                scenes.append(parse_scene(d))
+        for sc, floor in zip(scenes, segment_floors(scenes)):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 m, _ = build_model(sc)
             gt = sc.ground_truth
             cam = m.complete_camera(np.array([[gt["focal_length_px"], gt["pitch_rad"], gt["roll_rad"],
@@ -231,12 +257,13 @@ def populations(names, n: int) -> str:
             with np.errstate(divide="ignore", invalid="ignore"):
                 error = np.log(ground_lengths(lines, m.principal_point, cam[None])[0]) - np.log(gt["reference_lengths_m"])
             length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1) / sigma
-            bins, var = marginal_reading(lines, m.principal_point, cam, sigma)
             lin = linear_line_variances(lines, m.principal_point, cam, sigma)
             ok = np.isfinite(error) & (lin > 0)
             found["linear"] += list(zip(ndtr(error / np.sqrt(np.where(ok, lin, 1.0)))[ok], length[ok]))
-            q = np.mean(ndtr((error[:, None] - bins) / np.sqrt(np.maximum(var, 1e-300))), axis=1)
-            found["marginal"] += list(zip(q[ok], length[ok]))
+            for reading, floor_px in (("marginal", None), (LEARNED, floor and floor["floor_px"])):
+                bins, var = marginal_reading(lines, m.principal_point, cam, sigma, floor_px=floor_px)
+                q = np.mean(ndtr((error[:, None] - bins) / np.sqrt(np.maximum(var, 1e-300))), axis=1)
+                found[reading] += list(zip(q[ok], length[ok]))
         for reading, pairs in found.items():
             q, length = np.array(pairs).T
             cells = []
@@ -260,7 +287,13 @@ def bench(args) -> str:
     done = {(r["scene"], r["reading"]) for r in _load(path)}
     with open(path, "a") as f:
         for seed in args.seeds:
-            for k, (sid, sc) in enumerate(bench_scenes(CONFIGS["full"], seed)[: args.n]):
+            scenes = [(sid, variant(sc, 5, range(5))) for sid, sc in bench_scenes(CONFIGS["full"], seed)[: args.n]]
+            floors = {}  # each tier's scenes are a data set
+            for tier in {sc.ground_truth["tier"] for _, sc in scenes}:
+                at = [sid for sid, sc in scenes if sc.ground_truth["tier"] == tier]
+                floors.update(zip(at, segment_floors([sc for sid, sc in scenes if sid in at])))
+            for k, (sid, sc) in enumerate(scenes):
+                floor = floors[sid]
                 sid = sid if seed == 0 else f"{sid}-seed{seed}"
                 x, _, z = sc.targets[0].ground_truth["location_m"]
                 for reading in args.readings:
@@ -268,8 +301,8 @@ def bench(args) -> str:
                         continue
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        r = estimate(variant(sc, 5, range(5)), seed=k, line_reading=reading,
-                                     sampling={"min_ess": args.min_ess}, keep_draws=0)
+                        r = estimate(sc, seed=k, sampling={"min_ess": args.min_ess}, keep_draws=0,
+                                     **reading_options(reading, floor))
                     o = r.to_dict()["objects"][0]
                     lo, hi = o["posterior"]["hdi"]["distance_m"]
                     distance = np.hypot(r.draws.objects[..., 0, O_X], r.draws.objects[..., 0, O_Z])
@@ -287,10 +320,12 @@ def bench(args) -> str:
         for r in recs:
             if r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"):
                 both.setdefault(r["scene"], {})[r["reading"]] = r["post_error"]
-        diff = [d["marginal"] - d["linear"] for d in both.values() if {"marginal", "linear"} <= set(d)]
-        if diff:
-            lo, hi = cluster_bootstrap(diff, np.arange(len(diff)))
-            paired.append(f"- {tier}: {np.mean(diff):+.1f} points over {len(diff)} scenes ({lo:+.1f} to {hi:+.1f})")
+        for reading in (r for r in args.readings if r != "linear"):
+            diff = [d[reading] - d["linear"] for d in both.values() if {reading, "linear"} <= set(d)]
+            if diff:
+                lo, hi = cluster_bootstrap(diff, np.arange(len(diff)))
+                paired.append(f"- {tier}, {reading}: {np.mean(diff):+.1f} points over {len(diff)} scenes "
+                              f"({lo:+.1f} to {hi:+.1f})")
         for reading in args.readings:
             s = [r for r in recs if r["reading"] == reading and (r["tier"] == tier or (tier == "all noisy" and r["tier"] != "none"))]
             if s:
@@ -301,7 +336,7 @@ def bench(args) -> str:
                             f"{np.nanmean(q):.2f} |")
     return ("| tier | reading | scenes | MAP error % median / mean | posterior-mean error % median / mean | "
             "distance: 90 % HDI covers | mean quantile |\n|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
-            + ("\nPosterior-mean error, marginal less linear, mean over the scenes (95 % bootstrap):\n\n"
+            + ("\nPosterior-mean error, each reading less linear, mean over the scenes (95 % bootstrap):\n\n"
                + "\n".join(paired) + "\n" if paired else ""))
 
 
@@ -352,7 +387,7 @@ def main(argv=None) -> None:
     p.add_argument("--crowds", default="light,heavy", type=lambda v: v.split(","),
                    help=f"comma-separated, of {list(CROWDS)} (default: %(default)s)")
     p.add_argument("--readings", default="linear,marginal", type=lambda v: v.split(","),
-                   help=f"comma-separated, of {list(LINE_READINGS)} (default: %(default)s)")
+                   help=f"comma-separated, of {list(READINGS)} (default: %(default)s)")
     p.add_argument("--references", default="mixed", choices=list(REFERENCES),
                    help="the references' formats: all ten (mixed) or relative values only (default: %(default)s)")
     p.add_argument("--min-ess", type=int, default=400, help="bulk ESS of each posterior (default: %(default)s)")
@@ -380,7 +415,7 @@ def main(argv=None) -> None:
     if args.timing:
         print(timing(args.readings))
         return
-    for name, values, allowed in (("--crowds", args.crowds, CROWDS), ("--readings", args.readings, LINE_READINGS)):
+    for name, values, allowed in (("--crowds", args.crowds, CROWDS), ("--readings", args.readings, READINGS)):
         bad = [v for v in values if v not in allowed]
         if bad:
             p.error(f"{name}: unknown {bad} (expected some of {list(allowed)})")

@@ -265,6 +265,56 @@ def test_a_frame_annotated_once_takes_the_corner_scale_of_the_other_frames(tmp_p
     assert _result(tmp_path / "alone", "many")["objects"] == _result(tmp_path / "pooled", "many")["objects"]
 
 
+def _drawn(scene, length_px, rng):
+    """``scene`` with each reference segment redrawn ``length_px`` long (any direction) about its midpoint."""
+    from dataclasses import replace
+
+    refs = []
+    for r in scene.references:
+        mid, ang = np.mean(r.line, axis=0), rng.uniform(0, np.pi)
+        half = 0.5 * length_px * np.array([np.cos(ang), np.sin(ang)])
+        refs.append(replace(r, line=np.array([mid - half, mid + half])))
+    return replace(scene, references=tuple(refs))
+
+
+def test_the_segment_floor_is_learnt_from_the_other_frames_drawn_lengths_and_handed_back():
+    """The crowd's segment floor (the marginal reading's prior of a segment's length): from the
+    other frames' drawn lengths with the noise the model assumes (2 × their corner scale), leaving
+    the frame out; a crowd that draws only long segments gets a floor of many σ, one whose
+    segments are as long as noise alone draws them a floor below σ; handed back as
+    ``read_floor_px`` unless the option is set (an override); too few segments: none."""
+    import warnings
+
+    from creference_bayes.bench.simulate import simulate_scene
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.models.metrology import corner_spread
+    from creference_bayes.workflows.batch import MIN_FLOOR_SEGMENTS, hand_segments, segment_floors
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scenes = [parse_scene(simulate_scene(np.random.default_rng(k), tier="light", n_references=10,
+                                             n_target_annotations=4)) for k in range(4)]
+    spread = np.array([[v.sum() for v in corner_spread([t.corners for t in s.targets])] for s in scenes])
+    rng = np.random.default_rng(5)
+    long = [_drawn(s, 40 * 2 * np.sqrt(ss / dof), rng) for s, (ss, dof) in zip(scenes, spread)]
+    short = [_drawn(s, 0.5 * 2 * np.sqrt(ss / dof), rng) for s, (ss, dof) in zip(scenes, spread)]
+    for drawn, lo, hi in ((long, 10, 60), (short, 0, 1)):
+        for k, g in enumerate(segment_floors(drawn)):
+            ss, dof = spread.sum(axis=0) - spread[k]
+            assert g["segments"] == 30 and g["noise_px"] == pytest.approx(2 * np.sqrt(ss / dof), rel=0.05)
+            assert lo * g["noise_px"] < g["floor_px"] < hi * g["noise_px"]
+    # the frame's own segments do not count: a frame redrawn short keeps its floor, the others' fall
+    mixed = segment_floors([short[0], *long[1:]])
+    assert mixed[0] == segment_floors(long)[0] and mixed[1]["floor_px"] < segment_floors(long)[1]["floor_px"]
+    assert segment_floors(long[:2])[0] is None and MIN_FLOOR_SEGMENTS > 10  # 10 other segments: too few
+    handed = hand_segments(long, BatchSettings())
+    assert [h[0] for h in handed] == [{"read_floor_px": g["floor_px"]} for g in segment_floors(long)]
+    assert handed[0][1]["segment_floor_px"]["from"] == "data set"
+    over = hand_segments(long, BatchSettings(options={"read_floor_px": 3.0}))
+    assert over[0] == ({}, {"segment_floor_px": {"from": "override", "why": "--option read_floor_px=3"}})
+    assert hand_segments(long, BatchSettings(pool_scale=False)) == [({}, {})] * 4
+
+
 def test_model_options_reach_every_result_and_a_result_of_another_ground_prior_is_recomputed(tmp_path, capsys):
     """``--option`` (and ``BatchSettings.options``) reach the estimates; a resume compares them, and
     compares the ground prior a multi-object result records with the one it would now be made under:

@@ -12,8 +12,8 @@ from creference_bayes.core.geometry import Camera, dimension_corners, rotation_f
 from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.contract import (C_SCALE, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN, Bounds, Model, ObjectData,
                                               object_corners)
-from creference_bayes.models.metrology import (MetrologyModel, ReferenceTerm, ground_lengths, t_interval,
-                                               target_sigmas)
+from creference_bayes.models.metrology import (MetrologyModel, ReferenceTerm, ground_lengths, segment_floor,
+                                               t_interval, target_sigmas)
 from creference_bayes.pipeline import build_model
 
 
@@ -295,7 +295,8 @@ def _ground_segments(rng, n, depth, cam, pp):
 
 @pytest.mark.parametrize("depth", [(3.0, 8.0), (30.0, 60.0)], ids=["far from the horizon", "near the horizon"])
 def test_the_default_reading_of_a_drawn_segment_matches_a_monte_carlo_of_its_end_points(depth):
-    """Segments drawn with 5 px of end-point noise, read at the true camera by the default reading:
+    """Segments drawn with 5 px of end-point noise, read at the true camera by the default reading
+    (with the default floor of its prior, and with the floor the drawn lengths teach, segment_floor):
     against the Monte Carlo of that noise (the true lengths), the reading is centred (median error
     of the mean reading within 0.05 in log-length) and its stated spread matches the spread of its
     errors (within 25 %), and its bins put 80 % ± 8 of the truths in their central 80 %. Near the
@@ -312,21 +313,26 @@ def test_the_default_reading_of_a_drawn_segment_matches_a_monte_carlo_of_its_end
     horizon_row = pp[1] - cam[0] * np.tan(cam[1])
     keep = np.all(d > 0.5, axis=1) & np.all(drawn[..., 1] > horizon_row + 2.0, axis=1)
     refs = [ReferenceTerm(j, "ground", 1.0, 1.0, False, line) for j, line in enumerate(drawn[keep])]
-    m = MetrologyModel(pp, model.image_size, model.objects, refs, ref_line_sigma=sigma)
-    m.set_pilot(cam)
     truth = np.log(length[keep])
     raw = np.log(ground_lengths(drawn[keep], pp, cam[None])[0])
-    read = m.predicted_log_lengths(cam[None], np.ones((1, 1, 7)))[0]
-    error = read - truth
-    assert abs(np.median(error)) < 0.05
-    assert np.sqrt(np.mean(m.ref_line_var)) == pytest.approx(np.std(error), rel=0.25)
-    bins = m.ref_shift[:, None] + m.ref_node_shift
-    pit = np.mean(ndtr((truth[:, None] - (raw[:, None] - bins)) / np.sqrt(np.maximum(m.ref_node_var, 1e-12))), axis=1)
-    assert np.mean((pit > 0.1) & (pit < 0.9)) == pytest.approx(0.8, abs=0.08)
-    if depth[0] > 10:
-        assert np.median(raw - truth) > 0.3  # the raw reading lengthens near the horizon
-    else:
-        assert np.median(np.abs(read - raw)) < 0.01  # far from it, most segments read as drawn
+    learned = segment_floor(np.linalg.norm(drawn[keep, 1] - drawn[keep, 0], axis=1), sigma)
+    with pytest.raises(ValueError, match="read_floor_px: expected a finite number > 0, got 0.0"):
+        MetrologyModel(pp, model.image_size, model.objects, refs, read_floor_px=0.0)
+    for floor in (None, learned):  # the default floor, and the floor these drawn lengths teach
+        m = MetrologyModel(pp, model.image_size, model.objects, refs, ref_line_sigma=sigma, read_floor_px=floor)
+        m.set_pilot(cam)
+        read = m.predicted_log_lengths(cam[None], np.ones((1, 1, 7)))[0]
+        error = read - truth
+        assert abs(np.median(error)) < 0.05
+        assert np.sqrt(np.mean(m.ref_line_var)) == pytest.approx(np.std(error), rel=0.25)
+        bins = m.ref_shift[:, None] + m.ref_node_shift
+        pit = np.mean(ndtr((truth[:, None] - (raw[:, None] - bins)) / np.sqrt(np.maximum(m.ref_node_var, 1e-12))),
+                      axis=1)
+        assert np.mean((pit > 0.1) & (pit < 0.9)) == pytest.approx(0.8, abs=0.08)
+        if depth[0] > 10:
+            assert np.median(raw - truth) > 0.3  # the raw reading lengthens near the horizon
+        else:
+            assert np.median(np.abs(read - raw)) < 0.01  # far from it, most segments read as drawn
 
 
 def test_every_reference_format_is_read_through_the_bins_of_its_segment():

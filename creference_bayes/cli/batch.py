@@ -116,8 +116,9 @@ def register(subparsers) -> None:
                         "the default), focal (the focal length only) or none (nothing of the camera)")
     g.add_argument("--own-scale", action="store_true",
                    help="each frame learns how far its crowd's corners stray (the corner scale) from its own "
-                        "annotations only; by default an object annotated once borrows it from the objects of "
-                        "the batch annotated more than once (docs/batch.md)")
+                        "annotations only, and reads its reference segments with the default floor; by default an "
+                        "object annotated once borrows the scale from the objects of the batch annotated more than "
+                        "once, and the segments' floor is fitted to the other frames' drawn lengths (docs/batch.md)")
     g.add_argument("--temperature", type=float, default=None, metavar="T",
                    help="widen (T > 1) or narrow (T < 1) the posterior (default: the model's calibrated one)")
     g.add_argument("--min-ess", type=float, default=None, metavar="N",

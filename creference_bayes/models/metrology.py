@@ -43,7 +43,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import stdtr
+from scipy.optimize import minimize_scalar
+from scipy.special import i0e, stdtr
 
 from ..core.geometry import rotation_from_pitch_roll
 from ..core.metrology import GroundFrame
@@ -53,7 +54,7 @@ from .contract import C_FOCAL, C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_X, O_Z, Mod
 __all__ = ["TARGET_DOF", "MIN_TARGET_SIGMA_PX", "DEFAULT_TARGET_SIGMA_PX", "REF_DOF", "REF_LINE_FACTOR",
            "LINE_READINGS", "MIN_RAY_DOWN", "MIN_CAMERA_HEIGHT_M", "MIN_HORIZON_PX", "ReferenceTerm",
            "MetrologyModel", "corner_spread", "target_sigmas", "ground_lengths", "linear_line_variances", "segment_reading",
-           "marginal_reading", "reading_log_likelihood",
+           "marginal_reading", "segment_floor", "reading_log_likelihood",
            "t_interval"]
 
 #: Degrees of freedom of the bivariate Student-t of a target corner.
@@ -258,15 +259,18 @@ def segment_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sigm
 
 
 def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sigma: float, *,
-                     draws: int = MARGINAL_DRAWS, nodes: int = READ_NODES) -> tuple[np.ndarray, np.ndarray]:
+                     floor_px: float | None = None, draws: int = MARGINAL_DRAWS,
+                     nodes: int = READ_NODES) -> tuple[np.ndarray, np.ndarray]:
     """The error of each drawn segment's reading, its true end points marginalised, at one camera (5,).
 
     A drawn end point is its true one off by N(0, σ²) per coordinate (σ in pixels). The true end
     points are two ground points, a priori anywhere on the ground and at any separation ℓ on a
     log scale, in any direction: density ∝ 1 / (ℓ² + ℓ₀²) per unit of ground area of each point
-    (ℓ₀ the ground length of σ pixels along the image's rows at the drawn segment's midpoint, the
-    shortest σ pixels show there: below it lengths are not told apart). Their posterior given the drawn end points is sampled by importance: ``draws`` true
-    segments drawn around the drawn one (antithetic, seeded: deterministic), each weighted by that
+    (ℓ₀ the ground length of ``floor_px`` pixels along the image's rows at the drawn segment's
+    midpoint; None: σ, the shortest σ pixels show there, below which lengths are not told apart;
+    a crowd's own floor is learnt from its drawn lengths, :func:`segment_floor`). Their posterior
+    given the drawn end points is sampled by importance: ``draws`` true segments drawn around the
+    drawn one (antithetic, seeded: deterministic), each weighted by that
     prior in pixels, 1 / ((ℓ² + ℓ₀²) w₁³ w₂³) (w the downward part of an end point's ray, whose
     cube is the ground map's area scale; zero at or above the horizon). The reading's error
     e = log ℓ(drawn) − log ℓ(true) is then summarised by ``nodes`` bins of equal probability:
@@ -290,7 +294,8 @@ def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sig
         drawn = _unit_lengths(_ground_rays(lines, principal_point, cam)[0])                   # (m,)
         length = _unit_lengths(rays).reshape(draws, m)
         mid = lines.mean(axis=1)
-        across = np.stack([mid - [0.5 * sigma, 0.0], mid + [0.5 * sigma, 0.0]], axis=1)
+        step = [0.5 * (sigma if floor_px is None else floor_px), 0.0]
+        across = np.stack([mid - step, mid + step], axis=1)
         floor = _unit_lengths(_ground_rays(across, principal_point, cam)[0])
         w = np.where(np.all(down > MIN_RAY_DOWN, axis=-1),
                      1.0 / ((length**2 + floor**2) * np.prod(np.maximum(down, MIN_RAY_DOWN), axis=-1) ** 3), 0.0)
@@ -311,6 +316,48 @@ def marginal_reading(lines: np.ndarray, principal_point, camera: np.ndarray, sig
         shift[bad] = 0.0
         var[bad] = linear_line_variances(lines[bad], principal_point, camera, sigma)[:, None]
     return shift, var
+
+
+def segment_floor(lengths_px: np.ndarray, sigma: float, counts: np.ndarray | None = None) -> float:
+    """A crowd's floor ℓ₀ of the :func:`marginal_reading` prior, pixels, learnt from its drawn
+    segments' lengths (``lengths_px``, drawn with end-point noise ``sigma`` px).
+
+    In units of σ, a drawn segment's vector is its true one plus N(0, 2σ²) per coordinate, so its
+    length r given the true length t is Rice(t, √2); the true lengths' law is the reading's prior,
+    q(t) = t / (t² + c²) / Z on [0, T] (log-uniform above the floor c; Z = ½ log(1 + T²/c²), T = 1.5 ×
+    the longest drawn and at least :data:`_FLOOR_NEAR` + 12). A length r is read through the Rice
+    up to :data:`_FLOOR_NEAR`, and as q(r) beyond, where q hardly changes over the noise (its log's
+    slope at most 1/r). The floor returned is c σ with c the maximum of the drawn lengths'
+    likelihood (0.05–50): a crowd that seldom draws segments a few σ long gets a high floor, one
+    whose segments are often no longer than their noise a low one. ``counts``: how many segments
+    each length stands for (default 1). NaN when there are no segments or σ is not positive.
+    """
+    r = np.asarray(lengths_px, float).ravel()
+    n = np.ones(len(r)) if counts is None else np.asarray(counts, float).ravel()
+    ok = np.isfinite(r) & (n > 0)
+    r, n = r[ok], n[ok]
+    if not len(r) or not sigma > 0:
+        return float("nan")
+    r = np.maximum(r / sigma, 1e-3)
+    top = max(1.5 * r.max(), _FLOOR_NEAR + 12.0)
+    near = r <= _FLOOR_NEAR
+    t = np.linspace(0.0, _FLOOR_NEAR + 12.0, 1201)
+    rn = r[near][:, None]
+    rice = (rn / 2.0) * np.exp(-((rn - t) ** 2) / 4.0) * i0e(rn * t / 2.0) * (t[1] - t[0])   # Rice(r; t, √2) dt
+
+    def nll(log_c):
+        c2 = np.exp(2 * log_c)
+        z = 0.5 * np.log1p(top**2 / c2)
+        p = np.empty(len(r))
+        p[near] = rice @ (t / (t**2 + c2)) / z
+        p[~near] = r[~near] / (r[~near] ** 2 + c2) / z
+        return -n @ np.log(p)
+
+    return float(sigma * np.exp(minimize_scalar(nll, bounds=(np.log(0.05), np.log(50.0)), method="bounded").x))
+
+
+#: Drawn lengths (in σ) up to this are read through the Rice convolution (:func:`segment_floor`).
+_FLOOR_NEAR = 30.0
 
 
 def t_interval(nu: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -403,6 +450,8 @@ class MetrologyModel(Model):
     corner_scale : (sd px, degrees of freedom) of the crowd's corner scale from other frames, pooled
         for the objects with a single annotation (:func:`target_sigmas`), or None
     ref_line_sigma : pixel noise of reference lines (None: :data:`REF_LINE_FACTOR` × the median σᵢ)
+    read_floor_px : the floor of the ``marginal`` reading's prior of a segment's length, pixels
+        (None: ``ref_line_sigma``; a crowd's, learnt from its drawn lengths: :func:`segment_floor`)
     confidence_map : how ranges stated with a confidence are read, or None (confidences ignored)
     line_reading : one of :data:`LINE_READINGS`
     ref_scale_median, ref_scale_log_sd : the crowd scale's log-normal prior (its median, in
@@ -413,12 +462,14 @@ class MetrologyModel(Model):
 
     name = "metrology"
     capabilities = frozenset({"corner_sigma", "object_sigma", "reference_likelihood", "confidence_map"})
-    options = ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "line_reading", "ground_sd_m",
+    options = ("target_dof", "ref_dof", "target_sigma", "ref_line_sigma", "read_floor_px", "line_reading",
+               "ground_sd_m",
                "ground_sd_per_m", "ground_dof", "ground_tilt_sd_rad", "ref_scale_median", "ref_scale_log_sd")
     word_options = ("line_reading",)
 
     def __init__(self, principal_point, image_size, objects, references=(), *, target_dof: float = TARGET_DOF,
                  ref_dof: float = REF_DOF, target_sigma: float | None = None, ref_line_sigma: float | None = None,
+                 read_floor_px: float | None = None,
                  corner_scale: tuple[float, float] | None = None, confidence_map: ConfidenceMap | None = None,
                  line_reading: str = "marginal", ref_scale_median: float | None = None,
                  ref_scale_log_sd: float | None = None, **kw):
@@ -459,6 +510,9 @@ class MetrologyModel(Model):
         self.ref_line_sigma = REF_LINE_FACTOR * float(np.median(self.sigma)) if ref_line_sigma is None else ref_line_sigma
         if not (np.isfinite(self.ref_line_sigma) and self.ref_line_sigma >= 0):
             raise ValueError(f"ref_line_sigma: expected a finite number >= 0, got {ref_line_sigma!r}")
+        if read_floor_px is not None and not (np.isfinite(read_floor_px) and read_floor_px > 0):
+            raise ValueError(f"read_floor_px: expected a finite number > 0, got {read_floor_px!r}")
+        self.read_floor_px = None if read_floor_px is None else float(read_floor_px)
         self._split_references()
 
     @property
@@ -535,7 +589,8 @@ class MetrologyModel(Model):
         at[C_HEIGHT] = max(at[C_HEIGHT], MIN_CAMERA_HEIGHT_M)
         lines = self._with_line
         if self.line_reading == "marginal":
-            nodes, var = marginal_reading(self._lines, self.principal_point, at, self.ref_line_sigma)
+            nodes, var = marginal_reading(self._lines, self.principal_point, at, self.ref_line_sigma,
+                                          floor_px=self.read_floor_px)
             centre = nodes.mean(axis=1)
             self.ref_shift[lines] = centre
             self.ref_node_shift = np.zeros((len(self.references), nodes.shape[1]))

@@ -7,8 +7,9 @@ read from the batch's first pass (:meth:`~creference_bayes.workflows.batch.datas
 the quantities the batch learnt), and each frame is handed them by the layer's own
 :func:`~creference_bayes.workflows.batch.dataset.hand_back`: its camera's pooled focal length and
 mounting (the task's ``camera_id``), the crowd's reference scale, the population of target
-distances of its setting, the crowd's corner scale
-(:func:`~creference_bayes.workflows.batch.corner_scales`). A task is no frame of the batch: it
+distances of its setting, the crowd's corner scale and segment floor
+(:func:`~creference_bayes.workflows.batch.corner_scales`,
+:func:`~creference_bayes.workflows.batch.hand_segments`). A task is no frame of the batch: it
 takes the pools of all the batch's frames.
 
 A task whose camera the batch has no pool of (another camera id, or none) is estimated with the
@@ -115,7 +116,7 @@ class DataSetPriors:
         scene as estimated, the estimate's keyword arguments, its ``dataset`` and ``rig`` blocks,
         and a fingerprint that covers what it was handed."""
         from ..io.scene import scene_fingerprint
-        from ..workflows.batch import corner_scales
+        from ..workflows.batch import corner_scales, hand_segments
         from ..workflows.batch.dataset import SHARED, hand_back
         from ..workflows.batch.rig import camera_id_of
 
@@ -126,6 +127,8 @@ class DataSetPriors:
         camera_id = camera_id_of(scene)
         ds = replace(self.dataset, camera_of={**self.dataset.camera_of, key: camera_id})
         scene, kwargs, block, rig = hand_back(ds, key, scene, self.settings)
+        seg_kwargs, seg_block = hand_segments([*self.scenes, scene], self.settings)[-1]
+        kwargs, block = {**seg_kwargs, **kwargs}, {**block, **seg_block}
         for name in ds.learn:  # the camera's quantities the data set could not hand this frame
             label = SHARED[name].label
             if SHARED[name].shared_by == "camera" and label not in block:

@@ -54,7 +54,8 @@ def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = No
     fixed = {k: options[k] for k in ("target_sigma", "ref_line_sigma") if options.get(k) is not None}
     new = MetrologyModel(model.principal_point, model.image_size, objects, model.all_references + tuple(references),
                          target_dof=model.target_dof, ref_dof=model.ref_dof, confidence_map=model.confidence_map,
-                         line_reading=model.line_reading, ref_scale_median=model.ref_scale_median,
+                         line_reading=model.line_reading, read_floor_px=model.read_floor_px,
+                         ref_scale_median=model.ref_scale_median,
                          ref_scale_log_sd=model.ref_scale_log_sd, camera_terms=model.camera_terms,
                          orientation=model.orientation, horizon_line=model.horizon_line,
                          focal_length_px=model.focal_length_px, **model.ground_options, bounds=model.bounds,

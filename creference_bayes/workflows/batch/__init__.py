@@ -32,6 +32,8 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from ... import __version__
 from ...io.files import atomic_write_json
 from ...io.scene import SceneError, SceneWarning, load_scene, scene_fingerprint, scene_to_dict, with_classes
@@ -42,7 +44,8 @@ from .runner import Runner, one_line, progress_bar, run_scene
 from .engines import Engine
 
 __all__ = ["BATCH_FORMAT", "ERROR_FORMAT", "BatchSettings", "SceneInput", "BatchReport",
-           "discover_scenes", "derive_seed", "run_scene", "run_batch", "learn_priors", "layout"]
+           "discover_scenes", "derive_seed", "run_scene", "run_batch", "learn_priors", "layout", "corner_scales",
+           "segment_floors", "hand_segments", "MIN_FLOOR_SEGMENTS"]
 
 BATCH_FORMAT = "creference-batch/2"
 
@@ -65,7 +68,8 @@ class BatchSettings(EstimateSettings):
         mounting), ``focal`` (the focal length only), ``mounting`` (the same as ``auto``) or
         ``none`` (nothing of the camera) (:mod:`.rig`)
     pool_scale : a frame whose objects are not all annotated twice takes the crowd's corner scale
-        from the other frames too (:func:`corner_scales`); False: from its own annotations only
+        from the other frames too (:func:`corner_scales`), and every frame the crowd's segment floor
+        (:func:`segment_floors`); False: from its own annotations only, and the default floor
 
     A stored result is also compared by the ground prior it records
     (:func:`~creference_bayes.pipeline.expected_ground`).
@@ -312,13 +316,14 @@ def learn_priors(inputs, out: str | Path, settings: BatchSettings = BatchSetting
         finally:
             engine.close()
     scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    segments = hand_segments([scene for _, scene in loaded], settings)
     handed = {}
-    for (si, scene), scale in zip(loaded, scales):
+    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, segments):
         own_scale, kwargs, block = scene.corner_scale, {}, {}
         scene = _with_scale(scene, scale)
         if ds is not None:
             scene, kwargs, block, _ = hand_back(ds, si.key, scene, settings)
-        handed[si.key] = (scene, kwargs, _scale_block(block, scale, own_scale))
+        handed[si.key] = (scene, {**seg_kwargs, **kwargs}, {**_scale_block(block, scale, own_scale), **seg_block})
     return handed
 
 
@@ -363,9 +368,65 @@ def corner_scales(scenes: list) -> list[tuple[float, float] | None]:
         ss, dof = corner_spread([t.corners for t in scene.targets])
         own.append((float(ss.sum()), float(dof.sum()), scene.corner_scale is None and bool((dof == 0).any())))
     total_ss, total_dof = sum(v[0] for v in own), sum(v[1] for v in own)
-    return [(max(float(f"{math.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof)):.2g}"), MIN_TARGET_SIGMA_PX),
+    return [(max(_sig2(math.sqrt(max(total_ss - ss, 0.0) / (total_dof - dof))), MIN_TARGET_SIGMA_PX),
              float(f"{total_dof - dof:.1g}")) if needs and total_dof - dof > 0 else None
             for ss, dof, needs in own]
+
+
+def segment_floors(scenes: list) -> list[dict | None]:
+    """The floor of the marginal reading's prior of a segment's length each scene gets from the
+    others (the data set's segment floor, :data:`~.dataset.SEGMENT_FLOOR`): ``floor`` (px,
+    :func:`~creference_bayes.models.metrology.segment_floor`) fitted to the other scenes' drawn
+    lengths (``segments``, at least :data:`MIN_FLOOR_SEGMENTS`) with their end points' noise
+    ``noise_px`` = :data:`~creference_bayes.models.metrology.REF_LINE_FACTOR` × the crowd's corner
+    scale of the other scenes (the model's own σ_line). None without. Rounded to two significant
+    digits, as the corner scale (:func:`corner_scales`)."""
+    from ...models.metrology import REF_LINE_FACTOR, corner_spread, segment_floor
+
+    own = []
+    for scene in scenes:
+        ss, dof = corner_spread([t.corners for t in scene.targets])
+        lengths = [np.linalg.norm(np.subtract(*r.line)) for r in scene.references if r.line is not None]
+        own.append((ss.sum(), dof.sum(), np.histogram(np.log(np.maximum(lengths, 1e-3)), _LENGTH_BINS)[0]))
+    total = [sum(v[i] for v in own) for i in range(3)]
+    out = []
+    for ss, dof, counts in own:
+        rest_ss, rest_dof, rest = total[0] - ss, total[1] - dof, total[2] - counts
+        if rest_dof <= 0 or rest_ss <= 0 or rest.sum() < MIN_FLOOR_SEGMENTS:
+            out.append(None)
+            continue
+        noise = _sig2(REF_LINE_FACTOR * math.sqrt(rest_ss / rest_dof))
+        floor = segment_floor(_LENGTH_CENTRES[rest > 0], noise, counts=rest[rest > 0])
+        out.append({"floor_px": _sig2(floor), "segments": int(rest.sum()), "noise_px": noise})
+    return out
+
+
+#: the fewest drawn segments of the other scenes a segment floor is fitted to (:func:`segment_floors`)
+MIN_FLOOR_SEGMENTS = 20
+#: bins of log drawn length (px) the other scenes' segments are pooled in, 1 % wide
+_LENGTH_BINS = np.arange(math.log(1e-3), math.log(1e5) + 0.01, 0.01)
+_LENGTH_CENTRES = np.exp(0.5 * (_LENGTH_BINS[1:] + _LENGTH_BINS[:-1]))
+
+
+def _sig2(x: float) -> float:
+    return float(f"{x:.2g}")
+
+
+def hand_segments(scenes: list, settings) -> list[tuple[dict, dict]]:
+    """Per scene, what the crowd's segments hand its estimate (:func:`segment_floors`): the
+    keyword argument ``read_floor_px`` and the ``dataset`` block's entry; nothing without
+    ``settings.pool_scale`` or for a model without the option; the user's option wins (an override)."""
+    from ...pipeline import MODEL_OPTIONS
+    from .dataset import SEGMENT_FLOOR
+
+    if not settings.pool_scale or "read_floor_px" not in MODEL_OPTIONS[settings.model]:
+        return [({}, {}) for _ in scenes]
+    if "read_floor_px" in settings.options:
+        why = {"from": "override", "why": f"--option read_floor_px={settings.options['read_floor_px']:g}"}
+        return [({}, {SEGMENT_FLOOR.label: why}) for _ in scenes]
+    return [({}, {}) if seg is None else ({"read_floor_px": seg["floor_px"]},
+                                          {SEGMENT_FLOOR.label: {"from": "data set", "shared_by": "crowd", **seg}})
+            for seg in segment_floors(scenes)]
 
 
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
@@ -439,15 +500,16 @@ def _prepare(scenes, out: Path, settings: BatchSettings, ident: dict, status: di
             status[si.key] = "failed"
             record_error(layout(out, si.key), si, "load", errors[si.key])
     scales = corner_scales([scene for _, scene in loaded]) if settings.pool_scale else [None] * len(loaded)
+    segments = hand_segments([scene for _, scene in loaded], settings)
     todo = deque()
-    for (si, scene), scale in zip(loaded, scales):
+    for (si, scene), scale, (seg_kwargs, seg_block) in zip(loaded, scales, segments):
         paths = layout(out, si.key)
         own_scale = scene.corner_scale
         scene = _with_scale(scene, scale)
         kwargs, block, rig = {}, {}, None
         if transform is not None:
             scene, kwargs, block, rig = transform(si.key, scene)
-        block = _scale_block(block, scale, own_scale)
+        kwargs, block = {**seg_kwargs, **kwargs}, {**_scale_block(block, scale, own_scale), **seg_block}
         job_ident = ident if not kwargs else {**ident, "from_dataset": _kwargs_record(kwargs)}
         scale = shared_scale(block, settings.seed)
         if scale is not None:  # the held values' uncertainty the result carries: another scale, another result

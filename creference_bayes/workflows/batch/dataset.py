@@ -16,6 +16,7 @@ pitch, roll         camera      spread  first pass / the orientation prior's pit
 reference scale     crowd       spread  first pass, log s / the ``ref_scale_median``, ``_log_sd`` options
 target distance     setting     spread  first pass, each target's log d / the location prior's population
 corner scale        crowd       shared  the annotations (sets of one object) / the scene's corner scale
+segment floor       crowd       shared  the references' drawn lengths / ``read_floor_px``
 ==================  ==========  ======  ===============================================================
 
 The mechanism, the same for every quantity:
@@ -41,8 +42,10 @@ The mechanism, the same for every quantity:
    prior, a frame's own weak, noisy evidence would move it again), and the pool's whole
    uncertainty V (statistical ⊕ floor) rides on each result as one scale its group's frames share
    (:func:`share_scale`: each kept draw's focal length and depths × exp(ε_d), ε_d ~ N(0, V), the
-   same ε_d in every frame of the camera). The corner scale is the one quantity read from the
-   annotations themselves (:func:`~.corner_scales`: sums of squares pooled, no first pass).
+   same ε_d in every frame of the camera). The crowd's corner scale and segment floor are read
+   from the annotations themselves, no first pass (:func:`~.corner_scales`: sums of squares
+   pooled; :func:`~.segment_floors`: the floor of the reading's prior of a segment's length,
+   fitted to the drawn lengths).
 
 A quantity is learnt when there is something to learn (:func:`plan`): frames sharing a camera id
 that lack a focal length or a calibrated mounting; frames with references (their crowd's scale);
@@ -162,6 +165,9 @@ SHARED = {s.name: s for s in (
 GIVEN = ("pitch", "roll")
 #: the corner scale (sd px, degrees of freedom) is read from the annotations (:func:`~.corner_scales`)
 CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
+#: ... and the floor of the marginal reading's prior of a segment's length (px), from the drawn
+#: references (:func:`~.segment_floors`)
+SEGMENT_FLOOR = Shared("segment_floor", "segment_floor_px", "crowd", "shared")
 
 
 @dataclass(frozen=True)
