@@ -111,6 +111,33 @@ def test_advice_is_ranked_and_recommends_by_its_settings(example):
     assert low.action == "stop" and "location-sd points" in low.reason
 
 
+def test_the_race_keeps_the_top_request_and_says_which_it_dropped(example):
+    """Every request weighed on a third of the futures first, the next thirds only for those that
+    might still be worth asking: the plan is the full weighing's, and a request dropped early says so (its futures,
+    the JSON, the table) and is ranked after those weighed on every future."""
+    from creference_bayes.workflows.advice.inputs import advice_table
+
+    s = dict(n_draws=200, n_futures=60, objective="hdi", target_hdi_width=0.0, min_gain=0.1)
+    full = _advise(example, seed=3, settings=AdviceSettings(**s, race_every=1))
+    raced = _advise(example, seed=3, settings=AdviceSettings(**s))
+    top, second = full.predictions[:2]
+    # the top request is clear of the next by more than their errors (points per minute)
+    errors = [p.gain_se_pct * 60.0 / p.candidate.seconds for p in (top, second)]
+    assert top.gain_per_minute - second.gain_per_minute > 2.0 * float(np.hypot(*errors))
+    assert all(p.futures == 60 and not p.dropped for p in full.predictions)
+    assert raced.best.candidate.key == top.candidate.key and not raced.best.dropped and raced.best.futures == 60
+    plans = [(a.action, a.to_dict()["recommended"], a.to_dict()["requests"]) for a in (raced, full)]
+    assert plans[0] == plans[1] == ("collect", top.candidate.key, [top.candidate.key])
+    flags = [p.dropped for p in raced.predictions]
+    assert any(flags) and flags == sorted(flags)  # some dropped, all after those weighed on every future
+    table, data = advice_table(raced, rows=50), raced.to_dict()["predictions"]
+    for p in (p for p in raced.predictions if p.dropped):
+        assert p.futures in (20, 40)  # a round of 20 futures or two
+        row = next(d for d in data if d["candidate"]["key"] == p.candidate.key)
+        assert row["dropped"] is True and row["futures"] == p.futures
+        assert re.search(re.escape(p.candidate.description) + rf".*\b{p.futures} dropped$", table, re.M)
+
+
 def test_a_small_sample_of_draws_does_not_count_against_the_references(example):
     """The example's posterior is narrow (its HDI about 6 % of the distance): one more reference
     can hardly narrow it, and the advice from 100 draws must say so as it does from 1000. Set

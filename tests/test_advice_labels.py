@@ -383,7 +383,7 @@ def test_good_labels_per_hour_rank_to_three_decimals_and_hdi_points_as_they_are(
     from creference_bayes.workflows.advice import rank_key
 
     def pred(key, labels_per_hour, hdi_per_minute):
-        return SimpleNamespace(candidate=SimpleNamespace(key=key),
+        return SimpleNamespace(candidate=SimpleNamespace(key=key), dropped=False,
                                score=lambda objective: labels_per_hour if objective == "labels" else hdi_per_minute)
 
     crumb, wider = pred("a", 2e-5, 0.01), pred("b", 1e-5, 0.5)
@@ -469,7 +469,8 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
     monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(20.0))
     monkeypatch.setattr(advice_module, "_moved", present)
     _, result = advised
-    a = advise_result(result, frame[0], seed=3, settings=AdviceSettings(n_draws=400, n_futures=60, min_quality=0.3))
+    a = advise_result(result, frame[0], seed=3, settings=AdviceSettings(n_draws=400, n_futures=60, min_quality=0.3,
+                                                                       race_every=1))  # every future weighed
     dims = [p for p in a.predictions if p.candidate.kind == "dims"]
     assert len(dims) == 3 and all(p.fallbacks == 60 for p in dims)
     for p in dims:
@@ -561,7 +562,7 @@ def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0, spre
     seconds, the request's change of each label's P(IoU ≥ 0.7))])}, each change known to ``se``, the
     futures' variance ``spread`` (by default as sure as can be: a label is lifted when its change
     takes it past the bar of 0.5). A request's chances alone are those of combined_chance, on both
-    halves of the futures."""
+    halves of the futures; a kind ending in "-dropped" left its frame's race (Prediction.dropped)."""
     from types import SimpleNamespace
 
     from creference_bayes.workflows.advice import Advice, Moments, Outlook, Prediction
@@ -578,11 +579,12 @@ def _planned(frames: dict, min_good_per_hour: float = 1.0, se: float = 0.0, spre
         for kind, target, seconds, change in requests:
             m = Moments(np.asarray(change, float), one * se, one * spread)
             q = combined_chance(p_now, one * 0.5, [m])
+            kind, dropped = kind.removesuffix("-dropped"), kind.endswith("-dropped")
             predictions.append(Prediction(
                 Candidate(f"{kind}:{target}", kind, target, None, None, None, None, None, (), seconds), now,
                 0.0, 0.0, 0.0, 1.0, 0, p_good=q, good_gain=float(q[below].sum()), rank_p_good=q,
                 rank_good_gain=float(q[below].sum()), good_loss=float((1 - q[~below]).sum()), moments=m,
-                rank_moments=m))
+                rank_moments=m, dropped=dropped))
         advice = Advice(tuple(f"t{i}" for i in range(len(p_now))), now, tuple(predictions), "collect", "",
                         settings=settings)
         objects += [ObjectAdvice(key, f"{key}.png", SimpleNamespace(camera_id=camera), advice, i, None)
@@ -646,6 +648,10 @@ def test_the_plan_chooses_by_each_requests_chances_and_states_them_answered_toge
     # a request no longer worth its time is left out; a budget cuts the rest
     assert [r.prediction.candidate.kind for r in _planned(frames, min_good_per_hour=4.0, spread=0.01).plan()] == [
         "size", "size", "dims"]
+    # one that left its frame's race is not asked, whatever its first round's futures said
+    raced = {**frames, "b": ("cam", [0.3], frames["b"][2] + [("reference-dropped", 0, 10.0, [0.3])])}
+    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in _planned(raced, spread=0.01).plan()] == [
+        ("b", "size"), ("a", "size"), ("a", "dims"), ("a", "mounting")]
     assert [r.objects[0].key for r in _planned(frames, spread=0.01).plan(budget_s=2 * 64.4)] == ["b", "a"]
 
 
@@ -822,6 +828,9 @@ def test_bad_advice_settings_are_named(capsys):
         AdviceSettings(min_quality=0.0)
     with pytest.raises(ValueError, match="objective"):
         AdviceSettings(objective="boxes")
+    for every in (2, 0, -1):  # the race's rounds: an odd count, each holding futures of both halves
+        with pytest.raises(ValueError, match=f"race_every: expected an odd integer >= 1, got {every}"):
+            AdviceSettings(race_every=every)
     for args, message in ((["--requests", "dims,foo"], "--requests: expected some of"),
                           (["--min-quality", "1.5"], "--min-quality"), (["--score-iou", "1"], "--score-iou")):
         assert main(["advise", "nothing.json", *args]) == 2

@@ -42,6 +42,11 @@ now).
 effective sample size collapses (below :data:`~.update.MIN_ESS` or :data:`~.update.MIN_ESS_FRACTION`
 of the draws) are recomputed on draws moved to the new posterior (:func:`_moved`), counted in
 ``fallbacks``.
+
+The requests are raced (docs/advice_method.md, "The race"): each is weighed on every
+``race_every``-th future first, and on each next share only while it might still change the plan
+or a label's verdict at the bounds of the futures it has (:func:`_contenders`); one that left
+early is ``dropped``, ranked after the others and asked by no plan.
 """
 
 from __future__ import annotations
@@ -74,6 +79,10 @@ _BOOTSTRAPS = 20
 #: (its HDI is read against the present's on the same draws): the fallbacks' cost grows with them
 #: (docs/studies/advice.md, "Speed of the advice on a frame").
 FALLBACK_DRAWS = 250
+#: The race (:func:`advise`) is run when each of its rounds holds at least this many futures.
+RACE_MIN_FUTURES = 20
+#: The standard errors of a request's bounds in the race (:func:`_bounds`, :func:`_contenders`).
+RACE_Z = 2.0
 
 
 @dataclass(frozen=True)
@@ -100,6 +109,10 @@ class AdviceSettings:
         fewer labels good than this per human hour
     kinds : the kinds of request to weigh (of :data:`KINDS`: a team whose crowd draws no
         references leaves ``reference`` out)
+    race_every : the race's rounds: the first weighs every request on every ``race_every``-th
+        simulated future (odd, so that each round holds futures of both halves), each of the others
+        the next share only for the requests that might still be worth asking or lift a label
+        (:func:`advise`); 1: every request on all of them
     """
 
     n_draws: int = 600
@@ -113,6 +126,7 @@ class AdviceSettings:
     min_quality: float = 0.5
     min_good_per_hour: float = 1.0
     kinds: tuple[str, ...] = ("dims", "reference", "size", "mounting")
+    race_every: int = 3
 
     def __post_init__(self):
         for key, ok, what in (
@@ -124,7 +138,9 @@ class AdviceSettings:
                 ("iou_threshold", 0.0 < self.iou_threshold < 1.0, "a number in (0, 1)"),
                 ("iou_pairs", self.iou_pairs >= 1, "an integer >= 1"),
                 ("min_quality", 0.0 < self.min_quality <= 1.0, "a probability in (0, 1]"),
-                ("min_good_per_hour", self.min_good_per_hour >= 0.0, "a number >= 0")):
+                ("min_good_per_hour", self.min_good_per_hour >= 0.0, "a number >= 0"),
+                ("race_every", isinstance(self.race_every, int) and self.race_every >= 1 and self.race_every % 2 == 1,
+                 "an odd integer >= 1")):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and ok):
                 raise ValueError(f"{key}: expected {what}, got {value!r}")
@@ -229,6 +245,9 @@ class Prediction:
     moments : :class:`Moments` of each label's future after it, from the futures ``p_good`` is
         stated from; ``rank_moments`` from those the requests are ranked by. Requests answered
         together are combined by them (:func:`combined_chance`; ``p_good`` is that of it alone)
+    futures : the simulated futures it was weighed on
+    dropped : it left the race before its last round (:func:`advise`): weighed on fewer futures, as
+        one that could change neither the plan nor a label's verdict
     """
 
     candidate: Candidate
@@ -248,6 +267,8 @@ class Prediction:
     moments: Moments | None = None
     rank_moments: Moments | None = None
     location_gain_pct: float = 0.0
+    futures: int = 0
+    dropped: bool = False
 
     def to_dict(self) -> dict:
         return {"candidate": self.candidate.to_dict(), "expected": self.expected.to_dict(),
@@ -259,7 +280,8 @@ class Prediction:
                 "rank_p_good": None if self.rank_p_good is None else [round(float(x), 6) for x in self.rank_p_good],
                 "moments": None if self.moments is None else self.moments.to_dict(),
                 "rank_moments": None if self.rank_moments is None else self.rank_moments.to_dict(),
-                "ess_median": self.ess_median, "fallbacks": self.fallbacks}
+                "ess_median": self.ess_median, "fallbacks": self.fallbacks, "futures": self.futures,
+                "dropped": self.dropped}
 
     def value(self, objective: str) -> float:
         """What the requests are chosen by: good labels (from the futures that rank, where they
@@ -336,7 +358,9 @@ class Advice:
         return self.now.hdi_share[i] > self.settings.target_hdi_width
 
     def _worth(self, p: Prediction) -> bool:
-        return self.settings.worth(p.value(self.settings.objective), p.candidate.seconds)
+        """Whether ``p`` is worth asking: not dropped in the race (:func:`advise`) and worth its
+        time (:meth:`AdviceSettings.worth`)."""
+        return not p.dropped and self.settings.worth(p.value(self.settings.objective), p.candidate.seconds)
 
     def requests(self) -> list[Prediction | None]:
         """Each target's request: the best-ranked observation asked on it or on no target (a
@@ -494,21 +518,34 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                      "heavy-tailed crowd; docs/studies/advice.md, 'A range as a user would state it')")
     mix = format_mix(scene)
     seeds = rng.integers(2**63, size=len(candidates))
-    predictions = []
-    with progress_bar(progress, len(candidates), desc="advice", unit="observation") as bar:
-        for cand, s in zip(candidates, seeds):
-            m = (mixes or {}).get(cand.key, mix)
-            obs = (DimsObservation(model, cand.target, options, temperature) if cand.kind == "dims" else
-                   SizeObservation(model, cand.target, CATALOGUE_LOG_SD) if cand.kind == "size" else
-                   MountingObservation(model, MOUNTING_SD) if cand.kind == "mounting" else
-                   ReferenceObservation(model, cand.term, options, range_share=m.range_share,
-                                        range_precision=m.range_precision, temperature=temperature))
-            if not obs.usable:
-                notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
-            else:
-                predictions.append(_predict(obs, cand, draws, outer, base, now, shift, settings,
-                                            np.random.default_rng(s), temperature))
-            bar.update(1)
+    weighings = []
+    for cand, s in zip(candidates, seeds):
+        m = (mixes or {}).get(cand.key, mix)
+        obs = (DimsObservation(model, cand.target, options, temperature) if cand.kind == "dims" else
+               SizeObservation(model, cand.target, CATALOGUE_LOG_SD) if cand.kind == "size" else
+               MountingObservation(model, MOUNTING_SD) if cand.kind == "mounting" else
+               ReferenceObservation(model, cand.term, options, range_share=m.range_share,
+                                    range_precision=m.range_precision, temperature=temperature))
+        if obs.usable:
+            weighings.append(_Weighing(obs, cand, draws, outer, base, np.random.default_rng(s), temperature))
+        else:
+            notes.append(f"{cand.key}: not simulated: an end of its segment is on or above the horizon")
+    # the race (module docstring): every request on every race_every-th future first, then round by
+    # round on the next share only those that might still change the plan or a label's verdict
+    positions = np.arange(len(outer))
+    rounds = [positions[k::settings.race_every] for k in range(settings.race_every)]
+    if len(rounds[-1]) < RACE_MIN_FUTURES:
+        rounds = [positions]
+    with progress_bar(progress, len(weighings) * len(rounds), desc="advice", unit="observation") as bar:
+        alive = np.ones(len(weighings), bool)
+        for k, pos in enumerate(rounds):
+            if k:  # those out of the race stay out
+                alive &= _contenders(weighings, now, shift, settings)
+            for w in (w for w, kept in zip(weighings, alive) if kept):
+                w.weigh(pos, now, settings)
+                bar.update(1)
+            bar.update(int(np.sum(~alive)))
+    predictions = [_prediction(w, now, shift, settings, len(outer)) for w in weighings]
     predictions.sort(key=rank_key(settings.objective))
     names = tuple(object_name(t) for t in scene.targets)
     action, reason = _recommend(now, predictions, settings, names)
@@ -519,7 +556,8 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
 
 
 def rank_key(objective: str):
-    """The sort key of predictions, best first: the objective's score (:meth:`Prediction.score`),
+    """The sort key of predictions, best first: those weighed on every future before those that
+    left the race (:attr:`Prediction.dropped`), then the objective's score (:meth:`Prediction.score`),
     then the other objective's, then the candidate's key. Good labels per hour are compared to three
     decimals, so that chances of a few millionths (nothing, read from simulated outcomes) do not
     decide the order; HDI points per minute are compared as they are (a request worth 0.003 points
@@ -528,7 +566,7 @@ def rank_key(objective: str):
 
     def key(p):
         s = p.score(objective)
-        return -(round(s, 3) if objective == "labels" else s), -p.score(other), p.candidate.key
+        return p.dropped, -(round(s, 3) if objective == "labels" else s), -p.score(other), p.candidate.key
 
     return key
 
@@ -621,80 +659,192 @@ def _label_quality(scene, camera_map, objects_map, cams, objs, threshold: float)
     return np.array([np.mean(box_iou_3d(box[i], samples[:, i]) >= threshold) for i in range(len(box))])
 
 
-def _predict(obs, cand, draws: _Draws, outer, base, now: Outlook, shift, settings, rng,
-             temperature) -> Prediction:
-    cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
-    obs.simulate(rng, cams[outer], draws.objs[outer])
-    log_w = obs.log_ratio(cams, draws.objs, base)
-    log_w[np.arange(len(outer)), outer] = -np.inf  # leave the simulating draw out
-    weights, ess = normalise(log_w)
-    rows = draws.outlooks(weights, settings, rng)
-    n = len(cams)
-    collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
-    # Each future against the present at its own weights (module docstring): scaled by the present
-    # on all draws over that. The fallback futures are recomputed on FALLBACK_DRAWS of the draws
-    # (evenly thinned), moved together: scaled by the present on all draws over that on those.
-    same = np.ones(len(outer), bool)
-    same[collapsed] = False
-    width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng)
-    if len(collapsed):
-        sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
-        equal = np.full((1, len(sub)), 1.0 / len(sub))
-        sub_width, sub_median = weighted_hdi(draws.dist[sub], equal, settings.hdi_prob)
-        width[collapsed], share[collapsed] = sub_width[0], sub_width[0] / sub_median[0]
-        for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, temperature)):
-            one = _Draws(c, o, draws.scene).outlooks(equal, settings, rng)
-            for k in rows:
-                rows[k][i] = one[k][0]
-    rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width
-    rows["hdi_share"] = rows["hdi_share"] * now.hdi_share / share
+class _Weighing:
+    """One request's simulated futures, weighed a share at a time (:func:`advise`'s race): per
+    future, its reweighted outlook (each HDI against the present at its own weights), its effective
+    sample size and, for a future that was not recomputed, its weights and its label quality under
+    the same weights shuffled over the draws. :func:`_prediction` summarises those weighed so far."""
+
+    def __init__(self, obs, cand, draws: _Draws, outer, base, rng, temperature: float):
+        self.obs, self.cand, self.draws, self.outer, self.base = obs, cand, draws, outer, base
+        self.rng, self.temperature = rng, temperature
+        # a scene without references: the draws' crowd scales, drawn once for all the futures
+        self.cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
+        self.parts: list[dict] = []
+
+    def weigh(self, pos: np.ndarray, now: Outlook, settings: AdviceSettings) -> None:
+        """Weigh the futures at positions ``pos`` of ``outer``."""
+        obs, draws, rng, cams = self.obs, self.draws, self.rng, self.cams
+        outer = self.outer[pos]
+        obs.simulate(rng, cams[outer], draws.objs[outer])
+        log_w = obs.log_ratio(cams, draws.objs, self.base)
+        log_w[np.arange(len(outer)), outer] = -np.inf  # leave the simulating draw out
+        weights, ess = normalise(log_w)
+        rows = draws.outlooks(weights, settings, rng)
+        n = len(cams)
+        collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
+        # Each future against the present at its own weights (module docstring): scaled by the present
+        # on all draws over that. The fallback futures are recomputed on FALLBACK_DRAWS of the draws
+        # (evenly thinned), moved together: scaled by the present on all draws over that on those.
+        same = np.ones(len(outer), bool)
+        same[collapsed] = False
+        width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng)
+        if len(collapsed):
+            sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
+            equal = np.full((1, len(sub)), 1.0 / len(sub))
+            sub_width, sub_median = weighted_hdi(draws.dist[sub], equal, settings.hdi_prob)
+            width[collapsed], share[collapsed] = sub_width[0], sub_width[0] / sub_median[0]
+            for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature)):
+                one = _Draws(c, o, draws.scene).outlooks(equal, settings, rng)
+                for k in rows:
+                    rows[k][i] = one[k][0]
+        rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width
+        rows["hdi_share"] = rows["hdi_share"] * now.hdi_share / share
+        # a reweighted future's label quality is read on its few effective draws around their own
+        # mean box, which flatters it: the same weights shuffled over the draws show by how much
+        shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
+                         settings.iou_pairs) if np.any(same) else np.zeros((0, len(now.p_iou)))
+        self.parts.append(dict(rows, pos=pos, ess=ess, same=same, weights=weights[same], shuffled=shuffled))
+
+    def futures(self) -> dict:
+        """Every per-future array of the futures weighed so far, in the order of their positions."""
+        parts = self.parts
+        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        order = np.argsort(out["pos"], kind="stable")
+        for k in ("weights", "shuffled"):  # rows of the futures not recomputed, in the same order
+            out[k] = out[k][np.argsort(out["pos"][out["same"]], kind="stable")]
+        return {k: v if k in ("weights", "shuffled") else v[order] for k, v in out.items()}
+
+
+def _labels_part(f: dict, now: Outlook, shift, settings: AdviceSettings):
+    """(p_hat, n_eff, shuffle_var, present, bar) of the futures ``f`` (:meth:`_Weighing.futures`):
+    each future's label quality less the bias its weights show shuffled (a recomputed future's
+    draws are equally weighted, as the present's are), its effective draws, and the present and the
+    bar on the futures' scale."""
+    same = f["same"]
+    p_hat = f["p_iou"].copy()
+    n_eff = np.full(len(same), float(settings.iou_pairs))
+    present, bar = futures_scale(now.p_iou, shift, settings.min_quality)  # on the futures' scale
+    shuffle_var = np.zeros(len(present))
+    shuffled = f["shuffled"]
+    if len(shuffled):
+        p_hat[same] -= shuffled.mean(axis=0) - present
+        n_eff[same] = 1.0 / (1.0 / settings.iou_pairs + 1.0 / f["ess"][same])
+        shuffle_var = shuffled.var(axis=0, ddof=1) / len(shuffled) if len(shuffled) > 1 else shuffle_var
+    return p_hat, n_eff, shuffle_var, present, bar
+
+
+def _moments(parts: tuple, idx: np.ndarray, cols=slice(None)) -> Moments:
+    """The :class:`Moments` of the futures ``idx`` (their labels ``cols``) from the ``parts`` of
+    :func:`_labels_part`."""
+    p_hat, n_eff, shuffle_var, present, _ = parts
+    a, b = _fit_futures(p_hat[idx][:, cols], n_eff[idx])
+    mean = a / (a + b)
+    se2 = p_hat[idx][:, cols].var(axis=0, ddof=1) / len(idx) + shuffle_var[cols]
+    return Moments(mean - present[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
+
+
+def _prediction(w: _Weighing, now: Outlook, shift, settings: AdviceSettings, n_futures: int) -> Prediction:
+    """The prediction of the futures ``w`` weighed (module docstring): the ranking from the even
+    positions, what it states from the odd ones."""
+    f, cand, rng, dist = w.futures(), w.cand, w.rng, w.draws.dist
+    rows = {k: f[k] for k in ("hdi_width_m", "hdi_share", "distance_m", "location_sd_m", "p_iou")}
     expected = Outlook(**{k: v.mean(axis=0) for k, v in rows.items()})
     expected = dataclasses.replace(expected, p_iou=np.clip(expected.p_iou + shift, 0.0, 1.0))
     gains = 100.0 * np.sum(now.hdi_share - rows["hdi_share"], axis=1)
     gain = float(np.mean(gains))
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
-    se_inner = _split_se(draws.dist, weights[same], settings.hdi_prob, rng)
-    # labels below the bar now that reach it (module docstring). A reweighted future's share is read
-    # on its few effective draws around their own mean box, which flatters it: less the bias the
-    # same weights shuffled over the draws show (nothing of the observation). A recomputed future's
-    # draws are equally weighted, as the present's are. Then each label's future is the fitted
+    se_inner = _split_se(dist, f["weights"], settings.hdi_prob, rng)
+    # labels below the bar now that reach it (module docstring): each label's future is the fitted
     # spread of its futures' P(IoU ≥ t) (:func:`good_chance`), summarised by its moments, and its
     # chance is that at or above the bar by the rule requests are combined by
     # (:func:`combined_chance`), the label's (its MAP box's) quality being its mean box's moved by
     # ``shift``.
-    p_hat = rows["p_iou"].copy()
-    n_eff = np.full(len(outer), float(settings.iou_pairs))
-    present, bar = futures_scale(now.p_iou, shift, settings.min_quality)  # on the futures' scale
-    shuffle_var = np.zeros(len(present))
-    if np.any(same):
-        shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
-                         settings.iou_pairs)
-        p_hat[same] -= shuffled.mean(axis=0) - present
-        n_eff[same] = 1.0 / (1.0 / settings.iou_pairs + 1.0 / ess[same])
-        shuffle_var = shuffled.var(axis=0, ddof=1) / len(shuffled) if len(shuffled) > 1 else shuffle_var
+    p_hat, n_eff, shuffle_var, present, bar = parts = _labels_part(f, now, shift, settings)
     below = now.p_iou < settings.min_quality
-
-    def moments(idx: np.ndarray, cols=slice(None)) -> Moments:
-        a, b = _fit_futures(p_hat[idx][:, cols], n_eff[idx])
-        mean = a / (a + b)
-        se2 = p_hat[idx][:, cols].var(axis=0, ddof=1) / len(idx) + shuffle_var[cols]
-        return Moments(mean - present[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
-
-    rank, told = np.arange(len(outer))[0::2], np.arange(len(outer))[1::2]
-    m_told, m_rank = moments(told), moments(rank)
+    rank, told = np.flatnonzero(f["pos"] % 2 == 0), np.flatnonzero(f["pos"] % 2 == 1)
+    m_told, m_rank = _moments(parts, told), _moments(parts, rank)
     p_told, p_rank = (combined_chance(present, bar, [m]) for m in (m_told, m_rank))
     good_gain = float(np.sum(p_told[below]))
-    boots = [combined_chance(present[below], bar[below], [moments(idx, below)]).sum()
+    boots = [combined_chance(present[below], bar[below], [_moments(parts, idx, below)]).sum()
              for idx in rng.choice(told, size=(_BOOTSTRAPS, len(told)))] if np.any(below) else [0.0, 0.0]
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,
-                      ess_median=float(np.median(ess) / n), fallbacks=int(len(collapsed)), p_good=p_told,
-                      good_gain=good_gain, good_gain_se=float(np.std(boots, ddof=1)),
+                      ess_median=float(np.median(f["ess"]) / len(dist)), fallbacks=int(np.sum(~f["same"])),
+                      p_good=p_told, good_gain=good_gain, good_gain_se=float(np.std(boots, ddof=1)),
                       good_per_hour=good_gain * 3600.0 / cand.seconds if cand.seconds > 0 else math.inf,
                       rank_p_good=p_rank, rank_good_gain=float(np.sum(p_rank[below])),
                       good_loss=float(np.sum(1.0 - p_told[~below])), moments=m_told, rank_moments=m_rank,
                       location_gain_pct=float(100.0 * np.sum((now.location_sd_m - expected.location_sd_m)
-                                                             / now.distance_m)))
+                                                             / now.distance_m)),
+                      futures=len(f["pos"]), dropped=len(f["pos"]) < n_futures)
+
+
+def _bounds(w: _Weighing, now: Outlook, shift, settings: AdviceSettings) -> dict:
+    """What the futures ``w`` weighed so far say the request might be worth at most and at least:
+    ``chance`` (lower, upper), each (m,), every label's chance of reaching the bar (0 for those at
+    it now), its change unshrunk (:meth:`Moments.shrunk` shrinks it less on more futures) minus or
+    plus :data:`RACE_Z` standard errors; ``value`` (lower, upper), the labels' summed (labels) or
+    the HDI or location-sd points' mean over the futures minus or plus :data:`RACE_Z` standard
+    errors; ``score`` the values per hour (labels) or minute (:meth:`Prediction.score`)."""
+    f, objective, m = w.futures(), settings.objective, len(now.p_iou)
+    below = now.p_iou < settings.min_quality
+    chance = np.zeros((2, m))
+    if np.any(below):
+        parts = _labels_part(f, now, shift, settings)
+        mo = _moments(parts, np.arange(len(f["pos"])), below)
+        for k, sign in enumerate((-1.0, 1.0)):
+            bound = Moments(mo.change + sign * RACE_Z * mo.change_se, 0.0 * mo.change_se, mo.spread)
+            chance[k, below] = combined_chance(parts[3][below], parts[4][below], [bound])
+    if objective == "labels":
+        value = chance.sum(axis=1)
+    else:
+        per_future = 100.0 * (np.sum(now.hdi_share - f["hdi_share"], axis=1) if objective == "hdi" else
+                              np.sum((now.location_sd_m - f["location_sd_m"]) / now.distance_m, axis=1))
+        value = per_future.mean() + np.array([-1.0, 1.0]) * RACE_Z * per_future.std(ddof=1) / np.sqrt(len(per_future))
+    seconds = w.cand.seconds
+    per = 3600.0 if objective == "labels" else 60.0
+    # the other objective's score, which orders requests of the same score (:func:`rank_key`)
+    other = (chance.mean(axis=0).sum() * 3600.0 if objective == "hdi" else
+             100.0 * np.mean(np.sum(now.hdi_share - f["hdi_share"], axis=1)) * 60.0)
+    return {"chance": chance, "value": value, "score": value * per / seconds if seconds > 0 else np.full(2, math.inf),
+            "other": other / seconds if seconds > 0 else math.inf}
+
+
+def _contenders(weighings: list[_Weighing], now: Outlook, shift, settings: AdviceSettings) -> np.ndarray:
+    """Which requests stay in the race (:func:`advise`), by the bounds of the rounds so far
+    (:func:`_bounds`): those that might be worth asking (the upper value) and, so, top the ranking
+    or be the request of a target that needs one (:meth:`Advice.requests`) ahead of the best of
+    that target's own requests at its lower score; those that might be a label's verdict
+    (:meth:`Advice.verdicts`): lift it (an upper chance of a half) ahead of the best chance of
+    lifting it at the lower bound; the first by the lower score; and the mounting, which a batch's
+    plan values over every frame of its camera (:meth:`~.batch.BatchAdvice.plan`)."""
+    if not weighings:
+        return np.zeros(0, bool)
+    bounds = [_bounds(w, now, shift, settings) for w in weighings]
+    m = len(now.p_iou)
+    needs = (now.p_iou < settings.min_quality if settings.objective == "labels" else
+             now.hdi_share > settings.target_hdi_width)
+    low = np.array([b["score"][0] for b in bounds])
+    targets = [w.cand.target for w in weighings]
+    own_best = np.array([max((lo for lo, t in zip(low, targets) if t == i), default=-math.inf) for i in range(m)])
+    served = [np.arange(m) if t is None else np.array([t]) for t in targets]
+    chance_best = np.max([np.where(np.isin(np.arange(m), sv), b["chance"][0], 0.0) for b, sv in zip(bounds, served)],
+                         axis=0, initial=0.0)
+    keep = np.zeros(len(weighings), bool)
+    # the first of the ranking at the lower bound is weighed on every future (compared as rank_key does)
+    first = [round(x, 3) if settings.objective == "labels" else x for x in low]
+    keep[max(range(len(low)), key=lambda k: (first[k], bounds[k]["other"]))] = True
+    for k, (w, b, sv) in enumerate(zip(weighings, bounds, served)):
+        high, lifts = b["score"][1], b["chance"][1]
+        if settings.worth(b["value"][1], w.cand.seconds) and (
+                high >= low.max() or np.any(needs[sv] & (high >= own_best[sv]))):
+            keep[k] = True
+        elif np.any(lifts[sv] >= np.maximum(0.5, chance_best[sv])):
+            keep[k] = True
+        elif w.cand.kind == "mounting":  # a batch's plan values it over every frame of its camera
+            keep[k] = True
+    return keep
 
 
 def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
@@ -724,7 +874,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     wc, wo = coords.to_work(cams, objs)
     x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
     unpack, density = _working(obs.model, coords, wc, wo, temperature)
-    old = density(obs.model, obs.needs_scale)
+    old = density(obs.model, obs.needs_scale, natural=True)
     values = obs.values[idx]                                                        # (F, p)
 
     def natural(y):  # (F, n, d) → cameras and objects of every row
@@ -734,10 +884,11 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
         return obs.quantities(*natural(y)).reshape(*y.shape[:2], -1)
 
     def target(y):  # the old posterior times the f-th answer's normal density, set f's own
-        z = (values[:, None, :] - observe(y)) / obs.sd
+        log_p, c, o = old(y.reshape(-1, y.shape[-1]))  # the draws' natural values read once for both
+        z = (values[:, None, :] - obs.quantities(c, o).reshape(*y.shape[:2], -1)) / obs.sd
         with np.errstate(invalid="ignore"):
             ratio = -0.5 * np.sum(z * z, axis=-1)
-        return old(y.reshape(-1, y.shape[-1])).reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
+        return log_p.reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
 
     moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
                           n_moves=_n_moves(x.shape[1]))
@@ -753,7 +904,8 @@ def _n_moves(d: int) -> int:
 def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
     """(unpack, density) in the working coordinates of ``model``'s free parameters: ``unpack``
     (n, d) → full working cameras and objects (the fixed entries of the first draw), ``density``
-    (a model, whether the crowd scale's prior enters) → the log-posterior density (n, d) → (n,)."""
+    (a model, whether the crowd scale's prior enters) → the log-posterior density (n, d) → (n,)
+    (``natural``: → (density, cameras, objects), the draws' natural values beside it)."""
     from ...inference.coords import CAMERA_LOG
 
     cf, of = model.camera_free, model.object_free
@@ -764,7 +916,7 @@ def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
         c[:, cf], o[:, of] = x[:, :cf.sum()], x[:, cf.sum():]
         return c, o
 
-    def density(m, scale_prior: bool):  # log-posterior density in working coordinates
+    def density(m, scale_prior: bool, natural: bool = False):  # log-posterior density in working coordinates
         def f(x):
             c, o = unpack(x)
             cn, on, jac = coords.from_work_jacobian(c, o)
@@ -772,7 +924,8 @@ def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
                 out = -m.neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1) + jac.sum(axis=1)
                 if scale_prior:
                     out = out - m.ref_scale_neg_log(cn[:, C_SCALE])
-            return np.where(np.isfinite(out), out, -np.inf)
+            out = np.where(np.isfinite(out), out, -np.inf)
+            return (out, cn, on) if natural else out
         return f
 
     return unpack, density

@@ -119,7 +119,8 @@ class BatchAdvice:
         time (:meth:`~.AdviceSettings.worth`) and their human time stays within ``budget_s`` (a
         request that does not fit is passed over for cheaper ones).
 
-        With the labels objective every observation of every frame may be asked, each chosen by
+        With the labels objective every observation of every frame that stayed in its frame's
+        race (:attr:`~creference_bayes.workflows.advice.Prediction.dropped`) may be asked, each chosen by
         the good labels it adds to the requests already planned, on the futures it is ranked by: a
         label below the bar that requests r₁…r_k would each lift with chance p₁…p_k (alone) counts
         as lifted with chance 1 − Π(1 − pᵢ). Values only fall as the plan grows. What each request
@@ -212,7 +213,7 @@ class BatchAdvice:
             below = np.flatnonzero(~first.advice.good)
             if objective == "labels":
                 pairs = [(targets[_shown(p, below)], p) for p in first.advice.predictions
-                         if p.candidate.kind != "mounting"]
+                         if p.candidate.kind != "mounting" and not p.dropped]
             else:
                 pairs = [(o, o.request) for o in targets.values()
                          if o.request is not None and o.request.candidate.kind != "mounting"]

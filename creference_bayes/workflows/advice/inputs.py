@@ -131,7 +131,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
                      f"location sd {now.location_sd_m[i]:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
     head = ("rank", "annotation", "cost s", "good labels", "falls", "good/h", f"P(IoU>={s.iou_threshold:g})",
-            "HDI after", "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks")
+            "HDI after", "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks", "outcomes")
     table = []
     for k, p in enumerate(advice.predictions[:rows], start=1):
         e, c = p.expected, p.candidate
@@ -148,7 +148,8 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
                       f"{p.good_loss:.2f}", f"{p.good_per_hour:+.2f}", f"{on}{now.p_iou[i]:.2f} → {e.p_iou[i]:.2f}",
                       f"{e.hdi_width_m[i]:.3g} m {100 * e.hdi_share[i]:.1f} %",
                       f"{p.gain_pct:+.2f} ±{p.gain_se_pct:.2f}", f"{p.gain_per_minute:+.3f}",
-                      f"{e.location_sd_m[i]:.3g}", f"{100 * p.ess_median:.0f} %", str(p.fallbacks)))
+                      f"{e.location_sd_m[i]:.3g}", f"{100 * p.ess_median:.0f} %", str(p.fallbacks),
+                      f"{p.futures}{' dropped' if p.dropped else ''}"))
     widths = [max(len(r[i]) for r in table + [head]) for i in range(len(head))]
     lines.append("")
     for r in [head] + table:
@@ -161,13 +162,15 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
               f"HDI after: the expected {s.hdi_prob:.0%} HDI of the distance; gain pts: its narrowing in points of the "
               "distance (± its error); pts/min: that per minute of human time; loc sd m: the expected location sd",
               f"ESS: the median share of the {n} draws that still count once a simulated outcome reweights them (low: "
-              f"a noisier row); fallbacks: the simulated outcomes (of {s.n_futures}) recomputed on draws "
-              "moved to their posterior because too few counted"]
+              f"a noisier row); fallbacks: the simulated outcomes recomputed on draws moved to their posterior "
+              f"because too few counted; outcomes: those the row was weighed on (of {s.n_futures}; dropped: it left "
+              "the race early, as it could change neither the plan nor a label's verdict)"]
     lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
     lines += [f"  {name}: {v['text']}" for name, v in zip(ids, advice.verdicts())]
     said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
     lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
     lines += [f"note: {n}" for n in advice.notes]
-    lines.append(f"({len(advice.predictions)} annotations weighed with {s.n_futures} simulated outcomes each on "
-                 f"the {n} draws; {advice.seconds:.1f} s)")
+    dropped = sum(p.dropped for p in advice.predictions)
+    lines.append(f"({len(advice.predictions)} annotations weighed on the {n} draws with {s.n_futures} simulated outcomes "
+                 f"each{f', {dropped} of them dropped early' if dropped else ''}; {advice.seconds:.1f} s)")
     return "\n".join(lines)
