@@ -95,7 +95,9 @@ def load_result_path(tmp_path, doc):
 
 def test_the_posterior_of_a_noise_free_scene_holds_the_truth_and_is_narrow():
     d, truth = truth_scene(5, m=2, n_annotations=2, n_refs=2)
-    r = cb.estimate(d, seed=0, sampling=FAST)
+    # the camera height's ridge with the ground offsets mixes slowly on a noise-free frame; the
+    # distances, which this test is about, are sampled well within 2,000 steps
+    r = cb.estimate(d, seed=0, sampling={**FAST, "max_steps": 2000})
     for o, t in zip(r.to_dict()["objects"], truth["objects"]):
         lo, hi = o["posterior"]["hdi"]["distance_m"]
         assert lo <= np.hypot(t[0], t[1]) <= hi and (hi - lo) / (hi + lo) < 0.01
@@ -132,12 +134,13 @@ def test_the_result_keeps_draws_that_read_back():
 
 def test_both_models_and_every_preset_take_any_scene():
     d, _ = truth_scene(8, m=2, n_annotations=2, noise_px=2.0, n_refs=3)
-    for kw in ({"model": "paper"}, {"model": "paper", "preset": "paper", "restarts": 4},
-               {"model": "metrology", "preset": "paper-controlled", "restarts": 4}):
-        doc = cb.estimate(d, seed=0, posterior=False, **kw).to_dict()
+    docs = []
+    for kw in ({"model": "paper"}, {"model": "paper", "preset": "paper", "restarts": 2},
+               {"model": "metrology", "preset": "paper-controlled", "restarts": 2}):
+        docs.append(doc := cb.estimate(d, seed=0, posterior=False, **kw).to_dict())
         assert doc["model"] == kw["model"] and doc["preset"] == kw.get("preset", "default")
         assert all(np.isfinite(o["map"]["distance_m"]) for o in doc["objects"])
-    assert cb.estimate(d, seed=0, posterior=False, model="paper").to_dict()["references"]["used_as"] == "pairwise bounds"
+    assert docs[0]["references"]["used_as"] == "pairwise bounds"
 
 
 def test_bad_options_are_refused_by_name():

@@ -161,6 +161,7 @@ def test_the_examples_longer_runs(tmp_path):
     _run_all(SLOW, tmp_path)
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_study_accounts_for_every_estimate(tmp_path):
     """Each predict record carries every estimate it made (the one before the advice and one per
     annotation added), with its CPU seconds, convergence and overflow warnings, and ``report``
@@ -214,6 +215,7 @@ def _spy_on(study, monkeypatch, *keys) -> dict:
     return seen
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path, monkeypatch):
     """``own``: each scene's starting point and its three added annotations come from one truth of
     the model's prior; the next set and the new reference are the scene's next ones, the repeat is
@@ -259,6 +261,7 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, monkeypatch):
     """``own --sets``: every scene starts from one of the numbers of target sets given (the
     default draws are the study's own: 1, 2, 3 or 5), a bad list is refused naming the option,
@@ -357,6 +360,7 @@ def test_the_advice_studys_report_places_the_truth_by_band_and_by_setting(tmp_pa
     assert ", outdoor" not in study.report_predict(tmp_path / "one")
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(tmp_path, monkeypatch):
     """``--option ref_dof=30``: every estimate and advice of ``predict`` reads references with 30
     degrees of freedom, the records say so, and a resumed run with other options is refused; a
@@ -381,6 +385,7 @@ def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(t
         assert proc.returncode == 2 and bad.split("=")[0] in proc.stderr, (bad, proc.stderr)
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     """``--focal-prior MEDIAN,LOG_SD`` reaches the estimates (their camera block) and is recorded;
     a malformed value is a usage error that names the option and the value."""
@@ -413,6 +418,7 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
     """``--line-reading corrected`` reaches every estimate and every advice of the study (their
     model options), is recorded, and a folder made with another reading is refused on resume."""
@@ -430,6 +436,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
         study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_study_predicts_on_the_simulators_crowds(tmp_path, monkeypatch):
     """``predict --tiers light`` draws its scenes from the simulator's light crowd (2 px corners,
     5 px reference end points), as ``--tiers high`` from the paper-like tier, and records it."""
@@ -547,6 +554,7 @@ def test_the_advice_studys_policy_table_reads_the_adaptive_run_at_three_quarters
     assert full.split("|")[4] == " 4.5 "
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     """``policy`` end to end on one scene of each condition, its budget cut to a set of lines and
     one reference (247.9 s) and its fixed designs to one: every run stays within the budget, the
@@ -572,6 +580,7 @@ def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     assert "Policies, paper-like scenes" in table and "Policies, outdoor scenes" in table
 
 
+@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
 def test_the_advice_studys_what_ifs_reach_the_scenes_the_estimates_and_the_advice(tmp_path, monkeypatch):
     """``--distance-range setting``: every estimate and every advice of ``predict`` knows the
     simulator's distance range of the scene's setting; ``--reference-px 0``: the references'

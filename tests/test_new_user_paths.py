@@ -9,7 +9,7 @@ import creference_bayes as cb
 from creference_bayes.cli.main import main
 from creference_bayes.io.scene import SceneError
 
-FAST = ["--min-ess", "50", "--quiet"]
+FAST = ["--min-ess", "50", "--max-steps", "2000", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,8 @@ def test_plot_and_advise_use_the_batch_folders_scene(tmp_path):
     for k, r in enumerate(results):
         assert main(["plot", str(r), "--out", str(tmp_path / f"figs{k}"), "--quiet"]) == 0
         assert any((tmp_path / f"figs{k}").glob("*boxes.png"))
-        assert main(["advise", str(r), "--quiet", "--out", str(tmp_path / f"advice{k}.json")]) == 0
+        assert main(["advise", str(r), "--quiet", "--draws", "100", "--futures", "20",
+                     "--out", str(tmp_path / f"advice{k}.json")]) == 0
 
 
 def test_confidence_fit_names_the_file_it_cannot_read(frame_file, tmp_path, capsys):

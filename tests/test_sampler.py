@@ -314,6 +314,7 @@ def test_a_lump_beside_the_mode_gets_a_proposal_component_of_its_own():
     assert np.all(mixture.log_q(far) - single.log_q(far) >= np.log(DEFENSIVE_WEIGHT) - 1e-9)
 
 
+@pytest.mark.slow  # 36 seeded runs of a statistical comparison (over a minute)
 def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
     """On the lumpy density the sampler with the default mixture proposal finds the lump's true
     share (the nearest-centre share of exact draws) and mixes faster along the axis through it

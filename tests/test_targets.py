@@ -127,11 +127,11 @@ def test_workers_distances_between_two_targets_narrow_the_posterior():
     follows them, its 90 % spread falls, and t1's truth stays inside its interval."""
     d, truth = truth_scene(4, m=3, n_annotations=5, noise_px=2.0, sizes_known=False)
     d["targets"][1]["dimension_lines"] = d["targets"][1]["dimension_lines"][:1]
-    plain = cb.estimate(json.loads(json.dumps(d)), seed=0)
+    plain = cb.estimate(json.loads(json.dumps(d)), seed=0, sampling={"min_ess": 150})
     true = _true_distance(truth, 0, 1)
     for factor in (0.96, 1.0, 1.03):
         _distance(d, "t0", "t1", round(true * factor, 1))
-    coupled = cb.estimate(d, seed=0)
+    coupled = cb.estimate(d, seed=0, sampling={"min_ess": 150})
     assert plain.converged and coupled.converged
     lo, hi = coupled.to_dict()["objects"][1]["posterior"]["hdi"]["distance_m"]
     assert lo <= np.hypot(*truth["objects"][1, :2]) <= hi
