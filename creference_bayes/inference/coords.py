@@ -33,14 +33,10 @@ CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
 def explored_whole(model: Model) -> bool:
-    """Whether the model's free parameters form the camera block and at most one object block, so
-    that its posterior is explored whole: its optimiser refines both handednesses from the start
-    and its sampler moves the whole vector (at most 12 parameters) by the ensemble kernel. Block
-    sweeps pay where the object blocks are nearly independent given a camera that many of them
-    pin; with one object block the camera is pinned by that object alone (weakly identified), the
-    two blocks pin each other along curved ridges, and only moves of the whole vector follow them.
-    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 10× the
-    block sweeps' CPU time: docs/studies/sampler.md.)"""
+    """Whether the model's free parameters form the camera block and at most one object block (the
+    camera pinned by that object alone, the two blocks pinning each other along curved ridges):
+    its optimiser then refines both handednesses from the start and its sampler moves the whole
+    vector by the ensemble kernel (docs/inference.md, "Sampling and summaries")."""
     return int(np.any(model.object_free, axis=1).sum()) <= 1
 
 
@@ -117,11 +113,9 @@ class WorkingCoords:
 class HorizonDistance:
     """Flat working coordinates of a scene ↔ the same with pitch replaced by log D of its first object.
 
-    When pitch is free, a far object's posterior lies along a curved ridge: its depth, the camera
-    height, the focal length and the pitch trade against each other through the object's distance
-    below the horizon in the image, D = −sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)
-    (pixels, at its bottom centre (u, v)): z ≈ h µ / D. In (log h, log µ, log D) that ridge is
-    straight, as the ensemble sampler's affine coordinates need. ∂pitch/∂log D = D cos²(pitch) / µ.
+    D = −sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch) is the object's distance below the
+    horizon (pixels, at its bottom centre (u, v)); z ≈ h µ / D, so in (log h, log µ, log D) a far
+    object's ridge is straight (docs/inference.md). ∂pitch/∂log D = D cos²(pitch) / µ.
 
     Parameters
     ----------

@@ -40,13 +40,7 @@ class SilentBar:
     def update(self, n: int = 1) -> None:
         self.n += n
 
-    def set_postfix(self, *args, **kwargs) -> None:
-        pass
-
     def set_postfix_str(self, *args, **kwargs) -> None:
-        pass
-
-    def refresh(self) -> None:
         pass
 
     def close(self) -> None:

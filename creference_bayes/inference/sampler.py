@@ -1,38 +1,12 @@
 """The posterior of any scene: one driver, its kernels composed by the model's blocks.
 
-The emcee adapter (docs/method.md, "The sampler"). One driver runs every scene (as PyMC's
-``CompoundStep`` and numpyro's ``HMCGibbs`` run their step methods): a start from the Laplace
-approximation at the MAP, a search for other modes, one warm-up in which each kernel tunes itself,
-and one main phase with one stopping rule, in which a chain is one independent unit of any kernel:
-a group of the ensemble kernel's walkers (laid end to end), a walker of the block sweeps. What
-moves the walkers follows what the model declares, never the kind of scene:
-
-* **One object block** (:func:`.coords.explored_whole`: the camera pinned by one object alone,
-  weakly identified): the whole free vector by the ensemble kernel (:class:`.ensemble.Ensemble`:
-  differential-evolution and stretch moves within groups of walkers and a multiple-try
-  independence proposal, in coordinates learned during warm-up), with pitch replaced by the log of
-  the first object's distance below the horizon (:class:`.coords.HorizonDistance`); its modes are
-  searched whole first (:func:`.modes.find_modes`: each a component of the independence proposal
-  and the start of some walkers' groups). Each group is a chain.
-* **Otherwise** block sweeps (:mod:`.moves`) over the camera block and one block per object, by
-  random-walk and multiple-try independence proposals, each walker an independent chain; working
-  coordinates (:mod:`.coords`) in which each object is measured from its conditional mean given
-  the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the camera (from the
-  Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws). Each object's modes
-  given the MAP's camera (:func:`.modes.object_modes`) make its independence proposal a mixture,
-  and chain c starts it in mode c mod k. Warm-up: ``warmup`` steps, the random-walk scales tuned
-  towards an acceptance of 0.3; at 40 % and 70 % of it the covariances, the shear and the
-  independence centres are re-estimated from the second half of the draws since the last
-  re-estimate (blended 80/20 with the Laplace approximation).
-
-**Stopping** (:func:`run_chains`, every kernel): the main phase runs in chunks until the bulk ESS
-of every free parameter and every object's distance reaches ``min_ess`` and its rank-normalised
-split R-hat over the chains (the independent units) is at most ``max_rhat`` (:mod:`.diagnostics`),
-or ``max_steps``. The ranked check runs only when the raw split R-hat is within 3× of the
-threshold; the rule that decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
-kernel, and the diagnostics have one shape.
-
-Everything random comes from ``rng``: the same seed gives the same draws.
+docs/inference.md, "Sampling and summaries", describes the kernels, the warm-up and the stopping
+rule. One object block (:func:`.coords.explored_whole`): the whole free vector by the ensemble
+kernel (:class:`_Whole`, :mod:`.ensemble`), pitch as log D (:class:`.coords.HorizonDistance`),
+after a search for the joint modes; otherwise block sweeps (:class:`_Blocks`, :mod:`.moves`) in
+sheared working coordinates, after a search for each object's modes. Either way a chain is one
+independent unit, ``lp`` is the log-density in working coordinates, and :func:`run_chains`
+stops every kernel by bulk ESS and rank R-hat. Everything random comes from ``rng``.
 """
 
 from __future__ import annotations
@@ -106,30 +80,23 @@ class SamplerSettings:
     explore_steps: int = 150
 
     def __post_init__(self):
-        whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+        def whole(k, lo, what=None):
+            v = getattr(self, k)
+            ok = isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo
+            return k, ok, f"an integer ≥ {what or lo}"
+
         flag = lambda k: (k, isinstance(getattr(self, k), bool), "true or false")
         checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
-                  ("chunk", whole(self.chunk) and self.chunk >= 10, "an integer ≥ 10"),
-                  ("max_steps", whole(self.max_steps) and self.max_steps >= self.chunk, "an integer ≥ chunk"),
-                  ("max_draws", whole(self.max_draws) and self.max_draws >= 100, "an integer ≥ 100"),
-                  ("tries", whole(self.tries) and self.tries >= 1, "an integer ≥ 1"),
-                  ("independence_weight", self.independence_weight is None or 0.0 <= self.independence_weight < 1.0,
-                   "a number in [0, 1)"), flag("mode_search"),
-                  ("n_chains", whole(self.n_chains) and self.n_chains >= 2, "an integer ≥ 2"),
-                  ("warmup", whole(self.warmup) and self.warmup >= 50, "an integer ≥ 50"),
-                  ("n_ensembles", whole(self.n_ensembles) and self.n_ensembles >= 2, "an integer ≥ 2"),
-                  ("n_walkers", whole(self.n_walkers) and self.n_walkers >= 8 and self.n_walkers % 2 == 0,
-                   "an even integer ≥ 8"),
-                  ("stage", whole(self.stage) and self.stage >= 10, "an integer ≥ 10"),
-                  ("max_warmup", whole(self.max_warmup) and self.max_warmup >= self.stage, "an integer ≥ stage"),
-                  flag("adapt"),
+                  whole("chunk", 10), whole("max_steps", self.chunk, "chunk"), whole("max_draws", 100),
+                  whole("tries", 1), ("independence_weight", self.independence_weight is None
+                                      or 0.0 <= self.independence_weight < 1.0, "a number in [0, 1)"),
+                  flag("mode_search"), whole("n_chains", 2), whole("warmup", 50), whole("n_ensembles", 2),
+                  ("n_walkers", whole("n_walkers", 8)[1] and self.n_walkers % 2 == 0, "an even integer ≥ 8"),
+                  whole("stage", 10), whole("max_warmup", self.stage, "stage"), flag("adapt"),
                   ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
                   ("proposal_df", self.proposal_df > 0, "a number > 0"),
-                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
-                  ("proposal_components", whole(self.proposal_components) and self.proposal_components >= 1,
-                   "an integer ≥ 1"),
-                  ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
-                  ("explore_steps", whole(self.explore_steps) and self.explore_steps >= 10, "an integer ≥ 10")]
+                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"), whole("proposal_components", 1),
+                  ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"), whole("explore_steps", 10)]
         for name, ok, expected in checks:
             if not ok:
                 raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
@@ -160,8 +127,9 @@ class Draws:
 @dataclass(frozen=True)
 class Diagnostics:
     """How the sampler did, in one shape whatever its moves: per checked quantity bulk ESS and R-hat
-    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates
-    (:func:`_acceptance`), ``converged`` and the reasons when it is not, seconds, the modes found
+    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates (``all``:
+    the share of a walker's steps that moved it; ``camera``, ``objects``: of those blocks' proposals
+    accepted; moves of the whole vector give ``all`` for each), ``converged`` and the reasons when it is not, seconds, the modes found
     before sampling (None: one)."""
 
     n_chains: int
@@ -184,13 +152,6 @@ class Diagnostics:
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
                 "modes": self.info.get("mode_report") or None}
-
-
-def _acceptance(all_: float, camera: float, objects: float) -> dict:
-    """The acceptance rates every run reports, whatever its moves: ``all``, the share of a walker's
-    steps that moved it; ``camera`` and ``objects``, the share of proposals for the camera block and
-    for an object block accepted (moves of the whole vector move both at once: each is ``all``)."""
-    return {"all": all_, "camera": camera, "objects": objects}
 
 
 def _checked(d: dict) -> dict:
@@ -299,7 +260,7 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              _acceptance(*kernel.acceptance()), diag["ok"], tuple(warn), time.perf_counter() - t0,
+                              dict(zip(("all", "camera", "objects"), kernel.acceptance())), diag["ok"], tuple(warn), time.perf_counter() - t0,
                               kernel.report(draws))
 
 
@@ -537,8 +498,7 @@ class _Whole:
                                                        draws.objects.reshape((C * N,) + draws.objects.shape[2:]))
             q = self.target.join(wc, wo)
             near = self.kernel.nearest_mode(q if self.hd is None else self.hd.forward(q)).reshape(C, N)
-            shares = [[float(np.mean(near[c] == k)) for k in range(len(self.modes))] for c in range(C)]
-            info["mode_report"] = _mode_report(self.modes, self.target, self.to_u, shares)
+            info["mode_report"] = _mode_report(self.modes, self.target, self.to_u, near)
         if self.better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
             c, o = self.target.natural(self.to_u(self.better.center[None]))
             info["denser_mode"] = (c[0], o[0])
@@ -559,19 +519,23 @@ def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
     return (J @ Sc @ J.T + block_diag(np.zeros((5, 5)), *Ao))[np.ix_(free, free)]
 
 
-def _mode_report(modes, target: BlockTarget, to_u, shares) -> list[dict]:
-    """Where each mode found before sampling is (the object whose distance differs most between
-    the modes: its id, distance and yaw), how far below the MAP's its log-density is, its Laplace
-    share of the mass and the share of each chain's draws nearest to it (they should agree)."""
+def _mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:
+    """A row per mode (``objs`` (k, 7) the object's natural parameters there, ``lp`` (k,) the
+    log-density, ``near`` (chain, draw) each draw's nearest mode): the object's id, distance and
+    yaw, how far below the MAP's the mode's log-density is, its Laplace share of the mass and the
+    share of each chain's draws nearest to it (they should agree)."""
+    return [{"target": target_id, "distance_m": float(np.hypot(objs[k, 0], objs[k, 1])), "yaw": float(objs[k, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(mode.share),
+             "draw_share_per_chain": [float(np.mean(g == k)) for g in near]} for k, mode in enumerate(modes)]
+
+
+def _mode_report(modes, target: BlockTarget, to_u, near) -> list[dict]:
+    """:func:`_mode_rows` of the modes found before sampling, for the object whose distance
+    differs most between them."""
     centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
-    dist = np.hypot(objs[..., 0], objs[..., 1])  # (modes, m)
-    i = int(np.argmax(np.ptp(np.log(dist), axis=0)))
-    lp = target(centers)
-    return [{"target": target.model.objects[i].id, "distance_m": float(dist[k, i]), "yaw": float(objs[k, i, O_YAW]),
-             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
-             "draw_share_per_chain": [float(g[k]) for g in shares]}
-            for k, m in enumerate(modes)]
+    i = int(np.argmax(np.ptp(np.log(np.hypot(objs[..., 0], objs[..., 1])), axis=0)))
+    return _mode_rows(target.model.objects[i].id, objs[:, i], target(centers), modes, near)
 
 
 def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
@@ -609,9 +573,8 @@ def _mixture(model, found, B):
 
 
 def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
-    """Each mode of an object with several: the object's id, its distance and yaw there, how far
-    below the MAP's its log-density is, its Laplace share given the camera and the share of each
-    chain's draws nearest to it (in its own Laplace metric; they should agree)."""
+    """:func:`_mode_rows` of each object with several modes (each draw's nearest in the mode's own
+    Laplace metric; shares given the camera)."""
     coords = WorkingCoords(model)
     out = []
     for i, modes in enumerate(found):
@@ -625,12 +588,8 @@ def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
         x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
         dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
                                    x - k.center[free]) for k in modes], axis=1)
-        near = np.argmin(dist, axis=1).reshape(C, N)
-        out += [{"target": model.objects[i].id, "distance_m": float(np.hypot(objs[k, i, 0], objs[k, i, 1])),
-                 "yaw": float(objs[k, i, O_YAW]), "log_density_below_map": float(modes[0].log_prob - mode.log_prob),
-                 "laplace_share": float(mode.share),
-                 "draw_share_per_chain": [float(np.mean(near[c] == k)) for c in range(C)]}
-                for k, mode in enumerate(modes)]
+        out += _mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
+                          np.argmin(dist, axis=1).reshape(C, N))
     return out
 
 
