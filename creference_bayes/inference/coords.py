@@ -7,12 +7,9 @@ image*:
     object: (u, v, ψ, log(length / z), log(width / z), log(height / z), ground)
 
 (u, v) is the pixel of the object's bottom centre, ψ = yaw + atan2(z, x) its turn relative to the
-viewing ray, and its sizes are taken relative to its depth z (angular sizes). Given these, the
-camera places the object exactly: the ray through (u, v) meets the object's ground (the plane at
-``height − ground``) at (x, z), and the sizes follow from z. So when the camera moves (a little
-more pitch, a larger µ, a higher camera), every object moves with it in the way that keeps its
-image, and an object's coordinates barely correlate with the camera's: the posterior is close to
-a product of blocks, which is what the blocked sampler needs. Known sizes stay fixed in metres.
+viewing ray, its sizes relative to its depth z; the ray through (u, v) meets the object's ground
+(the plane at ``height − ground``) at (x, z), so objects ride with the camera and the posterior is
+close to a product of blocks (docs/inference.md). Known sizes stay fixed in metres.
 
 The Jacobian of (u, v) → (x, z) on the plane y = y₀ is y₀² / (µ² d_y³), d = Rᵀ K⁻¹ (u, v, 1) the
 viewing ray (a homography's Jacobian); each size contributes its value.

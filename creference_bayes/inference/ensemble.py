@@ -26,6 +26,12 @@ from .sampler import SamplerSettings, SamplingError, run_chains
 __all__ = ["Ensemble", "Chains", "sample", "explore"]
 
 
+#: Cap on warm-up steps.
+MAX_WARMUP = 5000
+#: Warm-up goes on while the independence proposal is accepted less often than this.
+MIN_INDEPENDENCE_ACCEPTANCE = 0.15
+#: Degrees of freedom and scale inflation of the independence proposal's t components.
+PROPOSAL_DF, PROPOSAL_SCALE = 6.0, 1.2
 #: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
 MIXTURE_POINTS = 3000
 #: Weight of the whole sample's t in a proposal mixture fitted to k-means centres
@@ -51,14 +57,9 @@ class _SafeLogProb:
         return lp
 
 
-class _InSpace:
-    """log-probability in sampler coordinates (the map's Jacobian is constant)."""
-
-    def __init__(self, safe: _SafeLogProb, coords: Coordinates):
-        self.safe, self.coords = safe, coords
-
-    def __call__(self, u):
-        return self.safe(self.coords.inverse(np.atleast_2d(u)))
+def _in_space(safe: _SafeLogProb, coords: Coordinates):
+    """The log-probability in sampler coordinates (the map's Jacobian is constant)."""
+    return lambda u: safe(coords.inverse(np.atleast_2d(u)))
 
 
 def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200,
@@ -128,14 +129,14 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
             covs = np.concatenate([covs, np.atleast_2d(np.cov(u.T))[None]])
         if len(weights) > 1:
             try:
-                chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
-                return IndependenceMove(means, chols, settings.proposal_df, weights=weights,
+                chols = np.linalg.cholesky(covs * PROPOSAL_SCALE**2)
+                return IndependenceMove(means, chols, PROPOSAL_DF, weights=weights,
                                         tries=settings.tries)
             except np.linalg.LinAlgError:
                 pass
-    cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
+    cov = np.atleast_2d(np.cov(u.T)) * PROPOSAL_SCALE**2
     try:
-        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df,
+        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), PROPOSAL_DF,
                                 tries=settings.tries)
     except np.linalg.LinAlgError:
         return None
@@ -284,12 +285,12 @@ def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, cent
             fit_rng=None):
     """Run stages, refitting the coordinates and the proposal after each, until a stage run in
     the coordinates fitted before it looks like the sample they were fitted to and the proposal
-    is accepted often enough (or ``max_warmup``). Returns the coordinates, proposal, positions
+    is accepted often enough (or :data:`MAX_WARMUP`). Returns the coordinates, proposal, positions
     and random state."""
     d = pos.shape[1]
     proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
-    while not stable and n_warm < s.max_warmup:
-        stage = min(stage, s.max_warmup - n_warm)
+    while not stable and n_warm < MAX_WARMUP:
+        stage = min(stage, MAX_WARMUP - n_warm)
         sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
         done = 0
         while done < stage:  # in chunks: a stage already whitened ends early (below)
@@ -300,7 +301,7 @@ def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, cent
             tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
             indep = proposal.acceptance if proposal is not None else float("nan")
             stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
-                proposal is None or indep >= s.min_independence_acceptance)
+                proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
             if stable:
                 break
         pos, rstate = coords.inverse(state.coords), state.random_state
@@ -308,8 +309,6 @@ def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, cent
         n_warm += stage
         info["warmup_stages"].append(stage)
         bar.update(stage)
-        if not s.adapt:
-            break
         try:
             tail_p = coords.inverse(tail_u)
             coords = Coordinates.fit(tail_p, shear=centers is None)
@@ -331,23 +330,12 @@ def _forward(coords, centers):
 
 def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_steps: int = 150,
             n_walkers: int = 32) -> tuple[np.ndarray, np.ndarray]:
-    """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`).
-
-    Parameters
-    ----------
-    log_prob : callable, (n, d) → (n,) log-density in parameters
-    coords : sampler coordinates (e.g. :meth:`.reparam.Coordinates.affine` at the MAP); the
-        walkers start from N(0, I) in them
-    rng : numpy Generator
-    temperature, n_steps, n_walkers : T, steps and walkers (even, ≥ 2·d)
-
-    Returns
-    -------
-    u : (n, d) the second half of the run, in ``coords``
-    log_prob : (n,) the untempered log-density there (in ``coords``, with its Jacobian)
-    """
+    """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`):
+    ``n_walkers`` (even, ≥ 2·d) walkers start from N(0, I) in ``coords`` (sampler coordinates) and
+    run ``n_steps`` steps. Returns the second half of the run in ``coords`` (n, d) and the
+    untempered log-density there (n,)."""
     safe = _SafeLogProb(log_prob)
-    in_space = _InSpace(safe, coords)
+    in_space = _in_space(safe, coords)
     d = len(coords.m)
     n_walkers = max(n_walkers + n_walkers % 2, 2 * d)
     u0 = _initial_points(in_space, [(np.zeros(d), np.eye(d))], [rng], n_walkers)
@@ -363,6 +351,6 @@ def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_s
 def _run(safe, coords, moves, pos, rstate):
     """A fresh EnsembleSampler in ``coords`` and its state at parameters ``pos``."""
     nw, d = pos.shape
-    sampler = emcee.EnsembleSampler(nw, d, _InSpace(safe, coords), moves=moves, vectorize=True)
+    sampler = emcee.EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
     return sampler, emcee.State(coords.forward(pos), random_state=rstate)
 

@@ -551,13 +551,10 @@ MAX_FLIPS = 4
 
 
 def _flips(model: Model, wc, wo, f: float, temperature: float):
-    """The other handedness of each object, tried at the optimum (the per-corner median that chose
-    it can be misled by one careless set of lines). Every object is placed again with its
-    handedness flipped and fitted with the camera held; those whose fit comes within
-    :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest first) are flipped
-    one at a time and everything refined from there, each kept when the whole objective improves.
-    ``model`` is the fit's model (its handedness); returns (the model at the handedness kept, wc, wo,
-    value, iterations)."""
+    """The other handedness of each object, tried at the optimum (docs/inference.md, "Finding the
+    MAP", step 7: within :data:`FLIP_MARGIN` nats with the camera held, at most :data:`MAX_FLIPS`,
+    each flip kept when the whole objective improves). ``model`` is the fit's model; returns (the
+    model at the handedness kept, wc, wo, value, iterations)."""
     coords = WorkingCoords(model)
     cams, objs = coords.from_work(wc[None], wo[None])
     h0 = model.handedness

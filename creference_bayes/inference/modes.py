@@ -35,15 +35,8 @@ MAX_DROP = 25.0
 
 @dataclass(frozen=True)
 class Mode:
-    """One local maximum of the log-density.
-
-    Attributes
-    ----------
-    center : (d,) the maximum, in the log-density's parameters
-    cov : (d, d) its Laplace covariance
-    log_prob : the log-density there
-    share : its estimated share of the posterior mass (Laplace), 0–1
-    """
+    """One local maximum of the log-density: ``center`` (d,), its Laplace covariance ``cov``
+    (d, d), the log-density there and its estimated share of the posterior mass (0–1)."""
 
     center: np.ndarray
     cov: np.ndarray
@@ -177,21 +170,11 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
 
 
 def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
-    """A Gaussian mixture fitted to a sample by EM, one component per mode.
-
-    Parameters
-    ----------
-    u : (n, d) sample (the sampler's coordinates)
-    centers : (k, d) the modes, in the same coordinates: they start the components
-    n_iter : EM iterations
-    min_weight : weights are floored at this share over the components, so that the proposal
-        keeps offering every mode
-
-    Returns
-    -------
-    weights (k',), means (k', d), covs (k', d, d): components that keep at least 2·d + 2
-    points of the sample (k' ≤ k; k' may be 1)
-    """
+    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
+    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
+    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
+    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
+    (k' ≤ k; k' may be 1)."""
     n, d = u.shape
     means = np.asarray(centers, float).copy()
     resp = np.zeros((n, len(means)))

@@ -371,7 +371,7 @@ class IndependenceSweep(RandomWalkSweep):
 
 def _log_prob(model, q: np.ndarray) -> np.ndarray:
     """Vectorised log-probability of proposals ``q``, shape (n,): the wrapped function
-    (``ensemble._InSpace``, which maps NaN and ±∞ to −∞) called directly, as emcee's
+    (:func:`.ensemble._in_space`, which maps NaN and ±∞ to −∞) called directly, as emcee's
     ``compute_log_prob`` converts the result walker by walker in Python."""
     return np.asarray(model.log_prob_fn(q), float)
 

@@ -85,7 +85,7 @@ class Coordinates:
             lo, hi = w.min(axis=0), w.max(axis=0)
             self.lo, self.hi = lo - _EXTRAPOLATE * (hi - lo), hi + _EXTRAPOLATE * (hi - lo)
             self.shear = [cls._fit_shear(w, j) for j in range(1, d)]
-            v = self._shear_forward(w)
+            v = self._shear(w, -1.0)
             cov_v = np.atleast_2d(np.cov(v.T))
             sign, logdet = np.linalg.slogdet(cov_v)
             if sign > 0 and (best is None or logdet < best[0]):
@@ -126,42 +126,31 @@ class Coordinates:
         return 0.5 * (Q + Q.T), float(beta[-1])
 
     # -- the map -----------------------------------------------------------------------------
-    def _shear_forward(self, w: np.ndarray) -> np.ndarray:
-        v = w.copy()
+    def _shear(self, a: np.ndarray, sign: float) -> np.ndarray:
+        """v of w (``sign`` −1) or w of v (+1), column by column: wⱼ needs only w₀…wⱼ₋₁, already
+        known (the inverse is the hot path of every log-probability call)."""
+        out = a.copy()
         if not self.shear:
-            return v
-        x = np.minimum(np.maximum(w, self.lo), self.hi)
-        cube = x[:, 0] ** 3
-        for j, term in enumerate(self.shear, start=1):
-            if term is not None:
-                Q, kappa = term
-                v[:, j] -= ((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube
-        return v
-
-    def _shear_inverse(self, v: np.ndarray) -> np.ndarray:
-        """Undo the shear column by column: wⱼ needs only w₀…wⱼ₋₁, already rebuilt (the hot
-        path of every log-probability call, hence the hand-kept clipped copy ``x``)."""
-        w = v.copy()
-        if not self.shear:
-            return w
-        x = np.empty_like(w)
+            return out
+        w = a if sign < 0 else out
+        x = np.empty_like(out)  # the clipped w
         x[:, 0] = np.minimum(np.maximum(w[:, 0], self.lo[0]), self.hi[0])
         cube = x[:, 0] ** 3
         for j, term in enumerate(self.shear, start=1):
             if term is not None:
                 Q, kappa = term
-                w[:, j] += ((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube
+                out[:, j] += sign * (((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube)
             x[:, j] = np.minimum(np.maximum(w[:, j], self.lo[j]), self.hi[j])
-        return w
+        return out
 
     def forward(self, p: np.ndarray) -> np.ndarray:
         """(..., d) parameters → (..., d) sampler coordinates."""
         shape = p.shape
         w = (p.reshape(-1, shape[-1]).astype(float) - self.m) @ self.A_inv.T
-        return ((self._shear_forward(w) - self.c) @ self.B.T).reshape(shape)
+        return ((self._shear(w, -1.0) - self.c) @ self.B.T).reshape(shape)
 
     def inverse(self, u: np.ndarray) -> np.ndarray:
         """(..., d) sampler coordinates → (..., d) parameters."""
         shape = u.shape
         v = u.reshape(-1, shape[-1]) @ self.B_inv.T + self.c
-        return (self._shear_inverse(v) @ self.A.T + self.m).reshape(shape)
+        return (self._shear(v, 1.0) @ self.A.T + self.m).reshape(shape)

@@ -28,6 +28,10 @@ from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
 __all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample", "run_chains"]
 
 
+#: Steps kept per walker (older ones thinned by two when twice as many are kept).
+MAX_DRAWS = 2000
+
+
 class SamplingError(RuntimeError):
     """The sampler cannot start (the MAP has zero posterior density)."""
 
@@ -40,28 +44,22 @@ class SamplerSettings:
         min_ess : bulk effective sample size every free parameter (and every object's distance)
             must reach;  max_rhat : largest rank-normalised split R-hat over the chains accepted;
             max_steps : cap on main-phase steps (the result then says it has not converged);
-            chunk : steps between convergence checks (at least);  max_draws : steps kept per
-            walker (older ones thinned when exceeded);  tries : tries per independence proposal
-            (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps that
-            are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
+            chunk : steps between convergence checks (at least);  tries : tries per independence
+            proposal (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps
+            that are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
             mode_search : look for other modes before sampling (:mod:`.modes`)
     Block sweeps
         n_chains : walkers, each an independent chain;  warmup : warm-up steps
     Ensemble kernel (one object block; :mod:`.ensemble`)
         n_ensembles, n_walkers : groups (each a chain) and the walkers of each;  stage :
-        the first warm-up stage's length (later ones double);  max_warmup : cap on warm-up
-        steps;  adapt : fit the straightening map and the independence proposal during warm-up;
-        min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
-        proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
-        inflation and mixture components;  explore_temperature, explore_steps : the tempered
-        exploration of the mode search (:func:`.modes.find_modes`)
+        the first warm-up stage's length (later ones double);  proposal_components : the
+        independence proposal's mixture components
     """
 
     min_ess: float = 400.0
     max_rhat: float = 1.01
     max_steps: int = 20000
     chunk: int = 50
-    max_draws: int = 2000
     tries: int = 4
     independence_weight: float | None = None
     mode_search: bool = True
@@ -70,14 +68,7 @@ class SamplerSettings:
     n_ensembles: int = 4
     n_walkers: int = 24
     stage: int = 50
-    max_warmup: int = 5000
-    adapt: bool = True
-    min_independence_acceptance: float = 0.15
-    proposal_df: float = 6.0
-    proposal_scale: float = 1.2
     proposal_components: int = 3
-    explore_temperature: float = 3.0
-    explore_steps: int = 150
 
     def __post_init__(self):
         def whole(k, lo, what=None):
@@ -85,18 +76,13 @@ class SamplerSettings:
             ok = isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo
             return k, ok, f"an integer ≥ {what or lo}"
 
-        flag = lambda k: (k, isinstance(getattr(self, k), bool), "true or false")
         checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
-                  whole("chunk", 10), whole("max_steps", self.chunk, "chunk"), whole("max_draws", 100),
-                  whole("tries", 1), ("independence_weight", self.independence_weight is None
-                                      or 0.0 <= self.independence_weight < 1.0, "a number in [0, 1)"),
-                  flag("mode_search"), whole("n_chains", 2), whole("warmup", 50), whole("n_ensembles", 2),
+                  whole("chunk", 10), whole("max_steps", self.chunk, "chunk"), whole("tries", 1),
+                  ("independence_weight", self.independence_weight is None or 0.0 <= self.independence_weight < 1.0,
+                   "a number in [0, 1)"), ("mode_search", isinstance(self.mode_search, bool), "true or false"),
+                  whole("n_chains", 2), whole("warmup", 50), whole("n_ensembles", 2),
                   ("n_walkers", whole("n_walkers", 8)[1] and self.n_walkers % 2 == 0, "an even integer ≥ 8"),
-                  whole("stage", 10), whole("max_warmup", self.stage, "stage"), flag("adapt"),
-                  ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
-                  ("proposal_df", self.proposal_df > 0, "a number > 0"),
-                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"), whole("proposal_components", 1),
-                  ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"), whole("explore_steps", 10)]
+                  whole("stage", 10), whole("proposal_components", 1)]
         for name, ok, expected in checks:
             if not ok:
                 raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
@@ -129,8 +115,8 @@ class Diagnostics:
     """How the sampler did, in one shape whatever its moves: per checked quantity bulk ESS and R-hat
     (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates (``all``:
     the share of a walker's steps that moved it; ``camera``, ``objects``: of those blocks' proposals
-    accepted; moves of the whole vector give ``all`` for each), ``converged`` and the reasons when it is not, seconds, the modes found
-    before sampling (None: one)."""
+    accepted; moves of the whole vector give ``all`` for each), ``converged`` and the reasons when
+    it is not, seconds, the modes found before sampling (None: one)."""
 
     n_chains: int
     warmup: int
@@ -259,24 +245,21 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     warn = [] if diag["ok"] else [f"not converged after {it} steps: " + "; ".join(diag["why"])]
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
+    acceptance = dict(zip(("all", "camera", "objects"), kernel.acceptance()))
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              dict(zip(("all", "camera", "objects"), kernel.acceptance())), diag["ok"], tuple(warn), time.perf_counter() - t0,
-                              kernel.report(draws))
+                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, kernel.report(draws))
 
 
 def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
-    """The main phase of every kernel, to the one stopping rule (module docstring).
+    """The main phase of every kernel, to the one stopping rule (docs/inference.md, "Stopping").
 
-    ``kernel.run(steps)`` yields each step's states of its walkers (S, …), ``kernel.walkers`` to
-    each of its ``kernel.n_chains`` independent chains and a chain's walkers consecutive, and
-    their log-densities (S,); every ``thin``-th step is kept (``thin`` doubles whenever more than
-    2 · ``max_draws`` steps are kept). ``convert`` turns each chunk's kept states (n, S, …) into a
-    tuple of arrays (n, S, …); :func:`_by_chain` lays each chain's walkers end to end, and
-    ``columns`` turns those arrays (C, walkers · n, …) into the checked quantities (C, N, k) and
-    their names. The first check comes after ``chunk`` steps or once the walkers hold
-    64 · ``chunk`` draws, whichever is later; later chunks aim at the length the ESS and R-hat
-    found ask for, at most doubling the run. Returns the kept arrays (C, N, …) and log-densities
-    (C, N) by chain, the steps run, the thinning and the last check (:func:`_diagnose`).
+    ``kernel.run(steps)`` yields each step's states (S, …) of its walkers (``kernel.n_chains``
+    chains of ``kernel.walkers`` consecutive walkers) and their log-densities (S,); every
+    ``thin``-th step is kept (``thin`` doubles whenever 2 · :data:`MAX_DRAWS` steps are kept).
+    ``convert`` turns kept states (n, S, …) into a tuple of arrays; ``columns`` turns those, each
+    chain's walkers end to end (:func:`_by_chain`), into the checked quantities (C, N, k) and their
+    names. Returns the kept arrays (C, N, …), log-densities (C, N), steps run, thinning and the
+    last check (:func:`_diagnose`).
     """
     arrays, lps, thin, it, diag = None, None, 1, 0, None
     w = kernel.walkers
@@ -295,7 +278,7 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             new = convert(np.array(xs))
             arrays = new if arrays is None else tuple(np.concatenate(p) for p in zip(arrays, new))
             lps = np.array(ls) if lps is None else np.concatenate([lps, ls])
-        while len(lps) >= 2 * s.max_draws:
+        while len(lps) >= 2 * MAX_DRAWS:
             arrays, lps, thin = tuple(a[1::2] for a in arrays), lps[1::2], 2 * thin
         arr, names = columns(*(_by_chain(a, w) for a in arrays))
         with np.errstate(all="ignore"):  # a cheap look first (module docstring)
@@ -461,7 +444,6 @@ class _Whole:
                       for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
             others = [u for u in others if circular is None or np.all(np.abs(u[circular] - center[circular]) < np.pi)]
             modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, circular=circular,
-                               temperature=s.explore_temperature, n_steps=s.explore_steps,
                                extra_starts=np.array(others) if others else None)
         self.better = None
         if len(modes) > 1:  # a denser mode than the MAP's becomes the centre; modes with no mass go
