@@ -479,17 +479,12 @@ def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[n
 
 def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0, rng=None,
              restarts: int | None = None, progress: bool = False, n_refine: int = 2) -> MapState:
-    """The MAP of ``model`` (module docstring), with each object's handedness and the pilot camera
-    (:meth:`MapState.fitted` is the model at them; ``model`` itself is not changed).
+    """The MAP of ``model`` at ``temperature`` (module docstring), with each object's handedness and
+    the pilot camera (:meth:`MapState.fitted` is the model at them; ``model`` is not changed).
 
-    Parameters
-    ----------
-    preset : one of :data:`PRESETS`
-    temperature : T of the posterior whose mode is sought
-    rng : seed or Generator (only the paper presets draw random numbers)
-    restarts : random restarts of the paper presets (None: the paper's); not for ``default``
-    progress : a progress bar of the paper presets' restarts on standard error
-    n_refine : starts of the default preset refined by Newton steps
+    ``preset``: one of :data:`PRESETS`; ``rng``, ``restarts``, ``progress`` (a bar of the
+    restarts): the paper presets' random restarts (None: the paper's number); ``n_refine``: starts
+    of the default preset refined by Newton steps.
     """
     if preset not in PRESETS:
         raise ValueError(f"preset: unknown preset {preset!r} (expected one of {list(PRESETS)})")
