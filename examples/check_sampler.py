@@ -28,7 +28,7 @@ import numpy as np
 from creference_bayes.bench.runner import variant
 from creference_bayes.bench.simulate import simulate_scene
 from creference_bayes.inference.coords import WorkingCoords
-from creference_bayes.inference.diagnostics import ess_bulk
+from creference_bayes.inference.diagnostics import ess_bulk_rhat
 from creference_bayes.inference.laplace import laplace
 from creference_bayes.inference.map import optimize
 from creference_bayes.inference.sampler import SamplerSettings, sample
@@ -140,7 +140,7 @@ def main(argv=None) -> None:
         ours, ref = quantities(draws.cameras, draws.objects), quantities(rc, ro)
         for name in ours:
             a, b = ours[name], ref[name]
-            ess_a, ess_b = float(ess_bulk(a[..., None])[0]), float(ess_bulk(b[..., None])[0])
+            ess_a, ess_b = (float(ess_bulk_rhat(x[..., None])[0][0]) for x in (a, b))
             z = (a.mean() - b.mean()) / np.sqrt(a.var() / ess_a + b.var() / ess_b)
             worst.append((abs(z), a.std() / b.std(), ess_b))
             if name.startswith("object") and not name.endswith("distance"):

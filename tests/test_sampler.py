@@ -49,21 +49,6 @@ def test_recovers_correlated_gaussian():
     assert abs(corr - 0.8 / np.sqrt(2.0)) < 0.03
 
 
-def test_log_coordinates_keep_the_density():
-    """x ~ LogNormal(1, 0.5) sampled in log space: the Jacobian must be accounted for."""
-    def log_prob(p):
-        x, y = p[:, 0], p[:, 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lx = np.log(x)
-            out = -lx - (lx - 1.0) ** 2 / (2 * 0.25) - 0.5 * y**2
-        return np.where(x > 0, out, -np.inf)
-
-    chains = sample(log_prob, [np.e, 0.0], np.diag([0.01, 0.01]), rng=2, log_mask=[True, False])
-    d = _draws(chains)
-    _check_moments(np.log(d[..., 0]), 1.0, 0.5)
-    _check_moments(d[..., 1], 0.0, 1.0)
-
-
 def test_recovers_a_curved_banana():
     """x1 ~ N(0, 1), x2 | x1 ~ N(x1², 0.1²): E[x2] = 1, sd(x2) = √2.01."""
     def log_prob(p):
@@ -159,15 +144,15 @@ def test_grouped_moves_use_only_their_own_ensemble(move):
 
 
 def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
-    """u ↔ p round-trips, and log |∂p/∂u| (central differences) is Σ log p over the log
-    coordinates plus one constant: the shear adds no density term."""
+    """u ↔ p round-trips, and log |∂p/∂u| (central differences) is one constant: the shear adds
+    no density term."""
     from creference_bayes.inference.reparam import Coordinates
 
     rng = np.random.default_rng(6)
     x1 = rng.standard_normal(5000)
     p = np.column_stack([x1, x1**2 + 0.1 * rng.standard_normal(5000),
                          np.exp(0.3 * rng.standard_normal(5000) + 0.2 * x1)])
-    c = Coordinates.fit(p, [False, False, True])
+    c = Coordinates.fit(p)
     assert c.shear is not None and any(t is not None for t in c.shear)
     np.testing.assert_allclose(c.inverse(c.forward(p)), p, atol=1e-10)
     u = rng.standard_normal((20, 3)) * 3  # also beyond the fitted range
@@ -177,8 +162,7 @@ def test_sampler_coordinates_are_a_bijection_with_the_stated_jacobian():
     for ui in u:
         J = np.column_stack([(c.inverse((ui + h * e)[None]) - c.inverse((ui - h * e)[None]))[0] / (2 * h)
                              for e in np.eye(3)])
-        q = c.to_q(ui[None])
-        consts.append(np.log(abs(np.linalg.det(J))) - c.log_jacobian(q)[0])
+        consts.append(np.log(abs(np.linalg.det(J))))
     assert np.ptp(consts) < 1e-5
 
 
@@ -345,14 +329,15 @@ def test_the_mixture_proposal_keeps_the_target_and_mixes_faster():
 
 
 def test_diagnostics_match_arviz():
-    from creference_bayes.inference.diagnostics import ess_bulk, rhat_rank
+    from creference_bayes.inference.diagnostics import ess_bulk_rhat
 
     rng = np.random.default_rng(0)
     x = np.cumsum(rng.normal(size=(4, 301, 5)), axis=1) * 0.1 + rng.normal(size=(4, 301, 5))
     x[..., 4] = np.round(x[..., 4], 1)  # ties
+    ess, rhat = ess_bulk_rhat(x)
     for j in range(5):
-        assert ess_bulk(x)[j] == pytest.approx(float(az.ess(x[..., j], method="bulk")), rel=1e-8)
-        assert rhat_rank(x)[j] == pytest.approx(float(az.rhat(x[..., j])), rel=1e-8)
+        assert ess[j] == pytest.approx(float(az.ess(x[..., j], method="bulk")), rel=1e-8)
+        assert rhat[j] == pytest.approx(float(az.rhat(x[..., j])), rel=1e-8)
 
 
 @pytest.mark.parametrize("tries", [1, 4])

@@ -7,12 +7,9 @@ image*:
     object: (u, v, ψ, log(length / z), log(width / z), log(height / z), ground)
 
 (u, v) is the pixel of the object's bottom centre, ψ = yaw + atan2(z, x) its turn relative to the
-viewing ray, and its sizes are taken relative to its depth z (angular sizes). Given these, the
-camera places the object exactly: the ray through (u, v) meets the object's ground (the plane at
-``height − ground``) at (x, z), and the sizes follow from z. So when the camera moves (a little
-more pitch, a larger µ, a higher camera), every object moves with it in the way that keeps its
-image, and an object's coordinates barely correlate with the camera's: the posterior is close to
-a product of blocks, which is what the blocked sampler needs. Known sizes stay fixed in metres.
+viewing ray, its sizes relative to its depth z; the ray through (u, v) meets the object's ground
+(the plane at ``height − ground``) at (x, z), so objects ride with the camera and the posterior is
+close to a product of blocks (docs/inference.md). Known sizes stay fixed in metres.
 
 The Jacobian of (u, v) → (x, z) on the plane y = y₀ is y₀² / (µ² d_y³), d = Rᵀ K⁻¹ (u, v, 1) the
 viewing ray (a homography's Jacobian); each size contributes its value.
@@ -33,14 +30,10 @@ CAMERA_LOG = np.array([True, False, False, True, True])
 #: Finite-difference steps in working coordinates (camera block, then object block).
 FD_STEPS = np.array([1e-4, 1e-5, 1e-5, 1e-4, 1e-4, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
 def explored_whole(model: Model) -> bool:
-    """Whether the model's free parameters form the camera block and at most one object block, so
-    that its posterior is explored whole: its optimiser refines both handednesses from the start
-    and its sampler moves the whole vector (at most 12 parameters) by the ensemble kernel. Block
-    sweeps pay where the object blocks are nearly independent given a camera that many of them
-    pin; with one object block the camera is pinned by that object alone (weakly identified), the
-    two blocks pin each other along curved ridges, and only moves of the whole vector follow them.
-    (Whole-vector moves for a joint as small with two object blocks, 12 parameters, took 10× the
-    block sweeps' CPU time: docs/studies/sampler.md.)"""
+    """Whether the model's free parameters form the camera block and at most one object block (the
+    camera pinned by that object alone, the two blocks pinning each other along curved ridges):
+    its optimiser then refines both handednesses from the start and its sampler moves the whole
+    vector by the ensemble kernel (docs/inference.md, "Sampling and summaries")."""
     return int(np.any(model.object_free, axis=1).sum()) <= 1
 
 
@@ -117,11 +110,9 @@ class WorkingCoords:
 class HorizonDistance:
     """Flat working coordinates of a scene ↔ the same with pitch replaced by log D of its first object.
 
-    When pitch is free, a far object's posterior lies along a curved ridge: its depth, the camera
-    height, the focal length and the pitch trade against each other through the object's distance
-    below the horizon in the image, D = −sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch)
-    (pixels, at its bottom centre (u, v)): z ≈ h µ / D. In (log h, log µ, log D) that ridge is
-    straight, as the ensemble sampler's affine coordinates need. ∂pitch/∂log D = D cos²(pitch) / µ.
+    D = −sin(roll)(u − cx) + cos(roll)(v − cy) + µ tan(pitch) is the object's distance below the
+    horizon (pixels, at its bottom centre (u, v)); z ≈ h µ / D, so in (log h, log µ, log D) a far
+    object's ridge is straight (docs/inference.md). ∂pitch/∂log D = D cos²(pitch) / µ.
 
     Parameters
     ----------

@@ -1,33 +1,12 @@
 """The ensemble kernel: emcee's differential-evolution and stretch moves over a whole vector, in
 coordinates learned during warm-up, with an independence proposal fitted to the walkers.
 
-It knows nothing of cameras or boxes: it moves any vectorised ``log_prob((n, ndim)) → (n,)`` from
-a starting point and a covariance (the MAP and its Laplace approximation). :mod:`.sampler` runs it
-for a model of one object block (:func:`.coords.explored_whole`); each group of its walkers is a
-chain of the one driver, which stops them by bulk ESS and rank R-hat as it stops every kernel
-(:func:`.sampler.run_chains`).
-
-How it moves (docs/method.md, "The sampler")
---------------
-* **Groups.** ``n_ensembles`` groups of ``n_walkers`` walkers share one
-  :class:`emcee.EnsembleSampler` (one vectorised log-probability call), but a walker draws its
-  partners only from its own group (:mod:`.moves`): the groups never exchange information, so
-  each is an independent chain and R-hat across them is meaningful (the walkers of one group are
-  not independent of each other).
-* **Start.** Group g's walkers are drawn from N(centre, cov) of mode g mod (number of modes), each
-  group with its own generator (spawned from ``rng``); points of log-probability −∞ are redrawn.
-* **Warm-up.** In stages (``stage`` steps, later ones doubled) the kernel fits a map to the
-  walkers (:class:`~.reparam.Coordinates`: logarithms, a whitening and a unit-Jacobian shear that
-  straightens curved ridges) and an independence proposal (:func:`_fit_proposal`), until a stage
-  run in the map fitted before it looks like the sample the map was fitted to (:func:`_stable`)
-  and the proposal is accepted often enough (or ``max_warmup``). A stage is judged every
-  ``chunk`` steps on the second half of what it has run, and ends once it passes after
-  2 · ``stage`` steps. The map and the proposal are then frozen.
-* **Moves.** The independence proposal (:class:`~.moves.IndependenceMove`, ``tries`` proposals
-  per walker by multiple-try Metropolis, a component per mode) on 80 % of steps, the grouped
-  differential-evolution and stretch moves on the rest.
-* **Robustness.** A log-probability of NaN or ±∞ is taken as −∞ (the state is rejected) and
-  counted in ``info["nonfinite"]``.
+It moves any vectorised ``log_prob((n, ndim)) → (n,)`` from a point and a covariance (the MAP and
+its Laplace approximation); :mod:`.sampler` runs it for a model of one object block. Groups,
+start, warm-up stages and moves: docs/inference.md, "One object block". ``n_ensembles`` groups of
+``n_walkers`` walkers share one vectorised log-probability call, but a walker's partners come from
+its own group only (:mod:`.moves`), so each group is an independent chain of the driver. A
+log-probability of NaN or ±∞ is taken as −∞ and counted in ``info["nonfinite"]``.
 """
 
 from __future__ import annotations
@@ -47,6 +26,12 @@ from .sampler import SamplerSettings, SamplingError, run_chains
 __all__ = ["Ensemble", "Chains", "sample", "explore"]
 
 
+#: Cap on warm-up steps.
+MAX_WARMUP = 5000
+#: Warm-up goes on while the independence proposal is accepted less often than this.
+MIN_INDEPENDENCE_ACCEPTANCE = 0.15
+#: Degrees of freedom and scale inflation of the independence proposal's t components.
+PROPOSAL_DF, PROPOSAL_SCALE = 6.0, 1.2
 #: Points of the warm-up sample the k-means and EM fit of that mixture use (evenly thinned).
 MIXTURE_POINTS = 3000
 #: Weight of the whole sample's t in a proposal mixture fitted to k-means centres
@@ -72,15 +57,9 @@ class _SafeLogProb:
         return lp
 
 
-class _InSpace:
-    """log-probability in sampler coordinates: log p(p(u)) + log |∂p/∂u|."""
-
-    def __init__(self, safe: _SafeLogProb, coords: Coordinates):
-        self.safe, self.coords = safe, coords
-
-    def __call__(self, u):
-        q = self.coords.to_q(np.atleast_2d(u))
-        return self.safe(self.coords.q_to_p(q)) + self.coords.log_jacobian(q)
+def _in_space(safe: _SafeLogProb, coords: Coordinates):
+    """The log-probability in sampler coordinates (the map's Jacobian is constant)."""
+    return lambda u: safe(coords.inverse(np.atleast_2d(u)))
 
 
 def _initial_points(safe, starts, rngs, n_walkers, max_tries: int = 200,
@@ -129,17 +108,12 @@ def _moves(settings: SamplerSettings, proposal: IndependenceMove | None):
 
 def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
                   rng=None) -> IndependenceMove | None:
-    """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates.
+    """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates, or None.
 
-    With several modes (``centers`` (k, d), k ≥ 2) a mixture with a component per mode that the
-    sample still holds (:func:`.modes.fit_mixture`). Otherwise a mixture of up to
-    ``settings.proposal_components`` components started from k-means centres of the sample
-    (``rng`` seeds them), or a single multivariate t when that is 1 or the mixture keeps one
-    component. The k-means and EM fits use :data:`MIXTURE_POINTS` of the sample, evenly thinned.
-    The mixture fitted to k-means centres keeps the single t as a component of weight
-    :data:`DEFENSIVE_WEIGHT` (a defensive mixture: no tail is offered much less often than by the
-    single t, where an independence step's weight p/q could strand a walker). The mixture gives a
-    lump that the mode search merged with the MAP a component of its own (docs/inference.md)."""
+    With several modes (``centers`` (k, d)) a mixture with a component per mode the sample still
+    holds (:func:`.modes.fit_mixture`); otherwise up to ``proposal_components`` components from
+    k-means centres (seeded by ``rng``) plus the whole sample's t at :data:`DEFENSIVE_WEIGHT` (a
+    defensive mixture), or the single t. Fits use :data:`MIXTURE_POINTS` of the sample."""
     if settings.independence_weight == 0.0:
         return None
     defensive, fit_to = False, u
@@ -155,14 +129,14 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
             covs = np.concatenate([covs, np.atleast_2d(np.cov(u.T))[None]])
         if len(weights) > 1:
             try:
-                chols = np.linalg.cholesky(covs * settings.proposal_scale**2)
-                return IndependenceMove(means, chols, settings.proposal_df, weights=weights,
+                chols = np.linalg.cholesky(covs * PROPOSAL_SCALE**2)
+                return IndependenceMove(means, chols, PROPOSAL_DF, weights=weights,
                                         tries=settings.tries)
             except np.linalg.LinAlgError:
                 pass
-    cov = np.atleast_2d(np.cov(u.T)) * settings.proposal_scale**2
+    cov = np.atleast_2d(np.cov(u.T)) * PROPOSAL_SCALE**2
     try:
-        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), settings.proposal_df,
+        return IndependenceMove(u.mean(axis=0), np.linalg.cholesky(cov), PROPOSAL_DF,
                                 tries=settings.tries)
     except np.linalg.LinAlgError:
         return None
@@ -198,21 +172,11 @@ def _location_spread(u: np.ndarray, loose: bool = False) -> tuple[np.ndarray, np
 
 def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
     """Whether a stage's second half, in the coordinates fitted before it, still looks like the
-    sample those coordinates were fitted to.
-
-    ``reference`` is that sample's (centre, spreads) in its own coordinates
-    (:func:`_location_spread`); None stands for a normal's. The stage passes when each
-    coordinate's centre is within 0.3 (0.5 with ``loose``) of the reference's, in whitened
-    units, and each of its spreads within a factor 1.33 (2) of the reference's.
-
-    Quantiles, not moments: a heavy-tailed posterior's standard deviation never settles however
-    well the map fits the bulk. Compared with the fitted sample's own, not a normal's: a skewed
-    posterior's quartiles stay unlike a normal's in the best of maps. The 5–95 % range catches
-    walkers still spreading along a wide posterior.
-
-    ``loose`` (several modes): the walkers' shares of the modes fluctuate between stages and the
-    mixture proposal, not the map, does the work, so the tolerance is wider and the mean and
-    standard deviation are used (a mixture's median sits in its heaviest mode)."""
+    sample those coordinates were fitted to (``reference``: its :func:`_location_spread`; None: a
+    normal's): each coordinate's centre within 0.3 whitened units and each spread within a factor
+    1.33. Quantiles, not moments: a heavy-tailed posterior's standard deviation never settles.
+    ``loose`` (several modes, whose shares fluctuate between stages): 0.5 and 2, on the mean and
+    standard deviation (a mixture's median sits in its heaviest mode)."""
     centre, sd = _location_spread(u, loose)
     ref_centre, ref_sd = (0.0, 1.0) if reference is None else reference
     m_max, sd_max = (0.5, 2.0) if loose else (0.3, 1.33)
@@ -223,38 +187,23 @@ def _stable(u: np.ndarray, loose: bool = False, reference=None) -> bool:
 
 class Ensemble:
     """The ensemble kernel (module docstring) on ``log_prob`` from ``center``: :meth:`tune` is its
-    warm-up, :meth:`run` its steps; ``n_chains`` groups of ``walkers`` walkers, each group a chain of
-    the driver.
+    warm-up, :meth:`run` its steps; ``n_chains`` groups of ``walkers`` walkers, each a chain.
 
-    Parameters
-    ----------
-    log_prob : callable, (n, ndim) → (n,) unnormalised log-density; NaN and ±∞ are taken as −∞
-    center : (ndim,) a point of high density (the MAP); must have a finite log-density
-    cov : (ndim, ndim) covariance of the starting cloud (a Laplace approximation); default 0.01² · I
-    settings : :class:`~.sampler.SamplerSettings`;  rng : seed or ``numpy.random.Generator``
-    log_mask : (ndim,) bool, parameters that are always positive and are better sampled as
-        logarithms (:mod:`.reparam`); the density is corrected for it
-    modes : further modes besides ``center`` (:func:`.modes.find_modes`), (centre (ndim,),
-        covariance (ndim, ndim)) each: group g starts in mode g mod (1 + len(modes)), the
-        independence proposal has a component per mode, and the map is affine (one polynomial
-        cannot straighten two modes)
-
-    Raises
-    ------
-    SamplingError : ``center`` has log-density −∞, or no finite starting points are found
+    ``log_prob``: (n, ndim) → (n,), NaN and ±∞ taken as −∞; ``center`` (ndim,): a point of finite
+    density (the MAP); ``cov``: the starting cloud's covariance (default 0.01² · I); ``modes``:
+    further (centre, covariance) pairs (:func:`.modes.find_modes`): group g starts in mode
+    g mod (1 + len(modes)), the independence proposal has a component per mode and the map is
+    affine. Raises :class:`SamplingError` when ``center`` or every starting point has density 0.
     """
 
     def __init__(self, log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
-                 log_mask=None, modes=None):
+                 modes=None):
         s = self.s = settings or SamplerSettings()
         rng = np.random.default_rng(rng)
         center = np.atleast_1d(np.asarray(center, float))
         d = len(center)
         if s.n_walkers < 2 * d:
             raise ValueError(f"sampling.n_walkers: expected ≥ 2·ndim = {2 * d}, got {s.n_walkers}")
-        self.log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool).reshape(d)
-        if np.any(center[self.log_mask] <= 0):
-            raise ValueError("log_mask: a parameter sampled as a logarithm is not positive at the centre")
         cov = np.eye(d) * 1e-4 if cov is None else np.asarray(cov, float).reshape(d, d)
         self.safe = _SafeLogProb(log_prob)
         if not np.isfinite(self.safe(center[None])[0]):
@@ -265,14 +214,14 @@ class Ensemble:
         self.pos = _initial_points(self.safe, starts, rng.spawn(s.n_ensembles), s.n_walkers)
         self.rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
         self.fit_rng = rng.spawn(1)[0]  # the proposal's k-means seeds (spawning leaves rng's draws alone)
-        self.coords = Coordinates.affine(center, cov, self.log_mask)
+        self.coords = Coordinates.affine(center, cov)
         self.n_chains, self.walkers = s.n_ensembles, s.n_walkers
         self.moved: list = []
         self.info: dict = {"warmup_stages": [], "reparametrised": False}
 
     def tune(self, bar) -> int:
         """The warm-up (module docstring); returns its steps."""
-        self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.log_mask, self.pos, self.rstate,
+        self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.pos, self.rstate,
                                                      self.s, self.info, bar, self.centers, self.fit_rng)
         self.sampler, self.state = _run(self.safe, self.coords, _moves(self.s, proposal), pos, rstate)
         return sum(self.info["warmup_stages"])
@@ -284,8 +233,7 @@ class Ensemble:
             p = self.coords.inverse(state.coords)
             self.moved.append(float(np.mean(np.any(state.coords != self.state.coords, axis=1))))
             self.state = emcee.State(state, copy=True)
-            with np.errstate(divide="ignore"):  # the kernel's log-density includes log |∂p/∂u|
-                yield p, state.log_prob - np.sum(np.log(p[:, self.log_mask]), axis=1)
+            yield p, state.log_prob
 
     def acceptance(self) -> float:
         """The share of a walker's steps that moved it."""
@@ -313,12 +261,12 @@ class Chains:
     info: dict = field(default_factory=dict)
 
 
-def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None, log_mask=None,
+def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = None, rng=None,
            modes=None) -> Chains:
     """Sample ``log_prob`` by the ensemble kernel (:class:`Ensemble`, the same parameters) under
     the driver's stopping rule (:func:`.sampler.run_chains`: bulk ESS and rank R-hat of every
     parameter over the groups)."""
-    kernel = Ensemble(log_prob, center, cov, settings=settings, rng=rng, log_mask=log_mask, modes=modes)
+    kernel = Ensemble(log_prob, center, cov, settings=settings, rng=rng, modes=modes)
     from .progress import progress_bar
 
     with progress_bar(False, 0) as bar:
@@ -333,16 +281,16 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     return Chains(p, lp, warm, it, thin, diag["ok"], diag, kernel.info)
 
 
-def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
+def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
             fit_rng=None):
     """Run stages, refitting the coordinates and the proposal after each, until a stage run in
     the coordinates fitted before it looks like the sample they were fitted to and the proposal
-    is accepted often enough (or ``max_warmup``). Returns the coordinates, proposal, positions
+    is accepted often enough (or :data:`MAX_WARMUP`). Returns the coordinates, proposal, positions
     and random state."""
     d = pos.shape[1]
     proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
-    while not stable and n_warm < s.max_warmup:
-        stage = min(stage, s.max_warmup - n_warm)
+    while not stable and n_warm < MAX_WARMUP:
+        stage = min(stage, MAX_WARMUP - n_warm)
         sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
         done = 0
         while done < stage:  # in chunks: a stage already whitened ends early (below)
@@ -353,7 +301,7 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
             tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
             indep = proposal.acceptance if proposal is not None else float("nan")
             stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
-                proposal is None or indep >= s.min_independence_acceptance)
+                proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
             if stable:
                 break
         pos, rstate = coords.inverse(state.coords), state.random_state
@@ -361,11 +309,9 @@ def _warmup(safe, coords, log_mask, pos, rstate, s: SamplerSettings, info: dict,
         n_warm += stage
         info["warmup_stages"].append(stage)
         bar.update(stage)
-        if not s.adapt:
-            break
         try:
             tail_p = coords.inverse(tail_u)
-            coords = Coordinates.fit(tail_p, log_mask, shear=centers is None)
+            coords = Coordinates.fit(tail_p, shear=centers is None)
             fitted = coords.forward(tail_p)
             proposal = _fit_proposal(fitted, s, _forward(coords, centers), fit_rng)
             reference = _location_spread(fitted, centers is not None)
@@ -384,23 +330,12 @@ def _forward(coords, centers):
 
 def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_steps: int = 150,
             n_walkers: int = 32) -> tuple[np.ndarray, np.ndarray]:
-    """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`).
-
-    Parameters
-    ----------
-    log_prob : callable, (n, d) → (n,) log-density in parameters
-    coords : sampler coordinates (e.g. :meth:`.reparam.Coordinates.affine` at the MAP); the
-        walkers start from N(0, I) in them
-    rng : numpy Generator
-    temperature, n_steps, n_walkers : T, steps and walkers (even, ≥ 2·d)
-
-    Returns
-    -------
-    u : (n, d) the second half of the run, in ``coords``
-    log_prob : (n,) the untempered log-density there (in ``coords``, with its Jacobian)
-    """
+    """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`):
+    ``n_walkers`` (even, ≥ 2·d) walkers start from N(0, I) in ``coords`` (sampler coordinates) and
+    run ``n_steps`` steps. Returns the second half of the run in ``coords`` (n, d) and the
+    untempered log-density there (n,)."""
     safe = _SafeLogProb(log_prob)
-    in_space = _InSpace(safe, coords)
+    in_space = _in_space(safe, coords)
     d = len(coords.m)
     n_walkers = max(n_walkers + n_walkers % 2, 2 * d)
     u0 = _initial_points(in_space, [(np.zeros(d), np.eye(d))], [rng], n_walkers)
@@ -416,6 +351,6 @@ def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_s
 def _run(safe, coords, moves, pos, rstate):
     """A fresh EnsembleSampler in ``coords`` and its state at parameters ``pos``."""
     nw, d = pos.shape
-    sampler = emcee.EnsembleSampler(nw, d, _InSpace(safe, coords), moves=moves, vectorize=True)
+    sampler = emcee.EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
     return sampler, emcee.State(coords.forward(pos), random_state=rstate)
 

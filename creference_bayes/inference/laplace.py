@@ -25,18 +25,10 @@ __all__ = ["Laplace", "laplace", "laplace_blocks"]
 
 @dataclass(frozen=True)
 class Laplace:
-    """A scene's Laplace approximation (module docstring).
-
-    Attributes
-    ----------
-    model : the model
-    camera : (5,) the MAP camera;  objects : (m, 7) the MAP objects (natural coordinates)
-    wc : (5,);  wo : (m, 7) the MAP in working coordinates
-    hessian : the arrowhead Hessian there
-    Sc : (5, 5);  Ao : (m, 7, 7);  B : (m, 7, 5) the covariance by blocks
-    ok : False when the Hessian was not positive definite (then its blocks were repaired:
-        :func:`laplace_blocks`)
-    """
+    """A scene's Laplace approximation (module docstring): the MAP (``camera`` (5,), ``objects``
+    (m, 7) natural; ``wc``, ``wo`` working), the arrowhead ``hessian`` there, its blocks ``Sc``,
+    ``Ao``, ``B`` and ``ok`` (False: the Hessian was not positive definite and its blocks were
+    repaired, :func:`laplace_blocks`)."""
 
     model: Model
     camera: np.ndarray

@@ -1,30 +1,12 @@
 """The MAP of a scene: every object's pose and size and the shared camera, jointly.
 
-Presets (:data:`PRESETS`; docs/inference.md, "Finding the MAP", step by step):
-
-``default``
-    1. **Start.** For each camera of a small grid (pitch, and µ when it is unknown), every object
-       is placed by a closed-form solve (its corners' projection equations are linear in its
-       bottom centre for a fixed yaw and handedness: a 5° yaw grid × both handednesses is one
-       batched least-squares solve). The camera whose objects fit best starts.
-    2. **Joint Newton.** Levenberg–Marquardt steps in working coordinates (:mod:`.coords`). Given
-       the camera the objects are independent, so the Hessian is an *arrowhead*; its derivatives
-       come from one batched set of finite differences and the step is solved through the Schur
-       complement of the camera block: O(m) work for m objects.
-    3. **Continuation.** With annotations that agree to a pixel or better, a first pass with σ
-       raised to 3 px finds the basin (far from the optimum only the t-tails are felt).
-    4. **Pilot.** A model's quantities fixed at a first optimum are set there and the optimum
-       refined from it; then each object's other handedness is tried (:func:`_flips`).
-    5. **Polish.** A model whose objective has kinks (the paper's, ``smooth = False``), or a
-       Newton end point short of the optimum, is finished by L-BFGS-B.
-``paper``, ``paper-controlled``
-    The paper's optimiser (§5.1.1, §6.1, §7.1): L-BFGS-B (``ftol`` 1e-8, finite-difference
-    gradient) inside monotonic basin hopping whose steps are uniform random restarts within the
-    paper's bounds (:func:`preset_bounds`); 200 or 100 restarts, split between the handednesses
-    the closed-form start gives and their opposite.
-
-The result carries the arrowhead Hessian at the optimum (:class:`Arrowhead`), which the sampler
-uses for its proposals and its camera–object shear.
+Presets (:data:`PRESETS`; docs/inference.md, "Finding the MAP", step by step): ``default``,
+closed-form starts from a grid of cameras, then Levenberg–Marquardt steps in working coordinates
+(:mod:`.coords`) on the arrowhead Hessian (solved through the camera block's Schur complement),
+with σ continuation, the pilot, handedness flips (:func:`_flips`) and an L-BFGS-B polish;
+``paper`` and ``paper-controlled``, the paper's L-BFGS-B inside basin hopping with uniform random
+restarts within :func:`preset_bounds`. The result carries the arrowhead Hessian at the optimum
+(:class:`Arrowhead`), which the sampler uses for its proposals and its camera–object shear.
 """
 
 from __future__ import annotations
@@ -497,17 +479,12 @@ def _paper(model: Model, temperature: float, restarts: int, rng, bar) -> tuple[n
 
 def optimize(model: Model, *, preset: str = "default", temperature: float = 1.0, rng=None,
              restarts: int | None = None, progress: bool = False, n_refine: int = 2) -> MapState:
-    """The MAP of ``model`` (module docstring), with each object's handedness and the pilot camera
-    (:meth:`MapState.fitted` is the model at them; ``model`` itself is not changed).
+    """The MAP of ``model`` at ``temperature`` (module docstring), with each object's handedness and
+    the pilot camera (:meth:`MapState.fitted` is the model at them; ``model`` is not changed).
 
-    Parameters
-    ----------
-    preset : one of :data:`PRESETS`
-    temperature : T of the posterior whose mode is sought
-    rng : seed or Generator (only the paper presets draw random numbers)
-    restarts : random restarts of the paper presets (None: the paper's); not for ``default``
-    progress : a progress bar of the paper presets' restarts on standard error
-    n_refine : starts of the default preset refined by Newton steps
+    ``preset``: one of :data:`PRESETS`; ``rng``, ``restarts``, ``progress`` (a bar of the
+    restarts): the paper presets' random restarts (None: the paper's number); ``n_refine``: starts
+    of the default preset refined by Newton steps.
     """
     if preset not in PRESETS:
         raise ValueError(f"preset: unknown preset {preset!r} (expected one of {list(PRESETS)})")
@@ -569,13 +546,10 @@ MAX_FLIPS = 4
 
 
 def _flips(model: Model, wc, wo, f: float, temperature: float):
-    """The other handedness of each object, tried at the optimum (the per-corner median that chose
-    it can be misled by one careless set of lines). Every object is placed again with its
-    handedness flipped and fitted with the camera held; those whose fit comes within
-    :data:`FLIP_MARGIN` of their fit now (at most :data:`MAX_FLIPS`, the closest first) are flipped
-    one at a time and everything refined from there, each kept when the whole objective improves.
-    ``model`` is the fit's model (its handedness); returns (the model at the handedness kept, wc, wo,
-    value, iterations)."""
+    """The other handedness of each object, tried at the optimum (docs/inference.md, "Finding the
+    MAP", step 7: within :data:`FLIP_MARGIN` nats with the camera held, at most :data:`MAX_FLIPS`,
+    each flip kept when the whole objective improves). ``model`` is the fit's model; returns (the
+    model at the handedness kept, wc, wo, value, iterations)."""
     coords = WorkingCoords(model)
     cams, objs = coords.from_work(wc[None], wo[None])
     h0 = model.handedness

@@ -1,29 +1,11 @@
 """Finding a posterior's separate modes before sampling it, and a mixture fitted around them.
 
-Pure NumPy and SciPy; the tempered exploration runs through :func:`.ensemble.explore`.
-
-Why
----
-With heavy-tailed corners, giving up one corner as an outlier and moving the target along its
-viewing ray fits almost as well, so the posterior can have a second, broad mode. A sampler started
-at the MAP can miss it entirely while every convergence check passes.
-
-How
----
-1. **Explore.** An ensemble runs on the tempered density p^(1/T) (T = 3 by default) from an
-   over-dispersed cloud around the MAP: valleys of a few nats become shallow and walkers spread
-   over every basin within reach.
-2. **Climb.** From a spread subset of the explored points (8) (farthest-point sampling, the highest
-   first) an L-BFGS-B fit of the *untempered* log-density finds the local maxima; circular
-   coordinates (yaw) are wrapped to within π of the MAP, and maxima closer than
-   :data:`SAME_MODE` (in the MAP's whitened units) or without a valley between them
-   (:data:`VALLEY`) are merged.
-3. **Weigh.** Each maximum gets a Laplace approximation; its mass is estimated as
-   exp(log p) · √det(2π Σ). Modes under :data:`MIN_SHARE` of the total are dropped.
-
-The sampler (:func:`.ensemble.sample`) then starts its ensembles in different modes (an
-over-dispersed start, so R-hat across ensembles tests that they found the same posterior) and
-its independence proposal is a mixture with a component per mode (:func:`fit_mixture`).
+Heavy-tailed corners let one corner be given up as an outlier and the target move along its
+viewing ray, so the posterior can have a second mode that a sampler started at the MAP misses
+while every check passes. :func:`find_modes` (the whole vector: explore the tempered density,
+climb, merge, weigh by Laplace mass) and :func:`object_modes` (each object given the MAP's
+camera) are described in docs/inference.md ("Modes first"); :func:`fit_mixture` fits the
+independence proposal's mixture, a component per mode.
 """
 
 from __future__ import annotations
@@ -53,15 +35,8 @@ MAX_DROP = 25.0
 
 @dataclass(frozen=True)
 class Mode:
-    """One local maximum of the log-density.
-
-    Attributes
-    ----------
-    center : (d,) the maximum, in the log-density's parameters
-    cov : (d, d) its Laplace covariance
-    log_prob : the log-density there
-    share : its estimated share of the posterior mass (Laplace), 0–1
-    """
+    """One local maximum of the log-density: ``center`` (d,), its Laplace covariance ``cov``
+    (d, d), the log-density there and its estimated share of the posterior mass (0–1)."""
 
     center: np.ndarray
     cov: np.ndarray
@@ -75,22 +50,14 @@ class Mode:
 def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
                temperature: float = 3.0, n_steps: int = 150, n_walkers: int = 32,
                n_climbs: int = 8, extra_starts=None) -> list[Mode]:
-    """The posterior's modes, the one at ``center`` first (module docstring).
+    """The posterior's modes, the one at ``center`` first, then by decreasing share (docs/inference.md,
+    "One object block"): a tempered exploration (:func:`.ensemble.explore`: ``temperature``,
+    ``n_steps``, ``n_walkers``), ``n_climbs`` L-BFGS-B climbs from spread points of it and from
+    ``extra_starts`` (k, d), maxima merged (:func:`_same_mode`) and weighed by Laplace mass.
 
-    Parameters
-    ----------
-    log_prob : callable, (n, d) → (n,) log-density (−∞ outside the support)
-    center, cov : (d,), (d, d) the MAP and its Laplace covariance
-    laplace : callable, (d,) point → (d, d) Laplace covariance there
-    rng : numpy Generator
-    circular : indices of circular coordinates (radians), or None
-    temperature, n_steps, n_walkers : the tempered exploration (:func:`.ensemble.explore`)
-    n_climbs : local maximisations from the explored points
-    extra_starts : (k, d) more points to climb from (other local optima the MAP's search found)
-
-    Returns
-    -------
-    list of :class:`Mode`, the one at ``center`` first, then by decreasing share
+    ``log_prob``: (n, d) → (n,) (−∞ outside the support); ``center``, ``cov``: the MAP and its
+    Laplace covariance; ``laplace``: a point (d,) → its Laplace covariance; ``circular``: indices of
+    angles (wrapped to within π of the MAP) or None.
     """
     from .reparam import Coordinates
     from .ensemble import explore
@@ -104,10 +71,9 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     if extra_starts is not None and len(extra_starts):  # other optima known already (the MAP's)
         starts += list(coords.forward(np.atleast_2d(np.asarray(extra_starts, float))))
 
-    def neg(uu):  # −log p in the whitened coordinates, with the log coordinates' Jacobian
-        q = coords.to_q(np.atleast_2d(uu))
+    def neg(uu):  # −log p in the whitened coordinates
         with np.errstate(all="ignore"):
-            v = log_prob(coords.q_to_p(q)) + coords.log_jacobian(q)
+            v = log_prob(coords.inverse(np.atleast_2d(uu)))
         return np.where(np.isfinite(v), -v, 1e300)
 
     found = [np.zeros(d)]
@@ -204,21 +170,11 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
 
 
 def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
-    """A Gaussian mixture fitted to a sample by EM, one component per mode.
-
-    Parameters
-    ----------
-    u : (n, d) sample (the sampler's coordinates)
-    centers : (k, d) the modes, in the same coordinates: they start the components
-    n_iter : EM iterations
-    min_weight : weights are floored at this share over the components, so that the proposal
-        keeps offering every mode
-
-    Returns
-    -------
-    weights (k',), means (k', d), covs (k', d, d): components that keep at least 2·d + 2
-    points of the sample (k' ≤ k; k' may be 1)
-    """
+    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
+    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
+    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
+    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
+    (k' ≤ k; k' may be 1)."""
     n, d = u.shape
     means = np.asarray(centers, float).copy()
     resp = np.zeros((n, len(means)))
@@ -255,32 +211,18 @@ def _log_resp(u, weights, means, covs) -> np.ndarray:
 
 def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, temperature: float,
                  max_sets: int = 8) -> list[list[Mode]]:
-    """Each object's modes given the MAP's camera, in a scene of object blocks (:mod:`.moves`):
-    another reading of an object that its own sets of dimension lines support (two sets that
-    place it at different depths: the posterior then has a mode for each).
+    """Each object's modes given the MAP's camera (docs/inference.md, "Several object blocks").
 
-    Given the camera the objects are independent (pair terms aside), so every object is searched
-    at once. For the k-th set of dimension lines (k < ``max_sets``), every object that has one is
-    placed by the closed-form solve from that set alone (the others stay at the MAP) and all are
-    climbed together, the camera held (Newton steps, :mod:`.map`): only the sets that miss the
-    MAP's corners by more than :data:`OUTLIER_SET` times (the best set's miss + 1 px), RMS, and
-    only their objects (an object whose sets agree has one reading). An object's end point is a new
-    mode when it lies more than :data:`SAME_MODE` from the modes kept (in the MAP's whitened
-    units, ``Ao`` its Laplace covariance given the camera) with a valley between
-    (:func:`_same_mode`); its mass is its Laplace mass given the camera. Modes under
-    :data:`MIN_SHARE` go, at most :data:`MAX_MODES` stay.
+    For the k-th set of dimension lines (k < ``max_sets``) of the objects whose k-th set misses
+    the MAP's corners by more than :data:`OUTLIER_SET` × (their best set's miss + 1 px), RMS, each
+    is placed from that set alone and all are climbed together, the camera held; an end point
+    apart from the modes kept (:func:`_same_mode`, in the units of ``Ao`` (m, 7, 7), each object's
+    Laplace covariance given the camera) is a new mode, weighed by its Laplace mass given the
+    camera. ``target`` is the :class:`~.moves.BlockTarget` (unsheared at ``wc0``), (wc0 (5,), wo0
+    (m, 7)) the MAP in working coordinates.
 
-    Parameters
-    ----------
-    target : the :class:`~.moves.BlockTarget` (its object coordinates at ``wc0`` are the working ones)
-    wc0, wo0 : (5,), (m, 7) the MAP in working coordinates
-    Ao : (m, 7, 7) each object's Laplace covariance given the camera (zero on fixed entries)
-    temperature : the posterior's T
-
-    Returns
-    -------
-    per object, its modes (:class:`Mode`: centre (7,), covariance (7, 7) and ``shear`` (7, 5), the
-    centre's regression on the camera, in working coordinates), the MAP's first
+    Returns per object its modes, the MAP's first (:class:`Mode`: centre (7,), covariance (7, 7)
+    and ``shear`` (7, 5), the centre's regression on the camera).
     """
     from ..models.contract import O_YAW
     from .map import _newton, derivatives, initial_objects

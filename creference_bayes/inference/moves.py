@@ -1,21 +1,16 @@
 """emcee moves: what is particular to a scene's posterior, under one driver (:mod:`.sampler`).
 
-**Block moves**, for a posterior in blocks (the camera, and one block per object). Given the
-camera the objects are independent (up to pair terms), and the sampler's coordinates
-(:class:`BlockTarget`) make them close to independent of the camera too. A sweep updates every
-object given the camera, each accepted on its own terms (all objects and walkers in one vectorised
-evaluation; objects coupled by a pair term are coloured apart and moved in separate passes), then
-the camera, every object riding along its regression on it, accepted by the whole posterior.
-:class:`RandomWalkSweep` proposes random-walk steps (scales adapted towards an acceptance of 0.3
-while the sampler tunes); :class:`IndependenceSweep` draws ``tries`` Student-t proposals per block
-(:data:`IND_DOF`, :data:`IND_SCALE`) and takes one by multiple-try Metropolis
-(:func:`multiple_try_pick`). No block move uses another walker, and the walker's
-blobs hold each block's log-density (camera, each object, each pair term).
+**Block moves** (docs/inference.md, "Several object blocks"): a sweep updates every object given
+the camera, each accepted on its own terms (objects coupled by a pair term coloured apart), then
+the camera with every object riding along its regression on it; by random-walk steps
+(:class:`RandomWalkSweep`) or ``tries`` Student-t independence proposals per block, one taken by
+multiple-try Metropolis (:class:`IndependenceSweep`). A walker's blobs hold each block's
+log-density (camera, each object, each pair term).
 
-**Ensemble moves**, for a posterior taken whole (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1``
-form ensemble ``g``. :class:`GroupedDEMove` and :class:`GroupedStretchMove` draw a walker's partners
-only from the other half of its own ensemble, and :class:`IndependenceMove` uses none, so the
-ensembles never exchange information while sharing one vectorised log-probability call.
+**Ensemble moves** (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1`` form ensemble ``g``;
+:class:`GroupedDEMove` and :class:`GroupedStretchMove` draw partners only from the other half of
+the walker's own ensemble and :class:`IndependenceMove` uses none, so ensembles never exchange
+information.
 """
 
 from __future__ import annotations
@@ -376,7 +371,7 @@ class IndependenceSweep(RandomWalkSweep):
 
 def _log_prob(model, q: np.ndarray) -> np.ndarray:
     """Vectorised log-probability of proposals ``q``, shape (n,): the wrapped function
-    (``ensemble._InSpace``, which maps NaN and ±∞ to −∞) called directly, as emcee's
+    (:func:`.ensemble._in_space`, which maps NaN and ±∞ to −∞) called directly, as emcee's
     ``compute_log_prob`` converts the result walker by walker in Python."""
     return np.asarray(model.log_prob_fn(q), float)
 
@@ -445,41 +440,33 @@ class GroupedStretchMove(_Grouped):
         return cj - (cj - s) * zz[..., None], (d - 1.0) * np.log(zz)
 
 
-class IndependenceMove(emcee.moves.MHMove):
+class IndependenceMove(emcee.moves.Move):
     """Independence Metropolis–Hastings with a multivariate-t proposal, or a mixture of them.
 
-    Every walker proposes x' ~ Σₖ wₖ t_ν(mₖ, Sₖ Sₖᵀ) regardless of where it is; the Hastings
-    factor is log q(x) − log q(x'). It uses no other walker, so ensembles stay independent. A
-    mixture (one component per mode of the posterior, :mod:`.modes`) lets a walker jump between
-    modes that no local move connects.
+    Every walker draws ``tries`` proposals x' ~ Σₖ wₖ t_ν(mₖ, Sₖ Sₖᵀ) regardless of where it is and
+    takes one by independent multiple-try Metropolis (:func:`multiple_try_pick`; ``tries=1`` is the
+    ordinary independence step, Hastings factor q(x) / q(x')); all tries of all walkers go to the
+    log-probability in one call. It uses no other walker, so ensembles stay independent. A mixture
+    (a component per mode, :mod:`.modes`) lets a walker jump between modes no local move connects.
 
     Parameters
     ----------
-    mean : (ndim,) or (k, ndim)
-    chol : (ndim, ndim) or (k, ndim, ndim) lower-triangular Sₖ
-    df : ν
-    weights : (k,) mixture weights (default: one component)
-    tries : proposals per walker and step. With more than one, the step is independent
-        multiple-try Metropolis (:func:`multiple_try_pick`), accepted far more
-        often where the proposal fits the posterior loosely; all tries of all walkers go to the
-        log-probability in one call. ``tries=1`` is the ordinary independence step.
+    mean : (ndim,) or (k, ndim);  chol : (ndim, ndim) or (k, ndim, ndim) lower-triangular Sₖ
+    df : ν;  weights : (k,) mixture weights (default: one component);  tries : proposals per walker
     """
 
     def __init__(self, mean: np.ndarray, chol: np.ndarray, df: float, weights=None, tries: int = 1):
         self.means = np.atleast_2d(np.asarray(mean, float))
         self.chols = np.asarray(chol, float).reshape(len(self.means), self.means.shape[1], -1)
-        k, d = self.means.shape
+        k = len(self.means)
         self.weights = np.ones(k) / k if weights is None else np.asarray(weights, float) / np.sum(weights)
-        self.mean, self.chol, self.df = self.means[0], self.chols[0], float(df)
-        self.tries = int(tries)
+        self.df, self.tries = float(df), int(tries)
         if self.tries < 1:
             raise ValueError(f"tries: expected an integer ≥ 1, got {tries!r}")
         self._invs = np.linalg.inv(self.chols)
         self._shifts = np.einsum("kij,kj->ki", self._invs, self.means)
-        self._log_norm = np.log(self.weights) - np.array([np.sum(np.log(np.abs(np.diag(c))))
-                                                          for c in self.chols])
+        self._log_norm = np.log(self.weights) - np.array([np.sum(np.log(np.abs(np.diag(c)))) for c in self.chols])
         self.proposed = self.accepted = 0
-        super().__init__(self._propose, ndim=d)
 
     @property
     def n_components(self) -> int:
@@ -500,19 +487,6 @@ class IndependenceMove(emcee.moves.MHMove):
         return (top + np.log(np.sum(np.exp(terms - top), axis=1, keepdims=True)))[:, 0]
 
     def propose(self, model, state):
-        """As :meth:`emcee.moves.MHMove.propose`, with a vectorised log-probability call."""
-        if self.tries > 1:
-            return self._propose_multiple(model, state)
-        q, factors = self._propose(state.coords, model.random)
-        new_lp = _log_prob(model, q)
-        accepted = np.log(model.random.rand(len(q))) < new_lp - state.log_prob + factors
-        state.coords[accepted] = q[accepted]
-        state.log_prob[accepted] = new_lp[accepted]
-        self.proposed += len(q)
-        self.accepted += int(accepted.sum())
-        return state, accepted
-
-    def _propose_multiple(self, model, state):
         n, d = state.coords.shape
         k = self.tries
         y = self._draw(n * k, d, model.random)
@@ -528,21 +502,16 @@ class IndependenceMove(emcee.moves.MHMove):
         self.accepted += int(accepted.sum())
         return state, accepted
 
-    def _propose(self, x, random):
-        y = self._draw(len(x), x.shape[1], random)
-        return y, self.log_q(x) - self.log_q(y)
-
     def _draw(self, n, d, random):
         """n draws from the proposal, (n, d)."""
         w = random.chisquare(self.df, n) / self.df
         z = random.randn(n, d) / np.sqrt(w)[:, None]
         if self.n_components == 1:
-            y = self.mean + z @ self.chol.T
-        else:
-            k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))
-            k = np.minimum(k, self.n_components - 1)
-            y = np.empty((n, d))
-            for j in range(self.n_components):  # one product per component, not per draw
-                pick = k == j
-                y[pick] = self.means[j] + z[pick] @ self.chols[j].T
+            return self.means[0] + z @ self.chols[0].T
+        k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))
+        k = np.minimum(k, self.n_components - 1)
+        y = np.empty((n, d))
+        for j in range(self.n_components):  # one product per component, not per draw
+            pick = k == j
+            y[pick] = self.means[j] + z[pick] @ self.chols[j].T
         return y

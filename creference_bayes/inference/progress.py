@@ -1,11 +1,8 @@
 """Progress bars (tqdm) on standard error, in one place: how they look and where they go.
 
-Callers decide *whether* to show one (the command line: not with ``--quiet``, and only when
-standard error is a terminal); this module only builds it. A long run of units (the scenes of a
-batch) whose standard error is not a terminal (a log file, a pipe) prints a line per finished unit
-instead (:func:`progress_mode`, :class:`LineBar`): a bar there would be one line at the end. The bars are tqdm's plain text bars
-(``tqdm.std``), also inside Jupyter: ``tqdm.auto`` would pick the notebook widget there and, in a
-kernel without ipywidgets, emit a ``TqdmWarning`` on import even when the bar is disabled.
+Callers decide *whether* to show one; a run of units whose standard error is not a terminal prints
+a line per unit instead (:class:`LineBar`). The bars are tqdm's plain text bars (``tqdm.std``),
+also inside Jupyter (``tqdm.auto`` warns on import in a kernel without ipywidgets).
 """
 
 from __future__ import annotations
@@ -40,13 +37,7 @@ class SilentBar:
     def update(self, n: int = 1) -> None:
         self.n += n
 
-    def set_postfix(self, *args, **kwargs) -> None:
-        pass
-
     def set_postfix_str(self, *args, **kwargs) -> None:
-        pass
-
-    def refresh(self) -> None:
         pass
 
     def close(self) -> None:
@@ -84,15 +75,9 @@ class LineBar(SilentBar):
 
 def progress_bar(enabled: bool | str, total: int | None = None, *, desc: str | None = None,
                  unit: str = "it", initial: int = 0, leave: bool = False, postfix: dict | None = None):
-    """A tqdm bar on standard error that disappears when done, or a disabled (silent) one.
-
-    ``enabled``: show the bar; ``total``: expected number of updates (None: unknown); ``desc``: the
-    label before the bar; ``unit``: what one update counts; ``initial``: updates already done;
-    ``leave``: keep the finished bar on the screen; ``postfix``: values shown after the bar
-    (``set_postfix`` changes them). Returns a ``tqdm.std.tqdm`` (or, when not ``enabled``, a
-    :class:`SilentBar`; when ``enabled`` is ``"lines"``, a :class:`LineBar`), usable as a context
-    manager; ``update(n)`` advances it.
-    """
+    """A ``tqdm.std.tqdm`` on standard error that disappears when done (``leave``: it stays), a
+    :class:`LineBar` when ``enabled`` is ``"lines"``, or a :class:`SilentBar`; the other arguments
+    are tqdm's. Usable as a context manager; ``update(n)`` advances it."""
     if enabled == "lines":
         return LineBar(total, initial, desc, unit)
     if not enabled:

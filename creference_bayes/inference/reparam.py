@@ -1,23 +1,19 @@
 """Sampler coordinates: a map from parameters to a space where the posterior is nearly round.
 
-Pure NumPy; the ensemble sampler (:mod:`.ensemble`) learns the map from its warm-up. The
-posterior lives on thin, curved ridges; affine-invariant ensemble moves do not care how thin a
-ridge is, only how curved. The map straightens it:
+Pure NumPy; the ensemble kernel (:mod:`.ensemble`) learns the map from its warm-up. Affine-invariant
+ensemble moves do not care how thin a ridge is, only how curved; the map straightens it:
 
-1. q = p, with ``log`` applied to the coordinates marked positive (z and µ: their ridges are
-   nearly straight in log space and their long tails are compressed); log |∂p/∂q| = Σ qᵢ over those;
-2. w = A⁻¹ (q − m): a whitening of a sample, along its principal axes or triangular (Cholesky)
+1. w = A⁻¹ (p − m): a whitening of a sample, along its principal axes or triangular (Cholesky)
    in some order of the coordinates;
-3. v with vⱼ = wⱼ − fⱼ(w₀ … wⱼ₋₁), fⱼ a quadratic form in the preceding coordinates plus a cubic
+2. v with vⱼ = wⱼ − fⱼ(w₀ … wⱼ₋₁), fⱼ a quadratic form in the preceding coordinates plus a cubic
    term in w₀, fitted by least squares: a triangular shear, whose Jacobian determinant is 1 for
-   *any* fⱼ, so it is always a bijection and needs no density correction. fⱼ is evaluated on its
-   arguments clipped to the fitted sample's range widened by one range on each side (a
-   polynomial must not explode in the tails). The whitening, and which of its axes comes first,
-   minimise the determinant of the sheared sample's covariance (the map preserves volume, so
-   the smaller it is, the more curvature the shear took out);
-4. u = B (v − c): a final whitening.
+   *any* fⱼ, so it is always a bijection. fⱼ is evaluated on its arguments clipped to the fitted
+   sample's range widened by one range on each side (a polynomial must not explode in the
+   tails). The whitening, and which of its axes comes first, minimise the determinant of the
+   sheared sample's covariance (the map preserves volume: the smaller, the straighter);
+3. u = B (v − c): a final whitening.
 
-Steps 2–4 have a constant Jacobian; only step 1 contributes to the density (:meth:`log_jacobian`).
+The Jacobian is constant: the density needs no correction.
 """
 
 from __future__ import annotations
@@ -39,16 +35,14 @@ class Coordinates:
 
     Parameters
     ----------
-    log_mask : (d,) bool, coordinates sampled as log (must stay positive)
-    m : (d,) centre of q;  A : (d, d) with q = m + A w
+    m : (d,) centre;  A : (d, d) with p = m + A w
     shear : per j = 1 … d−1 a tuple (Q (j, j), κ) or None;  lo, hi : (d,) clip range of w
     c, B : v = c + B⁻¹ u
     """
 
-    def __init__(self, log_mask, m, A, shear=None, lo=None, hi=None, c=None, B=None):
-        self.log_mask = np.asarray(log_mask, bool)
-        d = len(self.log_mask)
+    def __init__(self, m, A, shear=None, lo=None, hi=None, c=None, B=None):
         self.m, self.A = np.asarray(m, float), np.asarray(A, float)
+        d = len(self.m)
         self.A_inv = np.linalg.inv(self.A)
         self.shear = shear
         self.lo = np.full(d, -np.inf) if lo is None else lo
@@ -59,20 +53,12 @@ class Coordinates:
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
-    def affine(cls, center: np.ndarray, cov: np.ndarray, log_mask=None) -> "Coordinates":
-        """Whitening by a Gaussian (centre, covariance) given in parameter space.
-
-        For log coordinates the covariance is carried over to first order (divided by the
-        centre's values), which needs those centre values to be positive.
-        """
-        center = np.asarray(center, float)
-        log_mask = np.zeros(len(center), bool) if log_mask is None else np.asarray(log_mask, bool)
-        scale = np.where(log_mask, center, 1.0)
-        cov = np.asarray(cov, float) / np.outer(scale, scale)
-        return cls(log_mask, cls._to_q(center[None], log_mask)[0], np.linalg.cholesky(cov))
+    def affine(cls, center: np.ndarray, cov: np.ndarray) -> "Coordinates":
+        """Whitening by a Gaussian (centre, covariance)."""
+        return cls(np.asarray(center, float), np.linalg.cholesky(np.asarray(cov, float)))
 
     @classmethod
-    def fit(cls, samples: np.ndarray, log_mask=None, shear: bool = True) -> "Coordinates":
+    def fit(cls, samples: np.ndarray, shear: bool = True) -> "Coordinates":
         """Fit the map to samples (n, d) in parameter space.
 
         Raises
@@ -80,12 +66,8 @@ class Coordinates:
         numpy.linalg.LinAlgError : when the sample is degenerate (fewer distinct points than
             dimensions, or a coordinate that never moved)
         """
-        p = np.asarray(samples, float)
-        d = p.shape[1]
-        log_mask = np.zeros(d, bool) if log_mask is None else np.asarray(log_mask, bool)
-        if np.any(p[:, log_mask] <= 0):
-            raise np.linalg.LinAlgError("non-positive value in a log coordinate")
-        q = cls._to_q(p, log_mask)
+        q = np.asarray(samples, float)
+        d = q.shape[1]
         if len(q) > _MAX_FIT_POINTS:  # evenly spaced: plenty for ≤ 15 coefficients, and fast
             q = q[np.linspace(0, len(q) - 1, _MAX_FIT_POINTS).astype(int)]
         m = q.mean(axis=0)
@@ -95,15 +77,15 @@ class Coordinates:
         if not (np.all(np.isfinite(lam)) and lam[-1] > 1e-14 * max(lam[0], 1e-300)):
             raise np.linalg.LinAlgError("degenerate sample")
         if not shear or d < 2:
-            return cls(log_mask, m, V * np.sqrt(lam))
+            return cls(m, V * np.sqrt(lam))
         best = None
         for A in cls._candidate_whitenings(cov, V, lam):
-            self = cls(log_mask, m, A)
+            self = cls(m, A)
             w = (q - m) @ self.A_inv.T
             lo, hi = w.min(axis=0), w.max(axis=0)
             self.lo, self.hi = lo - _EXTRAPOLATE * (hi - lo), hi + _EXTRAPOLATE * (hi - lo)
             self.shear = [cls._fit_shear(w, j) for j in range(1, d)]
-            v = self._shear_forward(w)
+            v = self._shear(w, -1.0)
             cov_v = np.atleast_2d(np.cov(v.T))
             sign, logdet = np.linalg.slogdet(cov_v)
             if sign > 0 and (best is None or logdet < best[0]):
@@ -144,64 +126,31 @@ class Coordinates:
         return 0.5 * (Q + Q.T), float(beta[-1])
 
     # -- the map -----------------------------------------------------------------------------
-    @staticmethod
-    def _to_q(p: np.ndarray, log_mask: np.ndarray) -> np.ndarray:
-        q = p.copy()
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q[:, log_mask] = np.log(p[:, log_mask])
-        return q
-
-    def _shear_forward(self, w: np.ndarray) -> np.ndarray:
-        v = w.copy()
+    def _shear(self, a: np.ndarray, sign: float) -> np.ndarray:
+        """v of w (``sign`` −1) or w of v (+1), column by column: wⱼ needs only w₀…wⱼ₋₁, already
+        known (the inverse is the hot path of every log-probability call)."""
+        out = a.copy()
         if not self.shear:
-            return v
-        x = np.minimum(np.maximum(w, self.lo), self.hi)
-        cube = x[:, 0] ** 3
-        for j, term in enumerate(self.shear, start=1):
-            if term is not None:
-                Q, kappa = term
-                v[:, j] -= ((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube
-        return v
-
-    def _shear_inverse(self, v: np.ndarray) -> np.ndarray:
-        """Undo the shear column by column: wⱼ needs only w₀…wⱼ₋₁, already rebuilt (the hot
-        path of every log-probability call, hence the hand-kept clipped copy ``x``)."""
-        w = v.copy()
-        if not self.shear:
-            return w
-        x = np.empty_like(w)
+            return out
+        w = a if sign < 0 else out
+        x = np.empty_like(out)  # the clipped w
         x[:, 0] = np.minimum(np.maximum(w[:, 0], self.lo[0]), self.hi[0])
         cube = x[:, 0] ** 3
         for j, term in enumerate(self.shear, start=1):
             if term is not None:
                 Q, kappa = term
-                w[:, j] += ((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube
+                out[:, j] += sign * (((x[:, :j] @ Q) * x[:, :j]).sum(axis=1) + kappa * cube)
             x[:, j] = np.minimum(np.maximum(w[:, j], self.lo[j]), self.hi[j])
-        return w
+        return out
 
     def forward(self, p: np.ndarray) -> np.ndarray:
         """(..., d) parameters → (..., d) sampler coordinates."""
         shape = p.shape
-        q = self._to_q(p.reshape(-1, shape[-1]).astype(float), self.log_mask)
-        w = (q - self.m) @ self.A_inv.T
-        return ((self._shear_forward(w) - self.c) @ self.B.T).reshape(shape)
-
-    def to_q(self, u: np.ndarray) -> np.ndarray:
-        """(n, d) sampler coordinates → q (parameters with log coordinates still logged)."""
-        v = u @ self.B_inv.T + self.c
-        return self._shear_inverse(v) @ self.A.T + self.m
-
-    def q_to_p(self, q: np.ndarray) -> np.ndarray:
-        p = q.copy()
-        with np.errstate(over="ignore"):
-            p[:, self.log_mask] = np.exp(q[:, self.log_mask])
-        return p
+        w = (p.reshape(-1, shape[-1]).astype(float) - self.m) @ self.A_inv.T
+        return ((self._shear(w, -1.0) - self.c) @ self.B.T).reshape(shape)
 
     def inverse(self, u: np.ndarray) -> np.ndarray:
         """(..., d) sampler coordinates → (..., d) parameters."""
         shape = u.shape
-        return self.q_to_p(self.to_q(u.reshape(-1, shape[-1]))).reshape(shape)
-
-    def log_jacobian(self, q: np.ndarray) -> np.ndarray:
-        """(n,) log |∂p/∂u| up to a constant, from q (:meth:`to_q`)."""
-        return np.sum(q[:, self.log_mask], axis=1)
+        v = u.reshape(-1, shape[-1]) @ self.B_inv.T + self.c
+        return (self._shear(v, 1.0) @ self.A.T + self.m).reshape(shape)

@@ -1,38 +1,12 @@
 """The posterior of any scene: one driver, its kernels composed by the model's blocks.
 
-The emcee adapter (docs/method.md, "The sampler"). One driver runs every scene (as PyMC's
-``CompoundStep`` and numpyro's ``HMCGibbs`` run their step methods): a start from the Laplace
-approximation at the MAP, a search for other modes, one warm-up in which each kernel tunes itself,
-and one main phase with one stopping rule, in which a chain is one independent unit of any kernel:
-a group of the ensemble kernel's walkers (laid end to end), a walker of the block sweeps. What
-moves the walkers follows what the model declares, never the kind of scene:
-
-* **One object block** (:func:`.coords.explored_whole`: the camera pinned by one object alone,
-  weakly identified): the whole free vector by the ensemble kernel (:class:`.ensemble.Ensemble`:
-  differential-evolution and stretch moves within groups of walkers and a multiple-try
-  independence proposal, in coordinates learned during warm-up), with pitch replaced by the log of
-  the first object's distance below the horizon (:class:`.coords.HorizonDistance`); its modes are
-  searched whole first (:func:`.modes.find_modes`: each a component of the independence proposal
-  and the start of some walkers' groups). Each group is a chain.
-* **Otherwise** block sweeps (:mod:`.moves`) over the camera block and one block per object, by
-  random-walk and multiple-try independence proposals, each walker an independent chain; working
-  coordinates (:mod:`.coords`) in which each object is measured from its conditional mean given
-  the camera, õᵢ = oᵢ − Bᵢ (c − c*), Bᵢ the regression of object i on the camera (from the
-  Laplace approximation at the MAP, :mod:`.laplace`, then the warm-up draws). Each object's modes
-  given the MAP's camera (:func:`.modes.object_modes`) make its independence proposal a mixture,
-  and chain c starts it in mode c mod k. Warm-up: ``warmup`` steps, the random-walk scales tuned
-  towards an acceptance of 0.3; at 40 % and 70 % of it the covariances, the shear and the
-  independence centres are re-estimated from the second half of the draws since the last
-  re-estimate (blended 80/20 with the Laplace approximation).
-
-**Stopping** (:func:`run_chains`, every kernel): the main phase runs in chunks until the bulk ESS
-of every free parameter and every object's distance reaches ``min_ess`` and its rank-normalised
-split R-hat over the chains (the independent units) is at most ``max_rhat`` (:mod:`.diagnostics`),
-or ``max_steps``. The ranked check runs only when the raw split R-hat is within 3× of the
-threshold; the rule that decides is always the ranked one. ``lp`` is the log-density in working coordinates whatever the
-kernel, and the diagnostics have one shape.
-
-Everything random comes from ``rng``: the same seed gives the same draws.
+docs/inference.md, "Sampling and summaries", describes the kernels, the warm-up and the stopping
+rule. One object block (:func:`.coords.explored_whole`): the whole free vector by the ensemble
+kernel (:class:`_Whole`, :mod:`.ensemble`), pitch as log D (:class:`.coords.HorizonDistance`),
+after a search for the joint modes; otherwise block sweeps (:class:`_Blocks`, :mod:`.moves`) in
+sheared working coordinates, after a search for each object's modes. Either way a chain is one
+independent unit, ``lp`` is the log-density in working coordinates, and :func:`run_chains`
+stops every kernel by bulk ESS and rank R-hat. Everything random comes from ``rng``.
 """
 
 from __future__ import annotations
@@ -54,6 +28,10 @@ from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
 __all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample", "run_chains"]
 
 
+#: Steps kept per walker (older ones thinned by two when twice as many are kept).
+MAX_DRAWS = 2000
+
+
 class SamplingError(RuntimeError):
     """The sampler cannot start (the MAP has zero posterior density)."""
 
@@ -66,28 +44,22 @@ class SamplerSettings:
         min_ess : bulk effective sample size every free parameter (and every object's distance)
             must reach;  max_rhat : largest rank-normalised split R-hat over the chains accepted;
             max_steps : cap on main-phase steps (the result then says it has not converged);
-            chunk : steps between convergence checks (at least);  max_draws : steps kept per
-            walker (older ones thinned when exceeded);  tries : tries per independence proposal
-            (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps that
-            are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
+            chunk : steps between convergence checks (at least);  tries : tries per independence
+            proposal (multiple-try Metropolis; 1: plain);  independence_weight : the share of steps
+            that are independence moves (None: 0.5 for block sweeps, 0.8 for the ensemble kernel);
             mode_search : look for other modes before sampling (:mod:`.modes`)
     Block sweeps
         n_chains : walkers, each an independent chain;  warmup : warm-up steps
     Ensemble kernel (one object block; :mod:`.ensemble`)
         n_ensembles, n_walkers : groups (each a chain) and the walkers of each;  stage :
-        the first warm-up stage's length (later ones double);  max_warmup : cap on warm-up
-        steps;  adapt : fit the straightening map and the independence proposal during warm-up;
-        min_independence_acceptance : warm-up goes on while that proposal is accepted less often;
-        proposal_df, proposal_scale, proposal_components : its degrees of freedom, scale
-        inflation and mixture components;  explore_temperature, explore_steps : the tempered
-        exploration of the mode search (:func:`.modes.find_modes`)
+        the first warm-up stage's length (later ones double);  proposal_components : the
+        independence proposal's mixture components
     """
 
     min_ess: float = 400.0
     max_rhat: float = 1.01
     max_steps: int = 20000
     chunk: int = 50
-    max_draws: int = 2000
     tries: int = 4
     independence_weight: float | None = None
     mode_search: bool = True
@@ -96,40 +68,21 @@ class SamplerSettings:
     n_ensembles: int = 4
     n_walkers: int = 24
     stage: int = 50
-    max_warmup: int = 5000
-    adapt: bool = True
-    min_independence_acceptance: float = 0.15
-    proposal_df: float = 6.0
-    proposal_scale: float = 1.2
     proposal_components: int = 3
-    explore_temperature: float = 3.0
-    explore_steps: int = 150
 
     def __post_init__(self):
-        whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-        flag = lambda k: (k, isinstance(getattr(self, k), bool), "true or false")
+        def whole(k, lo, what=None):
+            v = getattr(self, k)
+            ok = isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo
+            return k, ok, f"an integer ≥ {what or lo}"
+
         checks = [("min_ess", self.min_ess >= 0, "a number ≥ 0"), ("max_rhat", self.max_rhat >= 1.0, "a number ≥ 1"),
-                  ("chunk", whole(self.chunk) and self.chunk >= 10, "an integer ≥ 10"),
-                  ("max_steps", whole(self.max_steps) and self.max_steps >= self.chunk, "an integer ≥ chunk"),
-                  ("max_draws", whole(self.max_draws) and self.max_draws >= 100, "an integer ≥ 100"),
-                  ("tries", whole(self.tries) and self.tries >= 1, "an integer ≥ 1"),
+                  whole("chunk", 10), whole("max_steps", self.chunk, "chunk"), whole("tries", 1),
                   ("independence_weight", self.independence_weight is None or 0.0 <= self.independence_weight < 1.0,
-                   "a number in [0, 1)"), flag("mode_search"),
-                  ("n_chains", whole(self.n_chains) and self.n_chains >= 2, "an integer ≥ 2"),
-                  ("warmup", whole(self.warmup) and self.warmup >= 50, "an integer ≥ 50"),
-                  ("n_ensembles", whole(self.n_ensembles) and self.n_ensembles >= 2, "an integer ≥ 2"),
-                  ("n_walkers", whole(self.n_walkers) and self.n_walkers >= 8 and self.n_walkers % 2 == 0,
-                   "an even integer ≥ 8"),
-                  ("stage", whole(self.stage) and self.stage >= 10, "an integer ≥ 10"),
-                  ("max_warmup", whole(self.max_warmup) and self.max_warmup >= self.stage, "an integer ≥ stage"),
-                  flag("adapt"),
-                  ("min_independence_acceptance", 0.0 <= self.min_independence_acceptance < 1.0, "a number in [0, 1)"),
-                  ("proposal_df", self.proposal_df > 0, "a number > 0"),
-                  ("proposal_scale", self.proposal_scale > 0, "a number > 0"),
-                  ("proposal_components", whole(self.proposal_components) and self.proposal_components >= 1,
-                   "an integer ≥ 1"),
-                  ("explore_temperature", self.explore_temperature >= 1.0, "a number ≥ 1"),
-                  ("explore_steps", whole(self.explore_steps) and self.explore_steps >= 10, "an integer ≥ 10")]
+                   "a number in [0, 1)"), ("mode_search", isinstance(self.mode_search, bool), "true or false"),
+                  whole("n_chains", 2), whole("warmup", 50), whole("n_ensembles", 2),
+                  ("n_walkers", whole("n_walkers", 8)[1] and self.n_walkers % 2 == 0, "an even integer ≥ 8"),
+                  whole("stage", 10), whole("proposal_components", 1)]
         for name, ok, expected in checks:
             if not ok:
                 raise ValueError(f"sampling.{name}: expected {expected}, got {getattr(self, name)!r}")
@@ -160,9 +113,10 @@ class Draws:
 @dataclass(frozen=True)
 class Diagnostics:
     """How the sampler did, in one shape whatever its moves: per checked quantity bulk ESS and R-hat
-    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates
-    (:func:`_acceptance`), ``converged`` and the reasons when it is not, seconds, the modes found
-    before sampling (None: one)."""
+    (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates (``all``:
+    the share of a walker's steps that moved it; ``camera``, ``objects``: of those blocks' proposals
+    accepted; moves of the whole vector give ``all`` for each), ``converged`` and the reasons when
+    it is not, seconds, the modes found before sampling (None: one)."""
 
     n_chains: int
     warmup: int
@@ -184,13 +138,6 @@ class Diagnostics:
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
                 "modes": self.info.get("mode_report") or None}
-
-
-def _acceptance(all_: float, camera: float, objects: float) -> dict:
-    """The acceptance rates every run reports, whatever its moves: ``all``, the share of a walker's
-    steps that moved it; ``camera`` and ``objects``, the share of proposals for the camera block and
-    for an object block accepted (moves of the whole vector move both at once: each is ``all``)."""
-    return {"all": all_, "camera": camera, "objects": objects}
 
 
 def _checked(d: dict) -> dict:
@@ -298,24 +245,21 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     warn = [] if diag["ok"] else [f"not converged after {it} steps: " + "; ".join(diag["why"])]
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
+    acceptance = dict(zip(("all", "camera", "objects"), kernel.acceptance()))
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              _acceptance(*kernel.acceptance()), diag["ok"], tuple(warn), time.perf_counter() - t0,
-                              kernel.report(draws))
+                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, kernel.report(draws))
 
 
 def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
-    """The main phase of every kernel, to the one stopping rule (module docstring).
+    """The main phase of every kernel, to the one stopping rule (docs/inference.md, "Stopping").
 
-    ``kernel.run(steps)`` yields each step's states of its walkers (S, …), ``kernel.walkers`` to
-    each of its ``kernel.n_chains`` independent chains and a chain's walkers consecutive, and
-    their log-densities (S,); every ``thin``-th step is kept (``thin`` doubles whenever more than
-    2 · ``max_draws`` steps are kept). ``convert`` turns each chunk's kept states (n, S, …) into a
-    tuple of arrays (n, S, …); :func:`_by_chain` lays each chain's walkers end to end, and
-    ``columns`` turns those arrays (C, walkers · n, …) into the checked quantities (C, N, k) and
-    their names. The first check comes after ``chunk`` steps or once the walkers hold
-    64 · ``chunk`` draws, whichever is later; later chunks aim at the length the ESS and R-hat
-    found ask for, at most doubling the run. Returns the kept arrays (C, N, …) and log-densities
-    (C, N) by chain, the steps run, the thinning and the last check (:func:`_diagnose`).
+    ``kernel.run(steps)`` yields each step's states (S, …) of its walkers (``kernel.n_chains``
+    chains of ``kernel.walkers`` consecutive walkers) and their log-densities (S,); every
+    ``thin``-th step is kept (``thin`` doubles whenever 2 · :data:`MAX_DRAWS` steps are kept).
+    ``convert`` turns kept states (n, S, …) into a tuple of arrays; ``columns`` turns those, each
+    chain's walkers end to end (:func:`_by_chain`), into the checked quantities (C, N, k) and their
+    names. Returns the kept arrays (C, N, …), log-densities (C, N), steps run, thinning and the
+    last check (:func:`_diagnose`).
     """
     arrays, lps, thin, it, diag = None, None, 1, 0, None
     w = kernel.walkers
@@ -334,7 +278,7 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             new = convert(np.array(xs))
             arrays = new if arrays is None else tuple(np.concatenate(p) for p in zip(arrays, new))
             lps = np.array(ls) if lps is None else np.concatenate([lps, ls])
-        while len(lps) >= 2 * s.max_draws:
+        while len(lps) >= 2 * MAX_DRAWS:
             arrays, lps, thin = tuple(a[1::2] for a in arrays), lps[1::2], 2 * thin
         arr, names = columns(*(_by_chain(a, w) for a in arrays))
         with np.errstate(all="ignore"):  # a cheap look first (module docstring)
@@ -500,7 +444,6 @@ class _Whole:
                       for c, o, h in map_est.others if np.array_equal(h, map_est.handedness)]
             others = [u for u in others if circular is None or np.all(np.abs(u[circular] - center[circular]) < np.pi)]
             modes = find_modes(log_prob, center, cov, laplace=laplace_q, rng=side, circular=circular,
-                               temperature=s.explore_temperature, n_steps=s.explore_steps,
                                extra_starts=np.array(others) if others else None)
         self.better = None
         if len(modes) > 1:  # a denser mode than the MAP's becomes the centre; modes with no mass go
@@ -537,8 +480,7 @@ class _Whole:
                                                        draws.objects.reshape((C * N,) + draws.objects.shape[2:]))
             q = self.target.join(wc, wo)
             near = self.kernel.nearest_mode(q if self.hd is None else self.hd.forward(q)).reshape(C, N)
-            shares = [[float(np.mean(near[c] == k)) for k in range(len(self.modes))] for c in range(C)]
-            info["mode_report"] = _mode_report(self.modes, self.target, self.to_u, shares)
+            info["mode_report"] = _mode_report(self.modes, self.target, self.to_u, near)
         if self.better is not None:  # a mode denser than the MAP: the pipeline refines the MAP from there
             c, o = self.target.natural(self.to_u(self.better.center[None]))
             info["denser_mode"] = (c[0], o[0])
@@ -559,19 +501,23 @@ def _joint_cov(Sc, Ao, B, free: np.ndarray) -> np.ndarray:
     return (J @ Sc @ J.T + block_diag(np.zeros((5, 5)), *Ao))[np.ix_(free, free)]
 
 
-def _mode_report(modes, target: BlockTarget, to_u, shares) -> list[dict]:
-    """Where each mode found before sampling is (the object whose distance differs most between
-    the modes: its id, distance and yaw), how far below the MAP's its log-density is, its Laplace
-    share of the mass and the share of each chain's draws nearest to it (they should agree)."""
+def _mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:
+    """A row per mode (``objs`` (k, 7) the object's natural parameters there, ``lp`` (k,) the
+    log-density, ``near`` (chain, draw) each draw's nearest mode): the object's id, distance and
+    yaw, how far below the MAP's the mode's log-density is, its Laplace share of the mass and the
+    share of each chain's draws nearest to it (they should agree)."""
+    return [{"target": target_id, "distance_m": float(np.hypot(objs[k, 0], objs[k, 1])), "yaw": float(objs[k, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(mode.share),
+             "draw_share_per_chain": [float(np.mean(g == k)) for g in near]} for k, mode in enumerate(modes)]
+
+
+def _mode_report(modes, target: BlockTarget, to_u, near) -> list[dict]:
+    """:func:`_mode_rows` of the modes found before sampling, for the object whose distance
+    differs most between them."""
     centers = to_u(np.array([m.center for m in modes]))
     _, objs = target.natural(centers)
-    dist = np.hypot(objs[..., 0], objs[..., 1])  # (modes, m)
-    i = int(np.argmax(np.ptp(np.log(dist), axis=0)))
-    lp = target(centers)
-    return [{"target": target.model.objects[i].id, "distance_m": float(dist[k, i]), "yaw": float(objs[k, i, O_YAW]),
-             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(m.share),
-             "draw_share_per_chain": [float(g[k]) for g in shares]}
-            for k, m in enumerate(modes)]
+    i = int(np.argmax(np.ptp(np.log(np.hypot(objs[..., 0], objs[..., 1])), axis=0)))
+    return _mode_rows(target.model.objects[i].id, objs[:, i], target(centers), modes, near)
 
 
 def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
@@ -609,9 +555,8 @@ def _mixture(model, found, B):
 
 
 def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
-    """Each mode of an object with several: the object's id, its distance and yaw there, how far
-    below the MAP's its log-density is, its Laplace share given the camera and the share of each
-    chain's draws nearest to it (in its own Laplace metric; they should agree)."""
+    """:func:`_mode_rows` of each object with several modes (each draw's nearest in the mode's own
+    Laplace metric; shares given the camera)."""
     coords = WorkingCoords(model)
     out = []
     for i, modes in enumerate(found):
@@ -625,12 +570,8 @@ def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
         x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
         dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
                                    x - k.center[free]) for k in modes], axis=1)
-        near = np.argmin(dist, axis=1).reshape(C, N)
-        out += [{"target": model.objects[i].id, "distance_m": float(np.hypot(objs[k, i, 0], objs[k, i, 1])),
-                 "yaw": float(objs[k, i, O_YAW]), "log_density_below_map": float(modes[0].log_prob - mode.log_prob),
-                 "laplace_share": float(mode.share),
-                 "draw_share_per_chain": [float(np.mean(near[c] == k)) for c in range(C)]}
-                for k, mode in enumerate(modes)]
+        out += _mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
+                          np.argmin(dist, axis=1).reshape(C, N))
     return out
 
 

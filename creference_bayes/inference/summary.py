@@ -1,33 +1,12 @@
 """The arviz adapter: the posterior of any result as an ``arviz.InferenceData``, and its summary
 table. The only module that imports arviz.
 
-Layout of :func:`to_inference_data` (``chain`` is one independent unit of the sampler: a group of
-walkers of the ensemble kernel, laid end to end, or one walker of the block sweeps):
-
-* ``posterior``: the camera's ``focal_length_px``, ``pitch``, ``roll``, ``camera_height_m``,
-  ``ref_scale`` (chain, draw) and each object's ``x``, ``y``, ``z``, ``yaw``, ``length_m``,
-  ``width_m``, ``height_m``, ``ground_m`` and ``distance_m`` (chain, draw, object), metres and radians
-  (``y`` is the camera height less the object's ground offset; yaw on the arc of ±π around the
-  MAP's);
-* ``sample_stats``: ``lp``, the log-posterior density in the sampler's coordinates;
-* ``log_likelihood``: one variable, ``observations`` (chain, draw, observation): the
-  log-likelihood of every observation the model has (the model's
-  :meth:`~creference_bayes.models.contract.Model.pointwise_log_likelihood`) and of nothing else,
-  so that ``arviz.loo`` and ``arviz.waic`` count them right: each target's sets of dimension lines
-  (the paper's model: one, their median), each reference in the likelihood (the paper's model:
-  each target's reference penalties, for targets that have them) and a measured horizon. Its
-  coordinates say what each is: ``kind`` (``annotation``, ``reference`` or ``horizon``),
-  ``target`` (the target's id; ``""`` for a reference or the horizon of the metrology model) and
-  ``index`` (the set's number within its target, the reference's number in the scene);
-* ``observed_data``: ``corners`` (annotation, corner, pixel_axis), every set of dimension lines
-  (``annotation_target`` and ``annotation_index`` say whose), ``reference_lines`` (NaN for a
-  reference without one) and their stated ``reference_values`` [low, high];
-* ``constant_data``: ``principal_point``, ``image_size`` and each object's ``handedness``.
-
-Every group's attributes hold the result's provenance (``provenance``: JSON text), its ``model``,
-``preset``, ``scene``, ``format`` and the package's version. ``log_likelihood``,
-``observed_data`` and ``constant_data`` need the model (a result read from its file: its scene);
-without it the attribute ``missing`` says so.
+The groups and their coordinates are documented in docs/result_format.md ("The netCDF file"): a
+``chain`` is one independent unit of the sampler; ``log_likelihood.observations`` holds every
+observation the model has and nothing else (:func:`observations`), so that ``arviz.loo`` counts
+them right; every group's attributes hold the result's provenance (:func:`_provenance`).
+``log_likelihood``, ``observed_data`` and ``constant_data`` need the model; without it the
+attribute ``missing`` says why.
 """
 
 from __future__ import annotations
