@@ -2,7 +2,6 @@
 JSON and figures are written (the run takes about a minute on one core); scenes of several targets
 go through the same runner."""
 
-import inspect
 import json
 from collections import Counter
 
@@ -11,7 +10,7 @@ import pytest
 
 from creference_bayes.bench.runner import CONFIGS, BenchConfig, bench_scenes, calibration_of, run_bench
 from creference_bayes.cli.main import main
-from creference_bayes.pipeline import estimate
+from creference_bayes.pipeline import EstimateSettings, estimate
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +66,7 @@ def test_real_cameras_reach_the_bench_scenes_and_their_noise_free_scenes_are_sol
 
 def test_noise_free_tier_is_solved(quick):
     _, doc = quick
-    default_model = inspect.signature(estimate).parameters["model"].default
+    default_model = EstimateSettings().model
     none = [r for r in doc["records"] if r["tier"] == "none"]
     ours = [r for r in none if r["estimator"] == f"ours-{default_model}" and r["n_target"] == 5]
     assert ours and all(r["error"] < 0.5 for r in ours)  # the package's default estimator

@@ -46,8 +46,8 @@ def _use(monkeypatch, make):
     set-up it would build; returns the list the built models go to."""
     real, built = pipeline.build_model, []
 
-    def build(scene, **kw):
-        model, setup = real(scene, **kw)
+    def build(scene, settings=None, **kw):
+        model, setup = real(scene, settings, **kw)
         built.append(make(model))
         return built[-1], setup
 

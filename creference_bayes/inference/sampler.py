@@ -30,6 +30,10 @@ __all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample",
 
 #: Steps kept per walker (older ones thinned by two when twice as many are kept).
 MAX_DRAWS = 2000
+#: Steps of the main phase before the stopping rule may be met: a chain of an ensemble's walkers
+#: laid end to end shows the ESS estimator only correlations within each walker's own run, so a
+#: run shorter than the walkers' autocorrelation would over-state the ESS.
+MIN_STEPS = 50
 
 
 class SamplingError(RuntimeError):
@@ -284,7 +288,7 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             raw = float(np.nanmax(np.append(rhat_split_raw(arr), 1.0)))
         need = it * (raw - 1.0) / (3.0 * (s.max_rhat - 1.0)) if s.max_rhat > 1.0 else it
         if raw <= 1.0 + 3.0 * (s.max_rhat - 1.0) or it >= s.max_steps or diag is None:
-            diag = _diagnose(arr, names, s)
+            diag = _diagnose(arr, names, s, it)
             if diag["ok"]:
                 break
             need = max(need, s.min_ess * it / max(diag["min_ess"], 1.0))
@@ -615,11 +619,11 @@ def _with_y(model: Model, draws: Draws, ess: dict, rhat: dict) -> tuple[dict, di
     return ess, rhat
 
 
-def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings) -> dict:
+def _diagnose(arr: np.ndarray, names: list[str], s: SamplerSettings, steps: int) -> dict:
     """Bulk ESS and rank-normalised R-hat of every column of ``arr``; whether the stopping rule
-    is met."""
+    is met (never before :data:`MIN_STEPS` steps)."""
     eb, rh = ess_bulk_rhat(arr)
-    why = []
+    why = [] if steps >= MIN_STEPS else [f"{steps} steps < {MIN_STEPS}, too few to measure the ESS"]
     if np.nanmin(eb) < s.min_ess:
         k = int(np.nanargmin(eb))
         why.append(f"bulk ESS of {names[k]} {eb[k]:.0f} < {s.min_ess:g}")
