@@ -4,9 +4,8 @@
 the camera, each accepted on its own terms (objects coupled by a pair term coloured apart), then
 the camera with every object riding along its regression on it; by random-walk steps
 (:class:`RandomWalkSweep`) or ``tries`` Student-t independence proposals per block, one taken by
-multiple-try Metropolis (:class:`IndependenceSweep`); then, where the camera height and the
-objects' ground offsets are free, a step along their **ridge** (:meth:`BlockKernel.ridge`). A
-walker's blobs hold each block's log-density (camera, each object, each pair term).
+multiple-try Metropolis (:class:`IndependenceSweep`). A walker's blobs hold each block's
+log-density (camera, each object, each pair term).
 
 **Ensemble moves** (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1`` form ensemble ``g``;
 :class:`GroupedDEMove` and :class:`GroupedStretchMove` draw partners only from the other half of
@@ -19,7 +18,7 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
-from ..models.contract import C_HEIGHT, O_GROUND, O_YAW, Model
+from ..models.contract import O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
 __all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "RandomWalkSweep",
@@ -65,12 +64,8 @@ class BlockTarget:
     The coordinates are the working coordinates (:mod:`.coords`) with each object measured from its
     conditional mean given the camera: õᵢ = oᵢ − Bᵢ (c − c₀), ``B`` (m, 7, 5) the regression of the
     objects on the camera and ``c0`` (5,) a reference camera (the shear has unit Jacobian; B = 0:
-    the working coordinates themselves). Where the camera height h and an object's ground offset g
-    are both free, g's term in the camera height is linear in h rather than log h,
-    g̃ = g − (B_gh / h₀)(h − h₀): the lines along which g moves with h (the **ridge** h − g
-    constant, :meth:`along_ridge`; the scale, g ∝ h) are straight in h, curved in log h. A state
-    is a flat vector ``u`` of the free coordinates: the camera's, then each object's; fixed
-    entries come from ``c0`` and ``template`` (m, 7).
+    the working coordinates themselves). A state is a flat vector ``u`` of the free coordinates:
+    the camera's, then each object's; fixed entries come from ``c0`` and ``template`` (m, 7).
     """
 
     def __init__(self, model: Model, temperature: float, c0: np.ndarray, B: np.ndarray, template: np.ndarray,
@@ -80,11 +75,7 @@ class BlockTarget:
         #: density (one turn; a periodic density on the whole line is improper), or None
         self.yaw_window = yaw_window
         self.coords = WorkingCoords(model)
-        self.c0, self.B = np.asarray(c0, float), np.array(B, float)
-        #: (m,) the objects whose ground offset is free with the camera height (class docstring)
-        self.ridge = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT]
-        self.kh = np.where(self.ridge, self.B[:, O_GROUND, C_HEIGHT], 0.0) / np.exp(self.c0[C_HEIGHT])
-        self.B[self.ridge, O_GROUND, C_HEIGHT] = 0.0
+        self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
         self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
         self.cf, self.of = model.camera_free, model.object_free
         self.kc = int(self.cf.sum())
@@ -108,30 +99,9 @@ class BlockTarget:
     def join(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
         return np.concatenate([np.atleast_2d(wc)[:, self.cf], np.asarray(wt).reshape(len(np.atleast_2d(wc)), -1, 7)[:, self.of]], axis=1)
 
-    def _offset(self, wc: np.ndarray) -> np.ndarray:
-        """(n, m, 7) working minus sheared object coordinates at cameras ``wc`` (n, 5)."""
-        out = np.einsum("mik,nk->nmi", self.B, wc - self.c0)
-        with np.errstate(over="ignore"):
-            out[..., O_GROUND] += self.kh * (np.exp(wc[:, C_HEIGHT]) - np.exp(self.c0[C_HEIGHT]))[:, None]
-        return out
-
     def unshear(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
         """Working object coordinates (n, m, 7) of sheared ones."""
-        return wt + self._offset(np.atleast_2d(wc))
-
-    def shear(self, wc: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        """Sheared object coordinates (n, m, 7) of working ones."""
-        return wo - self._offset(np.atleast_2d(wc))
-
-    def along_ridge(self, wc: np.ndarray, wt: np.ndarray, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The states (``wc`` (n, 5), ``wt`` (n, m, 7)) moved along the ridge by ``eps`` (n,):
-        log h → log h + ε and each free g → g + h (e^ε − 1), every other working coordinate kept
-        (each object stays where it is relative to the camera). Unit Jacobian; −ε undoes it."""
-        pc = wc.copy()
-        pc[:, C_HEIGHT] += eps
-        wo = self.unshear(wc, wt)
-        wo[..., O_GROUND] += self.ridge * (np.exp(wc[:, C_HEIGHT]) * np.expm1(eps))[:, None]
-        return pc, self.shear(pc, wo)
+        return wt + np.einsum("mik,nk->nmi", self.B, wc - self.c0)
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
@@ -244,8 +214,6 @@ class BlockKernel:
         self.tries, self.adapt, self.calls = int(tries), adapt, 0
         self.colours = colours(target.m, target.model.pairs)
         self.accepted = {"camera": [], "objects": [], "all": []}
-        #: the ridge step's scale in log height (None: no ridge), from the camera's proposal
-        self.sr = 2.38 * float(np.linalg.norm(Lc[C_HEIGHT])) if target.ridge.any() else None
 
     # -- state <-> blocks ---------------------------------------------------------------------------
     def _unpack(self, state):
@@ -370,40 +338,17 @@ class BlockKernel:
             lp_c = np.where(b, lpc, lp_c)
             lp_o = np.where(b[:, None], lpo, lp_o)
             lp_p = np.where(b[:, None], lpp, lp_p)
-        r = np.zeros(C, bool)
-        if self.sr is not None:
-            wc, wt, lp_c, lp_o, lp_p, r = self.ridge(wc, wt, lp_c, lp_o, lp_p, rs)
         if not independent:
             self.calls += 1
             if self.adapt:
                 rate = 3.0 / (self.calls + 10) ** 0.6
                 self.so = self.so * np.exp(rate * (a.mean(axis=0) - 0.3))
                 self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
-                if self.sr is not None:
-                    self.sr *= np.exp(rate * (r.mean() - 0.44))
-        moved = a.any(axis=1) | b | r
+        moved = a.any(axis=1) | b
         self.accepted["objects"].append(a.mean(axis=0))
         self.accepted["camera"].append(float(b.mean()))
         self.accepted["all"].append(float(moved.mean()))
         return self._pack(state, wc, wt, lp_c, lp_o, lp_p), moved
-
-    def ridge(self, wc, wt, lp_c, lp_o, lp_p, rs):
-        """One random-walk step of every walker along the ridge, accepted by the whole posterior.
-
-        An object's image depends on the camera height h and its ground offset g only through
-        h − g, so the likelihood barely changes when h and every free g move together (each object
-        stays where it is relative to the camera): only the priors and the references decide where
-        on that line the posterior lies, and the blocks' own moves cross it. The step is
-        :meth:`BlockTarget.along_ridge` by ε ~ N(0, ``sr``²; adapted towards an acceptance of 0.44
-        while the sampler tunes): a map of unit Jacobian whose inverse is the step −ε, so the
-        Metropolis ratio is the posterior's. Returns the updated blocks and which walkers moved."""
-        t, m = self.t, self.t.m
-        pc, pt = t.along_ridge(wc, wt, self.sr * rs.standard_normal(len(wc)))
-        new = t.blocks(t.join(pc, pt))
-        with np.errstate(invalid="ignore"):
-            ok = np.log(rs.uniform(size=len(wc))) < new.sum(axis=1) - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1))
-        return (np.where(ok[:, None], pc, wc), np.where(ok[:, None, None], pt, wt), np.where(ok, new[:, 0], lp_c),
-                np.where(ok[:, None], new[:, 1:1 + m], lp_o), np.where(ok[:, None], new[:, 1 + m:], lp_p), ok)
 
 
 class RandomWalkSweep(emcee.moves.Move):

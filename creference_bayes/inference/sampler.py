@@ -213,7 +213,8 @@ class _Run:
     def state(self, wc: np.ndarray, wo: np.ndarray, random_state) -> emcee.State:
         """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear."""
         t = self.target
-        u = t.join(wc, t.shear(wc, wo))
+        wt = wo - np.einsum("mik,nk->nmi", t.B, wc - t.c0)
+        u = t.join(wc, wt)
         blobs = t.blocks(u)
         with np.errstate(invalid="ignore"):
             return emcee.State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
@@ -368,8 +369,7 @@ class _Blocks:
             keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
             Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
-            mt = BlockTarget(self.model, self.T, wc0, B, np.zeros((m, 7))).shear(
-                wcs.reshape(-1, 5), wos.reshape(-1, m, 7)).mean(axis=0)
+            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
             if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
                 several = np.array([len(modes) > 1 for modes in self.found])  # draws span every mode)
                 Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
