@@ -81,16 +81,10 @@ class BatchSettings(EstimateSettings):
     pool_scale: bool = True
 
     def __post_init__(self):
-        from ...inference.sampler import SamplerSettings
         from .dataset import DATASET_CHOICES
         from .rig import RIG_CHOICES
 
-        super().__post_init__()  # the model, its options, the temperature: a ValueError naming each
-        SamplerSettings.from_options(self.sampling)  # a ValueError naming the option
-        if self.distance_range is not None:
-            from ...models.location_prior import LocationPrior
-
-            LocationPrior(distance_m=self.distance_range)  # a ValueError naming the range
+        super().__post_init__()  # the estimate's settings: a ValueError naming each bad one
         if self.dataset not in DATASET_CHOICES:
             raise ValueError(f"dataset: expected one of {list(DATASET_CHOICES)}, got {self.dataset!r}")
         if self.rig not in RIG_CHOICES:
