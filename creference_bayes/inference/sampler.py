@@ -20,7 +20,7 @@ from scipy.linalg import block_diag
 
 from ..models.contract import C_HEIGHT, CAMERA_NAMES, O_GROUND, O_YAW, OBJECT_NAMES, Model
 from .diagnostics import ess_bulk_rhat, rhat_split_raw
-from .laplace import laplace_blocks
+from .laplace import chol, conditional, laplace_blocks
 from .map import MapState, derivatives
 from .coords import HorizonDistance, WorkingCoords, explored_whole
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
@@ -154,44 +154,17 @@ def _extreme(d, pick, nd):
     return round(float(pick(v)), nd) if v else None
 
 
-def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Cholesky factor of ``cov`` on its free rows and columns, zero elsewhere."""
-    out = np.zeros_like(cov)
-    idx = np.flatnonzero(free)
-    if idx.size == 0:
-        return out
-    sub = cov[np.ix_(idx, idx)]
-    sub = 0.5 * (sub + sub.T)
-    for jitter in (0.0, 1e-10, 1e-8, 1e-6, 1e-4):
-        try:
-            L = np.linalg.cholesky(sub + jitter * np.diag(np.maximum(np.diag(sub), 1e-12)))
-            break
-        except np.linalg.LinAlgError:
-            continue
-    else:
-        L = np.diag(np.sqrt(np.maximum(np.abs(np.diag(sub)), 1e-12)))
-    out[np.ix_(idx, idx)] = L
-    return out
-
-
 def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
     """Covariances and shear from warm-up draws (pooled over chains; working coordinates),
     blended with the Laplace ones (80 % / 20 %); and the independence centres."""
-    cf, of = model.camera_free, model.object_free
-    C = wc.reshape(-1, 5)
-    O = wo.reshape(-1, model.n_objects, 7)
+    cf = model.camera_free
+    C, O = wc.reshape(-1, 5), wo.reshape(-1, model.n_objects, 7)
     cm, om = C.mean(axis=0), O.mean(axis=0)
     dc, do = C - cm, O - om
     n = len(C)
     Scc = np.where(np.outer(cf, cf), dc.T @ dc / (n - 1), 0.0)
-    Soo = np.einsum("nmi,nmj->mij", do, do) / (n - 1)
-    Soc = np.einsum("nmi,nc->mic", do, dc) / (n - 1)
-    idx = np.flatnonzero(cf)
-    inv = np.zeros((5, 5))
-    if idx.size:
-        inv[np.ix_(idx, idx)] = np.linalg.pinv(Scc[np.ix_(idx, idx)])
-    B = np.einsum("mic,cd->mid", Soc, inv) * of[:, :, None] * cf[None, None, :]
-    cond = Soo - np.einsum("mic,mjc->mij", B, Soc)
+    cond, B = conditional(model, Scc, np.einsum("nmi,nc->mic", do, dc) / (n - 1),
+                          np.einsum("nmi,nmj->mij", do, do) / (n - 1))
     return 0.8 * Scc + 0.2 * Sc0, 0.8 * cond + 0.2 * Ao0, 0.8 * B + 0.2 * B0, cm
 
 
@@ -201,8 +174,8 @@ class _Run:
     def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
         m = model.n_objects
         self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
-        Lc = _chol(Sc, model.camera_free)
-        Lo = np.array([_chol(Ao[i], model.object_free[i]) for i in range(m)])
+        Lc = chol(Sc, model.camera_free)
+        Lo = np.array([chol(Ao[i], model.object_free[i]) for i in range(m)])
         self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)
         w = 0.5 if s.independence_weight is None else s.independence_weight
         moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
@@ -333,8 +306,8 @@ class _Blocks:
         m, C = model.n_objects, s.n_chains
         self.n_chains, self.walkers = C, 1
         of = model.object_free
-        Lo = np.array([_chol(Ao[i], of[i]) for i in range(m)])
-        dc = 1.2 * rng.standard_normal((C, 5)) @ _chol(Sc, model.camera_free).T
+        Lo = np.array([chol(Ao[i], of[i]) for i in range(m)])
+        dc = 1.2 * rng.standard_normal((C, 5)) @ chol(Sc, model.camera_free).T
         wc = wc0 + dc
         wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
         random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
@@ -345,7 +318,7 @@ class _Blocks:
                 for c in range(C):
                     k = c % len(modes)
                     if k:
-                        wo[c, i] = modes[k].center + _chol(modes[k].cov, of[i]) @ rng.standard_normal(7) + B[i] @ dc[c]
+                        wo[c, i] = modes[k].center + chol(modes[k].cov, of[i]) @ rng.standard_normal(7) + B[i] @ dc[c]
         self.seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=self.mix)
         state = self.seg.state(wc, wo, random_state)
         bad = ~np.isfinite(state.log_prob)
@@ -553,7 +526,7 @@ def _mixture(model, found, B):
         share = np.maximum([k.share for k in modes], MIN_MODE_WEIGHT)
         w[i, :len(modes)] = share / share.sum()
         for k, mode in enumerate(modes[1:]):
-            centres[i, k], L[i, k] = mode.center, _chol(mode.cov, model.object_free[i])
+            centres[i, k], L[i, k] = mode.center, chol(mode.cov, model.object_free[i])
             shear[i, k] = (mode.shear - B[i]) * model.object_free[i][:, None] * model.camera_free[None]
     return w, centres, L, shear
 
