@@ -91,20 +91,27 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
             continue
         if not any(_same_mode(neg, u_found[i], u_found[j]) for j in keep):
             keep.append(int(i))
-    modes = []
-    for i in keep:
-        c = cov if i == 0 else np.asarray(laplace(p_found[i]), float)
-        sign, logdet = np.linalg.slogdet(c)
-        log_mass = lp[i] + 0.5 * logdet if sign > 0 else -np.inf
-        modes.append((p_found[i] if i else center, c, float(lp[i]), log_mass))
-    log_masses = np.array([m[3] for m in modes])
-    finite = np.isfinite(log_masses)  # a Laplace covariance that is not positive definite (a
-    if finite.any():  # mode on a bound) gives no mass estimate: that mode gets no share
-        shares = np.where(finite, np.exp(np.where(finite, log_masses, 0.0) - logsumexp(log_masses[finite])), 0.0)
+    return _weighed([(p_found[i] if i else center, cov if i == 0 else np.asarray(laplace(p_found[i]), float),
+                      lp[i], None) for i in keep], np.ones(d, bool))
+
+
+def _weighed(found, free: np.ndarray) -> list[Mode]:
+    """:class:`Mode` s of maxima (centre, Laplace covariance or None, log-density, shear), the
+    MAP's first: each weighed by its Laplace mass over the ``free`` coordinates (none without a
+    positive-definite covariance, e.g. a maximum on a bound); the MAP's and at most
+    :data:`MAX_MODES` − 1 others by decreasing share, those under :data:`MIN_SHARE` dropped."""
+    log_mass = []
+    for _, c, lp, _ in found:
+        sign, logdet = np.linalg.slogdet(c[np.ix_(free, free)]) if c is not None else (0.0, 0.0)
+        log_mass.append(lp + 0.5 * logdet if sign > 0 else -np.inf)
+    log_mass = np.array(log_mass)
+    finite = np.isfinite(log_mass)
+    if finite.any():
+        shares = np.where(finite, np.exp(np.where(finite, log_mass, 0.0) - logsumexp(log_mass[finite])), 0.0)
     else:
-        shares = (np.arange(len(modes)) == 0).astype(float)
-    out = [Mode(m[0], m[1], m[2], float(s)) for m, s in zip(modes, shares)]
-    rest = sorted((m for m in out[1:] if m.share >= MIN_SHARE), key=lambda m: -m.share)
+        shares = (np.arange(len(found)) == 0).astype(float)
+    out = [Mode(x, c, float(lp), float(w), b) for (x, c, lp, b), w in zip(found, shares)]
+    rest = sorted((k for k in out[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
     return [out[0]] + rest[:MAX_MODES - 1]
 
 
@@ -275,12 +282,9 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
             x = e[i]
             if np.all(np.isfinite(x)) and not any(_same_mode(neg, whiten(x)[0], whiten(f)[0]) for f in found):
                 found.append(x)
-        if len(found) == 1:
-            out.append([Mode(wo0[i], Ao[i], float(own(i, wo0[i][None])[0]), 1.0)])
-            continue
         lp = own(i, np.array(found))
-        modes = [(wo0[i], Ao[i], None)]
-        for x in found[1:]:
+        modes = [(wo0[i], Ao[i], lp[0], None)]
+        for x, v in zip(found[1:], lp[1:]):
             wo = wo0.copy()
             wo[i] = x
             D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
@@ -291,11 +295,6 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
                 c[np.ix_(free, free)] = np.linalg.inv(H)
             except np.linalg.LinAlgError:
                 c = None  # no Laplace mass (not a maximum of the density): no share
-            modes.append((x, c, None if c is None else -c @ D.H_co[i].T))
-        log_mass = np.array([lp[k] + 0.5 * np.linalg.slogdet(c[np.ix_(free, free)])[1] if c is not None else -np.inf
-                             for k, (_, c, _) in enumerate(modes)])
-        share = np.exp(log_mass - logsumexp(log_mass))
-        kept = [Mode(x, c, float(v), float(w), b) for (x, c, b), v, w in zip(modes, lp, share)]
-        rest = sorted((k for k in kept[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
-        out.append([kept[0]] + rest[:MAX_MODES - 1])
+            modes.append((x, c, v, None if c is None else -c @ D.H_co[i].T))
+        out.append(_weighed(modes, free))
     return out
