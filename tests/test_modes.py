@@ -204,7 +204,8 @@ def test_a_frames_object_with_two_readings_has_two_modes(two_readings):
     """The search given the MAP's camera finds the first target's second mode (1.6 × as far) with
     a share of the mass, and no other mode for the other targets."""
     from creference_bayes.inference.coords import WorkingCoords
-    from creference_bayes.inference.sampler import _laplace_start, _object_modes
+    from creference_bayes.inference.blocks import _object_modes
+    from creference_bayes.inference.sampler import _laplace_start
 
     model, est, true_distance = two_readings
     fitted = est.fitted(model)

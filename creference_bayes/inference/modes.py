@@ -16,7 +16,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-__all__ = ["Mode", "find_modes", "fit_mixture"]
+from ..models.contract import O_YAW
+
+__all__ = ["Mode", "find_modes", "object_modes", "fit_mixture", "mode_rows"]
 
 #: Two local maxima closer than this (in the MAP's Laplace-whitened units) are one mode.
 SAME_MODE = 1.0
@@ -231,7 +233,6 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     Returns per object its modes, the MAP's first (:class:`Mode`: centre (7,), covariance (7, 7)
     and ``shear`` (7, 5), the centre's regression on the camera).
     """
-    from ..models.contract import O_YAW
     from .map import _newton, derivatives, initial_objects
 
     model, coords = target.model, target.coords
@@ -298,3 +299,13 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
             modes.append((x, c, v, None if c is None else -c @ D.H_co[i].T))
         out.append(_weighed(modes, free))
     return out
+
+
+def mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:
+    """A row per mode (``objs`` (k, 7) the object's natural parameters there, ``lp`` (k,) the
+    log-density, ``near`` (chain, draw) each draw's nearest mode): the object's id, distance and
+    yaw, how far below the MAP's the mode's log-density is, its Laplace share of the mass and the
+    share of each chain's draws nearest to it (they should agree)."""
+    return [{"target": target_id, "distance_m": float(np.hypot(objs[k, 0], objs[k, 1])), "yaw": float(objs[k, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(mode.share),
+             "draw_share_per_chain": [float(np.mean(g == k)) for g in near]} for k, mode in enumerate(modes)]
