@@ -267,77 +267,60 @@ class BlockKernel:
         return -0.5 * (IND_DOF + self.kc) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
 
     def sweep(self, state, rs, independent: bool):
-        """One sweep (module docstring) of every walker; returns the state and which walkers moved."""
+        """One sweep (module docstring) of every walker; returns the state and which walkers moved.
+        A random-walk step is the multiple-try step with one try and a symmetric proposal (its
+        Metropolis acceptance)."""
         wc, wt, lp_c, lp_o, lp_p = self._unpack(state)
         C, m = wt.shape[:2]
         inc = self.t.incidence
+        k = self.tries if independent else 1
         a = np.zeros((C, m), bool)
         for colour in self.colours:
             if independent:
-                k = self.tries
                 props = self._draw_obj(rs, wc, k)
-                if colour is not None:
-                    props = np.where(colour[None, None, :, None], props, wt[:, None])
-                own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
-                own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
-                new, cur = own, lp_o
-                if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
-                    with np.errstate(invalid="ignore"):
-                        new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
-                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props, wc), 1, -1),
-                                          cur - self._log_q_obj(wt, wc), rs)
-                if colour is not None:
-                    ok &= colour[None, :]
-                take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
-                wt = np.where(ok[..., None], take(props), wt)
-                lp_o = np.where(ok, take(own), lp_o)
-                for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
-                    for end in (i_, k_):
-                        val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
-                        lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
+                lq_new, lq_cur = np.moveaxis(self._log_q_obj(props, wc), 1, -1), self._log_q_obj(wt, wc)
             else:
-                prop = wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7)))
-                if colour is not None:
-                    prop = np.where(colour[None, :, None], prop, wt)
-                own, pair = self.t.objects(wc, prop)
-                delta = own - lp_o
-                if lp_p.shape[1]:
-                    with np.errstate(invalid="ignore"):
-                        delta = delta + (pair - lp_p) @ inc.T
+                props = (wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7))))[:, None]
+                lq_new = lq_cur = 0.0
+            if colour is not None:
+                props = np.where(colour[None, None, :, None], props, wt[:, None])
+            own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
+            own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
+            new, cur = own, lp_o
+            if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
                 with np.errstate(invalid="ignore"):
-                    ok = np.log(rs.uniform(size=(C, m))) < delta
-                if colour is not None:
-                    ok &= colour[None, :]
-                wt = np.where(ok[..., None], prop, wt)
-                lp_o = np.where(ok, own, lp_o)
-                if lp_p.shape[1]:
-                    lp_p = np.where((ok.astype(float) @ inc) > 0, pair, lp_p)
+                    new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
+            j, ok = multiple_try_pick(np.moveaxis(new, 1, -1) - lq_new, cur - lq_cur, rs)
+            if colour is not None:
+                ok &= colour[None, :]
+            take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
+            wt = np.where(ok[..., None], take(props), wt)
+            lp_o = np.where(ok, take(own), lp_o)
+            for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
+                for end in (i_, k_):
+                    val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
+                    lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
             a |= ok
         b = np.ones(C, bool)
         if self.kc:
             if independent:
-                k = self.tries
                 pcs = self.mc + IND_SCALE * self._t(rs, (C, k, 5)) @ self.Lc.T  # (C, k, 5)
-                flat = pcs.reshape(C * k, 5)
-                lpc = self.t.camera(flat)
-                lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
-                with np.errstate(invalid="ignore"):
-                    total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
-                    cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
-                j, b = multiple_try_pick(total - self._log_q_cam(flat).reshape(C, k), cur - self._log_q_cam(wc), rs)
-                sel = np.arange(C) * k + j
-                pc, lpc, lpo, lpp = pcs[np.arange(C), j], lpc[sel], lpo[sel], lpp[sel]
             else:
-                pc = wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T
-                lpc = self.t.camera(pc)
-                lpo, lpp = self.t.objects(pc, wt)
-                with np.errstate(invalid="ignore"):
-                    b = np.log(rs.uniform(size=C)) < ((lpc + lpo.sum(axis=1) + lpp.sum(axis=1))
-                                                      - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)))
-            wc = np.where(b[:, None], pc, wc)
-            lp_c = np.where(b, lpc, lp_c)
-            lp_o = np.where(b[:, None], lpo, lp_o)
-            lp_p = np.where(b[:, None], lpp, lp_p)
+                pcs = (wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T)[:, None]
+            flat = pcs.reshape(C * k, 5)
+            lpc = self.t.camera(flat)
+            lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
+            with np.errstate(invalid="ignore"):
+                total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
+                cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
+            if independent:
+                total, cur = total - self._log_q_cam(flat).reshape(C, k), cur - self._log_q_cam(wc)
+            j, b = multiple_try_pick(total, cur, rs)
+            sel = np.arange(C) * k + j
+            wc = np.where(b[:, None], pcs[np.arange(C), j], wc)
+            lp_c = np.where(b, lpc[sel], lp_c)
+            lp_o = np.where(b[:, None], lpo[sel], lp_o)
+            lp_p = np.where(b[:, None], lpp[sel], lp_p)
         if not independent:
             self.calls += 1
             if self.adapt:
