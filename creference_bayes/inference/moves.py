@@ -21,7 +21,7 @@ import numpy as np
 from ..models.contract import O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
-__all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "RandomWalkSweep",
+__all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "t_draws", "t_log_kernel", "BlockTarget", "BlockKernel", "RandomWalkSweep",
            "IndependenceSweep", "colours", "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
 
 #: Degrees of freedom and scale of the independence proposals (a Student-t a little wider than the
@@ -56,6 +56,18 @@ def multiple_try_pick(log_w_tries: np.ndarray, log_w_current: np.ndarray,
     with np.errstate(invalid="ignore", over="ignore"):
         ok = (total > 0) & (rng.uniform(size=total.shape) * (total - picked + w_cur) < total)
     return j, ok
+
+
+def t_draws(random, shape: tuple, df: float) -> np.ndarray:
+    """Standard multivariate Student-t draws with ``df`` degrees of freedom, ``shape`` (…, d)."""
+    w = random.chisquare(df, shape[:-1]) / df
+    return random.standard_normal(shape) / np.sqrt(w)[..., None]
+
+
+def t_log_kernel(z: np.ndarray, df: float, d) -> np.ndarray:
+    """The log of a ``d``-dimensional Student-t density, up to its constant, at whitened offsets
+    ``z`` (…, d') (zero on fixed coordinates), (…)."""
+    return -0.5 * (df + d) * np.log1p(np.sum(z * z, axis=-1) / df)
 
 
 class BlockTarget:
@@ -230,10 +242,6 @@ class BlockKernel:
         return state
 
     # -- proposals ------------------------------------------------------------------------------------
-    @staticmethod
-    def _t(rs, shape):
-        return rs.standard_normal(shape) / np.sqrt(rs.chisquare(IND_DOF, shape[:-1] + (1,)) / IND_DOF)
-
     def _means(self, wc):  # (C, m, 1 + E, 7): each mode's centre given each walker's camera (C, 5)
         return self.modes[1] + np.einsum("meic,nc->nmei", self.modes[5], wc - self.t.c0)
 
@@ -242,17 +250,17 @@ class BlockKernel:
             log_w, _, _, Li, logdet = self.modes[:5]
             means = self._means(wc).reshape((len(wc),) + (1,) * (x.ndim - 3) + self.modes[1].shape)
             w = np.einsum("meij,...mej->...mei", Li, x[..., None, :] - means) / IND_SCALE
-            lq = log_w - logdet - 0.5 * (IND_DOF + self.ko[:, None]) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+            lq = log_w - logdet + t_log_kernel(w, IND_DOF, self.ko[:, None])
             top = np.max(lq, axis=-1)
             return top + np.log(np.sum(np.exp(lq - top[..., None]), axis=-1))
         w = np.einsum("mij,...mj->...mi", self.Loi, x - self.mt) / IND_SCALE
-        return -0.5 * (IND_DOF + self.ko) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+        return t_log_kernel(w, IND_DOF, self.ko)
 
     def _draw_obj(self, rs, wc, k: int) -> np.ndarray:
         """(C, k, m, 7) independence proposals of every object given the cameras ``wc`` (C, 5) (a
         mixture over its modes)."""
         C, m = len(wc), self.t.m
-        z = self._t(rs, (C, k, m, 7))
+        z = t_draws(rs, (C, k, m, 7), IND_DOF)
         if self.modes is None:
             return self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, z)
         log_w, _, L = self.modes[:3]
@@ -264,7 +272,7 @@ class BlockKernel:
 
     def _log_q_cam(self, x):
         w = (x - self.mc) @ self.Lci.T / IND_SCALE
-        return -0.5 * (IND_DOF + self.kc) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+        return t_log_kernel(w, IND_DOF, self.kc)
 
     def sweep(self, state, rs, independent: bool):
         """One sweep (module docstring) of every walker; returns the state and which walkers moved.
@@ -304,7 +312,7 @@ class BlockKernel:
         b = np.ones(C, bool)
         if self.kc:
             if independent:
-                pcs = self.mc + IND_SCALE * self._t(rs, (C, k, 5)) @ self.Lc.T  # (C, k, 5)
+                pcs = self.mc + IND_SCALE * t_draws(rs, (C, k, 5), IND_DOF) @ self.Lc.T  # (C, k, 5)
             else:
                 pcs = (wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T)[:, None]
             flat = pcs.reshape(C * k, 5)
@@ -465,7 +473,7 @@ class IndependenceMove(emcee.moves.Move):
         k, d = self.means.shape
         # every component's whitened offset in one product: z_k = S_k⁻¹ x − S_k⁻¹ m_k
         z = (x @ self._invs.reshape(k * d, d).T).reshape(len(x), k, d) - self._shifts
-        terms = self._log_norm - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=2) / self.df)
+        terms = self._log_norm + t_log_kernel(z, self.df, d)
         top = terms.max(axis=1, keepdims=True)
         return (top + np.log(np.sum(np.exp(terms - top), axis=1, keepdims=True)))[:, 0]
 
@@ -487,8 +495,7 @@ class IndependenceMove(emcee.moves.Move):
 
     def _draw(self, n, d, random):
         """n draws from the proposal, (n, d)."""
-        w = random.chisquare(self.df, n) / self.df
-        z = random.randn(n, d) / np.sqrt(w)[:, None]
+        z = t_draws(random, (n, d), self.df)
         if self.n_components == 1:
             return self.means[0] + z @ self.chols[0].T
         k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))
