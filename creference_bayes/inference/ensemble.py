@@ -220,11 +220,46 @@ class Ensemble:
         self.info: dict = {"warmup_stages": [], "reparametrised": False}
 
     def tune(self, bar) -> int:
-        """The warm-up (module docstring); returns its steps."""
-        self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.pos, self.rstate,
-                                                     self.s, self.info, bar, self.centers, self.fit_rng)
-        self.sampler, self.state = _run(self.safe, self.coords, _moves(self.s, proposal), pos, rstate)
-        return sum(self.info["warmup_stages"])
+        """The warm-up: stages, the coordinates and the proposal refitted after each, until a stage
+        run in the coordinates fitted before it looks like the sample they were fitted to and the
+        proposal is accepted often enough (or :data:`MAX_WARMUP`); returns its steps."""
+        s, safe, coords, centers, info = self.s, self.safe, self.coords, self.centers, self.info
+        pos, rstate, d = self.pos, self.rstate, self.pos.shape[1]
+        proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
+        while not stable and n_warm < MAX_WARMUP:
+            stage = min(stage, MAX_WARMUP - n_warm)
+            sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
+            done = 0
+            while done < stage:  # in chunks: a stage already whitened ends early (below)
+                state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
+                done = sampler.iteration
+                if done < min(stage, 2 * s.stage):
+                    continue  # too short to be judged before its end
+                tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
+                indep = proposal.acceptance if proposal is not None else float("nan")
+                stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
+                    proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
+                if stable:
+                    break
+            pos, rstate = coords.inverse(state.coords), state.random_state
+            stage = done
+            n_warm += stage
+            info["warmup_stages"].append(stage)
+            bar.update(stage)
+            try:
+                tail_p = coords.inverse(tail_u)
+                coords = Coordinates.fit(tail_p, shear=centers is None)
+                fitted = coords.forward(tail_p)
+                proposal = _fit_proposal(fitted, s, None if centers is None else coords.forward(centers), self.fit_rng)
+                reference = _location_spread(fitted, centers is not None)
+                info["reparametrised"] = True
+            except np.linalg.LinAlgError:
+                break  # nothing to learn from a degenerate sample: go on as we are
+            if len(info["warmup_stages"]) >= 2:
+                stage *= 2
+        self.coords = coords
+        self.sampler, self.state = _run(safe, coords, _moves(s, proposal), pos, rstate)
+        return sum(info["warmup_stages"])
 
     def run(self, steps: int):
         """Yield the walkers' parameters (n_chains · walkers, ndim) and log-density there after each of
@@ -279,53 +314,6 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
         kernel.info["mode_shares"] = [[float(np.mean(near[c] == k)) for k in range(len(kernel.centers))]
                                       for c in range(len(p))]
     return Chains(p, lp, warm, it, thin, diag["ok"], diag, kernel.info)
-
-
-def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
-            fit_rng=None):
-    """Run stages, refitting the coordinates and the proposal after each, until a stage run in
-    the coordinates fitted before it looks like the sample they were fitted to and the proposal
-    is accepted often enough (or :data:`MAX_WARMUP`). Returns the coordinates, proposal, positions
-    and random state."""
-    d = pos.shape[1]
-    proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
-    while not stable and n_warm < MAX_WARMUP:
-        stage = min(stage, MAX_WARMUP - n_warm)
-        sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
-        done = 0
-        while done < stage:  # in chunks: a stage already whitened ends early (below)
-            state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
-            done = sampler.iteration
-            if done < min(stage, 2 * s.stage):
-                continue  # too short to be judged before its end
-            tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
-            indep = proposal.acceptance if proposal is not None else float("nan")
-            stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
-                proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
-            if stable:
-                break
-        pos, rstate = coords.inverse(state.coords), state.random_state
-        stage = done
-        n_warm += stage
-        info["warmup_stages"].append(stage)
-        bar.update(stage)
-        try:
-            tail_p = coords.inverse(tail_u)
-            coords = Coordinates.fit(tail_p, shear=centers is None)
-            fitted = coords.forward(tail_p)
-            proposal = _fit_proposal(fitted, s, _forward(coords, centers), fit_rng)
-            reference = _location_spread(fitted, centers is not None)
-            info["reparametrised"] = True
-        except np.linalg.LinAlgError:
-            break  # nothing to learn from a degenerate sample: go on as we are
-        if len(info["warmup_stages"]) >= 2:
-            stage *= 2
-    return coords, proposal, pos, rstate
-
-
-
-def _forward(coords, centers):
-    return None if centers is None else coords.forward(centers)
 
 
 def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_steps: int = 150,
