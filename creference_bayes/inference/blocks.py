@@ -17,7 +17,7 @@ from .coords import WorkingCoords
 from .laplace import chol, conditional
 from .modes import Mode, mode_rows, object_modes
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
-from .sampler import Draws, SamplerSettings, SamplingError
+from .chains import Draws, SamplerSettings, SamplingError
 
 __all__ = ["Blocks"]
 

@@ -17,13 +17,13 @@ from dataclasses import dataclass, field
 import emcee
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.special import logsumexp
 
-from .modes import fit_mixture
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
-from .sampler import SamplerSettings, SamplingError, run_chains
+from .chains import SamplerSettings, SamplingError, run_chains
 
-__all__ = ["Ensemble", "Chains", "sample", "explore"]
+__all__ = ["Ensemble", "Chains", "sample", "explore", "fit_mixture"]
 
 
 #: Cap on warm-up steps.
@@ -111,7 +111,7 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
     """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates, or None.
 
     With several modes (``centers`` (k, d)) a mixture with a component per mode the sample still
-    holds (:func:`.modes.fit_mixture`); otherwise up to ``proposal_components`` components from
+    holds (:func:`fit_mixture`); otherwise up to ``proposal_components`` components from
     k-means centres (seeded by ``rng``) plus the whole sample's t at :data:`DEFENSIVE_WEIGHT` (a
     defensive mixture), or the single t. Fits use :data:`MIXTURE_POINTS` of the sample."""
     if settings.independence_weight == 0.0:
@@ -342,3 +342,42 @@ def _run(safe, coords, moves, pos, rstate):
     sampler = emcee.EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
     return sampler, emcee.State(coords.forward(pos), random_state=rstate)
 
+
+def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
+    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
+    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
+    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
+    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
+    (k' ≤ k; k' may be 1)."""
+    n, d = u.shape
+    means = np.asarray(centers, float).copy()
+    resp = np.zeros((n, len(means)))
+    resp[np.arange(n), np.argmin(((u[:, None, :] - means[None]) ** 2).sum(-1), axis=1)] = 1.0
+    covs = None
+    for _ in range(n_iter):
+        nk = resp.sum(axis=0)
+        alive = nk >= 2 * d + 2
+        if not alive.any():
+            break
+        resp, nk = resp[:, alive], nk[alive]
+        means = (resp.T @ u) / nk[:, None]
+        covs = np.stack([((resp[:, k, None] * (u - means[k])).T @ (u - means[k])) / nk[k]
+                         + 1e-9 * np.eye(d) for k in range(len(nk))])
+        weights = nk / n
+        resp = np.exp(_log_resp(u, weights, means, covs))
+    if covs is None:
+        m = u.mean(axis=0)
+        return np.ones(1), m[None], np.atleast_2d(np.cov(u.T))[None]
+    weights = np.maximum(resp.sum(axis=0) / n, min_weight / len(means))
+    return weights / weights.sum(), means, covs
+
+
+def _log_resp(u, weights, means, covs) -> np.ndarray:
+    """(n, k) log responsibilities of the components."""
+    logs = []
+    for w, m, c in zip(weights, means, covs):
+        L = np.linalg.cholesky(c)
+        z = np.linalg.solve(L, (u - m).T)
+        logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
+    logs = np.column_stack(logs)
+    return logs - logsumexp(logs, axis=1, keepdims=True)

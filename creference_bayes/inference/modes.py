@@ -4,8 +4,7 @@ Heavy-tailed corners let one corner be given up as an outlier and the target mov
 viewing ray, so the posterior can have a second mode that a sampler started at the MAP misses
 while every check passes. :func:`find_modes` (the whole vector: explore the tempered density,
 climb, merge, weigh by Laplace mass) and :func:`object_modes` (each object given the MAP's
-camera) are described in docs/inference.md ("Modes first"); :func:`fit_mixture` fits the
-independence proposal's mixture, a component per mode.
+camera) are described in docs/inference.md ("Modes first").
 """
 
 from __future__ import annotations
@@ -17,8 +16,11 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from ..models.contract import O_YAW
+from .ensemble import explore
+from .map import _newton, derivatives, initial_objects
+from .reparam import Coordinates
 
-__all__ = ["Mode", "find_modes", "object_modes", "fit_mixture", "mode_rows"]
+__all__ = ["Mode", "find_modes", "object_modes", "mode_rows"]
 
 #: Two local maxima closer than this (in the MAP's Laplace-whitened units) are one mode.
 SAME_MODE = 1.0
@@ -61,9 +63,6 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     Laplace covariance; ``laplace``: a point (d,) → its Laplace covariance; ``circular``: indices of
     angles (wrapped to within π of the MAP) or None.
     """
-    from .reparam import Coordinates
-    from .ensemble import explore
-
     center = np.asarray(center, float)
     d = len(center)
     coords = Coordinates.affine(center, cov)
@@ -178,46 +177,6 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
     return res.x if np.isfinite(res.fun) and res.fun <= fg(u0)[0] else u0
 
 
-def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
-    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
-    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
-    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
-    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
-    (k' ≤ k; k' may be 1)."""
-    n, d = u.shape
-    means = np.asarray(centers, float).copy()
-    resp = np.zeros((n, len(means)))
-    resp[np.arange(n), np.argmin(((u[:, None, :] - means[None]) ** 2).sum(-1), axis=1)] = 1.0
-    covs = None
-    for _ in range(n_iter):
-        nk = resp.sum(axis=0)
-        alive = nk >= 2 * d + 2
-        if not alive.any():
-            break
-        resp, nk = resp[:, alive], nk[alive]
-        means = (resp.T @ u) / nk[:, None]
-        covs = np.stack([((resp[:, k, None] * (u - means[k])).T @ (u - means[k])) / nk[k]
-                         + 1e-9 * np.eye(d) for k in range(len(nk))])
-        weights = nk / n
-        resp = np.exp(_log_resp(u, weights, means, covs))
-    if covs is None:
-        m = u.mean(axis=0)
-        return np.ones(1), m[None], np.atleast_2d(np.cov(u.T))[None]
-    weights = np.maximum(resp.sum(axis=0) / n, min_weight / len(means))
-    return weights / weights.sum(), means, covs
-
-
-def _log_resp(u, weights, means, covs) -> np.ndarray:
-    """(n, k) log responsibilities of the components."""
-    logs = []
-    for w, m, c in zip(weights, means, covs):
-        L = np.linalg.cholesky(c)
-        z = np.linalg.solve(L, (u - m).T)
-        logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
-    logs = np.column_stack(logs)
-    return logs - logsumexp(logs, axis=1, keepdims=True)
-
-
 def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, temperature: float,
                  max_sets: int = 8) -> list[list[Mode]]:
     """Each object's modes given the MAP's camera (docs/inference.md, "Several object blocks").
@@ -233,8 +192,6 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     Returns per object its modes, the MAP's first (:class:`Mode`: centre (7,), covariance (7, 7)
     and ``shear`` (7, 5), the centre's regression on the camera).
     """
-    from .map import _newton, derivatives, initial_objects
-
     model, coords = target.model, target.coords
     m, of = model.n_objects, model.object_free
     cams, objs = coords.from_work(wc0[None], wo0[None])

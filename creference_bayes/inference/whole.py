@@ -19,7 +19,7 @@ from .laplace import laplace_blocks
 from .map import derivatives
 from .modes import MIN_SHARE, find_modes, mode_rows
 from .moves import BlockTarget
-from .sampler import Draws, SamplerSettings
+from .chains import Draws, SamplerSettings
 
 __all__ = ["Whole"]
 
