@@ -29,7 +29,7 @@ class SamplingError(RuntimeError):
 
 @dataclass(frozen=True)
 class SamplerSettings:
-    """Settings of :func:`sample` (unknown keys of a user's dict are rejected: :meth:`from_options`).
+    """Settings of :func:`.sampler.sample` (unknown keys of a user's dict are rejected: :meth:`from_options`).
 
     Every kernel
         min_ess : bulk effective sample size every free parameter (and every object's distance)

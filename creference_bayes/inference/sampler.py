@@ -26,8 +26,7 @@ from .map import MapState, derivatives
 from .progress import progress_bar
 from .whole import Whole
 
-__all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample", "run_chains"]  # the first, second,
-# fourth and last from :mod:`.chains`
+__all__ = ["SamplerSettings", "Draws", "Diagnostics", "SamplingError", "sample", "run_chains"]
 
 
 @dataclass(frozen=True)
