@@ -1,11 +1,5 @@
-"""Block sweeps: the kernel of a model of several object blocks (docs/inference.md, "Several
-object blocks"), under the driver of :mod:`.sampler`.
-
-:class:`Blocks` runs ``n_chains`` walkers, each an independent chain, in sheared working
-coordinates (:class:`.moves.BlockTarget`), by the sweeps of :mod:`.moves`, after a search for each
-object's modes given the MAP's camera (:func:`.modes.object_modes`); its warm-up re-estimates the
-blocks' covariances, the shear and the independence centres twice, then freezes them.
-"""
+"""Block sweeps (:mod:`.moves`), the kernel of a model of several object blocks under the driver
+of :mod:`.sampler`: its start, warm-up and mode report (docs/inference.md, "Several object blocks")."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""The sampler's settings and the main phase of every kernel under one stopping rule
-(docs/inference.md, "Stopping"): :func:`run_chains` runs a kernel in chunks until the bulk ESS and
-the rank-normalised split R-hat of every checked quantity over the chains (the independent units)
-meet :class:`SamplerSettings`, or its step cap.
-"""
+"""The sampler's settings, and the main phase of every kernel to one stopping rule
+(:func:`run_chains`; docs/inference.md, "Stopping")."""
 
 from __future__ import annotations
 

@@ -21,7 +21,7 @@ import numpy as np
 from ..models.contract import O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
-__all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "t_draws", "t_log_kernel", "BlockTarget", "BlockKernel", "RandomWalkSweep",
+__all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "RandomWalkSweep",
            "IndependenceSweep", "colours", "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
 
 #: Degrees of freedom and scale of the independence proposals (a Student-t a little wider than the
@@ -56,18 +56,6 @@ def multiple_try_pick(log_w_tries: np.ndarray, log_w_current: np.ndarray,
     with np.errstate(invalid="ignore", over="ignore"):
         ok = (total > 0) & (rng.uniform(size=total.shape) * (total - picked + w_cur) < total)
     return j, ok
-
-
-def t_draws(random, shape: tuple, df: float) -> np.ndarray:
-    """Standard multivariate Student-t draws with ``df`` degrees of freedom, ``shape`` (…, d)."""
-    w = random.chisquare(df, shape[:-1]) / df
-    return random.standard_normal(shape) / np.sqrt(w)[..., None]
-
-
-def t_log_kernel(z: np.ndarray, df: float, d) -> np.ndarray:
-    """The log of a ``d``-dimensional Student-t density, up to its constant, at whitened offsets
-    ``z`` (…, d') (zero on fixed coordinates), (…)."""
-    return -0.5 * (df + d) * np.log1p(np.sum(z * z, axis=-1) / df)
 
 
 class BlockTarget:
@@ -242,6 +230,10 @@ class BlockKernel:
         return state
 
     # -- proposals ------------------------------------------------------------------------------------
+    @staticmethod
+    def _t(rs, shape):
+        return rs.standard_normal(shape) / np.sqrt(rs.chisquare(IND_DOF, shape[:-1] + (1,)) / IND_DOF)
+
     def _means(self, wc):  # (C, m, 1 + E, 7): each mode's centre given each walker's camera (C, 5)
         return self.modes[1] + np.einsum("meic,nc->nmei", self.modes[5], wc - self.t.c0)
 
@@ -250,17 +242,17 @@ class BlockKernel:
             log_w, _, _, Li, logdet = self.modes[:5]
             means = self._means(wc).reshape((len(wc),) + (1,) * (x.ndim - 3) + self.modes[1].shape)
             w = np.einsum("meij,...mej->...mei", Li, x[..., None, :] - means) / IND_SCALE
-            lq = log_w - logdet + t_log_kernel(w, IND_DOF, self.ko[:, None])
+            lq = log_w - logdet - 0.5 * (IND_DOF + self.ko[:, None]) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
             top = np.max(lq, axis=-1)
             return top + np.log(np.sum(np.exp(lq - top[..., None]), axis=-1))
         w = np.einsum("mij,...mj->...mi", self.Loi, x - self.mt) / IND_SCALE
-        return t_log_kernel(w, IND_DOF, self.ko)
+        return -0.5 * (IND_DOF + self.ko) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
 
     def _draw_obj(self, rs, wc, k: int) -> np.ndarray:
         """(C, k, m, 7) independence proposals of every object given the cameras ``wc`` (C, 5) (a
         mixture over its modes)."""
         C, m = len(wc), self.t.m
-        z = t_draws(rs, (C, k, m, 7), IND_DOF)
+        z = self._t(rs, (C, k, m, 7))
         if self.modes is None:
             return self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, z)
         log_w, _, L = self.modes[:3]
@@ -272,63 +264,80 @@ class BlockKernel:
 
     def _log_q_cam(self, x):
         w = (x - self.mc) @ self.Lci.T / IND_SCALE
-        return t_log_kernel(w, IND_DOF, self.kc)
+        return -0.5 * (IND_DOF + self.kc) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
 
     def sweep(self, state, rs, independent: bool):
-        """One sweep (module docstring) of every walker; returns the state and which walkers moved.
-        A random-walk step is the multiple-try step with one try and a symmetric proposal (its
-        Metropolis acceptance)."""
+        """One sweep (module docstring) of every walker; returns the state and which walkers moved."""
         wc, wt, lp_c, lp_o, lp_p = self._unpack(state)
         C, m = wt.shape[:2]
         inc = self.t.incidence
-        k = self.tries if independent else 1
         a = np.zeros((C, m), bool)
         for colour in self.colours:
             if independent:
+                k = self.tries
                 props = self._draw_obj(rs, wc, k)
-                lq_new, lq_cur = np.moveaxis(self._log_q_obj(props, wc), 1, -1), self._log_q_obj(wt, wc)
+                if colour is not None:
+                    props = np.where(colour[None, None, :, None], props, wt[:, None])
+                own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
+                own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
+                new, cur = own, lp_o
+                if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
+                    with np.errstate(invalid="ignore"):
+                        new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
+                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props, wc), 1, -1),
+                                          cur - self._log_q_obj(wt, wc), rs)
+                if colour is not None:
+                    ok &= colour[None, :]
+                take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
+                wt = np.where(ok[..., None], take(props), wt)
+                lp_o = np.where(ok, take(own), lp_o)
+                for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
+                    for end in (i_, k_):
+                        val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
+                        lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
             else:
-                props = (wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7))))[:, None]
-                lq_new = lq_cur = 0.0
-            if colour is not None:
-                props = np.where(colour[None, None, :, None], props, wt[:, None])
-            own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
-            own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
-            new, cur = own, lp_o
-            if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
+                prop = wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7)))
+                if colour is not None:
+                    prop = np.where(colour[None, :, None], prop, wt)
+                own, pair = self.t.objects(wc, prop)
+                delta = own - lp_o
+                if lp_p.shape[1]:
+                    with np.errstate(invalid="ignore"):
+                        delta = delta + (pair - lp_p) @ inc.T
                 with np.errstate(invalid="ignore"):
-                    new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
-            j, ok = multiple_try_pick(np.moveaxis(new, 1, -1) - lq_new, cur - lq_cur, rs)
-            if colour is not None:
-                ok &= colour[None, :]
-            take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
-            wt = np.where(ok[..., None], take(props), wt)
-            lp_o = np.where(ok, take(own), lp_o)
-            for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
-                for end in (i_, k_):
-                    val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
-                    lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
+                    ok = np.log(rs.uniform(size=(C, m))) < delta
+                if colour is not None:
+                    ok &= colour[None, :]
+                wt = np.where(ok[..., None], prop, wt)
+                lp_o = np.where(ok, own, lp_o)
+                if lp_p.shape[1]:
+                    lp_p = np.where((ok.astype(float) @ inc) > 0, pair, lp_p)
             a |= ok
         b = np.ones(C, bool)
         if self.kc:
             if independent:
-                pcs = self.mc + IND_SCALE * t_draws(rs, (C, k, 5), IND_DOF) @ self.Lc.T  # (C, k, 5)
+                k = self.tries
+                pcs = self.mc + IND_SCALE * self._t(rs, (C, k, 5)) @ self.Lc.T  # (C, k, 5)
+                flat = pcs.reshape(C * k, 5)
+                lpc = self.t.camera(flat)
+                lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
+                with np.errstate(invalid="ignore"):
+                    total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
+                    cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
+                j, b = multiple_try_pick(total - self._log_q_cam(flat).reshape(C, k), cur - self._log_q_cam(wc), rs)
+                sel = np.arange(C) * k + j
+                pc, lpc, lpo, lpp = pcs[np.arange(C), j], lpc[sel], lpo[sel], lpp[sel]
             else:
-                pcs = (wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T)[:, None]
-            flat = pcs.reshape(C * k, 5)
-            lpc = self.t.camera(flat)
-            lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
-            with np.errstate(invalid="ignore"):
-                total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
-                cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
-            if independent:
-                total, cur = total - self._log_q_cam(flat).reshape(C, k), cur - self._log_q_cam(wc)
-            j, b = multiple_try_pick(total, cur, rs)
-            sel = np.arange(C) * k + j
-            wc = np.where(b[:, None], pcs[np.arange(C), j], wc)
-            lp_c = np.where(b, lpc[sel], lp_c)
-            lp_o = np.where(b[:, None], lpo[sel], lp_o)
-            lp_p = np.where(b[:, None], lpp[sel], lp_p)
+                pc = wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T
+                lpc = self.t.camera(pc)
+                lpo, lpp = self.t.objects(pc, wt)
+                with np.errstate(invalid="ignore"):
+                    b = np.log(rs.uniform(size=C)) < ((lpc + lpo.sum(axis=1) + lpp.sum(axis=1))
+                                                      - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)))
+            wc = np.where(b[:, None], pc, wc)
+            lp_c = np.where(b, lpc, lp_c)
+            lp_o = np.where(b[:, None], lpo, lp_o)
+            lp_p = np.where(b[:, None], lpp, lp_p)
         if not independent:
             self.calls += 1
             if self.adapt:
@@ -473,7 +482,7 @@ class IndependenceMove(emcee.moves.Move):
         k, d = self.means.shape
         # every component's whitened offset in one product: z_k = S_k⁻¹ x − S_k⁻¹ m_k
         z = (x @ self._invs.reshape(k * d, d).T).reshape(len(x), k, d) - self._shifts
-        terms = self._log_norm + t_log_kernel(z, self.df, d)
+        terms = self._log_norm - 0.5 * (self.df + d) * np.log1p(np.sum(z * z, axis=2) / self.df)
         top = terms.max(axis=1, keepdims=True)
         return (top + np.log(np.sum(np.exp(terms - top), axis=1, keepdims=True)))[:, 0]
 
@@ -495,7 +504,8 @@ class IndependenceMove(emcee.moves.Move):
 
     def _draw(self, n, d, random):
         """n draws from the proposal, (n, d)."""
-        z = t_draws(random, (n, d), self.df)
+        w = random.chisquare(self.df, n) / self.df
+        z = random.randn(n, d) / np.sqrt(w)[:, None]
         if self.n_components == 1:
             return self.means[0] + z @ self.chols[0].T
         k = np.searchsorted(np.cumsum(self.weights), random.rand(n) * np.sum(self.weights))

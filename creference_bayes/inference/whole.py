@@ -1,11 +1,5 @@
-"""The kernel of a model of one object block: its whole free vector by the ensemble kernel of
-:mod:`.ensemble` (docs/inference.md, "One object block"), under the driver of :mod:`.sampler`.
-
-The camera is pinned by that one object alone, and the two blocks pin each other along curved
-ridges: the kernel samples the working coordinates with pitch as log D
-(:class:`.coords.HorizonDistance`) and yaw on one turn around the MAP's, after a search for the
-joint posterior's modes (:func:`.modes.find_modes`).
-"""
+"""The kernel of a model of one object block under the driver of :mod:`.sampler`: the whole free
+vector by the ensemble kernel of :mod:`.ensemble` (docs/inference.md, "One object block")."""
 
 from __future__ import annotations
 
