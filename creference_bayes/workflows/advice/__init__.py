@@ -58,6 +58,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ...inference.threads import single_threaded_blas
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
@@ -449,6 +450,7 @@ class _Draws:
                 "p_iou": p_iou(self.boxes, weights, settings.iou_threshold, rng, iou_pairs or settings.iou_pairs)}
 
 
+@single_threaded_blas()  # its fits and small solves: a threaded BLAS only spins (inference/threads.py)
 def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.ndarray, objects_map: np.ndarray,
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
