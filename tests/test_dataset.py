@@ -121,6 +121,11 @@ def test_targets_of_two_settings_under_one_group_are_not_handed_one_population()
                                                                     noise=0.2)]
         pool = Pool(SHARED["log_distance"], indoor + outdoor)
         assert pool.mixed["street"] and TWO_POPULATIONS in pool.estimate("street", leave_out="f0").check.warnings
+        # 30 indoor frames and 10 outdoor: against one centre the readings disagree (|D| > 2), which
+        # the two populations already say; one warning for the one cause
+        unequal = Pool(SHARED["log_distance"], _population(seed, frames=30, median=4.0, log_sd=0.3, noise=0.2)
+                       + outdoor[:30]).estimate("street", leave_out="f0")
+        assert abs(unequal.check.d) > 2 and unequal.check.warnings == (TWO_POPULATIONS,)
         one = _population(seed, frames=40, median=12.0, log_sd=0.6, noise=0.1)
         rng = np.random.default_rng(seed)
         uneven = [replace(r, precision=float(rng.uniform(0.15, 0.6)) ** -2) for r in one]

@@ -431,3 +431,26 @@ def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_
     dl = np.hypot(objs[..., 0], objs[..., 1])
     np.testing.assert_allclose(d.std(axis=0), dl.std(axis=0), rtol=0.2)
     np.testing.assert_allclose(d.mean(axis=0), dl.mean(axis=0), rtol=0.01)
+
+
+@pytest.mark.parametrize("chains", [4, 8])
+def test_the_rhat_bar_is_what_well_mixed_chains_show_at_the_ess_asked_for(chains):
+    """Autocorrelated chains that have mixed (AR(1), ρ = 0.9) run to a bulk ESS of about 400:
+    their R-hat sits at the default bar on average, so the bar asks for about ``min_ess``
+    effective draws whatever the number of chains, where a fixed 1.01 asks 8 chains for twice as
+    many. An explicit ``max_rhat`` is kept."""
+    from scipy.signal import lfilter
+
+    from creference_bayes.inference.diagnostics import ess_bulk_rhat
+
+    rho, ess = 0.9, 400
+    n = int(ess * (1 + rho) / (1 - rho) / chains)
+    e = np.random.default_rng(chains).normal(scale=np.sqrt(1 - rho ** 2), size=(chains, n + 200, 400))
+    x = lfilter([1.0], [1.0, -rho], e, axis=1)[:, 200:]
+    eb, rh = ess_bulk_rhat(x)
+    bar = SamplerSettings().rhat_bar(chains)
+    assert np.median(eb) == pytest.approx(ess, rel=0.1)
+    assert np.mean(rh) == pytest.approx(bar, abs=0.15 * (bar - 1.0)), (np.mean(rh), bar)
+    assert SamplerSettings(max_rhat=1.01).rhat_bar(chains) == 1.01
+    assert SamplerSettings(min_ess=100).rhat_bar(chains) == bar  # never laxer than at 400
+    assert SamplerSettings(min_ess=1600).rhat_bar(chains) < bar

@@ -58,6 +58,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ...inference.threads import single_threaded_blas
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
@@ -449,6 +450,7 @@ class _Draws:
                 "p_iou": p_iou(self.boxes, weights, settings.iou_threshold, rng, iou_pairs or settings.iou_pairs)}
 
 
+@single_threaded_blas()  # its fits and small solves: a threaded BLAS only spins (inference/threads.py)
 def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.ndarray, objects_map: np.ndarray,
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
@@ -590,13 +592,17 @@ def good_chance(p_hat: np.ndarray, n_eff: np.ndarray, bar: np.ndarray) -> np.nda
     return 1.0 - betainc(a, b, np.clip(np.asarray(bar, float), 0.0, 1.0))
 
 
-def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(a, b), each (c,): the beta of :func:`good_chance`, its concentration capped."""
+def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray, start=None) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b), each (c,): the beta of :func:`good_chance`, its concentration capped. ``n_eff`` (M,)
+    for every column, or (M, c) each column's own; ``start`` (a, b) where the fit starts (default:
+    the columns' means at a concentration of 20). Columns fitted together (a prediction's bootstrap
+    resamples, started from the fit on all its futures) cost about one fit."""
     from scipy.optimize import minimize
     from scipy.special import digamma, gammaln
 
     p = np.clip(np.atleast_2d(np.asarray(p_hat, float)), 0.0, 1.0)
-    n = np.asarray(n_eff, float).reshape(-1, 1) * np.ones_like(p)
+    n = np.asarray(n_eff, float)
+    n = (n.reshape(-1, 1) if n.ndim == 1 else n) * np.ones_like(p)
     k, m_fut = p * n, p.shape[0]
     mu = np.clip(p.mean(axis=0), 0.02, 0.98)
 
@@ -608,7 +614,8 @@ def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray) -> tuple[np.ndarray, np.n
         db = (digamma(n - k + b) - digamma(n + a + b)).sum(axis=0) - m_fut * (digamma(b) - digamma(a + b))
         return -ll.sum(), -np.concatenate([da * a, db * b])
 
-    start = np.log(np.concatenate([mu * 20.0, (1.0 - mu) * 20.0]))
+    start = (np.log(np.concatenate([mu * 20.0, (1.0 - mu) * 20.0])) if start is None else
+             np.log(np.clip(np.concatenate(start), 1e-3, 1e6)))
     fit = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=[(np.log(1e-3), np.log(1e6))] * len(start))
     a, b = np.exp(fit.x.reshape(2, -1))
     cap = np.maximum(n.sum(axis=0) - 1.0, 1.0)
@@ -734,14 +741,25 @@ def _labels_part(f: dict, now: Outlook, shift, settings: AdviceSettings):
     return p_hat, n_eff, shuffle_var, present, bar
 
 
-def _moments(parts: tuple, idx: np.ndarray, cols=slice(None)) -> Moments:
+def _moments(parts: tuple, idx: np.ndarray, cols=slice(None), start: Moments | None = None) -> Moments:
     """The :class:`Moments` of the futures ``idx`` (their labels ``cols``) from the ``parts`` of
-    :func:`_labels_part`."""
+    :func:`_labels_part`; ``idx`` (B, M), B resamples of the futures: each entry (B, c), their
+    betas fitted together from ``start`` (the moments of the same labels on all the futures)."""
     p_hat, n_eff, shuffle_var, present, _ = parts
-    a, b = _fit_futures(p_hat[idx][:, cols], n_eff[idx])
+    p = p_hat[:, cols][np.atleast_2d(idx)]                                      # (B, M, c)
+    n_sets, m_fut, c = p.shape
+    init = None
+    if start is not None:  # the beta of ``start``, for each resample
+        mean = np.clip(start.change + present[cols], 1e-3, 1.0 - 1e-3)
+        conc = mean * (1.0 - mean) / np.maximum(start.spread, 1e-12) - 1.0
+        init = np.tile(mean * conc, n_sets), np.tile((1.0 - mean) * conc, n_sets)
+    a, b = _fit_futures(p.transpose(1, 0, 2).reshape(m_fut, -1), np.repeat(n_eff[np.atleast_2d(idx)].T, c, axis=1),
+                        init)
+    a, b = a.reshape(n_sets, c), b.reshape(n_sets, c)
     mean = a / (a + b)
-    se2 = p_hat[idx][:, cols].var(axis=0, ddof=1) / len(idx) + shuffle_var[cols]
-    return Moments(mean - present[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
+    se2 = p.var(axis=1, ddof=1) / m_fut + shuffle_var[cols]
+    out = Moments(mean - present[cols], np.sqrt(se2), mean * (1.0 - mean) / (a + b + 1.0))
+    return out if np.ndim(idx) == 2 else Moments(*(x[0] for x in (out.change, out.change_se, out.spread)))
 
 
 def _prediction(w: _Weighing, now: Outlook, shift, settings: AdviceSettings, n_futures: int) -> Prediction:
@@ -766,8 +784,9 @@ def _prediction(w: _Weighing, now: Outlook, shift, settings: AdviceSettings, n_f
     m_told, m_rank = _moments(parts, told), _moments(parts, rank)
     p_told, p_rank = (combined_chance(present, bar, [m]) for m in (m_told, m_rank))
     good_gain = float(np.sum(p_told[below]))
-    boots = [combined_chance(present[below], bar[below], [_moments(parts, idx, below)]).sum()
-             for idx in rng.choice(told, size=(_BOOTSTRAPS, len(told)))] if np.any(below) else [0.0, 0.0]
+    start = Moments(m_told.change[below], m_told.change_se[below], m_told.spread[below])
+    boots = combined_chance(present[below], bar[below], [_moments(
+        parts, rng.choice(told, size=(_BOOTSTRAPS, len(told))), below, start)]).sum(axis=1) if np.any(below) else [0., 0.]
     return Prediction(candidate=cand, expected=expected, gain_pct=gain, gain_se_pct=float(np.hypot(se_outer, se_inner)),
                       gain_per_minute=gain / (cand.seconds / 60.0) if cand.seconds > 0 else math.inf,
                       ess_median=float(np.median(f["ess"]) / len(dist)), fallbacks=int(np.sum(~f["same"])),
@@ -855,7 +874,9 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
     update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
     annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
-    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d).
+    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d), but
+    a size: the Kalman update alone (its log-size is nearly linear in the working coordinates), whose
+    draws spread as those after the steps did (docs/studies/advice.md, "Speed of the advice on a frame").
 
     ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
     the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
@@ -891,7 +912,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
         return log_p.reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
 
     moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
-                          n_moves=_n_moves(x.shape[1]))
+                          n_moves=_n_moves(x.shape[1]) if obs.fallback_moves else 0)
     c, o = natural(moved)
     return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
 

@@ -460,8 +460,8 @@ class Pool:
             return None
         center, var, tau = combine(m[keep], p[keep], q.kind, q.min_spread)
         check = pool_check(m[keep], p[keep], center, var, int(offered.sum()))
-        if self.mixed[group]:
-            check = replace(check, warnings=check.warnings + (TWO_POPULATIONS,))
+        if self.mixed[group]:  # D measures the readings against one centre: said of two, it says nothing more
+            check = replace(check, warnings=tuple(w for w in check.warnings if w != DISAGREE) + (TWO_POPULATIONS,))
         if q.kind == "shared":
             var += q.floor**2
         return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
