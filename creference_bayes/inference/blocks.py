@@ -7,11 +7,11 @@ import emcee
 import numpy as np
 
 from ..models.contract import Model
+from .chains import Draws, SamplerSettings, SamplingError
 from .coords import WorkingCoords
 from .laplace import chol, conditional
 from .modes import Mode, mode_rows, object_modes
 from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
-from .chains import Draws, SamplerSettings, SamplingError
 
 __all__ = ["Blocks"]
 
@@ -197,7 +197,7 @@ def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
         dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
                                    x - k.center[free]) for k in modes], axis=1)
         out += mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
-                          np.argmin(dist, axis=1).reshape(C, N))
+                         np.argmin(dist, axis=1).reshape(C, N))
     return out
 
 

@@ -19,9 +19,9 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 from scipy.special import logsumexp
 
+from .chains import SamplerSettings, SamplingError, run_chains
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
-from .chains import SamplerSettings, SamplingError, run_chains
 
 __all__ = ["Ensemble", "Chains", "sample", "explore", "fit_mixture"]
 

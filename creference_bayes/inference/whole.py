@@ -7,13 +7,13 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from ..models.contract import O_YAW
+from .chains import Draws, SamplerSettings
 from .coords import HorizonDistance, WorkingCoords
 from .ensemble import Ensemble
 from .laplace import laplace_blocks
 from .map import derivatives
 from .modes import MIN_SHARE, find_modes, mode_rows
 from .moves import BlockTarget
-from .chains import Draws, SamplerSettings
 
 __all__ = ["Whole"]
 
