@@ -9,9 +9,8 @@ from scipy.special import logsumexp
 
 from conftest import truth_scene
 from creference_bayes.cli import main
-from creference_bayes.inference.ensemble import fit_mixture
+from creference_bayes.inference.ensemble import fit_mixture, sample
 from creference_bayes.inference.modes import find_modes
-from creference_bayes.inference.ensemble import sample
 from creference_bayes.inference.sampler import SamplerSettings
 from creference_bayes.io.scene import load_scene
 from creference_bayes.pipeline import estimate
