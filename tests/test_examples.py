@@ -44,6 +44,8 @@ TINY = {
                               ["lr/labels/report.md"])],
     "line_noise_bias.py": [(["--n", "2", "--draws", "200", "--estimates", "1", "--focal-prior", "1650,0.27"], [])],
     "measure_presets.py": [(["--n", "2"], [])],
+    "pilot_dependence.py": [(["--scenes", "0", "--n", "1", "--min-ess", "100", "--out", "pd"],
+                             ["pd/dataset/in/s0000.json"])],
     "posterior_example.py": [(["--out", "pe", "--min-ess", "200"], ["pe/result.json", "pe/top_view.png"])],
     "profile_posterior.py": [(["--repeat", "1"], [])],
     "reference_reading_study.py": [(["--n", "1", "--crowds", "light", "--min-ess", "100", "--out", "rr"],
