@@ -437,6 +437,7 @@ class _Draws:
 
         self.cams, self.objs, self.scene = cams, objs, scene
         self.dist = np.hypot(objs[..., O_X], objs[..., O_Z])
+        self.order = np.argsort(self.dist, axis=0).T  # each target's draws by distance, sorted once for every HDI
         y = cams[:, C_HEIGHT, None] - objs[..., O_GROUND]
         self.loc = np.stack([objs[..., O_X], y, objs[..., O_Z]], axis=-1)
         self.boxes = kitti_poses(scene, cams, objs)
@@ -444,7 +445,7 @@ class _Draws:
     def outlooks(self, weights: np.ndarray, settings: AdviceSettings, rng, iou_pairs: int | None = None) -> dict:
         """Per row of weights (M, N) and target: HDI width, share and median of the distance,
         location sd, label quality; each (M, m)."""
-        width, median = weighted_hdi(self.dist, weights, settings.hdi_prob)
+        width, median = weighted_hdi(self.dist, weights, settings.hdi_prob, self.order)
         return {"hdi_width_m": width, "hdi_share": width / median, "distance_m": median,
                 "location_sd_m": np.stack([location_sd(loc, weights) for loc in self.loc.transpose(1, 0, 2)], axis=1),
                 "p_iou": p_iou(self.boxes, weights, settings.iou_threshold, rng, iou_pairs or settings.iou_pairs)}
@@ -695,7 +696,7 @@ class _Weighing:
         # (evenly thinned), moved together: scaled by the present on all draws over that on those.
         same = np.ones(len(outer), bool)
         same[collapsed] = False
-        width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng)
+        width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng, order=draws.order)
         if len(collapsed):
             sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
             equal = np.full((1, len(sub)), 1.0 / len(sub))
