@@ -26,7 +26,7 @@ MIN_ESS_FRACTION = 0.01
 #: Shuffles :func:`shuffled_hdi` averages over.
 SHUFFLES = 8
 #: Draws :func:`weighted_hdi` bounds together before it computes their intervals one by one.
-HDI_BLOCK = 16
+HDI_BLOCK = 8
 
 
 def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,10 +75,14 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
     k = vals.shape[1]
     order = np.argsort(vals, axis=0).T if order is None else np.asarray(order).reshape(k, n)   # (k, N)
     v = np.take_along_axis(vals.T, order, axis=1)                       # (k, N) each column sorted
-    w = w[:, order].transpose(1, 0, 2).reshape(k * big_m, n)            # row t·M + i: weights i, quantity t
+    sorted_w = np.empty((k, big_m, n))                                  # row t·M + i: weights i, quantity t
+    for t in range(k):  # one quantity at a time: a gather (M, k, N) then transposed costs several times more
+        np.take(w, order[t], axis=1, out=sorted_w[t], mode="clip")  # "clip": unbuffered (the indices are valid)
+    w = sorted_w.reshape(k * big_m, n)
     rows = len(w)
     every = np.arange(rows)
-    vflat = np.repeat(v, big_m, axis=0).ravel()                         # row r's sorted values, beside its weights
+    vflat = v.ravel()
+    to_v = every // big_m * n - every * n  # entry g of the flat weights (row r from r · n) → g + to_v[r] of vflat
     # positions of the draws on the weight axis, strictly increasing within a row
     c = np.cumsum(w, axis=1)
     c -= 0.5 * w
@@ -93,6 +97,7 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
         np.clip(g, lo + 1, lo + n - 1, out=g)
         c0, c1 = flat[g - 1], flat[g]
         t = np.clip((p - c0) / np.maximum(c1 - c0, 1e-300), 0.0, 1.0)
+        g += to_v[r]
         v0 = vflat[g - 1]
         return v0 + t * (vflat[g] - v0)
 
@@ -118,18 +123,29 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
         s = rb * n + first[rb] + kb * HDI_BLOCK
         e = rb * n + np.minimum(first[rb] + (kb + 1) * HDI_BLOCK, stop[rb]) - 1
         end = far(rb, s) if up else far(rb, e)
-        found = shortest(rb, end - vflat[s] if up else vflat[e] - end)[rb]
-        bound = end - vflat[e] if up else vflat[s] - end
+        vs, ve = vflat[s + to_v[rb]], vflat[e + to_v[rb]]
+        found = shortest(rb, end - vs if up else ve - end)[rb]
+        bound = end - ve if up else vs - end
         keep = bound <= found + 1e-9 * (1.0 + np.abs(found))  # rounding may break ties
         r, g = run(rb[keep], s[keep], e[keep] + 1)
-        return shortest(r, far(r, g) - vflat[g] if up else vflat[g] - far(r, g))
+        return shortest(r, far(r, g) - vflat[g + to_v[r]] if up else vflat[g + to_v[r]] - far(r, g))
+
+    def first_failing(holds):  # per row, the first draw where holds(entries g of flat) fails (a bisection:
+        lo, hi = np.zeros(rows, int), np.full(rows, n)  # it holds on a run from the first draw)
+        while np.any(lo < hi):
+            mid = (lo + hi) // 2
+            ok = holds(every * n + np.minimum(mid, n - 1))
+            lo, hi = np.where((lo < hi) & ok, mid + 1, lo), np.where((lo < hi) & ~ok, mid, hi)
+        return lo
 
     # the width is piecewise linear in the start, so the shortest interval starts or ends at a draw:
     # from each draw that can start one (c + prob within the row: a run from the first draw), and to
     # each that can end one (c − prob within the row: a run to the last)
-    width = least(np.zeros(rows, int), np.count_nonzero(c + prob <= c[:, -1:], axis=1), True)
-    width = np.minimum(width, least(n - np.count_nonzero(c - prob >= c[:, :1], axis=1), np.full(rows, n), False))
-    width = np.where(np.isfinite(width), width, vflat[every * n + n - 1] - vflat[every * n])  # too few draws to hold prob
+    last, head = c[:, -1].copy(), c[:, 0].copy()
+    width = least(np.zeros(rows, int), first_failing(lambda g: flat[g] + prob <= last), True)
+    width = np.minimum(width, least(first_failing(lambda g: ~(flat[g] - prob >= head)), np.full(rows, n), False))
+    bottom = every // big_m * n
+    width = np.where(np.isfinite(width), width, vflat[bottom + n - 1] - vflat[bottom])  # too few draws to hold prob
     median = at(every, np.full(rows, 0.5))
     width, median = width.reshape(k, big_m).T, median.reshape(k, big_m).T
     return (width[:, 0], median[:, 0]) if values.ndim == 1 else (width, median)
