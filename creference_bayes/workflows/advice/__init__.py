@@ -604,7 +604,7 @@ def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray, start=None) -> tuple[np.n
     until the likelihood does not fall: about ten steps (docs/studies/advice.md, "Speed of the
     advice on a frame": a joint L-BFGS-B fit took 30 to 600 steps and stopped short on many columns).
     """
-    from scipy.special import digamma, gammaln, polygamma
+    from scipy.special import digamma, gammaln, zeta
 
     p = np.clip(np.atleast_2d(np.asarray(p_hat, float)), 0.0, 1.0)
     n = np.asarray(n_eff, float)
@@ -628,15 +628,18 @@ def _fit_futures(p_hat: np.ndarray, n_eff: np.ndarray, start=None) -> tuple[np.n
         return -((gammaln(kk + a) + gammaln(nn - kk + b) - gammaln(nn + a + b)).sum(axis=0)
                  - m_fut * (gammaln(a) + gammaln(b) - gammaln(a + b)))
 
+    def trigamma(x):
+        return zeta(2.0, x)
+
     def newton_step(x, cols):  # the step, and whether the column is done (its gradient within bounds ~0)
         a, b, mu, conc = beta(x)
         kk, nn = k[:, cols], n[:, cols]
         s = nn + a + b
-        d_s, d_ab, t_s, t_ab = digamma(s).sum(axis=0), digamma(a + b), polygamma(1, s).sum(axis=0), polygamma(1, a + b)
+        d_s, d_ab, t_s, t_ab = digamma(s).sum(axis=0), digamma(a + b), trigamma(s).sum(axis=0), trigamma(a + b)
         ga = -(digamma(kk + a).sum(axis=0) - d_s - m_fut * (digamma(a) - d_ab))      # d nll / da, db
         gb = -(digamma(nn - kk + b).sum(axis=0) - d_s - m_fut * (digamma(b) - d_ab))
-        haa = -(polygamma(1, kk + a).sum(axis=0) - t_s - m_fut * (polygamma(1, a) - t_ab))
-        hbb = -(polygamma(1, nn - kk + b).sum(axis=0) - t_s - m_fut * (polygamma(1, b) - t_ab))
+        haa = -(trigamma(kk + a).sum(axis=0) - t_s - m_fut * (trigamma(a) - t_ab))
+        hbb = -(trigamma(nn - kk + b).sum(axis=0) - t_s - m_fut * (trigamma(b) - t_ab))
         hab = t_s - m_fut * t_ab
         q = conc * mu * (1.0 - mu)                      # da/du = q = −db/du; da/dv = a, db/dv = b
         g = np.stack([q * (ga - gb), a * ga + b * gb])
