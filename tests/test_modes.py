@@ -9,8 +9,8 @@ from scipy.special import logsumexp
 
 from conftest import truth_scene
 from creference_bayes.cli import main
-from creference_bayes.inference.modes import find_modes, fit_mixture
-from creference_bayes.inference.ensemble import sample
+from creference_bayes.inference.ensemble import fit_mixture, sample
+from creference_bayes.inference.modes import find_modes
 from creference_bayes.inference.sampler import SamplerSettings
 from creference_bayes.io.scene import load_scene
 from creference_bayes.pipeline import estimate
@@ -204,7 +204,8 @@ def test_a_frames_object_with_two_readings_has_two_modes(two_readings):
     """The search given the MAP's camera finds the first target's second mode (1.6 × as far) with
     a share of the mass, and no other mode for the other targets."""
     from creference_bayes.inference.coords import WorkingCoords
-    from creference_bayes.inference.sampler import _laplace_start, _object_modes
+    from creference_bayes.inference.blocks import _object_modes
+    from creference_bayes.inference.sampler import _laplace_start
 
     model, est, true_distance = two_readings
     fitted = est.fitted(model)

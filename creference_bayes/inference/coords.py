@@ -114,17 +114,8 @@ class HorizonDistance:
     horizon (pixels, at its bottom centre (u, v)); z ≈ h µ / D, so in (log h, log µ, log D) a far
     object's ridge is straight (docs/inference.md). ∂pitch/∂log D = D cos²(pitch) / µ.
 
-    Parameters
-    ----------
-    model : the model (pitch and roll free)
-    i_focal, i_pitch, i_roll, i_u, i_v : indices of log µ (None when µ is known), pitch, roll, u
-        and v in the flat vector
+    Build it with :meth:`of`.
     """
-
-    def __init__(self, model: Model, i_focal: int | None, i_pitch: int, i_roll: int, i_u: int, i_v: int):
-        self.pp = np.asarray(model.principal_point, float)
-        self.focal = model.focal_length_px
-        self.i_focal, self.i_pitch, self.i_roll, self.i_u, self.i_v = i_focal, i_pitch, i_roll, i_u, i_v
 
     @classmethod
     def of(cls, model: Model) -> "HorizonDistance | None":
@@ -133,9 +124,11 @@ class HorizonDistance:
         cf = model.camera_free
         if not (cf[C_PITCH] and cf[C_ROLL]):
             return None
-        pos = np.cumsum(cf) - 1
-        kc = int(cf.sum())
-        return cls(model, int(pos[C_FOCAL]) if cf[C_FOCAL] else None, int(pos[C_PITCH]), int(pos[C_ROLL]), kc, kc + 1)
+        hd, pos, kc = cls(), np.cumsum(cf) - 1, int(cf.sum())
+        hd.pp, hd.focal = np.asarray(model.principal_point, float), model.focal_length_px
+        hd.i_focal = int(pos[C_FOCAL]) if cf[C_FOCAL] else None  # None: µ known
+        hd.i_pitch, hd.i_roll, hd.i_u, hd.i_v = int(pos[C_PITCH]), int(pos[C_ROLL]), kc, kc + 1
+        return hd
 
     def _mu(self, v: np.ndarray) -> np.ndarray:
         return np.exp(v[:, self.i_focal]) if self.i_focal is not None else np.full(len(v), float(self.focal))

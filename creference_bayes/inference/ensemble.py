@@ -17,13 +17,13 @@ from dataclasses import dataclass, field
 import emcee
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.special import logsumexp
 
-from .modes import fit_mixture
+from .chains import SamplerSettings, SamplingError, run_chains
 from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
-from .sampler import SamplerSettings, SamplingError, run_chains
 
-__all__ = ["Ensemble", "Chains", "sample", "explore"]
+__all__ = ["Ensemble", "Chains", "sample", "explore", "fit_mixture"]
 
 
 #: Cap on warm-up steps.
@@ -111,7 +111,7 @@ def _fit_proposal(u: np.ndarray, settings: SamplerSettings, centers=None,
     """The independence proposal fitted to a sample ``u`` (n, d) in sampler coordinates, or None.
 
     With several modes (``centers`` (k, d)) a mixture with a component per mode the sample still
-    holds (:func:`.modes.fit_mixture`); otherwise up to ``proposal_components`` components from
+    holds (:func:`fit_mixture`); otherwise up to ``proposal_components`` components from
     k-means centres (seeded by ``rng``) plus the whole sample's t at :data:`DEFENSIVE_WEIGHT` (a
     defensive mixture), or the single t. Fits use :data:`MIXTURE_POINTS` of the sample."""
     if settings.independence_weight == 0.0:
@@ -220,11 +220,46 @@ class Ensemble:
         self.info: dict = {"warmup_stages": [], "reparametrised": False}
 
     def tune(self, bar) -> int:
-        """The warm-up (module docstring); returns its steps."""
-        self.coords, proposal, pos, rstate = _warmup(self.safe, self.coords, self.pos, self.rstate,
-                                                     self.s, self.info, bar, self.centers, self.fit_rng)
-        self.sampler, self.state = _run(self.safe, self.coords, _moves(self.s, proposal), pos, rstate)
-        return sum(self.info["warmup_stages"])
+        """The warm-up: stages, the coordinates and the proposal refitted after each, until a stage
+        run in the coordinates fitted before it looks like the sample they were fitted to and the
+        proposal is accepted often enough (or :data:`MAX_WARMUP`); returns its steps."""
+        s, safe, coords, centers, info = self.s, self.safe, self.coords, self.centers, self.info
+        pos, rstate, d = self.pos, self.rstate, self.pos.shape[1]
+        proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
+        while not stable and n_warm < MAX_WARMUP:
+            stage = min(stage, MAX_WARMUP - n_warm)
+            sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
+            done = 0
+            while done < stage:  # in chunks: a stage already whitened ends early (below)
+                state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
+                done = sampler.iteration
+                if done < min(stage, 2 * s.stage):
+                    continue  # too short to be judged before its end
+                tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
+                indep = proposal.acceptance if proposal is not None else float("nan")
+                stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
+                    proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
+                if stable:
+                    break
+            pos, rstate = coords.inverse(state.coords), state.random_state
+            stage = done
+            n_warm += stage
+            info["warmup_stages"].append(stage)
+            bar.update(stage)
+            try:
+                tail_p = coords.inverse(tail_u)
+                coords = Coordinates.fit(tail_p, shear=centers is None)
+                fitted = coords.forward(tail_p)
+                proposal = _fit_proposal(fitted, s, None if centers is None else coords.forward(centers), self.fit_rng)
+                reference = _location_spread(fitted, centers is not None)
+                info["reparametrised"] = True
+            except np.linalg.LinAlgError:
+                break  # nothing to learn from a degenerate sample: go on as we are
+            if len(info["warmup_stages"]) >= 2:
+                stage *= 2
+        self.coords = coords
+        self.sampler, self.state = _run(safe, coords, _moves(s, proposal), pos, rstate)
+        return sum(info["warmup_stages"])
 
     def run(self, steps: int):
         """Yield the walkers' parameters (n_chains · walkers, ndim) and log-density there after each of
@@ -281,53 +316,6 @@ def sample(log_prob, center, cov=None, *, settings: SamplerSettings | None = Non
     return Chains(p, lp, warm, it, thin, diag["ok"], diag, kernel.info)
 
 
-def _warmup(safe, coords, pos, rstate, s: SamplerSettings, info: dict, bar, centers=None,
-            fit_rng=None):
-    """Run stages, refitting the coordinates and the proposal after each, until a stage run in
-    the coordinates fitted before it looks like the sample they were fitted to and the proposal
-    is accepted often enough (or :data:`MAX_WARMUP`). Returns the coordinates, proposal, positions
-    and random state."""
-    d = pos.shape[1]
-    proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
-    while not stable and n_warm < MAX_WARMUP:
-        stage = min(stage, MAX_WARMUP - n_warm)
-        sampler, state = _run(safe, coords, _moves(s, proposal), pos, rstate)
-        done = 0
-        while done < stage:  # in chunks: a stage already whitened ends early (below)
-            state = sampler.run_mcmc(state, min(s.chunk, stage - done), skip_initial_state_check=True)
-            done = sampler.iteration
-            if done < min(stage, 2 * s.stage):
-                continue  # too short to be judged before its end
-            tail_u = sampler.get_chain(discard=done // 2).reshape(-1, d)
-            indep = proposal.acceptance if proposal is not None else float("nan")
-            stable = info["reparametrised"] and _stable(tail_u, centers is not None, reference) and (
-                proposal is None or indep >= MIN_INDEPENDENCE_ACCEPTANCE)
-            if stable:
-                break
-        pos, rstate = coords.inverse(state.coords), state.random_state
-        stage = done
-        n_warm += stage
-        info["warmup_stages"].append(stage)
-        bar.update(stage)
-        try:
-            tail_p = coords.inverse(tail_u)
-            coords = Coordinates.fit(tail_p, shear=centers is None)
-            fitted = coords.forward(tail_p)
-            proposal = _fit_proposal(fitted, s, _forward(coords, centers), fit_rng)
-            reference = _location_spread(fitted, centers is not None)
-            info["reparametrised"] = True
-        except np.linalg.LinAlgError:
-            break  # nothing to learn from a degenerate sample: go on as we are
-        if len(info["warmup_stages"]) >= 2:
-            stage *= 2
-    return coords, proposal, pos, rstate
-
-
-
-def _forward(coords, centers):
-    return None if centers is None else coords.forward(centers)
-
-
 def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_steps: int = 150,
             n_walkers: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """A short ensemble run on the tempered density p^(1/T), for finding modes (:mod:`.modes`):
@@ -354,3 +342,42 @@ def _run(safe, coords, moves, pos, rstate):
     sampler = emcee.EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
     return sampler, emcee.State(coords.forward(pos), random_state=rstate)
 
+
+def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
+    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
+    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
+    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
+    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
+    (k' ≤ k; k' may be 1)."""
+    n, d = u.shape
+    means = np.asarray(centers, float).copy()
+    resp = np.zeros((n, len(means)))
+    resp[np.arange(n), np.argmin(((u[:, None, :] - means[None]) ** 2).sum(-1), axis=1)] = 1.0
+    covs = None
+    for _ in range(n_iter):
+        nk = resp.sum(axis=0)
+        alive = nk >= 2 * d + 2
+        if not alive.any():
+            break
+        resp, nk = resp[:, alive], nk[alive]
+        means = (resp.T @ u) / nk[:, None]
+        covs = np.stack([((resp[:, k, None] * (u - means[k])).T @ (u - means[k])) / nk[k]
+                         + 1e-9 * np.eye(d) for k in range(len(nk))])
+        weights = nk / n
+        resp = np.exp(_log_resp(u, weights, means, covs))
+    if covs is None:
+        m = u.mean(axis=0)
+        return np.ones(1), m[None], np.atleast_2d(np.cov(u.T))[None]
+    weights = np.maximum(resp.sum(axis=0) / n, min_weight / len(means))
+    return weights / weights.sum(), means, covs
+
+
+def _log_resp(u, weights, means, covs) -> np.ndarray:
+    """(n, k) log responsibilities of the components."""
+    logs = []
+    for w, m, c in zip(weights, means, covs):
+        L = np.linalg.cholesky(c)
+        z = np.linalg.solve(L, (u - m).T)
+        logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
+    logs = np.column_stack(logs)
+    return logs - logsumexp(logs, axis=1, keepdims=True)

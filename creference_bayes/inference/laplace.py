@@ -20,7 +20,7 @@ from ..models.contract import Model
 from .coords import WorkingCoords
 from .map import Arrowhead, derivatives
 
-__all__ = ["Laplace", "laplace", "laplace_blocks"]
+__all__ = ["Laplace", "laplace", "laplace_blocks", "conditional", "chol"]
 
 
 @dataclass(frozen=True)
@@ -46,8 +46,8 @@ class Laplace:
         natural coordinates."""
         rng = np.random.default_rng(rng)
         m = self.model.n_objects
-        Lc = _chol(self.Sc, self.model.camera_free)
-        Lo = np.array([_chol(self.Ao[i], self.model.object_free[i]) for i in range(m)])
+        Lc = chol(self.Sc, self.model.camera_free)
+        Lo = np.array([chol(self.Ao[i], self.model.object_free[i]) for i in range(m)])
         dc = rng.standard_normal((n, 5)) @ Lc.T
         do = np.einsum("mij,nmj->nmi", Lo, rng.standard_normal((n, m, 7))) + np.einsum("mic,nc->nmi", self.B, dc)
         cams, objs = WorkingCoords(self.model).from_work(self.wc[None] + dc, self.wo[None] + do)
@@ -100,19 +100,24 @@ def _dense_blocks(model: Model, H: Arrowhead) -> tuple[np.ndarray, np.ndarray, n
     free = np.concatenate([model.camera_free, model.object_free.ravel()])
     A, ok = _positive(H.dense(), free)
     cov = np.linalg.inv(A)
+    m = model.n_objects
     Scc = cov[:5, :5] * np.outer(model.camera_free, model.camera_free)
-    idx = np.flatnonzero(model.camera_free)
+    Soo = np.array([cov[5 + 7 * i:12 + 7 * i, 5 + 7 * i:12 + 7 * i] for i in range(m)])
+    return (Scc, *conditional(model, Scc, cov[5:, :5].reshape(m, 7, 5), Soo), bool(ok))
+
+
+def conditional(model: Model, Scc: np.ndarray, Soc: np.ndarray, Soo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The objects given the camera, from a joint covariance's blocks (camera ``Scc`` (5, 5), each
+    object with the camera ``Soc`` (m, 7, 5), each object ``Soo`` (m, 7, 7)): the conditional
+    covariance ``Ao`` = Soo − B Socᵀ (m, 7, 7) and the regression ``B`` = Soc Scc⁺ (m, 7, 5), zero
+    on fixed parameters."""
+    cf, of = model.camera_free, model.object_free
+    idx = np.flatnonzero(cf)
     inv = np.zeros((5, 5))
     if idx.size:
-        inv[np.ix_(idx, idx)] = np.linalg.inv(Scc[np.ix_(idx, idx)])
-    m = model.n_objects
-    Soc = cov[5:, :5].reshape(m, 7, 5)
-    B = np.einsum("mic,cd->mid", Soc, inv)
-    Soo = np.array([cov[5 + 7 * i:12 + 7 * i, 5 + 7 * i:12 + 7 * i] for i in range(m)])
-    Ao = Soo - np.einsum("mic,mjc->mij", B, Soc)
-    Ao = Ao * (model.object_free[:, :, None] & model.object_free[:, None, :])
-    B = B * model.object_free[:, :, None] * model.camera_free[None, None, :]
-    return Scc, Ao, B, bool(ok)
+        inv[np.ix_(idx, idx)] = np.linalg.pinv(Scc[np.ix_(idx, idx)])
+    B = np.einsum("mic,cd->mid", Soc, inv) * of[:, :, None] * cf[None, None, :]
+    return (Soo - np.einsum("mic,mjc->mij", B, Soc)) * (of[:, :, None] & of[:, None, :]), B
 
 
 def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -136,14 +141,22 @@ def _positive(A: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, bool]:
     return out, False
 
 
-def _chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """A Cholesky factor of ``cov`` on its free rows and columns (zero elsewhere)."""
+def chol(cov: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """A Cholesky factor of ``cov`` on its free rows and columns, zero elsewhere (jittered when
+    not positive definite; the square roots of the diagonal as a last resort)."""
     out = np.zeros_like(cov)
     idx = np.flatnonzero(free)
-    if not idx.size:
+    if idx.size == 0:
         return out
     sub = cov[np.ix_(idx, idx)]
     sub = 0.5 * (sub + sub.T)
-    w, V = np.linalg.eigh(sub)
-    out[np.ix_(idx, idx)] = V * np.sqrt(np.maximum(w, 0.0))
+    for jitter in (0.0, 1e-10, 1e-8, 1e-6, 1e-4):
+        try:
+            L = np.linalg.cholesky(sub + jitter * np.diag(np.maximum(np.diag(sub), 1e-12)))
+            break
+        except np.linalg.LinAlgError:
+            continue
+    else:
+        L = np.diag(np.sqrt(np.maximum(np.abs(np.diag(sub)), 1e-12)))
+    out[np.ix_(idx, idx)] = L
     return out

@@ -4,8 +4,7 @@ Heavy-tailed corners let one corner be given up as an outlier and the target mov
 viewing ray, so the posterior can have a second mode that a sampler started at the MAP misses
 while every check passes. :func:`find_modes` (the whole vector: explore the tempered density,
 climb, merge, weigh by Laplace mass) and :func:`object_modes` (each object given the MAP's
-camera) are described in docs/inference.md ("Modes first"); :func:`fit_mixture` fits the
-independence proposal's mixture, a component per mode.
+camera) are described in docs/inference.md ("Modes first").
 """
 
 from __future__ import annotations
@@ -16,7 +15,12 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-__all__ = ["Mode", "find_modes", "fit_mixture"]
+from ..models.contract import O_YAW
+from .ensemble import explore
+from .map import _newton, derivatives, initial_objects
+from .reparam import Coordinates
+
+__all__ = ["Mode", "find_modes", "object_modes", "mode_rows"]
 
 #: Two local maxima closer than this (in the MAP's Laplace-whitened units) are one mode.
 SAME_MODE = 1.0
@@ -59,9 +63,6 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     Laplace covariance; ``laplace``: a point (d,) → its Laplace covariance; ``circular``: indices of
     angles (wrapped to within π of the MAP) or None.
     """
-    from .reparam import Coordinates
-    from .ensemble import explore
-
     center = np.asarray(center, float)
     d = len(center)
     coords = Coordinates.affine(center, cov)
@@ -91,20 +92,27 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
             continue
         if not any(_same_mode(neg, u_found[i], u_found[j]) for j in keep):
             keep.append(int(i))
-    modes = []
-    for i in keep:
-        c = cov if i == 0 else np.asarray(laplace(p_found[i]), float)
-        sign, logdet = np.linalg.slogdet(c)
-        log_mass = lp[i] + 0.5 * logdet if sign > 0 else -np.inf
-        modes.append((p_found[i] if i else center, c, float(lp[i]), log_mass))
-    log_masses = np.array([m[3] for m in modes])
-    finite = np.isfinite(log_masses)  # a Laplace covariance that is not positive definite (a
-    if finite.any():  # mode on a bound) gives no mass estimate: that mode gets no share
-        shares = np.where(finite, np.exp(np.where(finite, log_masses, 0.0) - logsumexp(log_masses[finite])), 0.0)
+    return _weighed([(p_found[i] if i else center, cov if i == 0 else np.asarray(laplace(p_found[i]), float),
+                      lp[i], None) for i in keep], np.ones(d, bool))
+
+
+def _weighed(found, free: np.ndarray) -> list[Mode]:
+    """:class:`Mode` s of maxima (centre, Laplace covariance or None, log-density, shear), the
+    MAP's first: each weighed by its Laplace mass over the ``free`` coordinates (none without a
+    positive-definite covariance, e.g. a maximum on a bound); the MAP's and at most
+    :data:`MAX_MODES` − 1 others by decreasing share, those under :data:`MIN_SHARE` dropped."""
+    log_mass = []
+    for _, c, lp, _ in found:
+        sign, logdet = np.linalg.slogdet(c[np.ix_(free, free)]) if c is not None else (0.0, 0.0)
+        log_mass.append(lp + 0.5 * logdet if sign > 0 else -np.inf)
+    log_mass = np.array(log_mass)
+    finite = np.isfinite(log_mass)
+    if finite.any():
+        shares = np.where(finite, np.exp(np.where(finite, log_mass, 0.0) - logsumexp(log_mass[finite])), 0.0)
     else:
-        shares = (np.arange(len(modes)) == 0).astype(float)
-    out = [Mode(m[0], m[1], m[2], float(s)) for m, s in zip(modes, shares)]
-    rest = sorted((m for m in out[1:] if m.share >= MIN_SHARE), key=lambda m: -m.share)
+        shares = (np.arange(len(found)) == 0).astype(float)
+    out = [Mode(x, c, float(lp), float(w), b) for (x, c, lp, b), w in zip(found, shares)]
+    rest = sorted((k for k in out[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
     return [out[0]] + rest[:MAX_MODES - 1]
 
 
@@ -169,46 +177,6 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
     return res.x if np.isfinite(res.fun) and res.fun <= fg(u0)[0] else u0
 
 
-def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):
-    """A Gaussian mixture fitted to a sample ``u`` (n, d) by ``n_iter`` EM iterations, a component
-    per mode, started at ``centers`` (k, d) (the same coordinates). Returns weights (k',) (floored
-    at ``min_weight`` over the components, so that the proposal keeps offering every mode), means
-    (k', d) and covariances (k', d, d) of the components that keep at least 2·d + 2 points
-    (k' ≤ k; k' may be 1)."""
-    n, d = u.shape
-    means = np.asarray(centers, float).copy()
-    resp = np.zeros((n, len(means)))
-    resp[np.arange(n), np.argmin(((u[:, None, :] - means[None]) ** 2).sum(-1), axis=1)] = 1.0
-    covs = None
-    for _ in range(n_iter):
-        nk = resp.sum(axis=0)
-        alive = nk >= 2 * d + 2
-        if not alive.any():
-            break
-        resp, nk = resp[:, alive], nk[alive]
-        means = (resp.T @ u) / nk[:, None]
-        covs = np.stack([((resp[:, k, None] * (u - means[k])).T @ (u - means[k])) / nk[k]
-                         + 1e-9 * np.eye(d) for k in range(len(nk))])
-        weights = nk / n
-        resp = np.exp(_log_resp(u, weights, means, covs))
-    if covs is None:
-        m = u.mean(axis=0)
-        return np.ones(1), m[None], np.atleast_2d(np.cov(u.T))[None]
-    weights = np.maximum(resp.sum(axis=0) / n, min_weight / len(means))
-    return weights / weights.sum(), means, covs
-
-
-def _log_resp(u, weights, means, covs) -> np.ndarray:
-    """(n, k) log responsibilities of the components."""
-    logs = []
-    for w, m, c in zip(weights, means, covs):
-        L = np.linalg.cholesky(c)
-        z = np.linalg.solve(L, (u - m).T)
-        logs.append(np.log(w) - np.sum(np.log(np.diag(L))) - 0.5 * np.sum(z * z, axis=0))
-    logs = np.column_stack(logs)
-    return logs - logsumexp(logs, axis=1, keepdims=True)
-
-
 def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, temperature: float,
                  max_sets: int = 8) -> list[list[Mode]]:
     """Each object's modes given the MAP's camera (docs/inference.md, "Several object blocks").
@@ -224,9 +192,6 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     Returns per object its modes, the MAP's first (:class:`Mode`: centre (7,), covariance (7, 7)
     and ``shear`` (7, 5), the centre's regression on the camera).
     """
-    from ..models.contract import O_YAW
-    from .map import _newton, derivatives, initial_objects
-
     model, coords = target.model, target.coords
     m, of = model.n_objects, model.object_free
     cams, objs = coords.from_work(wc0[None], wo0[None])
@@ -275,12 +240,9 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
             x = e[i]
             if np.all(np.isfinite(x)) and not any(_same_mode(neg, whiten(x)[0], whiten(f)[0]) for f in found):
                 found.append(x)
-        if len(found) == 1:
-            out.append([Mode(wo0[i], Ao[i], float(own(i, wo0[i][None])[0]), 1.0)])
-            continue
         lp = own(i, np.array(found))
-        modes = [(wo0[i], Ao[i], None)]
-        for x in found[1:]:
+        modes = [(wo0[i], Ao[i], lp[0], None)]
+        for x, v in zip(found[1:], lp[1:]):
             wo = wo0.copy()
             wo[i] = x
             D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
@@ -291,11 +253,16 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
                 c[np.ix_(free, free)] = np.linalg.inv(H)
             except np.linalg.LinAlgError:
                 c = None  # no Laplace mass (not a maximum of the density): no share
-            modes.append((x, c, None if c is None else -c @ D.H_co[i].T))
-        log_mass = np.array([lp[k] + 0.5 * np.linalg.slogdet(c[np.ix_(free, free)])[1] if c is not None else -np.inf
-                             for k, (_, c, _) in enumerate(modes)])
-        share = np.exp(log_mass - logsumexp(log_mass))
-        kept = [Mode(x, c, float(v), float(w), b) for (x, c, b), v, w in zip(modes, lp, share)]
-        rest = sorted((k for k in kept[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
-        out.append([kept[0]] + rest[:MAX_MODES - 1])
+            modes.append((x, c, v, None if c is None else -c @ D.H_co[i].T))
+        out.append(_weighed(modes, free))
     return out
+
+
+def mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:
+    """A row per mode (``objs`` (k, 7) the object's natural parameters there, ``lp`` (k,) the
+    log-density, ``near`` (chain, draw) each draw's nearest mode): the object's id, distance and
+    yaw, how far below the MAP's the mode's log-density is, its Laplace share of the mass and the
+    share of each chain's draws nearest to it (they should agree)."""
+    return [{"target": target_id, "distance_m": float(np.hypot(objs[k, 0], objs[k, 1])), "yaw": float(objs[k, O_YAW]),
+             "log_density_below_map": float(lp[0] - lp[k]), "laplace_share": float(mode.share),
+             "draw_share_per_chain": [float(np.mean(g == k)) for g in near]} for k, mode in enumerate(modes)]

@@ -930,9 +930,9 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
     update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
     annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
-    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d), but
-    a size: the Kalman update alone (its log-size is nearly linear in the working coordinates), whose
-    draws spread as those after the steps did (docs/studies/advice.md, "Speed of the advice on a frame").
+    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d; the
+    Kalman update alone leaves a frame's other targets off by up to a third of their sd:
+    docs/studies/advice.md, "Racing the requests").
 
     ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
     the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
@@ -968,7 +968,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
         return log_p.reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
 
     moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
-                          n_moves=_n_moves(x.shape[1]) if obs.fallback_moves else 0)
+                          n_moves=_n_moves(x.shape[1]))
     c, o = natural(moved)
     return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
 

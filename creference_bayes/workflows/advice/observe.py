@@ -186,9 +186,6 @@ class _PriorObservation:
     subclasses give :meth:`quantities` (N, d) and :attr:`sd` (d,)."""
 
     needs_scale = False
-    #: whether the advice's fallback follows its Kalman update by random-walk steps
-    #: (:func:`~creference_bayes.workflows.advice._moved`)
-    fallback_moves = True
 
     def __init__(self, model: MetrologyModel):
         self.model = model
@@ -214,8 +211,6 @@ class _PriorObservation:
 
 class SizeObservation(_PriorObservation):
     """Target ``i``'s size from a catalogue, log-sd ``log_sd`` (module docstring)."""
-
-    fallback_moves = False  # its log-size is nearly linear in the working coordinates (log(size / z) + log z)
 
     def __init__(self, model: MetrologyModel, i: int, log_sd: float):
         self.i = int(i)

@@ -1,0 +1,203 @@
+"""Block sweeps (:mod:`.moves`), the kernel of a model of several object blocks under the driver
+of :mod:`.sampler`: its start, warm-up and mode report (docs/inference.md, "Several object blocks")."""
+
+from __future__ import annotations
+
+import emcee
+import numpy as np
+
+from ..models.contract import Model
+from .chains import Draws, SamplerSettings, SamplingError
+from .coords import WorkingCoords
+from .laplace import chol, conditional
+from .modes import Mode, mode_rows, object_modes
+from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
+
+__all__ = ["Blocks"]
+
+
+def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
+    """Covariances and shear from warm-up draws (pooled over chains; working coordinates),
+    blended with the Laplace ones (80 % / 20 %); and the independence centres."""
+    cf = model.camera_free
+    C, O = wc.reshape(-1, 5), wo.reshape(-1, model.n_objects, 7)
+    cm, om = C.mean(axis=0), O.mean(axis=0)
+    dc, do = C - cm, O - om
+    n = len(C)
+    Scc = np.where(np.outer(cf, cf), dc.T @ dc / (n - 1), 0.0)
+    cond, B = conditional(model, Scc, np.einsum("nmi,nc->mic", do, dc) / (n - 1),
+                          np.einsum("nmi,nmj->mij", do, do) / (n - 1))
+    return 0.8 * Scc + 0.2 * Sc0, 0.8 * cond + 0.2 * Ao0, 0.8 * B + 0.2 * B0, cm
+
+
+class _Run:
+    """One segment of the run: a target in the current shear, its kernel and an EnsembleSampler."""
+
+    def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
+        m = model.n_objects
+        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
+        Lc = chol(Sc, model.camera_free)
+        Lo = np.array([chol(Ao[i], model.object_free[i]) for i in range(m)])
+        self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)
+        w = 0.5 if s.independence_weight is None else s.independence_weight
+        moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
+        if w > 0:
+            moves.append((IndependenceSweep(self.kernel), w))
+        self.sampler = emcee.EnsembleSampler(s.n_chains, self.target.ndim, self.target, moves=moves, vectorize=True)
+
+    def state(self, wc: np.ndarray, wo: np.ndarray, random_state) -> emcee.State:
+        """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear."""
+        t = self.target
+        wt = wo - np.einsum("mik,nk->nmi", t.B, wc - t.c0)
+        u = t.join(wc, wt)
+        blobs = t.blocks(u)
+        with np.errstate(invalid="ignore"):
+            return emcee.State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
+
+    def run(self, state: emcee.State, steps: int):
+        """Yield the state after each of ``steps`` steps."""
+        yield from self.sampler.sample(state, iterations=steps, store=False, skip_initial_state_check=True)
+
+
+class Blocks:
+    """Block sweeps (module docstring): ``n_chains`` walkers, each an independent chain, started
+    from over-dispersed draws (1.2 ×) of the Laplace approximation (at the MAP where those have
+    zero density), each object in its mode c mod k."""
+
+    def __init__(self, model, start, s: SamplerSettings, rng, temperature, map_est):
+        wc0, wo0, Sc, Ao, B, _ = self.start = start
+        self.model, self.s, self.T = model, s, temperature
+        m, C = model.n_objects, s.n_chains
+        self.n_chains, self.walkers = C, 1
+        of = model.object_free
+        Lo = np.array([chol(Ao[i], of[i]) for i in range(m)])
+        dc = 1.2 * rng.standard_normal((C, 5)) @ chol(Sc, model.camera_free).T
+        wc = wc0 + dc
+        wo = wo0 + 1.2 * np.einsum("mij,cmj->cmi", Lo, rng.standard_normal((C, m, 7))) + np.einsum("mik,ck->cmi", B, dc)
+        random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
+        self.found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
+        self.mix = _mixture(model, self.found, B)
+        if self.mix is not None:  # chain c starts each object in its mode c (mod its modes)
+            for i, modes in enumerate(self.found):
+                for c in range(C):
+                    k = c % len(modes)
+                    if k:
+                        wo[c, i] = modes[k].center + chol(modes[k].cov, of[i]) @ rng.standard_normal(7) + B[i] @ dc[c]
+        self.seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=self.mix)
+        state = self.seg.state(wc, wo, random_state)
+        bad = ~np.isfinite(state.log_prob)
+        wc[bad], wo[bad] = wc0, wo0
+        self.state = self.seg.state(wc, wo, random_state)
+        if not np.all(np.isfinite(self.state.log_prob)):
+            raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
+
+    def tune(self, bar) -> int:
+        """The warm-up (module docstring); returns its steps."""
+        s, m = self.s, self.model.n_objects
+        wc0, wo0, Sc0, Ao0, B0, _ = self.start
+        seg, state, done, hist = self.seg, self.state, 0, []
+        for mark in (int(0.4 * s.warmup), int(0.7 * s.warmup), s.warmup):  # warm-up segments
+            for state in seg.run(state, mark - done):
+                hist.append(seg.target.working(state.coords))
+            bar.update(mark - done)
+            done = mark
+            if mark == s.warmup:
+                break
+            keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
+            wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
+            Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
+            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
+                several = np.array([len(modes) > 1 for modes in self.found])  # draws span every mode)
+                Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
+            wc, wo = seg.target.working(state.coords)
+            seg = _Run(self.model, self.T, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=self.mix)
+            seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
+            state = seg.state(wc, wo, state.random_state)
+            hist = []
+        seg.kernel.adapt = False
+        self.seg, self.state = seg, state
+        return s.warmup
+
+    def run(self, steps: int):
+        for self.state in self.seg.run(self.state, steps):
+            yield self.state.coords, self.state.log_prob
+
+    def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cameras (n, C, 5) and objects (n, C, m, 7) of states (n, C, d)."""
+        cams, objs = self.seg.target.natural(u.reshape(-1, u.shape[-1]))
+        return cams.reshape(u.shape[:2] + (5,)), objs.reshape(u.shape[:2] + objs.shape[1:])
+
+    def acceptance(self) -> tuple[float, float, float]:
+        return tuple(float(np.mean(self.seg.kernel.accepted[k])) for k in ("all", "camera", "objects"))
+
+    def report(self, draws: Draws) -> dict:
+        """The objects' modes (:func:`_object_mode_report`) and a mode denser than the MAP's."""
+        if self.mix is None:
+            return {}
+        wc0, wo0 = self.start[:2]
+        info = {"mode_report": _object_mode_report(self.model, self.found, draws, wc0, wo0)}
+        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(self.found) if len(modes) > 1]
+        denser = [(i, k) for i, k in denser if k.log_prob > self.found[i][0].log_prob + 1.0]
+        if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
+            wo = wo0.copy()
+            for i, k in denser:
+                wo[i] = k.center
+            c, o = WorkingCoords(self.model).from_work(wc0[None], wo[None])
+            info["denser_mode"] = (c[0], o[0])
+        return info
+
+
+def _object_modes(model, temperature, s: SamplerSettings, wc0, wo0, Sc, Ao, B):
+    """Each object's modes given the MAP's camera (:func:`.modes.object_modes`), or each its
+    MAP's alone without ``mode_search``."""
+    if not s.mode_search:
+        return [[Mode(wo0[i], Ao[i], 0.0, 1.0)] for i in range(model.n_objects)]
+    return object_modes(BlockTarget(model, temperature, wc0, B, np.zeros_like(wo0)), wc0, wo0, Ao, temperature)
+
+
+#: Least weight of each mode's component in an object's independence proposal (so that the
+#: proposal keeps offering every mode, whatever its Laplace share).
+MIN_MODE_WEIGHT = 0.1
+
+
+def _mixture(model, found, B):
+    """The objects' other modes as :class:`~.moves.BlockKernel` takes them (weights (m, 1 + E),
+    centres (m, E, 7), Cholesky factors (m, E, 7, 7), and how each centre moves with the camera in
+    the sampler's coordinates (m, E, 7, 5), ``B`` (m, 7, 5) their shear), or None when no object
+    has another."""
+    E = max(len(modes) for modes in found) - 1
+    if E == 0:
+        return None
+    m = model.n_objects
+    w, centres, L, shear = np.zeros((m, 1 + E)), np.zeros((m, E, 7)), np.zeros((m, E, 7, 7)), np.zeros((m, E, 7, 5))
+    for i, modes in enumerate(found):
+        share = np.maximum([k.share for k in modes], MIN_MODE_WEIGHT)
+        w[i, :len(modes)] = share / share.sum()
+        for k, mode in enumerate(modes[1:]):
+            centres[i, k], L[i, k] = mode.center, chol(mode.cov, model.object_free[i])
+            shear[i, k] = (mode.shear - B[i]) * model.object_free[i][:, None] * model.camera_free[None]
+    return w, centres, L, shear
+
+
+def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
+    """:func:`mode_rows` of each object with several modes (each draw's nearest in the mode's own
+    Laplace metric; shares given the camera)."""
+    coords = WorkingCoords(model)
+    out = []
+    for i, modes in enumerate(found):
+        if len(modes) < 2:
+            continue
+        free = model.object_free[i]
+        wo = np.repeat(wo0[None], len(modes), axis=0)
+        wo[:, i] = [k.center for k in modes]
+        _, objs = coords.from_work(np.repeat(wc0[None], len(modes), axis=0), wo)
+        C, N = draws.objects.shape[:2]
+        x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
+        dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
+                                   x - k.center[free]) for k in modes], axis=1)
+        out += mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
+                         np.argmin(dist, axis=1).reshape(C, N))
+    return out
+
+
