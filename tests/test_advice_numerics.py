@@ -59,6 +59,24 @@ def test_iou_at_least_a_threshold_is_the_iou_compared_whatever_the_bound_leaves_
     assert np.all(iou[:50] > 1 - 1e-9) and np.all(iou[50:150] < 1e-9)
 
 
+def test_iou_at_least_a_threshold_computes_the_iou_of_few_pairs(monkeypatch):
+    """Its two bounds decide most pairs of a posterior's boxes (a mean box against draws a few
+    centimetres and degrees apart), those above the bar as well as those below."""
+    from creference_bayes.workflows.advice import iou as iou_module
+
+    a, b = _box_pairs(4, 4000, 0.05, 0.05)
+    a[:, 4:] += 2.0  # cars' sizes, 0.15 m apart: most pairs above the bar, the upper bound leaves them open
+    b[:, 4:] += 2.0
+    b[:, :3] = a[:, :3] + (b[:, :3] - a[:, :3]) * 0.5
+    exact = iou_3d_pairs(a, b) >= 0.7
+    computed = []
+    real = iou_module.iou_3d_pairs
+    monkeypatch.setattr(iou_module, "iou_3d_pairs", lambda x, y: computed.append(len(x)) or real(x, y))
+    np.testing.assert_array_equal(iou_3d_at_least(a, b, 0.7), exact)
+    assert 0.5 < exact.mean() < 0.98
+    assert sum(computed) < 0.35 * len(a)
+
+
 def test_weighted_hdi_with_equal_weights_is_the_sample_hdi_and_columns_are_independent():
     rng = np.random.default_rng(1)
     x = rng.gamma(3.0, 1.0, 4000)
@@ -72,6 +90,70 @@ def test_weighted_hdi_with_equal_weights_is_the_sample_hdi_and_columns_are_indep
     both = weighted_hdi(cols, w, 0.9)
     for j in range(3):
         np.testing.assert_array_equal(np.array(both)[:, :, j], np.array(weighted_hdi(cols[:, j], w, 0.9)))
+
+
+def test_weighted_hdi_bounding_blocks_of_draws_finds_the_interval_every_draw_would(monkeypatch):
+    """weighted_hdi computes the intervals of only those blocks of draws whose bound can beat an
+    interval found: the widths and medians must be those of every draw's interval, to the bit,
+    for even and very uneven weights (an effective draw or two) and both interval ends; and both
+    those of a brute-force scan of every start and end by linear interpolation."""
+    from creference_bayes.workflows.advice import update
+
+    rng = np.random.default_rng(7)
+    vals = np.column_stack([rng.gamma(3.0, 2.0, 300), rng.normal(size=300), rng.standard_t(2, 300)])
+    w, ess = normalise(rng.standard_normal((60, 300)) * np.linspace(0.0, 6.0, 60)[:, None])
+    assert ess.min() < 3 and ess.max() > 299
+    for prob in (0.5, 0.9):
+        fast = weighted_hdi(vals, w, prob)
+        monkeypatch.setattr(update, "HDI_BLOCK", 10**9)  # one block a row: every draw's interval
+        every = weighted_hdi(vals, w, prob)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(fast[0], every[0])
+        np.testing.assert_array_equal(fast[1], every[1])
+        for j in range(vals.shape[1]):
+            order = np.argsort(vals[:, j])
+            v = vals[order, j]
+            for i in (0, 30, 59):
+                c = np.cumsum(w[i, order]) - 0.5 * w[i, order]
+                up = c + prob <= c[-1]
+                down = c - prob >= c[0]
+                widths = np.concatenate([np.interp(c[up] + prob, c, v) - v[up], v[down] - np.interp(c[down] - prob, c, v)])
+                assert fast[0][i, j] == pytest.approx(widths.min(), rel=1e-9, abs=1e-12)
+                assert fast[1][i, j] == pytest.approx(np.interp(0.5, c, v), rel=1e-9)
+
+
+def test_the_beta_of_a_labels_futures_is_the_likelihoods_maximum_within_the_cap():
+    """good_chance's beta: per column the beta-binomial maximum likelihood with its concentration at
+    most Σ n − 1, as a general optimiser finds it column by column (Nelder–Mead in logit mean and log
+    concentration, from several starts); spread and underdispersed columns (a label whose futures
+    hardly differ, held at the cap) among them, fitted together."""
+    from scipy.optimize import minimize
+    from scipy.special import betaln
+
+    from creference_bayes.workflows.advice import _fit_futures
+
+    rng = np.random.default_rng(3)
+    n_fut = 60
+    n_eff = 1.0 / (1.0 / 16 + 1.0 / rng.uniform(20, 300, n_fut))
+    true = np.column_stack([rng.beta(2, 5, n_fut), rng.beta(30, 10, n_fut), np.full(n_fut, 0.45),
+                            np.full(n_fut, 0.97), rng.beta(0.5, 0.5, n_fut)])
+    p_hat = rng.binomial(16, true) / 16
+    a, b = _fit_futures(p_hat, n_eff)
+    k, cap = p_hat * n_eff[:, None], n_eff.sum() - 1.0
+
+    def nll(x, j):  # the column's beta-binomial negative log-likelihood (the binomial coefficient left out)
+        mu, conc = 1.0 / (1.0 + np.exp(-x[0])), np.exp(min(x[1], np.log(cap)))
+        return -np.sum(betaln(k[:, j] + mu * conc, n_eff - k[:, j] + (1 - mu) * conc) - betaln(mu * conc, (1 - mu) * conc))
+
+    assert np.all(a + b <= cap * (1 + 1e-9))
+    assert a[2] + b[2] == pytest.approx(cap)  # the futures of a fixed P(IoU ≥ t) scatter as the binomial: at the cap
+    for j in range(p_hat.shape[1]):
+        best = min((minimize(nll, x0, args=(j,), method="Nelder-Mead", options={"xatol": 1e-9, "fatol": 1e-12,
+                                                                                   "maxiter": 20000})
+                    for x0 in ([0.0, 1.0], [0.0, 5.0], [1.0, np.log(cap)])), key=lambda r: r.fun)
+        mine = np.array([np.log(a[j] / b[j]), np.log(a[j] + b[j])])
+        assert nll(mine, j) <= best.fun + 1e-6
+        assert a[j] / (a[j] + b[j]) == pytest.approx(1.0 / (1.0 + np.exp(-best.x[0])), abs=1e-4)
 
 
 def test_the_location_sd_of_uneven_weights_is_not_short():

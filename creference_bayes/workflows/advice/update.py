@@ -25,6 +25,8 @@ MIN_ESS = 10.0
 MIN_ESS_FRACTION = 0.01
 #: Shuffles :func:`shuffled_hdi` averages over.
 SHUFFLES = 8
+#: Draws :func:`weighted_hdi` bounds together before it computes their intervals one by one.
+HDI_BLOCK = 8
 
 
 def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,7 +46,8 @@ def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w, ess
 
 
-def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[np.ndarray, np.ndarray]:
+def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
+                 order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Shortest interval holding ``prob`` of the weight, and the weighted median, per row of
     weights and column of values.
 
@@ -58,6 +61,8 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
     values : (N,) draws of one quantity, or (N, k) of k quantities
     weights : (M, N) normalised weights (zeros allowed)
     prob : in (0, 1)
+    order : (k, N) each column's draws in increasing order (``np.argsort(values, axis=0).T``), when
+        the caller sorts once for many calls on the same values
 
     Returns
     -------
@@ -68,50 +73,90 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float) -> tuple[
     w = np.atleast_2d(np.asarray(weights, float))
     big_m, n = w.shape
     k = vals.shape[1]
-    order = np.argsort(vals, axis=0).T                                  # (k, N)
-    v = np.take_along_axis(vals.T, order, axis=1)                       # (k, N) sorted
-    w = w[:, order].transpose(1, 0, 2).reshape(k * big_m, n)            # row t·M + i: weights i, quantity t
+    order = np.argsort(vals, axis=0).T if order is None else np.asarray(order).reshape(k, n)   # (k, N)
+    v = np.take_along_axis(vals.T, order, axis=1)                       # (k, N) each column sorted
+    sorted_w = np.empty((k, big_m, n))                                  # row t·M + i: weights i, quantity t
+    for t in range(k):  # one quantity at a time: a gather (M, k, N) then transposed costs several times more
+        np.take(w, order[t], axis=1, out=sorted_w[t], mode="clip")  # "clip": unbuffered (the indices are valid)
+    w = sorted_w.reshape(k * big_m, n)
     rows = len(w)
-    vbase = np.arange(rows) // big_m * n                                # row r's sorted values: v[r // M]
+    every = np.arange(rows)
     vflat = v.ravel()
+    to_v = every // big_m * n - every * n  # entry g of the flat weights (row r from r · n) → g + to_v[r] of vflat
     # positions of the draws on the weight axis, strictly increasing within a row
-    c = np.cumsum(w, axis=1) - 0.5 * w + np.arange(n) * 1e-15
+    c = np.cumsum(w, axis=1)
+    c -= 0.5 * w
+    c += np.arange(n) * 1e-15
     flat = c.ravel()
-    shifted = (c + 2.0 * np.arange(rows)[:, None]).ravel()  # rows apart on one axis (c is within [0, 1])
+    shifted = c + 2.0 * every[:, None]  # rows apart on one axis (c is within [0, 1])
+    shifted = shifted.ravel()
 
     def at(r, p):  # the values of rows r at weight positions p (1-D), interpolated between draws
-        j = np.clip(np.searchsorted(shifted, p + 2.0 * r) - r * n, 1, n - 1)
-        c0, c1 = flat[r * n + j - 1], flat[r * n + j]
+        lo = r * n
+        g = np.searchsorted(shifted, p + 2.0 * r)  # entry of the flat arrays (row r's own from r · n)
+        np.clip(g, lo + 1, lo + n - 1, out=g)
+        c0, c1 = flat[g - 1], flat[g]
         t = np.clip((p - c0) / np.maximum(c1 - c0, 1e-300), 0.0, 1.0)
-        v0 = vflat[vbase[r] + j - 1]
-        return v0 + t * (vflat[vbase[r] + j] - v0)
+        g += to_v[r]
+        v0 = vflat[g - 1]
+        return v0 + t * (vflat[g] - v0)
 
-    def shortest(r, i, widths):  # the least of ``widths`` per row (rows r, each row's in a run)
+    def run(r, first, stop):  # the draws first <= i < stop of segments in rows r, as (rows, draws)
+        count = np.maximum(stop - first, 0)
+        return np.repeat(r, count), np.arange(count.sum()) - np.repeat(np.cumsum(count) - count - first, count)
+
+    def shortest(r, widths):  # the least of ``widths`` per row (rows r, each row's in a run)
         out = np.full(rows, np.inf)
         if len(r):
             first = np.flatnonzero(np.diff(r, prepend=-1))
             out[r[first]] = np.minimum.reduceat(widths, first)
         return out
 
+    def least(first, stop, up):  # per row, the shortest interval from (up) or to a draw first <= i < stop
+        def far(r, g):  # the other end of row r's interval from (up) or to draw g
+            return at(r, flat[g] + prob) if up else at(r, flat[g] - prob)
+
+        # Both ends of the interval move up with the draw, so a block of HDI_BLOCK draws is at least
+        # (the far end at its first draw) − (the draw end at its last) wide: a block that cannot beat
+        # the width of one interval per block found (from its first draw, to its last) is skipped
+        rb, kb = run(every, 0, -(-np.maximum(stop - first, 0) // HDI_BLOCK))
+        s = rb * n + first[rb] + kb * HDI_BLOCK
+        e = rb * n + np.minimum(first[rb] + (kb + 1) * HDI_BLOCK, stop[rb]) - 1
+        end = far(rb, s) if up else far(rb, e)
+        vs, ve = vflat[s + to_v[rb]], vflat[e + to_v[rb]]
+        found = shortest(rb, end - vs if up else ve - end)[rb]
+        bound = end - ve if up else vs - end
+        keep = bound <= found + 1e-9 * (1.0 + np.abs(found))  # rounding may break ties
+        r, g = run(rb[keep], s[keep], e[keep] + 1)
+        return shortest(r, far(r, g) - vflat[g + to_v[r]] if up else vflat[g + to_v[r]] - far(r, g))
+
+    def first_failing(holds):  # per row, the first draw where holds(entries g of flat) fails (a bisection:
+        lo, hi = np.zeros(rows, int), np.full(rows, n)  # it holds on a run from the first draw)
+        while np.any(lo < hi):
+            mid = (lo + hi) // 2
+            ok = holds(every * n + np.minimum(mid, n - 1))
+            lo, hi = np.where((lo < hi) & ok, mid + 1, lo), np.where((lo < hi) & ~ok, mid, hi)
+        return lo
+
     # the width is piecewise linear in the start, so the shortest interval starts or ends at a draw:
-    # from each draw that can start one (c + prob within the row), and to each that can end one
-    r, i = np.nonzero(c + prob <= c[:, -1:])
-    width = shortest(r, i, at(r, c[r, i] + prob) - vflat[vbase[r] + i])
-    r, i = np.nonzero(c - prob >= c[:, :1])
-    width = np.minimum(width, shortest(r, i, vflat[vbase[r] + i] - at(r, c[r, i] - prob)))
-    every = np.arange(rows)
-    width = np.where(np.isfinite(width), width, vflat[vbase + n - 1] - vflat[vbase])  # too few draws to hold prob
+    # from each draw that can start one (c + prob within the row: a run from the first draw), and to
+    # each that can end one (c − prob within the row: a run to the last)
+    last, head = c[:, -1].copy(), c[:, 0].copy()
+    width = least(np.zeros(rows, int), first_failing(lambda g: flat[g] + prob <= last), True)
+    width = np.minimum(width, least(first_failing(lambda g: ~(flat[g] - prob >= head)), np.full(rows, n), False))
+    bottom = every // big_m * n
+    width = np.where(np.isfinite(width), width, vflat[bottom + n - 1] - vflat[bottom])  # too few draws to hold prob
     median = at(every, np.full(rows, 0.5))
     width, median = width.reshape(k, big_m).T, median.reshape(k, big_m).T
     return (width[:, 0], median[:, 0]) if values.ndim == 1 else (width, median)
 
 
 def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
-                 n_shuffles: int = SHUFFLES) -> tuple[np.ndarray, np.ndarray]:
-    """The HDI of ``values`` ((N,) or (N, k), as :func:`weighted_hdi`) as each row of ``weights``
-    (M, N) would see it if it said nothing about them: the row shuffled over the draws (the same
-    effective sample size), the width and the width over the median averaged over ``n_shuffles``
-    shuffles.
+                 n_shuffles: int = SHUFFLES, order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The HDI of ``values`` ((N,) or (N, k), as :func:`weighted_hdi`, ``order`` as there) as each
+    row of ``weights`` (M, N) would see it if it said nothing about them: the row shuffled over the
+    draws (the same effective sample size), the width and the width over the median averaged over
+    ``n_shuffles`` shuffles.
 
     A shortest interval from weighted draws is too narrow, the more so the fewer the effective
     draws; scaling a row's HDI by (equal-weight HDI) / (this) takes that out.
@@ -121,10 +166,11 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     width in the unit of ``values``, share (width over the median); (M,) or (M, k)
     """
     w = np.atleast_2d(np.asarray(weights, float))
+    order = np.argsort(np.asarray(values, float).reshape(w.shape[1], -1), axis=0).T if order is None else order
     width = share = 0.0
     for _ in range(n_shuffles):
         shuffled = np.take_along_axis(w, np.argsort(rng.random(w.shape), axis=1), axis=1)
-        wd, median = weighted_hdi(values, shuffled, prob)
+        wd, median = weighted_hdi(values, shuffled, prob, order)
         width = width + wd / n_shuffles
         share = share + wd / median / n_shuffles
     return width, share
