@@ -10,6 +10,7 @@ be missed (the interpreter's start, a few tenths of a second, is counted for eve
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 import time
@@ -17,9 +18,14 @@ import time
 import psutil
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("command", nargs=argparse.REMAINDER, help="the command and its arguments")
+    args = p.parse_args(argv)
+    if not args.command:
+        p.error("give a command to run")
     start = time.perf_counter()
-    proc = subprocess.Popen(argv)
+    proc = subprocess.Popen(args.command)
     root = psutil.Process(proc.pid)
     seen: dict[int, float] = {}
     while proc.poll() is None:
@@ -39,4 +45,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    raise SystemExit(main())
