@@ -416,6 +416,41 @@ def test_the_kernel_follows_the_blocks_and_every_chain_is_an_independent_unit():
         np.testing.assert_allclose(a.log_prob[:, -5:].ravel(), target(target.join(wc, wo)), rtol=1e-7, atol=1e-7)
 
 
+def test_a_step_along_the_ridge_moves_the_camera_height_and_every_ground_offset_together():
+    """Objects' images depend on the camera height h and their ground offsets g only through
+    h − g. A ridge step must move h and every g by the same amount, keep each object's place
+    relative to the camera (x, z, yaw, sizes) whatever the shear B, and be undone by the
+    opposite step. A frame whose sizes all come from class priors has no ridge step."""
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.moves import BlockKernel, BlockTarget
+    from creference_bayes.models.contract import C_HEIGHT, O_GROUND
+
+    model, est, _ = _scene_model(2, m=3, n_annotations=2, noise_px=2.0)
+    fit = est.fitted(model)
+    assert fit.object_free[:, O_GROUND].all() and fit.camera_free[C_HEIGHT]
+    wc0, wo0 = (x[0] for x in WorkingCoords(fit).to_work(est.camera[None], est.objects[None]))
+    B = np.random.default_rng(0).normal(0.0, 0.5, (3, 7, 5)) * fit.object_free[:, :, None]
+    target = BlockTarget(fit, 1.0, wc0, B, np.zeros((3, 7)))
+    wc = wc0 + np.array([[0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.01, -0.01, 0.05, 0.0]])
+    wt = wo0[None] - np.einsum("mik,nk->nmi", B, wc - wc0)
+    eps = np.array([0.1, -0.07])
+    pc, pt = target.along_ridge(wc, wt, eps)
+    (c, o), (cp, op) = target.natural(target.join(wc, wt)), target.natural(target.join(pc, pt))
+    np.testing.assert_allclose(cp[:, C_HEIGHT], c[:, C_HEIGHT] * np.exp(eps))
+    np.testing.assert_allclose(op[..., O_GROUND] - o[..., O_GROUND] - (cp[:, C_HEIGHT] - c[:, C_HEIGHT])[:, None], 0.0,
+                               atol=1e-12)
+    np.testing.assert_allclose(op[..., :6], o[..., :6], rtol=1e-9, atol=1e-9)
+    back = target.along_ridge(pc, pt, -eps)
+    np.testing.assert_allclose(back[0], wc, atol=1e-12)
+    np.testing.assert_allclose(back[1], wt, atol=1e-12)
+    assert BlockKernel(target, np.eye(5), np.eye(7)[None].repeat(3, 0), wc0, wo0).sr > 0
+    free, est2, _ = _scene_model(2, m=3, n_annotations=2, noise_px=2.0, sizes_known=False)  # sizes from priors
+    fit2 = est2.fitted(free)
+    assert fit2.object_free[:, O_GROUND].all() and fit2.camera_free[C_HEIGHT]
+    t2 = BlockTarget(fit2, 1.0, wc0, np.zeros((3, 7, 5)), np.zeros((3, 7)))
+    assert not t2.ridge.any() and BlockKernel(t2, np.eye(5), np.eye(7)[None].repeat(3, 0), wc0, wo0).sr is None
+
+
 def test_block_sweeps_sample_a_frame_as_the_laplace_approximation_says_where_it_is_gaussian():
     """Five objects of known size, many precise annotations: the posterior is close to Gaussian in
     the working coordinates, so the draws' distance sd must agree with the Laplace approximation's

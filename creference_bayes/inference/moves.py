@@ -4,8 +4,10 @@
 the camera, each accepted on its own terms (objects coupled by a pair term coloured apart), then
 the camera with every object riding along its regression on it; by random-walk steps
 (:class:`RandomWalkSweep`) or ``tries`` Student-t independence proposals per block, one taken by
-multiple-try Metropolis (:class:`IndependenceSweep`). A walker's blobs hold each block's
-log-density (camera, each object, each pair term).
+multiple-try Metropolis (:class:`IndependenceSweep`); a random-walk sweep of a frame with an
+object of known size ends with a step along the **ridge** of the camera height and the ground
+offsets (:meth:`BlockKernel.ridge`). A walker's blobs hold each block's log-density (camera, each
+object, each pair term).
 
 **Ensemble moves** (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1`` form ensemble ``g``;
 :class:`GroupedDEMove` and :class:`GroupedStretchMove` draw partners only from the other half of
@@ -18,7 +20,7 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
-from ..models.contract import O_YAW, Model
+from ..models.contract import C_HEIGHT, O_GROUND, O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
 __all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "RandomWalkSweep",
@@ -58,6 +60,22 @@ def multiple_try_pick(log_w_tries: np.ndarray, log_w_current: np.ndarray,
     return j, ok
 
 
+#: The widest log-size sd (every dimension) of a size that counts as known for the ridge step: a
+#: catalogue's answer (0.03) is, a class's prior (0.11 or more in its widest dimension) is not.
+KNOWN_SIZE_LOG_SD = 0.05
+#: The ridge step's acceptance its scale adapts towards while the sampler tunes (long steps: the
+#: ridge is long and flat; docs/studies/sampler.md, "The camera height's tail").
+RIDGE_ACC = 0.25
+
+
+def sized(model: Model) -> bool:
+    """Whether some object's size is known (given, or its prior within :data:`KNOWN_SIZE_LOG_SD`):
+    its depth is then pinned by its image, so the camera height trades against the ground offsets
+    along the ridge, which the blocks' own moves cross slowly (docs/studies/sampler.md, "The
+    camera height's tail")."""
+    return any(o.sizes is not None or np.max(o.size_prior.log_sd) <= KNOWN_SIZE_LOG_SD for o in model.objects)
+
+
 class BlockTarget:
     """The log-posterior of ``model`` at temperature ``T``, by blocks, in the sampler's coordinates.
 
@@ -77,6 +95,10 @@ class BlockTarget:
         self.coords = WorkingCoords(model)
         self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
         self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
+        #: (m,) the objects whose ground offset moves with the camera height along the ridge
+        #: (:meth:`along_ridge`): those whose ground offset is free, when the camera height is and
+        #: some object's size is known (:func:`sized`); none otherwise
+        self.ridge = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT] & sized(model)
         self.cf, self.of = model.camera_free, model.object_free
         self.kc = int(self.cf.sum())
         self.m = model.n_objects
@@ -102,6 +124,18 @@ class BlockTarget:
     def unshear(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
         """Working object coordinates (n, m, 7) of sheared ones."""
         return wt + np.einsum("mik,nk->nmi", self.B, wc - self.c0)
+
+    def along_ridge(self, wc: np.ndarray, wt: np.ndarray, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states (``wc`` (n, 5), ``wt`` (n, m, 7)) moved along the ridge by ``eps`` (n,):
+        log h → log h + ε and each ridge object's g → g + h (e^ε − 1), every other working
+        coordinate kept (h − g, so each object's place relative to the camera, unchanged). Unit
+        Jacobian; −ε undoes it."""
+        pc = wc.copy()
+        pc[:, C_HEIGHT] += eps
+        wo = self.unshear(wc, wt)
+        with np.errstate(over="ignore"):
+            wo[..., O_GROUND] += self.ridge * (np.exp(wc[:, C_HEIGHT]) * np.expm1(eps))[:, None]
+        return pc, wo - np.einsum("mik,nk->nmi", self.B, pc - self.c0)
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
@@ -214,6 +248,8 @@ class BlockKernel:
         self.tries, self.adapt, self.calls = int(tries), adapt, 0
         self.colours = colours(target.m, target.model.pairs)
         self.accepted = {"camera": [], "objects": [], "all": []}
+        #: the ridge step's scale in log height (None: no ridge), from the camera's proposal
+        self.sr = 2.38 * float(np.linalg.norm(Lc[C_HEIGHT])) if target.ridge.any() else None
 
     # -- state <-> blocks ---------------------------------------------------------------------------
     def _unpack(self, state):
@@ -338,17 +374,35 @@ class BlockKernel:
             lp_c = np.where(b, lpc, lp_c)
             lp_o = np.where(b[:, None], lpo, lp_o)
             lp_p = np.where(b[:, None], lpp, lp_p)
+        r = np.zeros(C, bool)
         if not independent:
+            if self.sr is not None:
+                wc, wt, lp_c, lp_o, lp_p, r = self.ridge(wc, wt, lp_c, lp_o, lp_p, rs)
             self.calls += 1
             if self.adapt:
                 rate = 3.0 / (self.calls + 10) ** 0.6
                 self.so = self.so * np.exp(rate * (a.mean(axis=0) - 0.3))
                 self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
-        moved = a.any(axis=1) | b
+                if self.sr is not None:
+                    self.sr *= np.exp(rate * (r.mean() - RIDGE_ACC))
+        moved = a.any(axis=1) | b | r
         self.accepted["objects"].append(a.mean(axis=0))
         self.accepted["camera"].append(float(b.mean()))
         self.accepted["all"].append(float(moved.mean()))
         return self._pack(state, wc, wt, lp_c, lp_o, lp_p), moved
+
+    def ridge(self, wc, wt, lp_c, lp_o, lp_p, rs):
+        """One random-walk step of every walker along the ridge (:meth:`BlockTarget.along_ridge` by
+        ε ~ N(0, ``sr``²), ``sr`` adapted towards an acceptance of :data:`RIDGE_ACC` while the
+        sampler tunes), accepted by the whole posterior (the map has unit Jacobian and −ε undoes
+        it). Returns the updated blocks and which walkers moved."""
+        t, m = self.t, self.t.m
+        pc, pt = t.along_ridge(wc, wt, self.sr * rs.standard_normal(len(wc)))
+        new = t.blocks(t.join(pc, pt))
+        with np.errstate(invalid="ignore"):
+            ok = np.log(rs.uniform(size=len(wc))) < new.sum(axis=1) - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1))
+        return (np.where(ok[:, None], pc, wc), np.where(ok[:, None, None], pt, wt), np.where(ok, new[:, 0], lp_c),
+                np.where(ok[:, None], new[:, 1:1 + m], lp_o), np.where(ok[:, None], new[:, 1 + m:], lp_p), ok)
 
 
 class RandomWalkSweep(emcee.moves.Move):
