@@ -390,6 +390,8 @@ def estimate(scene: Scene | str | Path | Mapping, settings: EstimateSettings | N
                     from .inference.map import refine
 
                     map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
+                if "pilot" in diag.info:  # the draws' pilot (the posterior's median camera) is the result's
+                    m = m.variant(pilot=diag.info.pop("pilot"))
         provenance = {"model": st.model, "preset": st.preset,
                       "options": {k: option_record(st.options[k]) for k in sorted(st.options)},
                       "orientation": st.orientation,

@@ -117,7 +117,7 @@ def test_the_race_keeps_the_top_request_and_says_which_it_dropped(example):
     the JSON, the table) and is ranked after those weighed on every future."""
     from creference_bayes.workflows.advice.inputs import advice_table
 
-    s = dict(n_draws=200, n_futures=60, objective="hdi", target_hdi_width=0.0, min_gain=0.1)
+    s = dict(n_draws=400, n_futures=60, objective="hdi", target_hdi_width=0.0, min_gain=0.1)
     full = _advise(example, seed=3, settings=AdviceSettings(**s, race_every=1))
     raced = _advise(example, seed=3, settings=AdviceSettings(**s))
     top, second = full.predictions[:2]

@@ -91,8 +91,10 @@ class Blocks:
         if not np.all(np.isfinite(self.state.log_prob)):
             raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
 
-    def tune(self, bar) -> int:
-        """The warm-up (module docstring); returns its steps."""
+    def tune(self, bar, repilot=None) -> int:
+        """The warm-up (module docstring); returns its steps. ``repilot`` (or None) is called with
+        the cameras (n, 5) of each segment's second half, the model possibly changed in place: the
+        next segment, and the main phase, start from log-densities computed anew."""
         s, m = self.s, self.model.n_objects
         wc0, wo0, Sc0, Ao0, B0, _ = self.start
         seg, state, done, hist = self.seg, self.state, 0, []
@@ -105,6 +107,7 @@ class Blocks:
                 break
             keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
+            self._repilot(repilot, wcs, wos)
             Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
             mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
             if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
@@ -116,8 +119,16 @@ class Blocks:
             state = seg.state(wc, wo, state.random_state)
             hist = []
         seg.kernel.adapt = False
+        if repilot is not None:
+            keep = hist[len(hist) // 2:]
+            self._repilot(repilot, np.array([h[0] for h in keep]), np.array([h[1] for h in keep]))
+            state = seg.state(*seg.target.working(state.coords), state.random_state)
         self.seg, self.state = seg, state
         return s.warmup
+
+    def _repilot(self, repilot, wcs: np.ndarray, wos: np.ndarray) -> None:
+        if repilot is not None:
+            repilot(WorkingCoords(self.model).from_work(wcs.reshape(-1, 5), wos.reshape((-1,) + wos.shape[2:]))[0])
 
     def run(self, steps: int):
         for self.state in self.seg.run(self.state, steps):

@@ -219,10 +219,12 @@ class Ensemble:
         self.moved: list = []
         self.info: dict = {"warmup_stages": [], "reparametrised": False}
 
-    def tune(self, bar) -> int:
+    def tune(self, bar, on_stage=None) -> int:
         """The warm-up: stages, the coordinates and the proposal refitted after each, until a stage
         run in the coordinates fitted before it looks like the sample they were fitted to and the
-        proposal is accepted often enough (or :data:`MAX_WARMUP`); returns its steps."""
+        proposal is accepted often enough (or :data:`MAX_WARMUP`); returns its steps. ``on_stage``
+        (or None) is called with each stage's second half (n, ndim), before the next stage's
+        log-densities are computed (the target may change in place)."""
         s, safe, coords, centers, info = self.s, self.safe, self.coords, self.centers, self.info
         pos, rstate, d = self.pos, self.rstate, self.pos.shape[1]
         proposal, n_warm, stage, stable, reference = None, 0, s.stage, False, None
@@ -246,8 +248,10 @@ class Ensemble:
             n_warm += stage
             info["warmup_stages"].append(stage)
             bar.update(stage)
+            tail_p = coords.inverse(tail_u)
+            if on_stage is not None:
+                on_stage(tail_p)
             try:
-                tail_p = coords.inverse(tail_u)
                 coords = Coordinates.fit(tail_p, shear=centers is None)
                 fitted = coords.forward(tail_p)
                 proposal = _fit_proposal(fitted, s, None if centers is None else coords.forward(centers), self.fit_rng)

@@ -75,8 +75,9 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     object block, block sweeps for several, under one warm-up and one stopping rule.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
-    when the MAP has zero posterior density. The model is sampled at the MAP's handedness and pilot
-    (:meth:`MapState.fitted`); ``model`` itself is not changed.
+    when the MAP has zero posterior density. The model is sampled at the MAP's handedness and at a
+    pilot moved to the warm-up's posterior median (:func:`_repilot`, ``info["pilot"]`` of the
+    diagnostics); ``model`` itself is not changed.
     """
     t0 = time.perf_counter()
     s = settings or SamplerSettings()
@@ -86,7 +87,7 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     kernel = (Whole if explored_whole(model) else Blocks)(model, start, s, rng, temperature, map_est)
 
     with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
-        warm = kernel.tune(bar)
+        warm = kernel.tune(bar, _repilot(model))
         (cams, objs), lp, it, thin, diag = run_chains(kernel, kernel.natural,
                                                       lambda c, o: _columns(model, c, o, map_est), s, bar)
     draws = Draws(cams, objs, lp)
@@ -94,8 +95,26 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
     acceptance = dict(zip(("all", "camera", "objects"), kernel.acceptance()))
+    info = kernel.report(draws)
+    if model.needs_pilot:
+        info["pilot"] = model.pilot.copy()
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, kernel.report(draws))
+                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, info)
+
+
+def _repilot(model: Model):
+    """What moves the model's pilot (the camera at which each drawn segment's reading is fixed,
+    e.g. :meth:`.metrology.MetrologyModel.set_pilot`) to the median camera of warm-up draws, called
+    by the kernels after each warm-up segment; None for a model without a pilot. ``model`` is the
+    sampler's own copy.
+
+    The MAP's camera is a poor pilot where the posterior is wide in focal length: the MAP moves far
+    with any new annotation, and every reading with it. The posterior's median camera moves as much
+    as the posterior does; repeated over the warm-up's segments, the pilot approaches the camera that
+    is the median of the posterior it defines (docs/inference.md, "The pilot")."""
+    if not model.needs_pilot:
+        return None
+    return lambda cams: model.set_pilot(np.median(cams, axis=0))
 
 
 def _interior(lower: np.ndarray, upper: np.ndarray, v: np.ndarray, margin: float = 1e-7) -> np.ndarray:

@@ -65,8 +65,10 @@ class Whole:
                                modes=[(m.center, m.cov) for m in modes[1:]])
         self.n_chains, self.walkers = self.kernel.n_chains, self.kernel.walkers
 
-    def tune(self, bar) -> int:
-        return self.kernel.tune(bar)
+    def tune(self, bar, repilot=None) -> int:
+        """The ensemble's warm-up; ``repilot`` (or None) is called with the cameras (n, 5) of each
+        stage's second half (:meth:`.blocks.Blocks.tune`)."""
+        return self.kernel.tune(bar, None if repilot is None else lambda q: repilot(self.natural(q[None])[0][0]))
 
     def run(self, steps: int):
         for q, lp in self.kernel.run(steps):  # the log-density in working coordinates

@@ -23,9 +23,11 @@ Line noise
     is the bins' mean of the Student-t around log ℓ_j − e_b with scale √(s² + v_b)
     (:func:`reading_log_likelihood`). ``linear`` reads the segment as drawn with s_j² = s² + v_j,
     v_j = σ_line² |∇ log ℓ_j|² over its endpoint coordinates; ``corrected`` removes the reading's
-    median bias too (:func:`segment_reading`). Each is taken once, at a *pilot* camera
-    (:meth:`MetrologyModel.set_pilot`), and held fixed: recomputed at every state, the normaliser
-    −log s_j would reward states where the lines look insensitive.
+    median bias too (:func:`segment_reading`). Each is taken at a *pilot* camera
+    (:meth:`MetrologyModel.set_pilot`: the optimiser's optimum, then the sampler's warm-up median,
+    :func:`~creference_bayes.inference.sampler._repilot`), and held fixed for every state:
+    recomputed at every state, the normaliser −log s_j would reward states where the lines look
+    insensitive.
 Stated confidence
     With a confidence map g (:mod:`.confidence_map`), a range stated with confidence c is read as
     the worker's central interval at coverage g(c): its log-centre measures the log-length with
