@@ -928,11 +928,11 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     the blocks barely correlate, so random-walk moves go further).
 
     An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
-    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md); an
-    annotation by the tempered update (:func:`~.update.tempered_update`). Either takes
-    ``max(8, d)`` random-walk steps a stage for d parameters, at most 32 (mixing slows with d; the
-    Kalman update alone leaves a frame's other targets off by up to a third of their sd:
-    docs/studies/advice.md, "Racing the requests").
+    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md),
+    then by the sampler's block sweeps (:func:`~.fallback.block_sweeps`: the Kalman update alone
+    leaves a frame's other targets off by up to a third of their sd); an annotation by the tempered
+    update (:func:`~.update.tempered_update`), ``max(8, d)`` random-walk steps a stage for d
+    parameters, at most 32 (mixing slows with d).
 
     ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
     the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
@@ -967,8 +967,10 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
             ratio = -0.5 * np.sum(z * z, axis=-1)
         return log_p.reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
 
-    moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target,
-                          n_moves=_n_moves(x.shape[1]))
+    from .fallback import block_sweeps
+
+    moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target)
+    moved = block_sweeps(obs, values, wc[0], wo[0], moved, rng, temperature)
     c, o = natural(moved)
     return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
 
