@@ -40,6 +40,7 @@ TINY = {
     "tree_cpu.py": [([sys.executable, "-c", "print('ran')"], [])],
     "speed_by_objects.py": [(["--counts", "3", "--scenes", "1", "--max-steps", "400"], [])],
     "serve_speed.py": [(["--targets", "1", "--repeats", "1"], [])],
+    "fallback_accuracy.py": [(["--sweeps", "0", "2", "--seeds", "1", "--futures", "2", "--min-ess", "100"], [])],
     "frame_calibration.py": [(["--frames", "1", "--counts", "3", "--tiers", "low", "--min-ess", "100", "--out", "fc"],
                               ["fc/frames.jsonl", "fc/frames.md"])],
     "horizon_study.py": [(["--n", "1", "--min-ess", "100"], [])],

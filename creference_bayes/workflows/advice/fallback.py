@@ -45,8 +45,8 @@ class AnsweredTarget(BlockTarget):
 
 
 def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: np.ndarray, rng, temperature: float,
-                 sweeps: int = FALLBACK_SWEEPS) -> np.ndarray:
-    """``sweeps`` random-walk sweeps of the block kernel (the camera, then every object block on
+                 sweeps: int | None = None) -> np.ndarray:
+    """``sweeps`` (None: :data:`FALLBACK_SWEEPS`) random-walk sweeps of the block kernel (the camera, then every object block on
     its own) over F sets of draws ``x`` (F, N, d) in the working coordinates of ``obs.model``'s free
     parameters (fixed entries from ``wc0`` (5,), ``wo0`` (m, 7)), set f leaving the old posterior
     times the f-th answer (``values`` (F, p)) invariant. Each block's proposal is that block's
@@ -70,6 +70,6 @@ def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: n
     with np.errstate(invalid="ignore"):
         state = emcee.State(u.copy(), log_prob=blobs.sum(axis=1), blobs=blobs)
     rs = np.random.RandomState(np.random.MT19937(rng.integers(2**63)))
-    for _ in range(sweeps):
+    for _ in range(FALLBACK_SWEEPS if sweeps is None else sweeps):
         state, _ = kernel.sweep(state, rs, independent=False)
     return np.asarray(state.coords).reshape(F, N, d)
