@@ -219,8 +219,8 @@ def test_the_kalman_update_gives_the_conjugate_posterior_of_a_correlated_gaussia
 
 def test_the_kalman_update_moves_several_answers_at_once_each_to_its_own_posterior():
     """The advice's collapsed futures of one request are moved in one pass: three answers of the
-    conjugate problem above, each set of draws to its own answer's posterior (with Metropolis steps
-    on its own density); one set in a batch of one is the unbatched call, random number for number."""
+    conjugate problem above, each set of draws to its own answer's posterior (its own density
+    checked at each step); one set in a batch of one is the unbatched call, random number for number."""
     rng = np.random.default_rng(6)
     cov = np.array([[1.0, 0.8], [0.8, 1.0]])
     prior = rng.multivariate_normal(np.zeros(2), cov, 2000)
@@ -231,7 +231,7 @@ def test_the_kalman_update_moves_several_answers_at_once_each_to_its_own_posteri
         return -0.5 * (np.einsum("fni,ij,fnj->fn", x, inv, x) + ((x[..., 0] - values[:, :1]) / sd[0]) ** 2)
 
     moved = kalman_update(np.repeat(prior[None], 3, axis=0), lambda x: x[..., :1], values, sd, rng,
-                          log_density=log_density, n_moves=4)
+                          log_density=log_density)
     assert moved.shape == (3, 2000, 2)
     gain = cov[:, :1] / (cov[0, 0] + sd[0] ** 2)
     post = cov - gain @ cov[:1, :]
@@ -290,8 +290,7 @@ def test_a_kalman_step_that_would_leave_the_new_posterior_keeps_the_draw():
     def log_density(y):
         return np.where(y[:, 1] > 0, -0.5 * (y[:, 0] + 1.0) ** 2 / 0.01, -np.inf)
 
-    moved = kalman_update(x, lambda y: y[:, :1], np.array([-1.0]), np.array([0.1]), rng, log_density=log_density,
-                          n_moves=8)
+    moved = kalman_update(x, lambda y: y[:, :1], np.array([-1.0]), np.array([0.1]), rng, log_density=log_density)
     plain = kalman_update(x, lambda y: y[:, :1], np.array([-1.0]), np.array([0.1]), np.random.default_rng(8))
     assert np.any(plain[:, 1] <= 0)    # unguarded, some would
     assert np.all(moved[:, 1] > 0)

@@ -268,23 +268,23 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
 
 
 def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndarray, rng, *, steps: int = 4,
-                  log_density=None, n_moves: int = 0) -> np.ndarray:
+                  log_density=None) -> np.ndarray:
     """Move draws of the current posterior to the one after a normal observation of some of their
     quantities: ``value`` = q(θ) + noise of spread ``sd``, by the ensemble Kalman update with
     perturbed observations, in ``steps`` steps of the observation with its variance multiplied by
-    ``steps`` (an ensemble smoother with multiple data assimilation, Emerick & Reynolds 2013), then
-    ``n_moves`` random-walk Metropolis steps that leave the new posterior ``log_density`` invariant.
+    ``steps`` (an ensemble smoother with multiple data assimilation, Emerick & Reynolds 2013).
 
     For a normal posterior and a linear q the draws come out as draws of the conjugate posterior,
-    none duplicated or dropped; the steps, each with q taken anew, follow a q that is not linear,
-    and the Metropolis steps correct what is not normal (a posterior cut off by the horizon). A draw
-    that a step would move where q or the new posterior is not defined stays where it was. Used for
+    none duplicated or dropped; the steps, each with q taken anew, follow a q that is not linear;
+    what is not normal (a posterior cut off by the horizon) is left to the caller's Metropolis
+    steps (the advice's: :func:`~.fallback.block_sweeps`). A draw that a step would move where q or
+    the new posterior (``log_density``, when given) is not defined stays where it was. Used for
     answers that enter as a normal prior, where the tempered update's few random-walk steps in a
     frame's many dimensions leave the draws too close together (docs/studies/advice.md).
 
     F observations at once (``particles`` (F, N, d), ``value`` (F, p)) move F sets of draws, each
-    by its own gain and its own Metropolis steps, in one pass: the advice's collapsed futures of
-    one request (the same arithmetic as F calls, a fraction of their overhead).
+    by its own gain, in one pass: the advice's collapsed futures of one request (the same
+    arithmetic as F calls, a fraction of their overhead).
 
     Parameters
     ----------
@@ -296,15 +296,12 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
     rng : numpy Generator
     steps : how many steps the observation is split into
     log_density : callable (N, d) → (N,), the new posterior's unnormalised log-density, −∞ outside
-        its support (needed for ``n_moves`` > 0); for F sets, (F, N, d) → (F, N), set f's own
-    n_moves : Metropolis steps after the update (proposals with the moved draws' covariance)
+        its support, or None; for F sets, (F, N, d) → (F, N), set f's own
 
     Returns
     -------
     (N, d) draws of the new posterior, equally weighted, or (F, N, d)
     """
-    if n_moves > 0 and log_density is None:
-        raise ValueError("kalman_update: n_moves > 0 needs the new posterior's log_density")
     x = np.array(particles, float)
     batched = x.ndim == 3
     if not batched:  # one set: the same code on a batch of one (the same random numbers)
@@ -333,13 +330,6 @@ def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndar
             stay |= ~np.isfinite(log_density(x_new))
         x_new[stay], q_new[stay] = x[stay], q[stay]
         x, q = x_new, q_new
-    if n_moves > 0:
-        dx = x - x.mean(axis=1, keepdims=True)
-        cov = np.einsum("fni,fnj->fij", dx, dx) / (n - 1)
-        diag = np.einsum("fii->fi", cov)
-        chol = np.linalg.cholesky(cov + 1e-8 * diag[:, :, None] * np.eye(d) + 1e-300 * np.eye(d))
-        x, _, _, _ = _random_walk(lambda p: log_density(p)[None], x, log_density(x)[None], np.ones(1), chol,
-                                  np.full(n_sets, 2.38 / np.sqrt(d)), rng, n_moves)
     return x if batched else x[0]
 
 
