@@ -28,7 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sweeps", type=int, nargs="+", default=[0, 6], help="block sweeps after the Kalman update (0: none)")
+    p.add_argument("--sweeps", type=int, nargs="+", default=[0, 6],
+                   help="block sweeps after the Kalman update (0: none)")
     p.add_argument("--seeds", type=int, default=8, help="seeds of the move (default: %(default)s)")
     p.add_argument("--futures", type=int, default=10, help="futures moved at once (default: %(default)s)")
     p.add_argument("--min-ess", type=float, default=1000.0, help="bulk ESS of the two estimates (default: %(default)s)")
@@ -44,7 +45,8 @@ def main(argv=None) -> int:
     from creference_bayes.workflows.advice.answers import CATALOGUE_LOG_SD, MOUNTING_SD, with_mounting, with_size
     from creference_bayes.workflows.advice.observe import MountingObservation, SizeObservation
 
-    d, _ = truth_scene(5, m=args.targets, noise_px=2.0, n_annotations=1, sizes_known=False, focal_known=True, depth=(8.0, 35.0))
+    d, _ = truth_scene(5, m=args.targets, noise_px=2.0, n_annotations=1, sizes_known=False, focal_known=True,
+                       depth=(8.0, 35.0))
     scene = parse_scene(d)
     before = estimate(scene, seed=1, sampling={"min_ess": args.min_ess}, keep_draws=100_000)
     cams, objs, _ = result_draws(before.to_dict(), before.model)

@@ -107,7 +107,7 @@ class Blocks:
                 break
             keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
-            self._repilot(repilot, wcs, wos)
+            self._repilot(repilot, wcs, wos)  # the next segment's states are scored anew
             Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
             mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
             if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
@@ -122,11 +122,13 @@ class Blocks:
         if repilot is not None:
             keep = hist[len(hist) // 2:]
             self._repilot(repilot, np.array([h[0] for h in keep]), np.array([h[1] for h in keep]))
-            state = seg.state(*seg.target.working(state.coords), state.random_state)
+            state = seg.state(*seg.target.working(state.coords), state.random_state)  # scored anew
         self.seg, self.state = seg, state
         return s.warmup
 
     def _repilot(self, repilot, wcs: np.ndarray, wos: np.ndarray) -> None:
+        """``repilot`` (if any) with the cameras of warm-up states (working coordinates wcs (T, C, 5),
+        wos (T, C, m, 7))."""
         if repilot is not None:
             repilot(WorkingCoords(self.model).from_work(wcs.reshape(-1, 5), wos.reshape((-1,) + wos.shape[2:]))[0])
 

@@ -46,8 +46,9 @@ class AnsweredTarget(BlockTarget):
 
 def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: np.ndarray, rng, temperature: float,
                  sweeps: int | None = None) -> np.ndarray:
-    """``sweeps`` (None: :data:`FALLBACK_SWEEPS`) random-walk sweeps of the block kernel (the camera, then every object block on
-    its own) over F sets of draws ``x`` (F, N, d) in the working coordinates of ``obs.model``'s free
+    """``sweeps`` (None: :data:`FALLBACK_SWEEPS`) random-walk sweeps of the block kernel (the
+    camera, then every object block on its own) over F sets of draws ``x`` (F, N, d) in the
+    working coordinates of ``obs.model``'s free
     parameters (fixed entries from ``wc0`` (5,), ``wo0`` (m, 7)), set f leaving the old posterior
     times the f-th answer (``values`` (F, p)) invariant. Each block's proposal is that block's
     covariance in the moved draws, pooled over the sets; its scale adapts to the acceptance. A sweep
