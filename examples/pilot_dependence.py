@@ -6,8 +6,8 @@ The scenes of ``advice_study.py predict --cameras real --tiers light --dataset a
 seeds, each scene handed what the other ``--n`` scenes' data set says): for each scene asked for,
 the starting point and the scene with a second worker's reading of its first repeatable reference
 are estimated as the study does; then the scene with the second reading again, its pilot held at
-the first estimate's, and the starting point with the second estimate's pilot. Per scene: the MAP's
-focal length of both, the 90 % HDI share of the distance (width over median) of the four
+the first estimate's, and the starting point with the second estimate's pilot. Per scene: the
+focal length of both estimates' pilots (the camera their segments are read at), the 90 % HDI share of the distance (width over median) of the four
 estimates, and the realised gain (points) with the pilot free and held, beside the advice study's
 reweighted gain (the starting point's draws reweighted by the reading actually added).
 
@@ -62,7 +62,7 @@ def main(argv=None) -> int:
         return study._predict_case(seed, k, ["light"], 1, None)
 
     study._learn_dataset(types.SimpleNamespace(n=args.n, out=args.out, seed=args.seed), case_of)
-    print("| scene | MAP focal px, before → after | HDI share before | after | after, pilot held | before, after's pilot "
+    print("| scene | pilot focal px, before → after | HDI share before | after | after, pilot held | before, after's pilot "
           "| gain pts: free | held | reweighted |")
     print("|---|---|---|---|---|---|---|---|---|")
     for k in args.scenes:
