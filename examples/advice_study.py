@@ -39,8 +39,8 @@ gains also by the simulated crowd's noise tier.
 ``predict --dataset auto`` runs the scenes through ``creference batch``'s data-set layer: the
 ``--n`` starting points are one data set (a first pass of MAPs into ``OUT/dataset/``), and every
 estimate of a scene, before and after, takes the priors the other scenes hand it (the crowd's
-reference and corner scales and segment floor, where the targets stand), as the advice on a batch
-folder does.
+reference and corner scales, its references' tail and segment floor, where the targets stand), as
+the advice on a batch folder does.
 
 ``--option KEY=VALUE`` (``predict``, ``timing``, ``policy``) gives every estimate and advice a
 metrology model option, as ``creference estimate --option`` does: ``ref_dof=30`` reads references

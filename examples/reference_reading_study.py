@@ -9,7 +9,8 @@ distances; with ``--references relative`` only the relative values, lengths and 
 66), the exact horizon, the focal length unknown; indoor and outdoor alternate. Every scene is
 estimated once per ``--readings`` (the metrology model's ``line_reading``, or ``learned``: the
 marginal reading with the crowd's segment floor fitted to the run's other scenes, as ``creference
-batch`` hands it), with the same seed. Per crowd and reading: the 90 % HDI's coverage of the
+batch`` hands it; or ``tail``: the marginal reading with the crowd's reference tail chosen from
+the run's other scenes, a first pass of MAPs, as ``creference batch`` chooses it), with the same seed. Per crowd and reading: the 90 % HDI's coverage of the
 target's distance and of the focal length, the mean quantile of each truth in its posterior, the
 share of truths above the posterior median, the median HDI width over the distance, the MAP's and
 posterior mean's location errors, and CPU seconds; under the table, 95 % bootstrap intervals over
@@ -28,6 +29,7 @@ Usage::
     python examples/reference_reading_study.py --timing          # CPU of one evaluation, each reading
     python examples/reference_reading_study.py --n 40 --crowds light --readings marginal,learned --out rr_floor
     python examples/reference_reading_study.py --bench --readings linear,marginal,learned --out rr_bench
+    python examples/reference_reading_study.py --n 100 --crowds light,heavy --readings marginal,tail --out rr_tail
 
 ``--bench`` estimates the 32 one-target scenes of ``creference bench --full`` (tiers none, low,
 medium and high: reference end points off by 0, 5, 10 and 30 px) from 5 sets of dimension lines
@@ -75,7 +77,10 @@ SETTINGS = ("indoor", "outdoor")
 #: segment floor learnt from the run's other scenes (the population's, or the bench tier's), as
 #: ``creference batch`` hands it (``read_floor_px``, :func:`~creference_bayes.workflows.batch.segment_floors`).
 LEARNED = "learned"
-READINGS = (*LINE_READINGS, LEARNED)
+#: ... and ``tail``: the marginal reading with the crowd's reference tail (``ref_dof``) chosen from the
+#: run's other scenes' first pass, as ``creference batch`` chooses it (:class:`~creference_bayes.workflows.batch.dataset.TailPool`).
+TAIL = "tail"
+READINGS = (*LINE_READINGS, LEARNED, TAIL)
 #: The references' formats (indices of FORMATS): all ten, or the relative values only.
 REFERENCES = {"mixed": None, "relative": tuple(i for i, (_, mode, rng) in enumerate(FORMATS) if mode == "relative" and not rng)}
 
@@ -108,12 +113,39 @@ def record(sc, result, crowd: str, k: int, reading: str, seconds: float, referen
             "converged": bool(result.converged), "seconds": seconds}
 
 
-def reading_options(reading: str, floor: dict | None) -> dict:
+def reading_options(reading: str, floor: dict | None, tail: dict | None = None) -> dict:
     """The estimate's options of a reading of :data:`READINGS` (``floor``: what
-    :func:`~creference_bayes.workflows.batch.segment_floors` hands the scene, or None)."""
+    :func:`~creference_bayes.workflows.batch.segment_floors` hands the scene, or None; ``tail``:
+    the crowd's tail the other scenes favour, :meth:`~creference_bayes.workflows.batch.dataset.TailPool.estimate`)."""
+    if reading == TAIL:
+        return {"line_reading": "marginal", **({"ref_dof": tail["dof"]} if tail else {})}
     if reading != LEARNED:
         return {"line_reading": reading}
     return {"line_reading": "marginal", **({"read_floor_px": floor["floor_px"]} if floor else {})}
+
+
+def tails(scenes: list, cache: Path) -> list[dict | None]:
+    """Each scene's crowd tail from the other scenes, as ``creference batch`` chooses it: a first
+    pass (a MAP each, seeded by the scene's index), each read (:func:`~creference_bayes.workflows.batch.dataset.read_tail`),
+    pooled leaving the scene out. Kept in ``cache`` (JSON) for a rerun of the same scenes."""
+    from creference_bayes.pipeline import rebuild_model, result_draws
+    from creference_bayes.workflows.batch.dataset import LAPLACE_DRAWS, TailPool, read_tail
+
+    if cache.exists() and len(got := json.loads(cache.read_text())) == len(scenes):
+        return got
+    readings, own = {}, None
+    for k, sc in enumerate(scenes):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = estimate(sc, seed=k, posterior=False).to_dict()
+            model = rebuild_model(d, sc)
+            cams, objs, _ = result_draws(d, model, n=LAPLACE_DRAWS, seed=0)
+        if (t := read_tail(model, cams, objs)) is not None:
+            readings[str(k)], own = t, model.ref_dof
+    pool = TailPool(readings, own) if readings else None
+    got = [pool and pool.estimate(str(k)) for k in range(len(scenes))]
+    cache.write_text(json.dumps(got))
+    return got
 
 
 def run(args) -> None:
@@ -123,6 +155,9 @@ def run(args) -> None:
     done = {(r["crowd"], r["scene"], r["reading"]) for r in _load(path)}
     floors = {crowd: segment_floors([scene(crowd, k, args.references) for k in range(args.n)])
               if LEARNED in args.readings else [None] * args.n for crowd in args.crowds}
+    tail = {crowd: tails([scene(crowd, k, args.references) for k in range(args.n)],
+                         out / f"tails_{crowd}_{args.references}_{args.n}.json")
+            if TAIL in args.readings else [None] * args.n for crowd in args.crowds}
     with open(path, "a") as f:
         for k in range(args.n):
             for crowd in args.crowds:
@@ -135,8 +170,10 @@ def run(args) -> None:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
                         r = estimate(sc, seed=k, sampling={"min_ess": args.min_ess}, keep_draws=0,
-                                     **reading_options(reading, floors[crowd][k]))
+                                     **reading_options(reading, floors[crowd][k], tail[crowd][k]))
                     rec = record(sc, r, crowd, k, reading, time.process_time() - t0, args.references)
+                    if reading == TAIL:
+                        rec["ref_dof"] = r.to_dict()["provenance"]["options"].get("ref_dof")
                     f.write(json.dumps(rec) + "\n")
                     f.flush()
                     if not args.quiet:
@@ -288,12 +325,15 @@ def bench(args) -> str:
     with open(path, "a") as f:
         for seed in args.seeds:
             scenes = [(sid, variant(sc, 5, range(5))) for sid, sc in bench_scenes(CONFIGS["full"], seed)[: args.n]]
-            floors = {}  # each tier's scenes are a data set
-            for tier in {sc.ground_truth["tier"] for _, sc in scenes}:
+            floors, tail = {}, {}  # each tier's scenes are a data set
+            for tier in sorted({sc.ground_truth["tier"] for _, sc in scenes}):
                 at = [sid for sid, sc in scenes if sc.ground_truth["tier"] == tier]
                 floors.update(zip(at, segment_floors([sc for sid, sc in scenes if sid in at])))
+                if TAIL in args.readings:
+                    tail.update(zip(at, tails([sc for sid, sc in scenes if sid in at],
+                                              out / f"tails_bench_{tier}_seed{seed}_{args.n}.json")))
             for k, (sid, sc) in enumerate(scenes):
-                floor = floors[sid]
+                floor, scene_tail = floors[sid], tail.get(sid)
                 sid = sid if seed == 0 else f"{sid}-seed{seed}"
                 x, _, z = sc.targets[0].ground_truth["location_m"]
                 for reading in args.readings:
@@ -302,7 +342,7 @@ def bench(args) -> str:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
                         r = estimate(sc, seed=k, sampling={"min_ess": args.min_ess}, keep_draws=0,
-                                     **reading_options(reading, floor))
+                                     **reading_options(reading, floor, scene_tail))
                     o = r.to_dict()["objects"][0]
                     lo, hi = o["posterior"]["hdi"]["distance_m"]
                     distance = np.hypot(r.draws.objects[..., 0, O_X], r.draws.objects[..., 0, O_Z])

@@ -416,3 +416,125 @@ def test_the_distance_population_example_checks_readings_and_priors_against_the_
         assert rows[scale][1] == "12" and rows[scale][5] == "12"  # readings; every frame's prior, its targets
     assert float(rows["2"][4]) == pytest.approx(float(rows["1"][4]) / 2, abs=0.011)
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def _tail_readings(tier, scenes=6, refs=10):
+    """Each simulated scene's tail reading with its draws all at the truth (the leave-one-out
+    weights then are flat: a reference is scored by its likelihood at the true state)."""
+    from creference_bayes.bench.simulate import simulate_scene, true_state
+    from creference_bayes.pipeline import build_model
+    from creference_bayes.workflows.batch.dataset import read_tail
+
+    out = {}
+    for seed in range(scenes):
+        scene = parse_scene(simulate_scene(seed, tier=tier, n_references=refs, n_target_annotations=2,
+                                           single_values=True))
+        model = build_model(scene)[0]
+        cam, objs = true_state(scene)
+        model.set_pilot(cam)
+        out[f"s{seed}"] = read_tail(model, np.tile(cam, (3, 1)), np.tile(objs, (3, 1, 1)))
+    return out
+
+
+def test_the_crowds_tail_is_the_one_its_references_favour():
+    """A crowd whose stated values err log-normally (10 %) is handed a light tail; one with the
+    paper's heavy tails keeps a heavy one; each frame's choice leaves its own references out."""
+    from creference_bayes.models.metrology import REF_DOF
+    from creference_bayes.workflows.batch.dataset import MIN_TAIL_REFERENCES, TAIL_DOFS, TailPool
+
+    light = TailPool(_tail_readings("low"), REF_DOF)
+    est = light.estimate()
+    assert est["dof"] == est["favoured"] >= 10 and est["gain"] > 2 * est["se"]
+    assert est["references"] == sum(len(r) for r in _tail_readings("low").values()) and est["frames"] == 6
+    heavy = TailPool(_tail_readings("high"), REF_DOF).estimate()
+    assert heavy["dof"] <= 3 and heavy["favoured"] <= 4
+    one = light.estimate("s0")  # leave one out: the others' references only
+    assert one["references"] == est["references"] - len(light.keys[light.keys == "s0"]) and one["frames"] == 5
+    few = TailPool({k: v for k, v in list(_tail_readings("low", scenes=2, refs=5).items())}, REF_DOF)
+    assert len(few.keys) < MIN_TAIL_REFERENCES and few.estimate() is None
+    assert REF_DOF in TAIL_DOFS  # the model's own tail is one of those scored
+
+
+def test_a_tail_the_references_do_not_clearly_favour_leaves_the_models_own():
+    """Scores that favour another tail by less than twice their difference's standard error hand
+    back the model's own tail."""
+    from creference_bayes.workflows.batch.dataset import TAIL_DOFS, TAIL_SCALES, TailPool
+
+    rng = np.random.default_rng(0)
+    scores = np.zeros((40, len(TAIL_SCALES), len(TAIL_DOFS)))
+    noise = rng.normal(0.0, 1.0, (40, 1))
+    scores[:, :, -1] = noise - noise.mean() + 0.1  # better by 4 nats in all, within its noise (se ≈ 6)
+    pool = TailPool({"a": scores[:20], "b": scores[20:]}, 2.0)
+    est = pool.estimate()
+    assert est["dof"] == 2.0 and abs(est["gain"]) < 2 * est["se"]
+    scores[:, :, -1] = 0.5  # clearly better on every reference
+    est = TailPool({"a": scores[:20], "b": scores[20:]}, 2.0).estimate()
+    assert est["dof"] == TAIL_DOFS[-1] and est["gain"] == pytest.approx(20.0, abs=0.1)
+
+
+def test_a_batch_hands_each_frame_the_tail_of_the_other_frames_references(tmp_path):
+    """Frames with references: the batch's first pass scores their tails, each frame is read with
+    the tail of the others' references (recorded in its result, its settings and batch.json); a
+    hand-set ``ref_dof`` wins and is recorded as an override."""
+    from creference_bayes.workflows.batch.dataset import REF_TAIL
+
+    (tmp_path / "in").mkdir()
+    for seed in range(5):
+        d, _ = truth_scene(seed, noise_px=1.0, n_annotations=2, n_refs=6, horizon="sd")
+        (tmp_path / "in" / f"f{seed}.json").write_text(json.dumps(d))
+    settings = BatchSettings(seed=1, posterior=False)
+    report = run_batch([tmp_path / "in"], tmp_path / "out", LocalEngine(1), settings)
+    assert report.ok and REF_TAIL.name in plan([parse_scene(json.loads(p.read_text()))
+                                                  for p in sorted((tmp_path / "in").iterdir())], settings)
+    pooled = report.dataset["ref_dof"]["groups"]["crowd"]
+    assert pooled["references"] == 30 and pooled["frames"] == 5
+    for k in range(5):
+        res = json.loads((tmp_path / "out" / "results" / f"f{k}.json").read_text())
+        took = res["dataset"]["ref_dof"]
+        assert took["from"] == "data set" and took["references"] == 24 and took["frames"] == 4
+        read_with = res["provenance"]["options"].get("ref_dof", 2.0)
+        assert read_with == took["dof"]
+    # the stated values here are exact: a light tail is favoured, and clearly (else the model's own)
+    assert pooled["favoured"] >= 10 and (pooled["dof"] == pooled["favoured"]) == (pooled["gain"] > 2 * pooled["se"])
+    ds = DataSet.from_first_pass([(f"f{k}", None) for k in range(5)], tmp_path / "out" / "first_pass",
+                                 plan([parse_scene(json.loads((tmp_path / "in" / f"f{k}.json").read_text()))
+                                       for k in range(5)], settings))
+    took = json.loads((tmp_path / "out" / "results" / "f0.json").read_text())["dataset"]["ref_dof"]
+    assert {"from": "data set", "shared_by": "crowd", **ds.tail_of("f0")} == took  # read again: the same
+    # the other quantities are read under the chosen tail: without it, the crowd's scale reads otherwise
+    alone = DataSet.from_first_pass([(f"f{k}", None) for k in range(5)], tmp_path / "out" / "first_pass",
+                                    tuple(n for n in ds.learn if n != REF_TAIL.name))
+    assert pooled["dof"] != 2.0 and ds.summary()["ref_scale"] == report.dataset["ref_scale"]
+    assert alone.summary()["ref_scale"]["groups"]["crowd"]["median"] != report.dataset["ref_scale"]["groups"][
+        "crowd"]["median"]
+    scene = parse_scene(json.loads((tmp_path / "in" / "f0.json").read_text()))
+    _, kwargs, block, _ = hand_back(ds, "f0", scene, replace(settings, options={"ref_dof": 5.0}))
+    assert block["ref_dof"] == {"from": "override", "why": "--option ref_dof=5"} and "ref_dof" not in kwargs
+    assert not plan([scene] * 5, replace(settings, options={"ref_dof": 5.0})).count(REF_TAIL.name)
+
+
+def test_a_frame_is_read_under_the_crowds_tail_whose_scale_is_that_tails_own():
+    """The first pass is estimated under the model's own tail (t₂); read under the crowd's
+    (``tail_reweight``), the draws weigh each crowd scale by the chosen tail's likelihood, and a
+    log-normal crowd's scale under a light tail is wider than t₂'s (t₂ fits the same errors with a
+    narrower scale and long tails): the scale handed back is the tail's own."""
+    from creference_bayes.bench.simulate import simulate_scene, true_state
+    from creference_bayes.models.contract import C_SCALE
+    from creference_bayes.pipeline import build_model
+    from creference_bayes.workflows.batch.dataset import tail_reweight
+
+    scene = parse_scene(simulate_scene(3, tier="low", n_references=40, n_target_annotations=2, single_values=True))
+    model = build_model(scene)[0]
+    cam, objs = true_state(scene)
+    model.set_pilot(cam)
+    scales = np.exp(np.linspace(np.log(0.01), np.log(1.0), 400))  # draws: the truth at a grid of crowd scales
+    cams = np.tile(cam, (len(scales), 1))
+    cams[:, C_SCALE] = scales
+    objs = np.tile(objs, (len(scales), 1, 1))
+    own, light = model.reference_log_densities(cams, objs, (2.0, 30.0))[0]
+    log_w = tail_reweight(model, cams, objs, 30.0)
+    assert np.allclose(log_w, np.nansum(light - own, axis=1))
+    post = lambda lw: float(np.average(np.log(scales), weights=np.exp(lw - lw.max())))  # noqa: E731
+    under_own = np.nansum(own, axis=1)
+    assert post(under_own + log_w) == pytest.approx(post(np.nansum(light, axis=1)))
+    assert math.exp(post(under_own + log_w)) > 1.2 * math.exp(post(under_own))

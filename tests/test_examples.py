@@ -56,6 +56,8 @@ TINY = {
     "reference_reading_study.py": [(["--n", "1", "--crowds", "light", "--min-ess", "100", "--out", "rr"],
                                     ["rr/records.jsonl", "rr/table.md"]),
                                    (["--bench", "--n", "1", "--min-ess", "100", "--out", "rr"], ["rr/bench.jsonl"]),
+                                   (["--n", "2", "--crowds", "light", "--readings", "tail", "--min-ess", "100",
+                                     "--out", "rt"], ["rt/records.jsonl", "rt/tails_light_mixed_2.json"]),
                                    (["--monte-carlo"], []),
                                    (["--populations", "light", "--n", "1"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.special import i0e, stdtr
+from scipy.special import gammaln, i0e, stdtr
 
 from ..core.geometry import rotation_from_pitch_roll
 from ..core.metrology import GroundFrame
@@ -636,6 +636,25 @@ class MetrologyModel(Model):
                                     self.ref_log_high, self.ref_is_range, self.ref_dof, self.ref_node_shift,
                                     self.ref_node_var, own, None if self.confidence_map is None else self.confidence_map.dof)
         return np.where(np.isfinite(ll), -ll, 1e300)
+
+    def reference_log_densities(self, cams: np.ndarray, objs: np.ndarray, dofs, scale_factors=(1.0,)) -> np.ndarray:
+        """(S, D, n, k) each reference's log-likelihood read with a Student-t of each of ``dofs``
+        (D) degrees of freedom and the crowd's scale × each of ``scale_factors`` (S), normalised
+        so that tails compare: a stated value's density in log-length with its constant, a range's
+        probability; NaN for a range read through a confidence map (its tail is the map's) and
+        where the reading is undefined."""
+        stated = self._stated
+        own = np.where(stated, self._stated_scale, np.nan)
+        pred = self.predicted_log_lengths(cams, objs)
+        value = ~np.asarray(self.ref_is_range, bool) & ~stated
+        out = np.empty((len(scale_factors), len(dofs), *pred.shape))
+        for a, c in enumerate(scale_factors):
+            for b, nu in enumerate(map(float, dofs)):
+                ll = reading_log_likelihood(pred, c * cams[:, C_SCALE, None], self.ref_log_low, self.ref_log_high,
+                                            self.ref_is_range, nu, self.ref_node_shift, self.ref_node_var, own, None)
+                const = gammaln(0.5 * (nu + 1.0)) - gammaln(0.5 * nu) - 0.5 * np.log(nu * np.pi)
+                out[a, b] = np.where(stated | ~np.isfinite(ll), np.nan, ll + np.where(value, const, 0.0))
+        return out
 
     def _split_nll(self, nll: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Add each object's own references' negative log-likelihood (of ``nll`` (n, k)) to ``obj``

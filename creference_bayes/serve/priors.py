@@ -130,8 +130,10 @@ class DataSetPriors:
         seg_kwargs, seg_block = hand_segments([*self.scenes, scene], self.settings)[-1]
         kwargs, block = {**seg_kwargs, **kwargs}, {**block, **seg_block}
         for name in ds.learn:  # the camera's quantities the data set could not hand this frame
+            if name not in SHARED or SHARED[name].shared_by != "camera":
+                continue
             label = SHARED[name].label
-            if SHARED[name].shared_by == "camera" and label not in block:
+            if label not in block:
                 why = ("the task names no camera (data.camera_id)" if camera_id is None else
                        f"the data set has no pool of camera {camera_id!r}")
                 block[label] = {"from": "the frame", "why": why}

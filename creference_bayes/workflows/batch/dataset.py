@@ -17,6 +17,7 @@ reference scale     crowd       spread  first pass, log s / the ``ref_scale_medi
 target distance     setting     spread  first pass, each target's log d / the location prior's population
 corner scale        crowd       shared  the annotations (sets of one object) / the scene's corner scale
 segment floor       crowd       shared  the references' drawn lengths / ``read_floor_px``
+reference tail      crowd       shared  first pass, each reference's leave-one-out density / ``ref_dof``
 ==================  ==========  ======  ===============================================================
 
 The mechanism, the same for every quantity:
@@ -45,7 +46,14 @@ The mechanism, the same for every quantity:
    same ε_d in every frame of the camera). The crowd's corner scale and segment floor are read
    from the annotations themselves, no first pass (:func:`~.corner_scales`: sums of squares
    pooled; :func:`~.segment_floors`: the floor of the reading's prior of a segment's length,
-   fitted to the drawn lengths).
+   fitted to the drawn lengths). The crowd's reference tail (the Student-t degrees of freedom its
+stated values are read with) is not a mean but a choice among :data:`TAIL_DOFS`
+(:class:`TailPool`): each reference of the first pass is scored by its leave-one-out predictive
+density under each (:func:`read_tail`), the other frames' scores are summed, and a frame is
+handed the tail they favour when it beats the model's own by more than twice the standard error
+of the difference (arviz's ``compare`` rule), else the model's own. The tail is chosen first (from
+all frames); every other reading is then made from draws reweighted to it (:func:`tail_reweight`),
+as the crowd's scale, say, is a scale of that tail.
 
 A quantity is learnt when there is something to learn (:func:`plan`): frames sharing a camera id
 that lack a focal length or a calibrated mounting; frames with references (their crowd's scale);
@@ -67,8 +75,8 @@ import numpy as np
 
 __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSet", "divide_prior",
            "combine", "pool_check", "read_readings", "read_focal_given_orientation", "plan", "dataset_lines",
-           "scale_depths", "shared_scale", "share_scale",
-           "DATASET_CHOICES",
+           "scale_depths", "shared_scale", "share_scale", "tail_reweight",
+           "DATASET_CHOICES", "REF_TAIL", "TAIL_DOFS", "TailPool", "read_tail",
            "MIN_POPULATION_FRAMES", "MIN_POPULATION_TARGETS"]
 
 #: ``--dataset``: learn what frames share (``auto``: what there is something to learn of) or nothing
@@ -168,6 +176,19 @@ CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
 #: ... and the floor of the marginal reading's prior of a segment's length (px), from the drawn
 #: references (:func:`~.segment_floors`)
 SEGMENT_FLOOR = Shared("segment_floor", "segment_floor_px", "crowd", "shared")
+#: ... and the tail of its stated values (Student-t degrees of freedom), chosen by the references'
+#: leave-one-out predictive density in the first pass (:class:`TailPool`)
+REF_TAIL = Shared("ref_dof", "ref_dof", "crowd", "shared")
+#: the tails a crowd's references are scored under (Student-t degrees of freedom; 30: nearly normal,
+#: the lightest offered: a crowd that looks normal is still read with a little robustness)
+TAIL_DOFS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 30.0)
+#: ... each with the first pass's crowd scale times these (the scale a tail fits best differs
+#: from the one it was drawn under; the best of them is taken for each tail)
+TAIL_SCALES = (0.5, 0.7, 1.0, 1.4, 2.0)
+#: draws of a frame's first pass its references are scored with
+TAIL_DRAWS = 400
+#: the fewest references of the other frames a tail is chosen from
+MIN_TAIL_REFERENCES = 20
 
 
 @dataclass(frozen=True)
@@ -468,31 +489,33 @@ class Pool:
 
 
 def _draws(result: dict, scene):
-    """A first-pass result's draws: cameras (k, 5), objects (k, m, 7): those it keeps, else
-    :data:`LAPLACE_DRAWS` of the Laplace approximation at its MAP (seeded)."""
+    """A first-pass result's model and draws: cameras (k, 5), objects (k, m, 7): those it keeps,
+    else :data:`LAPLACE_DRAWS` of the Laplace approximation at its MAP (seeded)."""
     from ...pipeline import rebuild_model, result_draws
 
     model = rebuild_model(result, scene)
     cams, objs, _ = result_draws(result, model, n=LAPLACE_DRAWS, seed=0)
-    return cams, objs
+    return model, cams, objs
 
 
 def _setting(camera_id: str | None) -> str:
     return camera_id if camera_id is not None else "data set"
 
 
-def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=None) -> dict[str, list[Reading]]:
+def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=None,
+                  log_reweight: np.ndarray | None = None) -> dict[str, list[Reading]]:
     """Every reading of one frame's first-pass result (module docstring, step 1): quantity name →
     readings (a camera's quantities, the crowd's reference scale, each target's log distance).
-    ``draws``: the result's (cameras, objects) when already drawn (:func:`_draws`)."""
+    ``draws``: the result's (cameras, objects) when already drawn (:func:`_draws`);
+    ``log_reweight``: a log weight per draw moving them to another model (:func:`tail_reweight`)."""
     from ...models.contract import C_SCALE, O_X, O_Z, REF_SCALE_LOG_SD, REF_SCALE_MEDIAN
     from ...models.location_prior import LocationPrior
     from .rig import camera_likelihood
 
-    cams, objs = draws if draws is not None else _draws(result, scene)
+    cams, objs = draws if draws is not None else _draws(result, scene)[1:]
     out: dict[str, list[Reading]] = {}
     if camera_id is not None:
-        for name, (mean, precision) in camera_likelihood(result, cams).items():
+        for name, (mean, precision) in camera_likelihood(result, cams, log_reweight=log_reweight).items():
             out[name] = [Reading(key, camera_id, mean, precision)]
     prov = result.get("provenance") or {}
     free = set(result["camera"].get("free", ()))
@@ -501,7 +524,7 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
         median = float(opts.get("ref_scale_median", REF_SCALE_MEDIAN))
         log_sd = float(opts.get("ref_scale_log_sd", REF_SCALE_LOG_SD))
         q = np.log(cams[:, C_SCALE])
-        lik = likelihood(q, -0.5 * ((q - math.log(median)) / log_sd) ** 2)
+        lik = likelihood(q, -0.5 * ((q - math.log(median)) / log_sd) ** 2, log_reweight)
         if lik is not None:
             out["log_ref_scale"] = [Reading(key, "crowd", *lik)]
     location = LocationPrior(prov.get("location_prior", "flat"), prov.get("distance_range_m"),
@@ -510,7 +533,7 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
     for j in range(objs.shape[1]):
         x, z = objs[:, j, O_X], objs[:, j, O_Z]
         # weights p_kind/p: the evidence on log d relative to the kind's density (location_prior.py)
-        lik = likelihood(0.5 * np.log(x * x + z * z), location.relative_log_prior(x, z))
+        lik = likelihood(0.5 * np.log(x * x + z * z), location.relative_log_prior(x, z), log_reweight)
         if lik is not None:
             readings.append(Reading(key, _setting(camera_id), *lik))
     if readings:
@@ -518,7 +541,8 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
     return out
 
 
-def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np.ndarray) -> Reading | None:
+def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np.ndarray,
+                                 log_reweight: np.ndarray | None = None) -> Reading | None:
     """Frame ``key``'s focal-length reading as if it had known its camera's orientation: its draws
     reweighted from the wide default pitch and roll prior it was estimated under to the pool of the
     other frames' (N(M₋ᵢ, V₋ᵢ + τ²), :data:`GIVEN`), with its focal prior divided out
@@ -533,8 +557,76 @@ def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np
     if camera_id is None:
         return None
     given = {n: (e.center, e.prior_sd) for n in GIVEN if (e := ds.estimate(n, key)) is not None}
-    lik = camera_likelihood(result, cams, given).get("log_focal")
+    lik = camera_likelihood(result, cams, given, log_reweight).get("log_focal")
     return None if lik is None else Reading(key, camera_id, *lik)
+
+
+def read_tail(model, cams: np.ndarray, objs: np.ndarray) -> np.ndarray | None:
+    """A frame's reading of its crowd's tail: (k, :data:`TAIL_SCALES`, :data:`TAIL_DOFS`) each of
+    its references' leave-one-out log predictive density under each tail and scale factor
+    (:meth:`~creference_bayes.models.metrology.MetrologyModel.reference_log_densities`), from
+    :data:`TAIL_DRAWS` of its draws (evenly spaced): the draws weighted by 1 / the reference's
+    likelihood under the model's own tail (importance sampling leave-one-out, the weights
+    truncated at √S times their mean, Ionides 2008). None: no reference a tail reads."""
+    if "reference_likelihood" not in getattr(model, "capabilities", ()) or not len(model.references):
+        return None
+    take = np.unique(np.linspace(0, len(cams) - 1, min(TAIL_DRAWS, len(cams))).astype(int))
+    ll = model.reference_log_densities(cams[take], objs[take], TAIL_DOFS, TAIL_SCALES)  # (S, D, n, k)
+    own = model.reference_log_densities(cams[take], objs[take], (model.ref_dof,))[0, 0]
+    read = np.isfinite(own).all(axis=0) & np.isfinite(ll).all(axis=(0, 1, 2))
+    if not read.any():
+        return None
+    lw = -own[:, read]
+    w = np.exp(lw - lw.max(axis=0))
+    w = np.minimum(w, math.sqrt(len(w)) * w.mean(axis=0))
+    w /= w.sum(axis=0)
+    ll = ll[..., read]
+    top = ll.max(axis=2, keepdims=True)
+    return np.moveaxis(top[:, :, 0] + np.log(np.sum(w * np.exp(ll - top), axis=2)), -1, 0)
+
+
+def tail_reweight(model, cams: np.ndarray, objs: np.ndarray, dof: float) -> np.ndarray | None:
+    """Log weights (k,) moving a frame's draws from its model's own tail to ``dof`` degrees of
+    freedom: the sum over its references of the log-likelihood ratio
+    (:meth:`~creference_bayes.models.metrology.MetrologyModel.reference_log_densities`); None
+    without references a tail reads."""
+    if "reference_likelihood" not in getattr(model, "capabilities", ()) or not len(model.references):
+        return None
+    ll = model.reference_log_densities(cams, objs, (model.ref_dof, dof))[0]
+    ratio = np.where(np.isfinite(ll).all(axis=0), ll[1] - ll[0], 0.0).sum(axis=-1)
+    return ratio if np.isfinite(ratio).all() and ratio.any() else None
+
+
+class TailPool:
+    """The crowd's tail from the frames' readings (:func:`read_tail`): KEY → (k, scales, tails)."""
+
+    def __init__(self, readings: dict, own_dof: float):
+        self.own_dof = float(own_dof)
+        keys = [k for k, r in readings.items() for _ in range(len(r))]
+        self.keys = np.array(keys, dtype=object)
+        self.scores = (np.concatenate([r for r in readings.values()]) if keys
+                       else np.zeros((0, len(TAIL_SCALES), len(TAIL_DOFS))))
+
+    def estimate(self, leave_out: str | None = None) -> dict | None:
+        """The tail a frame is handed from the others' references (all with ``leave_out`` None),
+        or None with fewer than :data:`MIN_TAIL_REFERENCES`: each tail at its best scale factor;
+        the best tail when its summed score beats the model's own by more than twice the standard
+        error of the difference, else the model's own. ``dof``, ``favoured`` (the best), the
+        score's ``gain`` over the model's own and its ``se`` (nats), ``references``, ``frames``."""
+        keep = self.keys != leave_out
+        n = int(keep.sum())
+        if n < MIN_TAIL_REFERENCES:
+            return None
+        sc = self.scores[keep]
+        scale = sc.sum(axis=0).argmax(axis=0)                        # each tail's best scale factor
+        per = sc[:, scale, np.arange(len(TAIL_DOFS))]                # (n, tails)
+        best = int(per.sum(axis=0).argmax())
+        own = int(np.argmin(np.abs(np.log(TAIL_DOFS) - math.log(self.own_dof))))
+        d = per[:, best] - per[:, own]
+        gain, se = float(d.sum()), float(math.sqrt(n * d.var()))
+        return {"dof": TAIL_DOFS[best] if gain > 2.0 * se else self.own_dof, "favoured": TAIL_DOFS[best],
+                "gain": round(gain, 1), "se": round(se, 1), "references": n,
+                "frames": len(set(self.keys[keep]))}
 
 
 @dataclass
@@ -546,11 +638,13 @@ class DataSet:
     pools : quantity name → :class:`Pool`
     learn : the quantity names learnt (:func:`plan`)
     camera_of : KEY → the frame's camera id (None: a camera of its own)
+    tail : the crowd's reference tail (:class:`TailPool`), when ``ref_dof`` is learnt
     """
 
     pools: dict
     learn: tuple
     camera_of: dict = field(default_factory=dict)
+    tail: TailPool | None = None
 
     @classmethod
     def from_first_pass(cls, frames, folder, learn: tuple) -> "DataSet":
@@ -560,31 +654,50 @@ class DataSet:
         from ...io.scene import SceneWarning, load_scene
         from .files import layout
 
-        readings: dict[str, list[Reading]] = {name: [] for name in learn}
-        camera_of, kept = {}, {}
-        for key, camera_id in frames:
-            camera_of[key] = camera_id
-            paths = layout(folder, key)
-            if not paths["result"].exists():
-                continue
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SceneWarning)
-                scene = load_scene(paths["scene"])
-            result = read_result(paths["result"])
-            draws = _draws(result, scene)
-            kept[key] = (result, draws[0])
-            for name, rs in read_readings(key, scene, result, camera_id, draws).items():
+        def first_pass():  # (KEY, camera id, scene, result) of every frame with a result
+            for key, camera_id in frames:
+                paths = layout(folder, key)
+                if paths["result"].exists():
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", SceneWarning)
+                        scene = load_scene(paths["scene"])
+                    yield key, camera_id, scene, read_result(paths["result"])
+
+        tail = None
+        if REF_TAIL.name in learn:  # the tail first: the other readings are read under it
+            tails, own_dof = {}, None
+            for key, _, scene, result in first_pass():
+                model, cams, objs = _draws(result, scene)
+                if (t := read_tail(model, cams, objs)) is not None:
+                    tails[key], own_dof = t, model.ref_dof
+            tail = TailPool(tails, own_dof) if tails else None
+        dof = None if tail is None or (est := tail.estimate()) is None or est["dof"] == tail.own_dof else est["dof"]
+        readings: dict[str, list[Reading]] = {name: [] for name in learn if name in SHARED}
+        kept = {}
+        for key, camera_id, scene, result in first_pass():
+            model, cams, objs = _draws(result, scene)
+            # a frame estimated under the model's own tail, read as if under the crowd's (its draws
+            # reweighted by the references' likelihood ratio): the crowd's scale is a tail's scale
+            reweight = None if dof is None else tail_reweight(model, cams, objs, dof)
+            kept[key] = (result, cams, reweight)
+            for name, rs in read_readings(key, scene, result, camera_id, (cams, objs), reweight).items():
                 if name in readings:
                     readings[name] += rs
-        ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn), camera_of)
+        ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
+                 {key: camera_id for key, camera_id in frames}, tail)
         if "log_focal" in learn and any(n in learn for n in GIVEN):
             focal = []
-            for key, (result, cams) in kept.items():
-                r = read_focal_given_orientation(ds, key, result, cams)
+            for key, (result, cams, reweight) in kept.items():
+                r = read_focal_given_orientation(ds, key, result, cams, reweight)
                 if r is not None:
                     focal.append(r)
             ds.pools["log_focal"] = Pool(SHARED["log_focal"], focal)
         return ds
+
+    def tail_of(self, key: str | None) -> dict | None:
+        """The crowd's tail frame ``key`` is handed (:meth:`TailPool.estimate`, leaving it out; all
+        frames' with None), or None."""
+        return None if self.tail is None else self.tail.estimate(key)
 
     def group_of(self, name: str, key: str) -> str | None:
         by = SHARED[name].shared_by
@@ -606,6 +719,8 @@ class DataSet:
             if blocks:
                 out[SHARED[name].label] = {"shared_by": SHARED[name].shared_by, "kind": SHARED[name].kind,
                                            "groups": blocks}
+        if (tail := self.tail_of(None)) is not None:
+            out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
         return out
 
 
@@ -613,7 +728,8 @@ def plan(scenes, settings) -> tuple[str, ...]:
     """The quantities a batch of ``scenes`` learns from a first pass (module docstring): empty with
     ``settings.dataset == "none"``; the camera's (``settings.rig``) when two frames share a camera
     id and one of them lacks a focal length or a calibrated mounting; the reference scale when two
-    frames have references and neither ``ref_scale`` option is set; the distance population when a
+    frames have references and neither ``ref_scale`` option is set; the references' tail when the frames
+    have more than :data:`MIN_TAIL_REFERENCES` references and no ``ref_dof`` is set; the distance population when a
     setting has :data:`MIN_POPULATION_FRAMES` + 1 frames with :data:`MIN_POPULATION_TARGETS`
     targets and no ``distance_range`` is set (the default preset's location prior only)."""
     from .rig import POOLED, camera_id_of
@@ -632,6 +748,9 @@ def plan(scenes, settings) -> tuple[str, ...]:
             and not {"ref_scale_median", "ref_scale_log_sd"} & set(settings.options)
             and sum(bool(s.references) for s in scenes) >= SHARED["log_ref_scale"].min_frames + 1):
         learn.append("log_ref_scale")
+    if (settings.model == "metrology" and settings.use_references and "ref_dof" not in settings.options
+            and sum(len(s.references) for s in scenes) > MIN_TAIL_REFERENCES):
+        learn.append(REF_TAIL.name)
     if settings.distance_range is None and settings.preset == "default" and settings.location_prior in ("auto", "log-depth"):
         settings_groups: dict[str, list] = {}
         for cam, group in cameras.items():
@@ -652,6 +771,8 @@ def overrides(scene, settings) -> dict:
     if {"ref_scale_median", "ref_scale_log_sd"} & set(settings.options):
         out["ref_scale"] = "--option " + ", ".join(f"{k}={settings.options[k]:g}" for k in
                                                    ("ref_scale_median", "ref_scale_log_sd") if k in settings.options)
+    if "ref_dof" in settings.options:
+        out[REF_TAIL.label] = f"--option ref_dof={settings.options['ref_dof']:g}"
     if settings.distance_range is not None:
         out["distance_m"] = "--distance-range {:g},{:g}".format(*settings.distance_range)
     return out
@@ -668,7 +789,7 @@ def hand_back(ds: DataSet, key: str, scene, settings):
     block: dict = {}
     kwargs: dict = {}
     own = overrides(scene, settings)
-    camera = [n for n in ds.learn if SHARED[n].shared_by == "camera"]
+    camera = [n for n in ds.learn if n in SHARED and SHARED[n].shared_by == "camera"]
     scene, rig_est = apply_rig_estimates(scene, {n: ds.estimate(n, key) for n in camera if not SHARED[n].held})
     rig = rig_report(rig_est)
     if rig_est is not None:
@@ -688,6 +809,11 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         kwargs["ref_scale_median"] = _sig(math.exp(ref.center))
         kwargs["ref_scale_log_sd"] = round(ref.prior_sd, 4)
         block["ref_scale"] = {"from": "data set", "shared_by": "crowd", "group": ref.group, **ref.block()}
+    tail = ds.tail_of(key)
+    if tail is not None and REF_TAIL.label not in own:
+        if tail["dof"] != ds.tail.own_dof:
+            kwargs["ref_dof"] = tail["dof"]
+        block[REF_TAIL.label] = {"from": "data set", "shared_by": "crowd", **tail}
     dist = ds.estimate("log_distance", key) if "log_distance" in ds.learn else None
     if dist is not None and TWO_POPULATIONS in dist.check.warnings and "distance_m" not in own:
         block["distance_m"] = {"from": "the frame", "group": dist.group, "why": TWO_POPULATIONS}
@@ -733,6 +859,12 @@ def dataset_lines(summary: dict) -> list[str]:
     rows, warns = [], []
     for label, entry in summary.items():
         for group, b in entry["groups"].items():
+            if entry["kind"] == "choice":  # the crowd's tail (:meth:`TailPool.estimate`)
+                rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {'t' + format(b['dof'], 'g'):>10}  "
+                            f"{'favoured t' + format(b['favoured'], 'g'):<28} "
+                            f"{str(b['references']) + ' refs (' + str(b['frames']) + ' frames)':<18} "
+                            f"score {b['gain']:+.1f} ± {b['se']:.1f} nats")
+                continue
             if "median" in b:
                 value = f"{b['median']:g}" + (" held" if b.get("held") else "")
                 sd = f"log-sd {b['log_sd']:.3f}" + (f" spread {b['spread_log_sd']:.3f}" if "spread_log_sd" in b else "")

@@ -122,7 +122,8 @@ def _log_prior(name: str, q: np.ndarray, setup: dict) -> np.ndarray | None:
     return -0.5 * ((q - mean) / sd) ** 2
 
 
-def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None) -> dict:
+def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None,
+                      log_reweight: np.ndarray | None = None) -> dict:
     """Each camera quantity's likelihood (mean, precision) in one frame, from its draws ``cams``
     (k, 5) and its result's ``camera`` (its ``free`` parameters and the priors of ``setup``): the
     prior divided out of the draws exactly (:func:`.dataset.likelihood`); a quantity the frame
@@ -132,14 +133,15 @@ def camera_likelihood(result: dict, cams: np.ndarray, given: dict | None = None)
     (the mounting): the draws are then also reweighted from the prior the frame used on them to
     these, so that each quantity's likelihood is read as if the frame had known the camera's
     mounting (:func:`.dataset.read_focal_given_orientation`: a weak frame's focal length is biased
-    low by the wide pitch prior, docs/studies/rig.md)."""
+    low by the wide pitch prior, docs/studies/rig.md). ``log_reweight``: a further log weight per
+    draw (the draws moved to the crowd's tail, :func:`.dataset.tail_reweight`)."""
     free = set(result["camera"].get("free", ()))
     setup = result["camera"].get("setup") or {}
     values = {name: cams[:, col] if fn is None else fn(cams[:, col]) for name, (col, fn) in QUANTITIES.items()
               if _CAMERA_COLUMNS[name] in free}
     out = {}
     for name, v in values.items():
-        reweight = None  # log N(q; mean, sd²) − log prior_used(q) of the other quantities given
+        reweight = log_reweight  # and log N(q; mean, sd²) − log prior_used(q) of the other quantities given
         for other, (mean, sd) in (given or {}).items():
             if other != name and other in values:
                 q = values[other]
