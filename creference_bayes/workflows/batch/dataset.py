@@ -561,6 +561,11 @@ def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np
     return None if lik is None else Reading(key, camera_id, *lik)
 
 
+def _reads_tails(model) -> bool:
+    """Whether ``model`` has references read with a Student-t of its ``ref_dof``."""
+    return "reference_likelihood" in getattr(model, "capabilities", ()) and bool(len(model.references))
+
+
 def read_tail(model, cams: np.ndarray, objs: np.ndarray) -> np.ndarray | None:
     """A frame's reading of its crowd's tail: (k, :data:`TAIL_SCALES`, :data:`TAIL_DOFS`) each of
     its references' leave-one-out log predictive density under each tail and scale factor
@@ -568,7 +573,7 @@ def read_tail(model, cams: np.ndarray, objs: np.ndarray) -> np.ndarray | None:
     :data:`TAIL_DRAWS` of its draws (evenly spaced): the draws weighted by 1 / the reference's
     likelihood under the model's own tail (importance sampling leave-one-out, the weights
     truncated at √S times their mean, Ionides 2008). None: no reference a tail reads."""
-    if "reference_likelihood" not in getattr(model, "capabilities", ()) or not len(model.references):
+    if not _reads_tails(model):
         return None
     take = np.unique(np.linspace(0, len(cams) - 1, min(TAIL_DRAWS, len(cams))).astype(int))
     ll = model.reference_log_densities(cams[take], objs[take], TAIL_DOFS, TAIL_SCALES)  # (S, D, n, k)
@@ -590,7 +595,7 @@ def tail_reweight(model, cams: np.ndarray, objs: np.ndarray, dof: float) -> np.n
     freedom: the sum over its references of the log-likelihood ratio
     (:meth:`~creference_bayes.models.metrology.MetrologyModel.reference_log_densities`); None
     without references a tail reads."""
-    if "reference_likelihood" not in getattr(model, "capabilities", ()) or not len(model.references):
+    if not _reads_tails(model):
         return None
     ll = model.reference_log_densities(cams, objs, (model.ref_dof, dof))[0]
     ratio = np.where(np.isfinite(ll).all(axis=0), ll[1] - ll[0], 0.0).sum(axis=-1)
