@@ -54,6 +54,25 @@ def test_the_documentation_exists():
     assert {"README.md", "scene_format.md", "result_format.md", "method.md", "user_guide.md"} <= names
 
 
+USER_PAGES = sorted((ROOT / "docs").glob("*.md"))  # docs/studies/ and docs/benchmark/ hold the measurements
+DATED = re.compile(r"\b20\d\d-[01]\d(-[0-3]\d)?\b|\b(until|before|since) (Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)")
+
+
+@pytest.mark.parametrize("page", USER_PAGES, ids=lambda p: p.name)
+def test_a_user_page_is_short_and_undated(page):
+    """A user page says how to do something or what something is: under 400 lines, and no dates
+    (history is in CHANGELOG.md, measurements in docs/studies/)."""
+    lines = page.read_text().splitlines()
+    assert len(lines) < 400, f"{page.name}: {len(lines)} lines"
+    dated = [f"{page.name}:{i}: {line.strip()}" for i, line in enumerate(lines, 1) if DATED.search(line)]
+    assert not dated, dated
+
+
+def test_the_date_check_finds_a_dated_line():
+    assert DATED.search("the prior until 2026-11-27 was wider") and DATED.search("as before Nov 28")
+    assert not DATED.search("a camera kitti-38b73e5675, 2026 frames, 10-20 m")
+
+
 def _broken(doc: Path, root: Path = ROOT) -> list[str]:
     """The relative links of ``doc`` that do not resolve: a file outside ``root`` or missing, or
     an ``#anchor`` that no heading of the Markdown file it points to has."""
