@@ -357,3 +357,42 @@ def test_the_paper_model_reads_the_pairs_as_bounds_on_each_object():
     assert penalty(far) - penalty(objs) > 10.0
     assert cb.estimate(scene, model="paper", posterior=False, use_references=False).to_dict()[
         "references"]["objects"][0]["pairs_used"] == 0
+
+
+@pytest.mark.parametrize("nu", [2.0, 3.5, 30.0])
+def test_a_references_reading_is_the_mean_of_its_bins_student_t(nu):
+    """Each reference's likelihood is the mean over its reading's bins of a Student-t (ν) in
+    log-length: a value's density (without its constant), a range's probability, a range stated
+    with its own scale a normal density at its centre; checked against scipy.stats on random
+    states, bins of one reference all alike or not, and far outliers (finite, and ordered)."""
+    from scipy import stats
+
+    from creference_bayes.models.metrology import reading_log_likelihood
+
+    rng = np.random.default_rng(int(nu * 10))
+    n, k, K = 7, 9, 8
+    pred = rng.normal(0.0, 0.5, (n, k))
+    pred[0, 0] = 40.0  # far out: finite, and less likely than near
+    scale = np.exp(rng.normal(-2.0, 0.3, (n, 1)))
+    low = rng.normal(0.0, 0.5, k)
+    high = np.where(np.arange(k) % 3 == 1, low + np.abs(rng.normal(0.3, 0.1, k)), low)
+    shift, var = rng.normal(0.0, 0.1, (k, K)), rng.uniform(0.0, 0.02, (k, K))
+    shift[2], var[2] = 0.0, 0.0  # a reference of one bin, repeated
+    own = np.full(k, np.nan)
+    own[4] = 0.2
+    high[4] = low[4] + 0.4
+    got = reading_log_likelihood(pred, scale, low, high, high > low, nu, shift, var, own, None)
+    const = stats.t.logpdf(0.0, nu)
+    for j in range(k):
+        s = np.sqrt(scale**2 + var[j])  # (n, K)
+        loc = pred[:, j, None] - shift[j]
+        if j == 4:
+            sj = np.sqrt(0.2**2 + var[j])
+            want = stats.norm.pdf(0.5 * (low[j] + high[j]), loc, sj) * np.sqrt(2 * np.pi)  # without its constant
+        elif high[j] > low[j]:
+            want = stats.t.cdf((high[j] - loc) / s, nu) - stats.t.cdf((low[j] - loc) / s, nu)
+        else:
+            want = np.exp(stats.t.logpdf((low[j] - loc) / s, nu) - const) / s
+        np.testing.assert_allclose(got[:, j], np.log(np.maximum(want.mean(axis=1), 1e-300)), rtol=1e-7, atol=1e-9,
+                                   err_msg=f"reference {j}")
+    assert np.isfinite(got).all() and got[0, 0] < got[1:, 0].min()

@@ -389,8 +389,10 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     √(``scale``² + ``node_var``[b]) (a range: its probability, interval-censored); the
     likelihood is the bins' mean. Where ``own_scale`` is finite (ranges read through a confidence
     map), the range's log-centre is a measurement with that scale instead, Student-t of ``own_dof``
-    (None: normal). A value's density leaves out its constant (the same for every state); a
-    probability or density is floored at 1e-300.
+    (None: normal). A value's density leaves out its constant (the same for every state); the
+    bins' mean of a probability or density is floored at 1e-300. Values and ranges are summed over
+    the bins as densities and probabilities (no logarithm per bin: the cost of a posterior is
+    mostly this function).
 
     Parameters
     ----------
@@ -409,35 +411,32 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     n, k = pred.shape
     stated = np.zeros(k, bool) if own_scale is None else np.isfinite(own_scale)
     ranged = np.asarray(is_range, bool) & ~stated
+    value = ~ranged & ~stated
+    # References of one bin repeat it; when every reference has one, one bin is read.
+    bins = node_shift.shape[1] if (np.ptp(node_shift, axis=-1).any() or np.ptp(node_var, axis=-1).any()) else 1
+    node_shift, node_var = node_shift[:, :bins], node_var[:, :bins]
     out = np.empty((n, k))
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):
         s = np.sqrt(np.asarray(scale, float)[..., None] ** 2 + node_var)                        # (n, k, K)
-        if stated.any():
-            s[:, stated] = np.sqrt(np.asarray(own_scale, float)[stated, None] ** 2 + node_var[stated])
         loc = pred[..., None] - node_shift
-        one = (np.ptp(node_shift, axis=-1) == 0) & (np.ptp(node_var, axis=-1) == 0)  # references of one bin
-        for cols, kind in ((~ranged & ~stated, "value"), (ranged, "range"), (stated, "stated")):
-            for bins in (one, ~one):
-                if (cols & bins).any():
-                    out[:, cols & bins] = _bin_log_likelihood(kind, loc, s, cols & bins, 1 if bins is one else None,
-                                                              log_low, log_high, nu, own_dof)
+        if stated.any():  # the range's centre, a measurement of its own scale (normal: in the log domain)
+            sc = np.sqrt(np.asarray(own_scale, float)[stated, None] ** 2 + node_var[stated])
+            z = (0.5 * (log_low[stated] + log_high[stated])[:, None] - loc[:, stated]) / sc
+            log_p = (-0.5 * z * z if own_dof is None else -(0.5 * (own_dof + 1.0)) * np.log1p(z * z / own_dof)) - np.log(sc)
+            top = np.max(log_p, axis=-1)
+            out[:, stated] = top + np.log(np.mean(np.exp(log_p - top[..., None]), axis=-1))
+        # values and ranges: each bin's density or probability, their mean over the bins
+        p = np.empty((n, int(value.sum() + ranged.sum()), bins))
+        cols = value | ranged
+        z = (log_low[cols, None] - loc[:, cols]) / s[:, cols]
+        is_value = value[cols]
+        zv = z[:, is_value]
+        t = 1.0 + zv * zv / nu
+        p[:, is_value] = (1.0 / (t * np.sqrt(t)) if nu == 2.0 else t ** (-0.5 * (nu + 1.0))) / s[:, value]
+        if ranged.any():
+            p[:, ~is_value] = t_interval(nu, z[:, ~is_value], (log_high[ranged, None] - loc[:, ranged]) / s[:, ranged])
+        out[:, cols] = np.log(np.maximum(p.sum(axis=-1) * (1.0 / bins), 1e-300))
     return out
-
-
-def _bin_log_likelihood(kind, loc, s, cols, bins, log_low, log_high, nu, own_dof):
-    """:func:`reading_log_likelihood` of the columns ``cols`` of one kind (``value``, ``range`` or
-    ``stated``), over their first ``bins`` bins (None: all)."""
-    sc, lc = s[:, cols, :bins], loc[:, cols, :bins]
-    lo = (log_low[cols, None] - lc) / sc
-    if kind == "range":
-        log_p = np.log(np.maximum(t_interval(nu, lo, (log_high[cols, None] - lc) / sc), 1e-300))
-    else:
-        z, dof = (lo, nu) if kind == "value" else (0.5 * (lo + (log_high[cols, None] - lc) / sc), own_dof)
-        log_p = (-0.5 * z * z if dof is None else -(0.5 * (dof + 1.0)) * np.log1p(z * z / dof)) - np.log(sc)
-    if log_p.shape[-1] == 1:
-        return log_p[..., 0]
-    top = np.max(log_p, axis=-1)  # the bins' mean, in the log domain
-    return top + np.log(np.mean(np.exp(log_p - top[..., None]), axis=-1))
 
 
 class MetrologyModel(Model):
