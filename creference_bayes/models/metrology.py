@@ -390,9 +390,8 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     likelihood is the bins' mean. Where ``own_scale`` is finite (ranges read through a confidence
     map), the range's log-centre is a measurement with that scale instead, Student-t of ``own_dof``
     (None: normal). A value's density leaves out its constant (the same for every state); the
-    bins' mean of a probability or density is floored at 1e-300. Values and ranges are summed over
-    the bins as densities and probabilities (no logarithm per bin: the cost of a posterior is
-    mostly this function).
+    bins' mean of a probability or density is floored at 1e-300 (values and ranges are averaged as
+    densities and probabilities, with no logarithm per bin).
 
     Parameters
     ----------
@@ -411,7 +410,6 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
     n, k = pred.shape
     stated = np.zeros(k, bool) if own_scale is None else np.isfinite(own_scale)
     ranged = np.asarray(is_range, bool) & ~stated
-    value = ~ranged & ~stated
     # References of one bin repeat it; when every reference has one, one bin is read.
     bins = node_shift.shape[1] if (np.ptp(node_shift, axis=-1).any() or np.ptp(node_var, axis=-1).any()) else 1
     node_shift, node_var = node_shift[:, :bins], node_var[:, :bins]
@@ -426,15 +424,14 @@ def reading_log_likelihood(pred, scale, log_low, log_high, is_range, nu: float, 
             top = np.max(log_p, axis=-1)
             out[:, stated] = top + np.log(np.mean(np.exp(log_p - top[..., None]), axis=-1))
         # values and ranges: each bin's density or probability, their mean over the bins
-        p = np.empty((n, int(value.sum() + ranged.sum()), bins))
-        cols = value | ranged
+        cols = ~stated
         z = (log_low[cols, None] - loc[:, cols]) / s[:, cols]
-        is_value = value[cols]
-        zv = z[:, is_value]
-        t = 1.0 + zv * zv / nu
-        p[:, is_value] = (1.0 / (t * np.sqrt(t)) if nu == 2.0 else t ** (-0.5 * (nu + 1.0))) / s[:, value]
-        if ranged.any():
-            p[:, ~is_value] = t_interval(nu, z[:, ~is_value], (log_high[ranged, None] - loc[:, ranged]) / s[:, ranged])
+        of_range = ranged[cols]
+        p = np.empty_like(z)
+        t = 1.0 + z[:, ~of_range] ** 2 / nu
+        p[:, ~of_range] = (1.0 / (t * np.sqrt(t)) if nu == 2.0 else t ** (-0.5 * (nu + 1.0))) / s[:, cols & ~ranged]
+        if of_range.any():
+            p[:, of_range] = t_interval(nu, z[:, of_range], (log_high[ranged, None] - loc[:, ranged]) / s[:, ranged])
         out[:, cols] = np.log(np.maximum(p.sum(axis=-1) * (1.0 / bins), 1e-300))
     return out
 
