@@ -295,24 +295,25 @@ def test_kitti_study_gives_p2s_focal_length_as_a_prior_of_the_asked_width(kitti_
         assert bad.returncode == 2 and said in bad.stderr, (flags, bad.stderr)
 
 
-def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti_dir, tmp_path):
+@pytest.mark.parametrize("flags,pooled", [([], True), pytest.param(["--own-scale"], False, marks=pytest.mark.slow)])
+def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti_dir, tmp_path, flags, pooled):
     """examples/label_reliability.py --kitti --twice-every 2: the first frame's objects have two sets,
-    the second frame's one, which takes the first frame's corner scale (--own-scale: its own)."""
+    the second frame's one, which takes the first frame's corner scale (--own-scale: its own; batch's
+    --own-scale is checked in test_batch, its pass-through here among the slow tests)."""
     for sub in ("label_2", "calib"):
         shutil.copy(kitti_dir / sub / "000007.txt", kitti_dir / sub / "000008.txt")
     script = Path(__file__).resolve().parents[1] / "examples" / "label_reliability.py"
-    for flags, pooled in (([], True), (["--own-scale"], False)):
-        out = tmp_path / f"lr{len(flags)}"
-        proc = subprocess.run([sys.executable, str(script), "--kitti", str(kitti_dir), "--noise-px", "4",
-                               "--twice-every", "2", "--min-ess", "50", "--workers", "1", "--out", str(out), *flags],
-                              capture_output=True, text=True, timeout=600)
-        assert proc.returncode == 0, proc.stderr
-        assert "annotated once: 3 objects" in proc.stdout and "annotated twice: 3 objects" in proc.stdout
-        twice = json.loads((out / "scenes" / "000007.json").read_text())
-        assert [len(t["dimension_lines"]) for t in twice["targets"]] == [2, 2, 2]
-        copy = json.loads((out / "batch" / "scenes" / "000008.json").read_text())
-        assert ("corner_scale" in copy) == pooled
-        assert [len(t["dimension_lines"]) for t in copy["targets"]] == [1, 1, 1]
+    out = tmp_path / f"lr{len(flags)}"
+    proc = subprocess.run([sys.executable, str(script), "--kitti", str(kitti_dir), "--noise-px", "4",
+                           "--twice-every", "2", "--min-ess", "50", "--workers", "1", "--out", str(out), *flags],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "annotated once: 3 objects" in proc.stdout and "annotated twice: 3 objects" in proc.stdout
+    twice = json.loads((out / "scenes" / "000007.json").read_text())
+    assert [len(t["dimension_lines"]) for t in twice["targets"]] == [2, 2, 2]
+    copy = json.loads((out / "batch" / "scenes" / "000008.json").read_text())
+    assert ("corner_scale" in copy) == pooled
+    assert [len(t["dimension_lines"]) for t in copy["targets"]] == [1, 1, 1]
 
 
 def test_kitti_study_states_the_quality_gap_with_a_standard_error_by_frame():
