@@ -48,6 +48,8 @@ TINY = {
     "label_reliability.py": [(["--n", "2", "--workers", "1", "--min-ess", "100", "--out", "lr"],
                               ["lr/labels/report.md"])],
     "line_noise_bias.py": [(["--n", "2", "--draws", "200", "--estimates", "1", "--focal-prior", "1650,0.27"], [])],
+    "map_speed.py": [(["--n", "1", "--kinds", "light", "--repeat", "1", "--out", "ms.json"], ["ms.json"]),
+                     (["--n", "1", "--kinds", "light", "--repeat", "1", "--compare", "ms.json"], [])],
     "measure_presets.py": [(["--n", "2"], [])],
     "pilot_dependence.py": [(["--scenes", "0", "--n", "1", "--min-ess", "100", "--out", "pd"],
                              ["pd/dataset/in/s0000.json"])],
