@@ -32,7 +32,8 @@ def simulate(folder: Path, kinds: list[str], n: int) -> list[Path]:
 
     out = []
     for kind in kinds:
-        assert main(["simulate", str(folder / kind), "--n", str(n), "--seed", "0", *KINDS[kind], "--quiet"]) == 0
+        if main(["simulate", str(folder / kind), "--n", str(n), "--seed", "0", *KINDS[kind], "--quiet"]) != 0:
+            raise SystemExit(f"map_speed.py: simulating the {kind} scenes failed")
         out.append(folder / kind)
     return out
 
@@ -92,7 +93,15 @@ def main(argv=None) -> int:
     unknown = sorted(set(kinds) - set(KINDS))
     if unknown:
         p.error(f"--kinds: unknown kind(s) {unknown} (expected some of {list(KINDS)})")
-    before = json.loads(args.compare.read_text()) if args.compare else None
+    if args.n < 1 or args.repeat < 1:
+        p.error(f"--n and --repeat: expected integers >= 1, got {args.n} and {args.repeat}")
+    try:
+        before = json.loads(args.compare.read_text()) if args.compare else None
+    except (OSError, ValueError) as e:
+        p.error(f"--compare: cannot read {args.compare}: {e}")
+    if before is not None and not (isinstance(before, list) and all(
+            isinstance(r, dict) and {"kind", "scene", "cpu_s", "objective"} <= set(r) for r in before)):
+        p.error(f"--compare: {args.compare} is not a records file of this script")
     with tempfile.TemporaryDirectory() as tmp:
         folders = args.folders or simulate(Path(tmp), kinds, args.n)
         records = time_maps(folders, args.repeat)
