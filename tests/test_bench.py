@@ -19,7 +19,7 @@ PAPER_RESTARTS = 2
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    # --paper-restarts: the paper's basin hopping is a third of the run at the quick default (8)
+    # --paper-restarts: the paper's basin hopping is a fifth of the run at the quick default (8)
     assert main(["bench", "--quick", "--paper-restarts", str(PAPER_RESTARTS), "--out", str(out), "--quiet"]) == 0
     return out, json.loads((out / "bench.json").read_text())
 
