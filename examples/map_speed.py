@@ -41,7 +41,7 @@ def simulate(folder: Path, kinds: list[str], n: int) -> list[Path]:
 def time_maps(folders: list[Path], repeat: int) -> list[dict]:
     from creference_bayes.inference.map import optimize
     from creference_bayes.inference.threads import single_threaded_blas
-    from creference_bayes.io.scene import load_scene
+    from creference_bayes.io.scene import SceneError, load_scene
     from creference_bayes.pipeline import build_model
 
     records = []
@@ -49,7 +49,11 @@ def time_maps(folders: list[Path], repeat: int) -> list[dict]:
         warnings.simplefilter("ignore")
         for folder in folders:
             for path in sorted(folder.glob("*.json")):
-                model = build_model(load_scene(path))[0]
+                try:
+                    model = build_model(load_scene(path))[0]
+                except SceneError as e:
+                    print(f"{folder.name}/{path.name}: skipped ({e})", flush=True)
+                    continue
                 seconds = []
                 for _ in range(repeat):
                     t = time.process_time()
