@@ -14,7 +14,6 @@ objective within 0.001 nats), and the ratio of the times per kind.
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 import warnings
@@ -99,8 +98,14 @@ def main(argv=None) -> int:
         p.error(f"--kinds: unknown kind(s) {unknown} (expected some of {list(KINDS)})")
     if args.n < 1 or args.repeat < 1:
         p.error(f"--n and --repeat: expected integers >= 1, got {args.n} and {args.repeat}")
+    from creference_bayes.core.jsonfile import read_json
+    from creference_bayes.io.files import atomic_write_json
+
+    def refuse(path, problem):
+        return ValueError(f"{path}: {problem}")
+
     try:
-        before = json.loads(args.compare.read_text()) if args.compare else None
+        before = read_json(args.compare, refuse) if args.compare else None
     except (OSError, ValueError) as e:
         p.error(f"--compare: cannot read {args.compare}: {e}")
     if before is not None and not (isinstance(before, list) and all(
@@ -110,9 +115,7 @@ def main(argv=None) -> int:
         folders = args.folders or simulate(Path(tmp), kinds, args.n)
         records = time_maps(folders, args.repeat)
     if args.out:
-        part = args.out.with_name(args.out.name + ".part")
-        part.write_text(json.dumps(records, indent=1))
-        part.replace(args.out)
+        atomic_write_json(args.out, records, indent=1)
     print(table(records, before))
     return 0
 
