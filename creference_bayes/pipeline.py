@@ -386,10 +386,12 @@ def estimate(scene: Scene | str | Path | Mapping, settings: EstimateSettings | N
             except SamplingError as exc:  # a MAP with zero posterior density: report, do not crash
                 notes.append(f"posterior not sampled: {exc}")
             else:
-                if "denser_mode" in diag.info:  # the search before sampling found a better optimum
-                    from .inference.map import refine
+                if "mode_starts" in diag.info:  # the search before sampling found other modes: the best optimum
+                    from .inference.map import refine  # reached from any of them is the MAP
 
-                    map_est = refine(m, map_est, *diag.info.pop("denser_mode"), temperature=T)
+                    for start in diag.info.pop("mode_starts"):
+                        map_est = refine(m, map_est, *start, temperature=T)
+                    m = m.variant(handedness=map_est.handedness)
                 if "pilot" in diag.info:  # the draws' pilot (the posterior's median camera) is the result's
                     m = m.variant(pilot=diag.info.pop("pilot"))
         provenance = {"model": st.model, "preset": st.preset,

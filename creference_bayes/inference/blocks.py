@@ -141,6 +141,8 @@ class Blocks:
         cams, objs = self.seg.target.natural(u.reshape(-1, u.shape[-1]))
         return cams.reshape(u.shape[:2] + (5,)), objs.reshape(u.shape[:2] + objs.shape[1:])
 
+    kept = natural  # what the driver keeps of each state
+
     def acceptance(self) -> tuple[float, float, float]:
         return tuple(float(np.mean(self.seg.kernel.accepted[k])) for k in ("all", "camera", "objects"))
 
@@ -157,7 +159,7 @@ class Blocks:
             for i, k in denser:
                 wo[i] = k.center
             c, o = WorkingCoords(self.model).from_work(wc0[None], wo[None])
-            info["denser_mode"] = (c[0], o[0])
+            info["mode_starts"] = [(c[0], o[0], None)]
         return info
 
 

@@ -109,12 +109,16 @@ class SamplerSettings:
 
 @dataclass(frozen=True)
 class Draws:
-    """Posterior draws in natural parameters: cameras (chain, draw, 5), objects (chain, draw, m, 7)
-    and the log-density of each (chain, draw) in the sampler's coordinates."""
+    """Posterior draws in natural parameters: cameras (chain, draw, 5), objects (chain, draw, m, 7),
+    the log-density of each (chain, draw) in the sampler's coordinates and, where it varies, each
+    draw's handedness."""
 
     cameras: np.ndarray
     objects: np.ndarray
     log_prob: np.ndarray | None = None
+    #: each draw's handedness of every object (chain, draw, m) where both of a target's were
+    #: sampled (:mod:`.whole`), else None (the MAP's throughout)
+    handedness: np.ndarray | None = None
 
 
 def run_chains(kernel, convert, columns, s: SamplerSettings, bar):

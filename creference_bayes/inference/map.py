@@ -74,6 +74,15 @@ class Arrowhead:
             H[sj, si] += Hij.T
         return H + lam * np.eye(len(H))
 
+    def decrease(self, dc: np.ndarray, do: np.ndarray) -> float:
+        """How much the quadratic model (this gradient and Hessian) says the step (Δc (5,),
+        Δo (m, 7)) lowers the objective (nats)."""
+        co = np.einsum("c,mcj,mj->", dc, self.H_co, do)
+        quad = dc @ self.H_cc @ dc + 2.0 * co + np.einsum("mi,mij,mj->", do, self.H_oo, do)
+        for (i, j), Hij in zip(self.pairs, self.H_pair):
+            quad += 2.0 * do[i] @ Hij @ do[j]
+        return float(-(self.g_c @ dc + np.sum(self.g_o * do) + 0.5 * quad))
+
     def solve(self, lam: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
         """The (damped) Newton step (Δc (5,), Δo (m, 7)), or None when the Hessian is not
         positive definite. Through the Schur complement of the camera block (O(m)); with objects
@@ -352,9 +361,11 @@ def _hold(D: Arrowhead, wc: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> Arrow
 
 
 def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: float = 1e-7):
-    """Levenberg–Marquardt on the arrowhead system; returns (wc, wo, value, iterations)."""
+    """Levenberg–Marquardt on the arrowhead system, each step clipped to a trust radius in every
+    working coordinate (docs/inference.md, "Finding the MAP", step 3); returns (wc, wo, value,
+    iterations)."""
     f = _total(model, wc, wo, temperature)
-    lam = 1e-3
+    lam, radius = 1e-3, 0.5
     it = 0
     lo, hi = _camera_box(model)
     for it in range(1, max_iter + 1):
@@ -365,17 +376,22 @@ def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: f
             if step is None:
                 lam *= 10.0
                 continue
-            dc, do = step
-            dc = np.clip(dc, -0.5, 0.5)
-            do = np.clip(do, -0.5, 0.5)
-            nc, no = np.clip(wc + dc, lo, hi), wo + do  # projected onto the camera's box
+            clipped = max(np.abs(step[0]).max(), np.abs(step[1]).max(initial=0.0)) > radius
+            nc, no = np.clip(wc + np.clip(step[0], -radius, radius), lo, hi), wo + np.clip(step[1], -radius, radius)
+            # (the camera projected onto its box)
             fn = _total(model, nc, no, temperature)
             if np.isfinite(fn) and fn < f:
                 improved = True
                 done = f - fn < tol * max(1.0, abs(f))
+                gain = (f - fn) / max(D.decrease(nc - wc, no - wo), 1e-300)  # of what the quadratic model says
+                if clipped and gain > 0.75:
+                    radius = min(2.0 * radius, 4.0)
+                elif gain < 0.25:
+                    radius = max(radius / 2.0, 0.5)
                 wc, wo, f = nc, no, fn
                 lam = max(lam / 5.0, 1e-9)
                 break
+            radius = max(radius / 2.0, 0.5)
             lam *= 8.0
         if not improved or done:
             break
@@ -522,11 +538,13 @@ def _state(fit: Model, cam, objs, temperature: float, info: dict, others: tuple 
 
 
 def refine(model: Model, current: MapState, camera: np.ndarray, objects: np.ndarray,
-           temperature: float = 1.0) -> MapState:
+           handedness: np.ndarray | None = None, *, temperature: float = 1.0) -> MapState:
     """The optimum reached from another start (camera (5,), objects (m, 7): a mode the sampler's
-    search found), if it is better than ``current``; else ``current``. The handedness and pilot of
-    ``current`` are kept."""
+    search found; ``handedness`` (m,): its handedness, None: ``current``'s), if it is better than
+    ``current``; else ``current``. The pilot of ``current`` is kept."""
     fit = current.fitted(model)
+    if handedness is not None:
+        fit = fit.variant(handedness=np.asarray(handedness, float))
     coords = WorkingCoords(fit)
     wc, wo = (a[0] for a in coords.to_work(camera[None], objects[None]))
     wc, wo, f, it = _newton(fit, wc, wo, temperature)
@@ -535,7 +553,9 @@ def refine(model: Model, current: MapState, camera: np.ndarray, objects: np.ndar
     cams, objs = coords.from_work(wc[None], wo[None])
     return _state(fit, cams[0], objs[0], temperature,
                   {**current.info, "iterations": current.info.get("iterations", 0) + it,
-                   "from_sampler_mode_search": True}, current.others)
+                   "from_sampler_mode_search": True},
+                  current.others if np.array_equal(fit.handedness, current.handedness)
+                  else ((current.camera, current.objects, current.handedness),) + current.others)
 
 
 #: An object whose fit with the other handedness (the camera held) comes within this many nats of

@@ -96,11 +96,11 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
                       lp[i], None) for i in keep], np.ones(d, bool))
 
 
-def _weighed(found, free: np.ndarray) -> list[Mode]:
+def _weighed(found, free: np.ndarray, most: int = MAX_MODES) -> list[Mode]:
     """:class:`Mode` s of maxima (centre, Laplace covariance or None, log-density, shear), the
     MAP's first: each weighed by its Laplace mass over the ``free`` coordinates (none without a
-    positive-definite covariance, e.g. a maximum on a bound); the MAP's and at most
-    :data:`MAX_MODES` − 1 others by decreasing share, those under :data:`MIN_SHARE` dropped."""
+    positive-definite covariance, e.g. a maximum on a bound); the MAP's and at most ``most`` − 1
+    others by decreasing share, those under :data:`MIN_SHARE` dropped."""
     log_mass = []
     for _, c, lp, _ in found:
         sign, logdet = np.linalg.slogdet(c[np.ix_(free, free)]) if c is not None else (0.0, 0.0)
@@ -113,7 +113,7 @@ def _weighed(found, free: np.ndarray) -> list[Mode]:
         shares = (np.arange(len(found)) == 0).astype(float)
     out = [Mode(x, c, float(lp), float(w), b) for (x, c, lp, b), w in zip(found, shares)]
     rest = sorted((k for k in out[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
-    return [out[0]] + rest[:MAX_MODES - 1]
+    return [out[0]] + rest[:most - 1]
 
 
 def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:

@@ -35,7 +35,8 @@ class Diagnostics:
     (dicts keyed by ``camera.<name>`` and ``<target id>.<name>``), steps, acceptance rates (``all``:
     the share of a walker's steps that moved it; ``camera``, ``objects``: of those blocks' proposals
     accepted; moves of the whole vector give ``all`` for each), ``converged`` and the reasons when
-    it is not, seconds, the modes found before sampling (None: one)."""
+    it is not, seconds, the modes found before sampling (None: one) and, where both handednesses
+    of a target were sampled, each one's share of the draws (None: the MAP's alone)."""
 
     n_chains: int
     warmup: int
@@ -56,7 +57,7 @@ class Diagnostics:
                 "max_r_hat": _extreme(_checked(self.r_hat), max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
-                "modes": self.info.get("mode_report") or None}
+                "modes": self.info.get("mode_report") or None, "handedness": self.info.get("handedness_share")}
 
 
 def _checked(d: dict) -> dict:
@@ -75,7 +76,8 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     object block, block sweeps for several, under one warm-up and one stopping rule.
 
     Returns the draws (natural parameters) and the diagnostics. Raises :class:`SamplingError`
-    when the MAP has zero posterior density. The model is sampled at the MAP's handedness and at a
+    when the MAP has zero posterior density. The model is sampled at the MAP's handedness (and,
+    for one object block, at the other's too where it comes near: :mod:`.whole`) and at a
     pilot moved to the warm-up's posterior median (:func:`_repilot`, ``info["pilot"]`` of the
     diagnostics); ``model`` itself is not changed.
     """
@@ -88,9 +90,8 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
 
     with progress_bar(progress, s.warmup + s.max_steps, desc="sampling", unit="step") as bar:
         warm = kernel.tune(bar, _repilot(model))
-        (cams, objs), lp, it, thin, diag = run_chains(kernel, kernel.natural,
-                                                      lambda c, o: _columns(model, c, o, map_est), s, bar)
-    draws = Draws(cams, objs, lp)
+        kept, lp, it, thin, diag = run_chains(kernel, kernel.kept, lambda *a: _columns(model, map_est, *a), s, bar)
+    draws = Draws(kept[0], kept[1], lp, kept[2] if len(kept) > 2 else None)
     warn = [] if diag["ok"] else [f"not converged after {it} steps: " + "; ".join(diag["why"])]
     if not start[-1]:
         warn.append("the Laplace approximation at the MAP was not positive definite (its blocks were repaired)")
@@ -133,9 +134,11 @@ def _laplace_start(model: Model, map_est: MapState, temperature: float):
     return (wc0, wo0) + laplace_blocks(model, derivatives(model, wc0, wo0, temperature, with_jacobian=True))
 
 
-def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState) -> tuple[np.ndarray, list[str]]:
-    """The quantities checked: every free parameter (yaw unwrapped around the MAP) and each
-    object's ground distance, as (chain, draw, k), with their names."""
+def _columns(model: Model, map_est: MapState, cams: np.ndarray, objs: np.ndarray,
+             hands: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """The quantities checked: every free parameter (yaw unwrapped around the MAP), each object's
+    ground distance and, where both were sampled, its handedness (``hands`` (chain, draw, m)), as
+    (chain, draw, k), with their names."""
     cols, names = [], []
     for j in np.flatnonzero(model.camera_free):
         cols.append(cams[..., j])
@@ -149,6 +152,9 @@ def _columns(model: Model, cams: np.ndarray, objs: np.ndarray, map_est: MapState
             names.append(f"{o.id}.{OBJECT_NAMES[j]}")
         cols.append(np.hypot(objs[..., i, 0], objs[..., i, 1]))
         names.append(f"{o.id}.distance_m")
+        if hands is not None and np.any(hands[..., i] != model.handedness[i]):
+            cols.append(hands[..., i])
+            names.append(f"{o.id}.handedness")
     return np.stack(cols, axis=-1), names
 
 

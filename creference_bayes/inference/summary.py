@@ -31,12 +31,19 @@ OBJECT_VARS = OBJECT_REPORT
 CAMERA_VARS = tuple("camera_height_m" if n == "height_m" else n for n in CAMERA_NAMES)
 
 
-def observations(model, cams: np.ndarray, objs: np.ndarray) -> tuple[np.ndarray, dict]:
+def observations(model, cams: np.ndarray, objs: np.ndarray, hands: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """The log-likelihood of each observation the model has at each draw, (n, k), and the
     coordinates of the ``observation`` dimension (module docstring): the model's pointwise terms
     without the padding (an object's missing sets of dimension lines, a horizon not measured,
-    targets without references)."""
-    ll = model.pointwise_log_likelihood(cams, objs)
+    targets without references). ``hands`` (n, m): each draw's handedness (None: the model's)."""
+    if hands is None:
+        ll = model.pointwise_log_likelihood(cams, objs)
+    else:  # each draw's terms at its own handedness
+        ll = {}
+        for h in np.unique(hands, axis=0):
+            rows = np.all(hands == h, axis=1)
+            for k, part in model.variant(handedness=h).pointwise_log_likelihood(cams[rows], objs[rows]).items():
+                ll.setdefault(k, np.empty((len(cams),) + np.shape(part)[1:]))[rows] = part
     cols, coords = [], {"observation": [], "kind": [], "target": [], "index": []}
 
     def add(column, label, kind, target, index):
@@ -107,11 +114,16 @@ def to_inference_data(data: dict, draws, model=None, note: str | None = None) ->
             return az.dict_to_dataset(values, coords=coords, dims=dims, attrs=attrs, index_origin=0,
                                       default_dims=None if sample else [])
 
-    groups = {"posterior": dataset(post, {name: ["object"] for name in OBJECT_VARS}, {"object": ids})}
+    dims = {name: ["object"] for name in OBJECT_VARS}
+    if getattr(draws, "handedness", None) is not None:  # a target sampled at both handednesses
+        post["handedness"], dims["handedness"] = np.asarray(draws.handedness, float), ["object"]
+    groups = {"posterior": dataset(post, dims, {"object": ids})}
     if draws.log_prob is not None:
         groups["sample_stats"] = dataset({"lp": np.asarray(draws.log_prob, float)}, {})
     if model is not None:
-        ll, where = observations(model, cams.reshape(-1, 5), objs.reshape(-1, m, 7))
+        hands = getattr(draws, "handedness", None)
+        ll, where = observations(model, cams.reshape(-1, 5), objs.reshape(-1, m, 7),
+                                 None if hands is None else np.asarray(hands, float).reshape(-1, m))
         ds = dataset({"observations": ll.reshape(C, N, -1)}, {"observations": ["observation"]},
                      {"observation": where["observation"]})
         groups["log_likelihood"] = ds.assign_coords({k: ("observation", where[k]) for k in ("kind", "target", "index")})

@@ -66,6 +66,9 @@ class StoredDraws:
     cameras: np.ndarray
     objects: np.ndarray
     log_prob: np.ndarray | None = None
+    #: each draw's handedness of every object (chain, n, m) where the file gives it (a target
+    #: sampled at both handednesses), else None
+    handedness: np.ndarray | None = None
 
 
 def _column(v: np.ndarray):
@@ -74,9 +77,10 @@ def _column(v: np.ndarray):
     return float(v[0]) if np.all(v == v[0]) else v.tolist()
 
 
-def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int, lp: np.ndarray | None = None) -> dict:
+def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int, lp: np.ndarray | None = None,
+                hands: np.ndarray | None = None) -> dict:
     """Evenly spaced draws of the chains' draws laid end to end, each with its chain (and its
-    log-density, ``lp``)."""
+    log-density, ``lp``, and each object's handedness, ``hands`` (n, m), where it varies)."""
     n = len(cams)
     idx = np.unique(np.linspace(0, n - 1, min(n_keep, n)).round().astype(int))
     out = {"n": int(len(idx)), "of": int(n), "chain": (idx // (n // n_chains)).tolist(),
@@ -85,6 +89,9 @@ def _keep_draws(cams: np.ndarray, objs: np.ndarray, n_keep: int, n_chains: int, 
                        for i in range(objs.shape[1])]}
     if lp is not None:
         out["lp"] = _column(np.asarray(lp, float).reshape(-1)[idx])
+    if hands is not None:
+        for i, o in enumerate(out["objects"]):
+            o["handedness"] = [int(v) for v in hands[idx, i]]
     return out
 
 
@@ -111,7 +118,16 @@ def stored_draws(d: dict) -> StoredDraws | None:
             lp = np.broadcast_to(np.asarray(kept["lp"], float), (n,)).copy()
         except (TypeError, ValueError):
             raise ValueError(f"draws.lp: expected {n} numbers") from None
-    return StoredDraws(cams[None], objs[None], None if lp is None else lp[None])
+    hands = None
+    if any("handedness" in o for o in kept["objects"]):
+        try:
+            hands = np.column_stack([np.broadcast_to(np.asarray(o.get("handedness", d["objects"][i]["handedness"]), float),
+                                                     (n,)) for i, o in enumerate(kept["objects"])])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"draws.objects[].handedness: expected {n} values of 1 or -1") from None
+        if not np.all(np.isin(hands, (-1.0, 1.0))):
+            raise ValueError(f"draws.objects[].handedness: expected 1 or -1, got {sorted(set(hands.ravel()) - {-1.0, 1.0})[:3]}")
+    return StoredDraws(cams[None], objs[None], None if lp is None else lp[None], None if hands is None else hands[None])
 
 
 def chained_draws(d: dict) -> StoredDraws | None:
@@ -130,7 +146,8 @@ def chained_draws(d: dict) -> StoredDraws | None:
     k = min(len(r) for r in rows)
     pick = np.stack([r[:k] for r in rows])  # (C, k) indices into the kept draws
     lp = None if kept.log_prob is None else kept.log_prob[0][pick]
-    return StoredDraws(kept.cameras[0][pick], kept.objects[0][pick], lp)
+    hands = None if kept.handedness is None else kept.handedness[0][pick]
+    return StoredDraws(kept.cameras[0][pick], kept.objects[0][pick], lp, hands)
 
 
 def _r(v, nd=6):
@@ -258,7 +275,9 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
         objs[..., O_YAW] = yaw0 + (objs[..., O_YAW] - yaw0 + np.pi) % (2 * np.pi) - np.pi
         table = object_report(cams, objs)  # (N, m, 9)
         if keep_draws > 0:
-            kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0], draws.log_prob)
+            hands = getattr(draws, "handedness", None)
+            kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0], draws.log_prob,
+                               None if hands is None else hands.reshape(-1, model.n_objects))
         post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
         post_cam = _summary(cams, hdi_prob)
         camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
