@@ -256,7 +256,7 @@ def test_reweighted_draws_agree_with_a_re_estimate(make_scene, n_objects):
     np.testing.assert_allclose(sd_w, dist_new.std(axis=0), rtol=0.15)
 
 
-@pytest.mark.parametrize("seed, n_objects", [(21, 1), (23, 2)])
+@pytest.mark.parametrize("seed, n_objects", [(21, 1), pytest.param(23, 2, marks=pytest.mark.slow)])
 def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_objects):
     """A second set of dimension lines on the first target of a scene of one set each, simulated
     at the draw it collapses the weights most for (the scene's corner scales change with it): the

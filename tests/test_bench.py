@@ -24,6 +24,7 @@ def quick(tmp_path_factory):
     return out, json.loads((out / "bench.json").read_text())
 
 
+@pytest.mark.slow  # the quick bench run (about 2 CPU-minutes)
 def test_every_estimator_appears(quick):
     _, doc = quick
     recs = doc["records"]
@@ -68,6 +69,7 @@ def test_real_cameras_reach_the_bench_scenes_and_their_noise_free_scenes_are_sol
     assert main(["bench", "--sbc", "--cameras", "real", "--out", str(tmp_path / "x"), "--quiet"]) == 2
 
 
+@pytest.mark.slow  # the quick bench run (about 2 CPU-minutes)
 def test_noise_free_tier_is_solved(quick):
     _, doc = quick
     default_model = EstimateSettings().model
@@ -79,6 +81,7 @@ def test_noise_free_tier_is_solved(quick):
     assert all(r["error"] == 0.0 for r in none if r["estimator"].startswith("crb"))
 
 
+@pytest.mark.slow  # the quick bench run (about 2 CPU-minutes)
 def test_noisy_tiers_are_bounded_below_by_the_crb(quick):
     """The bound is positive with noise and grows with the tier's noise."""
     _, doc = quick
@@ -90,6 +93,7 @@ def test_noisy_tiers_are_bounded_below_by_the_crb(quick):
     assert np.median(crb["low"]) < np.median(crb["high"])
 
 
+@pytest.mark.slow  # the quick bench run (about 2 CPU-minutes)
 def test_tables_and_figures_are_written(quick):
     out, doc = quick
     md = (out / "bench.md").read_text()
@@ -134,6 +138,7 @@ def test_calibration_of_known_draws():
     assert cover["x"] == {"50": False, "90": True}
 
 
+@pytest.mark.slow  # the quick bench run (about 2 CPU-minutes)
 def test_the_error_by_tier_figure_has_few_distinct_series_per_panel(quick):
     from matplotlib.colors import to_hex
 

@@ -161,9 +161,20 @@ def _run_all(runs: dict, tmp_path: Path, parallel: int = 2) -> None:
     assert not failures, "\n\n".join(failures)
 
 
+#: Examples whose tiny run has several steps (other modes of the same script) that the default
+#: suite cuts to the first few; every step runs in the slow suite.
+DEFAULT_STEPS = {"advice_study.py": 1, "reference_reading_study.py": 1, "thin_designs.py": 1, "check_sampler.py": 1}
+
+
 @pytest.mark.parametrize("name", sorted(TINY))
 def test_every_example_runs_on_a_tiny_budget(name, tmp_path):
     # one test an example, so that the test runner's workers share them out
+    _run_all({name: TINY[name][:DEFAULT_STEPS.get(name)]}, tmp_path, parallel=1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(DEFAULT_STEPS))
+def test_every_step_of_the_tiny_runs(name, tmp_path):
     _run_all({name: TINY[name]}, tmp_path, parallel=1)
 
 
@@ -460,6 +471,7 @@ def test_the_advice_study_predicts_on_the_simulators_crowds(tmp_path, monkeypatc
     assert rec["tier"] == "light" and rec["rows"]
 
 
+@pytest.mark.slow  # the study's bench scenes (about 30 s)
 def test_the_reading_study_reads_the_bench_scenes_of_other_seeds(tmp_path, monkeypatch):
     """``--bench --seeds 0,1``: the first scene of the bench's draw at each seed (another scene at
     seed 1, named so), each with the truth's quantile in the posterior of its distance."""

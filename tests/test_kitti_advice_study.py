@@ -56,6 +56,7 @@ def test_answers_come_from_the_truth_and_the_seed(kitti_dir, tmp_path):
     assert len(added.targets[0].dimension_lines) == 2 and added.targets[1:] == scene.targets[1:]
 
 
+@pytest.mark.slow  # every design of the study (about a minute)
 def test_the_study_runs_every_design_on_a_tiny_budget(kitti_dir, tmp_path):
     out = tmp_path / "study"
     proc = subprocess.run([sys.executable, str(SCRIPT), str(kitti_dir), "--out", str(out), "--max-steps", "300",

@@ -232,6 +232,7 @@ def test_the_kitti_path_on_the_command_line(tmp_path):
     assert "AP R40" in out and "Car         0.7  3D" in out
 
 
+@pytest.mark.slow  # the KITTI study's pooled run (about 30 s)
 def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp_path):
     """Three frames with the same P2 and the focal length left out of the scenes: every scene names
     the same camera, and ``--rig focal`` gives each frame a focal-length prior from the two others
@@ -295,7 +296,8 @@ def test_kitti_study_gives_p2s_focal_length_as_a_prior_of_the_asked_width(kitti_
         assert bad.returncode == 2 and said in bad.stderr, (flags, bad.stderr)
 
 
-@pytest.mark.parametrize("flags,pooled", [([], True), pytest.param(["--own-scale"], False, marks=pytest.mark.slow)])
+@pytest.mark.slow  # a batch, labels and the reliability check on a KITTI folder (about a minute)
+@pytest.mark.parametrize("flags,pooled", [([], True), (["--own-scale"], False)])
 def test_label_reliability_on_a_kitti_folder_with_a_sample_annotated_twice(kitti_dir, tmp_path, flags, pooled):
     """examples/label_reliability.py --kitti --twice-every 2: the first frame's objects have two sets,
     the second frame's one, which takes the first frame's corner scale (--own-scale: its own; batch's
