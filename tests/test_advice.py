@@ -214,7 +214,7 @@ def test_collapsed_weights_fall_back_to_the_tempered_update(example, monkeypatch
         assert 0 < e.hdi_width_m[0] < 3 * a.now.hdi_width_m[0]
 
 
-@pytest.mark.parametrize("n_objects", [1, 2])
+@pytest.mark.parametrize("n_objects", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_reweighted_draws_agree_with_a_re_estimate(make_scene, n_objects):
     """One simulated set of dimension lines on the first target: the current draws reweighted by
     it against the posterior of the scene estimated again with it (a brute-force re-estimate), for

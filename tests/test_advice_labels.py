@@ -863,6 +863,7 @@ def _advise_into(batch, out, *engine) -> tuple[str, list]:
     return _advice_files(batch / out)
 
 
+@pytest.mark.slow  # three advices of the batch; test_advice.py checks the worker count on a smaller one
 def test_advise_batch_gives_the_same_plan_on_one_worker_or_two(advised_batch):
     """issue 64: the frames run on batch's engine; a frame's seed is fixed by its key, so the plan
     and the advice do not depend on the number of workers."""

@@ -138,7 +138,8 @@ def test_estimate_without_ground_truth_has_no_evaluation(tmp_path, capsys):
     assert "evaluation" not in data["objects"][0] and "evaluation" not in data["camera"]
 
 
-@pytest.mark.parametrize("model, preset", [("paper", "default"), ("metrology", "paper-controlled")])
+@pytest.mark.parametrize("model, preset", [("paper", "default"),
+                                           pytest.param("metrology", "paper-controlled", marks=pytest.mark.slow)])
 def test_every_model_and_preset_takes_a_scene_of_several_objects(tmp_path, capsys, monkeypatch, model, preset):
     import creference_bayes.inference.map as map_
 

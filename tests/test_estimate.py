@@ -44,7 +44,7 @@ def test_a_one_object_frame_and_the_same_scene_as_version_1_give_the_same_poster
     assert a.to_dict()["camera"] == b.to_dict()["camera"]
 
 
-@pytest.mark.parametrize("m", [1, 3])
+@pytest.mark.parametrize("m", [1, pytest.param(3, marks=pytest.mark.slow)])
 def test_the_same_seed_gives_the_same_result_and_it_rebuilds_its_model(m, tmp_path):
     d, _ = truth_scene(4, m=m, n_annotations=2, noise_px=2.0, n_refs=2, sizes_known=m == 1)
     path = tmp_path / "scene.json"

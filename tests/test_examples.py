@@ -166,7 +166,13 @@ def _run_all(runs: dict, tmp_path: Path, parallel: int = 2) -> None:
 DEFAULT_STEPS = {"advice_study.py": 1, "reference_reading_study.py": 1, "thin_designs.py": 1, "check_sampler.py": 1}
 
 
-@pytest.mark.parametrize("name", sorted(TINY))
+#: Examples whose tiny run is among the longest (batches of their own) and whose path other default
+#: tests cover: their tiny runs are in the slow suite.
+SLOW_TINY = {"thin_designs.py", "pilot_dependence.py", "dataset_pipeline.py", "horizon_study.py",
+             "fallback_accuracy.py", "aggregation_study.py"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TINY else n for n in sorted(TINY)])
 def test_every_example_runs_on_a_tiny_budget(name, tmp_path):
     # one test an example, so that the test runner's workers share them out
     _run_all({name: TINY[name][:DEFAULT_STEPS.get(name)]}, tmp_path, parallel=1)

@@ -93,6 +93,7 @@ def _truth_quantile(scene, truth, location_prior):
     return float(np.mean(dist < np.hypot(truth["objects"][0, 0], truth["objects"][0, O_Z])))
 
 
+@pytest.mark.slow  # estimates of thin designs (about 20 s)
 def test_thin_design_does_not_lean_far():
     """One set of dimension lines, no references, a far target, a focal prior centred on the true
     µ: with the log-depth prior the truth sits in the posterior's body; the flat prior puts it in

@@ -66,13 +66,20 @@ def table_scene(tmp_path_factory):
     return next(s for s in scenes if [t.id for t in s.targets] == ["table"])
 
 
+@pytest.fixture(scope="module")
+def table_result(table_scene):
+    """The table's estimate with seed 0 and the defaults (the log-depth prior), shared."""
+    return estimate(table_scene, seed=0)
+
+
 def _hdi(r) -> list[float]:
     return r.to_dict()["objects"][0]["posterior"]["hdi"]["distance_m"]
 
 
 @pytest.mark.parametrize("location_prior, seeds", [("log-depth", (0, 7, 11)),
                                                     pytest.param("flat", (0, 11), marks=pytest.mark.slow)])
-def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_scene, location_prior, seeds):
+def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_scene, table_result, location_prior,
+                                                                       seeds):
     """One set of dimension lines and one reference: a near mode at 5 m and far ones at 10–14 m of
     one handedness, and a mode at 8.5 m of the other, whose optimum is the MAP. Sampled at the
     MAP's handedness alone the HDI was [7.7, 10.1] m; at the other's alone [4.8, 5.5] m, and
@@ -81,7 +88,8 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
     both handednesses, and the flat prior puts more mass far than the log-depth one."""
     hdis, far, other = [], [], []  # other: the share of the draws at handedness −1
     for seed in seeds:
-        r = estimate(table_scene, seed=seed, location_prior=location_prior)
+        r = table_result if (seed, location_prior) == (0, "log-depth") else \
+            estimate(table_scene, seed=seed, location_prior=location_prior)
         d = r.to_dict()["diagnostics"]
         assert d["converged"], d["warnings"]
         hdis.append(_hdi(r))
@@ -101,7 +109,7 @@ def test_every_seed_finds_the_same_posterior_on_the_label_studio_table(table_sce
         assert far.mean() < 0.45
 
 
-def test_each_handedness_holds_its_share_of_the_mass(table_scene):
+def test_each_handedness_holds_its_share_of_the_mass(table_scene, table_result):
     """The share of the draws at each handedness is that handedness's share of the posterior mass,
     measured independently by importance sampling each one's density (a t mixture at its modes
     found before sampling as the proposal: 40 000 points, its own seed)."""
@@ -112,7 +120,7 @@ def test_each_handedness_holds_its_share_of_the_mass(table_scene):
     from creference_bayes.inference.whole import Whole
     from creference_bayes.pipeline import build_model
 
-    r = estimate(table_scene, seed=0)
+    r = table_result
     drawn = {tuple(h["handedness"]): h["draw_share"] for h in r.to_dict()["diagnostics"]["handedness"]}
     model, _ = build_model(table_scene)
     T = model.default_temperature
@@ -137,6 +145,7 @@ def test_each_handedness_holds_its_share_of_the_mass(table_scene):
         assert drawn[tuple(side.model.handedness.astype(int))] == pytest.approx(share[k], abs=0.08)
 
 
+@pytest.mark.slow  # 1,500 steps without the independence proposal (about 30 s)
 def test_r_hat_across_modes_catches_a_sampler_that_cannot_move_between_them(table_scene):
     """Without the independence proposal only local moves are left; the ensembles, started in
     different modes, then disagree and the result says so."""
@@ -160,6 +169,7 @@ def _outlier_scene():
     return d
 
 
+@pytest.mark.slow  # two estimates with a far mode (about 35 s); the table tests keep modes in the default run
 def test_a_careless_height_line_every_seed_sees_the_far_mode():
     """Before the mode search, seeds 0 and 2 reported [5.97, 6.19] m, converged (seed 1: [5.94, 8.97])."""
     scene = _outlier_scene()
@@ -283,13 +293,13 @@ def test_every_chain_of_a_frame_visits_both_modes_of_its_object(two_readings, se
     assert report[1]["distance_m"] == pytest.approx(1.6 * true_distance, rel=0.1)
 
 
-def test_each_draw_keeps_its_handedness_in_the_result_file_and_the_log_likelihood(table_scene, tmp_path):
+def test_each_draw_keeps_its_handedness_in_the_result_file_and_the_log_likelihood(table_scene, table_result, tmp_path):
     """A draw of the other handedness is a box whose lines start from the other corner: the result
     file keeps each kept draw's handedness, and the pointwise log-likelihood (for LOO) of each draw
     is its own handedness's, in memory and read back alike."""
     from creference_bayes.pipeline import build_model, load_result
 
-    r = estimate(table_scene, seed=0)
+    r = table_result
     path = r.save(tmp_path / "table.result.json")
     back = load_result(path, table_scene)
     hands = back.draws.handedness[..., 0]  # (chain, n)

@@ -88,6 +88,7 @@ def test_an_unreadable_file_is_named(capsys):
     assert capsys.readouterr().err.strip() == "error: /proc/self/mem: Input/output error"
 
 
+@pytest.mark.slow  # a batch, two plots and two advices (about 35 s); test_batch.py plots and advises a batch too
 def test_plot_and_advise_use_the_batch_folders_scene(tmp_path):
     """A batch result is named like its scene; plot and advise find the batch folder's copy of the
     scene, for a scene of several objects and for a one-target scene alike."""

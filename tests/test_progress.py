@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from creference_bayes.cli.main import example_scene_path
 from creference_bayes.inference.map import optimize
@@ -40,6 +41,7 @@ class _Recorder:
         return contextlib.nullcontext()
 
 
+@pytest.mark.slow  # the paper preset's restarts, twice (about 15 s)
 def test_paper_restarts_bar_shows_on_stderr_and_changes_nothing(capsys, monkeypatch):
     import creference_bayes.inference.progress as progress
 

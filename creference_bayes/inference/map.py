@@ -377,8 +377,8 @@ def _newton(model: Model, wc, wo, temperature: float, max_iter: int = 60, tol: f
                 lam *= 10.0
                 continue
             clipped = max(np.abs(step[0]).max(), np.abs(step[1]).max(initial=0.0)) > radius
-            nc, no = np.clip(wc + np.clip(step[0], -radius, radius), lo, hi), wo + np.clip(step[1], -radius, radius)
-            # (the camera projected onto its box)
+            nc = np.clip(wc + np.clip(step[0], -radius, radius), lo, hi)  # projected onto the camera's box
+            no = wo + np.clip(step[1], -radius, radius)
             fn = _total(model, nc, no, temperature)
             if np.isfinite(fn) and fn < f:
                 improved = True

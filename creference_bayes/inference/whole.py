@@ -120,16 +120,11 @@ class Whole:
         Q = np.atleast_2d(Q)
         first = Q[:, -1] >= 0
         out = np.empty(len(Q))
-        for side, rows in zip(self.sides, (first, ~first)):
-            if rows.any():
-                out[rows] = self._safe(side.log_prob, Q[rows, :-1])
+        with np.errstate(all="ignore"):  # NaN and ±∞: the ensemble's wrapper makes them −∞
+            for side, rows in zip(self.sides, (first, ~first)):
+                if rows.any():
+                    out[rows] = side.log_prob(Q[rows, :-1])
         return out - 0.5 * Q[:, -1] ** 2
-
-    @staticmethod
-    def _safe(log_prob, q):
-        with np.errstate(all="ignore"):
-            v = np.asarray(log_prob(q), float)
-        return np.where(np.isnan(v), -np.inf, v)
 
     def _q(self, Q: np.ndarray) -> np.ndarray:
         return Q[..., :-1] if self.mixed else Q
