@@ -121,8 +121,9 @@ def stored_draws(d: dict) -> StoredDraws | None:
     hands = None
     if any("handedness" in o for o in kept["objects"]):
         try:
-            hands = np.column_stack([np.broadcast_to(np.asarray(o.get("handedness", d["objects"][i]["handedness"]), float),
-                                                     (n,)) for i, o in enumerate(kept["objects"])])
+            hands = np.column_stack([np.broadcast_to(np.asarray(o["handedness"] if "handedness" in o else
+                                                                d["objects"][i]["handedness"], float), (n,))
+                                     for i, o in enumerate(kept["objects"])])
         except (KeyError, TypeError, ValueError):
             raise ValueError(f"draws.objects[].handedness: expected {n} values of 1 or -1") from None
         if not np.all(np.isin(hands, (-1.0, 1.0))):
