@@ -9,6 +9,8 @@ camera) are described in docs/inference.md ("Modes first").
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,9 +79,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
             v = log_prob(coords.inverse(np.atleast_2d(uu)))
         return np.where(np.isfinite(v), -v, 1e300)
 
-    found = [np.zeros(d)]
-    for s in starts:
-        found.append(_climb(neg, s))
+    found = [np.zeros(d)] + _climbs(neg, starts)
     p_found = coords.inverse(np.array(found))
     if circular is not None:  # the same state, one turn away: bring it next to the MAP
         k = np.asarray(circular, int)
@@ -87,11 +87,14 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     lp = np.asarray(log_prob(p_found), float)
     u_found = coords.forward(p_found)
     keep: list[int] = [0]
+    seen = [0]  # the maxima merged or kept so far
     for i in np.argsort(-lp):
         if i == 0 or not np.isfinite(lp[i]) or lp[i] < lp[0] - MAX_DROP:
             continue
-        if not any(_same_mode(neg, u_found[i], u_found[j]) for j in keep):
+        near_seen = np.min(np.linalg.norm(u_found[seen] - u_found[i], axis=1)) <= SAME_MODE
+        if not near_seen and not _same_modes(neg, u_found[i], u_found[keep]):
             keep.append(int(i))
+        seen.append(int(i))
     return _weighed([(p_found[i] if i else center, cov if i == 0 else np.asarray(laplace(p_found[i]), float),
                       lp[i], None) for i in keep], np.ones(d, bool))
 
@@ -120,32 +123,39 @@ def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two maxima are one mode: close (:data:`SAME_MODE`), or no valley deeper than
     :data:`VALLEY` nats between them, on the straight line (in the whitened coordinates) or, where
     that line leaves a curved ridge, on the path through each intermediate cross-section's own
-    maximum (:func:`_pass_height`)."""
-    if np.linalg.norm(a - b) <= SAME_MODE:
+    maximum (:func:`_pass_heights`)."""
+    return _same_modes(neg, a, b[None])
+
+
+def _same_modes(neg, a: np.ndarray, bs: np.ndarray) -> bool:
+    """Whether the maximum ``a`` is one mode with any of the maxima ``bs`` (k, d) (:func:`_same_mode`),
+    every line's and every path's evaluations of ``neg`` made together."""
+    bs = np.atleast_2d(bs)
+    if np.any(np.linalg.norm(bs - a, axis=1) <= SAME_MODE):
         return True
     t = np.linspace(0.0, 1.0, 7)[:, None]
-    v = neg(a + t * (b - a))
-    floor = max(v[0], v[-1])
-    if np.max(v[1:-1]) <= floor + VALLEY:
+    v = neg(np.concatenate([a + t * (b - a) for b in bs])).reshape(len(bs), len(t))
+    floor = np.maximum(v[:, 0], v[:, -1])
+    if np.any(np.max(v[:, 1:-1], axis=1) <= floor + VALLEY):
         return True
-    return _pass_height(neg, a, b) <= floor + VALLEY
+    return bool(np.any(_pass_heights(neg, a, bs) <= floor + VALLEY))
 
 
-def _pass_height(neg, a: np.ndarray, b: np.ndarray, n: int = 5) -> float:
-    """The highest −log p met on the way from ``a`` to ``b`` along a bending path: the largest,
-    over n evenly spaced planes orthogonal to the segment, of the least −log p in each plane
-    (maxima along one curved ridge see a "valley" on the straight line that is only its bend; a
-    true valley stays deep in every plane).
+def _pass_heights(neg, a: np.ndarray, bs: np.ndarray, n: int = 5) -> np.ndarray:
+    """The highest −log p met on the way from ``a`` to each of ``bs`` (k, d) along a bending path:
+    the largest, over n evenly spaced planes orthogonal to the segment, of the least −log p in each
+    plane (maxima along one curved ridge see a "valley" on the straight line that is only its bend;
+    a true valley stays deep in every plane). All k · n planes are climbed together (:func:`_climbs`).
     """
-    e = (b - a) / np.linalg.norm(b - a)
-    basis = np.linalg.svd(np.eye(len(a)) - np.outer(e, e))[0][:, :len(a) - 1]  # ⟂ e
-    worst = -np.inf
-    for t in np.linspace(0.0, 1.0, n + 2)[1:-1]:
-        p0 = a + t * (b - a)
-        section = lambda y, p0=p0: neg(p0 + np.atleast_2d(y) @ basis.T)  # noqa: E731
-        y = _climb(section, np.zeros(len(a) - 1))
-        worst = max(worst, float(section(y)[0]))
-    return worst
+    planes = []
+    for b in bs:
+        e = (b - a) / np.linalg.norm(b - a)
+        basis = np.linalg.svd(np.eye(len(a)) - np.outer(e, e))[0][:, :len(a) - 1]  # ⟂ e
+        planes += [(a + t * (b - a), basis) for t in np.linspace(0.0, 1.0, n + 2)[1:-1]]
+    through = [lambda y, p0=p0, basis=basis: p0 + np.atleast_2d(y) @ basis.T for p0, basis in planes]
+    ys = _climbs(neg, np.zeros((len(planes), len(a) - 1)), through)
+    v = neg(np.array([f(y)[0] for f, y in zip(through, ys)]))
+    return v.reshape(len(bs), n).max(axis=1)
 
 
 def _spread(u: np.ndarray, lp: np.ndarray, k: int) -> np.ndarray:
@@ -175,6 +185,87 @@ def _climb(neg, u0: np.ndarray, h: float = 1e-5) -> np.ndarray:
     with np.errstate(all="ignore"):
         res = minimize(fg, u0, jac=True, method="L-BFGS-B", options={"maxiter": 100, "ftol": 1e-7, "gtol": 1e-4})
     return res.x if np.isfinite(res.fun) and res.fun <= fg(u0)[0] else u0
+
+
+class _Gathered:
+    """Evaluations of a vectorised ``f`` asked for by ``n`` threads, made together: a round's call
+    waits until every thread still running has asked (one call costs about as much for one point
+    as for hundreds)."""
+
+    def __init__(self, f, n: int):
+        self.f, self.running, self.asked, self.answers = f, n, {}, {}
+        self.cv = threading.Condition()
+        self.stopped = False
+
+    def ask(self, k: int, x: np.ndarray) -> np.ndarray:
+        with self.cv:
+            self.asked[k] = x
+            self._answer()
+            while k not in self.answers and not self.stopped:
+                self.cv.wait()
+            out = self.answers.pop(k, None)
+        if self.stopped:
+            raise _Stopped
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+    def stop(self) -> None:
+        """Every thread's next (or pending) ask raises :class:`_Stopped` (the caller was interrupted)."""
+        with self.cv:
+            self.stopped = True
+            self.cv.notify_all()
+
+    def leave(self) -> None:
+        with self.cv:
+            self.running -= 1
+            self._answer()
+
+    def _answer(self) -> None:
+        if not self.asked or len(self.asked) < self.running:
+            return
+        keys = sorted(self.asked)
+        xs = [self.asked.pop(k) for k in keys]
+        try:
+            with np.errstate(all="ignore"):
+                v = np.asarray(self.f(np.concatenate(xs)), float)
+            parts = np.split(v, np.cumsum([len(x) for x in xs])[:-1])
+        except BaseException as exc:  # every thread waiting gets it
+            parts = [exc] * len(keys)
+        self.answers.update(zip(keys, parts))
+        self.cv.notify_all()
+
+
+def _climbs(neg, starts, through=None) -> list[np.ndarray]:
+    """:func:`_climb` from each of ``starts`` (k, d'), in lockstep: the climbs run in threads whose
+    evaluations of ``neg`` are gathered into one vectorised call a round (:class:`_Gathered`), so
+    the same maxima cost a few calls instead of one per climb's step. ``through``: per start, the
+    map (n, d') → (n, d) from its coordinates to those of ``neg`` (None: the same)."""
+    starts = list(np.atleast_2d(starts)) if len(starts) else []
+    through = through or [lambda x: np.atleast_2d(x)] * len(starts)
+    if len(starts) <= 1:
+        return [_climb(lambda x, f=f: neg(f(x)), s) for s, f in zip(starts, through)]
+    gathered = _Gathered(neg, len(starts))
+
+    def one(k):
+        try:
+            return _climb(lambda x: gathered.ask(k, through[k](x)), starts[k])
+        finally:
+            gathered.leave()
+
+    pool = ThreadPoolExecutor(len(starts))
+    try:
+        futures = [pool.submit(one, k) for k in range(len(starts))]
+        return [f.result() for f in futures]
+    except BaseException:  # an interrupt, or a climb's error: the other climbs stop too
+        gathered.stop()
+        raise
+    finally:
+        pool.shutdown(wait=True)
+
+
+class _Stopped(Exception):
+    """A lockstep climb stopped because another failed or the caller was interrupted."""
 
 
 def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, temperature: float,
@@ -238,7 +329,7 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         found = [wo0[i]]
         for e in ends:
             x = e[i]
-            if np.all(np.isfinite(x)) and not any(_same_mode(neg, whiten(x)[0], whiten(f)[0]) for f in found):
+            if np.all(np.isfinite(x)) and not _same_modes(neg, whiten(x)[0], whiten(np.array(found))):
                 found.append(x)
         lp = own(i, np.array(found))
         modes = [(wo0[i], Ao[i], lp[0], None)]
