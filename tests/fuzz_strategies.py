@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 #: CREFERENCE_FUZZ_EXAMPLES=5000 runs a longer fuzz (and a random one) when looking for crashes.
-N_EXAMPLES = int(os.environ.get("CREFERENCE_FUZZ_EXAMPLES", "150"))
+N_EXAMPLES = int(os.environ.get("CREFERENCE_FUZZ_EXAMPLES", "80"))
 #: The slow-marked long fuzz: examples per reader (at least 1000).
 N_LONG = max(1000, int(os.environ.get("CREFERENCE_LONG_FUZZ_EXAMPLES", "1000")))
 

@@ -837,6 +837,7 @@ def test_bad_advice_settings_are_named(capsys):
         assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # another advice of the batch; test_batch.py checks the line per scene of the same engine
 def test_advise_batch_prints_a_line_per_scene_when_stderr_is_not_a_terminal(advised_batch, capsys):
     """An advice of a batch run into a log file said nothing until its end (issue 64): a line per
     frame advised, naming it."""
@@ -873,6 +874,7 @@ def test_advise_batch_gives_the_same_plan_on_one_worker_or_two(advised_batch):
     assert _advise_into(advised_batch, "default_workers") == one  # the default: the machine's cores
 
 
+@pytest.mark.slow  # a cluster and an advice; test_batch.py runs the same engine on a LocalCluster
 def test_advise_batch_runs_on_a_dask_scheduler_with_the_same_numbers(advised_batch):
     """issue 64: --scheduler as creference batch has it; the numbers are those of local processes."""
     distributed = pytest.importorskip("distributed")

@@ -161,6 +161,7 @@ def _predictions(workers, n, seed, spread):
     return preds
 
 
+@pytest.mark.slow  # 1,800 predictions bootstrapped; test_fits_are_deterministic_for_a_seed keeps the fit in the default run
 def test_fit_without_truth_recovers_the_true_map_from_calibrated_posteriors():
     workers = ConfidentWorkers(tuple(f"w{i}" for i in range(20)),
                                tuple(np.geomspace(0.15, 0.5, 20)), width_factor=0.5, width_jitter=0.0)

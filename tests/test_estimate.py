@@ -132,6 +132,7 @@ def test_the_result_keeps_draws_that_read_back():
     assert stored_draws(cb.estimate(d, seed=0, posterior=False).to_dict()) is None
 
 
+@pytest.mark.slow  # three estimates; test_map.py checks the presets, test_models.py the paper model
 def test_both_models_and_every_preset_take_any_scene():
     d, _ = truth_scene(8, m=2, n_annotations=2, noise_px=2.0, n_refs=3)
     docs = []

@@ -3,6 +3,7 @@ a tiny budget: the scripts are run, not only parsed, so an API change that break
 
 import json
 import os
+import runpy
 import subprocess
 import sys
 import time
@@ -103,19 +104,20 @@ def test_every_example_has_a_tiny_run():
     assert names == set(TINY) | set(EXTERNAL), names ^ (set(TINY) | set(EXTERNAL))
 
 
-def test_every_example_takes_help_and_writes_nothing(tmp_path):
-    runs = {}
-    for script in EXAMPLES:  # all at once: each pays its own imports
+def test_every_example_takes_help_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(EXAMPLES[0].parent))  # as a script sees its folder
+    for script in EXAMPLES:  # in this process: a subprocess each would pay the imports again
         cwd = tmp_path / script.stem
         cwd.mkdir()
-        runs[script.name] = (cwd, subprocess.Popen([sys.executable, str(script), "--help"], cwd=cwd,
-                                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-    for name, (cwd, proc) in runs.items():
-        out, err = proc.communicate(timeout=120)
-        assert proc.returncode == 0, f"{name}: {err}"
-        assert out.startswith("usage:"), name
-        assert err == "", name
-        assert list(cwd.iterdir()) == [], f"{name} --help wrote files"
+        monkeypatch.chdir(cwd)
+        monkeypatch.setattr(sys, "argv", [str(script), "--help"])
+        with pytest.raises(SystemExit) as exit_:
+            runpy.run_path(str(script), run_name="__main__")
+        out, err = capsys.readouterr()
+        assert exit_.value.code in (0, None), f"{script.name}: {err}"
+        assert out.startswith("usage:"), script.name
+        assert err == "", script.name
+        assert list(cwd.iterdir()) == [], f"{script.name} --help wrote files"
 
 
 def test_no_example_writes_into_docs_by_default():
@@ -169,7 +171,8 @@ DEFAULT_STEPS = {"advice_study.py": 1, "reference_reading_study.py": 1, "thin_de
 #: Examples whose tiny run is among the longest (batches of their own) and whose path other default
 #: tests cover: their tiny runs are in the slow suite.
 SLOW_TINY = {"thin_designs.py", "pilot_dependence.py", "dataset_pipeline.py", "horizon_study.py",
-             "fallback_accuracy.py", "aggregation_study.py"}
+             "fallback_accuracy.py", "aggregation_study.py", "batch_throughput.py", "profile_posterior.py",
+             "advice_study.py"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TINY else n for n in sorted(TINY)])
@@ -189,7 +192,7 @@ def test_the_examples_longer_runs(tmp_path):
     _run_all(SLOW, tmp_path)
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_study_accounts_for_every_estimate(tmp_path):
     """Each predict record carries every estimate it made (the one before the advice and one per
     annotation added), with its CPU seconds, convergence and overflow warnings, and ``report``
@@ -243,7 +246,7 @@ def _spy_on(study, monkeypatch, *keys) -> dict:
     return seen
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path, monkeypatch):
     """``own``: each scene's starting point and its three added annotations come from one truth of
     the model's prior; the next set and the new reference are the scene's next ones, the repeat is
@@ -289,7 +292,7 @@ def test_the_advice_studys_own_scenes_follow_the_models_prior_and_noise(tmp_path
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_studys_own_scenes_start_from_the_sets_asked_for(tmp_path, monkeypatch):
     """``own --sets``: every scene starts from one of the numbers of target sets given (the
     default draws are the study's own: 1, 2, 3 or 5), a bad list is refused naming the option,
@@ -388,7 +391,7 @@ def test_the_advice_studys_report_places_the_truth_by_band_and_by_setting(tmp_pa
     assert ", outdoor" not in study.report_predict(tmp_path / "one")
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(tmp_path, monkeypatch):
     """``--option ref_dof=30``: every estimate and advice of ``predict`` reads references with 30
     degrees of freedom, the records say so, and a resumed run with other options is refused; a
@@ -413,7 +416,7 @@ def test_the_advice_studys_model_options_reach_every_estimate_and_are_recorded(t
         assert proc.returncode == 2 and bad.split("=")[0] in proc.stderr, (bad, proc.stderr)
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     """``--focal-prior MEDIAN,LOG_SD`` reaches the estimates (their camera block) and is recorded;
     a malformed value is a usage error that names the option and the value."""
@@ -446,7 +449,7 @@ def test_the_advice_study_states_a_focal_prior_on_every_scene(tmp_path):
     assert bad.returncode == 2 and "--focal-prior" in bad.stderr and "'1650'" in bad.stderr
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_alike(tmp_path, monkeypatch):
     """``--line-reading corrected`` reaches every estimate and every advice of the study (their
     model options), is recorded, and a folder made with another reading is refused on resume."""
@@ -464,7 +467,7 @@ def test_the_advice_study_reads_reference_lines_as_told_in_estimates_and_advice_
         study.main(["predict", "--n", "1", "--min-ess", "100", "--out", "lr"])
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_study_predicts_on_the_simulators_crowds(tmp_path, monkeypatch):
     """``predict --tiers light`` draws its scenes from the simulator's light crowd (2 px corners,
     5 px reference end points), as ``--tiers high`` from the paper-like tier, and records it."""
@@ -583,7 +586,7 @@ def test_the_advice_studys_policy_table_reads_the_adaptive_run_at_three_quarters
     assert full.split("|")[4] == " 4.5 "
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     """``policy`` end to end on one scene of each condition, its budget cut to a set of lines and
     one reference (247.9 s) and its fixed designs to one: every run stays within the budget, the
@@ -609,7 +612,7 @@ def test_the_advice_studys_policy_runs_on_a_tiny_budget(tmp_path, monkeypatch):
     assert "Policies, paper-like scenes" in table and "Policies, outdoor scenes" in table
 
 
-@pytest.mark.slow  # the study script's own runs (its tiny run stays in the default suite)
+@pytest.mark.slow  # the study script's own runs
 def test_the_advice_studys_what_ifs_reach_the_scenes_the_estimates_and_the_advice(tmp_path, monkeypatch):
     """``--distance-range setting``: every estimate and every advice of ``predict`` knows the
     simulator's distance range of the scene's setting; ``--reference-px 0``: the references'

@@ -10,7 +10,7 @@ command line reads it. Whatever the input:
 * nothing is written outside the command's --out (the input files unchanged, byte for byte and mode
   for mode; advise --apply and --merge write the batch's own scene files, and only those).
 
-The default run takes N_EXAMPLES (150) examples a reader through its library function, derandomized,
+The default run takes N_EXAMPLES (80) examples a reader through its library function, derandomized,
 and fewer through the whole command; the slow-marked ``*_long`` tests take N_LONG (>= 1000) a reader,
 random (``pytest -m slow tests/test_fuzz_readers.py``). No posterior is sampled in a loop: results are
 made once, by a fixture."""

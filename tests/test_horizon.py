@@ -285,6 +285,7 @@ def test_a_horizon_tilted_beyond_the_limit_is_taken_level_through_the_best_point
     assert MAX_ROLL_DEG == 10.0
 
 
+@pytest.mark.slow  # an example's batch of its own
 def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_horizons(tmp_path):
     """examples/kitti_one_car.py on a one-frame folder in KITTI's layout (a rendered level street
     of P2's camera; two cars and a pedestrian): one scene per car with its true size, the other

@@ -108,6 +108,7 @@ def test_simulate_from_kitti_on_the_command_line(kitti_dir, tmp_path):
     assert proc.returncode == 2 and "not a KITTI folder" in proc.stderr
 
 
+@pytest.mark.slow  # three methods' labels; test_the_kitti_path_on_the_command_line keeps the folder's path
 def test_kitti_study_example_runs_on_a_kitti_folder(kitti_dir, tmp_path):
     """examples/kitti_study.py end to end on the synthetic folder: labels of the three methods for
     every annotatable object, the AP table and study.json."""

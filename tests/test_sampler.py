@@ -491,7 +491,8 @@ def test_the_rhat_bar_is_what_well_mixed_chains_show_at_the_ess_asked_for(chains
     assert SamplerSettings(min_ess=1600).rhat_bar(chains) < bar
 
 
-@pytest.mark.parametrize("seed", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.slow  # four posteriors; the pilot's moves are checked in test_models.py and test_model_capabilities.py
+@pytest.mark.parametrize("seed", [2, 3])
 def test_a_posterior_does_not_hang_on_the_camera_its_readings_started_at(seed):
     """Each drawn segment's reading is fixed at a pilot camera (models/metrology.py). Started at
     pilots 30 % either side of the MAP's focal length, on a thin light-crowd outdoor scene whose

@@ -121,6 +121,7 @@ def test_the_coupled_hessian_is_the_whole_posteriors():
     assert np.abs(cross).max() > 1e3 * np.abs(brute[5:12, 19:26]).max()  # the pair couples t0 and t1, nothing else
 
 
+@pytest.mark.slow  # two posteriors of three targets; the coupling test above keeps the pairs in the default run
 def test_workers_distances_between_two_targets_narrow_the_posterior():
     """One set of dimension lines on t1, five on the others, sizes from class priors; three workers
     state the distance from t0 to t1 (within 4 % of the truth). The posterior's t0–t1 distance
