@@ -192,16 +192,16 @@ def _ridge(x):
 
 
 def test_maxima_along_one_curved_ridge_are_one_mode():
-    from creference_bayes.inference.modes import _same_mode
+    from creference_bayes.inference.modes import _same_modes
 
     a, b = np.array([-3.0, 2.25]), np.array([3.0, 2.25])
     neg = lambda u: -_ridge(u)  # noqa: E731
     chord = neg(a + np.linspace(0, 1, 7)[:, None] * (b - a))
     assert chord.max() > neg(a[None])[0] + 100  # the straight line sees a deep "valley"
-    assert _same_mode(neg, a, b)
+    assert _same_modes(neg, a, b[None])
     # two real basins stay apart (the 30-nat valley of the bimodal target)
     neg2 = lambda u: -_bimodal(u)  # noqa: E731
-    assert not _same_mode(neg2, _MU[0], _MU[1])
+    assert not _same_modes(neg2, _MU[0], _MU[1:2])
 
 
 def test_climbs_in_lockstep_end_where_one_after_another_do_in_fewer_calls():

@@ -59,7 +59,7 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
     """The posterior's modes, the one at ``center`` first, then by decreasing share (docs/inference.md,
     "One object block"): a tempered exploration (:func:`.ensemble.explore`: ``temperature``,
     ``n_steps``, ``n_walkers``), ``n_climbs`` L-BFGS-B climbs from spread points of it and from
-    ``extra_starts`` (k, d), maxima merged (:func:`_same_mode`) and weighed by Laplace mass.
+    ``extra_starts`` (k, d), maxima merged (:func:`_same_modes`) and weighed by Laplace mass.
 
     ``log_prob``: (n, d) → (n,) (−∞ outside the support); ``center``, ``cov``: the MAP and its
     Laplace covariance; ``laplace``: a point (d,) → its Laplace covariance; ``circular``: indices of
@@ -119,17 +119,12 @@ def _weighed(found, free: np.ndarray, most: int = MAX_MODES) -> list[Mode]:
     return [out[0]] + rest[:most - 1]
 
 
-def _same_mode(neg, a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two maxima are one mode: close (:data:`SAME_MODE`), or no valley deeper than
-    :data:`VALLEY` nats between them, on the straight line (in the whitened coordinates) or, where
-    that line leaves a curved ridge, on the path through each intermediate cross-section's own
-    maximum (:func:`_pass_heights`)."""
-    return _same_modes(neg, a, b[None])
-
-
 def _same_modes(neg, a: np.ndarray, bs: np.ndarray) -> bool:
-    """Whether the maximum ``a`` is one mode with any of the maxima ``bs`` (k, d) (:func:`_same_mode`),
-    every line's and every path's evaluations of ``neg`` made together."""
+    """Whether the maximum ``a`` is one mode with any of the maxima ``bs`` (k, d): close
+    (:data:`SAME_MODE`), or no valley deeper than :data:`VALLEY` nats between them, on the straight
+    line (in the whitened coordinates) or, where that line leaves a curved ridge, on the path
+    through each intermediate cross-section's own maximum (:func:`_pass_heights`); every line's and
+    every path's evaluations of ``neg`` made together."""
     bs = np.atleast_2d(bs)
     if np.any(np.linalg.norm(bs - a, axis=1) <= SAME_MODE):
         return True
@@ -275,7 +270,7 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     For the k-th set of dimension lines (k < ``max_sets``) of the objects whose k-th set misses
     the MAP's corners by more than :data:`OUTLIER_SET` × (their best set's miss + 1 px), RMS, each
     is placed from that set alone and all are climbed together, the camera held; an end point
-    apart from the modes kept (:func:`_same_mode`, in the units of ``Ao`` (m, 7, 7), each object's
+    apart from the modes kept (:func:`_same_modes`, in the units of ``Ao`` (m, 7, 7), each object's
     Laplace covariance given the camera) is a new mode, weighed by its Laplace mass given the
     camera. ``target`` is the :class:`~.moves.BlockTarget` (unsheared at ``wc0``), (wc0 (5,), wo0
     (m, 7)) the MAP in working coordinates.
