@@ -25,9 +25,10 @@ MIX_MARGIN = 12.0
 #: (s ≥ 0: the MAP's); its two halves hold equal prior mass, so the chains weigh each handedness by
 #: its posterior mass. A mode's s is centred at ±E|s| with the half-normal's variance.
 SIDE_S, SIDE_VAR = 0.8, 0.36
-#: Where both handednesses are sampled, each one's mode search explores twice as long and climbs
-#: from twice as many points (docs/studies/method.md, "Several modes").
-MIXED_SEARCH = {"n_steps": 300, "n_climbs": 16}
+#: Where both handednesses are sampled, each one's mode search explores with twice the walkers (for
+#: as many steps, in one vectorised call a half-step each) and climbs from twice as many points
+#: (docs/studies/method.md, "Several modes").
+MIXED_SEARCH = {"n_steps": 150, "n_walkers": 64, "n_climbs": 16}
 
 
 class _Side:
