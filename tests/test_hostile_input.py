@@ -342,6 +342,8 @@ def test_a_result_edited_by_hand_is_refused_by_name_by_every_command_that_reads_
     bad = [({**good, "objects": [{"id": "t0", "map": {**good["objects"][0]["map"], "x": "near"}}]}, "objects[0].map.x"),
            ({**good, "objects": ["t0"]}, "objects[0]"),
            ({**good, "camera": {"map": {**good["camera"]["map"], "pitch": None}}}, "camera.map.pitch"),
+           ({**good, "objects": [{**good["objects"][0], "posterior": {"sd": "creference-result/2"}}]},
+            "objects[0].posterior"),  # the long fuzz: labels read the distance's sd from it
            ({**good, "draws": {"n": 2, "camera": {"focal_length_px": 1}, "objects": []}}, "draws")]
     for d, key in bad:
         result.write_text(json.dumps(d))

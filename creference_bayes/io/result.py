@@ -431,6 +431,13 @@ def _numbers(block, names, where: str) -> str | None:
     return None
 
 
+def _posterior_problem(post, where: str) -> str | None:
+    """What is wrong with a posterior block (None, or an object whose ``sd`` is an object)."""
+    if post is not None and not (isinstance(post, dict) and isinstance(post.get("sd", {}), dict)):
+        return f"{where}: expected an object with an object sd, got {_short(post)}"
+    return None
+
+
 def result_problem(d: dict) -> str | None:
     """What in a ``creference-result/2`` dict is not as the package writes it, where the commands
     that read results (``plot``, ``advise``, ``labels``, a batch's rig) index into it: the camera's
@@ -445,15 +452,16 @@ def result_problem(d: dict) -> str | None:
     why = _numbers(camera.get("map"), CAMERA_NAMES, "camera.map")
     if why:
         return why
-    post = camera.get("posterior")
-    if post is not None and not (isinstance(post, dict) and isinstance(post.get("sd", {}), dict)):
-        return f"camera.posterior: expected an object with an object sd, got {_short(post)}"
+    why = _posterior_problem(camera.get("posterior"), "camera.posterior")
+    if why:
+        return why
     if not isinstance(objects, list) or not objects:
         return f"objects: expected a list of objects, got {_short(objects)}"
     for i, o in enumerate(objects):
         if not isinstance(o, dict) or not isinstance(o.get("id"), str):
             return f"objects[{i}]: expected an object with an id, got {_short(o)}"
-        why = _numbers(o.get("map"), OBJECT_NAMES, f"objects[{i}].map")
+        why = _numbers(o.get("map"), OBJECT_NAMES, f"objects[{i}].map") or \
+            _posterior_problem(o.get("posterior"), f"objects[{i}].posterior")
         if why:
             return why
     prov = d.get("provenance")
