@@ -80,13 +80,14 @@ import numpy as np
 from creference_bayes.bench.simulate import (CAMERA_POPULATIONS, RANGE_PRECISION, measurement_factor, noise_tier,
                                              simulate_scene)
 from creference_bayes.core.units import UNITS_TO_M
+from creference_bayes.io.result import stored_draws
 from creference_bayes.io.scene import Reference, SceneWarning, parse_scene
 from creference_bayes.models.camera_terms import FocalPrior
 from creference_bayes.models.metrology import LINE_READINGS
 from creference_bayes.pipeline import estimate, map_state, reference_terms, result_draws
 from creference_bayes.workflows.advice import AdviceSettings, advise
 from creference_bayes.workflows.advice.candidates import Candidate, FormatMix, candidates, format_mix
-from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation
+from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation, at_hands
 from creference_bayes.workflows.advice.update import MIN_ESS, MIN_ESS_FRACTION, normalise, shuffled_hdi, weighted_hdi
 
 N_TARGET_POOL, N_REF_POOL = 13, 10
@@ -215,13 +216,15 @@ def _estimate(scene, seed, min_ess, priors=None):
     if "draws" not in d:
         return None
     cams, objs, _ = result_draws(d, r.model)
+    kept = stored_draws(d)  # each draw's handedness where a target was sampled at both
+    hands = None if kept is None or kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     hdi = np.array([o["posterior"]["hdi"]["distance_m"] for o in d["objects"]], float)
     median = np.array([o["posterior"]["median"]["distance_m"] for o in d["objects"]], float)
     true_d = np.array([math.hypot(t.ground_truth["location_m"][0], t.ground_truth["location_m"][2])
                        for t in scene.targets])
     dist = np.hypot(objs[..., 0], objs[..., 1])
     width = hdi[:, 1] - hdi[:, 0]
-    return {"result": r, "cams": cams, "objs": objs, "width": width, "share": width / median,
+    return {"result": r, "cams": cams, "objs": objs, "hands": hands, "width": width, "share": width / median,
             "covered": ((hdi[:, 0] <= true_d) & (true_d <= hdi[:, 1])).tolist(),
             "error": [o["evaluation"]["location_pct_error"] for o in d["objects"]],
             "post_error": [o["evaluation"]["posterior_location_pct_error"] for o in d["objects"]],
@@ -234,7 +237,8 @@ def _advise(scene, est, seed, cands=None, mixes=None, settings=None):
     r = est["result"]
     camera, objects = map_state(r.to_dict())
     return advise(r.model, scene, est["cams"], est["objs"], camera_map=camera, objects_map=objects,
-                  options=_options(r), seed=seed, candidates=cands, mixes=mixes, settings=settings)
+                  options=_options(r), seed=seed, candidates=cands, mixes=mixes, settings=settings,
+                  hands=est.get("hands"))
 
 
 def _options(result) -> dict:
@@ -291,6 +295,7 @@ def _reweighted(est, kind, scene_after, settings):
     cams, objs = model.complete_camera(est["cams"]), est["objs"]
     keep = np.unique(np.linspace(0, len(cams) - 1, min(settings.n_draws, len(cams))).round().astype(int))
     cams, objs = cams[keep], objs[keep]
+    hands = None if est.get("hands") is None else est["hands"][keep]
     if kind == "target":
         obs = DimsObservation(model, 0, _options(est["result"]))
         obs.corners = scene_after.targets[0].dimension_lines[-1].corners[None]
@@ -302,7 +307,7 @@ def _reweighted(est, kind, scene_after, settings):
         if obs.needs_scale:
             cams = obs.scale_draws(cams, np.random.default_rng(0))
         obs.log_low, obs.log_high, obs.is_range = np.log([term.low]), np.log([term.high]), np.array([term.is_range])
-    w, ess = normalise(obs.log_ratio(cams, objs, model.neg_log_posterior(cams, objs)))
+    w, ess = normalise(obs.log_ratio(cams, objs, at_hands(model, hands).neg_log_posterior(cams, objs), hands=hands))
     if ess[0] < max(MIN_ESS, MIN_ESS_FRACTION * len(cams)):
         return None
     dist = np.hypot(objs[..., 0], objs[..., 1])

@@ -39,6 +39,7 @@ def main(argv=None) -> int:
     from conftest import truth_scene  # the tests' scene maker
 
     import creference_bayes.workflows.advice as advice
+    from creference_bayes.io.result import stored_draws
     from creference_bayes.io.scene import parse_scene
     from creference_bayes.pipeline import estimate, result_draws
     from creference_bayes.workflows.advice import fallback
@@ -50,9 +51,11 @@ def main(argv=None) -> int:
     scene = parse_scene(d)
     before = estimate(scene, seed=1, sampling={"min_ess": args.min_ess}, keep_draws=100_000)
     cams, objs, _ = result_draws(before.to_dict(), before.model)
+    kept = stored_draws(before.to_dict())  # each draw's handedness, which the fallback keeps
+    hands = None if kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     keep = np.unique(np.linspace(0, len(cams) - 1, 600).round().astype(int))
     model = before.model
-    cams, objs = model.complete_camera(cams[keep]), objs[keep]
+    cams, objs, hands = model.complete_camera(cams[keep]), objs[keep], None if hands is None else hands[keep]
     dist = np.hypot(objs[..., 0], objs[..., 1])
     print("| answer | sweeps | worst target's \\|mean − re-estimate\\| / sd: median / max over seeds "
           "| sd ratio min / mean / max | CPU s a call |")
@@ -72,7 +75,8 @@ def main(argv=None) -> int:
             worst, ratios, cpu = [], [], 0.0
             for seed in range(args.seeds):
                 t = time.process_time()
-                _, moved = advice._moved(obs, np.zeros(args.futures, int), cams, objs, np.random.default_rng(seed), 1.0)
+                _, moved = advice._moved(obs, np.zeros(args.futures, int), cams, objs, np.random.default_rng(seed), 1.0,
+                                         hands)
                 cpu += time.process_time() - t
                 dm = np.hypot(moved[0, ..., 0], moved[0, ..., 1])
                 worst.append(np.max(np.abs(dm.mean(0) - dn.mean(0)) / dn.std(0)))

@@ -183,10 +183,10 @@ def test_an_annotation_that_says_nothing_is_predicted_to_narrow_nothing(example,
         def __init__(self, model, *args):
             self.model, self.m = model, 0
 
-        def simulate(self, rng, cams, objs):
+        def simulate(self, rng, cams, objs, hands=None):
             self.m, self.rng = len(cams), rng
 
-        def log_ratio(self, cams, objs, base):
+        def log_ratio(self, cams, objs, base, hands=None):
             return 2.0 * self.rng.standard_normal((self.m, len(cams)))
 
     monkeypatch.setattr(advice_module, "DimsObservation", Nothing)

@@ -180,7 +180,9 @@ def test_a_labels_chance_is_its_futures_spread_at_the_bar_without_the_estimators
 @pytest.fixture(scope="module")
 def crowded():
     """Twelve targets of class priors with one set of lines each (no horizon, the focal length
-    known), and 600 draws of their posterior."""
+    known), and 600 draws of their posterior with each draw's handedness (some target's other
+    handedness holds part of the mass)."""
+    from creference_bayes.io.result import stored_draws
     from creference_bayes.pipeline import estimate, result_draws
 
     d, _ = truth_scene(5, m=12, noise_px=2.0, n_annotations=1, sizes_known=False, focal_known=True,
@@ -188,8 +190,9 @@ def crowded():
     scene = parse_scene(d)
     before = estimate(scene, seed=1, sampling={"min_ess": 1000}, keep_draws=100_000)
     cams, objs, _ = result_draws(before.to_dict(), before.model)
+    hands = stored_draws(before.to_dict()).handedness.reshape(len(cams), -1)
     keep = np.unique(np.linspace(0, len(cams) - 1, 600).round().astype(int))
-    return scene, before.model, before.model.complete_camera(cams[keep]), objs[keep]
+    return scene, before.model, before.model.complete_camera(cams[keep]), objs[keep], hands[keep]
 
 
 @pytest.mark.parametrize("kind", ["size", "mounting"])
@@ -204,14 +207,15 @@ def test_an_answers_fallback_moves_the_draws_to_the_answered_estimate(crowded, k
     from creference_bayes.workflows.advice import _moved
     from creference_bayes.workflows.advice.update import normalise
 
-    scene, model, cams, objs = crowded
+    scene, model, cams, objs, hands = crowded
+    assert np.any(hands != model.handedness)  # the premise: draws at the other handedness too
     dist = np.hypot(objs[..., 0], objs[..., 1])          # (x, z): the bottom centre on the ground
     # the second target near (its 5th percentile), or the camera low (its height's 1st percentile)
     j = int(np.argsort(dist[:, 1] if kind == "size" else cams[:, 3])[len(cams) // (20 if kind == "size" else 100)])
     obs = SizeObservation(model, 1, CATALOGUE_LOG_SD) if kind == "size" else MountingObservation(model, MOUNTING_SD)
     obs.simulate(np.random.default_rng(3), cams[[j]], objs[[j]])
     assert normalise(obs.log_ratio(cams, objs))[1][0] < 0.15 * len(cams)   # reweighting leaves few draws
-    _, moved = _moved(obs, 0, cams, objs, np.random.default_rng(4), 1.0)
+    _, moved = _moved(obs, 0, cams, objs, np.random.default_rng(4), 1.0, hands)
     v = obs.values[0]
     answered = (with_size(scene, scene.targets[1].id, np.exp(v)) if kind == "size"
                 else with_mounting(scene, float(np.exp(v[0])), *map(float, v[1:])))
@@ -232,12 +236,13 @@ def test_the_collapsed_futures_of_a_size_are_moved_together_each_to_its_own_answ
     from creference_bayes.models.contract import O_SIZE
     from creference_bayes.workflows.advice import _moved
 
-    scene, model, cams, objs = crowded
+    scene, model, cams, objs, hands = crowded
     length = objs[:, 1, O_SIZE.start]
     tails = np.argsort(length)[[len(cams) // 20, -len(cams) // 20]]
     obs = SizeObservation(model, 1, CATALOGUE_LOG_SD)
     obs.simulate(np.random.default_rng(3), cams[tails], objs[tails])
-    moved_cams, moved = _moved(obs, np.array([0, 1]), cams[:250], objs[:250], np.random.default_rng(4), 1.0)
+    moved_cams, moved = _moved(obs, np.array([0, 1]), cams[:250], objs[:250], np.random.default_rng(4), 1.0,
+                               hands[:250])
     assert moved_cams.shape == (2, 250, 5) and moved.shape == (2, 250, *objs.shape[1:])
     for f in range(2):
         assert np.median(np.log(moved[f, :, 1, O_SIZE.start])) == pytest.approx(obs.values[f, 0], abs=0.05)
@@ -428,10 +433,10 @@ def _says_nothing(spread: float):
         def __init__(self, model, *args):
             self.model = model
 
-        def simulate(self, rng, cams, objs):
+        def simulate(self, rng, cams, objs, hands=None):
             self.m, self.rng = len(cams), rng
 
-        def log_ratio(self, cams, objs, base):
+        def log_ratio(self, cams, objs, base, hands=None):
             return spread * self.rng.standard_normal((self.m, len(cams)))
 
     return Nothing
@@ -462,7 +467,7 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
     from creference_bayes.workflows import advice as advice_module
     from creference_bayes.workflows.advice.inputs import advise_result
 
-    def present(obs, idx, cams, objs, rng, temperature):  # the fallback: the present's draws, shuffled
+    def present(obs, idx, cams, objs, rng, temperature, hands=None):  # the fallback: the present's draws, shuffled
         orders = [rng.permutation(len(cams)) for _ in np.atleast_1d(idx)]   # one set per collapsed future
         return np.stack([cams[o] for o in orders]), np.stack([objs[o] for o in orders])
 

@@ -92,7 +92,9 @@ EXTERNAL = {"check_real_tools.py": "tests/test_real_tools.py (CREFERENCE_LABEL_S
             "focal_floor.py": "tests/test_dataset.py",
             "distance_population.py": "tests/test_dataset.py",
             # scene files with ground truth are needed: the test simulates one
-            "advice_speed.py": "tests/test_examples.py::test_advice_speed_times_a_simulated_scene"}
+            "advice_speed.py": "tests/test_examples.py::test_advice_speed_times_a_simulated_scene",
+            # a folder of frames of several targets: the test simulates one
+            "handedness_frames.py": "tests/test_modes.py::test_the_handedness_study_reads_a_folder_of_frames"}
 
 
 def test_there_are_examples():

@@ -104,7 +104,8 @@ def test_a_saved_result_loads_back_the_same_and_rebuilds_its_inference_data(esti
     from creference_bayes.inference.summary import observations
 
     cams, objs = back.draws.cameras.reshape(-1, 5), back.draws.objects.reshape(-1, 3, 7)
-    np.testing.assert_allclose(observations(result.model, cams, objs)[0],
+    hands = None if back.draws.handedness is None else back.draws.handedness.reshape(-1, 3)
+    np.testing.assert_allclose(observations(result.model, cams, objs, hands)[0],
                                idata.log_likelihood["observations"].values.reshape(len(cams), -1))
     # the scene gone: the posterior only, and a warning that says why
     moved = shutil.copy(out, tmp_path / "result.json")

@@ -35,7 +35,8 @@ class _Run:
 
     def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
         m = model.n_objects
-        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)))
+        flip = None if modes is None else modes[4].any(axis=1)  # objects with a mode at the other handedness
+        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)), flip=flip)
         Lc = chol(Sc, model.camera_free)
         Lo = np.array([chol(Ao[i], model.object_free[i]) for i in range(m)])
         self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)
@@ -45,11 +46,12 @@ class _Run:
             moves.append((IndependenceSweep(self.kernel), w))
         self.sampler = emcee.EnsembleSampler(s.n_chains, self.target.ndim, self.target, moves=moves, vectorize=True)
 
-    def state(self, wc: np.ndarray, wo: np.ndarray, random_state) -> emcee.State:
-        """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear."""
+    def state(self, wc: np.ndarray, wo: np.ndarray, random_state, flipped=None) -> emcee.State:
+        """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear,
+        ``flipped`` (C, m) the objects at their other handedness (None: none)."""
         t = self.target
         wt = wo - np.einsum("mik,nk->nmi", t.B, wc - t.c0)
-        u = t.join(wc, wt)
+        u = t.join(wc, wt, flipped)
         blobs = t.blocks(u)
         with np.errstate(invalid="ignore"):
             return emcee.State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
@@ -77,17 +79,19 @@ class Blocks:
         random_state = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
         self.found = _object_modes(model, temperature, s, wc0, wo0, Sc, Ao, B)
         self.mix = _mixture(model, self.found, B)
+        flipped = np.zeros((C, m), bool)
         if self.mix is not None:  # chain c starts each object in its mode c (mod its modes)
             for i, modes in enumerate(self.found):
                 for c in range(C):
                     k = c % len(modes)
                     if k:
                         wo[c, i] = modes[k].center + chol(modes[k].cov, of[i]) @ rng.standard_normal(7) + B[i] @ dc[c]
+                        flipped[c, i] = modes[k].flipped
         self.seg = _Run(model, temperature, s, wc0, Sc, Ao, B, wc0, wo0, adapt=True, modes=self.mix)
-        state = self.seg.state(wc, wo, random_state)
+        state = self.seg.state(wc, wo, random_state, flipped)
         bad = ~np.isfinite(state.log_prob)
-        wc[bad], wo[bad] = wc0, wo0
-        self.state = self.seg.state(wc, wo, random_state)
+        wc[bad], wo[bad], flipped[bad] = wc0, wo0, False
+        self.state = self.seg.state(wc, wo, random_state, flipped)
         if not np.all(np.isfinite(self.state.log_prob)):
             raise SamplingError("the MAP has zero posterior density: cannot start the sampler")
 
@@ -114,15 +118,17 @@ class Blocks:
                 several = np.array([len(modes) > 1 for modes in self.found])  # draws span every mode)
                 Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]
             wc, wo = seg.target.working(state.coords)
+            flipped = seg.target.flipped(state.coords)
             seg = _Run(self.model, self.T, s, wc0, Sc, Ao, B, mc, mt, adapt=True, modes=self.mix)
             seg.kernel.calls = done // 2  # the scales' adaptation rate goes on falling
-            state = seg.state(wc, wo, state.random_state)
+            state = seg.state(wc, wo, state.random_state, flipped)
             hist = []
         seg.kernel.adapt = False
         if repilot is not None:
             keep = hist[len(hist) // 2:]
             self._repilot(repilot, np.array([h[0] for h in keep]), np.array([h[1] for h in keep]))
-            state = seg.state(*seg.target.working(state.coords), state.random_state)  # scored anew
+            state = seg.state(*seg.target.working(state.coords), state.random_state,
+                              seg.target.flipped(state.coords))  # scored anew
         self.seg, self.state = seg, state
         return s.warmup
 
@@ -141,7 +147,11 @@ class Blocks:
         cams, objs = self.seg.target.natural(u.reshape(-1, u.shape[-1]))
         return cams.reshape(u.shape[:2] + (5,)), objs.reshape(u.shape[:2] + objs.shape[1:])
 
-    kept = natural  # what the driver keeps of each state
+    def kept(self, u: np.ndarray) -> tuple[np.ndarray, ...]:
+        """What the driver keeps of states (n, C, d): cameras and objects (:meth:`natural`) and,
+        where some object's handedness is sampled, each state's (n, C, m)."""
+        hands = self.seg.target.handedness(u.reshape(-1, u.shape[-1]))
+        return self.natural(u) + (() if hands is None else (hands.reshape(u.shape[:2] + hands.shape[1:]),))
 
     def acceptance(self) -> tuple[float, float, float]:
         return tuple(float(np.mean(self.seg.kernel.accepted[k])) for k in ("all", "camera", "objects"))
@@ -152,7 +162,8 @@ class Blocks:
             return {}
         wc0, wo0 = self.start[:2]
         info = {"mode_report": _object_mode_report(self.model, self.found, draws, wc0, wo0)}
-        denser = [(i, max(modes, key=lambda k: k.log_prob)) for i, modes in enumerate(self.found) if len(modes) > 1]
+        denser = [(i, max((k for k in modes if not k.flipped), key=lambda k: k.log_prob))
+                  for i, modes in enumerate(self.found) if len(modes) > 1]
         denser = [(i, k) for i, k in denser if k.log_prob > self.found[i][0].log_prob + 1.0]
         if denser:  # an object's mode denser than the MAP's: the pipeline refines the MAP from there
             wo = wo0.copy()
@@ -178,21 +189,23 @@ MIN_MODE_WEIGHT = 0.1
 
 def _mixture(model, found, B):
     """The objects' other modes as :class:`~.moves.BlockKernel` takes them (weights (m, 1 + E),
-    centres (m, E, 7), Cholesky factors (m, E, 7, 7), and how each centre moves with the camera in
-    the sampler's coordinates (m, E, 7, 5), ``B`` (m, 7, 5) their shear), or None when no object
-    has another."""
+    centres (m, E, 7), Cholesky factors (m, E, 7, 7), how each centre moves with the camera in
+    the sampler's coordinates (m, E, 7, 5), ``B`` (m, 7, 5) their shear, and whether each is at its
+    object's other handedness (m, E)), or None when no object has another."""
     E = max(len(modes) for modes in found) - 1
     if E == 0:
         return None
     m = model.n_objects
     w, centres, L, shear = np.zeros((m, 1 + E)), np.zeros((m, E, 7)), np.zeros((m, E, 7, 7)), np.zeros((m, E, 7, 5))
+    flips = np.zeros((m, E), bool)
     for i, modes in enumerate(found):
         share = np.maximum([k.share for k in modes], MIN_MODE_WEIGHT)
         w[i, :len(modes)] = share / share.sum()
         for k, mode in enumerate(modes[1:]):
             centres[i, k], L[i, k] = mode.center, chol(mode.cov, model.object_free[i])
             shear[i, k] = (mode.shear - B[i]) * model.object_free[i][:, None] * model.camera_free[None]
-    return w, centres, L, shear
+            flips[i, k] = mode.flipped
+    return w, centres, L, shear, flips
 
 
 def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
@@ -211,8 +224,12 @@ def _object_mode_report(model, found, draws: Draws, wc0, wo0) -> list[dict]:
         x = coords.to_work(draws.cameras.reshape(-1, 5), draws.objects.reshape(C * N, -1, 7))[1][:, i][:, free]
         dist = np.stack([np.einsum("ni,ij,nj->n", x - k.center[free], np.linalg.pinv(k.cov[np.ix_(free, free)]),
                                    x - k.center[free]) for k in modes], axis=1)
-        out += mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
+        rows = mode_rows(model.objects[i].id, objs[:, i], [k.log_prob for k in modes], modes,
                          np.argmin(dist, axis=1).reshape(C, N))
+        if any(k.flipped for k in modes):  # each mode's handedness where both are sampled
+            for row, k in zip(rows, modes):
+                row["handedness"] = int(-model.handedness[i] if k.flipped else model.handedness[i])
+        out += rows
     return out
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-from ..models.contract import O_YAW
+from ..models.contract import O_SIZE, O_YAW
 from .ensemble import explore
 from .map import _newton, derivatives, initial_objects
 from .reparam import Coordinates
@@ -37,6 +37,10 @@ MAX_MODES = 4
 OUTLIER_SET = 4.0
 #: Local maxima more than this many nats below the best are not weighed.
 MAX_DROP = 25.0
+#: An object's other handedness is sampled too when its optimum comes within this many nats of
+#: the MAP's (given the MAP's camera for an object of a frame, :func:`object_modes`; the whole
+#: vector's for one object block, :mod:`.whole`).
+MIX_MARGIN = 12.0
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,8 @@ class Mode:
     #: (k, 5) how the centre moves with the camera's working coordinates (an object's mode given
     #: the camera, :func:`object_modes`), or None
     shear: np.ndarray | None = None
+    #: whether the mode is at its object's other handedness (:func:`object_modes`)
+    flipped: bool = False
 
 
 def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
@@ -100,12 +106,12 @@ def find_modes(log_prob, center, cov, *, laplace, rng, circular=None,
 
 
 def _weighed(found, free: np.ndarray, most: int = MAX_MODES) -> list[Mode]:
-    """:class:`Mode` s of maxima (centre, Laplace covariance or None, log-density, shear), the
-    MAP's first: each weighed by its Laplace mass over the ``free`` coordinates (none without a
-    positive-definite covariance, e.g. a maximum on a bound); the MAP's and at most ``most`` − 1
-    others by decreasing share, those under :data:`MIN_SHARE` dropped."""
+    """:class:`Mode` s of maxima (centre, Laplace covariance or None, log-density, shear[, whether
+    at the other handedness]), the MAP's first: each weighed by its Laplace mass over the ``free``
+    coordinates (none without a positive-definite covariance, e.g. a maximum on a bound); the MAP's
+    and at most ``most`` − 1 others by decreasing share, those under :data:`MIN_SHARE` dropped."""
     log_mass = []
-    for _, c, lp, _ in found:
+    for _, c, lp, *_ in found:
         sign, logdet = np.linalg.slogdet(c[np.ix_(free, free)]) if c is not None else (0.0, 0.0)
         log_mass.append(lp + 0.5 * logdet if sign > 0 else -np.inf)
     log_mass = np.array(log_mass)
@@ -114,7 +120,7 @@ def _weighed(found, free: np.ndarray, most: int = MAX_MODES) -> list[Mode]:
         shares = np.where(finite, np.exp(np.where(finite, log_mass, 0.0) - logsumexp(log_mass[finite])), 0.0)
     else:
         shares = (np.arange(len(found)) == 0).astype(float)
-    out = [Mode(x, c, float(lp), float(w), b) for (x, c, lp, b), w in zip(found, shares)]
+    out = [Mode(x, c, float(lp), float(w), *rest) for (x, c, lp, *rest), w in zip(found, shares)]
     rest = sorted((k for k in out[1:] if k.share >= MIN_SHARE and np.isfinite(k.log_prob)), key=lambda k: -k.share)
     return [out[0]] + rest[:most - 1]
 
@@ -272,8 +278,10 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
     is placed from that set alone and all are climbed together, the camera held; an end point
     apart from the modes kept (:func:`_same_modes`, in the units of ``Ao`` (m, 7, 7), each object's
     Laplace covariance given the camera) is a new mode, weighed by its Laplace mass given the
-    camera. ``target`` is the :class:`~.moves.BlockTarget` (unsheared at ``wc0``), (wc0 (5,), wo0
-    (m, 7)) the MAP in working coordinates.
+    camera. Each object's optimum at its other handedness (:func:`_other_hands`) within
+    :data:`MIX_MARGIN` nats of the MAP's is a mode too (``flipped``). ``target`` is the
+    :class:`~.moves.BlockTarget` (unsheared at ``wc0``), (wc0 (5,), wo0 (m, 7)) the MAP in working
+    coordinates.
 
     Returns per object its modes, the MAP's first (:class:`Mode`: centre (7,), covariance (7, 7)
     and ``shear`` (7, 5), the centre's regression on the camera).
@@ -303,6 +311,7 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         end[:, O_YAW] = wo0[:, O_YAW] + (end[:, O_YAW] - wo0[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
         ends.append(np.where(has[:, None], end, np.nan))
     wc = wc0[None]
+    other, wo_f, lp_f, flips = _other_hands(target, wc0, wo0, cams, objs, temperature)
 
     def own(i, x):  # object i's log-density given the camera at states x (n, 7), the others at the MAP
         wt = np.repeat(wo0[None], len(x), axis=0)
@@ -331,17 +340,49 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         for x, v in zip(found[1:], lp[1:]):
             wo = wo0.copy()
             wo[i] = x
-            D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
-            H = D.H_oo[i][np.ix_(free, free)]
-            c = np.zeros((7, 7))
-            try:
-                np.linalg.cholesky(H)
-                c[np.ix_(free, free)] = np.linalg.inv(H)
-            except np.linalg.LinAlgError:
-                c = None  # no Laplace mass (not a maximum of the density): no share
-            modes.append((x, c, v, None if c is None else -c @ D.H_co[i].T))
+            c, b = _given_camera(model, wc0, wo, i, temperature)
+            modes.append((x, c, v, b))
+        if flips[i]:  # the other handedness's optimum
+            c, b = _given_camera(other, wc0, wo_f, i, temperature)
+            modes.append((wo_f[i], c, lp_f[i], b, True))
         out.append(_weighed(modes, free))
     return out
+
+
+def _given_camera(model, wc0: np.ndarray, wo: np.ndarray, i: int, temperature: float):
+    """Object i's Laplace covariance given the camera (7, 7) at working coordinates (wc0, wo) and
+    its shear (7, 5) (how its centre moves with the camera); (None, None) where the density has no
+    maximum there (no Laplace mass)."""
+    free = model.object_free[i]
+    D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
+    c = np.zeros((7, 7))
+    try:
+        np.linalg.cholesky(D.H_oo[i][np.ix_(free, free)])
+        c[np.ix_(free, free)] = np.linalg.inv(D.H_oo[i][np.ix_(free, free)])
+    except np.linalg.LinAlgError:
+        return None, None
+    return c, -c @ D.H_co[i].T
+
+
+def _other_hands(target, wc0: np.ndarray, wo0: np.ndarray, cams: np.ndarray, objs: np.ndarray, temperature: float):
+    """Every object at its other handedness, given the MAP's camera: the model there, the optimum
+    (m, 7) in working coordinates (each object placed from its annotations, the MAP's sizes, then
+    Newton steps with the camera held; docs/inference.md, "Finding the MAP", step 7), each object's
+    log-density there given the camera (m,) and whether it is within :data:`MIX_MARGIN` nats of the
+    MAP's (m,)."""
+    model = target.model
+    m = model.n_objects
+    other = model.variant(handedness=-model.handedness)
+    placed = initial_objects(model, cams[0], handedness=-model.handedness, keep_camera=True)[1]
+    placed[:, O_SIZE] = objs[0, :, O_SIZE]
+    wo = target.coords.to_work(cams, placed[None])[1][0]
+    if not np.all(np.isfinite(wo)):
+        return other, wo0, np.full(m, -np.inf), np.zeros(m, bool)
+    _, wo, _, _ = _newton(other.variant(camera_free=np.zeros(5, bool)), wc0, wo, temperature)
+    with np.errstate(all="ignore"):
+        lp = target.objects(wc0[None], wo[None], np.ones((1, m), bool))[0][0]
+        lp0 = target.objects(wc0[None], wo0[None])[0][0]
+    return other, wo, lp, np.isfinite(lp) & (lp > lp0 - MIX_MARGIN)
 
 
 def mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:

@@ -6,7 +6,10 @@ the camera with every object riding along its regression on it; by random-walk s
 (:class:`RandomWalkSweep`) or ``tries`` Student-t independence proposals per block, one taken by
 multiple-try Metropolis (:class:`IndependenceSweep`); a random-walk sweep of a frame with an
 object of known size ends with a step along the **ridge** of the camera height and the ground
-offsets (:meth:`BlockKernel.ridge`). A walker's blobs hold each block's log-density (camera, each
+offsets (:meth:`BlockKernel.ridge`). An object whose handedness is sampled
+(:attr:`BlockTarget.flip`) crosses to its other handedness by its independence proposal's mode
+there, or by a **jump** that a share of them propose in a random-walk sweep instead of a step
+(:meth:`BlockKernel._jumped`). A walker's blobs hold each block's log-density (camera, each
 object, each pair term).
 
 **Ensemble moves** (:mod:`.ensemble`): walkers ``g·K … (g+1)·K − 1`` form ensemble ``g``;
@@ -60,6 +63,9 @@ def multiple_try_pick(log_w_tries: np.ndarray, log_w_current: np.ndarray,
     return j, ok
 
 
+#: The share of the objects whose handedness is sampled that, in a random-walk sweep, propose the
+#: jump to the other handedness's mode instead of a step (:meth:`BlockKernel._jumped`).
+JUMP_SHARE = 0.5
 #: The widest log-size sd (every dimension) of a size that counts as known for the ridge step: a
 #: catalogue's answer (0.03) is, a class's prior (0.11 or more in its widest dimension) is not.
 KNOWN_SIZE_LOG_SD = 0.05
@@ -87,8 +93,11 @@ class BlockTarget:
     """
 
     def __init__(self, model: Model, temperature: float, c0: np.ndarray, B: np.ndarray, template: np.ndarray,
-                 yaw_window: np.ndarray | None = None):
+                 yaw_window: np.ndarray | None = None, flip: np.ndarray | None = None):
         self.model, self.T = model, float(temperature)
+        #: (m,) the objects whose handedness is sampled too: a state's last ``flip.sum()`` entries
+        #: are ±1, −1 where that object takes the other handedness than the model's
+        self.flip = np.zeros(model.n_objects, bool) if flip is None else np.asarray(flip, bool)
         #: (m,) the centre of each object's turn ψ (working yaw): states more than π from it have zero
         #: density (one turn; a periodic density on the whole line is improper), or None
         self.yaw_window = yaw_window
@@ -103,7 +112,8 @@ class BlockTarget:
         self.kc = int(self.cf.sum())
         self.m = model.n_objects
         self.P = len(model.pairs)
-        self.ndim = self.kc + int(self.of.sum())
+        self.ko = self.kc + int(self.of.sum())  # where the handedness entries start
+        self.ndim = self.ko + int(self.flip.sum())
         self.incidence = np.zeros((self.m, self.P))
         for p, (i, j) in enumerate(model.pairs):
             self.incidence[i, p] = self.incidence[j, p] = 1.0
@@ -115,11 +125,39 @@ class BlockTarget:
         wc = np.repeat(self.c0[None], len(u), axis=0)
         wc[:, self.cf] = u[:, :self.kc]
         wt = np.repeat(self.template[None], len(u), axis=0)
-        wt[:, self.of] = u[:, self.kc:]
+        wt[:, self.of] = u[:, self.kc:self.ko]
         return wc, wt
 
-    def join(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
-        return np.concatenate([np.atleast_2d(wc)[:, self.cf], np.asarray(wt).reshape(len(np.atleast_2d(wc)), -1, 7)[:, self.of]], axis=1)
+    def join(self, wc: np.ndarray, wt: np.ndarray, flipped: np.ndarray | None = None) -> np.ndarray:
+        """The states (n, d) of camera and sheared object coordinates and, where handednesses are
+        sampled, which objects take the other one (``flipped`` (n, m) bool; None: none)."""
+        wc = np.atleast_2d(wc)
+        parts = [wc[:, self.cf], np.asarray(wt).reshape(len(wc), -1, 7)[:, self.of]]
+        if self.flip.any():
+            f = np.zeros((len(wc), self.m), bool) if flipped is None else np.asarray(flipped, bool)
+            parts.append(np.where(f[:, self.flip], -1.0, 1.0))
+        return np.concatenate(parts, axis=1)
+
+    def flipped(self, u: np.ndarray) -> np.ndarray | None:
+        """(n, m) which objects of states (n, d) take the other handedness, or None where none may."""
+        if not self.flip.any():
+            return None
+        u = np.atleast_2d(u)
+        f = np.zeros((len(u), self.m), bool)
+        f[:, self.flip] = u[:, self.ko:] < 0
+        return f
+
+    def handedness(self, u: np.ndarray) -> np.ndarray | None:
+        """(n, m) each object's handedness in states (n, d), or None where every state has the model's."""
+        f = self.flipped(u)
+        return None if f is None else np.where(f, -self.model.handedness, self.model.handedness)
+
+    def at(self, flipped: np.ndarray | None) -> Model:
+        """The model to evaluate rows with ``flipped`` (n, m) objects at their other handedness
+        (:meth:`~..models.contract.Model.at_handedness`; None: the model)."""
+        if flipped is None or not flipped.any():
+            return self.model
+        return self.model.at_handedness(np.where(flipped, -self.model.handedness, self.model.handedness))
 
     def unshear(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
         """Working object coordinates (n, m, 7) of sheared ones."""
@@ -153,9 +191,10 @@ class BlockTarget:
         with np.errstate(all="ignore"):
             return self._camera_lp(cams, wc, self.model.camera_term(cams, self.T))
 
-    def objects(self, wc: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(n, m) log-density of each object's block and (n, P) of each pair term."""
-        m = self.model
+    def objects(self, wc: np.ndarray, wt: np.ndarray, flipped: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(n, m) log-density of each object's block and (n, P) of each pair term; ``flipped``
+        (n, m) which objects take the other handedness (None: none)."""
+        m = self.at(flipped)
         cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
         with np.errstate(all="ignore"):
             lp = self._objects_lp(objs, wt, m.object_terms(cams, objs, self.T), jac)
@@ -166,8 +205,8 @@ class BlockTarget:
 
     def blocks(self, u: np.ndarray) -> np.ndarray:
         """(n, 1 + m + P): the camera's, each object's and each pair term's log-density (one
-        evaluation of the model's terms)."""
-        m = self.model
+        evaluation of the model's terms, each object at its handedness)."""
+        m = self.at(self.flipped(u))
         wc, wt = self.split(u)
         cams, objs, jac = self.coords.from_work_jacobian(wc, self.unshear(wc, wt))
         with np.errstate(all="ignore"):
@@ -221,9 +260,12 @@ class BlockKernel:
     rate = 3 / (t + 10)^0.6 at its t-th call (Robbins–Monro).
 
     ``modes``: other modes of the objects, (weights (m, 1 + E), centres (m, E, 7) at the camera
-    ``target.c0``, Cholesky factors (m, E, 7, 7), how the centres move with the camera (m, E, 7, 5)),
-    or None: an object's independence proposal given the camera is then a mixture, its first
-    component the one above (weight 0 pads an object with fewer modes).
+    ``target.c0``, Cholesky factors (m, E, 7, 7), how the centres move with the camera (m, E, 7, 5),
+    whether each is at the object's other handedness (m, E) bool), or None: an object's
+    independence proposal given the camera is then a mixture, its first component the one above
+    (weight 0 pads an object with fewer modes). A proposal from a mode at the other handedness
+    takes its object there (:attr:`BlockTarget.flip`): the proposal is a mixture over (object,
+    handedness), so the multiple-try step keeps the joint posterior invariant.
     """
 
     def __init__(self, target: BlockTarget, Lc: np.ndarray, Lo: np.ndarray, mc: np.ndarray, mt: np.ndarray, *,
@@ -234,14 +276,17 @@ class BlockKernel:
         self.mc, self.mt = mc, mt
         self.modes = None
         if modes is not None:
-            w, centres, L, shear = modes
+            w, centres, L, shear, flips = modes
             with np.errstate(divide="ignore"):
                 log_w = np.log(w)
             Ls = np.concatenate([Lo[:, None], L], axis=1)
             diag = np.diagonal(Ls, axis1=-2, axis2=-1)
             self.modes = (log_w, np.concatenate([mt[:, None], centres], axis=1), Ls, np.linalg.pinv(Ls),
                           np.sum(np.log(np.where(diag > 0, diag, 1.0)), axis=-1),
-                          np.concatenate([np.zeros((len(mt), 1, 7, 5)), shear], axis=1))
+                          np.concatenate([np.zeros((len(mt), 1, 7, 5)), shear], axis=1),
+                          np.concatenate([np.zeros((len(mt), 1), bool), flips], axis=1))
+            #: (m,) each object's component at its other handedness (0: none)
+            self.flip_k = np.where(flips.any(axis=1), 1 + np.argmax(flips, axis=1), 0)
         self.kc, self.ko = int(target.cf.sum()), target.of.sum(axis=1)
         self.sc = 2.38 / np.sqrt(max(self.kc, 1))
         self.so = 2.38 / np.sqrt(np.maximum(self.ko, 1))
@@ -256,10 +301,11 @@ class BlockKernel:
         wc, wt = self.t.split(state.coords)
         b = np.asarray(state.blobs, float).reshape(len(wc), -1)
         m = self.t.m
-        return wc, wt, b[:, 0].copy(), b[:, 1:1 + m].copy(), b[:, 1 + m:].copy()
+        f = self.t.flipped(state.coords)
+        return wc, wt, b[:, 0].copy(), b[:, 1:1 + m].copy(), b[:, 1 + m:].copy(), f
 
-    def _pack(self, state, wc, wt, lp_c, lp_o, lp_p):
-        state.coords = self.t.join(wc, wt)
+    def _pack(self, state, wc, wt, lp_c, lp_o, lp_p, f):
+        state.coords = self.t.join(wc, wt, f)
         state.blobs = np.column_stack([lp_c, lp_o, lp_p])
         with np.errstate(invalid="ignore"):
             state.log_prob = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
@@ -273,30 +319,33 @@ class BlockKernel:
     def _means(self, wc):  # (C, m, 1 + E, 7): each mode's centre given each walker's camera (C, 5)
         return self.modes[1] + np.einsum("meic,nc->nmei", self.modes[5], wc - self.t.c0)
 
-    def _log_q_obj(self, x, wc=None):  # (…, m): Student-t log-density (up to constants) of the object proposal
-        if self.modes is not None:  # a mixture over the modes; x (C, [k,] m, 7), wc (C, 5)
+    def _log_q_obj(self, x, wc=None, f=None):  # (…, m): Student-t log-density (up to constants) of the object proposal
+        if self.modes is not None:  # a mixture over the modes; x (C, [k,] m, 7), wc (C, 5), f as x[..., 0] (or None)
             log_w, _, _, Li, logdet = self.modes[:5]
             means = self._means(wc).reshape((len(wc),) + (1,) * (x.ndim - 3) + self.modes[1].shape)
             w = np.einsum("meij,...mej->...mei", Li, x[..., None, :] - means) / IND_SCALE
             lq = log_w - logdet - 0.5 * (IND_DOF + self.ko[:, None]) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
+            f = np.zeros(x.shape[:-1], bool) if f is None else f
+            lq = np.where(self.modes[6] == f[..., None], lq, -np.inf)  # only the modes at its handedness
             top = np.max(lq, axis=-1)
             return top + np.log(np.sum(np.exp(lq - top[..., None]), axis=-1))
         w = np.einsum("mij,...mj->...mi", self.Loi, x - self.mt) / IND_SCALE
         return -0.5 * (IND_DOF + self.ko) * np.log1p(np.sum(w * w, axis=-1) / IND_DOF)
 
-    def _draw_obj(self, rs, wc, k: int) -> np.ndarray:
+    def _draw_obj(self, rs, wc, k: int) -> tuple[np.ndarray, np.ndarray | None]:
         """(C, k, m, 7) independence proposals of every object given the cameras ``wc`` (C, 5) (a
-        mixture over its modes)."""
+        mixture over its modes) and (C, k, m) which take the other handedness (None: none may)."""
         C, m = len(wc), self.t.m
         z = self._t(rs, (C, k, m, 7))
         if self.modes is None:
-            return self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, z)
+            return self.mt + IND_SCALE * np.einsum("mij,ckmj->ckmi", self.Lo, z), None
         log_w, _, L = self.modes[:3]
         cum = np.cumsum(np.exp(log_w), axis=-1)
         comp = np.minimum(np.sum(rs.uniform(size=(C, k, m, 1)) * cum[:, -1:] >= cum, axis=-1), cum.shape[1] - 1)
         idx = np.arange(m)
         means = self._means(wc)[np.arange(C)[:, None, None], idx, comp]  # (C, k, m, 7)
-        return means + IND_SCALE * np.einsum("ckmij,ckmj->ckmi", L[idx, comp], z)
+        flips = self.modes[6][idx, comp] if self.t.flip.any() else None
+        return means + IND_SCALE * np.einsum("ckmij,ckmj->ckmi", L[idx, comp], z), flips
 
     def _log_q_cam(self, x):
         w = (x - self.mc) @ self.Lci.T / IND_SCALE
@@ -304,39 +353,49 @@ class BlockKernel:
 
     def sweep(self, state, rs, independent: bool):
         """One sweep (module docstring) of every walker; returns the state and which walkers moved."""
-        wc, wt, lp_c, lp_o, lp_p = self._unpack(state)
+        wc, wt, lp_c, lp_o, lp_p, f = self._unpack(state)
         C, m = wt.shape[:2]
         inc = self.t.incidence
-        a = np.zeros((C, m), bool)
+        a, hop = np.zeros((C, m), bool), np.zeros(C, bool)
         for colour in self.colours:
             if independent:
                 k = self.tries
-                props = self._draw_obj(rs, wc, k)
+                props, pf = self._draw_obj(rs, wc, k)
                 if colour is not None:
                     props = np.where(colour[None, None, :, None], props, wt[:, None])
-                own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7))
+                    pf = None if pf is None else np.where(colour[None, None, :], pf, f[:, None])
+                own, pair = self.t.objects(np.repeat(wc, k, axis=0), props.reshape(C * k, m, 7),
+                                           None if pf is None else pf.reshape(C * k, m))
                 own, pair = own.reshape(C, k, m), pair.reshape(C, k, -1)
                 new, cur = own, lp_o
                 if lp_p.shape[1]:  # each object's own terms plus the pair terms it touches
                     with np.errstate(invalid="ignore"):
                         new, cur = own + pair @ inc.T, lp_o + lp_p @ inc.T
-                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props, wc), 1, -1),
-                                          cur - self._log_q_obj(wt, wc), rs)
+                j, ok = multiple_try_pick(np.moveaxis(new - self._log_q_obj(props, wc, pf), 1, -1),
+                                          cur - self._log_q_obj(wt, wc, f), rs)
                 if colour is not None:
                     ok &= colour[None, :]
                 take = lambda x: np.take_along_axis(x, j.reshape((C, 1, m) + (1,) * (x.ndim - 3)), axis=1)[:, 0]
                 wt = np.where(ok[..., None], take(props), wt)
                 lp_o = np.where(ok, take(own), lp_o)
+                if pf is not None:
+                    f = np.where(ok, take(pf), f)
                 for p_, (i_, k_) in enumerate(self.t.model.pairs):  # a pair term changes with either end
                     for end in (i_, k_):
                         val = np.take_along_axis(pair[:, :, p_], j[:, end][:, None], axis=1)[:, 0]
                         lp_p[:, p_] = np.where(ok[:, end], val, lp_p[:, p_])
             else:
                 prop = wt + self.so[None, :, None] * np.einsum("mij,cmj->cmi", self.Lo, rs.standard_normal((C, m, 7)))
+                pf, log_j, jumps = f, 0.0, np.zeros((C, m), bool)
+                if f is not None:  # a share of the objects whose handedness is sampled jump to the other
+                    jumps = self.t.flip & (rs.uniform(size=(C, m)) < JUMP_SHARE)
+                    jp, log_j = self._jumped(wc, wt, f)
+                    prop, pf, log_j = np.where(jumps[..., None], jp, prop), jumps ^ f, np.where(jumps, log_j, 0.0)
                 if colour is not None:
                     prop = np.where(colour[None, :, None], prop, wt)
-                own, pair = self.t.objects(wc, prop)
-                delta = own - lp_o
+                    pf = None if pf is None else np.where(colour[None, :], pf, f)
+                own, pair = self.t.objects(wc, prop, pf)
+                delta = own - lp_o + log_j
                 if lp_p.shape[1]:
                     with np.errstate(invalid="ignore"):
                         delta = delta + (pair - lp_p) @ inc.T
@@ -346,8 +405,11 @@ class BlockKernel:
                     ok &= colour[None, :]
                 wt = np.where(ok[..., None], prop, wt)
                 lp_o = np.where(ok, own, lp_o)
+                f = None if f is None else np.where(ok, pf, f)
                 if lp_p.shape[1]:
                     lp_p = np.where((ok.astype(float) @ inc) > 0, pair, lp_p)
+                hop |= (ok & jumps).any(axis=1)
+                ok = ok & ~jumps  # the scales adapt to the random-walk steps' acceptance
             a |= ok
         b = np.ones(C, bool)
         if self.kc:
@@ -356,7 +418,7 @@ class BlockKernel:
                 pcs = self.mc + IND_SCALE * self._t(rs, (C, k, 5)) @ self.Lc.T  # (C, k, 5)
                 flat = pcs.reshape(C * k, 5)
                 lpc = self.t.camera(flat)
-                lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0))
+                lpo, lpp = self.t.objects(flat, np.repeat(wt, k, axis=0), None if f is None else np.repeat(f, k, axis=0))
                 with np.errstate(invalid="ignore"):
                     total = (lpc + lpo.sum(axis=1) + lpp.sum(axis=1)).reshape(C, k)
                     cur = lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)
@@ -366,7 +428,7 @@ class BlockKernel:
             else:
                 pc = wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T
                 lpc = self.t.camera(pc)
-                lpo, lpp = self.t.objects(pc, wt)
+                lpo, lpp = self.t.objects(pc, wt, f)
                 with np.errstate(invalid="ignore"):
                     b = np.log(rs.uniform(size=C)) < ((lpc + lpo.sum(axis=1) + lpp.sum(axis=1))
                                                       - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)))
@@ -377,7 +439,7 @@ class BlockKernel:
         r = np.zeros(C, bool)
         if not independent:
             if self.sr is not None:
-                wc, wt, lp_c, lp_o, lp_p, r = self.ridge(wc, wt, lp_c, lp_o, lp_p, rs)
+                wc, wt, lp_c, lp_o, lp_p, r = self.ridge(wc, wt, lp_c, lp_o, lp_p, rs, f)
             self.calls += 1
             if self.adapt:
                 rate = 3.0 / (self.calls + 10) ** 0.6
@@ -385,20 +447,34 @@ class BlockKernel:
                 self.sc = self.sc * np.exp(rate * (b.mean() - 0.3))
                 if self.sr is not None:
                     self.sr *= np.exp(rate * (r.mean() - RIDGE_ACC))
-        moved = a.any(axis=1) | b | r
+        moved = a.any(axis=1) | b | r | hop
         self.accepted["objects"].append(a.mean(axis=0))
         self.accepted["camera"].append(float(b.mean()))
         self.accepted["all"].append(float(moved.mean()))
-        return self._pack(state, wc, wt, lp_c, lp_o, lp_p), moved
+        return self._pack(state, wc, wt, lp_c, lp_o, lp_p, f), moved
 
-    def ridge(self, wc, wt, lp_c, lp_o, lp_p, rs):
+    def _jumped(self, wc, wt, f):
+        """Every object at the other handedness's mode (``f`` (C, m) which are flipped now):
+        x → m₁ + L₁ L₀⁻¹ (x − m₀), m and L the two modes' centres given the walker's camera
+        (:meth:`_means`) and Cholesky factors, and back; an involution. Returns the proposals
+        (C, m, 7) and the log-Jacobians (C, m), log |L₁| / |L₀| towards the other."""
+        means = self._means(wc)
+        idx, e = np.arange(self.t.m), self.flip_k
+        L, Li, logdet = self.modes[2], self.modes[3], self.modes[4]
+        m0, m1 = means[:, idx, 0], means[:, idx, e]                           # (C, m, 7)
+        prop = np.where(f[..., None], m0 + np.einsum("mij,cmj->cmi", L[idx, 0] @ Li[idx, e], wt - m1),
+                        m1 + np.einsum("mij,cmj->cmi", L[idx, e] @ Li[idx, 0], wt - m0))
+        log_j = logdet[idx, e] - logdet[idx, 0]
+        return prop, np.where(f, -log_j, log_j)
+
+    def ridge(self, wc, wt, lp_c, lp_o, lp_p, rs, f=None):
         """One random-walk step of every walker along the ridge (:meth:`BlockTarget.along_ridge` by
         ε ~ N(0, ``sr``²), ``sr`` adapted towards an acceptance of :data:`RIDGE_ACC` while the
         sampler tunes), accepted by the whole posterior (the map has unit Jacobian and −ε undoes
         it). Returns the updated blocks and which walkers moved."""
         t, m = self.t, self.t.m
         pc, pt = t.along_ridge(wc, wt, self.sr * rs.standard_normal(len(wc)))
-        new = t.blocks(t.join(pc, pt))
+        new = t.blocks(t.join(pc, pt, f))
         with np.errstate(invalid="ignore"):
             ok = np.log(rs.uniform(size=len(wc))) < new.sum(axis=1) - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1))
         return (np.where(ok[:, None], pc, wc), np.where(ok[:, None, None], pt, wt), np.where(ok, new[:, 0], lp_c),

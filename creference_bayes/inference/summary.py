@@ -36,14 +36,8 @@ def observations(model, cams: np.ndarray, objs: np.ndarray, hands: np.ndarray | 
     coordinates of the ``observation`` dimension (module docstring): the model's pointwise terms
     without the padding (an object's missing sets of dimension lines, a horizon not measured,
     targets without references). ``hands`` (n, m): each draw's handedness (None: the model's)."""
-    if hands is None:
-        ll = model.pointwise_log_likelihood(cams, objs)
-    else:  # each draw's terms at its own handedness
-        ll = {}
-        for h in np.unique(hands, axis=0):
-            rows = np.all(hands == h, axis=1)
-            for k, part in model.variant(handedness=h).pointwise_log_likelihood(cams[rows], objs[rows]).items():
-                ll.setdefault(k, np.empty((len(cams),) + np.shape(part)[1:]))[rows] = part
+    # each draw's terms at its own handedness: the model at one handedness per row
+    ll = (model if hands is None else model.at_handedness(hands)).pointwise_log_likelihood(cams, objs)
     cols, coords = [], {"observation": [], "kind": [], "target": [], "index": []}
 
     def add(column, label, kind, target, index):

@@ -12,15 +12,12 @@ from .coords import HorizonDistance, WorkingCoords
 from .ensemble import Ensemble
 from .laplace import laplace_blocks
 from .map import _newton, derivatives
-from .modes import MIN_SHARE, Mode, _weighed, find_modes, mode_rows
+from .modes import MIN_SHARE, MIX_MARGIN, Mode, _weighed, find_modes, mode_rows
 from .moves import BlockTarget
 
 __all__ = ["Whole"]
 
 
-#: The other handedness of the object block is sampled too when its optimum comes within this
-#: many nats of the MAP's: the posterior is then the mixture of the two, each weighed by its mass.
-MIX_MARGIN = 12.0
 #: The sign of an auxiliary coordinate s ~ N(0, 1) appended to the state picks the handedness
 #: (s ≥ 0: the MAP's); its two halves hold equal prior mass, so the chains weigh each handedness by
 #: its posterior mass. A mode's s is centred at ±E|s| with the half-normal's variance.

@@ -323,6 +323,14 @@ class Model:
             new.set_pilot(pilot)  # (what a model fixes at its pilot depends on that camera alone)
         return new
 
+    def at_handedness(self, handedness: np.ndarray) -> "Model":
+        """A view of this model at other handednesses, to evaluate only: ``handedness`` (m,), or
+        (n, m) for a call on exactly n rows, each row's own (draws of a target sampled at both).
+        It shares every other array with this model (nothing may be changed through it)."""
+        new = copy.copy(self)
+        new.handedness = np.asarray(handedness, float)
+        return new
+
     # -- blocks, bounds, fixed values ------------------------------------------------------------
     @property
     def has_ref_scale(self) -> bool:

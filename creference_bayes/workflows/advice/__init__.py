@@ -62,7 +62,7 @@ from ...inference.threads import single_threaded_blas
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
-from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation
+from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation, at_hands
 from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, normalise, p_iou, shuffled_hdi,
                      tempered_update, weighted_hdi)
 
@@ -432,10 +432,11 @@ class _Draws:
     frame understated the present's label quality by 0.07 on average, and a mounting, which pins
     height and pitch, took that away: the advice promised it as a gain (docs/studies/advice.md)."""
 
-    def __init__(self, cams, objs, scene):
+    def __init__(self, cams, objs, scene, hands=None):
         from ..labels.kitti import kitti_poses
 
         self.cams, self.objs, self.scene = cams, objs, scene
+        self.hands = hands  # (N, m) each draw's handedness where it varies (None: the model's)
         self.dist = np.hypot(objs[..., O_X], objs[..., O_Z])
         self.order = np.argsort(self.dist, axis=0).T  # each target's draws by distance, sorted once for every HDI
         y = cams[:, C_HEIGHT, None] - objs[..., O_GROUND]
@@ -455,7 +456,8 @@ class _Draws:
 def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.ndarray, objects_map: np.ndarray,
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
-           progress: bool = False, label_draws: tuple[np.ndarray, np.ndarray] | None = None) -> Advice:
+           progress: bool = False, label_draws: tuple[np.ndarray, np.ndarray] | None = None,
+           hands: np.ndarray | None = None) -> Advice:
     """The advice for ``scene`` given posterior draws of its metrology ``model``.
 
     Parameters
@@ -477,6 +479,9 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     progress : a progress bar over the candidates on standard error
     label_draws : (cameras, objects) the labels' quality now is stated from, when not ``cams`` and
         ``objs`` (a held focal length's shared scale: :func:`~.inputs.advise_result`)
+    hands : (n, m) each draw's handedness (±1) where the posterior sampled a target at both
+        (:attr:`~creference_bayes.inference.chains.Draws.handedness`); every draw is weighed, and
+        its futures simulated, at its own (None: the model's)
     """
     from ...inference.progress import progress_bar
 
@@ -490,8 +495,15 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                          f"(7,), got shapes {cams.shape} and {objs.shape}")
     if not (np.all(np.isfinite(cams)) and np.all(np.isfinite(objs))):
         raise ValueError("draws: expected finite posterior draws, got NaN or infinity")
+    if hands is not None:
+        hands = np.asarray(hands, float)
+        if hands.shape != (len(cams), model.n_objects) or not np.all(np.isin(hands, (-1.0, 1.0))):
+            raise ValueError(f"hands: expected ({len(cams)}, {model.n_objects}) values of 1 or -1, got shape "
+                             f"{hands.shape}")
     keep = np.unique(np.linspace(0, len(cams) - 1, min(settings.n_draws, len(cams))).round().astype(int))
-    draws = _Draws(model.complete_camera(cams[keep]), objs[keep], scene)
+    if hands is not None:
+        hands = None if np.all(hands[keep] == model.handedness) else hands[keep]
+    draws = _Draws(model.complete_camera(cams[keep]), objs[keep], scene, hands)
     n = len(keep)
     outer = np.unique(np.linspace(0, n - 1, min(settings.n_futures, n)).round().astype(int))
     # the present from every draw (one row: the label quality against all of them)
@@ -501,7 +513,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     label_p = _label_quality(scene, camera_map, objects_map, *(label_draws or (cams, objs)), settings.iou_threshold)
     shift = label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
-    base = model.neg_log_posterior(draws.cams, draws.objs, temperature)
+    base = at_hands(model, draws.hands).neg_log_posterior(draws.cams, draws.objs, temperature)
     notes = []
     if candidates is None:
         candidates, notes = scene_candidates(scene, model, np.asarray(camera_map, float),
@@ -739,8 +751,9 @@ class _Weighing:
         """Weigh the futures at positions ``pos`` of ``outer``."""
         obs, draws, rng, cams = self.obs, self.draws, self.rng, self.cams
         outer = self.outer[pos]
-        obs.simulate(rng, cams[outer], draws.objs[outer])
-        log_w = obs.log_ratio(cams, draws.objs, self.base)
+        hands = draws.hands
+        obs.simulate(rng, cams[outer], draws.objs[outer], None if hands is None else hands[outer])
+        log_w = obs.log_ratio(cams, draws.objs, self.base, hands=hands)
         log_w[np.arange(len(outer)), outer] = -np.inf  # leave the simulating draw out
         weights, ess = normalise(log_w)
         rows = draws.outlooks(weights, settings, rng)
@@ -757,7 +770,8 @@ class _Weighing:
             equal = np.full((1, len(sub)), 1.0 / len(sub))
             sub_width, sub_median = weighted_hdi(draws.dist[sub], equal, settings.hdi_prob)
             width[collapsed], share[collapsed] = sub_width[0], sub_width[0] / sub_median[0]
-            for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature)):
+            for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature,
+                                                  None if hands is None else hands[sub])):
                 one = _Draws(c, o, draws.scene).outlooks(equal, settings, rng)
                 for k in rows:
                     rows[k][i] = one[k][0]
@@ -922,7 +936,7 @@ def _contenders(weighings: list[_Weighing], now: Outlook, shift, settings: Advic
     return keep
 
 
-def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
+def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, hands: np.ndarray | None = None):
     """The draws moved to the posterior after the i-th simulated observation, over the new model's
     free parameters, in the sampler's working coordinates (:mod:`~creference_bayes.inference.coords`:
     the blocks barely correlate, so random-walk moves go further).
@@ -935,16 +949,17 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     parameters, at most 32 (mixing slows with d).
 
     ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
-    the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`)."""
+    the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`).
+    ``hands`` (N, m): each draw's handedness, which it keeps (None: the model's)."""
     from ...inference.coords import WorkingCoords
 
     if np.ndim(i) == 0:
-        c, o = _moved(obs, np.array([i]), cams, objs, rng, temperature)
+        c, o = _moved(obs, np.array([i]), cams, objs, rng, temperature, hands)
         return c[0], o[0]
     idx = np.asarray(i, int)
     prior = not hasattr(obs, "model_with")  # an answer that enters as a normal prior
     if not prior:
-        out = [_moved_one(obs, k, cams, objs, rng, temperature) for k in idx]
+        out = [_moved_one(obs, k, cams, objs, rng, temperature, hands) for k in idx]
         return np.array([c for c, _ in out]), np.array([o for _, o in out])
     coords = WorkingCoords(obs.model)
     cf, of = obs.model.camera_free, obs.model.object_free
@@ -953,6 +968,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     unpack, density = _working(obs.model, coords, wc, wo, temperature)
     old = density(obs.model, obs.needs_scale, natural=True)
     values = obs.values[idx]                                                        # (F, p)
+    rows = None if hands is None else np.tile(hands, (len(idx), 1))  # every set's rows, set after set
 
     def natural(y):  # (F, n, d) → cameras and objects of every row
         return coords.from_work(*unpack(y.reshape(-1, y.shape[-1])))
@@ -961,7 +977,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
         return obs.quantities(*natural(y)).reshape(*y.shape[:2], -1)
 
     def target(y):  # the old posterior times the f-th answer's normal density, set f's own
-        log_p, c, o = old(y.reshape(-1, y.shape[-1]))  # the draws' natural values read once for both
+        log_p, c, o = old(y.reshape(-1, y.shape[-1]), rows)  # the draws' natural values read once for both
         z = (values[:, None, :] - obs.quantities(c, o).reshape(*y.shape[:2], -1)) / obs.sd
         with np.errstate(invalid="ignore"):
             ratio = -0.5 * np.sum(z * z, axis=-1)
@@ -970,7 +986,7 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
     from .fallback import block_sweeps
 
     moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target)
-    moved = block_sweeps(obs, values, wc[0], wo[0], moved, rng, temperature)
+    moved = block_sweeps(obs, values, wc[0], wo[0], moved, rng, temperature, hands=rows)
     c, o = natural(moved)
     return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
 
@@ -984,7 +1000,8 @@ def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
     """(unpack, density) in the working coordinates of ``model``'s free parameters: ``unpack``
     (n, d) → full working cameras and objects (the fixed entries of the first draw), ``density``
     (a model, whether the crowd scale's prior enters) → the log-posterior density (n, d) → (n,)
-    (``natural``: → (density, cameras, objects), the draws' natural values beside it)."""
+    (``natural``: → (density, cameras, objects), the draws' natural values beside it), each row at
+    its handedness where a second argument (n, m) gives them."""
     from ...inference.coords import CAMERA_LOG
 
     cf, of = model.camera_free, model.object_free
@@ -996,11 +1013,12 @@ def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
         return c, o
 
     def density(m, scale_prior: bool, natural: bool = False):  # log-posterior density in working coordinates
-        def f(x):
+        def f(x, hands=None):
             c, o = unpack(x)
             cn, on, jac = coords.from_work_jacobian(c, o)
             with np.errstate(all="ignore"):
-                out = -m.neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1) + jac.sum(axis=1)
+                out = (-at_hands(m, hands).neg_log_posterior(cn, on, temperature) + c[:, logs].sum(axis=1)
+                       + jac.sum(axis=1))
                 if scale_prior:
                     out = out - m.ref_scale_neg_log(cn[:, C_SCALE])
             out = np.where(np.isfinite(out), out, -np.inf)
@@ -1010,9 +1028,9 @@ def _working(model, coords, wc: np.ndarray, wo: np.ndarray, temperature: float):
     return unpack, density
 
 
-def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float):
+def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, hands=None):
     """:func:`_moved` for one future of an annotation (a set of lines, a reference): the tempered
-    update to the model with it."""
+    update to the model with it (each draw's handedness, ``hands`` (N, m) or None, carried along)."""
     from ...inference.coords import WorkingCoords
 
     new = obs.model_with(i)
@@ -1021,7 +1039,7 @@ def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature
     x = np.concatenate([wc[:, new.camera_free], wo[:, new.object_free]], axis=1)
     unpack, density = _working(new, coords, wc, wo, temperature)
     moved, _ = tempered_update(density(obs.model, obs.needs_scale), density(new, False), x, rng,
-                               n_moves=_n_moves(x.shape[1]))
+                               n_moves=_n_moves(x.shape[1]), labels=hands)
     return coords.from_work(*unpack(moved))
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ...inference.laplace import chol
 from ...inference.moves import BlockKernel, BlockTarget
-from .observe import MountingObservation, SizeObservation
+from .observe import MountingObservation, SizeObservation, at_hands
 
 __all__ = ["FALLBACK_SWEEPS", "block_sweeps", "AnsweredTarget"]
 
@@ -45,7 +45,7 @@ class AnsweredTarget(BlockTarget):
 
 
 def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: np.ndarray, rng, temperature: float,
-                 sweeps: int | None = None) -> np.ndarray:
+                 sweeps: int | None = None, hands: np.ndarray | None = None) -> np.ndarray:
     """``sweeps`` (None: :data:`FALLBACK_SWEEPS`) random-walk sweeps of the block kernel (the
     camera, then every object block on its own) over F sets of draws ``x`` (F, N, d) in the
     working coordinates of ``obs.model``'s free
@@ -53,8 +53,9 @@ def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: n
     times the f-th answer (``values`` (F, p)) invariant. Each block's proposal is that block's
     covariance in the moved draws, pooled over the sets; its scale adapts to the acceptance. A sweep
     costs about two evaluations of the posterior and moves each object in its own few dimensions,
-    where a random-walk step of the whole vector moves each by about a 1/√d share of its spread."""
-    model = obs.model
+    where a random-walk step of the whole vector moves each by about a 1/√d share of its spread.
+    ``hands`` (F · N, m): each draw's handedness, set after set (None: the model's)."""
+    model = at_hands(obs.model, hands)  # every sweep evaluates the F · N rows in this order
     F, N, d = x.shape
     t = AnsweredTarget(obs, np.repeat(values, N, axis=0), model, temperature, wc0,
                        np.zeros((model.n_objects, 7, 5)), wo0)

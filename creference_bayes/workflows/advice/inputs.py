@@ -29,6 +29,7 @@ def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None =
     """Advise on an estimate of ``scene``: a :class:`~creference_bayes.io.result.Result` or a result
     file's dict (either format). Its kept posterior draws are weighed, else draws of the Laplace
     approximation at its MAP (:func:`~creference_bayes.pipeline.result_draws`)."""
+    from ...io.result import stored_draws
     from ...pipeline import map_state, rebuild_model, result_draws
 
     d = result if isinstance(result, dict) else result.to_dict()
@@ -43,12 +44,14 @@ def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None =
     model = getattr(result, "model", None) or rebuild_model(d, scene)
     rng = np.random.default_rng(seed)
     cams, objs, source = result_draws(d, model, n=settings.n_draws, seed=rng)
+    kept = stored_draws(d) if source == "posterior" else None  # each kept draw's handedness, where it varies
+    hands = None if kept is None or kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     camera, objects = map_state(d)
     prov = d.get("provenance") or {}
     weighed, notes = _given_held_focal(model, cams, objs)
     advice = advise(model, scene, *weighed, camera_map=camera, objects_map=objects, options=prov.get("options"),
                     temperature=float(prov.get("temperature", 1.0)), seed=rng, settings=settings, source=source,
-                    progress=progress, label_draws=(cams, objs))
+                    progress=progress, label_draws=(cams, objs), hands=hands)
     if notes:
         advice = dataclasses.replace(advice, notes=advice.notes + tuple(notes))
     return dataclasses.replace(advice, seed=_recordable(seed))

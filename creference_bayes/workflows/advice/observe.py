@@ -35,7 +35,7 @@ import numpy as np
 from ...models.contract import C_HEIGHT, C_PITCH, C_ROLL, C_SCALE, O_SIZE
 from ...models.metrology import MetrologyModel, ReferenceTerm, reading_log_likelihood
 
-__all__ = ["grown", "simulation_scale", "DimsObservation", "ReferenceObservation", "SizeObservation",
+__all__ = ["grown", "at_hands", "simulation_scale", "DimsObservation", "ReferenceObservation", "SizeObservation",
            "MountingObservation"]
 
 #: Largest simulated error of a stated length, in log-length (a factor 10⁴).
@@ -66,6 +66,12 @@ def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = No
     return new
 
 
+def at_hands(model: MetrologyModel, hands: np.ndarray | None) -> MetrologyModel:
+    """``model`` at each row's handedness ``hands`` ((n, m) ±1, a target sampled at both: each
+    draw's own), to be evaluated on exactly those n rows; ``model`` itself for None."""
+    return model if hands is None else model.at_handedness(hands)
+
+
 def simulation_scale(model: MetrologyModel, i: int, options: dict) -> float:
     """The Student-t scale (pixels) a simulated set of dimension lines on target ``i`` is drawn
     with: one that scatters as the scene's sets do.
@@ -93,9 +99,10 @@ class DimsObservation:
         self.sigma = simulation_scale(model, self.i, options)
         self.corners = np.zeros((0, 4, 2))
 
-    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
-        """One set per draw (M, 5), (M, m, 7); kept in :attr:`corners` (M, 4, 2)."""
-        uv = self.model.project(cams, objs)[0][:, self.i]
+    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray, hands: np.ndarray | None = None) -> None:
+        """One set per draw (M, 5), (M, m, 7) at its handedness (``hands`` (M, m), None: the
+        model's); kept in :attr:`corners` (M, 4, 2)."""
+        uv = at_hands(self.model, hands).project(cams, objs)[0][:, self.i]
         nu = self.model.target_dof
         g = rng.chisquare(nu, size=uv.shape[:2])
         # coordinates stored to 0.01 px, as annotation tools store them
@@ -105,10 +112,10 @@ class DimsObservation:
         """The model with the k-th simulated set."""
         return grown(self.model, self.options, annotations={self.i: self.corners[k]})
 
-    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base: np.ndarray) -> np.ndarray:
-        """(M, N) log p_new − log p_old at the draws; ``base`` (N,) the current model's negative
-        log-posterior there."""
-        out = np.array([base - self.model_with(k).neg_log_posterior(cams, objs, self.temperature)
+    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base: np.ndarray, hands: np.ndarray | None = None) -> np.ndarray:
+        """(M, N) log p_new − log p_old at the draws (at their handedness ``hands`` (N, m), None:
+        the model's); ``base`` (N,) the current model's negative log-posterior there."""
+        out = np.array([base - at_hands(self.model_with(k), hands).neg_log_posterior(cams, objs, self.temperature)
                         for k in range(len(self.corners))])
         return np.where(np.isfinite(out), out, -np.inf)
 
@@ -149,8 +156,9 @@ class ReferenceObservation:
         """(N,) what the reference measures at the draws, in log-length (the model's reading)."""
         return self.probe.predicted_log_lengths(cams, objs)[:, -1]
 
-    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
-        """One stated value or range per draw (M, 5), (M, m, 7)."""
+    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray, hands=None) -> None:
+        """One stated value or range per draw (M, 5), (M, m, 7) (a reference reads no corner: any
+        ``hands``)."""
         m = len(cams)
         b = rng.integers(len(self.node_shift), size=m)
         scale = np.sqrt(cams[:, C_SCALE] ** 2 + self.node_var[b])
@@ -170,7 +178,7 @@ class ReferenceObservation:
                                    is_range=bool(self.is_range[k]))
         return grown(self.model, self.options, references=[term])
 
-    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None) -> np.ndarray:
+    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None, hands=None) -> np.ndarray:
         """(M, N) the simulated references' log-likelihoods at the draws (over the temperature), as
         the model reads a reference (:meth:`~creference_bayes.models.metrology.MetrologyModel.reference_nll_matrix`)."""
         m = len(self.log_low)
@@ -195,12 +203,12 @@ class _PriorObservation:
     def usable(self) -> bool:
         return len(self.sd) > 0
 
-    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray) -> None:
-        """One answer per draw (M, 5), (M, m, 7); kept in :attr:`values` (M, d)."""
+    def simulate(self, rng, cams: np.ndarray, objs: np.ndarray, hands=None) -> None:
+        """One answer per draw (M, 5), (M, m, 7) (no corner: any ``hands``); kept in :attr:`values` (M, d)."""
         q = self.quantities(cams, objs)
         self.values = q + self.sd * rng.standard_normal(q.shape)
 
-    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None, values=None) -> np.ndarray:
+    def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None, hands=None, values=None) -> np.ndarray:
         """(M, N) the simulated answers' (or ``values``') log-densities at the draws."""
         values = self.values if values is None else values
         z = (values[:, None, :] - self.quantities(cams, objs)[None]) / self.sd

@@ -224,7 +224,8 @@ def p_iou(boxes: np.ndarray, weights: np.ndarray, threshold: float, rng, n_pairs
 
 
 def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: int = 8,
-                    ess_fraction: float = 0.5, max_stages: int = 50) -> tuple[np.ndarray, dict]:
+                    ess_fraction: float = 0.5, max_stages: int = 50, labels: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, dict]:
     """Move draws of the current posterior to the new one when plain reweighting collapses.
 
     Sequential Monte Carlo along the path p_β ∝ p_old^(1−β) p_new^β: β grows in steps chosen so
@@ -238,13 +239,19 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
         the new posterior (−∞ outside the support)
     particles : (N, d) draws of the current posterior
     rng : numpy Generator
+    labels : (N, …) a discrete part of each draw that the moves keep and the resampling carries
+        along (each target's handedness), or None; the densities are then called (x, labels)
 
     Returns
     -------
-    (N, d) draws of the new posterior (equally weighted), and ``info`` (stages, acceptance)
+    (N, d) draws of the new posterior (equally weighted), and ``info`` (stages, acceptance and,
+    with ``labels``, the draws' labels)
     """
     x = np.array(particles, float)
     n, d = x.shape
+    lab = None if labels is None else np.asarray(labels)
+    if lab is not None:  # the current labels, read when called (they follow each resampling)
+        log_old, log_new = (lambda p, f=log_old: f(p, lab)), (lambda p, f=log_new: f(p, lab))
     lo, ln = log_old(x), log_new(x)
     base_cov = np.cov(x.T).reshape(d, d)
     jitter = 1e-8 * np.diag(np.diag(base_cov)) + 1e-300 * np.eye(d)
@@ -256,6 +263,7 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
         w, _ = normalise(((nxt - beta) * delta)[None])
         idx = systematic_resample(w[0], n, rng)
         x, lo, ln, beta = x[idx], lo[idx], ln[idx], nxt
+        lab = None if lab is None else lab[idx]
         stages += 1
         unique = len(np.unique(idx))
         cov = np.cov(x.T).reshape(d, d) if unique > d else np.diag(np.diag(base_cov)) * unique / n
@@ -264,7 +272,7 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
                                            rng, n_moves)
         lo, ln = parts
         accepted, tried = accepted + acc, tried + n * n_moves
-    return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta}
+    return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta, "labels": lab}
 
 
 def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndarray, rng, *, steps: int = 4,
