@@ -39,8 +39,7 @@ def gaps(scene) -> np.ndarray:
     fit = est.fitted(model)
     wc0, wo0, *_ = _laplace_start(fit, est, T)
     target = BlockTarget(fit, T, wc0, np.zeros((fit.n_objects, 7, 5)), np.zeros_like(wo0))
-    cams, objs = target.coords.from_work(wc0[None], wo0[None])
-    _, wo_f, lp_f, _ = _other_hands(target, wc0, wo0, cams, objs, T)
+    _, wo_f, lp_f, _ = _other_hands(target, wc0, wo0, T)
     with np.errstate(all="ignore"):
         lp0 = target.objects(wc0[None], wo0[None])[0][0]
     return np.where(np.isfinite(lp_f), lp0 - lp_f, np.inf)

@@ -571,13 +571,7 @@ def _flips(model: Model, wc, wo, f: float, temperature: float):
     each flip kept when the whole objective improves). ``model`` is the fit's model; returns (the
     model at the handedness kept, wc, wo, value, iterations)."""
     coords = WorkingCoords(model)
-    cams, objs = coords.from_work(wc[None], wo[None])
-    h0 = model.handedness
-    _, flipped, _, _ = initial_objects(model, cams[0], handedness=-h0, keep_camera=True)
-    flipped[:, O_SIZE] = objs[0, :, O_SIZE]
-    wof = coords.to_work(cams, flipped[None])[1][0]
-    held = model.variant(handedness=-h0, camera_free=np.zeros(5, bool))  # every object flipped, the camera held
-    _, wof, _, iters = _newton(held, wc, wof, temperature)
+    held, wof, iters = other_handedness(model, wc, wo, temperature)
     per_f = _object_values(held, WorkingCoords(held), wc, wof, temperature)
     gap = per_f - _object_values(model, coords, wc, wo, temperature)
     for i in [k for k in np.argsort(gap) if gap[k] < FLIP_MARGIN][:MAX_FLIPS]:
@@ -590,6 +584,24 @@ def _flips(model: Model, wc, wo, f: float, temperature: float):
         if f2 < f:
             model, wc, wo, f = trial, wc2, wo2, f2
     return model, wc, wo, f, iters
+
+
+def other_handedness(model: Model, wc, wo, temperature: float):
+    """Every object at its other handedness, the camera held at ``wc`` (step 7): each placed from
+    its annotations with the sizes of ``wo``, then Newton steps. Returns the model there (the camera
+    held), the objects' working coordinates (m, 7) and the iterations (none where a placement is
+    not finite)."""
+    coords = WorkingCoords(model)
+    cams, objs = coords.from_work(wc[None], wo[None])
+    h0 = model.handedness
+    _, flipped, _, _ = initial_objects(model, cams[0], handedness=-h0, keep_camera=True)
+    flipped[:, O_SIZE] = objs[0, :, O_SIZE]
+    wof = coords.to_work(cams, flipped[None])[1][0]
+    held = model.variant(handedness=-h0, camera_free=np.zeros(5, bool))
+    if not np.all(np.isfinite(wof)):
+        return held, wof, 0
+    _, wof, _, iters = _newton(held, wc, wof, temperature)
+    return held, wof, iters
 
 
 def _object_values(model: Model, coords: WorkingCoords, wc, wo, temperature: float) -> np.ndarray:

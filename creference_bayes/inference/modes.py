@@ -17,9 +17,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-from ..models.contract import O_SIZE, O_YAW
+from ..models.contract import O_YAW
 from .ensemble import explore
-from .map import _newton, derivatives, initial_objects
+from .map import _newton, derivatives, initial_objects, other_handedness
 from .reparam import Coordinates
 
 __all__ = ["Mode", "find_modes", "object_modes", "mode_rows"]
@@ -311,7 +311,7 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         end[:, O_YAW] = wo0[:, O_YAW] + (end[:, O_YAW] - wo0[:, O_YAW] + np.pi) % (2 * np.pi) - np.pi
         ends.append(np.where(has[:, None], end, np.nan))
     wc = wc0[None]
-    other, wo_f, lp_f, flips = _other_hands(target, wc0, wo0, cams, objs, temperature)
+    other, wo_f, lp_f, flips = _other_hands(target, wc0, wo0, temperature)
 
     def own(i, x):  # object i's log-density given the camera at states x (n, 7), the others at the MAP
         wt = np.repeat(wo0[None], len(x), axis=0)
@@ -364,25 +364,17 @@ def _given_camera(model, wc0: np.ndarray, wo: np.ndarray, i: int, temperature: f
     return c, -c @ D.H_co[i].T
 
 
-def _other_hands(target, wc0: np.ndarray, wo0: np.ndarray, cams: np.ndarray, objs: np.ndarray, temperature: float):
+def _other_hands(target, wc0: np.ndarray, wo0: np.ndarray, temperature: float):
     """Every object at its other handedness, given the MAP's camera: the model there, the optimum
-    (m, 7) in working coordinates (each object placed from its annotations, the MAP's sizes, then
-    Newton steps with the camera held; docs/inference.md, "Finding the MAP", step 7), each object's
-    log-density there given the camera (m,) and whether it is within :data:`MIX_MARGIN` nats of the
-    MAP's (m,)."""
+    (m, 7) in working coordinates (:func:`~.map.other_handedness`), each object's log-density there
+    given the camera (m,) and whether it is within :data:`MIX_MARGIN` nats of the MAP's (m,)."""
     model = target.model
     m = model.n_objects
-    other = model.variant(handedness=-model.handedness)
-    placed = initial_objects(model, cams[0], handedness=-model.handedness, keep_camera=True)[1]
-    placed[:, O_SIZE] = objs[0, :, O_SIZE]
-    wo = target.coords.to_work(cams, placed[None])[1][0]
-    if not np.all(np.isfinite(wo)):
-        return other, wo0, np.full(m, -np.inf), np.zeros(m, bool)
-    _, wo, _, _ = _newton(other.variant(camera_free=np.zeros(5, bool)), wc0, wo, temperature)
+    _, wo, _ = other_handedness(model, wc0, wo0, temperature)
     with np.errstate(all="ignore"):
         lp = target.objects(wc0[None], wo[None], np.ones((1, m), bool))[0][0]
         lp0 = target.objects(wc0[None], wo0[None])[0][0]
-    return other, wo, lp, np.isfinite(lp) & (lp > lp0 - MIX_MARGIN)
+    return model.variant(handedness=-model.handedness), wo, lp, np.isfinite(lp) & (lp > lp0 - MIX_MARGIN)
 
 
 def mode_rows(target_id, objs: np.ndarray, lp, modes, near: np.ndarray) -> list[dict]:
