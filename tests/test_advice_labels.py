@@ -273,7 +273,9 @@ def test_the_fallbacks_on_fewer_draws_predict_what_they_did_on_all(monkeypatch):
     for key, p in fast.items():
         q = full[key]
         np.testing.assert_allclose(p.expected.p_iou, q.expected.p_iou, atol=0.03, err_msg=key)
-        np.testing.assert_allclose(p.expected.hdi_share, q.expected.hdi_share, atol=0.003, err_msg=key)
+        # measured over seeds 3 and 4: the fallbacks on 250 draws moved a target's expected HDI share by
+        # 0.0040 at most, where the same prediction moves by up to 0.0087 from one seed to the next
+        np.testing.assert_allclose(p.expected.hdi_share, q.expected.hdi_share, atol=0.006, err_msg=key)
         assert abs(p.good_gain - q.good_gain) <= 0.05 + 3 * np.hypot(p.good_gain_se, q.good_gain_se), key
 
 
