@@ -262,23 +262,28 @@ def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_obj
     at the draw it collapses the weights most for (the scene's corner scales change with it): the
     draws moved by the tempered update against the posterior of the scene estimated again with
     it, every target's distance."""
+    from creference_bayes.io.result import stored_draws
     from creference_bayes.pipeline import estimate
     from creference_bayes.workflows.advice import _moved
-    from creference_bayes.workflows.advice.observe import DimsObservation
+    from creference_bayes.workflows.advice.observe import DimsObservation, at_hands
 
     scene = make_scene(seed, tier="medium", setting="indoor", n_objects=n_objects, n_references=2)
     scene = dataclasses.replace(scene, targets=tuple(dataclasses.replace(t, dimension_lines=t.dimension_lines[:1])
                                                      for t in scene.targets))
     before = estimate(scene, seed=1, sampling={"min_ess": 1000}, keep_draws=100_000)
     cams, objs, _ = result_draws(before.to_dict(), before.model)
+    kept = stored_draws(before.to_dict())  # each draw's handedness, where a target was sampled at both
+    hands = None if kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     keep = np.unique(np.linspace(0, len(cams) - 1, 600).round().astype(int))
     cams, objs = before.model.complete_camera(cams[keep]), objs[keep]
+    hands = None if hands is None else hands[keep]
     obs = DimsObservation(before.model, 0, {})
-    obs.simulate(np.random.default_rng(3), cams[::20], objs[::20])
-    _, ess = normalise(obs.log_ratio(cams, objs, before.model.neg_log_posterior(cams, objs)))
+    obs.simulate(np.random.default_rng(3), cams[::20], objs[::20], None if hands is None else hands[::20])
+    base = at_hands(before.model, hands).neg_log_posterior(cams, objs)
+    _, ess = normalise(obs.log_ratio(cams, objs, base, hands=hands))
     i = int(np.argmin(ess))
     assert ess[i] < advice_module.MIN_ESS  # a future the advice recomputes by the fallback
-    _, moved = _moved(obs, i, cams, objs, np.random.default_rng(4), 1.0)
+    _, moved = _moved(obs, i, cams, objs, np.random.default_rng(4), 1.0, hands)
     t = scene.targets[0]
     more = dataclasses.replace(scene, targets=(dataclasses.replace(t, dimension_lines=t.dimension_lines + (
         DimensionLine(obs.corners[i]),)),) + scene.targets[1:])
