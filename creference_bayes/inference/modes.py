@@ -312,6 +312,7 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         ends.append(np.where(has[:, None], end, np.nan))
     wc = wc0[None]
     other, wo_f, lp_f, flips = _other_hands(target, wc0, wo0, temperature)
+    D_f = None
 
     def own(i, x):  # object i's log-density given the camera at states x (n, 7), the others at the MAP
         wt = np.repeat(wo0[None], len(x), axis=0)
@@ -340,21 +341,22 @@ def object_modes(target, wc0: np.ndarray, wo0: np.ndarray, Ao: np.ndarray, tempe
         for x, v in zip(found[1:], lp[1:]):
             wo = wo0.copy()
             wo[i] = x
-            c, b = _given_camera(model, wc0, wo, i, temperature)
+            c, b = _given_camera(derivatives(model, wc0, wo, temperature, with_jacobian=True), free, i)
             modes.append((x, c, v, b))
-        if flips[i]:  # the other handedness's optimum
-            c, b = _given_camera(other, wc0, wo_f, i, temperature)
+        if flips[i]:  # the other handedness's optimum (every object's there: one set of derivatives)
+            if D_f is None:
+                D_f = derivatives(other, wc0, wo_f, temperature, with_jacobian=True)
+            c, b = _given_camera(D_f, free, i)
             modes.append((wo_f[i], c, lp_f[i], b, True))
         out.append(_weighed(modes, free))
     return out
 
 
-def _given_camera(model, wc0: np.ndarray, wo: np.ndarray, i: int, temperature: float):
-    """Object i's Laplace covariance given the camera (7, 7) at working coordinates (wc0, wo) and
-    its shear (7, 5) (how its centre moves with the camera); (None, None) where the density has no
-    maximum there (no Laplace mass)."""
-    free = model.object_free[i]
-    D = derivatives(model, wc0, wo, temperature, with_jacobian=True)
+def _given_camera(D, free: np.ndarray, i: int):
+    """Object i's Laplace covariance given the camera (7, 7) from the derivatives ``D`` at a state
+    (:func:`~.map.derivatives`; ``free`` (7,) its free coordinates) and its shear (7, 5) (how its
+    centre moves with the camera); (None, None) where the density has no maximum there (no
+    Laplace mass)."""
     c = np.zeros((7, 7))
     try:
         np.linalg.cholesky(D.H_oo[i][np.ix_(free, free)])
