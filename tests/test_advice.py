@@ -283,7 +283,9 @@ def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_obj
     _, ess = normalise(obs.log_ratio(cams, objs, base, hands=hands))
     i = int(np.argmin(ess))
     assert ess[i] < advice_module.MIN_ESS  # a future the advice recomputes by the fallback
-    _, moved = _moved(obs, i, cams, objs, np.random.default_rng(4), 1.0, hands)
+    # four fallback runs pooled: one run's spread varies by about 6 % from seed to seed (0.73–0.86 m for
+    # t0 over seeds 4–9 of the [23-2] scene), the re-estimate's by about 5 % (0.78–0.88 m over seeds 2–6)
+    moved = np.concatenate([_moved(obs, i, cams, objs, np.random.default_rng(r), 1.0, hands)[1] for r in range(4, 8)])
     t = scene.targets[0]
     more = dataclasses.replace(scene, targets=(dataclasses.replace(t, dimension_lines=t.dimension_lines + (
         DimensionLine(obs.corners[i]),)),) + scene.targets[1:])
@@ -293,7 +295,7 @@ def test_the_fallback_moves_the_draws_to_the_re_estimate(make_scene, seed, n_obj
     # the set moved the posterior (about 0.2–1.2 sd, 15–50 % of its sd here) …
     assert np.any((np.abs(dist_new.mean(0) - dist.mean(0)) > 0.2 * dist.std(0))
                   | (np.abs(dist_new.std(0) / dist.std(0) - 1) > 0.15))
-    # … and the moved draws followed (600 of them, of which a few hundred distinct after the moves)
+    # … and the moved draws followed (4 × 600 of them, of which a few hundred distinct in each run)
     # (each target's mean within 0.15 of its own sd: a near target's sd is a fraction of a far one's)
     assert np.all(np.abs(dist_moved.mean(0) - dist_new.mean(0)) <= 0.15 * dist_new.std(0))
     np.testing.assert_allclose(dist_moved.std(0), dist_new.std(0), rtol=0.15)

@@ -245,7 +245,7 @@ def test_kitti_study_pools_the_focal_length_of_frames_with_one_p2(kitti_dir, tmp
         shutil.copy(kitti_dir / "calib" / "000007.txt", kitti_dir / "calib" / f"{name}.txt")
     script = Path(__file__).resolve().parents[1] / "examples" / "kitti_study.py"
     out = tmp_path / "study"
-    proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "2",
+    proc = subprocess.run([sys.executable, str(script), str(kitti_dir), "--out", str(out), "--annotations", "3",
                            "--max-steps", "400", "--methods", "joint", "--focal", "unknown", "--rig", "focal"],
                           capture_output=True, text=True, timeout=600, env={**os.environ, "MPLBACKEND": "Agg"})
     assert proc.returncode == 0, proc.stderr[-2000:]
