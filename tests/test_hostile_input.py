@@ -184,6 +184,35 @@ def test_a_result_with_bad_batch_fields_is_refused_in_one_line(tmp_path, capsys,
     assert _one_error_line(capsys).startswith(f"error: {path}: {key}: ")
 
 
+@pytest.mark.parametrize("hdi", ["\x00", {"distance_m": ["a", 3]}, {"distance_m": [1.0, float("inf")]}, [1, 2]],
+                         ids=["nul-string", "text-bound", "infinite", "list"])
+def test_advise_reads_past_a_results_shown_hdi_that_is_not_one(tmp_path, capsys, hdi):
+    """The estimate's HDI of a distance is only shown beside the advice: a result whose
+    ``objects[0].posterior.hdi`` is something else is advised as the intact one, without it."""
+    import creference_bayes as cb
+    from creference_bayes.cli import example_scene_path
+
+    result = cb.estimate(example_scene_path(), seed=0, sampling={"min_ess": 100}, keep_draws=200)
+    good, bad = tmp_path / "good.json", tmp_path / "bad.json"
+    result.save(good)
+    d = json.loads(good.read_text())
+    assert d["objects"][0]["posterior"]["hdi"]["distance_m"]  # the intact file shows it
+    d["objects"][0]["posterior"]["hdi"] = hdi
+    bad.write_text(json.dumps(d))
+    if "Infinity" in bad.read_text():  # not JSON: refused, in one line saying why
+        assert main(["advise", str(bad), "--scene", str(example_scene_path())]) == 2
+        assert _one_error_line(capsys) == f"error: {bad}: non-standard JSON constant Infinity (numbers must be finite)"
+        bad.write_text(json.dumps(d).replace("Infinity", "1e999"))  # read as JSON, a number too large
+    outs = []
+    for path in (good, bad):
+        assert main(["advise", str(path), "--draws", "50", "--futures", "10", "--scene", str(example_scene_path()),
+                     "--out", str(tmp_path / f"{path.stem}.advice.json")]) == 0
+        outs.append(capsys.readouterr().out)
+    assert "the estimate's, on all its draws" in outs[0] and "the estimate's, on all its draws" not in outs[1]
+    advice = [json.loads((tmp_path / f"{n}.advice.json").read_text()) for n in ("good", "bad")]
+    assert advice[0]["predictions"] == advice[1]["predictions"]
+
+
 # --- 4. CSV cells a spreadsheet would run --------------------------------------------------------
 
 def test_csv_cells_that_a_spreadsheet_would_run_are_escaped_and_read_back_exactly(tmp_path):

@@ -52,7 +52,9 @@ def _one(args, settings, progress: bool) -> int:
         raise FileNotFoundError(2, "no such file", str(path))
     try:
         d = read_json(path)
-    except ValueError:
+    except ValueError as exc:
+        if args.scene is not None:  # meant as a result: say what is wrong with it
+            raise UsageError(" ".join(str(exc).split())) from None
         d = None  # not JSON: the scene reader says what is wrong
     try:
         made_with = None  # a scene's estimate: its options and range, recorded with the advice
@@ -78,7 +80,7 @@ def _one(args, settings, progress: bool) -> int:
             prov = done["provenance"]
             made_with = {"options": prov["options"], **{k: prov[k] for k in ("distance_range_m",) if k in prov}}
             objects = done["objects"]
-        hdi = [((o.get("posterior") or {}).get("hdi") or {}).get("distance_m") for o in objects]
+        hdi = [_distance_hdi(o) for o in objects]
     except SceneError:
         raise
     except (KeyError, TypeError) as exc:
@@ -92,6 +94,16 @@ def _one(args, settings, progress: bool) -> int:
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0
+
+
+def _distance_hdi(obj) -> tuple[float, float] | None:
+    """The estimate's HDI of an object's distance (m) as a result stores it, for the table beside
+    the advice; None where the result has none or something else there (it is only shown)."""
+    try:
+        lo, hi = map(float, obj["posterior"]["hdi"]["distance_m"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return (lo, hi) if math.isfinite(lo) and math.isfinite(hi) else None
 
 
 def _only_for_a_scene(args, why: str) -> None:
