@@ -28,10 +28,17 @@ def main(argv=None) -> int:
     p.add_argument("--sampling", default=None, metavar="JSON", help="sampler settings for every estimate")
     p.add_argument("--out", type=Path, default=None, help="also write one JSON line per estimate here")
     args = p.parse_args(argv)
+    from creference_bayes.inference.chains import SamplerSettings
+
     try:
         sampling = None if args.sampling is None else json.loads(args.sampling)
+        if sampling is not None and not isinstance(sampling, dict):
+            raise ValueError(f"expected a JSON object of settings, got {args.sampling!r}")
+        SamplerSettings.from_options(sampling)  # an unknown key or a bad value, said once and up front
     except json.JSONDecodeError as exc:
         p.error(f"--sampling: expected JSON, got {args.sampling!r} ({exc.msg})")
+    except (TypeError, ValueError) as exc:
+        p.error(f"--sampling: {exc}")
 
     import creference_bayes as cb
 
