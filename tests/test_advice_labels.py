@@ -215,7 +215,7 @@ def test_an_answers_fallback_moves_the_draws_to_the_answered_estimate(crowded, k
     obs = SizeObservation(model, 1, CATALOGUE_LOG_SD) if kind == "size" else MountingObservation(model, MOUNTING_SD)
     obs.simulate(np.random.default_rng(3), cams[[j]], objs[[j]])
     assert normalise(obs.log_ratio(cams, objs))[1][0] < 0.15 * len(cams)   # reweighting leaves few draws
-    _, moved = _moved(obs, 0, cams, objs, np.random.default_rng(4), 1.0, hands)
+    _, moved, w = _moved(obs, 0, cams, objs, np.random.default_rng(4), 1.0, hands)
     v = obs.values[0]
     answered = (with_size(scene, scene.targets[1].id, np.exp(v)) if kind == "size"
                 else with_mounting(scene, float(np.exp(v[0])), *map(float, v[1:])))
@@ -223,9 +223,12 @@ def test_an_answers_fallback_moves_the_draws_to_the_answered_estimate(crowded, k
     _, objs_new, _ = result_draws(after.to_dict(), after.model)
     dist_moved, dist_new = (np.hypot(o[..., 0], o[..., 1]) for o in (moved, objs_new))
     assert np.max(np.abs(dist_new.mean(0) - dist.mean(0)) / dist.std(0)) > 0.5   # the answer moved the posterior …
-    # … and the moved draws followed (600 of them: an sd within about 3 %)
-    assert np.all(np.abs(dist_moved.mean(0) - dist_new.mean(0)) < 0.3 * dist_new.std(0))
-    ratio = dist_moved.std(0) / dist_new.std(0)
+    # … and the moved draws, at their weights, followed (600 of them, at least a tenth counting: an sd
+    # within about 3 to 10 %)
+    assert w.shape == (len(cams),) and abs(w.sum() - 1.0) < 1e-9 and 1.0 / np.sum(w * w) >= 0.1 * len(cams)
+    mean = w @ dist_moved
+    assert np.all(np.abs(mean - dist_new.mean(0)) < 0.3 * dist_new.std(0))
+    ratio = np.sqrt(w @ (dist_moved - mean) ** 2) / dist_new.std(0)
     assert np.all(np.abs(ratio - 1.0) < 0.12) and abs(np.mean(ratio) - 1.0) < 0.05
 
 
@@ -241,11 +244,12 @@ def test_the_collapsed_futures_of_a_size_are_moved_together_each_to_its_own_answ
     tails = np.argsort(length)[[len(cams) // 20, -len(cams) // 20]]
     obs = SizeObservation(model, 1, CATALOGUE_LOG_SD)
     obs.simulate(np.random.default_rng(3), cams[tails], objs[tails])
-    moved_cams, moved = _moved(obs, np.array([0, 1]), cams[:250], objs[:250], np.random.default_rng(4), 1.0,
-                               hands[:250])
-    assert moved_cams.shape == (2, 250, 5) and moved.shape == (2, 250, *objs.shape[1:])
+    moved_cams, moved, w = _moved(obs, np.array([0, 1]), cams[:250], objs[:250], np.random.default_rng(4), 1.0,
+                                  hands[:250])
+    assert moved_cams.shape == (2, 250, 5) and moved.shape == (2, 250, *objs.shape[1:]) and w.shape == (2, 250)
     for f in range(2):
-        assert np.median(np.log(moved[f, :, 1, O_SIZE.start])) == pytest.approx(obs.values[f, 0], abs=0.05)
+        log_length = np.log(moved[f, :, 1, O_SIZE.start])
+        assert w[f] @ log_length == pytest.approx(obs.values[f, 0], abs=0.05)
     assert obs.values[1, 0] - obs.values[0, 0] > 0.2   # two answers apart
     assert np.all(np.isfinite(moved))
 
@@ -471,7 +475,8 @@ def test_a_collapsed_future_that_says_nothing_makes_no_label_good(frame, advised
 
     def present(obs, idx, cams, objs, rng, temperature, hands=None):  # the fallback: the present's draws, shuffled
         orders = [rng.permutation(len(cams)) for _ in np.atleast_1d(idx)]   # one set per collapsed future
-        return np.stack([cams[o] for o in orders]), np.stack([objs[o] for o in orders])
+        return (np.stack([cams[o] for o in orders]), np.stack([objs[o] for o in orders]),
+                np.full((len(orders), len(cams)), 1.0 / len(cams)))
 
     monkeypatch.setattr(advice_module, "DimsObservation", _says_nothing(20.0))
     monkeypatch.setattr(advice_module, "_moved", present)

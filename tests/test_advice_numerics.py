@@ -17,7 +17,7 @@ from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECOND
                                                           annotation_seconds, candidates, format_mix)
 from creference_bayes.workflows.advice.iou import iou_3d_at_least, iou_3d_pairs
 from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation, grown
-from creference_bayes.workflows.advice.update import (kalman_update, location_sd, normalise, tempered_update,
+from creference_bayes.workflows.advice.update import (gaussian_transport, location_sd, normalise, tempered_update,
                                                       weighted_hdi)
 
 
@@ -216,110 +216,55 @@ def test_tempered_update_recovers_a_posterior_plain_reweighting_cannot():
     assert info["beta"] == 1.0 and info["stages"] >= 2
 
 
-def test_the_kalman_update_gives_the_conjugate_posterior_of_a_correlated_gaussian():
-    """A normal answer on one of three correlated quantities, 40 times narrower than the present:
-    the moved draws have the conjugate posterior's mean and covariance (the other two follow by
-    their correlation), and each draw stays a draw of its own."""
-    rng = np.random.default_rng(5)
-    cov = np.array([[1.0, 0.8, -0.3], [0.8, 1.0, 0.1], [-0.3, 0.1, 2.0]])
-    prior = rng.multivariate_normal(np.zeros(3), cov, 4000)
-    value, sd = np.array([0.9]), np.array([0.025])
-    moved = kalman_update(prior, lambda x: x[:, :1], value, sd, rng)
-    gain = cov[:, :1] / (cov[0, 0] + sd[0] ** 2)
-    mean, post = (gain * value).ravel(), cov - gain @ cov[:1, :]
-    for k in range(3):  # within 4 Monte Carlo se
-        assert moved[:, k].mean() == pytest.approx(mean[k], abs=4 * np.sqrt(post[k, k] / 4000))
-    np.testing.assert_allclose(np.cov(moved.T), post, atol=0.06 * np.sqrt(np.outer(np.diag(post), np.diag(post))).max())
-    assert len(np.unique(moved[:, 1])) == 4000
-
-
-def test_the_kalman_update_moves_several_answers_at_once_each_to_its_own_posterior():
-    """The advice's collapsed futures of one request are moved in one pass: three answers of the
-    conjugate problem above, each set of draws to its own answer's posterior (its own density
-    checked at each step); one set in a batch of one is the unbatched call, random number for number."""
-    rng = np.random.default_rng(6)
-    cov = np.array([[1.0, 0.8], [0.8, 1.0]])
-    prior = rng.multivariate_normal(np.zeros(2), cov, 2000)
-    values, sd = np.array([[-1.0], [0.0], [1.5]]), np.array([0.05])
-
-    def log_density(x):  # (F, N, 2): the prior's density times set f's answer
-        inv = np.linalg.inv(cov)
-        return -0.5 * (np.einsum("fni,ij,fnj->fn", x, inv, x) + ((x[..., 0] - values[:, :1]) / sd[0]) ** 2)
-
-    moved = kalman_update(np.repeat(prior[None], 3, axis=0), lambda x: x[..., :1], values, sd, rng,
-                          log_density=log_density)
-    assert moved.shape == (3, 2000, 2)
-    gain = cov[:, :1] / (cov[0, 0] + sd[0] ** 2)
-    post = cov - gain @ cov[:1, :]
-    for f, v in enumerate(values[:, 0]):
-        mean = (gain * v).ravel()
-        for k in range(2):
-            assert moved[f, :, k].mean() == pytest.approx(mean[k], abs=4 * np.sqrt(post[k, k] / 2000))
-            assert moved[f, :, k].std() == pytest.approx(np.sqrt(post[k, k]), rel=0.1)
-    one = kalman_update(prior[None], lambda x: x[..., :1], values[:1], sd, np.random.default_rng(1))
-    np.testing.assert_allclose(one[0], kalman_update(prior, lambda x: x[:, :1], values[0], sd, np.random.default_rng(1)))
-
-
-def test_the_kalman_update_follows_a_quantity_that_is_not_linear():
-    """The draws (log angular size a, depth z in metres, log-normal), the answer on the log-size
-    q = a + log z: the moved depths against plain reweighting of a million draws."""
-    rng = np.random.default_rng(6)
-
-    def draw(n):
-        return np.stack([rng.normal(0.0, 0.05, n), rng.lognormal(2.5, 0.25, n)], axis=1)
-
-    def q(x):
-        return x[:, :1] + np.log(x[:, 1:])
-
-    value, sd = np.array([2.75]), np.array([0.03])
-    moved = kalman_update(draw(4000), q, value, sd, rng)
-    big = draw(1_000_000)
-    w, _ = normalise(-0.5 * ((q(big)[:, 0] - value[0]) / sd[0]) ** 2)
-    ref_mean = w[0] @ big[:, 1]
-    ref_sd = np.sqrt(w[0] @ (big[:, 1] - ref_mean) ** 2)
-    assert ref_sd < 0.3 * big[:, 1].std()   # the answer narrows the depth
-    assert moved[:, 1].mean() == pytest.approx(ref_mean, abs=4 * ref_sd / np.sqrt(4000))
-    assert moved[:, 1].std() == pytest.approx(ref_sd, rel=0.08)   # (about 4 % narrow in four steps)
-    one = kalman_update(draw(4000), q, value, sd, rng, steps=1)   # one step: the curvature is not followed
-    assert abs(one[:, 1].mean() - ref_mean) > abs(moved[:, 1].mean() - ref_mean)
-
-
-def test_a_kalman_step_that_would_leave_the_support_keeps_the_draw():
-    """q = log x: an answer far below the draws pushes some of them below 0 in a step; those stay
-    where they were for that step, and every draw ends where q is defined."""
-    rng = np.random.default_rng(7)
-    x = rng.lognormal(0.0, 0.5, (500, 1))
-    with np.errstate(all="ignore"):
-        moved = kalman_update(x, lambda y: np.log(y), np.array([-1.5]), np.array([0.05]), rng)
-        one = (x + (np.array([-1.5]) - np.log(x)) * np.cov(x.T, np.log(x).T)[0, 1] / (np.var(np.log(x)) + 4 * 0.05**2))
-    assert np.any(one <= 0)   # an unguarded step would leave the support
-    assert np.all(moved > 0) and np.median(np.log(moved)) < -1.0
-
-
-def test_a_kalman_step_that_would_leave_the_new_posterior_keeps_the_draw():
-    """The answer on x0, the new posterior defined only for x1 > 0 (another object in front of the
-    horizon, say), x1 correlated with x0: no draw ends outside it."""
+def test_the_gaussian_transport_gives_the_draws_the_conjugate_moments_of_their_own_normal():
+    """Answers on two of four correlated quantities, each set of moved draws against the textbook
+    conjugate update of the draws' own mean and covariance (not of the law they came from, so the
+    check is to rounding): mean μ + C S⁻¹ (a − μ_h), covariance Σ − C S⁻¹ Cᵀ, C = Cov(z, h),
+    S = Σ_hh + diag(sd²); every draw moved by the same affine map (each moved draw a draw of its own)."""
     rng = np.random.default_rng(8)
-    x = rng.multivariate_normal([0.0, 1.0], [[1.0, 0.9], [0.9, 1.0]], 500)
-    x = x[x[:, 1] > 0]
+    a = rng.normal(size=(4, 4))
+    z = rng.multivariate_normal([1.0, -2.0, 0.5, 3.0], a @ a.T + 0.5 * np.eye(4), 500) ** 1  # any draws
+    z[:, 3] = np.exp(0.3 * z[:, 3])  # not normal: the moments are the draws' own all the same
+    cols, sd = np.array([2, 0]), np.array([0.05, 0.2])
+    values = np.array([[0.4, 1.1], [1.5, -0.5]])
+    moved = gaussian_transport(z, cols, values, sd)
+    assert moved.shape == (2, 500, 4)
+    mu, cov = z.mean(axis=0), np.cov(z.T)
+    c = cov[:, cols]
+    s_inv = np.linalg.inv(cov[np.ix_(cols, cols)] + np.diag(sd ** 2))
+    for f in range(2):
+        np.testing.assert_allclose(moved[f].mean(axis=0), mu + c @ s_inv @ (values[f] - mu[cols]), atol=1e-9)
+        np.testing.assert_allclose(np.cov(moved[f].T), cov - c @ s_inv @ c.T, atol=1e-9)
+        linear, *_ = np.linalg.lstsq(np.column_stack([z, np.ones(500)]), moved[f], rcond=None)
+        np.testing.assert_allclose(np.column_stack([z, np.ones(500)]) @ linear, moved[f], atol=1e-9)
+        assert len(np.unique(moved[f, :, 1].round(12))) == 500
 
-    def log_density(y):
-        return np.where(y[:, 1] > 0, -0.5 * (y[:, 0] + 1.0) ** 2 / 0.01, -np.inf)
 
-    moved = kalman_update(x, lambda y: y[:, :1], np.array([-1.0]), np.array([0.1]), rng, log_density=log_density)
-    plain = kalman_update(x, lambda y: y[:, :1], np.array([-1.0]), np.array([0.1]), np.random.default_rng(8))
-    assert np.any(plain[:, 1] <= 0)    # unguarded, some would
-    assert np.all(moved[:, 1] > 0)
+def test_transported_draws_weighed_by_the_new_posterior_over_the_old_are_its_draws():
+    """A posterior that is not normal (a banana: z1 | z0 ~ N(0.3 z0², 0.3²), z0 ~ N(0, 1)) and a
+    sharp answer on z0 (sd 0.05, at 1.2: far in reweighting's terms): the draws carried by the
+    transport and weighed by p_new(y) / p_old(z) (the map's Jacobian is one constant) give the
+    answer's posterior mean of z1 (0.3 E z0² after it), where the transport alone does not (it
+    moves z1 along its straight regression on z0, which is 0)."""
+    rng = np.random.default_rng(9)
+    n = 4000
+    z0 = rng.normal(size=n)
+    z = np.column_stack([z0, 0.3 * z0 ** 2 + 0.3 * rng.normal(size=n)])
 
+    def log_old(x):
+        return -0.5 * x[..., 0] ** 2 - 0.5 * ((x[..., 1] - 0.3 * x[..., 0] ** 2) / 0.3) ** 2
 
-def test_the_kalman_update_refuses_a_quantity_that_is_not_finite():
-    with pytest.raises(ValueError, match="not finite"):
-        kalman_update(np.ones((10, 2)), lambda x: np.where(x[:, :1] > 1.0, x[:, :1], np.nan), np.array([0.0]),
-                      np.array([0.1]), np.random.default_rng(0))
-
-
-# ------------------------------------------------------------------------------------------------
-# weights against the models
+    value, sd = 1.2, 0.05
+    y = gaussian_transport(z, [0], np.array([[value]]), np.array([sd]))[0]
+    log_w = log_old(y) - 0.5 * ((y[:, 0] - value) / sd) ** 2 - log_old(z)
+    w, ess = normalise(log_w)
+    w = w[0]
+    post_var = 1.0 / (1.0 + 1.0 / sd ** 2)           # z0 | answer: normal
+    post_mean = post_var * value / sd ** 2
+    truth = 0.3 * (post_mean ** 2 + post_var)         # E z1 = 0.3 E z0²
+    assert ess[0] > 0.02 * n                          # weights that still count
+    assert w @ y[:, 1] == pytest.approx(truth, abs=4 * 0.3 / np.sqrt(ess[0]))   # 4 se
+    assert abs(y[:, 1].mean() - truth) > 0.1          # the transport alone is off
 
 
 def _scene(seed, **kw):
@@ -349,15 +294,20 @@ def _states(scene, model, n, rng):
     return model.complete_camera(cams), o
 
 
+def _frame_model(scene):
+    """The scene's model with the truth's handedness and its pilot at the true camera."""
+    model, _ = build_model(scene)
+    model.handedness = np.array([t.ground_truth["handedness"] for t in scene.targets], float)
+    model.set_pilot(true_state(scene)[0])
+    return model
+
+
 @pytest.fixture(scope="module")
 def frame():
     """A 3-target outdoor scene (class size priors, three sets each, two references) and its model
     at the truth, with states around it."""
     scene = _with_sets(_scene(5, tier="medium", setting="outdoor", n_objects=3, sizes="prior", n_references=2), 3)
-    model, _ = build_model(scene)
-    cam, objs = true_state(scene)
-    model.handedness = np.array([t.ground_truth["handedness"] for t in scene.targets], float)
-    model.set_pilot(cam)
+    model = _frame_model(scene)
     cams, o = _states(scene, model, 300, np.random.default_rng(6))
     return scene, model, cams, o
 
@@ -415,6 +365,41 @@ def test_dimension_line_weights_follow_the_new_corner_scales(frame):
     fixed = grown(model, {"ref_line_sigma": model.ref_line_sigma}, annotations={1: obs.corners[0]})
     fixed.sigma = model.sigma.copy()  # the new set's likelihood at the old scales
     assert np.ptp(with_sigma - (base - fixed.neg_log_posterior(cams, objs))) > 1e-3
+
+
+@pytest.mark.parametrize("case", ["references move", "references stay", "no references", "one set each"])
+def test_dimension_line_weights_are_the_difference_of_the_whole_posteriors(frame, case):
+    """However the weights of a simulated set are computed (on the terms it changes, or on the whole
+    posterior where the references' line noise moves), they are base − the new model's negative
+    log-posterior at every draw, each draw at its own handedness, at a temperature."""
+    scene, model, cams, objs = frame
+    options = {}
+    if case == "references stay":  # the references' line noise given: only the annotations change
+        options = {"ref_line_sigma": model.ref_line_sigma}
+        model = grown(model, options)
+    elif case == "no references":
+        model = _frame_model(dataclasses.replace(scene, references=()))
+    elif case == "one set each":  # σ pooled over the objects with several sets: a new set moves them all
+        model = _frame_model(dataclasses.replace(scene, targets=tuple(
+            dataclasses.replace(t, dimension_lines=t.dimension_lines[:k]) for t, k in zip(scene.targets, (1, 3, 1)))))
+    hands = np.where(np.random.default_rng(2).uniform(size=(len(cams), 3)) < 0.2, -1.0, 1.0) * model.handedness
+    temperature = 1.7
+    obs = DimsObservation(model, 1, options, temperature)
+    obs.simulate(np.random.default_rng(8), cams[:4], objs[:4], hands[:4])
+    at = model.at_handedness(hands)
+    base = at.neg_log_posterior(cams, objs, temperature)
+    got = obs.log_ratio(cams, objs, base, hands=hands)
+    new = obs.model_with(0)
+    if case == "references move":
+        assert new.ref_line_sigma != model.ref_line_sigma
+    elif case == "references stay":
+        assert new.ref_line_sigma == model.ref_line_sigma and len(model.all_references)
+    elif case == "one set each":
+        assert np.all(new.sigma != model.sigma)  # the pooled scale of the one-set objects moved too
+    for k in range(4):
+        want = base - obs.model_with(k).at_handedness(hands).neg_log_posterior(cams, objs, temperature)
+        np.testing.assert_allclose(got[k], want, rtol=1e-9, atol=1e-7)
+        assert np.ptp(want) > 1e-3
 
 
 def test_simulated_dimension_lines_scatter_as_the_scenes_sets_do(frame):

@@ -679,6 +679,15 @@ class MetrologyModel(Model):
         per = 0.5 * (nu + 2.0) * (c[..., 0] + c[..., 1] + c[..., 2] + c[..., 3]) + 4.0 * np.log(self.sigma**2)[None, :, None]
         return per * self.ann_mask[None], depth
 
+    def annotation_nll(self, uv: np.ndarray, i: int) -> np.ndarray:
+        """(n,) object ``i``'s part of :meth:`_annotation_terms` summed over its sets (the normalising
+        log σᵢ² included), its corners projected at ``uv`` (n, 4, 2) pixels (:meth:`project`): for a
+        caller that changes one object's sets or σᵢ and not the projection."""
+        ann = np.asarray(self.objects[i].annotations, float)                  # (K, 4, 2)
+        nu, s2 = float(self.target_dof), float(self.sigma[i]) ** 2
+        r2 = np.sum(np.square(ann[None] - np.asarray(uv, float)[:, None]), axis=-1)   # (n, K, 4)
+        return 0.5 * (nu + 2.0) * np.sum(np.log1p(r2 / (nu * s2)), axis=(1, 2)) + 4.0 * np.log(s2) * len(ann)
+
     def object_nll(self, cams: np.ndarray, objs: np.ndarray) -> np.ndarray:
         per, depth = self._annotation_terms(cams, objs)
         out = per.sum(axis=-1) + self.behind(depth)

@@ -63,7 +63,7 @@ from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
 from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation, at_hands
-from .update import (MIN_ESS, MIN_ESS_FRACTION, kalman_update, location_sd, normalise, p_iou, shuffled_hdi,
+from .update import (MIN_ESS, MIN_ESS_FRACTION, gaussian_transport, location_sd, normalise, p_iou, shuffled_hdi,
                      tempered_update, weighted_hdi)
 
 __all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_chance", "combined_chance",
@@ -80,6 +80,10 @@ _BOOTSTRAPS = 20
 #: (its HDI is read against the present's on the same draws): the fallbacks' cost grows with them
 #: (docs/studies/advice.md, "Speed of the advice on a frame").
 FALLBACK_DRAWS = 250
+#: A prior answer's carried draws (:func:`_moved`) are kept, weighted, where their effective sample
+#: size is at least this share of them; below it they start the block sweeps (docs/studies/advice.md,
+#: "The fallback's transport").
+TRANSPORT_ESS_SHARE = 0.1
 #: The race (:func:`advise`) is run when each of its rounds holds at least this many futures.
 RACE_MIN_FUTURES = 20
 #: The standard errors of a request's bounds in the race (:func:`_bounds`, :func:`_contenders`).
@@ -783,18 +787,20 @@ class _Weighing:
         collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
         # Each future against the present at its own weights (module docstring): scaled by the present
         # on all draws over that. The fallback futures are recomputed on FALLBACK_DRAWS of the draws
-        # (evenly thinned), moved together: scaled by the present on all draws over that on those.
+        # (evenly thinned), moved together, each with its weights: scaled by the present on those
+        # draws over that at the same weights.
         same = np.ones(len(outer), bool)
         same[collapsed] = False
         width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng, order=draws.order)
+        moved_ess = np.full(len(outer), np.inf)  # a recomputed future's effective draws (inf: equally weighted)
         if len(collapsed):
             sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
-            equal = np.full((1, len(sub)), 1.0 / len(sub))
-            sub_width, sub_median = weighted_hdi(draws.dist[sub], equal, settings.hdi_prob)
-            width[collapsed], share[collapsed] = sub_width[0], sub_width[0] / sub_median[0]
-            for i, c, o in zip(collapsed, *_moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature,
-                                                  None if hands is None else hands[sub])):
-                one = _Draws(c, o, draws.scene).outlooks(equal, settings, rng)
+            mc, mo, mw = _moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature,
+                                None if hands is None else hands[sub])
+            width[collapsed], share[collapsed] = shuffled_hdi(draws.dist[sub], mw, settings.hdi_prob, rng)
+            moved_ess[collapsed] = np.where(np.all(mw == mw[:, :1], axis=1), np.inf, 1.0 / np.sum(mw * mw, axis=1))
+            for i, c, o, w in zip(collapsed, mc, mo, mw):
+                one = _Draws(c, o, draws.scene).outlooks(w[None], settings, rng)
                 for k in rows:
                     rows[k][i] = one[k][0]
         rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width
@@ -803,7 +809,8 @@ class _Weighing:
         # mean box, which flatters it: the same weights shuffled over the draws show by how much
         shuffled = p_iou(draws.boxes, rng.permuted(weights[same], axis=1), settings.iou_threshold, rng,
                          settings.iou_pairs) if np.any(same) else np.zeros((0, len(now.p_iou)))
-        self.parts.append(dict(rows, pos=pos, ess=ess, same=same, weights=weights[same], shuffled=shuffled))
+        self.parts.append(dict(rows, pos=pos, ess=ess, same=same, moved_ess=moved_ess, weights=weights[same],
+                               shuffled=shuffled))
 
     def futures(self) -> dict:
         """Every per-future array of the futures weighed so far, in the order of their positions."""
@@ -822,7 +829,7 @@ def _labels_part(f: dict, now: Outlook, shift, settings: AdviceSettings):
     bar on the futures' scale."""
     same = f["same"]
     p_hat = f["p_iou"].copy()
-    n_eff = np.full(len(same), float(settings.iou_pairs))
+    n_eff = 1.0 / (1.0 / settings.iou_pairs + 1.0 / f["moved_ess"])  # a recomputed future's (its own weights)
     present, bar = futures_scale(now.p_iou, shift, settings.min_quality)  # on the futures' scale
     shuffle_var = np.zeros(len(present))
     shuffled = f["shuffled"]
@@ -959,58 +966,70 @@ def _contenders(weighings: list[_Weighing], now: Outlook, shift, settings: Advic
 
 
 def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, hands: np.ndarray | None = None):
-    """The draws moved to the posterior after the i-th simulated observation, over the new model's
-    free parameters, in the sampler's working coordinates (:mod:`~creference_bayes.inference.coords`:
-    the blocks barely correlate, so random-walk moves go further).
+    """The draws moved to the posterior after the i-th simulated observation, with their weights.
 
-    An answer that enters as a normal prior (a size, a mounting) moves them by the ensemble Kalman
-    update (:func:`~.update.kalman_update`), which keeps a frame's spread (docs/studies/advice.md),
-    then by the sampler's block sweeps (:func:`~.fallback.block_sweeps`: the Kalman update alone
-    leaves a frame's other targets off by up to a third of their sd); an annotation by the tempered
-    update (:func:`~.update.tempered_update`), ``max(8, d)`` random-walk steps a stage for d
-    parameters, at most 32 (mixing slows with d).
+    An answer that enters as a normal prior (a size, a mounting) carries the draws by an affine map
+    (:func:`~.update.gaussian_transport`: what the answer's normal conditioning would do to them,
+    in the sampler's working coordinates with the answer's quantities in place of theirs) and
+    weighs them by the new posterior over the old: one evaluation of the posterior per draw, and
+    draws of the new posterior at those weights, whatever its shape. Where the weights leave fewer
+    than :data:`TRANSPORT_ESS_SHARE` of the draws counting (a posterior far from normal along the
+    answer), the carried draws start the sampler's block sweeps (:func:`~.fallback.block_sweeps`),
+    equally weighted after them. An annotation is moved by the tempered update
+    (:func:`~.update.tempered_update`), ``max(8, d)`` random-walk steps a stage for d parameters, at
+    most 32 (mixing slows with d).
 
-    ``i`` an index: (cams (N, 5), objs (N, m, 7)); an array of F indices: (F, N, 5), (F, N, m, 7),
-    the futures of a prior answer moved together in one pass (:func:`~.update.kalman_update`).
+    ``i`` an index: (cams (N, 5), objs (N, m, 7), weights (N,)); an array of F indices: (F, N, 5),
+    (F, N, m, 7), (F, N), the futures of a prior answer moved together in one pass.
     ``hands`` (N, m): each draw's handedness, which it keeps (None: the model's)."""
     from ...inference.coords import WorkingCoords
 
     if np.ndim(i) == 0:
-        c, o = _moved(obs, np.array([i]), cams, objs, rng, temperature, hands)
-        return c[0], o[0]
+        c, o, w = _moved(obs, np.array([i]), cams, objs, rng, temperature, hands)
+        return c[0], o[0], w[0]
     idx = np.asarray(i, int)
-    prior = not hasattr(obs, "model_with")  # an answer that enters as a normal prior
-    if not prior:
+    if hasattr(obs, "model_with"):  # an annotation: a new model, the tempered update
         out = [_moved_one(obs, k, cams, objs, rng, temperature, hands) for k in idx]
-        return np.array([c for c, _ in out]), np.array([o for _, o in out])
-    coords = WorkingCoords(obs.model)
-    cf, of = obs.model.camera_free, obs.model.object_free
-    wc, wo = coords.to_work(cams, objs)
-    x = np.concatenate([wc[:, cf], wo[:, of]], axis=1)
-    unpack, density = _working(obs.model, coords, wc, wo, temperature)
-    old = density(obs.model, obs.needs_scale, natural=True)
-    values = obs.values[idx]                                                        # (F, p)
-    rows = None if hands is None else np.tile(hands, (len(idx), 1))  # every set's rows, set after set
-
-    def natural(y):  # (F, n, d) → cameras and objects of every row
-        return coords.from_work(*unpack(y.reshape(-1, y.shape[-1])))
-
-    def observe(y):
-        return obs.quantities(*natural(y)).reshape(*y.shape[:2], -1)
-
-    def target(y):  # the old posterior times the f-th answer's normal density, set f's own
-        log_p, c, o = old(y.reshape(-1, y.shape[-1]), rows)  # the draws' natural values read once for both
-        z = (values[:, None, :] - obs.quantities(c, o).reshape(*y.shape[:2], -1)) / obs.sd
-        with np.errstate(invalid="ignore"):
-            ratio = -0.5 * np.sum(z * z, axis=-1)
-        return log_p.reshape(y.shape[:2]) + np.where(np.isfinite(ratio), ratio, -np.inf)
-
+        return (np.array([c for c, _ in out]), np.array([o for _, o in out]),
+                np.full((len(idx), len(cams)), 1.0 / len(cams)))
     from .fallback import block_sweeps
 
-    moved = kalman_update(np.repeat(x[None], len(idx), axis=0), observe, values, obs.sd, rng, log_density=target)
-    moved = block_sweeps(obs, values, wc[0], wo[0], moved, rng, temperature, hands=rows)
-    c, o = natural(moved)
-    return c.reshape(len(idx), len(x), -1), o.reshape(len(idx), len(x), *o.shape[1:])
+    model = obs.model
+    coords = WorkingCoords(model)
+    wc, wo = coords.to_work(cams, objs)
+    x = np.concatenate([wc[:, model.camera_free], wo[:, model.object_free]], axis=1)
+    unpack, density = _working(model, coords, wc, wo, temperature)
+    old = density(model, obs.needs_scale, natural=True)
+    values = obs.values[idx]                                                        # (F, p)
+    n_sets, (n, d) = len(idx), x.shape
+    rows = None if hands is None else np.tile(hands, (n_sets, 1))  # every set's rows, set after set
+    # the answer's quantities in place of their working coordinates (obs.columns: the same density)
+    cols = obs.columns()
+    log_x, c0, o0 = old(x, hands)
+    z = x.copy()
+    z[:, cols] = obs.quantities(c0, o0)
+    camera = np.arange(d) < int(model.camera_free.sum())
+    zt = gaussian_transport(z, cols, values, obs.sd, moves=obs.moving(), follow=camera)
+    y = zt.copy()
+    with np.errstate(invalid="ignore"):  # back to working coordinates (a size's log-depth does not move with it)
+        y[..., cols] -= obs.quantities(*coords.from_work(*unpack(zt.reshape(-1, d)))).reshape(n_sets, n, -1) - zt[..., cols]
+    log_y, c, o = old(y.reshape(-1, d), rows)
+    answer = (values[:, None, :] - zt[..., cols]) / obs.sd
+    with np.errstate(invalid="ignore"):
+        log_w = log_y.reshape(n_sets, n) - 0.5 * np.sum(answer * answer, axis=-1) - log_x
+    weights, ess = normalise(np.where(np.isfinite(log_w), log_w, -np.inf))
+    c, o = c.reshape(n_sets, n, -1), o.reshape(n_sets, n, *o.shape[1:])
+    lost = ~np.isfinite(log_y.reshape(n_sets, n))  # carried out of the support: weight 0, the draw kept
+    c, o = np.where(lost[..., None], cams, c), np.where(lost[..., None, None], objs, o)
+    weak = np.flatnonzero(ess < TRANSPORT_ESS_SHARE * n)
+    if len(weak):
+        start = np.where(lost[weak][..., None], x, y[weak])
+        moved = block_sweeps(obs, values[weak], wc[0], wo[0], start, rng, temperature,
+                             hands=None if hands is None else np.tile(hands, (len(weak), 1)))
+        cw, ow = coords.from_work(*unpack(moved.reshape(-1, d)))
+        c[weak], o[weak] = cw.reshape(len(weak), n, -1), ow.reshape(len(weak), n, *ow.shape[1:])
+        weights[weak] = 1.0 / n
+    return c, o, weights
 
 
 def _n_moves(d: int) -> int:

@@ -1,7 +1,8 @@
-"""Block sweeps that finish an answer's fallback (:func:`~creference_bayes.workflows.advice._moved`):
-after the ensemble Kalman update has moved the draws to an answer that enters as a normal prior (a
-size, a mounting), the sampler's own block kernel (:class:`~creference_bayes.inference.moves.BlockKernel`)
-corrects what the linear update left, each object in its own few dimensions."""
+"""Block sweeps that finish an answer's fallback (:func:`~creference_bayes.workflows.advice._moved`)
+where its transport is weak: after the affine transport has carried the draws towards an answer
+that enters as a normal prior (a size, a mounting) and its weights leave too few counting, the
+sampler's own block kernel (:class:`~creference_bayes.inference.moves.BlockKernel`) corrects what
+the linear map left, each object in its own few dimensions."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from .observe import MountingObservation, SizeObservation, at_hands
 
 __all__ = ["FALLBACK_SWEEPS", "block_sweeps", "AnsweredTarget"]
 
-#: Random-walk sweeps after the Kalman update (docs/studies/advice.md, "The fallback's sweeps").
+#: Random-walk sweeps after a weak transport (docs/studies/advice.md, "The fallback's transport").
 FALLBACK_SWEEPS = 6
 
 

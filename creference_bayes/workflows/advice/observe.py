@@ -114,9 +114,31 @@ class DimsObservation:
 
     def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base: np.ndarray, hands: np.ndarray | None = None) -> np.ndarray:
         """(M, N) log p_new − log p_old at the draws (at their handedness ``hands`` (N, m), None:
-        the model's); ``base`` (N,) the current model's negative log-posterior there."""
-        out = np.array([base - at_hands(self.model_with(k), hands).neg_log_posterior(cams, objs, self.temperature)
-                        for k in range(len(self.corners))])
+        the model's); ``base`` (N,) the current model's negative log-posterior there.
+
+        The two posteriors differ in the annotation terms of target i (its new set, its σᵢ) and of
+        every object whose σ the new set changes (the pooled scale of those with one set) and, where
+        the scene has references and the new σs move the reference lines' noise (``ref_line_sigma``),
+        in the references': the difference is computed on those terms alone where the references'
+        noise stays (the corners projected once for every future), on the whole posterior otherwise."""
+        model = at_hands(self.model, hands)
+        refs = len(self.model.all_references) > 0
+        uv, old = None, {}
+        out = np.empty((len(self.corners), len(cams)))
+        for k in range(len(self.corners)):
+            new = self.model_with(k)
+            if refs and new.ref_line_sigma != self.model.ref_line_sigma:
+                out[k] = base - at_hands(new, hands).neg_log_posterior(cams, objs, self.temperature)
+                continue
+            if uv is None:
+                uv = model.project(cams, objs)[0]
+            changed = np.flatnonzero((new.sigma != self.model.sigma) | (np.arange(len(new.sigma)) == self.i))
+            delta = 0.0
+            for j in changed:
+                if j not in old:
+                    old[j] = self.model.annotation_nll(uv[:, j], j)
+                delta = delta + new.annotation_nll(uv[:, j], j) - old[j]
+            out[k] = -delta / self.temperature
         return np.where(np.isfinite(out), out, -np.inf)
 
 
@@ -208,6 +230,25 @@ class _PriorObservation:
         q = self.quantities(cams, objs)
         self.values = q + self.sd * rng.standard_normal(q.shape)
 
+    def columns(self) -> np.ndarray:
+        """(p,) where each quantity's working coordinate sits among the model's free parameters
+        (the camera's, then each object's, as the samplers order them): a quantity is that
+        coordinate plus what the others give (a size: the log-depth), so in the coordinates with the
+        quantities in its place the density is the same (a unit Jacobian)."""
+        cf, of = self.model.camera_free, self.model.object_free
+        return np.array([int(cf[:c].sum()) if i is None else int(cf.sum() + of[:i].sum() + of[i, :c].sum())
+                         for i, c in self._coordinates()], int)
+
+    def moving(self) -> np.ndarray:
+        """(d,) bool over the model's free parameters: those the answer moves directly, the camera's
+        and its own object's (given the camera, the other objects do not depend on it)."""
+        cf, of = self.model.camera_free, self.model.object_free
+        own = np.zeros(of.shape, bool)
+        for i, _ in self._coordinates():
+            if i is not None:
+                own[i] = of[i]
+        return np.concatenate([np.ones(int(cf.sum()), bool), own[of]])
+
     def log_ratio(self, cams: np.ndarray, objs: np.ndarray, base=None, hands=None, values=None) -> np.ndarray:
         """(M, N) the simulated answers' (or ``values``') log-densities at the draws."""
         values = self.values if values is None else values
@@ -230,6 +271,9 @@ class SizeObservation(_PriorObservation):
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.log(objs[:, self.i, O_SIZE][:, self.free])
 
+    def _coordinates(self):  # (object or None, entry) of each quantity's working coordinate
+        return [(self.i, c) for c in np.arange(7)[O_SIZE][self.free]]
+
 
 class MountingObservation(_PriorObservation):
     """The camera's height, pitch and roll from its calibration, spreads ``sd`` ({"log_height",
@@ -249,3 +293,6 @@ class MountingObservation(_PriorObservation):
             if self.parts and self.parts[0][0] == C_HEIGHT:
                 cols[0] = np.log(cols[0])
         return np.stack(cols, axis=1) if cols else np.zeros((len(cams), 0))
+
+    def _coordinates(self):
+        return [(None, c) for c, _ in self.parts]

@@ -1,6 +1,6 @@
 """The cheap update behind the advice: posterior draws reweighted by a simulated annotation, the
 effective-sample-size check, the fallbacks when the weights collapse (a tempered resample-move
-run; the ensemble Kalman update for an answer that enters as a normal prior), and the weighted
+run; an affine transport for an answer that enters as a normal prior), and the weighted
 summaries the advice reports (NumPy only).
 
 For M simulated annotations and N current draws the weights form an (M, N) matrix: row i is the
@@ -16,15 +16,18 @@ import numpy as np
 from .iou import iou_3d_at_least
 
 __all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
-           "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "kalman_update"]
+           "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "gaussian_transport"]
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
 #: not trusted: that simulated future is recomputed by :func:`tempered_update` (an annotation) or
-#: :func:`kalman_update` (a size, a mounting) (docs/advice_method.md).
+#: :func:`gaussian_transport` (a size, a mounting) (docs/advice_method.md).
 MIN_ESS = 10.0
 MIN_ESS_FRACTION = 0.01
-#: Shuffles :func:`shuffled_hdi` averages over.
+#: Shuffles :func:`shuffled_hdi` averages over (for a row of few effective draws).
 SHUFFLES = 8
+#: A row of weights with more than N / SHUFFLE_SHARE effective draws is shuffled fewer times
+#: (:func:`shuffled_hdi`).
+SHUFFLE_SHARE = 8
 #: Draws :func:`weighted_hdi` bounds together before it computes their intervals one by one.
 HDI_BLOCK = 8
 
@@ -156,10 +159,14 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     """The HDI of ``values`` ((N,) or (N, k), as :func:`weighted_hdi`, ``order`` as there) as each
     row of ``weights`` (M, N) would see it if it said nothing about them: the row shuffled over the
     draws (the same effective sample size), the width and the width over the median averaged over
-    ``n_shuffles`` shuffles.
+    shuffles.
 
     A shortest interval from weighted draws is too narrow, the more so the fewer the effective
-    draws; scaling a row's HDI by (equal-weight HDI) / (this) takes that out.
+    draws; scaling a row's HDI by (equal-weight HDI) / (this) takes that out. A row of at most
+    N / :data:`SHUFFLE_SHARE` effective draws is shuffled ``n_shuffles`` times; one of more, fewer
+    times in proportion (at least once): a shuffle's width scatters as one over the root of the
+    effective draws, so every row's average is known at least as well as that of a row of N /
+    :data:`SHUFFLE_SHARE` effective draws over ``n_shuffles`` shuffles.
 
     Returns
     -------
@@ -167,13 +174,26 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     """
     w = np.atleast_2d(np.asarray(weights, float))
     order = np.argsort(np.asarray(values, float).reshape(w.shape[1], -1), axis=0).T if order is None else order
+    ess = 1.0 / np.sum(w * w, axis=1)
+    times = np.clip(np.ceil(n_shuffles * (w.shape[1] / SHUFFLE_SHARE) / ess), 1, n_shuffles).astype(int)
     width = share = 0.0
-    for _ in range(n_shuffles):
-        shuffled = np.take_along_axis(w, np.argsort(rng.random(w.shape), axis=1), axis=1)
+    for t in range(int(times.max())):
+        rows = np.flatnonzero(times > t)
+        shuffled = np.take_along_axis(w[rows], np.argsort(rng.random((len(rows), w.shape[1])), axis=1), axis=1)
         wd, median = weighted_hdi(values, shuffled, prob, order)
-        width = width + wd / n_shuffles
-        share = share + wd / median / n_shuffles
+        part = np.zeros((len(w),) + wd.shape[1:])
+        width = width + _at_rows(part, rows, wd / _per_row(times[rows], wd))
+        share = share + _at_rows(np.zeros_like(part), rows, wd / median / _per_row(times[rows], wd))
     return width, share
+
+
+def _per_row(times: np.ndarray, like: np.ndarray) -> np.ndarray:
+    return times.reshape((-1,) + (1,) * (like.ndim - 1))
+
+
+def _at_rows(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    out[rows] = values
+    return out
 
 
 def location_sd(loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -275,70 +295,59 @@ def tempered_update(log_old, log_new, particles: np.ndarray, rng, *, n_moves: in
     return x, {"stages": stages, "acceptance": accepted / max(tried, 1), "beta": beta, "labels": lab}
 
 
-def kalman_update(particles: np.ndarray, observe, value: np.ndarray, sd: np.ndarray, rng, *, steps: int = 4,
-                  log_density=None) -> np.ndarray:
-    """Move draws of the current posterior to the one after a normal observation of some of their
-    quantities: ``value`` = q(θ) + noise of spread ``sd``, by the ensemble Kalman update with
-    perturbed observations, in ``steps`` steps of the observation with its variance multiplied by
-    ``steps`` (an ensemble smoother with multiple data assimilation, Emerick & Reynolds 2013).
+def gaussian_transport(z: np.ndarray, cols, values: np.ndarray, sd: np.ndarray, moves=None, follow=None) -> np.ndarray:
+    """Draws ``z`` (N, d) of the current posterior moved, by one affine map per answer, to where the
+    posterior after a normal observation ``values`` (F, p) = z[:, cols] + noise of spread ``sd``
+    (p,) would put them if the current posterior were normal with the draws' mean and covariance.
 
-    For a normal posterior and a linear q the draws come out as draws of the conjugate posterior,
-    none duplicated or dropped; the steps, each with q taken anew, follow a q that is not linear;
-    what is not normal (a posterior cut off by the horizon) is left to the caller's Metropolis
-    steps (the advice's: :func:`~.fallback.block_sweeps`). A draw that a step would move where q or
-    the new posterior (``log_density``, when given) is not defined stays where it was. Used for
-    answers that enter as a normal prior, where the tempered update's few random-walk steps in a
-    frame's many dimensions leave the draws too close together (docs/studies/advice.md).
-
-    F observations at once (``particles`` (F, N, d), ``value`` (F, p)) move F sets of draws, each
-    by its own gain, in one pass: the advice's collapsed futures of one request (the same
-    arithmetic as F calls, a fraction of their overhead).
-
-    Parameters
-    ----------
-    particles : (N, d) draws of the current posterior, or (F, N, d)
-    observe : callable (N, d) → (N, p), the observed quantities q of each draw; for F sets,
-        (F, N, d) → (F, N, p)
-    value : (p,) the observation, or (F, p)
-    sd : (p,) its spread, in the unit of q
-    rng : numpy Generator
-    steps : how many steps the observation is split into
-    log_density : callable (N, d) → (N,), the new posterior's unnormalised log-density, −∞ outside
-        its support, or None; for F sets, (F, N, d) → (F, N), set f's own
+    The observed coordinates h go by h' = m' + B (h − m), m and m' their mean before and after
+    (conditioning), B = Σ'^½ Σ^−½ (symmetric roots) taking their covariance Σ to the conditional Σ';
+    every coordinate moves with its regression on h (z + (h' − h) Gᵀ, G = Cov(z, h) Σ⁻¹), so what the
+    observation says nothing about given h is kept. The map's Jacobian is the same for every draw
+    (det B), so a moved draw y = T(z) has density p_old(z) / det B: weighted by p_new(y) / p_old(z)
+    the moved draws are draws of the new posterior whatever its shape (importance sampling; the
+    caller's :func:`~creference_bayes.workflows.advice._moved`), and the closer the posterior is to
+    normal the more evenly they are weighted. ``moves`` (d,) bool: the coordinates that may move
+    with h (None: all); a coordinate that the posterior makes independent of h, or nearly, is
+    better kept where it is than moved by its regression's sampling noise.
 
     Returns
     -------
-    (N, d) draws of the new posterior, equally weighted, or (F, N, d)
+    (F, N, d) the draws moved for each answer
     """
-    x = np.array(particles, float)
-    batched = x.ndim == 3
-    if not batched:  # one set: the same code on a batch of one (the same random numbers)
-        x = x[None]
-        observe = (lambda f: lambda y: np.asarray(f(y[0]), float)[None])(observe)
-        if log_density is not None:
-            log_density = (lambda f: lambda y: f(y[0])[None])(log_density)
-    n_sets, n, d = x.shape
-    value = np.asarray(value, float).reshape(n_sets, -1)
-    var = steps * np.square(np.asarray(sd, float))
-    q = np.asarray(observe(x), float)
-    if not np.all(np.isfinite(q)):
-        raise ValueError("kalman_update: an observed quantity of a draw is not finite")
-    for _ in range(steps):
-        dx, dq = x - x.mean(axis=1, keepdims=True), q - q.mean(axis=1, keepdims=True)
-        cqq = np.einsum("fnp,fnr->fpr", dq, dq) / (n - 1) + np.diag(var)
-        gain = np.linalg.solve(cqq, np.einsum("fnp,fnd->fpd", dq, dx) / (n - 1))        # (F, p, d)
-        perturbed = value[:, None, :] + np.sqrt(var) * rng.standard_normal(q.shape)
-        x_new = x + np.einsum("fnp,fpd->fnd", perturbed - q, gain)
-        with np.errstate(all="ignore"):
-            q_new = np.asarray(observe(x_new), float)
-        # a draw moved where its quantity or the new posterior is not defined (an object pushed over
-        # the horizon, say) stays where it was for this step
-        stay = ~np.all(np.isfinite(q_new), axis=-1)
-        if log_density is not None:
-            stay |= ~np.isfinite(log_density(x_new))
-        x_new[stay], q_new[stay] = x[stay], q[stay]
-        x, q = x_new, q_new
-    return x if batched else x[0]
+    z = np.asarray(z, float)
+    cols = np.asarray(cols, int)
+    values = np.atleast_2d(np.asarray(values, float))
+    n = len(z)
+    mean = z.mean(axis=0)
+    dz = z - mean
+    h = dz[:, cols]
+    s_hh = h.T @ h / (n - 1)
+    s_hh += 1e-12 * np.trace(s_hh) * np.eye(len(cols))  # a quantity the draws hold fixed stays fixed
+    gain_all = np.linalg.solve(s_hh, h.T @ dz / (n - 1)).T                          # (d, p) G
+    if moves is not None:
+        gain_all[~np.asarray(moves, bool)] = 0.0
+    gain = np.linalg.solve(s_hh + np.diag(np.square(np.asarray(sd, float))), s_hh).T  # (p, p) Σ S⁻¹
+    post = s_hh - gain @ s_hh
+    post = 0.5 * (post + post.T)
+
+    def root(a, power):
+        w, v = np.linalg.eigh(a)
+        return (v * np.maximum(w, 1e-300) ** power) @ v.T
+
+    B = root(post, 0.5) @ root(s_hh, -0.5)
+    m_new = mean[cols] + (values - mean[cols]) @ gain.T                              # (F, p)
+    h_new = m_new[:, None, :] + h @ B.T                                              # (F, N, p)
+    out = z[None] + (h_new - z[None][..., cols]) @ gain_all.T
+    out[..., cols] = h_new
+    if follow is not None and moves is not None:  # the rest follow what moved by their regression on it
+        mv = np.asarray(moves, bool) & np.asarray(follow, bool)
+        rest = ~np.asarray(moves, bool)
+        if mv.any() and rest.any():
+            a = dz[:, mv]
+            g2 = np.linalg.solve(a.T @ a / (n - 1) + 1e-12 * np.eye(mv.sum()), a.T @ dz[:, rest] / (n - 1)).T
+            out[..., rest] += (out[..., mv] - z[None][..., mv]) @ g2.T
+    return out
 
 
 def _random_walk(density, x, parts, coef, chol, step, rng, n_moves):
