@@ -70,7 +70,8 @@ class CameraSetup:
 
 def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPrior = "auto",
                  orientation_prior: OrientationPrior | None = None,
-                 location_prior: str | LocationPrior = DEFAULT_LOCATION_PRIOR) -> CameraSetup:
+                 location_prior: str | LocationPrior = DEFAULT_LOCATION_PRIOR,
+                 image_horizon: dict | None = None) -> CameraSetup:
     """Decide the camera of ``scene`` (module docstring).
 
     Parameters
@@ -83,6 +84,9 @@ def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPr
         :data:`~creference_bayes.models.camera_terms.DEFAULT_ORIENTATION_PRIOR`)
     location_prior : a name of :data:`~creference_bayes.models.location_prior.LOCATION_PRIORS` or a
         :class:`~creference_bayes.models.location_prior.LocationPrior`
+    image_horizon : what an earlier estimate from the scene's image found (a result's
+        ``camera.setup.horizon_estimate``): used instead of estimating it again, where it is a whole
+        record (its points, scale and tail; or none found); anything else is estimated again
     """
     if orientation not in ORIENTATIONS:
         raise ValueError(f"orientation: expected one of {list(ORIENTATIONS)}, got {orientation!r}")
@@ -92,7 +96,7 @@ def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPr
     pp = np.asarray(scene.principal_point, float)
     base = Camera(pp, None, scene.focal_length_px)
     notes: list[str] = []
-    mode, measured, estimate = _orientation(scene, orientation, notes)
+    mode, measured, estimate = _orientation(scene, orientation, notes, image_horizon)
     camera = dataclasses.replace(base, horizon=horizon_line(scene.horizon)) if mode == "horizon" else base
     prior = orientation_prior or getattr(scene, "orientation_prior", None) or DEFAULT_ORIENTATION_PRIOR
     terms = CameraTerms(focal=_focal_prior(scene, focal_prior, notes),
@@ -103,7 +107,7 @@ def setup_camera(scene, *, orientation: str = "auto", focal_prior: str | FocalPr
     return CameraSetup(camera, mode, terms, tuple(notes), estimate, aggregation)
 
 
-def _orientation(scene, orientation: str, notes: list[str]):
+def _orientation(scene, orientation: str, notes: list[str], image_horizon: dict | None = None):
     """(mode, horizon measurement or None, image estimate or None)."""
     sd = float(getattr(scene, "horizon_sd_px", 0.0) or 0.0)
     if scene.horizon is not None:
@@ -118,6 +122,9 @@ def _orientation(scene, orientation: str, notes: list[str]):
     if scene.image_path is None:
         notes.append(f"no horizon and no image: {free}")
         return "free", None, None
+    recorded = _recorded_horizon(image_horizon)
+    if recorded is not None:  # found before: the same measurement (or the same lack of one)
+        return "free", recorded or None, None
     from .vision.horizon import estimate_horizon
 
     try:
@@ -134,6 +141,24 @@ def _orientation(scene, orientation: str, notes: list[str]):
                  f"{len(est.vanishing_points)} vanishing point{'s' if len(est.vanishing_points) != 1 else ''}, scale {est.sd_px:.1f} px (heavy-tailed), confidence "
                  f"{est.confidence:.2f}) and used as a measurement; pitch and roll estimated with it")
     return "free", HorizonMeasurement(est.points, est.sd_px, "image", dof=est.dof), est
+
+
+def _recorded_horizon(record) -> HorizonMeasurement | bool | None:
+    """An earlier image estimate's record (:meth:`~.vision.horizon.HorizonEstimate.to_dict`) as the
+    measurement it was used as; False where it found none; None where it is not a whole record
+    (points (2, 2), a scale and a tail, finite and positive; a record from outside may be anything)."""
+    if not isinstance(record, dict):
+        return None
+    if record.get("points") is None:
+        return False if isinstance(record.get("reason"), str) and record.get("reason") else None
+    try:
+        points = np.asarray(record["points"], float).reshape(2, 2)
+        sd, dof = float(record["sd_px"]), float(record["dof"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (np.all(np.isfinite(points)) and np.isfinite(sd) and sd > 0 and np.isfinite(dof) and dof > 0):
+        return None
+    return HorizonMeasurement(points, sd, "image", dof=dof)
 
 
 def _focal_prior(scene, choice, notes: list[str]) -> FocalPrior | None:

@@ -233,7 +233,8 @@ class EstimateSettings:
         return EstimateSettings(**{f.name: getattr(self, f.name) for f in fields(EstimateSettings)})
 
 
-def build_model(scene: Scene, settings: EstimateSettings | None = None, **changes):
+def build_model(scene: Scene, settings: EstimateSettings | None = None, *, image_horizon: dict | None = None,
+                **changes):
     """The model of ``scene`` and its camera set-up.
 
     Parameters
@@ -243,6 +244,8 @@ def build_model(scene: Scene, settings: EstimateSettings | None = None, **change
         ``preset``, ``orientation``, ``focal_prior``, ``orientation_prior``, ``location_prior``,
         ``distance_range``, ``classes``, ``use_references``, ``confidence_map``, ``bounds`` and
         ``options``
+    image_horizon : what an earlier estimate from the scene's image found
+        (:func:`~creference_bayes.camera_setup.setup_camera`; a result's record), or None
     changes : changes to ``settings`` (:meth:`EstimateSettings.replace`: a field by its name, any
         other name a model option)
     """
@@ -257,7 +260,7 @@ def build_model(scene: Scene, settings: EstimateSettings | None = None, **change
         kind = location_prior.kind if isinstance(location_prior, LocationPrior) else location_prior
         location_prior = LocationPrior(kind, st.distance_range)
     setup = setup_camera(scene, orientation=st.orientation, focal_prior=st.focal_prior, orientation_prior=st.orientation_prior,
-                         location_prior=location_prior)
+                         location_prior=location_prior, image_horizon=image_horizon)
     bounds = st.bounds if st.bounds is not None else preset_bounds(preset, scene.image_size)
     if setup.terms.location is not None and setup.terms.location.distance_m is not None:
         try:
@@ -621,7 +624,9 @@ def _bounds_from(d):
 
 def rebuild_model(result, scene: Scene | str | Path):
     """The model a result was made with, from the result (or its dict) and its scene, in one call:
-    the same model, camera set-up, classes, options, bounds, each target's handedness and pilot."""
+    the same model, camera set-up, classes, options, bounds, each target's handedness and pilot. A
+    horizon the estimate found in the scene's image is read from the result's record, not found
+    again."""
     from .models.confidence_map import ConfidenceMap
     from .models.size_priors import size_priors_from_dict
 
@@ -649,7 +654,8 @@ def rebuild_model(result, scene: Scene | str | Path):
                                                         population=prov.get("location_population")),
                            distance_range=prov.get("distance_range_m"), classes=classes,
                            use_references=prov["use_references"], confidence_map=confidence_map,
-                           bounds=_bounds_from(prov.get("bounds")), options=options))
+                           bounds=_bounds_from(prov.get("bounds")), options=options),
+                           image_horizon=_recorded_image_horizon(d))
     hands = [o.get("handedness") for o in d["objects"]]
     if not all(h in (-1, 1) and not isinstance(h, bool) for h in hands):
         raise ValueError(f"objects[].handedness: expected -1 or 1 for every object, got {hands[:5]!r}")
@@ -660,6 +666,13 @@ def rebuild_model(result, scene: Scene | str | Path):
             raise ValueError(f"pilot_camera: expected null or 5 finite numbers, got {str(pilot)[:60]}")
         pilot = np.array(pilot, float)
     return model.variant(handedness=np.array(hands, float), pilot=pilot)
+
+
+def _recorded_image_horizon(d: dict):
+    """A result's ``camera.setup.horizon_estimate`` (what its estimate found in the scene's image),
+    or None; :func:`~creference_bayes.camera_setup.setup_camera` checks what is in it."""
+    setup = d["camera"].get("setup") if isinstance(d.get("camera"), dict) else None
+    return setup.get("horizon_estimate") if isinstance(setup, dict) else None
 
 
 #: The ground-offset prior a result that records no ``provenance.ground`` is read with: a normal of

@@ -188,6 +188,7 @@ def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_trut
     assert setup["horizon"]["sd_px"] == pytest.approx(est["sd_px"]) and est["sd_px"] >= 0.012 * W
     assert setup["horizon"]["dof"] == est["dof"] == 1.0  # heavy-tailed, as measured on KITTI
     assert abs(result.to_dict()["camera"]["map"]["pitch"] - gt["pitch_rad"]) < np.radians(1.0)
+    _rebuilt_from_the_record(result, tmp_path / "scene.json")
     # without an image the pipeline says it estimated pitch and roll with the annotations
     del data["image"]["path"]
     (tmp_path / "level.json").write_text(json.dumps(data))
@@ -196,6 +197,32 @@ def test_pipeline_estimates_the_horizon_from_the_scene_image(tmp_path, make_trut
         level = estimate(tmp_path / "level.json", posterior=False, seed=0)
     assert any("no horizon and no image: pitch and roll estimated" in w for w in level.warnings)
     assert level.to_dict()["camera"]["setup"]["orientation"] == "free"
+
+
+def _rebuilt_from_the_record(result, scene_path):
+    """A result's model rebuilt takes the horizon its estimate found in the image from the result's
+    record (the same model, the image not read again); a record that is not a whole one (a result
+    file from outside) is set aside and the horizon found again."""
+    import creference_bayes.vision.horizon as horizon_module
+    from creference_bayes.pipeline import rebuild_model, result_draws
+
+    d = result.to_dict()
+    cams, objs, _ = result_draws(d, result.model, n=50, seed=np.random.default_rng(0))
+    again = []
+    real = horizon_module.estimate_horizon
+    try:
+        horizon_module.estimate_horizon = lambda *a, **k: again.append(1) or real(*a, **k)
+        rebuilt = rebuild_model(d, scene_path)
+        assert again == []
+        np.testing.assert_array_equal(rebuilt.neg_log_posterior(cams, objs), result.model.neg_log_posterior(cams, objs))
+        for damaged in ({"points": [[0, "x"], [1, 2]], "sd_px": 3.0, "dof": 1.0}, {"points": [[0, 1], [2, 3]]}, "lsd", None):
+            d["camera"]["setup"]["horizon_estimate"] = damaged
+            again.clear()
+            other = rebuild_model(d, scene_path)
+            assert again == [1]
+            np.testing.assert_array_equal(other.neg_log_posterior(cams, objs), result.model.neg_log_posterior(cams, objs))
+    finally:
+        horizon_module.estimate_horizon = real
 
 
 def test_kitti_check_script_measures_the_error_against_p2s_level_horizon(tmp_path):
@@ -359,3 +386,27 @@ def test_kitti_one_car_script_builds_single_target_scenes_and_compares_the_two_h
     with pytest.raises(SystemExit) as bad:  # a stated uncertainty must be positive
         script.main([str(tmp_path), "--level-sd", "0"])
     assert bad.value.code == 2
+
+
+@pytest.mark.parametrize("record, expected", [
+    ({"points": [[0.0, 180.5], [640.0, 176.0]], "sd_px": 7.5, "dof": 1.0}, "measurement"),
+    ({"points": None, "reason": "fewer than two vanishing points"}, "none found"),
+    ({"points": None, "reason": ""}, "again"),
+    ({"points": [[0.0, 180.5], [640.0, float("nan")]], "sd_px": 7.5, "dof": 1.0}, "again"),
+    ({"points": [[0.0, 180.5], [640.0, 176.0]], "sd_px": -1.0, "dof": 1.0}, "again"),
+    ({"points": [[0.0, 180.5], [640.0, 176.0]], "sd_px": 7.5}, "again"),
+    ({"points": [0.0, 180.5, 640.0], "sd_px": 7.5, "dof": 1.0}, "again"),
+    ("lsd", "again"),
+])
+def test_a_recorded_image_horizon_is_the_measurement_it_was_or_found_again(record, expected):
+    """What a result recorded of the horizon its estimate found in the image: a whole record is the
+    same measurement (its points, scale and tail), a record of none found is none, and anything
+    else is not trusted (found again from the image)."""
+    from creference_bayes.camera_setup import _recorded_horizon
+
+    got = _recorded_horizon(record)
+    if expected == "measurement":
+        np.testing.assert_array_equal(got.points, np.array(record["points"]))
+        assert (got.sd_px, got.dof, got.source) == (7.5, 1.0, "image")
+    else:
+        assert got is {"none found": False, "again": None}[expected]
