@@ -200,9 +200,10 @@ class EstimateSettings:
         unknown = sorted(set(self.options) - set(cls.options))
         if unknown:
             raise ValueError(f"{self.model} model: unknown option(s) {unknown} (expected some of {list(cls.options)})")
-        from .inference.sampler import SamplerSettings
+        if self.sampling:  # (the sampler's module, and emcee, only where there is something to check)
+            from .inference.sampler import SamplerSettings
 
-        SamplerSettings.from_options(self.sampling)  # a ValueError naming the sampler setting
+            SamplerSettings.from_options(self.sampling)  # a ValueError naming the sampler setting
         if self.distance_range is not None:
             LocationPrior(distance_m=self.distance_range)  # a ValueError naming the range
         object.__setattr__(self, "sampling", dict(self.sampling or {}))

@@ -45,7 +45,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 from scipy.special import gammaln, i0e, stdtr
 
 from ..core.geometry import rotation_from_pitch_roll
@@ -354,6 +353,8 @@ def segment_floor(lengths_px: np.ndarray, sigma: float, counts: np.ndarray | Non
         p[near] = rice @ (t / (t**2 + c2)) / z
         p[~near] = r[~near] / (r[~near] ** 2 + c2) / z
         return -n @ np.log(p)
+
+    from scipy.optimize import minimize_scalar  # the optimiser only here: reading a model needs none
 
     return float(sigma * np.exp(minimize_scalar(nll, bounds=(np.log(0.05), np.log(50.0)), method="bounded").x))
 

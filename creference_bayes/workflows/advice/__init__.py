@@ -992,8 +992,6 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, 
         out = [_moved_one(obs, k, cams, objs, rng, temperature, hands) for k in idx]
         return (np.array([c for c, _ in out]), np.array([o for _, o in out]),
                 np.full((len(idx), len(cams)), 1.0 / len(cams)))
-    from .fallback import block_sweeps
-
     model = obs.model
     coords = WorkingCoords(model)
     wc, wo = coords.to_work(cams, objs)
@@ -1023,6 +1021,8 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, 
     c, o = np.where(lost[..., None], cams, c), np.where(lost[..., None, None], objs, o)
     weak = np.flatnonzero(ess < TRANSPORT_ESS_SHARE * n)
     if len(weak):
+        from .fallback import block_sweeps  # (the sampler's kernel, and emcee, only where it is needed)
+
         start = np.where(lost[weak][..., None], x, y[weak])
         moved = block_sweeps(obs, values[weak], wc[0], wo[0], start, rng, temperature,
                              hands=None if hands is None else np.tile(hands, (len(weak), 1)))
