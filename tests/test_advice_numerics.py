@@ -240,6 +240,21 @@ def test_the_gaussian_transport_gives_the_draws_the_conjugate_moments_of_their_o
         assert len(np.unique(moved[f, :, 1].round(12))) == 500
 
 
+def test_the_gaussian_transport_leaves_draws_it_cannot_map_where_they_are():
+    """A quantity that does not vary over the draws, or a draw that is not finite: no map (the
+    identity), never a NaN or a singular solve."""
+    rng = np.random.default_rng(3)
+    z = rng.normal(size=(50, 3))
+    fixed = z.copy()
+    fixed[:, 1] = 2.0
+    np.testing.assert_array_equal(gaussian_transport(fixed, [1], np.array([[2.5], [1.0]]), np.array([0.1])),
+                                  np.repeat(fixed[None], 2, axis=0))
+    broken = z.copy()
+    broken[7, 0] = np.nan
+    np.testing.assert_array_equal(gaussian_transport(broken, [0], np.array([[0.5]]), np.array([0.1]))[0], broken)
+    assert np.all(np.isfinite(gaussian_transport(z, [0, 2], np.array([[0.5, -0.5]]), np.array([0.1, 0.2]))))
+
+
 def test_transported_draws_weighed_by_the_new_posterior_over_the_old_are_its_draws():
     """A posterior that is not normal (a banana: z1 | z0 ~ N(0.3 z0², 0.3²), z0 ~ N(0, 1)) and a
     sharp answer on z0 (sd 0.05, at 1.2: far in reweighting's terms): the draws carried by the

@@ -311,6 +311,9 @@ def gaussian_transport(z: np.ndarray, cols, values: np.ndarray, sd: np.ndarray, 
     with h (None: all); a coordinate that the posterior makes independent of h, or nearly, is
     better kept where it is than moved by its regression's sampling noise.
 
+    Draws that are not all finite, or observed quantities that do not vary over them, give no map:
+    the draws are returned as they are (the identity, whose weights are plain reweighting's).
+
     Returns
     -------
     (F, N, d) the draws moved for each answer
@@ -323,7 +326,9 @@ def gaussian_transport(z: np.ndarray, cols, values: np.ndarray, sd: np.ndarray, 
     dz = z - mean
     h = dz[:, cols]
     s_hh = h.T @ h / (n - 1)
-    s_hh += 1e-12 * np.trace(s_hh) * np.eye(len(cols))  # a quantity the draws hold fixed stays fixed
+    if n < 2 or not (np.all(np.isfinite(z)) and np.all(np.isfinite(values))) or not np.all(np.diag(s_hh) > 0):
+        return np.repeat(z[None], len(values), axis=0)
+    s_hh += 1e-12 * np.trace(s_hh) * np.eye(len(cols))  # rounding: a direction the draws barely vary in
     gain_all = np.linalg.solve(s_hh, h.T @ dz / (n - 1)).T                          # (d, p) G
     if moves is not None:
         gain_all[~np.asarray(moves, bool)] = 0.0
