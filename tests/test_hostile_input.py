@@ -373,7 +373,9 @@ def test_a_result_edited_by_hand_is_refused_by_name_by_every_command_that_reads_
            ({**good, "camera": {"map": {**good["camera"]["map"], "pitch": None}}}, "camera.map.pitch"),
            ({**good, "objects": [{**good["objects"][0], "posterior": {"sd": "creference-result/2"}}]},
             "objects[0].posterior"),  # the long fuzz: labels read the distance's sd from it
-           ({**good, "draws": {"n": 2, "camera": {"focal_length_px": 1}, "objects": []}}, "draws")]
+           ({**good, "draws": {"n": 2, "camera": {"focal_length_px": 1}, "objects": []}}, "draws"),
+           ({**good, "camera": {**good["camera"], "free": 0}}, "camera.free"),  # the long fuzz: labels
+           ({**good, "camera": {**good["camera"], "free": ["pitch", "zoom"]}}, "camera.free")]
     for d, key in bad:
         result.write_text(json.dumps(d))
         with pytest.raises(ValueError) as err:

@@ -257,8 +257,10 @@ def test_a_thin_far_target_converges_quickly_with_yaw_on_one_turn(seed):
     for mode in modes[1:]:
         if mode.get("handedness") == modes[0].get("handedness"):
             assert mode["laplace_share"] < 0.01 and max(mode["draw_share_per_chain"]) < 0.05, mode
-        else:
-            assert np.ptp(mode["draw_share_per_chain"]) < 0.1, mode
+        else:  # every chain visits the other handedness: its share scatters over the chains by about
+            # 0.04 each (a few hundred effective draws; 0.17–0.28 over four chains on one machine),
+            # where a chain that stayed at one handedness would be a third or more apart
+            assert np.ptp(mode["draw_share_per_chain"]) < 0.2, mode
 
 
 def _frame_with_two_readings(seed=3, factor=1.6):

@@ -441,8 +441,9 @@ def _posterior_problem(post, where: str) -> str | None:
 def result_problem(d: dict) -> str | None:
     """What in a ``creference-result/2`` dict is not as the package writes it, where the commands
     that read results (``plot``, ``advise``, ``labels``, a batch's rig) index into it: the camera's
-    and every object's MAP (finite numbers), the objects' ids, the posterior's standard deviations
-    and the kept draws (:func:`stored_draws`); None when all is well."""
+    and every object's MAP (finite numbers), which camera parameters were free, the objects' ids,
+    the posterior's standard deviations and the kept draws (:func:`stored_draws`); None when all is
+    well."""
     camera, objects = d.get("camera"), d.get("objects")
     for key in ("scene_id", "draws", "diagnostics"):
         if d.get(key) is not None and not isinstance(d[key], dict):
@@ -455,6 +456,9 @@ def result_problem(d: dict) -> str | None:
     why = _posterior_problem(camera.get("posterior"), "camera.posterior")
     if why:
         return why
+    free = camera.get("free", [])
+    if not (isinstance(free, list) and all(isinstance(k, str) and k in CAMERA_NAMES for k in free)):
+        return f"camera.free: expected a list of some of {list(CAMERA_NAMES)}, got {_short(free)}"
     if not isinstance(objects, list) or not objects:
         return f"objects: expected a list of objects, got {_short(objects)}"
     for i, o in enumerate(objects):
