@@ -176,24 +176,16 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     order = np.argsort(np.asarray(values, float).reshape(w.shape[1], -1), axis=0).T if order is None else order
     ess = 1.0 / np.sum(w * w, axis=1)
     times = np.clip(np.ceil(n_shuffles * (w.shape[1] / SHUFFLE_SHARE) / ess), 1, n_shuffles).astype(int)
-    width = share = 0.0
+    shape = (len(w),) if np.ndim(values) == 1 else (len(w), np.shape(values)[1])
+    width, share = np.zeros(shape), np.zeros(shape)
     for t in range(int(times.max())):
         rows = np.flatnonzero(times > t)
         shuffled = np.take_along_axis(w[rows], np.argsort(rng.random((len(rows), w.shape[1])), axis=1), axis=1)
         wd, median = weighted_hdi(values, shuffled, prob, order)
-        part = np.zeros((len(w),) + wd.shape[1:])
-        width = width + _at_rows(part, rows, wd / _per_row(times[rows], wd))
-        share = share + _at_rows(np.zeros_like(part), rows, wd / median / _per_row(times[rows], wd))
+        each = times[rows].reshape((-1,) + (1,) * (wd.ndim - 1))  # a row's average over its own shuffles
+        width[rows] += wd / each
+        share[rows] += wd / median / each
     return width, share
-
-
-def _per_row(times: np.ndarray, like: np.ndarray) -> np.ndarray:
-    return times.reshape((-1,) + (1,) * (like.ndim - 1))
-
-
-def _at_rows(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
-    out[rows] = values
-    return out
 
 
 def location_sd(loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -309,7 +301,9 @@ def gaussian_transport(z: np.ndarray, cols, values: np.ndarray, sd: np.ndarray, 
     caller's :func:`~creference_bayes.workflows.advice._moved`), and the closer the posterior is to
     normal the more evenly they are weighted. ``moves`` (d,) bool: the coordinates that may move
     with h (None: all); a coordinate that the posterior makes independent of h, or nearly, is
-    better kept where it is than moved by its regression's sampling noise.
+    better kept where it is than moved by its regression's sampling noise. ``follow`` (d,) bool,
+    with ``moves``: of the coordinates that moved, those the others then follow by their own
+    regression on them (the advice's: the camera, which the other objects depend on).
 
     Draws that are not all finite, or observed quantities that do not vary over them, give no map:
     the draws are returned as they are (the identity, whose weights are plain reweighting's).
