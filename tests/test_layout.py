@@ -110,6 +110,17 @@ def test_importing_core_and_models_loads_no_heavy_library():
     assert proc.stdout.strip() == "", f"loaded by importing core and models: {proc.stdout.strip()}"
 
 
+def test_the_advice_and_the_block_kernel_load_no_heavy_library():
+    """The advice moves weak futures by the sampler's block kernel without the sampler's driver:
+    neither imports emcee (with scipy.stats, most of an advice process's start-up) or a plotting or
+    image library."""
+    code = ("import sys, creference_bayes.workflows.advice, creference_bayes.inference.moves\n"
+            f"print(','.join(x for x in {HEAVY + ('scipy.stats',)!r} if x in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "", f"loaded by importing the advice: {proc.stdout.strip()}"
+
+
 def test_estimates_run_with_one_blas_thread_even_when_numpy_came_first():
     """A user script that imports NumPy before the package gets the default (threaded) BLAS; the
     estimate limits it to one thread while it runs, unless the user chose a count."""

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from creference_bayes.inference.moves import GroupedDEMove, GroupedStretchMove
+from creference_bayes.inference.emcee_moves import GroupedDEMove, GroupedStretchMove
 from creference_bayes.inference.ensemble import SamplingError, sample
 from creference_bayes.inference.sampler import SamplerSettings
 from creference_bayes.inference.summary import az
@@ -216,7 +216,7 @@ def test_the_multiple_try_independence_move_keeps_its_target(tries):
     """Walkers started from exact Gamma(3) draws stay Gamma(3)-distributed under the
     independence move with a mismatched t proposal (invariance), and more tries are accepted
     more often."""
-    from creference_bayes.inference.moves import IndependenceMove
+    from creference_bayes.inference.emcee_moves import IndependenceMove
 
     n = 20000
     target = stats.gamma(3.0)

@@ -11,7 +11,8 @@ from .chains import Draws, SamplerSettings, SamplingError
 from .coords import WorkingCoords
 from .laplace import chol, conditional
 from .modes import Mode, mode_rows, object_modes
-from .moves import BlockKernel, BlockTarget, IndependenceSweep, RandomWalkSweep
+from .emcee_moves import IndependenceSweep, RandomWalkSweep
+from .moves import BlockKernel, BlockTarget
 
 __all__ = ["Blocks"]
 

@@ -20,7 +20,7 @@ from scipy.cluster.vq import kmeans2
 from scipy.special import logsumexp
 
 from .chains import SamplerSettings, SamplingError, run_chains
-from .moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
+from .emcee_moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
 from .reparam import Coordinates
 
 __all__ = ["Ensemble", "Chains", "sample", "explore", "fit_mixture"]

@@ -62,6 +62,7 @@ from ...inference.threads import single_threaded_blas
 from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
+from .fallback import block_sweeps
 from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation, at_hands
 from .update import (MIN_ESS, MIN_ESS_FRACTION, gaussian_transport, location_sd, normalise, p_iou, shuffled_hdi,
                      tempered_update, weighted_hdi)
@@ -1021,8 +1022,6 @@ def _moved(obs, i, cams: np.ndarray, objs: np.ndarray, rng, temperature: float, 
     c, o = np.where(lost[..., None], cams, c), np.where(lost[..., None, None], objs, o)
     weak = np.flatnonzero(ess < TRANSPORT_ESS_SHARE * n)
     if len(weak):
-        from .fallback import block_sweeps  # (the sampler's kernel, and emcee, only where it is needed)
-
         start = np.where(lost[weak][..., None], x, y[weak])
         moved = block_sweeps(obs, values[weak], wc[0], wo[0], start, rng, temperature,
                              hands=None if hands is None else np.tile(hands, (len(weak), 1)))

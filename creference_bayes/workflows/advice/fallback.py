@@ -6,11 +6,10 @@ the linear map left, each object in its own few dimensions."""
 
 from __future__ import annotations
 
-import emcee
 import numpy as np
 
 from ...inference.laplace import chol
-from ...inference.moves import BlockKernel, BlockTarget
+from ...inference.moves import BlockKernel, BlockTarget, SweepState
 from .observe import MountingObservation, SizeObservation, at_hands
 
 __all__ = ["FALLBACK_SWEEPS", "block_sweeps", "AnsweredTarget"]
@@ -71,7 +70,7 @@ def block_sweeps(obs, values: np.ndarray, wc0: np.ndarray, wo0: np.ndarray, x: n
     kernel = BlockKernel(t, Lc, Lo, wc.mean(axis=0), wo.mean(axis=0), tries=1, adapt=True)
     blobs = t.blocks(u)
     with np.errstate(invalid="ignore"):
-        state = emcee.State(u.copy(), log_prob=blobs.sum(axis=1), blobs=blobs)
+        state = SweepState(u.copy(), blobs.sum(axis=1), blobs)
     rs = np.random.RandomState(np.random.MT19937(rng.integers(2**63)))
     for _ in range(FALLBACK_SWEEPS if sweeps is None else sweeps):
         state, _ = kernel.sweep(state, rs, independent=False)
