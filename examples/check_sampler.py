@@ -1,7 +1,7 @@
 """Check the package's sampler against a long plain random-walk Metropolis run on the same posterior.
 
 For simulated scenes (the bench's one-target scenes of ``--tier``, or with ``--objects N`` street
-scenes of N targets of unknown size), sample the posterior with
+scenes of N targets of unknown size, or of known size with ``--sizes known``), sample the posterior with
 :func:`creference_bayes.inference.sampler.sample` (its default settings) and with an independent
 algorithm: plain random-walk Metropolis on the whole joint posterior (8 chains, ``--steps`` steps
 each, in the working coordinates of :mod:`creference_bayes.inference.coords` with their
@@ -15,6 +15,7 @@ objects). A check that it runs: ``python examples/check_sampler.py --seeds 1 --s
     python examples/check_sampler.py --seeds 1 2 3 --model paper --no-references --steps 60000
     python examples/check_sampler.py --objects 10 --seeds 1 2 3 --steps 60000
     python examples/check_sampler.py --objects 5 --distances 3 --seeds 1 2 3 --steps 60000
+    python examples/check_sampler.py --objects 3 --sizes known --seeds 1 2 3 --steps 60000
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ def scene_of(args, seed: int):
         d = simulate_scene(np.random.default_rng(seed), tier=args.tier, principal_offset=0.05,
                            n_references=0 if args.no_references else 5)
     else:
-        d = simulate_scene(seed, setting="street", n_objects=args.objects, sizes="prior", horizon="none",
+        d = simulate_scene(seed, setting="street", n_objects=args.objects, sizes=args.sizes, horizon="none",
                            n_references=0, n_target_annotations=5, tier="low")
         add_distances(d, args.distances, np.random.default_rng(200 + seed))
     with warnings.catch_warnings():
@@ -113,6 +114,8 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=20000, help="steps of each reference chain (default: %(default)s)")
     ap.add_argument("--min-ess", type=float, default=None, help="bulk ESS our sampler runs to (default: the package's)")
     ap.add_argument("--objects", type=int, default=None, metavar="N", help="street scenes of N targets instead")
+    ap.add_argument("--sizes", choices=("prior", "known"), default="prior",
+                    help="with --objects: the targets' sizes from their class's prior, or known (a catalogue's)")
     ap.add_argument("--distances", type=int, default=0, metavar="K",
                     help="with --objects: add K workers' distances between random pairs of targets")
     args = ap.parse_args(argv)

@@ -32,6 +32,8 @@ TINY = {
                              ["bt/local_2/summary.csv"])],
     "check_sampler.py": [(["--seeds", "1", "--steps", "400", "--min-ess", "200"], []),
                          (["--objects", "3", "--distances", "2", "--seeds", "1", "--steps", "1000", "--min-ess", "200"],
+                          []),
+                         (["--objects", "2", "--sizes", "known", "--seeds", "1", "--steps", "400", "--min-ess", "100"],
                           [])],
     "confidence_study.py": [(["--quick", "--parts", "a", "--n-a", "10", "--replicates", "2", "--out", "cs"],
                              ["cs/confidence_study.md"])],

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.contract import C_HEIGHT, O_GROUND, O_YAW, Model
+from ..models.contract import C_FOCAL, C_HEIGHT, O_GROUND, O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
 __all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "SweepState", "colours"]
@@ -182,6 +182,28 @@ class BlockTarget:
         with np.errstate(over="ignore"):
             wo[..., O_GROUND] += self.ridge * (np.exp(wc[:, C_HEIGHT]) * np.expm1(eps))[:, None]
         return pc, wo - np.einsum("mik,nk->nmi", self.B, pc - self.c0)
+
+    def carried(self, wc: np.ndarray, wt: np.ndarray, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The objects (sheared, ``wt`` (n, m, 7)) as a camera move ``wc`` → ``pc`` (n, 5) carries
+        them, and the move's log-Jacobian (n,). Each ridge object (:attr:`ridge`) keeps its image:
+        its pixel, turn and relative sizes stay, its depth in the camera's frame scales with the
+        focal length, and its ground offset g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the
+        viewing ray d of its pixel (d′ the same pixel's ray from the new camera), so its image,
+        and a known size's apparent size, do not change; the other objects follow the shear.
+        Jacobian ∂g′/∂g = (µ′/µ) d′_y / d_y; the move back (``pc`` → ``wc``) undoes it. Along
+        the height alone this is :meth:`along_ridge`."""
+        if not self.ridge.any():
+            return wt, np.zeros(len(wc))
+        cams, new = self.coords.camera_from_work(wc), self.coords.camera_from_work(pc)
+        wo = self.unshear(wc, wt)
+        po = np.where(self.ridge[:, None], wo, self.unshear(pc, wt))
+        d, dn = self.coords._rays(cams, wo)[..., 1], self.coords._rays(new, po)[..., 1]
+        ratio = (new[:, C_FOCAL] / cams[:, C_FOCAL])[:, None]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            g = new[:, C_HEIGHT, None] - ratio * (cams[:, C_HEIGHT, None] - wo[..., O_GROUND]) / d * dn
+            log_j = np.where(self.ridge, np.log(ratio * dn / d), 0.0).sum(axis=1)
+        po[..., O_GROUND] = np.where(self.ridge, g, po[..., O_GROUND])
+        return po - np.einsum("mik,nk->nmi", self.B, pc - self.c0), np.where(np.isfinite(log_j), log_j, -np.inf)
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
@@ -435,11 +457,13 @@ class BlockKernel:
                 pc, lpc, lpo, lpp = pcs[np.arange(C), j], lpc[sel], lpo[sel], lpp[sel]
             else:
                 pc = wc + self.sc * rs.standard_normal((C, 5)) @ self.Lc.T
+                pt, log_j = self.t.carried(wc, wt, pc)
                 lpc = self.t.camera(pc)
-                lpo, lpp = self.t.objects(pc, wt, f)
+                lpo, lpp = self.t.objects(pc, pt, f)
                 with np.errstate(invalid="ignore"):
                     b = np.log(rs.uniform(size=C)) < ((lpc + lpo.sum(axis=1) + lpp.sum(axis=1))
-                                                      - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)))
+                                                      - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1)) + log_j)
+                wt = np.where(b[:, None, None], pt, wt)
             wc = np.where(b[:, None], pc, wc)
             lp_c = np.where(b, lpc, lp_c)
             lp_o = np.where(b[:, None], lpo, lp_o)
