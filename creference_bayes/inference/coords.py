@@ -70,7 +70,7 @@ class WorkingCoords:
             wo[..., O_SIZE] = np.log(objs[..., O_SIZE]) - np.log(objs[..., 1:2])
         return wc, wo
 
-    def _rays(self, cams: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    def rays(self, cams: np.ndarray, wo: np.ndarray) -> np.ndarray:
         """(n, m, 3) viewing rays Rᵀ K⁻¹ (u, v, 1) in the gravity-aligned frame."""
         R = rotation_from_pitch_roll(cams[:, C_PITCH], cams[:, C_ROLL])
         mu = cams[:, C_FOCAL, None]
@@ -86,7 +86,7 @@ class WorkingCoords:
         """:meth:`from_work` and the objects' part of :meth:`log_jacobian`, (n, m), in one pass."""
         cams = self.camera_from_work(np.atleast_2d(wc))
         wo = np.asarray(wo, float).reshape(len(cams), -1, 7)
-        d = self._rays(cams, wo)
+        d = self.rays(cams, wo)
         y0 = cams[:, C_HEIGHT, None] - wo[..., O_GROUND]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t = np.where(d[..., 1] > 0, y0 / d[..., 1], np.nan)

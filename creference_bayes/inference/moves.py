@@ -197,7 +197,7 @@ class BlockTarget:
         cams, new = self.coords.camera_from_work(wc), self.coords.camera_from_work(pc)
         wo = self.unshear(wc, wt)
         po = np.where(self.ridge[:, None], wo, self.unshear(pc, wt))
-        d, dn = self.coords._rays(cams, wo)[..., 1], self.coords._rays(new, po)[..., 1]
+        d, dn = self.coords.rays(cams, wo)[..., 1], self.coords.rays(new, po)[..., 1]
         ratio = (new[:, C_FOCAL] / cams[:, C_FOCAL])[:, None]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             g = new[:, C_HEIGHT, None] - ratio * (cams[:, C_HEIGHT, None] - wo[..., O_GROUND]) / d * dn
