@@ -419,8 +419,9 @@ def test_the_kernel_follows_the_blocks_and_every_chain_is_an_independent_unit():
 def test_a_step_along_the_ridge_moves_the_camera_height_and_every_ground_offset_together():
     """Objects' images depend on the camera height h and their ground offsets g only through
     h − g. A ridge step must move h and every g by the same amount, keep each object's place
-    relative to the camera (x, z, yaw, sizes) whatever the shear B, and be undone by the
-    opposite step. A frame whose sizes all come from class priors has no ridge step."""
+    relative to the camera (x, z, yaw, sizes) whatever the shear B, have unit Jacobian and be
+    undone by the opposite step (the camera step's carry, along the height alone). A frame whose
+    sizes all come from class priors has no ridge step."""
     from creference_bayes.inference.coords import WorkingCoords
     from creference_bayes.inference.moves import BlockKernel, BlockTarget
     from creference_bayes.models.contract import C_HEIGHT, O_GROUND
@@ -434,15 +435,16 @@ def test_a_step_along_the_ridge_moves_the_camera_height_and_every_ground_offset_
     wc = wc0 + np.array([[0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.01, -0.01, 0.05, 0.0]])
     wt = wo0[None] - np.einsum("mik,nk->nmi", B, wc - wc0)
     eps = np.array([0.1, -0.07])
-    pc, pt = target.along_ridge(wc, wt, eps)
+    pc = wc.copy()
+    pc[:, C_HEIGHT] += eps
+    pt, log_j = target.carried(wc, wt, pc)
+    np.testing.assert_allclose(log_j, 0.0, atol=1e-12)
     (c, o), (cp, op) = target.natural(target.join(wc, wt)), target.natural(target.join(pc, pt))
     np.testing.assert_allclose(cp[:, C_HEIGHT], c[:, C_HEIGHT] * np.exp(eps))
     np.testing.assert_allclose(op[..., O_GROUND] - o[..., O_GROUND] - (cp[:, C_HEIGHT] - c[:, C_HEIGHT])[:, None], 0.0,
                                atol=1e-12)
     np.testing.assert_allclose(op[..., :6], o[..., :6], rtol=1e-9, atol=1e-9)
-    back = target.along_ridge(pc, pt, -eps)
-    np.testing.assert_allclose(back[0], wc, atol=1e-12)
-    np.testing.assert_allclose(back[1], wt, atol=1e-12)
+    np.testing.assert_allclose(target.carried(pc, pt, wc)[0], wt, atol=1e-12)
     assert BlockKernel(target, np.eye(5), np.eye(7)[None].repeat(3, 0), wc0, wo0).sr > 0
     free, est2, _ = _scene_model(2, m=3, n_annotations=2, noise_px=2.0, sizes_known=False)  # sizes from priors
     fit2 = est2.fitted(free)
@@ -454,9 +456,9 @@ def test_a_step_along_the_ridge_moves_the_camera_height_and_every_ground_offset_
 def test_a_camera_step_carries_each_object_at_its_place_in_the_camera_frame():
     """In a frame with a known size, a camera step (height, pitch, roll, focal length) carries
     every object so that its image stays: the same pixel, turn and relative sizes, its depth in
-    the camera's frame scaled by the focal lengths' ratio (so a known size's apparent size stays). The carried move is undone by
-    the step back, its log-Jacobian is that of the ground offsets' map (finite differences), and
-    along the height alone it is the ridge step. A frame without a known size is not carried."""
+    the camera's frame scaled by the focal lengths' ratio (so a known size's apparent size
+    stays). The carried move is undone by the step back, and its log-Jacobian is that of the
+    ground offsets' map (finite differences). A frame without a known size is not carried."""
     from creference_bayes.core.geometry import rotation_from_pitch_roll
     from creference_bayes.inference.coords import WorkingCoords
     from creference_bayes.inference.moves import BlockTarget
@@ -494,10 +496,6 @@ def test_a_camera_step_carries_each_object_at_its_place_in_the_camera_frame():
         bumped[:, i, O_GROUND] += h
         dg.append((target.carried(wc, bumped, pc)[0][:, i, O_GROUND] - pt[:, i, O_GROUND]) / h)
     np.testing.assert_allclose(log_j, np.log(np.array(dg)).sum(axis=0), rtol=1e-5)
-    along = np.zeros_like(step)
-    along[:, C_HEIGHT] = step[:, C_HEIGHT]
-    np.testing.assert_allclose(target.carried(wc, wt, wc + along)[0], target.along_ridge(wc, wt, step[:, C_HEIGHT])[1],
-                               atol=1e-10)
     free, est2, _ = _scene_model(2, m=3, n_annotations=2, noise_px=2.0, sizes_known=False)  # sizes from priors
     t2 = BlockTarget(est2.fitted(free), 1.0, wc0, B, np.zeros((3, 7)))
     same, zero = t2.carried(wc, wt, pc)

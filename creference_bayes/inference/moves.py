@@ -112,8 +112,8 @@ class BlockTarget:
         self.coords = WorkingCoords(model)
         self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
         self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
-        #: (m,) the objects whose ground offset moves with the camera height along the ridge
-        #: (:meth:`along_ridge`): those whose ground offset is free, when the camera height is and
+        #: (m,) the objects a camera step carries (:meth:`carried`) and the ridge step moves with
+        #: the camera height: those whose ground offset is free, when the camera height is and
         #: some object's size is known (:func:`sized`); none otherwise
         self.ridge = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT] & sized(model)
         self.cf, self.of = model.camera_free, model.object_free
@@ -171,27 +171,16 @@ class BlockTarget:
         """Working object coordinates (n, m, 7) of sheared ones."""
         return wt + np.einsum("mik,nk->nmi", self.B, wc - self.c0)
 
-    def along_ridge(self, wc: np.ndarray, wt: np.ndarray, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The states (``wc`` (n, 5), ``wt`` (n, m, 7)) moved along the ridge by ``eps`` (n,):
-        log h → log h + ε and each ridge object's g → g + h (e^ε − 1), every other working
-        coordinate kept (h − g, so each object's place relative to the camera, unchanged). Unit
-        Jacobian; −ε undoes it."""
-        pc = wc.copy()
-        pc[:, C_HEIGHT] += eps
-        wo = self.unshear(wc, wt)
-        with np.errstate(over="ignore"):
-            wo[..., O_GROUND] += self.ridge * (np.exp(wc[:, C_HEIGHT]) * np.expm1(eps))[:, None]
-        return pc, wo - np.einsum("mik,nk->nmi", self.B, pc - self.c0)
-
     def carried(self, wc: np.ndarray, wt: np.ndarray, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The objects (sheared, ``wt`` (n, m, 7)) as a camera move ``wc`` → ``pc`` (n, 5) carries
         them, and the move's log-Jacobian (n,). Each ridge object (:attr:`ridge`) keeps its image:
         its pixel, turn and relative sizes stay, its depth in the camera's frame scales with the
-        focal length, and its ground offset g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the
-        viewing ray d of its pixel (d′ the same pixel's ray from the new camera), so its image,
-        and a known size's apparent size, do not change; the other objects follow the shear.
-        Jacobian ∂g′/∂g = (µ′/µ) d′_y / d_y; the move back (``pc`` → ``wc``) undoes it. Along
-        the height alone this is :meth:`along_ridge`."""
+        focal length (so a known size's apparent size stays), and its ground offset goes where
+        that puts it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray
+        d of its pixel (d′ the same pixel's ray from the new camera). The other objects follow
+        the shear. Jacobian ∂g′/∂g = (µ′/µ) d′_y / d_y; the move back (``pc`` → ``wc``) undoes
+        it. Along the height alone (the ridge step) every ground offset moves with the height,
+        h − g kept, and the Jacobian is 1."""
         if not self.ridge.any():
             return wt, np.zeros(len(wc))
         cams, new = self.coords.camera_from_work(wc), self.coords.camera_from_work(pc)
@@ -500,12 +489,15 @@ class BlockKernel:
         return prop, np.where(f, -log_j, log_j)
 
     def ridge(self, wc, wt, lp_c, lp_o, lp_p, rs, f=None):
-        """One random-walk step of every walker along the ridge (:meth:`BlockTarget.along_ridge` by
-        ε ~ N(0, ``sr``²), ``sr`` adapted towards an acceptance of :data:`RIDGE_ACC` while the
-        sampler tunes), accepted by the whole posterior (the map has unit Jacobian and −ε undoes
-        it). Returns the updated blocks and which walkers moved."""
+        """One random-walk step of every walker along the ridge: log h by ε ~ N(0, ``sr``²), ``sr``
+        adapted towards an acceptance of :data:`RIDGE_ACC` while the sampler tunes, every ridge
+        object carried (:meth:`BlockTarget.carried`: its ground offset moves with h), accepted by
+        the whole posterior (the map has unit Jacobian and −ε undoes it). Returns the updated
+        blocks and which walkers moved."""
         t, m = self.t, self.t.m
-        pc, pt = t.along_ridge(wc, wt, self.sr * rs.standard_normal(len(wc)))
+        pc = wc.copy()
+        pc[:, C_HEIGHT] += self.sr * rs.standard_normal(len(wc))
+        pt, _ = t.carried(wc, wt, pc)
         new = t.blocks(t.join(pc, pt, f))
         with np.errstate(invalid="ignore"):
             ok = np.log(rs.uniform(size=len(wc))) < new.sum(axis=1) - (lp_c + lp_o.sum(axis=1) + lp_p.sum(axis=1))
