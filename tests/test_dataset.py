@@ -57,6 +57,41 @@ def test_frames_of_one_camera_pool_it_by_default_and_each_result_says_so(four_fr
     assert again.keys("skipped") == [f"f{k}" for k in range(4)]
 
 
+def test_plot_draws_each_frames_reading_against_the_pool(four_frames, tmp_path, capsys):
+    """``creference plot`` of a batch's folder draws the data set: a panel per quantity and group,
+    with every frame's reading (the summary keeps them, in natural units, one sd each side) and
+    the pool's value; a batch.json edited by hand is refused naming the key."""
+    from creference_bayes.cli.main import main
+    from creference_bayes.vision.dataset_figures import dataset_panels
+
+    root, _, report = four_frames
+    block = report.dataset["focal_length_px"]["groups"]["cam-A"]
+    assert len(block["values"]) == 4 and {v["frame"] for v in block["values"]} == {f"f{k}" for k in range(4)}
+    for v in block["values"]:
+        assert v["low"] < v["value"] < v["high"] and abs(math.log(v["value"] / 1400.0)) < 1.0
+    panels = dataset_panels(report.dataset)
+    focal = next(p for p in panels if p["label"] == "focal_length_px")
+    assert focal["group"] == "cam-A" and focal["log"] and focal["prior"] is None  # one value, held
+    assert focal["center"] == block["median"] and focal["pool"][0] < block["median"] < focal["pool"][1]
+    np.testing.assert_allclose(np.sort(focal["values"][:, 0]), sorted(v["value"] for v in block["values"]))
+    height = next(p for p in panels if p["label"] == "height_m")
+    assert height["prior"][0] < height["pool"][0] and height["prior"][1] > height["pool"][1]  # spread: wider
+    assert main(["plot", str(root / "out"), "--out", str(tmp_path / "figs")]) == 0
+    assert (tmp_path / "figs" / "dataset.png").stat().st_size > 10_000
+    doc = json.loads((root / "out" / "batch.json").read_text())
+    doc["dataset"]["focal_length_px"]["groups"]["cam-A"]["values"][2]["value"] = "big"
+    (tmp_path / "batch.json").write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert main(["plot", str(tmp_path / "batch.json"), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert "dataset.focal_length_px.groups.cam-A.values[2].value: expected a finite number, got 'big'" in err
+    assert not (tmp_path / "bad" / "dataset.png").exists()
+    del doc["dataset"]
+    (tmp_path / "batch.json").write_text(json.dumps(doc))
+    assert main(["plot", str(tmp_path), "--out", str(tmp_path / "bad")]) == 2
+    assert "learnt nothing from its frames" in capsys.readouterr().err
+
+
 def test_dataset_none_estimates_every_frame_alone(four_frames, tmp_path):
     root, settings, _ = four_frames
     report = run_batch([root / "in" / "f0.json", root / "in" / "f1.json"], tmp_path / "o", LocalEngine(1),

@@ -17,15 +17,18 @@ __all__ = ["register", "find_scene", "check_result"]
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "plot", help="plot a result: the boxes on the photo, the top view, pair and rank plots",
+        "plot", help="plot a result: the boxes on the photo, the top view, pair and rank plots; or a batch's data set",
         description="Draw the figures of a result: boxes (the MAP and posterior boxes of every object over "
                     "the photo or a blank canvas), top_view (the ground seen from above, with a zoom on each "
                     "small object; zooms, a figure of their own, when there are many), pairs (the camera and "
                     "the chosen objects) and ranks (the posterior's chains). A result without posterior draws "
-                    "shows the Laplace approximation at its MAP, and has no rank plot. See docs/user_guide.md.")
+                    "shows the Laplace approximation at its MAP, and has no rank plot. A batch's folder gives "
+                    "dataset (what each frame read of the quantities its frames share, against the pool the batch "
+                    "handed back). See docs/user_guide.md and docs/batch.md.")
     p.add_argument("result", metavar="RESULT.json",
                    help="a creference-result/2 file written by `creference estimate --out` or `creference batch` "
-                        "(or a creference-result/1 of an older version)")
+                        "(or a creference-result/1 of an older version); or a batch's folder (or its batch.json): "
+                        "the data set's figure, each frame's reading of what the frames share against the pool")
     p.add_argument("--scene", metavar="SCENE.json",
                    help="the scene the result was estimated from (default: the result's scene "
                         "name, looked up next to the result, in the current directory, then among "
@@ -88,13 +91,14 @@ def _run(args) -> int:
     import numpy as np
 
     matplotlib.use("Agg")
-    from ..io.files import atomic_path
     from ..io.result import read_result, result_from_v1
     from ..pipeline import rebuild_model, result_draws
     from ..vision import plotting
     from ..vision.images import ImageWarning
 
     path = Path(args.result)
+    if path.is_dir() or path.name == "batch.json":
+        return _dataset(path / "batch.json" if path.is_dir() else path, args)
     with usage_errors():  # wrong format key, or not JSON
         d = read_result(path)
     scene = find_scene(d, path, args.scene)
@@ -132,9 +136,42 @@ def _run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name, fig in figures.items():
-        target = out / f"{name}.{args.format}"
-        with atomic_path(target) as tmp:
-            fig.savefig(tmp, dpi=args.dpi, format=args.format)
-        if not args.quiet:
-            print(f"wrote {target}")
+        _save(fig, out / f"{name}.{args.format}", args)
+    return 0
+
+
+def _save(fig, target: Path, args) -> None:
+    from ..io.files import atomic_path
+
+    with atomic_path(target) as tmp:
+        fig.savefig(tmp, dpi=args.dpi, format=args.format)
+    if not args.quiet:
+        print(f"wrote {target}")
+
+
+def _dataset(path: Path, args) -> int:
+    """The data set's figure of a batch (:func:`~creference_bayes.vision.dataset_figures.dataset_figure`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from ..io.validation import read_json
+    from ..vision.dataset_figures import dataset_figure
+    from ..workflows.batch import BATCH_FORMAT
+
+    if not path.is_file():
+        raise UsageError(f"{path}: no such file (a batch's folder holds batch.json)")
+    with usage_errors(f"{path}: ", types=(ValueError,)):
+        d = read_json(path)
+    if not isinstance(d, dict) or d.get("format") != BATCH_FORMAT:
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise UsageError(f"{path}: format: expected {BATCH_FORMAT!r}, got {got!r}")
+    if not d.get("dataset"):
+        raise UsageError(f"{path}: the batch learnt nothing from its frames (no dataset block): frames that share a "
+                         "camera id, frames with references, or enough frames of one setting teach each other "
+                         "(docs/batch.md)")
+    with usage_errors(f"{path}: "):
+        fig = dataset_figure(d["dataset"])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    _save(fig, out / f"dataset.{args.format}", args)
     return 0

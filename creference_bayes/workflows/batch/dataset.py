@@ -488,6 +488,23 @@ class Pool:
         return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
 
 
+    def values(self, group: str) -> list[dict]:
+        """Every reading of the group in natural units, as ``batch.json`` keeps them for the data
+        set's figure (:func:`~creference_bayes.vision.plotting.dataset_figure`): ``frame``,
+        ``value`` and its one-sd interval ``low``, ``high``, and whether the pool ``used`` it."""
+        q = self.quantity
+        keys, m, p = self.groups[group]
+        sd = 1.0 / np.sqrt(p)
+
+        def natural(x):  # (a reading too weak to bound: None)
+            with np.errstate(over="ignore"):
+                v = float(np.exp(x) if q.natural == "log" else np.degrees(x))
+            return _sig(v) if math.isfinite(v) else None
+
+        return [{"frame": str(k), "value": natural(v), "low": natural(v - s), "high": natural(v + s),
+                 "used": bool(pi >= q.max_sd**-2)} for k, v, s, pi in zip(keys, m, sd, p)]
+
+
 def _draws(result: dict, scene):
     """A first-pass result's model and draws: cameras (k, 5), objects (k, m, 7): those it keeps,
     else :data:`LAPLACE_DRAWS` of the Laplace approximation at its MAP (seeded)."""
@@ -717,10 +734,12 @@ class DataSet:
         return self.pools[name].estimate(group, key if leave_out else None)
 
     def summary(self) -> dict:
-        """Every group's pool of all its frames: quantity label → group → block (:meth:`Pooled.block`)."""
+        """Every group's pool of all its frames: quantity label → group → block (:meth:`Pooled.block`)
+        and its readings (``values``, :meth:`Pool.values`)."""
         out = {}
         for name, pool in self.pools.items():
-            blocks = {g: est.block() for g in pool.groups if (est := pool.estimate(g)) is not None}
+            blocks = {g: {**est.block(), "values": pool.values(g)} for g in pool.groups
+                      if (est := pool.estimate(g)) is not None}
             if blocks:
                 out[SHARED[name].label] = {"shared_by": SHARED[name].shared_by, "kind": SHARED[name].kind,
                                            "groups": blocks}
