@@ -4,8 +4,10 @@
 the camera, each accepted on its own terms (objects coupled by a pair term coloured apart), then
 the camera with every object riding along its regression on it; by random-walk steps or ``tries``
 Student-t independence proposals per block, one taken by multiple-try Metropolis
-(:meth:`BlockKernel.sweep`); a random-walk sweep of a frame with an object of known size ends with
-a step along the **ridge** of the camera height and the ground offsets (:meth:`BlockKernel.ridge`).
+(:meth:`BlockKernel.sweep`). In a frame with an object of known size the camera's random-walk step
+*carries* every object at its image instead (:meth:`BlockTarget.carried`), and a random-walk sweep
+ends with a step along the **ridge** of the camera height and the ground offsets
+(:meth:`BlockKernel.ridge`).
 An object whose handedness is sampled (:attr:`BlockTarget.flip`) crosses to its other handedness
 by its independence proposal's mode there, or by a **jump** that a share of them propose in a
 random-walk sweep instead of a step (:meth:`BlockKernel._jumped`). A walker's blobs hold each
