@@ -2,8 +2,8 @@
 
 The frames are the bench's scenes of several targets (docs/studies/benchmark.md, "Scenes of
 several targets"): street cameras, 5 sets of dimension lines per object, no focal length and no
-horizon given, sizes left to the class priors, the `low` (2 px) and `high` (5 px, Student-t)
-tiers. Each frame is estimated once with the package's defaults (MAP, then the posterior). Per
+horizon given, sizes left to the class priors (``--sizes known``: given), the `low` (2 px) and
+`high` (5 px, Student-t) tiers. Each frame is estimated once with the package's defaults (MAP, then the posterior). Per
 quantity (the camera's focal length, height, pitch and roll; each object's ground distance,
 length, width, height and ground offset): the share of true values inside the posterior's central
 90 % interval (calibrated: 90 %) and the mean quantile of the truth in the posterior (calibrated:
@@ -11,6 +11,7 @@ length, width, height and ground offset): the share of true values inside the po
 camera, so a frame of 15 objects is not 15 independent checks.
 
     python examples/frame_calibration.py --frames 20 --out frame_cal     # 120 frames, 640 objects; 5 minutes
+    python examples/frame_calibration.py --frames 10 --sizes known --out frame_cal_sized
 
 Records go to ``OUT/frames.jsonl`` (one line per object), the table to ``OUT/frames.md``.
 """
@@ -73,7 +74,7 @@ def run(args) -> list[dict]:
         for tier in args.tiers:
             for n in args.counts:
                 for k in range(args.frames):
-                    scene = street_scene(tier, n, k, args.seed)
+                    scene = street_scene(tier, n, k, args.seed, sizes=args.sizes)
                     result = estimate(scene, seed=k, sampling=sampling, keep_draws=0)
                     recs = frame_records(scene, result, f"{tier}-{n}-{k}")
                     for r in recs:
@@ -113,6 +114,8 @@ def main(argv=None) -> None:
     p.add_argument("--frames", type=int, default=20, help="frames per tier and object count (default: %(default)s)")
     p.add_argument("--counts", default="3,5,8", help="objects per frame, comma-separated (default: %(default)s)")
     p.add_argument("--tiers", default="low,high", help="noise tiers, comma-separated (default: %(default)s)")
+    p.add_argument("--sizes", choices=("prior", "known"), default="prior",
+                   help="the objects' sizes: their class's prior, or known (a catalogue's) (default: %(default)s)")
     p.add_argument("--seed", type=int, default=1, help="the frames' seed (the bench's frames use 0; default: %(default)s)")
     p.add_argument("--min-ess", type=int, default=None, help="bulk ESS of each posterior (default: the package's)")
     p.add_argument("--out", default="frame_calibration", help="output folder (default: %(default)s)")

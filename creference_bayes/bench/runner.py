@@ -321,12 +321,13 @@ def _exact_records(n: int, seed: int, say, cameras: str = "setting") -> list[dic
     return recs
 
 
-def street_scene(tier: str, n_objects: int, k: int, seed: int = 0, cameras: str = "setting") -> Scene:
+def street_scene(tier: str, n_objects: int, k: int, seed: int = 0, cameras: str = "setting",
+                 sizes: str = "prior") -> Scene:
     """The bench's ``k``-th street scene of ``n_objects`` targets in a :data:`FRAME_TIERS` tier: 5
     sets of dimension lines per object, no references, no focal length and no horizon given, sizes
-    left to the class priors; deterministic for ``seed``."""
+    left to the class priors (``sizes="known"``: given, a catalogue's); deterministic for ``seed``."""
     return _parse(simulate_scene([seed, n_objects, k, len(tier)], setting="street", tier=FRAME_TIERS[tier],
-                                 n_objects=n_objects, n_references=0, n_target_annotations=5, sizes="prior",
+                                 n_objects=n_objects, n_references=0, n_target_annotations=5, sizes=sizes,
                                  horizon="none", cameras=cameras))
 
 
