@@ -595,8 +595,40 @@ def _advise_batch(data, ctx):
         box.check()
 
 
+#: A batch.json with what ``creference batch`` learns of frames that share a camera (the shape
+#: :meth:`~creference_bayes.workflows.batch.dataset.DataSet.summary` writes), for ``plot BATCH_DIR``.
+DATASET_BATCH = {
+    "format": "creference-batch/2", "settings": {}, "scenes": [],
+    "dataset": {
+        "focal_length_px": {"shared_by": "camera", "kind": "shared", "groups": {"rig/front": {
+            "median": 1392.4, "log_sd": 0.033, "floor_log_sd": 0.03, "held": True, "frames": 3, "frames_offered": 3,
+            "n_eff": 1.8, "top3_share": 1.0, "frames_median": 1402.0, "disagreement": -0.42,
+            "warnings": ["the pool rests on few frames"],
+            "values": [{"frame": "f0", "value": 2080.0, "low": 1990.0, "high": 2170.0, "used": True},
+                       {"frame": "f1", "value": 1420.0, "low": 1300.0, "high": 1550.0, "used": True},
+                       {"frame": "f2", "value": 1390.0, "low": 1380.0, "high": 1400.0, "used": False}]}}},
+        "pitch_deg": {"shared_by": "camera", "kind": "spread", "groups": {"rig/front": {
+            "mean": 5.99, "sd": 0.23, "spread_sd": 0.5, "frames": 3, "frames_offered": 3, "n_eff": 2.5,
+            "top3_share": 1.0, "frames_median": 6.1, "disagreement": -0.01, "warnings": [],
+            "values": [{"frame": "f0", "value": 5.2, "low": 4.9, "high": 5.5, "used": True},
+                       {"frame": "f1", "value": 6.5, "low": None, "high": None, "used": True}]}}},
+        "ref_dof": {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": {"dof": 2.0}}}}}
+
+
+def _plot_dataset(data, ctx):
+    """creference plot on a batch folder with a mutated batch.json (the data set's figure, PNG at 10
+    dpi): exit 0 or 2, only --out written."""
+    box = ctx["box"]
+    with box.example() as (inp, out):
+        _write(inp / "batch.json", hostile_json(DATASET_BATCH, data))
+        box.snapshot()
+        _cli(["plot", inp, "--out", out, "--quiet", "--dpi", "10"])
+        box.check()
+
+
 test_results_plot, test_results_plot_long = fuzz(_plot, N_HEAVY)
 test_results_plot_drawn, test_results_plot_drawn_long = fuzz(_plot_drawn, 1, 20)
+test_dataset_plot, test_dataset_plot_long = fuzz(_plot_dataset, N_HEAVY, 200)
 test_results_advise, test_results_advise_long = fuzz(_advise_result, N_HEAVY)
 test_results_in_a_batch_labels, test_results_in_a_batch_labels_long = fuzz(_labels, N_HEAVY)
 test_results_in_a_batch_advise, test_results_in_a_batch_advise_long = fuzz(_advise_batch, N_HEAVY)

@@ -80,8 +80,9 @@ def dataset_panels(summary) -> list[dict]:
             frames = b.get("frames")
             held = ", held by every frame" if b.get("held") else ""
             warns = [str(w) for w in b.get("warnings") or [] if isinstance(w, str)]
-            title = (f"{label}, {entry.get('shared_by', '')} {group}: pooled {value} from {frames} frames{held}"
-                     + "".join(f"\n{w}" for w in warns))
+            title = (f"{str(label)[:40]}, {str(entry.get('shared_by', ''))[:20]} {str(group)[:40]}: pooled {value} "
+                     f"from {frames if isinstance(frames, int) else '?'} frames{held}"
+                     + "".join(f"\n{w[:120]}" for w in warns[:3]))
             panels.append({"label": str(label), "shared_by": str(entry.get("shared_by", "")), "group": str(group),
                            "log": log, "values": np.array(rows), "used": np.array(used), "frames": whose, "center": center,
                            "pool": band(sd), "prior": None if spread is None else band(math.hypot(sd, spread)),
