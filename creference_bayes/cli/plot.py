@@ -160,7 +160,7 @@ def _dataset(path: Path, args) -> int:
 
     if not path.is_file():
         raise UsageError(f"{path}: no such file (a batch's folder holds batch.json)")
-    with usage_errors(f"{path}: ", types=(ValueError,)):
+    with usage_errors(f"{path}: "):
         d = read_json(path)
     if not isinstance(d, dict) or d.get("format") != BATCH_FORMAT:
         got = d.get("format") if isinstance(d, dict) else type(d).__name__

@@ -487,10 +487,9 @@ class Pool:
             var += q.floor**2
         return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
 
-
     def values(self, group: str) -> list[dict]:
         """Every reading of the group in natural units, as ``batch.json`` keeps them for the data
-        set's figure (:func:`~creference_bayes.vision.plotting.dataset_figure`): ``frame``,
+        set's figure (:func:`~creference_bayes.vision.dataset_figures.dataset_figure`): ``frame``,
         ``value`` and its one-sd interval ``low``, ``high``, and whether the pool ``used`` it."""
         q = self.quantity
         keys, m, p = self.groups[group]
