@@ -42,6 +42,7 @@ def test_frames_of_one_camera_pool_it_by_default_and_each_result_says_so(four_fr
     root, settings, report = four_frames
     assert report.ok and (root / "out" / "first_pass" / "results" / "f0.json").exists()
     assert report.dataset["focal_length_px"]["groups"]["cam-A"]["frames"] == 4
+    assert report.dataset_notes == []  # everything planned was learnt
     assert json.loads((root / "out" / "batch.json").read_text())["dataset"] == report.dataset
     for k in range(4):
         res = json.loads((root / "out" / "results" / f"f{k}.json").read_text())
@@ -90,6 +91,26 @@ def test_plot_draws_each_frames_reading_against_the_pool(four_frames, tmp_path, 
     (tmp_path / "batch.json").write_text(json.dumps(doc))
     assert main(["plot", str(tmp_path), "--out", str(tmp_path / "bad")]) == 2
     assert "learnt nothing from its frames" in capsys.readouterr().err
+
+
+def test_a_quantity_the_batch_could_not_learn_is_said_with_what_it_lacked():
+    """A camera's frames whose focal-length readings are all too weak to pool (sd above the
+    quantity's bar) learn nothing: the batch says so, with how many frames were informative, how
+    many a pool needs and, when the orientation is not pooled with it, what would read it sharper;
+    a camera of one frame, which has nothing to share, is not mentioned; a pooled group is not."""
+    weak = [Reading(k, "cam-A", 7.2 + 0.1 * i, 1.0) for i, k in enumerate(("a", "b", "c"))]  # sd 1 in log
+    lone = [Reading("d", "cam-B", 7.0, 400.0)]
+    sharp = [Reading(k, "cam-C", 7.0, 400.0) for k in ("e", "f")]  # sd 0.05
+    ds = DataSet({"log_focal": Pool(SHARED["log_focal"], weak + lone + sharp)}, ("log_focal",),
+                 {k: c for k, c in zip("abcdef", ["cam-A"] * 3 + ["cam-B"] + ["cam-C"] * 2)})
+    lines = ds.not_learnt()
+    assert len(lines) == 1 and lines[0].startswith("focal_length_px of cam-A: not learnt: 0 of 3 frames read it within "
+                                                   "an sd of 0.25 in log, 2 frames needed")
+    assert "pitch and roll" in lines[0]
+    assert "cam-C" in ds.summary()["focal_length_px"]["groups"]
+    with_orientation = DataSet(ds.pools, ("log_focal", "pitch", "roll"), ds.camera_of)
+    assert "pitch and roll" not in with_orientation.not_learnt()[0]
+    assert DataSet({}, ("log_ref_scale",), {}).not_learnt() == ["ref_scale: not learnt: no frame could read it"]
 
 
 def test_dataset_none_estimates_every_frame_alone(four_frames, tmp_path):

@@ -57,6 +57,8 @@ def _run_batch(args) -> int:
 
         for line in dataset_lines(report.dataset):
             print(line, file=sys.stderr if line.startswith("warning:") else sys.stdout)
+        for line in report.dataset_notes:
+            print(f"note: data set: {line}", file=sys.stderr)
         for key, error in report.errors.items():
             print(f"failed: {key}: {error}", file=sys.stderr)
         print(summary_line(report, args.out))

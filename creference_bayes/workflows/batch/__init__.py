@@ -202,6 +202,8 @@ class BatchReport:
     #: what the data set learnt: each quantity's pool of all the frames of each group, with its
     #: checks and warnings (:meth:`.dataset.DataSet.summary`); empty when nothing was learnt
     dataset: dict = field(default_factory=dict)
+    #: what the batch set out to learn and could not, a line each (:meth:`.dataset.DataSet.not_learnt`)
+    dataset_notes: list[str] = field(default_factory=list)
 
     def keys(self, status: str) -> list[str]:
         return [k for k, s in self.status.items() if s == status]
@@ -272,8 +274,10 @@ def run_batch(inputs, out: str | Path, engine: Engine, settings: BatchSettings =
     except BaseException:
         engine.close(abandon=True)
         raise
-    return _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings),
-                     dataset=ds.summary(), **run)
+    report = _run_pass(scenes, out, settings, transform=lambda key, scene: hand_back(ds, key, scene, settings),
+                       dataset=ds.summary(), **run)
+    report.dataset_notes = ds.not_learnt()
+    return report
 
 
 def _first_pass(scenes, loaded, first: Path, settings: BatchSettings, learn: tuple, run: dict):

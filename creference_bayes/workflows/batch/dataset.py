@@ -746,6 +746,32 @@ class DataSet:
             out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
         return out
 
+    def not_learnt(self) -> list[str]:
+        """What the batch set out to learn (:attr:`learn`) and could not, a line each: a quantity
+        no frame read, or a group whose readings are too few or too weak to pool
+        (:meth:`Pool.estimate`), with how many were informative and how many a pool needs."""
+        lines = []
+        for name in self.learn:
+            if name not in SHARED:
+                continue
+            q, pool = SHARED[name], self.pools.get(name)
+            if pool is None or not pool.groups:
+                lines.append(f"{q.label}: not learnt: no frame could read it")
+                continue
+            for group, (keys, _, p) in pool.groups.items():
+                if pool.estimate(group) is not None or len(set(keys)) < q.min_frames + 1:
+                    continue  # pooled, or a group too small to pool whatever it read (a camera of one frame)
+                good = p >= q.max_sd**-2
+                bar = f"{math.degrees(q.max_sd):g}°" if q.natural == "angle" else f"{q.max_sd:g} in log"
+                hint = (" (a camera's pitch and roll pooled with it, as the default --rig auto does, read each "
+                        "frame's focal length sharper)" if name == "log_focal" and not set(GIVEN) & set(self.learn)
+                        else "")
+                need = f"{q.min_frames + 1} frames" + (f" and {q.min_readings} readings" if q.min_readings > 1 else "")
+                read = f" ({int(good.sum())} readings)" if q.min_readings > 1 else ""
+                lines.append(f"{q.label} of {group}: not learnt: {len(set(keys[good]))} of {len(set(keys))} frames"
+                             f"{read} read it within an sd of {bar}, {need} needed{hint}")
+        return lines
+
 
 def plan(scenes, settings) -> tuple[str, ...]:
     """The quantities a batch of ``scenes`` learns from a first pass (module docstring): empty with
