@@ -17,6 +17,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
+from ..io.validation import _short
+
 __all__ = ["dataset_panels", "dataset_figure"]
 
 _USED, _LEFT_OUT, _POOL = "#1f77b4", "#9a9a9a", "#d62728"
@@ -25,8 +27,12 @@ _USED, _LEFT_OUT, _POOL = "#1f77b4", "#9a9a9a", "#d62728"
 def _number(v, where: str, *, none: bool = False):
     if v is None and none:
         return math.nan
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"{where}: expected a finite number, got {v!r}"[:200])
+    try:  # (an integer too large for a float: OverflowError)
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(float(v))
+    except OverflowError:
+        ok = False
+    if not ok:
+        raise ValueError(f"{where}: expected a finite number, got {_short(v)}")
     return float(v)
 
 
