@@ -27,7 +27,8 @@ from creference_bayes.io.scene import SceneWarning, load_scene
 from creference_bayes.workflows.batch import dataset as D
 from creference_bayes.workflows.batch.rig import camera_id_of
 
-READINGS = {"alone": ("log_focal",), "given": ("log_focal", "pitch", "roll")}
+#: reading → whether the focal length is read given the other frames' pitch and roll
+READINGS = {"alone": False, "given": True}
 
 
 def frames_of(first: Path) -> list[tuple[str, str | None, int, float | None]]:
@@ -56,8 +57,9 @@ def main(argv=None):
     objects = {k: n for k, _, n, _ in frames}
     for label, rng in groups:
         chosen = [(k, c) for k, c, _, _ in frames if in_group(k, rng)]
-        for reading, learn in READINGS.items():
-            pool = D.DataSet.from_first_pass(chosen, first, learn).pools["log_focal"]
+        for reading, given in READINGS.items():
+            pool = D.DataSet.from_first_pass(chosen, first, ("log_focal",),
+                                             focal_given_orientation=given).pools["log_focal"]
             for cam, (keys, m, p) in pool.groups.items():
                 if sum(c == cam for _, c in chosen) < 10 or (est := pool.estimate(cam)) is None:
                     continue

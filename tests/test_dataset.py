@@ -95,9 +95,9 @@ def test_plot_draws_each_frames_reading_against_the_pool(four_frames, tmp_path, 
 
 def test_a_quantity_the_batch_could_not_learn_is_said_with_what_it_lacked():
     """A camera's frames whose focal-length readings are all too weak to pool (sd above the
-    quantity's bar) learn nothing: the batch says so, with how many frames were informative, how
-    many a pool needs and, when the orientation is not pooled with it, what would read it sharper;
-    a camera of one frame, which has nothing to share, is not mentioned; a pooled group is not."""
+    quantity's bar) learn nothing: the batch says so, with how many frames were informative and how
+    many a pool needs; a camera of one frame, which has nothing to share, is not mentioned; a
+    pooled group is not."""
     weak = [Reading(k, "cam-A", 7.2 + 0.1 * i, 1.0) for i, k in enumerate(("a", "b", "c"))]  # sd 1 in log
     lone = [Reading("d", "cam-B", 7.0, 400.0)]
     sharp = [Reading(k, "cam-C", 7.0, 400.0) for k in ("e", "f")]  # sd 0.05
@@ -106,10 +106,7 @@ def test_a_quantity_the_batch_could_not_learn_is_said_with_what_it_lacked():
     lines = ds.not_learnt()
     assert len(lines) == 1 and lines[0].startswith("focal_length_px of cam-A: not learnt: 0 of 3 frames read it within "
                                                    "an sd of 0.25 in log, 2 frames needed")
-    assert "pitch and roll" in lines[0]
     assert "cam-C" in ds.summary()["focal_length_px"]["groups"]
-    with_orientation = DataSet(ds.pools, ("log_focal", "pitch", "roll"), ds.camera_of)
-    assert "pitch and roll" not in with_orientation.not_learnt()[0]
     assert DataSet({}, ("log_ref_scale",), {}).not_learnt() == ["ref_scale: not learnt: no frame could read it"]
 
 
@@ -251,6 +248,23 @@ def test_cli_dataset_none_turns_the_layer_off(tmp_path, capsys):
     assert not (tmp_path / "o" / "first_pass").exists()
 
 
+def test_a_batch_that_learns_names_its_first_pass_in_its_progress_lines(tmp_path, capsys):
+    """Two passes over the same scenes log a line per scene each: the first pass's lines say so,
+    the second's are the batch's."""
+    from creference_bayes.cli.main import main
+
+    for seed in range(2):
+        (tmp_path / f"s{seed}.json").write_text(json.dumps(_scene(seed)))
+    assert main(["batch", str(tmp_path / "s0.json"), str(tmp_path / "s1.json"), "--out", str(tmp_path / "o"),
+                 "--no-posterior", "--workers", "1"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    first = [line.split(":")[0] for line in err if line.startswith("first pass ")]
+    second = [line.split(":")[0] for line in err if line.startswith("batch ")]
+    assert first == ["first pass 1/2", "first pass 2/2"] and second == ["batch 1/2", "batch 2/2"], err
+    assert err.index(next(line for line in err if line.startswith("batch "))) > err.index(
+        next(line for line in err if line.startswith("first pass ")))
+
+
 def test_a_frames_focal_length_is_read_given_its_cameras_pooled_pitch():
     """A weak frame's focal length leans with its pitch (the horizon pinned in pixels): under the
     wide default pitch prior the reading follows the frame's own pitch; given the camera's pooled
@@ -293,6 +307,27 @@ def _example(name, *args):
     proc = subprocess.run([sys.executable, str(example), *map(str, args)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     return proc
+
+
+def test_the_focal_length_alone_is_read_given_the_pooled_orientation_which_is_not_handed_back(four_frames):
+    """``--rig focal`` learns the focal length only, but reads each frame's focal length as the
+    default does, given the other frames' pool of its camera's pitch and roll: the same pool of
+    focal lengths as when the orientation is learnt too, another than each frame's reading alone;
+    the orientation's pools served the reading only, and a frame is handed no mounting."""
+    root, settings, _ = four_frames
+    frames = [(f"f{k}", "cam-A") for k in range(4)]
+    first = root / "out" / "first_pass"
+    focal = DataSet.from_first_pass(frames, first, ("log_focal",))
+    mounting = DataSet.from_first_pass(frames, first, ("log_focal", "pitch", "roll"))
+    alone = DataSet.from_first_pass(frames, first, ("log_focal",), focal_given_orientation=False)
+    assert set(focal.pools) == {"log_focal"} and set(focal.summary()) == {"focal_length_px"}
+    given, read_alone = focal.estimate("log_focal", "f0"), alone.estimate("log_focal", "f0")
+    assert given.center == mounting.estimate("log_focal", "f0").center
+    assert given.center != read_alone.center
+    scene = parse_scene(json.loads((root / "in" / "f0.json").read_text()))
+    _, _, block, rig = hand_back(focal, "f0", scene, settings)
+    assert block["focal_length_px"]["from"] == "data set" and rig is None
+    assert not {"pitch_deg", "roll_deg", "height_m"} & set(block)
 
 
 def test_the_dataset_pool_example_prints_each_cameras_pool_both_ways(four_frames, tmp_path):

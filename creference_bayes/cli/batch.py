@@ -115,7 +115,8 @@ def register(subparsers) -> None:
     add_camera_options(p)
     g.add_argument("--rig", choices=("auto", "none", "focal", "mounting"), default="auto",
                    help="which of its camera's quantities a frame takes from the others: auto or mounting (the focal length, height, pitch and roll; "
-                        "the default), focal (the focal length only) or none (nothing of the camera)")
+                        "the default), focal (the focal length only, read given the camera's pooled pitch and roll, which are "
+                        "not handed back) or none (nothing of the camera)")
     g.add_argument("--own-scale", action="store_true",
                    help="each frame learns how far its crowd's corners stray (the corner scale) from its own "
                         "annotations only, and reads its reference segments with the default floor; by default an "

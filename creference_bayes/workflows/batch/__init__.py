@@ -286,7 +286,8 @@ def _first_pass(scenes, loaded, first: Path, settings: BatchSettings, learn: tup
     from .dataset import DataSet
     from .rig import camera_id_of
 
-    _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False, **run)
+    _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False,
+              desc="first pass", **run)
     return DataSet.from_first_pass([(si.key, camera_id_of(scene)) for si, scene in loaded], first, learn)
 
 
@@ -428,7 +429,8 @@ def hand_segments(scenes: list, settings) -> list[tuple[dict, dict]]:
 
 
 def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, time_limit, progress, on_event,
-              t_start: float, transform=None, close: bool = True, dataset: dict | None = None) -> BatchReport:
+              t_start: float, transform=None, close: bool = True, dataset: dict | None = None,
+              desc: str = "batch") -> BatchReport:
     """Estimate ``scenes`` into ``out`` (with the crowd's corner scale from the other scenes, then
     ``transform(KEY, scene)`` → (scene, estimate keyword arguments, dataset block, rig block), if
     given: :func:`.dataset.hand_back`); writes summary.csv and batch.json (with ``dataset``, the
@@ -448,7 +450,7 @@ def _run_pass(scenes, out: Path, settings: BatchSettings, *, engine: Engine, tim
             for key in (k for k, s in status.items() if s in ("failed", "skipped")):
                 on_event(key, status[key])
         n_invalid = sum(s == "failed" for s in status.values())
-        bar = progress_bar(len(todo) + n_invalid, n_invalid, progress)
+        bar = progress_bar(len(todo) + n_invalid, n_invalid, progress, desc)
         runner = Runner(out, engine, ident, time_limit, status, errors, bar, on_event)
         runner.run(todo)
     finally:

@@ -668,9 +668,16 @@ class DataSet:
     tail: TailPool | None = None
 
     @classmethod
-    def from_first_pass(cls, frames, folder, learn: tuple) -> "DataSet":
+    def from_first_pass(cls, frames, folder, learn: tuple, *, focal_given_orientation: bool = True) -> "DataSet":
         """Read every first-pass result in the batch folder ``folder`` of ``frames`` ((KEY, camera
-        id) pairs; a frame without a result is left out: its groups learn from the others)."""
+        id) pairs; a frame without a result is left out: its groups learn from the others).
+
+        With ``focal_given_orientation`` (the default) each frame's focal length is read given the
+        other frames' pool of its camera's pitch and roll (:func:`read_focal_given_orientation`),
+        whether or not ``learn`` hands those back: without ``pitch`` and ``roll`` in ``learn``
+        (``--rig focal``) their pools serve the reading only and are not kept. False: each
+        frame's focal length read alone (its own prior divided out; ``examples/dataset_pool.py``
+        compares the two)."""
         from ...io.result import read_result
         from ...io.scene import SceneWarning, load_scene
         from .files import layout
@@ -693,7 +700,9 @@ class DataSet:
                     tails[key], own_dof = t, model.ref_dof
             tail = TailPool(tails, own_dof) if tails else None
         dof = None if tail is None or (est := tail.estimate()) is None or est["dof"] == tail.own_dof else est["dof"]
-        readings: dict[str, list[Reading]] = {name: [] for name in learn if name in SHARED}
+        given = focal_given_orientation and "log_focal" in learn
+        read = tuple(learn) + tuple(n for n in GIVEN if given and n not in learn)
+        readings: dict[str, list[Reading]] = {name: [] for name in read if name in SHARED}
         kept = {}
         for key, camera_id, scene, result in first_pass():
             model, cams, objs = _draws(result, scene)
@@ -706,13 +715,15 @@ class DataSet:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
                  {key: camera_id for key, camera_id in frames}, tail)
-        if "log_focal" in learn and any(n in learn for n in GIVEN):
+        if given:
             focal = []
             for key, (result, cams, reweight) in kept.items():
                 r = read_focal_given_orientation(ds, key, result, cams, reweight)
                 if r is not None:
                     focal.append(r)
             ds.pools["log_focal"] = Pool(SHARED["log_focal"], focal)
+            for name in set(read) - set(learn):  # read for the focal length only, not handed back
+                del ds.pools[name]
         return ds
 
     def tail_of(self, key: str | None) -> dict | None:
@@ -763,13 +774,10 @@ class DataSet:
                     continue  # pooled, or a group too small to pool whatever it read (a camera of one frame)
                 good = p >= q.max_sd**-2
                 bar = f"{math.degrees(q.max_sd):g}°" if q.natural == "angle" else f"{q.max_sd:g} in log"
-                hint = (" (a camera's pitch and roll pooled with it, as the default --rig auto does, read each "
-                        "frame's focal length sharper)" if name == "log_focal" and not set(GIVEN) & set(self.learn)
-                        else "")
                 need = f"{q.min_frames + 1} frames" + (f" and {q.min_readings} readings" if q.min_readings > 1 else "")
                 read = f" ({int(good.sum())} readings)" if q.min_readings > 1 else ""
                 lines.append(f"{q.label} of {group}: not learnt: {len(set(keys[good]))} of {len(set(keys))} frames"
-                             f"{read} read it within an sd of {bar}, {need} needed{hint}")
+                             f"{read} read it within an sd of {bar}, {need} needed")
         return lines
 
 

@@ -40,11 +40,12 @@ def one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def progress_bar(total: int, failed: int, enabled: bool):
-    """Scenes to do (those that failed to load count as done and failed from the start)."""
+def progress_bar(total: int, failed: int, enabled: bool, desc: str = "batch"):
+    """Scenes to do (those that failed to load count as done and failed from the start); ``desc``
+    names the pass (``first pass``: the data set's, :func:`.._first_pass`)."""
     from ...inference.progress import progress_bar as bar
 
-    return bar(enabled, total, desc="batch", unit="scene", initial=failed, leave=True,
+    return bar(enabled, total, desc=desc, unit="scene", initial=failed, leave=True,
                postfix={"failed": failed})
 
 
