@@ -634,7 +634,8 @@ def test_the_plan_chooses_by_each_requests_chances_and_states_them_answered_toge
     future symmetric about the bar), one on b's with more. The plan chooses by the chances alone (a
     label lifted once any request lifts it): after a's size (1/2 per 64.4 s), a's lines are worth
     1/2 × 1/2 per 183.5 s. It states each request's gain with the frame's requests answered
-    together: a's lines take a's car to 0.8, so they add more than their own chance."""
+    together: a's lines take a's car to 0.8, so they add more than their own chance; a request
+    stated to add less than its time is worth is passed over."""
     from creference_bayes.workflows.advice import Moments
 
     frames = {"a": ("cam", [0.2], [("size", 0, 64.4, [0.3]), ("dims", 0, 183.5, [0.3]),
@@ -643,13 +644,18 @@ def test_the_plan_chooses_by_each_requests_chances_and_states_them_answered_toge
     batch = _planned(frames, spread=0.01)
     p = {(o.key, q.candidate.kind): float(q.p_good[0]) for o in batch.objects for q in o.advice.predictions}
     assert p[("a", "size")] == pytest.approx(0.5, abs=1e-6) and p[("b", "size")] > 0.8
-    plan = batch.plan()
+    # the mounting, chosen at 1.04 labels per hour, is stated to add 0.70 per hour answered together
+    # with the frames' other requests: below the minimum of 1, passed over; at a minimum of 0.5, asked
+    assert [(r.objects[0].key, r.prediction.candidate.kind) for r in batch.plan()] == [
+        ("b", "size"), ("a", "size"), ("a", "dims")]
+    plan = _planned(frames, min_good_per_hour=0.5, spread=0.01).plan()
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in plan] == [
         ("b", "size"), ("a", "size"), ("a", "dims"), ("a", "mounting")]
     assert [r.value for r in plan] == pytest.approx([p[("b", "size")], 0.5, 0.25,
                                                      0.25 * 0.5 + (1 - p[("b", "size")]) * p[("b", "mounting")]])
     mounting = plan[-1]
     assert mounting.camera == "cam" and [o.key for o in mounting.objects] == ["a", "b"]
+    assert mounting.value * 3600 / 900 > 1.0 > mounting.gain * 3600 / 900 > 0.5
     # stated answered together: a's car after its size and lines is a future of mean 0.8, var 0.02
     one = np.ones(1)
     m = Moments(one * 0.3, one * 0.0, one * 0.01)
@@ -663,7 +669,7 @@ def test_the_plan_chooses_by_each_requests_chances_and_states_them_answered_toge
     # one that left its frame's race is not asked, whatever its first round's futures said
     raced = {**frames, "b": ("cam", [0.3], frames["b"][2] + [("reference-dropped", 0, 10.0, [0.3])])}
     assert [(r.objects[0].key, r.prediction.candidate.kind) for r in _planned(raced, spread=0.01).plan()] == [
-        ("b", "size"), ("a", "size"), ("a", "dims"), ("a", "mounting")]
+        ("b", "size"), ("a", "size"), ("a", "dims")]
     assert [r.objects[0].key for r in _planned(frames, spread=0.01).plan(budget_s=2 * 64.4)] == ["b", "a"]
 
 
@@ -684,6 +690,27 @@ def test_the_plan_states_the_good_labels_it_may_drop_without_choosing_by_them():
     # exactly (good with chance one half)
     shaky = _planned(frames, se=0.1).plan()
     assert [r.gain for r in shaky] == pytest.approx([1.0, 0.5], abs=1e-3)
+
+
+def test_a_request_the_two_halves_of_its_futures_disagree_on_is_passed_over():
+    """Frame a: cars at 0.2 and 0.3 (bar 0.5). Its size lifts the first on the futures it is ranked
+    by, but on the others it is stated from it changes nothing: a plan that asked it would state
+    0.00 good labels for it. It is passed over, and the lines on the second car, worth their time
+    on both, are still asked."""
+    from creference_bayes.workflows.advice import Moments
+
+    frames = {"a": ("cam", [0.2, 0.3], [("size", 0, 64.4, [0.4, 0.0]), ("dims", 1, 183.5, [0.0, 0.3])])}
+    both = _planned(frames)
+    assert [r.prediction.candidate.kind for r in both.plan()] == ["size", "dims"]
+    advice = both.objects[0].advice
+    size = advice.predictions[0]
+    flat = Moments(np.zeros(2), np.zeros(2), np.full(2, 1e-9))
+    told_nothing = dataclasses.replace(size, moments=flat, p_good=np.zeros(2), good_gain=0.0)
+    advice = dataclasses.replace(advice, predictions=(told_nothing,) + advice.predictions[1:])
+    split = dataclasses.replace(both, objects=tuple(dataclasses.replace(o, advice=advice) for o in both.objects))
+    plan = split.plan()
+    assert [r.prediction.candidate.kind for r in plan] == ["dims"]
+    assert plan[0].gain == pytest.approx(1.0, abs=1e-6)
 
 
 def test_a_stop_quotes_the_figure_it_stopped_by():

@@ -127,7 +127,9 @@ class BatchAdvice:
         is stated to add (``gain``: labels below the bar lifted; ``loss``: labels good now
         dropped, which takes no part in the choice) comes from the other futures, by the rule a
         frame's requests are answered by: together, their changes of each label adding
-        (:func:`~creference_bayes.workflows.advice.combined_chance`). A frame no request is asked
+        (:func:`~creference_bayes.workflows.advice.combined_chance`). A request whose stated gain
+        is not worth its time is passed over (the two sets of futures disagree on it: it is too
+        close to call), so every planned request is stated to be worth its time. A frame no request is asked
         in is not estimated again: its labels keep their verdicts.
 
         Choosing by the additive rule as well was measured and not kept (docs/studies/advice.md, "Why two
@@ -187,9 +189,10 @@ class BatchAdvice:
             (v, _), it = values.pop(n), items[n]
             if v <= 0 or not settings.worth(v, it.request.seconds):  # the best is not worth it: none is
                 break
-            total += it.request.seconds
             if labels:
                 gain, loss = stated(it)
+                if not settings.worth(gain, it.request.seconds):  # worth it on the futures it was ranked
+                    continue  # by, not on the others it is stated from: too close to call, passed over
                 for key, p in it.frames.items():
                     asked.setdefault(key, []).append(p.moments)
                     left[key] = left.get(key, 1.0) * (1.0 - p.ranking_p_good())
@@ -198,6 +201,7 @@ class BatchAdvice:
             else:
                 gain = sum(q.good_gain for q in it.request.predictions)
                 loss = sum(q.good_loss for q in it.request.predictions)
+            total += it.request.seconds
             out.append(dataclasses.replace(it.request, value=v, gain=gain, loss=loss))
         return out
 
