@@ -50,7 +50,7 @@ def dataset_panels(summary) -> list[dict]:
         where = f"dataset.{label}"
         if not isinstance(entry, dict) or not isinstance(entry.get("groups"), dict):
             raise ValueError(f"{where}.groups: expected an object")
-        if entry.get("kind") == "choice":  # the crowd's tail: a choice among tails, no readings to draw
+        if entry.get("kind") in ("choice", "residuals"):  # the crowd's tail, its corner scale: no readings to draw
             continue
         for group, b in entry["groups"].items():
             at = f"{where}.groups.{group}"
@@ -85,7 +85,7 @@ def dataset_panels(summary) -> list[dict]:
                 value = f"{center:.3g}°"
             frames = b.get("frames")
             held = ", held by every frame" if b.get("held") else ""
-            warns = [str(w) for w in b.get("warnings") or [] if isinstance(w, str)]
+            warns = [w for w in b.get("warnings") or [] if isinstance(w, str)] if isinstance(b.get("warnings"), list) else []
             title = (f"{str(label)[:40]}, {str(entry.get('shared_by', ''))[:20]} {str(group)[:40]}: pooled {value} "
                      f"from {frames if isinstance(frames, int) else '?'} frames{held}"
                      + "".join(f"\n{w[:120]}" for w in warns[:3]))
