@@ -52,7 +52,7 @@ def main() -> None:
     ap.add_argument("--noise-px", type=float, default=2.0, help="with --kitti: corner error, px (default: %(default)s)")
     ap.add_argument("--twice-every", type=int, default=None, metavar="N",
                     help="with --kitti: every Nth scene's objects annotated twice, the others once "
-                         "(default: five sets everywhere)")
+                         "(default: five sets everywhere; 0: every object annotated once)")
     ap.add_argument("--own-scale", action="store_true", help="each frame's corner scale from its own annotations only")
     args = ap.parse_args()
 
@@ -63,7 +63,7 @@ def main() -> None:
                      seed=args.seed)
         if args.twice_every is not None:
             for k, path in enumerate(sorted(scenes.glob("*.json"))):
-                if k % args.twice_every:  # the others keep their first set only
+                if args.twice_every == 0 or k % args.twice_every:  # the others keep their first set only
                     d = json.loads(path.read_text())
                     for t in d["targets"]:
                         t["dimension_lines"] = t["dimension_lines"][:1]

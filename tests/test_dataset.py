@@ -18,8 +18,8 @@ from creference_bayes.workflows.batch.engines import LocalEngine
 FAST = {"min_ess": 50, "max_steps": 300, "warmup": 100}
 
 
-def _scene(seed, camera="cam-A", **kw):
-    d, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=2, sizes_known=False, focal_px=1400.0, **kw)
+def _scene(seed, camera="cam-A", n_annotations=2, **kw):
+    d, _ = truth_scene(seed, m=2, noise_px=1.0, n_annotations=n_annotations, sizes_known=False, focal_px=1400.0, **kw)
     if camera is not None:
         d["camera"]["id"] = camera
     return d
@@ -132,6 +132,41 @@ def test_plan_learns_only_what_there_is_to_learn():
     refs = [parse_scene(_scene(s, camera=None, n_refs=2)) for s in range(3)]
     assert plan(refs, BatchSettings()) == ("log_ref_scale",)
     assert plan(refs, BatchSettings(options={"ref_scale_median": 0.4})) == ()
+
+
+def test_the_corner_scale_is_learnt_from_the_residuals_only_where_no_object_is_annotated_twice():
+    once = [parse_scene(_scene(s, camera=None, n_annotations=1)) for s in range(2)]
+    assert plan(once, BatchSettings()) == ("corner_scale",)
+    assert plan(once, BatchSettings(options={"target_sigma": 3.0})) == ()  # a hand-set scale wins
+    assert plan(once, BatchSettings(pool_scale=False)) == ()  # --own-scale
+    assert plan(once[:1], BatchSettings()) == ()  # no other frame to read it from
+    twice = [parse_scene(_scene(s, camera=None)) for s in range(2)]
+    assert plan(once + twice[:1], BatchSettings()) == ()  # read from the object annotated twice instead
+
+
+@pytest.mark.parametrize("noise_px", [2.0, 6.0])
+def test_a_crowd_whose_objects_are_each_annotated_once_has_its_corner_scale_read_from_the_residuals(tmp_path,
+                                                                                                     noise_px):
+    """Frames of three objects, one set of lines each drawn with ``noise_px`` per corner
+    coordinate, the focal length given: no object annotated twice says how far the crowd's corners
+    stray, the first pass's residuals do. Each frame is handed the other frames' reading (about
+    the crowd's noise, where the default assumes 5 px), and says so."""
+    for seed in range(4):
+        d, _ = truth_scene(seed, m=3, noise_px=noise_px, n_annotations=1, sizes_known=False, focal_known=True,
+                           focal_px=1400.0)
+        (tmp_path / "in").mkdir(exist_ok=True)
+        (tmp_path / "in" / f"f{seed}.json").write_text(json.dumps(d))
+    report = run_batch([tmp_path / "in"], tmp_path / "out", LocalEngine(1), BatchSettings(seed=1, posterior=False))
+    assert report.ok and report.dataset_notes == []
+    pooled = report.dataset["corner_scale_px"]["groups"]["crowd"]
+    assert 0.7 * noise_px < pooled["sd"] < 1.4 * noise_px and pooled["frames"] == 4
+    for k in range(4):
+        res = json.loads((tmp_path / "out" / "results" / f"f{k}.json").read_text())
+        took = res["dataset"]["corner_scale_px"]
+        assert took["from"] == "data set" and took["read"] == "the first pass's residuals"
+        assert 0.6 * noise_px < took["sd"] < 1.5 * noise_px and took["dof"] > 5
+        scene = json.loads((tmp_path / "out" / "scenes" / f"f{k}.json").read_text())
+        assert scene["corner_scale"]["sd_px"] == took["sd"]
 
 
 def _population(seed=0, frames=12, per_frame=3, median=15.0, log_sd=0.5, noise=0.1):

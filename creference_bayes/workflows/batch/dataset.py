@@ -15,7 +15,8 @@ camera height       camera      spread  first pass, log h / the orientation prio
 pitch, roll         camera      spread  first pass / the orientation prior's pitch and roll
 reference scale     crowd       spread  first pass, log s / the ``ref_scale_median``, ``_log_sd`` options
 target distance     setting     spread  first pass, each target's log d / the location prior's population
-corner scale        crowd       shared  the annotations (sets of one object) / the scene's corner scale
+corner scale        crowd       shared  the annotations (sets of one object), else the first pass's
+                                        residuals / the scene's corner scale
 segment floor       crowd       shared  the references' drawn lengths / ``read_floor_px``
 reference tail      crowd       shared  first pass, each reference's leave-one-out density / ``ref_dof``
 ==================  ==========  ======  ===============================================================
@@ -46,9 +47,11 @@ The mechanism, the same for every quantity:
    same ε_d in every frame of the camera). The crowd's corner scale and segment floor are read
    from the annotations themselves, no first pass (:func:`~.corner_scales`: sums of squares
    pooled; :func:`~.segment_floors`: the floor of the reading's prior of a segment's length,
-   fitted to the drawn lengths). The crowd's reference tail (the Student-t degrees of freedom its
-stated values are read with) is not a mean but a choice among :data:`TAIL_DOFS`
-(:class:`TailPool`): each reference of the first pass is scored by its leave-one-out predictive
+   fitted to the drawn lengths); where no object is annotated twice, the corner scale is read
+   from the first pass's residuals instead (:func:`read_corner_residuals`, the other frames'
+   squares over their degrees of freedom: :meth:`DataSet.corner_scale_of`). The crowd's
+   reference tail (the Student-t degrees of freedom its stated values are read with) is not a
+   mean but a choice among :data:`TAIL_DOFS` (:class:`TailPool`): each reference of the first pass is scored by its leave-one-out predictive
 density under each (:func:`read_tail`), the other frames' scores are summed, and a frame is
 handed the tail they favour when it beats the model's own by more than twice the standard error
 of the difference (arviz's ``compare`` rule), else the model's own. The tail is chosen first (from
@@ -57,6 +60,7 @@ as the crowd's scale, say, is a scale of that tail.
 
 A quantity is learnt when there is something to learn (:func:`plan`): frames sharing a camera id
 that lack a focal length or a calibrated mounting; frames with references (their crowd's scale);
+two frames and no object annotated twice (the corner scale, from the residuals);
 :data:`MIN_POPULATION_FRAMES` frames of one setting with :data:`MIN_POPULATION_TARGETS` targets
 for a population. What a user sets by hand (``--distance-range``, the ``ref_scale`` options, a
 scene's own focal length or focal prior, its corner scale) wins and is recorded as an override.
@@ -172,6 +176,7 @@ SHARED = {s.name: s for s in (
 #: what a frame's focal length is read given (the others' pool of it): the orientation
 GIVEN = ("pitch", "roll")
 #: the corner scale (sd px, degrees of freedom) is read from the annotations (:func:`~.corner_scales`)
+#: or, where no object is annotated twice, from the first pass's residuals (:func:`read_corner_residuals`)
 CORNER_SCALE = Shared("corner_scale", "corner_scale_px", "crowd", "shared")
 #: ... and the floor of the marginal reading's prior of a segment's length (px), from the drawn
 #: references (:func:`~.segment_floors`)
@@ -577,6 +582,66 @@ def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np
     return None if lik is None else Reading(key, camera_id, *lik)
 
 
+def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarray) -> tuple[float, float] | None:
+    """A frame's reading of its crowd's corner scale from its dimension lines alone: (squares px²,
+    degrees of freedom), such that the crowd's sd per corner coordinate is √(Σ squares / Σ degrees
+    of freedom) over frames, as :func:`~.corner_scales` reads it from objects annotated twice.
+
+    The squares are those of its annotations' corners around their projection at the MAP, less
+    what the priors' pull adds to them; the degrees of freedom N − Σ λ(2 − λ), N the corner
+    coordinates and λ ∈ [0, 1] the eigenvalues of A = F Σ, the share of each fitted direction that
+    the lines decide (F the lines' information at the MAP, a bivariate Student-t's at its centre,
+    (ν + 2) / (ν σᵢ²) per coordinate of object i's sets; Σ the posterior covariance of the free
+    parameters from the draws ``cams``, ``objs``, in working coordinates, where a Laplace
+    approximation's draws are Gaussian). For a linear model fitted with noise variance s² whose
+    parameters are drawn from its prior, the expected squares are s² Σ λ(1 − λ) + σ² (N − Σ λ(2 −
+    λ)), σ the true noise: the first term is taken off (s² = σᵢ² ν / (ν + 2), the fit's). None
+    without a dimension line or free parameter."""
+    from ...inference.coords import WorkingCoords
+    from ...models.contract import C_SCALE
+    from ...pipeline import map_state
+
+    sets = [np.asarray(o.annotations, float) for o in model.objects]
+    if not sets or not all(a.ndim == 3 and len(a) for a in sets):
+        return None
+    cam, obj = map_state(result)
+    coords = WorkingCoords(model)  # the draws are Gaussian there (a Laplace approximation's are)
+    wc, wo = coords.to_work(cam[None], obj[None])
+    dc, do = coords.to_work(cams, objs)
+    free_c = model.camera_free.copy()
+    free_c[C_SCALE] = False
+    ci, oi = np.flatnonzero(free_c), np.argwhere(model.object_free)
+    x0 = np.concatenate([wc[0, ci], wo[0, oi[:, 0], oi[:, 1]]])
+    n = len(x0)
+    draws = np.column_stack([dc[:, ci], do[:, oi[:, 0], oi[:, 1]]])
+    if n == 0 or not np.all(np.isfinite(draws)) or not np.all(np.isfinite(x0)):
+        return None
+    sigma = np.cov(draws, rowvar=False).reshape(n, n)
+    h = 1e-6 * np.maximum(1.0, np.abs(x0))
+    moves = np.vstack([np.diag(h), -np.diag(h)])
+    mc = np.repeat(wc, 2 * n, axis=0)
+    mo = np.repeat(wo, 2 * n, axis=0)
+    mc[:, ci] += moves[:, :len(ci)]
+    mo[:, oi[:, 0], oi[:, 1]] += moves[:, len(ci):]
+    uv = model.project(*coords.from_work(mc, mo))[0].reshape(2 * n, len(sets), 8)
+    jac = (uv[:n] - uv[n:]) / (2.0 * h[:, None, None])                         # (n, m, 8)
+    nu = float(getattr(model, "target_dof", np.inf))
+    curv = (nu + 2.0) / nu if np.isfinite(nu) else 1.0
+    weight = np.array([len(a) for a in sets]) * curv / np.asarray(model.sigma, float) ** 2
+    info = np.einsum("i,nia,kia->nk", weight, jac, jac)
+    f, u = np.linalg.eigh(info)
+    root = u * np.sqrt(np.clip(f, 0.0, None))  # F = root rootᵀ: A's eigenvalues are those of rootᵀ Σ root
+    share = np.clip(np.linalg.eigvalsh(root.T @ sigma @ root), 0.0, 1.0)  # each in [0, 1] (a repaired Laplace)
+    dof = sum(s.size for s in sets) - float(np.sum(share * (2.0 - share)))
+    # what the priors' pull adds to the squares when the truth is drawn from them, at the fit's scale
+    prior_part = float(np.mean(np.asarray(model.sigma, float) ** 2)) / curv * float(np.sum(share * (1.0 - share)))
+    at = model.project(cam[None], obj[None])[0][0]                             # (m, 4, 2)
+    squares = float(sum(np.sum((a - at[i]) ** 2) for i, a in enumerate(sets))) - prior_part
+    if not (np.isfinite(squares) and np.isfinite(dof)) or dof <= 0:
+        return None
+    return max(squares, 0.0), dof
+
+
 def _reads_tails(model) -> bool:
     """Whether ``model`` has references read with a Student-t of its ``ref_dof``."""
     return "reference_likelihood" in getattr(model, "capabilities", ()) and bool(len(model.references))
@@ -660,12 +725,15 @@ class DataSet:
     learn : the quantity names learnt (:func:`plan`)
     camera_of : KEY → the frame's camera id (None: a camera of its own)
     tail : the crowd's reference tail (:class:`TailPool`), when ``ref_dof`` is learnt
+    residuals : KEY → the frame's reading of the corner scale (:func:`read_corner_residuals`),
+        when ``corner_scale`` is learnt
     """
 
     pools: dict
     learn: tuple
     camera_of: dict = field(default_factory=dict)
     tail: TailPool | None = None
+    residuals: dict = field(default_factory=dict)
 
     @classmethod
     def from_first_pass(cls, frames, folder, learn: tuple, *, focal_given_orientation: bool = True) -> "DataSet":
@@ -703,9 +771,11 @@ class DataSet:
         given = focal_given_orientation and "log_focal" in learn
         read = tuple(learn) + tuple(n for n in GIVEN if given and n not in learn)
         readings: dict[str, list[Reading]] = {name: [] for name in read if name in SHARED}
-        kept = {}
+        kept, residuals = {}, {}
         for key, camera_id, scene, result in first_pass():
             model, cams, objs = _draws(result, scene)
+            if CORNER_SCALE.name in learn and (r := read_corner_residuals(model, result, cams, objs)) is not None:
+                residuals[key] = r
             # a frame estimated under the model's own tail, read as if under the crowd's (its draws
             # reweighted by the references' likelihood ratio): the crowd's scale is a tail's scale
             reweight = None if dof is None else tail_reweight(model, cams, objs, dof)
@@ -714,7 +784,7 @@ class DataSet:
                 if name in readings:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
-                 {key: camera_id for key, camera_id in frames}, tail)
+                 {key: camera_id for key, camera_id in frames}, tail, residuals)
         if given:
             focal = []
             for key, (result, cams, reweight) in kept.items():
@@ -725,6 +795,19 @@ class DataSet:
             for name in set(read) - set(learn):  # read for the focal length only, not handed back
                 del ds.pools[name]
         return ds
+
+    def corner_scale_of(self, key: str | None) -> tuple[float, float] | None:
+        """The crowd's corner scale frame ``key`` is handed (all frames' with None): (sd px,
+        degrees of freedom) from the other frames' residuals (:func:`read_corner_residuals`), the sd
+        rounded to two significant digits and at least the model's floor, the degrees of freedom
+        to one (as :func:`~.corner_scales`); None without another frame's reading."""
+        from ...models.metrology import MIN_TARGET_SIGMA_PX
+
+        rest = [r for k, r in self.residuals.items() if k != key]
+        squares, dof = sum(r[0] for r in rest), sum(r[1] for r in rest)
+        if not rest or dof <= 0:
+            return None
+        return max(float(f"{math.sqrt(squares / dof):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
 
     def tail_of(self, key: str | None) -> dict | None:
         """The crowd's tail frame ``key`` is handed (:meth:`TailPool.estimate`, leaving it out; all
@@ -755,6 +838,9 @@ class DataSet:
                                            "groups": blocks}
         if (tail := self.tail_of(None)) is not None:
             out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
+        if (scale := self.corner_scale_of(None)) is not None:
+            out[CORNER_SCALE.label] = {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
+                "sd": scale[0], "dof": scale[1], "frames": len(self.residuals)}}}
         return out
 
     def not_learnt(self) -> list[str]:
@@ -762,6 +848,8 @@ class DataSet:
         no frame read, or a group whose readings are too few or too weak to pool
         (:meth:`Pool.estimate`), with how many were informative and how many a pool needs."""
         lines = []
+        if CORNER_SCALE.name in self.learn and self.corner_scale_of(None) is None:
+            lines.append(f"{CORNER_SCALE.label}: not learnt: no frame's dimension lines could be read")
         for name in self.learn:
             if name not in SHARED:
                 continue
@@ -785,7 +873,9 @@ def plan(scenes, settings) -> tuple[str, ...]:
     """The quantities a batch of ``scenes`` learns from a first pass (module docstring): empty with
     ``settings.dataset == "none"``; the camera's (``settings.rig``) when two frames share a camera
     id and one of them lacks a focal length or a calibrated mounting; the reference scale when two
-    frames have references and neither ``ref_scale`` option is set; the references' tail when the frames
+    frames have references and neither ``ref_scale`` option is set; the corner scale from the first
+    pass's residuals when two frames lack one and no object is annotated twice (the metrology model,
+    ``pool_scale``, no ``target_sigma`` option); the references' tail when the frames
     have more than :data:`MIN_TAIL_REFERENCES` references and no ``ref_dof`` is set; the distance population when a
     setting has :data:`MIN_POPULATION_FRAMES` + 1 frames with :data:`MIN_POPULATION_TARGETS`
     targets and no ``distance_range`` is set (the default preset's location prior only)."""
@@ -808,6 +898,10 @@ def plan(scenes, settings) -> tuple[str, ...]:
     if (settings.model == "metrology" and settings.use_references and "ref_dof" not in settings.options
             and sum(len(s.references) for s in scenes) > MIN_TAIL_REFERENCES):
         learn.append(REF_TAIL.name)
+    if (settings.model == "metrology" and settings.pool_scale and "target_sigma" not in settings.options
+            and not any(len(t.corners) > 1 for s in scenes for t in s.targets)
+            and sum(s.corner_scale is None and bool(s.targets) for s in scenes) >= 2):
+        learn.append(CORNER_SCALE.name)  # no object annotated twice: the crowd's scale from the residuals
     if settings.distance_range is None and settings.preset == "default" and settings.location_prior in ("auto", "log-depth"):
         settings_groups: dict[str, list] = {}
         for cam, group in cameras.items():
@@ -878,7 +972,12 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         kind = settings.location_prior if settings.location_prior != "auto" else "log-depth"
         kwargs["location_prior"] = LocationPrior(kind, population=(_sig(math.exp(dist.center)), round(dist.prior_sd, 4)))
         block["distance_m"] = {"from": "data set", "shared_by": "setting", "group": dist.group, **dist.block()}
-    if scene.corner_scale is not None:
+    residual = ds.corner_scale_of(key) if CORNER_SCALE.name in ds.learn and scene.corner_scale is None else None
+    if residual is not None:  # no object of the data set annotated twice: the others' residuals
+        scene = replace(scene, corner_scale=residual)
+        block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": residual[0], "dof": residual[1],
+                                    "read": "the first pass's residuals"}
+    elif scene.corner_scale is not None:
         block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
                                     "shared_by": "crowd", "sd": scene.corner_scale[0], "dof": scene.corner_scale[1]}
     for label, why in own.items():
@@ -916,6 +1015,10 @@ def dataset_lines(summary: dict) -> list[str]:
     rows, warns = [], []
     for label, entry in summary.items():
         for group, b in entry["groups"].items():
+            if entry["kind"] == "residuals":  # the corner scale from the first pass's residuals
+                rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {format(b['sd'], 'g') + ' px':>10}  "
+                            f"{'from the residuals':<28} {str(b['frames']) + ' frames':<18} dof {b['dof']:g}")
+                continue
             if entry["kind"] == "choice":  # the crowd's tail (:meth:`TailPool.estimate`)
                 rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {'t' + format(b['dof'], 'g'):>10}  "
                             f"{'favoured t' + format(b['favoured'], 'g'):<28} "
