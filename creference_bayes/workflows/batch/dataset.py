@@ -625,6 +625,8 @@ def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarra
     mo[:, oi[:, 0], oi[:, 1]] += moves[:, len(ci):]
     uv = model.project(*coords.from_work(mc, mo))[0].reshape(2 * n, len(sets), 8)
     jac = (uv[:n] - uv[n:]) / (2.0 * h[:, None, None])                         # (n, m, 8)
+    if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(sigma))):  # a step over the horizon
+        return None
     nu = float(getattr(model, "target_dof", np.inf))
     curv = (nu + 2.0) / nu if np.isfinite(nu) else 1.0
     weight = np.array([len(a) for a in sets]) * curv / np.asarray(model.sigma, float) ** 2
@@ -803,11 +805,12 @@ class DataSet:
         to one (as :func:`~.corner_scales`); None without another frame's reading."""
         from ...models.metrology import MIN_TARGET_SIGMA_PX
 
-        rest = [r for k, r in self.residuals.items() if k != key]
-        squares, dof = sum(r[0] for r in rest), sum(r[1] for r in rest)
-        if not rest or dof <= 0:
+        own = self.residuals.get(key, (0.0, 0.0))
+        squares = sum(r[0] for r in self.residuals.values()) - own[0]
+        dof = sum(r[1] for r in self.residuals.values()) - own[1]
+        if len(self.residuals) - (key in self.residuals) < 1 or dof <= 0:
             return None
-        return max(float(f"{math.sqrt(squares / dof):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
+        return max(float(f"{math.sqrt(max(squares, 0.0) / dof):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
 
     def tail_of(self, key: str | None) -> dict | None:
         """The crowd's tail frame ``key`` is handed (:meth:`TailPool.estimate`, leaving it out; all
