@@ -129,8 +129,8 @@ class BatchAdvice:
         frame's requests are answered by: together, their changes of each label adding
         (:func:`~creference_bayes.workflows.advice.combined_chance`). A request whose stated gain
         is not worth its time is passed over (the two sets of futures disagree on it: it is too
-        close to call), so every planned request is stated to be worth its time. A frame no request is asked
-        in is not estimated again: its labels keep their verdicts.
+        close to call), so every planned request is stated to be worth its time. A frame no
+        request is asked in is not estimated again: its labels keep their verdicts.
 
         Choosing by the additive rule as well was measured and not kept (docs/studies/advice.md, "Why two
         rules"): greedy then buys changes of a few hundredths that it credits on labels at the
