@@ -51,12 +51,13 @@ The mechanism, the same for every quantity:
    from the first pass's residuals instead (:func:`read_corner_residuals`, the other frames'
    squares over their degrees of freedom: :meth:`DataSet.corner_scale_of`). The crowd's
    reference tail (the Student-t degrees of freedom its stated values are read with) is not a
-   mean but a choice among :data:`TAIL_DOFS` (:class:`TailPool`): each reference of the first pass is scored by its leave-one-out predictive
-density under each (:func:`read_tail`), the other frames' scores are summed, and a frame is
-handed the tail they favour when it beats the model's own by more than twice the standard error
-of the difference (arviz's ``compare`` rule), else the model's own. The tail is chosen first (from
-all frames); every other reading is then made from draws reweighted to it (:func:`tail_reweight`),
-as the crowd's scale, say, is a scale of that tail.
+   mean but a choice among :data:`TAIL_DOFS` (:class:`TailPool`): each reference of the first
+   pass is scored by its leave-one-out predictive density under each (:func:`read_tail`), the
+   other frames' scores are summed, and a frame is handed the tail they favour when it beats the
+   model's own by more than twice the standard error of the difference (arviz's ``compare``
+   rule), else the model's own. The tail is chosen first (from all frames); every other reading
+   is then made from draws reweighted to it (:func:`tail_reweight`), as the crowd's scale, say,
+   is a scale of that tail.
 
 A quantity is learnt when there is something to learn (:func:`plan`): frames sharing a camera id
 that lack a focal length or a calibrated mounting; frames with references (their crowd's scale);
