@@ -182,3 +182,37 @@ def test_cvat_requests_leave_out_an_answered_measurement_without_a_segment():
     request = next(c for c in found if c.kind == "reference" and c.line is not None)
     root = ET.fromstring(cvat_requests([("f0", answered, request)]).split("\n", 1)[1])
     assert len(root.findall("image")) == 1 and root.findall("image/polyline")
+
+
+def test_a_result_whose_draws_leave_the_models_bounds_is_skipped_with_the_draw_named(tmp_path, capsys):
+    """A hostile batch result: one kept draw's pitch set to 2 rad (past the model's bounds). The
+    advice used to weigh it and write NaN into advice.json, then fail on it; the frame is now
+    skipped with the draw named, the other frame advised."""
+    import json
+
+    from conftest import truth_scene
+
+    from creference_bayes.cli.main import main
+    from creference_bayes.workflows.batch import BatchSettings, run_batch
+    from creference_bayes.workflows.batch.engines import LocalEngine
+
+    for i in range(2):
+        s, _ = truth_scene(20 + i, m=2, noise_px=1.0, n_annotations=2, sizes_known=False, focal_known=True)
+        s["targets"][0]["class"] = "Car"
+        (tmp_path / f"f{i}.json").write_text(json.dumps(s))
+    batch = tmp_path / "batch"
+    assert run_batch([tmp_path / "f0.json", tmp_path / "f1.json"], batch, LocalEngine(1),
+                     BatchSettings(seed=0, sampling={"min_ess": 30, "max_steps": 200, "warmup": 100})).ok
+    path = batch / "results" / "f0.json"
+    result = json.loads(path.read_text())
+    pitches = result["draws"]["camera"]["pitch"]
+    pitches[0] = 2.0  # the first draw is always among those weighed
+    path.write_text(json.dumps(result))
+    capsys.readouterr()
+    assert main(["advise", str(batch), "--draws", "50", "--futures", "10", "--requests", "size", "--workers", "1",
+                 "--out", str(tmp_path / "adv")]) == 0
+    err = capsys.readouterr().err
+    assert f"skipped: f0: draws: 1 of the 50 draws weighed lie outside the model's bounds (draw 0:" in err
+    assert "pitch 2," in err
+    doc = json.loads((tmp_path / "adv" / "advice.json").read_text())
+    assert [s["key"] for s in doc["skipped"]] == ["f0"] and "NaN" not in (tmp_path / "adv" / "advice.json").read_text()

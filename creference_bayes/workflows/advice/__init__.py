@@ -59,7 +59,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ...inference.threads import single_threaded_blas
-from ...models.contract import C_HEIGHT, C_SCALE, O_GROUND, O_X, O_Z
+from ...models.contract import C_HEIGHT, C_SCALE, CAMERA_NAMES, O_GROUND, O_X, O_Z
 from .candidates import Candidate, candidates as scene_candidates, format_mix, object_name
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
 from .fallback import block_sweeps
@@ -519,6 +519,11 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     shift = label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
     base = at_hands(model, draws.hands).neg_log_posterior(draws.cams, draws.objs, temperature)
+    if not np.all(np.isfinite(base)):  # outside the model's bounds: not a draw of this scene's posterior
+        bad = int(keep[np.flatnonzero(~np.isfinite(base))[0]])
+        camera = ", ".join(f"{k} {v:.4g}" for k, v in zip(CAMERA_NAMES, cams[bad]))
+        raise ValueError(f"draws: {int(np.sum(~np.isfinite(base)))} of the {n} draws weighed lie outside the model's "
+                         f"bounds (draw {bad}: camera {camera}); they are not draws of this scene's posterior")
     notes = []
     if candidates is None:
         candidates, notes = scene_candidates(scene, model, np.asarray(camera_map, float),
