@@ -212,7 +212,7 @@ def test_a_result_whose_draws_leave_the_models_bounds_is_skipped_with_the_draw_n
     assert main(["advise", str(batch), "--draws", "50", "--futures", "10", "--requests", "size", "--workers", "1",
                  "--out", str(tmp_path / "adv")]) == 0
     err = capsys.readouterr().err
-    assert f"skipped: f0: draws: 1 of the 50 draws weighed lie outside the model's bounds (draw 0:" in err
+    assert "skipped: f0: draws: 1 of the 50 draws weighed lie outside the model's bounds (draw 0:" in err
     assert "pitch 2," in err
     doc = json.loads((tmp_path / "adv" / "advice.json").read_text())
     assert [s["key"] for s in doc["skipped"]] == ["f0"] and "NaN" not in (tmp_path / "adv" / "advice.json").read_text()
