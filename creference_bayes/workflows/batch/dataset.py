@@ -75,6 +75,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -799,6 +800,11 @@ class DataSet:
                 del ds.pools[name]
         return ds
 
+    @cached_property
+    def _residual_totals(self) -> tuple[float, float]:
+        """Σ squares and Σ degrees of freedom of every frame's :attr:`residuals`."""
+        return sum(r[0] for r in self.residuals.values()), sum(r[1] for r in self.residuals.values())
+
     def corner_scale_of(self, key: str | None) -> tuple[float, float] | None:
         """The crowd's corner scale frame ``key`` is handed (all frames' with None): (sd px,
         degrees of freedom) from the other frames' residuals (:func:`read_corner_residuals`), the sd
@@ -807,8 +813,7 @@ class DataSet:
         from ...models.metrology import MIN_TARGET_SIGMA_PX
 
         own = self.residuals.get(key, (0.0, 0.0))
-        squares = sum(r[0] for r in self.residuals.values()) - own[0]
-        dof = sum(r[1] for r in self.residuals.values()) - own[1]
+        squares, dof = (t - o for t, o in zip(self._residual_totals, own))  # a sum once, not once per frame
         if len(self.residuals) - (key in self.residuals) < 1 or dof <= 0:
             return None
         return max(float(f"{math.sqrt(max(squares, 0.0) / dof):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
