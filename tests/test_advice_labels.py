@@ -448,6 +448,38 @@ def _says_nothing(spread: float):
     return Nothing
 
 
+def test_the_targets_a_request_says_nothing_of_keep_their_hdi_and_every_label_its_numbers(crowded, monkeypatch):
+    """The screen (:func:`~creference_bayes.workflows.advice.update.informative`) against reading
+    every target's distance from every future, on twelve targets (their vehicles' sizes, the mounting):
+    each label's numbers are the same to the bit (the screen reads the HDIs only); a target left out
+    keeps the present's HDI; each request's HDI gain moves by less than three of its standard
+    errors."""
+    from creference_bayes.workflows.advice import advise
+    from creference_bayes.workflows.advice import update
+
+    scene, model, cams, objs, hands = crowded
+    settings = AdviceSettings(n_draws=200, n_futures=40, kinds=("size", "mounting"))
+
+    def run():
+        return advise(model, scene, cams, objs, camera_map=cams[0], objects_map=objs[0], seed=2, settings=settings,
+                      hands=hands)
+
+    screened = run()
+    monkeypatch.setattr(update, "SCREEN_SD", -np.inf)
+    every = run()
+    other = {p.candidate.key: p for p in every.predictions}
+    assert len(other) == len(screened.predictions) > 5
+    left_out = 0
+    for a in screened.predictions:
+        b = other[a.candidate.key]
+        for k in ("p_good", "good_gain", "good_gain_se", "good_loss", "rank_good_gain"):
+            np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
+        kept = a.expected.hdi_width_m == screened.now.hdi_width_m
+        left_out += int(kept.sum())
+        assert abs(a.gain_pct - b.gain_pct) < 3.0 * b.gain_se_pct + 0.05
+    assert left_out > 0   # the premise: some request says nothing of some target
+
+
 def test_an_observation_that_says_nothing_makes_no_label_good(frame, advised, monkeypatch):
     """Weights that scatter the draws but say nothing: no label becomes good. Counting the
     futures' noisy P(IoU ≥ t) against the bar without the present's level (the estimator's own

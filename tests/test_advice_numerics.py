@@ -17,8 +17,8 @@ from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECOND
                                                           annotation_seconds, candidates, format_mix)
 from creference_bayes.workflows.advice.iou import iou_3d_at_least, iou_3d_pairs
 from creference_bayes.workflows.advice.observe import DimsObservation, ReferenceObservation, grown
-from creference_bayes.workflows.advice.update import (gaussian_transport, location_sd, normalise, tempered_update,
-                                                      weighted_hdi)
+from creference_bayes.workflows.advice.update import (gaussian_transport, informative, location_sd, normalise,
+                                                      tempered_update, weighted_hdi)
 
 
 def _box_pairs(seed: int, n: int, yaw_sd: float, size_sd: float):
@@ -184,6 +184,35 @@ def test_the_location_sd_of_uneven_weights_is_not_short():
     truth = np.sum((loc - loc.mean(axis=0)) ** 2) / 999
     assert np.mean(var) == pytest.approx(truth, rel=0.015)
     assert location_sd(loc, np.full((1, 1000), 1e-3))[0] ** 2 == pytest.approx(truth, rel=1e-9)
+
+
+@pytest.mark.parametrize("ess_scale", [0.5, 2.0])
+def test_the_screen_of_weights_that_say_nothing_is_a_chi_square_of_the_rows(ess_scale):
+    """Weights unrelated to 300 objects' draws (many or few effective draws of 400): at its mean
+    (sd 0) about half the objects pass the screen (a chi-square of 50 degrees is above its mean
+    47 % of the time; a variance off by a fifth would give 10 % or 90 %); at three of its sd
+    almost none."""
+    rng = np.random.default_rng(4)
+    features = rng.standard_normal((400, 300, 1)) * rng.uniform(0.1, 10.0, 300)[None, :, None]
+    w, ess = normalise(ess_scale * rng.standard_normal((50, 400)))
+    assert (200 < np.median(ess) < 400) if ess_scale < 1 else (10 < np.median(ess) < 60)
+    assert 0.35 < np.mean(informative(features, w, sd=0.0)) < 0.6
+    assert np.mean(informative(features, w)) < 0.03
+
+
+def test_the_screen_finds_the_objects_the_weights_learn_about_and_skips_a_constant():
+    """Rows of weights from simulated observations of object 0's first feature (noise three times
+    its sd: each row takes a tenth of its variance): object 0 is read, object 1 (its own draws) is
+    not, nor is object 2 (the same first feature as object 0 but a known, constant size)."""
+    rng = np.random.default_rng(5)
+    f = rng.standard_normal((400, 3, 2))
+    f[:, 2, 0] = f[:, 0, 0]
+    f[:, 2, 1] = 1.7  # a constant feature adds nothing and no NaN
+    y = f[rng.integers(400, size=50), 0, 0] + 3.0 * rng.standard_normal(50)
+    w, _ = normalise(-0.5 * ((y[:, None] - f[None, :, 0, 0]) / 3.0) ** 2)
+    assert informative(f, w).tolist() == [True, False, True]
+    f[:, 2, 0] = 2.0
+    assert informative(f, w).tolist() == [True, False, False]
 
 
 def test_reweighting_a_gaussian_gives_the_conjugate_posterior():

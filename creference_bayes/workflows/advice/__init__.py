@@ -64,8 +64,8 @@ from .candidates import Candidate, candidates as scene_candidates, format_mix, o
 from .answers import CATALOGUE_LOG_SD, MOUNTING_SD
 from .fallback import block_sweeps
 from .observe import DimsObservation, MountingObservation, ReferenceObservation, SizeObservation, at_hands
-from .update import (MIN_ESS, MIN_ESS_FRACTION, gaussian_transport, location_sd, normalise, p_iou, shuffled_hdi,
-                     tempered_update, weighted_hdi)
+from .update import (MIN_ESS, MIN_ESS_FRACTION, gaussian_transport, informative, location_sd, normalise, p_iou,
+                     shuffled_hdi, tempered_update, weighted_hdi)
 
 __all__ = ["OBJECTIVES", "KINDS", "AdviceSettings", "Outlook", "Prediction", "Advice", "advise", "good_chance", "combined_chance",
            "futures_scale",
@@ -448,10 +448,18 @@ class _Draws:
         self.loc = np.stack([objs[..., O_X], y, objs[..., O_Z]], axis=-1)
         self.boxes = kitti_poses(scene, cams, objs)
 
-    def outlooks(self, weights: np.ndarray, settings: AdviceSettings, rng, iou_pairs: int | None = None) -> dict:
+    def outlooks(self, weights: np.ndarray, settings: AdviceSettings, rng, iou_pairs: int | None = None,
+                 read: np.ndarray | None = None, unread: Outlook | None = None) -> dict:
         """Per row of weights (M, N) and target: HDI width, share and median of the distance,
-        location sd, label quality; each (M, m)."""
-        width, median = weighted_hdi(self.dist, weights, settings.hdi_prob, self.order)
+        location sd, label quality; each (M, m). ``read`` (m,) the targets whose distance is read
+        from the weights (default: all); the others' HDI and median are ``unread``'s (the present,
+        where the weights say nothing about their distance: :func:`~.update.informative`)."""
+        if read is None:
+            width, median = weighted_hdi(self.dist, weights, settings.hdi_prob, self.order)
+        else:
+            width, median = (np.tile(x, (len(weights), 1)) for x in (unread.hdi_width_m, unread.distance_m))
+            width[:, read], median[:, read] = weighted_hdi(self.dist[:, read], weights, settings.hdi_prob,
+                                                           self.order[read])
         return {"hdi_width_m": width, "hdi_share": width / median, "distance_m": median,
                 "location_sd_m": np.stack([location_sd(loc, weights) for loc in self.loc.transpose(1, 0, 2)], axis=1),
                 "p_iou": p_iou(self.boxes, weights, settings.iou_threshold, rng, iou_pairs or settings.iou_pairs)}
@@ -778,9 +786,12 @@ class _Weighing:
         # a scene without references: the draws' crowd scales, drawn once for all the futures
         self.cams = obs.scale_draws(draws.cams, rng) if obs.needs_scale else draws.cams
         self.parts: list[dict] = []
+        self.read: np.ndarray | None = None  # (m,) the targets whose distances its futures read (the first share's)
 
     def weigh(self, pos: np.ndarray, now: Outlook, settings: AdviceSettings) -> None:
-        """Weigh the futures at positions ``pos`` of ``outer``."""
+        """Weigh the futures at positions ``pos`` of ``outer``. The first share decides whose
+        distances are read (:func:`~.update.informative`, the request's own target's always): the
+        others' HDIs stay the present's (``now``)."""
         obs, draws, rng, cams = self.obs, self.draws, self.rng, self.cams
         outer = self.outer[pos]
         hands = draws.hands
@@ -788,7 +799,12 @@ class _Weighing:
         log_w = obs.log_ratio(cams, draws.objs, self.base, hands=hands)
         log_w[np.arange(len(outer)), outer] = -np.inf  # leave the simulating draw out
         weights, ess = normalise(log_w)
-        rows = draws.outlooks(weights, settings, rng)
+        if self.read is None:
+            self.read = informative(draws.dist, weights)
+            if self.cand.target is not None:
+                self.read[self.cand.target] = True
+        read = self.read
+        rows = draws.outlooks(weights, settings, rng, read=read, unread=now)
         n = len(cams)
         collapsed = np.flatnonzero(ess < max(MIN_ESS, MIN_ESS_FRACTION * n))
         # Each future against the present at its own weights (module docstring): scaled by the present
@@ -797,16 +813,20 @@ class _Weighing:
         # draws over that at the same weights.
         same = np.ones(len(outer), bool)
         same[collapsed] = False
-        width, share = shuffled_hdi(draws.dist, weights, settings.hdi_prob, rng, order=draws.order)
+        # the unread targets' present over itself (each future's HDI against the present at its own weights)
+        width, share = np.tile(now.hdi_width_m, (len(outer), 1)), np.tile(now.hdi_share, (len(outer), 1))
+        width[:, read], share[:, read] = shuffled_hdi(draws.dist[:, read], weights, settings.hdi_prob, rng,
+                                                      order=draws.order[read])  # the rng drawn as for every target
         moved_ess = np.full(len(outer), np.inf)  # a recomputed future's effective draws (inf: equally weighted)
         if len(collapsed):
             sub = np.unique(np.linspace(0, n - 1, min(FALLBACK_DRAWS, n)).round().astype(int))
             mc, mo, mw = _moved(obs, collapsed, cams[sub], draws.objs[sub], rng, self.temperature,
                                 None if hands is None else hands[sub])
-            width[collapsed], share[collapsed] = shuffled_hdi(draws.dist[sub], mw, settings.hdi_prob, rng)
+            width[np.ix_(collapsed, read)], share[np.ix_(collapsed, read)] = shuffled_hdi(
+                draws.dist[sub][:, read], mw, settings.hdi_prob, rng)
             moved_ess[collapsed] = np.where(np.all(mw == mw[:, :1], axis=1), np.inf, 1.0 / np.sum(mw * mw, axis=1))
             for i, c, o, w in zip(collapsed, mc, mo, mw):
-                one = _Draws(c, o, draws.scene).outlooks(w[None], settings, rng)
+                one = _Draws(c, o, draws.scene).outlooks(w[None], settings, rng, read=read, unread=now)
                 for k in rows:
                     rows[k][i] = one[k][0]
         rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width
@@ -825,7 +845,9 @@ class _Weighing:
         order = np.argsort(out["pos"], kind="stable")
         for k in ("weights", "shuffled"):  # rows of the futures not recomputed, in the same order
             out[k] = out[k][np.argsort(out["pos"][out["same"]], kind="stable")]
-        return {k: v if k in ("weights", "shuffled") else v[order] for k, v in out.items()}
+        out = {k: v if k in ("weights", "shuffled") else v[order] for k, v in out.items()}
+        out["read"] = self.read
+        return out
 
 
 def _labels_part(f: dict, now: Outlook, shift, settings: AdviceSettings):
@@ -877,7 +899,7 @@ def _prediction(w: _Weighing, now: Outlook, shift, settings: AdviceSettings, n_f
     gains = 100.0 * np.sum(now.hdi_share - rows["hdi_share"], axis=1)
     gain = float(np.mean(gains))
     se_outer = np.std(gains, ddof=1) / np.sqrt(len(gains))
-    se_inner = _split_se(dist, f["weights"], settings.hdi_prob, rng)
+    se_inner = _split_se(dist[:, f["read"]], f["weights"], settings.hdi_prob, rng)  # the others' gains are none
     # labels below the bar now that reach it (module docstring): each label's future is the fitted
     # spread of its futures' P(IoU ≥ t) (:func:`good_chance`), summarised by its moments, and its
     # chance is that at or above the bar by the rule requests are combined by
@@ -1091,21 +1113,31 @@ def _moved_one(obs, i: int, cams: np.ndarray, objs: np.ndarray, rng, temperature
 def _split_se(dist: np.ndarray, weights: np.ndarray, prob: float, rng, n_splits: int = 3) -> float:
     """Standard error of the expected gain (points) from the finite set of draws: the gain computed
     on two random halves of the draws differs by about twice it (each half's variance is double).
-    ``dist`` (N, m) the targets' distances."""
+    ``dist`` (N, m) the targets' distances. Both halves, and the present beside the futures, are
+    read in one call of :func:`~.update.weighted_hdi` where the halves are of a size."""
     if not len(weights):
         return 0.0
-    n = len(dist)
+    n, c = dist.shape
+
+    def rows_of(part):  # the futures' weights on ``part`` and, last, the present's; the futures with weight there
+        w = weights[:, part]
+        total = w.sum(axis=1)
+        ok = total > 0
+        w = np.where(ok[:, None], w / np.where(ok, total, 1.0)[:, None], 1.0 / part.sum())
+        return np.vstack([w, np.full((1, part.sum()), 1.0 / part.sum())]), ok
+
     sq = []
     for _ in range(n_splits):
         half = rng.permutation(n) < n // 2
-        g = []
-        for part in (half, ~half):
-            w = weights[:, part]
-            total = w.sum(axis=1, keepdims=True)
-            ok = total[:, 0] > 0
-            width, median = weighted_hdi(dist[part], w[ok] / total[ok], prob)
-            now_w, now_m = weighted_hdi(dist[part], np.full((1, part.sum()), 1.0 / part.sum()), prob)
-            g.append(100.0 * np.sum(now_w[0] / now_m[0] - np.mean(width / median, axis=0)))
+        (wa, ok_a), (wb, ok_b) = rows_of(half), rows_of(~half)
+        if len(wa[0]) == len(wb[0]):
+            each = np.concatenate([np.broadcast_to(wa, (c,) + wa.shape), np.broadcast_to(wb, (c,) + wb.shape)])
+            width, median = weighted_hdi(np.hstack([dist[half], dist[~half]]), each, prob)
+            read = [(width[:, :c] / median[:, :c], ok_a), (width[:, c:] / median[:, c:], ok_b)]
+        else:
+            read = [(np.divide(*weighted_hdi(dist[part], w, prob)), ok) for part, w, ok in
+                    ((half, wa, ok_a), (~half, wb, ok_b))]
+        g = [100.0 * np.sum(share[-1] - np.mean(share[:-1][ok], axis=0)) for share, ok in read]
         sq.append((g[0] - g[1]) ** 2 / 4.0)
     return float(np.sqrt(np.mean(sq)))
 

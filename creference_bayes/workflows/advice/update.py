@@ -15,7 +15,8 @@ import numpy as np
 
 from .iou import iou_3d_at_least
 
-__all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "normalise", "weighted_hdi", "shuffled_hdi",
+__all__ = ["MIN_ESS", "MIN_ESS_FRACTION", "SHUFFLES", "SCREEN_SD", "normalise", "informative", "weighted_hdi",
+           "shuffled_hdi",
            "location_sd", "mean_boxes", "p_iou", "systematic_resample", "tempered_update", "gaussian_transport"]
 
 #: A row of weights whose effective sample size is below max(MIN_ESS, MIN_ESS_FRACTION · N) is
@@ -30,6 +31,12 @@ SHUFFLES = 8
 SHUFFLE_SHARE = 8
 #: Draws :func:`weighted_hdi` bounds together before it computes their intervals one by one.
 HDI_BLOCK = 8
+#: Weights (rows × quantities × draws) :func:`shuffled_hdi` passes to one call of
+#: :func:`weighted_hdi` (its memory is a few dozen bytes each).
+HDI_CALL_SIZE = 2_000_000
+#: :func:`informative`: an object is read where one of its features' summed z² over the rows
+#: exceeds its chi-square's mean by this many of its standard deviations.
+SCREEN_SD = 3.0
 
 
 def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,6 +56,35 @@ def normalise(log_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w, ess
 
 
+def informative(features: np.ndarray, weights: np.ndarray, sd: float | None = None) -> np.ndarray:
+    """(m,) whether rows of ``weights`` (M, N) say anything about each of m objects, from
+    features (N, m) or (N, m, p) of its draws (its distance, say).
+
+    Weights that say nothing about a feature f are, to f, a random order of themselves: a row's
+    weighted mean then scatters around f's mean with variance var f · (N Σw² − 1) / (N − 1), and
+    z² = (weighted mean − mean)² / that variance, summed over the M rows, follows a chi-square of
+    M degrees of freedom. Futures simulated from the posterior keep its variance on average
+    (var f = E[var f in a future] + var(a future's mean)), so the sum's excess over M is what the
+    rows take off f's variance, in units of its noise: an object is informative where some
+    feature's sum exceeds M + ``sd`` · √(2M) (default :data:`SCREEN_SD`). What the rows would say
+    of one that is not is noise around nothing (features constant over the draws are left out).
+    """
+    sd = SCREEN_SD if sd is None else sd
+    f = np.asarray(features, float)
+    f = f[..., None] if f.ndim == 2 else f
+    w = np.atleast_2d(np.asarray(weights, float))
+    big_m, n = w.shape
+    flat = f.reshape(n, -1)
+    mean = flat.mean(axis=0)
+    var = flat.var(axis=0)
+    live = var > 1e-12 * np.maximum(mean * mean, 1.0)
+    scale = (n * np.sum(w * w, axis=1) - 1.0) / (n - 1.0)                      # (M,)
+    dev = w @ flat[:, live] - mean[live]                                        # (M, live)
+    z2 = np.zeros(flat.shape[1])
+    z2[live] = np.sum(dev * dev / np.maximum(scale, 1e-12)[:, None], axis=0) / var[live]
+    return np.any(z2.reshape(f.shape[1:]) > big_m + sd * np.sqrt(2.0 * big_m), axis=1)
+
+
 def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
                  order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Shortest interval holding ``prob`` of the weight, and the weighted median, per row of
@@ -62,7 +98,7 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
     Parameters
     ----------
     values : (N,) draws of one quantity, or (N, k) of k quantities
-    weights : (M, N) normalised weights (zeros allowed)
+    weights : (M, N) normalised weights (zeros allowed), or (k, M, N) each quantity's own
     prob : in (0, 1)
     order : (k, N) each column's draws in increasing order (``np.argsort(values, axis=0).T``), when
         the caller sorts once for many calls on the same values
@@ -73,14 +109,18 @@ def weighted_hdi(values: np.ndarray, weights: np.ndarray, prob: float,
     """
     values = np.asarray(values, float)
     vals = values[:, None] if values.ndim == 1 else values
-    w = np.atleast_2d(np.asarray(weights, float))
-    big_m, n = w.shape
+    w = np.asarray(weights, float)
+    own = w.ndim == 3  # each quantity its own rows of weights
+    w = w if own else np.atleast_2d(w)
+    big_m, n = w.shape[-2:]
     k = vals.shape[1]
+    if not k:  # no quantity (none read)
+        return np.zeros((big_m, 0)), np.zeros((big_m, 0))
     order = np.argsort(vals, axis=0).T if order is None else np.asarray(order).reshape(k, n)   # (k, N)
     v = np.take_along_axis(vals.T, order, axis=1)                       # (k, N) each column sorted
     sorted_w = np.empty((k, big_m, n))                                  # row t·M + i: weights i, quantity t
     for t in range(k):  # one quantity at a time: a gather (M, k, N) then transposed costs several times more
-        np.take(w, order[t], axis=1, out=sorted_w[t], mode="clip")  # "clip": unbuffered (the indices are valid)
+        np.take(w[t] if own else w, order[t], axis=1, out=sorted_w[t], mode="clip")  # "clip": unbuffered
     w = sorted_w.reshape(k * big_m, n)
     rows = len(w)
     every = np.arange(rows)
@@ -173,18 +213,28 @@ def shuffled_hdi(values: np.ndarray, weights: np.ndarray, prob: float, rng,
     width in the unit of ``values``, share (width over the median); (M,) or (M, k)
     """
     w = np.atleast_2d(np.asarray(weights, float))
-    order = np.argsort(np.asarray(values, float).reshape(w.shape[1], -1), axis=0).T if order is None else order
+    order = np.argsort(np.atleast_2d(np.asarray(values, float).T).T, axis=0).T if order is None else order
     ess = 1.0 / np.sum(w * w, axis=1)
     times = np.clip(np.ceil(n_shuffles * (w.shape[1] / SHUFFLE_SHARE) / ess), 1, n_shuffles).astype(int)
     shape = (len(w),) if np.ndim(values) == 1 else (len(w), np.shape(values)[1])
     width, share = np.zeros(shape), np.zeros(shape)
-    for t in range(int(times.max())):
-        rows = np.flatnonzero(times > t)
-        shuffled = np.take_along_axis(w[rows], np.argsort(rng.random((len(rows), w.shape[1])), axis=1), axis=1)
-        wd, median = weighted_hdi(values, shuffled, prob, order)
-        each = times[rows].reshape((-1,) + (1,) * (wd.ndim - 1))  # a row's average over its own shuffles
-        width[rows] += wd / each
-        share[rows] += wd / median / each
+    rows = [np.flatnonzero(times > t) for t in range(int(times.max()))]
+    shuffled = [np.take_along_axis(w[r], np.argsort(rng.random((len(r), w.shape[1])), axis=1), axis=1) for r in rows]
+    # the shuffles' rows stacked into calls of about HDI_CALL_SIZE weights each (one call costs much the same
+    # for a few rows as for many)
+    per_row = w.shape[1] * max(1, int(np.prod(shape[1:])))
+    start = 0
+    while start < len(rows):
+        stop, size = start, 0
+        while stop < len(rows) and (stop == start or size + len(rows[stop]) * per_row <= HDI_CALL_SIZE):
+            size += len(rows[stop]) * per_row
+            stop += 1
+        at = np.concatenate(rows[start:stop])
+        wd, median = weighted_hdi(values, np.concatenate(shuffled[start:stop]), prob, order)
+        each = times[at].reshape((-1,) + (1,) * (wd.ndim - 1))  # a row's average over its own shuffles
+        np.add.at(width, at, wd / each)
+        np.add.at(share, at, wd / median / each)
+        start = stop
     return width, share
 
 
