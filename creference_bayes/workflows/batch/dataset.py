@@ -600,10 +600,10 @@ def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarra
     linear model fitted with noise variance s² whose parameters are drawn from its prior, the
     expected squares are s² Σ λ(1 − λ) + σ² (N − Σ λ(2 − λ)), σ the true noise: the first term is
     taken off (s² the mean over objects of one over that weight, the fit's). A crowd noisier than
-    the fit's scale leaves its corners far out, where the fit weighs them little: read at the
-    weight a corner has at no residual, (ν + 2) / (ν σᵢ²), the lines were taken to decide more
-    than they did and an 8 px crowd fitted at 5 px read 9.2 px. None without a dimension line or
-    free parameter."""
+    the fit's scale leaves its corners far out, where the fit weighs them little: at the weight a
+    corner has at no residual, (ν + 2) / (ν σᵢ²), the lines would seem to decide more than they do
+    (on KITTI frames an 8 px crowd fitted at 5 px would read 9.2 px, not 8.8: docs/studies/kitti.md).
+    None without a dimension line or free parameter."""
     from ...inference.coords import WorkingCoords
     from ...models.contract import C_SCALE
     from ...pipeline import map_state
