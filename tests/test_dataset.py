@@ -165,8 +165,24 @@ def test_a_crowd_whose_objects_are_each_annotated_once_has_its_corner_scale_read
         took = res["dataset"]["corner_scale_px"]
         assert took["from"] == "data set" and took["read"] == "the first pass's residuals"
         assert 0.6 * noise_px < took["sd"] < 1.5 * noise_px and took["dof"] > 5
+        if noise_px == 2.0:  # read at 5 px first, then fitted again at about the crowd's scale
+            assert 0.7 * noise_px < took["fitted_at_px"] < 1.4 * noise_px
+            assert (tmp_path / "out" / "first_pass" / "at_crowd_scale" / "results" / f"f{k}.json").exists()
         scene = json.loads((tmp_path / "out" / "scenes" / f"f{k}.json").read_text())
         assert scene["corner_scale"]["sd_px"] == took["sd"]
+
+
+def test_the_first_pass_is_fitted_again_only_where_its_residuals_read_a_scale_far_from_the_fits():
+    """:meth:`DataSet.refit_at`: the pooled residual scale when it is a quarter or more from the
+    default 5 px the first pass was fitted at (either way), once; never without residuals."""
+    def at(sd, fitted=None):
+        return DataSet({}, ("corner_scale",), residuals={"a": (sd**2 * 100, 100.0), "b": (sd**2 * 50, 50.0)},
+                       fitted_at_px=fitted).refit_at()
+
+    assert at(2.0) == 2.0 and at(8.0) == 8.0 and at(3.9) == 3.9 and at(6.5) == 6.5
+    assert at(5.0) is None and at(4.2) is None and at(6.1) is None
+    assert at(2.0, fitted=2.0) is None
+    assert DataSet({}, ("corner_scale",)).refit_at() is None
 
 
 def _population(seed=0, frames=12, per_frame=3, median=15.0, log_sd=0.5, noise=0.1):

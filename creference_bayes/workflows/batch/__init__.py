@@ -286,9 +286,17 @@ def _first_pass(scenes, loaded, first: Path, settings: BatchSettings, learn: tup
     from .dataset import DataSet
     from .rig import camera_id_of
 
-    _run_pass(scenes, first, replace(settings, posterior=False, dataset="none", rig="none"), close=False,
-              desc="first pass", **run)
-    return DataSet.from_first_pass([(si.key, camera_id_of(scene)) for si, scene in loaded], first, learn)
+    alone = replace(settings, posterior=False, dataset="none", rig="none")
+    _run_pass(scenes, first, alone, close=False, desc="first pass", **run)
+    frames = [(si.key, camera_id_of(scene)) for si, scene in loaded]
+    ds = DataSet.from_first_pass(frames, first, learn)
+    if (at := ds.refit_at()) is not None:  # the crowd's corner scale read again from a fit at its own scale
+        again = first / "at_crowd_scale"
+        _run_pass([si for si in scenes if si.key in ds.residuals], again,
+                  replace(alone, options={**settings.options, "target_sigma": at}), close=False,
+                  desc="first pass at the crowd's scale", **run)
+        ds = ds.with_residuals_from(frames, again, at)
+    return ds
 
 
 def learn_priors(inputs, out: str | Path, settings: BatchSettings = BatchSettings(), engine: Engine | None = None) -> dict:

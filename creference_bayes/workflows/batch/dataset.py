@@ -87,6 +87,9 @@ __all__ = ["Shared", "SHARED", "Reading", "PoolCheck", "Pooled", "Pool", "DataSe
 
 #: ``--dataset``: learn what frames share (``auto``: what there is something to learn of) or nothing
 DATASET_CHOICES = ("auto", "none")
+#: The first pass is fitted again at the crowd's corner scale its residuals read when that is this
+#: factor or more from the default it was fitted at (:meth:`DataSet.refit_at`)
+REFIT_FACTOR = 1.25
 #: a reading whose precision is below this share of its posterior precision tells nothing
 MIN_INFORMATION = 0.1
 #: the least effective sample size of a reading's importance weights 1/prior, as a share of its draws
@@ -584,6 +587,22 @@ def read_focal_given_orientation(ds: "DataSet", key: str, result: dict, cams: np
     return None if lik is None else Reading(key, camera_id, *lik)
 
 
+def _results(frames, folder):
+    """(KEY, camera id, scene, result) of every frame of ``frames`` ((KEY, camera id) pairs) with a
+    result in the batch folder ``folder``."""
+    from ...io.result import read_result
+    from ...io.scene import SceneWarning, load_scene
+    from .files import layout
+
+    for key, camera_id in frames:
+        paths = layout(folder, key)
+        if paths["result"].exists():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                scene = load_scene(paths["scene"])
+            yield key, camera_id, scene, read_result(paths["result"])
+
+
 def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarray) -> tuple[float, float] | None:
     """A frame's reading of its crowd's corner scale from its dimension lines alone: (squares px²,
     degrees of freedom), such that the crowd's sd per corner coordinate is √(Σ squares / Σ degrees
@@ -740,6 +759,8 @@ class DataSet:
     tail : the crowd's reference tail (:class:`TailPool`), when ``ref_dof`` is learnt
     residuals : KEY → the frame's reading of the corner scale (:func:`read_corner_residuals`),
         when ``corner_scale`` is learnt
+    fitted_at_px : the corner scale the residuals' first pass was fitted at again
+        (:meth:`refit_at`), or None: at the default
     """
 
     pools: dict
@@ -747,6 +768,7 @@ class DataSet:
     camera_of: dict = field(default_factory=dict)
     tail: TailPool | None = None
     residuals: dict = field(default_factory=dict)
+    fitted_at_px: float | None = None
 
     @classmethod
     def from_first_pass(cls, frames, folder, learn: tuple, *, focal_given_orientation: bool = True) -> "DataSet":
@@ -759,18 +781,8 @@ class DataSet:
         (``--rig focal``) their pools serve the reading only and are not kept. False: each
         frame's focal length read alone (its own prior divided out; ``examples/dataset_pool.py``
         compares the two)."""
-        from ...io.result import read_result
-        from ...io.scene import SceneWarning, load_scene
-        from .files import layout
-
-        def first_pass():  # (KEY, camera id, scene, result) of every frame with a result
-            for key, camera_id in frames:
-                paths = layout(folder, key)
-                if paths["result"].exists():
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore", SceneWarning)
-                        scene = load_scene(paths["scene"])
-                    yield key, camera_id, scene, read_result(paths["result"])
+        def first_pass():
+            return _results(frames, folder)
 
         tail = None
         if REF_TAIL.name in learn:  # the tail first: the other readings are read under it
@@ -808,6 +820,29 @@ class DataSet:
             for name in set(read) - set(learn):  # read for the focal length only, not handed back
                 del ds.pools[name]
         return ds
+
+    def refit_at(self) -> float | None:
+        """The corner scale (px) to fit the first pass again at, to read the crowd's from its
+        residuals there: the pool of the residuals, where it is :data:`REFIT_FACTOR` or more from
+        the default the first pass was fitted at; else None. A crowd much noisier than the fit's
+        scale leaves its corners in the Student-t's tails, where the fit weighs them little, and a
+        much more careful one fits inside a scale that is too wide: either way the residuals read
+        the crowd less well than a fit at its own scale does (docs/studies/kitti.md)."""
+        from ...models.metrology import DEFAULT_TARGET_SIGMA_PX
+
+        if self.fitted_at_px is not None or (pooled := self.corner_scale_of(None)) is None:
+            return None
+        return pooled[0] if abs(math.log(pooled[0] / DEFAULT_TARGET_SIGMA_PX)) >= math.log(REFIT_FACTOR) else None
+
+    def with_residuals_from(self, frames, folder, fitted_at_px: float) -> "DataSet":
+        """This data set with the corner scale read from the residuals of the first pass fitted
+        again at ``fitted_at_px`` in the batch folder ``folder`` (:meth:`refit_at`)."""
+        residuals = {}
+        for key, _, scene, result in _results(frames, folder):
+            model, cams, objs = _draws(result, scene)
+            if (r := read_corner_residuals(model, result, cams, objs)) is not None:
+                residuals[key] = r
+        return replace(self, residuals=residuals, fitted_at_px=fitted_at_px)
 
     @cached_property
     def _residual_totals(self) -> tuple[float, float]:
@@ -858,7 +893,7 @@ class DataSet:
             out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
         if (scale := self.corner_scale_of(None)) is not None:
             out[CORNER_SCALE.label] = {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
-                "sd": scale[0], "dof": scale[1], "frames": len(self.residuals)}}}
+                "sd": scale[0], "dof": scale[1], "frames": len(self.residuals), "fitted_at_px": self.fitted_at_px}}}
         return out
 
     def not_learnt(self) -> list[str]:
@@ -994,7 +1029,7 @@ def hand_back(ds: DataSet, key: str, scene, settings):
     if residual is not None:  # no object of the data set annotated twice: the others' residuals
         scene = replace(scene, corner_scale=residual)
         block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": residual[0], "dof": residual[1],
-                                    "read": "the first pass's residuals"}
+                                    "read": "the first pass's residuals", "fitted_at_px": ds.fitted_at_px}
     elif scene.corner_scale is not None:
         block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
                                     "shared_by": "crowd", "sd": scene.corner_scale[0], "dof": scene.corner_scale[1]}
@@ -1034,8 +1069,10 @@ def dataset_lines(summary: dict) -> list[str]:
     for label, entry in summary.items():
         for group, b in entry["groups"].items():
             if entry["kind"] == "residuals":  # the corner scale from the first pass's residuals
+                at = b.get("fitted_at_px")
+                read = "from the residuals" + (f" at {at:g} px" if at is not None else "")
                 rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {format(b['sd'], 'g') + ' px':>10}  "
-                            f"{'from the residuals':<28} {str(b['frames']) + ' frames':<18} dof {b['dof']:g}")
+                            f"{read:<28} {str(b['frames']) + ' frames':<18} dof {b['dof']:g}")
                 continue
             if entry["kind"] == "choice":  # the crowd's tail (:meth:`TailPool.estimate`)
                 rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {'t' + format(b['dof'], 'g'):>10}  "
