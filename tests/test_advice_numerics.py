@@ -13,6 +13,7 @@ from creference_bayes.io.scene import parse_scene
 from creference_bayes.models.contract import C_SCALE
 from creference_bayes.models.metrology import ReferenceTerm, ground_lengths
 from creference_bayes.pipeline import build_model
+from creference_bayes.workflows.advice.answers import with_dimension_lines
 from creference_bayes.workflows.advice.candidates import (PAPER_REFERENCE_SECONDS, PAPER_TARGET_SECONDS,
                                                           annotation_seconds, candidates, format_mix)
 from creference_bayes.workflows.advice.iou import iou_3d_at_least, iou_3d_pairs
@@ -359,6 +360,27 @@ def frame():
 def test_a_grown_model_without_more_is_the_model(frame):
     scene, model, cams, objs = frame
     np.testing.assert_array_equal(grown(model, {}).neg_log_posterior(cams, objs), model.neg_log_posterior(cams, objs))
+
+
+def test_a_grown_model_keeps_the_crowds_corner_scale_from_the_data_set():
+    """A frame of one set of lines an object whose corner scale came from the data set (``creference
+    batch``: 2.5 px over 300 degrees of freedom): the model with nothing more is the model, and with
+    a set more on one target the other targets keep that scale (within what the new set's own few
+    degrees of freedom add), as the frame estimated again with the set does. Without it they fell
+    to the new set's spread alone (its 8 coordinates) and the references' line noise with them."""
+    scene = dataclasses.replace(_with_sets(_scene(5, tier="medium", setting="outdoor", n_objects=3, sizes="prior",
+                                                  n_references=2), 1), corner_scale=(2.5, 300.0))
+    model = _frame_model(scene)
+    cams, objs = _states(scene, model, 50, np.random.default_rng(2))
+    same = grown(model, {})
+    np.testing.assert_array_equal(same.sigma, model.sigma)
+    np.testing.assert_array_equal(same.neg_log_posterior(cams, objs), model.neg_log_posterior(cams, objs))
+    lines = np.asarray(scene.targets[0].corners[0]) + np.random.default_rng(3).normal(0, 2.5, (4, 2))
+    more = grown(model, {}, annotations={0: lines})
+    again, _ = build_model(with_dimension_lines(scene, scene.targets[0].id, lines))
+    np.testing.assert_allclose(more.sigma, again.sigma, rtol=1e-9)
+    assert more.ref_line_sigma == pytest.approx(again.ref_line_sigma, rel=1e-9)
+    np.testing.assert_allclose(more.sigma[1:], model.sigma[1:], rtol=0.05)
 
 
 @pytest.mark.parametrize("kind", ["ground", "ground-range", "size", "distance"])

@@ -500,6 +500,8 @@ class MetrologyModel(Model):
             self.ann_mask[i, :len(o.annotations)] = 1.0
         # the annotations' u and v apart, (m, K, 4) each: what the likelihood's hot loop reads
         self._ann_u, self._ann_v = np.ascontiguousarray(ann[..., 0]), np.ascontiguousarray(ann[..., 1])
+        #: the crowd's corner scale from other frames it was built with (None: none)
+        self.corner_scale = None if corner_scale is None else (float(corner_scale[0]), float(corner_scale[1]))
         if target_sigma is None:
             self.sigma = target_sigmas([o.annotations for o in self.objects], corner_scale)
         elif np.isfinite(target_sigma) and target_sigma > 0:

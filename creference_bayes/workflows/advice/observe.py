@@ -45,8 +45,9 @@ _MAX_LOG_ERROR = float(np.log(1e4))
 def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = None, references=()) -> MetrologyModel:
     """``model`` with more observations: ``annotations`` {target index: (4, 2) corners} appended to
     those targets' sets and ``references`` (:class:`ReferenceTerm`) to its references; the same
-    camera set-up, settings (``options``: the estimate's model options), handedness and pilot.
-    Built from the model, not the scene, so the camera set-up (an image's horizon) is not redone."""
+    camera set-up, settings (``options``: the estimate's model options), crowd's corner scale from
+    the data set, handedness and pilot. Built from the model, not the scene, so the camera set-up
+    (an image's horizon) is not redone."""
     objects = list(model.objects)
     for i, corners in (annotations or {}).items():
         objects[i] = dataclasses.replace(objects[i], annotations=np.concatenate(
@@ -59,7 +60,7 @@ def grown(model: MetrologyModel, options: dict, *, annotations: dict | None = No
                          ref_scale_log_sd=model.ref_scale_log_sd, camera_terms=model.camera_terms,
                          orientation=model.orientation, horizon_line=model.horizon_line,
                          focal_length_px=model.focal_length_px, **model.ground_options, bounds=model.bounds,
-                         default_temperature=model.default_temperature, **fixed)
+                         default_temperature=model.default_temperature, corner_scale=model.corner_scale, **fixed)
     new.handedness = np.array(model.handedness, float)
     if model.pilot is not None:
         new.set_pilot(model.pilot)
