@@ -781,13 +781,10 @@ class DataSet:
         (``--rig focal``) their pools serve the reading only and are not kept. False: each
         frame's focal length read alone (its own prior divided out; ``examples/dataset_pool.py``
         compares the two)."""
-        def first_pass():
-            return _results(frames, folder)
-
         tail = None
         if REF_TAIL.name in learn:  # the tail first: the other readings are read under it
             tails, own_dof = {}, None
-            for key, _, scene, result in first_pass():
+            for key, _, scene, result in _results(frames, folder):
                 model, cams, objs = _draws(result, scene)
                 if (t := read_tail(model, cams, objs)) is not None:
                     tails[key], own_dof = t, model.ref_dof
@@ -797,7 +794,7 @@ class DataSet:
         read = tuple(learn) + tuple(n for n in GIVEN if given and n not in learn)
         readings: dict[str, list[Reading]] = {name: [] for name in read if name in SHARED}
         kept, residuals = {}, {}
-        for key, camera_id, scene, result in first_pass():
+        for key, camera_id, scene, result in _results(frames, folder):
             model, cams, objs = _draws(result, scene)
             if CORNER_SCALE.name in learn and (r := read_corner_residuals(model, result, cams, objs)) is not None:
                 residuals[key] = r
