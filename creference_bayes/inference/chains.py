@@ -18,6 +18,9 @@ MAX_DRAWS = 2000
 #: laid end to end shows the ESS estimator only correlations within each walker's own run, so a
 #: run shorter than the walkers' autocorrelation would over-state the ESS.
 MIN_STEPS = 50
+#: A later chunk is at least the run so far over this (and ``chunk``): it aims at the length the last
+#: check asks for (docs/inference.md, "Stopping"), not at the first chunk's length again.
+LATER_SHARE = 4
 #: The least ESS the default R-hat bar is computed at (:meth:`SamplerSettings.rhat_bar`).
 RHAT_ESS = 400.0
 
@@ -162,7 +165,7 @@ def run_chains(kernel, convert, columns, s: SamplerSettings, bar):
             need = max(need, s.min_ess * it / max(diag["min_ess"], 1.0))
             if diag["max_rhat"] > rb:
                 need = max(need, it * (diag["max_rhat"] - 1.0) / (rb - 1.0) if rb > 1.0 else it)
-        chunk = int(np.clip(1.2 * need - it, first, 2 * it))
+        chunk = int(np.clip(1.2 * need - it, max(s.chunk, it // LATER_SHARE), 2 * it))
     return tuple(_by_chain(a, w) for a in arrays), _by_chain(lps, w), it, thin, diag
 
 
