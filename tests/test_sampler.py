@@ -585,3 +585,42 @@ def test_a_posterior_does_not_hang_on_the_camera_its_readings_started_at(seed):
     assert abs(b - a) < 0.3 * np.sqrt(sa * sb), (a, b, sa, sb)  # 0.00–0.18 seen (sampler seeds 2–5)
     (a, sa, _), (b, sb, _) = run(1 / 1.3, move=False), run(1.3, move=False)
     assert abs(b - a) > 0.35 * np.sqrt(sa * sb), (a, b, sa, sb)  # 0.44–0.82 seen
+
+
+class _Independent:
+    """A kernel of ``n_chains`` chains (one walker each) whose every step is an independent
+    standard normal draw: its bulk ESS is about the draws kept."""
+
+    walkers = 1
+
+    def __init__(self, n_chains: int, seed: int):
+        self.n_chains, self.rng = n_chains, np.random.default_rng(seed)
+
+    def run(self, steps):
+        for _ in range(steps):
+            yield self.rng.standard_normal((self.n_chains, 1)), np.zeros(self.n_chains)
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_check_just_short_of_the_ess_is_followed_by_a_chunk_shorter_than_the_first(seed):
+    """8 chains of independent draws: the first check (400 steps, about 3,200 effective draws)
+    falls short of 4,000, which 500 steps meet; the next chunk aims there (with a fifth to spare),
+    not at the first chunk's 400 steps again, and the run stops between 500 and 800 steps."""
+    from creference_bayes.inference.chains import run_chains
+
+    s = SamplerSettings(min_ess=4000.0, max_rhat=1.05)
+    checked = []
+
+    def columns(x):
+        checked.append(x.shape[1])
+        return x, ["x"]
+
+    kept, lp, steps, thin, diag = run_chains(_Independent(8, seed), lambda xs: (xs,), columns, s, _NoBar())
+    assert checked[0] == 400 and len(checked) > 1  # the first check fell short
+    assert diag["ok"] and 500 <= steps < 800, (steps, checked)
+    assert kept[0].shape[:2] == (8, steps)
