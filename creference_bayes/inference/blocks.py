@@ -37,7 +37,7 @@ class _Run:
     def __init__(self, model, temperature, s: SamplerSettings, c0, Sc, Ao, B, mc, mt, adapt, modes=None):
         m = model.n_objects
         flip = None if modes is None else modes[4].any(axis=1)  # objects with a mode at the other handedness
-        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)), flip=flip)
+        self.target = BlockTarget(model, temperature, c0, B, np.zeros((m, 7)), flip=flip, carry_all=True)
         Lc = chol(Sc, model.camera_free)
         Lo = np.array([chol(Ao[i], model.object_free[i]) for i in range(m)])
         self.kernel = BlockKernel(self.target, Lc, Lo, mc, mt, tries=s.tries, adapt=adapt, modes=modes)

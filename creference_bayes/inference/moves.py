@@ -4,10 +4,10 @@
 the camera, each accepted on its own terms (objects coupled by a pair term coloured apart), then
 the camera with every object riding along its regression on it; by random-walk steps or ``tries``
 Student-t independence proposals per block, one taken by multiple-try Metropolis
-(:meth:`BlockKernel.sweep`). In a frame with an object of known size the camera's random-walk step
-*carries* every object at its image instead (:meth:`BlockTarget.carried`), and a random-walk sweep
-ends with a step along the **ridge** of the camera height and the ground offsets
-(:meth:`BlockKernel.ridge`).
+(:meth:`BlockKernel.sweep`). In the sampler's sweeps the camera's random-walk step *carries* every
+object whose ground offset is free at its image instead (:meth:`BlockTarget.carried`; elsewhere
+only in a frame with an object of known size), and in such a frame a random-walk sweep ends with a
+step along the **ridge** of the camera height and the ground offsets (:meth:`BlockKernel.ridge`).
 An object whose handedness is sampled (:attr:`BlockTarget.flip`) crosses to its other handedness
 by its independence proposal's mode there, or by a **jump** that a share of them propose in a
 random-walk sweep instead of a step (:meth:`BlockKernel._jumped`). A walker's blobs hold each
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.contract import C_FOCAL, C_HEIGHT, O_GROUND, O_YAW, Model
+from ..models.contract import C_FOCAL, C_HEIGHT, O_GROUND, O_SIZE, O_YAW, Model
 from .coords import CAMERA_LOG, WorkingCoords
 
 __all__ = ["IND_DOF", "IND_SCALE", "multiple_try_pick", "BlockTarget", "BlockKernel", "SweepState", "colours"]
@@ -103,7 +103,7 @@ class BlockTarget:
     """
 
     def __init__(self, model: Model, temperature: float, c0: np.ndarray, B: np.ndarray, template: np.ndarray,
-                 yaw_window: np.ndarray | None = None, flip: np.ndarray | None = None):
+                 yaw_window: np.ndarray | None = None, flip: np.ndarray | None = None, carry_all: bool = False):
         self.model, self.T = model, float(temperature)
         #: (m,) the objects whose handedness is sampled too: a state's last ``flip.sum()`` entries
         #: are ±1, −1 where that object takes the other handedness than the model's
@@ -114,10 +114,13 @@ class BlockTarget:
         self.coords = WorkingCoords(model)
         self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
         self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
-        #: (m,) the objects a camera step carries (:meth:`carried`) and the ridge step moves with
-        #: the camera height: those whose ground offset is free, when the camera height is and
-        #: some object's size is known (:func:`sized`); none otherwise
-        self.ridge = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT] & sized(model)
+        free_ground = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT]
+        #: (m,) the objects the ridge step moves with the camera height: those whose ground offset
+        #: is free, when the camera height is and some object's size is known (:func:`sized`)
+        self.ridge = free_ground & sized(model)
+        #: (m,) the objects a camera step carries (:meth:`carried`): with ``carry_all`` (the
+        #: sampler's own sweeps) those whose ground offset is free, else the ridge's
+        self.carry = free_ground if carry_all else self.ridge
         self.cf, self.of = model.camera_free, model.object_free
         self.kc = int(self.cf.sum())
         self.m = model.n_objects
@@ -175,25 +178,34 @@ class BlockTarget:
 
     def carried(self, wc: np.ndarray, wt: np.ndarray, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The objects (sheared, ``wt`` (n, m, 7)) as a camera move ``wc`` → ``pc`` (n, 5) carries
-        them, and the move's log-Jacobian (n,). Each ridge object (:attr:`ridge`) keeps its image:
-        its pixel, turn and relative sizes stay, its depth in the camera's frame scales with the
-        focal length (so a known size's apparent size stays), and its ground offset goes where
-        that puts it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray
-        d of its pixel (d′ the same pixel's ray from the new camera). The other objects follow
-        the shear. Jacobian ∂g′/∂g = (µ′/µ) d′_y / d_y; the move back (``pc`` → ``wc``) undoes
-        it. Along the height alone (the ridge step) every ground offset moves with the height,
-        h − g kept, and the Jacobian is 1."""
-        if not self.ridge.any():
+        them, and the move's log-Jacobian (n,). Each carried object (:attr:`carry`) keeps its
+        image: its pixel and turn stay, its depth in the camera's frame scales with the focal
+        length, its sizes in metres stay (a free size's log(size / z) moves by −log(z′/z), so its
+        apparent size stays, as a known size's does), and its ground offset goes where that puts
+        it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray d of its
+        pixel (d′ the same pixel's ray from the new camera). This is the direction an image leaves
+        open where its perspective is weak (a long focal length with every depth scaled with it),
+        along which a frame of an unknown focal length has its long tail (docs/studies/sampler.md,
+        "A step that keeps the image"). The other objects follow the shear. Jacobian ∂g′/∂g =
+        (µ′/µ) d′_y / d_y (the sizes' shift is a translation); the move back (``pc`` → ``wc``)
+        undoes it. Along the height alone (the ridge step) every ground offset moves with the
+        height, h − g kept, and the Jacobian is 1."""
+        if not self.carry.any():
             return wt, np.zeros(len(wc))
         cams, new = self.coords.camera_from_work(wc), self.coords.camera_from_work(pc)
         wo = self.unshear(wc, wt)
-        po = np.where(self.ridge[:, None], wo, self.unshear(pc, wt))
-        d, dn = self.coords.rays(cams, wo)[..., 1], self.coords.rays(new, po)[..., 1]
+        po = np.where(self.carry[:, None], wo, self.unshear(pc, wt))
+        ray, ray_n = self.coords.rays(cams, wo), self.coords.rays(new, po)
+        d, dn = ray[..., 1], ray_n[..., 1]
         ratio = (new[:, C_FOCAL] / cams[:, C_FOCAL])[:, None]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             g = new[:, C_HEIGHT, None] - ratio * (cams[:, C_HEIGHT, None] - wo[..., O_GROUND]) / d * dn
-            log_j = np.where(self.ridge, np.log(ratio * dn / d), 0.0).sum(axis=1)
-        po[..., O_GROUND] = np.where(self.ridge, g, po[..., O_GROUND])
+            log_j = np.where(self.carry, np.log(ratio * dn / d), 0.0).sum(axis=1)
+            # the ground's z (what a free size is measured against) moves by ratio · d′_z / d_z
+            log_z = np.log(ratio * ray_n[..., 2] / ray[..., 2])
+        po[..., O_GROUND] = np.where(self.carry, g, po[..., O_GROUND])
+        sizes = self.carry[:, None] & self.of[:, O_SIZE]
+        po[..., O_SIZE] = np.where(sizes, po[..., O_SIZE] - log_z[..., None], po[..., O_SIZE])
         return po - np.einsum("mik,nk->nmi", self.B, pc - self.c0), np.where(np.isfinite(log_j), log_j, -np.inf)
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
