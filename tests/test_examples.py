@@ -26,6 +26,7 @@ TINY = {
                         (["report", "--out", "as"], ["as/advice_study.md"])],
     "advice_plans.py": [([str(Path(__file__).resolve().parents[1] / "creference_bayes" / "data" / "example_scene.json"),
                           "--out", "ap"], ["ap/example_scene.result.json", "ap/example_scene_0.json"])],
+    "advice_says_nothing.py": [(["--posteriors", "1", "--seeds", "3", "--futures", "20", "30", "--min-ess", "100"], [])],
     "aggregation_study.py": [(["--draws", "50", "--out-dir", "agg"], ["agg/aggregation_study.png",
                                                                       "agg/aggregation_study.md"])],
     "batch_throughput.py": [(["--n", "2", "--engines", "local2", "--min-ess", "100", "--out", "bt"],
