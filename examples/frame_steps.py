@@ -1,11 +1,13 @@
 """What the sampler costs on scene files: per scene and seed, its objects, the estimate's CPU
-seconds (``process_time``, one process), the sampler's main-phase steps and whether it converged;
-then the sums, for scenes of one object and of several (docs/studies/sampler.md, "Frames of an
-unknown focal length").
+seconds (``process_time``, one process), the sampler's main-phase steps, whether it converged and
+the least bulk ESS of the quantities it checks; then the sums, for scenes of one object and of
+several, with the least ESS per CPU second (at a fixed length: how fast the sampler mixes)
+(docs/studies/sampler.md, "Frames of an unknown focal length").
 
     python -m creference_bayes simulate --from-kitti KITTI_DIR --focal-unknown --out scenes/
     python examples/frame_steps.py scenes/*.json --seeds 0 1 --out steps.jsonl
     python examples/frame_steps.py scenes/*.json --sampling '{"independence_weight": 0.8}'
+    python examples/frame_steps.py scenes/*.json --sampling '{"min_ess": 1e9, "max_steps": 6000}'   # mixing at a fixed length
 
 ``--sampling`` passes sampler settings (JSON, as ``creference estimate --sampling``) to every
 estimate. Two versions of the code are compared by running this once with each on ``PYTHONPATH``.
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 import warnings
 from pathlib import Path
@@ -43,13 +46,13 @@ def main(argv=None) -> int:
     import creference_bayes as cb
 
     rows = []
-    print("| scene | objects | seed | CPU s | steps | converged |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | objects | seed | CPU s | steps | converged | least bulk ESS |")
+    print("|---|---|---|---|---|---|---|")
     for path in args.scenes:
         try:
             scene = cb.load_scene(path)
         except (OSError, ValueError) as exc:
-            print(f"| {path.name} | – | – | – | – | not a scene: {exc} |", flush=True)
+            print(f"| {path.name} | – | – | – | – | not a scene: {exc} | – |", flush=True)
             continue
         for seed in args.seeds:
             with warnings.catch_warnings():
@@ -59,17 +62,20 @@ def main(argv=None) -> int:
                 cpu = time.process_time() - t
             diag = result.to_dict()["diagnostics"]
             row = {"scene": path.name, "objects": len(scene.targets), "seed": seed, "cpu": round(cpu, 2),
-                   "steps": diag["iterations"], "converged": bool(diag["converged"])}
+                   "steps": diag["iterations"], "converged": bool(diag["converged"]),
+                   "min_ess": diag["min_ess_bulk"]}
             rows.append(row)
             print(f"| {row['scene']} | {row['objects']} | {seed} | {cpu:.1f} | {row['steps']} | "
-                  f"{'yes' if row['converged'] else 'no'} |", flush=True)
+                  f"{'yes' if row['converged'] else 'no'} | {row['min_ess']:.0f} |", flush=True)
     print()
-    print("| scenes | estimates | CPU s | steps | not converged |")
-    print("|---|---|---|---|---|")
+    print("| scenes | estimates | CPU s | steps | not converged | least bulk ESS per CPU s, geometric mean | least ESS under 100 |")
+    print("|---|---|---|---|---|---|---|")
     for name, keep in (("one object", lambda r: r["objects"] == 1), ("several", lambda r: r["objects"] > 1)):
         part = [r for r in rows if keep(r)]
+        rate = [r["min_ess"] / r["cpu"] for r in part if r["min_ess"] and r["cpu"] > 0]
+        mean = f"{math.exp(sum(map(math.log, rate)) / len(rate)):.1f}" if rate else "–"
         print(f"| {name} | {len(part)} | {sum(r['cpu'] for r in part):.1f} | {sum(r['steps'] for r in part)} | "
-              f"{sum(not r['converged'] for r in part)} |")
+              f"{sum(not r['converged'] for r in part)} | {mean} | {sum(r['min_ess'] < 100 for r in part)} |")
     if args.out is not None:
         tmp = args.out.with_name(args.out.name + ".tmp")
         tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))

@@ -181,8 +181,9 @@ class BlockTarget:
         them, and the move's log-Jacobian (n,). Each carried object (:attr:`carry`) keeps its
         image: its pixel and turn stay, its depth in the camera's frame scales with the focal
         length, its sizes in metres stay (a free size's log(size / z) moves by −log(z′/z), so its
-        apparent size stays, as a known size's does), and its ground offset goes where that puts
-        it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray d of its
+        apparent size stays, as a known size's does; in a frame with a known size, whose ridge
+        objects are carried, their free sizes keep log(size / z)), and its ground offset goes
+        where that puts it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray d of its
         pixel (d′ the same pixel's ray from the new camera). This is the direction an image leaves
         open where its perspective is weak (a long focal length with every depth scaled with it),
         along which a frame of an unknown focal length has its long tail (docs/studies/sampler.md,
@@ -204,7 +205,7 @@ class BlockTarget:
             # the ground's z (what a free size is measured against) moves by ratio · d′_z / d_z
             log_z = np.log(ratio * ray_n[..., 2] / ray[..., 2])
         po[..., O_GROUND] = np.where(self.carry, g, po[..., O_GROUND])
-        sizes = self.carry[:, None] & self.of[:, O_SIZE]
+        sizes = (self.carry & ~self.ridge)[:, None] & self.of[:, O_SIZE]  # the ridge's keep their log(size / z)
         po[..., O_SIZE] = np.where(sizes, po[..., O_SIZE] - log_z[..., None], po[..., O_SIZE])
         return po - np.einsum("mik,nk->nmi", self.B, pc - self.c0), np.where(np.isfinite(log_j), log_j, -np.inf)
 
