@@ -184,10 +184,14 @@ def test_cvat_requests_leave_out_an_answered_measurement_without_a_segment():
     assert len(root.findall("image")) == 1 and root.findall("image/polyline")
 
 
-def test_a_result_whose_draws_leave_the_models_bounds_is_skipped_with_the_draw_named(tmp_path, capsys):
-    """A hostile batch result: one kept draw's pitch set to 2 rad (past the model's bounds). The
-    advice used to weigh it and write NaN into advice.json, then fail on it; the frame is now
-    skipped with the draw named, the other frame advised."""
+@pytest.mark.parametrize("damage", ["pitch", "ground"])
+def test_a_result_whose_draws_leave_the_models_bounds_is_skipped_with_the_draw_named(tmp_path, capsys, damage):
+    """A hostile batch result: one kept draw's pitch set to 2 rad (past the model's bounds), or its
+    first target's ground offset set 2 m up, above the camera (within the bounds, but the bottom
+    then lies above the horizon, where the sampler's coordinates cannot place it: the fuzz found it
+    turned to NaN in an answer's fallback). The advice used to weigh such a draw and write NaN
+    into advice.json, then fail on it; the frame is now skipped with the draw named, the other
+    frame advised."""
     import json
 
     from conftest import truth_scene
@@ -205,14 +209,20 @@ def test_a_result_whose_draws_leave_the_models_bounds_is_skipped_with_the_draw_n
                      BatchSettings(seed=0, sampling={"min_ess": 30, "max_steps": 200, "warmup": 100})).ok
     path = batch / "results" / "f0.json"
     result = json.loads(path.read_text())
-    pitches = result["draws"]["camera"]["pitch"]
-    pitches[0] = 2.0  # the first draw is always among those weighed
+    if damage == "pitch":
+        result["draws"]["camera"]["pitch"][0] = 2.0  # the first draw is always among those weighed
+    else:
+        result["draws"]["objects"][0]["ground_m"][0] = 2.0
     path.write_text(json.dumps(result))
     capsys.readouterr()
     assert main(["advise", str(batch), "--draws", "50", "--futures", "10", "--requests", "size", "--workers", "1",
                  "--out", str(tmp_path / "adv")]) == 0
     err = capsys.readouterr().err
-    assert "skipped: f0: draws: 1 of the 50 draws weighed lie outside the model's bounds (draw 0:" in err
-    assert "pitch 2," in err
+    if damage == "pitch":
+        assert "skipped: f0: draws: 1 of the 50 draws weighed lie outside the model's bounds (draw 0:" in err
+        assert "pitch 2," in err
+    else:
+        assert ("skipped: f0: draws: 1 of the 50 draws weighed place an object where the camera cannot see its "
+                "bottom (draw 0: ") in err and "ground offset 2 m" in err
     doc = json.loads((tmp_path / "adv" / "advice.json").read_text())
     assert [s["key"] for s in doc["skipped"]] == ["f0"] and "NaN" not in (tmp_path / "adv" / "advice.json").read_text()

@@ -532,6 +532,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         camera = ", ".join(f"{k} {v:.4g}" for k, v in zip(CAMERA_NAMES, cams[bad]))
         raise ValueError(f"draws: {int(np.sum(~np.isfinite(base)))} of the {n} draws weighed lie outside the model's "
                          f"bounds (draw {bad}: camera {camera}); they are not draws of this scene's posterior")
+    _check_placeable(model, draws, keep)
     notes = []
     if candidates is None:
         candidates, notes = scene_candidates(scene, model, np.asarray(camera_map, float),
@@ -586,6 +587,25 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
                   notes=tuple(notes), seconds=time.perf_counter() - t0, source=source, format_mix=mix.to_dict(),
                   n_weighed=n, shift=shift, names=names)
+
+
+def _check_placeable(model, draws: _Draws, keep: np.ndarray) -> None:
+    """Raise a :class:`ValueError` naming the first draw whose object the sampler's coordinates
+    cannot place (its bottom at or above the horizon, where a camera step or an answer's fallback
+    would turn it into NaN): a file's draws that no sampler of this model gave."""
+    from ...inference.coords import WorkingCoords
+
+    coords = WorkingCoords(model)
+    with np.errstate(all="ignore"):
+        back = coords.from_work(*coords.to_work(draws.cams, draws.objs))[1]
+    bad = ~np.all(np.isfinite(back), axis=-1)                                   # (n, m)
+    if bad.any():
+        row, obj = (int(x[0]) for x in np.nonzero(bad))
+        o = draws.objs[row, obj]
+        raise ValueError(f"draws: {int(bad.any(axis=1).sum())} of the {len(bad)} draws weighed place an object where "
+                         f"the camera cannot see its bottom (draw {int(keep[row])}: {model.objects[obj].id} at x "
+                         f"{o[O_X]:.4g} m, z {o[O_Z]:.4g} m, ground offset {o[O_GROUND]:.4g} m, the camera "
+                         f"{draws.cams[row, C_HEIGHT]:.4g} m high); they are not draws of this scene's posterior")
 
 
 def rank_key(objective: str):
