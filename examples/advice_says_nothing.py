@@ -55,7 +55,8 @@ def main(argv=None) -> int:
     p.add_argument("--posteriors", type=int, nargs="+", default=[1, 2, 3], help="posterior seeds")
     p.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5, 6], help="advice seeds")
     p.add_argument("--bar", type=float, default=None,
-                   help="the least P(IoU ≥ t) of a good label (default: 0.02 above the best label's, at the first posterior)")
+                   help="the least P(IoU ≥ t) of a good label (default: 0.02 above the best label's, at the "
+                        "first posterior)")
     p.add_argument("--min-ess", type=float, default=200.0)
     p.add_argument("--futures", type=int, nargs=2, default=[100, 300], metavar=("RACED", "ALL"))
     args = p.parse_args(argv)
@@ -67,7 +68,8 @@ def main(argv=None) -> int:
 
     scene = frame(args.frame_seed)
     bar = args.bar
-    print("| posterior | labels' P(IoU ≥ t) now (bar) | outcomes | request | stated good labels, mean | 3 se + 0.05 |")
+    print("| posterior | labels' P(IoU ≥ t) now (bar) | outcomes | request | stated good labels, mean "
+          "| 3 se + 0.05 |")
     print("|---|---|---|---|---|---|")
     real = advice_module.DimsObservation
     try:

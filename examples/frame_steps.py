@@ -7,7 +7,7 @@ several, with the least ESS per CPU second (at a fixed length: how fast the samp
     python -m creference_bayes simulate --from-kitti KITTI_DIR --focal-unknown --out scenes/
     python examples/frame_steps.py scenes/*.json --seeds 0 1 --out steps.jsonl
     python examples/frame_steps.py scenes/*.json --sampling '{"independence_weight": 0.8}'
-    python examples/frame_steps.py scenes/*.json --sampling '{"min_ess": 1e9, "max_steps": 6000}'   # mixing at a fixed length
+    python examples/frame_steps.py scenes/*.json --sampling '{"min_ess": 1e9, "max_steps": 6000}'  # a fixed length
 
 ``--sampling`` passes sampler settings (JSON, as ``creference estimate --sampling``) to every
 estimate. Two versions of the code are compared by running this once with each on ``PYTHONPATH``.
@@ -68,7 +68,8 @@ def main(argv=None) -> int:
             print(f"| {row['scene']} | {row['objects']} | {seed} | {cpu:.1f} | {row['steps']} | "
                   f"{'yes' if row['converged'] else 'no'} | {row['min_ess']:.0f} |", flush=True)
     print()
-    print("| scenes | estimates | CPU s | steps | not converged | least bulk ESS per CPU s, geometric mean | least ESS under 100 |")
+    print("| scenes | estimates | CPU s | steps | not converged | least bulk ESS per CPU s, geometric mean "
+          "| least ESS under 100 |")
     print("|---|---|---|---|---|---|---|")
     for name, keep in (("one object", lambda r: r["objects"] == 1), ("several", lambda r: r["objects"] > 1)):
         part = [r for r in rows if keep(r)]

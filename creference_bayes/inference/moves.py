@@ -183,11 +183,12 @@ class BlockTarget:
         length, its sizes in metres stay (a free size's log(size / z) moves by −log(z′/z), so its
         apparent size stays, as a known size's does; in a frame with a known size, whose ridge
         objects are carried, their free sizes keep log(size / z)), and its ground offset goes
-        where that puts it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing ray d of its
-        pixel (d′ the same pixel's ray from the new camera). This is the direction an image leaves
-        open where its perspective is weak (a long focal length with every depth scaled with it),
-        along which a frame of an unknown focal length has its long tail (docs/studies/sampler.md,
-        "A step that keeps the image"). The other objects follow the shear. Jacobian ∂g′/∂g =
+        where that puts it, g → h′ − (µ′/µ) t d′_y, t = (h − g) / d_y its depth along the viewing
+        ray d of its pixel (d′ the same pixel's ray from the new camera). This is the direction an
+        image leaves open where its perspective is weak (a long focal length with every depth
+        scaled with it), along which a frame of an unknown focal length has its long tail
+        (docs/studies/sampler.md, "A camera step that keeps the image"). The other objects follow
+        the shear. Jacobian ∂g′/∂g =
         (µ′/µ) d′_y / d_y (the sizes' shift is a translation); the move back (``pc`` → ``wc``)
         undoes it. Along the height alone (the ridge step) every ground offset moves with the
         height, h − g kept, and the Jacobian is 1."""
