@@ -77,7 +77,8 @@ def test_fit_writes_a_map_that_estimate_and_report_read(data, tmp_path, capsys):
     assert whole["recal_coverage"] > whole["coverage"]  # widened ranges hold the truth more often
 
 
-def test_fit_without_ground_truth_runs_estimates(data, tmp_path):
+def test_fit_without_ground_truth_runs_estimates_and_logs_a_line_per_scene(data, tmp_path, capsys):
+    """Standard error is not a terminal here: the leave-one-out fits print a line per scene."""
     scenes, _ = data
     for i in (0, 3):  # one target each, four ranges
         d = json.loads((scenes / f"scene_{i:02d}.json").read_text())
@@ -85,9 +86,12 @@ def test_fit_without_ground_truth_runs_estimates(data, tmp_path):
         (tmp_path / f"s{i}.json").write_text(json.dumps(d))
     out = tmp_path / "m.json"
     assert main(["confidence", "fit", str(tmp_path / "s0.json"), str(tmp_path / "s3.json"), "--out", str(out),
-                 "--min-per-level", "1", "--draws", "20", "--min-ess", "100", "--quiet"]) == 0
+                 "--min-per-level", "1", "--draws", "20", "--min-ess", "100"]) == 0
     cmap = ConfidenceMap.load(out)
     assert cmap.fit["method"] == "marginal" and cmap.fit["ranges"] == 8 and cmap.fit["scenes_failed"] == 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("leave-one-out ")]
+    assert [x.split(":")[0] for x in lines] == ["leave-one-out 1/2", "leave-one-out 2/2"], lines
+    assert all("4 range(s)" in x for x in lines), lines
 
 
 def test_fit_names_the_levels_it_left_out(data, tmp_path, capsys):

@@ -99,6 +99,26 @@ def test_core_and_models_import_numpy_scipy_and_the_standard_library_only(folder
     assert not bad, "\n".join(bad)
 
 
+#: Each heavy library's one adapter: the only module that imports it (matplotlib is the figure
+#: modules' own, vision/ and the bench's and the plot command's figures).
+ADAPTERS = {"emcee": "inference/emcee_moves.py", "arviz": "inference/summary.py", "pandas": "inference/summary.py",
+            "tqdm": "inference/progress.py", "threadpoolctl": "inference/threads.py", "cv2": "vision/horizon.py",
+            "PIL": "vision/images.py", "shapely": "evaluation/iou3d.py", "poselib": "bench/peers.py",
+            "dask": "workflows/batch/engines.py", "distributed": "workflows/batch/engines.py"}
+
+
+def test_each_heavy_library_is_imported_by_its_one_adapter():
+    found = {}
+    for path, rel in _modules():
+        for mod, line in _imports(path, rel):
+            if mod.split(".")[0] in ADAPTERS:
+                found.setdefault(mod.split(".")[0], set()).add(rel.as_posix())
+    bad = [f"{lib} imported by {sorted(where)}, expected {ADAPTERS[lib]} alone" for lib, where in sorted(found.items())
+           if where != {ADAPTERS[lib]}]
+    assert not bad, "\n".join(bad)
+    assert {"emcee", "arviz", "tqdm", "cv2"} <= set(found)  # the scan sees the adapters themselves
+
+
 def test_importing_core_and_models_loads_no_heavy_library():
     code = ("import sys, pkgutil, importlib, creference_bayes.core as c, creference_bayes.models as m\n"
             "for pkg in (c, m):\n"

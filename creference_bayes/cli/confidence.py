@@ -74,6 +74,7 @@ def _run_fit(args) -> int:
                 "without a truth left out)")
             cmap = fit_with_truth(ranges, **options)
         else:
+            from ..inference.progress import progress_mode
             from ..workflows.confidence.loo import predict_data_set
 
             say(f"fitting without ground truth: {len(ranges)} ranges in {len(scenes)} scenes "
@@ -81,7 +82,7 @@ def _run_fit(args) -> int:
             preds, totals, errors = predict_data_set(
                 scenes, seed=args.seed, workers=args.workers,
                 sampling=None if args.min_ess is None else {"min_ess": args.min_ess},
-                progress=not args.quiet and sys.stderr.isatty())
+                progress=progress_mode(args.quiet))
             for key, err in errors.items():
                 print(f"failed: {key}: {err}", file=sys.stderr)
             cmap = fit_marginal(preds, **options)

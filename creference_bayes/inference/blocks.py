@@ -3,7 +3,6 @@ of :mod:`.sampler`: its start, warm-up and mode report (docs/inference.md, "Seve
 
 from __future__ import annotations
 
-import emcee
 import numpy as np
 
 from ..models.contract import Model
@@ -11,7 +10,7 @@ from .chains import Draws, SamplerSettings, SamplingError
 from .coords import WorkingCoords
 from .laplace import chol, conditional
 from .modes import Mode, mode_rows, object_modes
-from .emcee_moves import IndependenceSweep, RandomWalkSweep
+from .emcee_moves import EnsembleSampler, IndependenceSweep, RandomWalkSweep, State
 from .moves import BlockKernel, BlockTarget
 
 __all__ = ["Blocks"]
@@ -45,9 +44,9 @@ class _Run:
         moves = [(RandomWalkSweep(self.kernel), 1.0 - w)]
         if w > 0:
             moves.append((IndependenceSweep(self.kernel), w))
-        self.sampler = emcee.EnsembleSampler(s.n_chains, self.target.ndim, self.target, moves=moves, vectorize=True)
+        self.sampler = EnsembleSampler(s.n_chains, self.target.ndim, self.target, moves=moves, vectorize=True)
 
-    def state(self, wc: np.ndarray, wo: np.ndarray, random_state, flipped=None) -> emcee.State:
+    def state(self, wc: np.ndarray, wo: np.ndarray, random_state, flipped=None) -> State:
         """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear,
         ``flipped`` (C, m) the objects at their other handedness (None: none)."""
         t = self.target
@@ -55,9 +54,9 @@ class _Run:
         u = t.join(wc, wt, flipped)
         blobs = t.blocks(u)
         with np.errstate(invalid="ignore"):
-            return emcee.State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
+            return State(u, log_prob=blobs.sum(axis=1), blobs=blobs, random_state=random_state)
 
-    def run(self, state: emcee.State, steps: int):
+    def run(self, state: State, steps: int):
         """Yield the state after each of ``steps`` steps."""
         yield from self.sampler.sample(state, iterations=steps, store=False, skip_initial_state_check=True)
 

@@ -1,4 +1,5 @@
-"""emcee's side of the kernels: the moves the driver hands ``emcee.EnsembleSampler``.
+"""The emcee adapter, the only module that imports emcee: its ``EnsembleSampler`` and ``State``
+(the driver of both kernels), and the moves the kernels hand it.
 
 :class:`RandomWalkSweep` and :class:`IndependenceSweep` run a sweep of the block kernel
 (:class:`.moves.BlockKernel`). For the ensemble kernel (:mod:`.ensemble`), walkers
@@ -11,10 +12,11 @@ from __future__ import annotations
 
 import emcee
 import numpy as np
+from emcee import EnsembleSampler, State
 
 from .moves import BlockKernel, multiple_try_pick
 
-__all__ = ["RandomWalkSweep", "IndependenceSweep", "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
+__all__ = ["EnsembleSampler", "State", "RandomWalkSweep", "IndependenceSweep", "GroupedDEMove", "GroupedStretchMove", "IndependenceMove"]
 
 
 class RandomWalkSweep(emcee.moves.Move):

@@ -14,13 +14,12 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 
-import emcee
 import numpy as np
 from scipy.cluster.vq import kmeans2
 from scipy.special import logsumexp
 
 from .chains import SamplerSettings, SamplingError, run_chains
-from .emcee_moves import GroupedDEMove, GroupedStretchMove, IndependenceMove
+from .emcee_moves import EnsembleSampler, GroupedDEMove, GroupedStretchMove, IndependenceMove, State
 from .reparam import Coordinates
 
 __all__ = ["Ensemble", "Chains", "sample", "explore", "fit_mixture"]
@@ -271,7 +270,7 @@ class Ensemble:
         for state in self.sampler.sample(self.state, iterations=steps, store=False, skip_initial_state_check=True):
             p = self.coords.inverse(state.coords)
             self.moved.append(float(np.mean(np.any(state.coords != self.state.coords, axis=1))))
-            self.state = emcee.State(state, copy=True)
+            self.state = State(state, copy=True)
             yield p, state.log_prob
 
     def acceptance(self) -> float:
@@ -331,10 +330,10 @@ def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_s
     d = len(coords.m)
     n_walkers = max(n_walkers + n_walkers % 2, 2 * d)
     u0 = _initial_points(in_space, [(np.zeros(d), np.eye(d))], [rng], n_walkers)
-    sampler = emcee.EnsembleSampler(n_walkers, d, lambda u: in_space(u) / temperature, vectorize=True,
+    sampler = EnsembleSampler(n_walkers, d, lambda u: in_space(u) / temperature, vectorize=True,
                                     moves=[(GroupedDEMove(1), 0.8), (GroupedStretchMove(1), 0.2)])
     rstate = np.random.RandomState(np.random.MT19937(rng.integers(2**63))).get_state()
-    sampler.run_mcmc(emcee.State(u0, random_state=rstate), n_steps, skip_initial_state_check=True)
+    sampler.run_mcmc(State(u0, random_state=rstate), n_steps, skip_initial_state_check=True)
     half = n_steps // 2
     return (sampler.get_chain(discard=half).reshape(-1, d),
             temperature * sampler.get_log_prob(discard=half).ravel())
@@ -343,8 +342,8 @@ def explore(log_prob, coords: Coordinates, rng, *, temperature: float = 3.0, n_s
 def _run(safe, coords, moves, pos, rstate):
     """A fresh EnsembleSampler in ``coords`` and its state at parameters ``pos``."""
     nw, d = pos.shape
-    sampler = emcee.EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
-    return sampler, emcee.State(coords.forward(pos), random_state=rstate)
+    sampler = EnsembleSampler(nw, d, _in_space(safe, coords), moves=moves, vectorize=True)
+    return sampler, State(coords.forward(pos), random_state=rstate)
 
 
 def fit_mixture(u: np.ndarray, centers: np.ndarray, *, n_iter: int = 10, min_weight: float = 0.05):

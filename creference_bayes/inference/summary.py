@@ -22,7 +22,7 @@ with _warnings.catch_warnings():
     _warnings.simplefilter("ignore", FutureWarning)  # arviz 0.23 announces its refactor on import
     import arviz as az
 
-__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "observations", "summary_table", "az"]
+__all__ = ["OBJECT_VARS", "CAMERA_VARS", "to_inference_data", "observations", "summary_table", "psis_weights", "az"]
 
 #: The per-object quantities of the posterior group, in order (the results' own report).
 OBJECT_VARS = OBJECT_REPORT
@@ -178,3 +178,26 @@ def summary_table(data: dict):
         for name in OBJECT_VARS:
             row(f"{name}[{o['id']}]", name, o, f"{o['id']}.{name}")
     return pd.DataFrame(rows, index=index)
+
+
+def psis_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised Pareto-smoothed importance weights and their Pareto shapes.
+
+    Parameters
+    ----------
+    log_ratios : (n_obs, n_draws) log importance ratios (for leave-one-out: minus each
+        observation's log-likelihood term at each draw)
+
+    Returns
+    -------
+    weights : (n_obs, n_draws), each row summing to 1
+    k : (n_obs,) Pareto shape estimates
+    """
+    lr = np.atleast_2d(np.asarray(log_ratios, float))
+    if not np.all(np.isfinite(lr)):
+        raise ValueError("log_ratios: expected finite numbers")
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore")  # arviz warns about k̂ itself; the caller decides
+        lw, k = az.psislw(lr.copy(), reff=1.0)
+    w = np.exp(lw - lw.max(axis=1, keepdims=True))
+    return w / w.sum(axis=1, keepdims=True), np.atleast_1d(np.asarray(k, float))

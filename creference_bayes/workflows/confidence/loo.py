@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import sys
 import warnings
 
 import numpy as np
@@ -33,7 +32,7 @@ from ...io.scene import Scene
 from ...pipeline import estimate
 from .data import StatedRange, stated_ranges
 
-__all__ = ["N_DRAWS", "PARETO_K_MAX", "RangePrediction", "psis_weights", "predict_ranges", "predict_data_set"]
+__all__ = ["N_DRAWS", "PARETO_K_MAX", "RangePrediction", "predict_ranges", "predict_data_set"]
 
 #: Draws of log ℓ kept per range.
 N_DRAWS = 400
@@ -69,31 +68,6 @@ class RangePrediction:
     def from_dict(cls, d: dict) -> "RangePrediction":
         return cls(StatedRange(**d["range"]), np.asarray(d["log_length"], float), float(d["line_var"]),
                    float(d["pareto_k"]), bool(d["refit"]))
-
-
-def psis_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised Pareto-smoothed importance weights and their Pareto shapes.
-
-    Parameters
-    ----------
-    log_ratios : (n_obs, n_draws) log importance ratios (for leave-one-out: minus each
-        observation's log-likelihood term at each draw)
-
-    Returns
-    -------
-    weights : (n_obs, n_draws), each row summing to 1
-    k : (n_obs,) Pareto shape estimates
-    """
-    import arviz as az
-
-    lr = np.atleast_2d(np.asarray(log_ratios, float))
-    if not np.all(np.isfinite(lr)):
-        raise ValueError("log_ratios: expected finite numbers")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # arviz warns about k̂ itself; the caller decides
-        lw, k = az.psislw(lr.copy(), reff=1.0)
-    w = np.exp(lw - lw.max(axis=1, keepdims=True))
-    return w / w.sum(axis=1, keepdims=True), np.atleast_1d(np.asarray(k, float))
 
 
 def _resample(values: np.ndarray, weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -135,6 +109,8 @@ def predict_ranges(scene: Scene, key: str = "scene", *, seed=0, sampling: dict |
     info = {"ranges": len(ranges), "refits": 0, "skipped": 0, "converged": True}
     if not ranges:
         return [], info
+    from ...inference.summary import psis_weights  # the arviz adapter, imported when used
+
     model, cams, objs, info["converged"] = _posterior(scene, rng, sampling, key)
     column = {t.index: j for j, t in enumerate(model.references)}
     loglik = model.pointwise_log_likelihood(cams, objs)["references"]  # (n, k)
@@ -174,7 +150,7 @@ def _predict_job(job: tuple) -> tuple:
 
 
 def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, workers: int = 1,
-                     progress: bool = False) -> tuple[list[RangePrediction], dict, dict[str, str]]:
+                     progress: bool | str = False) -> tuple[list[RangePrediction], dict, dict[str, str]]:
     """:func:`predict_ranges` for every scene of a data set, in ``workers`` local processes.
 
     Parameters
@@ -183,14 +159,14 @@ def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, wor
     seed : base seed; each scene's derives from it and the scene's content (as in a batch)
     sampling : sampler settings for the estimates
     workers : processes (1: in this process)
-    progress : a tqdm bar on standard error
+    progress : a bar on standard error (True), a line per scene (``"lines"``) or nothing (False),
+        as :func:`~creference_bayes.inference.progress.progress_mode` chooses
 
     Returns
     -------
     predictions (in the order of ``scenes``), totals of the scenes' info, errors (key → message)
     """
-    from tqdm.auto import tqdm
-
+    from ...inference.progress import progress_bar
     from ...io.scene import scene_fingerprint
     from ..batch import derive_seed
     from ..batch.engines import LocalEngine
@@ -199,8 +175,12 @@ def predict_data_set(scenes, *, seed: int = 0, sampling: dict | None = None, wor
             if any(r.is_range and r.confidence is not None for r in s.references)]
     with contextlib.ExitStack() as stack:
         run = map if workers <= 1 else stack.enter_context(LocalEngine(workers)).executor.map
-        done = list(tqdm(run(_predict_job, jobs), total=len(jobs), unit="scene", desc="leave-one-out",
-                         disable=not progress, file=sys.stderr))
+        bar = stack.enter_context(progress_bar(progress, len(jobs), desc="leave-one-out", unit="scene"))
+        done = []
+        for key, found, info in run(_predict_job, jobs):
+            bar.set_postfix_str(f"{key}: " + ("failed" if found is None else f"{len(found)} range(s)"))
+            bar.update()
+            done.append((key, found, info))
     preds, errors = [], {}
     totals = {"scenes": len(jobs), "ranges": 0, "refits": 0, "skipped": 0, "not_converged": 0}
     for key, found, info in done:
