@@ -185,3 +185,18 @@ def test_one_settings_object_for_estimate_build_model_and_batch():
     res = cb.estimate(scene, s, seed=0, posterior=False)
     prov = res.to_dict()["provenance"]
     assert (prov["hdi_prob"], prov["use_references"], prov["options"]) == (0.5, False, {"ground_sd_m": 0.2})
+
+
+def test_a_pitch_derived_from_an_exact_horizon_has_its_posterior_in_the_summary():
+    """With an exact horizon the pitch follows from the focal length, so its draws spread with
+    it: the result, the summary table and the InferenceData agree on that spread; the roll (from
+    the horizon's slope alone) has none and is reported as fixed."""
+    scene = cb.load_scene(os.path.join(os.path.dirname(cb.__file__), "data", "example_scene.json"))
+    r = cb.estimate(scene, seed=0, sampling=TINY)
+    assert r.camera.free == ("focal_length_px", "height_m", "ref_scale")  # pitch derived, not free
+    pitch = r.to_inference_data().posterior["pitch"].values.ravel()
+    assert pitch.std() > 0
+    table = r.summary()
+    assert table.loc["pitch", "mean"] == pytest.approx(pitch.mean(), abs=1e-6)
+    assert table.loc["pitch", "hdi_5%"] < table.loc["pitch", "map"] < table.loc["pitch", "hdi_95%"]
+    assert np.isnan(table.loc["roll", "mean"]) and "roll" not in r.camera.mean

@@ -46,9 +46,12 @@ def test_the_demo_says_which_true_values_it_did_not_check(demo_run):
     result, printed = demo_run
     line = next(l for l in printed.splitlines() if l.startswith("truth inside the 90% HDI"))
     camera = json.loads(result.read_text())["camera"]
-    assert "pitch" not in camera["posterior"]["sd"] and "roll" not in camera["posterior"]["sd"]
     assert camera["setup"]["orientation"] == "horizon"  # the shipped example has an exact horizon
-    assert "not checked (fixed, no spread in the posterior): pitch and roll (from the exact horizon)" in line, line
+    # the horizon fixes the roll outright and the pitch for each focal length: the pitch spreads with it
+    assert camera["posterior"]["sd"]["pitch"] > 0 and "roll" not in camera["posterior"]["sd"]
+    checked, _, unchecked = line.partition("; not checked")
+    assert "pitch" in checked.split(": ", 1)[1].split(", "), line
+    assert unchecked == " (fixed, no spread in the posterior): roll (from the exact horizon)", line
 
 
 def test_advise_shows_the_estimates_hdi_beside_its_own(example_result, capsys):

@@ -223,7 +223,8 @@ class CameraEstimate:
     """The shared camera's estimate (a result's ``camera``, read for Python): the MAP's focal
     length (px), pitch and roll (radians) and height (metres); ``free`` the quantities estimated
     (the others fixed); ``map``, ``mean``, ``sd``, ``median``, ``hdi`` as for
-    :class:`ObjectEstimate` (``CAMERA_NAMES``), the posterior's of the free quantities only."""
+    :class:`ObjectEstimate` (``CAMERA_NAMES``), the posterior's of the quantities with a spread in
+    its draws (the free ones and those derived from them, as an exact horizon's pitch from µ)."""
 
     focal_length_px: float
     pitch_rad: float
@@ -281,7 +282,8 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
                                None if hands is None else hands.reshape(-1, model.n_objects))
         post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
         post_cam = _summary(cams, hdi_prob)
-        camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, cf)
+        spread = cf | (np.ptp(cams, axis=0) > 1e-9 * (1.0 + np.abs(cams).max(axis=0)))  # and those derived from them
+        camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, spread)
         if not diag.converged:
             warnings += [f"posterior not converged: {w}" for w in diag.warnings]
     if scene.ground_truth:
