@@ -294,3 +294,36 @@ def test_cvat_requests_name_frames_of_one_name_in_two_folders_apart_and_each_mer
     for key, shift in (("a/cam1", 1.5), ("b/cam1", -2.0)):
         lines = load_scene(tmp_path / "in" / f"{key}.json").targets[0].dimension_lines
         assert len(lines) == 2 and np.allclose(lines[1].corners - lines[0].corners, shift, atol=0.01), key
+
+
+def test_advice_refuses_to_replace_a_plan_holding_answers_not_yet_applied(tmp_path, capsys):
+    """Answers typed into the plan's requests.csv and not yet put in: a new advice would replace
+    the file, so it refuses before advising, names the answers and what to do, and leaves the
+    file as it was; once they are applied the file may be replaced (the check lets it through)."""
+    from creference_bayes.cli.advise import _keep_answers
+
+    out = _batch(tmp_path, {"f0": _scene(9), "f1": _scene(10)})
+    (out / "advice").mkdir()
+    rows = [{"rank": "1", "key": "f0", "target": "t0", "kind": "size", "answer": "4.0,1.8,1.5"},
+            {"rank": "2", "key": "f1", "target": "t1", "kind": "size", "answer": ""}]
+    plan = _answers(out / "advice" / "requests.csv", rows)
+    before = plan.read_bytes()
+    capsys.readouterr()
+    assert main(["advise", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "1 answer not yet in the scene files (t0: size [4.0, 1.8, 1.5] m)" in err, err
+    assert f"--apply {plan}" in err and "nothing was advised" in err
+    assert plan.read_bytes() == before
+    assert main(["advise", str(out), "--apply", str(plan), "--quiet"]) == 0
+    _keep_answers(str(out), plan)  # every answer in its scene file now: no error
+
+
+def test_a_cameras_mounting_counts_as_one_answer_in_every_frame_it_goes_to(tmp_path, capsys):
+    scenes = {f"f{i}": _scene(11 + i) for i in range(3)}
+    for d in scenes.values():
+        d["camera"]["id"] = "cam-a"
+    out = _batch(tmp_path, scenes)
+    rows = [{"rank": "1", "key": "f0", "camera": "cam-a", "kind": "mounting", "answer": "1.5,4,0.5"},
+            {"rank": "2", "key": "f1", "target": "t0", "kind": "size", "answer": "4.0,1.8,1.5"}]
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows))]) == 0
+    assert "2 answers put into 3 scene file(s);" in capsys.readouterr().out

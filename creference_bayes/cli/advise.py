@@ -124,6 +124,7 @@ def _batch(args, settings, progress: bool | str) -> int:
     # as creference batch runs: local processes (no more than the frames) or a Dask scheduler
     engine = _engine(args) if args.scheduler else None
     require(args.workers is None or args.workers >= 1, "--workers", "an integer >= 1", args.workers)
+    _keep_answers(args.input, out / "requests.csv")
     with usage_errors(one_line=True):
         batch = advise_batch(args.input, seed=args.seed, settings=settings, engine=engine, workers=args.workers,
                              progress=progress)
@@ -166,11 +167,13 @@ def _batch(args, settings, progress: bool | str) -> int:
     return 0
 
 
-def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None) -> int:
+def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None, per_text: bool = False) -> int:
     """Run ``put(notes)`` (--apply or --merge: it writes the user's scene files and returns (file,
-    what, whether it changed the file) per answer), its notes as warnings, then what changed and
-    what to run next; when nothing changed (no file written), ``nothing``: why. ``cost(what)``: what
-    an answer that changed a file costs the next estimate, if anything (said once)."""
+    what, whether it changed the file) per answer and file), its notes as warnings, then what
+    changed and what to run next; when nothing changed (no file written), ``nothing``: why.
+    ``cost(what)``: what an answer that changed a file costs the next estimate, if anything (said
+    once). ``per_text``: count an answer once however many files it went into (a camera's
+    mounting goes to each of its frames)."""
     notes: list[str] = []
     with usage_errors(one_line=True):
         done = put(notes)
@@ -183,8 +186,9 @@ def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None) -> in
         if not new:
             print(f"nothing changed: {nothing}; no scene file written, nothing to estimate again")
         else:
-            same = len(done) - len(new)
-            print(f"{len(new)} {noun}{'s' if len(new) != 1 else ''} {verb} {len(set(new))} scene file(s)"
+            n = len({what for _, what, changed in done if changed}) if per_text else len(new)
+            same = len({what for _, what, _ in done} if per_text else done) - n
+            print(f"{n} {noun}{'s' if n != 1 else ''} {verb} {len(set(new))} scene file(s)"
                   + (f" ({same} in them already)" if same else "")
                   + "; run creference batch on them again, with the same settings: it re-estimates the frames "
                     "that changed")
@@ -202,19 +206,50 @@ def _apply(args) -> int:
     path = Path(args.apply)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
-    try:
-        rows = read_csv_rows(read_text(path))
-    except UnicodeDecodeError as exc:
-        raise UsageError(f"--apply {path}: not UTF-8 text (byte {exc.start}): save requests.csv as UTF-8") from None
-    except csv.Error as exc:
-        raise UsageError(f"--apply {path}: not a CSV file ({exc})") from None
-    if rows and "answer" not in rows[0]:
-        raise UsageError(f"--apply {path}: no 'answer' column (a requests.csv of creference advise)")
+    rows = _request_rows(path, f"--apply {path}")
     if not any((row.get("answer") or "").strip() for row in rows):
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/requests.md)")
     return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into",
-                        "every answer is in the scene files already", _answer_cost)
+                        "every answer is in the scene files already", _answer_cost, per_text=True)
+
+
+def _request_rows(path: Path, where: str) -> list[dict]:
+    """The rows of a ``requests.csv`` (dicts); UsageError naming ``where`` when it is not one."""
+    try:
+        rows = read_csv_rows(read_text(path))
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"{where}: not UTF-8 text (byte {exc.start}): save requests.csv as UTF-8") from None
+    except csv.Error as exc:
+        raise UsageError(f"{where}: not a CSV file ({exc})") from None
+    if rows and "answer" not in rows[0]:
+        raise UsageError(f"{where}: no 'answer' column (a requests.csv of creference advise)")
+    return rows
+
+
+def _keep_answers(batch_dir: str, path: Path) -> None:
+    """Refuse to advise where the new plan would replace a ``requests.csv`` that holds answers not
+    yet in the scene files (typed in, not applied): UsageError naming them and what to do. Checked
+    before any advice is computed; answers already put in (a rerun after ``--apply``) let it
+    be replaced."""
+    from ..workflows.advice.answers import apply_answers
+
+    if not path.is_file():
+        return
+    where = f"{path} (the plan a new advice would replace)"
+    rows = _request_rows(path, where)
+    if not any((row.get("answer") or "").strip() for row in rows):
+        return
+    keep = (f"put them in first (creference advise {batch_dir} --apply {path}), or move the file away or give "
+            "another --out; nothing was advised")
+    try:
+        pending = list(dict.fromkeys(what for _, what, changed in apply_answers(batch_dir, rows, write=False)
+                                     if changed))  # a camera's mounting once, not once per frame
+    except (ValueError, OSError) as exc:
+        raise UsageError(f"{where} holds answers that cannot be checked against the scene files ({exc}): {keep}") from None
+    if pending:
+        raise UsageError(f"{where} holds {len(pending)} answer{'s' * (len(pending) != 1)} not yet in the scene "
+                         f"files ({'; '.join(pending[:3])}{'; …' if len(pending) > 3 else ''}): {keep}")
 
 
 def _answer_cost(what: str) -> str | None:

@@ -327,7 +327,7 @@ def _write(files: dict, scenes: dict, what: dict) -> None:
     atomic_write_set(texts)
 
 
-def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str, str, bool]]:
+def apply_answers(batch_dir, rows, notes: list | None = None, *, write: bool = True) -> list[tuple[str, str, bool]]:
     """Put the answered size, mounting and segment-less measurement requests of ``rows``
     (``requests.csv``'s rows, dicts; a row is answered when its ``answer`` is filled in,
     :data:`ANSWER_FORMS`) into the user's scene files the batch ``batch_dir`` was made from (each
@@ -339,7 +339,8 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
     that is drawn (lines, a reference on a segment: they come back through an importer) is said in
     ``notes``. ``creference batch`` then re-estimates the frames whose scenes changed. Raises
     ValueError naming the row and the value on a bad answer, the file on an answer its format
-    cannot hold; nothing is written then."""
+    cannot hold; nothing is written then. ``write=False``: the same checks and return, nothing
+    written (which answers are not in the scene files yet)."""
     from ...io.scene import scene_fingerprint
     from ..batch.files import result_paths
 
@@ -400,7 +401,8 @@ def apply_answers(batch_dir, rows, notes: list | None = None) -> list[tuple[str,
     what = {}
     for source, text, changed in done:
         what.setdefault(source, []).append(text)
-    _write(files, scenes, what)
+    if write:
+        _write(files, scenes, what)
     return [(str(source), text, changed) for source, text, changed in done]
 
 
