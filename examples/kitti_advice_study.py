@@ -2,13 +2,13 @@
 against fixed designs, on KITTI frames (docs/studies/advice.md).
 
     python examples/kitti_advice_study.py KITTI_DIR --out DIR [--split all|even|odd] [--start-k 1]
-        [--noise-px 2] [--budget-s S] [--max-frames N] [--max-steps N] [--seed 0]
+        [--noise-px 2] [--budget-s S] [--max-frames N] [--max-steps N] [--seed 0] [--focal-unknown]
         [--score-iou 0.7] [--min-quality 0.5]
     python examples/kitti_advice_study.py KITTI_DIR --out DIR --tables-only
 
 1. Frames as examples/kitti_study.py makes them (``creference simulate --from-kitti``: one scene per
-   image, the class size priors, P2's focal length given), with ``--start-k`` sets of dimension
-   lines per object at ``--noise-px``.
+   image, the class size priors, P2's focal length given, or left out with ``--focal-unknown``), with
+   ``--start-k`` sets of dimension lines per object at ``--noise-px``.
 2. Round 0: ``creference batch``, then ``creference labels``. A label is *good* when its
    P(IoU ≥ T) ≥ Q (``--score-iou``, ``--min-quality``); *truly good* when it is good and its 3D IoU
    with KITTI's own box is ≥ T.
@@ -307,6 +307,9 @@ def main(argv=None) -> int:
     p.add_argument("--split", choices=("all", "even", "odd"), default="all",
                    help="every frame, or those with an even or odd number (as kitti_study.py)")
     p.add_argument("--start-k", type=int, default=1, help="sets of dimension lines per object in round 0")
+    p.add_argument("--focal-unknown", action="store_true",
+                   help="leave P2's focal length out of the scenes (simulate --from-kitti --focal-unknown): the "
+                        "batch's data-set layer then holds each camera's focal length")
     p.add_argument("--noise-px", type=float, default=2.0)
     p.add_argument("--budget-s", type=float, default=None,
                    help="the advised plan's human seconds (default: those of one more set on every object)")
@@ -339,7 +342,8 @@ def main(argv=None) -> int:
     out = args.out
     for old in ("round0", "advice"):  # a run is one piece: no result of an earlier run's frames
         shutil.rmtree(out / old, ignore_errors=True)
-    kitti_scenes(args.kitti, out / "frames", n_annotations=args.start_k, noise_px=args.noise_px, seed=args.seed)
+    kitti_scenes(args.kitti, out / "frames", n_annotations=args.start_k, noise_px=args.noise_px, seed=args.seed,
+                 focal_known=not args.focal_unknown)
     paths = sorted((out / "frames").glob("*.json"))
     if args.split != "all":
         paths = [q for q in paths if int(q.stem) % 2 == (args.split == "odd")]

@@ -48,38 +48,39 @@ def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None =
     hands = None if kept is None or kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     camera, objects = map_state(d)
     prov = d.get("provenance") or {}
-    weighed, notes = _given_held_focal(model, cams, objs)
+    weighed, log_k, notes = _given_held_focal(model, cams, objs)
     advice = advise(model, scene, *weighed, camera_map=camera, objects_map=objects, options=prov.get("options"),
                     temperature=float(prov.get("temperature", 1.0)), seed=rng, settings=settings, source=source,
-                    progress=progress, label_draws=(cams, objs), hands=hands)
+                    progress=progress, shared_log_k=log_k, hands=hands)
     if notes:
         advice = dataclasses.replace(advice, notes=advice.notes + tuple(notes))
     return dataclasses.replace(advice, seed=_recordable(seed))
 
 
 def _given_held_focal(model, cams: np.ndarray, objs: np.ndarray):
-    """The draws the advice weighs, and a note. A frame whose camera's focal length a data set
-    held (``creference batch``: one value for the camera's frames) keeps draws that carry the
-    pool's uncertainty as one scale of focal length and depths the camera's frames share
-    (:func:`~creference_bayes.workflows.batch.dataset.share_scale`). No annotation of this frame
-    moves that scale, and the model holds the focal length fixed, so the futures are weighed on the
-    draws given the held value (the scale divided out); the labels' quality now is stated from the
-    draws as they are (:func:`~creference_bayes.workflows.advice.advise`'s ``label_draws``)."""
+    """The draws the advice weighs, each draw's shared scale (None: none) and a note. A frame whose
+    camera's focal length a data set held (``creference batch``: one value for the camera's frames)
+    keeps draws that carry the pool's uncertainty as one scale of focal length and depths the
+    camera's frames share (:func:`~creference_bayes.workflows.batch.dataset.share_scale`). The
+    model holds the focal length fixed, so the answers are simulated and weighed on the draws given
+    the held value (the scale divided out); no annotation of this frame moves the scale, so every
+    distance and label quality, now and after a request, is read with it
+    (:func:`~creference_bayes.workflows.advice.advise`'s ``shared_log_k``)."""
     from ...models.contract import C_FOCAL
     from ..batch.dataset import scale_draws
 
     held = model.focal_length_px
     if held is None or not len(cams):
-        return (cams, objs), []
+        return (cams, objs), None, []
     with np.errstate(divide="ignore", invalid="ignore"):
         log_k = np.log(np.asarray(cams, float)[:, C_FOCAL] / float(held))
     if not np.all(np.isfinite(log_k)) or np.max(np.abs(log_k)) < 1e-9:
-        return (cams, objs), []
+        return (cams, objs), None, []
     sd = 100.0 * float(np.std(log_k))
-    return scale_draws(cams, objs, -log_k), [
+    return scale_draws(cams, objs, -log_k), log_k, [
         f"the focal length is held at {float(held):.1f} px (the data set's pool of this camera's frames); its "
-        f"uncertainty (±{sd:.1f} %, shared by the camera's frames) is in the labels' quality now, and no request on "
-        "this frame changes it"]
+        f"uncertainty (±{sd:.1f} % in every depth, shared by the camera's frames) stays in the labels' quality and "
+        "distances after any request: no request on this frame changes it"]
 
 
 def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, progress: bool = False,

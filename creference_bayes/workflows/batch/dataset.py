@@ -1090,5 +1090,8 @@ def dataset_lines(summary: dict) -> list[str]:
             warns += [f"warning: data set: {label} of {group}: {w}" for w in b["warnings"]]
     if not rows:
         return []
-    head = f"  {'quantity':<16} {'by':<8} {'group':<24} {'pooled':>10}  {'uncertainty':<28} {'used/offered':<18}"
-    return ["data set (what the frames share; each frame took the others'):", head, *rows, *warns]
+    head = f"  {'quantity':<16} {'by':<8} {'group':<24} {'pooled':>10}  {'uncertainty':<28} {'used/offered':<18} agreement"
+    legend = ("  (held: every frame of the group takes the pooled value; spread: how far frames stray around it; "
+              "n_eff: the frames the pool rests on, counted by their weights; D: the pool less the frames' own "
+              "median, in the pool's standard deviations)")
+    return ["data set (what the frames share; each frame took the others'):", head, *rows, legend, *warns]
