@@ -108,8 +108,12 @@ def test_export_file_reports_the_bad_task_and_notes_the_unannotated_one():
 def test_cli_writes_the_good_tasks_and_exits_2(tmp_path, capsys):
     out = tmp_path / "scenes"
     assert main(["import", "label-studio", str(EXPORT), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
+    printed = capsys.readouterr()
+    err = printed.err
     assert "error: task 19, annotation 301, region 'a1b2': reference line has 3 points, expected 2" in err
+    # the last line counts every task not written: the one in error and the one nobody annotated
+    assert printed.out.splitlines()[-1] == (f"2 scene(s) written to {out}, 1 skipped for errors, "
+                                            "1 with nothing annotated yet skipped")
     assert sorted(p.name for p in out.iterdir()) == ["ab12cd34-room.json", "street.json"]  # no temp files
     scene = load_scene(out / "ab12cd34-room.json")
     assert scene.format == "creference-scene/2" and [t.id for t in scene.targets] == ["cupboard"]

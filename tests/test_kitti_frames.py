@@ -100,7 +100,7 @@ def test_simulate_from_kitti_on_the_command_line(kitti_dir, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(kitti_dir),
                            "--out", str(out), "--annotations", "2"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert "3 objects" in proc.stdout and "1 by truncation" in proc.stdout
+    assert "3 objects" in proc.stdout and "1 truncated by over 0.5 of their size" in proc.stdout
     data = json.loads((out / "000007.json").read_text())
     assert data["format"] == "creference-scene/2" and len(data["targets"][0]["dimension_lines"]) == 2
     proc = subprocess.run([sys.executable, "-m", "creference_bayes", "simulate", "--from-kitti", str(tmp_path),

@@ -158,7 +158,7 @@ def test_simulate_from_kitti_says_when_there_is_no_folder_or_nothing_to_write(tm
         "Car 0.00 3 -1.57 600.0 160.0 660.0 220.0 1.5 1.6 3.9 1.0 1.7 30.0 -1.54\n")
     assert main(["simulate", "--from-kitti", str(tmp_path / "k"), "--out", str(tmp_path / "o")]) == 2
     assert _err(capsys) == (f"error: --from-kitti {tmp_path / 'k'}: no scene written: no image has an object a person "
-                            "could annotate (left out: 1 by occlusion)")
+                            "could annotate (left out: 1 of occlusion level over 2)")
 
 
 def test_estimate_and_demo_take_a_step_cap_as_batch_does(tmp_path, capsys):

@@ -168,7 +168,12 @@ def _run_kitti(args, out: Path) -> int:
         totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
                               noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
                               sizes=args.sizes or "prior", focal_known=not args.focal_unknown)
-    skipped = ", ".join(f"{v} by {k}" for k, v in totals["skipped"].items() if v)
+    from ..bench.kitti import MAX_OCCLUSION, MAX_TRUNCATION, MIN_HEIGHT_PX
+
+    why = {"class": "of a class nobody annotates", "height": f"under {MIN_HEIGHT_PX:g} px tall in the image",
+           "truncation": f"truncated by over {MAX_TRUNCATION:g} of their size", "occlusion": f"of occlusion level over {MAX_OCCLUSION:g}",
+           "outside": "outside the image"}
+    skipped = ", ".join(f"{v} {why.get(k, k)}" for k, v in totals["skipped"].items() if v)
     if not totals["scenes"]:
         raise UsageError(f"--from-kitti {src}: no scene written: no image has an object a person could annotate"
                          + (f" (left out: {skipped})" if skipped else " (no labelled object)"))
@@ -266,8 +271,9 @@ def register(subparsers) -> None:
                    help="each setting's camera ranges (setting, the default) or real cameras: phones, zoom, action "
                         "and vehicle cameras, each with its own image size (real)")
     g.add_argument("--focal-unknown", action="store_true",
-                   help="with --from-kitti: leave P2's focal length out of the scenes (a street camera nobody "
-                        "calibrated; every scene still names its camera, camera.id)")
+                   help="with --from-kitti: give the estimate no focal length (a street camera nobody calibrated; "
+                        "every scene still names its camera, camera.id, and keeps P2 as camera.kitti_p2 for the "
+                        "labels' KITTI frame only)")
     g.add_argument("--confidence", default=None, metavar="MAP",
                    help="every reference is a range stated with a confidence by a pool of workers "
                         "(each with an own error scale) whose true confidence map is calibrated, "

@@ -170,7 +170,8 @@ def _finish(report, args) -> int:
         for scene, path, how in done:
             print(f"{how} {path} ({scene.source})")
         errors = len(report.errors) + len(refused)
-        skipped = f", {errors} skipped for errors" if errors else ""
+        skipped = (f", {errors} skipped for errors" if errors else "") + \
+            (f", {report.unannotated} with nothing annotated yet skipped" if report.unannotated else "")
         replaced = sum(how == "replaced" for *_, how in done)
         print(f"{len(done)} scene(s) written to {args.out}{f' ({replaced} replaced)' if replaced else ''}{skipped}")
     return EXIT_INVALID if report.errors or refused else 0

@@ -61,11 +61,13 @@ class ImportedScene:
 
 @dataclass(frozen=True)
 class ImportReport:
-    """Scenes converted, units skipped (with the reason) and notes (things ignored or assumed)."""
+    """Scenes converted, units skipped (with the reason), notes (things ignored or assumed) and
+    how many tasks or images were passed over with nothing annotated yet."""
 
     scenes: tuple[ImportedScene, ...]
     errors: tuple[ConversionError, ...] = ()
     notes: tuple[str, ...] = ()
+    unannotated: int = 0
 
     @property
     def ok(self) -> bool:
@@ -74,7 +76,7 @@ class ImportReport:
 
     def to_dict(self) -> dict:
         return {"scenes": [{"name": s.name, "source": s.source} for s in self.scenes],
-                "errors": [str(e) for e in self.errors], "notes": list(self.notes)}
+                "errors": [str(e) for e in self.errors], "notes": list(self.notes), "unannotated": self.unannotated}
 
 
 def _short(value: Any, limit: int = 40) -> str:

@@ -186,7 +186,7 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
     if root.find("track") is not None:
         notes.append("<track> elements ignored (export the task as 'CVAT for images', not video)")
     table = TargetTable.of(targets)
-    scenes, errors = [], []
+    scenes, errors, unannotated = [], [], 0
     for i, image in enumerate(root.findall("image")):
         try:
             scene = _image_scene(image, i, image_dir, out_dir, table, classes, notes)
@@ -195,9 +195,11 @@ def scenes_from_cvat(root: ET.Element, *, image_dir: str | Path | None = None,
             continue
         if scene is not None:
             scenes.append(scene)
+        else:
+            unannotated += 1
     kept, clashes = unique_names(scenes)
     notes += table.notes()
-    return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
+    return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes), unannotated)
 
 
 def _points(text: Any, where: str) -> list[list[float]]:

@@ -122,14 +122,16 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
                                           f"got {type(tasks).__name__}")
     table = TargetTable.of(targets)
     groups: dict[Any, list[_TaskPart]] = {}
-    errors, notes = [], []
+    errors, notes, unannotated = [], [], 0
     for i, task in enumerate(tasks):
         try:
             part = _task_part(task, i, users or {}, notes)
         except ConversionError as exc:
             errors.append(exc)
             continue
-        if part is not None:
+        if part is None:
+            unannotated += 1
+        else:
             image = part.data.get("image")
             raw = part.task["data"]
             request = raw.get("request_key") if "creference_scene" in raw else None
@@ -148,7 +150,7 @@ def scenes_from_label_studio(tasks: Any, *, image_dir: str | Path | None = None,
             errors.append(exc)
     kept, clashes = unique_names(scenes)
     notes += table.notes()
-    return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes))
+    return ImportReport(tuple(kept), tuple(errors + clashes), tuple(notes), unannotated)
 
 
 @dataclass
