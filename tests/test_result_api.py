@@ -200,3 +200,7 @@ def test_a_pitch_derived_from_an_exact_horizon_has_its_posterior_in_the_summary(
     assert table.loc["pitch", "mean"] == pytest.approx(pitch.mean(), abs=1e-6)
     assert table.loc["pitch", "hdi_5%"] < table.loc["pitch", "map"] < table.loc["pitch", "hdi_95%"]
     assert np.isnan(table.loc["roll", "mean"]) and "roll" not in r.camera.mean
+    # the diagnostics say how many draws the summaries are of (a chain of walkers laid end to end)
+    diag, post = r.to_dict()["diagnostics"], r.to_inference_data().posterior
+    assert (diag["n_chains"], diag["draws_per_chain"]) == (post.sizes["chain"], post.sizes["draw"])
+    assert diag["draws_per_chain"] > diag["iterations"]  # the one-target ensemble: several walkers a chain

@@ -96,7 +96,9 @@ def format_tables(d: dict) -> str:
     if diag:
         lines.append("")
         lines.append(f"posterior: {'converged' if diag['converged'] else 'NOT converged (see the notes below)'} after "
-                     f"{diag['iterations']} iterations × {diag['n_chains']} chains (min bulk ESS "
+                     f"{diag['iterations']} iterations × {diag['n_chains']} chains ("
+                     + (f"{diag['n_chains']} × {diag['draws_per_chain']} draws; " if diag.get("draws_per_chain") else "")
+                     + "min bulk ESS "
                      f"{_num(diag['min_ess_bulk'], '.0f')}, max R-hat {_num(diag['max_r_hat'], '.3f')}), {d['seconds']:.1f} s")
     refs = _references_line(d.get("references") or {})
     if refs:

@@ -49,11 +49,13 @@ class Diagnostics:
     warnings: tuple[str, ...] = ()
     seconds: float = 0.0
     info: dict = field(default_factory=dict)
+    #: draws each chain holds (a chain of the ensemble kernel lays its walkers end to end)
+    draws_per_chain: int = 0
 
     def to_dict(self) -> dict:
         r = lambda d: {k: (None if v is None or not np.isfinite(v) else round(float(v), 4)) for k, v in d.items()}
         return {"sampler": "emcee", "n_chains": self.n_chains, "warmup": self.warmup, "iterations": self.iterations,
-                "thin": self.thin, "min_ess_bulk": _extreme(_checked(self.ess_bulk), min, 1),
+                "thin": self.thin, "draws_per_chain": self.draws_per_chain, "min_ess_bulk": _extreme(_checked(self.ess_bulk), min, 1),
                 "max_r_hat": _extreme(_checked(self.r_hat), max, 4), "ess_bulk": r(self.ess_bulk), "r_hat": r(self.r_hat),
                 "acceptance": {k: round(float(v), 3) for k, v in self.acceptance.items()},
                 "converged": self.converged, "warnings": list(self.warnings), "seconds": round(self.seconds, 3),
@@ -100,7 +102,8 @@ def sample(model: Model, map_est: MapState, *, settings: SamplerSettings | None 
     if model.needs_pilot:
         info["pilot"] = model.pilot.copy()
     return draws, Diagnostics(kernel.n_chains, warm, it, thin, *_with_y(model, draws, diag["ess_bulk"], diag["r_hat"]),
-                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, info)
+                              acceptance, diag["ok"], tuple(warn), time.perf_counter() - t0, info,
+                              int(draws.cameras.shape[1]))
 
 
 def _repilot(model: Model):
