@@ -153,7 +153,7 @@ def _batch(args, settings, progress: bool | str) -> int:
                   and not (results / p.relative_to(errors)).exists()] if errors.is_dir() else []
         good = sum(bool(o.advice.good[o.target]) for o in batch.objects)
         stuck = sum(o.advice.verdicts()[o.target]["verdict"] == "none" for o in batch.objects)
-        print(f"{len(batch.objects)} targets advised: {good} label{'s' * (good != 1)} good (P(IoU >= {settings.iou_threshold:g}) >= "
+        print(f"{len(batch.objects)} targets advised: {good} label{'s' * (good != 1)} good (P(IoU ≥ {settings.iou_threshold:g}) ≥ "
               f"{settings.min_quality:g}), {stuck} that no single request lifts; {len(rows)} request{'s' * (len(rows) != 1)} "
               f"({sum(float(r['seconds']) for r in rows) / 60:.1f} min of human time, "
               f"{sum(float(r['good_gain']) for r in rows):.1f} labels expected to become good, "

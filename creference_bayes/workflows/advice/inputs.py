@@ -133,7 +133,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
              f"{estimate_hdi[i][1] - estimate_hdi[i][0]:.3g} m)")
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
-                     f"location sd {now.location_sd_m[i]:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
+                     f"location sd {now.location_sd_m[i]:.3g} m; P(IoU ≥ {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
     head = ("rank", "annotation", "cost s", "good labels", "falls", "good/h", f"P(IoU>={s.iou_threshold:g})",
             "HDI after", "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks", "outcomes")
     table = []
@@ -169,7 +169,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
               f"a noisier row); fallbacks: the simulated outcomes recomputed on draws moved to their posterior "
               f"because too few counted; outcomes: those the row was weighed on (of {s.n_futures}; dropped: it left "
               "the race early, as it could change neither the plan nor a label's verdict)"]
-    lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
+    lines += ["", f"per target (a label is good when P(IoU ≥ {s.iou_threshold:g}) ≥ {s.min_quality:g}):"]
     lines += [f"  {name}: {v['text']}" for name, v in zip(ids, advice.verdicts())]
     said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
     lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
