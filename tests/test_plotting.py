@@ -340,3 +340,33 @@ def test_boxes_on_a_wide_street_frame_show_the_annotations_and_the_draws_the_leg
     assert _shown(fig, "annotations") > 0.6
     assert _shown(fig, "median annotations") > 0.6
     assert _shown(fig, "draw boxes") > 0.4
+
+
+def test_a_reading_off_the_data_set_panels_scale_is_marked_at_its_edge_with_its_value():
+    """The panel's scale follows the pooled readings; a weak reading far off it (257 px beside a pool
+    near 700) stands at the panel's edge as an arrowhead with its value, not outside the picture."""
+    from matplotlib.figure import Figure
+
+    from creference_bayes.vision.dataset_figures import _panel
+
+    values = np.array([[690.0, 650.0, 730.0], [710.0, 670.0, 750.0], [257.0, 170.0, 389.0]])
+    p = {"values": values, "used": np.array([True, True, False]), "frames": ["a", "b", "c"], "prior": None,
+         "pool": (680.0, 720.0), "center": 700.0, "log": True, "label": "focal_length_px", "title": "camera c",
+         "warned": False, "group": "c"}
+    ax = Figure().subplots()
+    _panel(ax, p)
+    bottom, _ = ax.get_ylim()
+    assert bottom > 257.0
+    marks = [line for line in ax.lines if line.get_marker() == "v"]
+    assert len(marks) == 1 and marks[0].get_ydata()[0] == bottom and marks[0].get_xdata()[0] == 0  # sorted first
+    assert [t.get_text() for t in ax.texts] == ["257"]
+
+
+def test_the_label_quality_histogram_counts_in_whole_objects():
+    from matplotlib.figure import Figure
+
+    from creference_bayes.vision.label_figures import quality_figure
+
+    fig = quality_figure(np.array([0.1, 0.35, 0.8]), 0.5, fig=Figure())
+    ticks = fig.axes[0].get_yticks()
+    assert len(ticks) >= 2 and np.allclose(ticks, np.round(ticks))

@@ -144,6 +144,13 @@ def _panel(ax, p: dict) -> None:
     else:
         pad = max(hi - lo, 1e-3)
         ax.set_ylim(lo - 0.5 * pad, hi + 0.5 * pad)
+    bottom, top = ax.get_ylim()
+    for i in np.flatnonzero((v[:, 0] < bottom) | (v[:, 0] > top)):  # a reading off the scale: at its edge
+        below = v[i, 0] < bottom
+        ax.plot(x[i], bottom if below else top, "v" if below else "^", ms=6, clip_on=False,
+                color=_USED if used[i] else _LEFT_OUT, mfc=_USED if used[i] else "white")
+        ax.annotate(f"{v[i, 0]:.3g}", (x[i], bottom if below else top), xytext=(3, 4 if below else -10),
+                    textcoords="offset points", fontsize="x-small", color=_LEFT_OUT, annotation_clip=False)
     ax.set_xlabel("each frame's reading, sorted" if len(v) == len(set(p["frames"])) else "readings, sorted")
     ax.set_ylabel(p["label"])
     if len(v) > 30:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 __all__ = ["quality_figure", "reliability_figure"]
 
@@ -32,6 +33,7 @@ def quality_figure(scores, threshold: float, *, score_label: str = "P(IoU ≥ 0.
     ax.axvline(threshold, color="#d62728", ls="--",
                label=f"minimum {threshold:g}: {int(np.sum(scores < threshold))} of {scores.size} below")
     ax.set(xlabel=f"label quality {score_label}", ylabel="objects", xlim=(0, 1))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts
     ax.legend(loc="upper left", fontsize="small")
     for ax, (t, rows) in zip(axes[1:], (reliability or {}).items()):
         _reliability_panel(ax, t, rows)
