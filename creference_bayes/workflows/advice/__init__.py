@@ -437,17 +437,11 @@ class _Draws:
     frame understated the present's label quality by 0.07 on average, and a mounting, which pins
     height and pitch, took that away: the advice promised it as a gain (docs/studies/advice.md)."""
 
-    def __init__(self, cams, objs, scene, hands=None, log_k=None):
-        from ..batch.dataset import scale_draws
+    def __init__(self, cams, objs, scene, hands=None):
         from ..labels.kitti import kitti_poses
 
         self.cams, self.objs, self.scene = cams, objs, scene
         self.hands = hands  # (N, m) each draw's handedness where it varies (None: the model's)
-        #: (N,) each draw's share of a held focal length's shared scale (None: none): the model and the
-        #: answers' likelihoods see the draws at the held value, what is read of them carries it
-        self.log_k = log_k
-        if log_k is not None:
-            cams, objs = scale_draws(cams, objs, log_k)
         self.dist = np.hypot(objs[..., O_X], objs[..., O_Z])
         self.order = np.argsort(self.dist, axis=0).T  # each target's draws by distance, sorted once for every HDI
         y = cams[:, C_HEIGHT, None] - objs[..., O_GROUND]
@@ -475,7 +469,7 @@ class _Draws:
 def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.ndarray, objects_map: np.ndarray,
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
-           progress: bool = False, shared_log_k: np.ndarray | None = None,
+           progress: bool = False, label_draws: tuple[np.ndarray, np.ndarray] | None = None,
            hands: np.ndarray | None = None) -> Advice:
     """The advice for ``scene`` given posterior draws of its metrology ``model``.
 
@@ -496,11 +490,8 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
         than the scene's are (default: the scene's mix for all)
     source : where the draws come from, ``posterior`` or ``laplace`` (reported)
     progress : a progress bar over the candidates on standard error
-    shared_log_k : (n,) a held focal length's shared scale, each draw's factor of focal length and
-        depths as a natural log (:func:`~.inputs.advise_result`; None: none). ``cams`` and ``objs`` are
-        the draws at the held value, as the model holds it: the answers are simulated and weighed
-        on them; every distance and label quality, now and after a request, is read from them with
-        the scale (no request on the frame moves it)
+    label_draws : (cameras, objects) the labels' quality now is stated from, when not ``cams`` and
+        ``objs`` (a held focal length's shared scale: :func:`~.inputs.advise_result`)
     hands : (n, m) each draw's handedness (±1) where the posterior sampled a target at both
         (:attr:`~creference_bayes.inference.chains.Draws.handedness`); every draw is weighed, and
         its futures simulated, at its own (None: the model's)
@@ -525,23 +516,14 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     keep = np.unique(np.linspace(0, len(cams) - 1, min(settings.n_draws, len(cams))).round().astype(int))
     if hands is not None:
         hands = None if np.all(hands[keep] == model.handedness) else hands[keep]
-    if shared_log_k is not None:
-        shared_log_k = np.asarray(shared_log_k, float)
-        if shared_log_k.shape != (len(cams),) or not np.all(np.isfinite(shared_log_k)):
-            raise ValueError(f"shared_log_k: expected ({len(cams)},) finite numbers, got shape {shared_log_k.shape}")
-    draws = _Draws(model.complete_camera(cams[keep]), objs[keep], scene, hands,
-                   None if shared_log_k is None else shared_log_k[keep])
+    draws = _Draws(model.complete_camera(cams[keep]), objs[keep], scene, hands)
     n = len(keep)
     outer = np.unique(np.linspace(0, n - 1, min(settings.n_futures, n)).round().astype(int))
     # the present from every draw (one row: the label quality against all of them)
     now = Outlook(**{k: v[0] for k, v in draws.outlooks(np.full((1, n), 1.0 / n), settings, rng, n).items()})
     # the label's quality as creference labels states it (its MAP box against the draws); a future's
     # is its posterior-mean box's, moved by what separates the two now
-    if shared_log_k is not None:
-        from ..batch.dataset import scale_draws
-
-        cams, objs = scale_draws(cams, objs, shared_log_k)  # the draws as the result keeps them
-    label_p = _label_quality(scene, camera_map, objects_map, cams, objs, settings.iou_threshold)
+    label_p = _label_quality(scene, camera_map, objects_map, *(label_draws or (cams, objs)), settings.iou_threshold)
     shift = label_p - now.p_iou
     now = dataclasses.replace(now, p_iou=label_p)
     base = at_hands(model, draws.hands).neg_log_posterior(draws.cams, draws.objs, temperature)
@@ -864,8 +846,7 @@ class _Weighing:
                 draws.dist[sub][:, read], mw, settings.hdi_prob, rng)
             moved_ess[collapsed] = np.where(np.all(mw == mw[:, :1], axis=1), np.inf, 1.0 / np.sum(mw * mw, axis=1))
             for i, c, o, w in zip(collapsed, mc, mo, mw):
-                one = _Draws(c, o, draws.scene, log_k=None if draws.log_k is None else draws.log_k[sub]).outlooks(
-                    w[None], settings, rng, read=read, unread=now)
+                one = _Draws(c, o, draws.scene).outlooks(w[None], settings, rng, read=read, unread=now)
                 for k in rows:
                     rows[k][i] = one[k][0]
         rows["hdi_width_m"] = rows["hdi_width_m"] * now.hdi_width_m / width

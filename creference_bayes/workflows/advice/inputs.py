@@ -48,39 +48,38 @@ def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None =
     hands = None if kept is None or kept.handedness is None else kept.handedness.reshape(len(cams), -1)
     camera, objects = map_state(d)
     prov = d.get("provenance") or {}
-    weighed, log_k, notes = _given_held_focal(model, cams, objs)
+    weighed, notes = _given_held_focal(model, cams, objs)
     advice = advise(model, scene, *weighed, camera_map=camera, objects_map=objects, options=prov.get("options"),
                     temperature=float(prov.get("temperature", 1.0)), seed=rng, settings=settings, source=source,
-                    progress=progress, shared_log_k=log_k, hands=hands)
+                    progress=progress, label_draws=(cams, objs), hands=hands)
     if notes:
         advice = dataclasses.replace(advice, notes=advice.notes + tuple(notes))
     return dataclasses.replace(advice, seed=_recordable(seed))
 
 
 def _given_held_focal(model, cams: np.ndarray, objs: np.ndarray):
-    """The draws the advice weighs, each draw's shared scale (None: none) and a note. A frame whose
-    camera's focal length a data set held (``creference batch``: one value for the camera's frames)
-    keeps draws that carry the pool's uncertainty as one scale of focal length and depths the
-    camera's frames share (:func:`~creference_bayes.workflows.batch.dataset.share_scale`). The
-    model holds the focal length fixed, so the answers are simulated and weighed on the draws given
-    the held value (the scale divided out); no annotation of this frame moves the scale, so every
-    distance and label quality, now and after a request, is read with it
-    (:func:`~creference_bayes.workflows.advice.advise`'s ``shared_log_k``)."""
+    """The draws the advice weighs, and a note. A frame whose camera's focal length a data set
+    held (``creference batch``: one value for the camera's frames) keeps draws that carry the
+    pool's uncertainty as one scale of focal length and depths the camera's frames share
+    (:func:`~creference_bayes.workflows.batch.dataset.share_scale`). No annotation of this frame
+    moves that scale, and the model holds the focal length fixed, so the futures are weighed on the
+    draws given the held value (the scale divided out); the labels' quality now is stated from the
+    draws as they are (:func:`~creference_bayes.workflows.advice.advise`'s ``label_draws``)."""
     from ...models.contract import C_FOCAL
     from ..batch.dataset import scale_draws
 
     held = model.focal_length_px
     if held is None or not len(cams):
-        return (cams, objs), None, []
+        return (cams, objs), []
     with np.errstate(divide="ignore", invalid="ignore"):
         log_k = np.log(np.asarray(cams, float)[:, C_FOCAL] / float(held))
     if not np.all(np.isfinite(log_k)) or np.max(np.abs(log_k)) < 1e-9:
-        return (cams, objs), None, []
+        return (cams, objs), []
     sd = 100.0 * float(np.std(log_k))
-    return scale_draws(cams, objs, -log_k), log_k, [
+    return scale_draws(cams, objs, -log_k), [
         f"the focal length is held at {float(held):.1f} px (the data set's pool of this camera's frames); its "
-        f"uncertainty (±{sd:.1f} % in every depth, shared by the camera's frames) stays in the labels' quality and "
-        "distances after any request: no request on this frame changes it"]
+        f"uncertainty (±{sd:.1f} %, shared by the camera's frames) is in the labels' quality now, and no request on "
+        "this frame changes it"]
 
 
 def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, progress: bool = False,
@@ -133,7 +132,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
              f"{estimate_hdi[i][1] - estimate_hdi[i][0]:.3g} m)")
         lines.append(f"now{'' if len(ids) == 1 else f' {tid}'}: {s.hdi_prob:.0%} HDI of the distance "
                      f"{now.hdi_width_m[i]:.3g} m = {100 * now.hdi_share[i]:.1f} % of {now.distance_m[i]:.3g} m{full}; "
-                     f"location sd {now.location_sd_m[i]:.3g} m; P(IoU ≥ {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
+                     f"location sd {now.location_sd_m[i]:.3g} m; P(IoU >= {s.iou_threshold:g}) {now.p_iou[i]:.2f}")
     head = ("rank", "annotation", "cost s", "good labels", "falls", "good/h", f"P(IoU>={s.iou_threshold:g})",
             "HDI after", "gain pts", "pts/min", "loc sd m", "ESS", "fallbacks", "outcomes")
     table = []
@@ -169,7 +168,7 @@ def advice_table(advice: Advice, estimate_hdi=None, rows: int = 20) -> str:
               f"a noisier row); fallbacks: the simulated outcomes recomputed on draws moved to their posterior "
               f"because too few counted; outcomes: those the row was weighed on (of {s.n_futures}; dropped: it left "
               "the race early, as it could change neither the plan nor a label's verdict)"]
-    lines += ["", f"per target (a label is good when P(IoU ≥ {s.iou_threshold:g}) ≥ {s.min_quality:g}):"]
+    lines += ["", f"per target (a label is good when P(IoU >= {s.iou_threshold:g}) >= {s.min_quality:g}):"]
     lines += [f"  {name}: {v['text']}" for name, v in zip(ids, advice.verdicts())]
     said = advice.reason if advice.reason.startswith(advice.action) else f"{advice.action}: {advice.reason}"
     lines += ["", f"recommendation: {said}"]  # the action said once (a reason may begin with it)
