@@ -86,6 +86,22 @@ def test_the_same_seed_gives_the_same_advice(example):
     assert {p["candidate"]["key"] for p in da["predictions"]} == keys
 
 
+def test_requests_weighed_in_several_processes_give_the_same_advice(example, frame):
+    """Two forked workers weigh the requests of the race's rounds and make the predictions: every
+    number of the advice is the one process's (each request keeps its own random stream), on a
+    raced posterior and on a frame of three targets advised from its Laplace draws."""
+    settings = AdviceSettings(n_draws=200, n_futures=60)
+    one, two = (_advise(example, seed=4, settings=settings, workers=w).to_dict() for w in (1, 2))
+    assert any(p["dropped"] for p in one["predictions"])  # the race dropped some: rounds of unequal shares
+    scene, result = frame
+    three = [advise_result(result, scene, seed=2, settings=AdviceSettings(n_draws=100, n_futures=30),
+                           workers=w).to_dict() for w in (1, 3)]
+    for a, b in ((one, two), tuple(three)):
+        a.pop("seconds"), b.pop("seconds")
+        assert a == b
+    assert advice_module._FORKED is None  # the workers are gone, and nothing is kept for them
+
+
 def test_advice_is_ranked_and_recommends_by_its_settings(example):
     s = dict(n_draws=200, n_futures=40, objective="hdi")
     a = _advise(example, seed=1, settings=AdviceSettings(**s, target_hdi_width=0.0, min_gain=0.0))

@@ -65,7 +65,8 @@ def _one(args, settings, progress: bool) -> int:
             scene = scene_for_result(path, d, args.scene, notes)
             for note in notes:  # a scene of the result's name that is another photo's, passed over
                 print(f"warning: {note}", file=sys.stderr)
-            advice = advise_result(d, scene, seed=args.seed, settings=settings, progress=progress)
+            advice = advise_result(d, scene, seed=args.seed, settings=settings, progress=progress,
+                                   workers=_frame_workers(args))
             objects = d.get("objects") or [{}]
         else:
             if args.scene is not None:
@@ -75,7 +76,8 @@ def _one(args, settings, progress: bool) -> int:
             options = model_options(args, scene)
             if args.distance_range is not None:
                 options["distance_range"] = args.distance_range
-            advice, estimated = advise_scene(scene, seed=args.seed, settings=settings, progress=progress, **options)
+            advice, estimated = advise_scene(scene, seed=args.seed, settings=settings, progress=progress,
+                                             workers=_frame_workers(args), **options)
             done = estimated.to_dict()
             prov = done["provenance"]
             made_with = {"options": prov["options"], **{k: prov[k] for k in ("distance_range_m",) if k in prov}}
@@ -94,6 +96,14 @@ def _one(args, settings, progress: bool) -> int:
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0
+
+
+def _frame_workers(args) -> int:
+    """The processes that weigh one frame's requests at once: ``--workers``, else the cores."""
+    from ..workflows.batch.engines import default_workers
+
+    require(args.workers is None or args.workers >= 1, "--workers", "an integer >= 1", args.workers)
+    return default_workers() if args.workers is None else args.workers
 
 
 def _distance_hdi(obj) -> tuple[float, float] | None:
@@ -293,9 +303,8 @@ def _run(args) -> int:
         return _batch(args, settings, progress_mode(args.quiet))
     if args.budget is not None:
         raise UsageError("--budget: only for a batch folder")
-    for flag, given in (("--workers", args.workers is not None), ("--scheduler", args.scheduler is not None)):
-        if given:
-            raise UsageError(f"{flag}: only for a batch folder")
+    if args.scheduler is not None:
+        raise UsageError("--scheduler: only for a batch folder")
     return _one(args, settings, progress)
 
 
@@ -329,8 +338,8 @@ def register(subparsers) -> None:
                         "within this many seconds of human time (default: every request worth "
                         "its time)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="a batch folder: advise on N scenes at once in local processes, as creference batch "
-                        "(default: the machine's cores)")
+                   help="local processes: on a batch folder, N scenes advised at once, as creference batch; on "
+                        "a scene or a result, its requests weighed N at once (default: the machine's cores)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a batch folder: run on a Dask distributed scheduler, e.g. tcp://host:8786, as "
                         "creference batch (needs the dist extra)")

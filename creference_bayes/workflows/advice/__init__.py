@@ -470,7 +470,7 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
            options: dict | None = None, temperature: float = 1.0, seed=None, settings: AdviceSettings | None = None,
            candidates: list[Candidate] | None = None, mixes: dict | None = None, source: str = "posterior",
            progress: bool = False, label_draws: tuple[np.ndarray, np.ndarray] | None = None,
-           hands: np.ndarray | None = None) -> Advice:
+           hands: np.ndarray | None = None, workers: int = 1) -> Advice:
     """The advice for ``scene`` given posterior draws of its metrology ``model``.
 
     Parameters
@@ -495,6 +495,8 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     hands : (n, m) each draw's handedness (±1) where the posterior sampled a target at both
         (:attr:`~creference_bayes.inference.chains.Draws.handedness`); every draw is weighed, and
         its futures simulated, at its own (None: the model's)
+    workers : processes forked from this one that weigh the requests at once (:class:`_Forked`;
+        the same advice whatever their number)
     """
     from ...inference.progress import progress_bar
 
@@ -570,16 +572,15 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
     rounds = [positions[k::settings.race_every] for k in range(settings.race_every)]
     if len(rounds[-1]) < RACE_MIN_FUTURES:
         rounds = [positions]
-    with progress_bar(progress, len(weighings) * len(rounds), desc="advice", unit="observation") as bar:
+    with progress_bar(progress, len(weighings) * len(rounds), desc="advice", unit="observation") as bar, \
+            _Forked(weighings, workers) as pool:
         alive = np.ones(len(weighings), bool)
         for k, pos in enumerate(rounds):
             if k:  # those out of the race stay out
-                alive &= _contenders(weighings, now, shift, settings)
-            for w in (w for w, kept in zip(weighings, alive) if kept):
-                w.weigh(pos, now, settings)
-                bar.update(1)
+                alive &= _contenders(weighings, now, shift, settings, pool.bounds)
+            pool.weigh(np.flatnonzero(alive), pos, now, settings, bar, (now, shift) if k + 1 < len(rounds) else None)
             bar.update(int(np.sum(~alive)))
-    predictions = [_prediction(w, now, shift, settings, len(outer)) for w in weighings]
+        predictions = pool.predictions(now, shift, settings, len(outer))
     predictions.sort(key=rank_key(settings.objective))
     names = tuple(object_name(t) for t in scene.targets)
     action, reason = _recommend(now, predictions, settings, names)
@@ -587,6 +588,106 @@ def advise(model, scene, cams: np.ndarray, objs: np.ndarray, *, camera_map: np.n
                   reason=reason, settings=settings, seed=seed if isinstance(seed, (int, type(None))) else None,
                   notes=tuple(notes), seconds=time.perf_counter() - t0, source=source, format_mix=mix.to_dict(),
                   n_weighed=n, shift=shift, names=names)
+
+
+#: The weighings a forked worker process of :class:`_Forked` inherits (None in other processes).
+_FORKED: list | None = None
+
+
+class _Forked:
+    """The race's requests weighed in ``workers`` processes forked from this one, each inheriting
+    every weighing (its model, draws and simulated outcomes); per round a worker weighs its share
+    and sends back each one's new futures, which random state it left and whose distances it reads,
+    so that the weighings are the same as in one process, and the advice the same whatever the
+    workers. One worker, or a platform without ``fork``: the requests one after another here."""
+
+    def __init__(self, weighings: list, workers: int):
+        import multiprocessing
+
+        self.weighings, self.pool = weighings, None
+        self.workers = min(int(workers), len(weighings))
+        #: each weighing's :func:`_bounds` after its last round, where a worker computed them
+        self.bounds: list[dict | None] = [None] * len(weighings)
+        if self.workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+            from concurrent.futures import ProcessPoolExecutor
+
+            global _FORKED
+            _FORKED = weighings  # inherited at each fork (the pool forks its workers as it needs them)
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"),
+                                            initializer=_forked_ready)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        global _FORKED
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+            _FORKED = None
+        return False
+
+    def _shares(self, idx: np.ndarray) -> list[np.ndarray]:
+        """``idx`` in about four jobs a worker: requests differ in cost (a size's fallbacks, a
+        reference's), and a worker done early takes the next job."""
+        return [part for part in np.array_split(np.asarray(idx, int), 4 * self.workers) if len(part)]
+
+    def weigh(self, idx: np.ndarray, pos: np.ndarray, now, settings, bar, race=None) -> None:
+        """Weigh the futures at ``pos`` of the weighings ``idx``; ``race`` (now, shift): a worker
+        also gives each one's :func:`_bounds` for the next round (:func:`_contenders`)."""
+        if self.pool is None:
+            for i in idx:
+                self.weighings[i].weigh(pos, now, settings)
+                bar.update(1)
+            return
+        ws = self.weighings
+        jobs = [self.pool.submit(_weigh_forked, [(i, ws[i].parts, ws[i].read, ws[i].rng.bit_generator.state)
+                                                 for i in share], pos, now, settings, race)
+                for share in self._shares(idx)]
+        for job in jobs:
+            for i, part, read, state, bounds in job.result():
+                w = ws[i]
+                w.parts.append(part)
+                w.read, w.rng.bit_generator.state = read, state
+                self.bounds[i] = bounds
+                bar.update(1)
+
+    def predictions(self, now, shift, settings, n_futures: int) -> list:
+        """Every weighing's :class:`Prediction`."""
+        if self.pool is None:
+            return [_prediction(w, now, shift, settings, n_futures) for w in self.weighings]
+        shares = self._shares(np.arange(len(self.weighings)))
+        jobs = [self.pool.submit(_predict_forked, [(i, self.weighings[i].parts, self.weighings[i].read,
+                                                    self.weighings[i].rng.bit_generator.state) for i in share],
+                                 now, shift, settings, n_futures) for share in shares]
+        return [p for job in jobs for p in job.result()]
+
+
+def _forked_ready() -> None:
+    if _FORKED is None:
+        raise RuntimeError("an advice worker started without the weighings (not forked)")
+
+
+def _weigh_forked(jobs, pos, now, settings, race) -> list:
+    """In a worker of :class:`_Forked`: weigh each (index, futures so far, read, random state) of
+    ``jobs``, and with ``race`` (now, shift) its bounds for the next round."""
+    out = []
+    for i, parts, read, state in jobs:
+        w = _FORKED[i]
+        w.parts, w.read, w.rng.bit_generator.state = list(parts), read, state
+        w.weigh(pos, now, settings)
+        out.append((i, w.parts[-1], w.read, w.rng.bit_generator.state,
+                    None if race is None else _bounds(w, race[0], race[1], settings)))
+    return out
+
+
+def _predict_forked(jobs, now, shift, settings, n_futures: int) -> list:
+    """In a worker of :class:`_Forked`: the prediction of each (index, futures, read, random state)."""
+    out = []
+    for i, parts, read, state in jobs:
+        w = _FORKED[i]
+        w.parts, w.read, w.rng.bit_generator.state = parts, read, state
+        out.append(_prediction(w, now, shift, settings, n_futures))
+    return out
 
 
 def _check_placeable(model, draws: _Draws, keep: np.ndarray) -> None:
@@ -977,17 +1078,20 @@ def _bounds(w: _Weighing, now: Outlook, shift, settings: AdviceSettings) -> dict
             "other": other / seconds if seconds > 0 else math.inf}
 
 
-def _contenders(weighings: list[_Weighing], now: Outlook, shift, settings: AdviceSettings) -> np.ndarray:
+def _contenders(weighings: list[_Weighing], now: Outlook, shift, settings: AdviceSettings,
+                known: list | None = None) -> np.ndarray:
     """Which requests stay in the race (:func:`advise`), by the bounds of the rounds so far
     (:func:`_bounds`): those that might be worth asking (the upper value) and, so, top the ranking
     or be the request of a target that needs one (:meth:`Advice.requests`) ahead of the best of
     that target's own requests at its lower score; those that might be a label's verdict
     (:meth:`Advice.verdicts`): lift it (an upper chance of a half) ahead of the best chance of
     lifting it at the lower bound; the first by the lower score; and the mounting, which a batch's
-    plan values over every frame of its camera (:meth:`~.batch.BatchAdvice.plan`)."""
+    plan values over every frame of its camera (:meth:`~.batch.BatchAdvice.plan`). ``known``: each
+    weighing's bounds where a worker computed them already (None: computed here)."""
     if not weighings:
         return np.zeros(0, bool)
-    bounds = [_bounds(w, now, shift, settings) for w in weighings]
+    bounds = [_bounds(w, now, shift, settings) if b is None else b
+              for w, b in zip(weighings, known or [None] * len(weighings))]
     m = len(now.p_iou)
     needs = (now.p_iou < settings.min_quality if settings.objective == "labels" else
              now.hdi_share > settings.target_hdi_width)

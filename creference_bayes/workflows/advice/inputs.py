@@ -25,10 +25,11 @@ def _recordable(seed):
 
 
 def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None = None,
-                  progress: bool = False) -> Advice:
+                  progress: bool = False, workers: int = 1) -> Advice:
     """Advise on an estimate of ``scene``: a :class:`~creference_bayes.io.result.Result` or a result
     file's dict (either format). Its kept posterior draws are weighed, else draws of the Laplace
-    approximation at its MAP (:func:`~creference_bayes.pipeline.result_draws`)."""
+    approximation at its MAP (:func:`~creference_bayes.pipeline.result_draws`); ``workers``
+    processes weigh the requests at once (:func:`~creference_bayes.workflows.advice.advise`)."""
     from ...io.result import stored_draws
     from ...pipeline import map_state, rebuild_model, result_draws
 
@@ -51,7 +52,7 @@ def advise_result(result, scene, *, seed=None, settings: AdviceSettings | None =
     weighed, notes = _given_held_focal(model, cams, objs)
     advice = advise(model, scene, *weighed, camera_map=camera, objects_map=objects, options=prov.get("options"),
                     temperature=float(prov.get("temperature", 1.0)), seed=rng, settings=settings, source=source,
-                    progress=progress, label_draws=(cams, objs), hands=hands)
+                    progress=progress, label_draws=(cams, objs), hands=hands, workers=workers)
     if notes:
         advice = dataclasses.replace(advice, notes=advice.notes + tuple(notes))
     return dataclasses.replace(advice, seed=_recordable(seed))
@@ -83,7 +84,7 @@ def _given_held_focal(model, cams: np.ndarray, objs: np.ndarray):
 
 
 def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, progress: bool = False,
-                 **estimate_options):
+                 workers: int = 1, **estimate_options):
     """Estimate ``scene`` (the metrology model, its posterior) and advise on it; returns
     (:class:`~creference_bayes.workflows.advice.Advice`, :class:`~creference_bayes.io.result.Result`)."""
     from ...pipeline import estimate
@@ -94,7 +95,7 @@ def advise_scene(scene, *, seed=None, settings: AdviceSettings | None = None, pr
     rng = np.random.default_rng(seed)
     result = estimate(scene, seed=rng, posterior=True, progress=progress,
                       keep_draws=max(settings.n_draws, RESULT_DRAWS), **estimate_options)
-    advice = advise_result(result, scene, seed=rng, settings=settings, progress=progress)
+    advice = advise_result(result, scene, seed=rng, settings=settings, progress=progress, workers=workers)
     return dataclasses.replace(advice, seed=_recordable(seed)), result
 
 
