@@ -663,3 +663,24 @@ def test_the_advice_says_how_many_draws_it_weighed(example, tmp_path, capsys):
     weighed = json.loads(out.read_text())["draws_weighed"]
     assert weighed == n_kept < 5000
     assert f"on the {weighed} draws the advice weighs" in text
+
+
+def _killed(*args):
+    """A worker's job that ends its process, as the kernel's out-of-memory killer would."""
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_worker_that_dies_is_said_as_a_message(example, monkeypatch, tmp_path, capsys):
+    """A worker process killed while it weighs (out of memory, say): the command says so and what
+    to do, not a traceback."""
+
+    result = tmp_path / "r.json"
+    example[1].save(result)
+    monkeypatch.setattr(advice_module, "_weigh_forked", _killed)
+    assert main(["advise", str(result), "--scene", str(example_scene_path()), "--workers", "2", "--futures", "20",
+                 "--draws", "100", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: an advice worker process ended before it answered") and "--workers 1" in err, err

@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc.filename}: is a folder, expected a file", file=sys.stderr)
         return EXIT_INVALID
     except OSError as exc:  # a directory, no permission, …: the user's input, not a bug
-        print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"error: {exc.filename}: {exc.strerror or exc}" if exc.filename else f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -644,7 +644,7 @@ class _Forked:
                                                  for i in share], pos, now, settings, race)
                 for share in self._shares(idx)]
         for job in jobs:
-            for i, part, read, state, bounds in job.result():
+            for i, part, read, state, bounds in _result(job):
                 w = ws[i]
                 w.parts.append(part)
                 w.read, w.rng.bit_generator.state = read, state
@@ -659,7 +659,19 @@ class _Forked:
         jobs = [self.pool.submit(_predict_forked, [(i, self.weighings[i].parts, self.weighings[i].read,
                                                     self.weighings[i].rng.bit_generator.state) for i in share],
                                  now, shift, settings, n_futures) for share in shares]
-        return [p for job in jobs for p in job.result()]
+        return [p for job in jobs for p in _result(job)]
+
+
+def _result(job):
+    """A worker's answer; an OSError naming what to do when a worker process died (killed, out of
+    memory), which the command line reports as a message."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return job.result()
+    except BrokenProcessPool as exc:
+        raise OSError(f"an advice worker process ended before it answered ({exc}); run with --workers 1 "
+                      "to weigh the requests in this process") from None
 
 
 def _forked_ready() -> None:
