@@ -167,6 +167,13 @@ def _posterior_block(names, s: dict, prob: float, keep=None) -> dict:
     return out
 
 
+def camera_posterior(cams: np.ndarray, prob: float, free) -> dict:
+    """A result's ``camera.posterior`` from draws ``cams`` (n, 5): the parameters ``free`` (5,)
+    and those whose draws spread with them (an exact horizon's pitch follows the focal length)."""
+    spread = np.asarray(free, bool) | (np.ptp(cams, axis=0) > 1e-9 * (1.0 + np.abs(cams).max(axis=0)))
+    return _posterior_block(CAMERA_NAMES, _summary(cams, prob), prob, spread)
+
+
 def _pairs(block: dict | None, names) -> dict:
     """``{name: (low, high)}`` of an HDI block (its ``prob`` left out); empty for None."""
     return {} if not block else {n: tuple(block[n]) for n in names if n in block and block[n] is not None}
@@ -269,7 +276,7 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
     if setup.horizon_estimate is not None:
         camera["setup"]["horizon_estimate"] = setup.horizon_estimate.to_dict()
     objs_map = object_report(map_est.camera, map_est.objects)
-    post_obj = post_cam = kept = None
+    post_obj = kept = None
     if draws is not None:
         cams = draws.cameras.reshape(-1, 5)
         objs = draws.objects.reshape(-1, model.n_objects, 7).copy()
@@ -281,9 +288,7 @@ def result_data(scene, model, setup, map_est, draws, diag, *, hdi_prob: float, p
             kept = _keep_draws(cams, objs, keep_draws, draws.cameras.shape[0], draws.log_prob,
                                None if hands is None else hands.reshape(-1, model.n_objects))
         post_obj = [_summary(table[:, i], hdi_prob) for i in range(model.n_objects)]
-        post_cam = _summary(cams, hdi_prob)
-        spread = cf | (np.ptp(cams, axis=0) > 1e-9 * (1.0 + np.abs(cams).max(axis=0)))  # and those derived from them
-        camera["posterior"] = _posterior_block(CAMERA_NAMES, post_cam, hdi_prob, spread)
+        camera["posterior"] = camera_posterior(cams, hdi_prob, cf)
         if not diag.converged:
             warnings += [f"posterior not converged: {w}" for w in diag.warnings]
     if scene.ground_truth:

@@ -639,9 +639,9 @@ class _Forked:
                 self.weighings[i].weigh(pos, now, settings)
                 bar.update(1)
             return
-        ws = self.weighings
-        jobs = [self.pool.submit(_weigh_forked, [(i, ws[i].parts, ws[i].read, ws[i].rng.bit_generator.state)
-                                                 for i in share], pos, now, settings, race)
+        ws = self.weighings  # the futures so far go along only where the bounds need them
+        jobs = [self.pool.submit(_weigh_forked, [(i, ws[i].parts if race else [], ws[i].read,
+                                                  ws[i].rng.bit_generator.state) for i in share], pos, now, settings, race)
                 for share in self._shares(idx)]
         for job in jobs:
             for i, part, read, state, bounds in _result(job):

@@ -433,7 +433,7 @@ def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
     MAP depth moves as k^0.9 (the size and location priors pull back a little), x within 0.16 m,
     yaw within 0.015 rad, sizes within 4 % (docs/studies/rig.md, "A shared value handed back as
     shared")."""
-    from ...io.result import _posterior_block, _summary, stored_draws
+    from ...io.result import _posterior_block, _summary, camera_posterior, stored_draws
     from ...models.contract import C_FOCAL, CAMERA_NAMES, O_Z, OBJECT_REPORT, object_report
 
     kept = stored_draws(result)
@@ -447,8 +447,8 @@ def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
     prob = float(result.get("hdi_prob", 0.9))
     camera = result["camera"]
     camera["map"]["focal_length_px"] = _sig(camera["map"]["focal_length_px"] * math.exp(log_k_map))
-    camera["posterior"] = _posterior_block(CAMERA_NAMES, _summary(cams, prob), prob,
-                                           [n in camera["free"] or n == "focal_length_px" for n in CAMERA_NAMES])
+    camera["posterior"] = camera_posterior(cams, prob, [n in camera["free"] or n == "focal_length_px"
+                                                        for n in CAMERA_NAMES])
     table = object_report(cams, objs)
     for i, o in enumerate(result["objects"]):
         o["map"]["z"] = _sig(o["map"]["z"] * math.exp(log_k_map))
