@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -599,7 +600,8 @@ class _Forked:
     every weighing (its model, draws and simulated outcomes); per round a worker weighs its share
     and sends back each one's new futures, which random state it left and whose distances it reads,
     so that the weighings are the same as in one process, and the advice the same whatever the
-    workers. One worker, or a platform without ``fork``: the requests one after another here."""
+    workers. One worker, or a system other than Linux (where a forked process may hang in the
+    system's BLAS): the requests one after another here."""
 
     def __init__(self, weighings: list, workers: int):
         import multiprocessing
@@ -608,7 +610,7 @@ class _Forked:
         self.workers = min(int(workers), len(weighings))
         #: each weighing's :func:`_bounds` after its last round, where a worker computed them
         self.bounds: list[dict | None] = [None] * len(weighings)
-        if self.workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        if self.workers > 1 and sys.platform.startswith("linux"):  # fork is safe with NumPy's BLAS there
             from concurrent.futures import ProcessPoolExecutor
 
             global _FORKED
