@@ -78,12 +78,15 @@ def simulation_scale(model: MetrologyModel, i: int, options: dict) -> float:
     with: one that scatters as the scene's sets do.
 
     A stated corner scale (the default 5 px, or the estimate's ``target_sigma``) is a t scale and
-    is used as it is. A scale estimated from the sets' spread is their sd, and a t(ν) of that scale
+    is used as it is. A scale estimated from sets' spread is their sd, and a t(ν) of that scale
     scatters √(ν / (ν − 2)) times more than the sets did, which made the advice under-predict
-    what one more set brings (docs/advice_method.md); so the scale is sd · √((ν − 2) / ν).
+    what one more set brings (docs/advice_method.md); so the scale is sd · √((ν − 2) / ν). A
+    spread read from the scene's own sets, or from the data set's (the scene's ``corner_scale``,
+    what ``creference batch`` read from other frames' objects annotated more than once) is one.
     """
     sigma, nu = float(model.sigma[i]), float(model.target_dof)
-    from_spread = options.get("target_sigma") is None and any(len(o.annotations) > 1 for o in model.objects)
+    from_spread = options.get("target_sigma") is None and (
+        any(len(o.annotations) > 1 for o in model.objects) or model.corner_scale is not None)
     if from_spread and nu > 2.0:
         return sigma * float(np.sqrt((nu - 2.0) / nu))
     return sigma
