@@ -471,7 +471,8 @@ def test_dimension_line_weights_are_the_difference_of_the_whole_posteriors(frame
 def test_simulated_dimension_lines_scatter_as_the_scenes_sets_do(frame):
     """Three sets: the target's corner scale is their sd, and a simulated set must scatter by
     that sd (a t₄ of that scale would scatter √2 more than any set seen). One set in every target:
-    the model's stated t₄ scale (5 px), whose sd is √2 · 5 px."""
+    the model's stated t₄ scale (5 px), whose sd is √2 · 5 px; with the data set's corner scale,
+    read from other frames' sets, the sd that scale is."""
     scene, model, cams, objs = frame
     rows, orows = np.repeat(cams[:1], 4000, axis=0), np.repeat(objs[:1], 4000, axis=0)
     proj = model.project(cams[:1], objs[:1])[0][0, 2]
@@ -487,6 +488,14 @@ def test_simulated_dimension_lines_scatter_as_the_scenes_sets_do(frame):
     one.simulate(np.random.default_rng(9), rows, orows)
     # bivariate t with ν = 4 and scale σ: each coordinate has variance σ² ν / (ν − 2) = 2σ²
     assert np.std((one.corners - proj).reshape(-1)) == pytest.approx(np.sqrt(2) * 5.0, rel=0.1)
+    # one set each, the crowd's corner scale from the data set (other frames' sets: an sd, 3 px over
+    # 400 degrees of freedom): a simulated set scatters by that sd, as the crowd's sets do
+    m2, _ = build_model(dataclasses.replace(_with_sets(scene, 1), corner_scale=(3.0, 400.0)))
+    m2.handedness = model.handedness
+    assert np.allclose(m2.sigma, 3.0)
+    pooled = DimsObservation(m2, 2, {})
+    pooled.simulate(np.random.default_rng(9), rows, orows)
+    assert np.std((pooled.corners - proj).reshape(-1)) == pytest.approx(3.0, rel=0.1)
 
 
 # ------------------------------------------------------------------------------------------------
