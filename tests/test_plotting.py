@@ -4,6 +4,8 @@ what the figures draw, where their draws come from, and the command's files and 
 import copy
 import json
 
+import math
+
 import numpy as np
 import pytest
 from matplotlib.collections import LineCollection
@@ -370,3 +372,18 @@ def test_the_label_quality_histogram_counts_in_whole_objects():
     fig = quality_figure(np.array([0.1, 0.35, 0.8]), 0.5, fig=Figure())
     ticks = fig.axes[0].get_yticks()
     assert len(ticks) >= 2 and np.allclose(ticks, np.round(ticks))
+
+
+def test_a_data_set_pool_with_an_absurd_log_sd_is_refused_by_its_key():
+    """A batch.json edited to a log-sd of 710 (found by the long fuzz): the panel's band would be
+    e^710; the figure names the key instead of overflowing."""
+    from creference_bayes.vision.dataset_figures import dataset_panels
+
+    block = {"focal_length_px": {"shared_by": "camera", "groups": {"rig/front": {
+        "median": 700.0, "log_sd": 710, "frames": 3,
+        "values": [{"frame": "a", "value": 690.0, "low": 650.0, "high": 730.0, "used": True}]}}}}
+    with pytest.raises(ValueError, match=r"dataset\.focal_length_px\.groups\.rig/front\.log_sd: expected a number in "
+                                         r"\[0, 10\] \(a log-sd\), got 710"):
+        dataset_panels(block)
+    block["focal_length_px"]["groups"]["rig/front"]["log_sd"] = 0.05
+    assert dataset_panels(block)[0]["pool"] == pytest.approx((700.0 * math.exp(-0.05), 700.0 * math.exp(0.05)))

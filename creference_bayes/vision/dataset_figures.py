@@ -36,6 +36,10 @@ def _number(v, where: str, *, none: bool = False):
     return float(v)
 
 
+#: The widest log-sd a pool's band is drawn for (a factor of e¹⁰ each side: no batch writes more).
+MAX_LOG_SD = 10.0
+
+
 def dataset_panels(summary) -> list[dict]:
     """The panels of :func:`dataset_figure` from a ``dataset`` block, each checked: ``label``,
     ``shared_by``, ``group``, ``log`` (a positive quantity, drawn on a log axis), ``values``
@@ -75,6 +79,9 @@ def dataset_panels(summary) -> list[dict]:
                 spread = _number(b["spread_log_sd"], f"{at}.spread_log_sd") if "spread_log_sd" in b else None
                 if center <= 0:
                     raise ValueError(f"{at}.median: expected a positive number, got {center!r}")
+                for key, x in (("log_sd", sd), ("spread_log_sd", spread)):
+                    if x is not None and not 0.0 <= x <= MAX_LOG_SD:
+                        raise ValueError(f"{at}.{key}: expected a number in [0, {MAX_LOG_SD:g}] (a log-sd), got {x!r}")
                 band = lambda s: (center * math.exp(-s), center * math.exp(s))  # noqa: E731
                 value = f"{center:.4g}"
             else:
