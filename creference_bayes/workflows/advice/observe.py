@@ -81,8 +81,8 @@ def simulation_scale(model: MetrologyModel, i: int, options: dict) -> float:
     is used as it is. A scale estimated from sets' spread is their sd, and a t(ν) of that scale
     scatters √(ν / (ν − 2)) times more than the sets did, which made the advice under-predict
     what one more set brings (docs/advice_method.md); so the scale is sd · √((ν − 2) / ν). A
-    spread read from the scene's own sets, or from the data set's (the scene's ``corner_scale``,
-    what ``creference batch`` read from other frames' objects annotated more than once) is one.
+    spread read from the scene's own sets is one, and so is the data set's (the scene's
+    ``corner_scale``: what ``creference batch`` read from other frames' sets, or their residuals).
     """
     sigma, nu = float(model.sigma[i]), float(model.target_dof)
     from_spread = options.get("target_sigma") is None and (
