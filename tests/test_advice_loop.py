@@ -327,3 +327,13 @@ def test_a_cameras_mounting_counts_as_one_answer_in_every_frame_it_goes_to(tmp_p
             {"rank": "2", "key": "f1", "target": "t0", "kind": "size", "answer": "4.0,1.8,1.5"}]
     assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows))]) == 0
     assert "2 answers put into 3 scene file(s);" in capsys.readouterr().out
+
+
+def test_two_frames_given_the_same_mounting_are_two_answers(tmp_path, capsys):
+    """Each frame's own mounting row, the same values in both: two answers, not one (an answer is
+    its row, whatever its text)."""
+    out = _batch(tmp_path, {"f0": _scene(14), "f1": _scene(15)})
+    rows = [{"rank": "1", "key": "f0", "kind": "mounting", "answer": "1.65,0,0"},
+            {"rank": "2", "key": "f1", "kind": "mounting", "answer": "1.65,0,0"}]
+    assert main(["advise", str(out), "--apply", str(_answers(tmp_path / "a.csv", rows))]) == 0
+    assert "2 answers put into 2 scene file(s);" in capsys.readouterr().out

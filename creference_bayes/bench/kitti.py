@@ -30,12 +30,16 @@ from ..io.kitti_read import read_kitti_labels
 from ..models.size_priors import KITTI_SIZE_PRIORS
 
 __all__ = ["ANNOTATABLE", "SIZES", "read_p2", "read_calib", "kitti_scene", "kitti_scenes", "MIN_HEIGHT_PX",
-           "MAX_TRUNCATION", "MAX_OCCLUSION"]
+           "MAX_TRUNCATION", "MAX_OCCLUSION", "LEFT_OUT"]
 
 ANNOTATABLE = tuple(KITTI_SIZE_PRIORS)
 MIN_HEIGHT_PX = 25.0
 MAX_TRUNCATION = 0.5
 MAX_OCCLUSION = 2
+#: Why :func:`kitti_scenes` left an object out, by its ``skipped`` key, as a person reads it.
+LEFT_OUT = {"class": "of a class nobody annotates", "height": f"under {MIN_HEIGHT_PX:g} px tall in the image",
+            "truncation": f"truncated by over {MAX_TRUNCATION:g} of their size",
+            "occlusion": f"of occlusion level over {MAX_OCCLUSION:g}", "outside": "outside the image"}
 #: What the scenes say of the objects' sizes: ``prior`` (nothing: the class priors apply) or
 #: ``known`` (each object's true size, ``dimensions_m``).
 SIZES = ("prior", "known")

@@ -177,32 +177,32 @@ def _batch(args, settings, progress: bool | str) -> int:
     return 0
 
 
-def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None, per_text: bool = False) -> int:
+def _into_scenes(args, put, noun: str, verb: str, nothing: str, cost=None) -> int:
     """Run ``put(notes)`` (--apply or --merge: it writes the user's scene files and returns (file,
-    what, whether it changed the file) per answer and file), its notes as warnings, then what
-    changed and what to run next; when nothing changed (no file written), ``nothing``: why.
-    ``cost(what)``: what an answer that changed a file costs the next estimate, if anything (said
-    once). ``per_text``: count an answer once however many files it went into (a camera's
-    mounting goes to each of its frames)."""
+    what, whether it changed the file, which answer) per answer and file), its notes as warnings,
+    then what changed and what to run next, an answer counted once however many files it went
+    into (a camera's mounting goes to each of its frames); when nothing changed (no file written),
+    ``nothing``: why. ``cost(what)``: what an answer that changed a file costs the next estimate,
+    if anything (said once)."""
     notes: list[str] = []
     with usage_errors(one_line=True):
         done = put(notes)
     for note in notes:
         print(f"warning: {note}", file=sys.stderr)
     if not args.quiet:
-        for source, what, changed in done:
+        for source, what, changed, _ in done:
             print(f"{source}: {what}" + ("" if changed else " (in the file already)"))
-        new = [source for source, _, changed in done if changed]
+        new = [source for source, _, changed, _ in done if changed]
         if not new:
             print(f"nothing changed: {nothing}; no scene file written, nothing to estimate again")
         else:
-            n = len({what for _, what, changed in done if changed}) if per_text else len(new)
-            same = len({what for _, what, _ in done} if per_text else done) - n
+            n = len({answer for *_, changed, answer in done if changed})
+            same = len({answer for *_, answer in done}) - n
             print(f"{n} {noun}{'s' if n != 1 else ''} {verb} {len(set(new))} scene file(s)"
                   + (f" ({same} in them already)" if same else "")
                   + "; run creference batch on them again, with the same settings: it re-estimates the frames "
                     "that changed")
-            said = {cost(what) for _, what, changed in done if changed and cost is not None} - {None}
+            said = {cost(what) for _, what, changed, _ in done if changed and cost is not None} - {None}
             for text in sorted(said):
                 print(f"note: {text}")
     return 0
@@ -221,7 +221,7 @@ def _apply(args) -> int:
         raise UsageError(f"--apply {path}: no request is answered yet: fill in the 'answer' column of the rows "
                          "the crowd answered (docs/requests.md)")
     return _into_scenes(args, lambda notes: apply_answers(args.input, rows, notes), "answer", "put into",
-                        "every answer is in the scene files already", _answer_cost, per_text=True)
+                        "every answer is in the scene files already", _answer_cost)
 
 
 def _request_rows(path: Path, where: str) -> list[dict]:
@@ -253,8 +253,8 @@ def _keep_answers(batch_dir: str, path: Path) -> None:
     keep = (f"put them in first (creference advise {batch_dir} --apply {path}), or move the file away or give "
             "another --out; nothing was advised")
     try:
-        pending = list(dict.fromkeys(what for _, what, changed in apply_answers(batch_dir, rows, write=False)
-                                     if changed))  # a camera's mounting once, not once per frame
+        pending = list({answer: what for _, what, changed, answer in apply_answers(batch_dir, rows, write=False)
+                        if changed}.values())  # an answer once, not once per frame it goes to
     except (ValueError, OSError) as exc:
         raise UsageError(f"{where} holds answers that cannot be checked against the scene files ({exc}): {keep}") from None
     if pending:

@@ -168,12 +168,9 @@ def _run_kitti(args, out: Path) -> int:
         totals = kitti_scenes(src, out, n_annotations=5 if args.annotations is None else args.annotations,
                               noise_px=2.0 if args.noise_px is None else args.noise_px, seed=args.seed,
                               sizes=args.sizes or "prior", focal_known=not args.focal_unknown)
-    from ..bench.kitti import MAX_OCCLUSION, MAX_TRUNCATION, MIN_HEIGHT_PX
+    from ..bench.kitti import LEFT_OUT
 
-    why = {"class": "of a class nobody annotates", "height": f"under {MIN_HEIGHT_PX:g} px tall in the image",
-           "truncation": f"truncated by over {MAX_TRUNCATION:g} of their size", "occlusion": f"of occlusion level over {MAX_OCCLUSION:g}",
-           "outside": "outside the image"}
-    skipped = ", ".join(f"{v} {why.get(k, k)}" for k, v in totals["skipped"].items() if v)
+    skipped = ", ".join(f"{v} {LEFT_OUT.get(k, k)}" for k, v in totals["skipped"].items() if v)
     if not totals["scenes"]:
         raise UsageError(f"--from-kitti {src}: no scene written: no image has an object a person could annotate"
                          + (f" (left out: {skipped})" if skipped else " (no labelled object)"))

@@ -335,7 +335,8 @@ def apply_answers(batch_dir, rows, notes: list | None = None, *, write: bool = T
     with a ``camera`` goes to every frame of that camera. Each file keeps its other keys, format
     version and mode; the files that change are written as one set, all or none (:func:`_write`),
     and a file no answer changes is not written. Returns (scene file, what was put in, whether it
-    changed the file: False when the file held it already) per answer; an answered row of a request
+    changed the file: False when the file held it already, the row it answers) per answer and file
+    (a camera's mounting: one per frame of the camera); an answered row of a request
     that is drawn (lines, a reference on a segment: they come back through an importer) is said in
     ``notes``. ``creference batch`` then re-estimates the frames whose scenes changed. Raises
     ValueError naming the row and the value on a bad answer, the file on an answer its format
@@ -362,7 +363,7 @@ def apply_answers(batch_dir, rows, notes: list | None = None, *, write: bool = T
             scenes[source] = change(before, *args, **kwargs)
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
-        done.append((source, what, scene_fingerprint(scenes[source]) != scene_fingerprint(before)))
+        done.append((source, what, scene_fingerprint(scenes[source]) != scene_fingerprint(before), where))
 
     for n, row in enumerate(rows, start=1):
         kind, answer = row.get("kind"), (row.get("answer") or "").strip()
@@ -399,11 +400,11 @@ def apply_answers(batch_dir, rows, notes: list | None = None, *, write: bool = T
             put(scene_of(key, where), where, f"mounting {height:g} m, pitch {pitch:g}°, roll {roll:g}°",
                 with_mounting, height, math.radians(pitch), math.radians(roll))
     what = {}
-    for source, text, changed in done:
+    for source, text, _, _ in done:
         what.setdefault(source, []).append(text)
     if write:
         _write(files, scenes, what)
-    return [(str(source), text, changed) for source, text, changed in done]
+    return [(str(source), text, changed, row) for source, text, changed, row in done]
 
 
 #: Two drawn points closer than this (pixels) are the same annotation (files round to 0.01 px).
@@ -438,7 +439,7 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
     values) are appended, and nothing else of the user's file changes (its other keys, format
     version and mode, its truth, priors, the answers put in by :func:`apply_answers`). A scene
     that is no frame of the batch, or a target the frame does not have, is said in ``notes``.
-    Returns (scene file, what was added, True) per annotation added; the files changed are
+    Returns (scene file, what was added, True, its number) per annotation added; the files changed are
     written as one set, all or none (:func:`_write`). ValueError naming the file otherwise, and
     nothing written."""
     from pathlib import Path, PurePath
@@ -491,4 +492,4 @@ def merge_annotations(batch_dir, scenes, notes: list | None = None) -> list[tupl
     for source, text in done:
         what.setdefault(source, []).append(text)
     _write(files, merged, what)
-    return [(str(source), text, True) for source, text in done]
+    return [(str(source), text, True, k) for k, (source, text) in enumerate(done)]
