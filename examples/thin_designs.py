@@ -23,7 +23,8 @@ Usage::
     python examples/thin_designs.py --n 80 --cameras real --dataset auto --refs 0,2 --out thin_ds
                                          # each design's scenes as one batch, the data-set layer on
                                          # (--dataset none: the same batch, every frame alone;
-                                         # --mixed: every second scene indoor)
+                                         # --mixed: every second scene indoor;
+                                         # --declare-setting: each scene names its setting)
 
 Records go to ``OUT/thin.jsonl`` (one line per estimate), the table to ``OUT/thin.md``. Tens of
 estimates a minute on one core; run it under the shared lock (``flock /tmp/bench.lock …``).
@@ -145,6 +146,8 @@ def run_batches(args, out: Path) -> list[dict]:
     settings = BatchSettings(sampling={"min_ess": args.min_ess}, location_prior=args.location_prior,
                              distance_range=args.distance_range, dataset=args.dataset)
     dicts = [_scene_dict(k, args.cameras, args.mixed) for k in range(args.n)]
+    if args.declare_setting:  # what a data set's own records say: where each photo was taken
+        dicts = [{**d, "setting": d["ground_truth"]["setting"]} for d in dicts]
     records = []
     with open(out / "thin.jsonl", "w") as f:
         for n_refs in args.refs:
@@ -226,6 +229,9 @@ def main(argv=None) -> None:
                    help="the simulator's outdoor cameras (setting) or real ones, street cameras included (real)")
     p.add_argument("--mixed", action="store_true",
                    help="every second scene indoor (the simulator's indoor range, 2.25-10 m): one data set of both")
+    p.add_argument("--declare-setting", action="store_true",
+                   help="each scene file names its setting (indoor, outdoor): the data set's distance population "
+                        "is then one per setting (--dataset)")
     p.add_argument("--dataset", default=None, choices=("auto", "none"),
                    help="each design's scenes as one batch (creference batch --dataset auto: the data-set layer, "
                         "its default; none: every frame alone); default: each scene estimated on its own")

@@ -247,6 +247,41 @@ def test_targets_of_two_settings_under_one_group_are_not_handed_one_population(s
     assert block["distance_m"] == {"from": "the frame", "group": "street", "why": TWO_POPULATIONS}
 
 
+def test_frames_that_name_their_setting_get_the_population_of_their_setting(tmp_path):
+    """One data set, no camera ids, frames of two settings (targets 3–6 m and 25–50 m away): each
+    scene that names its ``setting`` is pooled with its setting's frames only and handed that
+    population (a camera may take photos of both, so the setting is not the camera's); the same
+    frames naming none are one group."""
+    for named in (True, False):
+        folder = tmp_path / ("named" if named else "unnamed")
+        (folder / "in").mkdir(parents=True)
+        for k in range(12):
+            near = k % 2 == 0
+            d, _ = truth_scene(k, m=2, noise_px=1.0, sizes_known=False, focal_known=True, focal_px=1400.0,
+                               ground_sd_m=0.05, depth=(3.0, 6.0) if near else (25.0, 50.0))
+            if named:
+                d["setting"] = "room" if near else "street"
+            (folder / "in" / f"f{k:02d}.json").write_text(json.dumps(d))
+        report = run_batch([folder / "in"], folder / "out", LocalEngine(1), BatchSettings(seed=1, posterior=False))
+        assert report.ok
+        groups = report.dataset["distance_m"]["groups"]
+        if not named:
+            assert set(groups) == {"data set"}
+            continue
+        assert set(groups) == {"room", "street"}
+        assert 3.0 < groups["room"]["median"] < 6.0 and 25.0 < groups["street"]["median"] < 50.0
+        assert groups["room"]["frames"] == groups["street"]["frames"] == 6 and not groups["room"]["warnings"]
+        for k in range(12):
+            res = json.loads((folder / "out" / "results" / f"f{k:02d}.json").read_text())
+            took = res["dataset"]["distance_m"]
+            assert took["from"] == "data set" and took["group"] == ("room" if k % 2 == 0 else "street")
+            assert took["frames_offered"] == 10  # the readings of its setting's 5 other frames, 2 targets each
+            prior = res["provenance"]["location_population"]
+            assert (3.0 < prior[0] < 6.0) if k % 2 == 0 else (25.0 < prior[0] < 50.0)
+            scene = json.loads((folder / "out" / "scenes" / f"f{k:02d}.json").read_text())
+            assert scene["setting"] == took["group"]  # the batch's copy keeps it
+
+
 def test_overrides_win_and_are_recorded():
     pools = {"log_distance": Pool(SHARED["log_distance"], _population()),
              "log_ref_scale": Pool(SHARED["log_ref_scale"], [Reading(f"f{i}", "crowd", math.log(0.3), 400.0)

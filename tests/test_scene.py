@@ -243,6 +243,19 @@ def test_corner_scale_round_trips_and_names_its_bad_key():
             _parse(d)
 
 
+def test_a_scenes_setting_round_trips_and_names_its_bad_value():
+    d = _example()
+    assert _parse(d).setting is None and "setting" not in scene_to_dict(_parse(d))
+    d["setting"] = "warehouse aisle"
+    scene = _parse(d)
+    assert scene.setting == "warehouse aisle" and scene_to_dict(scene)["setting"] == "warehouse aisle"
+    for bad, says in (("", "expected the name of where the photo was taken, got ''"), ("  ", "got ' '"),
+                      (3, "expected a string"), ("a\tb", "control character")):
+        d["setting"] = bad
+        with pytest.raises(SceneError, match=r"^setting: .*" + re.escape(says)):
+            _parse(d)
+
+
 def _same_targets(a, b) -> bool:
     return all(x.id == y.id and x.dimensions == y.dimensions and np.array_equal(x.corners, y.corners)
                and x.ground_truth == y.ground_truth for x, y in zip(a, b))

@@ -436,9 +436,9 @@ def _image_scene(parts: list[_TaskPart], image_dir, out_dir, table: TargetTable,
     scene = scene_dict(first.size, image_path, camera, horizon=horizon,
                        horizon_sd_px=data.get("horizon_sd_px"),
                        classes=classes_block(out_targets, data.get("classes"), classes), targets=out_targets,
-                       references=refs or None, ground_truth=data.get("ground_truth"))
+                       references=refs or None, ground_truth=data.get("ground_truth"), setting=data.get("setting"))
     origins = {"camera": "data.camera_id / focal_length_px / principal_point / kitti_p2", "horizon": "the horizon",
-               "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes",
+               "horizon_sd_px": "data.horizon_sd_px", "classes": "data.classes / --classes", "setting": "data.setting",
                "ground_truth": "data.ground_truth", **origins}
     origins.update({f"references[{k}]": o for k, o in enumerate(ref_origins)})
     return ImportedScene(_scene_name(data, first.task, first.index, where), checked_scene(scene, where, origins),

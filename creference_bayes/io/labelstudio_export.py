@@ -24,7 +24,7 @@ CAMERA_ID = "camera_id"
 CAMERA_DATA = ("focal_length_px", "principal_point", "kitti_p2", "kitti_calib", "focal_length_prior",
                "orientation_prior")
 #: The scene's other keys of the photo (not of one target), carried as ``data`` fields.
-PHOTO_DATA = ("horizon", "horizon_sd_px", "classes", "ground_truth")
+PHOTO_DATA = ("horizon", "horizon_sd_px", "classes", "ground_truth", "setting")
 
 
 def task_data(d: dict, image_url: str | None = None) -> dict:

@@ -56,9 +56,9 @@ MAX_ANNOTATIONS = 500
 #: Most references in a scene: a few per target from each worker, with room to spare.
 MAX_REFERENCES = 2000
 _TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "target", "references",
-                 "ground_truth"},
+                 "ground_truth", "setting"},
              2: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "classes", "targets",
-                 "references", "ground_truth"}}
+                 "references", "ground_truth", "setting"}}
 #: Camera ground-truth keys (the rest of a version-1 ``ground_truth`` is the target's).
 _CAMERA_TRUTH = ("focal_length_px", "camera_height_m", "pitch_rad", "roll_rad")
 
@@ -149,6 +149,9 @@ class Scene:
         the camera's focal length and mounting (``creference batch --rig``)
     corner_scale : (sd px, degrees of freedom): the crowd's corner scale that other frames of the
         data set show (``corner_scale``; ``creference batch`` writes it), or None
+    setting : where the photo was taken, as the data set names it (``setting``: "indoor", "street",
+        …), or None: frames of one setting share where their targets stand (``creference batch``'s
+        distance population; without it, the frames of a camera id, or the whole data set)
     """
 
     image_width: int
@@ -172,6 +175,7 @@ class Scene:
     kitti_calib: dict | None = None
     camera_id: str | None = None
     corner_scale: tuple[float, float] | None = None
+    setting: str | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -656,7 +660,10 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
         _warn_unknown(corner_scale, {"sd_px", "dof"}, "corner_scale", sink)
         corner_scale = (_number(_get(corner_scale, "sd_px", "corner_scale"), "corner_scale.sd_px", positive=True),
                         _number(_get(corner_scale, "dof", "corner_scale"), "corner_scale.dof", positive=True))
-    return dict(image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
+    setting = _name(data.get("setting"), "setting")
+    if setting is not None and not setting.strip():
+        raise SceneError("setting", f"expected the name of where the photo was taken, got {setting!r}")
+    return dict(setting=setting, image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
                 corner_scale=corner_scale, horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
                 orientation_prior=orientation_prior, image_path=image_path, source=source, kitti_p2=kitti_p2,
                 kitti_calib=kitti_calib, camera_id=camera_id)
@@ -775,6 +782,8 @@ def scene_to_dict(scene: Scene) -> dict:
             out["horizon_sd_px"] = scene.horizon_sd_px
     if scene.corner_scale is not None:
         out["corner_scale"] = {"sd_px": scene.corner_scale[0], "dof": scene.corner_scale[1]}
+    if scene.setting is not None:
+        out["setting"] = scene.setting
     if scene.classes:
         out["classes"] = {k: prior_entry(p) for k, p in scene.classes.items()}
     out["targets"] = []

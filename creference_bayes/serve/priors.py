@@ -7,7 +7,7 @@ read from the batch's first pass (:meth:`~creference_bayes.workflows.batch.datas
 the quantities the batch learnt), and each frame is handed them by the layer's own
 :func:`~creference_bayes.workflows.batch.dataset.hand_back`: its camera's pooled focal length and
 mounting (the task's ``camera_id``), the crowd's reference scale, the population of target
-distances of its setting, the crowd's corner scale and segment floor
+distances of its setting (the task's ``setting``, else its camera), the crowd's corner scale and segment floor
 (:func:`~creference_bayes.workflows.batch.corner_scales`,
 :func:`~creference_bayes.workflows.batch.hand_segments`). A task is no frame of the batch: it
 takes the pools of all the batch's frames.
@@ -125,7 +125,8 @@ class DataSetPriors:
         if scale is not None:
             scene = replace(scene, corner_scale=scale)
         camera_id = camera_id_of(scene)
-        ds = replace(self.dataset, camera_of={**self.dataset.camera_of, key: camera_id})
+        ds = replace(self.dataset, camera_of={**self.dataset.camera_of, key: camera_id},
+                     setting_of={**self.dataset.setting_of, **({key: scene.setting} if scene.setting else {})})
         scene, kwargs, block, rig = hand_back(ds, key, scene, self.settings)
         seg_kwargs, seg_block = hand_segments([*self.scenes, scene], self.settings)[-1]
         kwargs, block = {**seg_kwargs, **kwargs}, {**block, **seg_block}

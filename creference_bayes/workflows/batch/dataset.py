@@ -3,8 +3,8 @@ through one mechanism (``creference batch``, on by default; docs/batch.md, "What
 teaches each frame"; issue 62).
 
 A shared quantity is a :class:`Shared`: its name, who shares it (``shared_by``: the frames of one
-camera, the data set's crowd, or the frames of one *setting*, a camera id or else the whole data
-set), whether the frames share one value (``"shared"``) or draw theirs around a common one
+camera, the data set's crowd, or the frames of one *setting*: the scene's ``setting``, else its
+camera id, else the whole data set), whether the frames share one value (``"shared"``) or draw theirs around a common one
 (``"spread"``), and the bounds of what is pooled. :data:`SHARED` declares them all:
 
 ==================  ==========  ======  ===============================================================
@@ -115,7 +115,7 @@ BOOTSTRAP = 500
 FEW_FRAMES = "the pool rests on few frames"
 DISAGREE = "the pool and the frames disagree"
 TWO_POPULATIONS = ("the readings look like two populations (a mixture fits them better by BIC): not handed "
-                   "back; give each setting its own camera id")
+                   "back; give each frame its scene's 'setting' (where it was taken)")
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,8 @@ class Shared:
     name : the pooled scale's name (``log_focal``: log µ px; ``pitch``: radians; ...)
     label : the result's block key, in natural units (``focal_length_px``, ``pitch_deg``, ...)
     shared_by : ``"camera"`` (frames of one ``camera.id``), ``"crowd"`` (the data set's annotators),
-        ``"setting"`` (frames of one camera id; frames without one: the whole data set)
+        ``"setting"`` (frames of one :func:`setting_of`: the scene's ``setting``, else its camera id,
+        else the whole data set)
     kind : ``"shared"`` (one value) or ``"spread"`` (each frame's, or target's, around a common one)
     natural : ``"log"`` (shown as exp: a median and a log-sd) or ``"angle"`` (radians shown in degrees)
     max_sd : the widest reading (sd, pooled scale) that is pooled (weaker ones are biased, docs/studies/rig.md)
@@ -524,6 +525,17 @@ def _draws(result: dict, scene):
     return model, cams, objs
 
 
+def setting_of(scene) -> str:
+    """The group of frames whose targets stand alike (a :class:`Shared` ``"setting"`` quantity's):
+    the scene's ``setting`` (where it was taken: one camera may take photos of several), else its
+    camera id (:func:`~.rig.camera_id_of`), else ``"data set"`` (every such frame)."""
+    from .rig import camera_id_of
+
+    if scene.setting is not None:
+        return scene.setting
+    return _setting(camera_id_of(scene))
+
+
 def _setting(camera_id: str | None) -> str:
     return camera_id if camera_id is not None else "data set"
 
@@ -561,7 +573,7 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
         # weights p_kind/p: the evidence on log d relative to the kind's density (location_prior.py)
         lik = likelihood(0.5 * np.log(x * x + z * z), location.relative_log_prior(x, z), log_reweight)
         if lik is not None:
-            readings.append(Reading(key, _setting(camera_id), *lik))
+            readings.append(Reading(key, _setting(camera_id) if scene.setting is None else scene.setting, *lik))
     if readings:
         out["log_distance"] = readings
     return out
@@ -756,6 +768,7 @@ class DataSet:
     pools : quantity name → :class:`Pool`
     learn : the quantity names learnt (:func:`plan`)
     camera_of : KEY → the frame's camera id (None: a camera of its own)
+    setting_of : KEY → the frame's setting (:func:`setting_of`), where it is not its camera's
     tail : the crowd's reference tail (:class:`TailPool`), when ``ref_dof`` is learnt
     residuals : KEY → the frame's reading of the corner scale (:func:`read_corner_residuals`),
         when ``corner_scale`` is learnt
@@ -766,6 +779,7 @@ class DataSet:
     pools: dict
     learn: tuple
     camera_of: dict = field(default_factory=dict)
+    setting_of: dict = field(default_factory=dict)
     tail: TailPool | None = None
     residuals: dict = field(default_factory=dict)
     fitted_at_px: float | None = None
@@ -793,8 +807,10 @@ class DataSet:
         given = focal_given_orientation and "log_focal" in learn
         read = tuple(learn) + tuple(n for n in GIVEN if given and n not in learn)
         readings: dict[str, list[Reading]] = {name: [] for name in read if name in SHARED}
-        kept, residuals = {}, {}
+        kept, residuals, settings = {}, {}, {}
         for key, camera_id, scene, result in _results(frames, folder):
+            if scene.setting is not None:
+                settings[key] = scene.setting
             model, cams, objs = _draws(result, scene)
             if CORNER_SCALE.name in learn and (r := read_corner_residuals(model, result, cams, objs)) is not None:
                 residuals[key] = r
@@ -806,7 +822,7 @@ class DataSet:
                 if name in readings:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
-                 {key: camera_id for key, camera_id in frames}, tail, residuals)
+                 {key: camera_id for key, camera_id in frames}, settings, tail, residuals)
         if given:
             focal = []
             for key, (result, cams, reweight) in kept.items():
@@ -867,7 +883,9 @@ class DataSet:
     def group_of(self, name: str, key: str) -> str | None:
         by = SHARED[name].shared_by
         camera_id = self.camera_of.get(key)
-        return "crowd" if by == "crowd" else _setting(camera_id) if by == "setting" else camera_id
+        if by == "setting":
+            return self.setting_of.get(key) or _setting(camera_id)
+        return "crowd" if by == "crowd" else camera_id
 
     def estimate(self, name: str, key: str, leave_out: bool = True) -> Pooled | None:
         """The pool frame ``key`` is handed of quantity ``name`` (its group's, leaving it out)."""
@@ -955,7 +973,8 @@ def plan(scenes, settings) -> tuple[str, ...]:
     if settings.distance_range is None and settings.preset == "default" and settings.location_prior in ("auto", "log-depth"):
         settings_groups: dict[str, list] = {}
         for cam, group in cameras.items():
-            settings_groups.setdefault(_setting(cam), []).extend(group)
+            for s in group:
+                settings_groups.setdefault(_setting(cam) if s.setting is None else s.setting, []).append(s)
         if any(len(g) > MIN_POPULATION_FRAMES and sum(len(s.targets) for s in g) >= MIN_POPULATION_TARGETS
                for g in settings_groups.values()):
             learn.append("log_distance")
