@@ -185,6 +185,39 @@ def test_the_first_pass_is_fitted_again_only_where_its_residuals_read_a_scale_fa
     assert DataSet({}, ("corner_scale",)).refit_at() is None
 
 
+def test_a_crowd_of_careful_and_careless_frames_hands_each_frame_its_own_scale():
+    """Frames whose residuals read one crowd scale (4 px) are each handed the others' pool; frames
+    drawn at 5 px and at 10 px (a careful and a careless half) read as a spread (Smyth's
+    scaled inverse-χ² prior, d₀ finite), and each frame is handed the others' prior updated by its
+    own residuals: on average nearer its own scale than the pool is."""
+    from creference_bayes.workflows.batch.dataset import scale_spread
+
+    rng = np.random.default_rng(3)
+    dof = rng.uniform(2.0, 12.0, 200)
+    one = {f"f{k}": (16.0 * rng.chisquare(d), d) for k, d in enumerate(dof)}
+    assert scale_spread(np.array([r[0] for r in one.values()]), dof) is None
+    ds = DataSet({}, ("corner_scale",), residuals=one)
+    totals = (sum(r[0] for r in one.values()), sum(dof))
+    for k in ("f0", "f1"):
+        squares, d = totals[0] - one[k][0], totals[1] - one[k][1]
+        assert ds.corner_scale_of(k) == (float(f"{math.sqrt(squares / d):.2g}"), float(f"{d:.1g}"))
+
+    true_sd = np.where(np.arange(200) % 2 == 0, 5.0, 10.0)
+    two = {f"f{k}": (true_sd[k] ** 2 * rng.chisquare(d), d) for k, d in enumerate(dof)}
+    spread = scale_spread(np.array([r[0] for r in two.values()]), dof)
+    assert spread is not None and 2.0 < spread[1] < 20.0 and 5.0 < math.sqrt(spread[0]) < 10.0
+    ds = DataSet({}, ("corner_scale",), residuals=two)
+    pooled = ds.corner_scale_of(None)[0]
+    handed = np.array([ds.corner_scale_of(f"f{k}")[0] for k in range(200)])
+    careful, careless = handed[true_sd == 5.0], handed[true_sd == 10.0]
+    assert np.median(careful) < pooled < np.median(careless)
+    assert np.mean(np.abs(np.log(handed / true_sd))) < np.mean(np.abs(np.log(pooled / true_sd)))
+    assert all(ds.corner_scale_of(f"f{k}")[1] < 40 for k in range(5))  # d₀ + its own, not the pool's Σ dof
+    assert "spread_dof" in ds.summary()["corner_scale_px"]["groups"]["crowd"]
+    from creference_bayes.workflows.batch.dataset import dataset_lines
+    assert any("frames spread: each its own" in line for line in dataset_lines(ds.summary()))
+
+
 def _population(seed=0, frames=12, per_frame=3, median=15.0, log_sd=0.5, noise=0.1):
     rng = np.random.default_rng(seed)
     truth = rng.normal(math.log(median), log_sd, (frames, per_frame))

@@ -686,6 +686,41 @@ def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarra
     return max(squares, 0.0), dof
 
 
+#: the fewest frames' residual readings whose spread (:func:`scale_spread`) is read
+MIN_SPREAD_FRAMES = 5
+
+
+def scale_spread(squares: np.ndarray, dofs: np.ndarray) -> tuple[float, float] | None:
+    """Whether frames' corner scales spread, from their residual readings (squares px², degrees of
+    freedom dᵢ: :func:`read_corner_residuals`): the scaled inverse-χ² prior of the frames' true
+    variances, (s₀² px², d₀), that makes each sᵢ² = squaresᵢ / dᵢ an F-distributed reading, fitted by
+    the moments of log sᵢ² (Smyth 2004, "Linear models and empirical Bayes methods for assessing
+    differential expression in microarray experiments", SAGMB 3(1), section 6.2). None when the
+    log sᵢ² spread no more than their χ² noise does (one scale: d₀ infinite), or with fewer than
+    :data:`MIN_SPREAD_FRAMES` readings of positive squares and at least half a degree of freedom."""
+    from scipy.special import digamma, polygamma
+
+    s2, d = np.asarray(squares, float), np.asarray(dofs, float)
+    ok = (s2 > 0) & (d >= 0.5) & np.isfinite(s2) & np.isfinite(d)
+    s2, d = s2[ok] / d[ok], d[ok]
+    n = len(s2)
+    if n < MIN_SPREAD_FRAMES:
+        return None
+    e = np.log(s2) - digamma(d / 2.0) + np.log(d / 2.0)
+    excess = float(np.mean((e - e.mean()) ** 2) * n / (n - 1) - np.mean(polygamma(1, d / 2.0)))
+    if not excess > 0:
+        return None
+    y = 0.5 + 1.0 / excess  # trigamma(y) = excess by Newton's method, as Smyth's trigammaInverse
+    for _ in range(50):
+        tri = float(polygamma(1, y))
+        step = tri * (1.0 - tri / excess) / float(polygamma(2, y))
+        y += step
+        if -step / y < 1e-8:
+            break
+    d0 = 2.0 * y
+    return float(np.exp(e.mean() + digamma(d0 / 2.0) - np.log(d0 / 2.0))), d0
+
+
 def _reads_tails(model) -> bool:
     """Whether ``model`` has references read with a Student-t of its ``ref_dof``."""
     return "reference_likelihood" in getattr(model, "capabilities", ()) and bool(len(model.references))
@@ -866,14 +901,28 @@ class DataSet:
         """The crowd's corner scale frame ``key`` is handed (all frames' with None): (sd px,
         degrees of freedom) from the other frames' residuals (:func:`read_corner_residuals`), the sd
         rounded to two significant digits and at least the model's floor, the degrees of freedom
-        to one (as :func:`~.corner_scales`); None without another frame's reading."""
+        to one (as :func:`~.corner_scales`); None without another frame's reading.
+
+        Where the other frames' scales spread (:func:`scale_spread`: a crowd whose frames were
+        drawn by more and less careful workers), a frame with its own reading is handed its own
+        scale: the others' prior s₀², d₀ updated by its squares and degrees of freedom,
+        s² = (d₀ s₀² + squares) / (d₀ + dof) on d₀ + dof degrees of freedom (Smyth's moderated
+        variance); where they look like one scale, the others' pool."""
         from ...models.metrology import MIN_TARGET_SIGMA_PX
 
         own = self.residuals.get(key, (0.0, 0.0))
         squares, dof = (t - o for t, o in zip(self._residual_totals, own))  # a sum once, not once per frame
         if len(self.residuals) - (key in self.residuals) < 1 or dof <= 0:
             return None
-        return max(float(f"{math.sqrt(max(squares, 0.0) / dof):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
+        variance = max(squares, 0.0) / dof
+        if key in self.residuals and (spread := self._scale_spread(key)) is not None:
+            variance, dof = (spread[1] * spread[0] + own[0]) / (spread[1] + own[1]), spread[1] + own[1]
+        return max(float(f"{math.sqrt(variance):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
+
+    def _scale_spread(self, key: str | None) -> tuple[float, float] | None:
+        """:func:`scale_spread` of the frames' residual readings but ``key``'s."""
+        readings = [r for k, r in self.residuals.items() if k != key]
+        return scale_spread(np.array([r[0] for r in readings]), np.array([r[1] for r in readings]))
 
     def tail_of(self, key: str | None) -> dict | None:
         """The crowd's tail frame ``key`` is handed (:meth:`TailPool.estimate`, leaving it out; all
@@ -907,8 +956,10 @@ class DataSet:
         if (tail := self.tail_of(None)) is not None:
             out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
         if (scale := self.corner_scale_of(None)) is not None:
+            spread = self._scale_spread(None)
             out[CORNER_SCALE.label] = {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
-                "sd": scale[0], "dof": scale[1], "frames": len(self.residuals), "fitted_at_px": self.fitted_at_px}}}
+                "sd": scale[0], "dof": scale[1], "frames": len(self.residuals), "fitted_at_px": self.fitted_at_px,
+                **({} if spread is None else {"spread_sd": _sig(math.sqrt(spread[0])), "spread_dof": _sig(spread[1])})}}}
         return out
 
     def not_learnt(self) -> list[str]:
@@ -1046,6 +1097,8 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         scene = replace(scene, corner_scale=residual)
         block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": residual[0], "dof": residual[1],
                                     "read": "the first pass's residuals", "fitted_at_px": ds.fitted_at_px}
+        if key in ds.residuals and ds._scale_spread(key) is not None:
+            block["corner_scale_px"]["own"] = "the others' spread updated by the frame's own residuals"
     elif scene.corner_scale is not None:
         block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
                                     "shared_by": "crowd", "sd": scene.corner_scale[0], "dof": scene.corner_scale[1]}
@@ -1087,8 +1140,10 @@ def dataset_lines(summary: dict) -> list[str]:
             if entry["kind"] == "residuals":  # the corner scale from the first pass's residuals
                 at = b.get("fitted_at_px")
                 read = "from the residuals" + (f" at {at:g} px" if at is not None else "")
+                spread = (f"; frames spread: each its own, from {b['spread_sd']:.2g} px on {b['spread_dof']:.2g} dof"
+                          if "spread_dof" in b else "")
                 rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {format(b['sd'], 'g') + ' px':>10}  "
-                            f"{read:<28} {str(b['frames']) + ' frames':<18} dof {b['dof']:g}")
+                            f"{read:<28} {str(b['frames']) + ' frames':<18} dof {b['dof']:g}{spread}")
                 continue
             if entry["kind"] == "choice":  # the crowd's tail (:meth:`TailPool.estimate`)
                 rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {'t' + format(b['dof'], 'g'):>10}  "
