@@ -4,6 +4,7 @@ default from a MAP first pass, handed back to each frame leaving it out; overrid
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -313,6 +314,30 @@ def test_frames_that_name_their_setting_get_the_population_of_their_setting(tmp_
             assert (3.0 < prior[0] < 6.0) if k % 2 == 0 else (25.0 < prior[0] < 50.0)
             scene = json.loads((folder / "out" / "scenes" / f"f{k:02d}.json").read_text())
             assert scene["setting"] == took["group"]  # the batch's copy keeps it
+
+
+def test_a_task_of_the_service_takes_the_population_of_the_setting_it_names():
+    """``creference serve`` in a batch folder (serve/priors.py): a task that names its ``setting``
+    is handed that setting's population, one that names none its camera's group's."""
+    from creference_bayes.io.scene import scene_fingerprint
+    from creference_bayes.serve.predictions import Frame
+    from creference_bayes.serve.priors import DataSetPriors
+
+    room = [replace(r, group="room") for r in _population(0, median=4.0, log_sd=0.3)]
+    street = [replace(r, key=f"g{r.key}", group="street") for r in _population(1, median=30.0, log_sd=0.3)]
+    keys = {r.key: None for r in room + street}
+    ds = DataSet({"log_distance": Pool(SHARED["log_distance"], room + street)}, ("log_distance",), keys,
+                 setting_of={r.key: r.group for r in room + street})
+    priors = DataSetPriors(Path("."), ds, (), BatchSettings())
+    for setting, median in (("room", 4.0), ("street", 30.0)):
+        d = _scene(0, camera=None)
+        d["setting"] = setting
+        scene = parse_scene(d)
+        frame = priors.frame("task", Frame(scene, scene_fingerprint(scene)))
+        assert frame.dataset["distance_m"]["group"] == setting
+        assert frame.kwargs["location_prior"].population[0] == pytest.approx(median, rel=0.25)
+    scene = parse_scene(_scene(0, camera=None))
+    assert "distance_m" not in (priors.frame("task", Frame(scene, scene_fingerprint(scene))).dataset or {})
 
 
 def test_overrides_win_and_are_recorded():
