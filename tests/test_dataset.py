@@ -111,6 +111,26 @@ def test_a_quantity_the_batch_could_not_learn_is_said_with_what_it_lacked():
     assert DataSet({}, ("log_ref_scale",), {}).not_learnt() == ["ref_scale: not learnt: no frame could read it"]
 
 
+def test_the_table_says_how_many_of_a_cameras_frames_could_read_a_quantity():
+    """Six frames of one camera, three of which read its pitch (the others' own prior decides it,
+    a calibrated mounting say): the table's row counts 3 used of 3 offered of the camera's 6, and
+    its legend says what offered means; a camera whose every frame read it is counted as before."""
+    from creference_bayes.workflows.batch.dataset import dataset_lines
+
+    readings = [Reading(k, "cam-A", math.radians(4.0 + 0.2 * i), math.radians(0.5) ** -2) for i, k in enumerate("abc")]
+    readings += [Reading(k, "cam-B", math.radians(2.0 + 0.2 * i), math.radians(0.5) ** -2) for i, k in enumerate("gh")]
+    ds = DataSet({"pitch": Pool(SHARED["pitch"], readings)}, ("pitch",),
+                 {**{k: "cam-A" for k in "abcdef"}, "g": "cam-B", "h": "cam-B"})
+    groups = ds.summary()["pitch_deg"]["groups"]
+    assert groups["cam-A"]["group_frames"] == 6 and groups["cam-B"]["group_frames"] == 2
+    lines = dataset_lines(ds.summary())
+    row = next(line for line in lines if "cam-A" in line)
+    assert " 3/3 of 6 " in row
+    assert " 2/2 " in next(line for line in lines if "cam-B" in line)
+    assert "of 2" not in next(line for line in lines if "cam-B" in line)
+    assert any("offers none" in line for line in lines)
+
+
 def test_dataset_none_estimates_every_frame_alone(four_frames, tmp_path):
     root, settings, _ = four_frames
     report = run_batch([root / "in" / "f0.json", root / "in" / "f1.json"], tmp_path / "o", LocalEngine(1),

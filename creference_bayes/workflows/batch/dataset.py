@@ -948,8 +948,12 @@ class DataSet:
         and its readings (``values``, :meth:`Pool.values`)."""
         out = {}
         for name, pool in self.pools.items():
-            blocks = {g: {**est.block(), "values": pool.values(g)} for g in pool.groups
-                      if (est := pool.estimate(g)) is not None}
+            members: dict[str, int] = {}
+            for key in self.camera_of:
+                if (g := self.group_of(name, key)) is not None:
+                    members[g] = members.get(g, 0) + 1
+            blocks = {g: {**est.block(), "group_frames": members.get(g, est.frames), "values": pool.values(g)}
+                      for g in pool.groups if (est := pool.estimate(g)) is not None}
             if blocks:
                 out[SHARED[name].label] = {"shared_by": SHARED[name].shared_by, "kind": SHARED[name].kind,
                                            "groups": blocks}
@@ -1159,6 +1163,8 @@ def dataset_lines(summary: dict) -> list[str]:
                 sd = f"sd {b['sd']:.2f}° spread {b['spread_sd']:.2f}°"
             used = f"{b['frames']}/{b['frames_offered']}" if "readings" not in b else \
                 f"{b['readings']}/{b['frames_offered']} ({b['frames']} frames)"
+            if "readings" not in b and b.get("group_frames", 0) > b["frames_offered"]:
+                used += f" of {b['group_frames']}"
             rows.append(f"  {label:<16} {entry['shared_by']:<8} {group[:24]:<24} {value:>10}  {sd:<28} "
                         f"{used:<18} n_eff {b['n_eff']:g}  D {b['disagreement']:+.2f}")
             warns += [f"warning: data set: {label} of {group}: {w}" for w in b["warnings"]]
@@ -1166,6 +1172,8 @@ def dataset_lines(summary: dict) -> list[str]:
         return []
     head = f"  {'quantity':<16} {'by':<8} {'group':<24} {'pooled':>10}  {'uncertainty':<28} {'used/offered':<18} agreement"
     legend = ("  (held: every frame of the group takes the pooled value; spread: how far frames stray around it; "
+              "used/offered of N: the frames whose reading is pooled / that could read it apart from their own "
+              "prior, of the group's N (a frame whose own prior decides it, a calibrated mounting say, offers none); "
               "n_eff: the frames the pool rests on, counted by their weights; D: the pool less the frames' own "
               "median, in the pool's standard deviations)")
     return ["data set (what the frames share; each frame took the others'):", head, *rows, legend, *warns]
