@@ -130,6 +130,8 @@ def _parse(d):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         scene = parse_scene(d)
+    if _WHAT_IF.get("declare_setting"):  # what a data set's records say: where each photo was taken
+        scene = dataclasses.replace(scene, setting=(d.get("ground_truth") or {}).get("setting"))
     # stated by the scene, the prior reaches the estimates and the advice alike
     return scene if _FOCAL_PRIOR is None else dataclasses.replace(scene, focal_prior=_FOCAL_PRIOR)
 
@@ -917,6 +919,9 @@ def main(argv=None) -> None:
                                 "(what the frames share, learnt from a first pass and handed to each from the "
                                 "others); every estimate of a scene takes its priors (default: %(default)s, each "
                                 "scene alone)")
+            s.add_argument("--declare-setting", action="store_true",
+                           help="each scene names its setting (indoor, outdoor, street): with --dataset auto the "
+                                "distance population is one per setting")
             s.add_argument("--reference-px", type=float, default=None, metavar="PX",
                            help="what if the simulated crowd drew reference segments with this endpoint noise "
                                 "(px; 0: exact segments) instead of its tier's")
@@ -949,6 +954,8 @@ def main(argv=None) -> None:
         if _WHAT_IF.get("distance_range"):
             p.error("--dataset auto: the data set learns where the targets stand; drop --distance-range")
         _WHAT_IF["dataset"] = args.dataset
+    if getattr(args, "declare_setting", False):
+        _WHAT_IF["declare_setting"] = True
     if getattr(args, "reference_px", None) is not None:
         if not args.reference_px >= 0:
             p.error(f"--reference-px: expected a number of pixels >= 0, got {args.reference_px!r}")
