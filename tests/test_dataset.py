@@ -237,6 +237,32 @@ def test_a_crowd_of_careful_and_careless_frames_hands_each_frame_its_own_scale()
     assert "spread_dof" in ds.summary()["corner_scale_px"]["groups"]["crowd"]
     from creference_bayes.workflows.batch.dataset import dataset_lines
     assert any("frames spread: each its own" in line for line in dataset_lines(ds.summary()))
+    # a frame's spread leaves its own reading out, as the readings without it give it
+    others = {k: r for k, r in two.items() if k != "f3"}
+    assert ds.scale_spread_of("f3") == pytest.approx(
+        scale_spread(np.array([r[0] for r in others.values()]), np.array([r[1] for r in others.values()])))
+    # a frame (or a service's task) without residuals of its own is handed the spread's prior itself
+    s0, d0 = ds.scale_spread_of("task")
+    assert ds.corner_scale_of("task") == (float(f"{math.sqrt(s0):.2g}"), float(f"{d0:.1g}"))
+
+
+def test_one_outlying_frame_or_a_few_frames_are_no_spread_of_the_crowds_scale():
+    """One frame whose corners sit almost exactly on their projection (squares 0.001 px²) among 100
+    frames of one 4 px scale, or another 50 times noisier, does not make a spread (its fourth
+    moment makes the spread's standard error large): every frame keeps the pool; nor do nine
+    frames, however spread (too few to read a spread from)."""
+    from creference_bayes.workflows.batch.dataset import scale_spread
+
+    rng = np.random.default_rng(5)
+    dof = np.full(101, 6.0)
+    for factor in (1e-3 / (16.0 * 6.0), 50.0):
+        squares = 16.0 * rng.chisquare(dof)
+        squares[0] *= factor
+        assert scale_spread(squares, dof) is None
+        ds = DataSet({}, ("corner_scale",), residuals={f"f{k}": (q, d) for k, (q, d) in enumerate(zip(squares, dof))})
+        assert ds.corner_scale_of("f1")[1] > 100  # the others' pool, its degrees of freedom summed
+    nine = np.array([1.0, 100.0] * 4 + [1.0]) * 6.0
+    assert scale_spread(nine, np.full(9, 6.0)) is None and scale_spread(np.append(nine, 600.0), np.full(10, 6.0))
 
 
 def _population(seed=0, frames=12, per_frame=3, median=15.0, log_sd=0.5, noise=0.1):
@@ -334,6 +360,21 @@ def test_frames_that_name_their_setting_get_the_population_of_their_setting(tmp_
             assert (3.0 < prior[0] < 6.0) if k % 2 == 0 else (25.0 < prior[0] < 50.0)
             scene = json.loads((folder / "out" / "scenes" / f"f{k:02d}.json").read_text())
             assert scene["setting"] == took["group"]  # the batch's copy keeps it
+
+
+def test_a_frame_keeps_its_setting_without_a_first_pass_and_a_setting_named_as_a_camera_is_said(tmp_path):
+    """The batch gives every frame's setting (a frame whose first pass failed keeps its group);
+    a setting named as the group of frames that name none (a camera id, or "data set") makes one
+    group of both, and the batch says so."""
+    (tmp_path / "first_pass").mkdir()
+    frames = [("a", "cam-A"), ("b", "cam-A"), ("c", None)]
+    ds = DataSet.from_first_pass(frames, tmp_path / "first_pass", ("log_distance",), settings={"a": "room"})
+    assert [ds.group_of("log_distance", k) for k in "abc"] == ["room", "cam-A", "data set"]
+    assert not any("also the group" in line for line in ds.not_learnt())
+    for clash, says in (("cam-A", "camera 'cam-A'"), ("data set", "neither setting nor camera")):
+        ds = DataSet.from_first_pass(frames, tmp_path / "first_pass", ("log_distance",), settings={"a": clash})
+        (line,) = [line for line in ds.not_learnt() if "also the group" in line]
+        assert line.startswith(f"distance_m of {clash}: the setting {clash!r} is also") and says in line
 
 
 def test_a_task_of_the_service_takes_the_population_of_the_setting_it_names():

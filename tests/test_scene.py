@@ -249,8 +249,11 @@ def test_a_scenes_setting_round_trips_and_names_its_bad_value():
     d["setting"] = "warehouse aisle"
     scene = _parse(d)
     assert scene.setting == "warehouse aisle" and scene_to_dict(scene)["setting"] == "warehouse aisle"
-    for bad, says in (("", "expected the name of where the photo was taken, got ''"), ("  ", "got ' '"),
-                      (3, "expected a string"), ("a\tb", "control character")):
+    d["setting"] = "  warehouse aisle "
+    assert _parse(d).setting == "warehouse aisle"  # one setting however it is padded
+    for bad, says in (("", "(not empty), got ''"), ("  ", "(not empty), got '"),
+                      (3, "expected a string"), ("a\tb", "control character"),
+                      ("x" * 101, "(at most 100 characters)"), ("room\u202e", "(no invisible formatting characters)")):
         d["setting"] = bad
         with pytest.raises(SceneError, match=r"^setting: .*" + re.escape(says)):
             _parse(d)

@@ -16,6 +16,7 @@ keys are checked. Optional keys may be ``null`` (absent). Limits beyond the form
 from __future__ import annotations
 
 import math
+import unicodedata
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -55,6 +56,8 @@ MAX_TARGETS = 100
 MAX_ANNOTATIONS = 500
 #: Most references in a scene: a few per target from each worker, with room to spare.
 MAX_REFERENCES = 2000
+#: The longest ``setting`` name (it names a group in tables and file keys).
+MAX_SETTING_CHARS = 100
 _TOP_KEYS = {1: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "target", "references",
                  "ground_truth", "setting"},
              2: {"format", "image", "camera", "horizon", "horizon_sd_px", "corner_scale", "classes", "targets",
@@ -661,8 +664,13 @@ def _parse_header(data: dict, source, sink: list[str]) -> dict:
         corner_scale = (_number(_get(corner_scale, "sd_px", "corner_scale"), "corner_scale.sd_px", positive=True),
                         _number(_get(corner_scale, "dof", "corner_scale"), "corner_scale.dof", positive=True))
     setting = _name(data.get("setting"), "setting")
-    if setting is not None and not setting.strip():
-        raise SceneError("setting", f"expected the name of where the photo was taken, got {setting!r}")
+    if setting is not None:
+        setting = setting.strip()  # "street " and "street" are one setting
+        if not setting or len(setting) > MAX_SETTING_CHARS or any(unicodedata.category(c) == "Cf" for c in setting):
+            why = (f"at most {MAX_SETTING_CHARS} characters" if len(setting) > MAX_SETTING_CHARS else
+                   "no invisible formatting characters" if setting else "not empty")
+            raise SceneError("setting", f"expected the name of where the photo was taken ({why}), "
+                                        f"got {_short(data['setting'])}")
     return dict(setting=setting, image_width=w, image_height=h, principal_point=principal, focal_length_px=focal,
                 corner_scale=corner_scale, horizon=horizon, horizon_sd_px=horizon_sd, focal_prior=focal_prior,
                 orientation_prior=orientation_prior, image_path=image_path, source=source, kitti_p2=kitti_p2,

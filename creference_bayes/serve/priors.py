@@ -101,7 +101,9 @@ class DataSetPriors:
             frames.append((key, camera_id_of(scene)))
             scenes.append(scene)
         # nothing learnt: no first pass to read (the crowd's corner scale is read from the scenes)
-        dataset = DataSet.from_first_pass(frames, first, learn) if learn else DataSet({}, (), dict(frames))
+        settings = {key: scene.setting for (key, _), scene in zip(frames, scenes) if scene.setting is not None}
+        dataset = (DataSet.from_first_pass(frames, first, learn, settings=settings) if learn
+                   else DataSet({}, (), dict(frames), settings))
         return cls(folder, dataset, tuple(scenes), BatchSettings(), time.perf_counter() - t0)
 
     def describe(self) -> str:

@@ -289,7 +289,8 @@ def _first_pass(scenes, loaded, first: Path, settings: BatchSettings, learn: tup
     alone = replace(settings, posterior=False, dataset="none", rig="none")
     _run_pass(scenes, first, alone, close=False, desc="first pass", **run)
     frames = [(si.key, camera_id_of(scene)) for si, scene in loaded]
-    ds = DataSet.from_first_pass(frames, first, learn)
+    ds = DataSet.from_first_pass(frames, first, learn,
+                                 settings={si.key: scene.setting for si, scene in loaded if scene.setting is not None})
     if (at := ds.refit_at()) is not None:  # the crowd's corner scale read again from a fit at its own scale
         again = first / "at_crowd_scale"
         _run_pass([si for si in scenes if si.key in ds.residuals], again,

@@ -16,7 +16,8 @@ pitch, roll         camera      spread  first pass / the orientation prior's pit
 reference scale     crowd       spread  first pass, log s / the ``ref_scale_median``, ``_log_sd`` options
 target distance     setting     spread  first pass, each target's log d / the location prior's population
 corner scale        crowd       shared  the annotations (sets of one object), else the first pass's
-                                        residuals / the scene's corner scale
+                                        residuals (each frame's own where frames spread) / the
+                                        scene's corner scale
 segment floor       crowd       shared  the references' drawn lengths / ``read_floor_px``
 reference tail      crowd       shared  first pass, each reference's leave-one-out density / ``ref_dof``
 ==================  ==========  ======  ===============================================================
@@ -525,18 +526,8 @@ def _draws(result: dict, scene):
     return model, cams, objs
 
 
-def setting_of(scene) -> str:
-    """The group of frames whose targets stand alike (a :class:`Shared` ``"setting"`` quantity's):
-    the scene's ``setting`` (where it was taken: one camera may take photos of several), else its
-    camera id (:func:`~.rig.camera_id_of`), else ``"data set"`` (every such frame)."""
-    from .rig import camera_id_of
-
-    if scene.setting is not None:
-        return scene.setting
-    return _setting(camera_id_of(scene))
-
-
 def _setting(camera_id: str | None) -> str:
+    """The group of a frame naming no ``setting``: its camera id, else ``"data set"``."""
     return camera_id if camera_id is not None else "data set"
 
 
@@ -687,30 +678,61 @@ def read_corner_residuals(model, result: dict, cams: np.ndarray, objs: np.ndarra
 
 
 #: the fewest frames' residual readings whose spread (:func:`scale_spread`) is read
-MIN_SPREAD_FRAMES = 5
+MIN_SPREAD_FRAMES = 10
+#: ... each sᵢ² at least this share of their median (limma's floor) ...
+MIN_SPREAD_SHARE = 1e-5
+#: ... and their spread beyond the χ² noise's at least this many of its standard errors (from the
+#: readings' fourth moment: one outlying frame makes a large one, and is no spread)
+SPREAD_Z = 1.5
 
 
-def scale_spread(squares: np.ndarray, dofs: np.ndarray) -> tuple[float, float] | None:
-    """Whether frames' corner scales spread, from their residual readings (squares px², degrees of
-    freedom dᵢ: :func:`read_corner_residuals`): the scaled inverse-χ² prior of the frames' true
-    variances, (s₀² px², d₀), that makes each sᵢ² = squaresᵢ / dᵢ an F-distributed reading, fitted by
-    the moments of log sᵢ² (Smyth 2004, "Linear models and empirical Bayes methods for assessing
-    differential expression in microarray experiments", SAGMB 3(1), section 6.2). None when the
-    log sᵢ² spread no more than their χ² noise does (one scale: d₀ infinite), or with fewer than
-    :data:`MIN_SPREAD_FRAMES` readings of positive squares and at least half a degree of freedom."""
+class ScaleSpread:
+    """:func:`scale_spread` of a data set's residual readings (KEY → (squares, dof)), and of all
+    of them but one frame's (:meth:`leave_out`), from sums: each frame's in constant time."""
+
+    def __init__(self, readings: dict):
+        from scipy.special import digamma, polygamma
+
+        keys = list(readings)
+        s2 = np.array([readings[k][0] for k in keys], float)
+        d = np.array([readings[k][1] for k in keys], float)
+        ok = (s2 >= 0) & (d >= 0.5) & np.isfinite(s2) & np.isfinite(d)
+        s2 = np.where(ok, s2 / np.where(ok, d, 1.0), np.nan)
+        floor = MIN_SPREAD_SHARE * float(np.nanmedian(s2)) if ok.any() else 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.log(np.maximum(s2, floor)) - digamma(d / 2.0) + np.log(d / 2.0)
+        self.index = {k: i for i, k in enumerate(keys)}
+        self.ok = ok
+        #: (k, readings) e¹…e⁴ and trigamma(dᵢ/2) of each reading (0 for one not made)
+        self.terms = np.where(ok, np.stack([e, e**2, e**3, e**4, polygamma(1, np.where(ok, d, 1.0) / 2.0)]), 0.0)
+        self.sums = self.terms.sum(axis=1)
+
+    def leave_out(self, key: str | None) -> tuple[float, float] | None:
+        """(s₀² px², d₀) of every reading but ``key``'s (all with None), or None (one scale)."""
+        n, sums = int(self.ok.sum()), self.sums
+        i = self.index.get(key)
+        if i is not None and self.ok[i]:
+            n, sums = n - 1, sums - self.terms[:, i]
+        if n < MIN_SPREAD_FRAMES:
+            return None
+        m1, r2, r3, r4, tri = sums / n
+        m2 = max(r2 - m1**2, 0.0)
+        m4 = max(r4 - 4 * m1 * r3 + 6 * m1**2 * r2 - 3 * m1**4, 0.0)
+        var = m2 * n / (n - 1)
+        se = math.sqrt(max(m4 - (n - 3) / (n - 1) * m2**2, 0.0) / n)  # of the sample variance
+        excess = var - tri
+        return _inverse_chi2_prior(m1, excess) if excess > SPREAD_Z * se else None
+
+
+def _inverse_chi2_prior(mean_e: float, excess: float) -> tuple[float, float] | None:
+    """(s₀², d₀) from the mean of the readings' e and their variance beyond the χ² noise's (Smyth
+    2004, section 6.2): trigamma(d₀/2) = excess by Newton's method, as limma's trigammaInverse;
+    None when the excess is not positive."""
     from scipy.special import digamma, polygamma
 
-    s2, d = np.asarray(squares, float), np.asarray(dofs, float)
-    ok = (s2 > 0) & (d >= 0.5) & np.isfinite(s2) & np.isfinite(d)
-    s2, d = s2[ok] / d[ok], d[ok]
-    n = len(s2)
-    if n < MIN_SPREAD_FRAMES:
-        return None
-    e = np.log(s2) - digamma(d / 2.0) + np.log(d / 2.0)
-    excess = float(np.mean((e - e.mean()) ** 2) * n / (n - 1) - np.mean(polygamma(1, d / 2.0)))
     if not excess > 0:
         return None
-    y = 0.5 + 1.0 / excess  # trigamma(y) = excess by Newton's method, as Smyth's trigammaInverse
+    y = 0.5 + 1.0 / excess
     for _ in range(50):
         tri = float(polygamma(1, y))
         step = tri * (1.0 - tri / excess) / float(polygamma(2, y))
@@ -718,7 +740,20 @@ def scale_spread(squares: np.ndarray, dofs: np.ndarray) -> tuple[float, float] |
         if -step / y < 1e-8:
             break
     d0 = 2.0 * y
-    return float(np.exp(e.mean() + digamma(d0 / 2.0) - np.log(d0 / 2.0))), d0
+    return float(np.exp(mean_e + digamma(d0 / 2.0) - np.log(d0 / 2.0))), d0
+
+
+def scale_spread(squares: np.ndarray, dofs: np.ndarray) -> tuple[float, float] | None:
+    """Whether frames' corner scales spread, from their residual readings (squares px², degrees of
+    freedom dᵢ: :func:`read_corner_residuals`): the scaled inverse-χ² prior of the frames' true
+    variances, (s₀² px², d₀), that makes each sᵢ² = squaresᵢ / dᵢ an F-distributed reading, fitted by
+    the moments of eᵢ = log sᵢ² − digamma(dᵢ/2) + log(dᵢ/2) (Smyth 2004, "Linear models and empirical
+    Bayes methods for assessing differential expression in microarray experiments", SAGMB 3(1),
+    section 6.2), each sᵢ² at least :data:`MIN_SPREAD_SHARE` of their median. None when the eᵢ spread
+    no more than their χ² noise does, by :data:`SPREAD_Z` standard errors of their variance (one
+    scale: d₀ infinite), or with fewer than :data:`MIN_SPREAD_FRAMES` readings of at least half a
+    degree of freedom."""
+    return ScaleSpread({i: (float(q), float(d)) for i, (q, d) in enumerate(zip(squares, dofs))}).leave_out(None)
 
 
 def _reads_tails(model) -> bool:
@@ -820,9 +855,12 @@ class DataSet:
     fitted_at_px: float | None = None
 
     @classmethod
-    def from_first_pass(cls, frames, folder, learn: tuple, *, focal_given_orientation: bool = True) -> "DataSet":
+    def from_first_pass(cls, frames, folder, learn: tuple, *, focal_given_orientation: bool = True,
+                        settings: dict | None = None) -> "DataSet":
         """Read every first-pass result in the batch folder ``folder`` of ``frames`` ((KEY, camera
         id) pairs; a frame without a result is left out: its groups learn from the others).
+        ``settings``: KEY → the ``setting`` every frame's scene names (None: read from the scenes
+        with a result; a frame whose first pass failed is then grouped by its camera).
 
         With ``focal_given_orientation`` (the default) each frame's focal length is read given the
         other frames' pool of its camera's pitch and roll (:func:`read_focal_given_orientation`),
@@ -842,10 +880,10 @@ class DataSet:
         given = focal_given_orientation and "log_focal" in learn
         read = tuple(learn) + tuple(n for n in GIVEN if given and n not in learn)
         readings: dict[str, list[Reading]] = {name: [] for name in read if name in SHARED}
-        kept, residuals, settings = {}, {}, {}
+        kept, residuals, named = {}, {}, dict(settings or {})
         for key, camera_id, scene, result in _results(frames, folder):
-            if scene.setting is not None:
-                settings[key] = scene.setting
+            if settings is None and scene.setting is not None:
+                named[key] = scene.setting
             model, cams, objs = _draws(result, scene)
             if CORNER_SCALE.name in learn and (r := read_corner_residuals(model, result, cams, objs)) is not None:
                 residuals[key] = r
@@ -857,7 +895,7 @@ class DataSet:
                 if name in readings:
                     readings[name] += rs
         ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
-                 {key: camera_id for key, camera_id in frames}, settings, tail, residuals)
+                 {key: camera_id for key, camera_id in frames}, named, tail, residuals)
         if given:
             focal = []
             for key, (result, cams, reweight) in kept.items():
@@ -915,14 +953,17 @@ class DataSet:
         if len(self.residuals) - (key in self.residuals) < 1 or dof <= 0:
             return None
         variance = max(squares, 0.0) / dof
-        if key in self.residuals and (spread := self._scale_spread(key)) is not None:
+        if key is not None and (spread := self.scale_spread_of(key)) is not None:
             variance, dof = (spread[1] * spread[0] + own[0]) / (spread[1] + own[1]), spread[1] + own[1]
         return max(float(f"{math.sqrt(variance):.2g}"), MIN_TARGET_SIGMA_PX), float(f"{dof:.1g}")
 
-    def _scale_spread(self, key: str | None) -> tuple[float, float] | None:
-        """:func:`scale_spread` of the frames' residual readings but ``key``'s."""
-        readings = [r for k, r in self.residuals.items() if k != key]
-        return scale_spread(np.array([r[0] for r in readings]), np.array([r[1] for r in readings]))
+    @cached_property
+    def _spread_sums(self) -> "ScaleSpread":
+        return ScaleSpread(self.residuals)
+
+    def scale_spread_of(self, key: str | None) -> tuple[float, float] | None:
+        """:func:`scale_spread` of every frame's residual reading but ``key``'s (all with None)."""
+        return self._spread_sums.leave_out(key)
 
     def tail_of(self, key: str | None) -> dict | None:
         """The crowd's tail frame ``key`` is handed (:meth:`TailPool.estimate`, leaving it out; all
@@ -960,17 +1001,24 @@ class DataSet:
         if (tail := self.tail_of(None)) is not None:
             out[REF_TAIL.label] = {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": tail}}
         if (scale := self.corner_scale_of(None)) is not None:
-            spread = self._scale_spread(None)
+            spread = self.scale_spread_of(None)
             out[CORNER_SCALE.label] = {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
                 "sd": scale[0], "dof": scale[1], "frames": len(self.residuals), "fitted_at_px": self.fitted_at_px,
                 **({} if spread is None else {"spread_sd": _sig(math.sqrt(spread[0])), "spread_dof": _sig(spread[1])})}}}
         return out
 
     def not_learnt(self) -> list[str]:
-        """What the batch set out to learn (:attr:`learn`) and could not, a line each: a quantity
+        """What the batch set out to learn (:attr:`learn`) and could not, a line each (and a
+        ``setting`` named as the group of frames that name none: one group for both): a quantity
         no frame read, or a group whose readings are too few or too weak to pool
         (:meth:`Pool.estimate`), with how many were informative and how many a pool needs."""
         lines = []
+        named = set(self.setting_of.values())
+        unnamed = {_setting(c) for k, c in self.camera_of.items() if k not in self.setting_of}
+        if "log_distance" in self.learn:
+            lines += [f"distance_m of {g}: the setting {g!r} is also the group of frames that name no setting "
+                      f"({'camera ' + repr(g) if g != 'data set' else 'neither setting nor camera'}): they share "
+                      "one population; rename the setting if they should not" for g in sorted(named & unnamed)]
         if CORNER_SCALE.name in self.learn and self.corner_scale_of(None) is None:
             lines.append(f"{CORNER_SCALE.label}: not learnt: no frame's dimension lines could be read")
         for name in self.learn:
@@ -1101,8 +1149,9 @@ def hand_back(ds: DataSet, key: str, scene, settings):
         scene = replace(scene, corner_scale=residual)
         block["corner_scale_px"] = {"from": "data set", "shared_by": "crowd", "sd": residual[0], "dof": residual[1],
                                     "read": "the first pass's residuals", "fitted_at_px": ds.fitted_at_px}
-        if key in ds.residuals and ds._scale_spread(key) is not None:
-            block["corner_scale_px"]["own"] = "the others' spread updated by the frame's own residuals"
+        if ds.scale_spread_of(key) is not None:
+            block["corner_scale_px"]["own"] = ("the others' spread updated by the frame's own residuals"
+                                               if key in ds.residuals else "the others' spread (no residuals of its own)")
     elif scene.corner_scale is not None:
         block["corner_scale_px"] = {"from": "data set" if settings.pool_scale else "the scene",
                                     "shared_by": "crowd", "sd": scene.corner_scale[0], "dof": scene.corner_scale[1]}
@@ -1173,7 +1222,8 @@ def dataset_lines(summary: dict) -> list[str]:
     head = f"  {'quantity':<16} {'by':<8} {'group':<24} {'pooled':>10}  {'uncertainty':<28} {'used/offered':<18} agreement"
     legend = ("  (held: every frame of the group takes the pooled value; spread: how far frames stray around it; "
               "used/offered of N: the frames whose reading is pooled / that could read it apart from their own "
-              "prior, of the group's N (a frame whose own prior decides it, a calibrated mounting say, offers none); "
+              "prior, of the group's N (a frame whose own prior decides it, a calibrated mounting say, or whose first "
+              "pass failed offers none); "
               "n_eff: the frames the pool rests on, counted by their weights; D: the pool less the frames' own "
               "median, in the pool's standard deviations)")
     return ["data set (what the frames share; each frame took the others'):", head, *rows, legend, *warns]
