@@ -77,7 +77,7 @@ def test_print_labels_is_the_shipped_spec(capsys):
     assert {lab["name"]: tuple(a["name"] for a in lab["attributes"]) for lab in spec} == LABEL_ATTRIBUTES
     assert set(REFERENCE_FIELDS) < set(LABEL_ATTRIBUTES["reference"])
     assert {lab["name"]: lab["type"] for lab in spec} == {"target": "points", "reference": "polyline",
-                                                          "horizon": "polyline", "camera": "tag"}
+                                                          "horizon": "polyline", "camera": "tag", "setting": "tag"}
     for lab in spec:
         for a in lab["attributes"]:
             # an unset select must stay unset (CVAT's sentinel), not default to its first value
@@ -550,6 +550,23 @@ def test_a_broken_zip_names_the_file(tmp_path, capsys):
 def _camera(value, extra=""):
     attr = "" if value is None else f'<attribute name="camera_id">{value}</attribute>'
     return f'<tag label="camera" source="manual">{attr}{extra}</tag>'
+
+
+def test_a_setting_tag_is_the_scenes_setting_and_goes_back_out(tmp_path):
+    """A ``setting`` tag on the image names where the photo was taken (the scene's ``setting``:
+    the data set's distance population is pooled per setting); tags of one image must agree, an
+    empty one is refused naming it; scenes → XML writes it back."""
+    tag = '<tag label="setting" source="manual"><attribute name="setting">{}</attribute></tag>'
+    (s,) = _convert(_doc(_TARGET.format(tid="sofa"), tag.format(" living room "), _camera("cam1"))).scenes
+    assert s.scene["setting"] == "living room" and s.scene["camera"] == {"id": "cam1"}
+    (err,) = _convert(_doc(_TARGET.format(tid="sofa"), tag.format(""))).errors
+    assert str(err).startswith("image 'im.jpg', shape 1 (tag 'setting'): a setting tag with an empty setting ''")
+    (err,) = _convert(_doc(_TARGET.format(tid="sofa"), tag.format("kitchen"), tag.format("street"))).errors
+    assert str(err).startswith("image 'im.jpg': setting 'kitchen' on shape 1 (tag 'setting') but 'street' on "
+                               "shape 2 (tag 'setting'): one photo has one setting")
+    back = read_cvat_xml(cvat_xml([s.scene]).encode())
+    (again,) = scenes_from_cvat(back).scenes
+    assert again.scene["setting"] == "living room"
 
 
 def test_a_camera_tag_is_the_scene_camera_id(tmp_path):

@@ -9,7 +9,8 @@ name), with the target's ``class`` and size (``length_m``/``width_m``/``height_m
 ``--targets`` table; else its class's size prior); ``reference``, a two-point polyline with the
 measurement in attributes named as :data:`~.annotation_tools.REFERENCE_FIELDS` and the
 ``target_id`` it names, if any; ``horizon``, a two-point polyline; a ``camera`` tag on the image,
-whose ``camera_id`` is the scene's ``camera.id``. Every shape may carry a ``worker`` attribute
+whose ``camera_id`` is the scene's ``camera.id``; a ``setting`` tag, whose ``setting`` is the
+scene's ``setting`` (where the photo was taken). Every shape may carry a ``worker`` attribute
 (CVAT records no per-shape annotator). Other shapes and labels are ignored with a note.
 
 The XML is not trusted: it is parsed incrementally by ``defusedxml`` with DTDs forbidden (a
@@ -37,14 +38,17 @@ from .scene import parse_scene, scene_to_dict
 
 __all__ = ["LABEL_ATTRIBUTES", "MAX_XML_BYTES", "MAX_XML_ELEMENTS", "cvat_label_spec", "read_cvat_xml", "scenes_from_cvat", "cvat_xml"]
 
-TARGET, REFERENCE, HORIZON, CAMERA = "target", "reference", "horizon", "camera"
+TARGET, REFERENCE, HORIZON, CAMERA, SETTING = "target", "reference", "horizon", "camera", "setting"
 #: Attributes of each label, in the order they are written.
 LABEL_ATTRIBUTES = {
     TARGET: ("target_id", "class", "length_m", "width_m", "height_m", "worker"),
     REFERENCE: ("target_id",) + REFERENCE_FIELDS + ("worker",),
     HORIZON: ("worker",),
     CAMERA: ("camera_id",),
+    SETTING: ("setting",),
 }
+#: The image's tags: label → the attribute that names the photo's ... and what it names
+_TAGS = {CAMERA: ("camera_id", "camera"), SETTING: ("setting", "setting")}
 _SELECTS = ("class", "measure", "mode", "unit")
 _N_POINTS = {TARGET: 4, REFERENCE: 2, HORIZON: 2}
 
@@ -251,13 +255,13 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
     width = _whole(image.get("width"), where, "width")
     height = _whole(image.get("height"), where, "height")
     shapes = {TARGET: [], REFERENCE: [], HORIZON: []}
-    cameras = []
+    tags: dict[str, list] = {label: [] for label in _TAGS}
     for k, el in enumerate(list(image)):
         label = el.get("label")
-        if label == CAMERA and el.tag == "tag":
-            cameras.append((k, el))
-        elif label == CAMERA:
-            notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (the camera is a tag on the image)")
+        if label in _TAGS and el.tag == "tag":
+            tags[label].append((k, el))
+        elif label in _TAGS:
+            notes.append(f"{where}, shape {k}: <{el.tag}> {label!r} ignored (the {label} is a tag on the image)")
         elif label not in shapes:
             notes.append(f"{where}, shape {k}: label {label!r} ignored")
         elif el.tag not in ("points", "polyline"):
@@ -318,35 +322,36 @@ def _image_scene(image: ET.Element, i: int, image_dir, out_dir, table: TargetTab
         refs.append(ref)
         origins[f"references[{k}]"] = s.desc
     path = None if image_dir is None else image_file(image_dir, name, out_dir, where, notes)
-    camera_id = _camera_id(cameras, where)
+    camera_id = _tag_name(tags, CAMERA, where)
     focal = table.focal([name], [t["id"] for t in targets], where)
     camera = {k: v for k, v in (("id", camera_id), ("focal_length_px", focal)) if v is not None}
     horizon = mean_horizon([s.pts for s in shapes[HORIZON]], width, where) if shapes[HORIZON] else None
     own = classes_block(targets, None, classes)
     scene = scene_dict((width, height), path, camera, horizon=horizon, classes=own, targets=targets,
-                       references=refs or None)
+                       references=refs or None, setting=_tag_name(tags, SETTING, where))
     base = safe_name(str(PurePosixPath(name).with_suffix(""))) if PurePosixPath(name).stem else stem
     return ImportedScene(base, checked_scene(scene, where, origins), where)
 
 
-def _camera_id(cameras: list, where: str) -> str | None:
-    """The camera's name from the image's ``camera`` tags (``(index, element)``): their
-    ``camera_id`` attribute, which must be filled in and the same on every such tag; None without
-    a tag."""
+def _tag_name(tags: dict, label: str, where: str) -> str | None:
+    """What the image's ``label`` tags (``tags[label]``: ``(index, element)``) name, the camera or
+    the setting (:data:`_TAGS`): their attribute, which must be filled in and the same on every such
+    tag; None without a tag."""
+    attr, what = _TAGS[label]
     found: dict[str, str] = {}
-    for k, el in cameras:
-        desc = f"shape {k} (tag {CAMERA!r})"
-        values = [(a.text or "").strip() for a in el.findall("attribute") if a.get("name") == "camera_id"]
+    for k, el in tags[label]:
+        desc = f"shape {k} (tag {label!r})"
+        values = [(a.text or "").strip() for a in el.findall("attribute") if a.get("name") == attr]
         if len(values) > 1:
-            raise ConversionError(f"{where}, {desc}", "attribute 'camera_id' is given twice")
+            raise ConversionError(f"{where}, {desc}", f"attribute {attr!r} is given twice")
         if not values or values[0] in MISSING:
-            got = "no camera_id attribute" if not values else f"an empty camera_id {values[0]!r}"
-            raise ConversionError(f"{where}, {desc}", f"a camera tag with {got}: fill in the camera's name "
+            got = f"no {attr} attribute" if not values else f"an empty {attr} {values[0]!r}"
+            raise ConversionError(f"{where}, {desc}", f"a {label} tag with {got}: fill in the {what}'s name "
                                                       "(or delete the tag)")
         if found and values[0] not in found:
             other, odesc = next(iter(found.items()))
-            raise ConversionError(where, f"camera_id {other!r} on {odesc} but {values[0]!r} on {desc}: one photo "
-                                         "has one camera")
+            raise ConversionError(where, f"{attr} {other!r} on {odesc} but {values[0]!r} on {desc}: one photo "
+                                         f"has one {what}")
         found.setdefault(values[0], desc)
     return next(iter(found), None)
 
@@ -430,11 +435,15 @@ def cvat_xml(scenes, *, image_names=None) -> str:
         w, h = group[0]["image"]["width"], group[0]["image"]["height"]
         horizons = {json.dumps(d.get("horizon")) for d in group}
         camera_ids = {(d.get("camera") or {}).get("id") for d in group}
+        settings = {d.get("setting") for d in group}
         if any((d["image"]["width"], d["image"]["height"]) != (w, h) for d in group) or len(horizons) > 1:
             raise ValueError(f"scenes on image {name!r} disagree on its size or horizon")
         if len(camera_ids) > 1:
             raise ValueError(f"scenes on image {name!r} disagree on its camera id "
                              f"({sorted(map(repr, camera_ids))}); one photo has one camera")
+        if len(settings) > 1:
+            raise ValueError(f"scenes on image {name!r} disagree on its setting ({sorted(map(repr, settings))}); "
+                             "one photo has one setting")
         ids = [t["id"] for d in group for t in d["targets"]]
         if len(set(ids)) < len(ids):
             raise ValueError(f"scenes on image {name!r} share a target id ({ids}); give each target its own")
@@ -460,9 +469,9 @@ def cvat_xml(scenes, *, image_names=None) -> str:
                 _shape_el(img, "polyline", REFERENCE, r["line"], vals)
         if group[0].get("horizon") is not None:
             _shape_el(img, "polyline", HORIZON, group[0]["horizon"], {})
-        camera_id = next(iter(camera_ids))
-        if camera_id is not None:
-            tag = ET.SubElement(img, "tag", {"label": CAMERA, "source": "manual"})
-            ET.SubElement(tag, "attribute", {"name": "camera_id"}).text = camera_id
+        for label, value in ((CAMERA, next(iter(camera_ids))), (SETTING, next(iter(settings)))):
+            if value is not None:
+                tag = ET.SubElement(img, "tag", {"label": label, "source": "manual"})
+                ET.SubElement(tag, "attribute", {"name": _TAGS[label][0]}).text = value
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
