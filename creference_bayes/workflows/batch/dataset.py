@@ -4,8 +4,9 @@ teaches each frame"; issue 62).
 
 A shared quantity is a :class:`Shared`: its name, who shares it (``shared_by``: the frames of one
 camera, the data set's crowd, or the frames of one *setting*: the scene's ``setting``, else its
-camera id, else the whole data set), whether the frames share one value (``"shared"``) or draw theirs around a common one
-(``"spread"``), and the bounds of what is pooled. :data:`SHARED` declares them all:
+camera id, else the whole data set), whether the frames share one value (``"shared"``) or draw
+theirs around a common one (``"spread"``), and the bounds of what is pooled. :data:`SHARED`
+declares them all:
 
 ==================  ==========  ======  ===============================================================
 quantity            shared_by   kind    a frame reads it from / is handed it back as
@@ -128,8 +129,8 @@ class Shared:
     name : the pooled scale's name (``log_focal``: log µ px; ``pitch``: radians; ...)
     label : the result's block key, in natural units (``focal_length_px``, ``pitch_deg``, ...)
     shared_by : ``"camera"`` (frames of one ``camera.id``), ``"crowd"`` (the data set's annotators),
-        ``"setting"`` (frames of one :func:`setting_of`: the scene's ``setting``, else its camera id,
-        else the whole data set)
+        ``"setting"`` (frames of one setting, :func:`_setting`: the scene's ``setting``, else its
+        camera id, else the whole data set)
     kind : ``"shared"`` (one value) or ``"spread"`` (each frame's, or target's, around a common one)
     natural : ``"log"`` (shown as exp: a median and a log-sd) or ``"angle"`` (radians shown in degrees)
     max_sd : the widest reading (sd, pooled scale) that is pooled (weaker ones are biased, docs/studies/rig.md)
@@ -526,9 +527,10 @@ def _draws(result: dict, scene):
     return model, cams, objs
 
 
-def _setting(camera_id: str | None) -> str:
-    """The group of a frame naming no ``setting``: its camera id, else ``"data set"``."""
-    return camera_id if camera_id is not None else "data set"
+def _setting(camera_id: str | None, setting: str | None = None) -> str:
+    """A frame's group of a ``"setting"`` quantity: the ``setting`` its scene names, else its camera
+    id, else ``"data set"`` (every frame that names neither)."""
+    return setting if setting is not None else camera_id if camera_id is not None else "data set"
 
 
 def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=None,
@@ -564,7 +566,7 @@ def read_readings(key: str, scene, result: dict, camera_id: str | None, draws=No
         # weights p_kind/p: the evidence on log d relative to the kind's density (location_prior.py)
         lik = likelihood(0.5 * np.log(x * x + z * z), location.relative_log_prior(x, z), log_reweight)
         if lik is not None:
-            readings.append(Reading(key, _setting(camera_id) if scene.setting is None else scene.setting, *lik))
+            readings.append(Reading(key, _setting(camera_id, scene.setting), *lik))
     if readings:
         out["log_distance"] = readings
     return out
@@ -838,7 +840,7 @@ class DataSet:
     pools : quantity name → :class:`Pool`
     learn : the quantity names learnt (:func:`plan`)
     camera_of : KEY → the frame's camera id (None: a camera of its own)
-    setting_of : KEY → the frame's setting (:func:`setting_of`), where it is not its camera's
+    setting_of : KEY → the ``setting`` the frame's scene names (:func:`_setting`), where it names one
     tail : the crowd's reference tail (:class:`TailPool`), when ``ref_dof`` is learnt
     residuals : KEY → the frame's reading of the corner scale (:func:`read_corner_residuals`),
         when ``corner_scale`` is learnt
@@ -973,9 +975,8 @@ class DataSet:
     def group_of(self, name: str, key: str) -> str | None:
         by = SHARED[name].shared_by
         camera_id = self.camera_of.get(key)
-        if by == "setting":
-            return self.setting_of.get(key) or _setting(camera_id)
-        return "crowd" if by == "crowd" else camera_id
+        return ("crowd" if by == "crowd" else _setting(camera_id, self.setting_of.get(key)) if by == "setting"
+                else camera_id)
 
     def estimate(self, name: str, key: str, leave_out: bool = True) -> Pooled | None:
         """The pool frame ``key`` is handed of quantity ``name`` (its group's, leaving it out)."""
@@ -1077,7 +1078,7 @@ def plan(scenes, settings) -> tuple[str, ...]:
         settings_groups: dict[str, list] = {}
         for cam, group in cameras.items():
             for s in group:
-                settings_groups.setdefault(_setting(cam) if s.setting is None else s.setting, []).append(s)
+                settings_groups.setdefault(_setting(cam, s.setting), []).append(s)
         if any(len(g) > MIN_POPULATION_FRAMES and sum(len(s.targets) for s in g) >= MIN_POPULATION_TARGETS
                for g in settings_groups.values()):
             learn.append("log_distance")
