@@ -71,6 +71,7 @@ TINY = {
                                      "--out", "rt"], ["rt/records.jsonl", "rt/tails_light_mixed_2.json"]),
                                    (["--monte-carlo"], []),
                                    (["--populations", "light", "--n", "1"], [])],
+    "scale_spread_power.py": [(["--trials", "3"], [])],
     "thin_designs.py": [(["--n", "1", "--min-ess", "100", "--out", "td"], ["td/thin.jsonl", "td/thin.md"]),
                         (["--n", "2", "--min-ess", "100", "--refs", "0", "--mixed", "--dataset", "none", "--declare-setting",
                           "--out", "tdb"],
