@@ -612,7 +612,12 @@ DATASET_BATCH = {
             "top3_share": 1.0, "frames_median": 6.1, "disagreement": -0.01, "warnings": [],
             "values": [{"frame": "f0", "value": 5.2, "low": 4.9, "high": 5.5, "used": True},
                        {"frame": "f1", "value": 6.5, "low": None, "high": None, "used": True}]}}},
-        "ref_dof": {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": {"dof": 2.0}}}}}
+        "ref_dof": {"shared_by": "crowd", "kind": "choice", "groups": {"crowd": {"dof": 2.0}}},
+        "corner_scale_px": {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
+            "sd": 7.6, "dof": 300.0, "frames": 2, "fitted_at_px": 8.9, "log_sd": 0.041, "spread_sd": 6.07,
+            "spread_dof": 4.3, "spread_log_sd": 0.383,
+            "values": [{"frame": "f0", "value": 4.1, "low": 3.0, "high": 5.6, "used": True},
+                       {"frame": "f1", "value": 11.0, "low": 8.1, "high": 15.0, "used": True}]}}}}}
 
 
 def _plot_dataset(data, ctx):

@@ -387,3 +387,27 @@ def test_a_data_set_pool_with_an_absurd_log_sd_is_refused_by_its_key():
         dataset_panels(block)
     block["focal_length_px"]["groups"]["rig/front"]["log_sd"] = 0.05
     assert dataset_panels(block)[0]["pool"] == pytest.approx((700.0 * math.exp(-0.05), 700.0 * math.exp(0.05)))
+
+
+def test_the_corner_scale_read_from_the_residuals_is_drawn_frame_by_frame_with_its_spread():
+    """A crowd of careful (5 px) and careless (10 px) frames: the data set's figure has a panel of
+    the corner scale, each frame's residual reading against the pool, and a frame's prior (the
+    lighter band) is the frames' spread around its typical scale, not around the pool; a batch.json
+    whose block keeps no readings (an older batch) has no such panel."""
+    from creference_bayes.vision.dataset_figures import dataset_panels
+    from creference_bayes.workflows.batch.dataset import DataSet
+
+    rng = np.random.default_rng(0)
+    dof = rng.uniform(2.0, 6.0, 80)
+    true = np.where(np.arange(80) % 2, 5.0, 10.0)
+    ds = DataSet({}, ("corner_scale",), residuals={f"k{k}": (float(true[k] ** 2 * rng.chisquare(dof[k])), float(dof[k]))
+                                                   for k in range(80)})
+    block = json.loads(json.dumps(ds.summary()))
+    (panel,) = dataset_panels(block)
+    crowd = block["corner_scale_px"]["groups"]["crowd"]
+    assert panel["label"] == "corner_scale_px" and len(panel["values"]) == 80 and panel["center"] == crowd["sd"]
+    low, high = panel["prior"]
+    assert low < crowd["spread_sd"] < high and math.sqrt(low * high) == pytest.approx(crowd["spread_sd"])
+    assert crowd["spread_sd"] < crowd["sd"]  # the typical scale sits below the pooled variance's
+    del crowd["values"]
+    assert dataset_panels(block) == []

@@ -6,7 +6,9 @@ One panel per quantity and group (a camera, the crowd, a setting): each frame's 
 target's, for the distances) with its one-sd interval, sorted, in grey where the pool left it out
 (too weak); the pooled value and its uncertainty as a band; for a quantity whose frames draw their
 values around a common one (a camera's height, the targets' distances), a lighter band of what a
-frame is handed (the pool's uncertainty with the spread between frames).
+frame is handed (the pool's uncertainty with the spread between frames). The crowd's corner scale
+read from the first pass's residuals: each frame's reading √(squares / dof) against the pool and,
+where the frames' scales spread, the spread's prior a frame's own reading updates.
 """
 
 from __future__ import annotations
@@ -54,12 +56,16 @@ def dataset_panels(summary) -> list[dict]:
         where = f"dataset.{label}"
         if not isinstance(entry, dict) or not isinstance(entry.get("groups"), dict):
             raise ValueError(f"{where}.groups: expected an object")
-        if entry.get("kind") in ("choice", "residuals"):  # the crowd's tail, its corner scale: no readings to draw
+        if entry.get("kind") == "choice":  # the crowd's tail: no readings to draw
             continue
         for group, b in entry["groups"].items():
             at = f"{where}.groups.{group}"
             if not isinstance(b, dict):
                 raise ValueError(f"{at}: expected an object")
+            if entry.get("kind") == "residuals":  # the corner scale: each frame's reading of its residuals
+                if "values" not in b:
+                    continue  # a batch that kept none
+                b = {**b, "median": b.get("sd")}
             values = b.get("values")
             if not isinstance(values, list) or not values:
                 raise ValueError(f"{at}.values: expected a list of readings (a batch of this version writes them)")
@@ -96,10 +102,15 @@ def dataset_panels(summary) -> list[dict]:
             title = (f"{str(label)[:40]}, {str(entry.get('shared_by', ''))[:20]} {str(group)[:40]}: pooled {value} "
                      f"from {frames if isinstance(frames, int) else '?'} frames{held}"
                      + "".join(f"\n{w[:120]}" for w in warns[:3]))
+            prior = None if spread is None else band(math.hypot(sd, spread))
+            if entry.get("kind") == "residuals" and spread is not None:  # a frame's prior: the frames' spread
+                typical = _number(b.get("spread_sd"), f"{at}.spread_sd")
+                if typical <= 0:
+                    raise ValueError(f"{at}.spread_sd: expected a positive number, got {typical!r}")
+                prior = (typical * math.exp(-spread), typical * math.exp(spread))
             panels.append({"label": str(label), "shared_by": str(entry.get("shared_by", "")), "group": str(group),
                            "log": log, "values": np.array(rows), "used": np.array(used), "frames": whose, "center": center,
-                           "pool": band(sd), "prior": None if spread is None else band(math.hypot(sd, spread)),
-                           "title": title, "warned": bool(warns)})
+                           "pool": band(sd), "prior": prior, "title": title, "warned": bool(warns)})
     return panels
 
 

@@ -726,6 +726,14 @@ class ScaleSpread:
         return _inverse_chi2_prior(m1, excess) if excess > SPREAD_Z * se else None
 
 
+def _log_sd_of_scale(dof: float) -> float:
+    """The sd of log s of a scale read on ``dof`` degrees of freedom (s² ~ σ² χ²(dof)/dof):
+    √trigamma(dof/2) / 2; the spread of the frames' log σ under a scaled inverse-χ² prior of d₀ the same."""
+    from scipy.special import polygamma
+
+    return math.sqrt(float(polygamma(1, dof / 2.0))) / 2.0
+
+
 def _inverse_chi2_prior(mean_e: float, excess: float) -> tuple[float, float] | None:
     """(s₀², d₀) from the mean of the readings' e and their variance beyond the χ² noise's (Smyth
     2004, section 6.2): trigamma(d₀/2) = excess by Newton's method, as limma's trigammaInverse;
@@ -963,6 +971,17 @@ class DataSet:
     def _spread_sums(self) -> "ScaleSpread":
         return ScaleSpread(self.residuals)
 
+    def _residual_values(self) -> list[dict]:
+        """Each frame's reading of the corner scale, √(squares / dof) px with its one-sd interval,
+        as ``batch.json`` keeps the other quantities' readings (:meth:`Pool.values`)."""
+        out = []
+        for key, (squares, dof) in self.residuals.items():
+            if squares > 0 and dof >= 0.5:
+                s, half = math.sqrt(squares / dof), _log_sd_of_scale(dof)
+                out.append({"frame": str(key), "value": _sig(s), "low": _sig(s * math.exp(-half)),
+                            "high": _sig(s * math.exp(half)), "used": True})
+        return out
+
     def scale_spread_of(self, key: str | None) -> tuple[float, float] | None:
         """:func:`scale_spread` of every frame's residual reading but ``key``'s (all with None)."""
         return self._spread_sums.leave_out(key)
@@ -1005,7 +1024,10 @@ class DataSet:
             spread = self.scale_spread_of(None)
             out[CORNER_SCALE.label] = {"shared_by": "crowd", "kind": "residuals", "groups": {"crowd": {
                 "sd": scale[0], "dof": scale[1], "frames": len(self.residuals), "fitted_at_px": self.fitted_at_px,
-                **({} if spread is None else {"spread_sd": _sig(math.sqrt(spread[0])), "spread_dof": _sig(spread[1])})}}}
+                "log_sd": round(_log_sd_of_scale(scale[1]), 4),
+                **({} if spread is None else {"spread_sd": _sig(math.sqrt(spread[0])), "spread_dof": _sig(spread[1]),
+                                              "spread_log_sd": round(_log_sd_of_scale(spread[1]), 4)}),
+                "values": self._residual_values()}}}
         return out
 
     def not_learnt(self) -> list[str]:
