@@ -409,5 +409,7 @@ def test_the_corner_scale_read_from_the_residuals_is_drawn_frame_by_frame_with_i
     low, high = panel["prior"]
     assert low < crowd["spread_sd"] < high and math.sqrt(low * high) == pytest.approx(crowd["spread_sd"])
     assert crowd["spread_sd"] < crowd["sd"]  # the typical scale sits below the pooled variance's
+    crowd["values"] = []  # every frame's corners on their projection (annotations without noise)
+    assert dataset_panels(block) == []
     del crowd["values"]
     assert dataset_panels(block) == []

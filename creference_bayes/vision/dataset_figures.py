@@ -63,8 +63,8 @@ def dataset_panels(summary) -> list[dict]:
             if not isinstance(b, dict):
                 raise ValueError(f"{at}: expected an object")
             if entry.get("kind") == "residuals":  # the corner scale: each frame's reading of its residuals
-                if "values" not in b:
-                    continue  # a batch that kept none
+                if not b.get("values"):
+                    continue  # a batch that kept none, or frames whose residuals read no squares
                 b = {**b, "median": b.get("sd")}
             values = b.get("values")
             if not isinstance(values, list) or not values:
