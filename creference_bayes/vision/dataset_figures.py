@@ -120,7 +120,8 @@ def dataset_figure(summary, *, fig: Figure | None = None) -> Figure:
     crowd's tail) gives ``ValueError`` too."""
     panels = dataset_panels(summary)
     if not panels:
-        raise ValueError("dataset: no quantity with readings to draw (the batch learnt only the crowd's tail, or a corner scale no frame's residuals read)")
+        raise ValueError("dataset: no quantity with readings to draw (the batch learnt only the crowd's tail, or a "
+                         "corner scale no frame's residuals read)")
     cols = 1 if len(panels) == 1 else 2
     rows = -(-len(panels) // cols)
     if fig is None:
