@@ -327,6 +327,32 @@ def test_targets_of_two_settings_under_one_group_are_not_handed_one_population(s
     assert block["distance_m"] == {"from": "the frame", "group": "street", "why": TWO_POPULATIONS}
 
 
+def test_a_setting_the_scenes_name_is_handed_its_population_even_with_two_modes():
+    """The same two-mode readings (4 m and 25 m), but ``street`` is a setting the scenes name: the
+    user says its frames are one setting, so the pool is handed back, as one population wide enough
+    for both modes (its random-effects spread), and says it has two modes; a group nobody named
+    keeps the guard."""
+    from creference_bayes.models.location_prior import LocationPrior
+    from creference_bayes.workflows.batch.dataset import TWO_MODES, TWO_POPULATIONS
+
+    near = _population(0, frames=20, median=4.0, log_sd=0.3, noise=0.2)
+    far = [replace(r, key=f"g{r.key}") for r in _population(10, frames=20, median=25.0, log_sd=0.3, noise=0.2)]
+    named = Pool(SHARED["log_distance"], near + far, named=frozenset({"street"}))
+    est = named.estimate("street", leave_out="f0")
+    assert named.mixed["street"] and est.check.warnings == (TWO_MODES,)
+    # wide enough for both: the modes are log(25 / 4) = 1.83 apart, each 0.3 wide
+    assert est.prior_sd > 0.8 and math.log(4.0) < est.center < math.log(25.0)
+    unnamed = Pool(SHARED["log_distance"], near + far, named=frozenset({"indoor"}))
+    assert TWO_POPULATIONS in unnamed.estimate("street", leave_out="f0").check.warnings
+    keys = {r.key: None for r in near + far}
+    ds = DataSet({"log_distance": named}, ("log_distance",), keys, {k: "street" for k in keys})
+    _, kwargs, block, _ = hand_back(ds, "f0", parse_scene(_scene(0, camera=None)), BatchSettings())
+    prior = kwargs["location_prior"]
+    assert isinstance(prior, LocationPrior) and prior.population[1] == pytest.approx(est.prior_sd, abs=1e-4)
+    assert block["distance_m"]["from"] == "data set" and block["distance_m"]["group"] == "street"
+    assert block["distance_m"]["warnings"] == [TWO_MODES]
+
+
 def test_frames_that_name_their_setting_get_the_population_of_their_setting(tmp_path):
     """One data set, no camera ids, frames of two settings (targets 3–6 m and 25–50 m away): each
     scene that names its ``setting`` is pooled with its setting's frames only and handed that

@@ -118,6 +118,9 @@ FEW_FRAMES = "the pool rests on few frames"
 DISAGREE = "the pool and the frames disagree"
 TWO_POPULATIONS = ("the readings look like two populations (a mixture fits them better by BIC): not handed "
                    "back; give each frame its scene's 'setting' (where it was taken)")
+#: ... said instead of a setting the scenes name: its frames are one population by the user's word, so
+#: the pool is handed back, as one population wide enough for both modes
+TWO_MODES = "the readings have two modes (a mixture fits them better by BIC): handed back as one wide population"
 
 
 @dataclass(frozen=True)
@@ -141,7 +144,8 @@ class Shared:
     one_population : a spread quantity that is handed back only when its group's readings look like
         one population: when two normal components fit them better by BIC (:func:`two_populations`),
         the pool carries :data:`TWO_POPULATIONS` and no frame is handed it (frames of two settings
-        under one group: indoor and outdoor photos without camera ids)
+        under one group: indoor and outdoor photos without camera ids); a group that is a setting the
+        scenes name is one population by the user's word, handed back with :data:`TWO_MODES`
     held : a shared quantity the frames take as given: each frame is handed the pool of *all* its
         group's frames (its own evidence counts once, inside the pool) as its value, and its result
         carries the pool's whole uncertainty (statistical ⊕ floor) as one scale its group's frames
@@ -463,9 +467,10 @@ def scale_depths(result: dict, log_k, log_k_map: float = 0.0) -> dict:
 
 class Pool:
     """One quantity's readings grouped once, as arrays: a frame's leave-one-out pool is then one
-    vectorised combination over its group's readings."""
+    vectorised combination over its group's readings. ``named``: the groups that are settings the
+    scenes name (each one population, whatever its readings look like)."""
 
-    def __init__(self, quantity: Shared, readings: list[Reading]):
+    def __init__(self, quantity: Shared, readings: list[Reading], named: frozenset = frozenset()):
         self.quantity = quantity
         groups: dict[str, list[Reading]] = {}
         for r in readings:
@@ -478,6 +483,7 @@ class Pool:
         self.mixed = {g: quantity.one_population and two_populations(
                           m[p >= quantity.max_sd**-2], p[p >= quantity.max_sd**-2], quantity.min_readings)
                       for g, (_, m, p) in self.groups.items()}
+        self.named = frozenset(named)
 
     def estimate(self, group: str, leave_out: str | None = None) -> Pooled | None:
         """The group's pool without the frame ``leave_out`` (a KEY: all its readings), or None when
@@ -495,7 +501,8 @@ class Pool:
         center, var, tau = combine(m[keep], p[keep], q.kind, q.min_spread)
         check = pool_check(m[keep], p[keep], center, var, int(offered.sum()))
         if self.mixed[group]:  # D measures the readings against one centre: said of two, it says nothing more
-            check = replace(check, warnings=tuple(w for w in check.warnings if w != DISAGREE) + (TWO_POPULATIONS,))
+            check = replace(check, warnings=tuple(w for w in check.warnings if w != DISAGREE) + (
+                TWO_MODES if group in self.named else TWO_POPULATIONS,))
         if q.kind == "shared":
             var += q.floor**2
         return Pooled(q, group, center, var, tau, frames, int(keep.sum()), check, tuple(dict.fromkeys(keys[offered])))
@@ -904,7 +911,8 @@ class DataSet:
             for name, rs in read_readings(key, scene, result, camera_id, (cams, objs), reweight).items():
                 if name in readings:
                     readings[name] += rs
-        ds = cls({name: Pool(SHARED[name], rs) for name, rs in readings.items()}, tuple(learn),
+        declared = frozenset(named.values())
+        ds = cls({name: Pool(SHARED[name], rs, declared) for name, rs in readings.items()}, tuple(learn),
                  {key: camera_id for key, camera_id in frames}, named, tail, residuals)
         if given:
             focal = []
