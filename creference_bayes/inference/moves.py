@@ -79,6 +79,10 @@ JUMP_SHARE = 0.5
 #: The widest log-size sd (every dimension) of a size that counts as known for the ridge step: a
 #: catalogue's answer (0.03) is, a class's prior (0.11 or more in its widest dimension) is not.
 KNOWN_SIZE_LOG_SD = 0.05
+#: The narrowest log-sd of an object's size prior above which its size says little of its depth
+#: (Misc's, 0.4 in every dimension; a car's height 0.09, a pedestrian's 0.07): in a frame with a known
+#: size, the camera's step does not carry such an object (:attr:`BlockTarget.carry`).
+VAGUE_SIZE_LOG_SD = 0.3
 #: The ridge step's acceptance its scale adapts towards while the sampler tunes (long steps: the
 #: ridge is long and flat; docs/studies/sampler.md, "The camera height's tail").
 RIDGE_ACC = 0.25
@@ -119,8 +123,16 @@ class BlockTarget:
         #: is free, when the camera height is and some object's size is known (:func:`sized`)
         self.ridge = free_ground & sized(model)
         #: (m,) the objects a camera step carries (:meth:`carried`): with ``carry_all`` (the
-        #: sampler's own sweeps) those whose ground offset is free, else the ridge's
+        #: sampler's own sweeps) those whose ground offset is free, else the ridge's. In a frame
+        #: with a known size, the sampler's step carries only the objects whose size tells their
+        #: depth: the depth of one whose size says little (:data:`VAGUE_SIZE_LOG_SD`) rests on its
+        #: ground contact, which a step at its depth moves along the ridge against its ground
+        #: offset's prior, so it follows the shear (docs/studies/sampler.md, "An object whose size
+        #: says little")
         self.carry = free_ground if carry_all else self.ridge
+        if carry_all and self.ridge.any():
+            tells = [o.sizes is not None or np.min(o.size_prior.log_sd) <= VAGUE_SIZE_LOG_SD for o in model.objects]
+            self.carry = free_ground & np.array(tells)
         self.cf, self.of = model.camera_free, model.object_free
         self.kc = int(self.cf.sum())
         self.m = model.n_objects
