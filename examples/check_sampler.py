@@ -9,13 +9,15 @@ Jacobian, the Laplace covariance at the MAP as its proposal shape, first quarter
 of the sampler's blocking, shear, independence or ensemble moves. Compared: each object's
 distance, x, z and yaw (wrapped) and the free camera parameters; Monte Carlo errors from bulk ESS.
 ``--distances K`` adds K workers' distances between pairs of targets (the terms that couple two
-objects). A check that it runs: ``python examples/check_sampler.py --seeds 1 --steps 400``.
+objects); ``--vague K`` makes K of them, with ``--sizes known``, objects of a class whose size
+says little (Misc, its class prior) beside targets of known size. A check that it runs: ``python examples/check_sampler.py --seeds 1 --steps 400``.
 
     python examples/check_sampler.py --seeds 1 2 3 --tier medium --steps 60000      # one target, 5 references
     python examples/check_sampler.py --seeds 1 2 3 --model paper --no-references --steps 60000
     python examples/check_sampler.py --objects 10 --seeds 1 2 3 --steps 60000
     python examples/check_sampler.py --objects 5 --distances 3 --seeds 1 2 3 --steps 60000
     python examples/check_sampler.py --objects 3 --sizes known --seeds 1 2 3 --steps 60000
+    python examples/check_sampler.py --objects 2 --sizes known --vague 1 --seeds 1 2 3 --steps 60000
 """
 
 from __future__ import annotations
@@ -100,6 +102,9 @@ def scene_of(args, seed: int):
         d = simulate_scene(seed, setting="street", n_objects=args.objects, sizes=args.sizes, horizon="none",
                            n_references=0, n_target_annotations=5, tier="low")
         add_distances(d, args.distances, np.random.default_rng(200 + seed))
+        for t in d["targets"][len(d["targets"]) - args.vague:] if args.vague else ():
+            t["class"] = "Misc"  # a class whose size says little: its prior, not the catalogue's size
+            t.pop("dimensions_m", None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return variant(s := parse_scene(d), 5, range(len(s.references)))
@@ -118,7 +123,11 @@ def main(argv=None) -> None:
                     help="with --objects: the targets' sizes from their class's prior, or known (a catalogue's)")
     ap.add_argument("--distances", type=int, default=0, metavar="K",
                     help="with --objects: add K workers' distances between random pairs of targets")
+    ap.add_argument("--vague", type=int, default=0, metavar="K",
+                    help="with --objects: K of the targets of class Misc, their size from its prior")
     args = ap.parse_args(argv)
+    if args.vague and (args.objects is None or args.vague >= args.objects):
+        ap.error("--vague K: needs --objects N with K < N")
     print("| seed | quantity | ours mean ± sd | reference mean ± sd | z | sd ratio |")
     print("|---|---|---|---|---|---|")
     worst = []

@@ -453,6 +453,52 @@ def test_a_step_along_the_ridge_moves_the_camera_height_and_every_ground_offset_
     assert not t2.ridge.any() and BlockKernel(t2, np.eye(5), np.eye(7)[None].repeat(3, 0), wc0, wo0).sr is None
 
 
+def test_in_a_frame_with_a_known_size_an_object_whose_size_says_little_is_not_carried():
+    """In a frame with a known size, the sampler's camera step carries the objects whose size tells
+    their depth (a known size, or a class prior as narrow as a car's) and not one of a vague class
+    (Misc): that one follows the shear, its working coordinates moving with the camera by B, while
+    a carried one keeps its pixel. The ridge (camera height and ground offsets) still holds all
+    three, the move is undone by the step back with the opposite log-Jacobian, and without a
+    known size every object is carried."""
+    from conftest import truth_scene
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.map import optimize
+    from creference_bayes.inference.moves import BlockTarget
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.pipeline import build_model
+
+    def fitted(known: bool):
+        d, _ = truth_scene(2, m=3, n_annotations=2, noise_px=2.0, sizes_known=True)
+        d["targets"][1]["class"] = "Car"
+        d["targets"][2]["class"] = "Misc"
+        for t in d["targets"][1:]:
+            t.pop("dimensions_m")  # class priors: a car's (narrow) and Misc's (vague)
+        if not known:
+            d["targets"][0].pop("dimensions_m")
+            d["targets"][0]["class"] = "Car"
+        model, _ = build_model(parse_scene(d))
+        est = optimize(model)
+        return est.fitted(model), est
+
+    fit, est = fitted(True)
+    wc0, wo0 = (x[0] for x in WorkingCoords(fit).to_work(est.camera[None], est.objects[None]))
+    B = np.random.default_rng(0).normal(0.0, 0.5, (3, 7, 5)) * fit.object_free[:, :, None]
+    target = BlockTarget(fit, 1.0, wc0, B, np.zeros((3, 7)), carry_all=True)
+    assert list(target.carry) == [True, True, False] and target.ridge.all()
+    wc = wc0[None].repeat(2, axis=0)
+    wt = wo0[None] - np.einsum("mik,nk->nmi", B, wc - wc0)
+    pc = wc + np.array([[0.05, 0.02, -0.01, 0.0, 0.0], [-0.03, -0.015, 0.02, 0.0, 0.0]])
+    pt, log_j = target.carried(wc, wt, pc)
+    before, after = target.working(target.join(wc, wt))[1], target.working(target.join(pc, pt))[1]
+    np.testing.assert_allclose(after[:, :2, :2], before[:, :2, :2], atol=1e-10)  # carried: the same pixel
+    np.testing.assert_allclose(after[:, 2] - before[:, 2], np.einsum("ik,nk->ni", B[2], pc - wc), atol=1e-10)
+    back, log_back = target.carried(pc, pt, wc)
+    np.testing.assert_allclose(back, wt, atol=1e-10)
+    np.testing.assert_allclose(log_back, -log_j, atol=1e-10)
+    plain, _ = fitted(False)
+    assert BlockTarget(plain, 1.0, wc0, B, np.zeros((3, 7)), carry_all=True).carry.all()
+
+
 @pytest.mark.parametrize("sizes_known", [True, False])
 def test_a_camera_step_carries_each_object_at_its_place_in_the_camera_frame(sizes_known):
     """A camera step (height, pitch, roll, focal length) carries every object so that its image
