@@ -499,6 +499,59 @@ def test_in_a_frame_with_a_known_size_an_object_whose_size_says_little_is_not_ca
     assert BlockTarget(plain, 1.0, wc0, B, np.zeros((3, 7)), carry_all=True).carry.all()
 
 
+
+def test_the_shear_of_an_object_of_known_size_measures_the_camera_height_in_metres():
+    """An object of known size has its depth t along its viewing ray d pinned by its image, so its
+    ground offset h − t d_y moves with the camera height h in metres. Its shear measures the
+    height so (h / h₀ − 1, the same as log(h / h₀) to first order); an object whose size comes from
+    a class prior keeps the working coordinate log h. With the slope a pinned depth gives
+    (∂g/∂log h = h₀ at c₀), holding the sheared coordinates keeps h − g however far the height
+    goes; the same slope on log h would not. The warm-up's regression finds that slope from draws,
+    and leaves no spread of g given the camera."""
+    from conftest import truth_scene
+    from creference_bayes.inference.blocks import _reestimate
+    from creference_bayes.inference.coords import WorkingCoords
+    from creference_bayes.inference.map import optimize
+    from creference_bayes.inference.moves import BlockTarget
+    from creference_bayes.io.scene import parse_scene
+    from creference_bayes.models.contract import C_HEIGHT, O_GROUND
+    from creference_bayes.pipeline import build_model
+
+    d, _ = truth_scene(2, m=3, n_annotations=2, noise_px=2.0, sizes_known=True)
+    d["targets"][2].pop("dimensions_m")
+    d["targets"][2]["class"] = "Car"  # a class prior
+    model, _ = build_model(parse_scene(d))
+    est = optimize(model)
+    fit = est.fitted(model)
+    wc0, wo0 = (x[0] for x in WorkingCoords(fit).to_work(est.camera[None], est.objects[None]))
+    h0 = float(np.exp(wc0[C_HEIGHT]))
+    B = np.zeros((3, 7, 5))
+    B[:, O_GROUND, C_HEIGHT] = h0  # a pinned depth's slope at c₀
+    target = BlockTarget(fit, 1.0, wc0, B, np.zeros((3, 7)))
+    assert list(target.metric) == [True, True, False]
+    wc = wc0 + np.outer([-0.5, 0.0, 0.3, 0.8], np.eye(5)[C_HEIGHT])  # h from 0.61 h₀ to 2.2 h₀
+    off = target.offset(wc)
+    np.testing.assert_allclose(off[:, :2, C_HEIGHT], np.expm1(wc[:, [C_HEIGHT]] - wc0[C_HEIGHT]).repeat(2, axis=1))
+    np.testing.assert_allclose(off[:, 2, C_HEIGHT], wc[:, C_HEIGHT] - wc0[C_HEIGHT])
+    np.testing.assert_allclose(np.delete(off, C_HEIGHT, axis=-1), 0.0, atol=1e-15)
+    wt = np.repeat((wo0 - np.einsum("mik,mk->mi", B, target.offset(wc0[None])[0]))[None], 4, axis=0)
+    (cams, objs) = target.natural(target.join(wc, wt))
+    gap = cams[:, C_HEIGHT, None] - objs[..., O_GROUND]
+    np.testing.assert_allclose(gap[:, :2], gap[1, :2][None].repeat(4, axis=0), rtol=1e-9)  # h − g kept
+    assert np.ptp(gap[:, 2]) > 0.1 * h0  # on log h, the same slope misses it
+
+    rng = np.random.default_rng(5)  # draws whose ground offsets follow h − g = const, h over a wide range
+    n = 4000
+    wcs = wc0 + np.outer(rng.normal(0.0, 0.4, n), np.eye(5)[C_HEIGHT]) * fit.camera_free
+    wos = wo0 + 0.01 * rng.standard_normal((n, 3, 7)) * fit.object_free
+    wos[..., O_GROUND] = (np.exp(wcs[:, C_HEIGHT]) - h0)[:, None] + wo0[:, O_GROUND] + 0.002 * rng.standard_normal((n, 3))
+    Sc0, Ao0, B0 = np.eye(5) * 1e-4, np.repeat(np.eye(7)[None] * 1e-9, 3, axis=0), np.zeros((3, 7, 5))
+    _, Ao, Bn, _ = _reestimate(target, wcs[:, None], wos[:, None], Sc0, Ao0, B0)
+    np.testing.assert_allclose(Bn[:2, O_GROUND, C_HEIGHT], 0.8 * h0, rtol=0.02)  # blended 80 / 20 with B0 = 0
+    sd_given_camera = np.sqrt(Ao[:, O_GROUND, O_GROUND] / 0.8)
+    assert np.all(sd_given_camera[:2] < 0.004) and sd_given_camera[2] > 0.03
+
+
 @pytest.mark.parametrize("sizes_known", [True, False])
 def test_a_camera_step_carries_each_object_at_its_place_in_the_camera_frame(sizes_known):
     """A camera step (height, pitch, roll, focal length) carries every object so that its image

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.contract import Model
 from .chains import Draws, SamplerSettings, SamplingError
 from .coords import WorkingCoords
 from .laplace import chol, conditional
@@ -16,17 +15,26 @@ from .moves import BlockKernel, BlockTarget
 __all__ = ["Blocks"]
 
 
-def _reestimate(model: Model, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
-    """Covariances and shear from warm-up draws (pooled over chains; working coordinates),
-    blended with the Laplace ones (80 % / 20 %); and the independence centres."""
+def _reestimate(target: BlockTarget, wc: np.ndarray, wo: np.ndarray, Sc0, Ao0, B0):
+    """Covariances and shear from warm-up draws (pooled over chains; working coordinates, each
+    object's shear on the camera as it measures it, :meth:`~.moves.BlockTarget.offset`), blended
+    with the Laplace ones (80 % / 20 %); and the independence centres."""
+    model = target.model
     cf = model.camera_free
     C, O = wc.reshape(-1, 5), wo.reshape(-1, model.n_objects, 7)
     cm, om = C.mean(axis=0), O.mean(axis=0)
     dc, do = C - cm, O - om
     n = len(C)
     Scc = np.where(np.outer(cf, cf), dc.T @ dc / (n - 1), 0.0)
-    cond, B = conditional(model, Scc, np.einsum("nmi,nc->mic", do, dc) / (n - 1),
-                          np.einsum("nmi,nmj->mij", do, do) / (n - 1))
+    Soo = np.einsum("nmi,nmj->mij", do, do) / (n - 1)
+    cond, B = conditional(model, Scc, np.einsum("nmi,nc->mic", do, dc) / (n - 1), Soo)
+    if target.metric.any():  # the same regression on the height in metres, for the objects that measure it so
+        dm = target.offset(C)[:, int(np.argmax(target.metric))]
+        dm = dm - dm.mean(axis=0)
+        Smm = np.where(np.outer(cf, cf), dm.T @ dm / (n - 1), 0.0)
+        cond_m, B_m = conditional(model, Smm, np.einsum("nmi,nc->mic", do, dm) / (n - 1), Soo)
+        cond = np.where(target.metric[:, None, None], cond_m, cond)
+        B = np.where(target.metric[:, None, None], B_m, B)
     return 0.8 * Scc + 0.2 * Sc0, 0.8 * cond + 0.2 * Ao0, 0.8 * B + 0.2 * B0, cm
 
 
@@ -50,7 +58,7 @@ class _Run:
         """The walkers at working coordinates (wc (C, 5), wo (C, m, 7)) in this segment's shear,
         ``flipped`` (C, m) the objects at their other handedness (None: none)."""
         t = self.target
-        wt = wo - np.einsum("mik,nk->nmi", t.B, wc - t.c0)
+        wt = wo - t.shift(wc)
         u = t.join(wc, wt, flipped)
         blobs = t.blocks(u)
         with np.errstate(invalid="ignore"):
@@ -112,8 +120,8 @@ class Blocks:
             keep = hist[len(hist) // 2:]  # re-estimate from the second half of the segment
             wcs, wos = np.array([h[0] for h in keep]), np.array([h[1] for h in keep])
             self._repilot(repilot, wcs, wos)  # the next segment's states are scored anew
-            Sc, Ao, B, mc = _reestimate(self.model, wcs, wos, Sc0, Ao0, B0)
-            mt = (wos - np.einsum("mik,tck->tcmi", B, wcs - wc0)).reshape(-1, m, 7).mean(axis=0)
+            Sc, Ao, B, mc = _reestimate(seg.target, wcs, wos, Sc0, Ao0, B0)
+            mt = (wos - np.einsum("mik,tcmk->tcmi", B, seg.target.offset(wcs))).reshape(-1, m, 7).mean(axis=0)
             if self.mix is not None:  # an object with several modes keeps its MAP mode's blocks (its
                 several = np.array([len(modes) > 1 for modes in self.found])  # draws span every mode)
                 Ao[several], B[several], mt[several] = Ao0[several], B0[several], wo0[several]

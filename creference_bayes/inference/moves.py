@@ -88,21 +88,28 @@ VAGUE_SIZE_LOG_SD = 0.3
 RIDGE_ACC = 0.25
 
 
+def known_sizes(model: Model) -> np.ndarray:
+    """(m,) which objects' sizes are known (given, or their prior within :data:`KNOWN_SIZE_LOG_SD`):
+    such an object's depth is pinned by its image."""
+    return np.array([o.sizes is not None or np.max(o.size_prior.log_sd) <= KNOWN_SIZE_LOG_SD for o in model.objects],
+                    bool)
+
+
 def sized(model: Model) -> bool:
-    """Whether some object's size is known (given, or its prior within :data:`KNOWN_SIZE_LOG_SD`):
-    its depth is then pinned by its image, so the camera height trades against the ground offsets
-    along the ridge, which the blocks' own moves cross slowly (docs/studies/sampler.md, "The
-    camera height's tail")."""
-    return any(o.sizes is not None or np.max(o.size_prior.log_sd) <= KNOWN_SIZE_LOG_SD for o in model.objects)
+    """Whether some object's size is known (:func:`known_sizes`): the camera height then trades
+    against the ground offsets along the ridge, which the blocks' own moves cross slowly
+    (docs/studies/sampler.md, "The camera height's tail")."""
+    return bool(known_sizes(model).any())
 
 
 class BlockTarget:
     """The log-posterior of ``model`` at temperature ``T``, by blocks, in the sampler's coordinates.
 
     The coordinates are the working coordinates (:mod:`.coords`) with each object measured from its
-    conditional mean given the camera: õᵢ = oᵢ − Bᵢ (c − c₀), ``B`` (m, 7, 5) the regression of the
-    objects on the camera and ``c0`` (5,) a reference camera (the shear has unit Jacobian; B = 0:
-    the working coordinates themselves). A state is a flat vector ``u`` of the free coordinates:
+    conditional mean given the camera: õᵢ = oᵢ − Bᵢ δᵢ(c), ``B`` (m, 7, 5) the regression of the
+    objects on the camera, δᵢ(c) the camera's displacement from a reference camera ``c0`` (5,) as
+    object i measures it (:meth:`offset`; the shear has unit Jacobian; B = 0: the working
+    coordinates themselves). A state is a flat vector ``u`` of the free coordinates:
     the camera's, then each object's; fixed entries come from ``c0`` and ``template`` (m, 7).
     """
 
@@ -117,11 +124,18 @@ class BlockTarget:
         self.yaw_window = yaw_window
         self.coords = WorkingCoords(model)
         self.c0, self.B = np.asarray(c0, float), np.asarray(B, float)
+        self.sheared = bool(np.any(self.B))
         self.template = np.asarray(template, float)  # (m, 7) sheared object coordinates of fixed entries
         free_ground = model.object_free[:, O_GROUND] & model.camera_free[C_HEIGHT]
         #: (m,) the objects the ridge step moves with the camera height: those whose ground offset
         #: is free, when the camera height is and some object's size is known (:func:`sized`)
         self.ridge = free_ground & sized(model)
+        #: (m,) the objects whose shear measures the camera height in metres (:meth:`offset`): those
+        #: of a known size. Such an object's image and size pin its depth t along its viewing ray d,
+        #: so its ground offset h − t d_y moves with the height h in metres, where a line in log h
+        #: misses it by more than its narrow spread given the camera (docs/studies/sampler.md, "The
+        #: shear of an object of known size")
+        self.metric = known_sizes(model)
         #: (m,) the objects a camera step carries (:meth:`carried`): with ``carry_all`` (the
         #: sampler's own sweeps) those whose ground offset is free, else the ridge's. In a frame
         #: with a known size, the sampler's step carries only the objects whose size tells their
@@ -184,9 +198,23 @@ class BlockTarget:
             return self.model
         return self.model.at_handedness(np.where(flipped, -self.model.handedness, self.model.handedness))
 
+    def offset(self, wc: np.ndarray) -> np.ndarray:
+        """(…, m, 5) the displacement δᵢ of cameras ``wc`` (…, 5) from ``c0`` that each object's shear
+        multiplies: in working coordinates, except that an object of :attr:`metric` measures the
+        height relative to c₀'s, h / h₀ − 1 (the same to first order)."""
+        d = np.asarray(wc, float)[..., None, :] - self.c0
+        d = np.broadcast_to(d, d.shape[:-2] + (self.m, 5)).copy()
+        if self.metric.any():
+            d[..., self.metric, C_HEIGHT] = np.expm1(d[..., self.metric, C_HEIGHT])
+        return d
+
+    def shift(self, wc: np.ndarray) -> np.ndarray | float:
+        """(n, m, 7) the shear Bᵢ δᵢ(c) of each object at cameras ``wc`` (n, 5) (0 where B = 0)."""
+        return np.einsum("mik,nmk->nmi", self.B, self.offset(wc)) if self.sheared else 0.0
+
     def unshear(self, wc: np.ndarray, wt: np.ndarray) -> np.ndarray:
         """Working object coordinates (n, m, 7) of sheared ones."""
-        return wt + np.einsum("mik,nk->nmi", self.B, wc - self.c0)
+        return wt + self.shift(wc)
 
     def carried(self, wc: np.ndarray, wt: np.ndarray, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The objects (sheared, ``wt`` (n, m, 7)) as a camera move ``wc`` → ``pc`` (n, 5) carries
@@ -220,7 +248,7 @@ class BlockTarget:
         po[..., O_GROUND] = np.where(self.carry, g, po[..., O_GROUND])
         sizes = (self.carry & ~self.ridge)[:, None] & self.of[:, O_SIZE]  # the ridge's keep their log(size / z)
         po[..., O_SIZE] = np.where(sizes, po[..., O_SIZE] - log_z[..., None], po[..., O_SIZE])
-        return po - np.einsum("mik,nk->nmi", self.B, pc - self.c0), np.where(np.isfinite(log_j), log_j, -np.inf)
+        return po - self.shift(pc), np.where(np.isfinite(log_j), log_j, -np.inf)
 
     def natural(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Natural parameters (cameras (n, 5), objects (n, m, 7)) of states (n, d)."""
@@ -364,7 +392,7 @@ class BlockKernel:
         return rs.standard_normal(shape) / np.sqrt(rs.chisquare(IND_DOF, shape[:-1] + (1,)) / IND_DOF)
 
     def _means(self, wc):  # (C, m, 1 + E, 7): each mode's centre given each walker's camera (C, 5)
-        return self.modes[1] + np.einsum("meic,nc->nmei", self.modes[5], wc - self.t.c0)
+        return self.modes[1] + np.einsum("meic,nmc->nmei", self.modes[5], self.t.offset(wc))
 
     def _log_q_obj(self, x, wc=None, f=None):  # (…, m): Student-t log-density (up to constants) of the object proposal
         if self.modes is not None:  # a mixture over the modes; x (C, [k,] m, 7), wc (C, 5), f as x[..., 0] (or None)
